@@ -1,0 +1,13 @@
+"""Unit constants. Internal quantities are SI; multiply to convert *to* SI.
+
+`x_rad = x_deg * DEG`, `x_deg = x_rad / DEG`.
+"""
+
+import math
+
+DEG = math.pi / 180.0
+ARCSEC = DEG / 3600.0
+HOUR = 3600.0
+DEG_PER_HOUR = DEG / HOUR  # rad/s
+G0 = 9.80665  # standard gravity, m/s^2: the unit "g" in results and reports
+MICRO_G = 1e-6 * G0
