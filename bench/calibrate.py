@@ -114,11 +114,15 @@ def _floats(a) -> list[float | None]:
 
 
 def solve(positions: list[PositionObservation], rotations: list[RotationObservation], site: Site,
-          mounting=None, gyro_prior: ImuCoefficients | None = None) -> Calibration:
+          mounting=None, gyro_prior: ImuCoefficients | None = None,
+          gyro_bias_stability: float = 0.0, acc_bias_stability: float = 0.0) -> Calibration:
     """Accelerometers and gyro bias from positions, gyro scale/axes from rotations.
 
     Without rotations, `gyro_prior` (e.g. an earlier result) supplies Kg and Eg for the
     gyro bias; without either, the gyro bias is not solved and a flag says so.
+    `*_bias_stability` (rad/s, m/s^2; the datasheet's bias instability) is added in
+    quadrature to the bias uncertainties: a drift common to the whole run looks like
+    bias to any schedule, so no residual can reveal it.
     """
     if not positions and not rotations:
         raise SolverError("nothing to solve: no position and no rotation observations")
@@ -126,9 +130,9 @@ def solve(positions: list[PositionObservation], rotations: list[RotationObservat
     acc = solve_accelerometers(positions, site, mounting) if positions else None
     gyros = None
     if rotations:
-        rate_noise = _pooled_gyro_noise(positions)
-        gyros = solve_gyros(rotations, site, mounting, rate_noise=rate_noise)
-        if not all(o.gyro_integral_sigma is not None for o in rotations) and rate_noise is None:
+        noise_density = _pooled_gyro_noise(positions)
+        gyros = solve_gyros(rotations, site, mounting, noise_density=noise_density)
+        if not all(o.gyro_integral_sigma is not None for o in rotations) and noise_density is None:
             flags.append("rotation uncertainties from residual scatter only (no static noise estimate)")
     bias = None
     if positions:
@@ -140,14 +144,22 @@ def solve(positions: list[PositionObservation], rotations: list[RotationObservat
     for name, triad in (("accelerometer", acc), ("gyro", gyros)):
         if triad is not None and any(triad.fit.scaled):
             flags.append(f"{name} residual scatter exceeds sample noise: uncertainties scaled by it")
+    if acc is not None and acc_bias_stability > 0:
+        acc.cov[:, 4, 4] += acc_bias_stability ** 2
+    if bias is not None and gyro_bias_stability > 0:
+        bias.sigma = np.hypot(bias.sigma, gyro_bias_stability)
     return Calibration(acc, gyros, bias, list(positions), list(rotations), flags)
 
 
 def _pooled_gyro_noise(positions: list[PositionObservation]) -> np.ndarray | None:
-    """Per-sample gyro rate std (counts/s) pooled over the static dwells, or None."""
-    stds = [o.gyro_std for o in positions if o.gyro_std is not None and o.sample_count > 1]
-    if not stds:
+    """White-noise density of each gyro (counts/s * sqrt(s)) pooled over the static dwells.
+
+    A dwell of length T with a mean known to sem has density sem * sqrt(T); a turn of
+    length T' then integrates to a count with sigma density * sqrt(T').
+    """
+    densities = [o.standard_error("gyro") ** 2 * o.duration_s for o in positions
+                 if o.standard_error("gyro") is not None]
+    if not densities:
         return None
-    weights = np.array([o.sample_count - 1 for o in positions if o.gyro_std is not None and o.sample_count > 1])
-    pooled = np.sqrt((weights[:, None] * np.array(stds) ** 2).sum(axis=0) / weights.sum())
+    pooled = np.sqrt(np.mean(densities, axis=0))
     return pooled if np.all(pooled > 0) else None

@@ -82,15 +82,15 @@ def trig_integrals(pieces: list[Piece], t_start: float, t_end: float) -> tuple[f
     Exact on constant-rate pieces; 48-point Gauss-Legendre on accelerating pieces
     (smooth integrands over at most a few radians: machine precision).
     """
-    bounds = [p.t0 for p in pieces[1:]]
-    edges = [t_start] + [b for b in bounds if t_start < b < t_end] + [t_end]
+    starts = [p.t0 for p in pieces]
+    edges = [t_start] + [b for b in starts if t_start < b < t_end] + [t_end]
     ic = is_ = 0.0
     for a, b in zip(edges[:-1], edges[1:]):
         if b <= a:
             continue
-        mid = 0.5 * (a + b)
-        k = max(0, int(np.searchsorted([p.t0 for p in pieces], mid, side="right")) - 1)
-        piece = pieces[k]
+        k = int(np.searchsorted(starts, 0.5 * (a + b), side="right")) - 1
+        # Before the first piece the axis holds its first angle.
+        piece = pieces[k] if k >= 0 else Piece(a, pieces[0].theta0, 0.0, 0.0)
         th_a, rate_a = piece.at(a)
         th_b, _ = piece.at(b)
         if piece.accel == 0.0 and rate_a != 0.0:
@@ -100,8 +100,8 @@ def trig_integrals(pieces: list[Piece], t_start: float, t_end: float) -> tuple[f
             ic += math.cos(th_a) * (b - a)
             is_ += math.sin(th_a) * (b - a)
         else:
-            t = mid + 0.5 * (b - a) * _GL_X
-            th, _ = sample_pieces([piece], t)
+            t = 0.5 * (a + b) + 0.5 * (b - a) * _GL_X
+            th = piece.theta0 + piece.rate0 * (t - piece.t0) + 0.5 * piece.accel * (t - piece.t0) ** 2
             w = 0.5 * (b - a) * _GL_W
             ic += float(w @ np.cos(th))
             is_ += float(w @ np.sin(th))

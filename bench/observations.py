@@ -31,7 +31,9 @@ def _vec3(x, name: str) -> np.ndarray:
 class PositionObservation:
     """Mean outputs (counts/s) over a dwell at one table position, with sample statistics.
 
-    `*_std` are the standard deviations of the per-sample rates (not of the mean).
+    `*_std` are the standard deviations of the per-sample rates; `*_sem` the 1-sigma of
+    the mean (from block means, see `mean_and_standard_error`). Without `*_sem` the
+    white-noise value std/sqrt(n) is used.
     """
 
     angles_deg: tuple[float, float, float]
@@ -41,23 +43,46 @@ class PositionObservation:
     acc_mean: np.ndarray
     gyro_std: np.ndarray | None = None
     acc_std: np.ndarray | None = None
+    gyro_sem: np.ndarray | None = None
+    acc_sem: np.ndarray | None = None
     label: str = ""
 
     def __post_init__(self) -> None:
         self.angles_deg = tuple(float(a) for a in _vec3(self.angles_deg, "angles_deg"))
         self.gyro_mean = _vec3(self.gyro_mean, "gyro_mean")
         self.acc_mean = _vec3(self.acc_mean, "acc_mean")
-        if self.gyro_std is not None:
-            self.gyro_std = _vec3(self.gyro_std, "gyro_std")
-        if self.acc_std is not None:
-            self.acc_std = _vec3(self.acc_std, "acc_std")
+        for name in ("gyro_std", "acc_std", "gyro_sem", "acc_sem"):
+            if getattr(self, name) is not None:
+                setattr(self, name, _vec3(getattr(self, name), name))
         if self.sample_count < 1 or not self.duration_s > 0:
             raise ValueError("a position observation needs at least one sample and a positive duration")
 
     def standard_error(self, which: str) -> np.ndarray | None:
-        """1-sigma of the mean for 'gyro' or 'acc' (white-noise assumption), or None."""
+        """1-sigma of the mean for 'gyro' or 'acc', or None when unknown."""
+        sem = self.gyro_sem if which == "gyro" else self.acc_sem
+        if sem is not None:
+            return sem
         std = self.gyro_std if which == "gyro" else self.acc_std
         return None if std is None else std / math.sqrt(self.sample_count)
+
+
+def mean_and_standard_error(rates: np.ndarray, blocks: int = 20) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean, per-sample std and 1-sigma of the mean of per-sample rates (n, 3).
+
+    The standard error comes from the scatter of `blocks` block means rather than from
+    std/sqrt(n): per-sample quantisation of a counter output is large but does not
+    accumulate (the summed count is exact), and slow noise shows in the block means.
+    """
+    rates = np.asarray(rates, dtype=float)
+    n = len(rates)
+    mean = rates.mean(axis=0)
+    std = rates.std(axis=0, ddof=1) if n > 1 else np.zeros(rates.shape[1])
+    blocks = min(blocks, n // 2)
+    if blocks < 2:
+        return mean, std, std / math.sqrt(max(n, 1))
+    size = n // blocks
+    block_means = rates[: size * blocks].reshape(blocks, size, -1).mean(axis=1)
+    return mean, std, block_means.std(axis=0, ddof=1) / math.sqrt(blocks)
 
 
 @dataclass

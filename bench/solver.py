@@ -197,9 +197,9 @@ def solve_accelerometers(obs: list[PositionObservation], site: Site, mounting=No
 
 
 def solve_gyros(obs: list[RotationObservation], site: Site, mounting=None,
-                rate_noise: np.ndarray | None = None, sample_rate_hz: float | None = None) -> SensorTriad:
-    """Rotation method. `rate_noise` (counts/s per sample, per gyro) sets the integral's
-    white-noise sigma when the observations carry none."""
+                noise_density: np.ndarray | None = None) -> SensorTriad:
+    """Rotation method. `noise_density` (counts/s * sqrt(s), per gyro) sets the integral's
+    white-noise sigma, density * sqrt(T), when the observations carry none."""
     if len(obs) < 4:
         raise SolverError(f"rotation method needs at least 4 turns, got {len(obs)}")
     design = rotation_design(obs, site, mounting)
@@ -207,9 +207,8 @@ def solve_gyros(obs: list[RotationObservation], site: Site, mounting=None,
     y = np.array([o.gyro_integral for o in obs])
     if all(o.gyro_integral_sigma is not None for o in obs):
         sigma = np.array([o.gyro_integral_sigma for o in obs])
-    elif rate_noise is not None:
-        # Sum of n white increments: sigma = std(rate) * dt * sqrt(n) = std(rate) * T / sqrt(n).
-        sigma = np.array([rate_noise * o.duration_s / math.sqrt(o.sample_count) for o in obs])
+    elif noise_density is not None:
+        sigma = np.array([noise_density * math.sqrt(o.duration_s) for o in obs])
     else:
         sigma = None
     return SensorTriad.from_fit(fit_per_sensor(design, y, sigma))

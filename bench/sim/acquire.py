@@ -1,0 +1,88 @@
+"""Run a schedule through the simulated world and reduce it to solver observations.
+
+A stand-in for the sequencer + log extraction until those exist: it moves the
+`SimTable`, lets the `SimImu` sample the true motion, and computes per-position means
+and per-turn rest-to-rest integrals exactly as the solver expects them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.observations import (FRAME_INDEX, PositionObservation, RotationObservation, mean_and_standard_error,
+                                turn_earth_integral)
+from bench.sim.imu import ImuSamples, SimImu
+from bench.sim.table import SimTable
+
+
+@dataclass(frozen=True)
+class AcquisitionTiming:
+    """Timing of a simulated calibration (s, deg/s, deg/s^2)."""
+
+    dwell_s: float = 60.0
+    settle_s: float = 5.0
+    move_rate_dps: float = 20.0
+    move_accel_dps2: float = 10.0
+    turn_rate_dps: float = 10.0
+    turn_accel_dps2: float = 5.0
+    rest_s: float = 2.0        # at rest inside the integration window before and after each turn
+
+    def __post_init__(self) -> None:
+        for name, value in self.__dict__.items():
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be positive, got {value}")
+
+
+def _window(samples: ImuSamples, t0: float, t1: float) -> np.ndarray:
+    """Mask of the samples whose whole interval lies inside [t0, t1]."""
+    dt = 1.0 / samples.rate_hz
+    return (samples.time_s - dt >= t0 - 1e-9) & (samples.time_s <= t1 + 1e-9)
+
+
+def acquire(table: SimTable, imu: SimImu, position_angles_deg, turns,
+            timing: AcquisitionTiming = AcquisitionTiming()) -> tuple[list[PositionObservation],
+                                                                      list[RotationObservation]]:
+    """Observe every position (dwell) then every turn (rest to rest) of a schedule.
+
+    `turns` are objects with start_deg, frame, direction, revolutions (schedule steps).
+    The nominal Earth integral of each turn is computed from the table's commanded
+    trajectory without the black box, as the solver would from recorded angles.
+    """
+    t = imu.last_time_s
+    positions: list[PositionObservation] = []
+    for k, angles in enumerate(position_angles_deg):
+        arrive = table.move_to(t, angles, timing.move_rate_dps, timing.move_accel_dps2)
+        start = arrive + timing.settle_s
+        end = start + timing.dwell_s
+        block = imu.generate(table, end)
+        mask = _window(block, start, end)
+        gyro_mean, gyro_std, gyro_sem = mean_and_standard_error(block.gyro_rate[mask])
+        acc_mean, acc_std, acc_sem = mean_and_standard_error(block.acc_rate[mask])
+        n = int(mask.sum())
+        positions.append(PositionObservation(
+            tuple(float(a) for a in angles), n / block.rate_hz, n, gyro_mean, acc_mean, gyro_std, acc_std,
+            gyro_sem, acc_sem, label=f"P{k + 1:02d}"))
+        t = end
+    rotations: list[RotationObservation] = []
+    for k, turn in enumerate(turns):
+        arrive = table.move_to(t, turn.start_deg, timing.move_rate_dps, timing.move_accel_dps2)
+        window_start = arrive + timing.settle_s
+        stop = table.turn(window_start + timing.rest_s, turn.frame, turn.direction, turn.revolutions,
+                          timing.turn_rate_dps, timing.turn_accel_dps2)
+        window_end = stop + timing.rest_s
+        block = imu.generate(table, window_end)
+        mask = _window(block, window_start, window_end)
+        n = int(mask.sum())
+        first = block.time_s[mask][0] - 1.0 / block.rate_hz
+        last = block.time_s[mask][-1]
+        earth = turn_earth_integral(table.site, turn.start_deg, FRAME_INDEX[turn.frame],
+                                    table.pieces(turn.frame), first, last, mounting=table.mounting)
+        rotations.append(RotationObservation(
+            tuple(float(a) for a in turn.start_deg), turn.frame, turn.direction, turn.revolutions,
+            n / block.rate_hz, n, block.gyro_counts[mask].sum(axis=0), earth_integral_rad=earth,
+            label=f"R{k + 1:02d}"))
+        t = window_end
+    return positions, rotations

@@ -1,0 +1,175 @@
+"""The simulated IMU: per-sample gyro and accelerometer increments from a SimTable.
+
+Sample n (0-based) covers [start + n/rate, start + (n+1)/rate]; its increment is the
+integral of the model output (DESIGN section 2, counts/s) over that interval, with
+3-point Gauss-Legendre per interval (split at the table's piece boundaries, so a
+rest-to-rest turn integrates exactly), plus noise on the input side
+(`F = Kg*(Eg.w + D0 + n)`, `J = Ka*(Ea.f + K0 + n)`) and optional quantisation.
+Successive `generate` calls continue seamlessly and are bit-identical to one call.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+from bench.imu_model import ImuCoefficients, NoiseModel
+from bench.sim.table import SimTable
+from bench.units import DEG, DEG_PER_HOUR, MICRO_G
+
+COUNTER_MODULUS = 2 ** 32
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(3)
+# Independent random streams, so that switching one noise term off leaves the others unchanged.
+_STREAMS = ("gyro_white", "acc_white", "gyro_gm", "acc_gm", "quantise")
+
+
+@dataclass
+class ImuSamples:
+    """A block of IMU samples; increments are per sample, in output counts."""
+
+    counter: np.ndarray      # (n,) int64, the IMU's own sample counter: 0 for the first sample, wraps at 2**32
+    time_s: np.ndarray       # (n,) end time of each sample interval, simulated seconds
+    gyro_counts: np.ndarray  # (n, 3) per-sample increments (integral-valued when quantised)
+    acc_counts: np.ndarray   # (n, 3)
+    rate_hz: float
+
+    def __len__(self) -> int:
+        return len(self.counter)
+
+    @property
+    def gyro_rate(self) -> np.ndarray:
+        """Gyro outputs as rates, counts/s."""
+        return self.gyro_counts * self.rate_hz
+
+    @property
+    def acc_rate(self) -> np.ndarray:
+        """Accelerometer outputs as rates, counts/s."""
+        return self.acc_counts * self.rate_hz
+
+    @classmethod
+    def concatenate(cls, blocks: list["ImuSamples"]) -> "ImuSamples":
+        """Join consecutive blocks of one IMU (at least one block)."""
+        return cls(np.concatenate([b.counter for b in blocks]), np.concatenate([b.time_s for b in blocks]),
+                   np.concatenate([b.gyro_counts for b in blocks]), np.concatenate([b.acc_counts for b in blocks]),
+                   blocks[0].rate_hz)
+
+
+class _GaussMarkov:
+    """First-order Gauss-Markov noise per channel: exact AR(1), stationary start, state carried."""
+
+    def __init__(self, sigma: float, tau: float, dt: float, rng: np.random.Generator):
+        self.sigma, self.rng = sigma, rng
+        self.phi = math.exp(-dt / tau) if tau > 0 else 0.0
+        self.gain = sigma * math.sqrt(1.0 - self.phi * self.phi)
+        # lfilter's transposed direct form: y[0] = gain*w[0] + zi, zi = phi*y[-1], y[-1] ~ N(0, sigma^2).
+        self.zi = (self.phi * sigma * rng.standard_normal(3))[None, :] if sigma > 0 else None
+
+    def draw(self, n: int) -> np.ndarray:
+        if self.zi is None or n == 0:
+            return np.zeros((n, 3))
+        y, self.zi = lfilter([self.gain], [1.0, -self.phi], self.rng.standard_normal((n, 3)), axis=0, zi=self.zi)
+        return y
+
+
+class _Quantiser:
+    """Integer counts per sample: accumulated output = floor(r0 + cumulative true count)."""
+
+    def __init__(self, rng: np.random.Generator):
+        self.total = rng.random(3)            # r0 + cumulative true count, carried as is
+        self.floor = np.floor(self.total)     # accumulated output so far (0 at the start)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        if len(x) == 0:
+            return x
+        total = np.cumsum(np.vstack([self.total, x]), axis=0)[1:]
+        floors = np.floor(total)
+        out = np.diff(np.vstack([self.floor, floors]), axis=0)
+        self.total, self.floor = total[-1].copy(), floors[-1].copy()
+        return out
+
+
+class SimImu:
+    """Signal generator of a simulated IMU mounted on a `SimTable`'s inner frame."""
+
+    def __init__(self, coefficients: ImuCoefficients, noise: NoiseModel = NoiseModel.off(),
+                 rate_hz: float = 1000.0, seed: int = 0, start_time_s: float = 0.0):
+        if not (math.isfinite(rate_hz) and rate_hz > 0):
+            raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+        self.coefficients, self.noise = coefficients, noise
+        self.rate_hz, self.start_time_s = float(rate_hz), float(start_time_s)
+        self._done = 0  # samples generated so far
+        rngs = dict(zip(_STREAMS, (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(5))))
+        self._rng = rngs
+        dt, tau = 1.0 / self.rate_hz, noise.correlation_time_s
+        self._gyro_gm = _GaussMarkov(noise.gyro_bias_instability_dph * DEG_PER_HOUR, tau, dt, rngs["gyro_gm"])
+        self._acc_gm = _GaussMarkov(noise.acc_bias_instability_ug * MICRO_G, tau, dt, rngs["acc_gm"])
+        # White noise, 1-sigma per sample in input units (rad/s, m/s^2).
+        self._gyro_sigma = noise.gyro_arw_deg_rt_h * DEG / 60.0 * math.sqrt(self.rate_hz)
+        self._acc_sigma = noise.acc_vrw_ug_rt_hz * MICRO_G * math.sqrt(self.rate_hz)
+        if noise.quantise:
+            self._q_gyro, self._q_acc = _Quantiser(rngs["quantise"]), _Quantiser(rngs["quantise"])
+
+    @property
+    def samples_generated(self) -> int:
+        return self._done
+
+    @property
+    def last_time_s(self) -> float:
+        """End time of the last generated sample (the start time before any)."""
+        return float(self._time(self._done))
+
+    def _time(self, n):
+        return self.start_time_s + np.asarray(n, dtype=float) / self.rate_hz
+
+    def _integrate(self, table: SimTable, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Integrals of the gyro and accel outputs (counts) over each [a_k, b_k], 3-point Gauss-Legendre."""
+        half = 0.5 * (b - a)
+        nodes = (0.5 * (a + b))[:, None] + half[:, None] * _GL_X
+        w = half[:, None] * _GL_W                                        # (n, 3 nodes)
+        w_b, f_b = table.body_rate_and_specific_force(nodes.reshape(-1))
+        gyro = self.coefficients.gyro_output(w_b).reshape(len(a), 3, 3)
+        acc = self.coefficients.acc_output(f_b).reshape(len(a), 3, 3)
+        return np.einsum("kn,knc->kc", w, gyro), np.einsum("kn,knc->kc", w, acc)
+
+    def _true_increments(self, table: SimTable, a: np.ndarray, b: np.ndarray):
+        gyro, acc = self._integrate(table, a, b)
+        # Split the intervals that contain a piece boundary (a kink in the rate) at it.
+        bounds = np.unique([p.t0 for f in range(3) for p in table.pieces(f)])
+        lo, hi = np.searchsorted(bounds, a, side="right"), np.searchsorted(bounds, b, side="left")
+        split = np.nonzero(hi > lo)[0]
+        if len(split):
+            idx, sa, sb = [], [], []
+            for k in split:
+                edges = np.concatenate([[a[k]], bounds[lo[k]:hi[k]], [b[k]]])
+                idx += [k] * (len(edges) - 1)
+                sa.append(edges[:-1])
+                sb.append(edges[1:])
+            g, c = self._integrate(table, np.concatenate(sa), np.concatenate(sb))
+            gyro[split], acc[split] = 0.0, 0.0
+            np.add.at(gyro, idx, g)
+            np.add.at(acc, idx, c)
+        return gyro, acc
+
+    def generate(self, table: SimTable, t_end: float) -> ImuSamples:
+        """All samples whose interval ends in (last generated time, t_end]."""
+        total = max(self._done, int(math.floor((t_end - self.start_time_s) * self.rate_hz + 1e-9)))
+        n_idx = np.arange(self._done, total, dtype=np.int64)
+        self._done = total
+        a, b = self._time(n_idx), self._time(n_idx + 1)
+        n = len(n_idx)
+        gyro, acc = self._true_increments(table, a, b) if n else (np.zeros((0, 3)), np.zeros((0, 3)))
+        dt = 1.0 / self.rate_hz
+        gyro_noise = self._gyro_gm.draw(n)
+        if self._gyro_sigma > 0:
+            gyro_noise = gyro_noise + self._gyro_sigma * self._rng["gyro_white"].standard_normal((n, 3))
+        acc_noise = self._acc_gm.draw(n)
+        if self._acc_sigma > 0:
+            acc_noise = acc_noise + self._acc_sigma * self._rng["acc_white"].standard_normal((n, 3))
+        gyro = gyro + self.coefficients.gyro_scale * gyro_noise * dt
+        acc = acc + self.coefficients.acc_scale * acc_noise * dt
+        if self.noise.quantise:
+            gyro, acc = self._q_gyro(gyro), self._q_acc(acc)
+        return ImuSamples(n_idx % COUNTER_MODULUS, b, gyro, acc, self.rate_hz)

@@ -1,0 +1,403 @@
+"""Load and validate calibration schedules written as TOML.
+
+A schedule file looks like this (angles are (outer, middle, inner) frame angles in
+degrees, DESIGN section 2 sign convention)::
+
+    format = "turntable-bench/schedule"
+    version = 1
+    name = "optimal-24"
+    kind = "positions"          # "positions" | "rotations" | "table-check"
+    description = "Optimal 24 positions, 12 inner-symmetric groups (paper Table 1)"
+    source = "Ma & Zhou 2020, Table 1"   # optional literature reference
+
+    [[position]]                # kinds "positions" and "table-check"
+    angles_deg = [0, 0, 0]      # outer, middle, inner
+    group = 1                   # optional positive int
+
+    [[rotation]]                # kind "rotations" only
+    start_deg = [0, 90, 0]      # outer, middle, inner initial state
+    frame = "outer"             # "outer" | "middle" | "inner"
+    direction = "ccw"           # "ccw" | "cw"
+    revolutions = 1             # whole number >= 1
+
+Rules checked here (each violation is a one-line `ScheduleError` naming the file,
+the 1-based line and the field):
+
+- top-level keys exactly as above (`source`, `position`, `rotation` optional);
+  `format` and `version` must match, `kind` must be known;
+- no unknown keys inside a step table (catches typos such as ``angle_deg``), no
+  missing required fields, no wrong types (a bool is not a number);
+- "positions" angles and rotation start states are positive positions: multiples of
+  90 in [0, 360); "table-check" angles are any finite value in [0, 360);
+- no duplicate steps (same angles; same start, frame and direction);
+- positions/table-check files hold >= 1 ``[[position]]`` and no ``[[rotation]]``,
+  rotations files the reverse.
+
+Steps are numbered from 1 in field names, e.g. ``position[3].angles_deg``.
+"""
+
+from __future__ import annotations
+
+import math
+import pathlib
+import re
+import tomllib
+from dataclasses import dataclass, field, replace
+
+FORMAT = "turntable-bench/schedule"
+VERSION = 1
+KINDS = ("positions", "rotations", "table-check")
+FRAMES = ("outer", "middle", "inner")
+DIRECTIONS = ("ccw", "cw")
+
+_REQUIRED_TOP = ("format", "version", "name", "kind", "description")
+_OPTIONAL_TOP = ("source", "position", "rotation")
+_POSITION_KEYS = {"angles_deg": True, "group": False}  # key -> required
+_ROTATION_KEYS = {"start_deg": True, "frame": True, "direction": True, "revolutions": True}
+
+
+@dataclass(frozen=True)
+class PositionStep:
+    """One static position: frame angles (outer, middle, inner) in degrees."""
+
+    angles_deg: tuple[float, float, float]
+    group: int | None = None
+    line: int | None = None  # 1-based line of its [[position]] header
+
+
+@dataclass(frozen=True)
+class RotationStep:
+    """One turn: from `start_deg`, `frame` turns `revolutions` whole turns in `direction`."""
+
+    start_deg: tuple[float, float, float]
+    frame: str
+    direction: str
+    revolutions: int
+    line: int | None = None  # 1-based line of its [[rotation]] header
+
+    @property
+    def sign(self) -> int:
+        """+1 for CCW (positive right-handed rotation about the frame axis), -1 for CW."""
+        return 1 if self.direction == "ccw" else -1
+
+    @property
+    def frame_index(self) -> int:
+        """0 outer, 1 middle, 2 inner."""
+        return FRAMES.index(self.frame)
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """A validated schedule; `source` is where it came from, `reference` its literature source."""
+
+    name: str
+    kind: str
+    description: str
+    source: str
+    positions: tuple[PositionStep, ...] = ()
+    rotations: tuple[RotationStep, ...] = ()
+    reference: str = ""
+
+    @property
+    def steps(self) -> tuple[PositionStep | RotationStep, ...]:
+        """The positions or the rotations, whichever this kind holds."""
+        return self.rotations if self.kind == "rotations" else self.positions
+
+
+class ScheduleError(ValueError):
+    """A schedule problem, rendered as one line ``path:line: field: message``."""
+
+    def __init__(self, path: str, line: int | None, field: str | None, message: str):
+        self.path = str(path)
+        self.line = line
+        self.field = field
+        # One line, always: CLI output and logs rely on it.
+        self.message = " ".join(str(message).split())
+        super().__init__(str(self))
+
+    def __reduce__(self):  # keep it picklable despite the custom __init__
+        return type(self), (self.path, self.line, self.field, self.message)
+
+    def __str__(self) -> str:
+        head = self.path if self.line is None else f"{self.path}:{self.line}"
+        return ": ".join([head] + ([self.field] if self.field else []) + [self.message])
+
+
+# --- line locator -----------------------------------------------------------------
+# tomllib reports no positions for parsed values, so map keys to lines by scanning
+# the raw text. It only runs on text tomllib accepted, so a light scan is enough.
+
+_ARRAY_HEADER = re.compile(r"\s*\[\[\s*([^\]]+?)\s*\]\]")
+_TABLE_HEADER = re.compile(r"\s*\[\s*([^\]]+?)\s*\]")
+_KEY_LINE = re.compile(r"""\s*("(?:[^"\\]|\\.)*"|'[^']*'|[A-Za-z0-9_-]+)\s*[.=]""")
+_STRING = re.compile(r""""(?:[^"\\]|\\.)*"|'[^']*'""")
+
+
+def _bracket_balance(raw: str) -> int:
+    """Open minus closed brackets/braces outside strings and comments (multi-line values)."""
+    code = _STRING.sub('""', raw).split("#", 1)[0]
+    return code.count("[") + code.count("{") - code.count("]") - code.count("}")
+
+
+def _opens_or_closes_string(raw: str) -> bool:
+    """An odd count of triple quotes opens or closes a multi-line string."""
+    return (raw.count('"""') + raw.count("'''")) % 2 == 1
+
+
+@dataclass
+class _TableLines:
+    header: int
+    keys: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass
+class _LineMap:
+    top: dict[str, int] = field(default_factory=dict)
+    tables: dict[str, list[_TableLines]] = field(default_factory=dict)
+
+    def table(self, name: str, index: int) -> int | None:
+        found = self.tables.get(name, [])
+        return found[index].header if index < len(found) else self.top.get(name)
+
+    def key(self, name: str, index: int, key: str) -> int | None:
+        found = self.tables.get(name, [])
+        if index < len(found) and key in found[index].keys:
+            return found[index].keys[key]
+        return self.table(name, index)
+
+
+def _bare(key: str) -> str:
+    return key[1:-1] if key[:1] in "\"'" else key
+
+
+def _locate_lines(text: str) -> _LineMap:
+    """Map top-level keys and keys of each ``[[name]]`` table to 1-based lines."""
+    lines = _LineMap()
+    current: _TableLines | None = None  # None: top level or another table
+    in_other_table = False
+    in_string = False  # inside a multi-line string
+    depth = 0  # inside a multi-line array or inline table when > 0
+    for number, raw in enumerate(text.splitlines(), start=1):
+        if in_string:
+            in_string = not _opens_or_closes_string(raw)
+            continue
+        if depth > 0:
+            depth += _bracket_balance(raw)
+            in_string = _opens_or_closes_string(raw)
+            continue
+        if match := _ARRAY_HEADER.match(raw):
+            name = _bare(match.group(1))
+            current = _TableLines(number)
+            lines.tables.setdefault(name, []).append(current)
+            lines.top.setdefault(name.split(".")[0], number)
+            in_other_table = False
+        elif match := _TABLE_HEADER.match(raw):
+            lines.top.setdefault(_bare(match.group(1).split(".")[0]), number)
+            current, in_other_table = None, True
+        elif match := _KEY_LINE.match(raw):
+            key = _bare(match.group(1))
+            if current is not None:
+                current.keys.setdefault(key, number)
+            elif not in_other_table:
+                lines.top.setdefault(key, number)
+            depth = _bracket_balance(raw)
+            in_string = _opens_or_closes_string(raw)
+    return lines
+
+
+# --- validation -------------------------------------------------------------------
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+class _Validator:
+    """Turns a parsed TOML document into a `Schedule`, raising on the first problem."""
+
+    def __init__(self, doc: dict, lines: _LineMap, path: str):
+        self.doc, self.lines, self.path = doc, lines, path
+
+    def fail(self, line: int | None, field: str | None, message: str) -> ScheduleError:
+        return ScheduleError(self.path, line, field, message)
+
+    def top_string(self, key: str) -> str:
+        value = self.doc[key]
+        if not isinstance(value, str):
+            raise self.fail(self.lines.top.get(key), key, f"must be a string, got {value!r}")
+        return value
+
+    def run(self) -> Schedule:
+        doc, top = self.doc, self.lines.top
+        if "format" not in doc:
+            raise self.fail(None, "format", f"missing required key (expected {FORMAT!r})")
+        if doc["format"] != FORMAT:
+            raise self.fail(top.get("format"), "format", f"expected {FORMAT!r}, got {doc['format']!r}")
+        if "version" not in doc:
+            raise self.fail(None, "version", "missing required key")
+        if not _is_int(doc["version"]) or doc["version"] != VERSION:
+            raise self.fail(top.get("version"), "version",
+                            f"unsupported version {doc['version']!r} (supported: {VERSION})")
+        for key in doc:
+            if key not in _REQUIRED_TOP and key not in _OPTIONAL_TOP:
+                allowed = ", ".join(_REQUIRED_TOP + _OPTIONAL_TOP)
+                raise self.fail(top.get(key), key, f"unknown key (allowed: {allowed})")
+        for key in _REQUIRED_TOP:
+            if key not in doc:
+                raise self.fail(None, key, "missing required key")
+        name, kind, description = (self.top_string(k) for k in ("name", "kind", "description"))
+        reference = self.top_string("source") if "source" in doc else ""
+        if not name.strip():
+            raise self.fail(top.get("name"), "name", "must not be empty")
+        if kind not in KINDS:
+            raise self.fail(top.get("kind"), "kind", f"unknown kind {kind!r} (expected one of {', '.join(KINDS)})")
+
+        wanted, unwanted = ("rotation", "position") if kind == "rotations" else ("position", "rotation")
+        if unwanted in doc:
+            raise self.fail(top.get(unwanted), unwanted,
+                            f"[[{unwanted}]] tables are not allowed in a {kind!r} schedule")
+        tables = doc.get(wanted, [])
+        if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+            raise self.fail(top.get(wanted), wanted, f"must be an array of tables ([[{wanted}]])")
+        if not tables:
+            raise self.fail(None, wanted, f"a {kind!r} schedule needs at least one [[{wanted}]] table")
+
+        positions, rotations = (), ()
+        if kind == "rotations":
+            rotations = tuple(self._rotations(tables))
+        else:
+            positions = tuple(self._positions(tables, positive_only=kind == "positions"))
+        return Schedule(name=name, kind=kind, description=description, source=self.path,
+                        positions=positions, rotations=rotations, reference=reference)
+
+    def _check_keys(self, table_name: str, index: int, table: dict, allowed: dict[str, bool]) -> None:
+        label = f"{table_name}[{index + 1}]"
+        for key in table:
+            if key not in allowed:
+                raise self.fail(self.lines.key(table_name, index, key), f"{label}.{key}",
+                                f"unknown key (allowed: {', '.join(allowed)})")
+        for key, required in allowed.items():
+            if required and key not in table:
+                raise self.fail(self.lines.table(table_name, index), f"{label}.{key}", "missing required field")
+
+    def _angles(self, table_name: str, index: int, key: str, value: object,
+                positive_only: bool) -> tuple[float, float, float]:
+        line, label = self.lines.key(table_name, index, key), f"{table_name}[{index + 1}].{key}"
+        if not isinstance(value, list) or len(value) != 3 or not all(_is_number(v) for v in value):
+            raise self.fail(line, label, f"must be 3 numbers [outer, middle, inner] in degrees, got {value!r}")
+        for axis, angle_deg in zip(FRAMES, value):
+            if not math.isfinite(angle_deg) or not 0 <= angle_deg < 360:
+                raise self.fail(line, label, f"{axis} angle {angle_deg!r} is outside [0, 360) deg")
+            # Exact test on purpose: positive positions are written as whole multiples.
+            if positive_only and angle_deg % 90 != 0:
+                raise self.fail(line, label, f"{axis} angle {angle_deg!r} is not a multiple of 90 deg "
+                                "(positive positions only)")
+        return tuple(float(v) + 0.0 for v in value)  # + 0.0 turns -0.0 into 0.0
+
+    def _positions(self, tables: list[dict], positive_only: bool):
+        seen: dict[tuple, int] = {}
+        for index, table in enumerate(tables):
+            self._check_keys("position", index, table, _POSITION_KEYS)
+            angles_deg = self._angles("position", index, "angles_deg", table["angles_deg"], positive_only)
+            group = table.get("group")
+            if group is not None and (not _is_int(group) or group < 1):
+                raise self.fail(self.lines.key("position", index, "group"), f"position[{index + 1}].group",
+                                f"must be a positive integer, got {group!r}")
+            header = self.lines.table("position", index)
+            if angles_deg in seen:
+                earlier = seen[angles_deg]
+                raise self.fail(self.lines.key("position", index, "angles_deg"),
+                                f"position[{index + 1}].angles_deg",
+                                f"duplicate of position[{earlier + 1}] at line {self.lines.table('position', earlier)}")
+            seen[angles_deg] = index
+            yield PositionStep(angles_deg=angles_deg, group=group, line=header)
+
+    def _rotations(self, tables: list[dict]):
+        seen: dict[tuple, int] = {}
+        for index, table in enumerate(tables):
+            self._check_keys("rotation", index, table, _ROTATION_KEYS)
+            label = f"rotation[{index + 1}]"
+            start_deg = self._angles("rotation", index, "start_deg", table["start_deg"], positive_only=True)
+            for key, choices in (("frame", FRAMES), ("direction", DIRECTIONS)):
+                if table[key] not in choices:
+                    raise self.fail(self.lines.key("rotation", index, key), f"{label}.{key}",
+                                    f"got {table[key]!r}, expected one of {', '.join(choices)}")
+            revolutions = table["revolutions"]
+            if not _is_int(revolutions) or revolutions < 1:
+                raise self.fail(self.lines.key("rotation", index, "revolutions"), f"{label}.revolutions",
+                                f"must be a whole number >= 1, got {revolutions!r}")
+            header = self.lines.table("rotation", index)
+            key = (start_deg, table["frame"], table["direction"])
+            if key in seen:
+                earlier = seen[key]
+                raise self.fail(header, label, f"duplicate of rotation[{earlier + 1}] at line "
+                                f"{self.lines.table('rotation', earlier)} (same start, frame and direction)")
+            seen[key] = index
+            yield RotationStep(start_deg=start_deg, frame=table["frame"], direction=table["direction"],
+                               revolutions=revolutions, line=header)
+
+
+# --- public entry points ----------------------------------------------------------
+
+_TOML_LOCATION = re.compile(r"\s*\(at line (\d+), column (\d+)\)")
+_BUILTIN_DIR = pathlib.Path(__file__).resolve().parent
+
+
+def parse_schedule(text: str, path: str = "<string>") -> Schedule:
+    """Parse and validate schedule TOML `text`; `path` names it in errors and `Schedule.source`."""
+    path = str(path)
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        message = str(exc)
+        location = _TOML_LOCATION.search(message)
+        if location is None:
+            # e.g. "(at end of document)": point at the last line.
+            last_line = max(len(text.splitlines()), 1)
+            raise ScheduleError(path, last_line, None, f"invalid TOML: {message}") from None
+        message = _TOML_LOCATION.sub("", message)
+        raise ScheduleError(path, int(location.group(1)), None,
+                            f"invalid TOML: {message} (column {location.group(2)})") from None
+    return _Validator(doc, _locate_lines(text), path).run()
+
+
+def load_schedule(path: str | pathlib.Path) -> Schedule:
+    """Load and validate a schedule file."""
+    try:
+        text = pathlib.Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise ScheduleError(str(path), None, None, f"cannot read schedule file: {reason}") from None
+    return parse_schedule(text, str(path))
+
+
+def builtin_names() -> list[str]:
+    """Sorted names of the schedules shipped with the package."""
+    return sorted(p.stem for p in _BUILTIN_DIR.glob("*.toml"))
+
+
+def builtin_path(name: str) -> pathlib.Path:
+    """Path of a shipped schedule file (unchecked; see `load_builtin`)."""
+    return _BUILTIN_DIR / f"{name}.toml"
+
+
+def load_builtin(name: str) -> Schedule:
+    """Load a shipped schedule by name; `Schedule.source` is ``builtin:<name>``."""
+    names = builtin_names()
+    if name not in names:
+        raise ScheduleError(f"builtin:{name}", None, None,
+                            f"unknown builtin schedule {name!r} (known: {', '.join(names)})")
+    return replace(load_schedule(builtin_path(name)), source=f"builtin:{name}")
+
+
+def resolve_schedule(name_or_path: str) -> Schedule:
+    """A builtin schedule by name, else the schedule file at that path."""
+    if name_or_path in builtin_names():
+        return load_builtin(name_or_path)
+    if not pathlib.Path(name_or_path).exists():
+        raise ScheduleError(str(name_or_path), None, None,
+                            f"no such schedule file or builtin name (builtins: {', '.join(builtin_names())})")
+    return load_schedule(name_or_path)
