@@ -1,0 +1,24 @@
+"""The README stays true: its set-up commands and its Python example."""
+
+import re
+from pathlib import Path
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def test_readme_opens_with_the_two_setup_commands():
+    text = README.read_text()
+    first_block = re.search(r"```sh\n(.*?)```", text, re.S).group(1).strip().splitlines()
+    assert first_block == ["pip install -e . && bench evaluate", "pip install -e '.[test]' && pytest"]
+    ci = (README.parent / ".ci" / "run").read_text()
+    assert "pip install -e '.[test]' && pytest" in ci
+
+
+def test_readme_python_example_runs(tmp_path, monkeypatch, capsys):
+    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.S)
+    assert blocks
+    monkeypatch.chdir(tmp_path)
+    for block in blocks:
+        exec(compile(block, str(README), "exec"), {})
+    assert (tmp_path / "demo.result.json").exists()
+    assert "Kg_x" in capsys.readouterr().out
