@@ -141,8 +141,9 @@ def solve(positions: list[PositionObservation], rotations: list[RotationObservat
             flags.append("gyro bias not solved: no rotations and no prior gyro scale factors/axes")
         else:
             bias = gyro_bias_from_positions(positions, site, source, mounting)
-    for name, triad in (("accelerometer", acc), ("gyro", gyros)):
-        if triad is not None and any(triad.fit.scaled):
+    for name, scaled in (("accelerometer", acc and acc.fit.scaled), ("gyro", gyros and gyros.fit.scaled),
+                         ("gyro bias", bias and bias.scaled)):
+        if scaled and any(scaled):
             flags.append(f"{name} residual scatter exceeds sample noise: uncertainties scaled by it")
     if acc is not None and acc_bias_stability > 0:
         acc.cov[:, 4, 4] += acc_bias_stability ** 2

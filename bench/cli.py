@@ -24,9 +24,14 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if args.rate_dps <= 0:
         print("bench evaluate: --rate-dps must be positive", file=sys.stderr)
         return EXIT_USAGE
+    try:
+        site = Site(args.latitude)
+    except ValueError as exc:
+        print(f"bench evaluate: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     positions, rotations = builtin_schedules()
     started = time.perf_counter()
-    table = evaluate(positions, rotations, runs=args.runs, seed=args.seed, site=Site(args.latitude),
+    table = evaluate(positions, rotations, runs=args.runs, seed=args.seed, site=site,
                      rate_dps=args.rate_dps)
     elapsed = time.perf_counter() - started
     print(f"Monte-Carlo evaluation: {args.runs} runs per level, seed {args.seed}, latitude {args.latitude} deg, "

@@ -104,3 +104,5 @@ def test_cli_writes_json_in_the_documented_shape(tmp_path, capsys):
 def test_cli_rejects_bad_runs(capsys):
     assert main(["evaluate", "--runs", "0"]) == 2
     assert "--runs" in capsys.readouterr().err
+    assert main(["evaluate", "--latitude", "100"]) == 2
+    assert "latitude" in capsys.readouterr().err
