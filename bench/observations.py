@@ -12,11 +12,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.earth import Site
-from bench.kinematics import frame_axes_in_body, frame_matrix_parts, split_at_frame
+from bench.kinematics import FRAMES, frame_axes_in_body, frame_matrix_parts, split_at_frame
 from bench.motion import Piece, trig_integrals
 from bench.units import DEG
 
-FRAME_INDEX = {"outer": 0, "middle": 1, "inner": 2}
+FRAME_INDEX = {name: k for k, name in enumerate(FRAMES)}
 DIRECTION_SIGN = {"ccw": 1, "cw": -1}
 
 
