@@ -158,8 +158,8 @@ def _pooled_gyro_noise(positions: list[PositionObservation]) -> np.ndarray | Non
     A dwell of length T with a mean known to sem has density sem * sqrt(T); a turn of
     length T' then integrates to a count with sigma density * sqrt(T').
     """
-    densities = [o.standard_error("gyro") ** 2 * o.duration_s for o in positions
-                 if o.standard_error("gyro") is not None]
+    sems = [(o.standard_error("gyro"), o.duration_s) for o in positions]
+    densities = [sem ** 2 * duration for sem, duration in sems if sem is not None]
     if not densities:
         return None
     pooled = np.sqrt(np.mean(densities, axis=0))

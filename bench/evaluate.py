@@ -11,12 +11,11 @@ method's own error, as the paper separates the two methods.
 
 from __future__ import annotations
 
-import math
 import numpy as np
 
+from bench.closed_form import position_outputs, turn_closed_form, turn_integrals
 from bench.earth import Site
 from bench.imu_model import ImuCoefficients, default_sim_imu
-from bench.closed_form import position_outputs, turn_closed_form, turn_integrals
 from bench.solver import nominal_position_inputs, position_design, scale_axes_bias
 from bench.units import ARCSEC, DEG_PER_HOUR, G0
 from schedules import RotationStep, load_builtin

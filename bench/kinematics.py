@@ -122,6 +122,15 @@ def body_rate_from_frame_rates(angles: np.ndarray, frame_rates: np.ndarray,
     return -np.einsum("...j,...jk->...k", np.asarray(frame_rates, dtype=float), axes)
 
 
+def axis_along(vector: np.ndarray, tol: float = 1e-6) -> tuple[int, int] | None:
+    """(index, sign) of the coordinate axis a unit vector lies along within `tol`, else None."""
+    vector = np.asarray(vector, dtype=float)
+    k = int(np.argmax(np.abs(vector)))
+    if abs(abs(vector[k]) - 1.0) > tol:
+        return None
+    return k, (1 if vector[k] > 0 else -1)
+
+
 def pointing_labels(c_tb: np.ndarray, tol: float = 1e-6) -> str:
     """Body X, Y, Z pointing as ENU letters, e.g. 'E N U' or 'S U W'.
 
@@ -129,11 +138,12 @@ def pointing_labels(c_tb: np.ndarray, tol: float = 1e-6) -> str:
     """
     labels = []
     for row in np.asarray(c_tb):
-        k = int(np.argmax(np.abs(row)))
-        if abs(abs(row[k]) - 1.0) > tol:
+        along = axis_along(row, tol)
+        if along is None:
             labels.append("?")
         else:
-            labels.append(ENU_LABELS[k] if row[k] > 0 else ENU_NEGATIVE[k])
+            k, sign = along
+            labels.append(ENU_LABELS[k] if sign > 0 else ENU_NEGATIVE[k])
     return " ".join(labels)
 
 

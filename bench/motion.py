@@ -60,6 +60,12 @@ def trapezoid_pieces(t0: float, theta0: float, distance: float, max_rate: float,
     return pieces
 
 
+def active_piece(pieces: list[Piece], t: float) -> Piece:
+    """The piece in effect at time t (the first one before it starts)."""
+    k = int(np.searchsorted([p.t0 for p in pieces], t, side="right")) - 1
+    return pieces[max(0, k)]
+
+
 def sample_pieces(pieces: list[Piece], times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Angle and rate of a trajectory at `times` (vectorised). Before the first piece it holds."""
     times = np.asarray(times, dtype=float)

@@ -7,7 +7,7 @@ import sys
 
 import numpy as np
 
-from bench.kinematics import attitude, frame_axes_in_body, pointing_labels
+from bench.kinematics import attitude, axis_along, frame_axes_in_body, pointing_labels
 from schedules import (
     PositionStep,
     RotationStep,
@@ -104,11 +104,11 @@ def pointing(angles_deg) -> str:
 
 def turning_axis_label(step: RotationStep) -> str:
     """The body axis the turning frame's axis lies along at the start, e.g. '+X', or '?'."""
-    axis = frame_axes_in_body(np.radians(step.start_deg))[step.frame_index]
-    k = int(np.argmax(np.abs(axis)))
-    if abs(abs(axis[k]) - 1.0) > _AXIS_TOL:
+    along = axis_along(frame_axes_in_body(np.radians(step.start_deg))[step.frame_index], _AXIS_TOL)
+    if along is None:
         return "?"
-    return ("+" if axis[k] > 0 else "-") + "XYZ"[k]
+    k, sign = along
+    return ("+" if sign > 0 else "-") + "XYZ"[k]
 
 
 def _position_line(index: int, step: PositionStep) -> str:

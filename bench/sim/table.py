@@ -16,7 +16,7 @@ import numpy as np
 
 from bench import kinematics
 from bench.earth import Site
-from bench.motion import Piece, sample_pieces, trapezoid_pieces
+from bench.motion import Piece, active_piece, sample_pieces, trapezoid_pieces
 from bench.units import DEG
 
 FRAMES = kinematics.FRAMES
@@ -88,8 +88,7 @@ class SimTable:
     def _cut(self, k: int, t: float) -> tuple[float, float]:
         """Drop axis k's pieces from t on; return its (angle, rate) at t."""
         pieces = self._axes[k]
-        starts = [p.t0 for p in pieces]
-        active = pieces[max(0, int(np.searchsorted(starts, t, side="right")) - 1)]
+        active = active_piece(pieces, t)
         theta, rate = active.at(max(t, active.t0))
         self._axes[k] = [p for p in pieces if p.t0 < t]
         return theta, rate
@@ -246,8 +245,7 @@ class SimTable:
     def is_at_rest(self, t: float) -> bool:
         """True when every axis has zero rate and zero acceleration at t."""
         for pieces in self._axes:
-            starts = [p.t0 for p in pieces]
-            p = pieces[max(0, int(np.searchsorted(starts, t, side="right")) - 1)]
+            p = active_piece(pieces, t)
             if p.accel != 0.0 or p.at(max(t, p.t0))[1] != 0.0:
                 return False
         return True
