@@ -129,6 +129,16 @@ class SimTable:
             raise ValueError(f"angles_deg must be finite, got {angles_deg}")
         return max(self._move_axis(k, t, float(target[k]), float(rate[k]), float(accel[k])) for k in range(3))
 
+    def move_axis(self, t: float, frame: str | int, angle_deg: float, rate_dps: float | None = None,
+                  accel_dps2: float | None = None) -> float:
+        """Rest-to-rest move of one frame to an absolute angle, the others untouched; returns its rest time."""
+        k = _frame_index(frame)
+        if not math.isfinite(angle_deg):
+            raise ValueError(f"angle_deg must be finite, got {angle_deg}")
+        rate = _checked(self.limits.max_rate_dps[k] if rate_dps is None else rate_dps,
+                        self.limits.max_rate_dps[k], "rate_dps", k) * DEG
+        return self._move_axis(k, t, float(angle_deg) * DEG, rate, self._accel(k, accel_dps2))
+
     def turn(self, t: float, frame: str, direction: str, revolutions: int, rate_dps: float,
              accel_dps2: float | None = None) -> float:
         """Rest-to-rest turn of one frame by whole revolutions; returns the time it is at rest.
@@ -241,6 +251,12 @@ class SimTable:
     def pieces(self, frame: str | int) -> list[Piece]:
         """A copy of one axis's trajectory (Pieces are immutable)."""
         return list(self._axes[_frame_index(frame)])
+
+    def axis_at(self, t: float, frame: str | int) -> tuple[float, float, float]:
+        """(angle rad, rate rad/s, accel rad/s^2) of one frame at time t."""
+        p = active_piece(self._axes[_frame_index(frame)], t)
+        theta, rate = p.at(max(t, p.t0))
+        return theta, rate, (p.accel if t >= p.t0 else 0.0)
 
     def is_at_rest(self, t: float) -> bool:
         """True when every axis has zero rate and zero acceleration at t."""

@@ -1,0 +1,77 @@
+"""The drivers' exception trees: one for the turntable, one for the IMU over CAN.
+
+Every driver error is raised `from` the low-level cause (socket error, serial error,
+pymodbus exception) so a traceback shows both what the bench tried and what failed.
+"""
+
+from __future__ import annotations
+
+
+class TurntableError(Exception):
+    """Base of every turntable driver error."""
+
+
+class TurntableTimeout(TurntableError, TimeoutError):
+    """No (complete) reply within the timeout, after the configured retries."""
+
+
+class TurntableConnectionError(TurntableError, ConnectionError):
+    """The link to the controller could not be opened or was lost and not regained."""
+
+
+class TurntableProtocolError(TurntableError):
+    """A reply that does not follow the dialect: garbage, wrong echo, malformed fields.
+
+    `raw` holds the offending bytes (or None when not applicable).
+    """
+
+    def __init__(self, message: str, raw: bytes | None = None):
+        super().__init__(message)
+        self.raw = raw
+
+
+class TurntableChecksumError(TurntableProtocolError):
+    """A framed reply whose checksum/CRC does not match its content."""
+
+
+class TurntableCommandError(TurntableError):
+    """The controller understood the request and refused it (error reply, Modbus exception).
+
+    `code` is the controller's error or exception code when it gives one.
+    """
+
+    def __init__(self, message: str, code: int | None = None):
+        super().__init__(message)
+        self.code = code
+
+
+class TurntableFault(TurntableError):
+    """The controller reports a fault (servo fault, limit trip); `state` is the last TableState read."""
+
+    def __init__(self, message: str, state=None):
+        super().__init__(message)
+        self.state = state
+
+
+class TurntableEStop(TurntableFault):
+    """The emergency stop is active: the table is not under servo control."""
+
+
+class TurntableLimitError(TurntableError, ValueError):
+    """A demand outside the configured limits; raised before anything is sent."""
+
+
+class ImuError(Exception):
+    """Base of every IMU (CAN) driver error."""
+
+
+class ImuTimeout(ImuError, TimeoutError):
+    """No IMU frame within the timeout."""
+
+
+class ImuConfigError(ImuError, ValueError):
+    """A DBC file or signal mapping that cannot describe an IMU sample."""
+
+
+class ImuFrameError(ImuError):
+    """A CAN frame that cannot be decoded (wrong length, bad CRC, unknown id) where one is required."""
