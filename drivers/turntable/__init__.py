@@ -1,4 +1,12 @@
-"""Turntable controllers: the common interface and one module pair (codec, client) per dialect."""
+"""Turntable controllers: the common interface and one codec/client pair per dialect.
+
+Dialects load lazily by name (`open_turntable(url, "scpi")`), so importing the
+interface does not import pymodbus.
+"""
+
+from __future__ import annotations
+
+import importlib
 
 from drivers.turntable.base import (
     ALL_FRAMES,
@@ -13,5 +21,38 @@ from drivers.turntable.base import (
     frame_index,
 )
 
-__all__ = ["ALL_FRAMES", "FRAMES", "AxisLimits", "AxisMode", "AxisState", "AxisStatus", "TableState", "Turntable",
-           "TurntableLimits", "frame_index"]
+#: dialect name -> "module:class"
+DIALECTS = {
+    "scpi": "drivers.turntable.scpi:ScpiTurntable",
+    "mn": "drivers.turntable.mn:MnTurntable",
+    "modbus": "drivers.turntable.modbus:ModbusTurntable",
+}
+
+
+def dialect_class(dialect: str) -> type[Turntable]:
+    """The client class of a dialect; ValueError naming the known ones otherwise."""
+    try:
+        module, _, name = DIALECTS[dialect.lower()].partition(":")
+    except (KeyError, AttributeError):
+        raise ValueError(f"unknown turntable dialect {dialect!r} (known: {', '.join(DIALECTS)})") from None
+    return getattr(importlib.import_module(module), name)
+
+
+def open_turntable(url: str, dialect: str | None = None, **options) -> Turntable:
+    """An unconnected driver for `url` in `dialect` (`modbus+...` URLs imply 'modbus').
+
+    `options` go to the dialect's constructor (limits, clock, timeout_s, retries, ...).
+    """
+    if dialect is None:
+        if not url.startswith(("modbus+tcp://", "modbus+rtu://")):
+            raise ValueError(f"say which dialect {url!r} speaks (known: {', '.join(DIALECTS)})")
+        dialect = "modbus"
+    if dialect.lower() == "modbus" and not url.startswith(("modbus+tcp://", "modbus+rtu://")):
+        raise ValueError(f"the modbus dialect needs a modbus+tcp:// or modbus+rtu:// URL, got {url!r}")
+    if dialect.lower() != "modbus" and url.startswith(("modbus+tcp://", "modbus+rtu://")):
+        raise ValueError(f"{url!r} is a Modbus URL but the dialect is {dialect!r}")
+    return dialect_class(dialect)(url, **options)
+
+
+__all__ = ["ALL_FRAMES", "DIALECTS", "FRAMES", "AxisLimits", "AxisMode", "AxisState", "AxisStatus", "TableState",
+           "Turntable", "TurntableLimits", "dialect_class", "frame_index", "open_turntable"]

@@ -310,6 +310,9 @@ class Turntable(ABC):
             state = self.read_state()
             try:
                 self.check_state(state)
+            except TurntableEStop:
+                self.safe_abort()
+                raise
             except TurntableError:
                 self.safe_stop()
                 raise
@@ -339,6 +342,10 @@ class Turntable(ABC):
             return
         except Exception:  # noqa: BLE001 - the abort below is the fallback for any failure
             pass
+        self.safe_abort()
+
+    def safe_abort(self) -> None:
+        """Best effort to switch every servo off (after an e-stop or a failed stop); never raises."""
         try:
             self.abort()
         except Exception:  # noqa: BLE001 - nothing more a driver can do; the caller reports the first error

@@ -1,0 +1,95 @@
+"""Request/reply machinery shared by the ASCII dialects (SCPI-like and $MN).
+
+`LineTurntable._transact` sends one request line and parses one reply line with the
+dialect's pure codec. What goes wrong is handled here once for both dialects:
+- no reply within `timeout_s`: retry (input discarded first), then `TurntableTimeout`;
+- a reply the codec rejects (garbage, bad checksum, wrong echo): retry, then that error;
+- the link drops: reopen the transport once per attempt, then `TurntableConnectionError`;
+- the controller refuses the command (`TurntableCommandError`): raised at once, a
+  retry would be refused the same way.
+Every retry and reconnect is counted in `stats`, so a run can log link quality.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, TypeVar
+
+from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.errors import TurntableConnectionError, TurntableError, TurntableProtocolError, TurntableTimeout
+from drivers.transport import ByteTransport, LineChannel, open_transport
+from drivers.turntable.base import Turntable, TurntableLimits
+
+T = TypeVar("T")
+
+
+@dataclass
+class LinkStats:
+    requests: int = 0
+    timeouts: int = 0
+    protocol_errors: int = 0
+    reconnects: int = 0
+
+
+class LineTurntable(Turntable):
+    """A turntable whose controller speaks one request line -> one reply line."""
+
+    terminator = b"\r\n"
+
+    def __init__(self, transport: ByteTransport | str, limits: TurntableLimits | None = None,
+                 clock: Clock = SYSTEM_CLOCK, timeout_s: float = 0.5, retries: int = 2):
+        super().__init__(limits, clock)
+        if timeout_s <= 0 or retries < 0:
+            raise ValueError(f"timeout_s must be positive and retries >= 0, got {timeout_s}, {retries}")
+        self.transport = open_transport(transport) if isinstance(transport, str) else transport
+        self.channel = LineChannel(self.transport)
+        self.timeout_s, self.retries = timeout_s, retries
+        self.stats = LinkStats()
+
+    @property
+    def url(self) -> str:
+        return self.transport.url
+
+    def _open(self) -> None:
+        try:
+            self.transport.open()
+        except ConnectionError as exc:
+            raise TurntableConnectionError(f"{self.dialect}: {exc}") from exc
+        self.channel.discard_input()
+
+    def _close(self) -> None:
+        self.transport.close()
+
+    def _transact(self, request: bytes, parse: Callable[[bytes], T]) -> T:
+        """Send `request` (without terminator) and return `parse(reply line)`, retrying as above."""
+        last: TurntableError | None = None
+        for attempt in range(self.retries + 1):
+            self.stats.requests += 1
+            try:
+                if not self.transport.is_open:
+                    self.stats.reconnects += 1
+                    self._open()
+                elif attempt:
+                    self.channel.discard_input()
+                self.channel.write_line(request, self.terminator)
+                line = self.channel.read_line(self.timeout_s)
+            except ConnectionError as exc:
+                self.transport.close()
+                last = TurntableConnectionError(f"{self.dialect} link {self.url} lost: {exc}")
+                last.__cause__ = exc
+                continue
+            except TurntableConnectionError as exc:
+                last = exc
+                continue
+            if line is None:
+                self.stats.timeouts += 1
+                last = TurntableTimeout(f"{self.dialect}: no reply to {request!r} from {self.url} "
+                                        f"within {self.timeout_s} s ({attempt + 1} attempts)")
+                continue
+            try:
+                return parse(line)
+            except TurntableProtocolError as exc:
+                self.stats.protocol_errors += 1
+                last = exc
+        assert last is not None
+        raise last
