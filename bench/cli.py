@@ -59,7 +59,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from bench import schedules_cli
+    from bench import schedules_cli, table_cli
 
     parser = argparse.ArgumentParser(prog="bench", description="IMU calibration on a three-axis turntable")
     parser.add_argument("--version", action="version", version=f"turntable-bench {__version__}")
@@ -77,6 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.set_defaults(func=_cmd_evaluate)
 
     schedules_cli.register(sub)
+    table_cli.register_table(sub)
+    table_cli.register_sim(sub)
     return parser
 
 
