@@ -69,6 +69,10 @@ class ImuTimeout(ImuError, TimeoutError):
     """No IMU frame within the timeout."""
 
 
+class ImuConnectionError(ImuError, ConnectionError):
+    """The CAN bus could not be opened, or failed while in use."""
+
+
 class ImuConfigError(ImuError, ValueError):
     """A DBC file or signal mapping that cannot describe an IMU sample."""
 

@@ -282,6 +282,11 @@ class SimController:
             return TableState(t, tuple(self.axis_state(k, t) for k in range(3)), self._fault_text)
 
     @property
+    def lock(self) -> threading.RLock:
+        """Held while a command changes the table; hold it to read the table consistently from another thread."""
+        return self._lock
+
+    @property
     def estop(self) -> bool:
         return self._estop
 

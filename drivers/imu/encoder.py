@@ -1,0 +1,134 @@
+"""The sending side of an IMU layout: samples -> DBC frames (for the simulator and tests).
+
+Increments are quantised sigma-delta style: each channel emits the differences of the
+rounded running sum (the rounding remainder is carried to the next sample and the next
+call), so the sum of the sent increments over any span differs from the true sum by
+less than one signal resolution step; the calibration integrates increments.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.errors import ImuFrameError
+from drivers.imu.crc import crc8_columns, crc8_raw, id_bytes
+from drivers.imu.layout import COLUMNS, STATUS_COLUMN, TEMPERATURE_COLUMN, ImuLayout, SignalLayout, default_layout
+
+
+@dataclass
+class EncodedFrames:
+    """Frames in send order: every message of sample 0, then sample 1, ...
+
+    `ids` carry `EXTENDED_ID_FLAG` for 29-bit ids; frame i is `data[i, :lengths[i]]`;
+    `sample` is the index of the sample each frame belongs to.
+    """
+
+    ids: np.ndarray      # (N,) int64
+    data: np.ndarray     # (N, width) uint8
+    lengths: np.ndarray  # (N,) int64
+    sample: np.ndarray   # (N,) int64
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def frame(self, i: int) -> tuple[int, bytes]:
+        return int(self.ids[i]), bytes(self.data[i, :self.lengths[i]])
+
+
+def _insert(data: np.ndarray, sig: SignalLayout, raw: np.ndarray) -> None:
+    """OR the raw values (int64, in range) into the signal's bytes of every row."""
+    nbytes = sig.last_byte - sig.first_byte + 1
+    bits = (raw.astype(np.uint64) & np.uint64(sig.mask)) << np.uint64(sig.window_shift)
+    for b in range(nbytes):
+        shift = 8 * (nbytes - 1 - b) if sig.big_endian else 8 * b
+        data[:, sig.first_byte + b] |= ((bits >> np.uint64(shift)) & np.uint64(0xFF)).astype(np.uint8)
+
+
+def _check_range(sig: SignalLayout, raw: np.ndarray, what: str) -> None:
+    lo, hi = (-(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1) if sig.signed else (0, (1 << sig.length) - 1)
+    bad = np.flatnonzero((raw < lo) | (raw > hi))
+    if len(bad):
+        raise ImuFrameError(f"{what} of sample {bad[0]} needs raw value {raw[bad[0]]}, outside signal "
+                            f"{sig.name}'s range {lo}..{hi}")
+
+
+class ImuEncoder:
+    """Samples -> frames for one layout; carries the quantisation remainders between calls."""
+
+    def __init__(self, layout: ImuLayout | None = None):
+        self.layout = layout if layout is not None else default_layout()
+        self._remainder = np.zeros(6)   # per channel, in units of the signal resolution
+        self._width = max(m.length for m in self.layout.messages)
+
+    def _raw_columns(self, counter, gyro_counts, acc_counts, temperature_c, status) -> tuple[np.ndarray, np.ndarray]:
+        lay = self.layout
+        counter = np.asarray(counter)
+        n = len(counter)
+        raw = np.zeros((n, len(COLUMNS)), np.int64)
+        values = np.concatenate([np.asarray(gyro_counts, float).reshape(n, 3),
+                                 np.asarray(acc_counts, float).reshape(n, 3)], axis=1)
+        if not np.isfinite(values).all():
+            raise ImuFrameError("IMU increments must be finite")
+        target = (values - np.asarray(lay.offset[:6])) / np.asarray(lay.scale[:6])
+        total = self._remainder + np.cumsum(target, axis=0)
+        rounded = np.round(total)
+        if np.abs(rounded).max(initial=0.0) >= 2.0 ** 62:
+            raise ImuFrameError("IMU increments too large for the layout's resolution")
+        cum = rounded.astype(np.int64)
+        raw[:, :6] = np.diff(cum, axis=0, prepend=np.zeros((1, 6), np.int64))
+        remainder = total[-1] - rounded[-1] if n else self._remainder
+        if lay.has_column[TEMPERATURE_COLUMN]:
+            temp = np.broadcast_to(np.asarray(25.0 if temperature_c is None else temperature_c, float), (n,))
+            if not (np.isfinite(temp).all() and np.abs(temp).max(initial=0.0) < 1e6):
+                raise ImuFrameError("temperature must be finite and plausible (|t| < 1e6 degC)")
+            scale, offset = lay.scale[TEMPERATURE_COLUMN], lay.offset[TEMPERATURE_COLUMN]
+            raw[:, TEMPERATURE_COLUMN] = np.round((temp - offset) / scale)
+        if lay.has_column[STATUS_COLUMN]:
+            raw[:, STATUS_COLUMN] = np.broadcast_to(np.asarray(0 if status is None else status, np.int64), (n,))
+        return raw, remainder
+
+    def encode(self, counter, gyro_counts, acc_counts, temperature_c=None, status=None) -> EncodedFrames:
+        """Frames for n samples: `counter` (n,) the IMU's sample counter (its low bits are sent),
+        `gyro_counts`/`acc_counts` (n, 3) increments in output counts, `temperature_c` and
+        `status` scalars or (n,) (default 25 degC, 0). Out-of-range values raise
+        `ImuFrameError` and leave the carried remainder unchanged.
+        """
+        lay = self.layout
+        counter = np.asarray(counter, dtype=np.int64).reshape(-1)
+        n, n_msgs = len(counter), len(lay.messages)
+        raw, remainder = self._raw_columns(counter, gyro_counts, acc_counts, temperature_c, status)
+        counter_raw = counter & ((1 << lay.counter_bits) - 1)
+        for m in lay.messages:
+            for column, sig in m.values:
+                _check_range(sig, raw[:, column], COLUMNS[column])
+        data = np.zeros((n, n_msgs, self._width), np.uint8)
+        for k, m in enumerate(lay.messages):
+            block = np.zeros((n, m.length), np.uint8)
+            _insert(block, m.counter, counter_raw)
+            for column, sig in m.values:
+                _insert(block, sig, raw[:, column])
+            if m.crc_byte is not None:
+                keep = [j for j in range(m.length) if j != m.crc_byte]
+                block[:, m.crc_byte] = crc8_columns(crc8_raw(id_bytes(m.frame_id, m.is_extended_id)), block[:, keep])
+            data[:, k, :m.length] = block
+        self._remainder = np.array(remainder, dtype=float)
+        ids = np.tile(np.array(lay.keys, np.int64), n)
+        lengths = np.tile(np.array([m.length for m in lay.messages], np.int64), n)
+        return EncodedFrames(ids, data.reshape(n * n_msgs, self._width), lengths,
+                             np.repeat(np.arange(n, dtype=np.int64), n_msgs))
+
+    def encode_sample(self, counter: int, gyro_counts, acc_counts, temperature_c: float | None = None,
+                      status: int | None = None) -> list[tuple[int, bytes]]:
+        """The (key, data) frames of one sample."""
+        frames = self.encode([counter], np.reshape(gyro_counts, (1, 3)), np.reshape(acc_counts, (1, 3)),
+                             temperature_c, status)
+        return [frames.frame(i) for i in range(len(frames))]
+
+
+def encode_block(block, layout: ImuLayout | None = None) -> EncodedFrames:
+    """Frames for an `ImuSampleBlock` (its values already lie on the layout's resolution)."""
+    status = block.status if (layout or default_layout()).has_column[STATUS_COLUMN] else None
+    temperature = block.temperature_c if np.isfinite(block.temperature_c).all() else None
+    return ImuEncoder(layout).encode(block.counter, block.gyro_counts, block.acc_counts, temperature, status)

@@ -1,0 +1,323 @@
+"""IMU frame layouts: a DBC (read with cantools) + a signal mapping, compiled once.
+
+cantools only reads the DBC; its per-frame decode is far too slow for the hot path.
+`ImuLayout` compiles every mapped signal into plain numbers (byte window, shift, mask,
+sign, factor, offset) that the live assembler applies with Python ints and the bulk
+decoder with numpy. Supported signals: integer (not float, not multiplexed), Intel or
+Motorola, whose bits lie within 8 consecutive bytes (any signal of <= 57 bits, or a
+byte-aligned one of up to 64 bits); the counter is unsigned with factor 1, offset 0,
+the same width in every message; the CRC (optional) is an unsigned byte-aligned 8-bit
+signal holding CRC-8/SAE-J1850 over the id and every other data byte (`drivers.imu.crc`).
+Anything else raises `ImuConfigError` naming the signal.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cantools
+
+from drivers.errors import ImuConfigError
+
+#: The per-sample columns every layout fills, in this order.
+CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
+COLUMNS = CHANNELS + ("temperature", "status")
+TEMPERATURE_COLUMN, STATUS_COLUMN = 6, 7
+#: Added to the arbitration id of a 29-bit frame wherever ids are keys (live feed, bulk arrays).
+EXTENDED_ID_FLAG = 1 << 31
+
+DBC_DIR = Path(__file__).resolve().parent
+DEFAULT_DBC = DBC_DIR / "sim_imu.dbc"
+DEFAULT_FD_DBC = DBC_DIR / "sim_imu_fd.dbc"
+
+
+@dataclass(frozen=True)
+class ImuFrameSpec:
+    """Which DBC signals carry an IMU sample.
+
+    `channels`: gyro_x..acc_z -> "MESSAGE.Signal". `counter` / `crc`: the signal name in
+    every mapped message, or a per-message {message: signal} table (`crc` None or a
+    message missing from the table: that message has no CRC). `temperature` (degC) and
+    `status` are optional "MESSAGE.Signal" strings. Every message named here is part of
+    every sample.
+    """
+
+    channels: Mapping[str, str]
+    counter: str | Mapping[str, str] = "Counter"
+    crc: str | Mapping[str, str] | None = "CRC"
+    temperature: str | None = None
+    status: str | None = None
+
+    @classmethod
+    def from_dict(cls, config: Mapping) -> "ImuFrameSpec":
+        """From a TOML-shaped table: gyro_x..acc_z, temperature, status, counter, crc keys.
+
+        `crc = ""` means no CRC; anything else malformed raises `ImuConfigError`.
+        """
+        if not isinstance(config, Mapping):
+            raise ImuConfigError(f"the IMU signal mapping must be a table, got {type(config).__name__}")
+        known = set(CHANNELS) | {"temperature", "status", "counter", "crc"}
+        unknown = sorted(str(k) for k in config if k not in known)
+        if unknown:
+            raise ImuConfigError(f"unknown key(s) in the IMU signal mapping: {', '.join(unknown)} "
+                                 f"(known: {', '.join(sorted(known))})")
+        missing = [c for c in CHANNELS if c not in config]
+        if missing:
+            raise ImuConfigError(f"the IMU signal mapping lacks {', '.join(missing)}")
+        crc = config.get("crc", "CRC")
+        return cls(channels={c: config[c] for c in CHANNELS}, counter=config.get("counter", "Counter"),
+                   crc=crc if crc != "" else None, temperature=config.get("temperature"),
+                   status=config.get("status"))
+
+
+#: The mapping of the shipped classic layout (drivers/imu/sim_imu.dbc).
+DEFAULT_SPEC = ImuFrameSpec(
+    channels={"gyro_x": "IMU_GYRO_X.GyroX", "gyro_y": "IMU_GYRO_Y.GyroY", "gyro_z": "IMU_GYRO_Z.GyroZ",
+              "acc_x": "IMU_ACC_X.AccX", "acc_y": "IMU_ACC_Y.AccY", "acc_z": "IMU_ACC_Z.AccZ"},
+    temperature="IMU_AUX.Temperature", status="IMU_AUX.Status")
+#: The mapping of the shipped CAN FD layout (drivers/imu/sim_imu_fd.dbc).
+DEFAULT_FD_SPEC = ImuFrameSpec(
+    channels={c: f"IMU_SAMPLE_FD.{n}" for c, n in zip(CHANNELS, ("GyroX", "GyroY", "GyroZ", "AccX", "AccY", "AccZ"))},
+    temperature="IMU_SAMPLE_FD.Temperature", status="IMU_SAMPLE_FD.Status")
+
+
+@dataclass(frozen=True)
+class SignalLayout:
+    """One integer signal, compiled.
+
+    Live path: `(v >> shift) & mask` on the frame read as one int, little-endian for
+    Intel signals, big-endian for Motorola (`big_endian`). Bulk path: the 1..8 bytes
+    `first_byte..last_byte` gathered into a uint64 (in the signal's byte order), then
+    `>> window_shift`, masked, sign-extended. Physical value = raw * scale + offset.
+    """
+
+    name: str
+    length: int
+    signed: bool
+    big_endian: bool
+    shift: int
+    first_byte: int
+    last_byte: int
+    window_shift: int
+    scale: float = 1.0
+    offset: float = 0.0
+
+    @property
+    def mask(self) -> int:
+        return (1 << self.length) - 1
+
+    def raw(self, data: bytes) -> int:
+        """The raw (sign-extended) value of this signal in one frame's data."""
+        v = int.from_bytes(data, "big" if self.big_endian else "little")
+        x = (v >> self.shift) & self.mask
+        if self.signed and x >> (self.length - 1):
+            x -= 1 << self.length
+        return x
+
+    def insert(self, data: bytearray, raw: int) -> None:
+        """Write `raw` (range already checked) into `data` in place."""
+        order = "big" if self.big_endian else "little"
+        v = int.from_bytes(data, order)
+        v = (v & ~(self.mask << self.shift)) | ((raw & self.mask) << self.shift)
+        data[:] = v.to_bytes(len(data), order)
+
+
+def _compile_signal(msg, sig, where: str) -> SignalLayout:
+    n = msg.length
+    label = f"signal {sig.name} of {msg.name}{where}"
+    if sig.is_float:
+        raise ImuConfigError(f"{label} is a float signal; only integer signals are supported")
+    if sig.multiplexer_ids or sig.is_multiplexer:
+        raise ImuConfigError(f"{label} is multiplexed; multiplexed IMU messages are not supported")
+    length = int(sig.length)
+    if not 1 <= length <= 64:
+        raise ImuConfigError(f"{label} has {length} bits")
+    if length == 64 and not sig.is_signed:
+        raise ImuConfigError(f"{label} is an unsigned 64-bit signal; at most 63 bits unsigned are supported")
+    start = int(sig.start)
+    if sig.byte_order == "little_endian":
+        lsb = start
+        if lsb + length > 8 * n:
+            raise ImuConfigError(f"{label} runs past the end of its {n}-byte message")
+        first, last = lsb // 8, (lsb + length - 1) // 8
+        shift, window_shift, big = lsb, lsb - 8 * first, False
+    else:
+        msb_be = 8 * (n - 1 - start // 8) + start % 8   # bit index in the frame read big-endian
+        lsb_be = msb_be - length + 1
+        if lsb_be < 0 or start // 8 >= n:
+            raise ImuConfigError(f"{label} runs past the end of its {n}-byte message")
+        first, last = start // 8, n - 1 - lsb_be // 8
+        shift, window_shift, big = lsb_be, lsb_be % 8, True
+    if last - first + 1 > 8:
+        raise ImuConfigError(f"{label} spans {last - first + 1} bytes; signals must lie within 8 consecutive bytes")
+    return SignalLayout(sig.name, length, bool(sig.is_signed), big, shift, first, last, window_shift,
+                        float(sig.scale), float(sig.offset))
+
+
+@dataclass(frozen=True)
+class MessageLayout:
+    """One message of a sample: its id, length, counter, CRC byte and value signals."""
+
+    name: str
+    frame_id: int
+    is_extended_id: bool
+    is_fd: bool
+    length: int
+    counter: SignalLayout
+    crc_byte: int | None
+    values: tuple[tuple[int, SignalLayout], ...]   # (column index in COLUMNS, signal)
+
+    @property
+    def key(self) -> int:
+        """The id as ids are keyed in this package (`EXTENDED_ID_FLAG` set for 29-bit ids)."""
+        return self.frame_id | (EXTENDED_ID_FLAG if self.is_extended_id else 0)
+
+
+@dataclass(frozen=True)
+class ImuLayout:
+    """A compiled IMU layout: the messages of one sample and the column scales."""
+
+    messages: tuple[MessageLayout, ...]
+    counter_bits: int
+    scale: tuple[float, ...]       # per column of COLUMNS
+    offset: tuple[float, ...]
+    has_column: tuple[bool, ...]
+    source: str = ""
+    dbc_text: str = field(default="", repr=False)
+
+    @property
+    def keys(self) -> tuple[int, ...]:
+        return tuple(m.key for m in self.messages)
+
+    def message(self, key: int) -> MessageLayout:
+        for m in self.messages:
+            if m.key == key:
+                return m
+        raise KeyError(key)
+
+    @classmethod
+    def from_dbc(cls, dbc: str | Path | "cantools.database.can.Database", spec: ImuFrameSpec) -> "ImuLayout":
+        """Compile `spec` against a DBC file path (or a loaded cantools database)."""
+        if isinstance(dbc, (str, Path)):
+            path = Path(dbc)
+            try:
+                text = path.read_text(encoding="utf-8", errors="replace")
+            except OSError as exc:
+                raise ImuConfigError(f"cannot read the DBC file {str(path)!r}: {exc}") from exc
+            return cls.from_dbc_string(text, spec, source=str(path))
+        return _compile(dbc, spec, source="<database>", text="")
+
+    @classmethod
+    def from_dbc_string(cls, text: str, spec: ImuFrameSpec, source: str = "<string>") -> "ImuLayout":
+        """Compile `spec` against DBC text."""
+        try:
+            db = cantools.database.load_string(text, database_format="dbc")
+        except Exception as exc:  # cantools raises many types on malformed input
+            raise ImuConfigError(f"{source} is not a readable DBC file: {exc}") from exc
+        return _compile(db, spec, source=source, text=text)
+
+
+def _split_ref(ref, what: str) -> tuple[str, str]:
+    if not isinstance(ref, str) or ref.count(".") != 1 or not all(ref.split(".")):
+        raise ImuConfigError(f"{what} must be 'MESSAGE.Signal', got {ref!r}")
+    message, signal = ref.split(".")
+    return message, signal
+
+
+def _compile(db, spec: ImuFrameSpec, source: str, text: str) -> ImuLayout:
+    if not isinstance(spec, ImuFrameSpec):
+        raise ImuConfigError(f"expected an ImuFrameSpec, got {type(spec).__name__}")
+    refs: list[tuple[int, str, str]] = []
+    for column, name in enumerate(COLUMNS):
+        ref = spec.channels.get(name) if column < 6 else (spec.temperature if name == "temperature" else spec.status)
+        if ref is None:
+            if column < 6:
+                raise ImuConfigError(f"the IMU signal mapping lacks {name}")
+            continue
+        refs.append((column, *_split_ref(ref, name)))
+    seen: dict[tuple[str, str], str] = {}
+    for column, m, s in refs:
+        if (m, s) in seen:
+            raise ImuConfigError(f"{COLUMNS[column]} and {seen[(m, s)]} both map to {m}.{s}")
+        seen[(m, s)] = COLUMNS[column]
+    names = list(dict.fromkeys(m for _, m, _ in refs))   # message order: first use
+    by_name = {}
+    for name in names:
+        try:
+            by_name[name] = db.get_message_by_name(name)
+        except KeyError:
+            raise ImuConfigError(f"{source} has no message {name!r}") from None
+
+    def per_message(value, what: str, required: bool) -> dict[str, str | None]:
+        if value is None:
+            if required:
+                raise ImuConfigError(f"the IMU signal mapping needs a {what} signal")
+            return {n: None for n in names}
+        if isinstance(value, str):
+            return {n: value for n in names}
+        if isinstance(value, Mapping):
+            if required and any(n not in value for n in names):
+                raise ImuConfigError(f"no {what} signal given for message(s) "
+                                     f"{', '.join(n for n in names if n not in value)}")
+            return {n: value.get(n) for n in names}
+        raise ImuConfigError(f"{what} must be a signal name or a table of them, got {value!r}")
+
+    counters = per_message(spec.counter, "counter", True)
+    crcs = per_message(spec.crc, "CRC", False)
+
+    def signal(msg, sig_name: str, what: str):
+        try:
+            return msg.get_signal_by_name(sig_name)
+        except KeyError:
+            raise ImuConfigError(f"message {msg.name} in {source} has no {what} signal {sig_name!r}") from None
+
+    messages, counter_bits = [], None
+    scale, offset, has = [1.0] * len(COLUMNS), [0.0] * len(COLUMNS), [False] * len(COLUMNS)
+    for name in names:
+        msg = by_name[name]
+        if msg.length < 1 or msg.length > 64:
+            raise ImuConfigError(f"message {name} has length {msg.length}")
+        counter = _compile_signal(msg, signal(msg, counters[name], "counter"), " (counter)")
+        if counter.signed or counter.scale != 1.0 or counter.offset != 0.0 or counter.length > 62:
+            raise ImuConfigError(f"counter signal {counter.name} of {name} must be unsigned, at most 62 bits, "
+                                 f"factor 1, offset 0")
+        if counter_bits is None:
+            counter_bits = counter.length
+        elif counter.length != counter_bits:
+            raise ImuConfigError(f"counter signal {counter.name} of {name} has {counter.length} bits, "
+                                 f"others have {counter_bits}; all counters must have one width")
+        crc_byte = None
+        if crcs[name] is not None:
+            crc = _compile_signal(msg, signal(msg, crcs[name], "CRC"), " (CRC)")
+            if (crc.length != 8 or crc.signed or crc.first_byte != crc.last_byte or crc.window_shift != 0
+                    or crc.scale != 1.0 or crc.offset != 0.0):
+                raise ImuConfigError(f"CRC signal {crc.name} of {name} must be one whole unsigned byte, factor 1")
+            crc_byte = crc.first_byte
+        values = []
+        for column, m, s in refs:
+            if m != name:
+                continue
+            sig = _compile_signal(msg, signal(msg, s, COLUMNS[column]), f" ({COLUMNS[column]})")
+            values.append((column, sig))
+            scale[column], offset[column], has[column] = sig.scale, sig.offset, True
+        messages.append(MessageLayout(name, int(msg.frame_id), bool(msg.is_extended_frame), bool(msg.is_fd),
+                                      int(msg.length), counter, crc_byte, tuple(values)))
+    keys = [m.key for m in messages]
+    if len(set(keys)) != len(keys):
+        raise ImuConfigError("two mapped messages share one arbitration id")
+    return ImuLayout(tuple(messages), int(counter_bits), tuple(scale), tuple(offset), tuple(has), source, text)
+
+
+@functools.lru_cache(maxsize=None)
+def default_layout() -> ImuLayout:
+    """The shipped classic layout of the simulated IMU (7 frames per sample)."""
+    return ImuLayout.from_dbc(DEFAULT_DBC, DEFAULT_SPEC)
+
+
+@functools.lru_cache(maxsize=None)
+def default_fd_layout() -> ImuLayout:
+    """The shipped CAN FD layout of the simulated IMU (one 64-byte frame per sample)."""
+    return ImuLayout.from_dbc(DEFAULT_FD_DBC, DEFAULT_FD_SPEC)

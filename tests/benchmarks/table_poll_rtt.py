@@ -1,0 +1,84 @@
+"""Benchmark: turntable state-poll round trip to the simulator, per dialect, over TCP loopback and a pty.
+
+Run: python tests/benchmarks/table_poll_rtt.py [--polls 2000] [--repeats 5]
+For each dialect (scpi, mn, modbus) it serves the simulated table in that dialect on
+127.0.0.1 (Modbus TCP for modbus) and on a pty (Modbus RTU for modbus, 115200 baud
+nominal), connects the real driver through the real transport, and times
+`read_state()` (one full state of the three axes); everything measured in one run,
+side by side. Prints the median and 90th percentile per poll in ms (median over
+repeats) and the polls per second the median implies. The Modbus watchdog is off so
+that every request is a poll.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+from bench.sim.controller import SimController
+from bench.sim.serve import LineServer
+from drivers.turntable import open_turntable
+
+
+def _serve(dialect: str, controller: SimController, link: str):
+    """(url, driver options, closer) of a server of the simulated table in `dialect` over `link` (tcp|pty)."""
+    if dialect == "modbus":
+        from bench.sim.modbus_server import ModbusSimServer
+        from drivers.turntable.modbus_map import RegisterMap
+
+        register_map = RegisterMap.default().with_changes(watchdog_s=0)
+        server = ModbusSimServer(controller, register_map)
+        if link == "pty":
+            url = f"modbus+rtu://{server.start_rtu_pty()}?baud=115200"
+        else:
+            url = "modbus+tcp://{}:{}".format(*server.start_tcp("127.0.0.1", 0))
+        return url, {"register_map": register_map}, server.close
+    if dialect == "scpi":
+        from bench.sim.scpi_server import ScpiSimHandler as Handler
+    else:
+        from bench.sim.mn_server import MnSimHandler as Handler
+    server = LineServer(Handler(controller))
+    url = server.open_pty() if link == "pty" else "tcp://{}:{}".format(*server.listen_tcp("127.0.0.1", 0))
+    return url, {}, server.close
+
+
+def measure(dialect: str, polls: int, link: str = "tcp") -> tuple[float, float]:
+    """(median ms, p90 ms) of `polls` state reads."""
+    controller = SimController()
+    url, options, close = _serve(dialect, controller, link)
+    try:
+        with open_turntable(url, dialect, timeout_s=1.0, **options) as table:
+            table.enable()
+            for _ in range(20):                     # warm up connection and caches
+                table.read_state()
+            times = []
+            for _ in range(polls):
+                t0 = time.perf_counter()
+                table.read_state()
+                times.append(time.perf_counter() - t0)
+    finally:
+        close()
+    times.sort()
+    return statistics.median(times) * 1e3, times[int(0.9 * len(times))] * 1e3
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--polls", type=int, default=2000)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--dialects", default="scpi,mn,modbus")
+    args = parser.parse_args()
+    print(f"state poll round trip, {args.polls} polls x {args.repeats} repeats")
+    print(f"{'dialect':<8} {'link':<5} {'median ms':>10} {'p90 ms':>8} {'polls/s':>9}")
+    for dialect in args.dialects.split(","):
+        for link in ("tcp", "pty"):
+            runs = [measure(dialect, args.polls, link) for _ in range(args.repeats)]
+            median = statistics.median(r[0] for r in runs)
+            p90 = statistics.median(r[1] for r in runs)
+            print(f"{dialect:<8} {link:<5} {median:>10.3f} {p90:>8.3f} {1e3 / median:>9.0f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,114 @@
+"""`bench sim table` served in a subprocess, driven by `bench table` (the real drivers over loopback/pty)."""
+
+from __future__ import annotations
+
+import os
+import queue
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+from bench.cli import main
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _read_line(proc: subprocess.Popen, timeout_s: float = 20.0) -> str:
+    """One stdout line of the simulator within a bounded time (lines come from a reader thread)."""
+    try:
+        return proc.lines.get(timeout=timeout_s)
+    except queue.Empty:
+        proc.kill()
+        pytest.fail("simulator printed nothing in time")
+
+
+@pytest.fixture
+def simulator(request):
+    """Start `bench sim table` with the given (dialect, listen); yields (proc, address)."""
+    dialect, listen = request.param
+    proc = subprocess.Popen([sys.executable, "-m", "bench.cli", "sim", "table", "--dialect", dialect,
+                             "--listen", listen], cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, bufsize=1)
+    proc.lines = queue.Queue()
+    reader = threading.Thread(target=lambda: [proc.lines.put(line) for line in proc.stdout], daemon=True)
+    reader.start()
+    try:
+        first = _read_line(proc)
+        assert "listening on" in first, first + proc.stderr.read() if proc.poll() is not None else first
+        assert "fault console" in _read_line(proc)
+        yield proc, dialect, first.rsplit(" ", 1)[1].strip()
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(timeout=5)
+        reader.join(timeout=5)
+        for stream in (proc.stdin, proc.stdout, proc.stderr):
+            stream.close()
+
+
+def _fault(proc: subprocess.Popen, command: str) -> str:
+    proc.stdin.write(command + "\n")
+    proc.stdin.flush()
+    return _read_line(proc).strip()
+
+
+@pytest.mark.parametrize("simulator", [("scpi", "tcp://127.0.0.1:0"), ("mn", "pty"),
+                                       ("modbus", "modbus+tcp://127.0.0.1:0")], indirect=True)
+def test_operator_session_against_the_served_simulator(simulator, capsys):
+    proc, dialect, url = simulator
+    base = ["table", "--url", url, "--dialect", dialect, "--timeout-s", "0.5"]
+    assert main(base + ["status"]) == 0
+    assert main(base + ["enable"]) == 0
+    assert main(base + ["goto", "10", "-5", "20", "--rate-dps", "50"]) == 0
+    out = capsys.readouterr().out
+    assert "10.000000" in out and "-5.000000" in out and "in-position" in out
+    assert main(base + ["--max-rate-dps", "10", "goto", "0", "0", "0", "--rate-dps", "20"]) == 2
+    assert "nothing sent" in capsys.readouterr().err
+    assert main(base + ["rate", "inner", "-30"]) == 0
+    assert main(base + ["stop"]) == 0
+    assert _fault(proc, "estop") == "ok"
+    assert main(base + ["status"]) == 3
+    assert "emergency stop active" in capsys.readouterr().out
+    assert main(base + ["goto", "0", "0", "0"]) == 3
+    assert "TurntableEStop" in capsys.readouterr().err
+    assert _fault(proc, "release") == "ok"
+    assert main(base + ["reset"]) == 0
+    assert main(base + ["abort"]) == 0
+    assert "off" in capsys.readouterr().out
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=10) == 0
+
+
+@pytest.mark.parametrize("simulator", [("scpi", "tcp://127.0.0.1:0")], indirect=True)
+def test_fault_console_timeouts_become_exit_3(simulator, capsys):
+    proc, dialect, url = simulator
+    assert _fault(proc, "timeout 10") == "ok"
+    t0 = time.monotonic()
+    assert main(["table", "--url", url, "--dialect", dialect, "--timeout-s", "0.2", "--retries", "1",
+                 "status"]) == 3
+    assert time.monotonic() - t0 < 5
+    assert "TurntableTimeout" in capsys.readouterr().err
+    assert _fault(proc, "bogus") == "unknown command 'bogus'; type help"
+
+
+def test_unreachable_controller_and_usage_errors(capsys):
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+        assert main(["table", "--url", f"tcp://127.0.0.1:{port}", "--dialect", "scpi", "status"]) == 3
+        assert "cannot reach the controller" in capsys.readouterr().err
+    assert main(["table", "--url", "tcp://127.0.0.1:1", "status"]) == 2
+    assert "say which dialect" in capsys.readouterr().err
+    assert main(["table", "--url", "modbus+tcp://127.0.0.1:1", "--dialect", "scpi", "status"]) == 2
+    with pytest.raises(SystemExit) as exit_info:
+        main(["sim", "table", "--dialect", "nope", "--listen", "pty"])
+    assert exit_info.value.code == 2
