@@ -1,5 +1,5 @@
-"""Hardware I/O: turntable controller dialects and the IMU over CAN.
+"""Hardware I/O: turntable controller dialects (`drivers.turntable`) and the IMU over CAN (`drivers.imu`).
 
-Never imports `bench`. The drivers themselves arrive with the drivers issue; this
-package exists so the layout of DESIGN section 4 holds from the start.
+Never imports `bench`: the simulators in `bench/sim/` serve the wire formats these
+clients speak. See drivers/README.md.
 """
