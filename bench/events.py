@@ -1,0 +1,79 @@
+"""Sequencer events and the listener interface shared by the recorder, CLI progress and the TUI.
+
+The sequencer calls every listener on its own thread; a listener must be quick (the
+TUI buffers and redraws at 10-20 Hz; the recorder writes). Times are on the
+sequencer's injected clock (simulated seconds with the simulator).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+
+class RunState(enum.Enum):
+    IDLE = "idle"
+    RUNNING = "running"
+    PAUSED = "paused"
+    ABORTING = "aborting"
+    DONE = "done"
+    FAILED = "failed"
+
+
+#: Event kinds: a state transition, step boundaries, and things worth a line in the log.
+EVENT_KINDS = ("transition", "step_started", "step_finished", "step_skipped", "fault", "warning", "info")
+
+
+@dataclass(frozen=True)
+class Event:
+    """One thing that happened in a run.
+
+    `transition`: `state` is the new RunState value, `data["from"]` the old one.
+    `step_started` / `step_finished` / `step_skipped`: `step_index`, `step_unit` and
+    `data["step"]` (the step record as a dict); a finished observation step carries
+    `data["counter_first"]`, `data["counter_last"]` (the IMU sample counters of its
+    window, inclusive) and `data["samples"]`.
+    `fault`: what went wrong (`data["error"]` the exception type), before the safe stop.
+    """
+
+    time_s: float
+    kind: str
+    message: str
+    state: str | None = None
+    step_index: int | None = None
+    step_unit: str | None = None
+    data: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time_s": self.time_s, "kind": self.kind, "message": self.message, "state": self.state,
+                "step_index": self.step_index, "step_unit": self.step_unit, "data": self.data}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "Event":
+        return cls(float(d["time_s"]), str(d["kind"]), str(d.get("message", "")), d.get("state"),
+                   d.get("step_index"), d.get("step_unit"), dict(d.get("data") or {}))
+
+
+class RunListener:
+    """Receives everything a run produces. Override what you need; the defaults ignore it.
+
+    `on_can_frames` gets every raw CAN frame (python-can `Message`s) before decoding;
+    `on_imu` the decoded samples (`drivers.imu.ImuSampleBlock`); `on_table_state` each
+    polled `drivers.turntable.TableState`. `close()` is called once at the end of a run.
+    """
+
+    def on_event(self, event: Event) -> None:
+        pass
+
+    def on_table_state(self, state) -> None:
+        pass
+
+    def on_imu(self, block) -> None:
+        pass
+
+    def on_can_frames(self, frames: Sequence) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
