@@ -42,7 +42,9 @@ import math
 import pathlib
 import re
 import tomllib
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
+
+from schedules.tomllines import LineMap, locate_lines
 
 FORMAT = "turntable-bench/schedule"
 VERSION = 1
@@ -123,88 +125,6 @@ class ScheduleError(ValueError):
         return ": ".join([head] + ([self.field] if self.field else []) + [self.message])
 
 
-# --- line locator -----------------------------------------------------------------
-# tomllib reports no positions for parsed values, so map keys to lines by scanning
-# the raw text. It only runs on text tomllib accepted, so a light scan is enough.
-
-_ARRAY_HEADER = re.compile(r"\s*\[\[\s*([^\]]+?)\s*\]\]")
-_TABLE_HEADER = re.compile(r"\s*\[\s*([^\]]+?)\s*\]")
-_KEY_LINE = re.compile(r"""\s*("(?:[^"\\]|\\.)*"|'[^']*'|[A-Za-z0-9_-]+)\s*[.=]""")
-_STRING = re.compile(r""""(?:[^"\\]|\\.)*"|'[^']*'""")
-
-
-def _bracket_balance(raw: str) -> int:
-    """Open minus closed brackets/braces outside strings and comments (multi-line values)."""
-    code = _STRING.sub('""', raw).split("#", 1)[0]
-    return code.count("[") + code.count("{") - code.count("]") - code.count("}")
-
-
-def _opens_or_closes_string(raw: str) -> bool:
-    """An odd count of triple quotes opens or closes a multi-line string."""
-    return (raw.count('"""') + raw.count("'''")) % 2 == 1
-
-
-@dataclass
-class _TableLines:
-    header: int
-    keys: dict[str, int] = field(default_factory=dict)
-
-
-@dataclass
-class _LineMap:
-    top: dict[str, int] = field(default_factory=dict)
-    tables: dict[str, list[_TableLines]] = field(default_factory=dict)
-
-    def table(self, name: str, index: int) -> int | None:
-        found = self.tables.get(name, [])
-        return found[index].header if index < len(found) else self.top.get(name)
-
-    def key(self, name: str, index: int, key: str) -> int | None:
-        found = self.tables.get(name, [])
-        if index < len(found) and key in found[index].keys:
-            return found[index].keys[key]
-        return self.table(name, index)
-
-
-def _bare(key: str) -> str:
-    return key[1:-1] if key[:1] in "\"'" else key
-
-
-def _locate_lines(text: str) -> _LineMap:
-    """Map top-level keys and keys of each ``[[name]]`` table to 1-based lines."""
-    lines = _LineMap()
-    current: _TableLines | None = None  # None: top level or another table
-    in_other_table = False
-    in_string = False  # inside a multi-line string
-    depth = 0  # inside a multi-line array or inline table when > 0
-    for number, raw in enumerate(text.splitlines(), start=1):
-        if in_string:
-            in_string = not _opens_or_closes_string(raw)
-            continue
-        if depth > 0:
-            depth += _bracket_balance(raw)
-            in_string = _opens_or_closes_string(raw)
-            continue
-        if match := _ARRAY_HEADER.match(raw):
-            name = _bare(match.group(1))
-            current = _TableLines(number)
-            lines.tables.setdefault(name, []).append(current)
-            lines.top.setdefault(name.split(".")[0], number)
-            in_other_table = False
-        elif match := _TABLE_HEADER.match(raw):
-            lines.top.setdefault(_bare(match.group(1).split(".")[0]), number)
-            current, in_other_table = None, True
-        elif match := _KEY_LINE.match(raw):
-            key = _bare(match.group(1))
-            if current is not None:
-                current.keys.setdefault(key, number)
-            elif not in_other_table:
-                lines.top.setdefault(key, number)
-            depth = _bracket_balance(raw)
-            in_string = _opens_or_closes_string(raw)
-    return lines
-
-
 # --- validation -------------------------------------------------------------------
 
 def _is_number(value: object) -> bool:
@@ -218,7 +138,7 @@ def _is_int(value: object) -> bool:
 class _Validator:
     """Turns a parsed TOML document into a `Schedule`, raising on the first problem."""
 
-    def __init__(self, doc: dict, lines: _LineMap, path: str):
+    def __init__(self, doc: dict, lines: LineMap, path: str):
         self.doc, self.lines, self.path = doc, lines, path
 
     def fail(self, line: int | None, field: str | None, message: str) -> ScheduleError:
@@ -227,41 +147,41 @@ class _Validator:
     def top_string(self, key: str) -> str:
         value = self.doc[key]
         if not isinstance(value, str):
-            raise self.fail(self.lines.top.get(key), key, f"must be a string, got {value!r}")
+            raise self.fail(self.lines.exact(key), key, f"must be a string, got {value!r}")
         return value
 
     def run(self) -> Schedule:
-        doc, top = self.doc, self.lines.top
+        doc, lines = self.doc, self.lines
         if "format" not in doc:
             raise self.fail(None, "format", f"missing required key (expected {FORMAT!r})")
         if doc["format"] != FORMAT:
-            raise self.fail(top.get("format"), "format", f"expected {FORMAT!r}, got {doc['format']!r}")
+            raise self.fail(lines.exact("format"), "format", f"expected {FORMAT!r}, got {doc['format']!r}")
         if "version" not in doc:
             raise self.fail(None, "version", "missing required key")
         if not _is_int(doc["version"]) or doc["version"] != VERSION:
-            raise self.fail(top.get("version"), "version",
+            raise self.fail(lines.exact("version"), "version",
                             f"unsupported version {doc['version']!r} (supported: {VERSION})")
         for key in doc:
             if key not in _REQUIRED_TOP and key not in _OPTIONAL_TOP:
                 allowed = ", ".join(_REQUIRED_TOP + _OPTIONAL_TOP)
-                raise self.fail(top.get(key), key, f"unknown key (allowed: {allowed})")
+                raise self.fail(lines.exact(key), key, f"unknown key (allowed: {allowed})")
         for key in _REQUIRED_TOP:
             if key not in doc:
                 raise self.fail(None, key, "missing required key")
         name, kind, description = (self.top_string(k) for k in ("name", "kind", "description"))
         reference = self.top_string("source") if "source" in doc else ""
         if not name.strip():
-            raise self.fail(top.get("name"), "name", "must not be empty")
+            raise self.fail(lines.exact("name"), "name", "must not be empty")
         if kind not in KINDS:
-            raise self.fail(top.get("kind"), "kind", f"unknown kind {kind!r} (expected one of {', '.join(KINDS)})")
+            raise self.fail(lines.exact("kind"), "kind", f"unknown kind {kind!r} (expected one of {', '.join(KINDS)})")
 
         wanted, unwanted = ("rotation", "position") if kind == "rotations" else ("position", "rotation")
         if unwanted in doc:
-            raise self.fail(top.get(unwanted), unwanted,
+            raise self.fail(lines.exact(unwanted), unwanted,
                             f"[[{unwanted}]] tables are not allowed in a {kind!r} schedule")
         tables = doc.get(wanted, [])
         if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
-            raise self.fail(top.get(wanted), wanted, f"must be an array of tables ([[{wanted}]])")
+            raise self.fail(lines.exact(wanted), wanted, f"must be an array of tables ([[{wanted}]])")
         if not tables:
             raise self.fail(None, wanted, f"a {kind!r} schedule needs at least one [[{wanted}]] table")
 
@@ -277,15 +197,15 @@ class _Validator:
         label = f"{table_name}[{index + 1}]"
         for key in table:
             if key not in allowed:
-                raise self.fail(self.lines.key(table_name, index, key), f"{label}.{key}",
+                raise self.fail(self.lines.line(table_name, index, key), f"{label}.{key}",
                                 f"unknown key (allowed: {', '.join(allowed)})")
         for key, required in allowed.items():
             if required and key not in table:
-                raise self.fail(self.lines.table(table_name, index), f"{label}.{key}", "missing required field")
+                raise self.fail(self.lines.line(table_name, index), f"{label}.{key}", "missing required field")
 
     def _angles(self, table_name: str, index: int, key: str, value: object,
                 positive_only: bool) -> tuple[float, float, float]:
-        line, label = self.lines.key(table_name, index, key), f"{table_name}[{index + 1}].{key}"
+        line, label = self.lines.line(table_name, index, key), f"{table_name}[{index + 1}].{key}"
         if not isinstance(value, list) or len(value) != 3 or not all(_is_number(v) for v in value):
             raise self.fail(line, label, f"must be 3 numbers [outer, middle, inner] in degrees, got {value!r}")
         for axis, angle_deg in zip(FRAMES, value):
@@ -304,14 +224,14 @@ class _Validator:
             angles_deg = self._angles("position", index, "angles_deg", table["angles_deg"], positive_only)
             group = table.get("group")
             if group is not None and (not _is_int(group) or group < 1):
-                raise self.fail(self.lines.key("position", index, "group"), f"position[{index + 1}].group",
+                raise self.fail(self.lines.line("position", index, "group"), f"position[{index + 1}].group",
                                 f"must be a positive integer, got {group!r}")
-            header = self.lines.table("position", index)
+            header = self.lines.line("position", index)
             if angles_deg in seen:
                 earlier = seen[angles_deg]
-                raise self.fail(self.lines.key("position", index, "angles_deg"),
+                raise self.fail(self.lines.line("position", index, "angles_deg"),
                                 f"position[{index + 1}].angles_deg",
-                                f"duplicate of position[{earlier + 1}] at line {self.lines.table('position', earlier)}")
+                                f"duplicate of position[{earlier + 1}] at line {self.lines.line('position', earlier)}")
             seen[angles_deg] = index
             yield PositionStep(angles_deg=angles_deg, group=group, line=header)
 
@@ -323,18 +243,18 @@ class _Validator:
             start_deg = self._angles("rotation", index, "start_deg", table["start_deg"], positive_only=True)
             for key, choices in (("frame", FRAMES), ("direction", DIRECTIONS)):
                 if table[key] not in choices:
-                    raise self.fail(self.lines.key("rotation", index, key), f"{label}.{key}",
+                    raise self.fail(self.lines.line("rotation", index, key), f"{label}.{key}",
                                     f"got {table[key]!r}, expected one of {', '.join(choices)}")
             revolutions = table["revolutions"]
             if not _is_int(revolutions) or revolutions < 1:
-                raise self.fail(self.lines.key("rotation", index, "revolutions"), f"{label}.revolutions",
+                raise self.fail(self.lines.line("rotation", index, "revolutions"), f"{label}.revolutions",
                                 f"must be a whole number >= 1, got {revolutions!r}")
-            header = self.lines.table("rotation", index)
+            header = self.lines.line("rotation", index)
             key = (start_deg, table["frame"], table["direction"])
             if key in seen:
                 earlier = seen[key]
                 raise self.fail(header, label, f"duplicate of rotation[{earlier + 1}] at line "
-                                f"{self.lines.table('rotation', earlier)} (same start, frame and direction)")
+                                f"{self.lines.line('rotation', earlier)} (same start, frame and direction)")
             seen[key] = index
             yield RotationStep(start_deg=start_deg, frame=table["frame"], direction=table["direction"],
                                revolutions=revolutions, line=header)
@@ -361,7 +281,7 @@ def parse_schedule(text: str, path: str = "<string>") -> Schedule:
         message = _TOML_LOCATION.sub("", message)
         raise ScheduleError(path, int(location.group(1)), None,
                             f"invalid TOML: {message} (column {location.group(2)})") from None
-    return _Validator(doc, _locate_lines(text), path).run()
+    return _Validator(doc, locate_lines(text), path).run()
 
 
 def load_schedule(path: str | pathlib.Path) -> Schedule:

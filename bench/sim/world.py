@@ -1,0 +1,138 @@
+"""The whole simulated bench: table served over loopback, IMU on a virtual CAN bus, one simulated clock.
+
+`SimWorld` is what `bench run --sim` (and a config whose table url is "sim") runs
+against: the simulated controller is served in the configured dialect on 127.0.0.1
+(Modbus TCP for modbus) and driven by the real driver through the real transport; the
+simulated IMU sends DBC frames on a python-can virtual bus that the real receiver
+reads. Time is a `SimClock`: it advances only when the sequencer sleeps, and every
+advance makes the IMU send the samples up to the new time, so a plan with realistic
+timing finishes far faster than real time and the log carries simulated timestamps.
+"""
+
+from __future__ import annotations
+
+import copy
+import queue
+import time
+import uuid
+
+import can
+from can.interfaces.virtual import VirtualBus
+import numpy as np
+
+from bench.earth import Site
+from bench.imu_model import ImuCoefficients, NoiseModel
+from bench.sim.can_imu import SimCanImu
+from bench.sim.controller import SimController
+from bench.sim.imu import SimImu
+from bench.sim.table import SimTable, TableLimits
+from drivers.clock import ManualClock
+from drivers.imu.layout import ImuLayout
+
+
+class SimVirtualBus(VirtualBus):
+    """The simulated IMU's side of the virtual bus: hands its messages over without a deep copy.
+
+    python-can's `VirtualBus.send` deep-copies every message for every receiver, which
+    costs more than everything else the simulator does per frame. The simulated IMU
+    builds a fresh `Message` per frame and never touches it again, so the first
+    receiver gets it as is and any further receiver a copy.
+    """
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self._check_if_open()
+        if not self.preserve_timestamps:
+            msg.timestamp = time.time()
+        first = True
+        for bus_queue in self.channel:
+            if bus_queue is self.queue and not self.receive_own_messages:
+                continue
+            out = msg if first else copy.copy(msg)
+            first = False
+            out.channel, out.is_rx = self.channel_id, bus_queue is not self.queue
+            try:
+                bus_queue.put(out, block=True, timeout=timeout)
+            except queue.Full as exc:
+                raise can.CanOperationError("the virtual bus queue of a receiver is full") from exc
+
+
+class SimClock(ManualClock):
+    """A manual clock that calls its hooks after every advance (outside its lock)."""
+
+    def __init__(self, start_s: float = 0.0):
+        super().__init__(start_s)
+        self._hooks: list = []
+
+    def add_hook(self, hook) -> None:
+        self._hooks.append(hook)
+
+    def advance(self, seconds: float) -> None:
+        super().advance(seconds)
+        for hook in self._hooks:
+            hook()
+
+
+class SimWorld:
+    """A simulated table (served in `dialect`) and IMU (on a virtual CAN bus) on one `SimClock`."""
+
+    def __init__(self, site: Site, coefficients: ImuCoefficients, noise: NoiseModel, *,
+                 black_box_rad: np.ndarray | None = None, dialect: str = "scpi", imu_rate_hz: float = 200.0,
+                 layout: ImuLayout | None = None, seed: int = 0, table_limits: TableLimits = TableLimits(),
+                 register_map=None):
+        self.clock = SimClock()
+        self.dialect = dialect
+        self.table = SimTable(site, black_box_rad=black_box_rad, limits=table_limits)
+        self.controller = SimController(self.table, self.clock)
+        self._closers: list = []
+        try:
+            self.table_url = self._serve(dialect, register_map)
+            self.imu = SimImu(coefficients, noise, rate_hz=imu_rate_hz, seed=seed)
+            self.can_channel = f"turntable-bench-sim-{uuid.uuid4().hex[:12]}"
+            # Frames keep the simulated time they were sent at (the run clock's time base).
+            self.sender_bus = SimVirtualBus(channel=self.can_channel, preserve_timestamps=True)
+            self._closers.append(self.sender_bus.shutdown)
+            self.can_imu = SimCanImu(self.controller, self.imu, self.sender_bus, layout)
+            self.clock.add_hook(self.can_imu.step)
+        except BaseException:
+            self.close()
+            raise
+
+    @property
+    def bus_config(self) -> dict:
+        """python-can Bus arguments for the receiver's side of the virtual bus."""
+        return {"interface": "virtual", "channel": self.can_channel}
+
+    def _serve(self, dialect: str, register_map) -> str:
+        if dialect == "modbus":
+            from bench.sim.modbus_server import ModbusSimServer
+
+            server = ModbusSimServer(self.controller, register_map)
+            self._closers.append(server.close)
+            host, port = server.start_tcp("127.0.0.1", 0)
+            return f"modbus+tcp://{host}:{port}"
+        from bench.sim.serve import LineServer
+
+        if dialect == "scpi":
+            from bench.sim.scpi_server import ScpiSimHandler as Handler
+        elif dialect == "mn":
+            from bench.sim.mn_server import MnSimHandler as Handler
+        else:
+            raise ValueError(f"no simulator for dialect {dialect!r}")
+        server = LineServer(Handler(self.controller))
+        self._closers.append(server.close)
+        host, port = server.listen_tcp("127.0.0.1", 0)
+        return f"tcp://{host}:{port}"
+
+    def close(self) -> None:
+        for close in reversed(self._closers):
+            try:
+                close()
+            except Exception:  # noqa: BLE001 - closing everything matters more than the first failure
+                pass
+        self._closers.clear()
+
+    def __enter__(self) -> "SimWorld":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
