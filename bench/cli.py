@@ -59,7 +59,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from bench import schedules_cli, table_cli
+    from bench import run_cli, schedules_cli, table_cli
 
     parser = argparse.ArgumentParser(prog="bench", description="IMU calibration on a three-axis turntable")
     parser.add_argument("--version", action="version", version=f"turntable-bench {__version__}")
@@ -76,6 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--rate-dps", type=float, default=10.0, help="turn rate of the rotation method, deg/s")
     ev.set_defaults(func=_cmd_evaluate)
 
+    run_cli.register(sub)
     schedules_cli.register(sub)
     table_cli.register_table(sub)
     table_cli.register_sim(sub)

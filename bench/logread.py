@@ -1,0 +1,316 @@
+"""Read a run log (MCAP, as written by `bench.recorder`) into arrays, tolerating damage.
+
+`read_log(path)` never needs the summary: it walks the records (see `bench.mcap_walk`),
+checks every chunk's CRC, and reads around damage: a file cut off by a crash gives
+everything up to its last complete chunk, a chunk that fails its CRC (or cannot be
+decompressed) is skipped and reading resumes after it. `RunLog.damage` says exactly what
+was lost (byte offsets, log-time ranges, message counts per topic where the file's
+message index or summary tells them); `RunLog.complete` is False when anything was. A
+file that is not MCAP at all raises `LogError` with a one-line message naming the file.
+
+The raw CAN frames (`/can/raw`) are the source of truth for IMU data:
+`RunLog.imu_samples(layout, rate_hz)` decodes them with the bulk decoder. The decoded
+`/imu/samples` topic (possibly decimated) is parsed on first use of `RunLog.imu_records`.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from bench.events import Event
+from bench.mcap_walk import ChannelData, Damage, WalkError, walk
+from bench.recorder import CAN_ENCODING, TOPIC_CAN, TOPIC_EVENTS, TOPIC_SAMPLES, TOPIC_STATE
+from drivers.imu import ImuSampleBlock, ImuStats, decode_frames
+from drivers.imu.layout import ImuLayout
+
+#: Data width of `RunLog.can_data` when every frame fits a classic frame; CAN FD logs get 64.
+CLASSIC_WIDTH, FD_WIDTH = 8, 64
+
+
+class LogError(Exception):
+    """The file cannot be read as a run log at all."""
+
+
+@dataclass
+class TableStates:
+    """The polled table states, in log order."""
+
+    time_s: np.ndarray      # (n,)
+    angles_deg: np.ndarray  # (n, 3) outer, middle, inner
+    rates_dps: np.ndarray   # (n, 3)
+    status: np.ndarray      # (n, 3) int64 AxisStatus bits
+    estop: np.ndarray       # (n,) bool
+    modes: list             # n tuples of 3 mode strings
+    fault_text: list        # n strings
+
+    def __len__(self) -> int:
+        return len(self.time_s)
+
+    @classmethod
+    def from_dicts(cls, rows: list[dict]) -> "TableStates":
+        n = len(rows)
+
+        def vec(key, dtype=float):
+            return np.array([[np.nan if v is None else v for v in r[key]] for r in rows], dtype).reshape(n, 3)
+
+        return cls(np.array([np.nan if r["time_s"] is None else r["time_s"] for r in rows], float).reshape(n),
+                   vec("angles_deg"), vec("rates_dps"), vec("status", np.int64),
+                   np.array([bool(r.get("estop")) for r in rows], bool).reshape(n),
+                   [tuple(r["modes"]) for r in rows], [str(r.get("fault_text", "")) for r in rows])
+
+
+@dataclass
+class ImuRecords:
+    """The decoded samples as recorded on `/imu/samples` (possibly decimated), in log order."""
+
+    counter: np.ndarray         # (n,) int64
+    time_s: np.ndarray          # (n,) counter / rate
+    receive_time_s: np.ndarray  # (n,) the message log times
+    gyro_counts: np.ndarray     # (n, 3)
+    acc_counts: np.ndarray      # (n, 3)
+    temperature_c: np.ndarray   # (n,) NaN where not recorded
+    status: np.ndarray          # (n,) int64
+
+    def __len__(self) -> int:
+        return len(self.counter)
+
+
+@dataclass
+class RunLog:
+    """Everything read from one run log. CAN frames are arrays for the bulk decoder."""
+
+    path: str
+    metadata: dict[str, dict[str, str]]
+    attachments: dict[str, tuple[str, bytes]]
+    events: list[Event]
+    table_states: TableStates
+    can_timestamp_s: np.ndarray   # (n,) float64, each frame's own timestamp (run clock)
+    can_ids: np.ndarray           # (n,) uint32, bit 31 set = extended id
+    can_data: np.ndarray          # (n, 8) uint8 (n, 64 if any frame is longer), zero-padded
+    can_lengths: np.ndarray       # (n,) int64
+    can_flags: np.ndarray         # (n,) uint8, bits as in bench.recorder (FD, BRS, ESI, remote, error)
+    summary_present: bool
+    damage: list[str]
+    lost: list[Damage]            # the damage entries behind `damage`, with offsets and counts
+    message_counts: dict[str, int]
+    chunks: int
+    library: str
+    _samples: ChannelData | None = field(default=None, repr=False)
+
+    @property
+    def complete(self) -> bool:
+        """True when nothing was lost (the file was closed and every record read)."""
+        return not self.damage
+
+    @cached_property
+    def imu_records(self) -> ImuRecords:
+        """The `/imu/samples` topic as arrays (parsed on first use)."""
+        d = self._samples
+        if d is None or not len(d):
+            return ImuRecords(np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)),
+                              np.zeros(0), np.zeros(0, np.int64))
+        rows, bad = _parse_json_rows(d)
+        if bad:
+            self.damage.append(f"{bad} malformed messages on {TOPIC_SAMPLES} skipped")
+        times = d.log_time_ns[[i for i, r in enumerate(rows) if r is not None]] / 1e9
+        rows = [r for r in rows if r is not None]
+        try:
+            return ImuRecords(np.array([r["counter"] for r in rows], np.int64),
+                              np.array([r["time_s"] for r in rows], float), times,
+                              np.array([r["gyro_counts"] for r in rows], float).reshape(-1, 3),
+                              np.array([r["acc_counts"] for r in rows], float).reshape(-1, 3),
+                              np.array([np.nan if r["temperature_c"] is None else r["temperature_c"] for r in rows],
+                                       float),
+                              np.array([r["status"] for r in rows], np.int64))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise LogError(f"{self.path}: {TOPIC_SAMPLES} messages do not have the expected fields ({exc})") from exc
+
+    def imu_samples(self, layout: ImuLayout | None = None, rate_hz: float = 1000.0,
+                    reorder_window: int = 8) -> tuple[ImuSampleBlock, ImuStats]:
+        """Decode the raw CAN frames into samples (the source of truth) and link statistics."""
+        return decode_frames(self.can_ids, self.can_data, self.can_lengths, self.can_timestamp_s, layout=layout,
+                             rate_hz=rate_hz, reorder_window=reorder_window)
+
+    def summary(self) -> str:
+        """One line: what the log holds and whether anything was lost."""
+        state = "complete" if self.complete else f"DAMAGED ({len(self.damage)} problems)"
+        return (f"{self.path}: {len(self.can_ids)} CAN frames, {len(self.table_states)} table states, "
+                f"{len(self.events)} events, {self.chunks} chunks; {state}")
+
+
+def _parse_json_rows(d: ChannelData) -> tuple[list, int]:
+    """Each message of a JSON channel as a dict (None where malformed) and the malformed count."""
+    payloads = d.payloads()
+    try:
+        rows = json.loads(b"[" + b",".join(payloads) + b"]")
+        if len(rows) == len(payloads) and all(isinstance(r, dict) for r in rows):
+            return rows, 0
+    except ValueError:
+        pass
+    rows, bad = [], 0
+    for p in payloads:
+        try:
+            r = json.loads(p)
+            if not isinstance(r, dict):
+                raise ValueError("not an object")
+            rows.append(r)
+        except ValueError:
+            rows.append(None)
+            bad += 1
+    return rows, bad
+
+
+def _empty_can(width: int = CLASSIC_WIDTH):
+    return (np.zeros(0), np.zeros(0, np.uint32), np.zeros((0, width), np.uint8), np.zeros(0, np.int64),
+            np.zeros(0, np.uint8))
+
+
+def _uniform_can(buf: bytes):
+    """Fast path: every frame has the same length (a classic or fixed-size FD layout)."""
+    u8 = np.frombuffer(buf, np.uint8)
+    length = int(u8[13])
+    rec = 14 + length
+    if len(buf) % rec or not (u8[13::rec] == length).all():
+        return None
+    dt = np.dtype([("t", "<f8"), ("id", "<u4"), ("flags", "u1"), ("len", "u1"), ("data", "u1", (length,))])
+    arr = np.frombuffer(buf, dt)
+    width = CLASSIC_WIDTH if length <= CLASSIC_WIDTH else FD_WIDTH
+    data = np.zeros((len(arr), width), np.uint8)
+    data[:, :length] = arr["data"]
+    return (arr["t"].astype(np.float64), arr["id"].astype(np.uint32), data,
+            np.full(len(arr), length, np.int64), arr["flags"].astype(np.uint8))
+
+
+def _frame_offsets(p: bytes) -> list[int] | None:
+    """Record offsets within one `/can/raw` message, None if its framing is broken."""
+    offsets, pos, n = [], 0, len(p)
+    while pos < n:
+        if pos + 14 > n:
+            return None
+        offsets.append(pos)
+        pos += 14 + p[pos + 13]
+    return offsets if pos == n else None
+
+
+def _general_can(payloads: list[bytes]) -> tuple[tuple, int]:
+    """Frames of mixed lengths, message by message; malformed messages are dropped and counted."""
+    good, offsets, base, bad = [], [], 0, 0
+    for p in payloads:
+        offs = _frame_offsets(p)
+        if offs is None:
+            bad += 1
+            continue
+        good.append(p)
+        offsets.extend(o + base for o in offs)
+        base += len(p)
+    if not offsets:
+        return _empty_can(), bad
+    buf = np.frombuffer(b"".join(good), np.uint8)
+    offs = np.asarray(offsets, np.int64)
+    t = buf[offs[:, None] + np.arange(8)].copy().view("<f8").reshape(-1)
+    ids = buf[offs[:, None] + np.arange(8, 12)].copy().view("<u4").reshape(-1)
+    flags = buf[offs + 12]
+    lengths = buf[offs + 13].astype(np.int64)
+    width = CLASSIC_WIDTH if lengths.max() <= CLASSIC_WIDTH else FD_WIDTH
+    cols = np.arange(width)
+    idx = np.minimum(offs[:, None] + 14 + cols, len(buf) - 1)
+    data = np.where(cols < lengths[:, None], buf[idx], 0).astype(np.uint8)
+    return (t, ids, data, lengths, flags), bad
+
+
+def _read_can(d: ChannelData | None) -> tuple[tuple, int]:
+    if d is None or not len(d):
+        return _empty_can(), 0
+    buf = d.joined()
+    if len(buf) >= 14:
+        fast = _uniform_can(buf)
+        if fast is not None:
+            return fast, 0
+    return _general_can(d.payloads())
+
+
+def read_log(path) -> RunLog:
+    """Read a run log; see the module docstring for how damage is handled."""
+    path = str(path)
+    try:
+        buf = Path(path).read_bytes()
+    except OSError as exc:
+        raise LogError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+    try:
+        w = walk(buf)
+    except WalkError as exc:
+        raise LogError(f"{path}: {exc}") from exc
+    del buf
+
+    by_topic: dict[str, ChannelData] = {}
+    counts: dict[str, int] = {}
+    for ch, d in w.data.items():
+        topic = w.topic(ch)
+        counts[topic] = counts.get(topic, 0) + len(d)
+        channel = w.channels.get(ch)
+        if channel is not None and topic == TOPIC_CAN and channel.message_encoding != CAN_ENCODING:
+            raise LogError(f"{path}: {TOPIC_CAN} has message encoding {channel.message_encoding!r}, "
+                           f"expected {CAN_ENCODING!r}")
+        by_topic[topic] = d
+    damage = list(w.damage)
+
+    # The summary's statistics tell how many messages each channel should have.
+    if w.statistics is not None:
+        known_lost: dict[str, int] = {}
+        for dmg in damage:
+            for topic, n in dmg.lost.items():
+                known_lost[topic] = known_lost.get(topic, 0) + n
+        for ch, expected in w.statistics.channel_message_counts.items():
+            topic = w.topic(ch)
+            missing = expected - counts.get(topic, 0) - known_lost.get(topic, 0)
+            if missing > 0:
+                damage.append(Damage("message", w.size, f"the summary counts {missing} more messages on {topic} "
+                                                        f"than were read"))
+
+    (t, ids, data, lengths, flags), bad_can = _read_can(by_topic.get(TOPIC_CAN))
+    if bad_can:
+        damage.append(Damage("message", 0, f"{bad_can} malformed {TOPIC_CAN} messages skipped"))
+
+    events: list[Event] = []
+    if TOPIC_EVENTS in by_topic:
+        rows, bad = _parse_json_rows(by_topic[TOPIC_EVENTS])
+        for r in filter(None, rows):
+            try:
+                events.append(Event.from_dict(r))
+            except (KeyError, TypeError, ValueError, AttributeError):
+                bad += 1
+        if bad:
+            damage.append(Damage("message", 0, f"{bad} malformed {TOPIC_EVENTS} messages skipped"))
+
+    states = TableStates.from_dicts([])
+    if TOPIC_STATE in by_topic:
+        rows, bad = _parse_json_rows(by_topic[TOPIC_STATE])
+        rows = [r for r in rows if r is not None]
+        try:
+            states = TableStates.from_dicts(rows)
+        except (KeyError, TypeError, ValueError):
+            good = []
+            for r in rows:
+                try:
+                    TableStates.from_dicts([r])
+                    good.append(r)
+                except (KeyError, TypeError, ValueError):
+                    bad += 1
+            states = TableStates.from_dicts(good)
+        if bad:
+            damage.append(Damage("message", 0, f"{bad} malformed {TOPIC_STATE} messages skipped"))
+
+    library = w.header.library if w.header is not None else ""
+    return RunLog(path=path, metadata=w.metadata, attachments=w.attachments, events=events, table_states=states,
+                  can_timestamp_s=t, can_ids=ids, can_data=data, can_lengths=lengths, can_flags=flags,
+                  summary_present=w.footer is not None and w.statistics is not None,
+                  damage=[d.describe() for d in damage], lost=damage, message_counts=counts, chunks=w.chunks,
+                  library=library, _samples=by_topic.get(TOPIC_SAMPLES))
+
+
+__all__ = ["ImuRecords", "LogError", "RunLog", "TableStates", "read_log"]

@@ -1,0 +1,485 @@
+"""A damage-tolerant walk over the records of an MCAP file (what `bench.logread` builds on).
+
+The `mcap` library's readers stop at the first damaged record (a CRC mismatch ends the
+stream reader's generator; the seeking reader needs the summary). A run log cut off by a
+crash, or with one bad chunk, must still give everything else, so this walks the record
+framing itself (MCAP spec: magic, then records `opcode u8 | length u64 | body`; a Chunk
+body is `start u64 | end u64 | uncompressed size u64 | uncompressed crc32 u32 |
+compression string | data length u64 | data`, its data again records). Record bodies
+other than messages are parsed with the library's own record classes.
+
+Messages are gathered per channel and per chunk in compact form (payloads joined, with
+their lengths and log times); damage is collected as `Damage` entries with byte offsets
+and log-time ranges.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from dataclasses import dataclass, field
+from io import BytesIO
+
+import numpy as np
+
+from mcap.data_stream import ReadDataStream
+from mcap.records import Attachment, Channel, Footer, Header, Metadata, Schema, Statistics
+
+try:
+    import zstandard
+except ImportError:    # pragma: no cover - mcap depends on it
+    zstandard = None
+try:
+    import lz4.frame as lz4_frame
+except ImportError:    # pragma: no cover - mcap depends on it
+    lz4_frame = None
+
+MAGIC = b"\x89MCAP0\r\n"
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_MESSAGE_INDEX = 1, 2, 3, 4, 5, 6, 7
+OP_CHUNK_INDEX, OP_ATTACHMENT, OP_ATTACHMENT_INDEX, OP_STATISTICS, OP_METADATA = 8, 9, 10, 11, 12
+OP_METADATA_INDEX, OP_SUMMARY_OFFSET, OP_DATA_END = 13, 14, 15
+OP_NAMES = {1: "header", 2: "footer", 3: "schema", 4: "channel", 5: "message", 6: "chunk", 7: "message index",
+            8: "chunk index", 9: "attachment", 10: "attachment index", 11: "statistics", 12: "metadata",
+            13: "metadata index", 14: "summary offset", 15: "data end"}
+
+_RECORD = struct.Struct("<BQ")
+_MESSAGE = struct.Struct("<BQHIQ")     # opcode, length, channel id, sequence, log time
+_CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
+_U64 = struct.Struct("<Q")
+_MSG_OFFSET = 9 + 22                   # record header + message header
+
+
+class WalkError(Exception):
+    """The file cannot be read as MCAP at all (the caller turns this into its own error)."""
+
+
+def _fmt_range(start_ns: int, end_ns: int) -> str:
+    return f"log time {start_ns / 1e9:.3f}..{end_ns / 1e9:.3f} s"
+
+
+@dataclass
+class Damage:
+    """One damaged or missing part of a log."""
+
+    kind: str                    # "chunk", "truncated", "corrupt", "no_summary", "attachment", "message"
+    offset: int                  # byte offset of the damaged record (or of the end of the file)
+    reason: str
+    start_ns: int | None = None  # log-time range of a lost chunk, when its header was readable
+    end_ns: int | None = None
+    lost: dict[str, int] = field(default_factory=dict)   # topic -> messages lost, when known
+
+    def describe(self) -> str:
+        where = f" ({_fmt_range(self.start_ns, self.end_ns)})" if self.start_ns is not None else ""
+        if self.kind == "chunk":
+            what = (", ".join(f"{n} on {t}" for t, n in sorted(self.lost.items())) if self.lost
+                    else "count unknown")
+            return f"chunk at byte {self.offset}{where}: {self.reason}; its messages lost ({what})"
+        if self.kind == "truncated":
+            return f"truncated after byte {self.offset}: {self.reason}{where}"
+        return f"byte {self.offset}: {self.reason}{where}" if self.kind != "no_summary" else self.reason
+
+
+@dataclass
+class ChannelData:
+    """Messages of one channel in file order: payloads per chunk, their lengths and log times.
+
+    A part is either the payloads joined (bytes) or, until first used, a lazy reference
+    `(chunk data, payload starts)`: gathering costs a slice per message, and most readers
+    never touch the high-rate JSON topics (the decompressed chunk stays in memory meanwhile).
+    """
+
+    parts: list = field(default_factory=list)      # bytes or (chunk bytes, starts array), one per chunk
+    lengths: list = field(default_factory=list)    # int64 arrays, payload lengths, one per part
+    log_times: list = field(default_factory=list)  # uint64 arrays, log times (ns), one per part
+
+    def add(self, part, lengths, log_times) -> None:
+        self.parts.append(part)
+        self.lengths.append(np.asarray(lengths, np.int64))
+        self.log_times.append(np.asarray(log_times, np.uint64))
+
+    def __len__(self) -> int:
+        return sum(len(x) for x in self.lengths)
+
+    @property
+    def log_time_ns(self) -> np.ndarray:
+        return np.concatenate(self.log_times) if self.log_times else np.zeros(0, np.uint64)
+
+    def _gathered(self) -> list[bytes]:
+        for k, part in enumerate(self.parts):
+            if isinstance(part, tuple):
+                data, starts = part
+                view = memoryview(data)
+                self.parts[k] = b"".join([view[a:b] for a, b in zip(starts.tolist(),
+                                                                    (starts + self.lengths[k]).tolist())])
+        return self.parts
+
+    def payloads(self) -> list[bytes]:
+        """One bytes per message."""
+        out = []
+        for part, lengths in zip(self._gathered(), self.lengths):
+            ends = np.cumsum(lengths).tolist()
+            out += [part[e - n:e] for e, n in zip(ends, lengths.tolist())]
+        return out
+
+    def joined(self) -> bytes:
+        """All payloads back to back."""
+        parts = self._gathered()
+        return parts[0] if len(parts) == 1 else b"".join(parts)
+
+
+@dataclass
+class Walk:
+    """Everything found in a file."""
+
+    header: Header | None = None
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    data: dict[int, ChannelData] = field(default_factory=dict)
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    attachments: dict[str, tuple[str, bytes]] = field(default_factory=dict)
+    statistics: Statistics | None = None
+    footer: Footer | None = None
+    chunks: int = 0
+    damage: list[Damage] = field(default_factory=list)
+    size: int = 0
+
+    def topic(self, channel_id: int) -> str:
+        ch = self.channels.get(channel_id)
+        return ch.topic if ch is not None else f"<channel {channel_id}>"
+
+
+def _body_stream(buf, start: int, end: int) -> ReadDataStream:
+    return ReadDataStream(BytesIO(bytes(buf[start:end])))
+
+
+def _decompress(compression: str, payload, size: int) -> bytes:
+    if compression == "":
+        return bytes(payload)
+    if compression == "zstd":
+        if zstandard is None:
+            raise WalkError("zstd chunks need the zstandard package")
+        return zstandard.ZstdDecompressor().decompress(payload, max_output_size=size)
+    if compression == "lz4":
+        if lz4_frame is None:
+            raise WalkError("lz4 chunks need the lz4 package")
+        return lz4_frame.decompress(payload)
+    raise ValueError(f"unknown compression {compression!r}")
+
+
+def _chunk_fields(buf, body: int, length: int):
+    """(start, end, usize, crc, compression, data_start, data_len) of a chunk body, or None if inconsistent."""
+    if length < 40:
+        return None
+    start, end, usize, crc, clen = _CHUNK_HEAD.unpack_from(buf, body)
+    if clen > 16 or 40 + clen > length:
+        return None
+    try:
+        compression = bytes(buf[body + 32:body + 32 + clen]).decode("ascii")
+    except UnicodeDecodeError:
+        return None
+    (dlen,) = _U64.unpack_from(buf, body + 32 + clen)
+    if 40 + clen + dlen != length or start > end:
+        return None
+    return start, end, usize, crc, compression, body + 40 + clen, dlen
+
+
+def _plausible_chunk_at(buf, pos: int, size: int) -> bool:
+    if pos + 9 > size or buf[pos] != OP_CHUNK:
+        return False
+    (length,) = _U64.unpack_from(buf, pos + 1)
+    if pos + 9 + length > size:
+        return False
+    f = _chunk_fields(buf, pos + 9, length)
+    return f is not None and f[4] in ("", "zstd", "lz4")
+
+
+def _plausible_record_at(buf, pos: int, size: int) -> bool:
+    if pos == size:
+        return True
+    if pos + 9 > size:
+        return False
+    return buf[pos] in OP_NAMES   # a length past the end is a truncation, told apart by the main loop
+
+
+def _resync(buf, pos: int, size: int) -> int:
+    """The offset of the next plausible chunk record after `pos`, or `size`."""
+    p = pos + 1
+    while True:
+        p = buf.find(b"\x06", p)
+        if p < 0:
+            return size
+        if _plausible_chunk_at(buf, p, size):
+            return p
+        p += 1
+
+
+class _Walker:
+    def __init__(self, buf: bytes):
+        self.buf = buf
+        self.w = Walk(size=len(buf))
+        self.lost_chunk: Damage | None = None   # message index records after a lost chunk count its messages
+        self.pending = None                     # a good chunk waiting for its message index records
+        self.pending_index: list[tuple[int, int]] = []
+
+    def channel_data(self, channel_id: int) -> ChannelData:
+        d = self.w.data.get(channel_id)
+        if d is None:
+            d = self.w.data[channel_id] = ChannelData()
+        return d
+
+    def run(self) -> Walk:
+        buf, w = self.buf, self.w
+        size = len(buf)
+        if size == 0:
+            raise WalkError("empty file")
+        if size < 8 or buf[:8] != MAGIC:
+            raise WalkError("not an MCAP file (no MCAP magic at the start)")
+        pos = 8
+        if size < 17 or buf[8] != OP_HEADER or not _plausible_record_at(buf, 8, size):
+            raise WalkError("not a readable MCAP file (no header record after the magic)")
+        while pos < size:
+            if size - pos < 9:
+                w.damage.append(Damage("truncated", size, f"a record header at byte {pos} is incomplete"))
+                break
+            op, length = _RECORD.unpack_from(buf, pos)
+            body, end = pos + 9, pos + 9 + length
+            if op != OP_MESSAGE_INDEX or end > size:
+                self.finish_chunk()
+            if op not in OP_NAMES:
+                nxt = _resync(buf, pos, size)
+                w.damage.append(Damage("corrupt", pos, f"unreadable record (opcode {op:#x}); bytes {pos}..{nxt} "
+                                                       f"skipped" + (" to the next chunk" if nxt < size else "")))
+                pos = nxt
+                continue
+            if end > size:
+                nxt = _resync(buf, pos, size)
+                if nxt == size:   # nothing readable follows: the file was cut off here
+                    self.truncated(op, pos, body, length)
+                    break
+                w.damage.append(Damage("corrupt", pos, f"{OP_NAMES[op]} record with an impossible length; bytes "
+                                                       f"{pos}..{nxt} skipped to the next chunk"))
+                pos = nxt
+                continue
+            if op == OP_FOOTER:
+                self.footer(pos, body, end)
+                if buf[end:end + 8] != MAGIC:
+                    w.damage.append(Damage("truncated", end, "the closing magic after the footer is missing"))
+                pos = end + 8
+                break
+            if op == OP_CHUNK:
+                if not self.chunk(pos, body, length):
+                    nxt = end if _plausible_record_at(buf, end, size) else _resync(buf, pos, size)
+                    pos = nxt
+                    continue
+            else:
+                try:
+                    self.record(op, pos, body, end)
+                except Exception as exc:   # a damaged record body: skip it, say so
+                    w.damage.append(Damage("corrupt", pos, f"{OP_NAMES[op]} record unreadable ({exc}); skipped"))
+            if not _plausible_record_at(buf, end, size):
+                nxt = _resync(buf, end, size)
+                w.damage.append(Damage("corrupt", end, f"unreadable record after byte {end}; bytes {end}..{nxt} "
+                                                       f"skipped" + (" to the next chunk" if nxt < size else "")))
+                end = nxt
+            pos = end
+        self.finish_chunk()
+        if w.footer is None:
+            w.damage.append(Damage("no_summary", size, "no summary or footer: the recording was not closed "
+                                                       "(stopped or crashed); anything not yet in a closed chunk "
+                                                       "was never written"))
+        elif pos < size:
+            w.damage.append(Damage("corrupt", pos, f"{size - pos} unexpected bytes after the closing magic"))
+        return w
+
+    def footer(self, pos: int, body: int, end: int) -> None:
+        w, buf = self.w, self.buf
+        try:
+            w.footer = footer = Footer.read(_body_stream(buf, body, end))
+        except Exception as exc:
+            w.damage.append(Damage("corrupt", pos, f"footer record unreadable ({exc})"))
+            return
+        if footer.summary_crc != 0 and footer.summary_start <= pos:
+            start = footer.summary_start or pos   # no summary section: the CRC covers the footer fields only
+            if zlib.crc32(buf[start:pos + 25]) != footer.summary_crc:
+                w.statistics = None   # the counts cannot be trusted
+                w.damage.append(Damage("corrupt", start, "the summary section fails its CRC check; ignored"))
+
+    def truncated(self, op: int, pos: int, body: int, length: int) -> None:
+        buf, size = self.buf, len(self.buf)
+        if op == OP_CHUNK:
+            start, end = struct.unpack_from("<QQ", buf, body) if size - body >= 16 else (1, 0)
+            known = start <= end
+            self.w.damage.append(Damage("truncated", size, f"the last chunk (at byte {pos}) is incomplete, its "
+                                        f"messages lost", start if known else None, end if known else None))
+        else:
+            self.w.damage.append(Damage("truncated", size, f"the last {OP_NAMES[op]} record (at byte {pos}) is "
+                                        f"incomplete ({size - body} of {length} bytes)"))
+
+    def record(self, op: int, pos: int, body: int, end: int) -> None:
+        w, buf = self.w, self.buf
+        if op == OP_HEADER:
+            w.header = Header.read(_body_stream(buf, body, end))
+        elif op == OP_SCHEMA:
+            s = Schema.read(_body_stream(buf, body, end))
+            w.schemas.setdefault(s.id, s)
+        elif op == OP_CHANNEL:
+            c = Channel.read(_body_stream(buf, body, end))
+            w.channels.setdefault(c.id, c)
+        elif op == OP_MESSAGE:   # a message outside any chunk (unchunked files)
+            _, _, ch, _, log_time = _MESSAGE.unpack_from(buf, pos)
+            self.channel_data(ch).add(bytes(buf[pos + _MSG_OFFSET:end]), [end - pos - _MSG_OFFSET], [log_time])
+        elif op == OP_MESSAGE_INDEX:
+            if self.pending is not None:
+                self.pending_index.append((body, end))
+            elif self.lost_chunk is not None and end - body >= 6:
+                ch, n = struct.unpack_from("<HI", buf, body)
+                self.lost_chunk.lost[w.topic(ch)] = n // 16
+        elif op == OP_METADATA:
+            m = Metadata.read(_body_stream(buf, body, end))
+            w.metadata[m.name] = m.metadata
+        elif op == OP_ATTACHMENT:
+            a = Attachment.read(_body_stream(buf, body, end))
+            (crc,) = struct.unpack_from("<I", buf, end - 4)
+            if crc != 0 and zlib.crc32(buf[body:end - 4]) != crc:
+                w.damage.append(Damage("attachment", pos, f"attachment {a.name!r} fails its CRC check; dropped"))
+            else:
+                w.attachments[a.name] = (a.media_type, a.data)
+        elif op == OP_STATISTICS:
+            w.statistics = Statistics.read(_body_stream(buf, body, end))
+        if op != OP_MESSAGE_INDEX and op != OP_CHUNK:
+            self.lost_chunk = None
+
+    def chunk(self, pos: int, body: int, length: int) -> bool:
+        """Read one chunk record; False when its framing is broken (the caller re-syncs)."""
+        buf, w = self.buf, self.w
+        self.lost_chunk = None
+        f = _chunk_fields(buf, body, length)
+        if f is None:
+            w.damage.append(Damage("chunk", pos, "chunk header inconsistent"))
+            self.lost_chunk = w.damage[-1]
+            return False
+        start, end, usize, crc, compression, dstart, dlen = f
+        try:
+            data = _decompress(compression, memoryview(buf)[dstart:dstart + dlen], usize)
+        except WalkError:
+            raise
+        except Exception as exc:
+            w.damage.append(Damage("chunk", pos, f"{compression} data cannot be decompressed ({exc})", start, end))
+            self.lost_chunk = w.damage[-1]
+            return True
+        if len(data) != usize:
+            reason = f"decompressed to {len(data)} bytes, header says {usize}"
+        elif crc != 0 and zlib.crc32(data) != crc:
+            reason = "CRC mismatch"
+        else:   # good: its records are gathered once the message index records after it are seen
+            self.pending, self.pending_index = (pos, start, end, data), []
+            return True
+        w.damage.append(Damage("chunk", pos, reason, start, end))
+        self.lost_chunk = w.damage[-1]
+        return True
+
+    def finish_chunk(self) -> None:
+        """Gather the pending chunk's records: by its message index when that checks out, else record by record."""
+        if self.pending is None:
+            return
+        (pos, start, end, data), index = self.pending, self.pending_index
+        self.pending, self.pending_index = None, []
+        if self.chunk_by_index(data, index):
+            self.w.chunks += 1
+            return
+        reason = self.chunk_records(data)
+        if reason is None:
+            self.w.chunks += 1
+            return
+        self.w.damage.append(Damage("chunk", pos, reason, start, end))
+
+    def chunk_by_index(self, data: bytes, index: list[tuple[int, int]]) -> bool:
+        """Vectorised gathering with the chunk's message index; False (nothing kept) unless the index
+        provably frames every record of the chunk: sorted, its records tile the chunk to the end."""
+        if not index:
+            return False
+        buf = self.buf
+        chans, offs, times = [], [], []
+        for body, end in index:
+            ch, n = struct.unpack_from("<HI", buf, body)
+            if n % 16 or body + 6 + n > end:
+                return False
+            entries = np.frombuffer(buf, "<u8", count=n // 8, offset=body + 6).reshape(-1, 2)
+            chans.append(np.full(len(entries), ch, np.int64))
+            times.append(entries[:, 0])
+            offs.append(entries[:, 1])
+        ch, t, o = np.concatenate(chans), np.concatenate(times), np.concatenate(offs)
+        size = len(data)
+        if not len(o) or size < 31 or int(o.max()) > size - 31:
+            return False
+        order = np.argsort(o, kind="stable")
+        ch, t, o = ch[order], t[order], o[order].astype(np.int64)
+        u8 = np.frombuffer(data, np.uint8)
+        head = u8[o[:, None] + np.arange(31)]            # opcode, length, channel, sequence, log time
+        op = head[:, 0]
+        length = head[:, 1:9].copy().view("<u8").reshape(-1).astype(np.int64)
+        rec_ch = head[:, 9:11].copy().view("<u2").reshape(-1)
+        rec_t = head[:, 15:23].copy().view("<u8").reshape(-1)
+        ends = o + 9 + length
+        if not ((op == OP_MESSAGE).all() and (length >= 22).all() and (rec_ch == ch).all() and (rec_t == t).all()
+                and (o[1:] == ends[:-1]).all() and ends[-1] == size):
+            return False
+        first = int(o[0])
+        if first:   # schema and channel records ahead of the messages (the first chunk)
+            if self.chunk_records(data[:first], messages=False) is not None:
+                return False
+        starts, lengths = o + _MSG_OFFSET, length - 22
+        for c in np.unique(ch).tolist():
+            sel = ch == c
+            self.channel_data(c).add((data, starts[sel]), lengths[sel], t[sel])
+        return True
+
+    def chunk_records(self, data: bytes, messages: bool = True) -> str | None:
+        """Gather the chunk's records; a reason string if its content is malformed (nothing kept then),
+        or (with `messages` False) if it holds a message."""
+        unpack_msg, unpack_rec = _MESSAGE.unpack_from, _RECORD.unpack_from
+        size = len(data)
+        view = memoryview(data)
+        slices: dict[int, tuple[list, list, list]] = {}
+        others = []
+        q = 0
+        while q < size:
+            if q + 31 <= size:
+                op, ln, ch, _, log_time = unpack_msg(data, q)
+            elif q + 9 <= size:
+                op, ln = unpack_rec(data, q)
+            else:
+                return f"malformed chunk content at offset {q}"
+            end = q + 9 + ln
+            if end > size:
+                return f"malformed chunk content: record at offset {q} overruns the chunk"
+            if op == OP_MESSAGE:
+                if ln < 22 or not messages:
+                    return f"malformed message at chunk offset {q}"
+                s = slices.get(ch)
+                if s is None:
+                    s = slices[ch] = ([], [], [])
+                s[0].append(view[q + _MSG_OFFSET:end])
+                s[1].append(ln - 22)
+                s[2].append(log_time)
+            elif op in (OP_SCHEMA, OP_CHANNEL):
+                others.append((op, q, end))
+            q = end
+        for op, q, end in others:
+            try:
+                if op == OP_SCHEMA:
+                    s = Schema.read(_body_stream(data, q + 9, end))
+                    self.w.schemas.setdefault(s.id, s)
+                else:
+                    c = Channel.read(_body_stream(data, q + 9, end))
+                    self.w.channels.setdefault(c.id, c)
+            except Exception as exc:
+                return f"malformed {OP_NAMES[op]} record in the chunk ({exc})"
+        for ch, (parts, lengths, times) in slices.items():
+            self.channel_data(ch).add(b"".join(parts), lengths, times)
+        return None
+
+
+def walk(buf: bytes) -> Walk:
+    """Walk an MCAP file held in memory; raises `WalkError` if it is not MCAP at all."""
+    return _Walker(buf).run()
