@@ -89,7 +89,7 @@ class BenchRun:
                     config.site.site, config.sim.imu, config.sim.noise, black_box_rad=config.sim.black_box_rad,
                     dialect=config.table.dialect, imu_rate_hz=config.imu.rate_hz, layout=config.imu.layout,
                     seed=config.sim.seed, register_map=config.table.register_map))
-                self.clock, url, bus = self.world.clock, self.world.table_url, self.world.bus_config
+                self.clock, url, bus = self.world.clock, self.world.table_url, self.world.receiver_bus()
             else:
                 self.clock, url, bus = SYSTEM_CLOCK, config.table.url, config.imu.bus_kwargs()
             options = {"limits": config.table.limits, "clock": self.clock, "timeout_s": config.table.timeout_s,
@@ -145,7 +145,8 @@ class BenchRun:
 
     def run(self) -> RunState:
         """Enable the table and execute the plan (blocking). Errors end in a safe stop, see `sequencer.error`."""
-        self.sequencer = Sequencer(self.plan.steps, self.table, self.receiver, self.clock,
+        imu = self.world.imu_source(self.receiver) if self.world is not None else self.receiver
+        self.sequencer = Sequencer(self.plan.steps, self.table, imu, self.clock,
                                    [self.recorder, *self.extra_listeners], self.options(), self.completed)
         self.table.reset_faults()
         self.table.enable()
@@ -184,7 +185,8 @@ class BenchRun:
                 acc_stability = config.sim.noise.acc_bias_instability_ug
         solution = solve_logs(logs, config.site.site, config.imu.layout, config.imu.rate_hz,
                               gyro_bias_stability_dph=gyro_stability, acc_bias_stability_ug=acc_stability,
-                              still_open=frozenset({str(self.log_path)}))
+                              # A log being resumed was cut off: its missing summary is expected, not damage.
+                              still_open=frozenset({str(self.log_path), *map(str, self.previous_logs)}))
         failures = quality_failures(solution, self.receiver.stats)
         run_info = {"run_id": self.run_id, "mode": "simulator" if self.sim else "hardware", "operator": self.operator,
                     "software_version": __version__, "state": seq.state.value, "log": self.log_path.name,

@@ -93,6 +93,7 @@ class Sequencer:
         self._resume = threading.Event()
         self._lock = threading.Lock()
         self._last_state_poll = float("-inf")
+        self._last_drain = float("-inf")
         self._last_sample_at: float | None = None
         self._lost_reported = 0
         self._window: list[int] | None = None        # [first, last] counters while recording
@@ -266,7 +267,7 @@ class Sequencer:
                 raise TurntableTimeout(f"move to {list(target_deg)} deg not complete after "
                                        f"{self.options.move_timeout_s} s")
             self.clock.sleep(self.options.move_poll_s)
-            self._drain_imu()
+            self._drain_imu_when_due()
 
     def _rest(self, duration_s: float) -> None:
         end = self.clock.now() + duration_s
@@ -280,7 +281,7 @@ class Sequencer:
             if now >= end - 1e-9:
                 return
             self.clock.sleep(min(self.options.imu_poll_s, end - now))
-            self._drain_imu()
+            self._drain_imu_when_due()
 
     # -- data ----------------------------------------------------------------------------
     def _publish_state(self, state) -> None:
@@ -288,9 +289,13 @@ class Sequencer:
         for listener in self.listeners:
             listener.on_table_state(state)
 
+    def _drain_imu_when_due(self) -> None:
+        if self.clock.now() - self._last_drain >= self.options.imu_poll_s - 1e-9:
+            self._drain_imu()
+
     def _drain_imu(self) -> None:
         block = self.imu.poll()
-        now = self.clock.now()
+        now = self._last_drain = self.clock.now()
         if len(block):
             self._last_sample_at = now
             if self._window is not None:

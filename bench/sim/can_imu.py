@@ -107,14 +107,15 @@ class SimCanImu:
         frames = self.encoder.encode(samples.counter, samples.gyro_counts, samples.acc_counts,
                                      self.temperature_c, self.status)
         fd = {m.key: m.is_fd for m in self.layout.messages}
-        times = samples.time_s[frames.sample]
-        out = []
-        for i in range(len(frames)):
-            key = int(frames.ids[i])
-            out.append(can.Message(timestamp=float(times[i]), arbitration_id=key & ~EXTENDED_ID_FLAG,
-                                   is_extended_id=bool(key & EXTENDED_ID_FLAG), is_fd=fd[key],
-                                   data=frames.data[i, :frames.lengths[i]].tobytes()))
-        return out
+        # Plain Python values up front: per-frame numpy scalar indexing costs more than the frame.
+        times = samples.time_s[frames.sample].tolist()
+        keys, lengths = frames.ids.tolist(), frames.lengths.tolist()
+        width = frames.data.shape[1]
+        raw = frames.data.tobytes()
+        message = can.Message
+        return [message(timestamp=t, arbitration_id=key & ~EXTENDED_ID_FLAG, is_extended_id=bool(key & EXTENDED_ID_FLAG),
+                        is_fd=fd[key], data=raw[i * width:i * width + n])
+                for i, (t, key, n) in enumerate(zip(times, keys, lengths))]
 
     def _apply_faults(self, messages: list[can.Message]) -> list[can.Message]:
         out: list[can.Message] = []
@@ -151,8 +152,12 @@ class SimCanImu:
             messages = self._messages(samples)
             if self._faults or self._held is not None:
                 messages = self._apply_faults(messages)
-            for msg in messages:
-                self.bus.send(msg)
+            send_batch = getattr(self.bus, "send_batch", None)
+            if send_batch is not None:
+                send_batch(messages)
+            else:
+                for msg in messages:
+                    self.bus.send(msg)
             self.frames_sent += len(messages)
             self.samples_sent += len(samples)
             return len(messages)

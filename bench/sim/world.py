@@ -4,9 +4,10 @@
 against: the simulated controller is served in the configured dialect on 127.0.0.1
 (Modbus TCP for modbus) and driven by the real driver through the real transport; the
 simulated IMU sends DBC frames on a python-can virtual bus that the real receiver
-reads. Time is a `SimClock`: it advances only when the sequencer sleeps, and every
-advance makes the IMU send the samples up to the new time, so a plan with realistic
-timing finishes far faster than real time and the log carries simulated timestamps.
+reads. Time is a `SimClock`: it advances only when the sequencer sleeps, and each poll
+of the IMU receiver first makes the simulated IMU send every sample up to the current
+simulated time (`imu_source`), so a plan with realistic timing finishes far faster
+than real time and the log carries simulated timestamps.
 """
 
 from __future__ import annotations
@@ -31,13 +32,36 @@ from drivers.imu.layout import ImuLayout
 
 
 class SimVirtualBus(VirtualBus):
-    """The simulated IMU's side of the virtual bus: hands its messages over without a deep copy.
+    """python-can's virtual bus with batch transfer, for both ends of the simulated IMU's link.
 
     python-can's `VirtualBus.send` deep-copies every message for every receiver, which
     costs more than everything else the simulator does per frame. The simulated IMU
     builds a fresh `Message` per frame and never touches it again, so the first
     receiver gets it as is and any further receiver a copy.
     """
+
+    def send_batch(self, messages: list[can.Message]) -> None:
+        """Send many frames at once: one lock and one wake-up per receiver instead of one per frame."""
+        self._check_if_open()
+        receivers = [q for q in self.channel if q is not self.queue or self.receive_own_messages]
+        for k, bus_queue in enumerate(receivers):
+            batch = messages if k == 0 else [copy.copy(m) for m in messages]
+            for m in batch:
+                m.channel, m.is_rx = self.channel_id, bus_queue is not self.queue
+            with bus_queue.mutex:                 # queue.Queue's own lock and condition
+                bus_queue.queue.extend(batch)
+                bus_queue.unfinished_tasks += len(batch)
+                bus_queue.not_empty.notify()
+
+    def drain_messages(self, limit: int | None = None) -> list[can.Message]:
+        """Every frame queued for this bus (at most `limit`), taken at once."""
+        self._check_if_open()
+        with self.queue.mutex:
+            pending = self.queue.queue
+            count = len(pending) if limit is None else min(limit, len(pending))
+            out = [pending.popleft() for _ in range(count)]
+            self.queue.not_full.notify()
+        return out
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._check_if_open()
@@ -72,6 +96,35 @@ class SimClock(ManualClock):
             hook()
 
 
+class PumpedReceiver:
+    """An IMU receiver that runs `pump()` (the simulated IMU sending up to now) before each poll."""
+
+    def __init__(self, receiver, pump):
+        self._receiver, self._pump = receiver, pump
+
+    def poll(self, *args, **kwargs):
+        self._pump()
+        return self._receiver.poll(*args, **kwargs)
+
+    def flush(self):
+        return self._receiver.flush()
+
+    @property
+    def stats(self):
+        return self._receiver.stats
+
+    @property
+    def on_frames(self):
+        return self._receiver.on_frames
+
+    @on_frames.setter
+    def on_frames(self, callback) -> None:
+        self._receiver.on_frames = callback
+
+    def close(self) -> None:
+        self._receiver.close()
+
+
 class SimWorld:
     """A simulated table (served in `dialect`) and IMU (on a virtual CAN bus) on one `SimClock`."""
 
@@ -92,15 +145,26 @@ class SimWorld:
             self.sender_bus = SimVirtualBus(channel=self.can_channel, preserve_timestamps=True)
             self._closers.append(self.sender_bus.shutdown)
             self.can_imu = SimCanImu(self.controller, self.imu, self.sender_bus, layout)
-            self.clock.add_hook(self.can_imu.step)
         except BaseException:
             self.close()
             raise
 
+    def imu_source(self, receiver) -> "PumpedReceiver":
+        """`receiver` (reading this world's bus) wrapped so that every poll first sends the
+        samples the simulated IMU produced up to now: the IMU is stepped in as few, as
+        large, batches as the reader asks for."""
+        return PumpedReceiver(receiver, self.can_imu.step)
+
     @property
     def bus_config(self) -> dict:
-        """python-can Bus arguments for the receiver's side of the virtual bus."""
+        """python-can Bus arguments for a receiver on this world's virtual bus."""
         return {"interface": "virtual", "channel": self.can_channel}
+
+    def receiver_bus(self) -> SimVirtualBus:
+        """A bus for the IMU receiver on this world's channel (closed with the world)."""
+        bus = SimVirtualBus(channel=self.can_channel)
+        self._closers.append(bus.shutdown)
+        return bus
 
     def _serve(self, dialect: str, register_map) -> str:
         if dialect == "modbus":

@@ -52,13 +52,18 @@ class ImuReceiver:
         limit = max_frames if max_frames is not None else 1 << 62
         recv = self.bus.recv
         messages: list[can.Message] = []
+        drain = getattr(self.bus, "drain_messages", None)   # a bus that can hand over a whole batch
         try:
             msg = recv(timeout_s) if limit > 0 else None
-            while msg is not None:
+            if msg is not None:
                 messages.append(msg)
-                if len(messages) >= limit:
-                    break
+                if drain is not None and limit > 1:
+                    messages += drain(None if max_frames is None else limit - 1)
+                    msg = None
+            while msg is not None and len(messages) < limit:
                 msg = recv(0.0)
+                if msg is not None:
+                    messages.append(msg)
         except can.CanError as exc:
             raise ImuConnectionError(f"CAN bus {self.bus.channel_info!r} failed while receiving: {exc}") from exc
         finally:
