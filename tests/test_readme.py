@@ -9,7 +9,7 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 def test_readme_opens_with_the_two_setup_commands():
     text = README.read_text()
     first_block = re.search(r"```sh\n(.*?)```", text, re.S).group(1).strip().splitlines()
-    assert first_block == ["pip install -e . && bench evaluate", "pip install -e '.[test]' && pytest"]
+    assert first_block == ["pip install -e . && bench run --sim", "pip install -e '.[test]' && pytest"]
     ci = (README.parent / ".ci" / "run").read_text()
     assert "pip install -e '.[test]' && pytest" in ci
 
