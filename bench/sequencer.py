@@ -194,6 +194,7 @@ class Sequencer:
                     break
                 self.clock.sleep(self.options.move_poll_s)
             self.table.disable()
+            self._publish_state(self.table.read_state())
             self._emit("info", "table stopped and servos off")
         except Exception as exc:  # noqa: BLE001 - fall back to the controller's abort, report the first error
             self.table.safe_abort()

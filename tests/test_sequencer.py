@@ -1,0 +1,190 @@
+"""The sequencer's state machine against the simulated world (real SCPI driver, virtual CAN bus)."""
+
+from __future__ import annotations
+
+import io
+
+import pytest
+
+from bench.earth import Site
+from bench.events import RunListener, RunState
+from bench.imu_model import NoiseModel, default_sim_imu
+from bench.progress import ProgressPrinter
+from bench.sequencer import RunAborted, Sequencer, SequencerError, SequencerOptions
+from bench.sim.world import SimWorld
+from bench.steps import DwellStep, MoveStep, SettleStep, TurnStep
+from drivers.errors import ImuTimeout
+from drivers.imu.receiver import ImuReceiver
+from drivers.turntable import open_turntable
+
+STEPS = (MoveStep(0, "P01", (0.0, 90.0, 90.0), 60.0, 2.0),
+         SettleStep(1, "P01", 1.0, 1.0),
+         DwellStep(2, "P01", "test", 0, (0.0, 90.0, 90.0), (0.0, 90.0, 90.0), 2.0, 2.0),
+         MoveStep(3, "P02", (0.0, 0.0, 0.0), 60.0, 2.0),
+         DwellStep(4, "P02", "test", 1, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 2.0, 2.0),
+         TurnStep(5, "R01", "test", 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), "inner", "ccw", 1, 90.0, 90.0, 0.5, 6.0))
+OPTIONS = SequencerOptions(move_poll_s=0.1, imu_poll_s=0.25, state_period_s=0.5)
+
+
+class Recorder(RunListener):
+    """Keeps what a run produced; `hooks[(kind, index)]` runs when that event arrives."""
+
+    def __init__(self):
+        self.events, self.samples, self.states, self.frames, self.hooks = [], 0, [], 0, {}
+
+    def on_event(self, event):
+        self.events.append(event)
+        hook = self.hooks.get((event.kind, event.step_index))
+        if hook:
+            hook()
+
+    def on_imu(self, block):
+        self.samples += len(block)
+
+    def on_table_state(self, state):
+        self.states.append(state)
+
+    def on_can_frames(self, frames):
+        self.frames += len(frames)
+
+    def kinds(self):
+        return [(e.kind, e.state or e.step_unit) for e in self.events]
+
+
+@pytest.fixture
+def bench():
+    with SimWorld(Site(30.27), default_sim_imu(), NoiseModel.off(), imu_rate_hz=50.0) as world:
+        table = open_turntable(world.table_url, "scpi", clock=world.clock, timeout_s=1.0)
+        table.connect()
+        receiver = ImuReceiver(world.receiver_bus(), rate_hz=50.0)
+        table.enable()
+        yield world, table, world.imu_source(receiver)
+        table.close()
+        receiver.close()
+
+
+def _sequencer(bench, listener, steps=STEPS, **kwargs):
+    world, table, imu = bench
+    return Sequencer(steps, table, imu, world.clock, [listener], OPTIONS, **kwargs)
+
+
+def test_a_run_goes_idle_running_done_with_every_step_boundary_as_an_event(bench):
+    listener = Recorder()
+    seq = _sequencer(bench, listener)
+    assert seq.state is RunState.IDLE
+    assert seq.run() is RunState.DONE and seq.error is None
+    transitions = [e.state for e in listener.events if e.kind == "transition"]
+    assert transitions == ["running", "done"]
+    started = [e.step_index for e in listener.events if e.kind == "step_started"]
+    finished = [e.step_index for e in listener.events if e.kind == "step_finished"]
+    assert started == finished == list(range(len(STEPS)))
+    dwell = next(e for e in listener.events if e.kind == "step_finished" and e.step_index == 2)
+    assert dwell.data["counter_last"] - dwell.data["counter_first"] + 1 == dwell.data["samples"] == 100  # 2 s at 50 Hz
+    turn = seq.windows["R01"]
+    assert turn["samples"] >= 50 * (4.0 + 1.0)             # rest, 360 deg at 90 deg/s, rest
+    assert listener.frames == 7 * listener.samples > 0     # every frame reached the listeners
+    world = bench[0]
+    assert world.controller.state().angles_deg == pytest.approx((0.0, 0.0, -360.0))
+    # Event times are simulated: the whole plan took more simulated than real time.
+    assert listener.events[-1].time_s > 15.0
+
+
+def test_pause_takes_effect_at_a_step_boundary_and_resume_continues(bench):
+    listener = Recorder()
+    seq = _sequencer(bench, listener)
+    paused_at = []
+
+    def pause_then_resume():
+        seq.pause()
+        def on_transition():
+            if seq.state is RunState.PAUSED:
+                paused_at.append(listener.events[-1].time_s)
+                seq.resume()
+
+        listener.hooks[("transition", None)] = on_transition
+
+    listener.hooks[("step_started", 2)] = pause_then_resume   # asked mid-dwell
+    assert seq.run() is RunState.DONE
+    transitions = [e.state for e in listener.events if e.kind == "transition"]
+    assert transitions == ["running", "paused", "running", "done"]
+    # The pause came after the dwell finished, not inside it.
+    order = listener.kinds()
+    assert order.index(("step_finished", "P01")) < order.index(("transition", "paused"))
+    assert len(paused_at) == 1
+
+
+def test_abort_stops_the_table_switches_servos_off_and_fails(bench):
+    listener = Recorder()
+    seq = _sequencer(bench, listener)
+    listener.hooks[("step_started", 5)] = lambda: seq.abort("operator abort")
+    assert seq.run() is RunState.FAILED
+    assert isinstance(seq.error, RunAborted)
+    transitions = [e.state for e in listener.events if e.kind == "transition"]
+    assert transitions == ["running", "aborting", "failed"]
+    state = bench[0].controller.state()
+    assert all(not axis.enabled and axis.rate_dps == 0.0 for axis in state.axes)
+    assert not listener.states[-1].axes[0].enabled          # the last published state shows it
+
+
+def test_abort_while_paused_ends_the_run(bench):
+    listener = Recorder()
+    seq = _sequencer(bench, listener)
+    listener.hooks[("step_started", 1)] = seq.pause
+    listener.hooks[("transition", None)] = lambda: seq.abort("abort while paused") if seq.state is RunState.PAUSED else None
+    assert seq.run() is RunState.FAILED
+    assert [e.state for e in listener.events if e.kind == "transition"] == ["running", "paused", "aborting", "failed"]
+
+
+def test_completed_units_are_skipped(bench):
+    listener = Recorder()
+    seq = _sequencer(bench, listener, completed_units={"P01"})
+    assert seq.run() is RunState.DONE
+    skipped = [e.step_index for e in listener.events if e.kind == "step_skipped"]
+    assert skipped == [0, 1, 2]
+
+
+def test_silent_imu_while_recording_is_a_fault_and_a_safe_stop(bench):
+    world, table, imu = bench
+
+    class Silent:                     # the receiver with the bus unplugged: polls return nothing
+        stats, on_frames = imu.stats, None
+
+        def poll(self):
+            return imu._receiver.assembler.take_block()
+
+    listener = Recorder()
+    seq = Sequencer(STEPS, table, Silent(), world.clock, [listener], OPTIONS)
+    assert seq.run() is RunState.FAILED
+    assert isinstance(seq.error, ImuTimeout)
+    fault = next(e for e in listener.events if e.kind == "fault")
+    assert fault.data["error"] == "ImuTimeout" and fault.step_unit == "P01"
+    assert all(not a.enabled for a in world.controller.state().axes)
+
+
+def test_illegal_transitions_are_refused(bench):
+    seq = _sequencer(bench, Recorder())
+    with pytest.raises(SequencerError, match="illegal transition idle -> done"):
+        seq._transition(RunState.DONE, "no")
+
+
+def test_progress_plain_lines_and_live_bar():
+    plain, live = io.StringIO(), io.StringIO()
+    from bench.events import Event
+    from bench.steps import step_to_dict
+
+    printers = [ProgressPrinter(STEPS, plain, live=False), ProgressPrinter(STEPS, live, live=True, simulated=True)]
+    events = [Event(0.0, "transition", "run started", "running"),
+              Event(0.0, "step_started", "P01 move", None, 0, "P01", {"step": step_to_dict(STEPS[0])}),
+              Event(2.0, "step_finished", "P01 move done", None, 0, "P01", {"step": step_to_dict(STEPS[0])}),
+              Event(2.0, "fault", "TurntableTimeout: no reply", None, 1, "P01", {"error": "TurntableTimeout"})]
+    for p in printers:
+        for e in events:
+            p.on_event(e)
+        p.close()
+    assert "step 1/6 P01 move" in plain.getvalue() and "FAULT: TurntableTimeout" in plain.getvalue()
+    assert "\r[" in live.getvalue() and "ETA sim" in live.getvalue() and "FAULT" in live.getvalue()
+    quiet = io.StringIO()
+    q = ProgressPrinter(STEPS, quiet, quiet=True, live=False)
+    for e in events:
+        q.on_event(e)
+    assert quiet.getvalue() == "FAULT: TurntableTimeout: no reply\n"
