@@ -7,33 +7,19 @@ and per-turn rest-to-rest integrals exactly as the solver expects them.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from bench.observations import (FRAME_INDEX, PositionObservation, RotationObservation, mean_and_standard_error,
                                 turn_earth_integral)
 from bench.sim.imu import ImuSamples, SimImu
+from bench.plan import PlanTiming
 from bench.sim.table import SimTable
 
 
-@dataclass(frozen=True)
-class AcquisitionTiming:
-    """Timing of a simulated calibration (s, deg/s, deg/s^2)."""
-
-    dwell_s: float = 60.0
-    settle_s: float = 5.0
-    move_rate_dps: float = 20.0
-    move_accel_dps2: float = 10.0
-    turn_rate_dps: float = 10.0
-    turn_accel_dps2: float = 5.0
-    rest_s: float = 2.0        # at rest inside the integration window before and after each turn
-
-    def __post_init__(self) -> None:
-        for name, value in self.__dict__.items():
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive, got {value}")
+#: The in-memory acquisition takes the same timing as a compiled plan (revolutions and
+#: move overhead are not used here: turns keep their own revolutions).
+AcquisitionTiming = PlanTiming
 
 
 def _window(samples: ImuSamples, t0: float, t1: float) -> np.ndarray:
