@@ -66,12 +66,22 @@ class PositionObservation:
         return None if std is None else std / math.sqrt(self.sample_count)
 
 
-def mean_and_standard_error(rates: np.ndarray, blocks: int = 20) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+#: The output step of an IMU counter: one count (pulse). The mean rate over a dwell of
+#: T seconds cannot be known better than about one count / T, whatever the scatter says.
+COUNT_RESOLUTION = 1.0
+
+
+def mean_and_standard_error(rates: np.ndarray, blocks: int = 20, duration_s: float | None = None,
+                            resolution_counts: float = COUNT_RESOLUTION) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mean, per-sample std and 1-sigma of the mean of per-sample rates (n, 3).
 
     The standard error comes from the scatter of `blocks` block means rather than from
     std/sqrt(n): per-sample quantisation of a counter output is large but does not
     accumulate (the summed count is exact), and slow noise shows in the block means.
+    With `duration_s` it is floored at the quantisation of the dwell's summed count,
+    `resolution_counts / (duration_s * sqrt(12))`: block means can agree to the last
+    bit (quantised outputs, a noise-free simulator) and a zero standard error would
+    give one dwell infinite weight.
     """
     rates = np.asarray(rates, dtype=float)
     n = len(rates)
@@ -79,10 +89,14 @@ def mean_and_standard_error(rates: np.ndarray, blocks: int = 20) -> tuple[np.nda
     std = rates.std(axis=0, ddof=1) if n > 1 else np.zeros(rates.shape[1])
     blocks = min(blocks, n // 2)
     if blocks < 2:
-        return mean, std, std / math.sqrt(max(n, 1))
-    size = n // blocks
-    block_means = rates[: size * blocks].reshape(blocks, size, -1).mean(axis=1)
-    return mean, std, block_means.std(axis=0, ddof=1) / math.sqrt(blocks)
+        sem = std / math.sqrt(max(n, 1))
+    else:
+        size = n // blocks
+        block_means = rates[: size * blocks].reshape(blocks, size, -1).mean(axis=1)
+        sem = block_means.std(axis=0, ddof=1) / math.sqrt(blocks)
+    if duration_s is not None and duration_s > 0:
+        sem = np.maximum(sem, resolution_counts / (duration_s * math.sqrt(12.0)))
+    return mean, std, sem
 
 
 @dataclass

@@ -51,6 +51,18 @@ def completed_units(resume_log: str | None) -> tuple[set[str], list[str]]:
     return earlier | set(finished_observation_steps(log.events)), [*previous, str(resume_log)]
 
 
+def schedule_file(schedule) -> Path | None:
+    """The file a loaded schedule came from (a built-in one's shipped file), None if none."""
+    if schedule is None:
+        return None
+    if schedule.source.startswith("builtin:"):
+        from schedules import builtin_path
+
+        return builtin_path(schedule.source.split(":", 1)[1])
+    path = Path(schedule.source)
+    return path if path.is_file() else None
+
+
 def _name(schedule) -> str:
     return schedule.name if schedule is not None else ""
 
@@ -117,9 +129,9 @@ class BenchRun:
         if config.path:
             self.recorder.add_attachment(Path(config.path).name, "application/toml", config.source_text.encode())
         for schedule in (config.plan.positions, config.plan.rotations):
-            if schedule is not None and Path(schedule.source).is_file():
-                self.recorder.add_attachment(Path(schedule.source).name, "application/toml",
-                                             Path(schedule.source).read_bytes())
+            path = schedule_file(schedule)
+            if path is not None:
+                self.recorder.add_attachment(path.name, "application/toml", path.read_bytes())
 
     def _metadata(self) -> dict:
         config, identity = self.config, self.config.imu.identity

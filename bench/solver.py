@@ -60,7 +60,11 @@ def fit_per_sensor(design: np.ndarray, y: np.ndarray, sigma: np.ndarray | None) 
         sol, *_ = np.linalg.lstsq(aw, y[:, s] * w, rcond=None)
         r = y[:, s] - design @ sol
         chi2 = float(np.sum((r * w) ** 2))
-        cov0 = np.linalg.inv(aw.T @ aw)
+        try:
+            cov0 = np.linalg.inv(aw.T @ aw)
+        except np.linalg.LinAlgError as exc:
+            raise SolverError(f"the observations do not determine the {p} parameters of sensor {s} "
+                              f"(singular normal matrix)") from exc
         red = chi2 / dof if dof > 0 else math.nan
         if use_weights:
             scale_up = dof > 0 and red > 1.0 and stats.chi2.sf(chi2, dof) < CHI2_ALPHA

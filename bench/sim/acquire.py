@@ -45,9 +45,9 @@ def acquire(table: SimTable, imu: SimImu, position_angles_deg, turns,
         end = start + timing.dwell_s
         block = imu.generate(table, end)
         mask = _window(block, start, end)
-        gyro_mean, gyro_std, gyro_sem = mean_and_standard_error(block.gyro_rate[mask])
-        acc_mean, acc_std, acc_sem = mean_and_standard_error(block.acc_rate[mask])
         n = int(mask.sum())
+        gyro_mean, gyro_std, gyro_sem = mean_and_standard_error(block.gyro_rate[mask], duration_s=n / block.rate_hz)
+        acc_mean, acc_std, acc_sem = mean_and_standard_error(block.acc_rate[mask], duration_s=n / block.rate_hz)
         positions.append(PositionObservation(
             tuple(float(a) for a in angles), n / block.rate_hz, n, gyro_mean, acc_mean, gyro_std, acc_std,
             gyro_sem, acc_sem, label=f"P{k + 1:02d}"))
