@@ -188,3 +188,19 @@ def test_progress_plain_lines_and_live_bar():
     for e in events:
         q.on_event(e)
     assert quiet.getvalue() == "FAULT: TurntableTimeout: no reply\n"
+
+
+@pytest.mark.parametrize("dialect", ["mn", "modbus"])
+def test_a_whole_run_works_in_the_other_dialects(tmp_path, dialect):
+    """`bench run` on the simulator served in $MN (TCP) and Modbus TCP: same plan, same precision."""
+    from run_helpers import cli, config_text, load_json, only_file
+
+    config = tmp_path / "bench.toml"
+    config.write_text(config_text(dialect=dialect, positions="traditional-12", rotations="traditional-3s6r"),
+                      encoding="utf-8")
+    code, _, stderr = cli(["run", "--config", str(config), "--out", str(tmp_path / "out"), "--quiet"])
+    assert code == 0, stderr
+    result = load_json(only_file(tmp_path / "out", "*.result.json"))
+    truth = result["sim_truth"]["coefficients"]
+    for name in ("Kg_x", "Kg_y", "Kg_z", "Ka_x", "Ka_y", "Ka_z"):
+        assert result["coefficients"][name]["value"] == pytest.approx(truth[name]["value"], rel=1e-7), name
