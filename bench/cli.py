@@ -60,6 +60,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from bench import run_cli, schedules_cli, table_cli
+    from bench import tui_cli
+    from bench import replay_cli
+    from bench import solve_cli
 
     parser = argparse.ArgumentParser(prog="bench", description="IMU calibration on a three-axis turntable")
     parser.add_argument("--version", action="version", version=f"turntable-bench {__version__}")
@@ -77,6 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
     ev.set_defaults(func=_cmd_evaluate)
 
     run_cli.register(sub)
+    tui_cli.register(sub)
+    replay_cli.register(sub)
+    solve_cli.register(sub)
     schedules_cli.register(sub)
     table_cli.register_table(sub)
     table_cli.register_sim(sub)

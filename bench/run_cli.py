@@ -101,7 +101,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         return _fail(f"{outcome.state.value}: {outcome.error}; table stopped. Log: {outcome.log_path} "
                      f"(continue with --resume {outcome.log_path})", EXIT_FAULT)
     if not args.quiet:
-        print(f"log:    {outcome.log_path}\nresult: {outcome.result_path}\nreport: {outcome.report_path}")
+        print(f"log:    {outcome.log_path}\nresult: {outcome.result_path}\nreport: {outcome.report_path}, "
+              f"{outcome.html_report_path}")
     if outcome.failures:
         return _fail("quality check failed: " + "; ".join(outcome.failures), EXIT_QUALITY)
     return EXIT_OK

@@ -3,7 +3,7 @@
 `BenchRun` is what `bench run` executes and what the TUI will drive: open the devices
 (the simulated world when asked), record everything to `<out>/<run-id>.mcap`, run the
 compiled plan, then solve from the log just written (plus the logs of the run it
-resumes) and write `<run-id>.result.json` and `<run-id>.report.md`.
+resumes) and write `<run-id>.result.json`, `<run-id>.report.md` and `<run-id>.report.html`.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ class RunOutcome:
     result: object | None = None                 # bench.result.CalibrationResult
     failures: list[str] = field(default_factory=list)
     error: BaseException | None = None
+    html_report_path: Path | None = None
 
 
 def completed_units(resume_log: str | None) -> tuple[set[str], list[str]]:
@@ -165,9 +166,11 @@ class BenchRun:
         try:
             state = self.sequencer.run()
         finally:
+            # The samples still pending in the assembler reach every listener, like all the others.
             block = self.receiver.flush()
             if len(block):
-                self.recorder.on_imu(block)
+                for listener in self.sequencer.listeners:
+                    listener.on_imu(block)
         return state
 
     def abort(self, reason: str = "abort requested") -> None:
@@ -178,7 +181,7 @@ class BenchRun:
     def finish(self) -> RunOutcome:
         """Solve from the log(s), write result and report, attach the result, close the log."""
         from bench.logread import read_log
-        from bench.report import markdown_report
+        from bench.report import write_reports
         from bench.solve_log import solve_logs
 
         seq = self.sequencer
@@ -188,13 +191,7 @@ class BenchRun:
         self.recorder.flush()
         logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
         config, identity = self.config, self.config.imu.identity
-        gyro_stability, acc_stability = identity.gyro_bias_stability_dph, identity.acc_bias_stability_ug
-        if self.sim and config.sim.noise.enabled:
-            # The simulated IMU's bias instability is known: it is what its datasheet would say.
-            if gyro_stability is None:
-                gyro_stability = config.sim.noise.gyro_bias_instability_dph
-            if acc_stability is None:
-                acc_stability = config.sim.noise.acc_bias_instability_ug
+        gyro_stability, acc_stability = bias_stabilities(config, self.sim)
         solution = solve_logs(logs, config.site.site, config.imu.layout, config.imu.rate_hz,
                               gyro_bias_stability_dph=gyro_stability, acc_bias_stability_ug=acc_stability,
                               # A log being resumed was cut off: its missing summary is expected, not damage.
@@ -211,13 +208,14 @@ class BenchRun:
         result = solution.calibration.to_result(run=run_info, sim_truth=config.sim.imu if self.sim else None)
         result_path = self.out_dir / f"{self.run_id}.result.json"
         result.save(result_path)
-        report_path = self.out_dir / f"{self.run_id}.report.md"
-        report_path.write_text(markdown_report(result, problems=solution.extraction.problems, failures=failures,
-                                               imu_link=self.receiver.stats.as_dict(),
-                                               title=f"Calibration report {self.run_id}"), encoding="utf-8")
+        report_path, html_report_path = write_reports(
+            result, self.out_dir, self.run_id, log=logs[-1], layout=config.imu.layout, log_still_open=True,
+            problems=solution.extraction.problems, failures=failures, imu_link=self.receiver.stats.as_dict(),
+            title=f"Calibration report {self.run_id}")
         self.recorder.add_attachment(result_path.name, "application/json", result_path.read_bytes())
         self.recorder.close()
-        return RunOutcome(seq.state, self.log_path, result_path, report_path, result, failures)
+        return RunOutcome(seq.state, self.log_path, result_path, report_path, result, failures,
+                          html_report_path=html_report_path)
 
     def close(self) -> None:
         self._stack.close()
@@ -227,6 +225,22 @@ class BenchRun:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def bias_stabilities(config, sim: bool) -> tuple[float | None, float | None]:
+    """(gyro deg/h, accelerometer ug) bias instabilities the solver adds to the bias sigmas.
+
+    The IMU identity's datasheet values; on the simulator with noise on, the simulated
+    IMU's own where the identity gives none (it is what its datasheet would say).
+    """
+    identity = config.imu.identity
+    gyro_stability, acc_stability = identity.gyro_bias_stability_dph, identity.acc_bias_stability_ug
+    if sim and config.sim.noise.enabled:
+        if gyro_stability is None:
+            gyro_stability = config.sim.noise.gyro_bias_instability_dph
+        if acc_stability is None:
+            acc_stability = config.sim.noise.acc_bias_instability_ug
+    return gyro_stability, acc_stability
 
 
 def quality_failures(solution, live_stats) -> list[str]:

@@ -57,7 +57,14 @@ def solve_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: float
                still_open: frozenset[str] = frozenset()) -> LogSolution:
     """Extract every log's observations, merge them and solve (SolverError if there is nothing to solve)."""
     extraction, stats, damage = extract_from_logs(logs, site, layout, rate_hz, mounting, still_open)
-    calibration = solve(extraction.positions, extraction.rotations, site, mounting,
-                        gyro_bias_stability=(gyro_bias_stability_dph or 0.0) * DEG_PER_HOUR,
-                        acc_bias_stability=(acc_bias_stability_ug or 0.0) * MICRO_G)
+    calibration = solve_extraction(extraction, site, mounting=mounting, gyro_bias_stability_dph=gyro_bias_stability_dph,
+                                   acc_bias_stability_ug=acc_bias_stability_ug)
     return LogSolution(calibration, extraction, stats, damage)
+
+
+def solve_extraction(extraction: Extraction, site: Site, *, mounting=None, gyro_bias_stability_dph: float | None = None,
+                     acc_bias_stability_ug: float | None = None) -> Calibration:
+    """Solve merged observations (all of a log's or a subset); SolverError if there is nothing to solve."""
+    return solve(extraction.positions, extraction.rotations, site, mounting,
+                 gyro_bias_stability=(gyro_bias_stability_dph or 0.0) * DEG_PER_HOUR,
+                 acc_bias_stability=(acc_bias_stability_ug or 0.0) * MICRO_G)

@@ -1,0 +1,209 @@
+"""Report figures as inline SVG strings (matplotlib, headless Agg backend).
+
+Every figure function returns an SVG fragment ready to paste into an HTML5 page:
+no XML declaration, no DOCTYPE, no namespace URLs (the HTML parser puts `<svg>` in
+the SVG namespace by itself, and plain `href` replaces `xlink:href`), and every `id`
+prefixed with the figure's own prefix so several figures can share one document.
+Text stays text (`svg.fonttype = "none"`): small files, searchable, the browser's font.
+
+Long signals are decimated to a min/max envelope (`envelope`) so a figure holds at
+most a few thousand points per channel whatever the log length.
+"""
+
+from __future__ import annotations
+
+import io
+import itertools
+import re
+from typing import Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")  # before pyplot: no display, no GUI toolkit
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+#: Points per channel a time-series figure keeps at most (min/max pairs).
+MAX_POINTS = 2000
+AXIS_COLORS = ("#1f77b4", "#2ca02c", "#d62728")     # x / outer, y / middle, z / inner
+OUTLIER_COLOR = "#d62728"
+DWELL_SHADE, TURN_SHADE = "#cfe3f5", "#f8dfc4"
+
+_RC = {"svg.fonttype": "none", "svg.hashsalt": "turntable-bench", "font.size": 8.0, "axes.titlesize": 9.0,
+       "axes.grid": True, "grid.alpha": 0.3, "figure.dpi": 72.0}
+_NO_METADATA = {"Creator": None, "Date": None, "Format": None, "Type": None}
+_counter = itertools.count(1)
+_ID_REF = re.compile(r'(\bid="|href="#|url\(#)([^")]+)')
+
+
+def envelope(t: np.ndarray, y: np.ndarray, max_points: int = MAX_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """(t, y) reduced to at most `max_points` points: each bucket's minimum and maximum, in time order.
+
+    Unlike plain striding this keeps every spike visible. NaNs are skipped within a
+    bucket (a bucket that is all NaN gives NaN, drawn as a gap).
+    """
+    t, y = np.asarray(t, float), np.asarray(y, float)
+    n = len(y)
+    if n <= max_points:
+        return t, y
+    buckets = max(1, max_points // 2)
+    size = -(-n // buckets)
+    pad = buckets * size - n
+    yy = np.concatenate([y, np.full(pad, np.nan)]).reshape(buckets, size)
+    lo = np.argmin(np.where(np.isnan(yy), np.inf, yy), axis=1)
+    hi = np.argmax(np.where(np.isnan(yy), -np.inf, yy), axis=1)
+    base = np.arange(buckets) * size
+    idx = np.sort(np.stack([base + lo, base + hi], axis=1), axis=1).reshape(-1)
+    idx = np.minimum(idx, n - 1)
+    return t[idx], y[idx]
+
+
+def to_svg(fig) -> str:
+    """The figure as an inline SVG fragment (see the module docstring); closes the figure."""
+    buf = io.StringIO()
+    try:
+        with plt.rc_context(_RC):  # the SVG options are read when saving
+            fig.savefig(buf, format="svg", metadata=_NO_METADATA)
+    finally:
+        plt.close(fig)
+    return inline_svg(buf.getvalue(), f"fig{next(_counter)}-")
+
+
+def inline_svg(text: str, prefix: str) -> str:
+    """Standalone SVG text -> an HTML5 inline fragment with ids prefixed by `prefix`."""
+    start = text.find("<svg")
+    if start < 0:
+        raise ValueError("not an SVG document")
+    text = text[start:]
+    ids = set(re.findall(r'\bid="([^"]+)"', text))
+    text = _ID_REF.sub(lambda m: m.group(1) + (prefix + m.group(2) if m.group(2) in ids else m.group(2)), text)
+    text = text.replace("xlink:href=", "href=")
+    text = re.sub(r'\s+xmlns(:\w+)?="[^"]*"', "", text, count=0)
+    # matplotlib's global `*{...}` rule would leak into the page: the properties inherit, so set them on the root.
+    text = re.sub(r"\s*<defs>\s*<style[^>]*>\*\{([^}]*)\}</style>\s*</defs>", "", text, count=1)
+    text = text.replace("<svg ", '<svg style="stroke-linejoin: round; stroke-linecap: butt" ', 1)
+    return text
+
+
+def _figure(rows: int, cols: int, width_in: float, height_in: float, *, left_in: float = 0.8,
+            right_in: float = 0.2, bottom_in: float = 0.5, top_in: float = 0.3, hgap_in: float = 0.3,
+            wgap_in: float = 0.7, **kw):
+    """Subplots with fixed margins in inches (no tight_layout: measuring every label costs a draw).
+
+    Call inside `plt.rc_context(_RC)`: fonts and grids are taken when artists are made.
+    """
+    fig, axes = plt.subplots(rows, cols, figsize=(width_in, height_in), squeeze=False, **kw)
+    axis_h = (height_in - bottom_in - top_in - hgap_in * (rows - 1)) / rows
+    axis_w = (width_in - left_in - right_in - wgap_in * (cols - 1)) / cols
+    fig.subplots_adjust(left=left_in / width_in, right=1 - right_in / width_in, bottom=bottom_in / height_in,
+                        top=1 - top_in / height_in, hspace=hgap_in / axis_h, wspace=wgap_in / axis_w)
+    return fig, axes
+
+
+def _legend(ax) -> None:
+    """Legend above the axes' top right corner, off the data."""
+    ax.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=3, fontsize=7, borderaxespad=0.1, frameon=False)
+
+
+def _shade(ax, spans: Sequence[tuple[float, float, str]]) -> None:
+    for t0, t1, kind in spans:
+        ax.axvspan(t0, t1, color=DWELL_SHADE if kind == "dwell" else TURN_SHADE, lw=0, zorder=0)
+
+
+def residual_figure(positions: list[dict], rotations: list[dict], threshold: float) -> str | None:
+    """Normalized residuals (residual / sigma) per position (acc, gyro) and per rotation, outliers in red."""
+    panels = []
+    if any(r.get("acc_normalized") for r in positions):
+        panels.append(("positions: accelerometers", positions, "acc_normalized"))
+    if any(r.get("gyro_normalized") for r in positions):
+        panels.append(("positions: gyros (bias fit)", positions, "gyro_normalized"))
+    if any(r.get("gyro_normalized") for r in rotations):
+        panels.append(("rotations: gyros", rotations, "gyro_normalized"))
+    if not panels:
+        return None
+    with plt.rc_context(_RC):
+        fig, axes = _figure(len(panels), 1, 10.0, 2.6 * len(panels) + 0.3, hgap_in=0.95, bottom_in=0.65)
+        for ax, (title, rows, key) in zip(axes[:, 0], panels):
+            x = np.arange(len(rows))
+            for k, (axis, color) in enumerate(zip("xyz", AXIS_COLORS)):
+                v = np.array([np.nan if not r.get(key) or r[key][k] is None else r[key][k] for r in rows], float)
+                ax.plot(x + (k - 1) * 0.2, v, "o", ms=3.5, color=color, label=axis)
+                bad = np.abs(v) > threshold
+                if bad.any():
+                    ax.plot(x[bad] + (k - 1) * 0.2, v[bad], "o", ms=9, mfc="none", mec=OUTLIER_COLOR, mew=1.5)
+            for s in (threshold, -threshold):
+                ax.axhline(s, color=OUTLIER_COLOR, ls="--", lw=0.8)
+            ax.set_xticks(x, [r.get("label", str(i)) for i, r in enumerate(rows)], rotation=90)
+            ax.set_ylabel("residual / sigma")
+            ax.set_title(f"{title} (dashed: outlier threshold +-{threshold:g} sigma)")
+            _legend(ax)
+    return to_svg(fig)
+
+
+def step_means_figure(labels: list[str], acc_mean: np.ndarray, acc_std: np.ndarray,
+                      gyro_mean: np.ndarray, gyro_std: np.ndarray) -> str:
+    """Each dwell's mean output per axis (counts/s) with +-1 std of its samples: accelerometers, gyros."""
+    with plt.rc_context(_RC):
+        # One panel per sensor, the three axes side by side: every axis shares its sensor's range,
+        # and ticks are what drawing costs.
+        fig, axes = _figure(2, 1, 10.0, 5.6, sharex=True, top_in=0.3, bottom_in=0.5, hgap_in=0.35)
+        x = np.arange(len(labels))
+        for ax, (name, mean, std) in zip(axes[:, 0], (("accelerometers", acc_mean, acc_std),
+                                                     ("gyros", gyro_mean, gyro_std))):
+            for k, axis in enumerate("xyz"):
+                ax.errorbar(x + (k - 1) * 0.22, mean[:, k], yerr=std[:, k], fmt="o", ms=3, capsize=2,
+                            color=AXIS_COLORS[k], label=axis)
+            ax.set_ylabel(f"{name}, counts/s")
+            _legend(ax)
+        axes[1, 0].set_xticks(x, labels, rotation=90)
+        axes[0, 0].set_title("Mean output per dwell (error bars: +-1 std of the samples in the dwell)")
+    return to_svg(fig)
+
+
+def timeseries_figure(t_s: np.ndarray, acc: np.ndarray, gyro: np.ndarray,
+                      spans: Sequence[tuple[float, float, str]], max_points: int = MAX_POINTS) -> str:
+    """Accelerometer and gyro outputs (counts/s per axis) over run time, dwells and turns shaded."""
+    with plt.rc_context(_RC):
+        fig, axes = _figure(2, 1, 10.0, 5.0, sharex=True, top_in=0.3, hgap_in=0.3)
+        for ax, name, data in ((axes[0, 0], "accelerometers", acc), (axes[1, 0], "gyros", gyro)):
+            _shade(ax, spans)
+            for k, axis in enumerate("xyz"):
+                tt, yy = envelope(t_s, data[:, k], max_points)
+                ax.plot(tt, yy, lw=0.6, color=AXIS_COLORS[k], label=axis)
+            ax.set_ylabel(f"{name}, counts/s")
+            _legend(ax)
+        axes[1, 0].set_xlabel("run time, s (blue: dwells, orange: turns)")
+    return to_svg(fig)
+
+
+def angles_figure(t_s: np.ndarray, angles_deg: np.ndarray, spans: Sequence[tuple[float, float, str]],
+                  max_points: int = MAX_POINTS) -> str:
+    """The controller's frame angles (outer, middle, inner) over run time."""
+    with plt.rc_context(_RC):
+        fig, axes = _figure(1, 1, 10.0, 3.0, top_in=0.3)
+        ax = axes[0, 0]
+        _shade(ax, spans)
+        for k, frame in enumerate(("outer", "middle", "inner")):
+            tt, yy = envelope(t_s, angles_deg[:, k], max_points)
+            ax.plot(tt, yy, lw=0.8, color=AXIS_COLORS[k], label=frame)
+        ax.set_ylabel("controller angle, deg")
+        ax.set_xlabel("run time, s (blue: dwells, orange: turns)")
+        _legend(ax)
+    return to_svg(fig)
+
+
+def sigma_bars_figure(names: list[str], z: list[float | None], threshold: float, title: str) -> str:
+    """One bar per coefficient: a difference in units of its sigma, bars beyond +-threshold in red."""
+    with plt.rc_context(_RC):
+        fig, axes = _figure(1, 1, 10.0, 3.2, bottom_in=0.7)
+        ax = axes[0, 0]
+        v = np.array([np.nan if x is None else x for x in z], float)
+        colors = [OUTLIER_COLOR if abs(x) > threshold else "#7f7f7f" for x in np.nan_to_num(v)]
+        ax.bar(np.arange(len(names)), np.nan_to_num(v), color=colors)
+        for s in (threshold, -threshold):
+            ax.axhline(s, color=OUTLIER_COLOR, ls="--", lw=0.8)
+        ax.set_xticks(np.arange(len(names)), names, rotation=90, fontsize=7)
+        ax.set_ylabel("sigma")
+        ax.set_title(title)
+    return to_svg(fig)

@@ -1,0 +1,258 @@
+"""The lab-operator TUI: `BenchApp` and the factory `create_app` shared by `bench tui` and the tests.
+
+The app draws from a `UiBuffer` on a timer (`refresh_hz`, 10 by default) and sends
+commands to a `BenchSession`; it holds no bench logic of its own. The emergency stop
+is an App-level priority binding, so it works on every screen, dialogs included, and
+is handled before any widget sees the key.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from textual.app import App, ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal, Vertical
+from textual.css.query import NoMatches
+from textual.widgets import Footer, Header, TabbedContent, TabPane
+
+from bench.tui.buffer import ImuScales, UiBuffer
+from bench.tui.panels import EventLog, ImuPanel, PlanPanel, ResultsPanel, TablePanel
+from bench.tui.screens import ConfirmScreen, GotoScreen, HelpScreen
+from bench.tui.session import BenchSession, SessionError
+
+ESTOP_KEY = "f12"
+
+HELP = f"""[b]turntable-bench operator keys[/b]
+
+  [b]{ESTOP_KEY.upper()}[/b]  EMERGENCY STOP: aborts the run and sends the controller's abort
+        (servos off). Works on every screen, dialogs included.
+  s     start the plan (asks first and says what will move)
+  p     pause at the next step boundary (the table holds its position)
+  r     resume a paused run
+  a     abort the run (controlled stop, then servos off)
+  g     go to a position (outer, middle, inner; checked against the limits)
+  e / x enable (servos on) / stop and disable (servos off), when no run is active
+  c / d connect / disconnect the table and IMU
+  ?     this help
+  q     quit (asks first while a run is active; the table is stopped)
+
+Times are on the run's clock: simulated seconds with the simulator."""
+
+
+class BenchApp(App):
+    """The operator's screen for one bench session (see the module docstring)."""
+
+    TITLE = "turntable-bench"
+    CSS = """
+    #top { height: 13; }
+    #top > * { border: round $primary; }
+    #table-panel { width: 58; }
+    #imu-panel { width: 1fr; }
+    #bottom { height: 1fr; }
+    #bottom > * { width: 1fr; }
+    #left-tabs { border: round $primary; }
+    #events { border: round $primary; }
+    """
+    BINDINGS = [
+        Binding(ESTOP_KEY, "estop", "E-STOP", priority=True),
+        Binding("s", "start", "start"),
+        Binding("p", "pause", "pause"),
+        Binding("r", "resume", "resume"),
+        Binding("a", "abort", "abort"),
+        Binding("g", "goto", "go to"),
+        Binding("e", "enable", "enable", show=False),
+        Binding("x", "disable", "disable", show=False),
+        Binding("c", "connect", "connect", show=False),
+        Binding("d", "disconnect", "disconnect", show=False),
+        Binding("question_mark,f1", "help", "help"),
+        Binding("q", "quit_app", "quit"),
+    ]
+
+    def __init__(self, session: BenchSession, buffer: UiBuffer, *, steps, limits, scales: ImuScales,
+                 simulated: bool, auto_connect: bool = True, refresh_hz: float = 10.0, subtitle: str = ""):
+        super().__init__()
+        self.session, self.buffer = session, buffer
+        self.steps, self.limits, self.scales = tuple(steps), limits, scales
+        self.simulated = simulated
+        self.auto_connect = auto_connect
+        self.refresh_hz = float(refresh_hz)
+        self.sub_title = subtitle
+        self.refreshes = 0                   # timer ticks drawn (the refresh benchmark reads it)
+        self._result_shown = None
+
+    def compose(self) -> ComposeResult:
+        yield Header(show_clock=False)
+        with Horizontal(id="top"):
+            yield TablePanel(self.limits, id="table-panel")
+            yield ImuPanel(self.scales, id="imu-panel")
+        with Horizontal(id="bottom"):
+            with TabbedContent(id="left-tabs", initial="plan-tab"):
+                with TabPane("Plan", id="plan-tab"):
+                    yield PlanPanel(self.steps, simulated=self.simulated, id="plan-panel")
+                with TabPane("Results", id="results-tab"):
+                    yield ResultsPanel(id="results-panel")
+            with Vertical(id="events"):
+                yield EventLog(id="event-log")
+        yield Footer()
+
+    def on_mount(self) -> None:
+        self.query_one("#events").border_title = "Events"
+        self.query_one("#table-panel").border_title = "Table"
+        self.query_one("#imu-panel").border_title = "IMU"
+        self.set_interval(1.0 / self.refresh_hz, self.refresh_panels)
+        if self.auto_connect:
+            self.action_connect()
+        self.refresh_panels()
+
+    # -- drawing ---------------------------------------------------------------------------
+    def refresh_panels(self) -> None:
+        """Redraw every panel from one buffer snapshot (the timer calls it)."""
+        try:
+            self._draw()
+        except NoMatches:
+            return                  # the screen is being torn down (exit) or replaced
+        self.refreshes += 1
+
+    def _draw(self) -> None:
+        snap = self.buffer.snapshot()
+        self.query_one(TablePanel).show(snap, self.session.link, self.session.link_detail)
+        self.query_one(ImuPanel).show(snap)
+        self.query_one(PlanPanel).show(snap)
+        log = self.query_one(EventLog)
+        if snap.event_count > log.seen:
+            log.add(self.buffer.events_after(log.seen), snap.event_count)
+        if snap.result is not self._result_shown or (snap.result is None and snap.outcome_text
+                                                     and self._result_shown is None):
+            self._result_shown = snap.result
+            self.query_one(ResultsPanel).show_result(snap.result, snap.outcome_text)
+            if snap.result is not None:
+                self.query_one(TabbedContent).active = "results-tab"
+
+    def _refuse(self, exc: Exception) -> None:
+        self.notify(str(exc), severity="warning")
+        self.buffer.note("warning", f"refused: {exc}")
+
+    # -- actions -----------------------------------------------------------------------------
+    def action_estop(self) -> None:
+        """Emergency stop first, then close any dialog so the operator sees the table."""
+        self.session.estop()
+        while len(self.screen_stack) > 1:
+            self.pop_screen()
+
+    def action_connect(self) -> None:
+        if self.session.run is not None:
+            self._refuse(SessionError("already connected"))
+            return
+        self.run_worker(self.session.connect, thread=True, exclusive=True, group="connect", exit_on_error=False)
+
+    def action_disconnect(self) -> None:
+        try:
+            self.session.disconnect()
+        except SessionError as exc:
+            self._refuse(exc)
+
+    def action_start(self) -> None:
+        if self.session.running:
+            self._refuse(SessionError("a run is already active"))
+            return
+        if not self.session.connected and self.session.run is None:
+            self._refuse(SessionError("not connected (press c)"))
+            return
+
+        def confirmed(yes: bool | None) -> None:
+            if yes:
+                try:
+                    self.query_one(TabbedContent).active = "plan-tab"
+                    self.session.start()
+                except (SessionError, Exception) as exc:  # noqa: BLE001 - shown to the operator
+                    self._refuse(exc)
+
+        self.push_screen(ConfirmScreen("Start the calibration plan?", self.session.describe_plan(),
+                                       yes="Start", no="Cancel"), confirmed)
+
+    def _control(self, name: str) -> None:
+        try:
+            getattr(self.session, name)()
+        except SessionError as exc:
+            self._refuse(exc)
+
+    def action_pause(self) -> None:
+        self._control("pause")
+
+    def action_resume(self) -> None:
+        self._control("resume")
+
+    def action_abort(self) -> None:
+        self._control("abort")
+
+    def action_enable(self) -> None:
+        self._control("enable")
+
+    def action_disable(self) -> None:
+        self._control("disable")
+
+    def action_goto(self) -> None:
+        if self.session.run is None or self.session.running:
+            self._refuse(SessionError("not connected" if self.session.run is None else "a run is active"))
+            return
+        state = self.buffer.snapshot().table_state
+        current = state.angles_deg if state is not None else None
+
+        def chosen(angles) -> None:
+            if angles is not None:
+                try:
+                    self.session.go_to(angles)
+                except Exception as exc:  # noqa: BLE001 - limits/link: shown to the operator
+                    self._refuse(exc)
+
+        self.push_screen(GotoScreen(self.limits, current), chosen)
+
+    def action_help(self) -> None:
+        self.push_screen(HelpScreen(HELP))
+
+    def action_quit_app(self) -> None:
+        if not self.session.busy:
+            self.exit()
+            return
+
+        def confirmed(yes: bool | None) -> None:
+            if yes:
+                self.exit()
+
+        self.push_screen(ConfirmScreen("Quit?", "A run is active. Quitting aborts it: the table is stopped "
+                                       "and the servos switched off.", yes="Abort and quit", no="Stay"), confirmed)
+
+    async def action_quit(self) -> None:
+        self.action_quit_app()
+
+    def on_unmount(self) -> None:
+        # Whatever ends the app (quit, Ctrl-C, a test leaving run_test) stops the table and closes the devices.
+        self.session.close()
+
+
+def create_app(*, config=None, sim: bool = False, out_dir: str | Path | None = None,
+               operator: str = "", auto_connect: bool = True, refresh_hz: float = 10.0,
+               poll_s: float = 0.1) -> BenchApp:
+    """The TUI for `config` (the built-in simulated bench when None and `sim`).
+
+    `out_dir`: where logs and results go (default the config's output folder);
+    `auto_connect`: open the devices when the app starts; `refresh_hz`: panel redraws
+    per second; `poll_s`: the idle monitor's period.
+    """
+    from bench.config import default_sim_config
+    from bench.run_cli import compile_from_config
+
+    if config is None:
+        if not sim:
+            raise ValueError("say config=... or sim=True")
+        config = default_sim_config()
+    sim = sim or config.table.is_sim
+    plan = compile_from_config(config)
+    buffer = UiBuffer(plan.steps)
+    session = BenchSession(config, plan, sim=sim, out_dir=out_dir if out_dir is not None else config.output.folder,
+                           buffer=buffer, operator=operator, poll_s=poll_s)
+    names = " + ".join(s.name for s in (config.plan.positions, config.plan.rotations) if s is not None)
+    return BenchApp(session, buffer, steps=plan.steps, limits=config.table.limits,
+                    scales=ImuScales.from_config(config, sim), simulated=sim, auto_connect=auto_connect,
+                    refresh_hz=refresh_hz, subtitle=f"{'simulator' if sim else config.table.url} - {names}")

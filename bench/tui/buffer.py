@@ -1,0 +1,238 @@
+"""What the TUI shows, collected from a run's listener calls (no Textual here).
+
+`UiBuffer` is a `RunListener`: the sequencer (or the session's idle monitor, or a
+replay) calls it on its own thread; each call takes a lock and updates a few fields or
+ring buffers. The UI thread takes a consistent copy with `snapshot()` 10-20 times a
+second: high-rate IMU data never becomes one UI message per sample.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import deque
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from bench.events import Event, RunListener, RunState
+
+#: The six IMU channels in display order: gyro x/y/z, accelerometer x/y/z.
+CHANNELS = ("gx", "gy", "gz", "ax", "ay", "az")
+
+STEP_PENDING, STEP_RUNNING, STEP_DONE, STEP_SKIPPED, STEP_FAILED = "pending", "running", "done", "skipped", "failed"
+
+
+@dataclass(frozen=True)
+class ImuView:
+    """The IMU as last seen: latest rates (counts/s), history per channel, link counters."""
+
+    samples: int = 0                       # decoded samples seen by this buffer
+    last_counter: int | None = None
+    rate_hz: float = math.nan              # the samples' nominal rate
+    gyro_cps: tuple[float, float, float] | None = None   # mean of the last block, counts/s
+    acc_cps: tuple[float, float, float] | None = None
+    temperature_c: float = math.nan
+    history: tuple[tuple[float, ...], ...] = ((),) * 6  # per channel, oldest first, counts/s
+    lost_samples: int = 0
+    bad_frames: int = 0
+
+
+@dataclass(frozen=True)
+class UiSnapshot:
+    """A consistent copy of everything the UI draws."""
+
+    run_state: RunState
+    run_time_s: float | None               # latest time seen on the run's clock
+    table_state: object | None             # drivers.turntable.TableState
+    table_states: int
+    imu: ImuView
+    step_states: tuple[str, ...]
+    current_step: int | None
+    current_started_s: float | None
+    done_estimated_s: float
+    event_count: int                       # events ever added (the UI appends the new ones)
+    result: object | None = None           # bench.result.CalibrationResult
+    outcome_text: str = ""
+
+
+class UiBuffer(RunListener):
+    """Thread-safe store of a run's latest state for the TUI (see the module docstring).
+
+    `steps` are the compiled plan's steps (for step states and progress); `history`
+    is the number of samples kept per IMU channel for the sparklines; `max_events`
+    bounds the event log kept here. `stats_source` (an object with `lost_samples` and
+    `frame_faults`, e.g. an `ImuReceiver`'s `stats`) supplies the link counters.
+    """
+
+    def __init__(self, steps: Sequence = (), *, history: int = 120, max_events: int = 2000):
+        if history < 2:
+            raise ValueError(f"history must be at least 2 samples, got {history}")
+        self._lock = threading.Lock()
+        self.history = int(history)
+        self.stats_source = None
+        self._events: deque[tuple[int, Event]] = deque(maxlen=max_events)
+        self._event_count = 0
+        self._ring = np.zeros((6, self.history))
+        self._ring_fill = 0
+        self._imu_samples = 0
+        self._last_counter: int | None = None
+        self._rate_hz = math.nan
+        self._gyro: tuple | None = None
+        self._acc: tuple | None = None
+        self._temperature = math.nan
+        self._table_state = None
+        self._table_states = 0
+        self._run_time_s: float | None = None
+        self._result = None
+        self._outcome_text = ""
+        self.begin_run(steps)
+
+    # -- set-up (any thread) ---------------------------------------------------------------
+    def begin_run(self, steps: Sequence) -> None:
+        """Forget the previous run's step states, progress and result; keep table/IMU/log."""
+        with self._lock:
+            self.steps = tuple(steps)
+            self._step_states = [STEP_PENDING] * len(self.steps)
+            self._current: int | None = None
+            self._current_started: float | None = None
+            self._done_estimated = 0.0
+            self._run_state = RunState.IDLE
+            self._result = None
+            self._outcome_text = ""
+
+    @property
+    def total_estimated_s(self) -> float:
+        return sum(s.estimated_s for s in self.steps)
+
+    def note(self, kind: str, message: str, **data) -> None:
+        """Add a line of the UI's own (operator actions, link errors) to the event log."""
+        with self._lock:
+            t = self._run_time_s if self._run_time_s is not None else 0.0
+            self._add_event(Event(t, kind, message, data=data))
+
+    def set_outcome(self, result=None, text: str = "") -> None:
+        """The finished run's result (a CalibrationResult, or None) and a one-line account."""
+        with self._lock:
+            self._result, self._outcome_text = result, text
+
+    # -- RunListener (the sequencer's thread) ------------------------------------------------
+    def _add_event(self, event: Event) -> None:
+        self._event_count += 1
+        self._events.append((self._event_count, event))
+
+    def on_event(self, event: Event) -> None:
+        with self._lock:
+            self._add_event(event)
+            self._run_time_s = event.time_s
+            k = event.step_index
+            valid = k is not None and 0 <= k < len(self._step_states)
+            if event.kind == "transition" and event.state is not None:
+                self._run_state = RunState(event.state)
+                if self._run_state is RunState.FAILED and self._current is not None:
+                    self._step_states[self._current] = STEP_FAILED
+                    self._current = None
+            elif event.kind == "step_started" and valid:
+                self._step_states[k] = STEP_RUNNING
+                self._current, self._current_started = k, event.time_s
+            elif event.kind in ("step_finished", "step_skipped") and valid:
+                self._step_states[k] = STEP_DONE if event.kind == "step_finished" else STEP_SKIPPED
+                self._done_estimated += self.steps[k].estimated_s
+                if self._current == k:
+                    self._current = None
+            elif event.kind == "fault" and valid:
+                self._step_states[k] = STEP_FAILED
+
+    def on_table_state(self, state) -> None:
+        with self._lock:
+            self._table_state = state
+            self._table_states += 1
+            self._run_time_s = state.time_s
+
+    def on_imu(self, block) -> None:
+        n = len(block)
+        if n == 0:
+            return
+        rates = np.concatenate([block.gyro_rate, block.acc_rate], axis=1)  # (n, 6) counts/s
+        tail = rates[-self.history:].T
+        with self._lock:
+            m = tail.shape[1]
+            self._ring = np.roll(self._ring, -m, axis=1)
+            self._ring[:, -m:] = tail
+            self._ring_fill = min(self.history, self._ring_fill + m)
+            self._imu_samples += n
+            self._last_counter = int(block.counter[-1])
+            self._rate_hz = float(block.rate_hz)
+            mean = rates.mean(axis=0)
+            self._gyro, self._acc = tuple(map(float, mean[:3])), tuple(map(float, mean[3:]))
+            self._temperature = float(block.temperature_c[-1])
+
+    # -- the UI thread -------------------------------------------------------------------------
+    def events_after(self, seen: int) -> list[Event]:
+        """Events added after the `seen`-th one (those still kept), oldest first."""
+        with self._lock:
+            return [e for k, e in self._events if k > seen]
+
+    def snapshot(self) -> UiSnapshot:
+        stats = self.stats_source
+        lost = int(stats.lost_samples) if stats is not None else 0
+        bad = int(stats.frame_faults) if stats is not None else 0
+        with self._lock:
+            fill = self._ring_fill
+            history = tuple(tuple(map(float, row[self.history - fill:])) for row in self._ring)
+            imu = ImuView(self._imu_samples, self._last_counter, self._rate_hz, self._gyro, self._acc,
+                          self._temperature, history, lost, bad)
+            return UiSnapshot(self._run_state, self._run_time_s, self._table_state, self._table_states, imu,
+                              tuple(self._step_states), self._current, self._current_started,
+                              self._done_estimated, self._event_count, self._result, self._outcome_text)
+
+
+@dataclass(frozen=True)
+class Progress:
+    """Where a run stands by estimated time (run-clock seconds)."""
+
+    fraction: float
+    remaining_s: float
+    step_left_s: float | None   # dwell/settle countdown of the current step, None otherwise
+
+
+def progress(snapshot: UiSnapshot, steps: Sequence) -> Progress:
+    """Overall progress by the steps' estimated durations, and the current step's countdown."""
+    total = sum(s.estimated_s for s in steps) or 1.0
+    done = snapshot.done_estimated_s
+    left = None
+    k = snapshot.current_step
+    if k is not None and k < len(steps) and snapshot.current_started_s is not None and snapshot.run_time_s is not None:
+        elapsed = max(0.0, snapshot.run_time_s - snapshot.current_started_s)
+        done += min(elapsed, steps[k].estimated_s)
+        if steps[k].kind in ("dwell", "settle"):
+            left = max(0.0, steps[k].estimated_s - elapsed)
+    fraction = min(1.0, done / total)
+    return Progress(fraction, max(0.0, total - done), left)
+
+
+@dataclass(frozen=True)
+class ImuScales:
+    """Nominal scale factors to show the IMU in physical units, and where they came from.
+
+    `gyro_cps_per_dps` (counts/s per deg/s) and `acc_cps_per_g` (counts/s per g) per
+    axis; None = unknown: the panel shows raw counts/s.
+    """
+
+    gyro_cps_per_dps: tuple[float, float, float] | None = None
+    acc_cps_per_g: tuple[float, float, float] | None = None
+    source: str = "raw counts/s (no nominal scale known)"
+
+    @classmethod
+    def from_config(cls, config, sim: bool) -> "ImuScales":
+        """The simulated IMU's true scale factors with the simulator; raw counts otherwise
+        (the configuration has no nominal scale factors of a real IMU)."""
+        if not sim or config is None:
+            return cls()
+        from bench.units import DEG, G0
+
+        imu = config.sim.imu
+        return cls(tuple(float(k) * DEG for k in imu.gyro_scale), tuple(float(k) * G0 for k in imu.acc_scale),
+                   "deg/s, deg/h, g (sim truth scale)")
+

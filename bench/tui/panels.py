@@ -1,0 +1,296 @@
+"""The main screen's panels. Each one redraws from a `UiSnapshot` when the app's timer ticks.
+
+Panels keep the plain text they last drew (`plain`) so tests can read what the
+operator sees without parsing the screen.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+from rich.table import Table as RichTable
+from rich.text import Text
+from textual.app import ComposeResult
+from textual.containers import Horizontal, Vertical
+from textual.widgets import DataTable, Label, ProgressBar, RichLog, Sparkline, Static
+
+from bench.events import Event, RunState
+from bench.progress import hms
+from bench.tui.buffer import (CHANNELS, STEP_DONE, STEP_FAILED, STEP_RUNNING, STEP_SKIPPED, ImuScales, UiSnapshot,
+                              progress)
+
+AXIS_NAMES = ("outer", "middle", "inner")
+DEG_PER_HOUR_PER_DPS = 3600.0
+
+
+def _limits_text(axis) -> str:
+    span = "cont" if axis.min_deg is None or axis.max_deg is None else f"{axis.min_deg:g}..{axis.max_deg:g}"
+    return f"{span} {axis.max_rate_dps:g}/s"
+
+
+class TablePanel(Static):
+    """Angles, rates, mode, servo, in-position and limits per axis; fault/e-stop and link status."""
+
+    DEFAULT_CSS = "TablePanel { height: auto; padding: 0 1; }"
+
+    def __init__(self, limits, **kwargs):
+        super().__init__(**kwargs)
+        self.limits = limits
+        self.plain = ""
+        self.border_title = "Table"
+
+    def show(self, snapshot: UiSnapshot, link: str, link_detail: str) -> None:
+        state = snapshot.table_state
+        grid = RichTable.grid(padding=(0, 1))
+        for header, justify in (("axis", "left"), ("angle deg", "right"), ("rate deg/s", "right"), ("mode", "left"),
+                                ("servo", "left"), ("in-pos", "left"), ("limits", "left")):
+            grid.add_column(header, justify=justify, no_wrap=True)
+        rows = [("axis", "angle°", "rate°/s", "mode", "servo", "inpos", "limits")]
+        short = {"position": "pos", "rate": "rate", "off": "off"}
+        for k, name in enumerate(AXIS_NAMES):
+            limit = _limits_text(self.limits.axes[k])
+            if state is None:
+                rows.append((name, "-", "-", "-", "-", "-", limit))
+                continue
+            axis = state.axes[k]
+            rows.append((name, f"{axis.angle_deg:.4f}", f"{axis.rate_dps:.4f}", short.get(axis.mode.value, axis.mode.value),
+                         "on" if axis.enabled else "off", "yes" if axis.in_position else "no", limit))
+        grid.add_row(*(Text(h, style="bold") for h in rows[0]))
+        for row in rows[1:]:
+            grid.add_row(*row[:4], Text(row[4], style="bold green" if row[4] == "on" else ""), *row[5:])
+        if state is None:
+            status = Text("no table state yet")
+        elif state.estop or state.fault:
+            status = Text(f"FAULT: {state.describe_fault()}", style="bold red")
+        else:
+            status = Text("status: ok", style="green")
+        link_style = {"connected": "green", "error": "bold red"}.get(link, "yellow")
+        link_text = Text(f"link: {link}" + (f" ({link_detail})" if link_detail else ""), style=link_style)
+        out = Text("\n").join([Text(""), status, link_text])
+        self.update(_Stack(grid, out))
+        self.plain = "\n".join([*("  ".join(r) for r in rows), status.plain, link_text.plain])
+
+
+class _Stack:
+    """Two renderables one below the other."""
+
+    def __init__(self, *parts):
+        self.parts = parts
+
+    def __rich_console__(self, console, options):
+        yield from self.parts
+
+
+class ImuPanel(Vertical):
+    """Latest gyro (deg/s and deg/h) and accelerometer (g) per axis with a sparkline each, rate,
+    temperature and link counters."""
+
+    DEFAULT_CSS = """
+    ImuPanel { height: auto; padding: 0 1; }
+    ImuPanel .imu-row { height: 1; }
+    ImuPanel .imu-value { width: 26; }
+    ImuPanel Sparkline { width: 1fr; height: 1; }
+    """
+
+    def __init__(self, scales: ImuScales, **kwargs):
+        super().__init__(**kwargs)
+        self.scales = scales
+        self.plain = ""
+        self.border_title = "IMU"
+
+    def compose(self) -> ComposeResult:
+        yield Label("", id="imu-head")
+        for ch in CHANNELS:
+            with Horizontal(classes="imu-row"):
+                yield Label("", id=f"imu-{ch}", classes="imu-value")
+                yield Sparkline([], id=f"spark-{ch}")
+        yield Label(Text(self.scales.source, style="dim"), id="imu-units")
+
+    def _value(self, k: int, cps: float | None) -> str:
+        name = CHANNELS[k]
+        if cps is None or not math.isfinite(cps):
+            return f"{name}  -"
+        if k < 3:
+            scale = self.scales.gyro_cps_per_dps
+            if scale is None:
+                return f"{name} {cps:14.1f} counts/s"
+            dps = cps / scale[k]
+            return f"{name} {dps:9.5f} {dps * DEG_PER_HOUR_PER_DPS:10.3f}"
+        scale = self.scales.acc_cps_per_g
+        if scale is None:
+            return f"{name} {cps:14.1f} counts/s"
+        return f"{name} {cps / scale[k - 3]:9.6f} g"
+
+    def show(self, snapshot: UiSnapshot) -> None:
+        imu = snapshot.imu
+        rate = f"{imu.rate_hz:g} Hz" if math.isfinite(imu.rate_hz) else "- Hz"
+        temp = f"{imu.temperature_c:.1f} C" if math.isfinite(imu.temperature_c) else "- C"
+        head = f"{rate}  {temp}  lost {imu.lost_samples}  bad frames {imu.bad_frames}"
+        self.query_one("#imu-head", Label).update(head)
+        values = (imu.gyro_cps or (None,) * 3) + (imu.acc_cps or (None,) * 3)
+        lines = [head]
+        for k, ch in enumerate(CHANNELS):
+            text = self._value(k, values[k])
+            lines.append(text)
+            self.query_one(f"#imu-{ch}", Label).update(text)
+            data = list(imu.history[k])
+            spark = self.query_one(f"#spark-{ch}", Sparkline)
+            if data != list(spark.data or []):
+                spark.data = data
+        lines.append(self.scales.source)
+        self.plain = "\n".join(lines)
+
+
+def describe_step(step) -> str:
+    if step.kind == "move":
+        return "to " + ", ".join(f"{a:g}" for a in step.target_deg)
+    if step.kind == "settle":
+        return f"{step.duration_s:g} s"
+    if step.kind == "dwell":
+        return f"{step.dwell_s:g} s at " + ", ".join(f"{a:g}" for a in step.angles_deg)
+    if step.kind == "turn":
+        return f"{step.frame} {step.direction} x{step.revolutions} @ {step.rate_dps:g}/s"
+    return ""
+
+
+STATE_STYLE = {STEP_RUNNING: "bold yellow", STEP_DONE: "green", STEP_SKIPPED: "dim", STEP_FAILED: "bold red"}
+
+
+class PlanPanel(Vertical):
+    """The compiled steps with their state, the current step with its countdown, progress and ETA."""
+
+    DEFAULT_CSS = """
+    PlanPanel { height: 1fr; }
+    PlanPanel #plan-status { height: 2; }
+    PlanPanel ProgressBar { height: 1; }
+    PlanPanel DataTable { height: 1fr; }
+    """
+
+    def __init__(self, steps: Sequence, *, simulated: bool, **kwargs):
+        super().__init__(**kwargs)
+        self.steps = tuple(steps)
+        self.simulated = simulated
+        self.plain = ""
+        self._shown_states: list[str] = []
+
+    def compose(self) -> ComposeResult:
+        yield Label("", id="plan-status")
+        yield ProgressBar(total=100.0, show_eta=False, id="plan-progress")
+        yield DataTable(id="plan-steps", cursor_type="row", zebra_stripes=True)
+
+    def on_mount(self) -> None:
+        self.set_steps(self.steps)
+
+    def set_steps(self, steps: Sequence) -> None:
+        self.steps = tuple(steps)
+        table = self.query_one("#plan-steps", DataTable)
+        table.clear(columns=True)
+        table.add_column("#", key="index")
+        table.add_column("unit", key="unit")
+        table.add_column("kind", key="kind")
+        table.add_column("what", key="what")
+        table.add_column("est s", key="est")
+        table.add_column("state", key="state")
+        for s in self.steps:
+            table.add_row(str(s.index + 1), s.unit, s.kind, describe_step(s), f"{s.estimated_s:.1f}",
+                          Text("pending", style="dim"), key=str(s.index))
+        self._shown_states = ["pending"] * len(self.steps)
+
+    def show(self, snapshot: UiSnapshot) -> None:
+        p = progress(snapshot, self.steps)
+        clock = " (sim clock)" if self.simulated else ""
+        k = snapshot.current_step
+        if k is not None and k < len(self.steps):
+            step = self.steps[k]
+            left = f", {p.step_left_s:.1f} s left" if p.step_left_s is not None else ""
+            current = f"step {k + 1}/{len(self.steps)} {step.unit} {step.kind}{left}"
+        else:
+            current = "no step running"
+        status = (f"run {snapshot.run_state.value}  {p.fraction:6.1%}  ETA{clock} {hms(p.remaining_s)}\n{current}")
+        self.query_one("#plan-status", Label).update(status)
+        self.query_one("#plan-progress", ProgressBar).update(progress=round(p.fraction * 100.0, 1))
+        table = self.query_one("#plan-steps", DataTable)
+        for i, state in enumerate(snapshot.step_states):
+            if i < len(self._shown_states) and state != self._shown_states[i]:
+                self._shown_states[i] = state
+                table.update_cell(str(i), "state", Text(state, style=STATE_STYLE.get(state, "dim")))
+        if k is not None and k < table.row_count and table.cursor_row != k:
+            table.move_cursor(row=k)
+        counts = {s: snapshot.step_states.count(s) for s in set(snapshot.step_states)}
+        self.plain = status + "\n" + ", ".join(f"{n} {s}" for s, n in sorted(counts.items()))
+
+
+EVENT_STYLE = {"fault": "bold red", "warning": "yellow", "transition": "bold", "info": ""}
+
+
+class EventLog(RichLog):
+    """The run's events and the UI's own notes, one line each, in the run clock's time."""
+
+    DEFAULT_CSS = "EventLog { height: 1fr; }"
+
+    def __init__(self, **kwargs):
+        super().__init__(max_lines=2000, wrap=True, markup=False, min_width=20, **kwargs)
+        self.seen = 0
+        self.plain_lines: list[str] = []
+
+    def add(self, events: Sequence[Event], total: int) -> None:
+        for e in events:
+            if e.kind == "step_started":
+                continue                 # the plan panel shows the running step
+            line = f"[{hms(e.time_s)}] {e.kind}: {e.message}"
+            self.plain_lines.append(line)
+            self.write(Text(line, style=EVENT_STYLE.get(e.kind, "")))
+        self.plain_lines = self.plain_lines[-2000:]
+        self.seen = total
+
+
+class ResultsPanel(Vertical):
+    """The solved coefficients with 1-sigma uncertainties (and the simulator's truth when known)."""
+
+    DEFAULT_CSS = """
+    ResultsPanel { height: 1fr; }
+    ResultsPanel #results-status { height: auto; }
+    ResultsPanel DataTable { height: 1fr; }
+    """
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.result = None
+        self.plain = ""
+
+    def compose(self) -> ComposeResult:
+        yield Label("no result yet: a finished run is solved from its log", id="results-status")
+        yield DataTable(id="results-table", zebra_stripes=True)
+
+    def show_result(self, result, text: str = "") -> None:
+        if result is self.result:
+            return
+        self.result = result
+        table = self.query_one("#results-table", DataTable)
+        table.clear(columns=True)
+        status = self.query_one("#results-status", Label)
+        if result is None:
+            status.update(text or "no result")
+            self.plain = text
+            return
+        truth = result.sim_truth or {}
+        table.add_columns("coefficient", "value", "1-sigma", "unit", *(("sim truth",) if truth else ()))
+        lines = []
+        for name, c in result.coefficients.items():
+            sigma = f"{c.sigma:.3g}" if c.sigma is not None and math.isfinite(c.sigma) else "-"
+            row = [name, f"{c.value:.8g}", sigma, c.unit]
+            if truth:
+                row.append(f"{truth[name].value:.8g}" if name in truth else "-")
+            table.add_row(*row)
+            lines.append(" ".join(row))
+        failures = result.quality.get("failures") if isinstance(result.quality, dict) else None
+        head = text or f"{len(result.coefficients)} coefficients"
+        if failures:
+            head += f"; quality: {failures}"
+        status.update(head)
+        self.plain = "\n".join([head, *lines])
+
+
+def run_is_active(state: RunState) -> bool:
+    return state in (RunState.RUNNING, RunState.PAUSED, RunState.ABORTING)

@@ -1,0 +1,138 @@
+"""Dialogs: confirmations, go to position (validated against the limits), help."""
+
+from __future__ import annotations
+
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal, Vertical
+from textual.screen import ModalScreen
+from textual.widgets import Button, Input, Label, Static
+
+from drivers.errors import TurntableLimitError
+
+DIALOG_CSS = """
+{name} {{ align: center middle; }}
+{name} > Vertical {{ width: 76; height: auto; max-height: 90%; border: thick $accent; background: $surface;
+                      padding: 1 2; }}
+{name} .buttons {{ height: auto; margin-top: 1; align-horizontal: right; }}
+{name} Button {{ margin-left: 2; }}
+{name} .error {{ color: $error; height: auto; }}
+"""
+
+
+class ConfirmScreen(ModalScreen[bool]):
+    """Yes/no with a title and a description; dismisses with True only on "yes"."""
+
+    DEFAULT_CSS = DIALOG_CSS.format(name="ConfirmScreen")
+    BINDINGS = [Binding("escape", "cancel", "cancel"), Binding("y", "confirm", "yes"), Binding("n", "cancel", "no")]
+    AUTO_FOCUS = "#no"      # a stray Enter must not start anything
+
+    def __init__(self, title: str, body: str, yes: str = "Yes", no: str = "No", **kwargs):
+        super().__init__(**kwargs)
+        self.title_text, self.body, self.yes, self.no = title, body, yes, no
+
+    def compose(self) -> ComposeResult:
+        with Vertical():
+            yield Label(self.title_text, classes="title")
+            yield Static(self.body, id="confirm-body")
+            with Horizontal(classes="buttons"):
+                yield Button(self.no, id="no")
+                yield Button(self.yes, id="yes", variant="warning")
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        self.dismiss(event.button.id == "yes")
+
+    def action_confirm(self) -> None:
+        self.dismiss(True)
+
+    def action_cancel(self) -> None:
+        self.dismiss(False)
+
+
+class GotoScreen(ModalScreen["tuple[float, float, float] | None"]):
+    """Three angles (outer, middle, inner, deg), each a number within its axis's limits."""
+
+    DEFAULT_CSS = DIALOG_CSS.format(name="GotoScreen") + """
+    GotoScreen Input { width: 24; }
+    GotoScreen .axis { height: auto; }
+    GotoScreen .axis Label { width: 10; padding-top: 1; }
+    """
+    BINDINGS = [Binding("escape", "cancel", "cancel")]
+    AUTO_FOCUS = "#goto-outer"
+
+    def __init__(self, limits, current_deg=None, **kwargs):
+        super().__init__(**kwargs)
+        self.limits = limits
+        self.current_deg = current_deg or (0.0, 0.0, 0.0)
+
+    def compose(self) -> ComposeResult:
+        with Vertical():
+            yield Label("Go to position (deg). The table is enabled (servos on) and moves.")
+            for k, name in enumerate(("outer", "middle", "inner")):
+                with Horizontal(classes="axis"):
+                    yield Label(name)
+                    yield Input(f"{self.current_deg[k]:g}", id=f"goto-{name}")
+            yield Label("", id="goto-error", classes="error")
+            with Horizontal(classes="buttons"):
+                yield Button("Cancel", id="cancel")
+                yield Button("Move", id="move", variant="warning")
+
+    def validate(self) -> tuple[float, float, float] | None:
+        """The three angles, or None after showing what is wrong."""
+        angles = []
+        error = self.query_one("#goto-error", Label)
+        for k, name in enumerate(("outer", "middle", "inner")):
+            text = self.query_one(f"#goto-{name}", Input).value.strip()
+            try:
+                value = float(text)
+            except ValueError:
+                error.update(f"{name}: {text!r} is not a number")
+                return None
+            try:
+                self.limits.check_position(k, value)
+            except TurntableLimitError as exc:
+                error.update(str(exc))
+                return None
+            angles.append(value)
+        error.update("")
+        return tuple(angles)
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        self._move()
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        if event.button.id == "move":
+            self._move()
+        else:
+            self.dismiss(None)
+
+    def _move(self) -> None:
+        angles = self.validate()
+        if angles is not None:
+            self.dismiss(angles)
+
+    def action_cancel(self) -> None:
+        self.dismiss(None)
+
+
+class HelpScreen(ModalScreen[None]):
+    """The key bindings and what they do."""
+
+    DEFAULT_CSS = DIALOG_CSS.format(name="HelpScreen")
+    BINDINGS = [Binding("escape,q,question_mark,f1", "close", "close")]
+
+    def __init__(self, text: str, **kwargs):
+        super().__init__(**kwargs)
+        self.text = text
+
+    def compose(self) -> ComposeResult:
+        with Vertical():
+            yield Static(self.text, id="help-text")
+            with Horizontal(classes="buttons"):
+                yield Button("Close", id="close")
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        self.dismiss(None)
+
+    def action_close(self) -> None:
+        self.dismiss(None)

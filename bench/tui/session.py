@@ -1,0 +1,361 @@
+"""The operator's bench session behind the TUI: devices, an idle monitor, one run at a time (no Textual here).
+
+`BenchSession` owns a `bench.runner.BenchRun` (the same devices, sequencer, recorder
+and solve as `bench run`) and adds only what an interactive session needs:
+
+- connect / disconnect (open the devices and the log; close them);
+- an idle monitor thread that reads the table and drains the IMU into the `UiBuffer`
+  while no run is active (with the simulator it also advances the simulated clock in
+  real time, so a manual move takes as long as on the real table);
+- manual commands (enable, disable, go to position) and the run controls (start,
+  pause, resume, abort) and the emergency stop (abort the run and the controller's
+  abort, servos off), each off the caller's thread: the UI never waits on the wire.
+
+A BenchRun records one run: after a run ended, `start()` opens a fresh one (a new log;
+with the simulator a new simulated world, table back at zero).
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+from typing import Callable, Sequence
+
+from bench.events import RunState
+from bench.tui.buffer import UiBuffer
+
+LINK_DISCONNECTED, LINK_CONNECTING, LINK_CONNECTED, LINK_ERROR = "disconnected", "connecting", "connected", "error"
+
+
+class SessionError(Exception):
+    """An operator command that cannot be done now (says why)."""
+
+
+class BenchSession:
+    """An interactive bench: `config` and compiled `plan`, on the simulator when `sim`.
+
+    `poll_s` is the idle monitor's period (real seconds). Thread-safe: every public
+    method may be called from the UI thread; slow work runs on the session's threads,
+    which `close()` joins.
+    """
+
+    def __init__(self, config, plan, *, sim: bool, out_dir: str | Path, buffer: UiBuffer,
+                 operator: str = "", poll_s: float = 0.1, join_timeout_s: float = 20.0):
+        self.config, self.plan, self.sim = config, plan, sim
+        self.out_dir = Path(out_dir)
+        self.buffer = buffer
+        self.operator = operator
+        self.poll_s = float(poll_s)
+        self.join_timeout_s = float(join_timeout_s)
+        self.run = None                       # bench.runner.BenchRun
+        self.outcome = None                   # bench.runner.RunOutcome of the last run
+        self.link = LINK_DISCONNECTED
+        self.link_detail = ""
+        self._spent = False                   # the current BenchRun has run: a new run needs a new one
+        self._estop = False
+        self._lock = threading.RLock()
+        self._worker: threading.Thread | None = None
+        self._threads: list[threading.Thread] = []
+        self._monitor: threading.Thread | None = None
+        self._monitor_stop = threading.Event()
+        self._imu = None
+
+    # -- state -----------------------------------------------------------------------------
+    @property
+    def running(self) -> bool:
+        """A run is under way (started and not yet finished and solved)."""
+        worker = self._worker
+        return worker is not None and worker.is_alive()
+
+    @property
+    def connected(self) -> bool:
+        return self.link == LINK_CONNECTED
+
+    @property
+    def busy(self) -> bool:
+        """Anything that must be stopped before quitting: a run, or the session's commands."""
+        return self.running or any(t.is_alive() for t in self._threads)
+
+    def describe_plan(self) -> str:
+        """What starting the plan will do, for the confirmation dialog."""
+        steps = self.plan.steps
+        kinds = {}
+        for s in steps:
+            kinds[s.kind] = kinds.get(s.kind, 0) + 1
+        what = ", ".join(f"{n} {k}" for k, n in kinds.items())
+        p = self.config.plan
+        schedules = " + ".join(s.name for s in (p.positions, p.rotations) if s is not None)
+        limits = self.config.table.limits.axes
+        turns = sorted({s.frame for s in steps if s.kind == "turn"})
+        lines = [
+            f"Plan {schedules}: {len(steps)} steps ({what}), about {self.plan.estimated_total_s / 60:.1f} min.",
+            "ALL THREE AXES will be enabled (servos on) and moved"
+            + (f"; continuous turns on {', '.join(turns)}" if turns else "") + ".",
+            f"Moves at up to {p.move_rate_dps:g} deg/s, turns at {p.turn_rate_dps:g} deg/s; limits: "
+            + ", ".join(f"{name} {_range(a)}" for name, a in zip(("outer", "middle", "inner"), limits)) + ".",
+            ("Simulator: nothing real moves." if self.sim else f"Table at {self.config.table.url}.")
+            + " Keep clear of the table.",
+        ]
+        return "\n".join(lines)
+
+    # -- threads ------------------------------------------------------------------------------
+    def _spawn(self, name: str, body: Callable[[], None]) -> threading.Thread:
+        def guarded() -> None:
+            try:
+                body()
+            except Exception as exc:  # noqa: BLE001 - an operator command failed: say so in the log
+                self.buffer.note("warning", f"{name} failed: {type(exc).__name__}: {exc}")
+
+        thread = threading.Thread(target=guarded, name=f"bench-tui-{name}", daemon=True)
+        with self._lock:
+            self._threads = [t for t in self._threads if t.is_alive()] + [thread]
+        thread.start()
+        return thread
+
+    def _start_monitor(self) -> None:
+        self._stop_monitor()
+        self._monitor_stop = threading.Event()
+        self._monitor = threading.Thread(target=self._monitor_loop, args=(self._monitor_stop,),
+                                         name="bench-tui-monitor", daemon=True)
+        self._monitor.start()
+
+    def _stop_monitor(self) -> None:
+        monitor, self._monitor = self._monitor, None
+        if monitor is not None:
+            self._monitor_stop.set()
+            monitor.join(self.join_timeout_s)
+
+    def _monitor_loop(self, stop: threading.Event) -> None:
+        from drivers.errors import ImuError, TurntableError
+
+        failing = False
+        while not stop.wait(self.poll_s):
+            run = self.run
+            if run is None:
+                return
+            try:
+                if self.sim:
+                    run.clock.advance(self.poll_s)
+                self.buffer.on_table_state(run.table.read_state())
+                block = self._imu.poll()
+                self.buffer.on_imu(block)
+                if failing:
+                    failing = False
+                    self.link, self.link_detail = LINK_CONNECTED, ""
+                    self.buffer.note("info", "link to the table is back")
+            except (TurntableError, ImuError, OSError) as exc:
+                if not failing:
+                    failing = True
+                    self.link, self.link_detail = LINK_ERROR, f"{type(exc).__name__}: {exc}"
+                    self.buffer.note("warning", f"idle monitor: {type(exc).__name__}: {exc}")
+
+    # -- connect -------------------------------------------------------------------------------
+    def connect(self) -> None:
+        """Open the devices and the log (blocking; call it off the UI thread). Nothing moves."""
+        from bench.runner import BenchRun
+
+        with self._lock:
+            if self.run is not None:
+                raise SessionError("already connected")
+            self.link, self.link_detail = LINK_CONNECTING, ""
+        run = BenchRun(self.config, self.plan, sim=self.sim, out_dir=self.out_dir, operator=self.operator,
+                       listeners=[self.buffer])
+        try:
+            run.open()
+        except BaseException as exc:
+            self.link, self.link_detail = LINK_ERROR, f"{type(exc).__name__}: {exc}"
+            raise
+        with self._lock:
+            self.run, self._spent, self._estop = run, False, False
+            self._imu = run.world.imu_source(run.receiver) if run.world is not None else run.receiver
+            self.buffer.stats_source = run.receiver.stats
+            self.link = LINK_CONNECTED
+            self.link_detail = (f"{self.config.table.dialect}, simulator" if self.sim
+                                else f"{self.config.table.dialect} at {self.config.table.url}")
+        self.buffer.note("info", f"connected ({self.link_detail}); log {run.log_path.name}")
+        self._start_monitor()
+
+    def disconnect(self) -> None:
+        """Stop the table (servos off) and close the devices. Refused while a run is active."""
+        if self.running:
+            raise SessionError("a run is active: abort it first")
+        self._stop_monitor()
+        with self._lock:
+            run, self.run = self.run, None
+        if run is None:
+            return
+        try:
+            run.table.safe_stop()
+            run.table.disable()
+        except Exception as exc:  # noqa: BLE001 - closing matters more; the log says what failed
+            self.buffer.note("warning", f"stop on disconnect failed: {type(exc).__name__}: {exc}")
+        run.close()
+        self.link, self.link_detail = LINK_DISCONNECTED, ""
+        self.buffer.note("info", "disconnected")
+
+    def _require_idle_table(self):
+        if self.run is None:
+            raise SessionError("not connected")
+        if self.running:
+            raise SessionError("a run is active")
+        return self.run.table
+
+    # -- manual commands (return at once; the work runs on a session thread) -------------------
+    def enable(self) -> threading.Thread:
+        table = self._require_idle_table()
+
+        def body() -> None:
+            table.reset_faults()
+            table.enable()
+            self.buffer.note("info", "servos on")
+        return self._spawn("enable", body)
+
+    def disable(self) -> threading.Thread:
+        table = self._require_idle_table()
+
+        def body() -> None:
+            table.safe_stop()
+            table.disable()
+            self.buffer.note("info", "table stopped, servos off")
+        return self._spawn("disable", body)
+
+    def go_to(self, angles_deg: Sequence[float]) -> threading.Thread:
+        """Enable and move to `angles_deg` (outer, middle, inner) at the plan's move rate; limits checked first."""
+        table = self._require_idle_table()
+        angles = tuple(float(a) for a in angles_deg)
+        for k, a in enumerate(angles):
+            table.limits.check_position(k, a)     # TurntableLimitError before anything is sent
+        rate = self.config.plan.move_rate_dps
+
+        def body() -> None:
+            table.reset_faults()
+            table.enable()
+            table.move_to(angles, rate_dps=rate)
+            self.buffer.note("info", f"moving to {', '.join(f'{a:g}' for a in angles)} deg at {rate:g} deg/s")
+        return self._spawn("go-to", body)
+
+    # -- the run -------------------------------------------------------------------------------
+    def start(self) -> threading.Thread:
+        """Start the plan on a worker thread (then solve from the log). Raises SessionError if it cannot."""
+        with self._lock:
+            if self.running:
+                raise SessionError("a run is already active")
+            if self.run is None:
+                raise SessionError("not connected")
+            if self._spent:
+                # One BenchRun, one log: a new run opens the devices afresh.
+                old = self.run
+                self._stop_monitor()
+                old.close()
+                self.run = None
+                self.link = LINK_DISCONNECTED
+            self._estop = False
+        if self.run is None:
+            self.connect()
+        self._stop_monitor()
+        run = self.run
+        self._spent = True
+        self.outcome = None
+        self.buffer.begin_run(self.plan.steps)
+        self._worker = threading.Thread(target=self._run_body, args=(run,), name="bench-tui-run", daemon=True)
+        self._worker.start()
+        return self._worker
+
+    def _run_body(self, run) -> None:
+        from bench.solver import SolverError
+        from drivers.errors import TurntableError
+
+        text, result = "", None
+        try:
+            if self._estop:
+                text = "not started: emergency stop"
+                return
+            try:
+                run.run()
+            except TurntableError as exc:
+                text = f"cannot enable the table: {exc}; nothing moved"
+                self.buffer.note("fault", text)
+                return
+            try:
+                self.outcome = run.finish()
+            except SolverError as exc:
+                text = f"the run finished but cannot be solved: {exc}"
+                self.buffer.note("warning", text)
+                return
+            outcome = self.outcome
+            result = outcome.result
+            if outcome.error is not None:
+                text = f"{outcome.state.value}: {outcome.error}; table stopped. Log: {outcome.log_path.name}"
+            elif outcome.failures:
+                text = "quality check failed: " + "; ".join(outcome.failures)
+            else:
+                text = f"done; result {outcome.result_path.name}"
+            self.buffer.note("info", text)
+        except Exception as exc:  # noqa: BLE001 - the operator must see it; the sequencer already stopped the table
+            text = f"run error: {type(exc).__name__}: {exc}"
+            self.buffer.note("fault", text)
+        finally:
+            run.receiver.on_frames = None          # the finished sequencer's listeners are closed
+            self.buffer.set_outcome(result, text)
+            if self.run is run and run.table is not None:
+                self._start_monitor()
+
+    def pause(self) -> None:
+        seq = self._sequencer()
+        seq.pause()
+        self.buffer.note("info", "pause requested (takes effect at the next step boundary)")
+
+    def resume(self) -> None:
+        self._sequencer().resume()
+        self.buffer.note("info", "resume requested")
+
+    def abort(self, reason: str = "aborted by the operator") -> None:
+        self._sequencer()
+        self.run.abort(reason)
+        self.buffer.note("warning", f"abort requested: {reason}")
+
+    def _sequencer(self):
+        run = self.run
+        if not self.running or run is None or run.sequencer is None:
+            raise SessionError("no run is active")
+        if run.sequencer.state not in (RunState.RUNNING, RunState.PAUSED, RunState.IDLE):
+            raise SessionError(f"the run is {run.sequencer.state.value}")
+        return run.sequencer
+
+    def estop(self) -> threading.Thread | None:
+        """Emergency stop: abort the run and send the controller's abort (servos off) at once."""
+        self._estop = True
+        run = self.run
+        self.buffer.note("fault", "EMERGENCY STOP by the operator")
+        if run is None:
+            return None
+        run.abort("emergency stop by the operator")
+        table = run.table
+
+        def body() -> None:
+            table.safe_abort()
+            self.buffer.note("info", "e-stop: controller abort sent (servos off)")
+        return self._spawn("e-stop", body)
+
+    # -- the end -----------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Abort any run, wait for it (bounded), stop the table (servos off), close the devices."""
+        if self.running and self.run is not None:
+            self.run.abort("the operator quit")
+        worker = self._worker
+        if worker is not None:
+            worker.join(self.join_timeout_s)
+        for thread in list(self._threads):
+            thread.join(self.join_timeout_s)
+        try:
+            self.disconnect()
+        except SessionError:
+            self._stop_monitor()
+            if self.run is not None:
+                self.run.close()
+
+
+def _range(axis) -> str:
+    if axis.min_deg is None or axis.max_deg is None:
+        return f"continuous <= {axis.max_rate_dps:g} deg/s"
+    return f"[{axis.min_deg:g}, {axis.max_deg:g}] deg"

@@ -1,0 +1,39 @@
+"""`bench tui`: the lab-operator TUI (bench/tui) on hardware (--config) or the simulator (--sim)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+EXIT_OK, EXIT_USAGE = 0, 2
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "tui", help="the lab-operator terminal UI (live table, IMU, plan, events, results)",
+        description="Interactive operator screen: connect, go to positions, start/pause/resume/abort the plan, "
+                    "emergency stop (F12, on every screen). Runs record and solve exactly like `bench run`.")
+    parser.add_argument("--config", metavar="FILE", help="bench configuration (see bench.example.toml)")
+    parser.add_argument("--sim", action="store_true",
+                        help="the simulator: the built-in simulated bench, or --config's plan and [sim]")
+    parser.add_argument("--out", metavar="DIR", help="output folder (default: the config's [output] folder)")
+    parser.add_argument("--operator", default="", help="who runs it (recorded in the log)")
+    parser.set_defaults(func=cmd_tui)
+
+
+def cmd_tui(args: argparse.Namespace) -> int:
+    from bench.config import ConfigError, default_sim_config, load_config
+
+    if not args.config and not args.sim:
+        print("bench tui: say --config FILE or --sim", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        config = load_config(args.config) if args.config else default_sim_config()
+        from bench.tui import create_app
+
+        app = create_app(config=config, sim=args.sim, out_dir=args.out, operator=args.operator)
+    except (ConfigError, ValueError, OSError) as exc:
+        print(f"bench tui: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    app.run()
+    return EXIT_OK

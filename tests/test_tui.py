@@ -1,0 +1,432 @@
+"""The lab-operator TUI (bench/tui): buffer logic, pilot tests against the simulator, snapshots.
+
+Pilot tests drive the real app (`App.run_test`, 100x30) against a simulated bench (the
+short test plan of tests/run_helpers.py): every wait is bounded. pytest-asyncio is not
+installed: each test runs its coroutine with `asyncio.run`. Snapshot tests render
+states fed straight into the UI buffer (no wall-clock text, no run ids), so they are
+deterministic; the SVGs live in tests/__snapshots__/test_tui/.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.config import parse_config
+from bench.events import Event, RunState
+from bench.result import CalibrationResult, coefficient_table
+from bench.run_cli import compile_from_config
+from bench.tui.buffer import STEP_DONE, STEP_FAILED, STEP_PENDING, STEP_RUNNING, ImuScales, UiBuffer, progress
+from drivers.imu import ImuSampleBlock
+from drivers.turntable import AxisMode, AxisState, AxisStatus, TableState
+from run_helpers import assert_disabled, config_text
+
+SIZE = (100, 30)
+
+
+@pytest.fixture(autouse=True)
+def no_leftover_threads():
+    yield
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline:
+        left = [t.name for t in threading.enumerate() if t.name.startswith("bench-tui-")]
+        if not left:
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"threads left running: {left}")
+
+
+def make_config(tmp_path: Path, **kwargs):
+    return parse_config(config_text(**kwargs), source=str(tmp_path / "bench.toml"), base_dir=tmp_path)
+
+
+def make_app(tmp_path: Path, **kwargs):
+    from bench.tui import create_app
+
+    options = dict(config=make_config(tmp_path), sim=True, out_dir=tmp_path, refresh_hz=20.0, poll_s=0.05)
+    options.update(kwargs)
+    return create_app(**options)
+
+
+async def wait_until(pilot, predicate, what: str, timeout_s: float = 15.0, period_s: float = 0.05):
+    """Let the app run until `predicate()` is truthy (bounded in time and count)."""
+    deadline = time.monotonic() + timeout_s
+    for _ in range(int(timeout_s / period_s) + 1):
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            break
+        await pilot.pause(period_s)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+
+
+async def press(pilot, key: str) -> None:
+    """Send a key without waiting for the process to go idle: `Pilot.press` waits up to 2 s per
+    key for that, and the simulator keeps the process busy."""
+    pilot.app.simulate_key(key)
+    await pilot.pause(0.05)
+
+
+async def submit(pilot, dialog) -> None:
+    """Enter in the go-to dialog's first field (what the Move button does)."""
+    dialog.query_one("#goto-outer").focus()
+    await press(pilot, "enter")
+
+
+def run(coro_fn, *args):
+    asyncio.run(coro_fn(*args))
+
+
+def snap(app):
+    return app.buffer.snapshot()
+
+
+def events_text(app) -> str:
+    return "\n".join(app.query_one("#event-log").plain_lines)
+
+
+async def dialog_open(pilot, name: str, child: str):
+    """Wait until dialog `name` is on top with its widgets mounted (`child` is one of them)."""
+    app = pilot.app
+    await wait_until(pilot, lambda: type(app.screen).__name__ == name and app.screen.query(child), f"the {name}")
+    return app.screen
+
+
+async def connected(pilot):
+    app = pilot.app
+    await wait_until(pilot, lambda: app.session.connected and snap(app).table_state is not None
+                     and snap(app).imu.gyro_cps is not None, "connection and first table/IMU data")
+    await pilot.pause(0.1)
+
+
+async def start_plan(pilot):
+    app = pilot.app
+    await press(pilot, "s")
+    await dialog_open(pilot, "ConfirmScreen", "#confirm-body")
+    body = str(app.screen.query_one("#confirm-body").render())
+    assert "ALL THREE AXES" in body and "steps" in body, body
+    await press(pilot, "y")
+    await wait_until(pilot, lambda: snap(app).run_state is RunState.RUNNING, "the run to start")
+
+
+async def wait_ended(pilot):
+    app = pilot.app
+    await wait_until(pilot, lambda: not app.session.running, "the run to end", timeout_s=30.0)
+    await pilot.pause(0.15)
+
+
+# -- the buffer (no Textual) -------------------------------------------------------------------
+
+def _block(counter0: int, n: int, gyro: float, acc: float, rate_hz: float = 50.0) -> ImuSampleBlock:
+    counter = np.arange(counter0, counter0 + n, dtype=np.int64)
+    g = np.full((n, 3), gyro / rate_hz)
+    a = np.full((n, 3), acc / rate_hz)
+    return ImuSampleBlock(counter, counter / rate_hz, g, a, np.full(n, 25.0), np.zeros(n, np.int64), rate_hz)
+
+
+def _state(t: float, angles=(0.0, 0.0, 0.0), status=AxisStatus(0), mode=AxisMode.OFF) -> TableState:
+    return TableState(t, tuple(AxisState(a, 0.0, mode, status) for a in angles))
+
+
+def test_buffer_step_states_progress_and_countdown(tmp_path):
+    plan = compile_from_config(make_config(tmp_path))
+    steps = plan.steps
+    buf = UiBuffer(steps)
+    dwell = next(s for s in steps if s.kind == "dwell")
+    buf.on_event(Event(0.0, "transition", "run started", state="running", data={"from": "idle"}))
+    for s in steps[:dwell.index]:
+        buf.on_event(Event(1.0, "step_started", "", step_index=s.index, step_unit=s.unit))
+        buf.on_event(Event(2.0, "step_finished", "", step_index=s.index, step_unit=s.unit))
+    buf.on_event(Event(10.0, "step_started", "", step_index=dwell.index, step_unit=dwell.unit))
+    buf.on_table_state(_state(11.0))
+    s = buf.snapshot()
+    assert s.run_state is RunState.RUNNING
+    assert s.step_states[:dwell.index] == (STEP_DONE,) * dwell.index
+    assert s.step_states[dwell.index] == STEP_RUNNING and s.step_states[dwell.index + 1] == STEP_PENDING
+    p = progress(s, steps)
+    assert p.step_left_s == pytest.approx(dwell.estimated_s - 1.0)
+    done = sum(x.estimated_s for x in steps[:dwell.index]) + 1.0
+    assert p.fraction == pytest.approx(done / plan.estimated_total_s)
+    assert p.remaining_s == pytest.approx(plan.estimated_total_s - done)
+    buf.on_event(Event(12.0, "fault", "TurntableLimitError", step_index=dwell.index, step_unit=dwell.unit))
+    buf.on_event(Event(12.0, "transition", "stop", state="aborting", data={"from": "running"}))
+    buf.on_event(Event(13.0, "transition", "ended", state="failed", data={"from": "aborting"}))
+    s = buf.snapshot()
+    assert s.run_state is RunState.FAILED and s.step_states[dwell.index] == STEP_FAILED
+    assert s.current_step is None and s.event_count == 2 * dwell.index + 5
+    assert [e.kind for e in buf.events_after(s.event_count - 2)] == ["transition", "transition"]
+    buf.begin_run(steps)
+    assert set(buf.snapshot().step_states) == {STEP_PENDING}
+
+
+def test_buffer_keeps_the_last_samples_per_channel():
+    buf = UiBuffer(history=8)
+    buf.on_imu(_block(0, 5, 100.0, 200.0))
+    s = buf.snapshot()
+    assert [len(h) for h in s.imu.history] == [5] * 6 and s.imu.samples == 5
+    buf.on_imu(_block(5, 20, 300.0, 400.0))
+    s = buf.snapshot()
+    assert s.imu.history[0] == (300.0,) * 8 and s.imu.history[5] == (400.0,) * 8
+    assert s.imu.gyro_cps == (300.0,) * 3 and s.imu.last_counter == 24 and s.imu.samples == 25
+    assert s.imu.rate_hz == 50.0 and s.imu.temperature_c == 25.0
+    buf.on_imu(_block(25, 0, 1.0, 1.0))            # an empty block changes nothing
+    assert buf.snapshot().imu.samples == 25
+    with pytest.raises(ValueError, match="history"):
+        UiBuffer(history=1)
+
+
+def test_buffer_concurrent_writers_and_reader():
+    buf = UiBuffer(history=50)
+    stop = threading.Event()
+
+    def writer():
+        k = 0
+        while not stop.is_set() and k < 2000:
+            buf.on_imu(_block(k * 10, 10, float(k), float(k)))
+            buf.on_table_state(_state(float(k)))
+            k += 1
+
+    threads = [threading.Thread(target=writer) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for _ in range(200):
+        s = buf.snapshot()
+        assert all(len(h) == len(s.imu.history[0]) for h in s.imu.history)
+    stop.set()
+    for t in threads:
+        t.join(10)
+    assert buf.snapshot().table_states > 0
+
+
+def test_imu_scales_are_the_sim_truth_or_raw(tmp_path):
+    config = make_config(tmp_path)
+    sim = ImuScales.from_config(config, sim=True)
+    assert sim.gyro_cps_per_dps == pytest.approx((36000.0,) * 3, rel=1e-2)
+    assert sim.acc_cps_per_g == pytest.approx((40000.0,) * 3, rel=1e-2)
+    assert "sim truth" in sim.source
+    raw = ImuScales.from_config(config, sim=False)
+    assert raw.gyro_cps_per_dps is None and "raw counts/s" in raw.source
+
+
+# -- pilot tests against the simulator -----------------------------------------------------------
+
+def test_connect_shows_table_and_imu_then_go_to_position(tmp_path):
+    async def body():
+        app = make_app(tmp_path)
+        async with app.run_test(size=SIZE) as pilot:
+            await connected(pilot)
+            table = app.query_one("#table-panel").plain
+            assert "link: connected (scpi, simulator)" in table and "outer  0.0000  0.0000  off  off" in table, table
+            imu = app.query_one("#imu-panel").plain
+            assert "50 Hz" in imu and "lost 0  bad frames 0" in imu and "deg/h" in imu, imu
+            az = float(imu.split("az")[1].split()[0])
+            assert abs(abs(az) - 1.0) < 0.01, imu         # one axis senses gravity, in g
+            await press(pilot, "g")
+            dialog = await dialog_open(pilot, "GotoScreen", "#goto-inner")
+            dialog.query_one("#goto-middle").value = "abc"
+            await submit(pilot, dialog)
+            await wait_until(pilot, lambda: "not a number" in str(dialog.query_one("#goto-error").render()),
+                             "the not-a-number message")
+            dialog.query_one("#goto-middle").value = "nan"
+            await submit(pilot, dialog)
+            await wait_until(pilot, lambda: "finite" in str(dialog.query_one("#goto-error").render()),
+                             "the must-be-finite message")
+            assert app.screen is dialog                     # an invalid entry keeps the dialog open
+            dialog.query_one("#goto-outer").value = "10"
+            dialog.query_one("#goto-middle").value = "-20"
+            dialog.query_one("#goto-inner").value = "5.5"
+            await submit(pilot, dialog)
+            await wait_until(pilot, lambda: type(app.screen).__name__ != "GotoScreen", "the dialog to close")
+
+            def arrived():
+                s = snap(app).table_state
+                return s is not None and all(abs(a - t) < 1e-3 and ax.in_position for a, t, ax in
+                                             zip(s.angles_deg, (10.0, -20.0, 5.5), s.axes))
+            await wait_until(pilot, arrived, "the table to reach the position")
+            await pilot.pause(0.15)
+            assert "outer  10.0000" in app.query_one("#table-panel").plain
+            assert "moving to 10, -20, 5.5 deg" in events_text(app)
+            controller = app.session.run.world.controller
+        assert_disabled(controller, at_rest=True)           # leaving the app stops the table, servos off
+    run(body)
+
+
+def test_start_pause_resume_abort_ends_stopped(tmp_path):
+    async def body():
+        app = make_app(tmp_path)
+        async with app.run_test(size=SIZE) as pilot:
+            await connected(pilot)
+            await press(pilot, "s")
+            await dialog_open(pilot, "ConfirmScreen", "#no")
+            await press(pilot, "n")                          # cancelled: nothing starts
+            await pilot.pause(0.2)
+            assert not app.session.running and snap(app).run_state is RunState.IDLE
+            await start_plan(pilot)
+            await wait_until(pilot, lambda: snap(app).step_states.count(STEP_DONE) >= 2, "two steps done")
+            await press(pilot, "p")
+            await wait_until(pilot, lambda: snap(app).run_state is RunState.PAUSED, "the pause")
+            done = snap(app).step_states.count(STEP_DONE)
+            await pilot.pause(0.3)
+            assert snap(app).step_states.count(STEP_DONE) == done     # paused: no progress
+            assert snap(app).current_step is None
+            await pilot.pause(0.1)
+            assert "run paused" in app.query_one("#plan-panel").plain
+            await press(pilot, "r")
+            await wait_until(pilot, lambda: snap(app).step_states.count(STEP_DONE) > done, "progress after resume")
+            await press(pilot, "a")
+            await wait_ended(pilot)
+            s = snap(app)
+            assert s.run_state is RunState.FAILED and STEP_PENDING in s.step_states
+            assert "run failed" in app.query_one("#plan-panel").plain
+            log = events_text(app)
+            assert "aborted by the operator" in log and "table stopped and servos off" in log
+            controller = app.session.run.world.controller
+            assert_disabled(controller, at_rest=True)
+            assert "servo" in app.query_one("#table-panel").plain and " on " not in app.query_one("#table-panel").plain
+    run(body)
+
+
+def test_estop_from_the_main_screen_during_a_run(tmp_path):
+    async def body():
+        app = make_app(tmp_path)
+        async with app.run_test(size=SIZE) as pilot:
+            await connected(pilot)
+            await start_plan(pilot)
+            await wait_until(pilot, lambda: snap(app).step_states.count(STEP_DONE) >= 1, "a step done")
+            await press(pilot, "f12")
+            await wait_ended(pilot)
+            assert snap(app).run_state is RunState.FAILED
+            assert_disabled(app.session.run.world.controller, at_rest=False)
+            log = events_text(app)
+            assert "EMERGENCY STOP" in log and "servos off" in log
+    run(body)
+
+
+@pytest.mark.parametrize("dialog_key, dialog", [("g", "GotoScreen"), ("question_mark", "HelpScreen"),
+                                                ("s", "ConfirmScreen")])
+def test_estop_from_an_open_dialog(tmp_path, dialog_key, dialog):
+    async def body():
+        app = make_app(tmp_path)
+        async with app.run_test(size=SIZE) as pilot:
+            await connected(pilot)
+            app.session.enable().join(5)                    # servos on: the e-stop must switch them off
+            await wait_until(pilot, lambda: all(a.enabled for a in snap(app).table_state.axes), "servos on")
+            await press(pilot, dialog_key)
+            await dialog_open(pilot, dialog, "Button")
+            await press(pilot, "f12")
+            await wait_until(pilot, lambda: len(app.screen_stack) == 1, "the dialog to close")
+            await wait_until(pilot, lambda: not any(a.enabled for a in snap(app).table_state.axes), "servos off")
+            assert_disabled(app.session.run.world.controller, at_rest=False)
+            assert "EMERGENCY STOP" in events_text(app)
+            assert not app.session.running                   # the confirmation never started the plan
+    run(body)
+
+
+def test_a_limit_fault_mid_run_shows_in_the_table_panel_and_the_log(tmp_path):
+    async def body():
+        app = make_app(tmp_path)
+        async with app.run_test(size=SIZE) as pilot:
+            await connected(pilot)
+            await start_plan(pilot)
+            await wait_until(pilot, lambda: (snap(app).current_step or 0) >= 3, "step 4 under way")
+            app.session.run.world.controller.trip_limit(1)
+            await wait_ended(pilot)
+            assert snap(app).run_state is RunState.FAILED and STEP_FAILED in snap(app).step_states
+            table = app.query_one("#table-panel").plain
+            assert "FAULT" in table and "middle: limit" in table, table
+            assert "fault: TurntableLimitError" in events_text(app) or "fault: Turntable" in events_text(app)
+            assert_disabled(app.session.run.world.controller, at_rest=False)
+    run(body)
+
+
+def test_quit_while_running_asks_then_stops_the_table(tmp_path):
+    async def body():
+        app = make_app(tmp_path)
+        async with app.run_test(size=SIZE) as pilot:
+            await connected(pilot)
+            await start_plan(pilot)
+            await press(pilot, "q")
+            await dialog_open(pilot, "ConfirmScreen", "#no")
+            await press(pilot, "n")
+            await pilot.pause(0.1)
+            assert app.is_running and app.session.running
+            controller = app.session.run.world.controller
+            await press(pilot, "q")
+            await dialog_open(pilot, "ConfirmScreen", "#no")
+            await press(pilot, "y")
+            await wait_until(pilot, lambda: not app.is_running, "the app to exit")
+        assert not app.session.running and app.session.run is None
+        assert_disabled(controller, at_rest=True)
+    run(body)
+
+
+# -- snapshots (deterministic: states fed into the buffer) -------------------------------------------
+
+def _snapshot_app(tmp_path):
+    return make_app(tmp_path, auto_connect=False, refresh_hz=10.0)
+
+
+def test_snapshot_idle(tmp_path, snap_compare):
+    assert snap_compare(_snapshot_app(tmp_path), terminal_size=SIZE)
+
+
+def _feed_running(app) -> None:
+    buf, steps = app.buffer, app.steps
+    app.session.link, app.session.link_detail = "connected", "scpi, simulator"
+    buf.on_event(Event(0.0, "transition", "run started: %d steps" % len(steps), state="running",
+                       data={"from": "idle"}))
+    t = 0.0
+    dwell = [s for s in steps if s.kind == "dwell"][2]
+    for s in steps[:dwell.index]:
+        buf.on_event(Event(t, "step_started", f"{s.unit} {s.kind}", step_index=s.index, step_unit=s.unit))
+        t += s.estimated_s
+        buf.on_event(Event(t, "step_finished", f"{s.unit} {s.kind} done in {s.estimated_s:.1f} s",
+                           step_index=s.index, step_unit=s.unit))
+    buf.on_event(Event(t, "step_started", f"{dwell.unit} dwell", step_index=dwell.index, step_unit=dwell.unit))
+    enabled = AxisStatus.ENABLED | AxisStatus.IN_POSITION
+    buf.on_table_state(TableState(t + 1.0, tuple(AxisState(a, 0.0, AxisMode.POSITION, enabled)
+                                                 for a in dwell.target_deg)))
+    n = 40
+    k = np.arange(n)
+    g = (np.array([0.5, -0.25, 0.1]) * 36000.0)[None, :] + 50.0 * np.sin(k / 4.0)[:, None]
+    a = (np.array([0.0, 0.0, 1.0]) * 40000.0)[None, :] + 20.0 * np.cos(k / 5.0)[:, None]
+    block = ImuSampleBlock(k.astype(np.int64), k / 50.0, g / 50.0, a / 50.0, np.full(n, 24.5),
+                           np.zeros(n, np.int64), 50.0)
+    buf.on_imu(block)
+
+
+def test_snapshot_running(tmp_path, snap_compare):
+    async def before(pilot):
+        _feed_running(pilot.app)
+        pilot.app.refresh_panels()
+        await pilot.pause(0.2)
+    assert snap_compare(_snapshot_app(tmp_path), terminal_size=SIZE, run_before=before)
+
+
+def test_snapshot_results(tmp_path, snap_compare):
+    async def before(pilot):
+        app = pilot.app
+        _feed_running(app)
+        truth = app.session.config.sim.imu.to_canonical()
+        sigmas = {name: (abs(v) * 1e-6 if abs(v) > 1 else 1e-6) for name, v in truth.items()}
+        result = CalibrationResult(coefficient_table(truth, sigmas), sim_truth=coefficient_table(truth))
+        app.buffer.on_event(Event(300.0, "transition", "run complete", state="done", data={"from": "running"}))
+        app.buffer.set_outcome(result, "done; result run.result.json")
+        app.refresh_panels()
+        await pilot.pause(0.2)
+    assert snap_compare(_snapshot_app(tmp_path), terminal_size=SIZE, run_before=before)
+
+
+def test_cli_needs_config_or_sim(tmp_path):
+    from run_helpers import cli
+
+    rc, _, err = cli(["tui"])
+    assert rc == 2 and "--config FILE or --sim" in err
+    rc, _, err = cli(["tui", "--config", str(tmp_path / "missing.toml")])
+    assert rc == 2 and "missing.toml" in err
