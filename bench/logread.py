@@ -11,14 +11,18 @@ file that is not MCAP at all raises `LogError` with a one-line message naming th
 The raw CAN frames (`/can/raw`) are the source of truth for IMU data:
 `RunLog.imu_samples(layout, rate_hz)` decodes them with the bulk decoder. The decoded
 `/imu/samples` topic (possibly decimated) is parsed on first use of `RunLog.imu_records`.
+The file is memory-mapped; `/can/raw` batches of one frame length (the usual case) are
+unpacked chunk by chunk on worker threads straight into the frame arrays.
 """
 
 from __future__ import annotations
 
 import json
+import mmap
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
-from pathlib import Path
 
 import numpy as np
 
@@ -56,9 +60,16 @@ class TableStates:
         n = len(rows)
 
         def vec(key, dtype=float):
-            return np.array([[np.nan if v is None else v for v in r[key]] for r in rows], dtype).reshape(n, 3)
+            try:   # numpy reads None as NaN for floats; anything else odd takes the explicit route
+                return np.array([r[key] for r in rows], dtype).reshape(n, 3)
+            except (TypeError, ValueError):
+                return np.array([[np.nan if v is None else v for v in r[key]] for r in rows], dtype).reshape(n, 3)
 
-        return cls(np.array([np.nan if r["time_s"] is None else r["time_s"] for r in rows], float).reshape(n),
+        try:
+            time_s = np.array([r["time_s"] for r in rows], float).reshape(n)
+        except (TypeError, ValueError):
+            time_s = np.array([np.nan if r["time_s"] is None else r["time_s"] for r in rows], float).reshape(n)
+        return cls(time_s,
                    vec("angles_deg"), vec("rates_dps"), vec("status", np.int64),
                    np.array([bool(r.get("estop")) for r in rows], bool).reshape(n),
                    [tuple(r["modes"]) for r in rows], [str(r.get("fault_text", "")) for r in rows])
@@ -186,6 +197,60 @@ def _uniform_can(buf: bytes):
             np.full(len(arr), length, np.int64), arr["flags"].astype(np.uint8))
 
 
+def _uniform_can_parts(d: ChannelData):
+    """The same as `_uniform_can(d.joined())` without joining the whole channel: part by part
+    (one chunk's messages each, still in cache) into the output arrays, on worker threads (numpy
+    copies release the GIL). None when some part is not whole records of one length (the caller
+    then takes the general route over the joined payloads)."""
+    sizes = [int(x.sum()) for x in d.lengths]
+    total = sum(sizes)
+    first = next((k for k, size in enumerate(sizes) if size), None)
+    if first is None or total < 14 or sizes[first] < 14:
+        return None
+    length = d.part_bytes(first)[13]
+    rec = 14 + length
+    if any(size % rec for size in sizes):
+        return None
+    n = total // rec
+    width = CLASSIC_WIDTH if length <= CLASSIC_WIDTH else FD_WIDTH
+    # 8 data bytes move as one uint64 per frame (classic frames: the common case)
+    words = length == 8 == width
+    dt = np.dtype([("t", "<f8"), ("id", "<u4"), ("flags", "u1"), ("len", "u1"),
+                   ("data", "<u8") if words else ("data", "u1", (length,))])
+    t, ids, flags = np.empty(n), np.empty(n, np.uint32), np.empty(n, np.uint8)
+    data = (np.empty if length == width else np.zeros)((n, width), np.uint8)
+    data_out = data.view("<u8").reshape(n) if words else data
+    starts = np.concatenate(([0], np.cumsum(sizes) // rec)).tolist()
+
+    def fill(parts: range) -> bool:
+        for k in parts:
+            if not sizes[k]:
+                continue
+            arr = np.frombuffer(d.part_bytes(k), dt)
+            if not (arr["len"] == length).all():
+                return False
+            a, b = starts[k], starts[k + 1]
+            t[a:b] = arr["t"]
+            ids[a:b] = arr["id"]
+            if words:
+                data_out[a:b] = arr["data"]
+            else:
+                data_out[a:b, :length] = arr["data"]
+            flags[a:b] = arr["flags"]
+        return True
+
+    workers = min(len(sizes) // 4, os.cpu_count() or 1, 4)
+    if workers > 1:
+        step = -(-len(sizes) // workers)
+        with ThreadPoolExecutor(workers, thread_name_prefix="can-frames") as pool:
+            ok = all(pool.map(fill, [range(a, min(a + step, len(sizes))) for a in range(0, len(sizes), step)]))
+    else:
+        ok = fill(range(len(sizes)))
+    if not ok:
+        return None
+    return t, ids, data, np.full(n, length, np.int64), flags
+
+
 def _frame_offsets(p: bytes) -> list[int] | None:
     """Record offsets within one `/can/raw` message, None if its framing is broken."""
     offsets, pos, n = [], 0, len(p)
@@ -226,6 +291,9 @@ def _general_can(payloads: list[bytes]) -> tuple[tuple, int]:
 def _read_can(d: ChannelData | None) -> tuple[tuple, int]:
     if d is None or not len(d):
         return _empty_can(), 0
+    fast = _uniform_can_parts(d)
+    if fast is not None:
+        return fast, 0
     buf = d.joined()
     if len(buf) >= 14:
         fast = _uniform_can(buf)
@@ -234,18 +302,33 @@ def _read_can(d: ChannelData | None) -> tuple[tuple, int]:
     return _general_can(d.payloads())
 
 
+def _map_file(path: str):
+    """The file's bytes, memory-mapped (no copy; the walk reads each byte about once)."""
+    try:
+        with open(path, "rb") as f:
+            try:
+                return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+            except (ValueError, OSError):   # empty, or a file that cannot be mapped: read it
+                return f.read()
+    except OSError as exc:
+        raise LogError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+
+
 def read_log(path) -> RunLog:
     """Read a run log; see the module docstring for how damage is handled."""
     path = str(path)
-    try:
-        buf = Path(path).read_bytes()
-    except OSError as exc:
-        raise LogError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+    buf = _map_file(path)
     try:
         w = walk(buf)
     except WalkError as exc:
         raise LogError(f"{path}: {exc}") from exc
-    del buf
+    finally:
+        if isinstance(buf, mmap.mmap):
+            try:
+                buf.close()
+            except BufferError:   # a view is still alive somewhere: the mapping goes when it does
+                pass
+        del buf
 
     by_topic: dict[str, ChannelData] = {}
     counts: dict[str, int] = {}

@@ -2,10 +2,16 @@
 
 Gives exactly the samples and counts of `SampleAssembler` fed the same frames one by
 one and then flushed (the rules are in `drivers.imu.assembler`); the tests hold the two
-to that. Every step is a whole-array operation: id lookup, length check, CRC by a
-256-entry table applied column by column, counter extraction, unwrapping by a cumulative
-sum of wrapped differences, the reorder window by a running maximum, and grouping by
-counter with a dense (counter, message) table.
+to that. Every step is a whole-array operation: id lookup (one gather through a table of
+ids), length check and CRC (affine in the data bits: 4 lookups of 16-bit chunks for a
+frame of up to 8 bytes, else a 256-entry table applied column by column), screened in
+cache-sized blocks; counter extraction (a typed view when the counter is whole bytes),
+unwrapping by wrapped differences, then the grouping:
+- in order (the usual recording: counters never decrease, no message repeats within a
+  counter): a sample's frames are consecutive, so samples are read straight out of the
+  frame array (strided views when nothing was lost);
+- otherwise the reorder window by a running maximum and grouping by counter with a
+  dense (counter, message) table.
 """
 
 from __future__ import annotations
@@ -13,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from drivers.errors import ImuFrameError
-from drivers.imu.crc import crc8_columns, crc8_raw, id_bytes
+from drivers.imu.crc import crc8_columns, crc8_raw, id_bytes, linear_crc
 from drivers.imu.layout import ImuLayout, SignalLayout, default_layout
 from drivers.imu.samples import ImuSampleBlock, ImuStats
 
@@ -60,13 +66,131 @@ def _as_arrays(ids, data, lengths, timestamps):
             raise ImuFrameError(f"timestamps must be {n} numbers, got shape {timestamps.shape}")
     except (TypeError, ValueError) as exc:
         raise ImuFrameError(f"frames are not arrays of the expected kind: {exc}") from exc
-    ids = ids.astype(np.int64)
-    lengths = lengths.astype(np.int64)
+    if not len(ids):   # an empty array of any dtype (even float) is fine
+        ids = ids.astype(np.int64)
     if width < 8 or not data.flags.c_contiguous:
         padded = np.zeros((n, max(width, 8)), np.uint8)
         padded[:, :width] = data
         data = padded
     return ids, data, lengths, timestamps
+
+
+#: Frames screened per step: the temporaries of a block stay in the CPU caches.
+_BLOCK = 1 << 16
+
+
+def _screen(ids: np.ndarray, data: np.ndarray, lengths: np.ndarray, layout: ImuLayout):
+    """Message index (-1: unknown id), validity (known id, right length, CRC good) and the counts.
+
+    Returns (msg_index, valid, known frames, frames of the right length)."""
+    msgs, keys, n = layout.messages, layout.keys, len(ids)
+    dtype = np.int8 if len(keys) < 127 else np.int32
+    top = max(keys)
+    lut = None
+    if n and top < (1 << 16) and (ids.dtype.kind == "u" or int(ids.min()) >= 0):
+        lut = np.full(top + 2, -1, dtype)   # one gather through a table of every id up to the largest key
+        for k, key in enumerate(keys):
+            lut[key] = k
+    expected = np.array([m.length for m in msgs], np.int64)
+    one_length = int(expected[0]) if (expected == expected[0]).all() else None
+    shapes = {(m.length, m.crc_byte) for m in msgs}
+    length, crc_byte = next(iter(shapes))
+    if len(shapes) == 1 and crc_byte is None:
+        crc_mode = "none"
+    elif len(shapes) == 1 and length <= 8:
+        # every frame at once: the CRC is affine in the data bits, 4 lookups of 16 bits each
+        crc_mode = "linear"
+        lin = linear_crc(length, crc_byte)
+        tables = [(first_bit // 16, table) for first_bit, table in lin.tables_np]
+        id_const = np.array([lin.id_constant(m.frame_id, m.is_extended_id) for m in msgs] + [0], np.uint8)
+    else:
+        crc_mode = "per message"
+    msg_index = np.empty(n, dtype)
+    valid = np.empty(n, bool)
+    n_known = n_length_ok = 0
+    for a in range(0, n, _BLOCK):
+        b = min(n, a + _BLOCK)
+        if lut is not None:
+            mi = lut[np.minimum(ids[a:b], top + 1)]
+        else:
+            mi = np.full(b - a, -1, dtype)
+            for k, key in enumerate(keys):
+                mi[ids[a:b] == key] = k
+        msg_index[a:b] = mi
+        known = mi >= 0
+        if one_length is not None:
+            ok = known & (lengths[a:b] == one_length)
+        else:
+            ok = known & (lengths[a:b] == expected[np.maximum(mi, 0)])
+        n_known += int(np.count_nonzero(known))
+        n_length_ok += int(np.count_nonzero(ok))
+        if crc_mode == "linear":
+            chunks = data[a:b, :8].view("<u2")
+            crc = id_const[mi]
+            for column, table in tables:
+                crc ^= table[chunks[:, column]]
+            ok &= crc == data[a:b, crc_byte]
+        valid[a:b] = ok
+    if crc_mode == "per message":
+        valid = _check_crcs(data, msg_index, valid, layout)
+    return msg_index, valid, n_known, n_length_ok
+
+
+def _same_signal(sigs) -> bool:
+    """True when the signals sit in the same bits of their frames (names aside)."""
+    first = sigs[0]
+    return all((s.length, s.signed, s.big_endian, s.shift, s.first_byte, s.last_byte, s.window_shift)
+               == (first.length, first.signed, first.big_endian, first.shift, first.first_byte, first.last_byte,
+                   first.window_shift) for s in sigs)
+
+
+def _extract_all(data: np.ndarray, sig: SignalLayout) -> np.ndarray:
+    """Raw values of `sig` in every row; a zero-copy view when it is a whole byte-aligned integer."""
+    nbytes = sig.last_byte - sig.first_byte + 1
+    if sig.length == 8 * nbytes and nbytes in (1, 2, 4, 8) and sig.window_shift == 0:
+        kind = "i" if sig.signed else "u"
+        dtype = np.dtype(f"{'>' if sig.big_endian else '<'}{kind}{nbytes}")
+        return np.ndarray((data.shape[0],), dtype=dtype, buffer=data, offset=sig.first_byte,
+                          strides=(data.shape[1],))
+    return extract(data, slice(None), sig)
+
+
+def _check_crcs(data: np.ndarray, msg_index: np.ndarray, length_ok: np.ndarray, layout: ImuLayout) -> np.ndarray:
+    """The frames of the right length whose CRC checks out (or whose message has none), message by message."""
+    valid = np.zeros(len(msg_index), bool)
+    for k, m in enumerate(layout.messages):
+        rows = np.flatnonzero(length_ok & (msg_index == k))
+        if m.crc_byte is not None and len(rows):
+            keep = [j for j in range(m.length) if j != m.crc_byte]
+            start = crc8_raw(id_bytes(m.frame_id, m.is_extended_id))
+            crc = crc8_columns(start, data[rows][:, keep])
+            rows = rows[crc == data[rows, m.crc_byte]]
+        valid[rows] = True
+    return valid
+
+
+def _counters(data: np.ndarray, msg_index: np.ndarray, valid: np.ndarray, vi, layout: ImuLayout) -> np.ndarray:
+    """Raw counter values of the valid frames (`vi`, None when every frame is valid), in frame order."""
+    msgs = layout.messages
+    if _same_signal([m.counter for m in msgs]):
+        c = _extract_all(data, msgs[0].counter)
+        return c if vi is None else c[vi]
+    counter_raw = np.zeros(len(msg_index), np.int64)
+    for k, m in enumerate(msgs):
+        rows = np.flatnonzero(valid & (msg_index == k))
+        counter_raw[rows] = extract(data, rows, m.counter)
+    return counter_raw if vi is None else counter_raw[vi]
+
+
+def _unwrap_steps(c: np.ndarray, counter_bits: int) -> np.ndarray:
+    """Differences of consecutive counters, wrapped into -modulus/2 .. modulus/2 - 1."""
+    if c.dtype.kind == "u" and c.dtype.itemsize * 8 == counter_bits:
+        # unsigned subtraction wraps by itself; read as signed it is the shortest step
+        return np.diff(c).view(f"i{c.dtype.itemsize}")
+    modulus = 1 << counter_bits
+    d = np.diff(c.astype(np.int64)) & (modulus - 1)
+    d[d >= modulus >> 1] -= modulus
+    return d
 
 
 def decode_frames(ids, data, lengths=None, timestamps=None, layout: ImuLayout | None = None,
@@ -82,48 +206,119 @@ def decode_frames(ids, data, lengths=None, timestamps=None, layout: ImuLayout | 
     if not (isinstance(reorder_window, int) and reorder_window >= 1):
         raise ImuFrameError(f"reorder_window must be a positive integer, got {reorder_window!r}")
     ids, data, lengths, timestamps = _as_arrays(ids, data, lengths, timestamps)
-    n, n_msgs = len(ids), len(layout.messages)
+    n = len(ids)
     stats = ImuStats(frames=n)
 
-    msg_index = np.full(n, -1, np.int64)
-    for k, m in enumerate(layout.messages):
-        msg_index[ids == m.key] = k
-    known = msg_index >= 0
-    stats.unknown_id = int(n - known.sum())
-    expected = np.array([m.length for m in layout.messages], np.int64)
-    length_ok = known & (lengths == expected[np.maximum(msg_index, 0)])
-    stats.wrong_length = int(known.sum() - length_ok.sum())
-
-    valid = np.zeros(n, bool)
-    counter_raw = np.zeros(n, np.int64)
-    for k, m in enumerate(layout.messages):
-        rows = np.flatnonzero(length_ok & (msg_index == k))
-        if m.crc_byte is not None and len(rows):
-            keep = [j for j in range(m.length) if j != m.crc_byte]
-            start = crc8_raw(id_bytes(m.frame_id, m.is_extended_id))
-            crc = crc8_columns(start, data[rows][:, keep])
-            good = crc == data[rows, m.crc_byte]
-            stats.crc_errors += int(len(rows) - good.sum())
-            rows = rows[good]
-        valid[rows] = True
-        counter_raw[rows] = extract(data, rows, m.counter)
-
-    vi = np.flatnonzero(valid)
-    if len(vi) == 0:
+    msg_index, valid, n_known, n_length_ok = _screen(ids, data, lengths, layout)
+    stats.unknown_id = n - n_known
+    stats.wrong_length = n_known - n_length_ok
+    n_valid = int(np.count_nonzero(valid))
+    stats.crc_errors = n_length_ok - n_valid
+    if n_valid == 0:
         return ImuSampleBlock.empty(rate_hz), stats
-    modulus = 1 << layout.counter_bits
-    c = counter_raw[vi]
-    d = np.diff(c) & (modulus - 1)
-    d[d >= modulus >> 1] -= modulus
-    u = np.empty(len(c), np.int64)
-    u[0] = c[0]
-    np.cumsum(d, out=u[1:])
-    u[1:] += c[0]
+    vi = None if n_valid == n else np.flatnonzero(valid)
+    c = _counters(data, msg_index, valid, vi, layout)
+    d = _unwrap_steps(c, layout.counter_bits)
+    c0 = int(c[0])
+    ka = msg_index if vi is None else msg_index[vi]
+    if not len(d) or int(d.min()) >= 0:
+        fast = _group_in_order(layout, data, timestamps, vi, ka, d, c0, rate_hz, stats)
+        if fast is not None:
+            return fast, stats
+    u = np.full(n_valid, c0, np.int64)   # the unwrapped counters
+    u[1:] += np.cumsum(d, dtype=np.int64)
+    return _group_general(layout, data, timestamps, vi, ka, u, reorder_window, rate_hz, stats), stats
+
+
+def _values(data: np.ndarray, rows, sig: SignalLayout) -> np.ndarray:
+    """Raw values of `sig` in `data[rows]`: a view (typed, no shifts) for a whole byte-aligned integer,
+    else as `extract` gives them."""
+    nbytes = sig.last_byte - sig.first_byte + 1
+    if sig.length == 8 * nbytes and nbytes in (1, 2, 4) and sig.window_shift == 0:
+        dtype = np.dtype(f"{'>' if sig.big_endian else '<'}{'i' if sig.signed else 'u'}{nbytes}")
+        view = np.ndarray((data.shape[0],), dtype=dtype, buffer=data, offset=sig.first_byte,
+                          strides=(data.shape[1],))
+        return view[rows]
+    return extract(data, rows, sig)
+
+
+def _block(layout: ImuLayout, data: np.ndarray, frames_of, counters: np.ndarray, receive_time_s: np.ndarray,
+           rate_hz: float) -> ImuSampleBlock:
+    """The samples straight from the frames, `frames_of(k)` indexing message k's frame of every sample:
+    exactly `ImuSampleBlock.from_raw` of the raw values (raw * scale + offset in float64), without the
+    (samples, 8) intermediate arrays."""
+    samples = len(counters)
+    where = {column: (k, sig) for k, m in enumerate(layout.messages) for column, sig in m.values}
+    scale, offset = layout.scale, layout.offset
+
+    def scaled(column: int, out: np.ndarray) -> None:
+        if column in where:
+            k, sig = where[column]
+            np.multiply(_values(data, frames_of(k), sig), scale[column], out=out)
+            out += offset[column]
+        else:
+            out[...] = np.float64(0.0) * scale[column] + offset[column]
+
+    gyro, acc = np.empty((samples, 3)), np.empty((samples, 3))
+    for c in range(3):
+        scaled(c, gyro[:, c])
+        scaled(3 + c, acc[:, c])
+    temperature = np.full(samples, np.nan)
+    if layout.has_column[6]:
+        scaled(6, temperature)
+    status = np.zeros(samples, np.int64)
+    if layout.has_column[7] and 7 in where:   # an integer bit field: scale and offset do not apply
+        k, sig = where[7]
+        status[:] = extract(data, frames_of(k), sig)
+    return ImuSampleBlock(counters, np.asarray(receive_time_s, dtype=np.float64), gyro, acc, temperature, status,
+                          float(rate_hz))
+
+
+def _group_in_order(layout, data, timestamps, vi, ka, d, c0, rate_hz, stats) -> ImuSampleBlock | None:
+    """The common case, counters never decreasing and no frame repeated: a sample's frames are
+    consecutive, in message order. None when that does not hold (the general grouping applies)."""
+    n_msgs = len(layout.messages)
+    m = len(ka)
+    new_row = d > 0
+    if m > 1 and not (new_row | (np.diff(ka) > 0)).all():
+        return None   # a message repeated within one counter: duplicates
+    steps = np.flatnonzero(new_row)           # frame steps + 1 begins a new counter
+    starts = np.zeros(len(steps) + 1, np.int64)
+    starts[1:] = steps + 1
+    rows = np.zeros(len(starts), np.int64)    # each counter minus the first one
+    np.cumsum(d[steps], dtype=np.int64, out=rows[1:])
+    counts = np.diff(starts, append=m)
+    span = int(rows[-1]) + 1
+    complete = counts == n_msgs
+    first = starts[complete]   # each complete sample holds message 0, 1, ... in this order
+    stats.frames_ok = m
+    stats.samples = len(first)
+    stats.incomplete_samples = len(starts) - len(first)
+    stats.counter_gaps = span - len(starts)
+    if len(first) == 0:
+        return ImuSampleBlock.empty(rate_hz)
+    if vi is None and len(first) * n_msgs == m:   # every frame used, in order: strided views, no gathers
+        def frames_of(k):
+            return slice(k, None, n_msgs)
+    else:
+        def frames_of(k):
+            return first + k if vi is None else vi[first + k]
+    last = timestamps[frames_of(n_msgs - 1)]
+    counters = rows[complete]
+    counters += c0
+    return _block(layout, data, frames_of, counters, np.array(last, dtype=np.float64), rate_hz)
+
+
+def _group_general(layout, data, timestamps, vi, ka, u, reorder_window, rate_hz, stats) -> ImuSampleBlock:
+    """Reordering window, duplicates and grouping by counter for any arrival order."""
+    n_msgs = len(layout.messages)
+    ka = ka.astype(np.int64)
+    vi = np.arange(len(u)) if vi is None else vi
     head = np.maximum.accumulate(u)
     accepted = (u > head - reorder_window) & (u >= u[0])
     stats.late = int(len(u) - accepted.sum())
 
-    frames, ua, ka, ha = vi[accepted], u[accepted], msg_index[vi[accepted]], head[accepted]
+    frames, ua, ka, ha = vi[accepted], u[accepted], ka[accepted], head[accepted]
     u0, u_last = int(u[0]), int(head[-1])
     span = u_last - u0 + 1
     if span <= 4 * len(ua) + 1024:
@@ -159,9 +354,8 @@ def decode_frames(ids, data, lengths=None, timestamps=None, layout: ImuLayout | 
             raw[rows_k, column] = extract(data, frames_k, sig)
     last_frame = np.full(len(counters), -1, np.int64)
     np.maximum.at(last_frame, row, frames)
-    block = ImuSampleBlock.from_raw(layout, counters[complete], timestamps[last_frame[complete]], raw[complete],
-                                    rate_hz)
-    return block, stats
+    return ImuSampleBlock.from_raw(layout, counters[complete], timestamps[last_frame[complete]], raw[complete],
+                                   rate_hz)
 
 
 def frames_from_messages(messages, width: int = 64) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

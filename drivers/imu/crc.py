@@ -11,7 +11,8 @@ Two evaluation strategies, checked against each other in the tests:
   the columns of a frame array for the bulk decoder);
 - `LinearCrc`: the CRC of a fixed-length message is affine in its bits, so it is the
   CRC of the id with zero data XOR one table lookup per 16-bit chunk of the data; the
-  live path uses this (4 lookups per classic frame instead of 9 loop turns).
+  live path uses this (4 lookups per classic frame instead of 9 loop turns), and so does
+  the bulk decoder, on a uint16 view of the frame array (`LinearCrc.tables_np`).
 """
 
 from __future__ import annotations
@@ -117,6 +118,16 @@ class LinearCrc:
         self.chunks = tuple(chunks)
         self._zero_crc = zero_crc
         self._keep = keep
+
+    @functools.cached_property
+    def tables_np(self) -> tuple[tuple[int, np.ndarray], ...]:
+        """The chunk tables as (first bit, uint8 array) for whole-array lookups (the bulk decoder)."""
+        return tuple((shift, np.array(table, dtype=np.uint8)) for shift, _, table in self.chunks)
+
+    @property
+    def chunk_bits(self) -> int:
+        """Width of one table's index: 16 bits for frames of up to 8 bytes, else 8."""
+        return 16 if self.length <= 8 else 8
 
     def id_constant(self, arbitration_id: int, is_extended_id: bool) -> int:
         """CRC of the id followed by zero data bytes (the affine part of every frame's CRC)."""
