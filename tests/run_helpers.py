@@ -13,6 +13,7 @@ import dataclasses
 import io
 import json
 import math
+import signal
 import subprocess
 import sys
 import time
@@ -275,3 +276,36 @@ def in_memory_result(config) -> dict:
 
 def load_json(path: Path) -> dict:
     return json.loads(path.read_text(encoding="utf-8"))
+
+
+def kill_run_after_units(config: Path, out: Path, units: int = 5) -> tuple[Path, dict]:
+    """Start `bench run --config` as a process, SIGKILL it once its log holds `units` finished
+    observation steps; returns the killed log and those steps (unit -> events)."""
+    from bench.extract import finished_observation_steps
+    from bench.logread import LogError, read_log
+
+    seen: dict = {}
+
+    def enough_units_in_log():
+        logs = list(out.glob("*.mcap"))
+        if not logs:
+            return None
+        try:
+            finished = finished_observation_steps(read_log(logs[0]).events)
+        except LogError:
+            return None
+        if len(finished) >= units:
+            seen.update(finished)
+            return logs[0]
+        return None
+
+    proc = start_cli("run", "--config", str(config), "--out", str(out), "--quiet")
+    try:
+        killed = wait_for(enough_units_in_log, 60.0, f"{units} finished observation steps in the log",
+                          period_s=0.1, proc=proc)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+    finally:
+        stop_process(proc)
+    assert proc.returncode == -signal.SIGKILL
+    return killed, seen

@@ -23,7 +23,7 @@ import bench
 from bench.config import parse_config
 from bench.extract import finished_observation_steps
 from bench.imu_model import canonical_names, default_sim_imu, family
-from bench.logread import LogError, read_log
+from bench.logread import read_log
 from bench.run_cli import compile_from_config
 from bench.runner import BenchRun
 from bench.sequencer import RunAborted
@@ -31,7 +31,8 @@ from drivers.errors import TurntableEStop, TurntableFault, TurntableTimeout
 from drivers.imu import DEFAULT_DBC
 from drivers.turntable import AxisStatus
 from run_helpers import (AT_REST_DPS, Trigger, api_run, assert_disabled, assert_mcap_readable, cli, coefficient_error,
-                         config_text, in_memory_result, load_json, mismatches, noise_free_floor, only_file,
+                         config_text, in_memory_result, kill_run_after_units, load_json,
+                         mismatches, noise_free_floor, only_file,
                          read_all_messages, start_cli, step_index, stop_process, transitions, values, wait_for)
 from schedules import builtin_path
 
@@ -223,30 +224,7 @@ def test_sigint_aborts_with_exit_code_3_and_a_complete_log(tmp_path):
 
 def test_sigkill_then_resume_gives_the_uninterrupted_result(ideal, tmp_path):
     out = tmp_path / "out"
-    seen: dict = {}
-
-    def five_units_in_log():
-        logs = list(out.glob("*.mcap"))
-        if not logs:
-            return None
-        try:
-            units = finished_observation_steps(read_log(logs[0]).events)
-        except LogError:
-            return None
-        if len(units) >= 5:
-            seen.update(units)
-            return logs[0]
-        return None
-
-    proc = start_cli("run", "--config", str(ideal.config), "--out", str(out), "--quiet")
-    try:
-        killed = wait_for(five_units_in_log, 60.0, "five finished observation steps in the log", period_s=0.1,
-                          proc=proc)
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=10)
-    finally:
-        stop_process(proc)
-    assert proc.returncode == -signal.SIGKILL
+    killed, seen = kill_run_after_units(ideal.config, out)
     log = read_log(killed)
     assert not log.summary_present
     assert any("no summary" in d for d in log.damage), log.damage

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import signal
 import struct
 from pathlib import Path
 from types import SimpleNamespace
@@ -25,11 +24,11 @@ from mcap.stream_reader import StreamReader
 
 from bench.config import parse_config
 from bench.extract import finished_observation_steps
-from bench.logread import LogError, read_log
+from bench.logread import read_log
 from bench.imu_model import canonical_names
 from bench.compare_methods import METHODS
 from bench.resolve import angle_key
-from run_helpers import cli, config_text, load_json, only_file, start_cli, stop_process, wait_for
+from run_helpers import cli, config_text, kill_run_after_units, load_json, only_file
 from schedules import load_builtin
 
 #: Timing of the all-data plan (64 dwells, 96 turns): short rests, turns as fast as the
@@ -249,22 +248,7 @@ def test_compare_usage_errors(all_data, noisy):
 
 def test_killed_and_resumed_logs_solve_together_to_the_resumed_runs_result(noisy, tmp_path):
     out = tmp_path / "out"
-
-    def five_units_in_log():
-        logs = list(out.glob("*.mcap"))
-        try:
-            return logs[0] if logs and len(finished_observation_steps(read_log(logs[0]).events)) >= 5 else None
-        except LogError:
-            return None
-
-    proc = start_cli("run", "--config", str(noisy.config), "--out", str(out), "--quiet")
-    try:
-        killed = wait_for(five_units_in_log, 60.0, "five finished observation steps in the log", period_s=0.1,
-                          proc=proc)
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=10)
-    finally:
-        stop_process(proc)
+    killed, _ = kill_run_after_units(noisy.config, out)
     rc, _, stderr = cli(["run", "--config", str(noisy.config), "--out", str(out), "--quiet", "--resume", str(killed)])
     assert rc == 0, stderr
     resumed = load_json(only_file(out, "*.result.json"))
