@@ -13,50 +13,25 @@ their lengths and log times); damage is collected as `Damage` entries with byte 
 and log-time ranges.
 
 Speed: chunks are decompressed, CRC-checked and framed by their message index on worker
-threads ahead of the walk (`_Prefetch`; zstd, zlib and numpy release the GIL), while the
-walk itself stays sequential and decides everything exactly as it would inline.
+threads ahead of the walk (`bench.mcap_chunks._Prefetch`; zstd, zlib and numpy release
+the GIL), while the walk itself stays sequential and decides everything exactly as it
+would inline. The record layout and chunk decoding live in `bench.mcap_chunks`.
 """
 
 from __future__ import annotations
 
-import os
 import struct
 import zlib
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from io import BytesIO
 
 import numpy as np
 
-from mcap.data_stream import ReadDataStream
 from mcap.records import Attachment, Channel, Footer, Header, Metadata, Schema, Statistics
 
-try:
-    import zstandard
-except ImportError:    # pragma: no cover - mcap depends on it
-    zstandard = None
-try:
-    import lz4.frame as lz4_frame
-except ImportError:    # pragma: no cover - mcap depends on it
-    lz4_frame = None
-
-MAGIC = b"\x89MCAP0\r\n"
-OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_MESSAGE_INDEX = 1, 2, 3, 4, 5, 6, 7
-OP_CHUNK_INDEX, OP_ATTACHMENT, OP_ATTACHMENT_INDEX, OP_STATISTICS, OP_METADATA = 8, 9, 10, 11, 12
-OP_METADATA_INDEX, OP_SUMMARY_OFFSET, OP_DATA_END = 13, 14, 15
-OP_NAMES = {1: "header", 2: "footer", 3: "schema", 4: "channel", 5: "message", 6: "chunk", 7: "message index",
-            8: "chunk index", 9: "attachment", 10: "attachment index", 11: "statistics", 12: "metadata",
-            13: "metadata index", 14: "summary offset", 15: "data end"}
-
-_RECORD = struct.Struct("<BQ")
-_MESSAGE = struct.Struct("<BQHIQ")     # opcode, length, channel id, sequence, log time
-_CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
-_U64 = struct.Struct("<Q")
-_MSG_OFFSET = 9 + 22                   # record header + message header
-
-
-class WalkError(Exception):
-    """The file cannot be read as MCAP at all (the caller turns this into its own error)."""
+from bench.mcap_chunks import (MAGIC, OP_ATTACHMENT, OP_CHANNEL, OP_CHUNK, OP_FOOTER, OP_HEADER, OP_MESSAGE,
+                               OP_MESSAGE_INDEX, OP_METADATA, OP_NAMES, OP_SCHEMA, OP_STATISTICS, WalkError,
+                               _MESSAGE, _MSG_OFFSET, _Prefetch, _RECORD, _body_stream, _chunk_fields, _index_chunk,
+                               _inflate, _plausible_record_at, _resync)
 
 
 def _fmt_range(start_ns: int, end_ns: int) -> str:
@@ -167,209 +142,6 @@ class Walk:
     def topic(self, channel_id: int) -> str:
         ch = self.channels.get(channel_id)
         return ch.topic if ch is not None else f"<channel {channel_id}>"
-
-
-def _body_stream(buf, start: int, end: int) -> ReadDataStream:
-    return ReadDataStream(BytesIO(bytes(buf[start:end])))
-
-
-def _decompress(compression: str, payload, size: int) -> bytes:
-    if compression == "":
-        return bytes(payload)
-    if compression == "zstd":
-        if zstandard is None:
-            raise WalkError("zstd chunks need the zstandard package")
-        return zstandard.ZstdDecompressor().decompress(payload, max_output_size=size)
-    if compression == "lz4":
-        if lz4_frame is None:
-            raise WalkError("lz4 chunks need the lz4 package")
-        return lz4_frame.decompress(payload)
-    raise ValueError(f"unknown compression {compression!r}")
-
-
-def _inflate(compression: str, payload, size: int, crc: int):
-    """Decompress one chunk and compute its CRC (when it has one and the size is right), in a worker
-    thread: (data, computed crc or None, exception or None)."""
-    try:
-        data = _decompress(compression, payload, size)
-    except Exception as exc:
-        return None, None, exc
-    return data, (zlib.crc32(data) if crc != 0 and len(data) == size else None), None
-
-
-def _inflate_and_frame(compression: str, payload, size: int, crc: int, buf, index: list[tuple[int, int]]):
-    """`_inflate`, then `_index_chunk` on a good chunk with the message index records that follow it."""
-    data, computed, exc = _inflate(compression, payload, size, crc)
-    framed = None
-    if exc is None and len(data) == size and (crc == 0 or computed == crc):
-        framed = _index_chunk(buf, data, index)
-    return data, computed, exc, framed
-
-
-class _Prefetch:
-    """Decompresses and CRC-checks the chunks ahead of the walk on worker threads (zstd and zlib
-    release the GIL, so this uses every core). Chunks are found by following the record framing
-    from the start; where that framing breaks the walk resyncs on its own and decompresses inline."""
-
-    AHEAD_PER_WORKER = 3
-    MIN_CHUNKS = 3   # fewer: not worth the threads
-
-    def __init__(self, buf, workers: int | None = None):
-        self.buf = buf
-        self.chunks = self._scan(buf)
-        self.index = {c[0]: k for k, c in enumerate(self.chunks)}
-        self.futures: dict[int, object] = {}
-        self.submitted = 0
-        workers = workers or min(4, os.cpu_count() or 1)
-        self.pool = (ThreadPoolExecutor(workers, thread_name_prefix="mcap-inflate")
-                     if len(self.chunks) >= self.MIN_CHUNKS and workers > 1 else None)
-        self.ahead = workers * self.AHEAD_PER_WORKER
-
-    @staticmethod
-    def _scan(buf) -> list[tuple]:
-        """(offset, `_chunk_fields`, the message index records right after it) of every chunk."""
-        size, pos, found = len(buf), 8, []
-        current = None   # the index records of the last chunk, while only such records follow it
-        while pos + 9 <= size:
-            op, length = _RECORD.unpack_from(buf, pos)
-            end = pos + 9 + length
-            if op not in OP_NAMES or end > size or op == OP_FOOTER:
-                break
-            if op == OP_CHUNK:
-                f = _chunk_fields(buf, pos + 9, length)
-                if f is None:
-                    break
-                current = []
-                found.append((pos, f, current))
-            elif op == OP_MESSAGE_INDEX:
-                if current is not None:
-                    current.append((pos + 9, end))
-            else:
-                current = None
-            pos = end
-        return found
-
-    def take(self, pos: int, fields: tuple):
-        """(data, computed crc, exception, (message index records, their framing)) of the chunk at `pos`,
-        None if it was not prefetched."""
-        k = self.index.get(pos)
-        if self.pool is None or k is None or self.chunks[k][1] != fields:
-            return None
-        while self.submitted < min(len(self.chunks), k + 1 + self.ahead):
-            cpos, (_, _, usize, crc, compression, dstart, dlen), index = self.chunks[self.submitted][:3]
-            self.futures[cpos] = self.pool.submit(_inflate_and_frame, compression,
-                                                  memoryview(self.buf)[dstart:dstart + dlen], usize, crc, self.buf,
-                                                  index)
-            self.submitted += 1
-        future = self.futures.pop(pos, None)
-        if future is None:
-            return None
-        data, computed, exc, framed = future.result()
-        return data, computed, exc, (self.chunks[k][2], framed)
-
-    def close(self) -> None:
-        if self.pool is not None:
-            self.pool.shutdown(wait=True, cancel_futures=True)
-            self.futures.clear()
-
-
-def _chunk_fields(buf, body: int, length: int):
-    """(start, end, usize, crc, compression, data_start, data_len) of a chunk body, or None if inconsistent."""
-    if length < 40:
-        return None
-    start, end, usize, crc, clen = _CHUNK_HEAD.unpack_from(buf, body)
-    if clen > 16 or 40 + clen > length:
-        return None
-    try:
-        compression = bytes(buf[body + 32:body + 32 + clen]).decode("ascii")
-    except UnicodeDecodeError:
-        return None
-    (dlen,) = _U64.unpack_from(buf, body + 32 + clen)
-    if 40 + clen + dlen != length or start > end:
-        return None
-    return start, end, usize, crc, compression, body + 40 + clen, dlen
-
-
-def _plausible_chunk_at(buf, pos: int, size: int) -> bool:
-    if pos + 9 > size or buf[pos] != OP_CHUNK:
-        return False
-    (length,) = _U64.unpack_from(buf, pos + 1)
-    if pos + 9 + length > size:
-        return False
-    f = _chunk_fields(buf, pos + 9, length)
-    return f is not None and f[4] in ("", "zstd", "lz4")
-
-
-def _plausible_record_at(buf, pos: int, size: int) -> bool:
-    if pos == size:
-        return True
-    if pos + 9 > size:
-        return False
-    return buf[pos] in OP_NAMES   # a length past the end is a truncation, told apart by the main loop
-
-
-def _resync(buf, pos: int, size: int) -> int:
-    """The offset of the next plausible chunk record after `pos`, or `size`."""
-    p = pos + 1
-    while True:
-        p = buf.find(b"\x06", p)
-        if p < 0:
-            return size
-        if _plausible_chunk_at(buf, p, size):
-            return p
-        p += 1
-
-
-def _index_chunk(buf, data: bytes, index: list[tuple[int, int]]):
-    """Vectorised framing of a chunk by its message index records (`(body, end)` offsets in `buf`):
-    (offset of the first message, [(channel, payload starts, lengths, log times)] by channel id), or
-    False unless the index provably frames every message of the chunk: its records tile the chunk from
-    the first message to the end. Pure (worker threads run it)."""
-    if not index:
-        return False
-    by_channel: dict[int, list] = {}
-    for body, end in index:
-        ch, n = struct.unpack_from("<HI", buf, body)
-        if n % 16 or body + 6 + n > end:
-            return False
-        entries = np.frombuffer(buf, "<u8", count=n // 8, offset=body + 6).reshape(-1, 2)
-        by_channel.setdefault(ch, []).append(entries)
-    size = len(data)
-    if size < 31:
-        return False
-    per_channel = []
-    for ch in sorted(by_channel):
-        parts = by_channel[ch]
-        entries = parts[0] if len(parts) == 1 else np.concatenate(parts)
-        t, o = entries[:, 0], entries[:, 1]
-        if len(o) > 1 and not (o[1:] > o[:-1]).all():   # kept in file order, as the tiling check sorts
-            order = np.argsort(o, kind="stable")
-            t, o = t[order], o[order]
-        per_channel.append((ch, t.copy(), o))   # a copy: nothing may keep the file's buffer alive
-    o_all = np.concatenate([o for _, _, o in per_channel])
-    if not len(o_all) or int(o_all.max()) > size - 31:
-        return False
-    o_all = o_all.astype(np.int64)
-    # Every record's header fields, read in place: views of the chunk at every byte offset.
-    u8 = np.frombuffer(data, np.uint8)
-    length = np.ndarray((size - 8,), "<u8", data, 1, (1,))[o_all].astype(np.int64)
-    rec_ch = np.ndarray((size - 10,), "<u2", data, 9, (1,))[o_all]
-    rec_t = np.ndarray((size - 22,), "<u8", data, 15, (1,))[o_all]
-    chans = np.concatenate([np.full(len(o), ch, np.uint16) for ch, _, o in per_channel])
-    times = np.concatenate([t for _, t, _ in per_channel])
-    if not ((u8[o_all] == OP_MESSAGE).all() and (length >= 22).all() and (rec_ch == chans).all()
-            and (rec_t == times).all()):
-        return False
-    order = np.argsort(o_all, kind="stable")
-    o, ends = o_all[order], (o_all + 9 + length)[order]
-    if not ((o[1:] == ends[:-1]).all() and ends[-1] == size):
-        return False
-    out, k = [], 0
-    for ch, t, offsets in per_channel:
-        m = len(offsets)
-        out.append((ch, o_all[k:k + m] + _MSG_OFFSET, length[k:k + m] - 22, t))
-        k += m
-    return int(o[0]), out
 
 
 class _Walker:
