@@ -112,6 +112,7 @@ class RunLog:
     chunks: int
     library: str
     _samples: ChannelData | None = field(default=None, repr=False)
+    _decoded: list = field(default_factory=list, repr=False)   # (layout, rate, window, (block, stats))
 
     @property
     def complete(self) -> bool:
@@ -143,9 +144,17 @@ class RunLog:
 
     def imu_samples(self, layout: ImuLayout | None = None, rate_hz: float = 1000.0,
                     reorder_window: int = 8) -> tuple[ImuSampleBlock, ImuStats]:
-        """Decode the raw CAN frames into samples (the source of truth) and link statistics."""
-        return decode_frames(self.can_ids, self.can_data, self.can_lengths, self.can_timestamp_s, layout=layout,
-                             rate_hz=rate_hz, reorder_window=reorder_window)
+        """Decode the raw CAN frames into samples (the source of truth) and link statistics.
+
+        The decode is kept: solving and the report both ask for it (treat the arrays as read-only).
+        """
+        for cached_layout, cached_rate, cached_window, decoded in self._decoded:
+            if cached_layout is layout and cached_rate == rate_hz and cached_window == reorder_window:
+                return decoded
+        decoded = decode_frames(self.can_ids, self.can_data, self.can_lengths, self.can_timestamp_s, layout=layout,
+                                rate_hz=rate_hz, reorder_window=reorder_window)
+        self._decoded.append((layout, rate_hz, reorder_window, decoded))
+        return decoded
 
     def summary(self) -> str:
         """One line: what the log holds and whether anything was lost."""
