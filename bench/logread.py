@@ -11,6 +11,10 @@ file that is not MCAP at all raises `LogError` with a one-line message naming th
 The raw CAN frames (`/can/raw`) are the source of truth for IMU data:
 `RunLog.imu_samples(layout, rate_hz)` decodes them with the bulk decoder. The decoded
 `/imu/samples` topic (possibly decimated) is parsed on first use of `RunLog.imu_records`.
+The recorder writes `/imu/samples` in chunks of their own, the bulk of a log; `read_log`
+leaves those compressed and unchecked until `RunLog.imu_records` (or
+`RunLog.check_deferred()`) needs them, and adds any damage found then to `damage`
+(`read_log(path, defer_samples=False)` checks every chunk at once).
 The file is memory-mapped; `/can/raw` batches of one frame length (the usual case) are
 unpacked chunk by chunk on worker threads straight into the frame arrays.
 """
@@ -122,6 +126,7 @@ class RunLog:
     @cached_property
     def imu_records(self) -> ImuRecords:
         """The `/imu/samples` topic as arrays (parsed on first use)."""
+        self.check_deferred()
         d = self._samples
         if d is None or not len(d):
             return ImuRecords(np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)),
@@ -156,11 +161,29 @@ class RunLog:
         self._decoded.append((layout, rate_hz, reorder_window, decoded))
         return decoded
 
+    @property
+    def unchecked_chunks(self) -> int:
+        """`/imu/samples` chunks not decompressed (nor CRC-checked) yet: see `check_deferred`."""
+        return self._samples.deferred_chunks if self._samples is not None else 0
+
+    def check_deferred(self) -> list[str]:
+        """Decompress and check the deferred `/imu/samples` chunks; returns (and adds to `damage`)
+        what was lost in them."""
+        if not self.unchecked_chunks:
+            return []
+        found = self._samples.inflate_deferred(TOPIC_SAMPLES)
+        self.lost.extend(found)
+        lines = [d.describe() for d in found]
+        self.damage.extend(lines)
+        return lines
+
     def summary(self) -> str:
         """One line: what the log holds and whether anything was lost."""
         state = "complete" if self.complete else f"DAMAGED ({len(self.damage)} problems)"
+        unchecked = (f" ({self.unchecked_chunks} {TOPIC_SAMPLES} chunks, derived from {TOPIC_CAN}, not read)"
+                     if self.unchecked_chunks else "")
         return (f"{self.path}: {len(self.can_ids)} CAN frames, {len(self.table_states)} table states, "
-                f"{len(self.events)} events, {self.chunks} chunks; {state}")
+                f"{len(self.events)} events, {self.chunks} chunks{unchecked}; {state}")
 
 
 def _parse_json_rows(d: ChannelData) -> tuple[list, int]:
@@ -323,12 +346,12 @@ def _map_file(path: str):
         raise LogError(f"{path}: cannot read: {exc.strerror or exc}") from exc
 
 
-def read_log(path) -> RunLog:
-    """Read a run log; see the module docstring for how damage is handled."""
+def read_log(path, *, defer_samples: bool = True) -> RunLog:
+    """Read a run log; see the module docstring for how damage is handled and what `defer_samples` does."""
     path = str(path)
     buf = _map_file(path)
     try:
-        w = walk(buf)
+        w = walk(buf, defer_topics=frozenset({TOPIC_SAMPLES}) if defer_samples else frozenset())
     except WalkError as exc:
         raise LogError(f"{path}: {exc}") from exc
     finally:

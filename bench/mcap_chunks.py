@@ -13,11 +13,13 @@ import os
 import struct
 import zlib
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from io import BytesIO
 
 import numpy as np
 
 from mcap.data_stream import ReadDataStream
+from mcap.records import Channel
 
 try:
     import zstandard
@@ -84,18 +86,83 @@ def _inflate_and_frame(compression: str, payload, size: int, crc: int, buf, inde
     return data, computed, exc, framed
 
 
+@dataclass
+class DeferredChunk:
+    """A chunk holding messages of one deferred channel only, kept compressed until they are asked
+    for (`inflate`). Its message index gave the offsets and log times; nothing is checked yet."""
+
+    offset: int                 # byte offset of the chunk record in the file
+    start_ns: int
+    end_ns: int
+    compression: str
+    payload: bytes              # the compressed data (a copy: the file's mapping is closed after the walk)
+    size: int                   # uncompressed size
+    crc: int
+    channel: int
+    log_times: np.ndarray       # uint64, per message, file order
+    offsets: np.ndarray         # uint64, record offsets in the uncompressed data, increasing
+
+    @property
+    def lengths(self) -> np.ndarray:
+        """Payload lengths implied by the offsets (the records tile the chunk; checked by `inflate`)."""
+        ends = np.append(self.offsets[1:], self.size).astype(np.int64)
+        return ends - self.offsets.astype(np.int64) - _MSG_OFFSET
+
+    def inflate(self):
+        """(chunk data, payload starts) when the chunk decompresses, passes its CRC and is framed
+        exactly by its index; else a reason string."""
+        data, computed, exc = _inflate(self.compression, self.payload, self.size, self.crc)
+        if exc is not None:
+            return f"{self.compression} data cannot be decompressed ({exc})"
+        if len(data) != self.size:
+            return f"decompressed to {len(data)} bytes, header says {self.size}"
+        if self.crc != 0 and computed != self.crc:
+            return "CRC mismatch"
+        framed = _frame_by_entries(data, [(self.channel, self.log_times, self.offsets)])
+        if framed is False or framed[0] != 0:
+            return "malformed chunk content (its message index does not frame it)"
+        return data, framed[1][0][1]
+
+
+def _deferrable(buf, fields: tuple, index: list[tuple[int, int]], deferred_channels: set[int]):
+    """(channel, log times, offsets) when the chunk holds messages of one deferred channel and
+    nothing else, as far as its message index says; else None."""
+    if not index or not deferred_channels:
+        return None
+    entries = _index_entries(buf, index)
+    if entries is False or len(entries) != 1 or entries[0][0] not in deferred_channels:
+        return None
+    ch, t, o = entries[0]
+    usize = fields[2]
+    if not len(o) or int(o[0]) != 0 or int(o[-1]) > usize - _MSG_OFFSET:
+        return None
+    if len(o) > 1 and not (np.diff(o.astype(np.int64)) >= _MSG_OFFSET).all():
+        return None
+    return ch, t, o
+
+
 class _Prefetch:
     """Decompresses and CRC-checks the chunks ahead of the walk on worker threads (zstd and zlib
     release the GIL, so this uses every core). Chunks are found by following the record framing
-    from the start; where that framing breaks the walk resyncs on its own and decompresses inline."""
+    from the start; where that framing breaks the walk resyncs on its own and decompresses inline.
+
+    Chunks that hold only messages of a channel whose topic is in `defer_topics` (by their message
+    index) are not decompressed at all: `deferred[offset]` says what they hold."""
 
     AHEAD_PER_WORKER = 3
     MIN_CHUNKS = 3   # fewer: not worth the threads
 
-    def __init__(self, buf, workers: int | None = None):
+    def __init__(self, buf, workers: int | None = None, defer_topics: frozenset[str] = frozenset()):
         self.buf = buf
+        self.topics: dict[int, str] = {}
         self.chunks = self._scan(buf)
         self.index = {c[0]: k for k, c in enumerate(self.chunks)}
+        deferred_channels = {ch for ch, topic in self.topics.items() if topic in defer_topics}
+        self.deferred: dict[int, tuple] = {}
+        for pos, fields, index in self.chunks if deferred_channels else ():
+            found = _deferrable(buf, fields, index, deferred_channels)
+            if found is not None:
+                self.deferred[pos] = found
         self.futures: dict[int, object] = {}
         self.submitted = 0
         workers = workers or min(4, os.cpu_count() or 1)
@@ -103,9 +170,9 @@ class _Prefetch:
                      if len(self.chunks) >= self.MIN_CHUNKS and workers > 1 else None)
         self.ahead = workers * self.AHEAD_PER_WORKER
 
-    @staticmethod
-    def _scan(buf) -> list[tuple]:
-        """(offset, `_chunk_fields`, the message index records right after it) of every chunk."""
+    def _scan(self, buf) -> list[tuple]:
+        """(offset, `_chunk_fields`, the message index records right after it) of every chunk; the
+        channel topics of the channel records outside chunks into `self.topics`."""
         size, pos, found = len(buf), 8, []
         current = None   # the index records of the last chunk, while only such records follow it
         while pos + 9 <= size:
@@ -124,6 +191,12 @@ class _Prefetch:
                     current.append((pos + 9, end))
             else:
                 current = None
+                if op == OP_CHANNEL:
+                    try:
+                        c = Channel.read(_body_stream(buf, pos + 9, end))
+                        self.topics.setdefault(c.id, c.topic)
+                    except Exception:   # the walk reports a damaged record; here it only defers nothing
+                        pass
             pos = end
         return found
 
@@ -135,6 +208,9 @@ class _Prefetch:
             return None
         while self.submitted < min(len(self.chunks), k + 1 + self.ahead):
             cpos, (_, _, usize, crc, compression, dstart, dlen), index = self.chunks[self.submitted][:3]
+            if cpos in self.deferred:
+                self.submitted += 1
+                continue
             self.futures[cpos] = self.pool.submit(_inflate_and_frame, compression,
                                                   memoryview(self.buf)[dstart:dstart + dlen], usize, crc, self.buf,
                                                   index)
@@ -203,6 +279,13 @@ def _index_chunk(buf, data: bytes, index: list[tuple[int, int]]):
     (offset of the first message, [(channel, payload starts, lengths, log times)] by channel id), or
     False unless the index provably frames every message of the chunk: its records tile the chunk from
     the first message to the end. Pure (worker threads run it)."""
+    entries = _index_entries(buf, index)
+    return False if entries is False else _frame_by_entries(data, entries)
+
+
+def _index_entries(buf, index: list[tuple[int, int]]):
+    """[(channel, log times, offsets)] by channel id from a chunk's message index records (copies,
+    in file order), or False if they are malformed."""
     if not index:
         return False
     by_channel: dict[int, list] = {}
@@ -212,9 +295,6 @@ def _index_chunk(buf, data: bytes, index: list[tuple[int, int]]):
             return False
         entries = np.frombuffer(buf, "<u8", count=n // 8, offset=body + 6).reshape(-1, 2)
         by_channel.setdefault(ch, []).append(entries)
-    size = len(data)
-    if size < 31:
-        return False
     per_channel = []
     for ch in sorted(by_channel):
         parts = by_channel[ch]
@@ -223,7 +303,15 @@ def _index_chunk(buf, data: bytes, index: list[tuple[int, int]]):
         if len(o) > 1 and not (o[1:] > o[:-1]).all():   # kept in file order, as the tiling check sorts
             order = np.argsort(o, kind="stable")
             t, o = t[order], o[order]
-        per_channel.append((ch, t.copy(), o))   # a copy: nothing may keep the file's buffer alive
+        per_channel.append((ch, t.copy(), o.copy()))   # copies: nothing may keep the file's buffer alive
+    return per_channel
+
+
+def _frame_by_entries(data: bytes, per_channel: list):
+    """`_index_chunk` for index entries already read (`_index_entries`)."""
+    size = len(data)
+    if size < 31:
+        return False
     o_all = np.concatenate([o for _, _, o in per_channel])
     if not len(o_all) or int(o_all.max()) > size - 31:
         return False

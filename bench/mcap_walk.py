@@ -20,8 +20,10 @@ would inline. The record layout and chunk decoding live in `bench.mcap_chunks`.
 
 from __future__ import annotations
 
+import os
 import struct
 import zlib
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,9 +31,9 @@ import numpy as np
 from mcap.records import Attachment, Channel, Footer, Header, Metadata, Schema, Statistics
 
 from bench.mcap_chunks import (MAGIC, OP_ATTACHMENT, OP_CHANNEL, OP_CHUNK, OP_FOOTER, OP_HEADER, OP_MESSAGE,
-                               OP_MESSAGE_INDEX, OP_METADATA, OP_NAMES, OP_SCHEMA, OP_STATISTICS, WalkError,
-                               _MESSAGE, _MSG_OFFSET, _Prefetch, _RECORD, _body_stream, _chunk_fields, _index_chunk,
-                               _inflate, _plausible_record_at, _resync)
+                               OP_MESSAGE_INDEX, OP_METADATA, OP_NAMES, OP_SCHEMA, OP_STATISTICS, DeferredChunk,
+                               WalkError, _MESSAGE, _MSG_OFFSET, _Prefetch, _RECORD, _body_stream, _chunk_fields,
+                               _index_chunk, _inflate, _plausible_record_at, _resync)
 
 
 def _fmt_range(start_ns: int, end_ns: int) -> str:
@@ -67,6 +69,8 @@ class ChannelData:
     A part is either the payloads joined (bytes) or, until first used, a lazy reference
     `(chunk data, payload starts)`: gathering costs a slice per message, and most readers
     never touch the high-rate JSON topics (the decompressed chunk stays in memory meanwhile).
+    A part can also be a `DeferredChunk` (walked with `defer_topics`): still compressed and
+    unchecked; `inflate_deferred` decompresses and checks those, and says what it had to drop.
     """
 
     parts: list = field(default_factory=list)      # bytes or (chunk bytes, starts array), one per chunk
@@ -85,7 +89,40 @@ class ChannelData:
     def log_time_ns(self) -> np.ndarray:
         return np.concatenate(self.log_times) if self.log_times else np.zeros(0, np.uint64)
 
+    @property
+    def deferred_chunks(self) -> int:
+        """Parts still compressed and unchecked."""
+        return sum(isinstance(p, DeferredChunk) for p in self.parts)
+
+    def inflate_deferred(self, topic: str) -> list[Damage]:
+        """Decompress and check the deferred parts (on worker threads); a part that fails is dropped
+        and told as a `Damage` (its messages lost, on `topic`)."""
+        todo = [k for k, p in enumerate(self.parts) if isinstance(p, DeferredChunk)]
+        if not todo:
+            return []
+        chunks = [self.parts[k] for k in todo]
+        if len(chunks) >= 3:
+            with ThreadPoolExecutor(min(4, os.cpu_count() or 1), thread_name_prefix="mcap-inflate") as pool:
+                answers = list(pool.map(DeferredChunk.inflate, chunks))
+        else:
+            answers = [c.inflate() for c in chunks]
+        damage, dropped = [], set()
+        for k, chunk, answer in zip(todo, chunks, answers):
+            if isinstance(answer, str):
+                damage.append(Damage("chunk", chunk.offset, answer, chunk.start_ns, chunk.end_ns,
+                                     {topic: len(chunk.offsets)}))
+                dropped.add(k)
+            else:
+                self.parts[k] = answer
+        if dropped:
+            keep = [k for k in range(len(self.parts)) if k not in dropped]
+            self.parts, self.lengths, self.log_times = ([x[k] for k in keep] for x in
+                                                        (self.parts, self.lengths, self.log_times))
+        return damage
+
     def _gathered(self) -> list[bytes]:
+        if self.deferred_chunks:
+            raise RuntimeError("inflate_deferred() first: this channel has deferred chunks")
         for k, part in enumerate(self.parts):
             if isinstance(part, tuple):
                 data, starts = part
@@ -106,6 +143,8 @@ class ChannelData:
         """Part `k`'s payloads back to back, without keeping them (for one pass over a large channel:
         the lazy parts stay lazy)."""
         part = self.parts[k]
+        if isinstance(part, DeferredChunk):
+            raise RuntimeError("inflate_deferred() first: this channel has deferred chunks")
         if not isinstance(part, tuple):
             return part
         data, starts = part
@@ -145,8 +184,9 @@ class Walk:
 
 
 class _Walker:
-    def __init__(self, buf: bytes):
+    def __init__(self, buf: bytes, defer_topics: frozenset[str] = frozenset()):
         self.buf = buf
+        self.defer_topics = defer_topics
         self.w = Walk(size=len(buf))
         self.lost_chunk: Damage | None = None   # message index records after a lost chunk count its messages
         self.pending = None                     # a good chunk waiting for its message index records
@@ -161,7 +201,7 @@ class _Walker:
         return d
 
     def run(self) -> Walk:
-        self.prefetch = _Prefetch(self.buf)
+        self.prefetch = _Prefetch(self.buf, defer_topics=self.defer_topics)
         try:
             return self._run()
         finally:
@@ -299,6 +339,13 @@ class _Walker:
             self.lost_chunk = w.damage[-1]
             return False
         start, end, usize, crc, compression, dstart, dlen = f
+        deferred = self.prefetch.deferred.get(pos) if self.prefetch is not None else None
+        if deferred is not None and self.prefetch.chunks[self.prefetch.index[pos]][1] == f:
+            ch, t, o = deferred
+            self.pending = (pos, start, end, DeferredChunk(pos, start, end, compression,
+                                                           bytes(buf[dstart:dstart + dlen]), usize, crc, ch, t, o))
+            self.pending_index = []
+            return True
         done = self.prefetch.take(pos, f) if self.prefetch is not None else None
         if done is not None:
             data, computed, exc, self.framed = done
@@ -328,6 +375,19 @@ class _Walker:
             return
         (pos, start, end, data), index = self.pending, self.pending_index
         self.pending, self.pending_index = None, []
+        if isinstance(data, DeferredChunk):
+            chunk = data
+            if index == self.prefetch.chunks[self.prefetch.index[pos]][2]:
+                self.channel_data(chunk.channel).add(chunk, chunk.lengths, chunk.log_times)
+                self.w.chunks += 1
+                return
+            # the walk found other index records after it than the scan did: check it now, inline
+            answer = chunk.inflate()
+            if isinstance(answer, str):
+                self.w.damage.append(Damage("chunk", pos, answer, start, end,
+                                            {self.w.topic(chunk.channel): len(chunk.offsets)}))
+                return
+            data = answer[0]
         framed = None
         if self.framed is not None and self.framed[0] == index:   # the worker framed it with these records
             framed = self.framed[1]
@@ -401,6 +461,9 @@ class _Walker:
         return None
 
 
-def walk(buf: bytes) -> Walk:
-    """Walk an MCAP file held in memory; raises `WalkError` if it is not MCAP at all."""
-    return _Walker(buf).run()
+def walk(buf: bytes, defer_topics: frozenset[str] = frozenset()) -> Walk:
+    """Walk an MCAP file held in memory; raises `WalkError` if it is not MCAP at all.
+
+    Chunks holding nothing but messages of `defer_topics` are not decompressed: their channel
+    data holds them as `DeferredChunk` parts (see `ChannelData.inflate_deferred`)."""
+    return _Walker(buf, frozenset(defer_topics)).run()

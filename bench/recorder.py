@@ -29,7 +29,10 @@ Times: MCAP log times are unsigned nanoseconds on the run clock; a negative time
 recorded as 0. Metadata records are written when given; attachments any time before
 `close()`. Chunks are zstd-compressed with CRCs and closed when they reach `chunk_size`
 bytes or `chunk_interval_s` of wall time after the previous close, so a crash loses at
-most about that much. Schema and Channel records are also written outside the first chunk,
+most about that much. `/imu/samples` messages are held back and written at each close in
+chunks of their own: they are derived from `/can/raw` and are the bulk of a log, so a
+reader that needs the frames, events and states skips them without decompressing
+(`bench.logread` defers them until asked for). Schema and Channel records are also written outside the first chunk,
 so a reader can decode every later chunk even if the first one is damaged.
 The recorder is single-threaded: call it from the sequencer's thread only.
 """
@@ -274,6 +277,9 @@ class McapRecorder(RunListener):
         self.samples_written = 0
         self.messages_written = 0
         self._closed = False
+        self._chunk_size = chunk_size
+        self._held_samples: list[tuple[int, bytes]] = []   # /imu/samples messages for the next samples chunk
+        self._held_bytes = 0
         try:
             self._file = open(self.path, "wb")
         except OSError as exc:
@@ -390,7 +396,7 @@ class McapRecorder(RunListener):
     def flush(self) -> None:
         """Close the open chunk and push everything to the OS now."""
         self._check_open()
-        self._io(self._writer.flush)
+        self._io(self._close_chunks)
         self._last_close = self._clock()
 
     def close(self) -> None:
@@ -399,6 +405,7 @@ class McapRecorder(RunListener):
             return
         self._closed = True
         try:
+            self._write_held_samples()
             self._writer.finish()
         except Exception as exc:
             raise RecorderError(f"cannot finish MCAP log {self.path}: {exc}") from exc
@@ -453,8 +460,7 @@ class McapRecorder(RunListener):
         status = col(block.status)
         temps = [repr(x) if math.isfinite(x) else "null" for x in col(block.temperature_c)]
         finite = all(math.isfinite(x) for row in g for x in row) and all(math.isfinite(x) for row in a for x in row)
-        add = self._writer.add_message
-        channel = self._channel[TOPIC_SAMPLES]
+        held, size = self._held_samples, self._held_bytes
         for c, r, (g0, g1, g2), (a0, a1, a2), temp, st in zip(counters, recv, g, a, temps, status):
             if finite:
                 body = (f'{{"counter":{c},"time_s":{c / rate!r},"gyro_counts":[{g0!r},{g1!r},{g2!r}],'
@@ -469,14 +475,33 @@ class McapRecorder(RunListener):
                         f'"acc_rate":[{",".join(_num(x * rate) for x in av)}],'
                         f'"temperature_c":{temp},"status":{st}}}')
             t = int(r * 1e9 + 0.5) if r > 0.0 else 0
-            add(channel, t, body.encode(), t)
+            held.append((t, body.encode()))
+            size += len(body)
+        self._held_bytes = size
         self.samples_written += len(counters)
         self.messages_written += len(counters)
+        if size >= self._chunk_size:
+            self._close_chunks()
+
+    def _write_held_samples(self) -> None:
+        """Close the open chunk, then write the held samples as chunks holding nothing else."""
+        if not self._held_samples:
+            return
+        writer, channel = self._writer, self._channel[TOPIC_SAMPLES]
+        writer.flush()
+        add = writer.add_message
+        for t, body in self._held_samples:
+            add(channel, t, body, t)
+        self._held_samples, self._held_bytes = [], 0
+
+    def _close_chunks(self) -> None:
+        self._write_held_samples()
+        self._writer.flush()
 
     def _tick(self) -> None:
         now = self._clock()
         if now - self._last_close >= self.chunk_interval_s:
-            self._io(self._writer.flush)
+            self._io(self._close_chunks)
             self._last_close = now
 
 

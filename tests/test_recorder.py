@@ -386,24 +386,55 @@ def test_a_corrupt_chunk_is_skipped_and_reading_resumes_after_it(tmp_path, compr
     run.recorder.close()
     chunks = chunk_layout(path)
     data = bytearray(path.read_bytes())
-    bad = 3
+    bad = [k for k, c in enumerate(chunks) if c[2]][3]   # the fourth chunk holding CAN frames
     start, end, frames, idx = chunks[bad]
     data[(start + end) // 2] ^= 0x5A
     path.write_bytes(bytes(data))
-    log = read_log(path)
-    before = sum(c[2] for c in chunks[:bad])
-    assert_frames_equal(log, run.messages[:before] + run.messages[before + frames:])
-    assert log.summary_present and not log.complete
-    chunk_damage = [d for d in log.damage if d.startswith(f"chunk at byte {start}")]
-    assert len(chunk_damage) == 1, log.damage
-    text = chunk_damage[0]
-    assert f"log time {idx.message_start_time / 1e9:.3f}..{idx.message_end_time / 1e9:.3f} s" in text
-    assert "messages lost" in text and "on /can/raw" in text and "on /imu/samples" in text
+    for defer in (True, False):
+        log = read_log(path, defer_samples=defer)
+        before = sum(c[2] for c in chunks[:bad])
+        assert_frames_equal(log, run.messages[:before] + run.messages[before + frames:])
+        assert log.summary_present and not log.complete
+        chunk_damage = [d for d in log.damage if d.startswith(f"chunk at byte {start}")]
+        assert len(chunk_damage) == 1, log.damage
+        text = chunk_damage[0]
+        assert f"log time {idx.message_start_time / 1e9:.3f}..{idx.message_end_time / 1e9:.3f} s" in text
+        assert "messages lost" in text and "on /can/raw" in text and "on /table/state" in text
+        if compression == "none":
+            assert "CRC mismatch" in text
+        assert len(log.damage) == 1     # the message index accounts for every lost message
+        lost = log.lost[0].lost
+        assert lost["/can/raw"] == 1 and lost["/table/state"] == 1 and "/imu/samples" not in lost
+        assert len(log.imu_records) == len(run.batch_frames) * SAMPLES_PER_BATCH and log.damage == [text]
+
+
+@pytest.mark.parametrize("compression", ["zstd", "none"])
+def test_imu_samples_have_chunks_of_their_own_checked_when_first_read(tmp_path, compression):
+    path = tmp_path / f"{compression}.mcap"
+    run = record(path, clock=FakeClock(), compression=compression)
+    run.recorder.close()
+    chunks = chunk_layout(path)
+    samples_only = [c for c in chunks if not c[2] and c[3].message_index_offsets.keys() == {2}]
+    assert len(samples_only) >= len(run.batch_frames) - 1
+    start, end, _, idx = samples_only[2]
+    data = bytearray(path.read_bytes())
+    data[(start + end) // 2] ^= 0x5A
+    path.write_bytes(bytes(data))
+
+    log = read_log(path)   # the samples chunks are left compressed: the damage is not seen yet
+    assert_frames_equal(log, run.messages)
+    assert log.complete and log.unchecked_chunks == len(samples_only)
+    assert f"{len(samples_only)} /imu/samples chunks" in log.summary()
+    records = log.imu_records   # now they are read: one chunk is lost, and said so
+    assert log.unchecked_chunks == 0 and not log.complete and len(log.damage) == 1
+    assert log.damage[0].startswith(f"chunk at byte {start}") and f"{SAMPLES_PER_BATCH} on /imu/samples" in log.damage[0]
     if compression == "none":
-        assert "CRC mismatch" in text
-    assert len(log.damage) == 1     # the message index accounts for every lost message
-    lost = log.lost[0].lost
-    assert lost["/can/raw"] == 1 and lost["/imu/samples"] == SAMPLES_PER_BATCH
+        assert "CRC mismatch" in log.damage[0]
+    assert len(records) == len(run.batch_frames) * SAMPLES_PER_BATCH - SAMPLES_PER_BATCH
+
+    eager = read_log(path, defer_samples=False)   # the same damage, found at once
+    assert eager.unchecked_chunks == 0 and eager.damage == log.damage
+    assert len(eager.imu_records) == len(records)
 
 
 def test_a_corrupt_record_header_resyncs_at_the_next_chunk(chunked_log, tmp_path):

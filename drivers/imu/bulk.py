@@ -16,6 +16,9 @@ unwrapping by wrapped differences, then the grouping:
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
 from drivers.errors import ImuFrameError
@@ -77,6 +80,9 @@ def _as_arrays(ids, data, lengths, timestamps):
 
 #: Frames screened per step: the temporaries of a block stay in the CPU caches.
 _BLOCK = 1 << 16
+#: Screening runs on worker threads from this many blocks on.
+_PARALLEL_BLOCKS = 8
+_WORKERS = min(4, os.cpu_count() or 1)
 
 
 def _screen(ids: np.ndarray, data: np.ndarray, lengths: np.ndarray, layout: ImuLayout):
@@ -107,8 +113,8 @@ def _screen(ids: np.ndarray, data: np.ndarray, lengths: np.ndarray, layout: ImuL
         crc_mode = "per message"
     msg_index = np.empty(n, dtype)
     valid = np.empty(n, bool)
-    n_known = n_length_ok = 0
-    for a in range(0, n, _BLOCK):
+
+    def screen_block(a: int) -> tuple[int, int]:
         b = min(n, a + _BLOCK)
         if lut is not None:
             mi = lut[np.minimum(ids[a:b], top + 1)]
@@ -122,8 +128,7 @@ def _screen(ids: np.ndarray, data: np.ndarray, lengths: np.ndarray, layout: ImuL
             ok = known & (lengths[a:b] == one_length)
         else:
             ok = known & (lengths[a:b] == expected[np.maximum(mi, 0)])
-        n_known += int(np.count_nonzero(known))
-        n_length_ok += int(np.count_nonzero(ok))
+        counts = int(np.count_nonzero(known)), int(np.count_nonzero(ok))
         if crc_mode == "linear":
             chunks = data[a:b, :8].view("<u2")
             crc = id_const[mi]
@@ -131,6 +136,17 @@ def _screen(ids: np.ndarray, data: np.ndarray, lengths: np.ndarray, layout: ImuL
                 crc ^= table[chunks[:, column]]
             ok &= crc == data[a:b, crc_byte]
         valid[a:b] = ok
+        return counts
+
+    blocks = range(0, n, _BLOCK)
+    if len(blocks) >= _PARALLEL_BLOCKS and _WORKERS > 1:
+        # numpy releases the GIL in these block operations: the blocks screen on every core
+        with ThreadPoolExecutor(_WORKERS, thread_name_prefix="imu-screen") as pool:
+            counts = list(pool.map(screen_block, blocks))
+    else:
+        counts = [screen_block(a) for a in blocks]
+    n_known = sum(k for k, _ in counts)
+    n_length_ok = sum(k for _, k in counts)
     if crc_mode == "per message":
         valid = _check_crcs(data, msg_index, valid, layout)
     return msg_index, valid, n_known, n_length_ok

@@ -42,7 +42,7 @@ from bench.logread import read_log
 READ_TARGET, RESOLVE_TARGET_S = 1_000_000, 10.0
 RATE_HZ = 1000.0
 BATCH_SAMPLES = (10, 20, 50, 100)   # x 7 frames: 70..700 frames per on_can_frames call
-SYNTHETIC_VERSION = 1               # bump when the synthetic log's content changes
+SYNTHETIC_VERSION = 2               # bump when the synthetic log's content changes (2: samples in chunks of their own)
 ONE_HOUR_VERSION = 2
 #: The plan estimate to aim at: runs come out ~2 % shorter than estimated, so this gives >= 1 h simulated.
 ONE_HOUR_PLAN_S = 3680.0
