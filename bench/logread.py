@@ -32,7 +32,7 @@ import numpy as np
 
 from bench.events import Event
 from bench.mcap_walk import ChannelData, Damage, WalkError, walk
-from bench.recorder import CAN_ENCODING, TOPIC_CAN, TOPIC_EVENTS, TOPIC_SAMPLES, TOPIC_STATE
+from bench.recorder import CAN_ENCODING, FLAG_ERROR, FLAG_REMOTE, TOPIC_CAN, TOPIC_EVENTS, TOPIC_SAMPLES, TOPIC_STATE
 from drivers.imu import ImuSampleBlock, ImuStats, decode_frames
 from drivers.imu.layout import ImuLayout
 
@@ -149,17 +149,28 @@ class RunLog:
 
     def imu_samples(self, layout: ImuLayout | None = None, rate_hz: float = 1000.0,
                     reorder_window: int = 8) -> tuple[ImuSampleBlock, ImuStats]:
-        """Decode the raw CAN frames into samples (the source of truth) and link statistics.
+        """Decode the raw data frames into samples (the source of truth) and link statistics.
 
-        The decode is kept: solving and the report both ask for it (treat the arrays as read-only).
+        Error and remote frames are logged but never decoded, as live (`non_data_frames` counts
+        them). The decode is kept: solving and the report both ask for it (treat the arrays as
+        read-only).
         """
         for cached_layout, cached_rate, cached_window, decoded in self._decoded:
             if cached_layout is layout and cached_rate == rate_hz and cached_window == reorder_window:
                 return decoded
-        decoded = decode_frames(self.can_ids, self.can_data, self.can_lengths, self.can_timestamp_s, layout=layout,
-                                rate_hz=rate_hz, reorder_window=reorder_window)
+        ids, data, lengths, times = self.can_ids, self.can_data, self.can_lengths, self.can_timestamp_s
+        if self.non_data_frames:
+            keep = (self.can_flags & (FLAG_REMOTE | FLAG_ERROR)) == 0
+            ids, data, lengths, times = ids[keep], data[keep], lengths[keep], times[keep]
+        decoded = decode_frames(ids, data, lengths, times, layout=layout, rate_hz=rate_hz,
+                                reorder_window=reorder_window)
         self._decoded.append((layout, rate_hz, reorder_window, decoded))
         return decoded
+
+    @cached_property
+    def non_data_frames(self) -> int:
+        """Error and remote frames in `/can/raw` (recorded, never decoded)."""
+        return int(np.count_nonzero(self.can_flags & (FLAG_REMOTE | FLAG_ERROR)))
 
     @property
     def unchecked_chunks(self) -> int:

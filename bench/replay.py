@@ -33,7 +33,7 @@ from bench.events import RunListener
 from bench.logread import RunLog
 from bench.recorder import EXTENDED_ID_FLAG, FLAG_BRS, FLAG_ERROR, FLAG_ESI, FLAG_FD, FLAG_REMOTE
 from drivers.clock import SYSTEM_CLOCK, Clock
-from drivers.imu import ImuSampleBlock, ImuStats, decode_frames
+from drivers.imu import ImuSampleBlock, ImuStats
 from drivers.imu.layout import ImuLayout
 from drivers.turntable import AxisMode, AxisState, AxisStatus, TableState
 
@@ -224,9 +224,7 @@ def _decode(log: RunLog, layout, rate_hz, stats: ReplayStats) -> ImuSampleBlock 
         stats.notes += list(setup.notes)
         layout = setup.layout if layout is None else layout
         rate_hz = setup.rate_hz if rate_hz is None else rate_hz
-    data = (np.asarray(log.can_flags) & (FLAG_REMOTE | FLAG_ERROR)) == 0
-    block, imu_stats = decode_frames(log.can_ids[data], log.can_data[data], log.can_lengths[data],
-                                     log.can_timestamp_s[data], layout=layout, rate_hz=rate_hz)
+    block, imu_stats = log.imu_samples(layout, rate_hz)
     stats.imu_stats = imu_stats
     return block
 

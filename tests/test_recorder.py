@@ -212,7 +212,8 @@ def test_mixed_frames_round_trip_with_flags(tmp_path):
     assert set(log.can_flags[log.can_ids == 0x321]) == {FLAG_REMOTE}
     assert set(log.can_flags[log.can_ids == 0]) == {FLAG_ERROR}
     block, stats = log.imu_samples(LAYOUT, RATE_HZ)
-    assert stats.samples == len(run.block) and stats.unknown_id == 8
+    # the extended-id and FD frames are unknown to the layout; remote and error frames are not decoded
+    assert stats.samples == len(run.block) and stats.unknown_id == 4 and log.non_data_frames == 4
 
 
 def test_decimated_sample_topic_keeps_every_raw_frame(tmp_path):
