@@ -63,6 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
     from bench import tui_cli
     from bench import replay_cli
     from bench import solve_cli
+    from bench import check_table_cli
 
     parser = argparse.ArgumentParser(prog="bench", description="IMU calibration on a three-axis turntable")
     parser.add_argument("--version", action="version", version=f"turntable-bench {__version__}")
@@ -86,6 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
     schedules_cli.register(sub)
     table_cli.register_table(sub)
     table_cli.register_sim(sub)
+    check_table_cli.register(sub)
     return parser
 
 
