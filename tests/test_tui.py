@@ -279,6 +279,11 @@ def test_start_pause_resume_abort_ends_stopped(tmp_path):
             assert "run paused" in app.query_one("#plan-panel").plain
             await press(pilot, "r")
             await wait_until(pilot, lambda: snap(app).step_states.count(STEP_DONE) > done, "progress after resume")
+            for key in ("v", "right_square_bracket", "g", "h"):   # manual commands are refused during a run
+                await press(pilot, key)
+            assert len(app.screen_stack) == 1
+            await wait_until(pilot, lambda: events_text(app).count("refused: a run is active") == 4,
+                             "four refusals")
             await press(pilot, "a")
             await wait_ended(pilot)
             s = snap(app)
@@ -427,6 +432,259 @@ def test_cli_needs_config_or_sim(tmp_path):
     from run_helpers import cli
 
     rc, _, err = cli(["tui"])
-    assert rc == 2 and "--config FILE or --sim" in err
+    assert rc == 2 and "--config FILE, --sim or --replay LOG" in err
     rc, _, err = cli(["tui", "--config", str(tmp_path / "missing.toml")])
     assert rc == 2 and "missing.toml" in err
+    rc, _, err = cli(["tui", "--replay", str(tmp_path / "missing.mcap")])
+    assert rc == 2 and "missing.mcap" in err
+    rc, _, err = cli(["tui", "--replay", str(tmp_path / "x.mcap"), "--sim"])
+    assert rc == 2 and "drop --config/--sim" in err
+    with pytest.raises(SystemExit):
+        cli(["tui", "--replay", "x.mcap", "--speed", "0"])
+
+
+# -- connect / enable keys, rate mode, jog, theme --------------------------------------------------
+
+def test_connect_enable_disable_disconnect_keys_and_theme(tmp_path):
+    async def body():
+        app = make_app(tmp_path, auto_connect=False)
+        async with app.run_test(size=SIZE) as pilot:
+            await press(pilot, "e")
+            await wait_until(pilot, lambda: "refused: not connected" in events_text(app), "enable refused")
+            await press(pilot, "c")
+            await connected(pilot)
+            controller = app.session.run.world.controller
+            await press(pilot, "e")
+            await wait_until(pilot, lambda: all(a.enabled for a in snap(app).table_state.axes), "servos on")
+            await pilot.pause(0.1)
+            assert app.query_one("#table-panel").plain.count("  on  ") == 3
+            app.session.set_rate(1, 30.0).join(5)
+            await wait_until(pilot, lambda: snap(app).table_state.axes[1].rate_dps > 29.0, "middle turning")
+            await press(pilot, "h")                             # halt: decelerate and hold, servos on
+            await wait_until(pilot, lambda: all(abs(r) < 1e-9 for r in snap(app).table_state.rates_dps)
+                             and snap(app).table_state.axes[1].in_position, "the table at rest")
+            assert all(a.enabled for a in controller.state().axes)
+            await press(pilot, "x")
+            await wait_until(pilot, lambda: not any(a.enabled for a in snap(app).table_state.axes), "servos off")
+            assert_disabled(controller, at_rest=True)
+            await press(pilot, "d")
+            await wait_until(pilot, lambda: app.session.run is None, "the disconnect")
+            await pilot.pause(0.1)
+            assert "link: disconnected" in app.query_one("#table-panel").plain
+            assert "disconnected" in events_text(app)
+            assert app.theme == "textual-dark"
+            await press(pilot, "t")
+            assert app.theme == "textual-light" and not app.current_theme.dark
+            await press(pilot, "t")
+            assert app.theme == "textual-dark"
+    run(body)
+
+
+def test_rate_mode_stop_and_jog_on_the_simulator(tmp_path):
+    async def body():
+        app = make_app(tmp_path)
+        async with app.run_test(size=SIZE) as pilot:
+            await connected(pilot)
+            controller = app.session.run.world.controller
+            await press(pilot, "right_square_bracket")          # jog with the servo off: refused
+            await wait_until(pilot, lambda: "refused: outer servo is off" in events_text(app), "jog refused")
+            await press(pilot, "v")
+            dialog = await dialog_open(pilot, "RateScreen", "#rate-frame #label")
+            dialog.query_one("#rate-frame").value = 2
+            dialog.query_one("#rate-value").value = "250"       # beyond the 100 deg/s limit
+            await press(pilot, "enter")
+            await wait_until(pilot, lambda: "exceeds its limit" in str(dialog.query_one("#rate-error").render()),
+                             "the over-limit message")
+            assert app.screen is dialog
+            dialog.query_one("#rate-value").value = "fast"
+            await press(pilot, "enter")
+            await wait_until(pilot, lambda: "not a number" in str(dialog.query_one("#rate-error").render()),
+                             "the not-a-number message")
+            assert all(ax.mode.value == "off" and not ax.enabled for ax in controller.state().axes)
+            dialog.query_one("#rate-value").value = "-15"
+            await press(pilot, "enter")
+            await wait_until(pilot, lambda: len(app.screen_stack) == 1, "the dialog to close")
+
+            def turning():
+                s = snap(app).table_state
+                return s is not None and abs(s.axes[2].rate_dps + 15.0) < 1e-6
+            await wait_until(pilot, turning, "inner turning at -15 deg/s")
+            await pilot.pause(0.15)
+            assert "inner" in app.query_one("#table-panel").plain.split("-15.0000")[0].splitlines()[-1]
+            assert "rate" in [line for line in app.query_one("#table-panel").plain.splitlines()
+                              if line.startswith("inner")][0]
+            assert "inner turning at -15 deg/s" in events_text(app)
+            await press(pilot, "v")                             # the dialog's Stop all: decelerate and hold
+            dialog = await dialog_open(pilot, "RateScreen", "#stop")
+            dialog.query_one("#stop").press()
+
+            def at_rest():
+                s = snap(app).table_state
+                return s is not None and all(abs(r) < 1e-9 for r in s.rates_dps) and s.axes[2].in_position
+            await wait_until(pilot, at_rest, "the table at rest after Stop all")
+            assert controller.state().axes[2].enabled
+            # jog: the rate dialog chose inner; j cycles the frame (inner -> outer -> middle -> inner),
+            # ] moves +1 deg, [ -1 deg
+            assert app.jog_frame == 2
+            start = snap(app).table_state.angles_deg[2]
+            for key, frame in (("j", 0), ("j", 1), ("j", 2)):
+                await press(pilot, key)
+                assert app.jog_frame == frame
+            await press(pilot, "right_square_bracket")
+            await wait_until(pilot, lambda: abs(snap(app).table_state.angles_deg[2] - (start + 1.0)) < 1e-3
+                             and snap(app).table_state.axes[2].in_position, "the jog to +1 deg")
+            await press(pilot, "left_square_bracket")
+            await wait_until(pilot, lambda: abs(snap(app).table_state.angles_deg[2] - start) < 1e-3
+                             and snap(app).table_state.axes[2].in_position, "the jog back")
+            app.jog_step_deg = 10.0                             # a longer move: time to try a second jog
+            await press(pilot, "left_square_bracket")
+            await wait_until(pilot, lambda: not snap(app).table_state.axes[2].in_position, "the jog under way")
+            await press(pilot, "left_square_bracket")          # while the frame moves: refused
+            await wait_until(pilot, lambda: "refused: inner is moving" in events_text(app), "a refused jog")
+            await wait_until(pilot, lambda: abs(snap(app).table_state.angles_deg[2] - (start - 10.0)) < 1e-3
+                             and snap(app).table_state.axes[2].in_position, "the jog to -10 deg")
+            await pilot.pause(0.3)
+            assert abs(snap(app).table_state.angles_deg[2] - (start - 10.0)) < 1e-3
+            log = events_text(app)
+            assert "jog inner +1 deg" in log and "jog inner -1 deg" in log and log.count("jog inner -10 deg") == 1
+            assert "jog: inner by 10 deg" in app.query_one("#table-panel").plain
+            # the e-stop from the open rate dialog while a frame turns: servos off at once
+            app.session.set_rate(0, 20.0).join(5)
+            await wait_until(pilot, lambda: abs(snap(app).table_state.axes[0].rate_dps - 20.0) < 1e-6, "outer turning")
+            await press(pilot, "v")
+            await dialog_open(pilot, "RateScreen", "#stop")
+            await press(pilot, "f12")
+            await wait_until(pilot, lambda: len(app.screen_stack) == 1, "the dialog to close")
+            await wait_until(pilot, lambda: not any(a.enabled for a in snap(app).table_state.axes), "servos off")
+            assert_disabled(controller, at_rest=False)
+            assert "EMERGENCY STOP" in events_text(app)
+            await wait_until(pilot, lambda: abs(snap(app).table_state.axes[0].rate_dps) < 1e-9, "outer at rest")
+        assert_disabled(controller, at_rest=True)
+    run(body)
+
+
+def test_check_rate_command_refuses_travel_limited_axes():
+    from bench.tui.session import check_rate_command
+    from drivers.errors import TurntableLimitError
+    from drivers.turntable import AxisLimits, TurntableLimits
+
+    limits = TurntableLimits((AxisLimits(), AxisLimits(-90.0, 90.0, 50.0), AxisLimits(max_rate_dps=20.0)))
+    check_rate_command(limits, 0, -100.0)
+    check_rate_command(limits, 2, 20.0)
+    for frame, rate, words in ((0, 100.5, "exceeds"), (2, -21.0, "exceeds"), (0, float("nan"), "exceeds"),
+                               (1, 5.0, "travel limits")):
+        with pytest.raises(TurntableLimitError, match=words):
+            check_rate_command(limits, frame, rate)
+
+
+def test_snapshot_running_light_theme(tmp_path, snap_compare):
+    async def before(pilot):
+        _feed_running(pilot.app)
+        pilot.app.buffer.note("warning", "a warning line")
+        pilot.app.buffer.note("fault", "a fault line")
+        pilot.app.refresh_panels()
+        await pilot.pause(0.2)
+    app = make_app(tmp_path, auto_connect=False, refresh_hz=10.0, theme="textual-light")
+    assert snap_compare(app, terminal_size=SIZE, run_before=before)
+
+
+# -- replay: a recorded run, no hardware ------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def recorded_log(tmp_path_factory):
+    """A short simulated run recorded with `bench run` (1 s dwells): its log and result JSON."""
+    from run_helpers import cli
+
+    out = tmp_path_factory.mktemp("tui-replay")
+    config = out / "bench.toml"
+    config.write_text(config_text(dwell_s=1.0, positions="traditional-12", rotations="traditional-3s6r"))
+    rc, _, err = cli(["run", "--config", str(config), "--out", str(out), "--quiet"])
+    assert rc == 0, err
+    log_path = next(out.glob("*.mcap"))
+    return log_path, next(out.glob("*.result.json"))
+
+
+def test_replay_shows_the_recorded_run_and_its_result(recorded_log):
+    import json
+
+    from bench.logread import read_log
+
+    log_path, result_path = recorded_log
+    recorded = read_log(str(log_path))
+    expected = json.loads(result_path.read_text())["coefficients"]
+
+    async def body():
+        from bench.tui import create_app
+
+        app = create_app(replay=log_path, speed=None, refresh_hz=20.0)
+        async with app.run_test(size=SIZE) as pilot:
+            await wait_until(pilot, lambda: snap(app).result is not None, "the replay to end with its result")
+            await pilot.pause(0.2)
+            s = snap(app)
+            assert s.run_state is RunState.DONE and set(s.step_states) == {STEP_DONE}
+            assert s.event_count >= len(recorded.events)
+            plan = app.query_one("#plan-panel").plain
+            assert "run done" in plan and "100.0%" in plan and f"{len(app.steps)} done" in plan, plan
+            log = events_text(app)
+            shown = [e for e in recorded.events if e.kind != "step_started"]
+            for e in (shown[0], shown[len(shown) // 2], shown[-1]):
+                assert f"{e.kind}: {e.message}" in log
+            assert "result attached to the log" in log
+            table = app.query_one("#table-panel").plain
+            last = recorded.table_states.angles_deg[-1]
+            assert f"outer  {last[0]:.4f}" in table and "link: replay" in table, table
+            assert app.query_one("#left-tabs").active == "results-tab"
+            results = app.query_one("#results-panel").plain
+            for name, entry in expected.items():
+                assert f"{name} {entry['value']:.8g}" in results
+            for key in ("c", "g", "v", "s", "e", "right_square_bracket", "h", "a"):
+                await press(pilot, key)
+            assert len(app.screen_stack) == 1
+            await wait_until(pilot, lambda: events_text(app).count("refused: replay mode: no hardware") == 8,
+                             "eight refusals")
+            await press(pilot, "f12")
+            await wait_until(pilot, lambda: "replay mode, no hardware" in events_text(app), "the e-stop note")
+            await press(pilot, "q")
+            await wait_until(pilot, lambda: not app.is_running, "the app to exit")
+    run(body)
+
+
+def test_replay_pause_and_resume_the_playback(recorded_log):
+    async def body():
+        from bench.tui import create_app
+
+        app = create_app(replay=recorded_log[0], speed=1.0, refresh_hz=20.0)
+        async with app.run_test(size=SIZE) as pilot:
+            await wait_until(pilot, lambda: snap(app).event_count >= 4, "the playback under way")
+            await press(pilot, "p")
+            await wait_until(pilot, lambda: app.session.paused, "the playback paused")
+            await pilot.pause(0.1)
+            count = snap(app).event_count
+            await pilot.pause(0.4)
+            assert snap(app).event_count == count and app.session.playing
+            await press(pilot, "r")
+            await wait_until(pilot, lambda: snap(app).event_count > count + 1, "the playback to go on")
+            await press(pilot, "q")                          # quits at once; the playback thread stops
+            await wait_until(pilot, lambda: not app.is_running, "the app to exit")
+        assert not app.session.playing and app.session.stats.stopped
+    run(body)
+
+
+def test_replay_result_is_solved_when_not_attached(recorded_log, tmp_path):
+    import dataclasses
+    import json
+
+    from bench.tui.replay_session import log_result, open_log
+
+    log_path, result_path = recorded_log
+    opened = open_log(log_path)
+    assert opened.simulated and len(opened.steps) > 10 and not opened.notes
+    bare = dataclasses.replace(opened, log=dataclasses.replace(opened.log, attachments={}))
+    result, text = log_result(bare)
+    assert "solved from the log" in text
+    expected = json.loads(result_path.read_text())["coefficients"]
+    assert {k: c.value for k, c in result.coefficients.items()} == {k: v["value"] for k, v in expected.items()}
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not a log")
+    result, text = log_result(dataclasses.replace(bare, path=junk))
+    assert result is None and text.startswith("no result in this log")

@@ -1,6 +1,7 @@
 """The lab-operator TUI: `BenchApp` and the factory `create_app` shared by `bench tui` and the tests.
 
-The app draws from a `UiBuffer` on a timer (`refresh_hz`, 10 by default) and sends
+The app draws from a `UiBuffer` on a timer (`refresh_hz`, 20 by default: under a busy run some
+ticks come late, and the panels must still refresh >= 10 times a second) and sends
 commands to a `BenchSession`; it holds no bench logic of its own. The emergency stop
 is an App-level priority binding, so it works on every screen, dialogs included, and
 is handled before any widget sees the key.
@@ -8,6 +9,7 @@ is handled before any widget sees the key.
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from textual.app import App, ComposeResult
@@ -18,10 +20,17 @@ from textual.widgets import Footer, Header, TabbedContent, TabPane
 
 from bench.tui.buffer import ImuScales, UiBuffer
 from bench.tui.panels import EventLog, ImuPanel, PlanPanel, ResultsPanel, TablePanel
-from bench.tui.screens import ConfirmScreen, GotoScreen, HelpScreen
+from bench.tui.screens import ConfirmScreen, GotoScreen, HelpScreen, RateScreen
 from bench.tui.session import BenchSession, SessionError
+from drivers.turntable import FRAMES
 
 ESTOP_KEY = "f12"
+#: The interpreter's thread switch interval while the app runs. The run's threads (sequencer, CAN
+#: receiver, recorder; on the simulator a CPU-bound simulated world) hold the GIL for up to the
+#: default 5 ms at a time, and one screen refresh needs the GIL many times: at 1 ms the panels keep
+#: their refresh rate under a 2 kHz IMU (tests/benchmarks/tui_refresh.py).
+SWITCH_INTERVAL_S = 0.001
+DARK_THEME, LIGHT_THEME = "textual-dark", "textual-light"
 
 HELP = f"""[b]turntable-bench operator keys[/b]
 
@@ -32,18 +41,26 @@ HELP = f"""[b]turntable-bench operator keys[/b]
   r     resume a paused run
   a     abort the run (controlled stop, then servos off)
   g     go to a position (outer, middle, inner; checked against the limits)
+  v     rate mode: one frame turns at a set rate (checked against the limits)
+  h     halt: controlled stop of every axis (servos stay on, holding position)
+  j     choose the frame the jog keys move (outer, middle, inner)
+  [ / ] jog the chosen frame by -/+ the jog step (servo must be on)
   e / x enable (servos on) / stop and disable (servos off), when no run is active
   c / d connect / disconnect the table and IMU
+  t     light / dark theme
   ?     this help
   q     quit (asks first while a run is active; the table is stopped)
 
-Times are on the run's clock: simulated seconds with the simulator."""
+Manual commands are refused while a plan runs. Times are on the run's clock:
+simulated seconds with the simulator. Replay mode (bench tui --replay LOG) has no
+hardware: p / r pause and resume the playback, q quits, the rest is refused."""
 
 
 class BenchApp(App):
     """The operator's screen for one bench session (see the module docstring)."""
 
     TITLE = "turntable-bench"
+    ENABLE_COMMAND_PALETTE = False      # its footer entry would push "quit" off a 100-column footer
     CSS = """
     #top { height: 13; }
     #top > * { border: round $primary; }
@@ -61,6 +78,12 @@ class BenchApp(App):
         Binding("r", "resume", "resume"),
         Binding("a", "abort", "abort"),
         Binding("g", "goto", "go to"),
+        Binding("v", "rate", "rate"),
+        Binding("h", "halt", "halt"),
+        Binding("j", "jog_frame", "jog axis", show=False),
+        Binding("left_square_bracket", "jog(-1)", "jog -", show=False),
+        Binding("right_square_bracket", "jog(1)", "jog +", show=False),
+        Binding("t", "toggle_theme", "theme", show=False),
         Binding("e", "enable", "enable", show=False),
         Binding("x", "disable", "disable", show=False),
         Binding("c", "connect", "connect", show=False),
@@ -70,8 +93,10 @@ class BenchApp(App):
     ]
 
     def __init__(self, session: BenchSession, buffer: UiBuffer, *, steps, limits, scales: ImuScales,
-                 simulated: bool, auto_connect: bool = True, refresh_hz: float = 10.0, subtitle: str = ""):
+                 simulated: bool, auto_connect: bool = True, refresh_hz: float = 20.0, subtitle: str = "",
+                 jog_step_deg: float = 1.0, theme: str = DARK_THEME):
         super().__init__()
+        self.theme = theme
         self.session, self.buffer = session, buffer
         self.steps, self.limits, self.scales = tuple(steps), limits, scales
         self.simulated = simulated
@@ -80,6 +105,9 @@ class BenchApp(App):
         self.sub_title = subtitle
         self.refreshes = 0                   # timer ticks drawn (the refresh benchmark reads it)
         self._result_shown = None
+        self.jog_frame = 0                   # the frame [ and ] move
+        self.jog_step_deg = float(jog_step_deg)
+        self.rate_dps = 0.0                  # the rate dialog's last value
 
     def compose(self) -> ComposeResult:
         yield Header(show_clock=False)
@@ -97,12 +125,25 @@ class BenchApp(App):
         yield Footer()
 
     def on_mount(self) -> None:
+        self._switch_interval = sys.getswitchinterval()
+        sys.setswitchinterval(min(self._switch_interval, SWITCH_INTERVAL_S))
         self.query_one("#events").border_title = "Events"
         self.query_one("#table-panel").border_title = "Table"
         self.query_one("#imu-panel").border_title = "IMU"
         self.set_interval(1.0 / self.refresh_hz, self.refresh_panels)
-        if self.auto_connect:
+        self.theme_changed_signal.subscribe(self, self._theme_changed)
+        if self.session.replaying:
+            self.session.play()
+        elif self.auto_connect:
             self.action_connect()
+        self.refresh_panels()
+
+    def _theme_changed(self, _theme) -> None:
+        try:
+            self.query_one(PlanPanel).restyle()
+            self.query_one(EventLog).restyle()
+        except NoMatches:
+            return
         self.refresh_panels()
 
     # -- drawing ---------------------------------------------------------------------------
@@ -116,7 +157,9 @@ class BenchApp(App):
 
     def _draw(self) -> None:
         snap = self.buffer.snapshot()
-        self.query_one(TablePanel).show(snap, self.session.link, self.session.link_detail)
+        jog = "" if self.session.replaying else \
+            f"jog: {FRAMES[self.jog_frame]} by {self.jog_step_deg:g} deg ([ ]; j: axis)"
+        self.query_one(TablePanel).show(snap, self.session.link, self.session.link_detail, jog)
         self.query_one(ImuPanel).show(snap)
         self.query_one(PlanPanel).show(snap)
         log = self.query_one(EventLog)
@@ -140,7 +183,18 @@ class BenchApp(App):
         while len(self.screen_stack) > 1:
             self.pop_screen()
 
+    def _hardware(self, what: str) -> bool:
+        """False (after saying why) when this session has no hardware for `what` (a replay)."""
+        try:
+            self.session.require_hardware(what)
+        except SessionError as exc:
+            self._refuse(exc)
+            return False
+        return True
+
     def action_connect(self) -> None:
+        if not self._hardware("connect"):
+            return
         if self.session.run is not None:
             self._refuse(SessionError("already connected"))
             return
@@ -153,6 +207,8 @@ class BenchApp(App):
             self._refuse(exc)
 
     def action_start(self) -> None:
+        if not self._hardware("start a plan"):
+            return
         if self.session.running:
             self._refuse(SessionError("a run is already active"))
             return
@@ -192,9 +248,17 @@ class BenchApp(App):
     def action_disable(self) -> None:
         self._control("disable")
 
-    def action_goto(self) -> None:
+    def _manual_ok(self, what: str) -> bool:
+        """Manual table commands need the hardware, a connection and no active run."""
+        if not self._hardware(what):
+            return False
         if self.session.run is None or self.session.running:
             self._refuse(SessionError("not connected" if self.session.run is None else "a run is active"))
+            return False
+        return True
+
+    def action_goto(self) -> None:
+        if not self._manual_ok("go to a position"):
             return
         state = self.buffer.snapshot().table_state
         current = state.angles_deg if state is not None else None
@@ -207,6 +271,45 @@ class BenchApp(App):
                     self._refuse(exc)
 
         self.push_screen(GotoScreen(self.limits, current), chosen)
+
+    def action_rate(self) -> None:
+        if not self._manual_ok("set a rate"):
+            return
+
+        def chosen(choice) -> None:
+            if choice is None:
+                return
+            try:
+                if choice[0] == "stop":
+                    self.session.stop_motion()
+                else:
+                    _, frame, rate = choice
+                    self.jog_frame, self.rate_dps = frame, rate
+                    self.session.set_rate(frame, rate)
+            except Exception as exc:  # noqa: BLE001 - limits/link: shown to the operator
+                self._refuse(exc)
+
+        self.push_screen(RateScreen(self.limits, self.jog_frame, self.rate_dps), chosen)
+
+    def action_halt(self) -> None:
+        if not self._hardware("stop the table"):
+            return
+        self._control("stop_motion")
+
+    def action_jog_frame(self) -> None:
+        self.jog_frame = (self.jog_frame + 1) % 3
+        self.refresh_panels()
+
+    def action_jog(self, direction: int) -> None:
+        if not self._manual_ok("jog"):
+            return
+        try:
+            self.session.jog(self.jog_frame, direction * self.jog_step_deg)
+        except Exception as exc:  # noqa: BLE001 - servo off, limits: shown to the operator
+            self._refuse(exc)
+
+    def action_toggle_theme(self) -> None:
+        self.theme = LIGHT_THEME if self.current_theme.dark else DARK_THEME
 
     def action_help(self) -> None:
         self.push_screen(HelpScreen(HELP))
@@ -229,23 +332,29 @@ class BenchApp(App):
     def on_unmount(self) -> None:
         # Whatever ends the app (quit, Ctrl-C, a test leaving run_test) stops the table and closes the devices.
         self.session.close()
+        sys.setswitchinterval(getattr(self, "_switch_interval", sys.getswitchinterval()))
 
 
-def create_app(*, config=None, sim: bool = False, out_dir: str | Path | None = None,
-               operator: str = "", auto_connect: bool = True, refresh_hz: float = 10.0,
-               poll_s: float = 0.1) -> BenchApp:
-    """The TUI for `config` (the built-in simulated bench when None and `sim`).
+def create_app(*, config=None, sim: bool = False, replay: str | Path | None = None, speed: float | None = 1.0,
+               out_dir: str | Path | None = None, operator: str = "", auto_connect: bool = True,
+               refresh_hz: float = 20.0, poll_s: float = 0.1, jog_step_deg: float = 1.0,
+               theme: str = DARK_THEME) -> BenchApp:
+    """The TUI for `config` (the built-in simulated bench when None and `sim`), or for the replay of
+    the run log `replay` at `speed` times real time (None: as fast as possible; no hardware).
 
     `out_dir`: where logs and results go (default the config's output folder);
     `auto_connect`: open the devices when the app starts; `refresh_hz`: panel redraws
-    per second; `poll_s`: the idle monitor's period.
+    per second; `poll_s`: the idle monitor's period; `jog_step_deg`: what [ and ] move.
+    A log that cannot be read raises `bench.logread.LogError`.
     """
+    if replay is not None:
+        return _create_replay_app(replay, speed, refresh_hz=refresh_hz, jog_step_deg=jog_step_deg, theme=theme)
     from bench.config import default_sim_config
     from bench.run_cli import compile_from_config
 
     if config is None:
         if not sim:
-            raise ValueError("say config=... or sim=True")
+            raise ValueError("say config=..., sim=True or replay=LOG")
         config = default_sim_config()
     sim = sim or config.table.is_sim
     plan = compile_from_config(config)
@@ -255,4 +364,17 @@ def create_app(*, config=None, sim: bool = False, out_dir: str | Path | None = N
     names = " + ".join(s.name for s in (config.plan.positions, config.plan.rotations) if s is not None)
     return BenchApp(session, buffer, steps=plan.steps, limits=config.table.limits,
                     scales=ImuScales.from_config(config, sim), simulated=sim, auto_connect=auto_connect,
-                    refresh_hz=refresh_hz, subtitle=f"{'simulator' if sim else config.table.url} - {names}")
+                    refresh_hz=refresh_hz, subtitle=f"{'simulator' if sim else config.table.url} - {names}",
+                    jog_step_deg=jog_step_deg, theme=theme)
+
+
+def _create_replay_app(path, speed, **kwargs) -> BenchApp:
+    from bench.tui.replay_session import ReplaySession, open_log
+
+    opened = open_log(path)
+    buffer = UiBuffer(opened.steps)
+    session = ReplaySession(opened, buffer=buffer, speed=speed)
+    pace = f"{speed:g}x" if speed is not None else "as fast as possible"
+    return BenchApp(session, buffer, steps=opened.steps, limits=opened.limits,
+                    scales=ImuScales.from_config(opened.config, opened.simulated), simulated=opened.simulated,
+                    auto_connect=False, subtitle=f"replay of {opened.path.name} ({pace}, no hardware)", **kwargs)

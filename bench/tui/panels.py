@@ -7,6 +7,7 @@ operator sees without parsing the screen.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Sequence
 
 from rich.table import Table as RichTable
@@ -17,11 +18,39 @@ from textual.widgets import DataTable, Label, ProgressBar, RichLog, Sparkline, S
 
 from bench.events import Event, RunState
 from bench.progress import hms
-from bench.tui.buffer import (CHANNELS, STEP_DONE, STEP_FAILED, STEP_RUNNING, STEP_SKIPPED, ImuScales, UiSnapshot,
+from bench.tui.buffer import (CHANNELS, STEP_DONE, STEP_FAILED, STEP_RUNNING, ImuScales, UiSnapshot,
                               progress)
 
 AXIS_NAMES = ("outer", "middle", "inner")
 DEG_PER_HOUR_PER_DPS = 3600.0
+
+
+@dataclass(frozen=True)
+class Palette:
+    """Text colours for states, from the current theme's text-* variables (readable on its background)."""
+
+    ok: str
+    warn: str
+    error: str
+
+
+def palette(app) -> Palette:
+    """The palette of `app`'s current theme (cached per theme name on the app)."""
+    cache = app.__dict__.setdefault("_bench_palettes", {})
+    name = app.theme
+    found = cache.get(name)
+    if found is None:
+        v = app.get_css_variables()
+        found = cache[name] = Palette(v.get("text-success", "green"), v.get("text-warning", "yellow"),
+                                      v.get("text-error", "red"))
+    return found
+
+
+def set_text(label, text: str) -> None:
+    """Update a Label/Static only when its text changes: every update costs the UI thread a layout pass."""
+    if getattr(label, "_bench_text", None) != text:
+        label._bench_text = text
+        label.update(text)
 
 
 def _limits_text(axis) -> str:
@@ -38,9 +67,11 @@ class TablePanel(Static):
         super().__init__(**kwargs)
         self.limits = limits
         self.plain = ""
+        self._drawn_with = None
         self.border_title = "Table"
 
-    def show(self, snapshot: UiSnapshot, link: str, link_detail: str) -> None:
+    def show(self, snapshot: UiSnapshot, link: str, link_detail: str, jog: str = "") -> None:
+        pal = palette(self.app)
         state = snapshot.table_state
         grid = RichTable.grid(padding=(0, 1))
         for header, justify in (("axis", "left"), ("angle deg", "right"), ("rate deg/s", "right"), ("mode", "left"),
@@ -58,18 +89,21 @@ class TablePanel(Static):
                          "on" if axis.enabled else "off", "yes" if axis.in_position else "no", limit))
         grid.add_row(*(Text(h, style="bold") for h in rows[0]))
         for row in rows[1:]:
-            grid.add_row(*row[:4], Text(row[4], style="bold green" if row[4] == "on" else ""), *row[5:])
+            grid.add_row(*row[:4], Text(row[4], style=f"bold {pal.ok}" if row[4] == "on" else ""), *row[5:])
         if state is None:
             status = Text("no table state yet")
         elif state.estop or state.fault:
-            status = Text(f"FAULT: {state.describe_fault()}", style="bold red")
+            status = Text(f"FAULT: {state.describe_fault()}", style=f"bold {pal.error}")
         else:
-            status = Text("status: ok", style="green")
-        link_style = {"connected": "green", "error": "bold red"}.get(link, "yellow")
+            status = Text("status: ok", style=pal.ok)
+        link_style = {"connected": pal.ok, "replay": pal.ok, "error": f"bold {pal.error}"}.get(link, pal.warn)
         link_text = Text(f"link: {link}" + (f" ({link_detail})" if link_detail else ""), style=link_style)
-        out = Text("\n").join([Text(""), status, link_text])
-        self.update(_Stack(grid, out))
-        self.plain = "\n".join([*("  ".join(r) for r in rows), status.plain, link_text.plain])
+        lines = [Text(""), status, link_text] + ([Text(jog)] if jog else [])
+        plain = "\n".join([*("  ".join(r) for r in rows), status.plain, link_text.plain, jog])
+        if plain != self.plain or pal is not self._drawn_with:
+            self._drawn_with = pal
+            self.update(_Stack(grid, Text("\n").join(lines)))
+        self.plain = plain
 
 
 class _Stack:
@@ -127,13 +161,13 @@ class ImuPanel(Vertical):
         rate = f"{imu.rate_hz:g} Hz" if math.isfinite(imu.rate_hz) else "- Hz"
         temp = f"{imu.temperature_c:.1f} C" if math.isfinite(imu.temperature_c) else "- C"
         head = f"{rate}  {temp}  lost {imu.lost_samples}  bad frames {imu.bad_frames}"
-        self.query_one("#imu-head", Label).update(head)
+        set_text(self.query_one("#imu-head", Label), head)
         values = (imu.gyro_cps or (None,) * 3) + (imu.acc_cps or (None,) * 3)
         lines = [head]
         for k, ch in enumerate(CHANNELS):
             text = self._value(k, values[k])
             lines.append(text)
-            self.query_one(f"#imu-{ch}", Label).update(text)
+            set_text(self.query_one(f"#imu-{ch}", Label), text)
             data = list(imu.history[k])
             spark = self.query_one(f"#spark-{ch}", Sparkline)
             if data != list(spark.data or []):
@@ -154,7 +188,8 @@ def describe_step(step) -> str:
     return ""
 
 
-STATE_STYLE = {STEP_RUNNING: "bold yellow", STEP_DONE: "green", STEP_SKIPPED: "dim", STEP_FAILED: "bold red"}
+def state_style(state: str, pal: Palette) -> str:
+    return {STEP_RUNNING: f"bold {pal.warn}", STEP_DONE: pal.ok, STEP_FAILED: f"bold {pal.error}"}.get(state, "dim")
 
 
 class PlanPanel(Vertical):
@@ -197,6 +232,10 @@ class PlanPanel(Vertical):
                           Text("pending", style="dim"), key=str(s.index))
         self._shown_states = ["pending"] * len(self.steps)
 
+    def restyle(self) -> None:
+        """Redraw every step's state at the next `show` (the theme changed)."""
+        self._shown_states = [""] * len(self.steps)
+
     def show(self, snapshot: UiSnapshot) -> None:
         p = progress(snapshot, self.steps)
         clock = " (sim clock)" if self.simulated else ""
@@ -208,41 +247,58 @@ class PlanPanel(Vertical):
         else:
             current = "no step running"
         status = (f"run {snapshot.run_state.value}  {p.fraction:6.1%}  ETA{clock} {hms(p.remaining_s)}\n{current}")
-        self.query_one("#plan-status", Label).update(status)
-        self.query_one("#plan-progress", ProgressBar).update(progress=round(p.fraction * 100.0, 1))
+        set_text(self.query_one("#plan-status", Label), status)
+        bar = self.query_one("#plan-progress", ProgressBar)
+        percent = round(p.fraction * 100.0, 1)
+        if bar.progress != percent:
+            bar.update(progress=percent)
         table = self.query_one("#plan-steps", DataTable)
+        pal = palette(self.app)
         for i, state in enumerate(snapshot.step_states):
             if i < len(self._shown_states) and state != self._shown_states[i]:
                 self._shown_states[i] = state
-                table.update_cell(str(i), "state", Text(state, style=STATE_STYLE.get(state, "dim")))
+                table.update_cell(str(i), "state", Text(state, style=state_style(state, pal)))
         if k is not None and k < table.row_count and table.cursor_row != k:
             table.move_cursor(row=k)
         counts = {s: snapshot.step_states.count(s) for s in set(snapshot.step_states)}
         self.plain = status + "\n" + ", ".join(f"{n} {s}" for s, n in sorted(counts.items()))
 
 
-EVENT_STYLE = {"fault": "bold red", "warning": "yellow", "transition": "bold", "info": ""}
+def event_style(kind: str, pal: Palette) -> str:
+    return {"fault": f"bold {pal.error}", "warning": pal.warn, "transition": "bold"}.get(kind, "")
 
 
 class EventLog(RichLog):
     """The run's events and the UI's own notes, one line each, in the run clock's time."""
 
     DEFAULT_CSS = "EventLog { height: 1fr; }"
+    MAX_LINES = 2000
 
     def __init__(self, **kwargs):
-        super().__init__(max_lines=2000, wrap=True, markup=False, min_width=20, **kwargs)
+        super().__init__(max_lines=self.MAX_LINES, wrap=True, markup=False, min_width=20, **kwargs)
         self.seen = 0
         self.plain_lines: list[str] = []
+        self._kinds: list[str] = []
 
     def add(self, events: Sequence[Event], total: int) -> None:
+        pal = palette(self.app)
         for e in events:
             if e.kind == "step_started":
                 continue                 # the plan panel shows the running step
             line = f"[{hms(e.time_s)}] {e.kind}: {e.message}"
             self.plain_lines.append(line)
-            self.write(Text(line, style=EVENT_STYLE.get(e.kind, "")))
-        self.plain_lines = self.plain_lines[-2000:]
+            self._kinds.append(e.kind)
+            self.write(Text(line, style=event_style(e.kind, pal)))
+        self.plain_lines = self.plain_lines[-self.MAX_LINES:]
+        self._kinds = self._kinds[-self.MAX_LINES:]
         self.seen = total
+
+    def restyle(self) -> None:
+        """Write the kept lines again in the current theme's colours."""
+        pal = palette(self.app)
+        self.clear()
+        for kind, line in zip(self._kinds, self.plain_lines):
+            self.write(Text(line, style=event_style(kind, pal)))
 
 
 class ResultsPanel(Vertical):

@@ -1,4 +1,4 @@
-"""Dialogs: confirmations, go to position (validated against the limits), help."""
+"""Dialogs: confirmations, go to position and rate mode (validated against the limits), help."""
 
 from __future__ import annotations
 
@@ -6,9 +6,11 @@ from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
 from textual.screen import ModalScreen
-from textual.widgets import Button, Input, Label, Static
+from textual.widgets import Button, Input, Label, Select, Static
 
+from bench.tui.session import check_rate_command
 from drivers.errors import TurntableLimitError
+from drivers.turntable import FRAMES
 
 DIALOG_CSS = """
 {name} {{ align: center middle; }}
@@ -110,6 +112,79 @@ class GotoScreen(ModalScreen["tuple[float, float, float] | None"]):
         angles = self.validate()
         if angles is not None:
             self.dismiss(angles)
+
+    def action_cancel(self) -> None:
+        self.dismiss(None)
+
+
+class RateScreen(ModalScreen["tuple | None"]):
+    """Rate mode on one frame: dismisses with ("rate", frame index, deg/s) once the rate passes the
+    limits (`check_rate_command`), ("stop",) for a controlled stop of every axis, None to cancel."""
+
+    DEFAULT_CSS = DIALOG_CSS.format(name="RateScreen") + """
+    RateScreen Input { width: 24; }
+    RateScreen Select { width: 24; }
+    RateScreen .axis { height: auto; }
+    RateScreen .axis Label { width: 12; padding-top: 1; }
+    """
+    BINDINGS = [Binding("escape", "cancel", "cancel")]
+    AUTO_FOCUS = "#rate-value"
+
+    def __init__(self, limits, frame: int = 0, rate_dps: float = 0.0, **kwargs):
+        super().__init__(**kwargs)
+        self.limits, self.frame, self.rate_dps = limits, int(frame), float(rate_dps)
+
+    def compose(self) -> ComposeResult:
+        with Vertical():
+            yield Label("Rate mode: the frame's servo is switched on and it turns until stopped (h or Stop).")
+            with Horizontal(classes="axis"):
+                yield Label("frame")
+                yield Select([(name, k) for k, name in enumerate(FRAMES)], value=self.frame, allow_blank=False,
+                             id="rate-frame")
+            with Horizontal(classes="axis"):
+                yield Label("rate deg/s")
+                yield Input(f"{self.rate_dps:g}", id="rate-value")
+            yield Label("limits: " + ", ".join(f"{name} {a.max_rate_dps:g} deg/s"
+                                               for name, a in zip(FRAMES, self.limits.axes)), id="rate-limits")
+            yield Label("", id="rate-error", classes="error")
+            with Horizontal(classes="buttons"):
+                yield Button("Cancel", id="cancel")
+                yield Button("Stop all", id="stop", variant="primary")
+                yield Button("Set rate", id="set", variant="warning")
+
+    def validate(self) -> tuple | None:
+        """("rate", frame, deg/s), or None after showing what is wrong."""
+        error = self.query_one("#rate-error", Label)
+        frame = int(self.query_one("#rate-frame", Select).value)
+        text = self.query_one("#rate-value", Input).value.strip()
+        try:
+            rate = float(text)
+        except ValueError:
+            error.update(f"rate: {text!r} is not a number")
+            return None
+        try:
+            check_rate_command(self.limits, frame, rate)
+        except TurntableLimitError as exc:
+            error.update(str(exc))
+            return None
+        error.update("")
+        return ("rate", frame, rate)
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        self._set()
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        if event.button.id == "set":
+            self._set()
+        elif event.button.id == "stop":
+            self.dismiss(("stop",))
+        else:
+            self.dismiss(None)
+
+    def _set(self) -> None:
+        chosen = self.validate()
+        if chosen is not None:
+            self.dismiss(chosen)
 
     def action_cancel(self) -> None:
         self.dismiss(None)

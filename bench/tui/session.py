@@ -7,7 +7,7 @@ and solve as `bench run`) and adds only what an interactive session needs:
 - an idle monitor thread that reads the table and drains the IMU into the `UiBuffer`
   while no run is active (with the simulator it also advances the simulated clock in
   real time, so a manual move takes as long as on the real table);
-- manual commands (enable, disable, go to position) and the run controls (start,
+- manual commands (enable, disable, go to position, rate mode, jog, stop) and the run controls (start,
   pause, resume, abort) and the emergency stop (abort the run and the controller's
   abort, servos off), each off the caller's thread: the UI never waits on the wire.
 
@@ -23,6 +23,7 @@ from typing import Callable, Sequence
 
 from bench.events import RunState
 from bench.tui.buffer import UiBuffer
+from drivers.turntable import FRAMES, AxisMode, frame_index
 
 LINK_DISCONNECTED, LINK_CONNECTING, LINK_CONNECTED, LINK_ERROR = "disconnected", "connecting", "connected", "error"
 
@@ -38,6 +39,8 @@ class BenchSession:
     method may be called from the UI thread; slow work runs on the session's threads,
     which `close()` joins.
     """
+
+    replaying = False                         # the replay session's counterpart (bench.tui.replay_session)
 
     def __init__(self, config, plan, *, sim: bool, out_dir: str | Path, buffer: UiBuffer,
                  operator: str = "", poll_s: float = 0.1, join_timeout_s: float = 20.0):
@@ -234,6 +237,57 @@ class BenchSession:
             self.buffer.note("info", f"moving to {', '.join(f'{a:g}' for a in angles)} deg at {rate:g} deg/s")
         return self._spawn("go-to", body)
 
+    def set_rate(self, frame: int | str, rate_dps: float) -> threading.Thread:
+        """Servo on and rate mode on one frame at the signed `rate_dps`; checked first (`check_rate_command`)."""
+        table = self._require_idle_table()
+        k = frame_index(frame)
+        rate = float(rate_dps)
+        check_rate_command(table.limits, k, rate)     # TurntableLimitError before anything is sent
+
+        def body() -> None:
+            table.reset_faults()
+            table.enable([k])
+            table.set_rate(k, rate)
+            self.buffer.note("info", f"{FRAMES[k]} turning at {rate:g} deg/s (rate mode; h stops)")
+        return self._spawn("rate", body)
+
+    def stop_motion(self) -> threading.Thread:
+        """Controlled stop of every axis: decelerate and hold in position (servos stay on)."""
+        table = self._require_idle_table()
+
+        def body() -> None:
+            table.stop()
+            self.buffer.note("info", "stop: every axis decelerates and holds its position (servos on)")
+        return self._spawn("stop", body)
+
+    def jog(self, frame: int | str, step_deg: float) -> threading.Thread:
+        """Move one frame by `step_deg` from where it is, at the plan's move rate. Refused unless the
+        frame's servo is on (a jog key never switches servos on); the target is checked against the
+        limits before the move is sent."""
+        table = self._require_idle_table()
+        k = frame_index(frame)
+        step = float(step_deg)
+        state = self.buffer.snapshot().table_state
+        if state is None:
+            raise SessionError("no table state yet")
+        _require_at_rest(state, k)
+        table.limits.check_position(k, state.axes[k].angle_deg + step)    # early refusal, on the shown angle
+        rate = self.config.plan.move_rate_dps
+
+        def body() -> None:
+            fresh = table.read_state()
+            _require_at_rest(fresh, k)         # a jog goes from where the frame rests, never from mid-move
+            target = fresh.axes[k].angle_deg + step
+            table.limits.check_position(k, target)
+            angles = [None, None, None]
+            angles[k] = target
+            table.move_to(angles, rate_dps=rate)
+            self.buffer.note("info", f"jog {FRAMES[k]} {step:+g} deg to {target:.4f} deg")
+        return self._spawn("jog", body)
+
+    def require_hardware(self, what: str) -> None:
+        """Nothing to check: this session has a table (a replay session refuses here)."""
+
     # -- the run -------------------------------------------------------------------------------
     def start(self) -> threading.Thread:
         """Start the plan on a worker thread (then solve from the log). Raises SessionError if it cannot."""
@@ -353,6 +407,26 @@ class BenchSession:
             self._stop_monitor()
             if self.run is not None:
                 self.run.close()
+
+
+def _require_at_rest(state, k: int) -> None:
+    axis = state.axes[k]
+    if not axis.enabled:
+        raise SessionError(f"{FRAMES[k]} servo is off (press e or use go to)")
+    if axis.mode is AxisMode.RATE or not axis.in_position:
+        raise SessionError(f"{FRAMES[k]} is moving: wait, or stop it (h)")
+
+
+def check_rate_command(limits, frame: int, rate_dps: float) -> None:
+    """Raise `TurntableLimitError` unless `rate_dps` may be commanded on `frame`: within its rate limit,
+    and the axis has no travel limits (a constant rate would run into them; use go to or jog there)."""
+    from drivers.errors import TurntableLimitError
+
+    limits.check_rate(frame, rate_dps)
+    axis = limits.axes[frame]
+    if axis.min_deg is not None or axis.max_deg is not None:
+        raise TurntableLimitError(f"{FRAMES[frame]} has travel limits [{axis.min_deg}, {axis.max_deg}] deg: "
+                                  "no rate mode there (use go to or jog)")
 
 
 def _range(axis) -> str:
