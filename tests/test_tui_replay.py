@@ -1,0 +1,112 @@
+"""TUI replay mode: a recorded run and its result shown with no hardware."""
+
+from __future__ import annotations
+
+import pytest
+
+from bench.events import RunState
+from bench.tui.buffer import STEP_DONE
+from run_helpers import config_text
+from tui_helpers import SIZE, events_text, press, run, snap, wait_until
+
+pytestmark = pytest.mark.usefixtures("no_leftover_tui_threads")
+
+
+@pytest.fixture(scope="module")
+def recorded_log(tmp_path_factory):
+    """A short simulated run recorded with `bench run` (1 s dwells): its log and result JSON."""
+    from run_helpers import cli
+
+    out = tmp_path_factory.mktemp("tui-replay")
+    config = out / "bench.toml"
+    config.write_text(config_text(dwell_s=1.0, positions="traditional-12", rotations="traditional-3s6r"))
+    rc, _, err = cli(["run", "--config", str(config), "--out", str(out), "--quiet"])
+    assert rc == 0, err
+    log_path = next(out.glob("*.mcap"))
+    return log_path, next(out.glob("*.result.json"))
+
+
+def test_replay_shows_the_recorded_run_and_its_result(recorded_log):
+    import json
+
+    from bench.logread import read_log
+
+    log_path, result_path = recorded_log
+    recorded = read_log(str(log_path))
+    expected = json.loads(result_path.read_text())["coefficients"]
+
+    async def body():
+        from bench.tui import create_app
+
+        app = create_app(replay=log_path, speed=None, refresh_hz=20.0)
+        async with app.run_test(size=SIZE) as pilot:
+            await wait_until(pilot, lambda: snap(app).result is not None, "the replay to end with its result")
+            await pilot.pause(0.2)
+            s = snap(app)
+            assert s.run_state is RunState.DONE and set(s.step_states) == {STEP_DONE}
+            assert s.event_count >= len(recorded.events)
+            plan = app.query_one("#plan-panel").plain
+            assert "run done" in plan and "100.0%" in plan and f"{len(app.steps)} done" in plan, plan
+            log = events_text(app)
+            shown = [e for e in recorded.events if e.kind != "step_started"]
+            for e in (shown[0], shown[len(shown) // 2], shown[-1]):
+                assert f"{e.kind}: {e.message}" in log
+            assert "result attached to the log" in log
+            table = app.query_one("#table-panel").plain
+            last = recorded.table_states.angles_deg[-1]
+            assert f"outer  {last[0]:.4f}" in table and "link: replay" in table, table
+            assert app.query_one("#left-tabs").active == "results-tab"
+            results = app.query_one("#results-panel").plain
+            for name, entry in expected.items():
+                assert f"{name} {entry['value']:.8g}" in results
+            for key in ("c", "g", "v", "s", "e", "right_square_bracket", "h", "a"):
+                await press(pilot, key)
+            assert len(app.screen_stack) == 1
+            await wait_until(pilot, lambda: events_text(app).count("refused: replay mode: no hardware") == 8,
+                             "eight refusals")
+            await press(pilot, "f12")
+            await wait_until(pilot, lambda: "replay mode, no hardware" in events_text(app), "the e-stop note")
+            await press(pilot, "q")
+            await wait_until(pilot, lambda: not app.is_running, "the app to exit")
+    run(body)
+
+
+def test_replay_pause_and_resume_the_playback(recorded_log):
+    async def body():
+        from bench.tui import create_app
+
+        app = create_app(replay=recorded_log[0], speed=1.0, refresh_hz=20.0)
+        async with app.run_test(size=SIZE) as pilot:
+            await wait_until(pilot, lambda: snap(app).event_count >= 4, "the playback under way")
+            await press(pilot, "p")
+            await wait_until(pilot, lambda: app.session.paused, "the playback paused")
+            await pilot.pause(0.1)
+            count = snap(app).event_count
+            await pilot.pause(0.4)
+            assert snap(app).event_count == count and app.session.playing
+            await press(pilot, "r")
+            await wait_until(pilot, lambda: snap(app).event_count > count + 1, "the playback to go on")
+            await press(pilot, "q")                          # quits at once; the playback thread stops
+            await wait_until(pilot, lambda: not app.is_running, "the app to exit")
+        assert not app.session.playing and app.session.stats.stopped
+    run(body)
+
+
+def test_replay_result_is_solved_when_not_attached(recorded_log, tmp_path):
+    import dataclasses
+    import json
+
+    from bench.tui.replay_session import log_result, open_log
+
+    log_path, result_path = recorded_log
+    opened = open_log(log_path)
+    assert opened.simulated and len(opened.steps) > 10 and not opened.notes
+    bare = dataclasses.replace(opened, log=dataclasses.replace(opened.log, attachments={}))
+    result, text = log_result(bare)
+    assert "solved from the log" in text
+    expected = json.loads(result_path.read_text())["coefficients"]
+    assert {k: c.value for k, c in result.coefficients.items()} == {k: v["value"] for k, v in expected.items()}
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not a log")
+    result, text = log_result(dataclasses.replace(bare, path=junk))
+    assert result is None and text.startswith("no result in this log")

@@ -1,0 +1,97 @@
+"""Shared helpers of the TUI pilot tests (tests/test_tui*.py): the app on the simulator, bounded waits.
+
+pytest-asyncio is not installed: each test runs its coroutine with `asyncio.run`. Every
+wait is bounded in time and count.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from pathlib import Path
+
+from bench.config import parse_config
+from bench.events import RunState
+from run_helpers import config_text
+
+SIZE = (100, 30)
+
+
+def make_config(tmp_path: Path, **kwargs):
+    return parse_config(config_text(**kwargs), source=str(tmp_path / "bench.toml"), base_dir=tmp_path)
+
+
+def make_app(tmp_path: Path, **kwargs):
+    from bench.tui import create_app
+
+    options = dict(config=make_config(tmp_path), sim=True, out_dir=tmp_path, refresh_hz=20.0, poll_s=0.05)
+    options.update(kwargs)
+    return create_app(**options)
+
+
+async def wait_until(pilot, predicate, what: str, timeout_s: float = 15.0, period_s: float = 0.05):
+    """Let the app run until `predicate()` is truthy (bounded in time and count)."""
+    deadline = time.monotonic() + timeout_s
+    for _ in range(int(timeout_s / period_s) + 1):
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            break
+        await pilot.pause(period_s)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+
+
+async def press(pilot, key: str) -> None:
+    """Send a key without waiting for the process to go idle: `Pilot.press` waits up to 2 s per
+    key for that, and the simulator keeps the process busy."""
+    pilot.app.simulate_key(key)
+    await pilot.pause(0.05)
+
+
+async def submit(pilot, dialog) -> None:
+    """Enter in the go-to dialog's first field (what the Move button does)."""
+    dialog.query_one("#goto-outer").focus()
+    await press(pilot, "enter")
+
+
+def run(coro_fn, *args):
+    asyncio.run(coro_fn(*args))
+
+
+def snap(app):
+    return app.buffer.snapshot()
+
+
+def events_text(app) -> str:
+    return "\n".join(app.query_one("#event-log").plain_lines)
+
+
+async def dialog_open(pilot, name: str, child: str):
+    """Wait until dialog `name` is on top with its widgets mounted (`child` is one of them)."""
+    app = pilot.app
+    await wait_until(pilot, lambda: type(app.screen).__name__ == name and app.screen.query(child), f"the {name}")
+    return app.screen
+
+
+async def connected(pilot):
+    app = pilot.app
+    await wait_until(pilot, lambda: app.session.connected and snap(app).table_state is not None
+                     and snap(app).imu.gyro_cps is not None, "connection and first table/IMU data")
+    await pilot.pause(0.1)
+
+
+async def start_plan(pilot):
+    app = pilot.app
+    await press(pilot, "s")
+    await dialog_open(pilot, "ConfirmScreen", "#confirm-body")
+    body = str(app.screen.query_one("#confirm-body").render())
+    assert "ALL THREE AXES" in body and "steps" in body, body
+    await press(pilot, "y")
+    await wait_until(pilot, lambda: snap(app).run_state is RunState.RUNNING, "the run to start")
+
+
+async def wait_ended(pilot):
+    app = pilot.app
+    await wait_until(pilot, lambda: not app.session.running, "the run to end", timeout_s=30.0)
+    await pilot.pause(0.15)
