@@ -39,6 +39,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     validate.add_argument("files", metavar="FILE", nargs="+", help="schedule TOML file(s)")
     validate.set_defaults(func=cmd_validate)
 
+    from bench.schedule_tools_cli import register_tools
+    register_tools(commands)
+
 
 def cmd_list(args: argparse.Namespace) -> int:
     """One line per built-in schedule: name, kind, step count, description."""
