@@ -10,7 +10,9 @@ file that is not MCAP at all raises `LogError` with a one-line message naming th
 
 The raw CAN frames (`/can/raw`) are the source of truth for IMU data:
 `RunLog.imu_samples(layout, rate_hz)` decodes them with the bulk decoder. The decoded
-`/imu/samples` topic (possibly decimated) is parsed on first use of `RunLog.imu_records`.
+`/imu/samples` topic (possibly decimated) is parsed on first use of `RunLog.imu_records`,
+the table states on first use of `RunLog.table_states` (a reader that wants the samples
+does not pay for them; malformed messages found then are added to `damage`).
 The recorder writes `/imu/samples` in chunks of their own, the bulk of a log; `read_log`
 leaves those compressed and unchecked until `RunLog.imu_records` (or
 `RunLog.check_deferred()`) needs them, and adds any damage found then to `damage`
@@ -103,7 +105,6 @@ class RunLog:
     metadata: dict[str, dict[str, str]]
     attachments: dict[str, tuple[str, bytes]]
     events: list[Event]
-    table_states: TableStates
     can_timestamp_s: np.ndarray   # (n,) float64, each frame's own timestamp (run clock)
     can_ids: np.ndarray           # (n,) uint32, bit 31 set = extended id
     can_data: np.ndarray          # (n, 8) uint8 (n, 64 if any frame is longer), zero-padded
@@ -116,12 +117,39 @@ class RunLog:
     chunks: int
     library: str
     _samples: ChannelData | None = field(default=None, repr=False)
+    _states: ChannelData | None = field(default=None, repr=False)
     _decoded: list = field(default_factory=list, repr=False)   # (layout, rate, window, (block, stats))
 
     @property
     def complete(self) -> bool:
         """True when nothing was lost (the file was closed and every record read)."""
         return not self.damage
+
+    @cached_property
+    def table_states(self) -> TableStates:
+        """The `/table/state` topic as arrays (parsed on first use; malformed messages are skipped
+        and counted in `damage`)."""
+        d = self._states
+        if d is None or not len(d):
+            return TableStates.from_dicts([])
+        rows, bad = _parse_json_rows(d)
+        rows = [r for r in rows if r is not None]
+        try:
+            states = TableStates.from_dicts(rows)
+        except (KeyError, TypeError, ValueError):
+            good = []
+            for r in rows:
+                try:
+                    TableStates.from_dicts([r])
+                    good.append(r)
+                except (KeyError, TypeError, ValueError):
+                    bad += 1
+            states = TableStates.from_dicts(good)
+        if bad:
+            damage = Damage("message", 0, f"{bad} malformed {TOPIC_STATE} messages skipped")
+            self.lost.append(damage)
+            self.damage.append(damage.describe())
+        return states
 
     @cached_property
     def imu_records(self) -> ImuRecords:
@@ -413,30 +441,12 @@ def read_log(path, *, defer_samples: bool = True) -> RunLog:
         if bad:
             damage.append(Damage("message", 0, f"{bad} malformed {TOPIC_EVENTS} messages skipped"))
 
-    states = TableStates.from_dicts([])
-    if TOPIC_STATE in by_topic:
-        rows, bad = _parse_json_rows(by_topic[TOPIC_STATE])
-        rows = [r for r in rows if r is not None]
-        try:
-            states = TableStates.from_dicts(rows)
-        except (KeyError, TypeError, ValueError):
-            good = []
-            for r in rows:
-                try:
-                    TableStates.from_dicts([r])
-                    good.append(r)
-                except (KeyError, TypeError, ValueError):
-                    bad += 1
-            states = TableStates.from_dicts(good)
-        if bad:
-            damage.append(Damage("message", 0, f"{bad} malformed {TOPIC_STATE} messages skipped"))
-
     library = w.header.library if w.header is not None else ""
-    return RunLog(path=path, metadata=w.metadata, attachments=w.attachments, events=events, table_states=states,
+    return RunLog(path=path, metadata=w.metadata, attachments=w.attachments, events=events,
                   can_timestamp_s=t, can_ids=ids, can_data=data, can_lengths=lengths, can_flags=flags,
                   summary_present=w.footer is not None and w.statistics is not None,
                   damage=[d.describe() for d in damage], lost=damage, message_counts=counts, chunks=w.chunks,
-                  library=library, _samples=by_topic.get(TOPIC_SAMPLES))
+                  library=library, _samples=by_topic.get(TOPIC_SAMPLES), _states=by_topic.get(TOPIC_STATE))
 
 
 __all__ = ["ImuRecords", "LogError", "RunLog", "TableStates", "read_log"]
