@@ -1,4 +1,7 @@
-"""`bench schedules analyze | search`: first-order sensitivity, noise, duration, Monte Carlo, search."""
+"""`bench schedules analyze | search`: first-order sensitivity, noise, duration, Monte Carlo, search.
+
+`bench schedules recommend` lives in `bench.recommend_cli`; `register_tools` adds it too.
+"""
 
 from __future__ import annotations
 
@@ -28,11 +31,7 @@ def register_tools(commands: argparse._SubParsersAction) -> None:
     an.add_argument("schedule", metavar="NAME|FILE")
     an.add_argument("--dwell-s", type=float, default=60.0, help="dwell per position, s (default 60)")
     an.add_argument("--turn-rate-dps", type=float, default=10.0, help="turn rate, deg/s (default 10)")
-    an.add_argument("--gyro-arw", type=float, default=_DEFAULT_NOISE.gyro_arw_deg_rt_h, help="deg/sqrt(h)")
-    an.add_argument("--acc-vrw", type=float, default=_DEFAULT_NOISE.acc_vrw_ug_rt_hz, help="ug/sqrt(Hz)")
-    an.add_argument("--gyro-bi", type=float, default=_DEFAULT_NOISE.gyro_bias_instability_dph, help="deg/h")
-    an.add_argument("--acc-bi", type=float, default=_DEFAULT_NOISE.acc_bias_instability_ug, help="ug")
-    an.add_argument("--no-quantise", action="store_true", help="leave count quantisation out of the noise")
+    add_noise_arguments(an)
     an.add_argument("--runs", type=int, default=30, help="Monte-Carlo runs per level (default 30)")
     an.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg")
     an.set_defaults(func=cmd_analyze)
@@ -47,6 +46,18 @@ def register_tools(commands: argparse._SubParsersAction) -> None:
     se.add_argument("--choose", type=int, default=12, help=argparse.SUPPRESS)   # tests: groups per schedule
     se.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg")
     se.set_defaults(func=cmd_search)
+
+    from bench.recommend_cli import register_recommend
+    register_recommend(commands)
+
+
+def add_noise_arguments(parser: argparse.ArgumentParser) -> None:
+    """The sensor-noise options (`noise_from_args` reads them); defaults are the simulator's."""
+    parser.add_argument("--gyro-arw", type=float, default=_DEFAULT_NOISE.gyro_arw_deg_rt_h, help="deg/sqrt(h)")
+    parser.add_argument("--acc-vrw", type=float, default=_DEFAULT_NOISE.acc_vrw_ug_rt_hz, help="ug/sqrt(Hz)")
+    parser.add_argument("--gyro-bi", type=float, default=_DEFAULT_NOISE.gyro_bias_instability_dph, help="deg/h")
+    parser.add_argument("--acc-bi", type=float, default=_DEFAULT_NOISE.acc_bias_instability_ug, help="ug")
+    parser.add_argument("--no-quantise", action="store_true", help="leave count quantisation out of the noise")
 
 
 def noise_from_args(args: argparse.Namespace) -> NoiseModel:
