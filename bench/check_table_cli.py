@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import re
-import signal
 import sys
 from pathlib import Path
 
@@ -193,12 +192,12 @@ def _from_log(args, calibration) -> int:
 
 def _live(args, config, plan, sim: bool, calibration) -> int:
     from bench.logread import LogError
-    from bench.progress import ProgressPrinter, hms
+    from bench.progress import hms
+    from bench.run_cli import run_plan
     from bench.runner import BenchRun
     from bench.table_check import TableCheckError
     from bench.table_check_log import analyse_log
     from bench.table_check_report import write_outputs
-    from drivers.errors import ImuError, TurntableError
 
     out_dir = Path(args.out) if args.out else Path(config.output.folder)
     if not args.quiet:
@@ -206,21 +205,9 @@ def _live(args, config, plan, sim: bool, calibration) -> int:
               f"{config.plan.dwell_s:g} s, about {hms(plan.estimated_total_s)} of table time"
               + (" (simulated)" if sim else ""))
     with BenchRun(config, plan, sim=sim, out_dir=out_dir, operator=args.operator) as run:
-        try:
-            run.open()
-        except (TurntableError, ImuError, ValueError, OSError) as exc:
-            return _fail(f"cannot start: {exc}; nothing moved", EXIT_USAGE)
-        progress = ProgressPrinter(plan.steps, quiet=args.quiet, simulated=sim)
-        run.extra_listeners.append(progress)
-        previous_handler = signal.signal(signal.SIGINT, lambda *_: run.abort("interrupted (Ctrl-C)"))
-        try:
-            try:
-                run.run()
-            except TurntableError as exc:
-                return _fail(f"cannot enable the table: {exc}; nothing moved", EXIT_FAULT)
-        finally:
-            signal.signal(signal.SIGINT, previous_handler)
-            progress.close()
+        failed = run_plan(run, quiet=args.quiet, simulated=sim, fail=_fail)
+        if failed is not None:
+            return failed
         seq = run.sequencer
         if seq.error is not None:
             run.recorder.close()

@@ -18,7 +18,8 @@ from bench.progress import ProgressPrinter
 EXIT_OK, EXIT_USAGE, EXIT_INTERRUPTED = 0, 2, 130
 
 
-def _speed(text: str) -> float:
+def speed_factor(text: str) -> float:
+    """argparse type of a `--speed X` option: a positive factor of real time."""
     try:
         value = float(text)
     except ValueError:
@@ -36,7 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "A damaged log replays what is readable. Exit codes: 0 replayed, 2 not a readable run log, "
                     "130 interrupted.")
     parser.add_argument("log", metavar="LOG", help="the run's .mcap file")
-    parser.add_argument("--speed", type=_speed, metavar="X",
+    parser.add_argument("--speed", type=speed_factor, metavar="X",
                         help="X times real time (default: as fast as possible)")
     parser.add_argument("--quiet", action="store_true", help="no progress output (faults and the summary only)")
     parser.set_defaults(func=cmd_replay)

@@ -51,12 +51,38 @@ def compile_from_config(config):
     return compile_plan(p.positions, p.rotations, timing, limits=config.table.limits, order=p.order)
 
 
+def run_plan(run, *, quiet: bool, simulated: bool, fail) -> int | None:
+    """Open `run`'s devices and execute its plan with terminal progress, Ctrl-C aborting it.
+
+    Returns `fail(message, exit code)` when it could not start (EXIT_USAGE, nothing moved)
+    or enable the table (EXIT_FAULT); None once the plan ran (see `run.sequencer` for how
+    it ended)."""
+    from bench.progress import ProgressPrinter
+    from drivers.errors import ImuError, TurntableError
+
+    try:
+        run.open()
+    except (TurntableError, ImuError, ValueError, OSError) as exc:
+        return fail(f"cannot start: {exc}; nothing moved", EXIT_USAGE)
+    progress = ProgressPrinter(run.plan.steps, quiet=quiet, simulated=simulated)
+    run.extra_listeners.append(progress)
+    previous_handler = signal.signal(signal.SIGINT, lambda *_: run.abort("interrupted (Ctrl-C)"))
+    try:
+        try:
+            run.run()
+        except TurntableError as exc:
+            return fail(f"cannot enable the table: {exc}; nothing moved", EXIT_FAULT)
+    finally:
+        signal.signal(signal.SIGINT, previous_handler)
+        progress.close()
+    return None
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from bench.config import ConfigError, default_sim_config, load_config
     from bench.logread import LogError
     from bench.runner import BenchRun, completed_units
     from bench.solver import SolverError
-    from drivers.errors import ImuError, TurntableError
 
     if not args.config and not args.sim:
         return _fail("say --config FILE or --sim", EXIT_USAGE)
@@ -76,23 +102,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     out_dir = Path(args.out) if args.out else Path(config.output.folder)
     with BenchRun(config, plan, sim=sim, out_dir=out_dir, operator=args.operator, completed=completed,
                   previous_logs=previous_logs) as run:
-        try:
-            run.open()
-        except (TurntableError, ImuError, ValueError, OSError) as exc:
-            return _fail(f"cannot start: {exc}; nothing moved", EXIT_USAGE)
-        from bench.progress import ProgressPrinter
-
-        progress = ProgressPrinter(plan.steps, quiet=args.quiet, simulated=sim)
-        run.extra_listeners.append(progress)
-        previous_handler = signal.signal(signal.SIGINT, lambda *_: run.abort("interrupted (Ctrl-C)"))
-        try:
-            try:
-                run.run()
-            except TurntableError as exc:
-                return _fail(f"cannot enable the table: {exc}; nothing moved", EXIT_FAULT)
-        finally:
-            signal.signal(signal.SIGINT, previous_handler)
-            progress.close()
+        failed = run_plan(run, quiet=args.quiet, simulated=sim, fail=_fail)
+        if failed is not None:
+            return failed
         try:
             outcome = run.finish()
         except SolverError as exc:

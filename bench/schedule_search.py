@@ -31,6 +31,7 @@ import numpy as np
 
 from bench.earth import EARTH_RATE, Site
 from bench.kinematics import attitude, frame_axes_in_body
+from bench.sensitivity import probe_boxes
 from bench.units import DEG
 
 #: The 32 inner-symmetric groups: (outer, middle, inner) with the inner angle and +180 deg.
@@ -45,14 +46,6 @@ def group_angles(group) -> np.ndarray:
     return np.array([[o, m, i], [o, m, (i + 180) % 360]], dtype=float)
 
 
-def _probe(h: float) -> np.ndarray:
-    boxes = np.zeros((18, 3, 3))
-    for j in range(9):
-        boxes[j].flat[j] = h
-        boxes[9 + j].flat[j] = -h
-    return boxes
-
-
 def _integer(x: np.ndarray, what: str) -> np.ndarray:
     r = np.rint(x)
     if np.max(np.abs(x - r), initial=0.0) > 1e-6:
@@ -63,7 +56,7 @@ def _integer(x: np.ndarray, what: str) -> np.ndarray:
 def attitude_derivatives(angles_deg) -> np.ndarray:
     """dC_t^b/dtheta_j at a zero black box, (K, 9, 3, 3): integers at positive positions."""
     angles = np.asarray(angles_deg, dtype=float) * DEG
-    c = attitude(angles[None, :, :], _probe(_H)[:, None, :, :])     # (18, K, 3, 3)
+    c = attitude(angles[None, :, :], probe_boxes(_H)[:, None, :, :])     # (18, K, 3, 3)
     return ((c[:9] - c[9:]) / (2 * _H)).transpose(1, 0, 2, 3)
 
 
@@ -332,7 +325,7 @@ def rotation_geometry(turns) -> tuple[np.ndarray, np.ndarray]:
     v = rotation_axes(turns)
     d = []
     for t in turns:
-        ax = frame_axes_in_body(np.asarray(t.start_deg)[None] * DEG, _probe(_H))[:, t.frame_index]  # (18, 3)
+        ax = frame_axes_in_body(np.asarray(t.start_deg)[None] * DEG, probe_boxes(_H))[:, t.frame_index]  # (18, 3)
         d.append(t.sign * (ax[:9] - ax[9:]).T / (2 * _H))
     return (np.concatenate([v, np.ones((len(v), 1), dtype=np.int64)], axis=1),
             _integer(np.array(d), "d(turn axis)/dtheta"))
@@ -343,7 +336,7 @@ def rotation_tables(turns, site: Site | None = None, rate_dps: float = 10.0) -> 
     from bench.closed_form import turn_closed_form
     site = site or Site()
     rot, earth, dur = turn_closed_form(turns, site, rate_dps)
-    rp, ep, _ = turn_closed_form(turns, site, rate_dps, _probe(_H))              # (18, K, 3)
+    rp, ep, _ = turn_closed_form(turns, site, rate_dps, probe_boxes(_H))              # (18, K, 3)
     y = rp + ep
     return np.column_stack([rot + earth, dur]), ((y[:9] - y[9:]) / (2 * _H)).transpose(1, 2, 0)
 

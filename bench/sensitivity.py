@@ -116,7 +116,7 @@ class Sensitivity:
         return out
 
 
-def _probe_boxes(step_rad: float) -> np.ndarray:
+def probe_boxes(step_rad: float) -> np.ndarray:
     """(18, 3, 3): +step then -step on each of the nine angles."""
     boxes = np.zeros((18, 3, 3))
     for j in range(9):
@@ -209,7 +209,7 @@ def position_sensitivity(angles_deg, imu: ImuCoefficients | None = None, site: S
     """First-order sensitivity of D0 (with true Kg/Eg), K0, Ka, Ea to the nine angles."""
     imu = imu or default_sim_imu()
     site = site or Site()
-    solved = solve_positions_batch(angles_deg, _probe_boxes(step_rad), imu, site)
+    solved = solve_positions_batch(angles_deg, probe_boxes(step_rad), imu, site)
     return _sensitivity("positions", POSITION_FAMILIES, solved, imu, step_rad)
 
 
@@ -218,7 +218,7 @@ def rotation_sensitivity(turns, imu: ImuCoefficients | None = None, site: Site |
     """First-order sensitivity of Kg, Eg to the nine angles."""
     imu = imu or default_sim_imu()
     site = site or Site()
-    boxes = _probe_boxes(step_rad)
+    boxes = probe_boxes(step_rad)
     solved = solve_rotations_batch(turns, boxes, imu, site, rate_dps)
     no_earth = solve_rotations_batch(turns, boxes, imu, _NoEarthSite(site), rate_dps)
     geometric = _difference(no_earth, imu, ROTATION_FAMILIES, step_rad)

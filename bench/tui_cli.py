@@ -4,20 +4,11 @@ recorded run (--replay LOG, no hardware)."""
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 
+from bench.replay_cli import speed_factor
+
 EXIT_OK, EXIT_USAGE = 0, 2
-
-
-def _speed(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive factor of real time, got {text!r}")
-    return value
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -30,7 +21,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="the simulator: the built-in simulated bench, or --config's plan and [sim]")
     parser.add_argument("--replay", metavar="LOG",
                         help="replay a run log (.mcap) in the TUI: no hardware; p/r pause and resume the playback")
-    parser.add_argument("--speed", type=_speed, default=1.0, metavar="X",
+    parser.add_argument("--speed", type=speed_factor, default=1.0, metavar="X",
                         help="with --replay: X times real time (default 1)")
     parser.add_argument("--out", metavar="DIR", help="output folder (default: the config's [output] folder)")
     parser.add_argument("--operator", default="", help="who runs it (recorded in the log)")
