@@ -2,7 +2,7 @@
 
 Constants of the MCAP record layout, chunk decompression with CRC checks, the
 plausibility checks used to resynchronise after damage, the vectorised framing of a
-chunk by its message index, and `_Prefetch`, which decompresses and frames chunks on
+chunk by its message index, and `Prefetch`, which decompresses and frames chunks on
 worker threads ahead of the walk (zstd, zlib and numpy release the GIL). Everything
 here is pure: the walk decides what to do with what it returns.
 """
@@ -38,18 +38,18 @@ OP_NAMES = {1: "header", 2: "footer", 3: "schema", 4: "channel", 5: "message", 6
             8: "chunk index", 9: "attachment", 10: "attachment index", 11: "statistics", 12: "metadata",
             13: "metadata index", 14: "summary offset", 15: "data end"}
 
-_RECORD = struct.Struct("<BQ")
-_MESSAGE = struct.Struct("<BQHIQ")     # opcode, length, channel id, sequence, log time
+RECORD_HEAD = struct.Struct("<BQ")
+MESSAGE_HEAD = struct.Struct("<BQHIQ")     # opcode, length, channel id, sequence, log time
 _CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
 _U64 = struct.Struct("<Q")
-_MSG_OFFSET = 9 + 22                   # record header + message header
+MESSAGE_DATA_OFFSET = 9 + 22                   # record header + message header
 
 
 class WalkError(Exception):
     """The file cannot be read as MCAP at all (the caller turns this into its own error)."""
 
 
-def _body_stream(buf, start: int, end: int) -> ReadDataStream:
+def body_stream(buf, start: int, end: int) -> ReadDataStream:
     return ReadDataStream(BytesIO(bytes(buf[start:end])))
 
 
@@ -67,7 +67,7 @@ def _decompress(compression: str, payload, size: int) -> bytes:
     raise ValueError(f"unknown compression {compression!r}")
 
 
-def _inflate(compression: str, payload, size: int, crc: int):
+def inflate_chunk(compression: str, payload, size: int, crc: int):
     """Decompress one chunk and compute its CRC (when it has one and the size is right), in a worker
     thread: (data, computed crc or None, exception or None)."""
     try:
@@ -78,11 +78,11 @@ def _inflate(compression: str, payload, size: int, crc: int):
 
 
 def _inflate_and_frame(compression: str, payload, size: int, crc: int, buf, index: list[tuple[int, int]]):
-    """`_inflate`, then `_index_chunk` on a good chunk with the message index records that follow it."""
-    data, computed, exc = _inflate(compression, payload, size, crc)
+    """`inflate_chunk`, then `index_chunk` on a good chunk with the message index records that follow it."""
+    data, computed, exc = inflate_chunk(compression, payload, size, crc)
     framed = None
     if exc is None and len(data) == size and (crc == 0 or computed == crc):
-        framed = _index_chunk(buf, data, index)
+        framed = index_chunk(buf, data, index)
     return data, computed, exc, framed
 
 
@@ -106,12 +106,12 @@ class DeferredChunk:
     def lengths(self) -> np.ndarray:
         """Payload lengths implied by the offsets (the records tile the chunk; checked by `inflate`)."""
         ends = np.append(self.offsets[1:], self.size).astype(np.int64)
-        return ends - self.offsets.astype(np.int64) - _MSG_OFFSET
+        return ends - self.offsets.astype(np.int64) - MESSAGE_DATA_OFFSET
 
     def inflate(self):
         """(chunk data, payload starts) when the chunk decompresses, passes its CRC and is framed
         exactly by its index; else a reason string."""
-        data, computed, exc = _inflate(self.compression, self.payload, self.size, self.crc)
+        data, computed, exc = inflate_chunk(self.compression, self.payload, self.size, self.crc)
         if exc is not None:
             return f"{self.compression} data cannot be decompressed ({exc})"
         if len(data) != self.size:
@@ -134,14 +134,14 @@ def _deferrable(buf, fields: tuple, index: list[tuple[int, int]], deferred_chann
         return None
     ch, t, o = entries[0]
     usize = fields[2]
-    if not len(o) or int(o[0]) != 0 or int(o[-1]) > usize - _MSG_OFFSET:
+    if not len(o) or int(o[0]) != 0 or int(o[-1]) > usize - MESSAGE_DATA_OFFSET:
         return None
-    if len(o) > 1 and not (np.diff(o.astype(np.int64)) >= _MSG_OFFSET).all():
+    if len(o) > 1 and not (np.diff(o.astype(np.int64)) >= MESSAGE_DATA_OFFSET).all():
         return None
     return ch, t, o
 
 
-class _Prefetch:
+class Prefetch:
     """Decompresses and CRC-checks the chunks ahead of the walk on worker threads (zstd and zlib
     release the GIL, so this uses every core). Chunks are found by following the record framing
     from the start; where that framing breaks the walk resyncs on its own and decompresses inline.
@@ -171,17 +171,17 @@ class _Prefetch:
         self.ahead = workers * self.AHEAD_PER_WORKER
 
     def _scan(self, buf) -> list[tuple]:
-        """(offset, `_chunk_fields`, the message index records right after it) of every chunk; the
+        """(offset, `chunk_fields`, the message index records right after it) of every chunk; the
         channel topics of the channel records outside chunks into `self.topics`."""
         size, pos, found = len(buf), 8, []
         current = None   # the index records of the last chunk, while only such records follow it
         while pos + 9 <= size:
-            op, length = _RECORD.unpack_from(buf, pos)
+            op, length = RECORD_HEAD.unpack_from(buf, pos)
             end = pos + 9 + length
             if op not in OP_NAMES or end > size or op == OP_FOOTER:
                 break
             if op == OP_CHUNK:
-                f = _chunk_fields(buf, pos + 9, length)
+                f = chunk_fields(buf, pos + 9, length)
                 if f is None:
                     break
                 current = []
@@ -193,7 +193,7 @@ class _Prefetch:
                 current = None
                 if op == OP_CHANNEL:
                     try:
-                        c = Channel.read(_body_stream(buf, pos + 9, end))
+                        c = Channel.read(body_stream(buf, pos + 9, end))
                         self.topics.setdefault(c.id, c.topic)
                     except Exception:   # the walk reports a damaged record; here it only defers nothing
                         pass
@@ -227,7 +227,7 @@ class _Prefetch:
             self.futures.clear()
 
 
-def _chunk_fields(buf, body: int, length: int):
+def chunk_fields(buf, body: int, length: int):
     """(start, end, usize, crc, compression, data_start, data_len) of a chunk body, or None if inconsistent."""
     if length < 40:
         return None
@@ -250,11 +250,11 @@ def _plausible_chunk_at(buf, pos: int, size: int) -> bool:
     (length,) = _U64.unpack_from(buf, pos + 1)
     if pos + 9 + length > size:
         return False
-    f = _chunk_fields(buf, pos + 9, length)
+    f = chunk_fields(buf, pos + 9, length)
     return f is not None and f[4] in ("", "zstd", "lz4")
 
 
-def _plausible_record_at(buf, pos: int, size: int) -> bool:
+def plausible_record_at(buf, pos: int, size: int) -> bool:
     if pos == size:
         return True
     if pos + 9 > size:
@@ -262,7 +262,7 @@ def _plausible_record_at(buf, pos: int, size: int) -> bool:
     return buf[pos] in OP_NAMES   # a length past the end is a truncation, told apart by the main loop
 
 
-def _resync(buf, pos: int, size: int) -> int:
+def resync(buf, pos: int, size: int) -> int:
     """The offset of the next plausible chunk record after `pos`, or `size`."""
     p = pos + 1
     while True:
@@ -274,7 +274,7 @@ def _resync(buf, pos: int, size: int) -> int:
         p += 1
 
 
-def _index_chunk(buf, data: bytes, index: list[tuple[int, int]]):
+def index_chunk(buf, data: bytes, index: list[tuple[int, int]]):
     """Vectorised framing of a chunk by its message index records (`(body, end)` offsets in `buf`):
     (offset of the first message, [(channel, payload starts, lengths, log times)] by channel id), or
     False unless the index provably frames every message of the chunk: its records tile the chunk from
@@ -308,7 +308,7 @@ def _index_entries(buf, index: list[tuple[int, int]]):
 
 
 def _frame_by_entries(data: bytes, per_channel: list):
-    """`_index_chunk` for index entries already read (`_index_entries`)."""
+    """`index_chunk` for index entries already read (`_index_entries`)."""
     size = len(data)
     if size < 31:
         return False
@@ -333,6 +333,6 @@ def _frame_by_entries(data: bytes, per_channel: list):
     out, k = [], 0
     for ch, t, offsets in per_channel:
         m = len(offsets)
-        out.append((ch, o_all[k:k + m] + _MSG_OFFSET, length[k:k + m] - 22, t))
+        out.append((ch, o_all[k:k + m] + MESSAGE_DATA_OFFSET, length[k:k + m] - 22, t))
         k += m
     return int(o[0]), out

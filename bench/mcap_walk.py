@@ -30,10 +30,10 @@ import numpy as np
 
 from mcap.records import Attachment, Channel, Footer, Header, Metadata, Schema, Statistics
 
-from bench.mcap_chunks import (MAGIC, OP_ATTACHMENT, OP_CHANNEL, OP_CHUNK, OP_FOOTER, OP_HEADER, OP_MESSAGE,
-                               OP_MESSAGE_INDEX, OP_METADATA, OP_NAMES, OP_SCHEMA, OP_STATISTICS, DeferredChunk,
-                               WalkError, _MESSAGE, _MSG_OFFSET, _Prefetch, _RECORD, _body_stream, _chunk_fields,
-                               _index_chunk, _inflate, _plausible_record_at, _resync)
+from bench.mcap_chunks import (MAGIC, MESSAGE_DATA_OFFSET, MESSAGE_HEAD, OP_ATTACHMENT, OP_CHANNEL, OP_CHUNK,
+                               OP_FOOTER, OP_HEADER, OP_MESSAGE, OP_MESSAGE_INDEX, OP_METADATA, OP_NAMES, OP_SCHEMA,
+                               OP_STATISTICS, RECORD_HEAD, DeferredChunk, Prefetch, WalkError, body_stream,
+                               chunk_fields, index_chunk, inflate_chunk, plausible_record_at, resync)
 
 
 def _fmt_range(start_ns: int, end_ns: int) -> str:
@@ -191,8 +191,8 @@ class _Walker:
         self.lost_chunk: Damage | None = None   # message index records after a lost chunk count its messages
         self.pending = None                     # a good chunk waiting for its message index records
         self.pending_index: list[tuple[int, int]] = []
-        self.prefetch: _Prefetch | None = None
-        self.framed = None   # (message index records, `_index_chunk` answer) of the pending chunk, from a worker
+        self.prefetch: Prefetch | None = None
+        self.framed = None   # (message index records, `index_chunk` answer) of the pending chunk, from a worker
 
     def channel_data(self, channel_id: int) -> ChannelData:
         d = self.w.data.get(channel_id)
@@ -201,7 +201,7 @@ class _Walker:
         return d
 
     def run(self) -> Walk:
-        self.prefetch = _Prefetch(self.buf, defer_topics=self.defer_topics)
+        self.prefetch = Prefetch(self.buf, defer_topics=self.defer_topics)
         try:
             return self._run()
         finally:
@@ -215,24 +215,24 @@ class _Walker:
         if size < 8 or buf[:8] != MAGIC:
             raise WalkError("not an MCAP file (no MCAP magic at the start)")
         pos = 8
-        if size < 17 or buf[8] != OP_HEADER or not _plausible_record_at(buf, 8, size):
+        if size < 17 or buf[8] != OP_HEADER or not plausible_record_at(buf, 8, size):
             raise WalkError("not a readable MCAP file (no header record after the magic)")
         while pos < size:
             if size - pos < 9:
                 w.damage.append(Damage("truncated", size, f"a record header at byte {pos} is incomplete"))
                 break
-            op, length = _RECORD.unpack_from(buf, pos)
+            op, length = RECORD_HEAD.unpack_from(buf, pos)
             body, end = pos + 9, pos + 9 + length
             if op != OP_MESSAGE_INDEX or end > size:
                 self.finish_chunk()
             if op not in OP_NAMES:
-                nxt = _resync(buf, pos, size)
+                nxt = resync(buf, pos, size)
                 w.damage.append(Damage("corrupt", pos, f"unreadable record (opcode {op:#x}); bytes {pos}..{nxt} "
                                                        f"skipped" + (" to the next chunk" if nxt < size else "")))
                 pos = nxt
                 continue
             if end > size:
-                nxt = _resync(buf, pos, size)
+                nxt = resync(buf, pos, size)
                 if nxt == size:   # nothing readable follows: the file was cut off here
                     self.truncated(op, pos, body, length)
                     break
@@ -248,7 +248,7 @@ class _Walker:
                 break
             if op == OP_CHUNK:
                 if not self.chunk(pos, body, length):
-                    nxt = end if _plausible_record_at(buf, end, size) else _resync(buf, pos, size)
+                    nxt = end if plausible_record_at(buf, end, size) else resync(buf, pos, size)
                     pos = nxt
                     continue
             else:
@@ -256,8 +256,8 @@ class _Walker:
                     self.record(op, pos, body, end)
                 except Exception as exc:   # a damaged record body: skip it, say so
                     w.damage.append(Damage("corrupt", pos, f"{OP_NAMES[op]} record unreadable ({exc}); skipped"))
-            if not _plausible_record_at(buf, end, size):
-                nxt = _resync(buf, end, size)
+            if not plausible_record_at(buf, end, size):
+                nxt = resync(buf, end, size)
                 w.damage.append(Damage("corrupt", end, f"unreadable record after byte {end}; bytes {end}..{nxt} "
                                                        f"skipped" + (" to the next chunk" if nxt < size else "")))
                 end = nxt
@@ -274,7 +274,7 @@ class _Walker:
     def footer(self, pos: int, body: int, end: int) -> None:
         w, buf = self.w, self.buf
         try:
-            w.footer = footer = Footer.read(_body_stream(buf, body, end))
+            w.footer = footer = Footer.read(body_stream(buf, body, end))
         except Exception as exc:
             w.damage.append(Damage("corrupt", pos, f"footer record unreadable ({exc})"))
             return
@@ -298,16 +298,17 @@ class _Walker:
     def record(self, op: int, pos: int, body: int, end: int) -> None:
         w, buf = self.w, self.buf
         if op == OP_HEADER:
-            w.header = Header.read(_body_stream(buf, body, end))
+            w.header = Header.read(body_stream(buf, body, end))
         elif op == OP_SCHEMA:
-            s = Schema.read(_body_stream(buf, body, end))
+            s = Schema.read(body_stream(buf, body, end))
             w.schemas.setdefault(s.id, s)
         elif op == OP_CHANNEL:
-            c = Channel.read(_body_stream(buf, body, end))
+            c = Channel.read(body_stream(buf, body, end))
             w.channels.setdefault(c.id, c)
         elif op == OP_MESSAGE:   # a message outside any chunk (unchunked files)
-            _, _, ch, _, log_time = _MESSAGE.unpack_from(buf, pos)
-            self.channel_data(ch).add(bytes(buf[pos + _MSG_OFFSET:end]), [end - pos - _MSG_OFFSET], [log_time])
+            _, _, ch, _, log_time = MESSAGE_HEAD.unpack_from(buf, pos)
+            start = pos + MESSAGE_DATA_OFFSET
+            self.channel_data(ch).add(bytes(buf[start:end]), [end - start], [log_time])
         elif op == OP_MESSAGE_INDEX:
             if self.pending is not None:
                 self.pending_index.append((body, end))
@@ -315,17 +316,17 @@ class _Walker:
                 ch, n = struct.unpack_from("<HI", buf, body)
                 self.lost_chunk.lost[w.topic(ch)] = n // 16
         elif op == OP_METADATA:
-            m = Metadata.read(_body_stream(buf, body, end))
+            m = Metadata.read(body_stream(buf, body, end))
             w.metadata[m.name] = m.metadata
         elif op == OP_ATTACHMENT:
-            a = Attachment.read(_body_stream(buf, body, end))
+            a = Attachment.read(body_stream(buf, body, end))
             (crc,) = struct.unpack_from("<I", buf, end - 4)
             if crc != 0 and zlib.crc32(buf[body:end - 4]) != crc:
                 w.damage.append(Damage("attachment", pos, f"attachment {a.name!r} fails its CRC check; dropped"))
             else:
                 w.attachments[a.name] = (a.media_type, a.data)
         elif op == OP_STATISTICS:
-            w.statistics = Statistics.read(_body_stream(buf, body, end))
+            w.statistics = Statistics.read(body_stream(buf, body, end))
         if op != OP_MESSAGE_INDEX and op != OP_CHUNK:
             self.lost_chunk = None
 
@@ -333,7 +334,7 @@ class _Walker:
         """Read one chunk record; False when its framing is broken (the caller re-syncs)."""
         buf, w = self.buf, self.w
         self.lost_chunk = None
-        f = _chunk_fields(buf, body, length)
+        f = chunk_fields(buf, body, length)
         if f is None:
             w.damage.append(Damage("chunk", pos, "chunk header inconsistent"))
             self.lost_chunk = w.damage[-1]
@@ -350,7 +351,7 @@ class _Walker:
         if done is not None:
             data, computed, exc, self.framed = done
         else:
-            data, computed, exc = _inflate(compression, memoryview(buf)[dstart:dstart + dlen], usize, crc)
+            data, computed, exc = inflate_chunk(compression, memoryview(buf)[dstart:dstart + dlen], usize, crc)
             self.framed = None
         if isinstance(exc, WalkError):
             raise exc
@@ -402,9 +403,9 @@ class _Walker:
         self.w.damage.append(Damage("chunk", pos, reason, start, end))
 
     def chunk_by_index(self, data: bytes, index: list[tuple[int, int]], framed=None) -> bool:
-        """Gathering with the chunk's message index (`framed`: `_index_chunk`'s answer when a worker
+        """Gathering with the chunk's message index (`framed`: `index_chunk`'s answer when a worker
         already has it); False (nothing kept) unless the index provably frames every record."""
-        framed = _index_chunk(self.buf, data, index) if framed is None else framed
+        framed = index_chunk(self.buf, data, index) if framed is None else framed
         if framed is False:
             return False
         first, per_channel = framed
@@ -418,7 +419,7 @@ class _Walker:
     def chunk_records(self, data: bytes, messages: bool = True) -> str | None:
         """Gather the chunk's records; a reason string if its content is malformed (nothing kept then),
         or (with `messages` False) if it holds a message."""
-        unpack_msg, unpack_rec = _MESSAGE.unpack_from, _RECORD.unpack_from
+        unpack_msg, unpack_rec = MESSAGE_HEAD.unpack_from, RECORD_HEAD.unpack_from
         size = len(data)
         view = memoryview(data)
         slices: dict[int, tuple[list, list, list]] = {}
@@ -440,7 +441,7 @@ class _Walker:
                 s = slices.get(ch)
                 if s is None:
                     s = slices[ch] = ([], [], [])
-                s[0].append(view[q + _MSG_OFFSET:end])
+                s[0].append(view[q + MESSAGE_DATA_OFFSET:end])
                 s[1].append(ln - 22)
                 s[2].append(log_time)
             elif op in (OP_SCHEMA, OP_CHANNEL):
@@ -449,10 +450,10 @@ class _Walker:
         for op, q, end in others:
             try:
                 if op == OP_SCHEMA:
-                    s = Schema.read(_body_stream(data, q + 9, end))
+                    s = Schema.read(body_stream(data, q + 9, end))
                     self.w.schemas.setdefault(s.id, s)
                 else:
-                    c = Channel.read(_body_stream(data, q + 9, end))
+                    c = Channel.read(body_stream(data, q + 9, end))
                     self.w.channels.setdefault(c.id, c)
             except Exception as exc:
                 return f"malformed {OP_NAMES[op]} record in the chunk ({exc})"
