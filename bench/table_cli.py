@@ -8,6 +8,7 @@ link fails, or the command was interrupted (the table is then commanded to stop)
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import threading
 from urllib.parse import urlsplit
@@ -236,6 +237,9 @@ def cmd_sim_table(args: argparse.Namespace) -> int:
     black_box = np.random.default_rng(args.seed).normal(0.0, args.black_box_arcsec * ARCSEC, (3, 3))
     controller = SimController(SimTable(site, black_box_rad=black_box))
     closers: list = []
+    # Ctrl-C (SIGINT) stops the server even when it was started with SIGINT ignored, as a
+    # shell does for `bench sim table ... &` in a script.
+    previous_handler = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         for where in args.listen:
             address = _listen(controller, args.dialect, where, closers)
@@ -254,6 +258,7 @@ def cmd_sim_table(args: argparse.Namespace) -> int:
         print("bench sim table: stopped", file=sys.stderr)
         return EXIT_OK
     finally:
+        signal.signal(signal.SIGINT, previous_handler)
         for close in reversed(closers):
             close()
     return EXIT_OK

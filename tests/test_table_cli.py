@@ -112,3 +112,22 @@ def test_unreachable_controller_and_usage_errors(capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(["sim", "table", "--dialect", "nope", "--listen", "pty"])
     assert exit_info.value.code == 2
+
+
+def test_sim_table_stops_on_sigint_even_when_started_with_sigint_ignored():
+    # A shell starts `bench sim table ... &` in a script with SIGINT ignored; Ctrl-C/SIGINT must still stop it.
+    proc = subprocess.Popen([sys.executable, "-m", "bench.cli", "sim", "table", "--dialect", "scpi", "--listen",
+                             "tcp://127.0.0.1:0"], cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    try:
+        assert "listening on" in proc.stdout.readline()
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=10) == 0
+        assert "stopped" in proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=5)
+        for stream in (proc.stdin, proc.stdout, proc.stderr):
+            stream.close()
