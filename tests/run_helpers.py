@@ -2,7 +2,7 @@
 
 A short plan (optimal-24 + optimal-5s6r, 3 s dwells, 50 Hz IMU) keeps one simulated run
 at a few seconds of wall time; runs are driven through the CLI in-process
-(`bench.cli.main`), as a subprocess (for signals) or through `BenchRun` (for fault
+(`bench.cli.main.main`), as a subprocess (for signals) or through `BenchRun` (for fault
 injection from a listener).
 """
 
@@ -23,12 +23,12 @@ from typing import Callable
 
 from mcap.reader import make_reader
 
-from bench.calibrate import solve
-from bench.config import parse_config
-from bench.events import RunListener
-from bench.imu_model import NoiseModel, family
-from bench.run_cli import compile_from_config
-from bench.runner import BenchRun
+from bench.solve.calibrate import solve
+from bench.config.load import parse_config
+from bench.plan.events import RunListener
+from bench.model.imu import NoiseModel, family
+from bench.cli.run import compile_from_config
+from bench.run.runner import BenchRun
 from bench.sim.acquire import AcquisitionTiming, acquire
 from bench.sim.imu import SimImu
 from bench.sim.table import SimTable
@@ -173,7 +173,7 @@ def api_run(text: str, out_dir: Path, *listeners: RunListener):
 
 def cli(argv: list[str]) -> tuple[int, str, str]:
     """`bench ...` in-process: (exit code, stdout, stderr)."""
-    from bench.cli import main
+    from bench.cli.main import main
 
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
@@ -281,8 +281,8 @@ def load_json(path: Path) -> dict:
 def kill_run_after_units(config: Path, out: Path, units: int = 5) -> tuple[Path, dict]:
     """Start `bench run --config` as a process, SIGKILL it once its log holds `units` finished
     observation steps; returns the killed log and those steps (unit -> events)."""
-    from bench.extract import finished_observation_steps
-    from bench.logread import LogError, read_log
+    from bench.solve.extract import finished_observation_steps
+    from bench.log.reader import LogError, read_log
 
     seen: dict = {}
 

@@ -5,14 +5,14 @@ import math
 import numpy as np
 import pytest
 
-from bench.calibrate import solve
-from bench.earth import Site
-from bench.imu_model import NoiseModel, canonical_names, default_sim_imu
-from bench.observations import turn_axis_in_body, turn_earth_integral
+from bench.solve.calibrate import solve
+from bench.model.earth import Site
+from bench.model.imu import NoiseModel, canonical_names, default_sim_imu
+from bench.model.observations import turn_axis_in_body, turn_earth_integral
 from bench.sim.acquire import AcquisitionTiming, acquire
 from bench.sim.imu import SimImu
 from bench.sim.table import SimTable
-from bench.units import ARCSEC, DEG_PER_HOUR, MICRO_G
+from bench.model.units import ARCSEC, DEG_PER_HOUR, MICRO_G
 from schedules import load_builtin
 from tests.test_solver import assert_recovered
 

@@ -10,7 +10,7 @@ import can
 import numpy as np
 import pytest
 
-from bench.imu_model import NoiseModel, default_sim_imu
+from bench.model.imu import NoiseModel, default_sim_imu
 from bench.sim.can_imu import SimCanImu
 from bench.sim.controller import SimController
 from bench.sim.imu import SimImu

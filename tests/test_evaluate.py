@@ -6,12 +6,12 @@ import math
 import numpy as np
 import pytest
 
-from bench.cli import main
-from bench.earth import Site
-from bench.evaluate import (POSITION_KEYS, ROTATION_KEYS, builtin_schedules, draw_black_boxes, evaluate,
+from bench.cli.main import main
+from bench.model.earth import Site
+from bench.schedule_design.monte_carlo import (POSITION_KEYS, ROTATION_KEYS, builtin_schedules, draw_black_boxes, evaluate,
                             paper_value, position_errors)
-from bench.imu_model import default_sim_imu
-from bench.units import ARCSEC
+from bench.model.imu import default_sim_imu
+from bench.model.units import ARCSEC
 from schedules import load_builtin
 
 

@@ -9,10 +9,10 @@ import random
 import numpy as np
 import pytest
 
-from bench.motion import trapezoid_timing
-from bench.plan import CompiledPlan, PlanError, PlanTiming, compile_plan, format_hms
-from bench.plan_order import _exact_order, _path_cost, order_units
-from bench.steps import DwellStep, MoveStep, SettleStep, TurnStep
+from bench.model.motion import trapezoid_timing
+from bench.plan.compiler import CompiledPlan, PlanError, PlanTiming, compile_plan, format_hms
+from bench.plan.order import _exact_order, _path_cost, order_units
+from bench.plan.steps import DwellStep, MoveStep, SettleStep, TurnStep
 from drivers.turntable.base import AxisLimits, TurntableLimits
 from schedules import load_builtin, parse_schedule
 
@@ -240,7 +240,7 @@ def test_exact_order_matches_brute_force():
 def test_heuristic_finds_the_optimum_on_small_sets(seed):
     rng = random.Random(seed)
     angles, start = _random_instance(rng, 9)
-    from bench.plan import _build_units, _Motion, _static_costs
+    from bench.plan.compiler import _build_units, _Motion, _static_costs
     limits = TurntableLimits()
     motion = _Motion(TIMING, limits)
     units, _ = _build_units(positions_schedule(angles, kind="positions"), None, TIMING, limits)
@@ -265,7 +265,7 @@ def test_heuristic_on_random_asymmetric_matrices():
 
 
 def test_static_costs_match_the_walk_for_continuous_axes(optimal):
-    from bench.plan import _build_units, _Motion, _static_costs, _walk
+    from bench.plan.compiler import _build_units, _Motion, _static_costs, _walk
     limits = TurntableLimits()
     motion = _Motion(TIMING, limits)
     units, rot_units = _build_units(*optimal, TIMING, limits)

@@ -1,4 +1,4 @@
-"""Plan recommender: `bench.recommend` and `bench schedules recommend`."""
+"""Plan recommender: `bench.schedule_design.recommend` and `bench schedules recommend`."""
 
 from __future__ import annotations
 
@@ -8,18 +8,18 @@ import re
 import numpy as np
 import pytest
 
-from bench.config import SIM_CONFIG_TOML, parse_config
-from bench.evaluate import position_errors
-from bench.imu_model import NoiseModel, default_sim_imu
-from bench.earth import Site
-from bench.plan import PlanTiming, compile_plan
-from bench.recommend import (FAMILIES, PointingLevel, RecommendError, load_table_check, plan_snippet,
+from bench.config.load import SIM_CONFIG_TOML, parse_config
+from bench.schedule_design.monte_carlo import position_errors
+from bench.model.imu import NoiseModel, default_sim_imu
+from bench.model.earth import Site
+from bench.plan.compiler import PlanTiming, compile_plan
+from bench.schedule_design.recommend import (FAMILIES, PointingLevel, RecommendError, load_table_check, plan_snippet,
                              pointing_from_table_check, recommend)
-from bench.run_cli import compile_from_config
-from bench.sensitivity import position_sensitivity
-from bench.table_check import Conversion, estimate, horizontal_force
-from bench.table_check_log import TableCheckAnalysis
-from bench.units import ARCSEC
+from bench.cli.run import compile_from_config
+from bench.schedule_design.sensitivity import position_sensitivity
+from bench.table_check.estimate import Conversion, estimate, horizontal_force
+from bench.table_check.from_log import TableCheckAnalysis
+from bench.model.units import ARCSEC
 from run_helpers import cli
 from schedules import ScheduleError, builtin_path, load_builtin
 
@@ -278,7 +278,7 @@ def test_an_unwritable_config_path_is_a_one_line_error(tmp_path):
 def test_schedule_errors_propagate_from_candidate_files(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("name = 3\n", encoding="utf-8")
-    from bench.recommend import resolve_candidates
+    from bench.schedule_design.recommend import resolve_candidates
 
     with pytest.raises(ScheduleError):
         resolve_candidates([str(bad)])

@@ -14,10 +14,10 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
-from bench.events import Event
-from bench.kinematics import rot_y, rot_z
-from bench.logread import LogError, read_log
-from bench.recorder import (CAN_ENCODING, CHANNELS, FLAG_ERROR, FLAG_FD, FLAG_REMOTE, McapRecorder, RecorderError,
+from bench.plan.events import Event
+from bench.model.kinematics import rot_y, rot_z
+from bench.log.reader import LogError, read_log
+from bench.log.recorder import (CAN_ENCODING, CHANNELS, FLAG_ERROR, FLAG_FD, FLAG_REMOTE, McapRecorder, RecorderError,
                             frame_quaternions)
 from drivers.imu import ImuEncoder, decode_frames, default_layout
 from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
@@ -453,7 +453,7 @@ def test_a_corrupt_record_header_resyncs_at_the_next_chunk(chunked_log, tmp_path
 
 
 def test_good_chunks_are_gathered_through_their_message_index(chunked_log, monkeypatch):
-    import bench.mcap_walk as mw
+    import bench.log.walk as mw
     walked = []
     original = mw._Walker.chunk_records
 

@@ -18,12 +18,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bench.imu_model import canonical_names
-from bench.logread import read_log
-from bench.plots import envelope, inline_svg
-from bench.report import compare_results, markdown_report, write_reports
-from bench.report_html import html_report, log_damage, log_series
-from bench.result import CalibrationResult
+from bench.model.imu import canonical_names
+from bench.log.reader import read_log
+from bench.report.plots import envelope, inline_svg
+from bench.report.markdown import compare_results, markdown_report, write_reports
+from bench.report.html import html_report, log_damage, log_series
+from bench.model.result import CalibrationResult
 from run_helpers import cli, config_text, only_file
 
 #: Elements without an end tag in HTML.

@@ -20,13 +20,13 @@ import numpy as np
 import pytest
 
 import bench
-from bench.config import parse_config
-from bench.extract import finished_observation_steps
-from bench.imu_model import canonical_names, default_sim_imu, family
-from bench.logread import read_log
-from bench.run_cli import compile_from_config
-from bench.runner import BenchRun
-from bench.sequencer import RunAborted
+from bench.config.load import parse_config
+from bench.solve.extract import finished_observation_steps
+from bench.model.imu import canonical_names, default_sim_imu, family
+from bench.log.reader import read_log
+from bench.cli.run import compile_from_config
+from bench.run.runner import BenchRun
+from bench.run.sequencer import RunAborted
 from drivers.errors import TurntableEStop, TurntableFault, TurntableTimeout
 from drivers.imu import DEFAULT_DBC
 from drivers.turntable import AxisStatus

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from bench.cli import main
-from bench.imu_model import ImuCoefficients, NoiseModel
-from bench.sensitivity import (ANGLE_NAMES, position_noise_sigma, position_sensitivity, rotation_noise_sigma,
+from bench.cli.main import main
+from bench.model.imu import ImuCoefficients, NoiseModel
+from bench.schedule_design.sensitivity import (ANGLE_NAMES, position_noise_sigma, position_sensitivity, rotation_noise_sigma,
                                rotation_sensitivity)
-from bench.solver import SolverError
+from bench.solve.methods import SolverError
 from schedules import load_builtin
 
 IDEAL = ImuCoefficients.ideal()
@@ -68,16 +68,16 @@ def test_traditional_3s6r_leaves_first_order_axis_terms_and_all_96_cancels_all_b
 
 def test_sensitivity_matches_a_monte_carlo_difference_at_small_angles():
     # Linear prediction vs the actual solve at a 0.5 arcsec black box on one angle.
-    from bench.earth import Site
-    from bench.sensitivity import solve_positions_batch
-    from bench.units import ARCSEC, G0
+    from bench.model.earth import Site
+    from bench.schedule_design.sensitivity import solve_positions_batch
+    from bench.model.units import ARCSEC, G0
     angles = _angles("traditional-12")
     sens = position_sensitivity(angles)
     box = np.zeros((1, 3, 3))
     box[0, 1, 1] = 0.5 * ARCSEC
-    solved = solve_positions_batch(angles, box, __import__("bench.imu_model", fromlist=["x"]).default_sim_imu(), Site())
+    solved = solve_positions_batch(angles, box, __import__("bench.model.imu", fromlist=["x"]).default_sim_imu(), Site())
     predicted = 0.5 * sens.row("K0_z")[4]
-    actual = (solved["K0"][0, 2] - __import__("bench.imu_model", fromlist=["x"]).default_sim_imu().acc_bias[2]) / G0
+    actual = (solved["K0"][0, 2] - __import__("bench.model.imu", fromlist=["x"]).default_sim_imu().acc_bias[2]) / G0
     assert actual == pytest.approx(predicted, rel=1e-3)
 
 

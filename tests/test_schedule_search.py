@@ -6,14 +6,14 @@ from itertools import combinations
 import numpy as np
 import pytest
 
-from bench.cli import main
-from bench.earth import Site
-from bench.imu_model import ImuCoefficients
-from bench.schedule_search import (POSITION_GROUPS, SCALE_BIAS_ENTRIES, all_rotations, combo_of_angles,
+from bench.cli.main import main
+from bench.model.earth import Site
+from bench.model.imu import ImuCoefficients
+from bench.schedule_design.search import (POSITION_GROUPS, SCALE_BIAS_ENTRIES, all_rotations, combo_of_angles,
                                    combo_of_turns, group_angles, position_combo_sensitivity, position_tables,
                                    search_positions, search_rotations)
-from bench.sensitivity import position_sensitivity, rotation_sensitivity
-from bench.units import ARCSEC, DEG_PER_HOUR, G0
+from bench.schedule_design.sensitivity import position_sensitivity, rotation_sensitivity
+from bench.model.units import ARCSEC, DEG_PER_HOUR, G0
 from schedules import load_builtin, load_schedule
 
 PAPER = combo_of_angles([p.angles_deg for p in load_builtin("optimal-24").positions])

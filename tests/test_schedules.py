@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 import schedules
-from bench import schedules_cli
+from bench.cli import schedules as schedules_cli
 from schedules import ScheduleError, load_builtin, load_schedule, parse_schedule
 
 REPO_ROOT = Path(__file__).resolve().parents[1]

@@ -6,13 +6,13 @@ import io
 
 import pytest
 
-from bench.earth import Site
-from bench.events import RunListener, RunState
-from bench.imu_model import NoiseModel, default_sim_imu
-from bench.progress import ProgressPrinter
-from bench.sequencer import RunAborted, Sequencer, SequencerError, SequencerOptions
+from bench.model.earth import Site
+from bench.plan.events import RunListener, RunState
+from bench.model.imu import NoiseModel, default_sim_imu
+from bench.cli.progress import ProgressPrinter
+from bench.run.sequencer import RunAborted, Sequencer, SequencerError, SequencerOptions
 from bench.sim.world import SimWorld
-from bench.steps import DwellStep, MoveStep, SettleStep, TurnStep
+from bench.plan.steps import DwellStep, MoveStep, SettleStep, TurnStep
 from drivers.errors import ImuTimeout
 from drivers.imu.receiver import ImuReceiver
 from drivers.turntable import open_turntable
@@ -169,8 +169,8 @@ def test_illegal_transitions_are_refused(bench):
 
 def test_progress_plain_lines_and_live_bar():
     plain, live = io.StringIO(), io.StringIO()
-    from bench.events import Event
-    from bench.steps import step_to_dict
+    from bench.plan.events import Event
+    from bench.plan.steps import step_to_dict
 
     printers = [ProgressPrinter(STEPS, plain, live=False), ProgressPrinter(STEPS, live, live=True, simulated=True)]
     events = [Event(0.0, "transition", "run started", "running"),

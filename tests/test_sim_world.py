@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from bench import kinematics
-from bench.earth import Site
-from bench.imu_model import ImuCoefficients, NoiseModel, default_sim_imu
-from bench.motion import trapezoid_timing
+from bench.model import kinematics
+from bench.model.earth import Site
+from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
+from bench.model.motion import trapezoid_timing
 from bench.sim import ImuSamples, SimImu, SimTable, TableLimits
-from bench.units import ARCSEC, DEG, DEG_PER_HOUR, MICRO_G
+from bench.model.units import ARCSEC, DEG, DEG_PER_HOUR, MICRO_G
 
 TWO_PI = 2.0 * math.pi
 

@@ -22,12 +22,12 @@ from mcap.reader import make_reader
 from mcap.records import Chunk
 from mcap.stream_reader import StreamReader
 
-from bench.config import parse_config
-from bench.extract import finished_observation_steps
-from bench.logread import read_log
-from bench.imu_model import canonical_names
-from bench.compare_methods import METHODS
-from bench.resolve import angle_key
+from bench.config.load import parse_config
+from bench.solve.extract import finished_observation_steps
+from bench.log.reader import read_log
+from bench.model.imu import canonical_names
+from bench.solve.compare import METHODS
+from bench.solve.resolve import angle_key
 from run_helpers import cli, config_text, kill_run_after_units, load_json, only_file
 from schedules import load_builtin
 
@@ -38,7 +38,7 @@ FAST = {"settle_s = 1.0": "settle_s = 0.2", "rest_s = 1.0": "rest_s = 0.2",
         "move_rate_dps = 60.0": "move_rate_dps = 90.0", "move_accel_dps2 = 40.0": "move_accel_dps2 = 50.0"}
 FAST_LIMITS = "".join(f"[table.limits.{frame}]\nmax_rate_dps = 150.0\n" for frame in ("outer", "middle", "inner"))
 #: The black-box draw of the all-data run: seed 3 at 60" is a typical one. In the model
-#: (bench.evaluate's closed forms, 200 draws at 60") optimal-5s6r is closer to all-96 than
+#: (bench.schedule_design.monte_carlo's closed forms, 200 draws at 60") optimal-5s6r is closer to all-96 than
 #: traditional-3s6r in 96 % of draws, median ratio 5.6 on the gyro scale factors; this
 #: draw's ratio is 5.3. The other families differ by orders of magnitude in every draw.
 ALL_SEED, ALL_BLACK_BOX_ARCSEC = 3, 60.0
@@ -404,7 +404,7 @@ def test_a_log_cut_mid_chunk_is_read_up_to_the_cut(noisy, damaged_copy, tmp_path
 def test_too_few_turns_left_solve_the_positions_and_say_why_the_turns_are_left_out(noisy):
     """Damage can leave fewer turns than the rotation method needs: the positions are still
     solved, the remaining turns listed as left out with the solver's reason."""
-    from bench.resolve import load_recorded, solve_recorded
+    from bench.solve.resolve import load_recorded, solve_recorded
 
     recorded = load_recorded([noisy.log])
     kept = recorded.extraction.rotations[:2]

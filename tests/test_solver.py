@@ -5,13 +5,13 @@ import json
 import numpy as np
 import pytest
 
-from bench.calibrate import solve
-from bench.closed_form import exact_observations
-from bench.earth import Site
-from bench.imu_model import ImuCoefficients, canonical_names, default_sim_imu, family
-from bench.result import CalibrationResult, ResultFormatError
-from bench.solver import SolverError
-from bench.units import ARCSEC
+from bench.solve.calibrate import solve
+from bench.model.closed_form import exact_observations
+from bench.model.earth import Site
+from bench.model.imu import ImuCoefficients, canonical_names, default_sim_imu, family
+from bench.model.result import CalibrationResult, ResultFormatError
+from bench.solve.methods import SolverError
+from bench.model.units import ARCSEC
 from schedules import load_builtin
 
 SITE = Site(30.27)
@@ -54,7 +54,7 @@ def test_ideal_table_noise_free_exact_recovery(pos_name, rot_name):
 
 
 def test_recovery_with_mounting_rotation():
-    from bench.kinematics import rot_z
+    from bench.model.kinematics import rot_z
     imu = default_sim_imu()
     pos, rot = _schedule("optimal-24", "optimal-5s6r")
     mount = rot_z(np.pi / 2)

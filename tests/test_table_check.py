@@ -1,4 +1,4 @@
-"""Turntable check (issue 7 part 1): `bench.table_check` math and `bench check-table` end to end.
+"""Turntable check (issue 7 part 1): `bench.table_check.estimate` math and `bench check-table` end to end.
 
 The estimator is checked on exact closed-form outputs (any black box is recovered, an
 ideal table reads zero); the simulated runs use a 16-position check (4 outer x 4 inner,
@@ -19,14 +19,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.closed_form import position_outputs
-from bench.earth import Site
-from bench.imu_model import default_sim_imu
-from bench.table_check import (ANGLE_NAMES, COMBINATION_KEYS, TableCheckError, black_box_jacobian,
+from bench.model.closed_form import position_outputs
+from bench.model.earth import Site
+from bench.model.imu import default_sim_imu
+from bench.table_check.estimate import (ANGLE_NAMES, COMBINATION_KEYS, TableCheckError, black_box_jacobian,
                                combination_matrix, estimate, horizontal_force, horizontal_from_counts,
                                observability, true_combinations)
-from bench.units import ARCSEC
-from bench.logread import read_log
+from bench.model.units import ARCSEC
+from bench.log.reader import read_log
 from run_helpers import AT_REST_DPS, cli, config_text, only_file, start_cli, stop_process, transitions, wait_for
 from schedules import load_builtin
 
@@ -246,7 +246,7 @@ def test_log_analysis_gives_the_live_numbers(tilted, tmp_path):
 
 
 def test_log_analysis_with_a_calibration_removes_the_offsets(tilted, tmp_path):
-    from bench.result import CalibrationResult, coefficient_table
+    from bench.model.result import CalibrationResult, coefficient_table
 
     calibration = tmp_path / "sim.result.json"
     CalibrationResult(coefficient_table(default_sim_imu().to_canonical())).save(calibration)

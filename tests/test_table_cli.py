@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from bench.cli import main
+from bench.cli.main import main
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

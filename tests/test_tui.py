@@ -14,9 +14,9 @@ import threading
 import numpy as np
 import pytest
 
-from bench.events import Event, RunState
-from bench.result import CalibrationResult, coefficient_table
-from bench.run_cli import compile_from_config
+from bench.plan.events import Event, RunState
+from bench.model.result import CalibrationResult, coefficient_table
+from bench.cli.run import compile_from_config
 from bench.tui.buffer import STEP_DONE, STEP_FAILED, STEP_PENDING, STEP_RUNNING, ImuScales, UiBuffer, progress
 from drivers.imu import ImuSampleBlock
 from drivers.turntable import AxisMode, AxisState, AxisStatus, TableState

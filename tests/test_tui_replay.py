@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from bench.events import RunState
+from bench.plan.events import RunState
 from bench.tui.buffer import STEP_DONE
 from run_helpers import config_text
 from tui_helpers import SIZE, events_text, press, run, snap, wait_until
@@ -29,7 +29,7 @@ def recorded_log(tmp_path_factory):
 def test_replay_shows_the_recorded_run_and_its_result(recorded_log):
     import json
 
-    from bench.logread import read_log
+    from bench.log.reader import read_log
 
     log_path, result_path = recorded_log
     recorded = read_log(str(log_path))

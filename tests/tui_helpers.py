@@ -10,8 +10,8 @@ import asyncio
 import time
 from pathlib import Path
 
-from bench.config import parse_config
-from bench.events import RunState
+from bench.config.load import parse_config
+from bench.plan.events import RunState
 from run_helpers import config_text
 
 SIZE = (100, 30)

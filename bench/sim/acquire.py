@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.observations import (FRAME_INDEX, PositionObservation, RotationObservation, mean_and_standard_error,
+from bench.model.observations import (FRAME_INDEX, PositionObservation, RotationObservation, mean_and_standard_error,
                                 turn_earth_integral)
 from bench.sim.imu import ImuSamples, SimImu
-from bench.plan import PlanTiming
+from bench.plan.compiler import PlanTiming
 from bench.sim.table import SimTable
 
 

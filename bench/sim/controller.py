@@ -21,7 +21,7 @@ import threading
 from dataclasses import dataclass, field
 
 from bench.sim.table import SimTable
-from bench.units import DEG
+from bench.model.units import DEG
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.turntable.base import FRAMES, AxisLimits, AxisMode, AxisState, AxisStatus, TableState
 

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-from bench.imu_model import ImuCoefficients, NoiseModel
+from bench.model.imu import ImuCoefficients, NoiseModel
 from bench.sim.table import SimTable
-from bench.units import DEG, DEG_PER_HOUR, MICRO_G
+from bench.model.units import DEG, DEG_PER_HOUR, MICRO_G
 
 COUNTER_MODULUS = 2 ** 32
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(3)

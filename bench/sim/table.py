@@ -1,7 +1,7 @@
 """The simulated UOT turntable: true frame motion plus black-box errors (no I/O, no clock).
 
 Each axis (outer, middle, inner) is a sorted list of constant-acceleration
-`bench.motion.Piece`s in rad, rad/s, rad/s^2. Commands take the simulated time `t`
+`bench.model.motion.Piece`s in rad, rad/s, rad/s^2. Commands take the simulated time `t`
 (s) at which they are issued and replace that axis's future from `t` on. Angles are
 absolute and never wrapped; a positive angle rate is the paper's "clockwise", so a CCW
 turn has a negative angle rate (DESIGN section 2).
@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench import kinematics
-from bench.earth import Site
-from bench.motion import Piece, active_piece, sample_pieces, trapezoid_pieces
-from bench.units import DEG
+from bench.model import kinematics
+from bench.model.earth import Site
+from bench.model.motion import Piece, active_piece, sample_pieces, trapezoid_pieces
+from bench.model.units import DEG
 
 FRAMES = kinematics.FRAMES
 

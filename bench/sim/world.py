@@ -21,8 +21,8 @@ import can
 from can.interfaces.virtual import VirtualBus
 import numpy as np
 
-from bench.earth import Site
-from bench.imu_model import ImuCoefficients, NoiseModel
+from bench.model.earth import Site
+from bench.model.imu import ImuCoefficients, NoiseModel
 from bench.sim.can_imu import SimCanImu
 from bench.sim.controller import SimController
 from bench.sim.imu import SimImu

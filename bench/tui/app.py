@@ -345,12 +345,12 @@ def create_app(*, config=None, sim: bool = False, replay: str | Path | None = No
     `out_dir`: where logs and results go (default the config's output folder);
     `auto_connect`: open the devices when the app starts; `refresh_hz`: panel redraws
     per second; `poll_s`: the idle monitor's period; `jog_step_deg`: what [ and ] move.
-    A log that cannot be read raises `bench.logread.LogError`.
+    A log that cannot be read raises `bench.log.reader.LogError`.
     """
     if replay is not None:
         return _create_replay_app(replay, speed, refresh_hz=refresh_hz, jog_step_deg=jog_step_deg, theme=theme)
-    from bench.config import default_sim_config
-    from bench.run_cli import compile_from_config
+    from bench.config.load import default_sim_config
+    from bench.cli.run import compile_from_config
 
     if config is None:
         if not sim:

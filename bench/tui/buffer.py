@@ -16,7 +16,7 @@ from typing import Sequence
 
 import numpy as np
 
-from bench.events import Event, RunListener, RunState
+from bench.plan.events import Event, RunListener, RunState
 
 #: The six IMU channels in display order: gyro x/y/z, accelerometer x/y/z.
 CHANNELS = ("gx", "gy", "gz", "ax", "ay", "az")
@@ -53,7 +53,7 @@ class UiSnapshot:
     current_started_s: float | None
     done_estimated_s: float
     event_count: int                       # events ever added (the UI appends the new ones)
-    result: object | None = None           # bench.result.CalibrationResult
+    result: object | None = None           # bench.model.result.CalibrationResult
     outcome_text: str = ""
 
 
@@ -230,7 +230,7 @@ class ImuScales:
         (the configuration has no nominal scale factors of a real IMU)."""
         if not sim or config is None:
             return cls()
-        from bench.units import DEG, G0
+        from bench.model.units import DEG, G0
 
         imu = config.sim.imu
         return cls(tuple(float(k) * DEG for k in imu.gyro_scale), tuple(float(k) * G0 for k in imu.acc_scale),

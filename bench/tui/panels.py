@@ -16,8 +16,8 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widgets import DataTable, Label, ProgressBar, RichLog, Sparkline, Static
 
-from bench.events import Event, RunState
-from bench.progress import hms
+from bench.plan.events import Event, RunState
+from bench.cli.progress import hms
 from bench.tui.buffer import (CHANNELS, STEP_DONE, STEP_FAILED, STEP_RUNNING, ImuScales, UiSnapshot,
                               progress)
 

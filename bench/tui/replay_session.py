@@ -2,7 +2,7 @@
 
 `ReplaySession` has the `BenchSession` surface the app uses; every hardware command
 (connect, enable, go to, rate, jog, stop, start, abort) is refused with a
-`SessionError` saying so. `bench.replay.replay` plays the log on a session thread at
+`SessionError` saying so. `bench.log.replay.replay` plays the log on a session thread at
 `speed` times real time (None: as fast as the UI takes it), through a `PlaybackClock`
 so that pause/resume hold the playback. When the playback has ended, the result is
 the one `bench run` attached to the log; a log without one is solved as `bench solve`
@@ -61,7 +61,7 @@ class OpenedLog:
     """A run log read for replay, with what the app needs to draw it."""
 
     path: Path
-    log: object                 # bench.logread.RunLog
+    log: object                 # bench.log.reader.RunLog
     steps: tuple
     config: object | None       # the recorded configuration (None if it cannot be rebuilt)
     limits: object              # drivers.turntable.TurntableLimits
@@ -70,9 +70,9 @@ class OpenedLog:
 
 
 def open_log(path: str | Path) -> OpenedLog:
-    """Read `path` for replay; `bench.logread.LogError` if it is not a readable run log."""
-    from bench.logconfig import layout_and_config_from_log, steps_from_log
-    from bench.logread import LogError, read_log
+    """Read `path` for replay; `bench.log.reader.LogError` if it is not a readable run log."""
+    from bench.log.run_info import layout_and_config_from_log, steps_from_log
+    from bench.log.reader import LogError, read_log
     from drivers.turntable import TurntableLimits
 
     log = read_log(str(path))
@@ -94,7 +94,7 @@ def open_log(path: str | Path) -> OpenedLog:
 
 def log_result(opened: OpenedLog):
     """(CalibrationResult or None, one line): the result attached to the log, else a fresh solve."""
-    from bench.result import CalibrationResult, ResultFormatError
+    from bench.model.result import CalibrationResult, ResultFormatError
 
     why = ""
     for name, (_media, data) in sorted(opened.log.attachments.items()):
@@ -104,9 +104,9 @@ def log_result(opened: OpenedLog):
                         f"result attached to the log ({name})")
             except (ResultFormatError, UnicodeDecodeError) as exc:
                 why = f"the attached {name} is unreadable ({exc}); "
-    from bench.logread import LogError
-    from bench.resolve import SolveInputError, load_recorded, solve_recorded
-    from bench.solver import SolverError
+    from bench.log.reader import LogError
+    from bench.solve.resolve import SolveInputError, load_recorded, solve_recorded
+    from bench.solve.methods import SolverError
 
     try:
         resolved = solve_recorded(load_recorded([str(opened.path)], earlier=False))
@@ -131,7 +131,7 @@ class ReplaySession:
         self.join_timeout_s = float(join_timeout_s)
         self.clock = PlaybackClock(clock)
         self.run = None
-        self.stats = None                     # bench.replay.ReplayStats once played
+        self.stats = None                     # bench.log.replay.ReplayStats once played
         self.link = LINK_DISCONNECTED
         self.link_detail = ""
         self._stop = threading.Event()
@@ -168,7 +168,7 @@ class ReplaySession:
         return self._thread
 
     def _body(self) -> None:
-        from bench.replay import replay
+        from bench.log.replay import replay
 
         self.buffer.note("info", f"replaying {self.opened.path.name} (no hardware)")
         try:

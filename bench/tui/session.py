@@ -1,6 +1,6 @@
 """The operator's bench session behind the TUI: devices, an idle monitor, one run at a time (no Textual here).
 
-`BenchSession` owns a `bench.runner.BenchRun` (the same devices, sequencer, recorder
+`BenchSession` owns a `bench.run.runner.BenchRun` (the same devices, sequencer, recorder
 and solve as `bench run`) and adds only what an interactive session needs:
 
 - connect / disconnect (open the devices and the log; close them);
@@ -21,7 +21,7 @@ import threading
 from pathlib import Path
 from typing import Callable, Sequence
 
-from bench.events import RunState
+from bench.plan.events import RunState
 from bench.tui.buffer import UiBuffer
 from drivers.turntable import FRAMES, AxisMode, frame_index
 
@@ -50,8 +50,8 @@ class BenchSession:
         self.operator = operator
         self.poll_s = float(poll_s)
         self.join_timeout_s = float(join_timeout_s)
-        self.run = None                       # bench.runner.BenchRun
-        self.outcome = None                   # bench.runner.RunOutcome of the last run
+        self.run = None                       # bench.run.runner.BenchRun
+        self.outcome = None                   # bench.run.runner.RunOutcome of the last run
         self.link = LINK_DISCONNECTED
         self.link_detail = ""
         self._spent = False                   # the current BenchRun has run: a new run needs a new one
@@ -155,7 +155,7 @@ class BenchSession:
     # -- connect -------------------------------------------------------------------------------
     def connect(self) -> None:
         """Open the devices and the log (blocking; call it off the UI thread). Nothing moves."""
-        from bench.runner import BenchRun
+        from bench.run.runner import BenchRun
 
         with self._lock:
             if self.run is not None:
@@ -316,7 +316,7 @@ class BenchSession:
         return self._worker
 
     def _run_body(self, run) -> None:
-        from bench.solver import SolverError
+        from bench.solve.methods import SolverError
         from drivers.errors import TurntableError
 
         text, result = "", None

@@ -19,7 +19,7 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=7)
     args = parser.parse_args()
 
-    from bench.evaluate import builtin_schedules, evaluate
+    from bench.schedule_design.monte_carlo import builtin_schedules, evaluate
 
     command = [sys.executable, "-m", "bench.cli", "evaluate", "--runs", "100"]
     whole, core = [], []

@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.logread import read_log
+from bench.log.reader import read_log
 
 READ_TARGET, RESOLVE_TARGET_S = 1_000_000, 10.0
 RATE_HZ = 1000.0
@@ -76,8 +76,8 @@ def synthetic_path(cache: Path, args) -> Path:
 def write_synthetic(path: Path, n_samples: int, decimation: int = 1) -> None:
     import can
 
-    from bench.events import Event
-    from bench.recorder import McapRecorder
+    from bench.plan.events import Event
+    from bench.log.recorder import McapRecorder
     from drivers.imu import ImuSampleBlock
     from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
 
@@ -176,7 +176,7 @@ def synthetic(args, cache: Path) -> bool:
 
 # -- the one-hour log ----------------------------------------------------------------------
 def one_hour_config_text(dwell_s: float) -> str:
-    from bench.config import SIM_CONFIG_TOML
+    from bench.config.load import SIM_CONFIG_TOML
 
     text = SIM_CONFIG_TOML.replace("rate_hz = 200.0", "rate_hz = 1000.0").replace("dwell_s = 60.0",
                                                                                   f"dwell_s = {dwell_s:.1f}")
@@ -186,8 +186,8 @@ def one_hour_config_text(dwell_s: float) -> str:
 
 def one_hour_config(out_dir: Path):
     """The default simulated configuration at 1 kHz, dwell stretched so the plan lasts ~1 h."""
-    from bench.config import parse_config
-    from bench.run_cli import compile_from_config
+    from bench.config.load import parse_config
+    from bench.cli.run import compile_from_config
 
     def total(dwell_s: float) -> tuple[float, int]:
         config = parse_config(one_hour_config_text(dwell_s), source=str(out_dir / "bench.toml"), base_dir=out_dir)
@@ -201,7 +201,7 @@ def one_hour_config(out_dir: Path):
 
 
 def build_one_hour(folder: Path) -> Path:
-    from bench.runner import BenchRun
+    from bench.run.runner import BenchRun
 
     folder.mkdir(parents=True, exist_ok=True)
     for old in folder.iterdir():
@@ -223,8 +223,8 @@ def build_one_hour(folder: Path) -> Path:
 
 def resolve(path: Path):
     """What `bench solve LOG` does before writing: read the log, rebuild its configuration, solve."""
-    from bench.config import parse_config
-    from bench.solve_log import solve_logs
+    from bench.config.load import parse_config
+    from bench.solve.from_logs import solve_logs
     from drivers.imu.layout import ImuLayout
 
     log = read_log(path)

@@ -25,7 +25,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
-    from bench.logread import read_log
+    from bench.log.reader import read_log
 
     walls = []
     for _ in range(args.repeats):

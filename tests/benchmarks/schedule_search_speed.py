@@ -2,7 +2,7 @@
 
 import time
 
-from bench.schedule_search import combo_of_angles, combo_of_turns, search_positions, search_rotations
+from bench.schedule_design.search import combo_of_angles, combo_of_turns, search_positions, search_rotations
 from schedules import load_builtin
 
 

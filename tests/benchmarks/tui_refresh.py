@@ -65,8 +65,8 @@ def main() -> int:
     parser.add_argument("--refresh-hz", type=float, default=20.0, help="the app's panel refresh timer (its default)")
     args = parser.parse_args()
 
-    from bench.config import parse_config
-    from bench.logread import read_log
+    from bench.config.load import parse_config
+    from bench.log.reader import read_log
     from bench.tui import create_app
     from run_helpers import config_text
 

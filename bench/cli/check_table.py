@@ -1,0 +1,268 @@
+"""`bench check-table`: measure the turntable's pointing error (paper section 5.1).
+
+Runs a table-check schedule (default `table-check-324`: middle 0, 18 outer x 18 inner
+positions; positions only) on the hardware of `--config` or on the simulator, records
+it to MCAP like `bench run`, then estimates the observable combinations of the nine
+black-box angles from the horizontal accelerometers (`bench.table_check.estimate`) and writes
+`<run-id>.table-check.json`, `.md`, `.html` and two SVG figures. `--log` analyses a
+recorded check without hardware.
+
+Exit codes: 0 done; 1 simulator only: the estimate misses the simulated truth by more
+than 3 sigma; 2 usage or configuration error, a log that cannot be read or is not a
+table check, or the table/IMU cannot be reached (nothing moved); 3 hardware fault or
+aborted (the table is stopped, the log kept); 4 the run finished but the check cannot
+be computed from it or a quality check failed (samples lost, log damaged).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import re
+import sys
+from pathlib import Path
+
+EXIT_OK, EXIT_SIM_MISS, EXIT_USAGE, EXIT_FAULT, EXIT_QUALITY = 0, 1, 2, 3, 4
+DEFAULT_SCHEDULE = "table-check-324"
+DEFAULT_DWELL_S = 10.0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "check-table", help="measure the turntable's pointing error (hardware, simulator or a recorded log)",
+        description="Run the table-check schedule (middle 0, outer x inner positions) and estimate, from the "
+                    "horizontal accelerometers, the observable combinations of the table's nine black-box "
+                    "angles (outer-axis tilt = levelness; inner-axis tilt at middle 0) with 1-sigma "
+                    "uncertainties. Exit codes: 0 done, 1 simulated truth missed by > 3 sigma, 2 usage/"
+                    "configuration error or unusable log (nothing moved), 3 hardware fault or aborted (table "
+                    "stopped), 4 finished but the check cannot be computed or a quality check failed.")
+    source = parser.add_argument_group("what to check (one of)")
+    source.add_argument("--sim", action="store_true",
+                        help="on the simulator: the built-in simulated bench, or --config's table/IMU and [sim]")
+    source.add_argument("--config", metavar="FILE", help="bench configuration of the hardware (or of the simulator)")
+    source.add_argument("--log", metavar="LOG.mcap", help="analyse a recorded table check; nothing moves")
+    parser.add_argument("--schedule", metavar="NAME|FILE", default=DEFAULT_SCHEDULE,
+                        help=f"a 'table-check' schedule (default {DEFAULT_SCHEDULE})")
+    parser.add_argument("--dwell-s", type=float, default=DEFAULT_DWELL_S,
+                        help=f"dwell per position, s (default {DEFAULT_DWELL_S:g})")
+    parser.add_argument("--black-box-arcsec", type=float, metavar="RMS",
+                        help="built-in simulator: draw the nine black-box angles with this RMS (default 20)")
+    parser.add_argument("--seed", type=int, help="built-in simulator: seed of the black box and the noise (default 0)")
+    parser.add_argument("--calibration", metavar="RESULT.json",
+                        help="convert the accelerometers with this calibration's Ka, K0, Ea (default: x and y "
+                             "take the z accelerometer's measured scale)")
+    parser.add_argument("--out", metavar="DIR",
+                        help="output folder (default: the config's [output] folder; with --log next to the log)")
+    parser.add_argument("--operator", default="", help="who runs it (recorded in the log)")
+    parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    parser.set_defaults(func=cmd_check_table)
+
+
+def _fail(message: str, code: int) -> int:
+    print(f"bench check-table: {message}", file=sys.stderr)
+    return code
+
+
+class UsageError(Exception):
+    """A command-line or configuration problem (exit 2)."""
+
+
+def _load_calibration(path: str | None):
+    """The accelerometer model of a result file (gyro part ideal: unused here), or None."""
+    if path is None:
+        return None
+    from bench.model.imu import ImuCoefficients
+    from bench.model.result import CalibrationResult, ResultFormatError
+
+    try:
+        values = CalibrationResult.load(path).values()
+    except OSError as exc:
+        raise UsageError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+    except ResultFormatError as exc:
+        raise UsageError(str(exc)) from exc
+    ideal = ImuCoefficients.ideal().to_canonical()
+    needed = [n for n in ideal if n.split("_")[0] in ("Ka", "K0", "Ea")]
+    missing = [n for n in needed if n not in values]
+    if missing:
+        raise UsageError(f"{path}: the result lacks the accelerometer coefficients {', '.join(missing)}")
+    return ImuCoefficients.from_canonical({**ideal, **{n: values[n] for n in needed}})
+
+
+def _sim_config_text(black_box_arcsec: float | None, seed: int | None) -> str:
+    """The built-in simulator configuration with the black box and seed asked for (recorded in the log)."""
+    from bench.config.load import SIM_CONFIG_TOML
+
+    text = SIM_CONFIG_TOML
+    for key, value in (("black_box_arcsec", black_box_arcsec), ("seed", seed)):
+        if value is None:
+            continue
+        text, n = re.subn(rf"^{key} = .*$", f"{key} = {value!r}", text, count=1, flags=re.M)
+        if n != 1:
+            raise UsageError(f"internal: the built-in simulator configuration has no {key} line")
+    return text
+
+
+def build_config(args: argparse.Namespace):
+    """(config, sim) for a live or simulated check; UsageError on bad arguments or configuration."""
+    from bench.config.load import ConfigError, load_config, parse_config
+
+    if args.black_box_arcsec is not None or args.seed is not None:
+        if args.config:
+            raise UsageError("--black-box-arcsec/--seed set the built-in simulator; with --config set "
+                             "[sim] black_box_arcsec and seed in the file")
+        if not args.sim:
+            raise UsageError("--black-box-arcsec/--seed need --sim")
+        if args.black_box_arcsec is not None and not args.black_box_arcsec >= 0:
+            raise UsageError(f"--black-box-arcsec must be >= 0, got {args.black_box_arcsec:g}")
+        if args.seed is not None and args.seed < 0:
+            raise UsageError(f"--seed must be >= 0, got {args.seed}")
+    try:
+        if args.config:
+            config = load_config(args.config)
+        else:
+            config = parse_config(_sim_config_text(args.black_box_arcsec, args.seed), source="<builtin sim config>")
+    except (ConfigError, ValueError, OSError) as exc:
+        raise UsageError(str(exc)) from exc
+    return config, bool(args.sim or config.table.is_sim)
+
+
+def table_check_plan(config, schedule_spec: str, dwell_s: float):
+    """(config with the table-check schedule as its plan, compiled plan); UsageError when it cannot run."""
+    from bench.plan.compiler import PlanError
+    from bench.cli.run import compile_from_config
+    from schedules import ScheduleError, resolve_schedule
+
+    if not dwell_s > 0:
+        raise UsageError(f"--dwell-s must be positive, got {dwell_s:g}")
+    try:
+        schedule = resolve_schedule(schedule_spec)
+    except ScheduleError as exc:
+        raise UsageError(str(exc)) from exc
+    if schedule.kind != "table-check":
+        raise UsageError(f"schedule {schedule.name!r} is a {schedule.kind!r} schedule; --schedule needs a "
+                         "'table-check' schedule (e.g. table-check-324)")
+    from bench.table_check.estimate import TableCheckError, check_positions
+
+    try:
+        check_positions([p.angles_deg for p in schedule.positions])
+    except TableCheckError as exc:
+        raise UsageError(f"schedule {schedule.name!r}: {exc}") from exc
+    plan_config = dataclasses.replace(config.plan, positions=schedule, rotations=None, dwell_s=float(dwell_s))
+    config = dataclasses.replace(config, plan=plan_config)
+    try:
+        return config, compile_from_config(config)
+    except (PlanError, ValueError) as exc:
+        raise UsageError(str(exc)) from exc
+
+
+def cmd_check_table(args: argparse.Namespace) -> int:
+    chosen = [name for name, on in (("--log", args.log), ("--sim", args.sim), ("--config", args.config)) if on]
+    if not chosen:
+        return _fail("say --config FILE, --sim or --log LOG.mcap", EXIT_USAGE)
+    if args.log and len(chosen) > 1:
+        return _fail(f"--log analyses a recorded check: drop {' and '.join(c for c in chosen if c != '--log')}",
+                     EXIT_USAGE)
+    try:
+        calibration = _load_calibration(args.calibration)
+        if args.log:
+            return _from_log(args, calibration)
+        config, sim = build_config(args)
+        config, plan = table_check_plan(config, args.schedule, args.dwell_s)
+    except UsageError as exc:
+        return _fail(str(exc), EXIT_USAGE)
+    return _live(args, config, plan, sim, calibration)
+
+
+def _from_log(args, calibration) -> int:
+    from bench.log.reader import LogError
+    from bench.table_check.estimate import TableCheckError
+    from bench.table_check.from_log import analyse_log
+
+    if args.black_box_arcsec is not None or args.seed is not None:
+        return _fail("--black-box-arcsec/--seed are for a simulated run, not for --log", EXIT_USAGE)
+    if not Path(args.log).is_file():
+        return _fail(f"{args.log}: no such file", EXIT_USAGE)
+    try:
+        analysis = analyse_log(args.log, calibration=calibration)
+    except (LogError, TableCheckError, OSError) as exc:
+        return _fail(str(exc), EXIT_USAGE)
+    out_dir = Path(args.out) if args.out else Path(args.log).resolve().parent
+    return _report(args, analysis, out_dir)
+
+
+def _live(args, config, plan, sim: bool, calibration) -> int:
+    from bench.log.reader import LogError
+    from bench.cli.progress import hms
+    from bench.cli.run import run_plan
+    from bench.run.runner import BenchRun
+    from bench.table_check.estimate import TableCheckError
+    from bench.table_check.from_log import analyse_log
+    from bench.table_check.report import write_outputs
+
+    out_dir = Path(args.out) if args.out else Path(config.output.folder)
+    if not args.quiet:
+        print(f"table check: {config.plan.positions.name}, {len(config.plan.positions.positions)} positions, dwell "
+              f"{config.plan.dwell_s:g} s, about {hms(plan.estimated_total_s)} of table time"
+              + (" (simulated)" if sim else ""))
+    with BenchRun(config, plan, sim=sim, out_dir=out_dir, operator=args.operator) as run:
+        failed = run_plan(run, quiet=args.quiet, simulated=sim, fail=_fail)
+        if failed is not None:
+            return failed
+        seq = run.sequencer
+        if seq.error is not None:
+            run.recorder.close()
+            return _fail(f"{seq.state.value}: {seq.error}; table stopped. Log: {run.log_path}", EXIT_FAULT)
+        # Not BenchRun.finish(): that solves a calibration. The check reads the log it just wrote.
+        run.recorder.flush()
+        try:
+            analysis = analyse_log(run.log_path, calibration=calibration, still_open=True)
+        except (LogError, TableCheckError) as exc:
+            run.recorder.close()
+            return _fail(f"the run finished but the check cannot be computed: {exc}. Log: {run.log_path}",
+                         EXIT_QUALITY)
+        paths = write_outputs(analysis, out_dir)
+        run.recorder.add_attachment(paths["json"].name, "application/json", paths["json"].read_bytes())
+        run.recorder.close()
+    return _report(args, analysis, out_dir, paths)
+
+
+def format_summary(analysis) -> str:
+    """The result as printed: one line per combination (with the truth on the simulator), then the fit."""
+    from bench.table_check.report import summary_rows
+
+    est = analysis.estimate
+    sim = analysis.black_box_rad is not None
+    head = f"{'combination':<12} {'angles':<20} {'estimate':>10} {'1-sigma':>8}"
+    if sim:
+        head += f" {'truth':>10} {'z':>6}  3-sigma"
+    lines = [f"table check {analysis.run_id}: {len(analysis.labels)} positions; arcsec", head]
+    for row in summary_rows(analysis):
+        line = f"{row[0]:<12} {row[1]:<20} {row[2]:>10} {row[3]:>8}"
+        if sim:
+            line += f" {row[4]:>10} {row[5]:>6}  {'ok' if row[6] == 'yes' else 'MISS'}"
+        lines.append(line)
+    lines.append(f"residual RMS {est.residual_rms_g * 1e6:.3f} ug, reduced chi-square {est.reduced_chi2:.2f}; "
+                 f"offsets x {est.offsets_g[0] * 1e6:.2f} ug, y {est.offsets_g[1] * 1e6:.2f} ug")
+    lines.append("level_*: outer axis tilt from vertical (levelness); inner_*: inner axis tilt against the outer "
+                 "axis at middle 0")
+    return "\n".join(lines)
+
+
+def _report(args, analysis, out_dir: Path, paths: dict | None = None) -> int:
+    from bench.table_check.report import write_outputs
+
+    if paths is None:
+        try:
+            paths = write_outputs(analysis, out_dir)
+        except OSError as exc:
+            return _fail(f"cannot write the report: {exc}", EXIT_USAGE)
+    if not args.quiet:
+        print(format_summary(analysis))
+        for note in analysis.problems + analysis.notes:
+            print(f"note: {note}")
+        print(f"log:    {analysis.log_path}\nresult: {paths['json']}\nreport: {paths['markdown']}, {paths['html']}")
+    if analysis.problems:
+        return _fail("quality check failed: " + "; ".join(analysis.problems), EXIT_QUALITY)
+    if analysis.sim_within_3_sigma is False:
+        return _fail("the estimate misses the simulated table's truth by more than 3 sigma", EXIT_SIM_MISS)
+    return EXIT_OK

@@ -1,0 +1,93 @@
+"""`bench replay LOG.mcap`: play a run log back through the live run's progress output, without hardware.
+
+Exit codes: 0 replayed (a damaged log replays what is readable; the damage is printed
+first, on stderr); 2 the file cannot be read as a run log (one line); 130 stopped by
+Ctrl-C (the summary still says how far it got).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import threading
+
+from bench.cli.progress import ProgressPrinter
+
+EXIT_OK, EXIT_USAGE, EXIT_INTERRUPTED = 0, 2, 130
+
+
+def speed_factor(text: str) -> float:
+    """argparse type of a `--speed X` option: a positive factor of real time."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive factor of real time, got {text!r}")
+    return value
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "replay", help="play a run log back through the progress output (no hardware)",
+        description="Play a run log's events, table states, CAN frames and IMU samples (decoded from the raw "
+                    "frames with the layout recorded in the log) back through the listeners a live run uses. "
+                    "A damaged log replays what is readable. Exit codes: 0 replayed, 2 not a readable run log, "
+                    "130 interrupted.")
+    parser.add_argument("log", metavar="LOG", help="the run's .mcap file")
+    parser.add_argument("--speed", type=speed_factor, metavar="X",
+                        help="X times real time (default: as fast as possible)")
+    parser.add_argument("--quiet", action="store_true", help="no progress output (faults and the summary only)")
+    parser.set_defaults(func=cmd_replay)
+
+
+def _fail(message: str, code: int) -> int:
+    print(f"bench replay: {message}", file=sys.stderr)
+    return code
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from bench.log.run_info import steps_from_log
+    from bench.log.reader import LogError, read_log
+    from bench.log.replay import replay
+
+    try:
+        log = read_log(args.log)
+    except LogError as exc:
+        return _fail(str(exc), EXIT_USAGE)
+    for line in log.damage:
+        print(f"bench replay: damaged log: {line}", file=sys.stderr)
+    try:
+        steps = steps_from_log(log)
+    except LogError as exc:
+        print(f"bench replay: {exc}; progress without step names", file=sys.stderr)
+        steps = ()
+    progress = TolerantProgress(steps, quiet=args.quiet,
+                                simulated=log.metadata.get("run", {}).get("mode") == "simulator")
+    stop = threading.Event()
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, lambda *_: stop.set()) if in_main else None
+    try:
+        if not args.quiet:
+            print(log.summary(), file=sys.stderr, flush=True)
+        stats = replay(log, [progress], speed=args.speed, stop=stop)
+    finally:
+        if in_main:
+            signal.signal(signal.SIGINT, previous)
+    for note in stats.notes:
+        print(f"bench replay: {note}", file=sys.stderr)
+    print(stats.summary())
+    return EXIT_INTERRUPTED if stats.stopped else EXIT_OK
+
+
+class TolerantProgress(ProgressPrinter):
+    """The live progress printer; a step index the recorded plan lacks (damaged metadata) becomes a plain line."""
+
+    def on_event(self, event) -> None:
+        if event.step_index is not None and not 0 <= event.step_index < len(self.steps):
+            if event.kind == "fault" or not self.quiet:
+                self._print(f"{event.kind}: {event.message}")
+            return
+        super().on_event(event)

@@ -1,0 +1,189 @@
+"""`bench schedules analyze | search`: first-order sensitivity, noise, duration, Monte Carlo, search.
+
+`bench schedules recommend` lives in `bench.cli.recommend`; `register_tools` adds it too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+from bench.model.earth import Site
+from bench.model.imu import NoiseModel
+from bench.schedule_design.sensitivity import (ANGLE_NAMES, position_noise_sigma, position_sensitivity, rotation_noise_sigma,
+                               rotation_sensitivity)
+from bench.solve.methods import SolverError
+from schedules import ScheduleError, load_builtin, resolve_schedule
+
+EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
+_DEFAULT_NOISE = NoiseModel()
+
+
+def register_tools(commands: argparse._SubParsersAction) -> None:
+    """Add `analyze` and `search` to the `schedules` command's subparsers."""
+    an = commands.add_parser("analyze", help="first-order black-box sensitivity, noise sigma, duration, Monte Carlo",
+                             description="Analyse a position or rotation schedule: which black-box angles cancel "
+                                         "at first order, the noise-driven 1-sigma per coefficient, the plan "
+                                         "duration and a Monte-Carlo table beside the paper's optimal schedule.")
+    an.add_argument("schedule", metavar="NAME|FILE")
+    an.add_argument("--dwell-s", type=float, default=60.0, help="dwell per position, s (default 60)")
+    an.add_argument("--turn-rate-dps", type=float, default=10.0, help="turn rate, deg/s (default 10)")
+    add_noise_arguments(an)
+    an.add_argument("--runs", type=int, default=30, help="Monte-Carlo runs per level (default 30)")
+    an.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg")
+    an.set_defaults(func=cmd_analyze)
+
+    se = commands.add_parser("search", help="exhaustive search of 24-position and 6-rotation schedules",
+                             description="Enumerate every 24-position schedule of 12 of the 32 inner-symmetric "
+                                         "groups and every 6-rotation set with one +u/-u turn pair per body "
+                                         "axis; count those first-order equivalent to all-64 / all-96.")
+    se.add_argument("--out", metavar="DIR", help="write the best schedules as TOML files here")
+    se.add_argument("--best", type=int, default=3, help="how many of each kind to write (default 3)")
+    se.add_argument("--groups", type=int, default=32, help=argparse.SUPPRESS)   # tests: first N groups only
+    se.add_argument("--choose", type=int, default=12, help=argparse.SUPPRESS)   # tests: groups per schedule
+    se.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg")
+    se.set_defaults(func=cmd_search)
+
+    from bench.cli.recommend import register_recommend
+    register_recommend(commands)
+
+
+def add_noise_arguments(parser: argparse.ArgumentParser) -> None:
+    """The sensor-noise options (`noise_from_args` reads them); defaults are the simulator's."""
+    parser.add_argument("--gyro-arw", type=float, default=_DEFAULT_NOISE.gyro_arw_deg_rt_h, help="deg/sqrt(h)")
+    parser.add_argument("--acc-vrw", type=float, default=_DEFAULT_NOISE.acc_vrw_ug_rt_hz, help="ug/sqrt(Hz)")
+    parser.add_argument("--gyro-bi", type=float, default=_DEFAULT_NOISE.gyro_bias_instability_dph, help="deg/h")
+    parser.add_argument("--acc-bi", type=float, default=_DEFAULT_NOISE.acc_bias_instability_ug, help="ug")
+    parser.add_argument("--no-quantise", action="store_true", help="leave count quantisation out of the noise")
+
+
+def noise_from_args(args: argparse.Namespace) -> NoiseModel:
+    return NoiseModel(args.gyro_arw, args.gyro_bi, args.acc_vrw, args.acc_bi,
+                      _DEFAULT_NOISE.correlation_time_s, not args.no_quantise)
+
+
+def _fmt(value: float, status: str) -> str:
+    return f"{'0':>10}" if status == "0" else f"{value:>9.1e}{'*' if status == 'E' else ' '}"
+
+
+def sensitivity_lines(sens) -> list[str]:
+    """The table: one row per coefficient, one column per black-box angle (display unit per arcsec)."""
+    short = [n.replace("outer", "o").replace("middle", "m").replace("inner", "i").replace("alpha", "a")
+             .replace("beta", "b").replace("gamma", "g") for n in ANGLE_NAMES]
+    lines = [f"{'coef':<7}{'unit/arcsec':<12}" + "".join(f"{s:>10}" for s in short)]
+    status = sens.status()
+    for i, name in enumerate(sens.names):
+        lines.append(f"{name:<7}{sens.units[i]:<12}" + "".join(_fmt(v, st) for v, st in zip(sens.matrix[i], status[i])))
+    lines.append("0 = cancels at first order; * = Earth-rate coupling only (vanishes with the Earth rate, "
+                 "shrinks with faster turns)")
+    for fam, angles in sens.families_remaining().items():
+        geo = [ANGLE_NAMES[j] for j in range(9)
+               if sens.remaining_geometric[[k for k, n in enumerate(sens.names) if n.startswith(fam)], j].any()]
+        lines.append(f"  {fam}: remains {', '.join(geo) if geo else 'nothing'}"
+                     + (f" (+ Earth coupling: {', '.join(a for a in angles if a not in geo)})"
+                        if set(angles) - set(geo) else ""))
+    return lines
+
+
+def cmd_analyze(args: argparse.Namespace) -> int:
+    from bench.schedule_design.monte_carlo import evaluate
+    from bench.plan.compiler import PlanError, PlanTiming, compile_plan, format_hms
+
+    if args.runs < 1 or args.dwell_s <= 0 or args.turn_rate_dps <= 0:
+        print("bench schedules analyze: --runs, --dwell-s and --turn-rate-dps must be positive", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        schedule = resolve_schedule(args.schedule)
+        site = Site(args.latitude)
+    except ScheduleError as exc:
+        print(exc, file=sys.stderr)
+        return EXIT_FAIL
+    except ValueError as exc:
+        print(f"bench schedules analyze: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    noise = noise_from_args(args)
+    rotations = schedule.kind == "rotations"
+    try:
+        if rotations:
+            turns = list(schedule.rotations)
+            sens = rotation_sensitivity(turns, site=site, rate_dps=args.turn_rate_dps)
+            sigma = rotation_noise_sigma(turns, noise, args.turn_rate_dps, site=site)
+        else:
+            angles = np.array([p.angles_deg for p in schedule.positions])
+            sens = position_sensitivity(angles, site=site)
+            sigma = position_noise_sigma(angles, noise, args.dwell_s, site=site)
+    except SolverError as exc:
+        print(f"{schedule.source}: {exc}", file=sys.stderr)
+        return EXIT_FAIL
+    print(f"schedule: {schedule.name} ({schedule.kind}, {len(schedule.steps)} steps) from {schedule.source}")
+    print(f"\nFirst-order sensitivity to the nine black-box angles (simulated IMU, latitude {args.latitude} deg):")
+    for line in sensitivity_lines(sens):
+        print(line)
+    print(f"\nNoise-driven 1-sigma ({'turn rate %g deg/s' % args.turn_rate_dps if rotations else 'dwell %g s' % args.dwell_s}"
+          f"; ARW {noise.gyro_arw_deg_rt_h} deg/rt h, VRW {noise.acc_vrw_ug_rt_hz} ug/rt Hz, bias instability "
+          f"{noise.gyro_bias_instability_dph} deg/h / {noise.acc_bias_instability_ug} ug, "
+          f"quantisation {'on' if noise.quantise else 'off'}):")
+    for name, value in sigma.items():
+        print(f"  {name:<7}{value:.3g} {sens.units[sens.names.index(name)]}")
+    timing = PlanTiming(dwell_s=args.dwell_s, turn_rate_dps=args.turn_rate_dps)
+    try:
+        plan = compile_plan(None if rotations else schedule, schedule if rotations else None, timing)
+        print(f"\nPlan duration estimate: {format_hms(plan.estimated_total_s)} "
+              f"({plan.estimated_total_s:.0f} s; moves {plan.move_total_s:.0f} s)")
+    except PlanError as exc:
+        print(f"\nPlan duration: not compiled ({exc})")
+    reference = "optimal-5s6r" if rotations else "optimal-24"
+    if rotations:
+        table = evaluate({}, {schedule.name: turns, reference: list(load_builtin(reference).rotations)},
+                         runs=args.runs, site=site, rate_dps=args.turn_rate_dps)["rotations"]
+        keys = ("gyro_scale", "gyro_axes")
+    else:
+        ref_angles = np.array([p.angles_deg for p in load_builtin(reference).positions])
+        table = evaluate({schedule.name: angles, reference: ref_angles}, {}, runs=args.runs, site=site)["positions"]
+        keys = ("gyro_bias_dph", "acc_bias_g", "acc_scale", "acc_axes")
+    print(f"\nMonte Carlo ({args.runs} runs per level, black box only; RSS over axes, RMS over runs):")
+    print(f"{'level':>8} {'schedule':<22}" + "".join(f"{k:>15}" for k in keys))
+    for row in table:
+        print(f"{row['level_arcsec']:>7.1f}\" {row['method']:<22}" + "".join(f"{row[k]:>15.3e}" for k in keys))
+    return EXIT_OK
+
+
+def cmd_search(args: argparse.Namespace) -> int:
+    from bench.schedule_design.search import (CRITERIA_TEXT, POSITION_GROUPS, combo_of_angles, combo_of_turns,
+                                       search_positions, search_rotations, write_best)
+    from schedules import load_schedule
+
+    if not 1 <= args.groups <= 32 or not 1 <= args.choose <= args.groups or args.best < 0:
+        print("bench schedules search: need 1 <= --choose <= --groups <= 32 and --best >= 0", file=sys.stderr)
+        return EXIT_USAGE
+    site = Site(args.latitude)
+    started = time.perf_counter()
+    groups = POSITION_GROUPS[:args.groups]
+    pos = search_positions(groups, args.choose, reference_groups=POSITION_GROUPS)
+    rot = search_rotations(site=site)
+    paper_pos = combo_of_angles([p.angles_deg for p in load_builtin("optimal-24").positions], groups)
+    paper_rot = combo_of_turns(load_builtin("optimal-5s6r").rotations, rot.items)
+    for result, label, paper, paper_name in ((pos, f"{2 * args.choose}-position schedules from "
+                                              f"{args.choose} of {len(groups)} inner-symmetric groups",
+                                              paper_pos, "optimal-24 (Table 1)"),
+                                             (rot, "6-rotation sets, one +u/-u pair per body axis "
+                                              f"(from the {len(rot.items)} rotations)", paper_rot,
+                                              "optimal-5s6r (Table 3)")):
+        print(f"{label}: {result.total:,} choices, searched exhaustively in {result.elapsed_s:.1f} s")
+        for text, key in zip(CRITERIA_TEXT[result.kind], "abcd"):
+            print(f"  {result.counts[key]:>13,}  {text}")
+        if result.kind == "rotations":
+            print(f"  {result.counts['earth_free']:>13,}  of (c) with no first-order Earth-rate coupling either")
+        found = paper is not None and any(tuple(sorted(c)) == tuple(sorted(paper)) for c in result.optimal)
+        print(f"  {paper_name}: {'among the optimal' if found else 'NOT among the optimal'}")
+        if args.out and args.best:
+            for path in write_best(result, args.out, args.best):
+                load_schedule(path)  # every written file must load; raises ScheduleError otherwise
+                print(f"  wrote {path}")
+        print()
+    print(f"total {time.perf_counter() - started:.1f} s; criteria are first order at a zero black box with an "
+          "ideal IMU (a real IMU's first-order errors are a linear map of these)")
+    return EXIT_OK

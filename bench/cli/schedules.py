@@ -1,0 +1,124 @@
+"""`bench schedules list | show | validate`: inspect and check schedule files."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+
+from bench.model.kinematics import attitude, axis_along, frame_axes_in_body, pointing_labels
+from schedules import (
+    PositionStep,
+    RotationStep,
+    Schedule,
+    ScheduleError,
+    builtin_names,
+    load_builtin,
+    load_schedule,
+    resolve_schedule,
+)
+
+_AXIS_TOL = 1e-6  # a frame axis within this of a unit body axis counts as along it
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the `schedules` command and its subcommands to a `bench` CLI parser."""
+    parser = subparsers.add_parser("schedules", help="list, show and validate calibration schedules",
+                                   description="List, show and validate calibration schedules.")
+    commands = parser.add_subparsers(dest="schedules_command", metavar="COMMAND", required=True)
+
+    listing = commands.add_parser("list", help="list the built-in schedules")
+    listing.set_defaults(func=cmd_list)
+
+    show = commands.add_parser("show", help="print a schedule step by step with body-axis pointing")
+    show.add_argument("schedule", metavar="NAME|FILE", help="built-in schedule name or schedule file")
+    show.set_defaults(func=cmd_show)
+
+    validate = commands.add_parser("validate", help="check schedule files")
+    validate.add_argument("files", metavar="FILE", nargs="+", help="schedule TOML file(s)")
+    validate.set_defaults(func=cmd_validate)
+
+    from bench.cli.schedule_tools import register_tools
+    register_tools(commands)
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    """One line per built-in schedule: name, kind, step count, description."""
+    loaded = [load_builtin(name) for name in builtin_names()]
+    name_width = max((len(s.name) for s in loaded), default=4)
+    for schedule in loaded:
+        print(f"{schedule.name:<{name_width}}  {schedule.kind:<11}  {len(schedule.steps):>4}  "
+              f"{schedule.description}")
+    return 0
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    """Header, then one line per step (pointing on an ideal table, no mounting rotation)."""
+    try:
+        schedule = resolve_schedule(args.schedule)
+    except ScheduleError as exc:
+        print(exc, file=sys.stderr)
+        return 1
+    for label, value in (("name", schedule.name), ("kind", schedule.kind),
+                         ("description", schedule.description), ("source", schedule.source),
+                         ("reference", schedule.reference or "-"), ("steps", len(schedule.steps))):
+        print(f"{label + ':':<13}{value}")
+    print()
+    for line in format_steps(schedule):
+        print(line)
+    return 0
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    """`OK <file>: ...` per valid file, the one-line error on stderr otherwise; 1 if any failed."""
+    exit_code = 0
+    for path in args.files:
+        try:
+            schedule = load_schedule(path)
+        except ScheduleError as exc:
+            print(exc, file=sys.stderr)
+            exit_code = 1
+            continue
+        print(f"OK {path}: {schedule.name} ({schedule.kind}, {len(schedule.steps)} steps)")
+    return exit_code
+
+
+def format_steps(schedule: Schedule) -> list[str]:
+    """Table lines (column header first) for the steps of `schedule`."""
+    if schedule.kind == "rotations":
+        lines = ["   #  start (o, m, i) deg  body X Y Z  frame   dir  revs  axis"]
+        lines += [_rotation_line(k, step) for k, step in enumerate(schedule.rotations, start=1)]
+    else:
+        lines = ["   #  group  angles (o, m, i) deg  body X Y Z"]
+        lines += [_position_line(k, step) for k, step in enumerate(schedule.positions, start=1)]
+    return lines
+
+
+def format_angles(angles_deg) -> str:
+    """`(  0,  90, 270)`: three right-aligned angles in degrees."""
+    return "(" + ", ".join(f"{a:>3g}" for a in angles_deg) + ")"
+
+
+def pointing(angles_deg) -> str:
+    """Where body X, Y, Z point in ENU letters on an ideal table, e.g. 'S U W'."""
+    return pointing_labels(attitude(np.radians(angles_deg)))
+
+
+def turning_axis_label(step: RotationStep) -> str:
+    """The body axis the turning frame's axis lies along at the start, e.g. '+X', or '?'."""
+    along = axis_along(frame_axes_in_body(np.radians(step.start_deg))[step.frame_index], _AXIS_TOL)
+    if along is None:
+        return "?"
+    k, sign = along
+    return ("+" if sign > 0 else "-") + "XYZ"[k]
+
+
+def _position_line(index: int, step: PositionStep) -> str:
+    group = "-" if step.group is None else str(step.group)
+    return f"{index:>4}  {group:>5}  {format_angles(step.angles_deg):<20}  {pointing(step.angles_deg)}"
+
+
+def _rotation_line(index: int, step: RotationStep) -> str:
+    return (f"{index:>4}  {format_angles(step.start_deg):<19}  {pointing(step.start_deg):<10}  "
+            f"{step.frame:<6}  {step.direction:<3}  {step.revolutions:>4}  {turning_axis_label(step)}")

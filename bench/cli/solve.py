@@ -1,0 +1,119 @@
+"""`bench solve`: re-solve recorded runs from their MCAP logs (logic in `bench.solve.resolve`).
+
+Exit codes: 0 solved (quality checks passed); 2 usage error, a file that cannot be read
+as a run log, or a subset the logs lack; 4 solved but a quality check failed (damage,
+steps left out, outliers; the report says which) or nothing left to solve.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+EXIT_OK, EXIT_USAGE, EXIT_QUALITY = 0, 2, 4
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "solve", help="re-solve a calibration from recorded run logs (all of it, a subset, or compare methods)",
+        description="Extract the observations (position means, rest-to-rest turn integrals) from one or more run "
+                    "logs of one IMU (a resumed run's earlier logs are read too) and solve; write result JSON and "
+                    "report as `bench run` does. Damaged logs are read around the damage and the report lists "
+                    "what was lost. Exit codes: 0 solved, 2 usage error or unreadable log or a subset the log "
+                    "lacks, 4 solved but a quality check failed.")
+    parser.add_argument("logs", nargs="+", metavar="LOG", help="run log(s) (.mcap)")
+    parser.add_argument("--positions", metavar="NAME|FILE",
+                        help="solve only these recorded positions (a schedule: optimal-24, traditional-12, all-64, "
+                             "a file; 'none' for none)")
+    parser.add_argument("--rotations", metavar="NAME|FILE",
+                        help="solve only these recorded rotations (optimal-5s6r, traditional-3s6r, all-96, a file; "
+                             "'none' for none)")
+    parser.add_argument("--compare", metavar="METHODS",
+                        help="solve each method's subset and print its differences from the last one, e.g. "
+                             "optimal,traditional,all (a method is optimal, traditional, all or POSITIONS+ROTATIONS)")
+    parser.add_argument("--json", metavar="FILE", help="with --compare: also write the table as JSON")
+    parser.add_argument("--out", metavar="DIR", help="output folder (default: next to the first log)")
+    parser.add_argument("--against", metavar="OLD.result.json",
+                        help="compare the new result with an earlier result file in the reports")
+    parser.add_argument("--no-html", action="store_true",
+                        help="write the Markdown report only (the HTML report's plots take seconds on a long log)")
+    parser.add_argument("--no-earlier", action="store_true",
+                        help="do not add the earlier logs a resumed log names")
+    parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    parser.set_defaults(func=cmd_solve)
+
+
+def _fail(message: str, code: int) -> int:
+    print(f"bench solve: {message}", file=sys.stderr)
+    return code
+
+
+def cmd_solve(args: argparse.Namespace) -> int:
+    from bench.log.reader import LogError
+    from bench.solve.compare import compare, format_comparison, parse_methods
+    from bench.solve.resolve import SolveInputError, load_recorded, load_subset_schedule, solve_recorded, write_outputs
+    from bench.solve.methods import SolverError
+
+    if args.compare and (args.positions or args.rotations):
+        return _fail("--compare chooses the subsets itself: drop --positions/--rotations", EXIT_USAGE)
+    if args.json and not args.compare:
+        return _fail("--json writes the --compare table: give --compare too", EXIT_USAGE)
+    against = None
+    if args.against:
+        from bench.model.result import CalibrationResult, ResultFormatError
+
+        if args.compare:
+            return _fail("--against is for the reports of a solve, not for --compare", EXIT_USAGE)
+        try:
+            against = CalibrationResult.load(args.against)
+        except OSError as exc:
+            return _fail(f"{args.against}: cannot read: {exc.strerror or exc}", EXIT_USAGE)
+        except ResultFormatError as exc:
+            return _fail(str(exc), EXIT_USAGE)
+    try:
+        methods = parse_methods(args.compare) if args.compare else None
+        positions = load_subset_schedule(args.positions, "positions")
+        rotations = load_subset_schedule(args.rotations, "rotations")
+        recorded = load_recorded(args.logs, earlier=not args.no_earlier)
+        if methods is not None:
+            comparison = compare(recorded, methods)
+        else:
+            resolved = solve_recorded(recorded, positions, rotations)
+    except (LogError, SolveInputError) as exc:
+        return _fail(str(exc), EXIT_USAGE)
+    except SolverError as exc:
+        return _fail(f"cannot be solved: {exc}", EXIT_QUALITY)
+
+    if methods is not None:
+        if not args.quiet:
+            print(format_comparison(comparison), end="")
+        if args.json:
+            try:
+                Path(args.json).write_text(json.dumps(comparison.to_json(), indent=2) + "\n", encoding="utf-8")
+            except OSError as exc:
+                return _fail(f"cannot write {args.json}: {exc.strerror or exc}", EXIT_USAGE)
+            if not args.quiet:
+                print(f"wrote {args.json}")
+        failures = comparison.failures
+    else:
+        out_dir = Path(args.out) if args.out else Path(recorded.logs[0].path).parent
+        try:
+            result_path, report_path, html_path = write_outputs(recorded, resolved, out_dir, html=not args.no_html,
+                                                                against=against,
+                                                                against_label=args.against and Path(args.against).name)
+        except OSError as exc:
+            return _fail(f"cannot write the result: {exc}", EXIT_USAGE)
+        if not args.quiet:
+            extraction = resolved.solution.extraction
+            print(f"solved {recorded.run_id} from {len(recorded.logs)} log(s): {len(extraction.positions)} positions "
+                  f"({resolved.positions or 'none'}), {len(extraction.rotations)} rotations "
+                  f"({resolved.rotations or 'none'})")
+            for note in recorded.notes:
+                print(f"note: {note}")
+            print(f"result: {result_path}\nreport: {report_path}" + (f"\n        {html_path}" if html_path else ""))
+        failures = resolved.failures
+    if failures:
+        return _fail("quality check failed: " + "; ".join(failures), EXIT_QUALITY)
+    return EXIT_OK

@@ -1,0 +1,264 @@
+"""`bench table ...` (manual control of a real or simulated table) and `bench sim table` (serve one).
+
+Exit codes of `bench table`: 0 done; 2 usage error or a demand refused by the limits
+(nothing was sent); 3 the controller reports a fault or e-stop, does not answer, the
+link fails, or the command was interrupted (the table is then commanded to stop).
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from urllib.parse import urlsplit
+
+from drivers.errors import TurntableError, TurntableLimitError
+from drivers.turntable import DIALECTS, FRAMES, AxisStatus, TableState, Turntable, open_turntable
+
+EXIT_OK, EXIT_USAGE, EXIT_FAULT = 0, 2, 3
+
+
+# -- bench table ------------------------------------------------------------------
+
+def register_table(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "table", help="manual control of a turntable: status, enable, goto, rate, stop, abort",
+        description="Talk to a turntable controller. Exit codes: 0 done, 2 usage error or demand beyond "
+                    "the limits (nothing sent), 3 fault, e-stop, no reply, link failure or interrupted.")
+    parser.add_argument("--url", required=True, help="tcp://HOST:PORT, a serial device or pyserial URL, "
+                                                      "modbus+tcp://HOST:PORT, modbus+rtu:///dev/ttyX?baud=N")
+    parser.add_argument("--dialect", choices=sorted(DIALECTS), help="controller dialect (implied by modbus+ URLs)")
+    parser.add_argument("--timeout-s", type=float, default=1.0, help="reply timeout per attempt (default 1 s)")
+    parser.add_argument("--retries", type=int, default=2, help="retries after a timeout or bad reply (default 2)")
+    parser.add_argument("--max-rate-dps", type=float, default=100.0,
+                        help="largest rate this command may demand on any axis (default 100 deg/s)")
+    commands = parser.add_subparsers(dest="table_command", metavar="COMMAND", required=True)
+    commands.add_parser("status", help="print angles, rates, modes and status; exit 3 on a fault")
+    for name, text in (("enable", "servo on"), ("disable", "servo off"), ("reset", "clear latched faults")):
+        p = commands.add_parser(name, help=f"{text} (all frames, or the ones named)")
+        p.add_argument("frames", nargs="*", choices=[*FRAMES, []], metavar="FRAME",
+                       help="outer, middle or inner (default all)")
+    goto = commands.add_parser("goto", help="move to absolute angles (deg) and wait until in position")
+    for frame in FRAMES:
+        goto.add_argument(frame, type=float, help=f"{frame} frame angle, deg")
+    goto.add_argument("--rate-dps", type=float, help="move rate (default --max-rate-dps)")
+    goto.add_argument("--tolerance-deg", type=float, default=0.001, help="in-position tolerance (default 0.001)")
+    goto.add_argument("--settle-s", type=float, default=0.0, help="time in position before done (default 0)")
+    goto.add_argument("--wait-s", type=float, default=300.0, help="give up (and stop) after this (default 300)")
+    goto.add_argument("--no-wait", action="store_true", help="send the demand and return")
+    rate = commands.add_parser("rate", help="rate mode on one frame at a signed rate d(angle)/dt, deg/s")
+    rate.add_argument("frame", choices=FRAMES)
+    rate.add_argument("rate_dps", type=float)
+    commands.add_parser("stop", help="controlled stop of every axis (servo stays on)")
+    commands.add_parser("abort", help="every servo off at once")
+    parser.set_defaults(func=cmd_table)
+
+
+def format_state(state: TableState) -> str:
+    lines = [f"{'frame':<7} {'angle deg':>14} {'rate deg/s':>12}  {'mode':<9} status"]
+    for name, axis in zip(FRAMES, state.axes):
+        flags = " ".join(flag.name.lower().replace("_", "-") for flag in AxisStatus if axis.status & flag) or "-"
+        lines.append(f"{name:<7} {axis.angle_deg:>14.6f} {axis.rate_dps:>12.6f}  {axis.mode.value:<9} {flags}")
+    fault = state.describe_fault()
+    lines.append(f"fault: {fault}" if fault else "fault: none")
+    return "\n".join(lines)
+
+
+def _run_table_command(table: Turntable, args: argparse.Namespace) -> int:
+    command = args.table_command
+    if command == "status":
+        state = table.read_state()
+        print(format_state(state))
+        return EXIT_FAULT if (state.fault or state.estop) else EXIT_OK
+    if command in ("enable", "disable", "reset"):
+        frames = args.frames or FRAMES
+        {"enable": table.enable, "disable": table.disable, "reset": table.reset_faults}[command](frames)
+    elif command == "goto":
+        target = (args.outer, args.middle, args.inner)
+        table.check_state()
+        table.move_to(target, rate_dps=args.rate_dps)
+        if not args.no_wait:
+            state = table.wait_in_position(target, tolerance_deg=args.tolerance_deg, settle_s=args.settle_s,
+                                           timeout_s=args.wait_s, poll_s=0.05)
+            print(format_state(state))
+            return EXIT_OK
+    elif command == "rate":
+        table.check_state()
+        table.set_rate(args.frame, args.rate_dps)
+    elif command == "stop":
+        table.stop()
+    elif command == "abort":
+        table.abort()
+    print(format_state(table.read_state()))
+    return EXIT_OK
+
+
+def cmd_table(args: argparse.Namespace) -> int:
+    from drivers.turntable import AxisLimits, TurntableLimits
+
+    prog = f"bench table {args.table_command}"
+    try:
+        limits = TurntableLimits(tuple(AxisLimits(max_rate_dps=args.max_rate_dps) for _ in range(3)))
+        table = open_turntable(args.url, args.dialect, limits=limits, timeout_s=args.timeout_s,
+                               retries=args.retries)
+    except ValueError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        table.connect()
+    except TurntableError as exc:
+        print(f"{prog}: cannot reach the controller: {exc}", file=sys.stderr)
+        return EXIT_FAULT
+    try:
+        return _run_table_command(table, args)
+    except TurntableLimitError as exc:
+        print(f"{prog}: refused, nothing sent: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except TurntableError as exc:
+        table.safe_stop()
+        print(f"{prog}: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return EXIT_FAULT
+    except KeyboardInterrupt:
+        table.safe_stop()
+        print(f"{prog}: interrupted; table commanded to stop", file=sys.stderr)
+        return EXIT_FAULT
+    finally:
+        table.close()
+
+
+# -- bench sim table --------------------------------------------------------------
+
+FAULT_HELP = """fault console (one command per line on stdin):
+  estop | release | limit FRAME | fault FRAME | reset
+  timeout N | garbage N | checksum N | exception N [CODE]   (next N replies)
+  state | help"""
+
+
+def register_sim(subparsers: argparse._SubParsersAction) -> None:
+    sim = subparsers.add_parser("sim", help="serve simulated devices for manual or external testing")
+    kinds = sim.add_subparsers(dest="sim_command", metavar="DEVICE", required=True)
+    table = kinds.add_parser(
+        "table", help="serve the simulated turntable in a controller dialect until Ctrl-C",
+        description="Serve the simulated turntable (with black-box pointing errors) in a controller dialect. "
+                    "Prints where it listens, then runs until Ctrl-C. Faults are injected by typing "
+                    "commands on stdin.\n\n" + FAULT_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    table.add_argument("--dialect", required=True, choices=sorted(DIALECTS))
+    table.add_argument("--listen", action="append", required=True, metavar="WHERE",
+                       help="tcp://127.0.0.1:PORT (scpi, mn), modbus+tcp://127.0.0.1:PORT (modbus) or pty "
+                            "(RTU for modbus); repeatable; port 0 picks a free port")
+    table.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg (default 30.27)")
+    table.add_argument("--black-box-arcsec", type=float, default=0.0,
+                       help="RMS of the nine black-box pointing-error angles (default 0: ideal table)")
+    table.add_argument("--seed", type=int, default=0, help="seed of the black-box angles")
+    table.set_defaults(func=cmd_sim_table)
+
+
+def _apply_fault_command(controller, line: str) -> str:
+    """Execute one fault-console line on the simulated controller; returns what to print."""
+    from drivers.turntable import frame_index
+
+    words = line.split()
+    if not words:
+        return ""
+    cmd, rest = words[0].lower(), words[1:]
+    try:
+        if cmd == "estop":
+            controller.trip_estop()
+        elif cmd == "release":
+            controller.release_estop()
+        elif cmd in ("limit", "fault"):
+            frame = frame_index(rest[0]) if rest else 0
+            (controller.trip_limit if cmd == "limit" else controller.trip_fault)(frame)
+        elif cmd == "reset":
+            for k in range(3):
+                controller.reset(k)
+        elif cmd in ("timeout", "garbage", "checksum", "exception"):
+            count = int(rest[0]) if rest else 1
+            if cmd == "exception" and len(rest) > 1:
+                controller.faults.exception_code = int(rest[1])
+            setattr(controller.faults, cmd, count)
+        elif cmd == "state":
+            return format_state(controller.state())
+        elif cmd == "help":
+            return FAULT_HELP
+        else:
+            return f"unknown command {cmd!r}; type help"
+    except Exception as exc:  # noqa: BLE001 - a console typo must not stop the simulator
+        return f"error: {exc}"
+    return "ok"
+
+
+def _listen(controller, dialect: str, where: str, closers: list) -> str:
+    """Start one listener; returns the address a client uses."""
+    if dialect == "modbus":
+        from bench.sim.modbus_server import ModbusSimServer
+
+        server = ModbusSimServer(controller)
+        closers.append(server.close)
+        if where == "pty":
+            return f"modbus+rtu://{server.start_rtu_pty()}"
+        parts = urlsplit(where)
+        if parts.scheme != "modbus+tcp" or parts.port is None:
+            raise ValueError(f"the modbus simulator listens on modbus+tcp://HOST:PORT or pty, not {where!r}")
+        host, port = server.start_tcp(parts.hostname, parts.port)
+        return f"modbus+tcp://{host}:{port}"
+    from bench.sim.serve import LineServer
+
+    if dialect == "scpi":
+        from bench.sim.scpi_server import ScpiSimHandler as Handler
+    else:
+        from bench.sim.mn_server import MnSimHandler as Handler
+    server = LineServer(Handler(controller))
+    closers.append(server.close)
+    if where == "pty":
+        return server.open_pty()
+    parts = urlsplit(where)
+    if parts.scheme != "tcp" or parts.port is None:
+        raise ValueError(f"the {dialect} simulator listens on tcp://HOST:PORT or pty, not {where!r}")
+    host, port = server.listen_tcp(parts.hostname, parts.port)
+    return f"tcp://{host}:{port}"
+
+
+def cmd_sim_table(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from bench.model.earth import Site
+    from bench.sim.controller import SimController
+    from bench.sim.table import SimTable
+    from bench.model.units import ARCSEC
+
+    try:
+        site = Site(args.latitude)
+    except ValueError as exc:
+        print(f"bench sim table: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    black_box = np.random.default_rng(args.seed).normal(0.0, args.black_box_arcsec * ARCSEC, (3, 3))
+    controller = SimController(SimTable(site, black_box_rad=black_box))
+    closers: list = []
+    # Ctrl-C (SIGINT) stops the server even when it was started with SIGINT ignored, as a
+    # shell does for `bench sim table ... &` in a script.
+    previous_handler = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        for where in args.listen:
+            address = _listen(controller, args.dialect, where, closers)
+            print(f"simulated table ({args.dialect}) listening on {address}", flush=True)
+        print("Ctrl-C stops; type 'help' for the fault console", flush=True)
+        done = threading.Event()
+        for line in sys.stdin:               # the fault console; on EOF keep serving until Ctrl-C
+            reply = _apply_fault_command(controller, line)
+            if reply:
+                print(reply, flush=True)
+        done.wait()
+    except (ValueError, OSError) as exc:
+        print(f"bench sim table: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("bench sim table: stopped", file=sys.stderr)
+        return EXIT_OK
+    finally:
+        signal.signal(signal.SIGINT, previous_handler)
+        for close in reversed(closers):
+            close()
+    return EXIT_OK

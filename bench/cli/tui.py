@@ -1,0 +1,64 @@
+"""`bench tui`: the lab-operator TUI (bench/tui) on hardware (--config), the simulator (--sim) or a
+recorded run (--replay LOG, no hardware)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from bench.cli.replay import speed_factor
+
+EXIT_OK, EXIT_USAGE = 0, 2
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "tui", help="the lab-operator terminal UI (live table, IMU, plan, events, results)",
+        description="Interactive operator screen: connect, go to positions, start/pause/resume/abort the plan, "
+                    "emergency stop (F12, on every screen). Runs record and solve exactly like `bench run`.")
+    parser.add_argument("--config", metavar="FILE", help="bench configuration (see bench.example.toml)")
+    parser.add_argument("--sim", action="store_true",
+                        help="the simulator: the built-in simulated bench, or --config's plan and [sim]")
+    parser.add_argument("--replay", metavar="LOG",
+                        help="replay a run log (.mcap) in the TUI: no hardware; p/r pause and resume the playback")
+    parser.add_argument("--speed", type=speed_factor, default=1.0, metavar="X",
+                        help="with --replay: X times real time (default 1)")
+    parser.add_argument("--out", metavar="DIR", help="output folder (default: the config's [output] folder)")
+    parser.add_argument("--operator", default="", help="who runs it (recorded in the log)")
+    parser.set_defaults(func=cmd_tui)
+
+
+def cmd_tui(args: argparse.Namespace) -> int:
+    from bench.config.load import ConfigError, default_sim_config, load_config
+
+    if args.replay:
+        if args.config or args.sim:
+            print("bench tui: --replay plays a log without hardware: drop --config/--sim", file=sys.stderr)
+            return EXIT_USAGE
+        return _replay(args)
+    if not args.config and not args.sim:
+        print("bench tui: say --config FILE, --sim or --replay LOG", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        config = load_config(args.config) if args.config else default_sim_config()
+        from bench.tui import create_app
+
+        app = create_app(config=config, sim=args.sim, out_dir=args.out, operator=args.operator)
+    except (ConfigError, ValueError, OSError) as exc:
+        print(f"bench tui: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    app.run()
+    return EXIT_OK
+
+
+def _replay(args: argparse.Namespace) -> int:
+    from bench.log.reader import LogError
+    from bench.tui import create_app
+
+    try:
+        app = create_app(replay=args.replay, speed=args.speed)
+    except (LogError, OSError) as exc:
+        print(f"bench tui: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    app.run()
+    return EXIT_OK

@@ -1,0 +1,496 @@
+"""Bench configuration: one TOML file per bench (documented in bench.example.toml).
+
+`load_config(path)` reads, checks and builds everything a run needs (site, table
+limits and register map, the compiled IMU frame layout, the schedules, the simulator's
+truth) so that a bad file fails before any hardware moves, with one `ConfigError`
+line ``file:line: key: message``. Relative paths inside the file (register map, DBC,
+schedule files) start at the file's folder; `[output] folder` starts at the current
+directory at run time.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import can.interfaces
+import numpy as np
+
+from bench.config.reader import ConfigError, Located, Table, describe, parse_toml, read_text, suggest
+from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
+from bench.model.imu import AXES, BODY_AXES, ImuCoefficients, NoiseModel, canonical_names, default_sim_imu, family
+from bench.model.units import ARCSEC
+from drivers.errors import ImuConfigError
+from drivers.imu import DEFAULT_DBC, DEFAULT_FD_DBC, DEFAULT_FD_SPEC, DEFAULT_SPEC, ImuFrameSpec, ImuLayout
+from drivers.turntable import DIALECTS, FRAMES, AxisLimits, TurntableLimits
+from drivers.turntable.modbus_map import RegisterMap, RegisterMapError
+from schedules import Schedule, ScheduleError, builtin_names, resolve_schedule
+from schedules.tomllines import LineMap, locate_lines
+
+FORMAT = "turntable-bench/config"
+VERSION = 1
+ORDERS = ("optimal", "listed")
+SIM_URL = "sim"  # table url: serve the simulated table over loopback in the configured dialect
+_BLACK_BOX_RMS_ARCSEC = 20.0  # [sim] default: a good but real table
+_NOISE_FIELDS = tuple(f.name for f in dataclasses.fields(NoiseModel))
+
+__all__ = ["FORMAT", "ORDERS", "SIM_CONFIG_TOML", "SIM_URL", "VERSION", "BenchConfig", "ConfigError",
+           "ImuConfig", "ImuIdentity", "OutputConfig", "PlanConfig", "SimConfig", "SiteConfig", "TableConfig",
+           "default_sim_config", "load_config", "parse_config"]
+
+
+@dataclass(frozen=True)
+class SiteConfig:
+    """[site]: where the table stands; `site` is the built `bench.model.earth.Site`."""
+
+    latitude_deg: float
+    height_m: float
+    local_g_mps2: float | None
+    site: Site
+
+
+@dataclass(frozen=True)
+class TableConfig:
+    """[table]: the controller, its limits and (Modbus) register map."""
+
+    url: str
+    dialect: str
+    timeout_s: float
+    retries: int
+    settle_tolerance_deg: float
+    poll_s: float
+    limits: TurntableLimits
+    register_map: RegisterMap | None  # modbus only; None = the documented default map
+
+    @property
+    def is_sim(self) -> bool:
+        """url "sim": the simulated table served over loopback in `dialect`."""
+        return self.url == SIM_URL
+
+
+@dataclass(frozen=True)
+class ImuIdentity:
+    """[imu.identity]: what is being calibrated (recorded; stabilities feed the solver)."""
+
+    model: str = ""
+    serial: str = ""
+    gyro_bias_stability_dph: float | None = None
+    acc_bias_stability_ug: float | None = None
+
+
+@dataclass(frozen=True)
+class ImuConfig:
+    """[imu]: the CAN bus and the compiled frame layout."""
+
+    interface: str
+    channel: str | int
+    bitrate: int | None
+    fd: bool
+    dbc: Path
+    rate_hz: float
+    spec: ImuFrameSpec
+    layout: ImuLayout
+    bus_options: dict = field(default_factory=dict)
+    identity: ImuIdentity = ImuIdentity()
+
+    def bus_kwargs(self) -> dict:
+        """Keyword arguments for `can.Bus(**kwargs)`."""
+        kwargs = {"interface": self.interface, "channel": self.channel, "fd": self.fd}
+        if self.bitrate is not None:
+            kwargs["bitrate"] = self.bitrate
+        return {**kwargs, **self.bus_options}
+
+
+@dataclass(frozen=True)
+class PlanConfig:
+    """[plan]: the loaded schedules and the timing of moves, dwells and turns."""
+
+    positions: Schedule | None
+    rotations: Schedule | None  # every step's revolutions already overridden by `revolutions`
+    dwell_s: float
+    settle_s: float
+    move_rate_dps: float
+    move_accel_dps2: float
+    turn_rate_dps: float
+    turn_accel_dps2: float
+    rest_s: float
+    revolutions: int | None
+    order: str
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """[output]: where runs are written."""
+
+    folder: Path  # relative paths start at the current directory at run time
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """[sim]: the simulated world (`--sim`, table url "sim"): black box, noise, true IMU."""
+
+    seed: int
+    black_box_arcsec: float | tuple  # RMS, or the 3x3 angles as written
+    black_box_rad: np.ndarray        # (3, 3): rows o0, m0, i0; columns alpha, beta, gamma
+    noise: NoiseModel
+    imu: ImuCoefficients             # the simulated IMU's true coefficients
+    imu_overrides: dict = field(default_factory=dict)  # canonical name -> display-unit value as written
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """One checked bench configuration; `source_text` is the TOML as read (for the run log)."""
+
+    site: SiteConfig
+    table: TableConfig
+    imu: ImuConfig
+    plan: PlanConfig
+    output: OutputConfig
+    sim: SimConfig
+    source_text: str = field(repr=False)
+    path: Path | None = None  # None when parsed from a string
+
+
+# --- sections -----------------------------------------------------------------------
+
+def _site(t: Table) -> SiteConfig:
+    latitude_deg = t.number("latitude_deg", ge=-90.0, le=90.0, unit="deg")
+    height_m = t.number("height_m", 0.0, ge=-500.0, le=9000.0, unit="m")
+    local_g = t.number("local_g_mps2", None, ge=9.7, le=9.9, unit="m/s^2")  # Site's plausibility range
+    return SiteConfig(latitude_deg, height_m, local_g, Site(latitude_deg, height_m, local_g))
+
+
+def _axis_limits(t: Table) -> AxisLimits:
+    default = AxisLimits()
+    min_deg, max_deg = t.number("min_deg", None, unit="deg"), t.number("max_deg", None, unit="deg")
+    if min_deg is not None and max_deg is not None and not min_deg < max_deg:
+        raise t.error("max_deg", f"must be above min_deg ({min_deg:g} deg), got {max_deg:g}")
+    return AxisLimits(min_deg, max_deg, t.number("max_rate_dps", default.max_rate_dps, gt=0, unit="deg/s"),
+                      t.number("max_accel_dps2", default.max_accel_dps2, gt=0, unit="deg/s^2"))
+
+
+def _table(t: Table) -> TableConfig:
+    url = t.string("url", nonempty=True).strip()
+    dialect = t.string("dialect", nonempty=True).strip().lower()
+    if dialect not in DIALECTS:
+        raise t.error("dialect", f"unknown dialect {dialect!r}" + suggest(dialect, DIALECTS).replace(
+            " (known:", " (known dialects:"))
+    is_modbus_url = url.startswith(("modbus+tcp://", "modbus+rtu://"))
+    if url != SIM_URL and dialect == "modbus" and not is_modbus_url:
+        raise t.error("url", f"the modbus dialect needs a modbus+tcp:// or modbus+rtu:// url, got {url!r}")
+    if dialect != "modbus" and is_modbus_url:
+        raise t.error("url", f"{url!r} is a Modbus url but table.dialect is {dialect!r}")
+    timeout_s = t.number("timeout_s", 0.5, gt=0, unit="s")
+    retries = t.integer("retries", 2, ge=0)
+    tolerance_deg = t.number("settle_tolerance_deg", 0.001, gt=0, unit="deg")
+    poll_s = t.number("poll_s", 0.05, gt=0, unit="s")
+    limits_table = t.table("limits", FRAMES)
+    limits = TurntableLimits(tuple(_axis_limits(limits_table.table(frame, ("min_deg", "max_deg", "max_rate_dps",
+                                                                             "max_accel_dps2")))
+                                   for frame in FRAMES))
+    register_map = _register_map(t, dialect)
+    return TableConfig(url, dialect, timeout_s, retries, tolerance_deg, poll_s, limits, register_map)
+
+
+def _register_map(t: Table, dialect: str) -> RegisterMap | None:
+    """`register_map = "file.toml"` (a file holding a [modbus] table) or an inline [table.modbus]."""
+    inline, in_file = t.has("modbus"), t.has("register_map")
+    if not (inline or in_file):
+        return None
+    if dialect != "modbus":
+        raise t.error("modbus" if inline else "register_map",
+                      f"a register map is for the modbus dialect only (table.dialect is {dialect!r})")
+    if inline and in_file:
+        raise t.error("register_map", "give either register_map (a file) or a [table.modbus] table, not both")
+    if inline:
+        data = t.get("modbus")
+        if not isinstance(data, dict):
+            raise t.error("modbus", f"must be a table ([table.modbus]), got {describe(data)}")
+        return _build_map(data, t.doc.source, t.doc.lines, t.path + ("modbus",))
+    path = t.file("register_map")
+    if not path.is_file():
+        raise t.error("register_map", f"no such register map file {str(path)!r}")
+    text = read_text(path, "the register map file")
+    data, lines, prefix = parse_toml(text, str(path)), locate_lines(text), ()
+    if "modbus" in data:
+        for key in data:
+            if key != "modbus":
+                raise ConfigError(str(path), lines.line(key), key,
+                                  "unknown key (a register map file holds one [modbus] table)")
+        data, prefix = data["modbus"], ("modbus",)
+    return _build_map(data, str(path), lines, prefix)
+
+
+_MAP_KEY = re.compile(r"(?:unknown key )?([A-Za-z_][\w]*(?:\.\w+)*)(?=[: ])")
+
+
+def _build_map(data, source: str, lines: LineMap, prefix: tuple) -> RegisterMap:
+    try:
+        return RegisterMap.from_dict(data, source=source)
+    except (RegisterMapError, ValueError) as exc:
+        message = str(exc).removeprefix(f"{source}: ")
+        found = _MAP_KEY.match(message)
+        path = prefix
+        if found and (found.group(0).startswith("unknown key") or message[found.end():].startswith((":", " must"))):
+            key = found.group(1)
+            path = prefix + tuple(key.split("."))
+            message = message.replace(f"unknown key {key}", "unknown key", 1).removeprefix(key).lstrip(": ")
+        raise ConfigError(source, lines.line(*path), ".".join(map(str, path)) or None, message) from exc
+
+
+def _imu(t: Table) -> ImuConfig:
+    interface = t.string("interface", nonempty=True)
+    if interface not in can.interfaces.VALID_INTERFACES:
+        raise t.error("interface", f"unknown python-can interface {interface!r}"
+                      + suggest(interface, sorted(can.interfaces.VALID_INTERFACES)))
+    channel = t.get("channel")
+    if isinstance(channel, bool) or not isinstance(channel, (str, int)) or channel == "":
+        raise t.error("channel", f"must be a non-empty string or a whole number, got {describe(channel)}")
+    bitrate = t.integer("bitrate", None, ge=1)
+    fd = t.boolean("fd", False)
+    rate_hz = t.number("rate_hz", gt=0, unit="Hz")
+    dbc = t.file("dbc") if t.has("dbc") else (DEFAULT_FD_DBC if fd else DEFAULT_DBC)
+    signals = t.get("signals", None)
+    if signals is None:
+        spec = DEFAULT_FD_SPEC if fd else DEFAULT_SPEC
+    else:
+        if not isinstance(signals, dict):
+            raise t.error("signals", f"must be a table ([imu.signals]), got {describe(signals)}")
+        try:
+            spec = ImuFrameSpec.from_dict(signals)
+        except ImuConfigError as exc:
+            raise t.error("signals", str(exc)) from exc
+    blame = "dbc" if t.has("dbc") else ("signals" if t.has("signals") else None)
+    try:
+        layout = ImuLayout.from_dbc(dbc, spec)
+    except ImuConfigError as exc:
+        raise t.error(blame, str(exc)) from exc
+    if not fd:
+        for message in layout.messages:
+            if message.is_fd or message.length > 8:
+                raise t.error(blame or "fd", f"message {message.name} of {dbc.name} is a CAN FD frame "
+                              f"({message.length} bytes); set imu.fd = true")
+    bus_options = t.get("bus_options", {})
+    if not isinstance(bus_options, dict):
+        raise t.error("bus_options", f"must be a table ([imu.bus_options]), got {describe(bus_options)}")
+    for key in bus_options:
+        if key in ("interface", "channel", "bitrate", "fd", "bustype"):
+            raise t.doc.error(t.path + ("bus_options", key), f"set imu.{key.replace('bustype', 'interface')} "
+                              "instead of passing it in bus_options")
+    ident = t.table("identity", ("model", "serial", "gyro_bias_stability_dph", "acc_bias_stability_ug"))
+    identity = ImuIdentity(ident.string("model", ""), ident.string("serial", ""),
+                           ident.number("gyro_bias_stability_dph", None, gt=0, unit="deg/h"),
+                           ident.number("acc_bias_stability_ug", None, gt=0, unit="ug"))
+    return ImuConfig(interface, channel, bitrate, fd, Path(dbc), rate_hz, spec, layout, bus_options, identity)
+
+
+def _schedule(t: Table, key: str, kind: str, revolutions: int | None) -> Schedule | None:
+    name = t.string(key, "").strip()
+    if not name:
+        return None
+    try:
+        if name in builtin_names():
+            schedule = resolve_schedule(name)
+        else:
+            path = Path(name).expanduser()
+            path = path if path.is_absolute() else t.doc.base_dir / path
+            if not path.is_file():
+                raise t.error(key, f"no builtin schedule {name!r} and no such file {str(path)!r}"
+                              + suggest(name, builtin_names()).replace(" (known:", " (builtins:"))
+            schedule = resolve_schedule(str(path))
+    except ScheduleError as exc:  # it names the schedule file, line and field already
+        raise ConfigError(exc.path, exc.line, exc.field, exc.message) from exc
+    if schedule.kind != kind:
+        raise t.error(key, f"schedule {schedule.name!r} is a {schedule.kind!r} schedule; plan.{key} needs "
+                      f"a {kind!r} schedule")
+    if revolutions is not None and schedule.rotations:
+        schedule = dataclasses.replace(schedule, rotations=tuple(
+            dataclasses.replace(step, revolutions=revolutions) for step in schedule.rotations))
+    return schedule
+
+
+def _plan(t: Table, limits: TurntableLimits) -> PlanConfig:
+    revolutions = t.integer("revolutions", None, ge=1)
+    order = t.string("order", "optimal", choices=ORDERS)
+    positions = _schedule(t, "positions", "positions", revolutions)
+    rotations = _schedule(t, "rotations", "rotations", revolutions)
+    if positions is None and rotations is None:
+        raise t.error(None, "the plan needs a positions schedule, a rotations schedule or both "
+                            "(plan.positions / plan.rotations)")
+    values = {"dwell_s": t.number("dwell_s", 60.0, gt=0, unit="s"),
+              "settle_s": t.number("settle_s", 5.0, ge=0, unit="s"),
+              "move_rate_dps": t.number("move_rate_dps", 20.0, gt=0, unit="deg/s"),
+              "move_accel_dps2": t.number("move_accel_dps2", 10.0, gt=0, unit="deg/s^2"),
+              "turn_rate_dps": t.number("turn_rate_dps", 10.0, gt=0, unit="deg/s"),
+              "turn_accel_dps2": t.number("turn_accel_dps2", 5.0, gt=0, unit="deg/s^2"),
+              "rest_s": t.number("rest_s", 2.0, ge=0, unit="s")}
+    # Moves drive every axis; turns only the frames the rotation schedule turns.
+    turned = sorted({step.frame_index for step in rotations.rotations}) if rotations else []
+    for key, attr, frames in (("move_rate_dps", "max_rate_dps", range(3)),
+                              ("move_accel_dps2", "max_accel_dps2", range(3)),
+                              ("turn_rate_dps", "max_rate_dps", turned),
+                              ("turn_accel_dps2", "max_accel_dps2", turned)):
+        for frame in frames:
+            limit = getattr(limits.axes[frame], attr)
+            if values[key] > limit:
+                unit = "deg/s" if key.endswith("_dps") else "deg/s^2"
+                raise t.error(key, f"{values[key]:g} {unit} exceeds the {FRAMES[frame]} axis limit {limit:g} "
+                                   f"{unit} (table.limits.{FRAMES[frame]}.{attr})")
+    return PlanConfig(positions, rotations, revolutions=revolutions, order=order, **values)
+
+
+def _black_box(t: Table, seed: int) -> tuple[float | tuple, np.ndarray]:
+    value = t.get("black_box_arcsec", _BLACK_BOX_RMS_ARCSEC)
+    if isinstance(value, list):
+        rows = []
+        if len(value) != 3:
+            raise t.error("black_box_arcsec", f"must be 3 rows (o0, m0, i0) of 3 angles, got {len(value)} rows")
+        for i, row in enumerate(value):
+            if not (isinstance(row, list) and len(row) == 3
+                    and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                            for v in row)):
+                raise t.doc.error(t.path + ("black_box_arcsec", i),
+                                  f"must be 3 finite angles [alpha, beta, gamma] in arcsec, got {row!r}")
+            rows.append(tuple(float(v) for v in row))
+        return tuple(rows), np.array(rows) * ARCSEC
+    rms_arcsec = t.number("black_box_arcsec", _BLACK_BOX_RMS_ARCSEC, ge=0, unit="arcsec")
+    return rms_arcsec, np.random.default_rng(seed).standard_normal((3, 3)) * rms_arcsec * ARCSEC
+
+
+def _noise(t: Table) -> NoiseModel:
+    value = t.get("noise", True)
+    if isinstance(value, bool):
+        return NoiseModel() if value else NoiseModel.off()
+    n = t.table("noise", ("enabled",) + _NOISE_FIELDS)
+    enabled = n.boolean("enabled", True)
+    base = NoiseModel() if enabled else NoiseModel.off()
+    changes = {}
+    for name in _NOISE_FIELDS:
+        if not n.has(name):
+            continue
+        if name == "quantise":
+            changes[name] = n.boolean(name)
+        elif not enabled:
+            raise n.error(name, "noise levels need sim.noise.enabled = true")
+        else:
+            changes[name] = n.number(name, gt=0 if name == "correlation_time_s" else None,
+                                     ge=None if name == "correlation_time_s" else 0)
+    return dataclasses.replace(base, **changes)
+
+
+def _sim_imu(t: Table) -> tuple[ImuCoefficients, dict]:
+    s = t.table("imu", canonical_names())
+    overrides = {name: s.number(name, gt=0 if family(name) in ("Kg", "Ka") else None) for name in s.data}
+    values = {**default_sim_imu().to_canonical(), **overrides}
+    # Direction-cosine rows are unit vectors: a row with overrides gets its diagonal
+    # from its off-diagonals, unless the diagonal is given too (then it must fit).
+    for prefix in ("Eg", "Ea"):
+        for i, sensor in enumerate(AXES):
+            row = [f"{prefix}_{axis}{sensor}" for axis in BODY_AXES]
+            if not any(name in overrides for name in row):
+                continue
+            diag = row[i]
+            if diag in overrides:
+                norm = math.sqrt(sum(values[name] ** 2 for name in row))
+                if abs(norm - 1.0) > 1e-6:
+                    raise s.error(diag, f"the row {', '.join(row)} must have unit length, has {norm:.9g} "
+                                        f"(leave {diag} out and it follows from the others)")
+                values.update({name: values[name] / norm for name in row})
+            else:
+                rest = 1.0 - sum(values[name] ** 2 for name in row if name != diag)
+                if not rest > 0:
+                    raise s.error(next(name for name in row if name in overrides),
+                                  f"the off-diagonal direction cosines of {prefix}_*{sensor} leave no unit row")
+                values[diag] = math.copysign(math.sqrt(rest), values[diag])
+    return ImuCoefficients.from_canonical(values), overrides
+
+
+def _sim(t: Table) -> SimConfig:
+    seed = t.integer("seed", 0, ge=0)
+    written, black_box_rad = _black_box(t, seed)
+    imu, overrides = _sim_imu(t)
+    return SimConfig(seed, written, black_box_rad, _noise(t), imu, overrides)
+
+
+# --- entry points -------------------------------------------------------------------
+
+def parse_config(text: str, source: str = "<string>", base_dir: str | Path | None = None) -> BenchConfig:
+    """Parse and check configuration TOML `text`; `source` names it in errors; relative
+    paths start at `base_dir` (default: the current directory)."""
+    doc = parse_toml(text, source)
+    located = Located(source, locate_lines(text), Path.cwd() if base_dir is None else Path(base_dir))
+    root = Table(located, (), doc, ("format", "version", "site", "table", "imu", "plan", "output", "sim"))
+    fmt = root.string("format")
+    if fmt != FORMAT:
+        raise root.error("format", f"expected {FORMAT!r}, got {fmt!r}")
+    version = root.get("version")
+    if isinstance(version, bool) or version != VERSION:
+        raise root.error("version", f"unsupported version: must be {VERSION}, got {describe(version)}")
+    site = _site(root.table("site", ("latitude_deg", "height_m", "local_g_mps2"), required=True))
+    table = _table(root.table("table", ("url", "dialect", "timeout_s", "retries", "settle_tolerance_deg", "poll_s",
+                                        "register_map", "modbus", "limits"), required=True))
+    imu = _imu(root.table("imu", ("interface", "channel", "bitrate", "fd", "dbc", "rate_hz", "signals",
+                                  "bus_options", "identity"), required=True))
+    plan = _plan(root.table("plan", ("positions", "rotations", "dwell_s", "settle_s", "move_rate_dps",
+                                     "move_accel_dps2", "turn_rate_dps", "turn_accel_dps2", "rest_s", "revolutions",
+                                     "order"), required=True), table.limits)
+    out = root.table("output", ("folder",))
+    output = OutputConfig(Path(out.string("folder", "runs", nonempty=True)).expanduser())
+    sim = _sim(root.table("sim", ("seed", "black_box_arcsec", "noise", "imu")))
+    return BenchConfig(site, table, imu, plan, output, sim, source_text=text)
+
+
+def load_config(path: str | Path) -> BenchConfig:
+    """Load and check a bench configuration file."""
+    path = Path(path)
+    text = read_text(path, "the configuration file")
+    config = parse_config(text, source=str(path), base_dir=path.resolve().parent)
+    return dataclasses.replace(config, path=path)
+
+
+SIM_CONFIG_TOML = f"""\
+# The built-in configuration of `bench run --sim` without a file.
+format = "{FORMAT}"
+version = {VERSION}
+
+[site]
+latitude_deg = {HANGZHOU_LATITUDE_DEG}   # Hangzhou, the paper's site
+height_m = 0.0
+
+[table]
+url = "sim"                 # the simulated table, served over loopback
+dialect = "scpi"
+
+[imu]
+interface = "virtual"
+channel = "turntable-bench-sim"
+rate_hz = 200.0
+
+[imu.identity]
+model = "simulated FOG IMU"
+serial = "SIM-0001"
+
+[plan]
+positions = "optimal-24"
+rotations = "optimal-5s6r"
+dwell_s = 60.0
+settle_s = 5.0
+turn_rate_dps = 10.0
+revolutions = 1
+
+[output]
+folder = "runs"
+
+[sim]
+seed = 0
+black_box_arcsec = 20.0     # RMS of the nine black-box angles
+noise = true
+"""
+
+
+def default_sim_config() -> BenchConfig:
+    """The configuration `bench run --sim` uses when no file is given (`SIM_CONFIG_TOML`)."""
+    return parse_config(SIM_CONFIG_TOML, source="<builtin sim config>")

@@ -1,0 +1,190 @@
+"""Typed, located access to a parsed TOML document for `bench.config.load`.
+
+Every problem becomes one `ConfigError` naming the file, the line (from
+`schedules.tomllines`) and the dotted key, so the CLI can print one line and exit 2.
+"""
+
+from __future__ import annotations
+
+import datetime
+import difflib
+import math
+import re
+import tomllib
+from collections.abc import Iterable
+from pathlib import Path
+
+from schedules.tomllines import LineMap
+
+_TOML_LOCATION = re.compile(r"\s*\(at line (\d+), column (\d+)\)")
+_REQUIRED = object()
+
+
+class ConfigError(ValueError):
+    """A configuration problem, rendered as one line ``path:line: key: message``."""
+
+    def __init__(self, path: str, line: int | None, key: str | None, message: str):
+        self.path = str(path)
+        self.line = line
+        self.key = key
+        self.message = " ".join(str(message).split())  # one line, always
+        super().__init__(str(self))
+
+    def __reduce__(self):  # picklable despite the custom __init__
+        return type(self), (self.path, self.line, self.key, self.message)
+
+    def __str__(self) -> str:
+        head = self.path if self.line is None else f"{self.path}:{self.line}"
+        return ": ".join([head] + ([self.key] if self.key else []) + [self.message])
+
+
+def parse_toml(text: str, source: str) -> dict:
+    """`tomllib.loads`, a syntax error turned into a `ConfigError` with tomllib's line."""
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        message = str(exc)
+        found = _TOML_LOCATION.search(message)
+        if found is None:  # "(at end of document)"
+            raise ConfigError(source, max(len(text.splitlines()), 1), None, f"invalid TOML: {message}") from exc
+        raise ConfigError(source, int(found.group(1)), None,
+                          f"invalid TOML: {_TOML_LOCATION.sub('', message)} (column {found.group(2)})") from exc
+
+
+def read_text(path: Path, what: str) -> str:
+    """A UTF-8 file's text, or a `ConfigError` saying why it cannot be read."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(str(path), None, None, f"cannot read {what}: not UTF-8 text ({exc.reason} at byte "
+                                                 f"{exc.start})") from exc
+    except OSError as exc:
+        raise ConfigError(str(path), None, None, f"cannot read {what}: {exc.strerror or exc}") from exc
+
+
+def dotted(path: Iterable) -> str:
+    """('sim', 'black_box_arcsec', 1) -> 'sim.black_box_arcsec[1]'."""
+    out = ""
+    for part in path:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out
+
+
+def describe(value: object) -> str:
+    """A value as the TOML reader sees it, for 'got ...' in messages."""
+    if isinstance(value, bool):
+        return f"{str(value).lower()} (a boolean)"
+    if isinstance(value, str):
+        return f"the string {value!r}"
+    if isinstance(value, dict):
+        return "a table"
+    if isinstance(value, list):
+        return "an array"
+    if isinstance(value, (datetime.date, datetime.time)):
+        return f"the date/time {value.isoformat()}"
+    return repr(value)
+
+
+def suggest(word: str, choices: Iterable[str]) -> str:
+    """' (did you mean 'x'?)' for a close match, else ' (known: a, b, c)'."""
+    choices = list(choices)
+    same = [c for c in choices if c.lower() == str(word).lower()]
+    if same:
+        return f" (did you mean {same[0]!r}?)"
+    close = difflib.get_close_matches(str(word), choices, n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else f" (known: {', '.join(choices)})"
+
+
+def is_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+class Located:
+    """The document-wide context: its name, line map and the folder relative paths start from."""
+
+    def __init__(self, source: str, lines: LineMap, base_dir: Path):
+        self.source, self.lines, self.base_dir = source, lines, base_dir
+
+    def error(self, path: tuple, message: str) -> ConfigError:
+        return ConfigError(self.source, self.lines.line(*path), dotted(path), message)
+
+
+class Table:
+    """One table of the document; unknown keys are rejected on construction."""
+
+    def __init__(self, doc: Located, path: tuple, data: dict, allowed: Iterable[str]):
+        self.doc, self.path, self.data, self.allowed = doc, path, data, tuple(allowed)
+        for key in data:
+            if key not in self.allowed:
+                raise doc.error(path + (key,), "unknown key" + suggest(key, self.allowed))
+
+    def error(self, key, message: str) -> ConfigError:
+        return self.doc.error(self.path + ((key,) if key is not None else ()), message)
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def get(self, key: str, default=_REQUIRED):
+        if key in self.data:
+            return self.data[key]
+        if default is _REQUIRED:
+            raise self.error(key, "missing required key")
+        return default
+
+    def number(self, key: str, default=_REQUIRED, *, gt: float | None = None, ge: float | None = None,
+               le: float | None = None, unit: str = "") -> float | None:
+        value = self.get(key, default)
+        if key not in self.data:
+            return value
+        if not is_number(value) or not math.isfinite(value):
+            raise self.error(key, f"must be a finite number, got {describe(value)}")
+        unit = f" {unit}" if unit else ""
+        if gt is not None and not value > gt:
+            raise self.error(key, f"must be > {gt:g}{unit}, got {value:g}")
+        if ge is not None and not value >= ge:
+            raise self.error(key, f"must be >= {ge:g}{unit}, got {value:g}")
+        if le is not None and not value <= le:
+            raise self.error(key, f"must be <= {le:g}{unit}, got {value:g}")
+        return float(value)
+
+    def integer(self, key: str, default=_REQUIRED, *, ge: int | None = None) -> int | None:
+        value = self.get(key, default)
+        if key not in self.data:
+            return value
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise self.error(key, f"must be a whole number, got {describe(value)}")
+        if ge is not None and value < ge:
+            raise self.error(key, f"must be >= {ge}, got {value}")
+        return value
+
+    def boolean(self, key: str, default=_REQUIRED) -> bool:
+        value = self.get(key, default)
+        if not isinstance(value, bool):
+            raise self.error(key, f"must be true or false, got {describe(value)}")
+        return value
+
+    def string(self, key: str, default=_REQUIRED, *, choices: Iterable[str] | None = None,
+               nonempty: bool = False) -> str:
+        value = self.get(key, default)
+        if not isinstance(value, str):
+            raise self.error(key, f"must be a string, got {describe(value)}")
+        if nonempty and not value.strip():
+            raise self.error(key, "must not be empty")
+        if choices is not None and value not in choices:
+            choices = list(choices)
+            raise self.error(key, f"got {value!r}, expected one of {', '.join(choices)}")
+        return value
+
+    def file(self, key: str) -> Path:
+        """A path value; relative paths start at the configuration file's folder."""
+        path = Path(self.string(key, nonempty=True)).expanduser()
+        return path if path.is_absolute() else self.doc.base_dir / path
+
+    def table(self, key: str, allowed: Iterable[str], required: bool = False) -> "Table":
+        """A sub-table (empty when absent and not required)."""
+        if required and key not in self.data:
+            raise self.error(key, f"missing required table [{dotted(self.path + (key,))}]")
+        value = self.data.get(key, {})
+        if not isinstance(value, dict):
+            raise self.error(key, f"must be a table ([{dotted(self.path + (key,))}]), got {describe(value)}")
+        return Table(self.doc, self.path + (key,), value, allowed)

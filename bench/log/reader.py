@@ -1,0 +1,452 @@
+"""Read a run log (MCAP, as written by `bench.log.recorder`) into arrays, tolerating damage.
+
+`read_log(path)` never needs the summary: it walks the records (see `bench.log.walk`),
+checks every chunk's CRC, and reads around damage: a file cut off by a crash gives
+everything up to its last complete chunk, a chunk that fails its CRC (or cannot be
+decompressed) is skipped and reading resumes after it. `RunLog.damage` says exactly what
+was lost (byte offsets, log-time ranges, message counts per topic where the file's
+message index or summary tells them); `RunLog.complete` is False when anything was. A
+file that is not MCAP at all raises `LogError` with a one-line message naming the file.
+
+The raw CAN frames (`/can/raw`) are the source of truth for IMU data:
+`RunLog.imu_samples(layout, rate_hz)` decodes them with the bulk decoder. The decoded
+`/imu/samples` topic (possibly decimated) is parsed on first use of `RunLog.imu_records`,
+the table states on first use of `RunLog.table_states` (a reader that wants the samples
+does not pay for them; malformed messages found then are added to `damage`).
+The recorder writes `/imu/samples` in chunks of their own, the bulk of a log; `read_log`
+leaves those compressed and unchecked until `RunLog.imu_records` (or
+`RunLog.check_deferred()`) needs them, and adds any damage found then to `damage`
+(`read_log(path, defer_samples=False)` checks every chunk at once).
+The file is memory-mapped; `/can/raw` batches of one frame length (the usual case) are
+unpacked chunk by chunk on worker threads straight into the frame arrays.
+"""
+
+from __future__ import annotations
+
+import json
+import mmap
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from bench.plan.events import Event
+from bench.log.walk import ChannelData, Damage, WalkError, walk
+from bench.log.recorder import CAN_ENCODING, FLAG_ERROR, FLAG_REMOTE, TOPIC_CAN, TOPIC_EVENTS, TOPIC_SAMPLES, TOPIC_STATE
+from drivers.imu import ImuSampleBlock, ImuStats, decode_frames
+from drivers.imu.layout import ImuLayout
+
+#: Data width of `RunLog.can_data` when every frame fits a classic frame; CAN FD logs get 64.
+CLASSIC_WIDTH, FD_WIDTH = 8, 64
+
+
+class LogError(Exception):
+    """The file cannot be read as a run log at all."""
+
+
+@dataclass
+class TableStates:
+    """The polled table states, in log order."""
+
+    time_s: np.ndarray      # (n,)
+    angles_deg: np.ndarray  # (n, 3) outer, middle, inner
+    rates_dps: np.ndarray   # (n, 3)
+    status: np.ndarray      # (n, 3) int64 AxisStatus bits
+    estop: np.ndarray       # (n,) bool
+    modes: list             # n tuples of 3 mode strings
+    fault_text: list        # n strings
+
+    def __len__(self) -> int:
+        return len(self.time_s)
+
+    @classmethod
+    def from_dicts(cls, rows: list[dict]) -> "TableStates":
+        n = len(rows)
+
+        def vec(key, dtype=float):
+            try:   # numpy reads None as NaN for floats; anything else odd takes the explicit route
+                return np.array([r[key] for r in rows], dtype).reshape(n, 3)
+            except (TypeError, ValueError):
+                return np.array([[np.nan if v is None else v for v in r[key]] for r in rows], dtype).reshape(n, 3)
+
+        try:
+            time_s = np.array([r["time_s"] for r in rows], float).reshape(n)
+        except (TypeError, ValueError):
+            time_s = np.array([np.nan if r["time_s"] is None else r["time_s"] for r in rows], float).reshape(n)
+        return cls(time_s,
+                   vec("angles_deg"), vec("rates_dps"), vec("status", np.int64),
+                   np.array([bool(r.get("estop")) for r in rows], bool).reshape(n),
+                   [tuple(r["modes"]) for r in rows], [str(r.get("fault_text", "")) for r in rows])
+
+
+@dataclass
+class ImuRecords:
+    """The decoded samples as recorded on `/imu/samples` (possibly decimated), in log order."""
+
+    counter: np.ndarray         # (n,) int64
+    time_s: np.ndarray          # (n,) counter / rate
+    receive_time_s: np.ndarray  # (n,) the message log times
+    gyro_counts: np.ndarray     # (n, 3)
+    acc_counts: np.ndarray      # (n, 3)
+    temperature_c: np.ndarray   # (n,) NaN where not recorded
+    status: np.ndarray          # (n,) int64
+
+    def __len__(self) -> int:
+        return len(self.counter)
+
+
+@dataclass
+class RunLog:
+    """Everything read from one run log. CAN frames are arrays for the bulk decoder."""
+
+    path: str
+    metadata: dict[str, dict[str, str]]
+    attachments: dict[str, tuple[str, bytes]]
+    events: list[Event]
+    can_timestamp_s: np.ndarray   # (n,) float64, each frame's own timestamp (run clock)
+    can_ids: np.ndarray           # (n,) uint32, bit 31 set = extended id
+    can_data: np.ndarray          # (n, 8) uint8 (n, 64 if any frame is longer), zero-padded
+    can_lengths: np.ndarray       # (n,) int64
+    can_flags: np.ndarray         # (n,) uint8, bits as in bench.log.recorder (FD, BRS, ESI, remote, error)
+    summary_present: bool
+    damage: list[str]
+    lost: list[Damage]            # the damage entries behind `damage`, with offsets and counts
+    message_counts: dict[str, int]
+    chunks: int
+    library: str
+    _samples: ChannelData | None = field(default=None, repr=False)
+    _states: ChannelData | None = field(default=None, repr=False)
+    _decoded: list = field(default_factory=list, repr=False)   # (layout, rate, window, (block, stats))
+
+    @property
+    def complete(self) -> bool:
+        """True when nothing was lost (the file was closed and every record read)."""
+        return not self.damage
+
+    @cached_property
+    def table_states(self) -> TableStates:
+        """The `/table/state` topic as arrays (parsed on first use; malformed messages are skipped
+        and counted in `damage`)."""
+        d = self._states
+        if d is None or not len(d):
+            return TableStates.from_dicts([])
+        rows, bad = _parse_json_rows(d)
+        rows = [r for r in rows if r is not None]
+        try:
+            states = TableStates.from_dicts(rows)
+        except (KeyError, TypeError, ValueError):
+            good = []
+            for r in rows:
+                try:
+                    TableStates.from_dicts([r])
+                    good.append(r)
+                except (KeyError, TypeError, ValueError):
+                    bad += 1
+            states = TableStates.from_dicts(good)
+        if bad:
+            damage = Damage("message", 0, f"{bad} malformed {TOPIC_STATE} messages skipped")
+            self.lost.append(damage)
+            self.damage.append(damage.describe())
+        return states
+
+    @cached_property
+    def imu_records(self) -> ImuRecords:
+        """The `/imu/samples` topic as arrays (parsed on first use)."""
+        self.check_deferred()
+        d = self._samples
+        if d is None or not len(d):
+            return ImuRecords(np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)),
+                              np.zeros(0), np.zeros(0, np.int64))
+        rows, bad = _parse_json_rows(d)
+        if bad:
+            self.damage.append(f"{bad} malformed messages on {TOPIC_SAMPLES} skipped")
+        times = d.log_time_ns[[i for i, r in enumerate(rows) if r is not None]] / 1e9
+        rows = [r for r in rows if r is not None]
+        try:
+            return ImuRecords(np.array([r["counter"] for r in rows], np.int64),
+                              np.array([r["time_s"] for r in rows], float), times,
+                              np.array([r["gyro_counts"] for r in rows], float).reshape(-1, 3),
+                              np.array([r["acc_counts"] for r in rows], float).reshape(-1, 3),
+                              np.array([np.nan if r["temperature_c"] is None else r["temperature_c"] for r in rows],
+                                       float),
+                              np.array([r["status"] for r in rows], np.int64))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise LogError(f"{self.path}: {TOPIC_SAMPLES} messages do not have the expected fields ({exc})") from exc
+
+    def imu_samples(self, layout: ImuLayout | None = None, rate_hz: float = 1000.0,
+                    reorder_window: int = 8) -> tuple[ImuSampleBlock, ImuStats]:
+        """Decode the raw data frames into samples (the source of truth) and link statistics.
+
+        Error and remote frames are logged but never decoded, as live (`non_data_frames` counts
+        them). The decode is kept: solving and the report both ask for it (treat the arrays as
+        read-only).
+        """
+        for cached_layout, cached_rate, cached_window, decoded in self._decoded:
+            if cached_layout is layout and cached_rate == rate_hz and cached_window == reorder_window:
+                return decoded
+        ids, data, lengths, times = self.can_ids, self.can_data, self.can_lengths, self.can_timestamp_s
+        if self.non_data_frames:
+            keep = (self.can_flags & (FLAG_REMOTE | FLAG_ERROR)) == 0
+            ids, data, lengths, times = ids[keep], data[keep], lengths[keep], times[keep]
+        decoded = decode_frames(ids, data, lengths, times, layout=layout, rate_hz=rate_hz,
+                                reorder_window=reorder_window)
+        self._decoded.append((layout, rate_hz, reorder_window, decoded))
+        return decoded
+
+    @cached_property
+    def non_data_frames(self) -> int:
+        """Error and remote frames in `/can/raw` (recorded, never decoded)."""
+        return int(np.count_nonzero(self.can_flags & (FLAG_REMOTE | FLAG_ERROR)))
+
+    @property
+    def unchecked_chunks(self) -> int:
+        """`/imu/samples` chunks not decompressed (nor CRC-checked) yet: see `check_deferred`."""
+        return self._samples.deferred_chunks if self._samples is not None else 0
+
+    def check_deferred(self) -> list[str]:
+        """Decompress and check the deferred `/imu/samples` chunks; returns (and adds to `damage`)
+        what was lost in them."""
+        if not self.unchecked_chunks:
+            return []
+        found = self._samples.inflate_deferred(TOPIC_SAMPLES)
+        self.lost.extend(found)
+        lines = [d.describe() for d in found]
+        self.damage.extend(lines)
+        return lines
+
+    def summary(self) -> str:
+        """One line: what the log holds and whether anything was lost."""
+        state = "complete" if self.complete else f"DAMAGED ({len(self.damage)} problems)"
+        unchecked = (f" ({self.unchecked_chunks} {TOPIC_SAMPLES} chunks, derived from {TOPIC_CAN}, not read)"
+                     if self.unchecked_chunks else "")
+        return (f"{self.path}: {len(self.can_ids)} CAN frames, {len(self.table_states)} table states, "
+                f"{len(self.events)} events, {self.chunks} chunks{unchecked}; {state}")
+
+
+def _parse_json_rows(d: ChannelData) -> tuple[list, int]:
+    """Each message of a JSON channel as a dict (None where malformed) and the malformed count."""
+    payloads = d.payloads()
+    try:
+        rows = json.loads(b"[" + b",".join(payloads) + b"]")
+        if len(rows) == len(payloads) and all(isinstance(r, dict) for r in rows):
+            return rows, 0
+    except ValueError:
+        pass
+    rows, bad = [], 0
+    for p in payloads:
+        try:
+            r = json.loads(p)
+            if not isinstance(r, dict):
+                raise ValueError("not an object")
+            rows.append(r)
+        except ValueError:
+            rows.append(None)
+            bad += 1
+    return rows, bad
+
+
+def _empty_can(width: int = CLASSIC_WIDTH):
+    return (np.zeros(0), np.zeros(0, np.uint32), np.zeros((0, width), np.uint8), np.zeros(0, np.int64),
+            np.zeros(0, np.uint8))
+
+
+def _uniform_can(buf: bytes):
+    """Fast path: every frame has the same length (a classic or fixed-size FD layout)."""
+    u8 = np.frombuffer(buf, np.uint8)
+    length = int(u8[13])
+    rec = 14 + length
+    if len(buf) % rec or not (u8[13::rec] == length).all():
+        return None
+    dt = np.dtype([("t", "<f8"), ("id", "<u4"), ("flags", "u1"), ("len", "u1"), ("data", "u1", (length,))])
+    arr = np.frombuffer(buf, dt)
+    width = CLASSIC_WIDTH if length <= CLASSIC_WIDTH else FD_WIDTH
+    data = np.zeros((len(arr), width), np.uint8)
+    data[:, :length] = arr["data"]
+    return (arr["t"].astype(np.float64), arr["id"].astype(np.uint32), data,
+            np.full(len(arr), length, np.int64), arr["flags"].astype(np.uint8))
+
+
+def _uniform_can_parts(d: ChannelData):
+    """The same as `_uniform_can(d.joined())` without joining the whole channel: part by part
+    (one chunk's messages each, still in cache) into the output arrays, on worker threads (numpy
+    copies release the GIL). None when some part is not whole records of one length (the caller
+    then takes the general route over the joined payloads)."""
+    sizes = [int(x.sum()) for x in d.lengths]
+    total = sum(sizes)
+    first = next((k for k, size in enumerate(sizes) if size), None)
+    if first is None or total < 14 or sizes[first] < 14:
+        return None
+    length = d.part_bytes(first)[13]
+    rec = 14 + length
+    if any(size % rec for size in sizes):
+        return None
+    n = total // rec
+    width = CLASSIC_WIDTH if length <= CLASSIC_WIDTH else FD_WIDTH
+    # 8 data bytes move as one uint64 per frame (classic frames: the common case)
+    words = length == 8 == width
+    dt = np.dtype([("t", "<f8"), ("id", "<u4"), ("flags", "u1"), ("len", "u1"),
+                   ("data", "<u8") if words else ("data", "u1", (length,))])
+    t, ids, flags = np.empty(n), np.empty(n, np.uint32), np.empty(n, np.uint8)
+    data = (np.empty if length == width else np.zeros)((n, width), np.uint8)
+    data_out = data.view("<u8").reshape(n) if words else data
+    starts = np.concatenate(([0], np.cumsum(sizes) // rec)).tolist()
+
+    def fill(parts: range) -> bool:
+        for k in parts:
+            if not sizes[k]:
+                continue
+            arr = np.frombuffer(d.part_bytes(k), dt)
+            if not (arr["len"] == length).all():
+                return False
+            a, b = starts[k], starts[k + 1]
+            t[a:b] = arr["t"]
+            ids[a:b] = arr["id"]
+            if words:
+                data_out[a:b] = arr["data"]
+            else:
+                data_out[a:b, :length] = arr["data"]
+            flags[a:b] = arr["flags"]
+        return True
+
+    workers = min(len(sizes) // 4, os.cpu_count() or 1, 4)
+    if workers > 1:
+        step = -(-len(sizes) // workers)
+        with ThreadPoolExecutor(workers, thread_name_prefix="can-frames") as pool:
+            ok = all(pool.map(fill, [range(a, min(a + step, len(sizes))) for a in range(0, len(sizes), step)]))
+    else:
+        ok = fill(range(len(sizes)))
+    if not ok:
+        return None
+    return t, ids, data, np.full(n, length, np.int64), flags
+
+
+def _frame_offsets(p: bytes) -> list[int] | None:
+    """Record offsets within one `/can/raw` message, None if its framing is broken."""
+    offsets, pos, n = [], 0, len(p)
+    while pos < n:
+        if pos + 14 > n:
+            return None
+        offsets.append(pos)
+        pos += 14 + p[pos + 13]
+    return offsets if pos == n else None
+
+
+def _general_can(payloads: list[bytes]) -> tuple[tuple, int]:
+    """Frames of mixed lengths, message by message; malformed messages are dropped and counted."""
+    good, offsets, base, bad = [], [], 0, 0
+    for p in payloads:
+        offs = _frame_offsets(p)
+        if offs is None:
+            bad += 1
+            continue
+        good.append(p)
+        offsets.extend(o + base for o in offs)
+        base += len(p)
+    if not offsets:
+        return _empty_can(), bad
+    buf = np.frombuffer(b"".join(good), np.uint8)
+    offs = np.asarray(offsets, np.int64)
+    t = buf[offs[:, None] + np.arange(8)].copy().view("<f8").reshape(-1)
+    ids = buf[offs[:, None] + np.arange(8, 12)].copy().view("<u4").reshape(-1)
+    flags = buf[offs + 12]
+    lengths = buf[offs + 13].astype(np.int64)
+    width = CLASSIC_WIDTH if lengths.max() <= CLASSIC_WIDTH else FD_WIDTH
+    cols = np.arange(width)
+    idx = np.minimum(offs[:, None] + 14 + cols, len(buf) - 1)
+    data = np.where(cols < lengths[:, None], buf[idx], 0).astype(np.uint8)
+    return (t, ids, data, lengths, flags), bad
+
+
+def _read_can(d: ChannelData | None) -> tuple[tuple, int]:
+    if d is None or not len(d):
+        return _empty_can(), 0
+    fast = _uniform_can_parts(d)
+    if fast is not None:
+        return fast, 0
+    buf = d.joined()
+    if len(buf) >= 14:
+        fast = _uniform_can(buf)
+        if fast is not None:
+            return fast, 0
+    return _general_can(d.payloads())
+
+
+def _map_file(path: str):
+    """The file's bytes, memory-mapped (no copy; the walk reads each byte about once)."""
+    try:
+        with open(path, "rb") as f:
+            try:
+                return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+            except (ValueError, OSError):   # empty, or a file that cannot be mapped: read it
+                return f.read()
+    except OSError as exc:
+        raise LogError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+
+
+def read_log(path, *, defer_samples: bool = True) -> RunLog:
+    """Read a run log; see the module docstring for how damage is handled and what `defer_samples` does."""
+    path = str(path)
+    buf = _map_file(path)
+    try:
+        w = walk(buf, defer_topics=frozenset({TOPIC_SAMPLES}) if defer_samples else frozenset())
+    except WalkError as exc:
+        raise LogError(f"{path}: {exc}") from exc
+    finally:
+        if isinstance(buf, mmap.mmap):
+            try:
+                buf.close()
+            except BufferError:   # a view is still alive somewhere: the mapping goes when it does
+                pass
+        del buf
+
+    by_topic: dict[str, ChannelData] = {}
+    counts: dict[str, int] = {}
+    for ch, d in w.data.items():
+        topic = w.topic(ch)
+        counts[topic] = counts.get(topic, 0) + len(d)
+        channel = w.channels.get(ch)
+        if channel is not None and topic == TOPIC_CAN and channel.message_encoding != CAN_ENCODING:
+            raise LogError(f"{path}: {TOPIC_CAN} has message encoding {channel.message_encoding!r}, "
+                           f"expected {CAN_ENCODING!r}")
+        by_topic[topic] = d
+    damage = list(w.damage)
+
+    # The summary's statistics tell how many messages each channel should have.
+    if w.statistics is not None:
+        known_lost: dict[str, int] = {}
+        for dmg in damage:
+            for topic, n in dmg.lost.items():
+                known_lost[topic] = known_lost.get(topic, 0) + n
+        for ch, expected in w.statistics.channel_message_counts.items():
+            topic = w.topic(ch)
+            missing = expected - counts.get(topic, 0) - known_lost.get(topic, 0)
+            if missing > 0:
+                damage.append(Damage("message", w.size, f"the summary counts {missing} more messages on {topic} "
+                                                        f"than were read"))
+
+    (t, ids, data, lengths, flags), bad_can = _read_can(by_topic.get(TOPIC_CAN))
+    if bad_can:
+        damage.append(Damage("message", 0, f"{bad_can} malformed {TOPIC_CAN} messages skipped"))
+
+    events: list[Event] = []
+    if TOPIC_EVENTS in by_topic:
+        rows, bad = _parse_json_rows(by_topic[TOPIC_EVENTS])
+        for r in filter(None, rows):
+            try:
+                events.append(Event.from_dict(r))
+            except (KeyError, TypeError, ValueError, AttributeError):
+                bad += 1
+        if bad:
+            damage.append(Damage("message", 0, f"{bad} malformed {TOPIC_EVENTS} messages skipped"))
+
+    library = w.header.library if w.header is not None else ""
+    return RunLog(path=path, metadata=w.metadata, attachments=w.attachments, events=events,
+                  can_timestamp_s=t, can_ids=ids, can_data=data, can_lengths=lengths, can_flags=flags,
+                  summary_present=w.footer is not None and w.statistics is not None,
+                  damage=[d.describe() for d in damage], lost=damage, message_counts=counts, chunks=w.chunks,
+                  library=library, _samples=by_topic.get(TOPIC_SAMPLES), _states=by_topic.get(TOPIC_STATE))
+
+
+__all__ = ["ImuRecords", "LogError", "RunLog", "TableStates", "read_log"]

@@ -1,0 +1,516 @@
+"""The run recorder: everything a run produces, into one MCAP file (DESIGN section 4, "MCAP log").
+
+Channels (message encoding "json" with a "jsonschema" Schema record, unless noted):
+
+- `/table/state` (`turntable_bench.TableState`): every polled table state; log time = `state.time_s`.
+- `/imu/samples` (`turntable_bench.ImuSample`): one message per decoded sample (every
+  `imu_samples_topic_decimation`-th counter); log time = the sample's receive time.
+- `/events` (`turntable_bench.Event`): `Event.to_dict()`; log time = `event.time_s`.
+- `/log` (`foxglove.Log`): one line per event (fault -> ERROR, warning -> WARNING, else INFO).
+- `/tf` (`foxglove.FrameTransform`): per table state world->outer, outer->middle,
+  middle->inner at the nominal frame angles (black-box errors are unknown to the bench).
+- `/can/raw` (`turntable_bench.CanFrames`, message encoding `turntable-bench/can-frames-v1`):
+  every raw CAN frame, losslessly, one message per `on_can_frames` batch. Layout: records
+  concatenated, each `<d` timestamp_s, `<I` arbitration id (bit 31 set = 29-bit id), `<B`
+  flags (bit0 FD, bit1 bitrate switch, bit2 error state indicator, bit3 remote, bit4 error
+  frame), `<B` data length n, then n data bytes. Log time = the batch's newest frame
+  timestamp (the sequencer stamps frames on the run clock).
+
+Transform convention: DESIGN section 2 defines the frame matrices as coordinate transforms
+`C_parent^child` (outer/inner `[[c,-s,0],[s,c,0],[0,0,1]]` about Z, middle
+`[[c,0,s],[0,1,0],[-s,0,c]]` about Y; `v_child = C_parent^child v_parent`). A Foxglove
+FrameTransform carries the child frame's orientation in the parent, i.e. the rotation
+that maps child coordinates to parent coordinates: `(C_parent^child)^T`. For a frame angle
+theta that is a right-handed rotation by -theta about the frame axis (the paper's positive
+angle is "clockwise"), so the quaternion is `(axis * sin(-theta/2), cos(-theta/2))`.
+"world" is the local ENU frame `t`.
+
+Times: MCAP log times are unsigned nanoseconds on the run clock; a negative time is
+recorded as 0. Metadata records are written when given; attachments any time before
+`close()`. Chunks are zstd-compressed with CRCs and closed when they reach `chunk_size`
+bytes or `chunk_interval_s` of wall time after the previous close, so a crash loses at
+most about that much. `/imu/samples` messages are held back and written at each close in
+chunks of their own: they are derived from `/can/raw` and are the bulk of a log, so a
+reader that needs the frames, events and states skips them without decompressing
+(`bench.log.reader` defers them until asked for). Schema and Channel records are also written outside the first chunk,
+so a reader can decode every later chunk even if the first one is damaged.
+The recorder is single-threaded: call it from the sequencer's thread only.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import struct
+import time
+from typing import Any, Callable, Mapping, Sequence
+
+from mcap.data_stream import RecordBuilder
+from mcap.records import Channel, Schema
+from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
+
+import bench
+from bench.plan.events import Event, RunListener
+
+CAN_ENCODING = "turntable-bench/can-frames-v1"
+EXTENDED_ID_FLAG = 1 << 31
+FLAG_FD, FLAG_BRS, FLAG_ESI, FLAG_REMOTE, FLAG_ERROR = 0x01, 0x02, 0x04, 0x08, 0x10
+#: One raw CAN record header: timestamp_s, id (bit 31 = extended), flags, data length.
+CAN_RECORD = struct.Struct("<dIBB")
+
+TOPIC_STATE, TOPIC_SAMPLES, TOPIC_EVENTS, TOPIC_LOG, TOPIC_TF, TOPIC_CAN = (
+    "/table/state", "/imu/samples", "/events", "/log", "/tf", "/can/raw")
+TF_FRAMES = ("world", "outer", "middle", "inner")
+LOG_INFO, LOG_WARNING, LOG_ERROR = 2, 3, 4
+
+_TIME = {"type": "object", "title": "time",
+         "properties": {"sec": {"type": "integer", "minimum": 0},
+                        "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}}}
+_VEC3 = {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3}
+
+SCHEMAS: dict[str, dict[str, Any]] = {
+    "turntable_bench.TableState": {
+        "title": "turntable_bench.TableState", "description": "One read of the whole table (outer, middle, inner)",
+        "type": "object",
+        "properties": {
+            "time_s": {"type": "number", "description": "reading time on the run clock, s"},
+            "angles_deg": {**_VEC3, "description": "frame angles, deg (paper convention)"},
+            "rates_dps": {**_VEC3, "description": "frame rates d(angle)/dt, deg/s"},
+            "modes": {"type": "array", "items": {"type": "string", "enum": ["off", "position", "rate"]}},
+            "status": {"type": "array", "items": {"type": "integer"},
+                       "description": "AxisStatus bits: 1 enabled, 2 moving, 4 in position, 8 fault, 16 e-stop, "
+                                      "32 limit"},
+            "estop": {"type": "boolean"},
+            "fault_text": {"type": "string"},
+        },
+    },
+    "turntable_bench.ImuSample": {
+        "title": "turntable_bench.ImuSample", "description": "One decoded IMU sample", "type": "object",
+        "properties": {
+            "counter": {"type": "integer", "description": "unwrapped sample counter"},
+            "time_s": {"type": "number", "description": "counter / sample rate, s (IMU time base)"},
+            "gyro_counts": {**_VEC3, "description": "gyro increments this sample, output counts"},
+            "acc_counts": {**_VEC3, "description": "accelerometer increments this sample, output counts"},
+            "gyro_rate": {**_VEC3, "description": "gyro outputs as rates, counts/s"},
+            "acc_rate": {**_VEC3, "description": "accelerometer outputs as rates, counts/s"},
+            "temperature_c": {"type": ["number", "null"]},
+            "status": {"type": "integer"},
+        },
+    },
+    "turntable_bench.Event": {
+        "title": "turntable_bench.Event", "description": "A sequencer event", "type": "object",
+        "properties": {
+            "time_s": {"type": "number"}, "kind": {"type": "string"}, "message": {"type": "string"},
+            "state": {"type": ["string", "null"]}, "step_index": {"type": ["integer", "null"]},
+            "step_unit": {"type": ["string", "null"]}, "data": {"type": "object"},
+        },
+    },
+    "foxglove.Log": {
+        "title": "foxglove.Log", "description": "A log message", "type": "object",
+        "properties": {
+            "timestamp": {**_TIME, "description": "Timestamp of log message"},
+            "level": {"title": "foxglove.LogLevel", "description": "Log level",
+                      "oneOf": [{"title": name, "const": k} for k, name in
+                                enumerate(("UNKNOWN", "DEBUG", "INFO", "WARNING", "ERROR", "FATAL"))]},
+            "message": {"type": "string", "description": "Log message"},
+            "name": {"type": "string", "description": "Process or node name"},
+            "file": {"type": "string", "description": "Filename"},
+            "line": {"type": "integer", "minimum": 0, "description": "Line number in the file"},
+        },
+    },
+    "foxglove.FrameTransform": {
+        "title": "foxglove.FrameTransform", "description": "A transform between two reference frames in 3D space",
+        "type": "object",
+        "properties": {
+            "timestamp": {**_TIME, "description": "Timestamp of transform"},
+            "parent_frame_id": {"type": "string", "description": "Name of the parent frame"},
+            "child_frame_id": {"type": "string", "description": "Name of the child frame"},
+            "translation": {"title": "foxglove.Vector3", "description": "Translation component of the transform",
+                            "type": "object",
+                            "properties": {k: {"type": "number", "description": f"{k} coordinate length"}
+                                           for k in "xyz"}},
+            "rotation": {"title": "foxglove.Quaternion", "description": "Rotation component of the transform",
+                         "type": "object",
+                         "properties": {k: {"type": "number", "description": f"{k} value"} for k in "xyzw"}},
+        },
+    },
+}
+
+CAN_SCHEMA_NAME = "turntable_bench.CanFrames"
+CAN_SCHEMA_TEXT = """turntable-bench/can-frames-v1: raw CAN frames, lossless, little-endian binary.
+A message is a batch of frames: records concatenated with no padding, each
+  float64   timestamp_s   the frame's receive time on the run clock, s
+  uint32    id            arbitration id; bit 31 set = extended (29-bit) id
+  uint8     flags         bit0 CAN FD, bit1 bitrate switch, bit2 error state indicator,
+                          bit3 remote frame, bit4 error frame
+  uint8     length        number of data bytes that follow (0..64)
+  length x uint8          data
+The message log time is the newest timestamp of its batch.
+"""
+
+#: topic -> schema name, schema encoding, message encoding
+CHANNELS: dict[str, tuple[str, str, str]] = {
+    TOPIC_STATE: ("turntable_bench.TableState", "jsonschema", "json"),
+    TOPIC_SAMPLES: ("turntable_bench.ImuSample", "jsonschema", "json"),
+    TOPIC_EVENTS: ("turntable_bench.Event", "jsonschema", "json"),
+    TOPIC_LOG: ("foxglove.Log", "jsonschema", "json"),
+    TOPIC_TF: ("foxglove.FrameTransform", "jsonschema", "json"),
+    TOPIC_CAN: (CAN_SCHEMA_NAME, "", CAN_ENCODING),
+}
+
+_COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+
+
+class RecorderError(Exception):
+    """The recorder cannot write (bad arguments, closed, or an I/O error)."""
+
+
+def time_ns(time_s: float) -> int:
+    """Seconds on the run clock -> MCAP log time (ns, >= 0; NaN -> 0)."""
+    if not time_s > 0.0:    # also NaN
+        return 0
+    return int(round(time_s * 1e9))
+
+
+def _stamp(time_s: float) -> str:
+    ns = time_ns(time_s)
+    return f'{{"sec":{ns // 1_000_000_000},"nsec":{ns % 1_000_000_000}}}'
+
+
+def _num(x: float) -> str:
+    """A float as a JSON number (null for NaN/inf, which JSON cannot carry)."""
+    x = float(x)
+    return repr(x) if math.isfinite(x) else "null"
+
+
+def _json_default(obj: Any) -> Any:
+    """Event data may carry numpy scalars/arrays, enums, sets; anything else becomes its repr."""
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    if hasattr(obj, "value") and hasattr(obj, "name"):
+        return obj.value
+    if isinstance(obj, (set, frozenset, tuple)):
+        return list(obj)
+    return repr(obj)
+
+
+def _finite(obj: Any) -> Any:
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    return obj
+
+
+def to_json(obj: Any) -> bytes:
+    """Strict JSON (non-finite floats -> null), numpy-tolerant."""
+    try:
+        return json.dumps(obj, default=_json_default, allow_nan=False, separators=(",", ":")).encode()
+    except ValueError:
+        obj = json.loads(json.dumps(obj, default=_json_default))
+        return json.dumps(_finite(obj), allow_nan=False, separators=(",", ":")).encode()
+
+
+def frame_quaternions(angles_deg: Sequence[float]) -> list[tuple[float, float, float, float]]:
+    """(x, y, z, w) of outer-in-world, middle-in-outer, inner-in-middle at nominal frame angles.
+
+    Each is the rotation `(C_parent^child)^T`: -theta about the frame axis (Z, Y, Z).
+    """
+    out = []
+    for axis, angle_deg in zip((2, 1, 2), angles_deg):
+        half = -math.radians(angle_deg) / 2.0
+        q = [0.0, 0.0, 0.0, math.cos(half)]
+        q[axis] = math.sin(half)
+        out.append(tuple(q))
+    return out
+
+
+def encode_can_frames(frames: Sequence) -> tuple[bytes, float]:
+    """python-can `Message`s -> (`can-frames-v1` bytes, newest timestamp)."""
+    pack = CAN_RECORD.pack
+    parts: list = []
+    append = parts.append
+    newest = -math.inf
+    for m in frames:
+        data = m.data if m.data is not None else b""
+        t = m.timestamp
+        if t > newest:
+            newest = t
+        flags = 0
+        if m.is_fd or m.is_remote_frame or m.is_error_frame or m.error_state_indicator:
+            flags = ((FLAG_FD if m.is_fd else 0) | (FLAG_BRS if m.bitrate_switch else 0)
+                     | (FLAG_ESI if m.error_state_indicator else 0) | (FLAG_REMOTE if m.is_remote_frame else 0)
+                     | (FLAG_ERROR if m.is_error_frame else 0))
+        append(pack(t, m.arbitration_id | EXTENDED_ID_FLAG if m.is_extended_id else m.arbitration_id, flags,
+                    len(data)))
+        append(data)
+    return b"".join(parts), newest
+
+
+class McapRecorder(RunListener):
+    """Writes a run to an MCAP file; see the module docstring for channels and conventions.
+
+    `metadata`: name -> {key: value} records written at once (values str; numbers are
+    converted). `clock` is a wall clock used only to decide when to close a chunk.
+    `compression`: "zstd" (default), "lz4" or "none".
+    """
+
+    def __init__(self, path, *, metadata: Mapping[str, Mapping[str, str]] | None = None,
+                 chunk_interval_s: float = 1.0, clock: Callable[[], float] = time.monotonic,
+                 imu_samples_topic_decimation: int = 1, chunk_size: int = 4 * 1024 * 1024,
+                 compression: str = "zstd"):
+        if not (isinstance(imu_samples_topic_decimation, int) and imu_samples_topic_decimation >= 1):
+            raise RecorderError(f"imu_samples_topic_decimation must be a positive integer, "
+                                f"got {imu_samples_topic_decimation!r}")
+        if not chunk_interval_s > 0:
+            raise RecorderError(f"chunk_interval_s must be positive, got {chunk_interval_s!r}")
+        if compression not in _COMPRESSION:
+            raise RecorderError(f"compression must be one of {sorted(_COMPRESSION)}, got {compression!r}")
+        self.path = str(path)
+        self.chunk_interval_s = float(chunk_interval_s)
+        self.decimation = imu_samples_topic_decimation
+        self._clock = clock
+        self.frames_written = 0
+        self.samples_written = 0
+        self.messages_written = 0
+        self._closed = False
+        self._chunk_size = chunk_size
+        self._held_samples: list[tuple[int, bytes]] = []   # /imu/samples messages for the next samples chunk
+        self._held_bytes = 0
+        try:
+            self._file = open(self.path, "wb")
+        except OSError as exc:
+            raise RecorderError(f"cannot create MCAP log {self.path}: {exc}") from exc
+        try:
+            self._writer = Writer(self._file, chunk_size=chunk_size, compression=_COMPRESSION[compression])
+            self._writer.start(profile="", library=f"turntable-bench/{bench.__version__}; {LIBRARY_IDENTIFIER}")
+            self._channel = self._register()
+            for name, data in (metadata or {}).items():
+                self._add_metadata(name, data)
+            self._file.flush()
+        except Exception as exc:
+            self._file.close()
+            if isinstance(exc, RecorderError):
+                raise
+            raise RecorderError(f"cannot start MCAP log {self.path}: {exc}") from exc
+        self._last_close = clock()
+
+    # -- setup -------------------------------------------------------------------------
+    def _register(self) -> dict[str, int]:
+        schema_ids: dict[str, int] = {}
+        records = RecordBuilder()
+        for name, body in SCHEMAS.items():
+            data = json.dumps(body, indent=1).encode()
+            schema_ids[name] = self._writer.register_schema(name, "jsonschema", data)
+            Schema(id=schema_ids[name], name=name, encoding="jsonschema", data=data).write(records)
+        data = CAN_SCHEMA_TEXT.encode()
+        schema_ids[CAN_SCHEMA_NAME] = self._writer.register_schema(CAN_SCHEMA_NAME, "", data)
+        Schema(id=schema_ids[CAN_SCHEMA_NAME], name=CAN_SCHEMA_NAME, encoding="", data=data).write(records)
+        channel_ids = {}
+        for topic, (schema, _, encoding) in CHANNELS.items():
+            channel_ids[topic] = self._writer.register_channel(topic, encoding, schema_ids[schema])
+            Channel(id=channel_ids[topic], topic=topic, message_encoding=encoding, metadata={},
+                    schema_id=schema_ids[schema]).write(records)
+        # The Writer keeps these records inside the first chunk only; a copy in the data
+        # section (allowed by the MCAP spec, identical records) keeps later chunks decodable.
+        self._file.write(records.end())
+        return channel_ids
+
+    def _add_metadata(self, name: str, data: Mapping[str, Any]) -> None:
+        if not isinstance(name, str) or not isinstance(data, Mapping):
+            raise RecorderError(f"metadata must map a name to a dict of strings, got {name!r}: {type(data).__name__}")
+        clean = {}
+        for k, v in data.items():
+            if isinstance(v, bool) or isinstance(v, (int, float)):
+                v = str(v).lower() if isinstance(v, bool) else str(v)
+            if not isinstance(k, str) or not isinstance(v, str):
+                raise RecorderError(f"metadata {name!r}: key {k!r} must be a string with a string value, "
+                                    f"got {type(v).__name__}")
+            clean[k] = v
+        self._writer.add_metadata(name, clean)
+
+    # -- public writing API ------------------------------------------------------------
+    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
+        """Write a metadata record now (e.g. the result summary at the end of a run)."""
+        self._check_open()
+        self._io(self._add_metadata, name, data)
+
+    def add_attachment(self, name: str, media_type: str, data: bytes, log_time_s: float = 0.0) -> None:
+        """Attach a file (schedule, DBC, result JSON) to the log."""
+        self._check_open()
+        if not isinstance(data, (bytes, bytearray, memoryview)):
+            raise RecorderError(f"attachment {name!r}: data must be bytes, got {type(data).__name__}")
+        self._io(self._writer.add_attachment, 0, time_ns(log_time_s), str(name), str(media_type), bytes(data))
+
+    def on_event(self, event: Event) -> None:
+        self._check_open()
+        t = time_ns(event.time_s)
+        level = LOG_ERROR if event.kind == "fault" else LOG_WARNING if event.kind == "warning" else LOG_INFO
+        text = event.message if event.step_unit is None else f"[{event.step_unit}] {event.message}"
+        log = to_json({"timestamp": {"sec": t // 1_000_000_000, "nsec": t % 1_000_000_000}, "level": level,
+                       "message": text, "name": f"sequencer.{event.kind}", "file": "", "line": 0})
+        self._io(self._put, TOPIC_EVENTS, t, to_json(event.to_dict()))
+        self._io(self._put, TOPIC_LOG, t, log)
+        self._tick()
+
+    def on_table_state(self, state) -> None:
+        self._check_open()
+        t = time_ns(state.time_s)
+        angles, rates = state.angles_deg, state.rates_dps
+        body = (f'{{"time_s":{_num(state.time_s)},"angles_deg":[{",".join(map(_num, angles))}],'
+                f'"rates_dps":[{",".join(map(_num, rates))}],'
+                f'"modes":[{",".join(json.dumps(m.value) for m in state.modes)}],'
+                f'"status":[{",".join(str(int(a.status)) for a in state.axes)}],'
+                f'"estop":{"true" if state.estop else "false"},"fault_text":{json.dumps(state.fault_text)}}}')
+        self._io(self._put, TOPIC_STATE, t, body.encode())
+        stamp = _stamp(state.time_s)
+        finite = [a if math.isfinite(a) else 0.0 for a in angles]
+        for k, (x, y, z, w) in enumerate(frame_quaternions(finite)):
+            tf = (f'{{"timestamp":{stamp},"parent_frame_id":"{TF_FRAMES[k]}","child_frame_id":"{TF_FRAMES[k + 1]}",'
+                  f'"translation":{{"x":0.0,"y":0.0,"z":0.0}},"rotation":{{"x":{x!r},"y":{y!r},"z":{z!r},"w":{w!r}}}}}')
+            self._io(self._put, TOPIC_TF, t, tf.encode())
+        self._tick()
+
+    def on_imu(self, block) -> None:
+        self._check_open()
+        if not len(block):
+            return
+        self._io(self._put_samples, block)
+        self._tick()
+
+    def on_can_frames(self, frames: Sequence) -> None:
+        self._check_open()
+        if not len(frames):
+            return
+        try:
+            payload, newest = encode_can_frames(frames)
+        except (AttributeError, TypeError, struct.error) as exc:
+            raise RecorderError(f"cannot encode CAN frames for {TOPIC_CAN}: {exc}") from exc
+        self._io(self._put, TOPIC_CAN, time_ns(newest), payload)
+        self.frames_written += len(frames)
+        self._tick()
+
+    def flush(self) -> None:
+        """Close the open chunk and push everything to the OS now."""
+        self._check_open()
+        self._io(self._close_chunks)
+        self._last_close = self._clock()
+
+    def close(self) -> None:
+        """Write the summary and footer and close the file (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._write_held_samples()
+            self._writer.finish()
+        except Exception as exc:
+            raise RecorderError(f"cannot finish MCAP log {self.path}: {exc}") from exc
+        finally:
+            self._file.close()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    @property
+    def bytes_written(self) -> int:
+        """Bytes handed to the file so far (the open chunk is not included)."""
+        return self._file.tell() if not self._closed else _file_size(self.path)
+
+    def __enter__(self) -> "McapRecorder":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- internals ---------------------------------------------------------------------
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RecorderError(f"MCAP log {self.path} is closed")
+
+    def _io(self, fn, *args) -> None:
+        try:
+            fn(*args)
+        except (OSError, ValueError) as exc:
+            raise RecorderError(f"cannot write MCAP log {self.path}: {exc}") from exc
+
+    def _put(self, topic: str, log_time: int, data: bytes) -> None:
+        self._writer.add_message(self._channel[topic], log_time, data, log_time)
+        self.messages_written += 1
+
+    def _put_samples(self, block) -> None:
+        counter = block.counter
+        keep = None
+        if self.decimation > 1:
+            keep = counter % self.decimation == 0
+            if not keep.any():
+                return
+        rate = float(block.rate_hz)
+
+        def col(a):
+            return (a if keep is None else a[keep]).tolist()
+
+        counters = col(counter)
+        recv = col(block.receive_time_s)
+        g, a = col(block.gyro_counts), col(block.acc_counts)
+        status = col(block.status)
+        temps = [repr(x) if math.isfinite(x) else "null" for x in col(block.temperature_c)]
+        finite = all(math.isfinite(x) for row in g for x in row) and all(math.isfinite(x) for row in a for x in row)
+        held, size = self._held_samples, self._held_bytes
+        for c, r, (g0, g1, g2), (a0, a1, a2), temp, st in zip(counters, recv, g, a, temps, status):
+            if finite:
+                body = (f'{{"counter":{c},"time_s":{c / rate!r},"gyro_counts":[{g0!r},{g1!r},{g2!r}],'
+                        f'"acc_counts":[{a0!r},{a1!r},{a2!r}],"gyro_rate":[{g0 * rate!r},{g1 * rate!r},'
+                        f'{g2 * rate!r}],"acc_rate":[{a0 * rate!r},{a1 * rate!r},{a2 * rate!r}],'
+                        f'"temperature_c":{temp},"status":{st}}}')
+            else:
+                gv, av = (g0, g1, g2), (a0, a1, a2)
+                body = (f'{{"counter":{c},"time_s":{c / rate!r},"gyro_counts":[{",".join(map(_num, gv))}],'
+                        f'"acc_counts":[{",".join(map(_num, av))}],'
+                        f'"gyro_rate":[{",".join(_num(x * rate) for x in gv)}],'
+                        f'"acc_rate":[{",".join(_num(x * rate) for x in av)}],'
+                        f'"temperature_c":{temp},"status":{st}}}')
+            t = int(r * 1e9 + 0.5) if r > 0.0 else 0
+            held.append((t, body.encode()))
+            size += len(body)
+        self._held_bytes = size
+        self.samples_written += len(counters)
+        self.messages_written += len(counters)
+        if size >= self._chunk_size:
+            self._close_chunks()
+
+    def _write_held_samples(self) -> None:
+        """Close the open chunk, then write the held samples as chunks holding nothing else."""
+        if not self._held_samples:
+            return
+        writer, channel = self._writer, self._channel[TOPIC_SAMPLES]
+        writer.flush()
+        add = writer.add_message
+        for t, body in self._held_samples:
+            add(channel, t, body, t)
+        self._held_samples, self._held_bytes = [], 0
+
+    def _close_chunks(self) -> None:
+        self._write_held_samples()
+        self._writer.flush()
+
+    def _tick(self) -> None:
+        now = self._clock()
+        if now - self._last_close >= self.chunk_interval_s:
+            self._io(self._close_chunks)
+            self._last_close = now
+
+
+def _file_size(path: str) -> int:
+    try:
+        return os.path.getsize(path)
+    except OSError:
+        return 0
+
+
+__all__ = ["CAN_ENCODING", "CAN_RECORD", "CAN_SCHEMA_NAME", "CHANNELS", "EXTENDED_ID_FLAG", "McapRecorder",
+           "RecorderError", "SCHEMAS", "encode_can_frames", "frame_quaternions", "time_ns", "to_json"]

@@ -1,0 +1,270 @@
+"""Replay a run log through the listener interface the live run uses (DESIGN section 4: MCAP log -> replay).
+
+`replay(log, listeners)` merges the log's events, table states, raw CAN frames and the
+IMU samples decoded from those frames (the source of truth, with the layout recorded
+in the log) into one log-time order and calls each listener's `on_event`,
+`on_table_state`, `on_can_frames` and `on_imu` as the sequencer did, then `close()`.
+No hardware, no bus: the frames come back as python-can `Message`s rebuilt from the
+lossless `/can/raw` records, the table states as `drivers.turntable.TableState`s.
+
+Order: each stream keeps its recorded order; across streams, items go by log time,
+frames and samples stamped at or before an event's time before that event (the
+sequencer drains the IMU before it reports a step finished), events before table
+states of the same time. Frames are handed over in batches of at most `block_s` of
+log time that never straddle an event or a table state, each batch followed by the
+samples its frames completed.
+
+Pacing: `speed=None` delivers as fast as the listeners take it; `speed=X` sleeps on
+the injected clock so that log time advances X times faster than clock time, in steps
+of at most `step_s` so that `stop` (a `threading.Event`) is noticed quickly.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass, field
+from typing import Iterable
+
+import can
+import numpy as np
+
+from bench.plan.events import RunListener
+from bench.log.reader import RunLog
+from bench.log.recorder import EXTENDED_ID_FLAG, FLAG_BRS, FLAG_ERROR, FLAG_ESI, FLAG_FD, FLAG_REMOTE
+from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.imu import ImuSampleBlock, ImuStats
+from drivers.imu.layout import ImuLayout
+from drivers.turntable import AxisMode, AxisState, AxisStatus, TableState
+
+_DATA, _EVENT, _STATE = 0, 1, 2   # tie order at equal log time
+_SAME_TIME_S = 1e-6
+
+
+@dataclass
+class ReplayStats:
+    """What a replay delivered. Times: log seconds (run clock) and seconds on the replay clock."""
+
+    events: int = 0
+    table_states: int = 0
+    samples: int = 0
+    imu_blocks: int = 0
+    frames: int = 0
+    frame_batches: int = 0
+    log_start_s: float = 0.0
+    log_duration_s: float = 0.0
+    wall_s: float = 0.0
+    stopped: bool = False                      # `stop` was set before the end
+    imu_stats: ImuStats | None = None          # from decoding the raw frames (None: not decoded)
+    notes: list[str] = field(default_factory=list)   # e.g. why samples were not decoded, unusable states
+
+    def summary(self) -> str:
+        """One line: what was replayed, over how much log time, in how much clock time."""
+        ended = "stopped early; " if self.stopped else ""
+        return (f"replayed {self.events} events, {self.table_states} table states, {self.samples} IMU samples, "
+                f"{self.frames} CAN frames; {ended}log time {self.log_duration_s:.1f} s in {self.wall_s:.2f} s")
+
+
+def replay(log: RunLog, listeners: Iterable[RunListener], *, speed: float | None = None, clock: Clock = SYSTEM_CLOCK,
+           layout: ImuLayout | None = None, rate_hz: float | None = None, block_s: float = 0.1,
+           step_s: float = 0.05, stop: threading.Event | None = None) -> ReplayStats:
+    """Play `log` to `listeners` (see the module docstring); returns what was delivered.
+
+    `layout` / `rate_hz` default to the ones recorded in the log
+    (`bench.log.run_info.layout_and_config_from_log`). Listener exceptions propagate, after
+    every listener's `close()`.
+    """
+    if speed is not None and not (isinstance(speed, (int, float)) and math.isfinite(speed) and speed > 0):
+        raise ValueError(f"speed must be a positive number of times real time (or None), got {speed!r}")
+    if not block_s > 0 or not step_s > 0:
+        raise ValueError(f"block_s and step_s must be positive, got {block_s!r}, {step_s!r}")
+    listeners = list(listeners)
+    stats = ReplayStats()
+    try:
+        _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s, stop)
+    except BaseException:
+        _close(listeners)      # the replay's own error is the one worth raising
+        raise
+    error = _close(listeners)
+    if error is not None:
+        raise error
+    return stats
+
+
+def _close(listeners) -> Exception | None:
+    """Close every listener; the first error, if any."""
+    first = None
+    for listener in listeners:
+        try:
+            listener.close()
+        except Exception as exc:  # noqa: BLE001 - the others must be closed too
+            first = first or exc
+    return first
+
+
+def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s, stop) -> None:
+    samples = _decode(log, layout, rate_hz, stats)
+    states, bad_states = _table_states(log)
+    if bad_states:
+        stats.notes.append(f"{bad_states} table states with an unknown mode not replayed")
+    events = log.events
+
+    ev_t = _monotone(np.array([e.time_s for e in events], float))
+    st_t = _monotone(np.array([s.time_s for s in states], float))
+    fr_t = _monotone(np.asarray(log.can_timestamp_s, float))
+    firsts = [t[0] for t in (ev_t, st_t, fr_t) if len(t)]
+    lasts = [t[-1] for t in (ev_t, st_t, fr_t) if len(t)]
+    t0 = min(firsts) if firsts else 0.0
+    stats.log_start_s, stats.log_duration_s = float(t0), float(max(lasts) - t0) if lasts else 0.0
+
+    # Frame batches: cut where the time grid or the count of earlier events/states changes.
+    marks = np.sort(np.concatenate([ev_t, st_t]))
+    n_frames = len(fr_t)
+    if n_frames:
+        # The run clock and the frame stamps may round differently: within _SAME_TIME_S is "at".
+        key_marks = np.searchsorted(marks, fr_t - _SAME_TIME_S, side="left")
+        key_grid = np.floor((fr_t - t0) / block_s)
+        cut = np.flatnonzero((np.diff(key_marks) != 0) | (np.diff(key_grid) != 0)) + 1
+        starts = np.concatenate([[0], cut])
+        ends = np.concatenate([cut, [n_frames]])
+    else:
+        starts = ends = np.zeros(0, np.int64)
+    batch_end = fr_t[ends - 1] if n_frames else np.zeros(0)
+    batch_t = batch_end
+    if n_frames and len(marks):
+        # A batch goes before the first event or state it precedes, even if stamped a hair later.
+        following = key_marks[ends - 1]
+        inside = following < len(marks)
+        batch_t = np.where(inside, np.minimum(batch_t, marks[np.minimum(following, len(marks) - 1)]), batch_t)
+    # Each sample goes after the batch holding the frame that completed it.
+    if samples is not None and len(samples) and n_frames:
+        owner = np.searchsorted(batch_end, _monotone(samples.receive_time_s), side="left")
+        owner = np.minimum(owner, len(batch_end) - 1)
+        sample_bounds = np.searchsorted(owner, np.arange(len(batch_end) + 1), side="left")
+    else:
+        sample_bounds = np.zeros(len(batch_t) + 1, np.int64)
+
+    times = np.concatenate([batch_t, ev_t, st_t])
+    kinds = np.concatenate([np.full(len(batch_t), _DATA), np.full(len(ev_t), _EVENT), np.full(len(st_t), _STATE)])
+    index = np.concatenate([np.arange(len(batch_t)), np.arange(len(ev_t)), np.arange(len(st_t))])
+    order = np.lexsort((index, kinds, times))
+
+    want_frames = any(_overrides(listener, "on_can_frames") for listener in listeners)
+    wall0 = clock.now()
+    for i in order.tolist():
+        if stop is not None and stop.is_set():
+            stats.stopped = True
+            break
+        if speed is not None and not _wait_until(clock, wall0 + (times[i] - t0) / speed, step_s, stop):
+            stats.stopped = True
+            break
+        kind, k = kinds[i], index[i]
+        if kind == _EVENT:
+            for listener in listeners:
+                listener.on_event(events[k])
+            stats.events += 1
+        elif kind == _STATE:
+            for listener in listeners:
+                listener.on_table_state(states[k])
+            stats.table_states += 1
+        else:
+            lo, hi = int(starts[k]), int(ends[k])
+            frames = _messages(log, lo, hi) if want_frames else ()
+            if want_frames:
+                for listener in listeners:
+                    listener.on_can_frames(frames)
+            stats.frames += hi - lo
+            stats.frame_batches += 1
+            s_lo, s_hi = int(sample_bounds[k]), int(sample_bounds[k + 1])
+            if s_hi > s_lo:
+                block = _slice(samples, s_lo, s_hi)
+                for listener in listeners:
+                    listener.on_imu(block)
+                stats.samples += s_hi - s_lo
+                stats.imu_blocks += 1
+    stats.wall_s = float(clock.now() - wall0)
+
+
+def _wait_until(clock: Clock, target: float, step_s: float, stop: threading.Event | None) -> bool:
+    """Sleep on `clock` until `target` in steps; False if `stop` was set meanwhile."""
+    while True:
+        remaining = target - clock.now()
+        if remaining <= 1e-9:
+            return True
+        if stop is not None and stop.is_set():
+            return False
+        clock.sleep(min(step_s, remaining))
+
+
+def _monotone(t: np.ndarray) -> np.ndarray:
+    """Times made usable for ordering: NaN takes the previous time, and time never goes back."""
+    t = np.asarray(t, float)
+    if not len(t):
+        return t
+    t = np.where(np.isfinite(t), t, -np.inf)
+    t = np.maximum.accumulate(t)
+    return np.where(np.isfinite(t), t, t[np.isfinite(t)][0] if np.isfinite(t).any() else 0.0)
+
+
+def _overrides(listener, name: str) -> bool:
+    return getattr(type(listener), name, None) is not getattr(RunListener, name)
+
+
+def _decode(log: RunLog, layout, rate_hz, stats: ReplayStats) -> ImuSampleBlock | None:
+    """Samples from the raw data frames (error and remote frames are logged but never decoded, as live)."""
+    if layout is None or rate_hz is None:
+        from bench.log.run_info import layout_and_config_from_log
+        from bench.log.reader import LogError
+
+        try:
+            setup = layout_and_config_from_log(log)
+        except LogError as exc:
+            stats.notes.append(f"IMU samples not replayed: {exc}")
+            return None
+        stats.notes += list(setup.notes)
+        layout = setup.layout if layout is None else layout
+        rate_hz = setup.rate_hz if rate_hz is None else rate_hz
+    block, imu_stats = log.imu_samples(layout, rate_hz)
+    stats.imu_stats = imu_stats
+    return block
+
+
+def _slice(block: ImuSampleBlock, lo: int, hi: int) -> ImuSampleBlock:
+    return ImuSampleBlock(block.counter[lo:hi], block.receive_time_s[lo:hi], block.gyro_counts[lo:hi],
+                          block.acc_counts[lo:hi], block.temperature_c[lo:hi], block.status[lo:hi], block.rate_hz)
+
+
+def _table_states(log: RunLog) -> tuple[list[TableState], int]:
+    """The recorded states as `TableState`s (and how many had a mode this version does not know)."""
+    s = log.table_states
+    out, bad = [], 0
+    angles, rates, status = s.angles_deg.tolist(), s.rates_dps.tolist(), s.status.tolist()
+    for i, t in enumerate(s.time_s.tolist()):
+        try:
+            axes = tuple(AxisState(angles[i][a], rates[i][a], AxisMode(s.modes[i][a]), AxisStatus(status[i][a]))
+                         for a in range(3))
+        except (ValueError, IndexError, TypeError):
+            bad += 1
+            continue
+        out.append(TableState(t, axes, s.fault_text[i]))
+    return out, bad
+
+
+def _messages(log: RunLog, lo: int, hi: int) -> list[can.Message]:
+    """Frames `lo:hi` of the log as python-can Messages, as the bus delivered them (channel not recorded)."""
+    ids = log.can_ids[lo:hi].tolist()
+    flags = log.can_flags[lo:hi].tolist()
+    lengths = log.can_lengths[lo:hi].tolist()
+    stamps = log.can_timestamp_s[lo:hi].tolist()
+    data = log.can_data[lo:hi]
+    out = []
+    for j, (i, f, n, t) in enumerate(zip(ids, flags, lengths, stamps)):
+        out.append(can.Message(timestamp=t, arbitration_id=i & ~EXTENDED_ID_FLAG,
+                               is_extended_id=bool(i & EXTENDED_ID_FLAG),
+                               is_remote_frame=bool(f & FLAG_REMOTE), is_error_frame=bool(f & FLAG_ERROR),
+                               dlc=n, data=data[j, :n].tobytes(), is_fd=bool(f & FLAG_FD),
+                               bitrate_switch=bool(f & FLAG_BRS), error_state_indicator=bool(f & FLAG_ESI)))
+    return out
+
+
+__all__ = ["ReplayStats", "replay"]

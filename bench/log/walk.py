@@ -1,0 +1,470 @@
+"""A damage-tolerant walk over the records of an MCAP file (what `bench.log.reader` builds on).
+
+The `mcap` library's readers stop at the first damaged record (a CRC mismatch ends the
+stream reader's generator; the seeking reader needs the summary). A run log cut off by a
+crash, or with one bad chunk, must still give everything else, so this walks the record
+framing itself (MCAP spec: magic, then records `opcode u8 | length u64 | body`; a Chunk
+body is `start u64 | end u64 | uncompressed size u64 | uncompressed crc32 u32 |
+compression string | data length u64 | data`, its data again records). Record bodies
+other than messages are parsed with the library's own record classes.
+
+Messages are gathered per channel and per chunk in compact form (payloads joined, with
+their lengths and log times); damage is collected as `Damage` entries with byte offsets
+and log-time ranges.
+
+Speed: chunks are decompressed, CRC-checked and framed by their message index on worker
+threads ahead of the walk (`bench.log.chunks._Prefetch`; zstd, zlib and numpy release
+the GIL), while the walk itself stays sequential and decides everything exactly as it
+would inline. The record layout and chunk decoding live in `bench.log.chunks`.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import zlib
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mcap.records import Attachment, Channel, Footer, Header, Metadata, Schema, Statistics
+
+from bench.log.chunks import (MAGIC, MESSAGE_DATA_OFFSET, MESSAGE_HEAD, OP_ATTACHMENT, OP_CHANNEL, OP_CHUNK,
+                               OP_FOOTER, OP_HEADER, OP_MESSAGE, OP_MESSAGE_INDEX, OP_METADATA, OP_NAMES, OP_SCHEMA,
+                               OP_STATISTICS, RECORD_HEAD, DeferredChunk, Prefetch, WalkError, body_stream,
+                               chunk_fields, index_chunk, inflate_chunk, plausible_record_at, resync)
+
+
+def _fmt_range(start_ns: int, end_ns: int) -> str:
+    return f"log time {start_ns / 1e9:.3f}..{end_ns / 1e9:.3f} s"
+
+
+@dataclass
+class Damage:
+    """One damaged or missing part of a log."""
+
+    kind: str                    # "chunk", "truncated", "corrupt", "no_summary", "attachment", "message"
+    offset: int                  # byte offset of the damaged record (or of the end of the file)
+    reason: str
+    start_ns: int | None = None  # log-time range of a lost chunk, when its header was readable
+    end_ns: int | None = None
+    lost: dict[str, int] = field(default_factory=dict)   # topic -> messages lost, when known
+
+    def describe(self) -> str:
+        where = f" ({_fmt_range(self.start_ns, self.end_ns)})" if self.start_ns is not None else ""
+        if self.kind == "chunk":
+            what = (", ".join(f"{n} on {t}" for t, n in sorted(self.lost.items())) if self.lost
+                    else "count unknown")
+            return f"chunk at byte {self.offset}{where}: {self.reason}; its messages lost ({what})"
+        if self.kind == "truncated":
+            return f"truncated after byte {self.offset}: {self.reason}{where}"
+        return f"byte {self.offset}: {self.reason}{where}" if self.kind != "no_summary" else self.reason
+
+
+@dataclass
+class ChannelData:
+    """Messages of one channel in file order: payloads per chunk, their lengths and log times.
+
+    A part is either the payloads joined (bytes) or, until first used, a lazy reference
+    `(chunk data, payload starts)`: gathering costs a slice per message, and most readers
+    never touch the high-rate JSON topics (the decompressed chunk stays in memory meanwhile).
+    A part can also be a `DeferredChunk` (walked with `defer_topics`): still compressed and
+    unchecked; `inflate_deferred` decompresses and checks those, and says what it had to drop.
+    """
+
+    parts: list = field(default_factory=list)      # bytes or (chunk bytes, starts array), one per chunk
+    lengths: list = field(default_factory=list)    # int64 arrays, payload lengths, one per part
+    log_times: list = field(default_factory=list)  # uint64 arrays, log times (ns), one per part
+
+    def add(self, part, lengths, log_times) -> None:
+        self.parts.append(part)
+        self.lengths.append(np.asarray(lengths, np.int64))
+        self.log_times.append(np.asarray(log_times, np.uint64))
+
+    def __len__(self) -> int:
+        return sum(len(x) for x in self.lengths)
+
+    @property
+    def log_time_ns(self) -> np.ndarray:
+        return np.concatenate(self.log_times) if self.log_times else np.zeros(0, np.uint64)
+
+    @property
+    def deferred_chunks(self) -> int:
+        """Parts still compressed and unchecked."""
+        return sum(isinstance(p, DeferredChunk) for p in self.parts)
+
+    def inflate_deferred(self, topic: str) -> list[Damage]:
+        """Decompress and check the deferred parts (on worker threads); a part that fails is dropped
+        and told as a `Damage` (its messages lost, on `topic`)."""
+        todo = [k for k, p in enumerate(self.parts) if isinstance(p, DeferredChunk)]
+        if not todo:
+            return []
+        chunks = [self.parts[k] for k in todo]
+        if len(chunks) >= 3:
+            with ThreadPoolExecutor(min(4, os.cpu_count() or 1), thread_name_prefix="mcap-inflate") as pool:
+                answers = list(pool.map(DeferredChunk.inflate, chunks))
+        else:
+            answers = [c.inflate() for c in chunks]
+        damage, dropped = [], set()
+        for k, chunk, answer in zip(todo, chunks, answers):
+            if isinstance(answer, str):
+                damage.append(Damage("chunk", chunk.offset, answer, chunk.start_ns, chunk.end_ns,
+                                     {topic: len(chunk.offsets)}))
+                dropped.add(k)
+            else:
+                self.parts[k] = answer
+        if dropped:
+            keep = [k for k in range(len(self.parts)) if k not in dropped]
+            self.parts, self.lengths, self.log_times = ([x[k] for k in keep] for x in
+                                                        (self.parts, self.lengths, self.log_times))
+        return damage
+
+    def _gathered(self) -> list[bytes]:
+        if self.deferred_chunks:
+            raise RuntimeError("inflate_deferred() first: this channel has deferred chunks")
+        for k, part in enumerate(self.parts):
+            if isinstance(part, tuple):
+                data, starts = part
+                view = memoryview(data)
+                self.parts[k] = b"".join([view[a:b] for a, b in zip(starts.tolist(),
+                                                                    (starts + self.lengths[k]).tolist())])
+        return self.parts
+
+    def payloads(self) -> list[bytes]:
+        """One bytes per message."""
+        out = []
+        for part, lengths in zip(self._gathered(), self.lengths):
+            ends = np.cumsum(lengths).tolist()
+            out += [part[e - n:e] for e, n in zip(ends, lengths.tolist())]
+        return out
+
+    def part_bytes(self, k: int) -> bytes:
+        """Part `k`'s payloads back to back, without keeping them (for one pass over a large channel:
+        the lazy parts stay lazy)."""
+        part = self.parts[k]
+        if isinstance(part, DeferredChunk):
+            raise RuntimeError("inflate_deferred() first: this channel has deferred chunks")
+        if not isinstance(part, tuple):
+            return part
+        data, starts = part
+        view = memoryview(data)
+        return b"".join([view[a:b] for a, b in zip(starts.tolist(), (starts + self.lengths[k]).tolist())])
+
+    def joined_parts(self):
+        """`part_bytes` of every part, in order."""
+        for k in range(len(self.parts)):
+            yield self.part_bytes(k)
+
+    def joined(self) -> bytes:
+        """All payloads back to back."""
+        parts = self._gathered()
+        return parts[0] if len(parts) == 1 else b"".join(parts)
+
+
+@dataclass
+class Walk:
+    """Everything found in a file."""
+
+    header: Header | None = None
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    data: dict[int, ChannelData] = field(default_factory=dict)
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    attachments: dict[str, tuple[str, bytes]] = field(default_factory=dict)
+    statistics: Statistics | None = None
+    footer: Footer | None = None
+    chunks: int = 0
+    damage: list[Damage] = field(default_factory=list)
+    size: int = 0
+
+    def topic(self, channel_id: int) -> str:
+        ch = self.channels.get(channel_id)
+        return ch.topic if ch is not None else f"<channel {channel_id}>"
+
+
+class _Walker:
+    def __init__(self, buf: bytes, defer_topics: frozenset[str] = frozenset()):
+        self.buf = buf
+        self.defer_topics = defer_topics
+        self.w = Walk(size=len(buf))
+        self.lost_chunk: Damage | None = None   # message index records after a lost chunk count its messages
+        self.pending = None                     # a good chunk waiting for its message index records
+        self.pending_index: list[tuple[int, int]] = []
+        self.prefetch: Prefetch | None = None
+        self.framed = None   # (message index records, `index_chunk` answer) of the pending chunk, from a worker
+
+    def channel_data(self, channel_id: int) -> ChannelData:
+        d = self.w.data.get(channel_id)
+        if d is None:
+            d = self.w.data[channel_id] = ChannelData()
+        return d
+
+    def run(self) -> Walk:
+        self.prefetch = Prefetch(self.buf, defer_topics=self.defer_topics)
+        try:
+            return self._run()
+        finally:
+            self.prefetch.close()
+
+    def _run(self) -> Walk:
+        buf, w = self.buf, self.w
+        size = len(buf)
+        if size == 0:
+            raise WalkError("empty file")
+        if size < 8 or buf[:8] != MAGIC:
+            raise WalkError("not an MCAP file (no MCAP magic at the start)")
+        pos = 8
+        if size < 17 or buf[8] != OP_HEADER or not plausible_record_at(buf, 8, size):
+            raise WalkError("not a readable MCAP file (no header record after the magic)")
+        while pos < size:
+            if size - pos < 9:
+                w.damage.append(Damage("truncated", size, f"a record header at byte {pos} is incomplete"))
+                break
+            op, length = RECORD_HEAD.unpack_from(buf, pos)
+            body, end = pos + 9, pos + 9 + length
+            if op != OP_MESSAGE_INDEX or end > size:
+                self.finish_chunk()
+            if op not in OP_NAMES:
+                nxt = resync(buf, pos, size)
+                w.damage.append(Damage("corrupt", pos, f"unreadable record (opcode {op:#x}); bytes {pos}..{nxt} "
+                                                       f"skipped" + (" to the next chunk" if nxt < size else "")))
+                pos = nxt
+                continue
+            if end > size:
+                nxt = resync(buf, pos, size)
+                if nxt == size:   # nothing readable follows: the file was cut off here
+                    self.truncated(op, pos, body, length)
+                    break
+                w.damage.append(Damage("corrupt", pos, f"{OP_NAMES[op]} record with an impossible length; bytes "
+                                                       f"{pos}..{nxt} skipped to the next chunk"))
+                pos = nxt
+                continue
+            if op == OP_FOOTER:
+                self.footer(pos, body, end)
+                if buf[end:end + 8] != MAGIC:
+                    w.damage.append(Damage("truncated", end, "the closing magic after the footer is missing"))
+                pos = end + 8
+                break
+            if op == OP_CHUNK:
+                if not self.chunk(pos, body, length):
+                    nxt = end if plausible_record_at(buf, end, size) else resync(buf, pos, size)
+                    pos = nxt
+                    continue
+            else:
+                try:
+                    self.record(op, pos, body, end)
+                except Exception as exc:   # a damaged record body: skip it, say so
+                    w.damage.append(Damage("corrupt", pos, f"{OP_NAMES[op]} record unreadable ({exc}); skipped"))
+            if not plausible_record_at(buf, end, size):
+                nxt = resync(buf, end, size)
+                w.damage.append(Damage("corrupt", end, f"unreadable record after byte {end}; bytes {end}..{nxt} "
+                                                       f"skipped" + (" to the next chunk" if nxt < size else "")))
+                end = nxt
+            pos = end
+        self.finish_chunk()
+        if w.footer is None:
+            w.damage.append(Damage("no_summary", size, "no summary or footer: the recording was not closed "
+                                                       "(stopped or crashed); anything not yet in a closed chunk "
+                                                       "was never written"))
+        elif pos < size:
+            w.damage.append(Damage("corrupt", pos, f"{size - pos} unexpected bytes after the closing magic"))
+        return w
+
+    def footer(self, pos: int, body: int, end: int) -> None:
+        w, buf = self.w, self.buf
+        try:
+            w.footer = footer = Footer.read(body_stream(buf, body, end))
+        except Exception as exc:
+            w.damage.append(Damage("corrupt", pos, f"footer record unreadable ({exc})"))
+            return
+        if footer.summary_crc != 0 and footer.summary_start <= pos:
+            start = footer.summary_start or pos   # no summary section: the CRC covers the footer fields only
+            if zlib.crc32(buf[start:pos + 25]) != footer.summary_crc:
+                w.statistics = None   # the counts cannot be trusted
+                w.damage.append(Damage("corrupt", start, "the summary section fails its CRC check; ignored"))
+
+    def truncated(self, op: int, pos: int, body: int, length: int) -> None:
+        buf, size = self.buf, len(self.buf)
+        if op == OP_CHUNK:
+            start, end = struct.unpack_from("<QQ", buf, body) if size - body >= 16 else (1, 0)
+            known = start <= end
+            self.w.damage.append(Damage("truncated", size, f"the last chunk (at byte {pos}) is incomplete, its "
+                                        f"messages lost", start if known else None, end if known else None))
+        else:
+            self.w.damage.append(Damage("truncated", size, f"the last {OP_NAMES[op]} record (at byte {pos}) is "
+                                        f"incomplete ({size - body} of {length} bytes)"))
+
+    def record(self, op: int, pos: int, body: int, end: int) -> None:
+        w, buf = self.w, self.buf
+        if op == OP_HEADER:
+            w.header = Header.read(body_stream(buf, body, end))
+        elif op == OP_SCHEMA:
+            s = Schema.read(body_stream(buf, body, end))
+            w.schemas.setdefault(s.id, s)
+        elif op == OP_CHANNEL:
+            c = Channel.read(body_stream(buf, body, end))
+            w.channels.setdefault(c.id, c)
+        elif op == OP_MESSAGE:   # a message outside any chunk (unchunked files)
+            _, _, ch, _, log_time = MESSAGE_HEAD.unpack_from(buf, pos)
+            start = pos + MESSAGE_DATA_OFFSET
+            self.channel_data(ch).add(bytes(buf[start:end]), [end - start], [log_time])
+        elif op == OP_MESSAGE_INDEX:
+            if self.pending is not None:
+                self.pending_index.append((body, end))
+            elif self.lost_chunk is not None and end - body >= 6:
+                ch, n = struct.unpack_from("<HI", buf, body)
+                self.lost_chunk.lost[w.topic(ch)] = n // 16
+        elif op == OP_METADATA:
+            m = Metadata.read(body_stream(buf, body, end))
+            w.metadata[m.name] = m.metadata
+        elif op == OP_ATTACHMENT:
+            a = Attachment.read(body_stream(buf, body, end))
+            (crc,) = struct.unpack_from("<I", buf, end - 4)
+            if crc != 0 and zlib.crc32(buf[body:end - 4]) != crc:
+                w.damage.append(Damage("attachment", pos, f"attachment {a.name!r} fails its CRC check; dropped"))
+            else:
+                w.attachments[a.name] = (a.media_type, a.data)
+        elif op == OP_STATISTICS:
+            w.statistics = Statistics.read(body_stream(buf, body, end))
+        if op != OP_MESSAGE_INDEX and op != OP_CHUNK:
+            self.lost_chunk = None
+
+    def chunk(self, pos: int, body: int, length: int) -> bool:
+        """Read one chunk record; False when its framing is broken (the caller re-syncs)."""
+        buf, w = self.buf, self.w
+        self.lost_chunk = None
+        f = chunk_fields(buf, body, length)
+        if f is None:
+            w.damage.append(Damage("chunk", pos, "chunk header inconsistent"))
+            self.lost_chunk = w.damage[-1]
+            return False
+        start, end, usize, crc, compression, dstart, dlen = f
+        deferred = self.prefetch.deferred.get(pos) if self.prefetch is not None else None
+        if deferred is not None and self.prefetch.chunks[self.prefetch.index[pos]][1] == f:
+            ch, t, o = deferred
+            self.pending = (pos, start, end, DeferredChunk(pos, start, end, compression,
+                                                           bytes(buf[dstart:dstart + dlen]), usize, crc, ch, t, o))
+            self.pending_index = []
+            return True
+        done = self.prefetch.take(pos, f) if self.prefetch is not None else None
+        if done is not None:
+            data, computed, exc, self.framed = done
+        else:
+            data, computed, exc = inflate_chunk(compression, memoryview(buf)[dstart:dstart + dlen], usize, crc)
+            self.framed = None
+        if isinstance(exc, WalkError):
+            raise exc
+        if exc is not None:
+            w.damage.append(Damage("chunk", pos, f"{compression} data cannot be decompressed ({exc})", start, end))
+            self.lost_chunk = w.damage[-1]
+            return True
+        if len(data) != usize:
+            reason = f"decompressed to {len(data)} bytes, header says {usize}"
+        elif crc != 0 and computed != crc:
+            reason = "CRC mismatch"
+        else:   # good: its records are gathered once the message index records after it are seen
+            self.pending, self.pending_index = (pos, start, end, data), []
+            return True
+        w.damage.append(Damage("chunk", pos, reason, start, end))
+        self.lost_chunk = w.damage[-1]
+        return True
+
+    def finish_chunk(self) -> None:
+        """Gather the pending chunk's records: by its message index when that checks out, else record by record."""
+        if self.pending is None:
+            return
+        (pos, start, end, data), index = self.pending, self.pending_index
+        self.pending, self.pending_index = None, []
+        if isinstance(data, DeferredChunk):
+            chunk = data
+            if index == self.prefetch.chunks[self.prefetch.index[pos]][2]:
+                self.channel_data(chunk.channel).add(chunk, chunk.lengths, chunk.log_times)
+                self.w.chunks += 1
+                return
+            # the walk found other index records after it than the scan did: check it now, inline
+            answer = chunk.inflate()
+            if isinstance(answer, str):
+                self.w.damage.append(Damage("chunk", pos, answer, start, end,
+                                            {self.w.topic(chunk.channel): len(chunk.offsets)}))
+                return
+            data = answer[0]
+        framed = None
+        if self.framed is not None and self.framed[0] == index:   # the worker framed it with these records
+            framed = self.framed[1]
+        self.framed = None
+        if self.chunk_by_index(data, index, framed):
+            self.w.chunks += 1
+            return
+        reason = self.chunk_records(data)
+        if reason is None:
+            self.w.chunks += 1
+            return
+        self.w.damage.append(Damage("chunk", pos, reason, start, end))
+
+    def chunk_by_index(self, data: bytes, index: list[tuple[int, int]], framed=None) -> bool:
+        """Gathering with the chunk's message index (`framed`: `index_chunk`'s answer when a worker
+        already has it); False (nothing kept) unless the index provably frames every record."""
+        framed = index_chunk(self.buf, data, index) if framed is None else framed
+        if framed is False:
+            return False
+        first, per_channel = framed
+        if first:   # schema and channel records ahead of the messages (the first chunk)
+            if self.chunk_records(data[:first], messages=False) is not None:
+                return False
+        for ch, starts, lengths, t in per_channel:
+            self.channel_data(ch).add((data, starts), lengths, t)
+        return True
+
+    def chunk_records(self, data: bytes, messages: bool = True) -> str | None:
+        """Gather the chunk's records; a reason string if its content is malformed (nothing kept then),
+        or (with `messages` False) if it holds a message."""
+        unpack_msg, unpack_rec = MESSAGE_HEAD.unpack_from, RECORD_HEAD.unpack_from
+        size = len(data)
+        view = memoryview(data)
+        slices: dict[int, tuple[list, list, list]] = {}
+        others = []
+        q = 0
+        while q < size:
+            if q + 31 <= size:
+                op, ln, ch, _, log_time = unpack_msg(data, q)
+            elif q + 9 <= size:
+                op, ln = unpack_rec(data, q)
+            else:
+                return f"malformed chunk content at offset {q}"
+            end = q + 9 + ln
+            if end > size:
+                return f"malformed chunk content: record at offset {q} overruns the chunk"
+            if op == OP_MESSAGE:
+                if ln < 22 or not messages:
+                    return f"malformed message at chunk offset {q}"
+                s = slices.get(ch)
+                if s is None:
+                    s = slices[ch] = ([], [], [])
+                s[0].append(view[q + MESSAGE_DATA_OFFSET:end])
+                s[1].append(ln - 22)
+                s[2].append(log_time)
+            elif op in (OP_SCHEMA, OP_CHANNEL):
+                others.append((op, q, end))
+            q = end
+        for op, q, end in others:
+            try:
+                if op == OP_SCHEMA:
+                    s = Schema.read(body_stream(data, q + 9, end))
+                    self.w.schemas.setdefault(s.id, s)
+                else:
+                    c = Channel.read(body_stream(data, q + 9, end))
+                    self.w.channels.setdefault(c.id, c)
+            except Exception as exc:
+                return f"malformed {OP_NAMES[op]} record in the chunk ({exc})"
+        for ch, (parts, lengths, times) in slices.items():
+            self.channel_data(ch).add(b"".join(parts), lengths, times)
+        return None
+
+
+def walk(buf: bytes, defer_topics: frozenset[str] = frozenset()) -> Walk:
+    """Walk an MCAP file held in memory; raises `WalkError` if it is not MCAP at all.
+
+    Chunks holding nothing but messages of `defer_topics` are not decompressed: their channel
+    data holds them as `DeferredChunk` parts (see `ChannelData.inflate_deferred`)."""
+    return _Walker(buf, frozenset(defer_topics)).run()

@@ -1,0 +1,134 @@
+"""Versioned calibration result with a JSON round-trip (DESIGN section 2, "Result file")."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bench.model.imu import DISPLAY_UNITS, ImuCoefficients, canonical_names, family
+
+RESULT_FORMAT = "turntable-bench/result"
+RESULT_VERSION = 1
+
+
+class ResultFormatError(ValueError):
+    """A result file that is not a turntable-bench result of a version we read."""
+
+
+@dataclass(frozen=True)
+class Coefficient:
+    """One solved coefficient in display units with its 1-sigma uncertainty."""
+
+    value: float
+    sigma: float
+    unit: str
+
+    def to_json(self) -> dict[str, Any]:
+        return {"value": self.value, "sigma": _json_float(self.sigma), "unit": self.unit}
+
+
+def _json_float(x: float) -> float | None:
+    # JSON has no NaN: an unknown uncertainty is written as null.
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def coefficient_table(values: dict[str, float], sigmas: dict[str, float] | None = None) -> dict[str, Coefficient]:
+    """Canonical-ordered coefficient table from display-unit values (and sigmas)."""
+    sigmas = sigmas or {}
+    return {name: Coefficient(float(values[name]), float(sigmas.get(name, math.nan)),
+                              DISPLAY_UNITS[family(name)][0])
+            for name in canonical_names() if name in values}
+
+
+@dataclass
+class CalibrationResult:
+    """What a calibration produced: coefficients, residuals, quality, run metadata.
+
+    `coefficients` may hold a subset of the 30 canonical names (e.g. a positions-only
+    solve has no gyro scale factors). `sim_truth`, for simulated runs, holds the true
+    coefficients in the same shape.
+    """
+
+    coefficients: dict[str, Coefficient]
+    residuals: dict[str, Any] = field(default_factory=dict)
+    quality: dict[str, Any] = field(default_factory=dict)
+    run: dict[str, Any] = field(default_factory=dict)
+    sim_truth: dict[str, Coefficient] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "format": RESULT_FORMAT,
+            "version": RESULT_VERSION,
+            "coefficients": {k: c.to_json() for k, c in self.coefficients.items()},
+            "residuals": self.residuals,
+            "quality": self.quality,
+            "run": self.run,
+        }
+        if self.sim_truth is not None:
+            out["sim_truth"] = {"coefficients": {k: c.to_json() for k, c in self.sim_truth.items()}}
+        return out
+
+    def dumps(self) -> str:
+        return json.dumps(self.to_json(), indent=2, allow_nan=False)
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(self.dumps() + "\n", encoding="utf-8")
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any], origin: str = "<result>") -> "CalibrationResult":
+        if not isinstance(data, dict) or data.get("format") != RESULT_FORMAT:
+            raise ResultFormatError(f"{origin}: not a {RESULT_FORMAT} file")
+        if data.get("version") != RESULT_VERSION:
+            raise ResultFormatError(f"{origin}: result version {data.get('version')!r} is not supported "
+                                    f"(this software reads version {RESULT_VERSION})")
+        truth = data.get("sim_truth")
+        return cls(
+            coefficients=_read_table(data.get("coefficients"), origin, "coefficients"),
+            residuals=data.get("residuals", {}),
+            quality=data.get("quality", {}),
+            run=data.get("run", {}),
+            sim_truth=None if truth is None else _read_table(truth.get("coefficients"), origin,
+                                                             "sim_truth.coefficients"),
+        )
+
+    @classmethod
+    def loads(cls, text: str, origin: str = "<result>") -> "CalibrationResult":
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ResultFormatError(f"{origin}:{exc.lineno}: invalid JSON: {exc.msg}") from exc
+        return cls.from_json(data, origin)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "CalibrationResult":
+        return cls.loads(Path(path).read_text(encoding="utf-8"), str(path))
+
+    def values(self) -> dict[str, float]:
+        return {k: c.value for k, c in self.coefficients.items()}
+
+    def imu_coefficients(self) -> ImuCoefficients:
+        """All 30 coefficients as an `ImuCoefficients` (KeyError if the result lacks some)."""
+        return ImuCoefficients.from_canonical(self.values())
+
+
+def _read_table(table: Any, origin: str, where: str) -> dict[str, Coefficient]:
+    if not isinstance(table, dict):
+        raise ResultFormatError(f"{origin}: {where} must be an object")
+    known = set(canonical_names())
+    out = {}
+    for name, entry in table.items():
+        if name not in known:
+            raise ResultFormatError(f"{origin}: {where}.{name}: unknown coefficient name")
+        try:
+            sigma = entry.get("sigma")
+            out[name] = Coefficient(float(entry["value"]), math.nan if sigma is None else float(sigma),
+                                    str(entry["unit"]))
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise ResultFormatError(f"{origin}: {where}.{name}: needs value, sigma and unit") from exc
+        expected = DISPLAY_UNITS[family(name)][0]
+        if out[name].unit != expected:
+            raise ResultFormatError(f"{origin}: {where}.{name}: unit {out[name].unit!r}, expected {expected!r}")
+    return out

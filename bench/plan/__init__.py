@@ -1,0 +1,1 @@
+"""Procedures as data: step records, sequencer events, the plan compiler and the visiting order."""

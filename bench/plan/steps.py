@@ -1,0 +1,100 @@
+"""Step records: what a compiled calibration plan is made of (procedures are data).
+
+A plan compiles (`bench.plan.compiler.compile_plan`) to a flat tuple of these small frozen
+records; the sequencer executes them one by one. Angles in `target_*` fields are the
+controller's absolute angles (multi-turn, chosen nearest to where the table is);
+`angles_deg`/`start_deg` are the schedule's nominal angles in [0, 360). Every step
+belongs to one *unit*: the label of the observation it serves ("P03" = the third
+position of the position schedule as listed, "R02" = the second rotation). A unit is
+complete when its observation step (`DwellStep` or `TurnStep`) has finished; resume
+skips complete units and redoes the moves of the rest.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Union
+
+
+@dataclass(frozen=True)
+class MoveStep:
+    """Move all three axes to absolute angles at `rate_dps` and wait until in position."""
+
+    index: int
+    unit: str
+    target_deg: tuple[float, float, float]
+    rate_dps: float
+    estimated_s: float
+    kind: str = "move"
+
+
+@dataclass(frozen=True)
+class SettleStep:
+    """Stay at rest for `duration_s` (data recorded, not used by the solver)."""
+
+    index: int
+    unit: str
+    duration_s: float
+    estimated_s: float
+    kind: str = "settle"
+
+
+@dataclass(frozen=True)
+class DwellStep:
+    """Record the IMU at rest for `dwell_s`: one position observation."""
+
+    index: int
+    unit: str                                # also the observation label, e.g. "P03"
+    schedule: str                            # schedule name, e.g. "optimal-24"
+    schedule_index: int                      # 0-based index in the schedule as listed
+    angles_deg: tuple[float, float, float]   # nominal schedule angles
+    target_deg: tuple[float, float, float]   # absolute controller angles (where the table is)
+    dwell_s: float
+    estimated_s: float
+    kind: str = "dwell"
+
+
+@dataclass(frozen=True)
+class TurnStep:
+    """Rest `rest_s`, turn one frame N whole revolutions rest to rest, rest `rest_s`: one rotation observation.
+
+    CCW (a positive right-handed rotation about the frame axis) *decreases* the
+    controller angle by 360*N deg (DESIGN section 2): `end_deg` says where it ends.
+    """
+
+    index: int
+    unit: str                                # also the observation label, e.g. "R02"
+    schedule: str
+    schedule_index: int
+    start_deg: tuple[float, float, float]    # nominal initial state
+    target_deg: tuple[float, float, float]   # absolute controller angles at the start
+    frame: str                               # "outer" | "middle" | "inner"
+    direction: str                           # "ccw" | "cw"
+    revolutions: int
+    rate_dps: float
+    accel_dps2: float
+    rest_s: float
+    estimated_s: float
+    kind: str = "turn"
+
+    @property
+    def frame_index(self) -> int:
+        return ("outer", "middle", "inner").index(self.frame)
+
+    @property
+    def end_deg(self) -> tuple[float, float, float]:
+        end = list(self.target_deg)
+        end[self.frame_index] += (-360.0 if self.direction == "ccw" else 360.0) * self.revolutions
+        return tuple(end)
+
+
+Step = Union[MoveStep, SettleStep, DwellStep, TurnStep]
+OBSERVATION_KINDS = ("dwell", "turn")
+
+
+def step_to_dict(step: Step) -> dict:
+    """JSON-able description of a step (for events, logs and --dry-run)."""
+    out = {k: (list(v) if isinstance(v, tuple) else v) for k, v in step.__dict__.items()}
+    if isinstance(step, TurnStep):
+        out["end_deg"] = list(step.end_deg)
+    return out

@@ -1,0 +1,1 @@
+"""One run end to end: the runner and the sequencer's state machine with its safe stop."""

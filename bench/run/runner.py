@@ -1,0 +1,254 @@
+"""One calibration run end to end: devices, recorder, sequencer, solve from the log, result and report.
+
+`BenchRun` is what `bench run` executes and what the TUI will drive: open the devices
+(the simulated world when asked), record everything to `<out>/<run-id>.mcap`, run the
+compiled plan, then solve from the log just written (plus the logs of the run it
+resumes) and write `<run-id>.result.json`, `<run-id>.report.md` and `<run-id>.report.html`.
+"""
+
+from __future__ import annotations
+
+import json
+import secrets
+import time
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable
+
+from bench import __version__
+from bench.plan.events import RunListener, RunState
+from bench.run.sequencer import Sequencer, SequencerOptions
+from bench.plan.steps import step_to_dict
+
+#: The sequencer's loop periods on the simulator: coarse, because the simulated clock jumps.
+SIM_OPTIONS = dict(move_poll_s=0.1, imu_poll_s=0.5, state_period_s=1.0)
+
+
+@dataclass
+class RunOutcome:
+    state: RunState
+    log_path: Path
+    result_path: Path | None = None
+    report_path: Path | None = None
+    result: object | None = None                 # bench.model.result.CalibrationResult
+    failures: list[str] = field(default_factory=list)
+    error: BaseException | None = None
+    html_report_path: Path | None = None
+
+
+def completed_units(resume_log: str | None) -> tuple[set[str], list[str]]:
+    """Units complete in the log to resume, and every log of that run so far (oldest first)."""
+    if not resume_log:
+        return set(), []
+    from bench.solve.extract import finished_observation_steps
+    from bench.log.reader import read_log
+
+    log = read_log(resume_log)
+    previous = json.loads(log.metadata.get("run", {}).get("logs_before", "[]"))
+    earlier = set()
+    for path in previous:
+        earlier |= set(finished_observation_steps(read_log(path).events))
+    return earlier | set(finished_observation_steps(log.events)), [*previous, str(resume_log)]
+
+
+def schedule_file(schedule) -> Path | None:
+    """The file a loaded schedule came from (a built-in one's shipped file), None if none."""
+    if schedule is None:
+        return None
+    if schedule.source.startswith("builtin:"):
+        from schedules import builtin_path
+
+        return builtin_path(schedule.source.split(":", 1)[1])
+    path = Path(schedule.source)
+    return path if path.is_file() else None
+
+
+def _name(schedule) -> str:
+    return schedule.name if schedule is not None else ""
+
+
+class BenchRun:
+    """A run of `plan` with `config`'s devices (or the simulator when `sim`)."""
+
+    def __init__(self, config, plan, *, sim: bool, out_dir: str | Path, operator: str = "",
+                 completed: Iterable[str] = (), previous_logs: Iterable[str] = (),
+                 listeners: Iterable[RunListener] = ()):
+        self.config, self.plan, self.sim = config, plan, sim
+        self.out_dir = Path(out_dir)
+        self.operator = operator
+        self.completed = set(completed)
+        self.previous_logs = list(previous_logs)
+        self.extra_listeners = list(listeners)
+        self.run_id = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + "-" + secrets.token_hex(3)
+        self.log_path = self.out_dir / f"{self.run_id}.mcap"
+        self.world = self.table = self.receiver = self.recorder = self.sequencer = None
+        self.clock = None
+        self._stack = ExitStack()
+
+    # -- devices -----------------------------------------------------------------------
+    def open(self) -> None:
+        """Open the devices and the recorder. Raises TurntableError/ImuError/OSError/ValueError; nothing moves."""
+        from drivers.clock import SYSTEM_CLOCK
+        from drivers.imu.receiver import ImuReceiver
+        from drivers.turntable import open_turntable
+
+        config = self.config
+        try:
+            if self.sim:
+                from bench.sim.world import SimWorld
+
+                self.world = self._stack.enter_context(SimWorld(
+                    config.site.site, config.sim.imu, config.sim.noise, black_box_rad=config.sim.black_box_rad,
+                    dialect=config.table.dialect, imu_rate_hz=config.imu.rate_hz, layout=config.imu.layout,
+                    seed=config.sim.seed, register_map=config.table.register_map))
+                self.clock, url, bus = self.world.clock, self.world.table_url, self.world.receiver_bus()
+            else:
+                self.clock, url, bus = SYSTEM_CLOCK, config.table.url, config.imu.bus_kwargs()
+            options = {"limits": config.table.limits, "clock": self.clock, "timeout_s": config.table.timeout_s,
+                       "retries": config.table.retries}
+            if config.table.dialect == "modbus" and config.table.register_map is not None:
+                options["register_map"] = config.table.register_map
+            self.table = open_turntable(url, config.table.dialect, **options)
+            self.table.connect()
+            self._stack.callback(self.table.close)
+            self.receiver = ImuReceiver(bus, config.imu.layout, config.imu.rate_hz)
+            self._stack.callback(self.receiver.close)
+            self.out_dir.mkdir(parents=True, exist_ok=True)
+            self._open_recorder()
+        except BaseException:
+            self.close()
+            raise
+
+    def _open_recorder(self) -> None:
+        from bench.log.recorder import McapRecorder
+
+        config = self.config
+        self.recorder = McapRecorder(str(self.log_path), metadata=self._metadata())
+        self._stack.callback(self.recorder.close)
+        self.recorder.add_attachment(config.imu.dbc.name, "text/plain", config.imu.layout.dbc_text.encode())
+        if config.path:
+            self.recorder.add_attachment(Path(config.path).name, "application/toml", config.source_text.encode())
+        for schedule in (config.plan.positions, config.plan.rotations):
+            path = schedule_file(schedule)
+            if path is not None:
+                self.recorder.add_attachment(path.name, "application/toml", path.read_bytes())
+
+    def _metadata(self) -> dict:
+        config, identity = self.config, self.config.imu.identity
+        return {
+            "run": {"run_id": self.run_id, "operator": self.operator, "software_version": __version__,
+                    "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                    "mode": "simulator" if self.sim else "hardware",
+                    "logs_before": json.dumps(self.previous_logs), "resumed_units": json.dumps(sorted(self.completed))},
+            "config": {"toml": config.source_text, "path": str(config.path or "<built-in --sim>")},
+            "site": {k: str(v) for k, v in config.site.site.to_dict().items()},
+            "imu": {"model": identity.model, "serial": identity.serial, "rate_hz": str(config.imu.rate_hz),
+                    "interface": str(config.imu.interface), "channel": str(config.imu.channel),
+                    "dbc": config.imu.dbc.name},
+            "plan": {"steps_json": json.dumps([step_to_dict(s) for s in self.plan.steps]),
+                     "estimated_total_s": f"{self.plan.estimated_total_s:.1f}", "order": self.plan.order,
+                     "positions": _name(config.plan.positions), "rotations": _name(config.plan.rotations)},
+        }
+
+    # -- the run -------------------------------------------------------------------------
+    def options(self) -> SequencerOptions:
+        return SequencerOptions(**{"settle_tolerance_deg": self.config.table.settle_tolerance_deg,
+                                   "move_poll_s": self.config.table.poll_s, **(SIM_OPTIONS if self.sim else {})})
+
+    def run(self) -> RunState:
+        """Enable the table and execute the plan (blocking). Errors end in a safe stop, see `sequencer.error`."""
+        imu = self.world.imu_source(self.receiver) if self.world is not None else self.receiver
+        self.sequencer = Sequencer(self.plan.steps, self.table, imu, self.clock,
+                                   [self.recorder, *self.extra_listeners], self.options(), self.completed)
+        self.table.reset_faults()
+        self.table.enable()
+        try:
+            state = self.sequencer.run()
+        finally:
+            # The samples still pending in the assembler reach every listener, like all the others.
+            block = self.receiver.flush()
+            if len(block):
+                for listener in self.sequencer.listeners:
+                    listener.on_imu(block)
+        return state
+
+    def abort(self, reason: str = "abort requested") -> None:
+        if self.sequencer is not None:
+            self.sequencer.abort(reason)
+
+    # -- after the run ---------------------------------------------------------------------
+    def finish(self) -> RunOutcome:
+        """Solve from the log(s), write result and report, attach the result, close the log."""
+        from bench.log.reader import read_log
+        from bench.report.markdown import write_reports
+        from bench.solve.from_logs import solve_logs
+
+        seq = self.sequencer
+        if seq is None or seq.error is not None:
+            self.recorder.close()
+            return RunOutcome(seq.state if seq else RunState.FAILED, self.log_path, error=seq.error if seq else None)
+        self.recorder.flush()
+        logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
+        config, identity = self.config, self.config.imu.identity
+        gyro_stability, acc_stability = bias_stabilities(config, self.sim)
+        solution = solve_logs(logs, config.site.site, config.imu.layout, config.imu.rate_hz,
+                              gyro_bias_stability_dph=gyro_stability, acc_bias_stability_ug=acc_stability,
+                              # A log being resumed was cut off: its missing summary is expected, not damage.
+                              still_open=frozenset({str(self.log_path), *map(str, self.previous_logs)}))
+        failures = quality_failures(solution, self.receiver.stats)
+        run_info = {"run_id": self.run_id, "mode": "simulator" if self.sim else "hardware", "operator": self.operator,
+                    "software_version": __version__, "state": seq.state.value, "log": self.log_path.name,
+                    "logs": [Path(p).name for p in self.previous_logs] + [self.log_path.name],
+                    "positions": _name(config.plan.positions), "rotations": _name(config.plan.rotations),
+                    "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                    "imu": {"model": identity.model, "serial": identity.serial},
+                    "site": config.site.site.to_dict(), "quality_failures": failures,
+                    "imu_link": self.receiver.stats.as_dict()}
+        result = solution.calibration.to_result(run=run_info, sim_truth=config.sim.imu if self.sim else None)
+        result_path = self.out_dir / f"{self.run_id}.result.json"
+        result.save(result_path)
+        report_path, html_report_path = write_reports(
+            result, self.out_dir, self.run_id, log=logs[-1], layout=config.imu.layout, log_still_open=True,
+            problems=solution.extraction.problems, failures=failures, imu_link=self.receiver.stats.as_dict(),
+            title=f"Calibration report {self.run_id}")
+        self.recorder.add_attachment(result_path.name, "application/json", result_path.read_bytes())
+        self.recorder.close()
+        return RunOutcome(seq.state, self.log_path, result_path, report_path, result, failures,
+                          html_report_path=html_report_path)
+
+    def close(self) -> None:
+        self._stack.close()
+
+    def __enter__(self) -> "BenchRun":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def bias_stabilities(config, sim: bool) -> tuple[float | None, float | None]:
+    """(gyro deg/h, accelerometer ug) bias instabilities the solver adds to the bias sigmas.
+
+    The IMU identity's datasheet values; on the simulator with noise on, the simulated
+    IMU's own where the identity gives none (it is what its datasheet would say).
+    """
+    identity = config.imu.identity
+    gyro_stability, acc_stability = identity.gyro_bias_stability_dph, identity.acc_bias_stability_ug
+    if sim and config.sim.noise.enabled:
+        if gyro_stability is None:
+            gyro_stability = config.sim.noise.gyro_bias_instability_dph
+        if acc_stability is None:
+            acc_stability = config.sim.noise.acc_bias_instability_ug
+    return gyro_stability, acc_stability
+
+
+def quality_failures(solution, live_stats) -> list[str]:
+    """Why a finished run's result should not be trusted as is (empty = passed)."""
+    failures = list(solution.extraction.problems) + list(solution.damage)
+    outliers = solution.calibration.quality().get("outliers", [])
+    if outliers:
+        failures.append(f"{len(outliers)} residual outliers beyond the outlier threshold")
+    if live_stats.lost_samples:
+        failures.append(f"IMU link lost samples: {live_stats.summary()}")
+    return failures

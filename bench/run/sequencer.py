@@ -1,0 +1,318 @@
+"""The sequencer: executes a compiled plan through an explicit state machine.
+
+States (bench.plan.events.RunState) and the only transitions allowed:
+
+    idle -> running            start
+    running -> paused          pause request, taken at the next step boundary (a safe point)
+    paused -> running          resume
+    running|paused -> aborting abort request (API, Ctrl-C) or any error
+    aborting -> failed         after the safe stop
+    running -> done            every step executed
+
+Whatever ends a run early, the table is left stopped: a controlled stop, then (after
+an abort request or an error) the servos are switched off; an e-stop or a failed stop
+goes straight to the controller's abort. Every transition and step boundary is an
+event to the listeners (recorder, progress, TUI). Time comes from the injected clock:
+with the simulator a simulated clock runs the plan far faster than real time.
+
+While the table moves, settles, dwells or turns, the sequencer keeps draining the IMU
+receiver (every frame goes to the listeners: nothing is lost while the table moves)
+and polls the table state. An observation step (dwell, turn) records the IMU sample
+counters of its window in its `step_finished` event; the solver's observations are
+extracted from the log with those windows (bench.solve.extract).
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+from bench.plan.events import Event, RunListener, RunState
+from bench.plan.steps import DwellStep, MoveStep, SettleStep, Step, TurnStep, step_to_dict
+from drivers.clock import Clock
+from drivers.errors import ImuTimeout, TurntableEStop, TurntableTimeout
+from drivers.turntable import Turntable
+
+_TRANSITIONS = {
+    (RunState.IDLE, RunState.RUNNING),
+    (RunState.RUNNING, RunState.PAUSED),
+    (RunState.PAUSED, RunState.RUNNING),
+    (RunState.RUNNING, RunState.ABORTING),
+    (RunState.PAUSED, RunState.ABORTING),
+    (RunState.IDLE, RunState.ABORTING),
+    (RunState.ABORTING, RunState.FAILED),
+    (RunState.RUNNING, RunState.DONE),
+}
+
+
+class SequencerError(Exception):
+    """A run could not go on (base of the sequencer's own errors)."""
+
+
+class RunAborted(SequencerError):
+    """The run was aborted on request (operator, Ctrl-C, API)."""
+
+
+@dataclass(frozen=True)
+class SequencerOptions:
+    """Timing of the sequencer's own loops (clock seconds) and move completion criteria."""
+
+    settle_tolerance_deg: float = 0.001
+    move_poll_s: float = 0.05       # table state poll period while a move or turn is under way
+    imu_poll_s: float = 0.05        # IMU drain period at rest (settle, dwell, rests of a turn)
+    state_period_s: float = 0.5     # table state poll period at rest
+    move_timeout_s: float = 900.0   # a move or turn not complete after this -> TurntableTimeout
+    imu_timeout_s: float = 2.0      # no IMU sample for this long while recording -> ImuTimeout
+    stop_timeout_s: float = 60.0    # waiting for the table to come to rest after a stop
+
+
+class Sequencer:
+    """Runs `steps` on a turntable driver and an IMU receiver, reporting to listeners.
+
+    `imu` is a `drivers.imu.receiver.ImuReceiver` (or anything with `poll()`,
+    `stats` and `on_frames`); the sequencer installs itself as its frame callback.
+    `completed_units` (from an interrupted run's log) are skipped: resume.
+    `pause()`, `resume()` and `abort()` may be called from any thread.
+    """
+
+    def __init__(self, steps: Sequence[Step], table: Turntable, imu, clock: Clock,
+                 listeners: Iterable[RunListener] = (), options: SequencerOptions = SequencerOptions(),
+                 completed_units: Iterable[str] = ()):
+        self.steps = tuple(steps)
+        self.table, self.imu, self.clock = table, imu, clock
+        self.listeners = list(listeners)
+        self.options = options
+        self.completed_units = set(completed_units)
+        self.state = RunState.IDLE
+        self.error: BaseException | None = None
+        self.current_step: Step | None = None
+        self.windows: dict[str, dict] = {}          # unit -> counter window of its observation
+        self._abort_reason: str | None = None
+        self._pause_requested = threading.Event()
+        self._resume = threading.Event()
+        self._lock = threading.Lock()
+        self._last_state_poll = float("-inf")
+        self._last_drain = float("-inf")
+        self._last_sample_at: float | None = None
+        self._lost_reported = 0
+        self._window: list[int] | None = None        # [first, last] counters while recording
+        imu.on_frames = self._on_frames
+
+    # -- control (any thread) ------------------------------------------------------
+    def pause(self) -> None:
+        """Pause at the next step boundary (the table holds its position)."""
+        self._resume.clear()
+        self._pause_requested.set()
+
+    def resume(self) -> None:
+        self._pause_requested.clear()
+        self._resume.set()
+
+    def abort(self, reason: str = "abort requested") -> None:
+        """End the run as soon as the current loop iteration notices; the table is stopped."""
+        with self._lock:
+            if self._abort_reason is None:
+                self._abort_reason = reason
+        self._resume.set()
+
+    @property
+    def abort_requested(self) -> bool:
+        return self._abort_reason is not None
+
+    # -- events ----------------------------------------------------------------------
+    def _emit(self, kind: str, message: str, at: Step | None = None, **data) -> None:
+        event = Event(self.clock.now(), kind, message, self.state.value if kind == "transition" else None,
+                      at.index if at is not None else None, at.unit if at is not None else None, data)
+        for listener in self.listeners:
+            listener.on_event(event)
+
+    def _transition(self, new: RunState, message: str) -> None:
+        if (self.state, new) not in _TRANSITIONS:
+            raise SequencerError(f"illegal transition {self.state.value} -> {new.value}")
+        old, self.state = self.state, new
+        self._emit("transition", message, **{"from": old.value})
+
+    def _on_frames(self, frames) -> None:
+        for listener in self.listeners:
+            listener.on_can_frames(frames)
+
+    # -- the run ---------------------------------------------------------------------
+    def run(self) -> RunState:
+        """Execute every step; returns DONE or FAILED (then `error` says why)."""
+        self._transition(RunState.RUNNING, f"run started: {len(self.steps)} steps")
+        try:
+            for step in self.steps:
+                self._check_abort()
+                if self._pause_requested.is_set():
+                    self._pause()
+                if step.unit in self.completed_units:
+                    self._emit("step_skipped", f"{step.unit} {step.kind}: complete in an earlier run", step,
+                               step=step_to_dict(step))
+                    continue
+                self._execute(step)
+            self._drain_imu()
+            self._transition(RunState.DONE, "run complete")
+        except BaseException as exc:  # noqa: BLE001 - every way out must stop the table; re-raised if not ours
+            self.error = exc
+            self._fail(exc)
+            if not isinstance(exc, Exception):
+                raise
+        return self.state
+
+    def _pause(self) -> None:
+        self._transition(RunState.PAUSED, "paused at a step boundary; the table holds its position")
+        while not self._resume.wait(0.05):
+            self._drain_imu()
+        self._check_abort()
+        self._transition(RunState.RUNNING, "resumed")
+
+    def _fail(self, exc: BaseException) -> None:
+        if isinstance(exc, RunAborted):
+            message = f"aborted: {exc}"
+        else:
+            message = f"{type(exc).__name__}: {exc}"
+            self._emit("fault", message, self.current_step, error=type(exc).__name__)
+        if self.state is not RunState.ABORTING:
+            self._transition(RunState.ABORTING, message)
+        self._safe_stop(estop=isinstance(exc, TurntableEStop))
+        self._transition(RunState.FAILED, "run ended early; table stopped")
+
+    def _safe_stop(self, estop: bool) -> None:
+        """Stop the table, wait (bounded) for rest, switch servos off; abort if anything fails."""
+        if estop:
+            self.table.safe_abort()
+            self._emit("info", "e-stop: controller abort sent (servos off)")
+            return
+        try:
+            self.table.stop()
+            deadline = self.clock.now() + self.options.stop_timeout_s
+            while True:
+                state = self.table.read_state()
+                self._publish_state(state)
+                if all(abs(r) < 1e-9 for r in state.rates_dps) or self.clock.now() > deadline:
+                    break
+                self.clock.sleep(self.options.move_poll_s)
+            self.table.disable()
+            self._publish_state(self.table.read_state())
+            self._emit("info", "table stopped and servos off")
+        except Exception as exc:  # noqa: BLE001 - fall back to the controller's abort, report the first error
+            self.table.safe_abort()
+            self._emit("warning", f"controlled stop failed ({type(exc).__name__}: {exc}); abort sent")
+        try:
+            self._drain_imu()
+        except Exception:  # noqa: BLE001 - the IMU link may be what failed; the stop matters more
+            pass
+
+    def _check_abort(self) -> None:
+        if self._abort_reason is not None:
+            if self.state in (RunState.RUNNING, RunState.PAUSED):
+                self._transition(RunState.ABORTING, self._abort_reason)
+            raise RunAborted(self._abort_reason)
+
+    # -- steps -------------------------------------------------------------------------
+    def _execute(self, step: Step) -> None:
+        self.current_step = step
+        self._emit("step_started", f"{step.unit} {step.kind}", step, step=step_to_dict(step))
+        started = self.clock.now()
+        data: dict = {}
+        if isinstance(step, MoveStep):
+            self._move(step.target_deg, step.rate_dps)
+        elif isinstance(step, SettleStep):
+            self._rest(step.duration_s)
+        elif isinstance(step, DwellStep):
+            data = self._record(lambda: self._rest(step.dwell_s))
+        elif isinstance(step, TurnStep):
+            data = self._record(lambda: self._turn(step))
+        else:
+            raise SequencerError(f"unknown step {step!r}")
+        if data:
+            self.windows[step.unit] = data
+        self._emit("step_finished", f"{step.unit} {step.kind} done in {self.clock.now() - started:.1f} s", step,
+                   step=step_to_dict(step), **data)
+        self.current_step = None
+
+    def _turn(self, step: TurnStep) -> None:
+        self._rest(step.rest_s)
+        self._move(step.end_deg, step.rate_dps)
+        self._rest(step.rest_s)
+
+    def _record(self, body) -> dict:
+        """Run `body` while collecting the counter window of the samples received during it."""
+        self._drain_imu()                       # samples before the window belong to the previous step
+        self._window = []
+        self._last_sample_at = self.clock.now()
+        try:
+            body()
+            self._drain_imu()
+            window = self._window
+        finally:
+            self._window = None
+        if not window:
+            raise ImuTimeout("no IMU samples were received during the recording window")
+        return {"counter_first": window[0], "counter_last": window[1], "samples": window[2]}
+
+    def _move(self, target_deg: Sequence[float], rate_dps: float) -> None:
+        self.table.move_to(tuple(target_deg), rate_dps=rate_dps)
+        start = self.clock.now()
+        tolerance = self.options.settle_tolerance_deg
+        while True:
+            self._check_abort()
+            state = self.table.read_state()
+            self._publish_state(state)
+            self.table.check_state(state)
+            if all(axis.in_position and abs(axis.angle_deg - target) <= tolerance
+                   for axis, target in zip(state.axes, target_deg)):
+                return
+            if self.clock.now() - start > self.options.move_timeout_s:
+                raise TurntableTimeout(f"move to {list(target_deg)} deg not complete after "
+                                       f"{self.options.move_timeout_s} s")
+            self.clock.sleep(self.options.move_poll_s)
+            self._drain_imu_when_due()
+
+    def _rest(self, duration_s: float) -> None:
+        end = self.clock.now() + duration_s
+        while True:
+            self._check_abort()
+            now = self.clock.now()
+            if now - self._last_state_poll >= self.options.state_period_s:
+                state = self.table.read_state()
+                self._publish_state(state)
+                self.table.check_state(state)
+            if now >= end - 1e-9:
+                return
+            self.clock.sleep(min(self.options.imu_poll_s, end - now))
+            self._drain_imu_when_due()
+
+    # -- data ----------------------------------------------------------------------------
+    def _publish_state(self, state) -> None:
+        self._last_state_poll = self.clock.now()
+        for listener in self.listeners:
+            listener.on_table_state(state)
+
+    def _drain_imu_when_due(self) -> None:
+        if self.clock.now() - self._last_drain >= self.options.imu_poll_s - 1e-9:
+            self._drain_imu()
+
+    def _drain_imu(self) -> None:
+        block = self.imu.poll()
+        now = self._last_drain = self.clock.now()
+        if len(block):
+            self._last_sample_at = now
+            if self._window is not None:
+                first, last = int(block.counter[0]), int(block.counter[-1])
+                if self._window:
+                    self._window[1] = last
+                    self._window[2] += len(block)
+                else:
+                    self._window.extend([first, last, len(block)])
+            for listener in self.listeners:
+                listener.on_imu(block)
+        elif (self._window is not None and self._last_sample_at is not None
+              and now - self._last_sample_at > self.options.imu_timeout_s):
+            raise ImuTimeout(f"no IMU sample for {now - self._last_sample_at:.1f} s while recording")
+        stats = self.imu.stats
+        lost = stats.lost_samples + stats.frame_faults
+        if lost > self._lost_reported:
+            self._lost_reported = lost
+            self._emit("warning", f"IMU link: {stats.summary()}", self.current_step, imu_stats=stats.as_dict())

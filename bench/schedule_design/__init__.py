@@ -1,0 +1,1 @@
+"""Designing schedules: first-order sensitivities, Monte Carlo, exhaustive search and plan recommendation."""

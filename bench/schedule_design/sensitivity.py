@@ -1,0 +1,311 @@
+"""First-order sensitivity of solved coefficients to the nine black-box angles, and noise sigmas.
+
+Sensitivity: d(solved coefficient)/d(black-box angle) at a zero black box, by exact
+central differences through `bench.model.closed_form` and the solvers' own least squares
+(the same path as `bench.schedule_design.monte_carlo`), in display units per arcsec. A schedule
+"cancels" an angle for a coefficient when the derivative is below `ZERO_REL` of that
+coefficient's natural scale (Earth rate for D0, g for K0, 1 for Ka, Kg, Ea, Eg).
+
+Noise: 1-sigma of each coefficient from the least-squares covariance of the nominal
+design, for white noise (ARW / VRW), first-order Gauss-Markov bias instability and
+count quantisation (remainder carried, so the error of a sum is the difference of two
+remainders) at the given dwell or turn time.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.model.closed_form import position_outputs, turn_closed_form, turn_integrals
+from bench.model.earth import EARTH_RATE, Site
+from bench.model.imu import AXES, BODY_AXES, ImuCoefficients, NoiseModel, default_sim_imu
+from bench.solve.methods import SolverError, _scale_axes_bias_jacobian, nominal_position_inputs, position_design, \
+    scale_axes_bias
+from bench.model.units import ARCSEC, DEG, DEG_PER_HOUR, G0, MICRO_G
+
+#: The nine black-box angles: rows (outer = C_t^o0, middle = C_o^m0, inner = C_m^i0), columns.
+ANGLE_NAMES = tuple(f"{row}.{col}" for row in ("outer", "middle", "inner") for col in ("alpha", "beta", "gamma"))
+#: Index of the inner frame's zero offset (gamma of C_m^i0), which no schedule can see.
+INNER_ZERO_OFFSET = ANGLE_NAMES.index("inner.gamma")
+#: A derivative below this fraction of the coefficient's natural scale counts as cancelled.
+ZERO_REL = 1e-7
+STEP_RAD = 1.0 * ARCSEC   # central-difference step; third-order error ~ step^2, far below ZERO_REL
+
+_OFF_DIAGONAL = [(s, a) for s in range(3) for a in range(3) if a != s]
+#: Display unit of each family's sensitivity and noise, and SI -> display factor (per rad of angle).
+FAMILY_UNITS = {
+    "D0": ("deg/h", 1.0 / DEG_PER_HOUR),
+    "K0": ("g", 1.0 / G0),
+    "Ka": ("ppm", 1e6),
+    "Ea": ("arcsec", 1.0 / ARCSEC),
+    "Kg": ("ppm", 1e6),
+    "Eg": ("arcsec", 1.0 / ARCSEC),
+}
+_NATURAL_SI = {"D0": EARTH_RATE, "K0": G0, "Ka": 1.0, "Ea": 1.0, "Kg": 1.0, "Eg": 1.0}
+POSITION_FAMILIES = ("D0", "K0", "Ka", "Ea")
+ROTATION_FAMILIES = ("Kg", "Eg")
+
+
+def coefficient_names(families) -> tuple[str, ...]:
+    """Canonical names of the coefficients a method solves at first order (no diagonal cosines:
+    a unit vector's own component changes only at second order)."""
+    names = []
+    for fam in families:
+        if fam in ("Ea", "Eg"):
+            names += [f"{fam}_{BODY_AXES[a]}{AXES[s]}" for s, a in _OFF_DIAGONAL]
+        else:
+            names += [f"{fam}_{s}" for s in AXES]
+    return tuple(names)
+
+
+def family_of(name: str) -> str:
+    return name.split("_", 1)[0]
+
+
+@dataclass(frozen=True)
+class Sensitivity:
+    """`matrix[c, j]`: d(coefficient c)/d(angle j) in `units[c]` per arcsec."""
+
+    method: str                 # "positions" | "rotations"
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+    matrix: np.ndarray          # (C, 9)
+    natural: np.ndarray         # (C,) natural scale per arcsec, display units
+    #: Rotations only: the same with the Earth rate switched off, i.e. the pure geometry of
+    #: the turns. Entries of `matrix` that vanish here are Earth-rate coupling (they shrink
+    #: as T*Omega/(2 pi N), i.e. with faster turns), not a geometric error.
+    geometric: np.ndarray | None = None
+
+    @property
+    def remaining(self) -> np.ndarray:
+        """Boolean (C, 9): True where the angle is NOT cancelled at first order."""
+        return np.abs(self.matrix) > ZERO_REL * self.natural[:, None]
+
+    @property
+    def remaining_geometric(self) -> np.ndarray:
+        """Boolean (C, 9): remaining even without the Earth rate (all of `remaining` for positions)."""
+        if self.geometric is None:
+            return self.remaining
+        return np.abs(self.geometric) > ZERO_REL * self.natural[:, None]
+
+    def status(self) -> np.ndarray:
+        """(C, 9) of '0' (cancelled), 'E' (Earth-rate coupling only) or 'R' (remains)."""
+        out = np.full(self.matrix.shape, "0", dtype="<U1")
+        out[self.remaining] = "E"
+        out[self.remaining_geometric] = "R"
+        return out
+
+    def row(self, name: str) -> np.ndarray:
+        return self.matrix[self.names.index(name)]
+
+    def remaining_pairs(self) -> list[tuple[str, str]]:
+        """(coefficient, angle) pairs that remain at first order."""
+        rem = self.remaining
+        return [(n, ANGLE_NAMES[j]) for i, n in enumerate(self.names) for j in range(9) if rem[i, j]]
+
+    def families_remaining(self) -> dict[str, list[str]]:
+        """Per family, the angles that remain in any of its coefficients."""
+        out: dict[str, list[str]] = {}
+        rem = self.remaining
+        for fam in dict.fromkeys(family_of(n) for n in self.names):
+            rows = [i for i, n in enumerate(self.names) if family_of(n) == fam]
+            out[fam] = [ANGLE_NAMES[j] for j in range(9) if rem[rows, j].any()]
+        return out
+
+
+def probe_boxes(step_rad: float) -> np.ndarray:
+    """(18, 3, 3): +step then -step on each of the nine angles."""
+    boxes = np.zeros((18, 3, 3))
+    for j in range(9):
+        boxes[j].flat[j] = step_rad
+        boxes[9 + j].flat[j] = -step_rad
+    return boxes
+
+
+def solve_positions_batch(angles_deg, black_box_rad: np.ndarray, imu: ImuCoefficients,
+                          site: Site) -> dict[str, np.ndarray]:
+    """Position method on noise-free outputs for black boxes (R, 3, 3): SI coefficients per run.
+
+    The gyro bias uses the true Kg/Eg, as `bench.schedule_design.monte_carlo` does.
+    """
+    angles = np.asarray(angles_deg, dtype=float)
+    design = position_design(angles, site)
+    rank = np.linalg.matrix_rank(design, tol=1e-9 * np.abs(design).max())
+    if rank < 4:
+        raise SolverError(f"position schedule: the positions determine only {rank} of 4 unknowns per "
+                          "accelerometer (need the specific force along all three body axes)")
+    gyro_out, acc_out = position_outputs(angles, imu, site, black_box_rad)
+    params = np.einsum("pk,rks->rsp", np.linalg.pinv(design), acc_out)
+    scale, axes, bias = scale_axes_bias(params)
+    _, w_nominal = nominal_position_inputs(angles, site)
+    gyro_bias = (gyro_out / imu.gyro_scale - w_nominal @ imu.gyro_axes.T).mean(axis=1)
+    return {"Ka": scale, "Ea": axes, "K0": bias, "D0": gyro_bias}
+
+
+def rotation_design_nominal(turns, site: Site, rate_dps: float) -> np.ndarray:
+    """`[d 2 pi N u + E, T]` (K, 4) on an ideal table, as the solver builds it."""
+    rot, earth, durations = turn_closed_form(turns, site, rate_dps)
+    return np.column_stack([rot + earth, durations])
+
+
+def solve_rotations_batch(turns, black_box_rad: np.ndarray, imu: ImuCoefficients, site: Site,
+                          rate_dps: float = 10.0) -> dict[str, np.ndarray]:
+    """Rotation method on noise-free integrals for black boxes (R, 3, 3): Kg, Eg per run."""
+    design = rotation_design_nominal(turns, site, rate_dps)
+    rank = np.linalg.matrix_rank(design, tol=1e-9 * np.abs(design).max())
+    if rank < 4:
+        raise SolverError(f"rotation schedule: the turns determine only {rank} of 4 unknowns per gyro "
+                          "(need turns about all three body axes in both senses)")
+    integral, _ = turn_integrals(turns, imu, site, rate_dps, black_box_rad)
+    params = np.einsum("pk,rks->rsp", np.linalg.pinv(design), integral)
+    scale, axes, _ = scale_axes_bias(params)
+    return {"Kg": scale, "Eg": axes}
+
+
+def _to_rows(solved: dict[str, np.ndarray], imu: ImuCoefficients, families) -> np.ndarray:
+    """(R, C) coefficient values in display units (scale factors relative, as ppm of truth)."""
+    cols = []
+    for fam in families:
+        factor = FAMILY_UNITS[fam][1]
+        value = solved[fam]
+        if fam in ("Ea", "Eg"):
+            cols += [value[:, s, a] * factor for s, a in _OFF_DIAGONAL]
+        elif fam in ("Ka", "Kg"):
+            truth = imu.acc_scale if fam == "Ka" else imu.gyro_scale
+            cols += [(value[:, s] / truth[s] - 1.0) * factor for s in range(3)]
+        else:
+            cols += [value[:, s] * factor for s in range(3)]
+    return np.stack(cols, axis=1)
+
+
+def _difference(solved, imu: ImuCoefficients, families, step_rad: float) -> np.ndarray:
+    rows = _to_rows(solved, imu, families)
+    return (rows[:9] - rows[9:]).T / (2.0 * step_rad / ARCSEC)
+
+
+class _NoEarthSite:
+    """A site whose Earth rate is zero: isolates the geometric part of a turn's sensitivity."""
+
+    def __init__(self, site: Site):
+        self.specific_force_enu = site.specific_force_enu
+        self.earth_rate_enu = np.zeros(3)
+
+
+def _sensitivity(method: str, families, solved, imu: ImuCoefficients, step_rad: float,
+                 geometric: np.ndarray | None = None) -> Sensitivity:
+    matrix = _difference(solved, imu, families, step_rad)
+    names = coefficient_names(families)
+    fams = [family_of(n) for n in names]
+    units = tuple(FAMILY_UNITS[f][0] for f in fams)
+    natural = np.array([_NATURAL_SI[f] * FAMILY_UNITS[f][1] * ARCSEC for f in fams])
+    return Sensitivity(method, names, units, matrix, natural, geometric)
+
+
+def position_sensitivity(angles_deg, imu: ImuCoefficients | None = None, site: Site | None = None,
+                         step_rad: float = STEP_RAD) -> Sensitivity:
+    """First-order sensitivity of D0 (with true Kg/Eg), K0, Ka, Ea to the nine angles."""
+    imu = imu or default_sim_imu()
+    site = site or Site()
+    solved = solve_positions_batch(angles_deg, probe_boxes(step_rad), imu, site)
+    return _sensitivity("positions", POSITION_FAMILIES, solved, imu, step_rad)
+
+
+def rotation_sensitivity(turns, imu: ImuCoefficients | None = None, site: Site | None = None,
+                         rate_dps: float = 10.0, step_rad: float = STEP_RAD) -> Sensitivity:
+    """First-order sensitivity of Kg, Eg to the nine angles."""
+    imu = imu or default_sim_imu()
+    site = site or Site()
+    boxes = probe_boxes(step_rad)
+    solved = solve_rotations_batch(turns, boxes, imu, site, rate_dps)
+    no_earth = solve_rotations_batch(turns, boxes, imu, _NoEarthSite(site), rate_dps)
+    geometric = _difference(no_earth, imu, ROTATION_FAMILIES, step_rad)
+    return _sensitivity("rotations", ROTATION_FAMILIES, solved, imu, step_rad, geometric)
+
+
+# --- noise ------------------------------------------------------------------------
+
+def _gm_mean_var(sigma: float, tau_s: float, t_s: float) -> float:
+    """Variance of the time average over t_s of a first-order Gauss-Markov process."""
+    if sigma == 0.0 or t_s <= 0.0:
+        return 0.0
+    x = t_s / tau_s
+    return sigma ** 2 * 2.0 / x ** 2 * (x - 1.0 + math.exp(-x))
+
+
+_QUANT_COUNTS = 1.0 / math.sqrt(6.0)  # std of the difference of two uniform remainders
+
+
+def position_noise_sigma(angles_deg, noise: NoiseModel, dwell_s: float, imu: ImuCoefficients | None = None,
+                         site: Site | None = None) -> dict[str, float]:
+    """1-sigma of each position-method coefficient (display units; Ka in ppm, Ea in arcsec)."""
+    imu = imu or default_sim_imu()
+    site = site or Site()
+    if dwell_s <= 0:
+        raise ValueError(f"dwell_s must be positive, got {dwell_s}")
+    design = position_design(np.asarray(angles_deg, dtype=float), site)
+    try:
+        inv = np.linalg.inv(design.T @ design)
+    except np.linalg.LinAlgError as exc:
+        raise SolverError("position schedule: singular design") from exc
+    tau = noise.correlation_time_s
+    out: dict[str, float] = {}
+    acc_white = noise.acc_vrw_ug_rt_hz * MICRO_G / math.sqrt(dwell_s)
+    acc_gm = _gm_mean_var(noise.acc_bias_instability_ug * MICRO_G, tau, dwell_s)
+    for s in range(3):
+        quant = (_QUANT_COUNTS / dwell_s / imu.acc_scale[s]) if noise.quantise else 0.0
+        sigma_counts = imu.acc_scale[s] * math.sqrt(acc_white ** 2 + acc_gm + quant ** 2)
+        params = np.concatenate([imu.acc_matrix[s], [imu.acc_scale[s] * imu.acc_bias[s]]])
+        jac = _scale_axes_bias_jacobian(params)
+        cov = jac @ (sigma_counts ** 2 * inv) @ jac.T
+        sd = np.sqrt(np.diag(cov))
+        out[f"Ka_{AXES[s]}"] = sd[0] / imu.acc_scale[s] * FAMILY_UNITS["Ka"][1]
+        out[f"K0_{AXES[s]}"] = sd[4] * FAMILY_UNITS["K0"][1]
+        for a in range(3):
+            if a != s:
+                out[f"Ea_{BODY_AXES[a]}{AXES[s]}"] = sd[1 + a] * FAMILY_UNITS["Ea"][1]
+    gyro_white = noise.gyro_arw_deg_rt_h * DEG / 60.0 / math.sqrt(dwell_s)
+    gyro_gm = _gm_mean_var(noise.gyro_bias_instability_dph * DEG_PER_HOUR, tau, dwell_s)
+    k = len(design)
+    for s in range(3):
+        quant = (_QUANT_COUNTS / dwell_s / imu.gyro_scale[s]) if noise.quantise else 0.0
+        out[f"D0_{AXES[s]}"] = math.sqrt((gyro_white ** 2 + gyro_gm + quant ** 2) / k) * FAMILY_UNITS["D0"][1]
+    return {n: out[n] for n in coefficient_names(POSITION_FAMILIES)}
+
+
+def rotation_noise_sigma(turns, noise: NoiseModel, rate_dps: float = 10.0, imu: ImuCoefficients | None = None,
+                         site: Site | None = None) -> dict[str, float]:
+    """1-sigma of Kg (ppm) and Eg (arcsec) from each turn's integrated gyro noise."""
+    imu = imu or default_sim_imu()
+    site = site or Site()
+    design = rotation_design_nominal(turns, site, rate_dps)
+    durations = design[:, 3]
+    arw = noise.gyro_arw_deg_rt_h * DEG / 60.0            # rad/sqrt(s)
+    bi = noise.gyro_bias_instability_dph * DEG_PER_HOUR
+    # Integral noise per turn (rad): white ARW*sqrt(T) and the GM bias integrated over T.
+    var_rad = np.array([arw ** 2 * t + t ** 2 * _gm_mean_var(bi, noise.correlation_time_s, t) for t in durations])
+    out: dict[str, float] = {}
+    for s in range(3):
+        quant = _QUANT_COUNTS if noise.quantise else 0.0
+        sigma = np.sqrt(imu.gyro_scale[s] ** 2 * var_rad + quant ** 2)
+        aw = design / sigma[:, None]
+        try:
+            cov0 = np.linalg.inv(aw.T @ aw)
+        except np.linalg.LinAlgError as exc:
+            raise SolverError("rotation schedule: singular design") from exc
+        params = np.concatenate([imu.gyro_matrix[s], [imu.gyro_scale[s] * imu.gyro_bias[s]]])
+        jac = _scale_axes_bias_jacobian(params)
+        sd = np.sqrt(np.diag(jac @ cov0 @ jac.T))
+        out[f"Kg_{AXES[s]}"] = sd[0] / imu.gyro_scale[s] * FAMILY_UNITS["Kg"][1]
+        for a in range(3):
+            if a != s:
+                out[f"Eg_{BODY_AXES[a]}{AXES[s]}"] = sd[1 + a] * FAMILY_UNITS["Eg"][1]
+    return {n: out[n] for n in coefficient_names(ROTATION_FAMILIES)}
+
+
+__all__ = ["ANGLE_NAMES", "FAMILY_UNITS", "INNER_ZERO_OFFSET", "POSITION_FAMILIES", "ROTATION_FAMILIES",
+           "STEP_RAD", "ZERO_REL", "Sensitivity", "coefficient_names", "position_noise_sigma",
+           "position_sensitivity", "rotation_design_nominal", "rotation_noise_sigma", "rotation_sensitivity",
+           "solve_positions_batch", "solve_rotations_batch"]

@@ -1,0 +1,1 @@
+"""From observations to coefficients: least-squares methods, calibrate, extraction from a log, re-solve and method comparison."""

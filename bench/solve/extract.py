@@ -1,0 +1,119 @@
+"""Solver observations from a run's record: one per dwell, one per turn (the log is the source of truth).
+
+Inputs are what a run log holds: the sequencer's events (each finished observation
+step carries the IMU counter window it recorded), the decoded IMU samples (unwrapped
+counters, per-sample increments) and the polled table states. The same function
+serves the live run (which solves from the log it just wrote) and `bench solve`.
+
+- Dwell: mean output rate over the window's samples, with block-mean standard errors
+  (`bench.model.observations.mean_and_standard_error`). Missing samples (counter gaps) only
+  shorten the dwell; they are reported.
+- Turn: the gyro increments summed over the window (rest to rest). A turn with a
+  missing sample cannot be integrated and is left out, with the reason. The Earth-rate
+  integral is nominal: the window length times the Earth rate at the initial attitude,
+  plus the change while the frame moves, integrated along the frame angles the
+  controller reported (piecewise linear between polls). Where the motion sits inside
+  the window does not matter because a turn of whole revolutions starts and ends in
+  the same attitude.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bench.model.earth import Site
+from bench.plan.events import Event
+from bench.model.motion import Piece
+from bench.model.observations import PositionObservation, RotationObservation, mean_and_standard_error, turn_earth_integral
+from bench.model.units import DEG
+
+
+@dataclass
+class Extraction:
+    positions: list[PositionObservation] = field(default_factory=list)
+    rotations: list[RotationObservation] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)   # one line per step left out or degraded
+
+    @property
+    def units(self) -> list[str]:
+        return [o.label for o in self.positions] + [o.label for o in self.rotations]
+
+
+def finished_observation_steps(events: list[Event]) -> dict[str, tuple[Event | None, Event]]:
+    """unit -> (its step_started event, its step_finished event) for dwells and turns; a re-run wins."""
+    started: dict[str, Event] = {}
+    done: dict[str, tuple[Event | None, Event]] = {}
+    for event in events:
+        step = event.data.get("step") or {}
+        if step.get("kind") not in ("dwell", "turn") or event.step_unit is None:
+            continue
+        if event.kind == "step_started":
+            started[event.step_unit] = event
+        elif event.kind == "step_finished" and "counter_first" in event.data:
+            done[event.step_unit] = (started.get(event.step_unit), event)
+    return done
+
+
+def _window(counter: np.ndarray, first: int, last: int) -> slice:
+    lo, hi = np.searchsorted(counter, [first, last + 1])
+    return slice(int(lo), int(hi))
+
+
+def _turn_earth_integral(site: Site, step: dict, samples_duration_s: float, t0: float, t1: float,
+                         state_time_s: np.ndarray, state_angles_deg: np.ndarray, mounting) -> np.ndarray:
+    k = ("outer", "middle", "inner").index(step["frame"])
+    start_nominal = np.asarray(step["start_deg"], dtype=float)
+    rest = [Piece(0.0, start_nominal[k] * DEG, 0.0, 0.0)]
+    base = turn_earth_integral(site, start_nominal, k, rest, 0.0, samples_duration_s, mounting=mounting)
+    inside = (state_time_s >= t0) & (state_time_s <= t1)
+    times = state_time_s[inside]
+    if len(times) < 2:
+        return base
+    # Frame angle in the schedule's nominal terms (the controller's is multi-turn).
+    theta = (state_angles_deg[inside, k] - step["target_deg"][k] + start_nominal[k]) * DEG
+    pieces = [Piece(float(times[i]), float(theta[i]), float((theta[i + 1] - theta[i]) / (times[i + 1] - times[i])), 0.0)
+              for i in range(len(times) - 1) if times[i + 1] > times[i]]
+    pieces.append(Piece(float(times[-1]), float(theta[-1]), 0.0, 0.0))
+    span = float(times[-1] - times[0])
+    moving = turn_earth_integral(site, start_nominal, k, pieces, float(times[0]), float(times[-1]), mounting=mounting)
+    at_rest = turn_earth_integral(site, start_nominal, k, rest, 0.0, span, mounting=mounting)
+    return base + moving - at_rest
+
+
+def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: np.ndarray, acc_counts: np.ndarray,
+                         rate_hz: float, site: Site, state_time_s: np.ndarray, state_angles_deg: np.ndarray,
+                         mounting=None) -> Extraction:
+    """Observations of every finished dwell and turn, in the order the units were listed (P.., R..)."""
+    out = Extraction()
+    counter = np.asarray(counter, dtype=np.int64)
+    for unit, (started, finished) in sorted(finished_observation_steps(events).items()):
+        step, data = finished.data["step"], finished.data
+        first, last = int(data["counter_first"]), int(data["counter_last"])
+        window = _window(counter, first, last)
+        n = window.stop - window.start
+        expected = last - first + 1
+        if n == 0:
+            out.problems.append(f"{unit}: no IMU samples in its window (counters {first}..{last}); left out")
+            continue
+        if step["kind"] == "dwell":
+            if n < expected:
+                out.problems.append(f"{unit}: {expected - n} of {expected} samples missing in the dwell; "
+                                    f"mean over the {n} received")
+            gyro_mean, gyro_std, gyro_sem = mean_and_standard_error(gyro_counts[window] * rate_hz, duration_s=n / rate_hz)
+            acc_mean, acc_std, acc_sem = mean_and_standard_error(acc_counts[window] * rate_hz, duration_s=n / rate_hz)
+            out.positions.append(PositionObservation(tuple(step["angles_deg"]), n / rate_hz, n, gyro_mean, acc_mean,
+                                                     gyro_std, acc_std, gyro_sem, acc_sem, label=unit))
+        else:
+            if n < expected:
+                out.problems.append(f"{unit}: {expected - n} of {expected} samples missing during the turn: "
+                                    "its integral is incomplete; left out")
+                continue
+            t0 = started.time_s if started is not None else -np.inf
+            earth = _turn_earth_integral(site, step, n / rate_hz, t0, finished.time_s, state_time_s,
+                                         state_angles_deg, mounting)
+            out.rotations.append(RotationObservation(
+                tuple(step["start_deg"]), step["frame"], step["direction"], int(step["revolutions"]), n / rate_hz, n,
+                gyro_counts[window].sum(axis=0), earth_integral_rad=earth, label=unit))
+    return out

@@ -1,0 +1,70 @@
+"""Solve a calibration from run logs: the one path shared by `bench run` (its own log) and re-solving.
+
+Each log is decoded on its own (IMU counters restart with every connection, so a
+recorded window only means something inside its log); the observations of all logs
+are merged by unit, a later log's observation of a unit replacing an earlier one
+(a resumed run repeats the unit that was cut off).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from bench.solve.calibrate import Calibration, solve
+from bench.model.earth import Site
+from bench.solve.extract import Extraction, extract_observations
+from bench.log.reader import RunLog
+from bench.model.units import DEG_PER_HOUR, MICRO_G
+from drivers.imu.layout import ImuLayout
+from drivers.imu.samples import ImuStats
+
+
+@dataclass
+class LogSolution:
+    calibration: Calibration
+    extraction: Extraction
+    imu_stats: list[ImuStats] = field(default_factory=list)    # per log, from decoding its raw frames
+    damage: list[str] = field(default_factory=list)             # per log damage lines, prefixed with the file
+
+
+def extract_from_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: float, mounting=None,
+                      still_open: frozenset[str] = frozenset()) -> tuple[Extraction, list[ImuStats], list[str]]:
+    """Observations of all logs merged by unit, the IMU link statistics and the damage of each log.
+
+    A log in `still_open` (the live run reading its own log before closing it) has no
+    summary yet by design: that is not reported as damage.
+    """
+    merged_positions, merged_rotations, problems = {}, {}, []
+    stats, damage = [], []
+    for log in logs:
+        samples, link = log.imu_samples(layout, rate_hz)
+        stats.append(link)
+        damage += [f"{log.path}: {d.describe()}" for d in log.lost
+                   if not (d.kind == "no_summary" and log.path in still_open)]
+        states = log.table_states
+        part = extract_observations(log.events, samples.counter, samples.gyro_counts, samples.acc_counts, rate_hz,
+                                    site, states.time_s, states.angles_deg, mounting)
+        merged_positions.update({o.label: o for o in part.positions})
+        merged_rotations.update({o.label: o for o in part.rotations})
+        problems += [f"{log.path}: {p}" for p in part.problems]
+    extraction = Extraction([merged_positions[k] for k in sorted(merged_positions)],
+                            [merged_rotations[k] for k in sorted(merged_rotations)], problems)
+    return extraction, stats, damage
+
+
+def solve_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: float, *, mounting=None,
+               gyro_bias_stability_dph: float | None = None, acc_bias_stability_ug: float | None = None,
+               still_open: frozenset[str] = frozenset()) -> LogSolution:
+    """Extract every log's observations, merge them and solve (SolverError if there is nothing to solve)."""
+    extraction, stats, damage = extract_from_logs(logs, site, layout, rate_hz, mounting, still_open)
+    calibration = solve_extraction(extraction, site, mounting=mounting, gyro_bias_stability_dph=gyro_bias_stability_dph,
+                                   acc_bias_stability_ug=acc_bias_stability_ug)
+    return LogSolution(calibration, extraction, stats, damage)
+
+
+def solve_extraction(extraction: Extraction, site: Site, *, mounting=None, gyro_bias_stability_dph: float | None = None,
+                     acc_bias_stability_ug: float | None = None) -> Calibration:
+    """Solve merged observations (all of a log's or a subset); SolverError if there is nothing to solve."""
+    return solve(extraction.positions, extraction.rotations, site, mounting,
+                 gyro_bias_stability=(gyro_bias_stability_dph or 0.0) * DEG_PER_HOUR,
+                 acc_bias_stability=(acc_bias_stability_ug or 0.0) * MICRO_G)

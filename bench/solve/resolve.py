@@ -1,0 +1,436 @@
+"""Re-solve recorded runs from their MCAP logs: the logic of `bench solve` (CLI in `bench.cli.solve`).
+
+`load_recorded(paths)` reads one or more logs of one IMU (a resumed run's earlier logs
+are added when the later log names them and they are found), rebuilds the run's setup
+from the first log (`bench.log.run_info`), extracts every complete step and merges them by
+unit exactly as `bench run` does (`bench.solve.from_logs`), and accounts for every planned
+unit that is not in the logs (`Recorded.left_out`). `solve_recorded` solves all of it
+or a subset chosen by schedules (`select`: a recorded position counts for a schedule
+position with the same nominal angles modulo 360, a turn for a schedule turn with the
+same start state, frame and direction); with no subset it is the very computation
+`bench run` made, so its coefficients equal the run's bit for bit. Comparing methods
+(`--compare`) is in `bench.solve.compare`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from bench import __version__
+from bench.solve.extract import Extraction, finished_observation_steps
+from bench.log.run_info import LogSetup, layout_and_config_from_log, steps_from_log
+from bench.log.reader import LogError, RunLog, read_log
+from bench.model.result import CalibrationResult
+from bench.run.runner import bias_stabilities, quality_failures
+from bench.solve.from_logs import LogSolution, extract_from_logs, solve_extraction
+from bench.solve.methods import SolverError
+from drivers.imu import ImuStats
+
+#: Subset value that keeps none of a kind (e.g. `--rotations none`: a positions-only solve).
+NONE = "none"
+_ANGLE_DECIMALS = 6
+_RECORDED = "recorded but left out by the extraction"
+
+
+class SolveInputError(Exception):
+    """What was asked cannot be served from these logs (exit code 2): a subset the logs
+    lack, an unknown schedule, logs of different IMUs or runs that do not merge."""
+
+
+# -- reading the logs --------------------------------------------------------------------------
+
+@dataclass
+class Recorded:
+    """Everything recorded in a set of logs of one run (or of one IMU), ready to solve."""
+
+    logs: list[RunLog]                      # oldest first
+    setup: LogSetup                         # of the first log: layout, rate, configuration, site
+    sim: bool
+    extraction: Extraction                  # every complete step of every log, merged by unit
+    imu_stats: list[ImuStats]               # per log, from decoding its raw CAN frames
+    damage: list[str]                       # per log damage lines, prefixed with the file
+    planned: list[str]                      # every observation unit of the plan(s), in plan order
+    left_out: dict[str, str]                # unit -> why it is not in `extraction` (one line)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def run_meta(self) -> dict[str, str]:
+        return self.logs[-1].metadata.get("run", {})
+
+    @property
+    def run_id(self) -> str:
+        return self.run_meta.get("run_id") or Path(self.logs[-1].path).name.removesuffix(".mcap")
+
+    @property
+    def final_state(self) -> str:
+        states = [e.state for e in self.logs[-1].events if e.kind == "transition" and e.state]
+        return states[-1] if states else "unknown"
+
+    @property
+    def truth(self):
+        """The simulated IMU's true coefficients (None for hardware or without a configuration)."""
+        config = self.setup.config
+        return config.sim.imu if self.sim and config is not None else None
+
+    def problems(self) -> list[str]:
+        """Steps left out or degraded: the extraction's lines, then the units not in the logs."""
+        return list(self.extraction.problems) + [f"{unit}: {why}" for unit, why in self.left_out.items()
+                                                 if not why.startswith(_RECORDED)]
+
+    def imu_link(self) -> ImuStats:
+        """The IMU link statistics of all logs added up."""
+        total = ImuStats()
+        for stats in self.imu_stats:
+            for f in dataclasses.fields(ImuStats):
+                setattr(total, f.name, getattr(total, f.name) + getattr(stats, f.name))
+        return total
+
+
+def _name(path: str) -> str:
+    return Path(path).name
+
+
+def _earlier_names(log: RunLog) -> list[str]:
+    try:
+        earlier = json.loads(log.metadata.get("run", {}).get("logs_before", "[]"))
+    except ValueError:
+        return []
+    return [str(p) for p in earlier] if isinstance(earlier, list) else []
+
+
+def read_logs(paths: list[str], *, earlier: bool = True) -> tuple[list[RunLog], list[str]]:
+    """Read the logs (LogError on one that cannot be read at all), oldest first.
+
+    With `earlier`, the logs a resumed log names as its run's earlier ones are read too
+    when found (next to the resumed log, or at the path it recorded). Returns the logs and
+    notes on what was added or not found.
+    """
+    logs: dict[str, RunLog] = {}
+    notes: list[str] = []
+    for path in paths:
+        if _name(str(path)) not in logs:
+            logs[_name(str(path))] = read_log(path)
+    if earlier:
+        for log in list(logs.values()):
+            for recorded in _earlier_names(log):
+                if _name(recorded) in logs:
+                    continue
+                found = next((p for p in (Path(log.path).parent / _name(recorded), Path(recorded)) if p.is_file()), None)
+                if found is None:
+                    notes.append(f"{_name(log.path)} resumed {_name(recorded)}, which is not found here: "
+                                 "its units are not in this solve")
+                    continue
+                logs[_name(recorded)] = read_log(found)
+                notes.append(f"also read {found}: the run of {_name(log.path)} resumed it")
+    listed_before = {name: sum(name in map(_name, _earlier_names(other)) for other in logs.values()) for name in logs}
+    order = sorted(logs, key=lambda n: (-listed_before[n], logs[n].metadata.get("run", {}).get("started_utc", ""),
+                                        n))
+    return [logs[n] for n in order], notes
+
+
+def _check_one_imu(logs: list[RunLog]) -> None:
+    first = logs[0]
+
+    def ident(log):
+        imu = log.metadata.get("imu", {})
+        return imu.get("model", ""), imu.get("serial", ""), imu.get("rate_hz", "")
+
+    for log in logs[1:]:
+        if ident(log) != ident(first):
+            model, serial, rate = ident(log)
+            raise SolveInputError(f"{log.path} records IMU {model!r} serial {serial!r} at {rate} Hz but {first.path} "
+                                  f"records {ident(first)[0]!r} serial {ident(first)[1]!r} at {ident(first)[2]} Hz: "
+                                  "solve logs of one IMU together")
+
+
+def _nominal(step: dict) -> tuple:
+    if step.get("kind") == "dwell":
+        return ("dwell", angle_key(step["angles_deg"]))
+    return ("turn", angle_key(step["start_deg"]), step["frame"], step["direction"])
+
+
+def _check_units_agree(logs: list[RunLog]) -> None:
+    """Units merge by label: two logs may share a label only for the same nominal step."""
+    seen: dict[str, tuple[str, tuple]] = {}
+    for log in logs:
+        for unit, (_, finished) in finished_observation_steps(log.events).items():
+            nominal = _nominal(finished.data["step"])
+            if unit in seen and seen[unit][1] != nominal:
+                raise SolveInputError(f"{seen[unit][0]} and {log.path} both record unit {unit} with different "
+                                      "steps: they are not parts of one run; solve them separately")
+            seen[unit] = (log.path, nominal)
+
+
+def _planned_units(logs: list[RunLog], notes: list[str]) -> list[str]:
+    units: dict[str, None] = {}
+    for log in logs:
+        try:
+            steps = steps_from_log(log)
+        except LogError as exc:
+            notes.append(f"{exc}: units missing from the log cannot be listed")
+            continue
+        units.update((s.unit, None) for s in steps if s.kind in ("dwell", "turn"))
+    return list(units)
+
+
+def _left_out(logs: list[RunLog], planned: list[str], extraction: Extraction) -> dict[str, str]:
+    """Why each planned unit without an observation has none (one line each)."""
+    solved = set(extraction.units)
+    finished, started, skipped = set(), {}, {}
+    for log in logs:
+        finished |= set(finished_observation_steps(log.events))
+        started.update({e.step_unit: (log, e) for e in log.events if e.kind == "step_started" and e.step_unit})
+        skipped.update({e.step_unit: log for e in log.events if e.kind == "step_skipped" and e.step_unit})
+    last = logs[-1]
+    final = [e.state for e in last.events if e.kind == "transition" and e.state]
+    ended = max((e.time_s for log in logs for e in log.events), default=0.0)
+    out = {}
+    for unit in planned:
+        if unit in solved:
+            continue
+        if unit in finished:
+            out[unit] = _RECORDED + " (see its line above)"
+        elif unit in started:
+            log, event = started[unit]
+            out[unit] = (f"left out: started at {event.time_s:.1f} s in {_name(log.path)} but its end is not in the "
+                         + ("log (cut off or damaged, see the damage lines)" if not log.complete else "log"))
+        elif unit in skipped:
+            log = skipped[unit]
+            earlier = ", ".join(map(_name, _earlier_names(log))) or "not named"
+            out[unit] = (f"left out: {_name(log.path)} skipped it as done in an earlier log of its run ({earlier}), "
+                         "which is not among the logs read")
+        elif final and final[-1] == "done":
+            out[unit] = "left out: the run finished but this unit's records are lost in the damage"
+        elif not last.complete:
+            out[unit] = (f"left out: no record of it in the logs ({_name(last.path)} is cut off or damaged "
+                         f"after {ended:.1f} s)")
+        else:
+            out[unit] = f"left out: not run (the run ended {final[-1] if final else 'early'} before it)"
+    return out
+
+
+def load_recorded(paths: list[str], *, earlier: bool = True) -> Recorded:
+    """Read and extract logs of one IMU (LogError: unreadable; SolveInputError: logs that do not go together)."""
+    if not paths:
+        raise SolveInputError("no log given")
+    logs, notes = read_logs(list(map(str, paths)), earlier=earlier)
+    _check_one_imu(logs)
+    _check_units_agree(logs)
+    setup = layout_and_config_from_log(logs[0])
+    notes += list(setup.notes)
+    site = setup.site
+    if site is None:
+        raise SolveInputError(f"{logs[0].path}: the log records no usable site: cannot solve "
+                              f"({'; '.join(setup.notes)})")
+    # As in `bench run`: a log its run resumed was cut off, its missing summary is expected.
+    resumed = {_name(p) for log in logs for p in _earlier_names(log)}
+    still_open = frozenset(log.path for log in logs if _name(log.path) in resumed)
+    extraction, stats, damage = extract_from_logs(logs, site, setup.layout, setup.rate_hz, None, still_open)
+    planned = _planned_units(logs, notes)
+    sim = logs[0].metadata.get("run", {}).get("mode") == "simulator"
+    return Recorded(logs, setup, sim, extraction, stats, damage, planned, _left_out(logs, planned, extraction), notes)
+
+
+# -- subsets ------------------------------------------------------------------------------------
+
+def angle_key(angles_deg) -> tuple[float, ...]:
+    """Nominal angles compared modulo 360 (to a micro-degree)."""
+    return tuple(round(float(a) % 360.0, _ANGLE_DECIMALS) % 360.0 for a in angles_deg)
+
+
+def load_subset_schedule(spec: str | None, kind: str):
+    """The schedule of `--positions`/`--rotations` (`kind`): None = keep all, NONE = keep none."""
+    if spec is None:
+        return None
+    if spec == NONE:
+        return NONE
+    from schedules import ScheduleError, resolve_schedule
+
+    try:
+        schedule = resolve_schedule(spec)
+    except ScheduleError as exc:
+        raise SolveInputError(str(exc)) from exc
+    wanted = ("positions", "table-check") if kind == "positions" else ("rotations",)
+    if schedule.kind not in wanted:
+        raise SolveInputError(f"schedule {schedule.name!r} is a {schedule.kind!r} schedule, --{kind} needs a "
+                              f"{kind!r} schedule")
+    return schedule
+
+
+def _pick(keys: list, wanted: list, describe) -> tuple[list[int], list[str]]:
+    free: dict[tuple, list[int]] = {}
+    for i, key in enumerate(keys):
+        free.setdefault(key, []).append(i)
+    picked, missing = [], []
+    for want in wanted:
+        if free.get(want):
+            picked.append(free[want].pop(0))
+        else:
+            missing.append(describe(want))
+    return sorted(picked), missing
+
+
+def select(extraction: Extraction, positions=None, rotations=None) -> Extraction:
+    """The observations a subset keeps, in recorded order (None: all of that kind; NONE: none).
+
+    Raises SolveInputError listing what a schedule needs that the extraction lacks.
+    """
+    chosen = Extraction(list(extraction.positions), list(extraction.rotations), list(extraction.problems))
+    missing = []
+    if positions == NONE:
+        chosen.positions = []
+    elif positions is not None:
+        keys = [angle_key(o.angles_deg) for o in extraction.positions]
+        wanted = [angle_key(p.angles_deg) for p in positions.positions]
+        idx, lacking = _pick(keys, wanted, lambda k: "(" + ", ".join(f"{a:g}" for a in k) + ")")
+        chosen.positions = [extraction.positions[i] for i in idx]
+        if lacking:
+            missing.append(f"{len(lacking)} of the {len(wanted)} positions of {positions.name} "
+                           f"({', '.join(lacking)})")
+    if rotations == NONE:
+        chosen.rotations = []
+    elif rotations is not None:
+        keys = [(angle_key(o.start_deg), o.frame, o.direction) for o in extraction.rotations]
+        wanted = [(angle_key(r.start_deg), r.frame, r.direction) for r in rotations.rotations]
+        idx, lacking = _pick(keys, wanted,
+                             lambda k: "(" + ", ".join(f"{a:g}" for a in k[0]) + f") {k[1]} {k[2]}")
+        chosen.rotations = [extraction.rotations[i] for i in idx]
+        if lacking:
+            missing.append(f"{len(lacking)} of the {len(wanted)} rotations of {rotations.name} "
+                           f"({', '.join(lacking)})")
+    if missing:
+        raise SolveInputError("the logs lack " + " and ".join(missing))
+    return chosen
+
+
+def _subset_name(schedule, recorded_name: str) -> str:
+    if schedule is None:
+        return recorded_name
+    return "" if schedule == NONE else schedule.name
+
+
+# -- solving ------------------------------------------------------------------------------------
+
+@dataclass
+class Resolved:
+    """One solve of (a subset of) the recorded observations."""
+
+    solution: LogSolution
+    result: CalibrationResult
+    failures: list[str]
+    positions: str                     # schedule names ("" = none)
+    rotations: str
+    subset: bool                       # a subset was selected (the output name says which)
+
+
+def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolved:
+    """Solve every recorded step, or the subset the schedules choose (SolverError: nothing to solve)."""
+    config, setup = recorded.setup.config, recorded.setup
+    gyro_stability, acc_stability = bias_stabilities(config, recorded.sim) if config is not None else (None, None)
+    chosen = select(recorded.extraction, positions, rotations)
+    chosen.problems = recorded.problems()
+    calibration, chosen, dropped = _solve_what_can_be(chosen, setup.site, gyro_stability, acc_stability)
+    solution = LogSolution(calibration, chosen, list(recorded.imu_stats), list(recorded.damage))
+    link = recorded.imu_link()
+    failures = quality_failures(solution, link)
+    plan = recorded.logs[-1].metadata.get("plan", {})
+    pos_name = _subset_name(positions, plan.get("positions", ""))
+    rot_name = _subset_name(rotations, plan.get("rotations", ""))
+    meta, imu = recorded.run_meta, recorded.logs[-1].metadata.get("imu", {})
+    run_info = {"run_id": recorded.run_id, "mode": meta.get("mode", ""), "operator": meta.get("operator", ""),
+                "software_version": __version__, "recorded_with": meta.get("software_version", ""),
+                "state": recorded.final_state, "log": _name(recorded.logs[-1].path),
+                "logs": [_name(log.path) for log in recorded.logs], "positions": pos_name, "rotations": rot_name,
+                "started_utc": recorded.logs[0].metadata.get("run", {}).get("started_utc", ""),
+                "solved_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "solved_by": "bench solve",
+                "imu": {"model": imu.get("model", ""), "serial": imu.get("serial", "")},
+                "site": setup.site.to_dict(), "quality_failures": failures, "imu_link": link.as_dict(),
+                "left_out": sorted({*recorded.left_out, *dropped}), "damage": list(recorded.damage), "notes": list(recorded.notes)}
+    result = calibration.to_result(run=run_info, sim_truth=recorded.truth)
+    return Resolved(solution, result, failures, pos_name, rot_name, positions is not None or rotations is not None)
+
+
+def _solve_what_can_be(chosen: Extraction, site, gyro_stability, acc_stability):
+    """Solve all of `chosen`; when that fails (too few turns or positions left by damage),
+    the positions or the rotations alone, the others left out with the reason.
+    Returns (calibration, the extraction solved, units left out); SolverError if neither solves."""
+
+    def attempt(extraction):
+        return solve_extraction(extraction, site, gyro_bias_stability_dph=gyro_stability,
+                                acc_bias_stability_ug=acc_stability)
+
+    try:
+        return attempt(chosen), chosen, []
+    except SolverError as exc:
+        first = exc
+    for keep_positions in (True, False):
+        kept, dropped = (chosen.positions, chosen.rotations) if keep_positions else (chosen.rotations, chosen.positions)
+        if not kept or not dropped:
+            continue
+        part = Extraction(list(kept) if keep_positions else [], [] if keep_positions else list(kept),
+                          list(chosen.problems))
+        try:
+            calibration = attempt(part)
+        except SolverError:
+            continue
+        part.problems += [f"{o.label}: left out: {first}" for o in dropped]
+        return calibration, part, [o.label for o in dropped]
+    raise first
+
+
+def output_stem(recorded: Recorded, resolved: Resolved) -> str:
+    """`<run-id>.solved` for the whole record (never the name `bench run` wrote: nothing is
+    overwritten); `<run-id>.<positions>+<rotations>` for a subset."""
+    if not resolved.subset:
+        return f"{recorded.run_id}.solved"
+    names = (re.sub(r"[^A-Za-z0-9._-]+", "-", name) or NONE for name in (resolved.positions, resolved.rotations))
+    return f"{recorded.run_id}." + "+".join(names)
+
+
+def write_outputs(recorded: Recorded, resolved: Resolved, out_dir: str | Path, *, html: bool = True,
+                  against: CalibrationResult | None = None,
+                  against_label: str | None = None) -> tuple[Path, Path, Path | None]:
+    """Write `<stem>.result.json`, `<stem>.report.md` and (with `html`) `<stem>.report.html` as
+    `bench run` does (`against`: an earlier result the reports compare with).
+    Returns their paths (None for the HTML report not written)."""
+    from bench.report.markdown import markdown_report, write_reports
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stem = output_stem(recorded, resolved)
+    result_path = out_dir / f"{stem}.result.json"
+    resolved.result.save(result_path)
+    report = dict(problems=resolved.solution.extraction.problems, failures=resolved.failures,
+                  imu_link=resolved.result.run["imu_link"], against=against, against_label=against_label,
+                  title=f"Calibration report {stem} (re-solved from the log)")
+    if html:
+        md_path, html_path = write_reports(resolved.result, out_dir, stem, log=recorded.logs[-1],
+                                           layout=recorded.setup.layout, **report)
+    else:
+        md_path, html_path = out_dir / f"{stem}.report.md", None
+        md_path.write_text(markdown_report(resolved.result, **report), encoding="utf-8")
+    with open(md_path, "a", encoding="utf-8") as f:
+        f.write("\n" + _provenance(recorded))
+    return result_path, md_path, html_path
+
+
+def _provenance(recorded: Recorded) -> str:
+    lines = ["## Logs", ""]
+    for log in recorded.logs:
+        lines.append(f"- {log.summary()}")
+        lines += [f"  - {d}" for d in log.damage]
+    if recorded.left_out:
+        lines += ["", f"Units planned but not solved ({len(recorded.left_out)}): "
+                  + ", ".join(sorted(recorded.left_out))]
+    if recorded.notes:
+        lines += ["", "Notes:"] + [f"- {n}" for n in recorded.notes]
+    return "\n".join(lines) + "\n"
+
+
+__all__ = ["NONE", "Recorded", "Resolved", "SolveInputError", "angle_key", "load_recorded", "load_subset_schedule",
+           "output_stem", "read_logs", "select", "solve_recorded", "write_outputs"]

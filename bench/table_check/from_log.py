@@ -1,0 +1,147 @@
+"""The table check from a run log: the one path shared by a live/simulated check (its own log) and `--log`.
+
+The log is the source of truth: per-position means come from the recorded CAN frames
+(`bench.solve.from_logs.extract_from_logs`), the site and, for a simulated run, the true
+black box from the recorded configuration (`bench.log.run_info`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bench import __version__
+from bench.table_check.estimate import (COMBINATIONS, Conversion, TableCheckError, TableCheckEstimate, estimate,
+                               horizontal_from_counts, true_combinations)
+from bench.model.units import ARCSEC
+
+FORMAT = "turntable-bench/table-check"
+VERSION = 1
+
+
+@dataclass
+class TableCheckAnalysis:
+    """A table check's estimate with its provenance and, for a simulated run, the truth."""
+
+    run_id: str
+    log_path: str
+    mode: str                                   # "simulator" | "hardware" | "" (unknown)
+    estimate: TableCheckEstimate
+    conversion: Conversion
+    labels: list[str]
+    dwell_s: float
+    site: dict
+    imu: dict
+    black_box_rad: np.ndarray | None = None     # the simulated table's black box (truth), None on hardware
+    problems: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def truth_rad(self) -> np.ndarray | None:
+        return None if self.black_box_rad is None else true_combinations(self.black_box_rad)
+
+    def comparison(self) -> list[dict] | None:
+        truth = self.truth_rad
+        return None if truth is None else self.estimate.compare(truth)
+
+    @property
+    def sim_within_3_sigma(self) -> bool | None:
+        rows = self.comparison()
+        return None if rows is None else all(r["within_3_sigma"] for r in rows)
+
+    def to_json(self) -> dict:
+        est = self.estimate
+        out = {
+            "format": FORMAT, "version": VERSION, "software_version": __version__,
+            "run": {"run_id": self.run_id, "log": Path(self.log_path).name, "mode": self.mode,
+                    "positions": len(self.labels), "dwell_s": self.dwell_s, "site": self.site, "imu": self.imu},
+            "conversion": {"scale_counts_per_g": [float(s) for s in self.conversion.scale_counts_per_g],
+                           "source": self.conversion.source, "calibrated": self.conversion.calibrated,
+                           "relative_uncertainty": self.conversion.relative_uncertainty},
+            **est.to_dict(),
+            "per_position": [{"label": label, "angles_deg": [float(x) for x in a],
+                              "horizontal_g": [float(x) for x in y], "sigma_g": [float(x) for x in s],
+                              "residual_g": [float(x) for x in r]}
+                             for label, a, y, s, r in zip(self.labels, est.angles_deg, est.horizontal_g,
+                                                          est.sigma_g, est.residual_g)],
+            "problems": list(self.problems), "notes": list(self.notes),
+        }
+        if self.black_box_rad is not None:
+            truth = self.truth_rad
+            out["sim_truth"] = {
+                "black_box_arcsec": (np.asarray(self.black_box_rad) / ARCSEC).tolist(),
+                "combinations_arcsec": {c.key: float(t) for c, t in zip(COMBINATIONS, truth / ARCSEC)},
+                "comparison": self.comparison(), "all_within_3_sigma": self.sim_within_3_sigma}
+        return out
+
+
+def table_check_observations(extraction, log_path: str) -> list:
+    """The dwells of a table-check log; TableCheckError when the log is not a table check."""
+    positions, rotations = extraction.positions, extraction.rotations
+    off = [o for o in positions if abs((o.angles_deg[1] + 180.0) % 360.0 - 180.0) > 1e-6]
+    if rotations or off or not positions:
+        what = (f"{len(positions)} positions ({len(off)} with the middle frame off 0) and {len(rotations)} rotations"
+                if positions or rotations else "no finished positions")
+        raise TableCheckError(f"{log_path} is not a table-check log: it holds {what}; a table check has positions "
+                              "with the middle frame at 0 only (record one with `bench check-table`)")
+    return positions
+
+
+def analyse_observations(observations, local_g_mps2: float, *, calibration=None) -> tuple[TableCheckEstimate,
+                                                                                         Conversion]:
+    """Estimate from position observations (counts/s means with standard errors)."""
+    angles = np.array([o.angles_deg for o in observations], dtype=float)
+    acc = np.array([o.acc_mean for o in observations], dtype=float)
+    sem = np.array([_sem(o) for o in observations], dtype=float)
+    horizontal, sigma, conversion = horizontal_from_counts(acc, sem, local_g_mps2, calibration=calibration)
+    if not np.all(sigma > 0):
+        sigma = None    # no usable standard errors: the residual scatter sets the uncertainty
+    return estimate(angles, horizontal, sigma, relative_scale_uncertainty=conversion.relative_uncertainty), conversion
+
+
+def _sem(o) -> np.ndarray:
+    s = o.standard_error("acc")
+    return np.full(3, math.nan) if s is None else s
+
+
+def analyse_log(path: str | Path, *, calibration=None, still_open: bool = False) -> TableCheckAnalysis:
+    """Read a table-check log and estimate the table's pointing error.
+
+    Raises `LogError` (not a readable log) or `TableCheckError` (not a table check, or
+    the positions cannot determine the combinations). `still_open`: the live check
+    reading the log it is still writing (its missing summary is not damage).
+    """
+    from bench.log.run_info import layout_and_config_from_log
+    from bench.log.reader import LogError, read_log
+    from bench.solve.from_logs import extract_from_logs
+
+    log = read_log(str(path))
+    setup = layout_and_config_from_log(log)
+    if setup.site is None:
+        raise LogError(f"{log.path}: the log records no usable site ({'; '.join(setup.notes)})")
+    extraction, stats, damage = extract_from_logs([log], setup.site, setup.layout, setup.rate_hz,
+                                                  still_open=frozenset({log.path}) if still_open else frozenset())
+    observations = table_check_observations(extraction, log.path)
+    est, conversion = analyse_observations(observations, setup.site.gravity, calibration=calibration)
+    run_meta = log.metadata.get("run", {})
+    mode = run_meta.get("mode", "")
+    black_box = None
+    if mode == "simulator" and setup.config is not None:
+        black_box = np.asarray(setup.config.sim.black_box_rad, dtype=float)
+    problems = list(extraction.problems) + list(damage)
+    if stats and stats[0].lost_samples:
+        problems.append(f"IMU link lost samples: {stats[0].summary()}")
+    imu_meta = log.metadata.get("imu", {})
+    dwell = float(np.median([o.duration_s for o in observations]))
+    return TableCheckAnalysis(
+        run_id=run_meta.get("run_id") or Path(log.path).stem, log_path=log.path, mode=mode, estimate=est,
+        conversion=conversion, labels=[o.label for o in observations], dwell_s=dwell,
+        site=setup.site.to_dict(), imu={"model": imu_meta.get("model", ""), "serial": imu_meta.get("serial", "")},
+        black_box_rad=black_box, problems=problems, notes=list(setup.notes) + list(est.notes))
+
+
+__all__ = ["FORMAT", "VERSION", "TableCheckAnalysis", "analyse_log", "analyse_observations",
+           "table_check_observations"]
