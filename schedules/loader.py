@@ -215,7 +215,8 @@ class _Validator:
             if positive_only and angle_deg % 90 != 0:
                 raise self.fail(line, label, f"{axis} angle {angle_deg!r} is not a multiple of 90 deg "
                                 "(positive positions only)")
-        return tuple(float(v) + 0.0 for v in value)  # + 0.0 turns -0.0 into 0.0
+        outer, middle, inner = (float(v) + 0.0 for v in value)  # + 0.0 turns -0.0 into 0.0
+        return outer, middle, inner
 
     def _positions(self, tables: list[dict], positive_only: bool):
         seen: dict[tuple, int] = {}
@@ -250,12 +251,12 @@ class _Validator:
                 raise self.fail(self.lines.line("rotation", index, "revolutions"), f"{label}.revolutions",
                                 f"must be a whole number >= 1, got {revolutions!r}")
             header = self.lines.line("rotation", index)
-            key = (start_deg, table["frame"], table["direction"])
-            if key in seen:
-                earlier = seen[key]
+            step_key = (start_deg, table["frame"], table["direction"])
+            if step_key in seen:
+                earlier = seen[step_key]
                 raise self.fail(header, label, f"duplicate of rotation[{earlier + 1}] at line "
                                 f"{self.lines.line('rotation', earlier)} (same start, frame and direction)")
-            seen[key] = index
+            seen[step_key] = index
             yield RotationStep(start_deg=start_deg, frame=table["frame"], direction=table["direction"],
                                revolutions=revolutions, line=header)
 

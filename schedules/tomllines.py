@@ -187,6 +187,7 @@ class _Scanner:
                 return
         else:
             match = _SCALAR.match(self.s, self.i)
+            assert match is not None  # the pattern is `[...]*`: it matches the empty string anywhere
             if not match.group().strip():
                 raise _Stop
             self.skip_to(match.end())
@@ -241,7 +242,7 @@ def locate_lines(text: str) -> LineMap:
     return LineMap(scanner.found)
 
 
-def leaf_paths(doc: dict, prefix: KeyPath = ()) -> Iterable[KeyPath]:
+def leaf_paths(doc: dict | list, prefix: KeyPath = ()) -> Iterable[KeyPath]:
     """Every path from the root of a parsed document to a scalar (test helper, debugging)."""
     items = doc.items() if isinstance(doc, dict) else enumerate(doc)
     for key, value in items:

@@ -7,8 +7,19 @@ IMU's own DBC, and what the decoders count.
 from drivers.imu.assembler import SampleAssembler
 from drivers.imu.bulk import decode_frames, frames_from_messages
 from drivers.imu.encoder import EncodedFrames, ImuEncoder, encode_block
-from drivers.imu.layout import (CHANNELS, COLUMNS, DEFAULT_DBC, DEFAULT_FD_DBC, DEFAULT_FD_SPEC, DEFAULT_SPEC,
-                                EXTENDED_ID_FLAG, ImuFrameSpec, ImuLayout, default_fd_layout, default_layout)
+from drivers.imu.layout import (
+    CHANNELS,
+    COLUMNS,
+    DEFAULT_DBC,
+    DEFAULT_FD_DBC,
+    DEFAULT_FD_SPEC,
+    DEFAULT_SPEC,
+    EXTENDED_ID_FLAG,
+    ImuFrameSpec,
+    ImuLayout,
+    default_fd_layout,
+    default_layout,
+)
 from drivers.imu.samples import ImuSampleBlock, ImuStats
 
 __all__ = ["CHANNELS", "COLUMNS", "DEFAULT_DBC", "DEFAULT_FD_DBC", "DEFAULT_FD_SPEC", "DEFAULT_SPEC",

@@ -25,13 +25,19 @@ import numpy as np
 
 from drivers.errors import ImuConfigError, ImuFrameError
 from drivers.imu.crc import linear_crc
-from drivers.imu.layout import EXTENDED_ID_FLAG, ImuLayout, default_layout
+from drivers.imu.layout import EXTENDED_ID_FLAG, ImuLayout, SignalLayout, default_layout
 from drivers.imu.samples import ImuSampleBlock, ImuStats
 
 _REC_HEAD = 3   # record: [mask, time of last used frame, counter, 8 raw column values]
 
+_Chunk = tuple[int, int, list[int]]             # (first bit, index mask, CRC table)
+_Value = tuple[int, bool, int, int, int, int]   # (record slot, big_endian, shift, mask, sign_bit, modulus)
+# (length, message bit, CRC chunks, id constant, CRC shift, needs big-endian, counter big-endian,
+#  counter shift, values)
+_Handler = tuple[int, int, tuple[_Chunk, ...], int, int, bool, bool, int, tuple[_Value, ...]]
 
-def _live_signal(sig) -> tuple:
+
+def _live_signal(sig: SignalLayout) -> tuple[bool, int, int, int, int]:
     """(big_endian, shift, mask, sign_bit, modulus) for the int extraction."""
     return (sig.big_endian, sig.shift, sig.mask, (1 << (sig.length - 1)) if sig.signed else 0, 1 << sig.length)
 
@@ -48,9 +54,10 @@ class SampleAssembler:
         self.rate_hz, self.window = float(rate_hz), reorder_window
         self._full = (1 << len(self.layout.messages)) - 1
         self._modulus = 1 << self.layout.counter_bits
-        self._handlers = {}
+        self._handlers: dict[int, _Handler] = {}
         for k, m in enumerate(self.layout.messages):
-            chunks, id_constant, crc_shift = (), 0, -1
+            chunks: tuple[_Chunk, ...] = ()
+            id_constant, crc_shift = 0, -1
             if m.crc_byte is not None:
                 lin = linear_crc(m.length, m.crc_byte)
                 chunks, crc_shift = lin.chunks, 8 * m.crc_byte
@@ -59,12 +66,12 @@ class SampleAssembler:
             needs_be = m.counter.big_endian or any(sig.big_endian for _, sig in m.values)
             self._handlers[m.key] = (m.length, 1 << k, chunks, id_constant, crc_shift, needs_be,
                                      m.counter.big_endian, m.counter.shift, values)
-        self._blank = [0, 0.0, 0] + [0] * 8
+        self._blank: list = [0, 0.0, 0] + [0] * 8   # a record: ints and one float
         self._stats = ImuStats()
         self._pending: dict[int, list] = {}
         self._done: list[list] = []
         self._done_t: list[float] = []
-        self._prev = None   # unwrapped counter of the previous valid frame
+        self._prev: int | None = None   # unwrapped counter of the previous valid frame
         self._start = self._head = self._lowest = 0
 
     # -- feeding ------------------------------------------------------------------

@@ -38,7 +38,7 @@ def _window_view(data: np.ndarray, sig: SignalLayout) -> tuple[np.ndarray, int]:
     return view, sig.shift - 8 * o
 
 
-def extract(data: np.ndarray, rows: np.ndarray, sig: SignalLayout) -> np.ndarray:
+def extract(data: np.ndarray, rows: np.ndarray | slice, sig: SignalLayout) -> np.ndarray:
     """Raw int64 values of `sig` in `data[rows]` (data: C-contiguous uint8, width >= 8)."""
     view, shift = _window_view(data, sig)
     x = (view[rows].astype(np.uint64) >> np.uint64(shift)) & np.uint64(sig.mask)
@@ -204,7 +204,10 @@ def _unwrap_steps(c: np.ndarray, counter_bits: int) -> np.ndarray:
         # unsigned subtraction wraps by itself; read as signed it is the shortest step
         return np.diff(c).view(f"i{c.dtype.itemsize}")
     modulus = 1 << counter_bits
-    d = np.diff(c.astype(np.int64)) & (modulus - 1)
+    # Bound to a name first: written inline, mypy typed np.diff(...) with numpy's datetime64 overload
+    # (a timedelta64 result, which has no `&`); the values are int64 either way.
+    c64 = c.astype(np.int64)
+    d = np.diff(c64) & (modulus - 1)
     d[d >= modulus >> 1] -= modulus
     return d
 

@@ -103,7 +103,7 @@ class LinearCrc:
         values = np.arange(n_values, dtype=np.int64)
         keep = [j for j in range(length) if j != crc_byte]
         zero_crc = crc8(bytes(length - 1))
-        chunks = []
+        chunks: list[tuple[int, int, list[int]]] = []   # (first bit, index mask, CRC table)
         for first_bit in range(0, 8 * length, chunk_bits):
             data = np.zeros((n_values, length), dtype=np.uint8)
             for b in range(chunk_bits // 8):

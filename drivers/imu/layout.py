@@ -17,6 +17,7 @@ import functools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import cantools
 
@@ -111,7 +112,8 @@ class SignalLayout:
 
     def raw(self, data: bytes) -> int:
         """The raw (sign-extended) value of this signal in one frame's data."""
-        v = int.from_bytes(data, "big" if self.big_endian else "little")
+        order: Literal["big", "little"] = "big" if self.big_endian else "little"
+        v = int.from_bytes(data, order)
         x = (v >> self.shift) & self.mask
         if self.signed and x >> (self.length - 1):
             x -= 1 << self.length
@@ -119,7 +121,7 @@ class SignalLayout:
 
     def insert(self, data: bytearray, raw: int) -> None:
         """Write `raw` (range already checked) into `data` in place."""
-        order = "big" if self.big_endian else "little"
+        order: Literal["big", "little"] = "big" if self.big_endian else "little"
         v = int.from_bytes(data, order)
         v = (v & ~(self.mask << self.shift)) | ((raw & self.mask) << self.shift)
         data[:] = v.to_bytes(len(data), order)
@@ -268,7 +270,7 @@ def _compile(db, spec: ImuFrameSpec, source: str, text: str) -> ImuLayout:
     counters = per_message(spec.counter, "counter", True)
     crcs = per_message(spec.crc, "CRC", False)
 
-    def signal(msg, sig_name: str, what: str):
+    def signal(msg, sig_name: str | None, what: str):  # None (no name given) fails the lookup like a wrong name
         try:
             return msg.get_signal_by_name(sig_name)
         except KeyError:
@@ -308,6 +310,7 @@ def _compile(db, spec: ImuFrameSpec, source: str, text: str) -> ImuLayout:
     keys = [m.key for m in messages]
     if len(set(keys)) != len(keys):
         raise ImuConfigError("two mapped messages share one arbitration id")
+    assert counter_bits is not None  # the six channels are required, so at least one message was compiled
     return ImuLayout(tuple(messages), int(counter_bits), tuple(scale), tuple(offset), tuple(has), source, text)
 
 

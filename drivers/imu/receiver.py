@@ -38,8 +38,13 @@ class ImuReceiver:
         self.assembler = SampleAssembler(layout, rate_hz, reorder_window)
         self.layout, self.rate_hz = self.assembler.layout, self.assembler.rate_hz
         self.on_frames = on_frames
-        self._owns_bus = not isinstance(bus, can.BusABC)
-        self.bus = open_bus(bus) if self._owns_bus else bus
+        self.bus: can.BusABC
+        if isinstance(bus, can.BusABC):
+            self._owns_bus = False
+            self.bus = bus
+        else:
+            self._owns_bus = True
+            self.bus = open_bus(bus)
         self.frames_received = 0
         self.non_data_frames = 0    # error and remote frames: logged via on_frames, not decoded
         self._closed = False

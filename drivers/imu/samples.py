@@ -68,8 +68,10 @@ class ImuSampleBlock:
         """Join consecutive blocks of one IMU (an empty list needs `rate_hz`)."""
         if not blocks:
             return cls.empty(rate_hz if rate_hz is not None else 1.0)
-        return cls(*(np.concatenate([getattr(b, f.name) for b in blocks]) for f in fields(cls) if f.name != "rate_hz"),
-                   rate_hz=blocks[0].rate_hz if rate_hz is None else float(rate_hz))
+        rate = blocks[0].rate_hz if rate_hz is None else float(rate_hz)
+        arrays = {f.name: np.concatenate([getattr(b, f.name) for b in blocks])
+                  for f in fields(cls) if f.name != "rate_hz"}
+        return cls(**arrays, rate_hz=rate)
 
 
 @dataclass

@@ -7,6 +7,7 @@ interface does not import pymodbus.
 from __future__ import annotations
 
 import importlib
+from typing import Callable
 
 from drivers.turntable.base import (
     ALL_FRAMES,
@@ -51,7 +52,9 @@ def open_turntable(url: str, dialect: str | None = None, **options) -> Turntable
         raise ValueError(f"the modbus dialect needs a modbus+tcp:// or modbus+rtu:// URL, got {url!r}")
     if dialect.lower() != "modbus" and url.startswith(("modbus+tcp://", "modbus+rtu://")):
         raise ValueError(f"{url!r} is a Modbus URL but the dialect is {dialect!r}")
-    return dialect_class(dialect)(url, **options)
+    # Each dialect's constructor takes the URL (or transport) first: not Turntable.__init__'s signature.
+    make: Callable[..., Turntable] = dialect_class(dialect)
+    return make(url, **options)
 
 
 __all__ = ["ALL_FRAMES", "DIALECTS", "FRAMES", "AxisLimits", "AxisMode", "AxisState", "AxisStatus", "TableState",

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Iterable, Sequence
 
 from drivers.clock import SYSTEM_CLOCK, Clock
-from drivers.errors import TurntableEStop, TurntableError, TurntableFault, TurntableLimitError, TurntableTimeout
+from drivers.errors import TurntableError, TurntableEStop, TurntableFault, TurntableLimitError, TurntableTimeout
 
 FRAMES = ("outer", "middle", "inner")
 ALL_FRAMES = (0, 1, 2)
@@ -82,15 +82,18 @@ class TableState:
 
     @property
     def angles_deg(self) -> tuple[float, float, float]:
-        return tuple(a.angle_deg for a in self.axes)
+        outer, middle, inner = self.axes
+        return outer.angle_deg, middle.angle_deg, inner.angle_deg
 
     @property
     def rates_dps(self) -> tuple[float, float, float]:
-        return tuple(a.rate_dps for a in self.axes)
+        outer, middle, inner = self.axes
+        return outer.rate_dps, middle.rate_dps, inner.rate_dps
 
     @property
     def modes(self) -> tuple[AxisMode, AxisMode, AxisMode]:
-        return tuple(a.mode for a in self.axes)
+        outer, middle, inner = self.axes
+        return outer.mode, middle.mode, inner.mode
 
     @property
     def estop(self) -> bool:
@@ -106,8 +109,11 @@ class TableState:
         if self.estop:
             parts.append("emergency stop active")
         for name, axis in zip(FRAMES, self.axes):
-            bad = [flag.name.lower().replace("_", " ") for flag in (AxisStatus.FAULT, AxisStatus.LIMIT)
-                   if axis.status & flag]
+            bad = []
+            for flag in (AxisStatus.FAULT, AxisStatus.LIMIT):
+                if axis.status & flag:
+                    assert flag.name is not None  # single members of a Flag always have a name
+                    bad.append(flag.name.lower().replace("_", " "))
             if bad:
                 parts.append(f"{name}: {', '.join(bad)}")
         if self.fault_text:
@@ -256,7 +262,8 @@ class Turntable(ABC):
         rates = {}
         for k, target in targets.items():
             self.limits.check_position(k, target)
-            rate = self.limits.axes[k].max_rate_dps if rates_in[k] is None else float(rates_in[k])
+            rate_in = rates_in[k]
+            rate = self.limits.axes[k].max_rate_dps if rate_in is None else float(rate_in)
             self.limits.check_rate(k, rate)
             if rate <= 0:
                 raise TurntableLimitError(f"{FRAMES[k]} move rate must be positive, got {rate} deg/s")

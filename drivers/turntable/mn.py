@@ -57,8 +57,11 @@ class MnTurntable(LineTurntable):
         self._command(codec.SetMode(frame, mode))
 
     def _demand_positions(self, targets: dict[int, float], rate_dps: dict[int, float]) -> None:
-        self._command(codec.MovePositions(tuple(targets.get(k) for k in range(3)),
-                                          tuple(rate_dps.get(k) if k in targets else None for k in range(3))))
+        def rate(k: int) -> float | None:
+            return rate_dps.get(k) if k in targets else None
+
+        self._command(codec.MovePositions((targets.get(0), targets.get(1), targets.get(2)),
+                                          (rate(0), rate(1), rate(2))))
 
     def _demand_rate(self, frame: int, rate_dps: float) -> None:
         self._command(codec.SetRate(frame, rate_dps))

@@ -277,7 +277,8 @@ class ReadState:
 
 
 Request = Union[Check, Enable, Disable, Reset, SetMode, MovePositions, SetRate, Stop, Abort, ReadState]
-_AXIS_LIST = {"ENA": Enable, "DIS": Disable, "RST": Reset}
+_AXIS_LIST: dict[str, type[Enable | Disable | Reset]] = {"ENA": Enable, "DIS": Disable, "RST": Reset}
+_NO_FIELDS: dict[str, type[Stop | Abort | ReadState]] = {"STP": Stop, "ABT": Abort, "STA": ReadState}
 COMMANDS = ("CHK", "ENA", "DIS", "RST", "MOD", "POS", "RAT", "STP", "ABT", "STA")
 
 
@@ -289,6 +290,7 @@ def _wire_axes(axes: Sequence[int]) -> list[str]:
 
 def encode_request(request: Request) -> bytes:
     """A typed request -> its `$MN` frame (no terminator); ValueError on values the dialect cannot carry."""
+    args: Sequence[int | str]
     if isinstance(request, Check):
         if not 1 <= request.station <= 99:
             raise ValueError(f"station must be 1-99, got {request.station}")
@@ -305,8 +307,8 @@ def encode_request(request: Request) -> bytes:
         for v in (*request.targets_deg, *request.rates_dps):
             if v is not None and not math.isfinite(v):
                 raise ValueError(f"POS values must be finite, got {v}")
-        args = ["" if t is None else format_angle(t) for t in request.targets_deg]
-        args += ["" if r is None else format_rate(r) for r in request.rates_dps]
+        targets = ["" if t is None else format_angle(t) for t in request.targets_deg]
+        args = targets + ["" if r is None else format_rate(r) for r in request.rates_dps]
     elif isinstance(request, SetRate):
         if not math.isfinite(request.rate_dps):
             raise ValueError(f"rate must be finite, got {request.rate_dps}")
@@ -350,14 +352,16 @@ def decode_request(line: bytes) -> Request:
         if cmd == "MOD":
             return SetMode(_axis(fields[0]), _mode(fields[1]))
         if cmd == "POS":
-            targets = tuple(None if f == "" else _number(f, f"{FRAMES[k]} target") for k, f in enumerate(fields[:3]))
-            rates = tuple(None if f == "" else _number(f, f"{FRAMES[k]} move rate") for k, f in enumerate(fields[3:]))
+            # exactly six fields (checked above): three targets, then three rates
+            t0, t1, t2 = (None if f == "" else _number(f, f"{FRAMES[k]} target") for k, f in enumerate(fields[:3]))
+            r0, r1, r2 = (None if f == "" else _number(f, f"{FRAMES[k]} move rate") for k, f in enumerate(fields[3:]))
+            targets, rates = (t0, t1, t2), (r0, r1, r2)
             if all(t is None for t in targets):
                 raise ValueError("POS needs at least one target")
             return MovePositions(targets, rates)
         if cmd == "RAT":
             return SetRate(_axis(fields[0]), _number(fields[1], "rate"))
-        return {"STP": Stop, "ABT": Abort, "STA": ReadState}[cmd]()
+        return _NO_FIELDS[cmd]()
     except ValueError as exc:
         raise MnRequestError(f"{cmd}: {exc}", raw, ERR_ARGUMENT) from exc
 
@@ -415,6 +419,7 @@ def decode_reply(line: bytes, cmd: str, n_fields: int = 0) -> tuple[str, ...]:
         raise TurntableProtocolError(f"reply to {frame.cmd} where a reply to {cmd} was expected "
                                      "(stale or mismatched reply)", raw)
     if is_error:
+        assert code is not None  # set with is_error above
         raise TurntableCommandError(f"controller refused {cmd}: error {code} "
                                     f"({ERROR_TEXT.get(code, 'unknown code')})", code)
     if not fields or fields[-1] != "OK":
@@ -441,4 +446,4 @@ def decode_state(fields: Sequence[str], time_s: float, raw: bytes | None = None)
         except ValueError as exc:
             raise TurntableProtocolError(f"STA reply: {exc}", raw) from exc
         axes.append(AxisState(angle_deg, rate_dps, axis_mode, axis_status(int(word, 16))))
-    return TableState(time_s, tuple(axes), fields[12])
+    return TableState(time_s, (axes[0], axes[1], axes[2]), fields[12])

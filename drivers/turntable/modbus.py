@@ -241,6 +241,8 @@ class ModbusTurntable(Turntable):
                     f"{what}: reply has function code {response.function_code}, expected {function_code}",
                     self._rx or None)
             return response
+        # retries >= 0 (checked in __init__), so the loop ran and only ends after a recorded failure
+        assert failure is not None
         error, cause = failure
         raise error from cause
 
@@ -306,7 +308,7 @@ class ModbusTurntable(Turntable):
 
     def _demand_positions(self, targets: dict[int, float], rate_dps: dict[int, float]) -> None:
         values: dict[int, int] = {}
-        triggers = set()
+        triggers: set[int] = set()
         for k, angle in targets.items():
             for name, value, kind in (("move_rate", rate_dps[k], "rate"), ("demand_position", angle, "angle")):
                 address = getattr(self.map, name)[k]

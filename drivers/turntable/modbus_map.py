@@ -53,8 +53,10 @@ class RegisterMapError(TurntableError, ValueError):
     """A register map (configuration) that cannot describe a controller; the message names the key."""
 
 
-def exception_name(code: int) -> str:
-    """'illegal data address' for 2, ...; 'unknown exception' for codes Modbus does not define."""
+def exception_name(code: int | None) -> str:
+    """'illegal data address' for 2, ...; 'unknown exception' for codes Modbus does not define (or none)."""
+    if code is None:
+        return "unknown exception"
     return EXCEPTION_NAMES.get(code, "unknown exception")
 
 
@@ -361,7 +363,7 @@ class RegisterMap:
             rate = self.decode_value(at(self.actual_rate[k], 2), "rate")
             mode = self.decode_mode(at(self.mode[k])[0])
             axes.append(AxisState(angle, rate, mode, self.decode_status(at(self.status[k])[0])))
-        return TableState(time_s, tuple(axes), self.fault_text(at(self.fault_code)[0]))
+        return TableState(time_s, (axes[0], axes[1], axes[2]), self.fault_text(at(self.fault_code)[0]))
 
     def encode_state(self, state: TableState, fault_code: int = 0) -> dict[int, int]:
         """TableState -> {address: register} for every state register (what a controller serves)."""
@@ -499,7 +501,8 @@ def _number(value: Any, source: str, key: str) -> float:
 def _axis_addresses(value: Any, source: str, key: str) -> tuple[int, int, int]:
     if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) or len(value) != 3:
         raise RegisterMapError(f"{source}: {key} must be three addresses (outer, middle, inner), got {value!r}")
-    return tuple(_int(v, source, f"{key}[{k}]", 0, 65535) for k, v in enumerate(value))
+    outer, middle, inner = (_int(v, source, f"{key}[{k}]", 0, 65535) for k, v in enumerate(value))
+    return outer, middle, inner
 
 
 __all__ = ["RegisterMap", "RegisterMapError", "EXCEPTION_NAMES", "exception_name", "axis_mask", "mask_axes",

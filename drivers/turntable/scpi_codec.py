@@ -335,7 +335,7 @@ def decode_state(line: bytes, time_s: float) -> TableState:
         angle, rate, mode, status = fields[4 * k:4 * k + 4]
         axes.append(AxisState(_number(angle, f"axis {k + 1} position", line), _number(rate, f"axis {k + 1} rate", line),
                               _mode(mode, line), _status(status, line)))
-    return TableState(time_s, tuple(axes), _unquote(fields[12], "fault text", line))
+    return TableState(time_s, (axes[0], axes[1], axes[2]), _unquote(fields[12], "fault text", line))
 
 
 # -- server side: requests -------------------------------------------------------------
@@ -432,7 +432,9 @@ def parse_request(unit: str, path: tuple[str, ...] = ()) -> tuple[ScpiRequest, t
 def split_units(line: bytes) -> list[str]:
     """A request line -> its program units (split at ';' outside quoted strings; empty units dropped)."""
     text = line.decode("latin-1")
-    units, current, quoted = [], [], False
+    units: list[str] = []
+    current: list[str] = []
+    quoted = False
     for char in text:
         if char == '"':
             quoted = not quoted
