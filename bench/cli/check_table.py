@@ -7,7 +7,7 @@ black-box angles from the horizontal accelerometers (`bench.table_check.estimate
 `<run-id>.table-check.json`, `.md`, `.html` and two SVG figures. `--log` analyses a
 recorded check without hardware.
 
-Exit codes: 0 done; 1 simulator only: the estimate misses the simulated truth by more
+Exit codes: 0 done; 5 simulator only: the estimate misses the simulated truth by more
 than 3 sigma; 2 usage or configuration error, a log that cannot be read or is not a
 table check, or the table/IMU cannot be reached (nothing moved); 3 hardware fault or
 aborted (the table is stopped, the log kept); 4 the run finished but the check cannot
@@ -19,10 +19,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import re
-import sys
 from pathlib import Path
 
-EXIT_OK, EXIT_SIM_MISS, EXIT_USAGE, EXIT_FAULT, EXIT_QUALITY = 0, 1, 2, 3, 4
+from bench.cli.common import ExitCode, fail, run_plan
+from bench.errors import BenchError
+from bench.model.units import format_hms
+
+PROG = "bench check-table"
 DEFAULT_SCHEDULE = "table-check-324"
 DEFAULT_DWELL_S = 10.0
 
@@ -33,7 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Run the table-check schedule (middle 0, outer x inner positions) and estimate, from the "
                     "horizontal accelerometers, the observable combinations of the table's nine black-box "
                     "angles (outer-axis tilt = levelness; inner-axis tilt at middle 0) with 1-sigma "
-                    "uncertainties. Exit codes: 0 done, 1 simulated truth missed by > 3 sigma, 2 usage/"
+                    "uncertainties. Exit codes: 0 done, 5 simulated truth missed by > 3 sigma, 2 usage/"
                     "configuration error or unusable log (nothing moved), 3 hardware fault or aborted (table "
                     "stopped), 4 finished but the check cannot be computed or a quality check failed.")
     source = parser.add_argument_group("what to check (one of)")
@@ -58,12 +61,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=cmd_check_table)
 
 
-def _fail(message: str, code: int) -> int:
-    print(f"bench check-table: {message}", file=sys.stderr)
-    return code
-
-
-class UsageError(Exception):
+class UsageError(BenchError):
     """A command-line or configuration problem (exit 2)."""
 
 
@@ -121,7 +119,7 @@ def build_config(args: argparse.Namespace):
             config = load_config(args.config)
         else:
             config = parse_config(_sim_config_text(args.black_box_arcsec, args.seed), source="<builtin sim config>")
-    except (ConfigError, ValueError, OSError) as exc:
+    except (ConfigError, OSError) as exc:
         raise UsageError(str(exc)) from exc
     return config, bool(args.sim or config.table.is_sim)
 
@@ -129,7 +127,7 @@ def build_config(args: argparse.Namespace):
 def table_check_plan(config, schedule_spec: str, dwell_s: float):
     """(config with the table-check schedule as its plan, compiled plan); UsageError when it cannot run."""
     from bench.plan.compiler import PlanError
-    from bench.cli.run import compile_from_config
+    from bench.run.runner import compile_from_config
     from schedules import ScheduleError, resolve_schedule
 
     if not dwell_s > 0:
@@ -151,17 +149,17 @@ def table_check_plan(config, schedule_spec: str, dwell_s: float):
     config = dataclasses.replace(config, plan=plan_config)
     try:
         return config, compile_from_config(config)
-    except (PlanError, ValueError) as exc:
+    except PlanError as exc:
         raise UsageError(str(exc)) from exc
 
 
-def cmd_check_table(args: argparse.Namespace) -> int:
+def cmd_check_table(args: argparse.Namespace) -> ExitCode:
     chosen = [name for name, on in (("--log", args.log), ("--sim", args.sim), ("--config", args.config)) if on]
     if not chosen:
-        return _fail("say --config FILE, --sim or --log LOG.mcap", EXIT_USAGE)
+        return fail(PROG, "say --config FILE, --sim or --log LOG.mcap", ExitCode.USAGE)
     if args.log and len(chosen) > 1:
-        return _fail(f"--log analyses a recorded check: drop {' and '.join(c for c in chosen if c != '--log')}",
-                     EXIT_USAGE)
+        return fail(PROG, f"--log analyses a recorded check: drop {' and '.join(c for c in chosen if c != '--log')}",
+                     ExitCode.USAGE)
     try:
         calibration = _load_calibration(args.calibration)
         if args.log:
@@ -169,31 +167,29 @@ def cmd_check_table(args: argparse.Namespace) -> int:
         config, sim = build_config(args)
         config, plan = table_check_plan(config, args.schedule, args.dwell_s)
     except UsageError as exc:
-        return _fail(str(exc), EXIT_USAGE)
+        return fail(PROG, str(exc), ExitCode.USAGE)
     return _live(args, config, plan, sim, calibration)
 
 
-def _from_log(args, calibration) -> int:
+def _from_log(args, calibration) -> ExitCode:
     from bench.log.reader import LogError
     from bench.table_check.estimate import TableCheckError
     from bench.table_check.from_log import analyse_log
 
     if args.black_box_arcsec is not None or args.seed is not None:
-        return _fail("--black-box-arcsec/--seed are for a simulated run, not for --log", EXIT_USAGE)
+        return fail(PROG, "--black-box-arcsec/--seed are for a simulated run, not for --log", ExitCode.USAGE)
     if not Path(args.log).is_file():
-        return _fail(f"{args.log}: no such file", EXIT_USAGE)
+        return fail(PROG, f"{args.log}: no such file", ExitCode.USAGE)
     try:
         analysis = analyse_log(args.log, calibration=calibration)
     except (LogError, TableCheckError, OSError) as exc:
-        return _fail(str(exc), EXIT_USAGE)
+        return fail(PROG, str(exc), ExitCode.USAGE)
     out_dir = Path(args.out) if args.out else Path(args.log).resolve().parent
     return _report(args, analysis, out_dir)
 
 
-def _live(args, config, plan, sim: bool, calibration) -> int:
+def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
     from bench.log.reader import LogError
-    from bench.cli.progress import hms
-    from bench.cli.run import run_plan
     from bench.run.runner import BenchRun
     from bench.table_check.estimate import TableCheckError
     from bench.table_check.from_log import analyse_log
@@ -202,24 +198,24 @@ def _live(args, config, plan, sim: bool, calibration) -> int:
     out_dir = Path(args.out) if args.out else Path(config.output.folder)
     if not args.quiet:
         print(f"table check: {config.plan.positions.name}, {len(config.plan.positions.positions)} positions, dwell "
-              f"{config.plan.dwell_s:g} s, about {hms(plan.estimated_total_s)} of table time"
+              f"{config.plan.dwell_s:g} s, about {format_hms(plan.estimated_total_s)} of table time"
               + (" (simulated)" if sim else ""))
     with BenchRun(config, plan, sim=sim, out_dir=out_dir, operator=args.operator) as run:
-        failed = run_plan(run, quiet=args.quiet, simulated=sim, fail=_fail)
+        failed = run_plan(run, PROG, quiet=args.quiet, simulated=sim)
         if failed is not None:
             return failed
         seq = run.sequencer
         if seq.error is not None:
             run.recorder.close()
-            return _fail(f"{seq.state.value}: {seq.error}; table stopped. Log: {run.log_path}", EXIT_FAULT)
+            return fail(PROG, f"{seq.state.value}: {seq.error}; table stopped. Log: {run.log_path}", ExitCode.FAULT)
         # Not BenchRun.finish(): that solves a calibration. The check reads the log it just wrote.
         run.recorder.flush()
         try:
             analysis = analyse_log(run.log_path, calibration=calibration, still_open=True)
         except (LogError, TableCheckError) as exc:
             run.recorder.close()
-            return _fail(f"the run finished but the check cannot be computed: {exc}. Log: {run.log_path}",
-                         EXIT_QUALITY)
+            return fail(PROG, f"the run finished but the check cannot be computed: {exc}. Log: {run.log_path}",
+                         ExitCode.QUALITY)
         paths = write_outputs(analysis, out_dir)
         run.recorder.add_attachment(paths["json"].name, "application/json", paths["json"].read_bytes())
         run.recorder.close()
@@ -248,21 +244,21 @@ def format_summary(analysis) -> str:
     return "\n".join(lines)
 
 
-def _report(args, analysis, out_dir: Path, paths: dict | None = None) -> int:
+def _report(args, analysis, out_dir: Path, paths: dict | None = None) -> ExitCode:
     from bench.table_check.report import write_outputs
 
     if paths is None:
         try:
             paths = write_outputs(analysis, out_dir)
         except OSError as exc:
-            return _fail(f"cannot write the report: {exc}", EXIT_USAGE)
+            return fail(PROG, f"cannot write the report: {exc}", ExitCode.USAGE)
     if not args.quiet:
         print(format_summary(analysis))
         for note in analysis.problems + analysis.notes:
             print(f"note: {note}")
         print(f"log:    {analysis.log_path}\nresult: {paths['json']}\nreport: {paths['markdown']}, {paths['html']}")
     if analysis.problems:
-        return _fail("quality check failed: " + "; ".join(analysis.problems), EXIT_QUALITY)
+        return fail(PROG, "quality check failed: " + "; ".join(analysis.problems), ExitCode.QUALITY)
     if analysis.sim_within_3_sigma is False:
-        return _fail("the estimate misses the simulated table's truth by more than 3 sigma", EXIT_SIM_MISS)
-    return EXIT_OK
+        return fail(PROG, "the estimate misses the simulated table's truth by more than 3 sigma", ExitCode.SIM_TRUTH_MISSED)
+    return ExitCode.OK

@@ -11,13 +11,9 @@ from __future__ import annotations
 import sys
 from typing import Sequence, TextIO
 
+from bench.model.units import format_hms
 from bench.plan.events import Event, RunListener
 from bench.plan.steps import Step
-
-
-def hms(seconds: float) -> str:
-    seconds = max(0, int(round(seconds)))
-    return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
 
 
 class ProgressPrinter(RunListener):
@@ -52,9 +48,9 @@ class ProgressPrinter(RunListener):
         filled = int(round(fraction * self.bar_width))
         bar = "#" * filled + "-" * (self.bar_width - filled)
         what = f"step {step.index + 1}/{len(self.steps)} {step.unit} {step.kind}" if step else ""
-        left = f" {hms(step.estimated_s - elapsed_in_step)} left" if step and step.kind in ("dwell", "settle") else ""
+        left = f" {format_hms(step.estimated_s - elapsed_in_step)} left" if step and step.kind in ("dwell", "settle") else ""
         clock = " sim" if self.simulated else ""
-        self.stream.write(f"\r[{bar}] {fraction:5.1%} {what}{left}  ETA{clock} {hms(self.total_s - done)}   ")
+        self.stream.write(f"\r[{bar}] {fraction:5.1%} {what}{left}  ETA{clock} {format_hms(self.total_s - done)}   ")
         self.stream.flush()
         self._line_open = True
 
@@ -68,7 +64,7 @@ class ProgressPrinter(RunListener):
             self._current = self.steps[event.step_index] if event.step_index is not None else None
             self._started_at = event.time_s
             if not self.live and self._current is not None:
-                self._print(f"[{hms(event.time_s)}] step {event.step_index + 1}/{len(self.steps)} {event.message}")
+                self._print(f"[{format_hms(event.time_s)}] step {event.step_index + 1}/{len(self.steps)} {event.message}")
         elif event.kind in ("step_finished", "step_skipped"):
             if event.step_index is not None:
                 self._done_s += self.steps[event.step_index].estimated_s
@@ -76,7 +72,7 @@ class ProgressPrinter(RunListener):
             if event.kind == "step_skipped" and not self.live:
                 self._print(f"skipped {event.message}")
         elif event.kind in ("transition", "warning", "info"):
-            self._print(f"[{hms(event.time_s)}] {event.kind}: {event.message}")
+            self._print(f"[{format_hms(event.time_s)}] {event.kind}: {event.message}")
         if self.live:
             self._status(event.time_s)
 

@@ -4,16 +4,16 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from pathlib import Path
 
-EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
+from bench.cli.common import ExitCode, add_noise_arguments, fail, noise_from_args
+from bench.errors import InputError
+
+PROG = "bench schedules recommend"
 
 
 def register_recommend(commands: argparse._SubParsersAction) -> None:
     """Add `recommend` to the `schedules` command's subparsers."""
-    from bench.cli.schedule_tools import add_noise_arguments
-
     rc = commands.add_parser(
         "recommend", help="propose the schedules, dwell and revolutions for a time budget and a table",
         description="Predict, for every pair of a position and a rotation schedule and every dwell time and "
@@ -34,20 +34,15 @@ def register_recommend(commands: argparse._SubParsersAction) -> None:
     rc.set_defaults(func=cmd_recommend)
 
 
-def _fail(message: str, code: int) -> int:
-    print(f"bench schedules recommend: {message}", file=sys.stderr)
-    return code
-
-
 def _cell(e) -> str:
     return f"{e.total:>9.2e}{'B' if e.dominant == 'black box' else 'N'}"
 
 
 def format_recommendation(rec, top: int = 9) -> list[str]:
     """The printed result: recommendation, per-family errors, candidate table, score, irreducible part, why."""
-    from bench.plan.compiler import format_hms
-    from bench.schedule_design.recommend import FAMILIES, FAMILY_TITLES, REFERENCE_PAIR, fmt_value
-    from bench.schedule_design.sensitivity import FAMILY_UNITS
+    from bench.model.families import DESIGN_UNITS, TITLES
+    from bench.model.units import format_hms
+    from bench.schedule_design.recommend import FAMILIES, REFERENCE_PAIR, fmt_value
 
     best, n = rec.best, rec.noise
     lines = [f"table: {rec.level.source}"]
@@ -63,16 +58,16 @@ def format_recommendation(rec, top: int = 9) -> list[str]:
               f"{'family':<12}{'unit':<8}{'total':>10}{'black box':>11}{'(1st':>10}{'2nd)':>10}{'noise':>10}  dominant"]
     for f in FAMILIES:
         e = best.errors[f]
-        lines.append(f"{FAMILY_TITLES[f]:<12}{FAMILY_UNITS[f][0]:<8}{e.total:>10.2e}{e.black_box:>11.2e}"
+        lines.append(f"{TITLES[f]:<12}{DESIGN_UNITS[f][0]:<8}{e.total:>10.2e}{e.black_box:>11.2e}"
                      f"{e.first_order:>10.2e}{e.second_order:>10.2e}{e.noise:>10.2e}  {e.dominant}")
     head = (f"{'#':>2} {'positions + rotations':<34}{'dwell':>6}{'rev':>4}{'duration':>9}{'score':>9} "
-            + "".join(f"{FAMILY_TITLES[f][:11]:>11}" for f in FAMILIES))
-    units = " " * 64 + "".join(f"{FAMILY_UNITS[f][0]:>11}" for f in FAMILIES)
+            + "".join(f"{TITLES[f][:11]:>11}" for f in FAMILIES))
+    units = " " * 64 + "".join(f"{DESIGN_UNITS[f][0]:>11}" for f in FAMILIES)
     lines += ["", "best setting of each pair (B = black box dominates, N = noise):", head, units]
     for i, c in enumerate(rec.best_per_pair()[:top], 1):
         lines.append(f"{i:>2} {c.pair:<34}{c.dwell_s:>5g}s{c.revolutions:>4}{format_hms(c.duration_s):>9}"
                      f"{c.score:>9.3g} " + "".join(f"{_cell(c.errors[f]):>11}" for f in FAMILIES))
-    ref = ", ".join(f"{FAMILY_TITLES[f]} {fmt_value(rec.reference[f], f)}" for f in FAMILIES)
+    ref = ", ".join(f"{TITLES[f]} {fmt_value(rec.reference[f], f)}" for f in FAMILIES)
     lines += ["", f"score = RMS over the six families of predicted total / reference; reference = noise alone of "
                   f"{REFERENCE_PAIR[0]} at {rec.timing.dwell_s:g} s dwell and {REFERENCE_PAIR[1]} as shipped "
                   f"(1 = the paper's optimal plan on a perfect table): {ref}"]
@@ -85,22 +80,27 @@ def format_recommendation(rec, top: int = 9) -> list[str]:
     return lines
 
 
-def cmd_recommend(args: argparse.Namespace) -> int:
+def cmd_recommend(args: argparse.Namespace) -> ExitCode:
     from bench.model.earth import Site
-    from bench.schedule_design.recommend import PointingLevel, RecommendError, load_table_check, plan_snippet, recommend, \
-        resolve_candidates
-    from bench.cli.schedule_tools import noise_from_args
+    from bench.schedule_design.recommend import (
+        PointingLevel,
+        RecommendError,
+        load_table_check,
+        plan_snippet,
+        recommend,
+        resolve_candidates,
+    )
     from schedules import ScheduleError
 
     noise_values = (args.gyro_arw, args.acc_vrw, args.gyro_bi, args.acc_bi)
     if not all(math.isfinite(v) and v >= 0 for v in noise_values):
-        return _fail("the noise options must be finite and >= 0", EXIT_USAGE)
+        return fail(PROG, "the noise options must be finite and >= 0", ExitCode.USAGE)
     if args.runs < 1 or args.top < 1:
-        return _fail("--runs and --top must be >= 1", EXIT_USAGE)
+        return fail(PROG, "--runs and --top must be >= 1", ExitCode.USAGE)
     try:
         site = Site(args.latitude)
-    except ValueError as exc:
-        return _fail(str(exc), EXIT_USAGE)
+    except InputError as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
     try:
         level = (load_table_check(args.check) if args.check is not None
                  else PointingLevel.uniform(args.pointing_arcsec))
@@ -108,15 +108,15 @@ def cmd_recommend(args: argparse.Namespace) -> int:
         rec = recommend(args.budget_s, level, noise_from_args(args), positions=positions, rotations=rotations,
                         site=site, runs=args.runs)
     except ScheduleError as exc:
-        return _fail(str(exc), EXIT_FAIL)
+        return fail(PROG, str(exc), ExitCode.INVALID_SCHEDULE)
     except RecommendError as exc:
-        return _fail(str(exc), EXIT_USAGE)
+        return fail(PROG, str(exc), ExitCode.USAGE)
     for line in format_recommendation(rec, args.top):
         print(line)
     if args.write_config:
         try:
             Path(args.write_config).write_text(plan_snippet(rec), encoding="utf-8")
         except OSError as exc:
-            return _fail(f"cannot write {args.write_config}: {exc.strerror or exc}", EXIT_USAGE)
+            return fail(PROG, f"cannot write {args.write_config}: {exc.strerror or exc}", ExitCode.USAGE)
         print(f"\nwrote {args.write_config}: the [plan] table for `bench run --config` (replace your config's [plan])")
-    return EXIT_OK
+    return ExitCode.OK

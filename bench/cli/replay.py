@@ -8,25 +8,14 @@ Ctrl-C (the summary still says how far it got).
 from __future__ import annotations
 
 import argparse
-import math
 import signal
 import sys
 import threading
 
+from bench.cli.common import ExitCode, fail, speed_factor
 from bench.cli.progress import ProgressPrinter
 
-EXIT_OK, EXIT_USAGE, EXIT_INTERRUPTED = 0, 2, 130
-
-
-def speed_factor(text: str) -> float:
-    """argparse type of a `--speed X` option: a positive factor of real time."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive factor of real time, got {text!r}")
-    return value
+PROG = "bench replay"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -43,20 +32,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=cmd_replay)
 
 
-def _fail(message: str, code: int) -> int:
-    print(f"bench replay: {message}", file=sys.stderr)
-    return code
-
-
-def cmd_replay(args: argparse.Namespace) -> int:
-    from bench.log.run_info import steps_from_log
+def cmd_replay(args: argparse.Namespace) -> ExitCode:
     from bench.log.reader import LogError, read_log
     from bench.log.replay import replay
+    from bench.log.run_info import steps_from_log
 
     try:
         log = read_log(args.log)
     except LogError as exc:
-        return _fail(str(exc), EXIT_USAGE)
+        return fail(PROG, str(exc), ExitCode.USAGE)
     for line in log.damage:
         print(f"bench replay: damaged log: {line}", file=sys.stderr)
     try:
@@ -79,7 +63,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     for note in stats.notes:
         print(f"bench replay: {note}", file=sys.stderr)
     print(stats.summary())
-    return EXIT_INTERRUPTED if stats.stopped else EXIT_OK
+    return ExitCode.INTERRUPTED if stats.stopped else ExitCode.OK
 
 
 class TolerantProgress(ProgressPrinter):

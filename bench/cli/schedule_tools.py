@@ -1,7 +1,4 @@
-"""`bench schedules analyze | search`: first-order sensitivity, noise, duration, Monte Carlo, search.
-
-`bench schedules recommend` lives in `bench.cli.recommend`; `register_tools` adds it too.
-"""
+"""`bench schedules analyze | search`: first-order sensitivity, noise, duration, Monte Carlo, search."""
 
 from __future__ import annotations
 
@@ -11,15 +8,19 @@ import time
 
 import numpy as np
 
+from bench.cli.common import ExitCode, add_noise_arguments, fail, noise_from_args
+from bench.errors import InputError
 from bench.model.earth import Site
-from bench.model.imu import NoiseModel
-from bench.schedule_design.sensitivity import (ANGLE_NAMES, position_noise_sigma, position_sensitivity, rotation_noise_sigma,
-                               rotation_sensitivity)
+from bench.model.units import format_hms
+from bench.schedule_design.sensitivity import (
+    ANGLE_NAMES,
+    position_noise_sigma,
+    position_sensitivity,
+    rotation_noise_sigma,
+    rotation_sensitivity,
+)
 from bench.solve.methods import SolverError
 from schedules import ScheduleError, load_builtin, resolve_schedule
-
-EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
-_DEFAULT_NOISE = NoiseModel()
 
 
 def register_tools(commands: argparse._SubParsersAction) -> None:
@@ -47,23 +48,6 @@ def register_tools(commands: argparse._SubParsersAction) -> None:
     se.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg")
     se.set_defaults(func=cmd_search)
 
-    from bench.cli.recommend import register_recommend
-    register_recommend(commands)
-
-
-def add_noise_arguments(parser: argparse.ArgumentParser) -> None:
-    """The sensor-noise options (`noise_from_args` reads them); defaults are the simulator's."""
-    parser.add_argument("--gyro-arw", type=float, default=_DEFAULT_NOISE.gyro_arw_deg_rt_h, help="deg/sqrt(h)")
-    parser.add_argument("--acc-vrw", type=float, default=_DEFAULT_NOISE.acc_vrw_ug_rt_hz, help="ug/sqrt(Hz)")
-    parser.add_argument("--gyro-bi", type=float, default=_DEFAULT_NOISE.gyro_bias_instability_dph, help="deg/h")
-    parser.add_argument("--acc-bi", type=float, default=_DEFAULT_NOISE.acc_bias_instability_ug, help="ug")
-    parser.add_argument("--no-quantise", action="store_true", help="leave count quantisation out of the noise")
-
-
-def noise_from_args(args: argparse.Namespace) -> NoiseModel:
-    return NoiseModel(args.gyro_arw, args.gyro_bi, args.acc_vrw, args.acc_bi,
-                      _DEFAULT_NOISE.correlation_time_s, not args.no_quantise)
-
 
 def _fmt(value: float, status: str) -> str:
     return f"{'0':>10}" if status == "0" else f"{value:>9.1e}{'*' if status == 'E' else ' '}"
@@ -88,22 +72,20 @@ def sensitivity_lines(sens) -> list[str]:
     return lines
 
 
-def cmd_analyze(args: argparse.Namespace) -> int:
+def cmd_analyze(args: argparse.Namespace) -> ExitCode:
+    from bench.plan.compiler import PlanError, PlanTiming, compile_plan
     from bench.schedule_design.monte_carlo import evaluate
-    from bench.plan.compiler import PlanError, PlanTiming, compile_plan, format_hms
 
     if args.runs < 1 or args.dwell_s <= 0 or args.turn_rate_dps <= 0:
-        print("bench schedules analyze: --runs, --dwell-s and --turn-rate-dps must be positive", file=sys.stderr)
-        return EXIT_USAGE
+        return fail("bench schedules analyze", "--runs, --dwell-s and --turn-rate-dps must be positive", ExitCode.USAGE)
     try:
         schedule = resolve_schedule(args.schedule)
         site = Site(args.latitude)
     except ScheduleError as exc:
         print(exc, file=sys.stderr)
-        return EXIT_FAIL
-    except ValueError as exc:
-        print(f"bench schedules analyze: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return ExitCode.INVALID_SCHEDULE
+    except InputError as exc:
+        return fail("bench schedules analyze", str(exc), ExitCode.USAGE)
     noise = noise_from_args(args)
     rotations = schedule.kind == "rotations"
     try:
@@ -117,7 +99,7 @@ def cmd_analyze(args: argparse.Namespace) -> int:
             sigma = position_noise_sigma(angles, noise, args.dwell_s, site=site)
     except SolverError as exc:
         print(f"{schedule.source}: {exc}", file=sys.stderr)
-        return EXIT_FAIL
+        return ExitCode.INVALID_SCHEDULE
     print(f"schedule: {schedule.name} ({schedule.kind}, {len(schedule.steps)} steps) from {schedule.source}")
     print(f"\nFirst-order sensitivity to the nine black-box angles (simulated IMU, latitude {args.latitude} deg):")
     for line in sensitivity_lines(sens):
@@ -148,18 +130,27 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     print(f"{'level':>8} {'schedule':<22}" + "".join(f"{k:>15}" for k in keys))
     for row in table:
         print(f"{row['level_arcsec']:>7.1f}\" {row['method']:<22}" + "".join(f"{row[k]:>15.3e}" for k in keys))
-    return EXIT_OK
+    return ExitCode.OK
 
 
-def cmd_search(args: argparse.Namespace) -> int:
-    from bench.schedule_design.search import (CRITERIA_TEXT, POSITION_GROUPS, combo_of_angles, combo_of_turns,
-                                       search_positions, search_rotations, write_best)
+def cmd_search(args: argparse.Namespace) -> ExitCode:
+    from bench.schedule_design.search import (
+        CRITERIA_TEXT,
+        POSITION_GROUPS,
+        combo_of_angles,
+        combo_of_turns,
+        search_positions,
+        search_rotations,
+        write_best,
+    )
     from schedules import load_schedule
 
     if not 1 <= args.groups <= 32 or not 1 <= args.choose <= args.groups or args.best < 0:
-        print("bench schedules search: need 1 <= --choose <= --groups <= 32 and --best >= 0", file=sys.stderr)
-        return EXIT_USAGE
-    site = Site(args.latitude)
+        return fail("bench schedules search", "need 1 <= --choose <= --groups <= 32 and --best >= 0", ExitCode.USAGE)
+    try:
+        site = Site(args.latitude)
+    except InputError as exc:
+        return fail("bench schedules search", str(exc), ExitCode.USAGE)
     started = time.perf_counter()
     groups = POSITION_GROUPS[:args.groups]
     pos = search_positions(groups, args.choose, reference_groups=POSITION_GROUPS)
@@ -186,4 +177,4 @@ def cmd_search(args: argparse.Namespace) -> int:
         print()
     print(f"total {time.perf_counter() - started:.1f} s; criteria are first order at a zero black box with an "
           "ideal IMU (a real IMU's first-order errors are a linear map of these)")
-    return EXIT_OK
+    return ExitCode.OK

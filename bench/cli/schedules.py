@@ -7,6 +7,9 @@ import sys
 
 import numpy as np
 
+from bench.cli.common import ExitCode
+from bench.cli.recommend import register_recommend
+from bench.cli.schedule_tools import register_tools
 from bench.model.kinematics import attitude, axis_along, frame_axes_in_body, pointing_labels
 from schedules import (
     PositionStep,
@@ -38,28 +41,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     validate = commands.add_parser("validate", help="check schedule files")
     validate.add_argument("files", metavar="FILE", nargs="+", help="schedule TOML file(s)")
     validate.set_defaults(func=cmd_validate)
-
-    from bench.cli.schedule_tools import register_tools
     register_tools(commands)
+    register_recommend(commands)
 
 
-def cmd_list(args: argparse.Namespace) -> int:
+def cmd_list(args: argparse.Namespace) -> ExitCode:
     """One line per built-in schedule: name, kind, step count, description."""
     loaded = [load_builtin(name) for name in builtin_names()]
     name_width = max((len(s.name) for s in loaded), default=4)
     for schedule in loaded:
         print(f"{schedule.name:<{name_width}}  {schedule.kind:<11}  {len(schedule.steps):>4}  "
               f"{schedule.description}")
-    return 0
+    return ExitCode.OK
 
 
-def cmd_show(args: argparse.Namespace) -> int:
+def cmd_show(args: argparse.Namespace) -> ExitCode:
     """Header, then one line per step (pointing on an ideal table, no mounting rotation)."""
     try:
         schedule = resolve_schedule(args.schedule)
     except ScheduleError as exc:
         print(exc, file=sys.stderr)
-        return 1
+        return ExitCode.INVALID_SCHEDULE
     for label, value in (("name", schedule.name), ("kind", schedule.kind),
                          ("description", schedule.description), ("source", schedule.source),
                          ("reference", schedule.reference or "-"), ("steps", len(schedule.steps))):
@@ -67,18 +69,18 @@ def cmd_show(args: argparse.Namespace) -> int:
     print()
     for line in format_steps(schedule):
         print(line)
-    return 0
+    return ExitCode.OK
 
 
-def cmd_validate(args: argparse.Namespace) -> int:
+def cmd_validate(args: argparse.Namespace) -> ExitCode:
     """`OK <file>: ...` per valid file, the one-line error on stderr otherwise; 1 if any failed."""
-    exit_code = 0
+    exit_code = ExitCode.OK
     for path in args.files:
         try:
             schedule = load_schedule(path)
         except ScheduleError as exc:
             print(exc, file=sys.stderr)
-            exit_code = 1
+            exit_code = ExitCode.INVALID_SCHEDULE
             continue
         print(f"OK {path}: {schedule.name} ({schedule.kind}, {len(schedule.steps)} steps)")
     return exit_code

@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
-EXIT_OK, EXIT_USAGE, EXIT_QUALITY = 0, 2, 4
+from bench.cli.common import ExitCode, fail
+
+PROG = "bench solve"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -45,33 +46,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=cmd_solve)
 
 
-def _fail(message: str, code: int) -> int:
-    print(f"bench solve: {message}", file=sys.stderr)
-    return code
-
-
-def cmd_solve(args: argparse.Namespace) -> int:
+def cmd_solve(args: argparse.Namespace) -> ExitCode:
     from bench.log.reader import LogError
     from bench.solve.compare import compare, format_comparison, parse_methods
-    from bench.solve.resolve import SolveInputError, load_recorded, load_subset_schedule, solve_recorded, write_outputs
     from bench.solve.methods import SolverError
+    from bench.solve.resolve import SolveInputError, load_recorded, load_subset_schedule, solve_recorded, write_outputs
 
     if args.compare and (args.positions or args.rotations):
-        return _fail("--compare chooses the subsets itself: drop --positions/--rotations", EXIT_USAGE)
+        return fail(PROG, "--compare chooses the subsets itself: drop --positions/--rotations", ExitCode.USAGE)
     if args.json and not args.compare:
-        return _fail("--json writes the --compare table: give --compare too", EXIT_USAGE)
+        return fail(PROG, "--json writes the --compare table: give --compare too", ExitCode.USAGE)
     against = None
     if args.against:
         from bench.model.result import CalibrationResult, ResultFormatError
 
         if args.compare:
-            return _fail("--against is for the reports of a solve, not for --compare", EXIT_USAGE)
+            return fail(PROG, "--against is for the reports of a solve, not for --compare", ExitCode.USAGE)
         try:
             against = CalibrationResult.load(args.against)
         except OSError as exc:
-            return _fail(f"{args.against}: cannot read: {exc.strerror or exc}", EXIT_USAGE)
+            return fail(PROG, f"{args.against}: cannot read: {exc.strerror or exc}", ExitCode.USAGE)
         except ResultFormatError as exc:
-            return _fail(str(exc), EXIT_USAGE)
+            return fail(PROG, str(exc), ExitCode.USAGE)
     try:
         methods = parse_methods(args.compare) if args.compare else None
         positions = load_subset_schedule(args.positions, "positions")
@@ -82,9 +78,9 @@ def cmd_solve(args: argparse.Namespace) -> int:
         else:
             resolved = solve_recorded(recorded, positions, rotations)
     except (LogError, SolveInputError) as exc:
-        return _fail(str(exc), EXIT_USAGE)
+        return fail(PROG, str(exc), ExitCode.USAGE)
     except SolverError as exc:
-        return _fail(f"cannot be solved: {exc}", EXIT_QUALITY)
+        return fail(PROG, f"cannot be solved: {exc}", ExitCode.QUALITY)
 
     if methods is not None:
         if not args.quiet:
@@ -93,7 +89,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
             try:
                 Path(args.json).write_text(json.dumps(comparison.to_json(), indent=2) + "\n", encoding="utf-8")
             except OSError as exc:
-                return _fail(f"cannot write {args.json}: {exc.strerror or exc}", EXIT_USAGE)
+                return fail(PROG, f"cannot write {args.json}: {exc.strerror or exc}", ExitCode.USAGE)
             if not args.quiet:
                 print(f"wrote {args.json}")
         failures = comparison.failures
@@ -104,7 +100,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
                                                                 against=against,
                                                                 against_label=args.against and Path(args.against).name)
         except OSError as exc:
-            return _fail(f"cannot write the result: {exc}", EXIT_USAGE)
+            return fail(PROG, f"cannot write the result: {exc}", ExitCode.USAGE)
         if not args.quiet:
             extraction = resolved.solution.extraction
             print(f"solved {recorded.run_id} from {len(recorded.logs)} log(s): {len(extraction.positions)} positions "
@@ -115,5 +111,5 @@ def cmd_solve(args: argparse.Namespace) -> int:
             print(f"result: {result_path}\nreport: {report_path}" + (f"\n        {html_path}" if html_path else ""))
         failures = resolved.failures
     if failures:
-        return _fail("quality check failed: " + "; ".join(failures), EXIT_QUALITY)
-    return EXIT_OK
+        return fail(PROG, "quality check failed: " + "; ".join(failures), ExitCode.QUALITY)
+    return ExitCode.OK

@@ -13,11 +13,9 @@ import sys
 import threading
 from urllib.parse import urlsplit
 
+from bench.cli.common import ExitCode, fail
 from drivers.errors import TurntableError, TurntableLimitError
 from drivers.turntable import DIALECTS, FRAMES, AxisStatus, TableState, Turntable, open_turntable
-
-EXIT_OK, EXIT_USAGE, EXIT_FAULT = 0, 2, 3
-
 
 # -- bench table ------------------------------------------------------------------
 
@@ -70,7 +68,7 @@ def _run_table_command(table: Turntable, args: argparse.Namespace) -> int:
     if command == "status":
         state = table.read_state()
         print(format_state(state))
-        return EXIT_FAULT if (state.fault or state.estop) else EXIT_OK
+        return ExitCode.FAULT if (state.fault or state.estop) else ExitCode.OK
     if command in ("enable", "disable", "reset"):
         frames = args.frames or FRAMES
         {"enable": table.enable, "disable": table.disable, "reset": table.reset_faults}[command](frames)
@@ -82,7 +80,7 @@ def _run_table_command(table: Turntable, args: argparse.Namespace) -> int:
             state = table.wait_in_position(target, tolerance_deg=args.tolerance_deg, settle_s=args.settle_s,
                                            timeout_s=args.wait_s, poll_s=0.05)
             print(format_state(state))
-            return EXIT_OK
+            return ExitCode.OK
     elif command == "rate":
         table.check_state()
         table.set_rate(args.frame, args.rate_dps)
@@ -91,10 +89,10 @@ def _run_table_command(table: Turntable, args: argparse.Namespace) -> int:
     elif command == "abort":
         table.abort()
     print(format_state(table.read_state()))
-    return EXIT_OK
+    return ExitCode.OK
 
 
-def cmd_table(args: argparse.Namespace) -> int:
+def cmd_table(args: argparse.Namespace) -> ExitCode:
     from drivers.turntable import AxisLimits, TurntableLimits
 
     prog = f"bench table {args.table_command}"
@@ -103,26 +101,21 @@ def cmd_table(args: argparse.Namespace) -> int:
         table = open_turntable(args.url, args.dialect, limits=limits, timeout_s=args.timeout_s,
                                retries=args.retries)
     except ValueError as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return fail(prog, f"{exc}", ExitCode.USAGE)
     try:
         table.connect()
     except TurntableError as exc:
-        print(f"{prog}: cannot reach the controller: {exc}", file=sys.stderr)
-        return EXIT_FAULT
+        return fail(prog, f"cannot reach the controller: {exc}", ExitCode.FAULT)
     try:
         return _run_table_command(table, args)
     except TurntableLimitError as exc:
-        print(f"{prog}: refused, nothing sent: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return fail(prog, f"refused, nothing sent: {exc}", ExitCode.USAGE)
     except TurntableError as exc:
         table.safe_stop()
-        print(f"{prog}: {type(exc).__name__}: {exc}", file=sys.stderr)
-        return EXIT_FAULT
+        return fail(prog, f"{type(exc).__name__}: {exc}", ExitCode.FAULT)
     except KeyboardInterrupt:
         table.safe_stop()
-        print(f"{prog}: interrupted; table commanded to stop", file=sys.stderr)
-        return EXIT_FAULT
+        return fail(prog, "interrupted; table commanded to stop", ExitCode.FAULT)
     finally:
         table.close()
 
@@ -221,19 +214,18 @@ def _listen(controller, dialect: str, where: str, closers: list) -> str:
     return f"tcp://{host}:{port}"
 
 
-def cmd_sim_table(args: argparse.Namespace) -> int:
+def cmd_sim_table(args: argparse.Namespace) -> ExitCode:
     import numpy as np
 
     from bench.model.earth import Site
+    from bench.model.units import ARCSEC
     from bench.sim.controller import SimController
     from bench.sim.table import SimTable
-    from bench.model.units import ARCSEC
 
     try:
         site = Site(args.latitude)
     except ValueError as exc:
-        print(f"bench sim table: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return fail("bench sim table", f"{exc}", ExitCode.USAGE)
     black_box = np.random.default_rng(args.seed).normal(0.0, args.black_box_arcsec * ARCSEC, (3, 3))
     controller = SimController(SimTable(site, black_box_rad=black_box))
     closers: list = []
@@ -252,13 +244,11 @@ def cmd_sim_table(args: argparse.Namespace) -> int:
                 print(reply, flush=True)
         done.wait()
     except (ValueError, OSError) as exc:
-        print(f"bench sim table: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return fail("bench sim table", f"{exc}", ExitCode.USAGE)
     except KeyboardInterrupt:
-        print("bench sim table: stopped", file=sys.stderr)
-        return EXIT_OK
+        return fail("bench sim table", "stopped", ExitCode.OK)
     finally:
         signal.signal(signal.SIGINT, previous_handler)
         for close in reversed(closers):
             close()
-    return EXIT_OK
+    return ExitCode.OK

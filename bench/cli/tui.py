@@ -4,11 +4,11 @@ recorded run (--replay LOG, no hardware)."""
 from __future__ import annotations
 
 import argparse
-import sys
 
-from bench.cli.replay import speed_factor
+from bench.cli.common import ExitCode, fail, speed_factor
+from bench.errors import BenchError
 
-EXIT_OK, EXIT_USAGE = 0, 2
+PROG = "bench tui"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -28,37 +28,32 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=cmd_tui)
 
 
-def cmd_tui(args: argparse.Namespace) -> int:
-    from bench.config.load import ConfigError, default_sim_config, load_config
+def cmd_tui(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: Textual and the bench core load only for `bench tui`
+    from bench.config.load import default_sim_config, load_config
+    from bench.tui import create_app
 
     if args.replay:
         if args.config or args.sim:
-            print("bench tui: --replay plays a log without hardware: drop --config/--sim", file=sys.stderr)
-            return EXIT_USAGE
+            return fail(PROG, "--replay plays a log without hardware: drop --config/--sim", ExitCode.USAGE)
         return _replay(args)
     if not args.config and not args.sim:
-        print("bench tui: say --config FILE, --sim or --replay LOG", file=sys.stderr)
-        return EXIT_USAGE
+        return fail(PROG, "say --config FILE, --sim or --replay LOG", ExitCode.USAGE)
     try:
         config = load_config(args.config) if args.config else default_sim_config()
-        from bench.tui import create_app
-
         app = create_app(config=config, sim=args.sim, out_dir=args.out, operator=args.operator)
-    except (ConfigError, ValueError, OSError) as exc:
-        print(f"bench tui: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+    except (BenchError, OSError) as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
     app.run()
-    return EXIT_OK
+    return ExitCode.OK
 
 
-def _replay(args: argparse.Namespace) -> int:
-    from bench.log.reader import LogError
+def _replay(args: argparse.Namespace) -> ExitCode:
     from bench.tui import create_app
 
     try:
         app = create_app(replay=args.replay, speed=args.speed)
-    except (LogError, OSError) as exc:
-        print(f"bench tui: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+    except (BenchError, OSError) as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
     app.run()
-    return EXIT_OK
+    return ExitCode.OK

@@ -21,8 +21,10 @@ import numpy as np
 
 from bench.config.reader import ConfigError, Located, Table, describe, parse_toml, read_text, suggest
 from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
-from bench.model.imu import AXES, BODY_AXES, ImuCoefficients, NoiseModel, canonical_names, default_sim_imu, family
+from bench.model.families import BODY_AXES, SENSOR_AXES, canonical_names, family_of
+from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
 from bench.model.units import ARCSEC
+from bench.plan.compiler import ORDERS, PlanTiming
 from drivers.errors import ImuConfigError
 from drivers.imu import DEFAULT_DBC, DEFAULT_FD_DBC, DEFAULT_FD_SPEC, DEFAULT_SPEC, ImuFrameSpec, ImuLayout
 from drivers.turntable import DIALECTS, FRAMES, AxisLimits, TurntableLimits
@@ -32,7 +34,6 @@ from schedules.tomllines import LineMap, locate_lines
 
 FORMAT = "turntable-bench/config"
 VERSION = 1
-ORDERS = ("optimal", "listed")
 SIM_URL = "sim"  # table url: serve the simulated table over loopback in the configured dialect
 _BLACK_BOX_RMS_ARCSEC = 20.0  # [sim] default: a good but real table
 _NOISE_FIELDS = tuple(f.name for f in dataclasses.fields(NoiseModel))
@@ -105,20 +106,13 @@ class ImuConfig:
 
 
 @dataclass(frozen=True)
-class PlanConfig:
-    """[plan]: the loaded schedules and the timing of moves, dwells and turns."""
+class PlanConfig(PlanTiming):
+    """[plan]: the loaded schedules and the timing of moves, dwells and turns (a `PlanTiming`)."""
 
-    positions: Schedule | None
-    rotations: Schedule | None  # every step's revolutions already overridden by `revolutions`
-    dwell_s: float
-    settle_s: float
-    move_rate_dps: float
-    move_accel_dps2: float
-    turn_rate_dps: float
-    turn_accel_dps2: float
-    rest_s: float
-    revolutions: int | None
-    order: str
+    positions: Schedule | None = field(default=None, kw_only=True)
+    # every step's revolutions already overridden by `revolutions`
+    rotations: Schedule | None = field(default=None, kw_only=True)
+    order: str = field(default="optimal", kw_only=True)
 
 
 @dataclass(frozen=True)
@@ -339,7 +333,7 @@ def _plan(t: Table, limits: TurntableLimits) -> PlanConfig:
                 unit = "deg/s" if key.endswith("_dps") else "deg/s^2"
                 raise t.error(key, f"{values[key]:g} {unit} exceeds the {FRAMES[frame]} axis limit {limit:g} "
                                    f"{unit} (table.limits.{FRAMES[frame]}.{attr})")
-    return PlanConfig(positions, rotations, revolutions=revolutions, order=order, **values)
+    return PlanConfig(positions=positions, rotations=rotations, revolutions=revolutions, order=order, **values)
 
 
 def _black_box(t: Table, seed: int) -> tuple[float | tuple, np.ndarray]:
@@ -383,12 +377,12 @@ def _noise(t: Table) -> NoiseModel:
 
 def _sim_imu(t: Table) -> tuple[ImuCoefficients, dict]:
     s = t.table("imu", canonical_names())
-    overrides = {name: s.number(name, gt=0 if family(name) in ("Kg", "Ka") else None) for name in s.data}
+    overrides = {name: s.number(name, gt=0 if family_of(name) in ("Kg", "Ka") else None) for name in s.data}
     values = {**default_sim_imu().to_canonical(), **overrides}
     # Direction-cosine rows are unit vectors: a row with overrides gets its diagonal
     # from its off-diagonals, unless the diagonal is given too (then it must fit).
     for prefix in ("Eg", "Ea"):
-        for i, sensor in enumerate(AXES):
+        for i, sensor in enumerate(SENSOR_AXES):
             row = [f"{prefix}_{axis}{sensor}" for axis in BODY_AXES]
             if not any(name in overrides for name in row):
                 continue

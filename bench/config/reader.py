@@ -14,13 +14,14 @@ import tomllib
 from collections.abc import Iterable
 from pathlib import Path
 
+from bench.errors import InputError
 from schedules.tomllines import LineMap
 
 _TOML_LOCATION = re.compile(r"\s*\(at line (\d+), column (\d+)\)")
 _REQUIRED = object()
 
 
-class ConfigError(ValueError):
+class ConfigError(InputError):
     """A configuration problem, rendered as one line ``path:line: key: message``."""
 
     def __init__(self, path: str, line: int | None, key: str | None, message: str):

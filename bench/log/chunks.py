@@ -17,9 +17,10 @@ from dataclasses import dataclass
 from io import BytesIO
 
 import numpy as np
-
 from mcap.data_stream import ReadDataStream
 from mcap.records import Channel
+
+from bench.errors import BenchError
 
 try:
     import zstandard
@@ -45,7 +46,7 @@ _U64 = struct.Struct("<Q")
 MESSAGE_DATA_OFFSET = 9 + 22                   # record header + message header
 
 
-class WalkError(Exception):
+class WalkError(BenchError):
     """The file cannot be read as MCAP at all (the caller turns this into its own error)."""
 
 

@@ -32,9 +32,18 @@ from functools import cached_property
 
 import numpy as np
 
-from bench.plan.events import Event
+from bench.errors import BenchError
+from bench.log.recorder import (
+    CAN_ENCODING,
+    FLAG_ERROR,
+    FLAG_REMOTE,
+    TOPIC_CAN,
+    TOPIC_EVENTS,
+    TOPIC_SAMPLES,
+    TOPIC_STATE,
+)
 from bench.log.walk import ChannelData, Damage, WalkError, walk
-from bench.log.recorder import CAN_ENCODING, FLAG_ERROR, FLAG_REMOTE, TOPIC_CAN, TOPIC_EVENTS, TOPIC_SAMPLES, TOPIC_STATE
+from bench.plan.events import Event
 from drivers.imu import ImuSampleBlock, ImuStats, decode_frames
 from drivers.imu.layout import ImuLayout
 
@@ -42,7 +51,7 @@ from drivers.imu.layout import ImuLayout
 CLASSIC_WIDTH, FD_WIDTH = 8, 64
 
 
-class LogError(Exception):
+class LogError(BenchError):
     """The file cannot be read as a run log at all."""
 
 

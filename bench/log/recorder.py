@@ -28,8 +28,14 @@ angle is "clockwise"), so the quaternion is `(axis * sin(-theta/2), cos(-theta/2
 Times: MCAP log times are unsigned nanoseconds on the run clock; a negative time is
 recorded as 0. Metadata records are written when given; attachments any time before
 `close()`. Chunks are zstd-compressed with CRCs and closed when they reach `chunk_size`
-bytes or `chunk_interval_s` of wall time after the previous close, so a crash loses at
-most about that much. `/imu/samples` messages are held back and written at each close in
+bytes, `chunk_interval_s` of wall time after the previous close (so a crash loses at
+most about that much), and whenever the run clock (the log times of the messages)
+passes a multiple of `chunk_run_interval_s` (default 5 s). The last rule makes the
+chunk layout of a simulated run (simulated seconds, many per wall second) independent
+of the machine's speed and load: each chunk spans less than that interval of run time
+(plus the span of one recorded batch), whatever the wall clock does; on hardware the
+run clock keeps pace with the wall clock and the wall-time rule closes chunks first.
+`/imu/samples` messages are held back and written at each close in
 chunks of their own: they are derived from `/can/raw` and are the bulk of a log, so a
 reader that needs the frames, events and states skips them without decompressing
 (`bench.log.reader` defers them until asked for). Schema and Channel records are also written outside the first chunk,
@@ -51,6 +57,7 @@ from mcap.records import Channel, Schema
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 import bench
+from bench.errors import BenchError
 from bench.plan.events import Event, RunListener
 
 CAN_ENCODING = "turntable-bench/can-frames-v1"
@@ -160,9 +167,12 @@ CHANNELS: dict[str, tuple[str, str, str]] = {
 }
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+#: Default run-clock chunk interval, s: a chunk closes every this many seconds of recorded log time.
+CHUNK_RUN_INTERVAL_S = 5.0
+_NEVER = 1 << 64   # past every MCAP log time (uint64)
 
 
-class RecorderError(Exception):
+class RecorderError(BenchError):
     """The recorder cannot write (bad arguments, closed, or an I/O error)."""
 
 
@@ -254,12 +264,15 @@ class McapRecorder(RunListener):
     """Writes a run to an MCAP file; see the module docstring for channels and conventions.
 
     `metadata`: name -> {key: value} records written at once (values str; numbers are
-    converted). `clock` is a wall clock used only to decide when to close a chunk.
-    `compression`: "zstd" (default), "lz4" or "none".
+    converted). A chunk is closed at `chunk_size` bytes, `chunk_interval_s` seconds of
+    `clock` (a wall clock, used only for this) after the previous close, and each time
+    the newest log time recorded (run clock) passes a multiple of `chunk_run_interval_s`
+    (None: no run-clock rule). `compression`: "zstd" (default), "lz4" or "none".
     """
 
     def __init__(self, path, *, metadata: Mapping[str, Mapping[str, str]] | None = None,
                  chunk_interval_s: float = 1.0, clock: Callable[[], float] = time.monotonic,
+                 chunk_run_interval_s: float | None = CHUNK_RUN_INTERVAL_S,
                  imu_samples_topic_decimation: int = 1, chunk_size: int = 4 * 1024 * 1024,
                  compression: str = "zstd"):
         if not (isinstance(imu_samples_topic_decimation, int) and imu_samples_topic_decimation >= 1):
@@ -267,10 +280,18 @@ class McapRecorder(RunListener):
                                 f"got {imu_samples_topic_decimation!r}")
         if not chunk_interval_s > 0:
             raise RecorderError(f"chunk_interval_s must be positive, got {chunk_interval_s!r}")
+        if chunk_run_interval_s is not None and not (chunk_run_interval_s > 0 and math.isfinite(chunk_run_interval_s)):
+            raise RecorderError(f"chunk_run_interval_s must be positive and finite (or None), "
+                                f"got {chunk_run_interval_s!r}")
         if compression not in _COMPRESSION:
             raise RecorderError(f"compression must be one of {sorted(_COMPRESSION)}, got {compression!r}")
         self.path = str(path)
         self.chunk_interval_s = float(chunk_interval_s)
+        self.chunk_run_interval_s = None if chunk_run_interval_s is None else float(chunk_run_interval_s)
+        # run-clock rule: the next chunk close is due at log time `_run_due` (ns); -1 until the
+        # first message sets it, past any log time when the rule is off
+        self._run_step = 0 if chunk_run_interval_s is None else max(1, time_ns(chunk_run_interval_s))
+        self._run_due = -1 if self._run_step else _NEVER
         self.decimation = imu_samples_topic_decimation
         self._clock = clock
         self.frames_written = 0
@@ -354,7 +375,7 @@ class McapRecorder(RunListener):
                        "message": text, "name": f"sequencer.{event.kind}", "file": "", "line": 0})
         self._io(self._put, TOPIC_EVENTS, t, to_json(event.to_dict()))
         self._io(self._put, TOPIC_LOG, t, log)
-        self._tick()
+        self._tick(t)
 
     def on_table_state(self, state) -> None:
         self._check_open()
@@ -372,14 +393,14 @@ class McapRecorder(RunListener):
             tf = (f'{{"timestamp":{stamp},"parent_frame_id":"{TF_FRAMES[k]}","child_frame_id":"{TF_FRAMES[k + 1]}",'
                   f'"translation":{{"x":0.0,"y":0.0,"z":0.0}},"rotation":{{"x":{x!r},"y":{y!r},"z":{z!r},"w":{w!r}}}}}')
             self._io(self._put, TOPIC_TF, t, tf.encode())
-        self._tick()
+        self._tick(t)
 
     def on_imu(self, block) -> None:
         self._check_open()
         if not len(block):
             return
         self._io(self._put_samples, block)
-        self._tick()
+        self._tick(time_ns(float(block.receive_time_s.max())))
 
     def on_can_frames(self, frames: Sequence) -> None:
         self._check_open()
@@ -389,9 +410,10 @@ class McapRecorder(RunListener):
             payload, newest = encode_can_frames(frames)
         except (AttributeError, TypeError, struct.error) as exc:
             raise RecorderError(f"cannot encode CAN frames for {TOPIC_CAN}: {exc}") from exc
-        self._io(self._put, TOPIC_CAN, time_ns(newest), payload)
+        t = time_ns(newest)
+        self._io(self._put, TOPIC_CAN, t, payload)
         self.frames_written += len(frames)
-        self._tick()
+        self._tick(t)
 
     def flush(self) -> None:
         """Close the open chunk and push everything to the OS now."""
@@ -498,9 +520,16 @@ class McapRecorder(RunListener):
         self._write_held_samples()
         self._writer.flush()
 
-    def _tick(self) -> None:
+    def _tick(self, log_time: int) -> None:
+        """Close the chunk when it is due by wall time, or when `log_time` (ns, the newest of
+        the call) reached the next multiple of the run-clock interval."""
         now = self._clock()
-        if now - self._last_close >= self.chunk_interval_s:
+        due = self._run_due
+        if log_time >= due:
+            self._run_due = (log_time // self._run_step + 1) * self._run_step
+            if due < 0:     # the first message: the grid starts, nothing to close yet
+                due = _NEVER
+        if log_time >= due or now - self._last_close >= self.chunk_interval_s:
             self._io(self._close_chunks)
             self._last_close = now
 
@@ -512,5 +541,5 @@ def _file_size(path: str) -> int:
         return 0
 
 
-__all__ = ["CAN_ENCODING", "CAN_RECORD", "CAN_SCHEMA_NAME", "CHANNELS", "EXTENDED_ID_FLAG", "McapRecorder",
-           "RecorderError", "SCHEMAS", "encode_can_frames", "frame_quaternions", "time_ns", "to_json"]
+__all__ = ["CAN_ENCODING", "CAN_RECORD", "CAN_SCHEMA_NAME", "CHANNELS", "CHUNK_RUN_INTERVAL_S", "EXTENDED_ID_FLAG",
+           "McapRecorder", "RecorderError", "SCHEMAS", "encode_can_frames", "frame_quaternions", "time_ns", "to_json"]

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bench.config.load import BenchConfig, ConfigError, parse_config
-from bench.model.earth import Site
 from bench.log.reader import LogError, RunLog
+from bench.model.earth import Site
 from bench.plan.steps import DwellStep, MoveStep, SettleStep, Step, TurnStep
 from drivers.errors import ImuConfigError
 from drivers.imu import DEFAULT_DBC, DEFAULT_FD_DBC, DEFAULT_FD_SPEC, DEFAULT_SPEC, ImuFrameSpec, ImuLayout

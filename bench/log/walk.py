@@ -27,13 +27,34 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
-
 from mcap.records import Attachment, Channel, Footer, Header, Metadata, Schema, Statistics
 
-from bench.log.chunks import (MAGIC, MESSAGE_DATA_OFFSET, MESSAGE_HEAD, OP_ATTACHMENT, OP_CHANNEL, OP_CHUNK,
-                               OP_FOOTER, OP_HEADER, OP_MESSAGE, OP_MESSAGE_INDEX, OP_METADATA, OP_NAMES, OP_SCHEMA,
-                               OP_STATISTICS, RECORD_HEAD, DeferredChunk, Prefetch, WalkError, body_stream,
-                               chunk_fields, index_chunk, inflate_chunk, plausible_record_at, resync)
+from bench.log.chunks import (
+    MAGIC,
+    MESSAGE_DATA_OFFSET,
+    MESSAGE_HEAD,
+    OP_ATTACHMENT,
+    OP_CHANNEL,
+    OP_CHUNK,
+    OP_FOOTER,
+    OP_HEADER,
+    OP_MESSAGE,
+    OP_MESSAGE_INDEX,
+    OP_METADATA,
+    OP_NAMES,
+    OP_SCHEMA,
+    OP_STATISTICS,
+    RECORD_HEAD,
+    DeferredChunk,
+    Prefetch,
+    WalkError,
+    body_stream,
+    chunk_fields,
+    index_chunk,
+    inflate_chunk,
+    plausible_record_at,
+    resync,
+)
 
 
 def _fmt_range(start_ns: int, end_ns: int) -> str:

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.errors import InputError
 from bench.model.units import DEG
 
 EARTH_RATE = 7.2921151467e-5  # rad/s (WGS84)
@@ -39,9 +40,9 @@ class Site:
 
     def __post_init__(self) -> None:
         if not -90.0 <= self.latitude_deg <= 90.0:
-            raise ValueError(f"latitude_deg must be within [-90, 90], got {self.latitude_deg}")
+            raise InputError(f"latitude_deg must be within [-90, 90], got {self.latitude_deg}")
         if self.local_g is not None and not 9.7 <= self.local_g <= 9.9:
-            raise ValueError(f"local_g must be a plausible gravity (9.7 to 9.9 m/s^2), got {self.local_g}")
+            raise InputError(f"local_g must be a plausible gravity (9.7 to 9.9 m/s^2), got {self.local_g}")
 
     @property
     def gravity(self) -> float:

@@ -13,35 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.model.families import BODY_AXES, RESULT_UNITS, SENSOR_AXES, canonical_names
 from bench.model.units import DEG, DEG_PER_HOUR, G0
-
-AXES = ("x", "y", "z")
-BODY_AXES = ("X", "Y", "Z")
-
-#: Display unit of each coefficient family and the factor that converts display -> SI.
-DISPLAY_UNITS = {
-    "Kg": ("counts/s per deg/s", 1.0 / DEG),
-    "D0": ("deg/h", DEG_PER_HOUR),
-    "Eg": ("1", 1.0),
-    "Ka": ("counts/s per g", 1.0 / G0),
-    "K0": ("g", G0),
-    "Ea": ("1", 1.0),
-}
-
-
-def canonical_names() -> list[str]:
-    """All 30 canonical coefficient names in their canonical order."""
-    names: list[str] = []
-    for scale, bias, axes in (("Kg", "D0", "Eg"), ("Ka", "K0", "Ea")):
-        names += [f"{scale}_{s}" for s in AXES]
-        names += [f"{bias}_{s}" for s in AXES]
-        names += [f"{axes}_{a}{s}" for s in AXES for a in BODY_AXES]
-    return names
-
-
-def family(name: str) -> str:
-    """'Kg_x' -> 'Kg', 'Eg_Yx' -> 'Eg'."""
-    return name.split("_", 1)[0]
 
 
 def _unit_rows(m: np.ndarray) -> np.ndarray:
@@ -91,9 +64,9 @@ class ImuCoefficients:
         groups = (("Kg", "D0", "Eg", self.gyro_scale, self.gyro_bias, self.gyro_axes),
                   ("Ka", "K0", "Ea", self.acc_scale, self.acc_bias, self.acc_axes))
         for scale, bias, axes, sv, bv, av in groups:
-            for i, s in enumerate(AXES):
-                out[f"{scale}_{s}"] = float(sv[i]) / DISPLAY_UNITS[scale][1]
-                out[f"{bias}_{s}"] = float(bv[i]) / DISPLAY_UNITS[bias][1]
+            for i, s in enumerate(SENSOR_AXES):
+                out[f"{scale}_{s}"] = float(sv[i]) / RESULT_UNITS[scale][1]
+                out[f"{bias}_{s}"] = float(bv[i]) / RESULT_UNITS[bias][1]
                 for j, a in enumerate(BODY_AXES):
                     out[f"{axes}_{a}{s}"] = float(av[i, j])
         return {name: out[name] for name in canonical_names()}
@@ -102,10 +75,10 @@ class ImuCoefficients:
     def from_canonical(cls, values: dict[str, float]) -> "ImuCoefficients":
         """Inverse of `to_canonical`; raises KeyError naming a missing coefficient."""
         def vec(prefix: str) -> np.ndarray:
-            return np.array([values[f"{prefix}_{s}"] for s in AXES]) * DISPLAY_UNITS[prefix][1]
+            return np.array([values[f"{prefix}_{s}"] for s in SENSOR_AXES]) * RESULT_UNITS[prefix][1]
 
         def mat(prefix: str) -> np.ndarray:
-            return np.array([[values[f"{prefix}_{a}{s}"] for a in BODY_AXES] for s in AXES])
+            return np.array([[values[f"{prefix}_{a}{s}"] for a in BODY_AXES] for s in SENSOR_AXES])
 
         return cls(vec("Kg"), vec("D0"), mat("Eg"), vec("Ka"), vec("K0"), mat("Ea"))
 
@@ -168,5 +141,4 @@ class NoiseModel:
                     or self.acc_bias_instability_ug or self.quantise)
 
 
-__all__ = ["AXES", "BODY_AXES", "DISPLAY_UNITS", "ImuCoefficients", "NoiseModel", "canonical_names",
-           "default_sim_imu", "family"]
+__all__ = ["ImuCoefficients", "NoiseModel", "default_sim_imu"]

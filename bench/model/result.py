@@ -8,13 +8,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bench.model.imu import DISPLAY_UNITS, ImuCoefficients, canonical_names, family
+from bench.errors import InputError
+from bench.model.families import RESULT_UNITS, canonical_names, family_of
+from bench.model.imu import ImuCoefficients
 
 RESULT_FORMAT = "turntable-bench/result"
 RESULT_VERSION = 1
 
 
-class ResultFormatError(ValueError):
+class ResultFormatError(InputError):
     """A result file that is not a turntable-bench result of a version we read."""
 
 
@@ -39,7 +41,7 @@ def coefficient_table(values: dict[str, float], sigmas: dict[str, float] | None 
     """Canonical-ordered coefficient table from display-unit values (and sigmas)."""
     sigmas = sigmas or {}
     return {name: Coefficient(float(values[name]), float(sigmas.get(name, math.nan)),
-                              DISPLAY_UNITS[family(name)][0])
+                              RESULT_UNITS[family_of(name)][0])
             for name in canonical_names() if name in values}
 
 
@@ -128,7 +130,7 @@ def _read_table(table: Any, origin: str, where: str) -> dict[str, Coefficient]:
                                     str(entry["unit"]))
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise ResultFormatError(f"{origin}: {where}.{name}: needs value, sigma and unit") from exc
-        expected = DISPLAY_UNITS[family(name)][0]
+        expected = RESULT_UNITS[family_of(name)][0]
         if out[name].unit != expected:
             raise ResultFormatError(f"{origin}: {where}.{name}: unit {out[name].unit!r}, expected {expected!r}")
     return out

@@ -11,3 +11,9 @@ HOUR = 3600.0
 DEG_PER_HOUR = DEG / HOUR  # rad/s
 G0 = 9.80665  # standard gravity, m/s^2: the unit "g" in results and reports
 MICRO_G = 1e-6 * G0
+
+
+def format_hms(seconds: float) -> str:
+    """A duration as h:mm:ss, rounded to the second (a negative one as 0:00:00)."""
+    total = max(0, int(round(seconds)))
+    return f"{total // 3600}:{total // 60 % 60:02d}:{total % 60:02d}"

@@ -21,18 +21,20 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from bench.errors import InputError
+from bench.model.kinematics import FRAMES
 from bench.model.motion import trapezoid_timing
+from bench.model.units import format_hms
 from bench.plan.order import order_units
 from bench.plan.steps import DwellStep, MoveStep, SettleStep, Step, TurnStep
 from drivers.turntable.base import TurntableLimits
 from schedules import RotationStep, Schedule
 
-AXES = ("outer", "middle", "inner")
 ORDERS = ("optimal", "listed")
 _EPS_DEG = 1e-9
 
 
-class PlanError(ValueError):
+class PlanError(InputError):
     """A plan that cannot be compiled (bad schedule kind, a target outside the travel limits, ...)."""
 
 
@@ -57,22 +59,16 @@ class PlanTiming:
     def __post_init__(self) -> None:
         # Waiting times may be zero; rates, accelerations and the dwell may not.
         may_be_zero = ("settle_s", "rest_s", "move_overhead_s")
-        for f in fields(self):
+        for f in fields(PlanTiming):   # not a subclass's own fields (PlanConfig)
             value = getattr(self, f.name)
             if f.name == "revolutions":
                 if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-                    raise ValueError(f"revolutions must be a whole number >= 1 or None, got {value!r}")
+                    raise PlanError(f"revolutions must be a whole number >= 1 or None, got {value!r}")
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ValueError(f"{f.name} must be a finite number, got {value!r}")
+                raise PlanError(f"{f.name} must be a finite number, got {value!r}")
             if value < 0 or (value == 0 and f.name not in may_be_zero):
-                raise ValueError(f"{f.name} must be {'>= 0' if f.name in may_be_zero else 'positive'}, got {value!r}")
-
-
-def format_hms(seconds: float) -> str:
-    """h:mm:ss, rounded to the second."""
-    total = int(round(seconds))
-    return f"{total // 3600}:{total // 60 % 60:02d}:{total % 60:02d}"
+                raise PlanError(f"{f.name} must be {'>= 0' if f.name in may_be_zero else 'positive'}, got {value!r}")
 
 
 def _fmt_angles(angles: tuple[float, ...]) -> str:
@@ -213,7 +209,7 @@ def _build_units(positions: Schedule | None, rotations: Schedule | None, timing:
             for axis, lim in enumerate(limits.axes):
                 ranges.append(_k_range(p.angles_deg[axis], lim.min_deg, lim.max_deg))
                 if ranges[-1][0] > ranges[-1][1]:
-                    raise PlanError(f"{label} ({positions.name} #{i + 1}, move): {AXES[axis]} angle "
+                    raise PlanError(f"{label} ({positions.name} #{i + 1}, move): {FRAMES[axis]} angle "
                                     f"{p.angles_deg[axis]:g} deg has no equivalent within the limits "
                                     f"[{lim.min_deg}, {lim.max_deg}] deg")
             pos_units.append(_Unit(label, positions.name, i, p.angles_deg, tuple(ranges)))
@@ -237,7 +233,7 @@ def _build_units(positions: Schedule | None, rotations: Schedule | None, timing:
                 if ranges[-1][0] > ranges[-1][1]:
                     what = (f"a {r.direction.upper()} turn of {revs} rev from {r.start_deg[axis]:g} deg"
                             if axis == r.frame_index else f"angle {r.start_deg[axis]:g} deg")
-                    raise PlanError(f"{label} ({rotations.name} #{i + 1}, turn): {AXES[axis]} {what} does not fit "
+                    raise PlanError(f"{label} ({rotations.name} #{i + 1}, turn): {FRAMES[axis]} {what} does not fit "
                                     f"within the limits [{lim.min_deg}, {lim.max_deg}] deg")
             rot_units.append(_Unit(label, rotations.name, i, r.start_deg, tuple(ranges), r, revs))
     return pos_units, rot_units
@@ -394,5 +390,5 @@ def compile_plan(positions: Schedule | None, rotations: Schedule | None, timing:
     return CompiledPlan(tuple(steps), timing, order, total, lower, listed)
 
 
-__all__ = ["AXES", "ORDERS", "CompiledPlan", "PlanError", "PlanTiming", "compile_plan", "format_hms",
+__all__ = ["ORDERS", "CompiledPlan", "PlanError", "PlanTiming", "compile_plan",
            "order_units"]

@@ -15,6 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Union
 
+from bench.model.kinematics import FRAMES
+
 
 @dataclass(frozen=True)
 class MoveStep:
@@ -79,7 +81,7 @@ class TurnStep:
 
     @property
     def frame_index(self) -> int:
-        return ("outer", "middle", "inner").index(self.frame)
+        return FRAMES.index(self.frame)
 
     @property
     def end_deg(self) -> tuple[float, float, float]:

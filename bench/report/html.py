@@ -19,9 +19,17 @@ from typing import Any
 import numpy as np
 
 from bench import __version__
-from bench.report.markdown import (Comparison, compare_results, fmt, max_normalized, outlier_text, outlier_threshold,
-                          row_outliers, truth_z)
 from bench.model.result import CalibrationResult
+from bench.report.markdown import (
+    Comparison,
+    compare_results,
+    fmt,
+    max_normalized,
+    outlier_text,
+    outlier_threshold,
+    row_outliers,
+    truth_z,
+)
 
 CSS = """
 body { font-family: system-ui, -apple-system, 'Segoe UI', Roboto, sans-serif; margin: 1.5em auto; max-width: 72em;

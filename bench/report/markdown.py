@@ -120,7 +120,7 @@ class Comparison:
 def compare_results(new: CalibrationResult, old: CalibrationResult, threshold: float = CHANGE_SIGMA,
                     label: str | None = None) -> Comparison:
     """Per coefficient (canonical order, the union of both results) old, new, change and change in sigma."""
-    from bench.model.imu import canonical_names
+    from bench.model.families import canonical_names
 
     def sig(c):
         return c.sigma if c is not None and _finite(c.sigma) else None

@@ -24,6 +24,8 @@ matplotlib.use("Agg")  # before pyplot: no display, no GUI toolkit
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from bench.model.kinematics import FRAMES
+
 #: Points per channel a time-series figure keeps at most (min/max pairs).
 MAX_POINTS = 2000
 AXIS_COLORS = ("#1f77b4", "#2ca02c", "#d62728")     # x / outer, y / middle, z / inner
@@ -184,7 +186,7 @@ def angles_figure(t_s: np.ndarray, angles_deg: np.ndarray, spans: Sequence[tuple
         fig, axes = _figure(1, 1, 10.0, 3.0, top_in=0.3)
         ax = axes[0, 0]
         _shade(ax, spans)
-        for k, frame in enumerate(("outer", "middle", "inner")):
+        for k, frame in enumerate(FRAMES):
             tt, yy = envelope(t_s, angles_deg[:, k], max_points)
             ax.plot(tt, yy, lw=0.8, color=AXIS_COLORS[k], label=frame)
         ax.set_ylabel("controller angle, deg")

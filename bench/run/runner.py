@@ -17,9 +17,11 @@ from pathlib import Path
 from typing import Iterable
 
 from bench import __version__
+from bench.config.load import BenchConfig
+from bench.plan.compiler import CompiledPlan, compile_plan
 from bench.plan.events import RunListener, RunState
-from bench.run.sequencer import Sequencer, SequencerOptions
 from bench.plan.steps import step_to_dict
+from bench.run.sequencer import Sequencer, SequencerOptions
 
 #: The sequencer's loop periods on the simulator: coarse, because the simulated clock jumps.
 SIM_OPTIONS = dict(move_poll_s=0.1, imu_poll_s=0.5, state_period_s=1.0)
@@ -37,12 +39,18 @@ class RunOutcome:
     html_report_path: Path | None = None
 
 
+def compile_from_config(config: BenchConfig) -> CompiledPlan:
+    """The compiled plan of a configuration (PlanError on a plan that cannot run)."""
+    plan = config.plan
+    return compile_plan(plan.positions, plan.rotations, plan, limits=config.table.limits, order=plan.order)
+
+
 def completed_units(resume_log: str | None) -> tuple[set[str], list[str]]:
     """Units complete in the log to resume, and every log of that run so far (oldest first)."""
     if not resume_log:
         return set(), []
-    from bench.solve.extract import finished_observation_steps
     from bench.log.reader import read_log
+    from bench.solve.extract import finished_observation_steps
 
     log = read_log(resume_log)
     previous = json.loads(log.metadata.get("run", {}).get("logs_before", "[]"))

@@ -28,6 +28,7 @@ import threading
 from dataclasses import dataclass
 from typing import Iterable, Sequence
 
+from bench.errors import BenchError
 from bench.plan.events import Event, RunListener, RunState
 from bench.plan.steps import DwellStep, MoveStep, SettleStep, Step, TurnStep, step_to_dict
 from drivers.clock import Clock
@@ -46,7 +47,7 @@ _TRANSITIONS = {
 }
 
 
-class SequencerError(Exception):
+class SequencerError(BenchError):
     """A run could not go on (base of the sequencer's own errors)."""
 
 

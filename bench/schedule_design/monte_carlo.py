@@ -16,8 +16,8 @@ import numpy as np
 from bench.model.closed_form import position_outputs, turn_closed_form, turn_integrals
 from bench.model.earth import Site
 from bench.model.imu import ImuCoefficients, default_sim_imu
-from bench.solve.methods import nominal_position_inputs, position_design, scale_axes_bias
 from bench.model.units import ARCSEC, DEG_PER_HOUR, G0
+from bench.solve.methods import nominal_position_inputs, position_design, scale_axes_bias
 from schedules import RotationStep, load_builtin
 
 POSITION_LEVELS_ARCSEC = (26.7, 85.0, 275.5)

@@ -44,21 +44,28 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.errors import InputError
 from bench.model.earth import Site
+from bench.model.families import DESIGN_UNITS, POSITION_FAMILIES, ROTATION_FAMILIES, TITLES, family_of
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
-from bench.plan.compiler import PlanError, PlanTiming, compile_plan
-from bench.schedule_design.sensitivity import (ANGLE_NAMES, FAMILY_UNITS, INNER_ZERO_OFFSET, POSITION_FAMILIES, ROTATION_FAMILIES,
-                               Sensitivity, family_of, position_noise_sigma, position_sensitivity,
-                               rotation_noise_sigma, rotation_sensitivity, solve_positions_batch,
-                               solve_rotations_batch)
-from bench.solve.methods import SolverError
-from bench.plan.steps import DwellStep, TurnStep
 from bench.model.units import ARCSEC
+from bench.plan.compiler import PlanError, PlanTiming, compile_plan
+from bench.plan.steps import DwellStep, TurnStep
+from bench.schedule_design.sensitivity import (
+    ANGLE_NAMES,
+    INNER_ZERO_OFFSET,
+    Sensitivity,
+    position_noise_sigma,
+    position_sensitivity,
+    rotation_noise_sigma,
+    rotation_sensitivity,
+    solve_positions_batch,
+    solve_rotations_batch,
+)
+from bench.solve.methods import SolverError
 from schedules import Schedule, load_builtin, resolve_schedule
 
 FAMILIES = POSITION_FAMILIES + ROTATION_FAMILIES
-FAMILY_TITLES = {"D0": "gyro bias", "K0": "acc bias", "Ka": "acc scale", "Ea": "acc axes",
-                 "Kg": "gyro scale", "Eg": "gyro axes"}
 POSITION_CANDIDATES = ("optimal-24", "traditional-12", "all-64")
 ROTATION_CANDIDATES = ("optimal-5s6r", "traditional-3s6r", "all-96")
 REFERENCE_PAIR = ("optimal-24", "optimal-5s6r")
@@ -67,7 +74,7 @@ REVOLUTIONS_GRID = (1, 2, 3, 4, 5)
 TABLE_CHECK_FORMAT = "turntable-bench/table-check"
 
 
-class RecommendError(ValueError):
+class RecommendError(InputError):
     """Inputs from which no recommendation can be made (bad budget, level, check file, candidates)."""
 
 
@@ -102,7 +109,7 @@ def pointing_from_table_check(data: dict, source: str = "<table check>") -> Poin
     combos = data.get("combinations")
     if not isinstance(combos, list) or not combos:
         raise RecommendError(f"{source}: field 'combinations' must be a non-empty list")
-    from bench.table_check.estimate import ANGLE_NAMES as CHECK_ANGLES   # same flat order as the black box
+    from bench.table_check.estimate import ANGLE_NAMES as CHECK_ANGLES  # same flat order as the black box
 
     levels = np.full(9, np.nan)
     notes = []
@@ -150,7 +157,7 @@ def load_table_check(path: str | Path) -> PointingLevel:
 
 @dataclass(frozen=True)
 class FamilyError:
-    """Predicted error of one family (display units of `FAMILY_UNITS`), RSS over its coefficients."""
+    """Predicted error of one family (display units of `DESIGN_UNITS`), RSS over its coefficients."""
 
     first_order: float
     second_order: float
@@ -232,20 +239,20 @@ def _first_order(sens: Sensitivity, level_arcsec: np.ndarray) -> tuple[dict[str,
 
 def _display_rows(solved: dict[str, np.ndarray], names: tuple[str, ...], imu: ImuCoefficients) -> np.ndarray:
     """(R, C) solved coefficients in display units, in `names` order (scale factors as ppm of truth)."""
-    from bench.model.imu import AXES, BODY_AXES
+    from bench.model.families import BODY_AXES, SENSOR_AXES
 
     cols = []
     for name in names:
         fam, suffix = name.split("_", 1)
-        factor = FAMILY_UNITS[fam][1]
+        factor = DESIGN_UNITS[fam][1]
         if fam in ("Ea", "Eg"):
-            cols.append(solved[fam][:, AXES.index(suffix[1]), BODY_AXES.index(suffix[0])] * factor)
+            cols.append(solved[fam][:, SENSOR_AXES.index(suffix[1]), BODY_AXES.index(suffix[0])] * factor)
         elif fam in ("Ka", "Kg"):
             truth = imu.acc_scale if fam == "Ka" else imu.gyro_scale
-            s = AXES.index(suffix)
+            s = SENSOR_AXES.index(suffix)
             cols.append((solved[fam][:, s] / truth[s] - 1.0) * factor)
         else:
-            cols.append(solved[fam][:, AXES.index(suffix)] * factor)
+            cols.append(solved[fam][:, SENSOR_AXES.index(suffix)] * factor)
     return np.stack(cols, axis=1)
 
 
@@ -293,7 +300,7 @@ def reference_noise(noise: NoiseModel, timing: PlanTiming, site: Site, imu: ImuC
     ref = {f: _family_rss(sig, f) for f in FAMILIES}
     zero = [f for f, v in ref.items() if not (v > 0 and math.isfinite(v))]
     if zero:
-        raise RecommendError(f"the noise model gives no noise for {', '.join(FAMILY_TITLES[f] for f in zero)}: "
+        raise RecommendError(f"the noise model gives no noise for {', '.join(TITLES[f] for f in zero)}: "
                              "the score is relative to the noise of the optimal plan, so give a non-zero noise")
     return ref
 
@@ -428,7 +435,7 @@ def _durations(positions, rotations, timing: PlanTiming, dwell_grid_s, revolutio
 # --- words and config -----------------------------------------------------------------------------
 
 def fmt_value(value: float, fam: str) -> str:
-    return f"{value:.3g} {FAMILY_UNITS[fam][0]}"
+    return f"{value:.3g} {DESIGN_UNITS[fam][0]}"
 
 
 def _setting(c: Candidate) -> str:
@@ -442,25 +449,25 @@ def explain(rec: Recommendation) -> list[str]:
     worst = max(FAMILIES, key=lambda f: best.errors[f].total / ref[f])
     e = best.errors[worst]
     lines.append(f"{best.pair} at {_setting(best)}: its largest error relative to the reference is "
-                 f"{FAMILY_TITLES[worst]} {fmt_value(e.total, worst)} ({e.dominant} dominates: black box "
+                 f"{TITLES[worst]} {fmt_value(e.total, worst)} ({e.dominant} dominates: black box "
                  f"{fmt_value(e.black_box, worst)}, noise {fmt_value(e.noise, worst)})")
     longer = [c for c in rec.ranked if c.pair == best.pair and (c.dwell_s > best.dwell_s
                                                                 or c.revolutions > best.revolutions)]
     noisy = [f for f in FAMILIES if best.errors[f].dominant == "noise"]
     if noisy and not longer:
-        lines.append(f"noise dominates {', '.join(FAMILY_TITLES[f] for f in noisy)}: a longer dwell or more "
+        lines.append(f"noise dominates {', '.join(TITLES[f] for f in noisy)}: a longer dwell or more "
                      "revolutions would lower it, but no longer setting of this pair fits the budget")
     for other in rec.best_per_pair()[1:]:
         f = max(FAMILIES, key=lambda k: other.errors[k].total / best.errors[k].total)
         o, b = other.errors[f], best.errors[f]
         if o.dominant == "black box":
             part = "first-order" if o.first_order >= o.second_order else "second-order"
-            reason = (f"leaves {part} {FAMILY_TITLES[f]} {fmt_value(o.black_box, f)} at the table's "
+            reason = (f"leaves {part} {TITLES[f]} {fmt_value(o.black_box, f)} at the table's "
                       f"{rec.level.rms_arcsec:.3g} arcsec RMS, larger than the noise "
                       f"{fmt_value(o.noise, f)} after {_setting(other)}")
         else:
             reason = (f"its best setting that fits ({_setting(other)}, {other.duration_s:.0f} s) leaves "
-                      f"{FAMILY_TITLES[f]} {fmt_value(o.total, f)}, mostly noise ({fmt_value(o.noise, f)})")
+                      f"{TITLES[f]} {fmt_value(o.total, f)}, mostly noise ({fmt_value(o.noise, f)})")
         lines.append(f"{other.pair}: {reason}; recommended: {fmt_value(b.total, f)}; score {other.score:.3g} "
                      f"vs {best.score:.3g}")
     return lines
@@ -495,7 +502,7 @@ def plan_snippet(rec: Recommendation, candidate: Candidate | None = None) -> str
     ])
 
 
-__all__ = ["DWELL_GRID_S", "FAMILIES", "FAMILY_TITLES", "POSITION_CANDIDATES", "REFERENCE_PAIR", "REVOLUTIONS_GRID",
+__all__ = ["DWELL_GRID_S", "FAMILIES", "POSITION_CANDIDATES", "REFERENCE_PAIR", "REVOLUTIONS_GRID",
            "ROTATION_CANDIDATES", "Candidate", "FamilyError", "PointingLevel", "RecommendError", "Recommendation",
            "explain", "fmt_value", "load_table_check", "plan_snippet", "pointing_from_table_check", "recommend",
            "reference_noise", "resolve_candidates"]

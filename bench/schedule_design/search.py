@@ -30,9 +30,9 @@ from itertools import combinations
 import numpy as np
 
 from bench.model.earth import EARTH_RATE, Site
-from bench.model.kinematics import attitude, frame_axes_in_body
-from bench.schedule_design.sensitivity import probe_boxes
+from bench.model.kinematics import FRAMES, attitude, frame_axes_in_body
 from bench.model.units import DEG
+from bench.schedule_design.sensitivity import probe_boxes
 
 #: The 32 inner-symmetric groups: (outer, middle, inner) with the inner angle and +180 deg.
 POSITION_GROUPS = tuple((o, m, i) for o in (0, 90, 180, 270) for m in (0, 90, 180, 270) for i in (0, 90))
@@ -303,7 +303,7 @@ def all_rotations(revolutions: int = 1) -> tuple:
     """The 96 rotations: 48 positive initial states (turning frame at 0) x CCW/CW."""
     from schedules import RotationStep
     out = []
-    for frame_index, frame in enumerate(("outer", "middle", "inner")):
+    for frame_index, frame in enumerate(FRAMES):
         others = [k for k in range(3) if k != frame_index]
         for a in (0, 90, 180, 270):
             for b in (0, 90, 180, 270):

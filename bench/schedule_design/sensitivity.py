@@ -21,13 +21,20 @@ import numpy as np
 
 from bench.model.closed_form import position_outputs, turn_closed_form, turn_integrals
 from bench.model.earth import EARTH_RATE, Site
-from bench.model.imu import AXES, BODY_AXES, ImuCoefficients, NoiseModel, default_sim_imu
-from bench.solve.methods import SolverError, _scale_axes_bias_jacobian, nominal_position_inputs, position_design, \
-    scale_axes_bias
+from bench.model.families import BODY_AXES, DESIGN_UNITS, POSITION_FAMILIES, ROTATION_FAMILIES, SENSOR_AXES, family_of
+from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
+from bench.model.kinematics import FRAMES
 from bench.model.units import ARCSEC, DEG, DEG_PER_HOUR, G0, MICRO_G
+from bench.solve.methods import (
+    SolverError,
+    _scale_axes_bias_jacobian,
+    nominal_position_inputs,
+    position_design,
+    scale_axes_bias,
+)
 
 #: The nine black-box angles: rows (outer = C_t^o0, middle = C_o^m0, inner = C_m^i0), columns.
-ANGLE_NAMES = tuple(f"{row}.{col}" for row in ("outer", "middle", "inner") for col in ("alpha", "beta", "gamma"))
+ANGLE_NAMES = tuple(f"{row}.{col}" for row in FRAMES for col in ("alpha", "beta", "gamma"))
 #: Index of the inner frame's zero offset (gamma of C_m^i0), which no schedule can see.
 INNER_ZERO_OFFSET = ANGLE_NAMES.index("inner.gamma")
 #: A derivative below this fraction of the coefficient's natural scale counts as cancelled.
@@ -36,17 +43,7 @@ STEP_RAD = 1.0 * ARCSEC   # central-difference step; third-order error ~ step^2,
 
 _OFF_DIAGONAL = [(s, a) for s in range(3) for a in range(3) if a != s]
 #: Display unit of each family's sensitivity and noise, and SI -> display factor (per rad of angle).
-FAMILY_UNITS = {
-    "D0": ("deg/h", 1.0 / DEG_PER_HOUR),
-    "K0": ("g", 1.0 / G0),
-    "Ka": ("ppm", 1e6),
-    "Ea": ("arcsec", 1.0 / ARCSEC),
-    "Kg": ("ppm", 1e6),
-    "Eg": ("arcsec", 1.0 / ARCSEC),
-}
 _NATURAL_SI = {"D0": EARTH_RATE, "K0": G0, "Ka": 1.0, "Ea": 1.0, "Kg": 1.0, "Eg": 1.0}
-POSITION_FAMILIES = ("D0", "K0", "Ka", "Ea")
-ROTATION_FAMILIES = ("Kg", "Eg")
 
 
 def coefficient_names(families) -> tuple[str, ...]:
@@ -55,14 +52,10 @@ def coefficient_names(families) -> tuple[str, ...]:
     names = []
     for fam in families:
         if fam in ("Ea", "Eg"):
-            names += [f"{fam}_{BODY_AXES[a]}{AXES[s]}" for s, a in _OFF_DIAGONAL]
+            names += [f"{fam}_{BODY_AXES[a]}{SENSOR_AXES[s]}" for s, a in _OFF_DIAGONAL]
         else:
-            names += [f"{fam}_{s}" for s in AXES]
+            names += [f"{fam}_{s}" for s in SENSOR_AXES]
     return tuple(names)
-
-
-def family_of(name: str) -> str:
-    return name.split("_", 1)[0]
 
 
 @dataclass(frozen=True)
@@ -169,7 +162,7 @@ def _to_rows(solved: dict[str, np.ndarray], imu: ImuCoefficients, families) -> n
     """(R, C) coefficient values in display units (scale factors relative, as ppm of truth)."""
     cols = []
     for fam in families:
-        factor = FAMILY_UNITS[fam][1]
+        factor = DESIGN_UNITS[fam][1]
         value = solved[fam]
         if fam in ("Ea", "Eg"):
             cols += [value[:, s, a] * factor for s, a in _OFF_DIAGONAL]
@@ -199,8 +192,8 @@ def _sensitivity(method: str, families, solved, imu: ImuCoefficients, step_rad: 
     matrix = _difference(solved, imu, families, step_rad)
     names = coefficient_names(families)
     fams = [family_of(n) for n in names]
-    units = tuple(FAMILY_UNITS[f][0] for f in fams)
-    natural = np.array([_NATURAL_SI[f] * FAMILY_UNITS[f][1] * ARCSEC for f in fams])
+    units = tuple(DESIGN_UNITS[f][0] for f in fams)
+    natural = np.array([_NATURAL_SI[f] * DESIGN_UNITS[f][1] * ARCSEC for f in fams])
     return Sensitivity(method, names, units, matrix, natural, geometric)
 
 
@@ -261,17 +254,17 @@ def position_noise_sigma(angles_deg, noise: NoiseModel, dwell_s: float, imu: Imu
         jac = _scale_axes_bias_jacobian(params)
         cov = jac @ (sigma_counts ** 2 * inv) @ jac.T
         sd = np.sqrt(np.diag(cov))
-        out[f"Ka_{AXES[s]}"] = sd[0] / imu.acc_scale[s] * FAMILY_UNITS["Ka"][1]
-        out[f"K0_{AXES[s]}"] = sd[4] * FAMILY_UNITS["K0"][1]
+        out[f"Ka_{SENSOR_AXES[s]}"] = sd[0] / imu.acc_scale[s] * DESIGN_UNITS["Ka"][1]
+        out[f"K0_{SENSOR_AXES[s]}"] = sd[4] * DESIGN_UNITS["K0"][1]
         for a in range(3):
             if a != s:
-                out[f"Ea_{BODY_AXES[a]}{AXES[s]}"] = sd[1 + a] * FAMILY_UNITS["Ea"][1]
+                out[f"Ea_{BODY_AXES[a]}{SENSOR_AXES[s]}"] = sd[1 + a] * DESIGN_UNITS["Ea"][1]
     gyro_white = noise.gyro_arw_deg_rt_h * DEG / 60.0 / math.sqrt(dwell_s)
     gyro_gm = _gm_mean_var(noise.gyro_bias_instability_dph * DEG_PER_HOUR, tau, dwell_s)
     k = len(design)
     for s in range(3):
         quant = (_QUANT_COUNTS / dwell_s / imu.gyro_scale[s]) if noise.quantise else 0.0
-        out[f"D0_{AXES[s]}"] = math.sqrt((gyro_white ** 2 + gyro_gm + quant ** 2) / k) * FAMILY_UNITS["D0"][1]
+        out[f"D0_{SENSOR_AXES[s]}"] = math.sqrt((gyro_white ** 2 + gyro_gm + quant ** 2) / k) * DESIGN_UNITS["D0"][1]
     return {n: out[n] for n in coefficient_names(POSITION_FAMILIES)}
 
 
@@ -298,14 +291,13 @@ def rotation_noise_sigma(turns, noise: NoiseModel, rate_dps: float = 10.0, imu: 
         params = np.concatenate([imu.gyro_matrix[s], [imu.gyro_scale[s] * imu.gyro_bias[s]]])
         jac = _scale_axes_bias_jacobian(params)
         sd = np.sqrt(np.diag(jac @ cov0 @ jac.T))
-        out[f"Kg_{AXES[s]}"] = sd[0] / imu.gyro_scale[s] * FAMILY_UNITS["Kg"][1]
+        out[f"Kg_{SENSOR_AXES[s]}"] = sd[0] / imu.gyro_scale[s] * DESIGN_UNITS["Kg"][1]
         for a in range(3):
             if a != s:
-                out[f"Eg_{BODY_AXES[a]}{AXES[s]}"] = sd[1 + a] * FAMILY_UNITS["Eg"][1]
+                out[f"Eg_{BODY_AXES[a]}{SENSOR_AXES[s]}"] = sd[1 + a] * DESIGN_UNITS["Eg"][1]
     return {n: out[n] for n in coefficient_names(ROTATION_FAMILIES)}
 
 
-__all__ = ["ANGLE_NAMES", "FAMILY_UNITS", "INNER_ZERO_OFFSET", "POSITION_FAMILIES", "ROTATION_FAMILIES",
-           "STEP_RAD", "ZERO_REL", "Sensitivity", "coefficient_names", "position_noise_sigma",
+__all__ = ["ANGLE_NAMES", "INNER_ZERO_OFFSET", "STEP_RAD", "ZERO_REL", "Sensitivity", "coefficient_names", "position_noise_sigma",
            "position_sensitivity", "rotation_design_nominal", "rotation_noise_sigma", "rotation_sensitivity",
            "solve_positions_batch", "solve_rotations_batch"]

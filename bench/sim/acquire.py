@@ -7,15 +7,18 @@ and per-turn rest-to-rest integrals exactly as the solver expects them.
 
 from __future__ import annotations
 
-
 import numpy as np
 
-from bench.model.observations import (FRAME_INDEX, PositionObservation, RotationObservation, mean_and_standard_error,
-                                turn_earth_integral)
-from bench.sim.imu import ImuSamples, SimImu
+from bench.model.observations import (
+    FRAME_INDEX,
+    PositionObservation,
+    RotationObservation,
+    mean_and_standard_error,
+    turn_earth_integral,
+)
 from bench.plan.compiler import PlanTiming
+from bench.sim.imu import ImuSamples, SimImu
 from bench.sim.table import SimTable
-
 
 #: The in-memory acquisition takes the same timing as a compiled plan (revolutions and
 #: move overhead are not used here: turns keep their own revolutions).

@@ -20,8 +20,8 @@ import math
 import threading
 from dataclasses import dataclass, field
 
-from bench.sim.table import SimTable
 from bench.model.units import DEG
+from bench.sim.table import SimTable
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.turntable.base import FRAMES, AxisLimits, AxisMode, AxisState, AxisStatus, TableState
 

@@ -17,8 +17,8 @@ import numpy as np
 from scipy.signal import lfilter
 
 from bench.model.imu import ImuCoefficients, NoiseModel
-from bench.sim.table import SimTable
 from bench.model.units import DEG, DEG_PER_HOUR, MICRO_G
+from bench.sim.table import SimTable
 
 COUNTER_MODULUS = 2 ** 32
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(3)

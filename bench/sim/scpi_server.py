@@ -23,8 +23,16 @@ from __future__ import annotations
 import threading
 from collections import deque
 
-from bench.sim.controller import (ERR_ARGUMENT, ERR_FAULT, ERR_LIMIT, ERR_NOT_ENABLED, ERR_SYNTAX, ERR_WRONG_MODE,
-                                  SimCommandError, SimController)
+from bench.sim.controller import (
+    ERR_ARGUMENT,
+    ERR_FAULT,
+    ERR_LIMIT,
+    ERR_NOT_ENABLED,
+    ERR_SYNTAX,
+    ERR_WRONG_MODE,
+    SimCommandError,
+    SimController,
+)
 from bench.sim.serve import LineServer
 from drivers.turntable import scpi_codec as sc
 from drivers.turntable.base import AxisMode

@@ -18,8 +18,8 @@ import time
 import uuid
 
 import can
-from can.interfaces.virtual import VirtualBus
 import numpy as np
+from can.interfaces.virtual import VirtualBus
 
 from bench.model.earth import Site
 from bench.model.imu import ImuCoefficients, NoiseModel

@@ -9,12 +9,19 @@ from typing import Any
 import numpy as np
 
 from bench.model.earth import Site
-from bench.model.imu import AXES, BODY_AXES, DISPLAY_UNITS, ImuCoefficients
+from bench.model.families import BODY_AXES, RESULT_UNITS, SENSOR_AXES
+from bench.model.imu import ImuCoefficients
 from bench.model.observations import PositionObservation, RotationObservation
 from bench.model.result import CalibrationResult, coefficient_table
-from bench.solve.methods import (GyroBias, SensorTriad, SolverError, gyro_bias_from_positions, solve_accelerometers,
-                          solve_gyros)
 from bench.model.units import ARCSEC, DEG_PER_HOUR
+from bench.solve.methods import (
+    GyroBias,
+    SensorTriad,
+    SolverError,
+    gyro_bias_from_positions,
+    solve_accelerometers,
+    solve_gyros,
+)
 
 #: |residual| / sigma above which a step is flagged as an outlier.
 OUTLIER_SIGMA = 4.0
@@ -37,7 +44,7 @@ class Calibration:
         sigmas: dict[str, float] = {}
 
         def put(name: str, family: str, v: float, s: float) -> None:
-            factor = DISPLAY_UNITS[family][1]
+            factor = RESULT_UNITS[family][1]
             values[name], sigmas[name] = v / factor, s / factor
 
         for triad, scale, axes_name, bias_name in ((self.accelerometers, "Ka", "Ea", "K0"),
@@ -45,14 +52,14 @@ class Calibration:
             if triad is None:
                 continue
             sig = np.sqrt(np.diagonal(triad.cov, axis1=1, axis2=2))
-            for i, s in enumerate(AXES):
+            for i, s in enumerate(SENSOR_AXES):
                 put(f"{scale}_{s}", scale, triad.scale[i], sig[i, 0])
                 for j, a in enumerate(BODY_AXES):
                     put(f"{axes_name}_{a}{s}", axes_name, triad.axes[i, j], sig[i, 1 + j])
                 if bias_name:
                     put(f"{bias_name}_{s}", bias_name, triad.bias[i], sig[i, 4])
         if self.gyro_bias is not None:
-            for i, s in enumerate(AXES):
+            for i, s in enumerate(SENSOR_AXES):
                 put(f"D0_{s}", "D0", self.gyro_bias.value[i], self.gyro_bias.sigma[i])
         return values, sigmas
 
@@ -93,7 +100,7 @@ class Calibration:
         for kind, rows in (("position", tables["positions"]), ("rotation", tables["rotations"])):
             for row in rows:
                 for key in ("acc_normalized", "gyro_normalized"):
-                    for axis, v in zip(AXES, row.get(key, [])):
+                    for axis, v in zip(SENSOR_AXES, row.get(key, [])):
                         if v is not None and abs(v) > OUTLIER_SIGMA:
                             sensor = "acc" if key.startswith("acc") else "gyro"
                             outliers.append({"step": kind, "index": row["index"], "sensor": f"{sensor}_{axis}",

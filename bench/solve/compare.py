@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from bench.model.families import ERROR_TITLES
 from bench.schedule_design.monte_carlo import POSITION_KEYS, ROTATION_KEYS
 from bench.solve.resolve import NONE, Recorded, SolveInputError, load_subset_schedule, solve_recorded
 
@@ -21,8 +22,6 @@ METHODS = {"optimal": ("optimal-24", "optimal-5s6r"),
            "all": ("all-64", "all-96")}
 #: Coefficient families of the comparison table, named as `bench.schedule_design.monte_carlo` names its errors.
 FAMILY_KEYS = POSITION_KEYS + ROTATION_KEYS
-FAMILY_TITLES = {"gyro_bias_dph": "gyro bias deg/h", "acc_bias_g": "acc bias g", "acc_scale": "acc SF (rel)",
-                 "acc_axes": "acc axes", "gyro_scale": "gyro SF (rel)", "gyro_axes": "gyro axes"}
 
 
 @dataclass(frozen=True)
@@ -109,7 +108,7 @@ def compare(recorded: Recorded, methods: list[Method]) -> Comparison:
 def format_comparison(comparison: Comparison) -> str:
     """The comparison as text tables (like the paper's Table 5)."""
     width = max(12, *(len(r["name"]) + 2 for r in comparison.rows))
-    head = f"{'method':<{width}}" + "".join(f"{FAMILY_TITLES[k]:>17}" for k in FAMILY_KEYS)
+    head = f"{'method':<{width}}" + "".join(f"{ERROR_TITLES[k]:>17}" for k in FAMILY_KEYS)
 
     def line(name, diffs):
         return f"{name:<{width}}" + "".join(f"{'-' if diffs[k] is None else format(diffs[k], '.3e'):>17}"
@@ -127,5 +126,5 @@ def format_comparison(comparison: Comparison) -> str:
     return "\n".join(out) + "\n"
 
 
-__all__ = ["FAMILY_KEYS", "FAMILY_TITLES", "METHODS", "Comparison", "Method", "compare", "family_differences",
+__all__ = ["FAMILY_KEYS", "METHODS", "Comparison", "Method", "compare", "family_differences",
            "format_comparison", "parse_methods"]

@@ -24,10 +24,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bench.model.earth import Site
-from bench.plan.events import Event
+from bench.model.kinematics import FRAMES
 from bench.model.motion import Piece
-from bench.model.observations import PositionObservation, RotationObservation, mean_and_standard_error, turn_earth_integral
+from bench.model.observations import (
+    PositionObservation,
+    RotationObservation,
+    mean_and_standard_error,
+    turn_earth_integral,
+)
 from bench.model.units import DEG
+from bench.plan.events import Event
 
 
 @dataclass
@@ -63,7 +69,7 @@ def _window(counter: np.ndarray, first: int, last: int) -> slice:
 
 def _turn_earth_integral(site: Site, step: dict, samples_duration_s: float, t0: float, t1: float,
                          state_time_s: np.ndarray, state_angles_deg: np.ndarray, mounting) -> np.ndarray:
-    k = ("outer", "middle", "inner").index(step["frame"])
+    k = FRAMES.index(step["frame"])
     start_nominal = np.asarray(step["start_deg"], dtype=float)
     rest = [Piece(0.0, start_nominal[k] * DEG, 0.0, 0.0)]
     base = turn_earth_integral(site, start_nominal, k, rest, 0.0, samples_duration_s, mounting=mounting)

@@ -10,11 +10,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from bench.solve.calibrate import Calibration, solve
-from bench.model.earth import Site
-from bench.solve.extract import Extraction, extract_observations
 from bench.log.reader import RunLog
+from bench.model.earth import Site
 from bench.model.units import DEG_PER_HOUR, MICRO_G
+from bench.solve.calibrate import Calibration, solve
+from bench.solve.extract import Extraction, extract_observations
 from drivers.imu.layout import ImuLayout
 from drivers.imu.samples import ImuStats
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from bench.errors import InputError
 from bench.model.earth import Site
 from bench.model.imu import ImuCoefficients
 from bench.model.kinematics import attitude
@@ -30,7 +31,7 @@ from bench.model.units import DEG
 CHI2_ALPHA = 0.01
 
 
-class SolverError(ValueError):
+class SolverError(InputError):
     """The observations cannot determine the coefficients asked for."""
 
 

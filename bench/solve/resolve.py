@@ -22,11 +22,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from bench import __version__
-from bench.solve.extract import Extraction, finished_observation_steps
-from bench.log.run_info import LogSetup, layout_and_config_from_log, steps_from_log
+from bench.errors import InputError
 from bench.log.reader import LogError, RunLog, read_log
+from bench.log.run_info import LogSetup, layout_and_config_from_log, steps_from_log
 from bench.model.result import CalibrationResult
 from bench.run.runner import bias_stabilities, quality_failures
+from bench.solve.extract import Extraction, finished_observation_steps
 from bench.solve.from_logs import LogSolution, extract_from_logs, solve_extraction
 from bench.solve.methods import SolverError
 from drivers.imu import ImuStats
@@ -37,7 +38,7 @@ _ANGLE_DECIMALS = 6
 _RECORDED = "recorded but left out by the extraction"
 
 
-class SolveInputError(Exception):
+class SolveInputError(InputError):
     """What was asked cannot be served from these logs (exit code 2): a subset the logs
     lack, an unknown schedule, logs of different IMUs or runs that do not merge."""
 

@@ -34,13 +34,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bench.errors import InputError
 from bench.model.kinematics import attitude, black_box_matrix, rot_z
 from bench.model.units import ARCSEC, DEG
 
 ANGLE_NAMES = ("alpha_o", "beta_o", "gamma_o", "alpha_m", "beta_m", "gamma_m", "alpha_i", "beta_i", "gamma_i")
 
 
-class TableCheckError(ValueError):
+class TableCheckError(InputError):
     """Positions or data from which the table check cannot be computed."""
 
 

@@ -14,9 +14,16 @@ from pathlib import Path
 import numpy as np
 
 from bench import __version__
-from bench.table_check.estimate import (COMBINATIONS, Conversion, TableCheckError, TableCheckEstimate, estimate,
-                               horizontal_from_counts, true_combinations)
 from bench.model.units import ARCSEC
+from bench.table_check.estimate import (
+    COMBINATIONS,
+    Conversion,
+    TableCheckError,
+    TableCheckEstimate,
+    estimate,
+    horizontal_from_counts,
+    true_combinations,
+)
 
 FORMAT = "turntable-bench/table-check"
 VERSION = 1
@@ -114,8 +121,8 @@ def analyse_log(path: str | Path, *, calibration=None, still_open: bool = False)
     the positions cannot determine the combinations). `still_open`: the live check
     reading the log it is still writing (its missing summary is not damage).
     """
-    from bench.log.run_info import layout_and_config_from_log
     from bench.log.reader import LogError, read_log
+    from bench.log.run_info import layout_and_config_from_log
     from bench.solve.from_logs import extract_from_logs
 
     log = read_log(str(path))

@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.report.plots import _NO_METADATA, _RC, _figure, inline_svg, plt
-from bench.report.html import CSS
-from bench.table_check.from_log import TableCheckAnalysis
 from bench.model.units import ARCSEC
+from bench.report.html import CSS
+from bench.report.plots import _NO_METADATA, _RC, _figure, inline_svg, plt
+from bench.table_check.from_log import TableCheckAnalysis
 
 UG = 1e-6   # micro-g in units of g
 

@@ -350,7 +350,7 @@ def create_app(*, config=None, sim: bool = False, replay: str | Path | None = No
     if replay is not None:
         return _create_replay_app(replay, speed, refresh_hz=refresh_hz, jog_step_deg=jog_step_deg, theme=theme)
     from bench.config.load import default_sim_config
-    from bench.cli.run import compile_from_config
+    from bench.run.runner import compile_from_config
 
     if config is None:
         if not sim:

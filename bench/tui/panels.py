@@ -16,12 +16,11 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widgets import DataTable, Label, ProgressBar, RichLog, Sparkline, Static
 
+from bench.model.kinematics import FRAMES
+from bench.model.units import format_hms
 from bench.plan.events import Event, RunState
-from bench.cli.progress import hms
-from bench.tui.buffer import (CHANNELS, STEP_DONE, STEP_FAILED, STEP_RUNNING, ImuScales, UiSnapshot,
-                              progress)
+from bench.tui.buffer import CHANNELS, STEP_DONE, STEP_FAILED, STEP_RUNNING, ImuScales, UiSnapshot, progress
 
-AXIS_NAMES = ("outer", "middle", "inner")
 DEG_PER_HOUR_PER_DPS = 3600.0
 
 
@@ -79,7 +78,7 @@ class TablePanel(Static):
             grid.add_column(header, justify=justify, no_wrap=True)
         rows = [("axis", "angle°", "rate°/s", "mode", "servo", "inpos", "limits")]
         short = {"position": "pos", "rate": "rate", "off": "off"}
-        for k, name in enumerate(AXIS_NAMES):
+        for k, name in enumerate(FRAMES):
             limit = _limits_text(self.limits.axes[k])
             if state is None:
                 rows.append((name, "-", "-", "-", "-", "-", limit))
@@ -246,7 +245,7 @@ class PlanPanel(Vertical):
             current = f"step {k + 1}/{len(self.steps)} {step.unit} {step.kind}{left}"
         else:
             current = "no step running"
-        status = (f"run {snapshot.run_state.value}  {p.fraction:6.1%}  ETA{clock} {hms(p.remaining_s)}\n{current}")
+        status = (f"run {snapshot.run_state.value}  {p.fraction:6.1%}  ETA{clock} {format_hms(p.remaining_s)}\n{current}")
         set_text(self.query_one("#plan-status", Label), status)
         bar = self.query_one("#plan-progress", ProgressBar)
         percent = round(p.fraction * 100.0, 1)
@@ -285,7 +284,7 @@ class EventLog(RichLog):
         for e in events:
             if e.kind == "step_started":
                 continue                 # the plan panel shows the running step
-            line = f"[{hms(e.time_s)}] {e.kind}: {e.message}"
+            line = f"[{format_hms(e.time_s)}] {e.kind}: {e.message}"
             self.plain_lines.append(line)
             self._kinds.append(e.kind)
             self.write(Text(line, style=event_style(e.kind, pal)))

@@ -71,8 +71,8 @@ class OpenedLog:
 
 def open_log(path: str | Path) -> OpenedLog:
     """Read `path` for replay; `bench.log.reader.LogError` if it is not a readable run log."""
-    from bench.log.run_info import layout_and_config_from_log, steps_from_log
     from bench.log.reader import LogError, read_log
+    from bench.log.run_info import layout_and_config_from_log, steps_from_log
     from drivers.turntable import TurntableLimits
 
     log = read_log(str(path))
@@ -105,8 +105,8 @@ def log_result(opened: OpenedLog):
             except (ResultFormatError, UnicodeDecodeError) as exc:
                 why = f"the attached {name} is unreadable ({exc}); "
     from bench.log.reader import LogError
-    from bench.solve.resolve import SolveInputError, load_recorded, solve_recorded
     from bench.solve.methods import SolverError
+    from bench.solve.resolve import SolveInputError, load_recorded, solve_recorded
 
     try:
         resolved = solve_recorded(load_recorded([str(opened.path)], earlier=False))

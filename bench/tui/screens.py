@@ -70,7 +70,7 @@ class GotoScreen(ModalScreen["tuple[float, float, float] | None"]):
     def compose(self) -> ComposeResult:
         with Vertical():
             yield Label("Go to position (deg). The table is enabled (servos on) and moves.")
-            for k, name in enumerate(("outer", "middle", "inner")):
+            for k, name in enumerate(FRAMES):
                 with Horizontal(classes="axis"):
                     yield Label(name)
                     yield Input(f"{self.current_deg[k]:g}", id=f"goto-{name}")
@@ -83,7 +83,7 @@ class GotoScreen(ModalScreen["tuple[float, float, float] | None"]):
         """The three angles, or None after showing what is wrong."""
         angles = []
         error = self.query_one("#goto-error", Label)
-        for k, name in enumerate(("outer", "middle", "inner")):
+        for k, name in enumerate(FRAMES):
             text = self.query_one(f"#goto-{name}", Input).value.strip()
             try:
                 value = float(text)

@@ -21,6 +21,7 @@ import threading
 from pathlib import Path
 from typing import Callable, Sequence
 
+from bench.errors import BenchError
 from bench.plan.events import RunState
 from bench.tui.buffer import UiBuffer
 from drivers.turntable import FRAMES, AxisMode, frame_index
@@ -28,7 +29,7 @@ from drivers.turntable import FRAMES, AxisMode, frame_index
 LINK_DISCONNECTED, LINK_CONNECTING, LINK_CONNECTED, LINK_ERROR = "disconnected", "connecting", "connected", "error"
 
 
-class SessionError(Exception):
+class SessionError(BenchError):
     """An operator command that cannot be done now (says why)."""
 
 
@@ -95,7 +96,7 @@ class BenchSession:
             "ALL THREE AXES will be enabled (servos on) and moved"
             + (f"; continuous turns on {', '.join(turns)}" if turns else "") + ".",
             f"Moves at up to {p.move_rate_dps:g} deg/s, turns at {p.turn_rate_dps:g} deg/s; limits: "
-            + ", ".join(f"{name} {_range(a)}" for name, a in zip(("outer", "middle", "inner"), limits)) + ".",
+            + ", ".join(f"{name} {_range(a)}" for name, a in zip(FRAMES, limits)) + ".",
             ("Simulator: nothing real moves." if self.sim else f"Table at {self.config.table.url}.")
             + " Keep clear of the table.",
         ]
