@@ -61,6 +61,10 @@ class TurntableLimitError(TurntableError, ValueError):
     """A demand outside the configured limits; raised before anything is sent."""
 
 
+class TurntableConfigError(TurntableError, ValueError):
+    """A URL, dialect, option or limit the driver cannot use; raised before anything is sent."""
+
+
 class ImuError(Exception):
     """Base of every IMU (CAN) driver error."""
 

@@ -9,7 +9,8 @@
   the Modbus client, which hands them to pymodbus.)
 
 Transports raise the builtin `ConnectionError` (lost or refused link) and return b''
-from `read` on a timeout; clients translate those into their own error tree.
+from `read` on a timeout; clients translate those into their own error tree. A URL or
+option they cannot use raises `TurntableConfigError` (also a `ValueError`) at once.
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ from typing import Protocol
 from urllib.parse import parse_qs, urlsplit
 
 import serial
+
+from drivers.errors import TurntableConfigError
 
 
 class ByteTransport(Protocol):
@@ -46,19 +49,22 @@ SERIAL_OPTIONS = {"baud": "baudrate", "baudrate": "baudrate", "parity": "parity"
 
 
 def serial_settings(query: str) -> dict:
-    """`baud=115200&parity=E` -> pyserial keyword arguments (ValueError on an unknown or bad option)."""
+    """`baud=115200&parity=E` -> pyserial keyword arguments.
+
+    TurntableConfigError (a ValueError) on an unknown or bad option.
+    """
     out: dict = {}
     for key, values in parse_qs(query, keep_blank_values=True).items():
         if key not in SERIAL_OPTIONS:
-            raise ValueError(f"unknown serial option {key!r} (known: {', '.join(sorted(SERIAL_OPTIONS))})")
+            raise TurntableConfigError(f"unknown serial option {key!r} (known: {', '.join(sorted(SERIAL_OPTIONS))})")
         value = values[-1]
         name = SERIAL_OPTIONS[key]
         try:
             out[name] = value.upper() if name == "parity" else (float(value) if name == "stopbits" else int(value))
         except ValueError as exc:
-            raise ValueError(f"serial option {key}={value!r} is not a number") from exc
+            raise TurntableConfigError(f"serial option {key}={value!r} is not a number") from exc
         if name == "parity" and out[name] not in ("N", "E", "O", "M", "S"):
-            raise ValueError(f"serial option parity={value!r} must be N, E or O")
+            raise TurntableConfigError(f"serial option parity={value!r} must be N, E or O")
     return out
 
 
@@ -68,7 +74,7 @@ class TcpTransport:
     def __init__(self, url: str, connect_timeout_s: float = 3.0):
         parts = urlsplit(url)
         if parts.scheme != "tcp" or not parts.hostname or parts.port is None:
-            raise ValueError(f"expected tcp://host:port, got {url!r}")
+            raise TurntableConfigError(f"expected tcp://host:port, got {url!r}")
         self.url, self.host, self.port = url, parts.hostname, parts.port
         self.connect_timeout_s = connect_timeout_s
         self._sock: socket.socket | None = None
@@ -204,13 +210,13 @@ class SerialTransport:
 
 
 def open_transport(url: str) -> ByteTransport:
-    """An unopened transport for `url` (see the module docstring); ValueError on a bad URL."""
+    """An unopened transport for `url` (see the module docstring); TurntableConfigError (a ValueError) on a bad URL."""
     if not url:
-        raise ValueError("empty transport URL")
+        raise TurntableConfigError("empty transport URL")
     if url.startswith("tcp://"):
         return TcpTransport(url)
     if url.startswith(("modbus+tcp://", "modbus+rtu://")):
-        raise ValueError(f"{url!r} is a Modbus URL: use the modbus dialect")
+        raise TurntableConfigError(f"{url!r} is a Modbus URL: use the modbus dialect")
     return SerialTransport(url)
 
 

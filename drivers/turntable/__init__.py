@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib
 from typing import Callable
 
+from drivers.errors import TurntableConfigError
 from drivers.turntable.base import (
     ALL_FRAMES,
     FRAMES,
@@ -31,11 +32,11 @@ DIALECTS = {
 
 
 def dialect_class(dialect: str) -> type[Turntable]:
-    """The client class of a dialect; ValueError naming the known ones otherwise."""
+    """The client class of a dialect; TurntableConfigError (a ValueError) naming the known ones otherwise."""
     try:
         module, _, name = DIALECTS[dialect.lower()].partition(":")
     except (KeyError, AttributeError):
-        raise ValueError(f"unknown turntable dialect {dialect!r} (known: {', '.join(DIALECTS)})") from None
+        raise TurntableConfigError(f"unknown turntable dialect {dialect!r} (known: {', '.join(DIALECTS)})") from None
     return getattr(importlib.import_module(module), name)
 
 
@@ -46,12 +47,12 @@ def open_turntable(url: str, dialect: str | None = None, **options) -> Turntable
     """
     if dialect is None:
         if not url.startswith(("modbus+tcp://", "modbus+rtu://")):
-            raise ValueError(f"say which dialect {url!r} speaks (known: {', '.join(DIALECTS)})")
+            raise TurntableConfigError(f"say which dialect {url!r} speaks (known: {', '.join(DIALECTS)})")
         dialect = "modbus"
     if dialect.lower() == "modbus" and not url.startswith(("modbus+tcp://", "modbus+rtu://")):
-        raise ValueError(f"the modbus dialect needs a modbus+tcp:// or modbus+rtu:// URL, got {url!r}")
+        raise TurntableConfigError(f"the modbus dialect needs a modbus+tcp:// or modbus+rtu:// URL, got {url!r}")
     if dialect.lower() != "modbus" and url.startswith(("modbus+tcp://", "modbus+rtu://")):
-        raise ValueError(f"{url!r} is a Modbus URL but the dialect is {dialect!r}")
+        raise TurntableConfigError(f"{url!r} is a Modbus URL but the dialect is {dialect!r}")
     # Each dialect's constructor takes the URL (or transport) first: not Turntable.__init__'s signature.
     make: Callable[..., Turntable] = dialect_class(dialect)
     return make(url, **options)

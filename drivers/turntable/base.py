@@ -20,7 +20,14 @@ from dataclasses import dataclass, field
 from typing import Iterable, Sequence
 
 from drivers.clock import SYSTEM_CLOCK, Clock
-from drivers.errors import TurntableError, TurntableEStop, TurntableFault, TurntableLimitError, TurntableTimeout
+from drivers.errors import (
+    TurntableConfigError,
+    TurntableError,
+    TurntableEStop,
+    TurntableFault,
+    TurntableLimitError,
+    TurntableTimeout,
+)
 
 FRAMES = ("outer", "middle", "inner")
 ALL_FRAMES = (0, 1, 2)
@@ -134,9 +141,9 @@ class AxisLimits:
         for name in ("max_rate_dps", "max_accel_dps2"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive and finite, got {value}")
+                raise TurntableConfigError(f"{name} must be positive and finite, got {value}")
         if self.min_deg is not None and self.max_deg is not None and not self.min_deg < self.max_deg:
-            raise ValueError(f"min_deg must be below max_deg, got {self.min_deg} >= {self.max_deg}")
+            raise TurntableConfigError(f"min_deg must be below max_deg, got {self.min_deg} >= {self.max_deg}")
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,13 @@ from dataclasses import dataclass
 from typing import Callable, TypeVar
 
 from drivers.clock import SYSTEM_CLOCK, Clock
-from drivers.errors import TurntableConnectionError, TurntableError, TurntableProtocolError, TurntableTimeout
+from drivers.errors import (
+    TurntableConfigError,
+    TurntableConnectionError,
+    TurntableError,
+    TurntableProtocolError,
+    TurntableTimeout,
+)
 from drivers.transport import ByteTransport, LineChannel, open_transport
 from drivers.turntable.base import Turntable, TurntableLimits
 
@@ -40,7 +46,7 @@ class LineTurntable(Turntable):
                  clock: Clock = SYSTEM_CLOCK, timeout_s: float = 0.5, retries: int = 2):
         super().__init__(limits, clock)
         if timeout_s <= 0 or retries < 0:
-            raise ValueError(f"timeout_s must be positive and retries >= 0, got {timeout_s}, {retries}")
+            raise TurntableConfigError(f"timeout_s must be positive and retries >= 0, got {timeout_s}, {retries}")
         self.transport = open_transport(transport) if isinstance(transport, str) else transport
         self.channel = LineChannel(self.transport)
         self.timeout_s, self.retries = timeout_s, retries

@@ -24,6 +24,7 @@ from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOEx
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import (
     TurntableCommandError,
+    TurntableConfigError,
     TurntableConnectionError,
     TurntableError,
     TurntableProtocolError,
@@ -49,7 +50,7 @@ DEFAULT_TCP_PORT = 502
 def parse_modbus_url(url: str) -> tuple[str, dict, int | None]:
     """`modbus+tcp://...` / `modbus+rtu://...` -> (framing 'tcp'|'rtu', pymodbus client kwargs, unit or None).
 
-    ValueError naming what is wrong for any other form.
+    TurntableConfigError (a ValueError) naming what is wrong for any other form.
     """
     parts = urlsplit(url)
     query = parse_qs(parts.query, keep_blank_values=True)
@@ -59,31 +60,31 @@ def parse_modbus_url(url: str) -> tuple[str, dict, int | None]:
         try:
             unit = int(text)
         except ValueError:
-            raise ValueError(f"{url}: unit={text!r} is not a number") from None
+            raise TurntableConfigError(f"{url}: unit={text!r} is not a number") from None
         if not 0 <= unit <= 255:
-            raise ValueError(f"{url}: unit must be 0-255, got {unit}")
+            raise TurntableConfigError(f"{url}: unit must be 0-255, got {unit}")
     if parts.scheme == "modbus+tcp":
         if query:
-            raise ValueError(f"{url}: unknown option(s) {', '.join(sorted(query))} (modbus+tcp takes unit=)")
+            raise TurntableConfigError(f"{url}: unknown option(s) {', '.join(sorted(query))} (modbus+tcp takes unit=)")
         try:
             port = parts.port
         except ValueError as exc:
-            raise ValueError(f"{url}: bad port") from exc
+            raise TurntableConfigError(f"{url}: bad port") from exc
         if not parts.hostname:
-            raise ValueError(f"expected modbus+tcp://host:port, got {url!r}")
+            raise TurntableConfigError(f"expected modbus+tcp://host:port, got {url!r}")
         return "tcp", {"host": parts.hostname, "port": port or DEFAULT_TCP_PORT}, unit
     if parts.scheme == "modbus+rtu":
         path = (parts.netloc + parts.path) if parts.netloc else parts.path
         if not path:
-            raise ValueError(f"expected modbus+rtu:///dev/ttyX?baud=N, got {url!r}")
+            raise TurntableConfigError(f"expected modbus+rtu:///dev/ttyX?baud=N, got {url!r}")
         try:
             settings = serial_settings(urlencode({k: v[-1] for k, v in query.items()}))
         except ValueError as exc:
-            raise ValueError(f"{url}: {exc}") from exc
+            raise TurntableConfigError(f"{url}: {exc}") from exc
         kwargs = {"port": path, "baudrate": 19200, "parity": "N", "bytesize": 8, "stopbits": 1}
         kwargs.update(settings)
         return "rtu", kwargs, unit
-    raise ValueError(f"not a Modbus URL (modbus+tcp://host:port or modbus+rtu:///dev/path): {url!r}")
+    raise TurntableConfigError(f"not a Modbus URL (modbus+tcp://host:port or modbus+rtu:///dev/path): {url!r}")
 
 
 class ModbusTurntable(Turntable):
@@ -102,9 +103,9 @@ class ModbusTurntable(Turntable):
                  watchdog_refresh_s: float | None = None):
         super().__init__(limits, clock)
         if not timeout_s > 0:
-            raise ValueError(f"timeout_s must be positive, got {timeout_s}")
+            raise TurntableConfigError(f"timeout_s must be positive, got {timeout_s}")
         if not (isinstance(retries, int) and retries >= 0):
-            raise ValueError(f"retries must be a non-negative integer, got {retries!r}")
+            raise TurntableConfigError(f"retries must be a non-negative integer, got {retries!r}")
         self.url = url
         self.map = register_map if register_map is not None else RegisterMap.default()
         self.framing, self._client_kwargs, url_unit = parse_modbus_url(url)
