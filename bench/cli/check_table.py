@@ -69,6 +69,7 @@ def _load_calibration(path: str | None):
     """The accelerometer model of a result file (gyro part ideal: unused here), or None."""
     if path is None:
         return None
+    # imported when the command runs: `bench` starts without the bench core
     from bench.model.imu import ImuCoefficients
     from bench.model.result import CalibrationResult, ResultFormatError
 
@@ -88,6 +89,7 @@ def _load_calibration(path: str | None):
 
 def _sim_config_text(black_box_arcsec: float | None, seed: int | None) -> str:
     """The built-in simulator configuration with the black box and seed asked for (recorded in the log)."""
+    # imported when the command runs: `bench` starts without the bench core
     from bench.config.load import SIM_CONFIG_TOML
 
     text = SIM_CONFIG_TOML
@@ -102,6 +104,7 @@ def _sim_config_text(black_box_arcsec: float | None, seed: int | None) -> str:
 
 def build_config(args: argparse.Namespace):
     """(config, sim) for a live or simulated check; UsageError on bad arguments or configuration."""
+    # imported when the command runs: `bench` starts without the bench core
     from bench.config.load import ConfigError, load_config, parse_config
 
     if args.black_box_arcsec is not None or args.seed is not None:
@@ -126,8 +129,10 @@ def build_config(args: argparse.Namespace):
 
 def table_check_plan(config, schedule_spec: str, dwell_s: float):
     """(config with the table-check schedule as its plan, compiled plan); UsageError when it cannot run."""
+    # imported when the command runs: `bench` starts without the bench core
     from bench.plan.compiler import PlanError
     from bench.run.runner import compile_from_config
+    from bench.table_check.estimate import TableCheckError, check_positions
     from schedules import ScheduleError, resolve_schedule
 
     if not dwell_s > 0:
@@ -139,7 +144,6 @@ def table_check_plan(config, schedule_spec: str, dwell_s: float):
     if schedule.kind != "table-check":
         raise UsageError(f"schedule {schedule.name!r} is a {schedule.kind!r} schedule; --schedule needs a "
                          "'table-check' schedule (e.g. table-check-324)")
-    from bench.table_check.estimate import TableCheckError, check_positions
 
     try:
         check_positions([p.angles_deg for p in schedule.positions])
@@ -172,6 +176,7 @@ def cmd_check_table(args: argparse.Namespace) -> ExitCode:
 
 
 def _from_log(args, calibration) -> ExitCode:
+    # imported when the command runs: `bench` starts without the bench core
     from bench.log.reader import LogError
     from bench.table_check.estimate import TableCheckError
     from bench.table_check.from_log import analyse_log
@@ -189,6 +194,7 @@ def _from_log(args, calibration) -> ExitCode:
 
 
 def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
+    # imported when the command runs: `bench` starts without the bench core
     from bench.log.reader import LogError
     from bench.run.runner import BenchRun
     from bench.table_check.estimate import TableCheckError
@@ -224,6 +230,7 @@ def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
 
 def format_summary(analysis) -> str:
     """The result as printed: one line per combination (with the truth on the simulator), then the fit."""
+    # imported when the command runs: `bench` starts without the bench core
     from bench.table_check.report import summary_rows
 
     est = analysis.estimate
@@ -245,6 +252,7 @@ def format_summary(analysis) -> str:
 
 
 def _report(args, analysis, out_dir: Path, paths: dict | None = None) -> ExitCode:
+    # imported when the command runs: `bench` starts without the bench core
     from bench.table_check.report import write_outputs
 
     if paths is None:

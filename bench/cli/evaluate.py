@@ -27,6 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without the bench core
     from bench.model.earth import Site
     from bench.model.families import ERROR_TITLES
     from bench.schedule_design.monte_carlo import POSITION_KEYS, ROTATION_KEYS, builtin_schedules, evaluate, paper_value

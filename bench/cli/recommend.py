@@ -40,6 +40,7 @@ def _cell(e) -> str:
 
 def format_recommendation(rec, top: int = 9) -> list[str]:
     """The printed result: recommendation, per-family errors, candidate table, score, irreducible part, why."""
+    # imported when the command runs: `bench` starts without the bench core
     from bench.model.families import DESIGN_UNITS, TITLES
     from bench.model.units import format_hms
     from bench.schedule_design.recommend import FAMILIES, REFERENCE_PAIR, fmt_value
@@ -81,6 +82,7 @@ def format_recommendation(rec, top: int = 9) -> list[str]:
 
 
 def cmd_recommend(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without the bench core
     from bench.model.earth import Site
     from bench.schedule_design.recommend import (
         PointingLevel,

@@ -33,6 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def cmd_replay(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without the bench core
     from bench.log.reader import LogError, read_log
     from bench.log.replay import replay
     from bench.log.run_info import steps_from_log

@@ -73,6 +73,7 @@ def sensitivity_lines(sens) -> list[str]:
 
 
 def cmd_analyze(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without the bench core
     from bench.plan.compiler import PlanError, PlanTiming, compile_plan
     from bench.schedule_design.monte_carlo import evaluate
 
@@ -134,6 +135,7 @@ def cmd_analyze(args: argparse.Namespace) -> ExitCode:
 
 
 def cmd_search(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without the bench core
     from bench.schedule_design.search import (
         CRITERIA_TEXT,
         POSITION_GROUPS,

@@ -47,6 +47,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def cmd_solve(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without the bench core
     from bench.log.reader import LogError
     from bench.solve.compare import compare, format_comparison, parse_methods
     from bench.solve.methods import SolverError
@@ -58,7 +59,7 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
         return fail(PROG, "--json writes the --compare table: give --compare too", ExitCode.USAGE)
     against = None
     if args.against:
-        from bench.model.result import CalibrationResult, ResultFormatError
+        from bench.model.result import CalibrationResult, ResultFormatError  # only with --against
 
         if args.compare:
             return fail(PROG, "--against is for the reports of a solve, not for --compare", ExitCode.USAGE)

@@ -15,7 +15,17 @@ from urllib.parse import urlsplit
 
 from bench.cli.common import ExitCode, fail
 from drivers.errors import TurntableError, TurntableLimitError
-from drivers.turntable import DIALECTS, FRAMES, AxisStatus, TableState, Turntable, open_turntable
+from drivers.turntable import (
+    DIALECTS,
+    FRAMES,
+    AxisLimits,
+    AxisStatus,
+    TableState,
+    Turntable,
+    TurntableLimits,
+    frame_index,
+    open_turntable,
+)
 
 # -- bench table ------------------------------------------------------------------
 
@@ -93,8 +103,6 @@ def _run_table_command(table: Turntable, args: argparse.Namespace) -> int:
 
 
 def cmd_table(args: argparse.Namespace) -> ExitCode:
-    from drivers.turntable import AxisLimits, TurntableLimits
-
     prog = f"bench table {args.table_command}"
     try:
         limits = TurntableLimits(tuple(AxisLimits(max_rate_dps=args.max_rate_dps) for _ in range(3)))
@@ -150,8 +158,6 @@ def register_sim(subparsers: argparse._SubParsersAction) -> None:
 
 def _apply_fault_command(controller, line: str) -> str:
     """Execute one fault-console line on the simulated controller; returns what to print."""
-    from drivers.turntable import frame_index
-
     words = line.split()
     if not words:
         return ""
@@ -186,7 +192,7 @@ def _apply_fault_command(controller, line: str) -> str:
 def _listen(controller, dialect: str, where: str, closers: list) -> str:
     """Start one listener; returns the address a client uses."""
     if dialect == "modbus":
-        from bench.sim.modbus_server import ModbusSimServer
+        from bench.sim.modbus_server import ModbusSimServer  # pymodbus: only for the Modbus simulator
 
         server = ModbusSimServer(controller)
         closers.append(server.close)
@@ -197,12 +203,13 @@ def _listen(controller, dialect: str, where: str, closers: list) -> str:
             raise ValueError(f"the modbus simulator listens on modbus+tcp://HOST:PORT or pty, not {where!r}")
         host, port = server.start_tcp(parts.hostname, parts.port)
         return f"modbus+tcp://{host}:{port}"
+    # the simulators load only for `bench sim` (the Modbus one imports pymodbus)
     from bench.sim.serve import LineServer
 
     if dialect == "scpi":
-        from bench.sim.scpi_server import ScpiSimHandler as Handler
+        from bench.sim.scpi_server import ScpiSimHandler as Handler  # the simulators: only for `bench sim`
     else:
-        from bench.sim.mn_server import MnSimHandler as Handler
+        from bench.sim.mn_server import MnSimHandler as Handler  # the simulators: only for `bench sim`
     server = LineServer(Handler(controller))
     closers.append(server.close)
     if where == "pty":
@@ -215,6 +222,7 @@ def _listen(controller, dialect: str, where: str, closers: list) -> str:
 
 
 def cmd_sim_table(args: argparse.Namespace) -> ExitCode:
+    # the simulators load only for `bench sim`
     import numpy as np
 
     from bench.model.earth import Site

@@ -49,6 +49,7 @@ def cmd_tui(args: argparse.Namespace) -> ExitCode:
 
 
 def _replay(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without the bench core
     from bench.tui import create_app
 
     try:

@@ -25,15 +25,13 @@ from __future__ import annotations
 
 import json
 import mmap
-import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
 
 from bench.errors import BenchError
-from bench.log.recorder import (
+from bench.log.format import (
     CAN_ENCODING,
     FLAG_ERROR,
     FLAG_REMOTE,
@@ -41,14 +39,12 @@ from bench.log.recorder import (
     TOPIC_EVENTS,
     TOPIC_SAMPLES,
     TOPIC_STATE,
+    decode_can_frames,
 )
 from bench.log.walk import ChannelData, Damage, WalkError, walk
 from bench.plan.events import Event
 from drivers.imu import ImuSampleBlock, ImuStats, decode_frames
 from drivers.imu.layout import ImuLayout
-
-#: Data width of `RunLog.can_data` when every frame fits a classic frame; CAN FD logs get 64.
-CLASSIC_WIDTH, FD_WIDTH = 8, 64
 
 
 class LogError(BenchError):
@@ -256,132 +252,6 @@ def _parse_json_rows(d: ChannelData) -> tuple[list, int]:
     return rows, bad
 
 
-def _empty_can(width: int = CLASSIC_WIDTH):
-    return (np.zeros(0), np.zeros(0, np.uint32), np.zeros((0, width), np.uint8), np.zeros(0, np.int64),
-            np.zeros(0, np.uint8))
-
-
-def _uniform_can(buf: bytes):
-    """Fast path: every frame has the same length (a classic or fixed-size FD layout)."""
-    u8 = np.frombuffer(buf, np.uint8)
-    length = int(u8[13])
-    rec = 14 + length
-    if len(buf) % rec or not (u8[13::rec] == length).all():
-        return None
-    dt = np.dtype([("t", "<f8"), ("id", "<u4"), ("flags", "u1"), ("len", "u1"), ("data", "u1", (length,))])
-    arr = np.frombuffer(buf, dt)
-    width = CLASSIC_WIDTH if length <= CLASSIC_WIDTH else FD_WIDTH
-    data = np.zeros((len(arr), width), np.uint8)
-    data[:, :length] = arr["data"]
-    return (arr["t"].astype(np.float64), arr["id"].astype(np.uint32), data,
-            np.full(len(arr), length, np.int64), arr["flags"].astype(np.uint8))
-
-
-def _uniform_can_parts(d: ChannelData):
-    """The same as `_uniform_can(d.joined())` without joining the whole channel: part by part
-    (one chunk's messages each, still in cache) into the output arrays, on worker threads (numpy
-    copies release the GIL). None when some part is not whole records of one length (the caller
-    then takes the general route over the joined payloads)."""
-    sizes = [int(x.sum()) for x in d.lengths]
-    total = sum(sizes)
-    first = next((k for k, size in enumerate(sizes) if size), None)
-    if first is None or total < 14 or sizes[first] < 14:
-        return None
-    length = d.part_bytes(first)[13]
-    rec = 14 + length
-    if any(size % rec for size in sizes):
-        return None
-    n = total // rec
-    width = CLASSIC_WIDTH if length <= CLASSIC_WIDTH else FD_WIDTH
-    # 8 data bytes move as one uint64 per frame (classic frames: the common case)
-    words = length == 8 == width
-    dt = np.dtype([("t", "<f8"), ("id", "<u4"), ("flags", "u1"), ("len", "u1"),
-                   ("data", "<u8") if words else ("data", "u1", (length,))])
-    t, ids, flags = np.empty(n), np.empty(n, np.uint32), np.empty(n, np.uint8)
-    data = (np.empty if length == width else np.zeros)((n, width), np.uint8)
-    data_out = data.view("<u8").reshape(n) if words else data
-    starts = np.concatenate(([0], np.cumsum(sizes) // rec)).tolist()
-
-    def fill(parts: range) -> bool:
-        for k in parts:
-            if not sizes[k]:
-                continue
-            arr = np.frombuffer(d.part_bytes(k), dt)
-            if not (arr["len"] == length).all():
-                return False
-            a, b = starts[k], starts[k + 1]
-            t[a:b] = arr["t"]
-            ids[a:b] = arr["id"]
-            if words:
-                data_out[a:b] = arr["data"]
-            else:
-                data_out[a:b, :length] = arr["data"]
-            flags[a:b] = arr["flags"]
-        return True
-
-    workers = min(len(sizes) // 4, os.cpu_count() or 1, 4)
-    if workers > 1:
-        step = -(-len(sizes) // workers)
-        with ThreadPoolExecutor(workers, thread_name_prefix="can-frames") as pool:
-            ok = all(pool.map(fill, [range(a, min(a + step, len(sizes))) for a in range(0, len(sizes), step)]))
-    else:
-        ok = fill(range(len(sizes)))
-    if not ok:
-        return None
-    return t, ids, data, np.full(n, length, np.int64), flags
-
-
-def _frame_offsets(p: bytes) -> list[int] | None:
-    """Record offsets within one `/can/raw` message, None if its framing is broken."""
-    offsets, pos, n = [], 0, len(p)
-    while pos < n:
-        if pos + 14 > n:
-            return None
-        offsets.append(pos)
-        pos += 14 + p[pos + 13]
-    return offsets if pos == n else None
-
-
-def _general_can(payloads: list[bytes]) -> tuple[tuple, int]:
-    """Frames of mixed lengths, message by message; malformed messages are dropped and counted."""
-    good, offsets, base, bad = [], [], 0, 0
-    for p in payloads:
-        offs = _frame_offsets(p)
-        if offs is None:
-            bad += 1
-            continue
-        good.append(p)
-        offsets.extend(o + base for o in offs)
-        base += len(p)
-    if not offsets:
-        return _empty_can(), bad
-    buf = np.frombuffer(b"".join(good), np.uint8)
-    offs = np.asarray(offsets, np.int64)
-    t = buf[offs[:, None] + np.arange(8)].copy().view("<f8").reshape(-1)
-    ids = buf[offs[:, None] + np.arange(8, 12)].copy().view("<u4").reshape(-1)
-    flags = buf[offs + 12]
-    lengths = buf[offs + 13].astype(np.int64)
-    width = CLASSIC_WIDTH if lengths.max() <= CLASSIC_WIDTH else FD_WIDTH
-    cols = np.arange(width)
-    idx = np.minimum(offs[:, None] + 14 + cols, len(buf) - 1)
-    data = np.where(cols < lengths[:, None], buf[idx], 0).astype(np.uint8)
-    return (t, ids, data, lengths, flags), bad
-
-
-def _read_can(d: ChannelData | None) -> tuple[tuple, int]:
-    if d is None or not len(d):
-        return _empty_can(), 0
-    fast = _uniform_can_parts(d)
-    if fast is not None:
-        return fast, 0
-    buf = d.joined()
-    if len(buf) >= 14:
-        fast = _uniform_can(buf)
-        if fast is not None:
-            return fast, 0
-    return _general_can(d.payloads())
-
-
 def _map_file(path: str):
     """The file's bytes, memory-mapped (no copy; the walk reads each byte about once)."""
     try:
@@ -435,7 +305,7 @@ def read_log(path, *, defer_samples: bool = True) -> RunLog:
                 damage.append(Damage("message", w.size, f"the summary counts {missing} more messages on {topic} "
                                                         f"than were read"))
 
-    (t, ids, data, lengths, flags), bad_can = _read_can(by_topic.get(TOPIC_CAN))
+    (t, ids, data, lengths, flags), bad_can = decode_can_frames(by_topic.get(TOPIC_CAN))
     if bad_can:
         damage.append(Damage("message", 0, f"{bad_can} malformed {TOPIC_CAN} messages skipped"))
 

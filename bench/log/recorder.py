@@ -58,113 +58,24 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 import bench
 from bench.errors import BenchError
+from bench.log.format import (
+    CAN_SCHEMA_NAME,
+    CAN_SCHEMA_TEXT,
+    CHANNELS,
+    LOG_ERROR,
+    LOG_INFO,
+    LOG_WARNING,
+    SCHEMAS,
+    TF_FRAMES,
+    TOPIC_CAN,
+    TOPIC_EVENTS,
+    TOPIC_LOG,
+    TOPIC_SAMPLES,
+    TOPIC_STATE,
+    TOPIC_TF,
+    encode_can_frames,
+)
 from bench.plan.events import Event, RunListener
-
-CAN_ENCODING = "turntable-bench/can-frames-v1"
-EXTENDED_ID_FLAG = 1 << 31
-FLAG_FD, FLAG_BRS, FLAG_ESI, FLAG_REMOTE, FLAG_ERROR = 0x01, 0x02, 0x04, 0x08, 0x10
-#: One raw CAN record header: timestamp_s, id (bit 31 = extended), flags, data length.
-CAN_RECORD = struct.Struct("<dIBB")
-
-TOPIC_STATE, TOPIC_SAMPLES, TOPIC_EVENTS, TOPIC_LOG, TOPIC_TF, TOPIC_CAN = (
-    "/table/state", "/imu/samples", "/events", "/log", "/tf", "/can/raw")
-TF_FRAMES = ("world", "outer", "middle", "inner")
-LOG_INFO, LOG_WARNING, LOG_ERROR = 2, 3, 4
-
-_TIME = {"type": "object", "title": "time",
-         "properties": {"sec": {"type": "integer", "minimum": 0},
-                        "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}}}
-_VEC3 = {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3}
-
-SCHEMAS: dict[str, dict[str, Any]] = {
-    "turntable_bench.TableState": {
-        "title": "turntable_bench.TableState", "description": "One read of the whole table (outer, middle, inner)",
-        "type": "object",
-        "properties": {
-            "time_s": {"type": "number", "description": "reading time on the run clock, s"},
-            "angles_deg": {**_VEC3, "description": "frame angles, deg (paper convention)"},
-            "rates_dps": {**_VEC3, "description": "frame rates d(angle)/dt, deg/s"},
-            "modes": {"type": "array", "items": {"type": "string", "enum": ["off", "position", "rate"]}},
-            "status": {"type": "array", "items": {"type": "integer"},
-                       "description": "AxisStatus bits: 1 enabled, 2 moving, 4 in position, 8 fault, 16 e-stop, "
-                                      "32 limit"},
-            "estop": {"type": "boolean"},
-            "fault_text": {"type": "string"},
-        },
-    },
-    "turntable_bench.ImuSample": {
-        "title": "turntable_bench.ImuSample", "description": "One decoded IMU sample", "type": "object",
-        "properties": {
-            "counter": {"type": "integer", "description": "unwrapped sample counter"},
-            "time_s": {"type": "number", "description": "counter / sample rate, s (IMU time base)"},
-            "gyro_counts": {**_VEC3, "description": "gyro increments this sample, output counts"},
-            "acc_counts": {**_VEC3, "description": "accelerometer increments this sample, output counts"},
-            "gyro_rate": {**_VEC3, "description": "gyro outputs as rates, counts/s"},
-            "acc_rate": {**_VEC3, "description": "accelerometer outputs as rates, counts/s"},
-            "temperature_c": {"type": ["number", "null"]},
-            "status": {"type": "integer"},
-        },
-    },
-    "turntable_bench.Event": {
-        "title": "turntable_bench.Event", "description": "A sequencer event", "type": "object",
-        "properties": {
-            "time_s": {"type": "number"}, "kind": {"type": "string"}, "message": {"type": "string"},
-            "state": {"type": ["string", "null"]}, "step_index": {"type": ["integer", "null"]},
-            "step_unit": {"type": ["string", "null"]}, "data": {"type": "object"},
-        },
-    },
-    "foxglove.Log": {
-        "title": "foxglove.Log", "description": "A log message", "type": "object",
-        "properties": {
-            "timestamp": {**_TIME, "description": "Timestamp of log message"},
-            "level": {"title": "foxglove.LogLevel", "description": "Log level",
-                      "oneOf": [{"title": name, "const": k} for k, name in
-                                enumerate(("UNKNOWN", "DEBUG", "INFO", "WARNING", "ERROR", "FATAL"))]},
-            "message": {"type": "string", "description": "Log message"},
-            "name": {"type": "string", "description": "Process or node name"},
-            "file": {"type": "string", "description": "Filename"},
-            "line": {"type": "integer", "minimum": 0, "description": "Line number in the file"},
-        },
-    },
-    "foxglove.FrameTransform": {
-        "title": "foxglove.FrameTransform", "description": "A transform between two reference frames in 3D space",
-        "type": "object",
-        "properties": {
-            "timestamp": {**_TIME, "description": "Timestamp of transform"},
-            "parent_frame_id": {"type": "string", "description": "Name of the parent frame"},
-            "child_frame_id": {"type": "string", "description": "Name of the child frame"},
-            "translation": {"title": "foxglove.Vector3", "description": "Translation component of the transform",
-                            "type": "object",
-                            "properties": {k: {"type": "number", "description": f"{k} coordinate length"}
-                                           for k in "xyz"}},
-            "rotation": {"title": "foxglove.Quaternion", "description": "Rotation component of the transform",
-                         "type": "object",
-                         "properties": {k: {"type": "number", "description": f"{k} value"} for k in "xyzw"}},
-        },
-    },
-}
-
-CAN_SCHEMA_NAME = "turntable_bench.CanFrames"
-CAN_SCHEMA_TEXT = """turntable-bench/can-frames-v1: raw CAN frames, lossless, little-endian binary.
-A message is a batch of frames: records concatenated with no padding, each
-  float64   timestamp_s   the frame's receive time on the run clock, s
-  uint32    id            arbitration id; bit 31 set = extended (29-bit) id
-  uint8     flags         bit0 CAN FD, bit1 bitrate switch, bit2 error state indicator,
-                          bit3 remote frame, bit4 error frame
-  uint8     length        number of data bytes that follow (0..64)
-  length x uint8          data
-The message log time is the newest timestamp of its batch.
-"""
-
-#: topic -> schema name, schema encoding, message encoding
-CHANNELS: dict[str, tuple[str, str, str]] = {
-    TOPIC_STATE: ("turntable_bench.TableState", "jsonschema", "json"),
-    TOPIC_SAMPLES: ("turntable_bench.ImuSample", "jsonschema", "json"),
-    TOPIC_EVENTS: ("turntable_bench.Event", "jsonschema", "json"),
-    TOPIC_LOG: ("foxglove.Log", "jsonschema", "json"),
-    TOPIC_TF: ("foxglove.FrameTransform", "jsonschema", "json"),
-    TOPIC_CAN: (CAN_SCHEMA_NAME, "", CAN_ENCODING),
-}
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 #: Default run-clock chunk interval, s: a chunk closes every this many seconds of recorded log time.
@@ -236,28 +147,6 @@ def frame_quaternions(angles_deg: Sequence[float]) -> list[tuple[float, float, f
         q[axis] = math.sin(half)
         out.append(tuple(q))
     return out
-
-
-def encode_can_frames(frames: Sequence) -> tuple[bytes, float]:
-    """python-can `Message`s -> (`can-frames-v1` bytes, newest timestamp)."""
-    pack = CAN_RECORD.pack
-    parts: list = []
-    append = parts.append
-    newest = -math.inf
-    for m in frames:
-        data = m.data if m.data is not None else b""
-        t = m.timestamp
-        if t > newest:
-            newest = t
-        flags = 0
-        if m.is_fd or m.is_remote_frame or m.is_error_frame or m.error_state_indicator:
-            flags = ((FLAG_FD if m.is_fd else 0) | (FLAG_BRS if m.bitrate_switch else 0)
-                     | (FLAG_ESI if m.error_state_indicator else 0) | (FLAG_REMOTE if m.is_remote_frame else 0)
-                     | (FLAG_ERROR if m.is_error_frame else 0))
-        append(pack(t, m.arbitration_id | EXTENDED_ID_FLAG if m.is_extended_id else m.arbitration_id, flags,
-                    len(data)))
-        append(data)
-    return b"".join(parts), newest
 
 
 class McapRecorder(RunListener):
@@ -541,5 +430,4 @@ def _file_size(path: str) -> int:
         return 0
 
 
-__all__ = ["CAN_ENCODING", "CAN_RECORD", "CAN_SCHEMA_NAME", "CHANNELS", "CHUNK_RUN_INTERVAL_S", "EXTENDED_ID_FLAG",
-           "McapRecorder", "RecorderError", "SCHEMAS", "encode_can_frames", "frame_quaternions", "time_ns", "to_json"]
+__all__ = ["CHUNK_RUN_INTERVAL_S", "McapRecorder", "RecorderError", "frame_quaternions", "time_ns", "to_json"]

@@ -29,8 +29,9 @@ from typing import Iterable
 import can
 import numpy as np
 
-from bench.log.reader import RunLog
-from bench.log.recorder import EXTENDED_ID_FLAG, FLAG_BRS, FLAG_ERROR, FLAG_ESI, FLAG_FD, FLAG_REMOTE
+from bench.log.format import EXTENDED_ID_FLAG, FLAG_BRS, FLAG_ERROR, FLAG_ESI, FLAG_FD, FLAG_REMOTE
+from bench.log.reader import LogError, RunLog
+from bench.log.run_info import layout_and_config_from_log
 from bench.plan.events import RunListener
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.imu import ImuSampleBlock, ImuStats
@@ -213,8 +214,6 @@ def _overrides(listener, name: str) -> bool:
 def _decode(log: RunLog, layout, rate_hz, stats: ReplayStats) -> ImuSampleBlock | None:
     """Samples from the raw data frames (error and remote frames are logged but never decoded, as live)."""
     if layout is None or rate_hz is None:
-        from bench.log.reader import LogError
-        from bench.log.run_info import layout_and_config_from_log
 
         try:
             setup = layout_and_config_from_log(log)

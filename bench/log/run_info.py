@@ -29,6 +29,8 @@ from bench.model.earth import Site
 from bench.plan.steps import DwellStep, MoveStep, SettleStep, Step, TurnStep
 from drivers.errors import ImuConfigError
 from drivers.imu import DEFAULT_DBC, DEFAULT_FD_DBC, DEFAULT_FD_SPEC, DEFAULT_SPEC, ImuFrameSpec, ImuLayout
+from schedules import builtin_names
+from schedules.tomllines import locate_lines
 
 #: Keys of the configuration that name files the run attaches to its log (by base name).
 _ATTACHED_FILE_KEYS = (("imu", "dbc"), ("plan", "positions"), ("plan", "rotations"))
@@ -152,8 +154,6 @@ def _toml_value(text: str, key_path: tuple[str, ...]):
 
 def _relocate_missing_files(log: RunLog, text: str, base_dir: Path, tmp: Path) -> tuple[str, list[str]]:
     """The TOML text with every attached file that is missing here pointed at a copy of its attachment."""
-    from schedules import builtin_names
-    from schedules.tomllines import locate_lines
 
     lines = text.splitlines(keepends=True)
     where = locate_lines(text)

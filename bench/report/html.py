@@ -20,7 +20,7 @@ import numpy as np
 
 from bench import __version__
 from bench.model.result import CalibrationResult
-from bench.report.markdown import (
+from bench.report.compare import (
     Comparison,
     compare_results,
     fmt,
@@ -30,6 +30,9 @@ from bench.report.markdown import (
     row_outliers,
     truth_z,
 )
+from bench.solve.extract import finished_observation_steps
+from drivers.errors import ImuError
+from drivers.imu import DEFAULT_FD_SPEC, DEFAULT_SPEC, ImuFrameSpec, ImuLayout
 
 CSS = """
 body { font-family: system-ui, -apple-system, 'Segoe UI', Roboto, sans-serif; margin: 1.5em auto; max-width: 72em;
@@ -77,7 +80,6 @@ def log_layout(log):
 
     Raises ValueError (or `ImuConfigError`) when the log does not say.
     """
-    from drivers.imu import DEFAULT_FD_SPEC, DEFAULT_SPEC, ImuFrameSpec, ImuLayout
 
     imu_meta = log.metadata.get("imu", {})
     toml = log.metadata.get("config", {}).get("toml")
@@ -94,7 +96,6 @@ def log_layout(log):
 
 def _log_samples(log, layout, rate_hz: float, notes: list[str]):
     """(receive times, counters, acc counts/s, gyro counts/s) from the raw CAN frames, else the decoded topic."""
-    from drivers.errors import ImuError
 
     try:
         block, _ = log.imu_samples(layout if layout is not None else log_layout(log), rate_hz)
@@ -107,7 +108,6 @@ def _log_samples(log, layout, rate_hz: float, notes: list[str]):
 
 def log_series(log, layout=None) -> LogSeries:
     """Everything the plots need from a `RunLog` (decoding its CAN frames with `layout` or its own DBC)."""
-    from bench.solve.extract import finished_observation_steps
 
     notes: list[str] = []
     try:
@@ -223,7 +223,7 @@ def _verdict(failures, problems) -> str:
 
 
 def _coefficients(result: CalibrationResult) -> str:
-    from bench.report import plots
+    from bench.report import plots  # matplotlib: loaded only when a report draws
 
     truth = result.sim_truth
     header = ["name", "value", "1-sigma", "unit"] + (["true", "error / sigma"] if truth else [])
@@ -269,7 +269,7 @@ def _vector(values) -> str:
 
 
 def _residuals(result: CalibrationResult) -> str:
-    from bench.report import plots
+    from bench.report import plots  # matplotlib: loaded only when a report draws
 
     threshold = outlier_threshold(result)
     positions = result.residuals.get("positions", [])
@@ -308,7 +308,7 @@ def _residuals(result: CalibrationResult) -> str:
 
 
 def _log_plots(series: LogSeries) -> str:
-    from bench.report import plots
+    from bench.report import plots  # matplotlib: loaded only when a report draws
 
     html = ["<h2>IMU outputs and table angles</h2>"]
     html += [f'<p class="note">{_e(n)}</p>' for n in series.notes]
@@ -333,7 +333,7 @@ def _log_plots(series: LogSeries) -> str:
 
 
 def _comparison(comparison: Comparison) -> str:
-    from bench.report import plots
+    from bench.report import plots  # matplotlib: loaded only when a report draws
 
     flagged = comparison.flagged
     html = [f"<h2>Comparison with {_e(comparison.label)}</h2>"]

@@ -23,7 +23,7 @@ import numpy as np
 
 from drivers.errors import ImuFrameError
 from drivers.imu.crc import crc8_columns, crc8_raw, id_bytes, linear_crc
-from drivers.imu.layout import ImuLayout, SignalLayout, default_layout
+from drivers.imu.layout import EXTENDED_ID_FLAG, ImuLayout, SignalLayout, default_layout
 from drivers.imu.samples import ImuSampleBlock, ImuStats
 
 
@@ -382,7 +382,6 @@ def frames_from_messages(messages, width: int = 64) -> tuple[np.ndarray, np.ndar
 
     `width` is the data array's width: 64 holds any CAN FD frame, 8 suffices for classic.
     """
-    from drivers.imu.layout import EXTENDED_ID_FLAG
 
     messages = list(messages)
     n = len(messages)

@@ -1,0 +1,292 @@
+"""The run log's format, owned in one place: topics, schemas, and the raw CAN record.
+
+The recorder (`bench.log.recorder`) writes it, the reader (`bench.log.reader`) and
+replay read it. The raw CAN frames on `/can/raw` use a compact binary encoding,
+`turntable-bench/can-frames-v1` (described in `CAN_SCHEMA_TEXT`, which is also the
+schema record in every log); `encode_can_frames` and `decode_can_frames` are its two
+directions, side by side.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import struct
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, Sequence
+
+import numpy as np
+
+from bench.log.walk import ChannelData
+
+CAN_ENCODING = "turntable-bench/can-frames-v1"
+EXTENDED_ID_FLAG = 1 << 31
+FLAG_FD, FLAG_BRS, FLAG_ESI, FLAG_REMOTE, FLAG_ERROR = 0x01, 0x02, 0x04, 0x08, 0x10
+#: One raw CAN record header: timestamp_s, id (bit 31 = extended), flags, data length; the data follow.
+CAN_RECORD = struct.Struct("<dIBB")
+HEADER_SIZE = CAN_RECORD.size           # 14 bytes
+_T_END, _ID_END = 8, 12                 # end of the timestamp and of the id in the header
+FLAGS_OFFSET, LENGTH_OFFSET = 12, 13    # where the flags and the data length byte sit
+#: Data width of `RunLog.can_data` when every frame fits a classic frame; CAN FD logs get 64.
+CLASSIC_WIDTH, FD_WIDTH = 8, 64
+
+
+def record_dtype(data_field: tuple) -> np.dtype:
+    """numpy dtype of one raw CAN record whose data is `data_field` (e.g. `("data", "u1", (8,))`)."""
+    return np.dtype([("t", "<f8"), ("id", "<u4"), ("flags", "u1"), ("len", "u1"), data_field])
+
+
+TOPIC_STATE, TOPIC_SAMPLES, TOPIC_EVENTS, TOPIC_LOG, TOPIC_TF, TOPIC_CAN = (
+    "/table/state", "/imu/samples", "/events", "/log", "/tf", "/can/raw")
+TF_FRAMES = ("world", "outer", "middle", "inner")
+LOG_INFO, LOG_WARNING, LOG_ERROR = 2, 3, 4
+
+_TIME = {"type": "object", "title": "time",
+         "properties": {"sec": {"type": "integer", "minimum": 0},
+                        "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}}}
+_VEC3 = {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3}
+
+SCHEMAS: dict[str, dict[str, Any]] = {
+    "turntable_bench.TableState": {
+        "title": "turntable_bench.TableState", "description": "One read of the whole table (outer, middle, inner)",
+        "type": "object",
+        "properties": {
+            "time_s": {"type": "number", "description": "reading time on the run clock, s"},
+            "angles_deg": {**_VEC3, "description": "frame angles, deg (paper convention)"},
+            "rates_dps": {**_VEC3, "description": "frame rates d(angle)/dt, deg/s"},
+            "modes": {"type": "array", "items": {"type": "string", "enum": ["off", "position", "rate"]}},
+            "status": {"type": "array", "items": {"type": "integer"},
+                       "description": "AxisStatus bits: 1 enabled, 2 moving, 4 in position, 8 fault, 16 e-stop, "
+                                      "32 limit"},
+            "estop": {"type": "boolean"},
+            "fault_text": {"type": "string"},
+        },
+    },
+    "turntable_bench.ImuSample": {
+        "title": "turntable_bench.ImuSample", "description": "One decoded IMU sample", "type": "object",
+        "properties": {
+            "counter": {"type": "integer", "description": "unwrapped sample counter"},
+            "time_s": {"type": "number", "description": "counter / sample rate, s (IMU time base)"},
+            "gyro_counts": {**_VEC3, "description": "gyro increments this sample, output counts"},
+            "acc_counts": {**_VEC3, "description": "accelerometer increments this sample, output counts"},
+            "gyro_rate": {**_VEC3, "description": "gyro outputs as rates, counts/s"},
+            "acc_rate": {**_VEC3, "description": "accelerometer outputs as rates, counts/s"},
+            "temperature_c": {"type": ["number", "null"]},
+            "status": {"type": "integer"},
+        },
+    },
+    "turntable_bench.Event": {
+        "title": "turntable_bench.Event", "description": "A sequencer event", "type": "object",
+        "properties": {
+            "time_s": {"type": "number"}, "kind": {"type": "string"}, "message": {"type": "string"},
+            "state": {"type": ["string", "null"]}, "step_index": {"type": ["integer", "null"]},
+            "step_unit": {"type": ["string", "null"]}, "data": {"type": "object"},
+        },
+    },
+    "foxglove.Log": {
+        "title": "foxglove.Log", "description": "A log message", "type": "object",
+        "properties": {
+            "timestamp": {**_TIME, "description": "Timestamp of log message"},
+            "level": {"title": "foxglove.LogLevel", "description": "Log level",
+                      "oneOf": [{"title": name, "const": k} for k, name in
+                                enumerate(("UNKNOWN", "DEBUG", "INFO", "WARNING", "ERROR", "FATAL"))]},
+            "message": {"type": "string", "description": "Log message"},
+            "name": {"type": "string", "description": "Process or node name"},
+            "file": {"type": "string", "description": "Filename"},
+            "line": {"type": "integer", "minimum": 0, "description": "Line number in the file"},
+        },
+    },
+    "foxglove.FrameTransform": {
+        "title": "foxglove.FrameTransform", "description": "A transform between two reference frames in 3D space",
+        "type": "object",
+        "properties": {
+            "timestamp": {**_TIME, "description": "Timestamp of transform"},
+            "parent_frame_id": {"type": "string", "description": "Name of the parent frame"},
+            "child_frame_id": {"type": "string", "description": "Name of the child frame"},
+            "translation": {"title": "foxglove.Vector3", "description": "Translation component of the transform",
+                            "type": "object",
+                            "properties": {k: {"type": "number", "description": f"{k} coordinate length"}
+                                           for k in "xyz"}},
+            "rotation": {"title": "foxglove.Quaternion", "description": "Rotation component of the transform",
+                         "type": "object",
+                         "properties": {k: {"type": "number", "description": f"{k} value"} for k in "xyzw"}},
+        },
+    },
+}
+
+CAN_SCHEMA_NAME = "turntable_bench.CanFrames"
+CAN_SCHEMA_TEXT = """turntable-bench/can-frames-v1: raw CAN frames, lossless, little-endian binary.
+A message is a batch of frames: records concatenated with no padding, each
+  float64   timestamp_s   the frame's receive time on the run clock, s
+  uint32    id            arbitration id; bit 31 set = extended (29-bit) id
+  uint8     flags         bit0 CAN FD, bit1 bitrate switch, bit2 error state indicator,
+                          bit3 remote frame, bit4 error frame
+  uint8     length        number of data bytes that follow (0..64)
+  length x uint8          data
+The message log time is the newest timestamp of its batch.
+"""
+
+#: topic -> schema name, schema encoding, message encoding
+CHANNELS: dict[str, tuple[str, str, str]] = {
+    TOPIC_STATE: ("turntable_bench.TableState", "jsonschema", "json"),
+    TOPIC_SAMPLES: ("turntable_bench.ImuSample", "jsonschema", "json"),
+    TOPIC_EVENTS: ("turntable_bench.Event", "jsonschema", "json"),
+    TOPIC_LOG: ("foxglove.Log", "jsonschema", "json"),
+    TOPIC_TF: ("foxglove.FrameTransform", "jsonschema", "json"),
+    TOPIC_CAN: (CAN_SCHEMA_NAME, "", CAN_ENCODING),
+}
+
+
+def encode_can_frames(frames: Sequence) -> tuple[bytes, float]:
+    """python-can `Message`s -> (`can-frames-v1` bytes, newest timestamp)."""
+    pack = CAN_RECORD.pack
+    parts: list = []
+    append = parts.append
+    newest = -math.inf
+    for m in frames:
+        data = m.data if m.data is not None else b""
+        t = m.timestamp
+        if t > newest:
+            newest = t
+        flags = 0
+        if m.is_fd or m.is_remote_frame or m.is_error_frame or m.error_state_indicator:
+            flags = ((FLAG_FD if m.is_fd else 0) | (FLAG_BRS if m.bitrate_switch else 0)
+                     | (FLAG_ESI if m.error_state_indicator else 0) | (FLAG_REMOTE if m.is_remote_frame else 0)
+                     | (FLAG_ERROR if m.is_error_frame else 0))
+        append(pack(t, m.arbitration_id | EXTENDED_ID_FLAG if m.is_extended_id else m.arbitration_id, flags,
+                    len(data)))
+        append(data)
+    return b"".join(parts), newest
+
+
+def _empty_can(width: int = CLASSIC_WIDTH):
+    return (np.zeros(0), np.zeros(0, np.uint32), np.zeros((0, width), np.uint8), np.zeros(0, np.int64),
+            np.zeros(0, np.uint8))
+
+
+def _uniform_can(buf: bytes):
+    """Fast path: every frame has the same length (a classic or fixed-size FD layout)."""
+    u8 = np.frombuffer(buf, np.uint8)
+    length = int(u8[LENGTH_OFFSET])
+    rec = HEADER_SIZE + length
+    if len(buf) % rec or not (u8[LENGTH_OFFSET::rec] == length).all():
+        return None
+    dt = record_dtype(("data", "u1", (length,)))
+    arr = np.frombuffer(buf, dt)
+    width = CLASSIC_WIDTH if length <= CLASSIC_WIDTH else FD_WIDTH
+    data = np.zeros((len(arr), width), np.uint8)
+    data[:, :length] = arr["data"]
+    return (arr["t"].astype(np.float64), arr["id"].astype(np.uint32), data,
+            np.full(len(arr), length, np.int64), arr["flags"].astype(np.uint8))
+
+
+def _uniform_can_parts(d: ChannelData):
+    """The same as `_uniform_can(d.joined())` without joining the whole channel: part by part
+    (one chunk's messages each, still in cache) into the output arrays, on worker threads (numpy
+    copies release the GIL). None when some part is not whole records of one length (the caller
+    then takes the general route over the joined payloads)."""
+    sizes = [int(x.sum()) for x in d.lengths]
+    total = sum(sizes)
+    first = next((k for k, size in enumerate(sizes) if size), None)
+    if first is None or total < HEADER_SIZE or sizes[first] < HEADER_SIZE:
+        return None
+    length = d.part_bytes(first)[LENGTH_OFFSET]
+    rec = HEADER_SIZE + length
+    if any(size % rec for size in sizes):
+        return None
+    n = total // rec
+    width = CLASSIC_WIDTH if length <= CLASSIC_WIDTH else FD_WIDTH
+    # 8 data bytes move as one uint64 per frame (classic frames: the common case)
+    words = length == 8 == width
+    dt = record_dtype(("data", "<u8") if words else ("data", "u1", (length,)))
+    t, ids, flags = np.empty(n), np.empty(n, np.uint32), np.empty(n, np.uint8)
+    data = (np.empty if length == width else np.zeros)((n, width), np.uint8)
+    data_out = data.view("<u8").reshape(n) if words else data
+    starts = np.concatenate(([0], np.cumsum(sizes) // rec)).tolist()
+
+    def fill(parts: range) -> bool:
+        for k in parts:
+            if not sizes[k]:
+                continue
+            arr = np.frombuffer(d.part_bytes(k), dt)
+            if not (arr["len"] == length).all():
+                return False
+            a, b = starts[k], starts[k + 1]
+            t[a:b] = arr["t"]
+            ids[a:b] = arr["id"]
+            if words:
+                data_out[a:b] = arr["data"]
+            else:
+                data_out[a:b, :length] = arr["data"]
+            flags[a:b] = arr["flags"]
+        return True
+
+    workers = min(len(sizes) // 4, os.cpu_count() or 1, 4)
+    if workers > 1:
+        step = -(-len(sizes) // workers)
+        with ThreadPoolExecutor(workers, thread_name_prefix="can-frames") as pool:
+            ok = all(pool.map(fill, [range(a, min(a + step, len(sizes))) for a in range(0, len(sizes), step)]))
+    else:
+        ok = fill(range(len(sizes)))
+    if not ok:
+        return None
+    return t, ids, data, np.full(n, length, np.int64), flags
+
+
+def _frame_offsets(p: bytes) -> list[int] | None:
+    """Record offsets within one `/can/raw` message, None if its framing is broken."""
+    offsets, pos, n = [], 0, len(p)
+    while pos < n:
+        if pos + HEADER_SIZE > n:
+            return None
+        offsets.append(pos)
+        pos += HEADER_SIZE + p[pos + LENGTH_OFFSET]
+    return offsets if pos == n else None
+
+
+def _general_can(payloads: list[bytes]) -> tuple[tuple, int]:
+    """Frames of mixed lengths, message by message; malformed messages are dropped and counted."""
+    good, offsets, base, bad = [], [], 0, 0
+    for p in payloads:
+        offs = _frame_offsets(p)
+        if offs is None:
+            bad += 1
+            continue
+        good.append(p)
+        offsets.extend(o + base for o in offs)
+        base += len(p)
+    if not offsets:
+        return _empty_can(), bad
+    buf = np.frombuffer(b"".join(good), np.uint8)
+    offs = np.asarray(offsets, np.int64)
+    t = buf[offs[:, None] + np.arange(_T_END)].copy().view("<f8").reshape(-1)
+    ids = buf[offs[:, None] + np.arange(_T_END, _ID_END)].copy().view("<u4").reshape(-1)
+    flags = buf[offs + FLAGS_OFFSET]
+    lengths = buf[offs + LENGTH_OFFSET].astype(np.int64)
+    width = CLASSIC_WIDTH if lengths.max() <= CLASSIC_WIDTH else FD_WIDTH
+    cols = np.arange(width)
+    idx = np.minimum(offs[:, None] + HEADER_SIZE + cols, len(buf) - 1)
+    data = np.where(cols < lengths[:, None], buf[idx], 0).astype(np.uint8)
+    return (t, ids, data, lengths, flags), bad
+
+
+def decode_can_frames(d: ChannelData | None) -> tuple[tuple, int]:
+    """`/can/raw` messages -> ((timestamps, ids, data, lengths, flags), malformed messages dropped)."""
+    if d is None or not len(d):
+        return _empty_can(), 0
+    fast = _uniform_can_parts(d)
+    if fast is not None:
+        return fast, 0
+    buf = d.joined()
+    if len(buf) >= HEADER_SIZE:
+        fast = _uniform_can(buf)
+        if fast is not None:
+            return fast, 0
+    return _general_can(d.payloads())
+
+
+__all__ = ["CAN_ENCODING", "CAN_RECORD", "CAN_SCHEMA_NAME", "CAN_SCHEMA_TEXT", "CHANNELS", "CLASSIC_WIDTH",
+           "EXTENDED_ID_FLAG", "FD_WIDTH", "FLAGS_OFFSET", "FLAG_BRS", "FLAG_ERROR", "FLAG_ESI", "FLAG_FD",
+           "FLAG_REMOTE", "HEADER_SIZE", "LENGTH_OFFSET", "LOG_ERROR", "LOG_INFO", "LOG_WARNING", "SCHEMAS",
+           "TF_FRAMES", "TOPIC_CAN", "TOPIC_EVENTS", "TOPIC_LOG", "TOPIC_SAMPLES", "TOPIC_STATE", "TOPIC_TF",
+           "decode_can_frames", "encode_can_frames", "record_dtype"]
