@@ -16,16 +16,15 @@ import numpy as np
 import pytest
 
 from bench.config.load import parse_config
-from bench.plan.events import RunListener
-from bench.log.run_info import layout_and_config_from_log, step_from_dict, steps_from_log
 from bench.log.reader import read_log
 from bench.log.replay import replay
-from bench.cli.run import compile_from_config
-from bench.run.runner import BenchRun
-from bench.plan.steps import step_to_dict
+from bench.log.run_info import layout_and_config_from_log, steps_from_log
+from bench.plan.events import RunListener
+from bench.plan.steps import step_from_dict, step_to_dict
+from bench.run.runner import BenchRun, compile_from_config
 from drivers.clock import ManualClock
 from drivers.imu import DEFAULT_DBC, ImuSampleBlock
-from run_helpers import cli, config_text, start_cli, stop_process
+from tests.helpers.run import cli, config_text, start_cli, stop_process
 
 
 class Capture(RunListener):

@@ -21,20 +21,39 @@ import pytest
 
 import bench
 from bench.config.load import parse_config
-from bench.solve.extract import finished_observation_steps
-from bench.model.imu import canonical_names, default_sim_imu, family
 from bench.log.reader import read_log
-from bench.cli.run import compile_from_config
-from bench.run.runner import BenchRun
+from bench.model.families import canonical_names, family_of
+from bench.model.imu import default_sim_imu
+from bench.run.runner import BenchRun, compile_from_config
 from bench.run.sequencer import RunAborted
+from bench.solve.extract import finished_observation_steps
 from drivers.errors import TurntableEStop, TurntableFault, TurntableTimeout
 from drivers.imu import DEFAULT_DBC
 from drivers.turntable import AxisStatus
-from run_helpers import (AT_REST_DPS, Trigger, api_run, assert_disabled, assert_mcap_readable, cli, coefficient_error,
-                         config_text, in_memory_result, kill_run_after_units, load_json,
-                         mismatches, noise_free_floor, only_file,
-                         read_all_messages, start_cli, step_index, stop_process, transitions, values, wait_for)
 from schedules import builtin_path
+from tests.helpers.run import (
+    AT_REST_DPS,
+    Trigger,
+    api_run,
+    assert_disabled,
+    assert_mcap_readable,
+    cli,
+    coefficient_error,
+    config_text,
+    in_memory_result,
+    kill_run_after_units,
+    load_json,
+    mismatches,
+    noise_free_floor,
+    only_file,
+    read_all_messages,
+    start_cli,
+    step_index,
+    stop_process,
+    transitions,
+    values,
+    wait_for,
+)
 
 OPERATOR = "Ada Lovelace"
 TOPICS = ("/table/state", "/imu/samples", "/events", "/log", "/tf", "/can/raw")
@@ -102,7 +121,7 @@ def test_noise_off_black_box_within_the_plans_turntable_error_level(tmp_path):
     for name in truth:
         wire_error = coefficient_error(name, wire[name], truth[name])
         memory_error = coefficient_error(name, memory[name], truth[name])
-        if not wire_error <= memory_error + tolerance[family(name)]:
+        if not wire_error <= memory_error + tolerance[family_of(name)]:
             worse.append(f"{name}: wire error {wire_error:.3g} > memory error {memory_error:.3g} + tolerance")
     assert not worse
 
@@ -188,6 +207,23 @@ def test_abort_through_the_api_leaves_the_table_stopped_and_disabled(tmp_path, w
         target = np.array(plan.steps[trigger.step_index].target_deg)
         assert np.abs(table.angles_deg[-1] - target).max() > 1.0
     assert_mcap_readable(outcome.log_path)
+
+
+def test_an_abort_asked_while_the_devices_open_ends_the_run_at_its_start(tmp_path):
+    # Ctrl-C can come between open() and run() (the CLI's handler is in place from before open):
+    # the run must not go ahead; it aborts at its first step with the table stopped and servos off.
+    text = config_text()
+    config = parse_config(text, source=str(tmp_path / "bench.toml"), base_dir=tmp_path)
+    with BenchRun(config, compile_from_config(config), sim=True, out_dir=tmp_path) as run:
+        run.open()
+        run.abort("interrupted (Ctrl-C)")
+        assert run.run().value == "failed"
+        assert isinstance(run.sequencer.error, RunAborted)
+        outcome = run.finish()
+        assert_disabled(run.world.controller, at_rest=True)
+    log = read_log(outcome.log_path)
+    assert transitions(log.events)[-2:] == ["aborting", "failed"]
+    assert not any(e.kind == "step_started" for e in log.events)
 
 
 # -- 4. SIGINT --------------------------------------------------------------------------------

@@ -6,23 +6,27 @@ import io
 
 import pytest
 
-from bench.model.earth import Site
-from bench.plan.events import RunListener, RunState
-from bench.model.imu import NoiseModel, default_sim_imu
 from bench.cli.progress import ProgressPrinter
+from bench.model.earth import Site
+from bench.model.imu import NoiseModel, default_sim_imu
+from bench.plan.events import RunListener, RunState
+from bench.plan.steps import DwellStep, MoveStep, SettleStep, TurnStep
 from bench.run.sequencer import RunAborted, Sequencer, SequencerError, SequencerOptions
 from bench.sim.world import SimWorld
-from bench.plan.steps import DwellStep, MoveStep, SettleStep, TurnStep
 from drivers.errors import ImuTimeout
 from drivers.imu.receiver import ImuReceiver
 from drivers.turntable import open_turntable
 
-STEPS = (MoveStep(0, "P01", (0.0, 90.0, 90.0), 60.0, 2.0),
-         SettleStep(1, "P01", 1.0, 1.0),
-         DwellStep(2, "P01", "test", 0, (0.0, 90.0, 90.0), (0.0, 90.0, 90.0), 2.0, 2.0),
-         MoveStep(3, "P02", (0.0, 0.0, 0.0), 60.0, 2.0),
-         DwellStep(4, "P02", "test", 1, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 2.0, 2.0),
-         TurnStep(5, "R01", "test", 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), "inner", "ccw", 1, 90.0, 90.0, 0.5, 6.0))
+STEPS = (MoveStep(index=0, unit="P01", target_deg=(0.0, 90.0, 90.0), rate_dps=60.0, estimated_s=2.0),
+         SettleStep(index=1, unit="P01", duration_s=1.0, estimated_s=1.0),
+         DwellStep(index=2, unit="P01", schedule="test", schedule_index=0, angles_deg=(0.0, 90.0, 90.0),
+                   target_deg=(0.0, 90.0, 90.0), dwell_s=2.0, estimated_s=2.0),
+         MoveStep(index=3, unit="P02", target_deg=(0.0, 0.0, 0.0), rate_dps=60.0, estimated_s=2.0),
+         DwellStep(index=4, unit="P02", schedule="test", schedule_index=1, angles_deg=(0.0, 0.0, 0.0),
+                   target_deg=(0.0, 0.0, 0.0), dwell_s=2.0, estimated_s=2.0),
+         TurnStep(index=5, unit="R01", schedule="test", schedule_index=0, start_deg=(0.0, 0.0, 0.0),
+                  target_deg=(0.0, 0.0, 0.0), frame="inner", direction="ccw", revolutions=1, rate_dps=90.0,
+                  accel_dps2=90.0, rest_s=0.5, estimated_s=6.0))
 OPTIONS = SequencerOptions(move_poll_s=0.1, imu_poll_s=0.25, state_period_s=0.5)
 
 
@@ -193,7 +197,7 @@ def test_progress_plain_lines_and_live_bar():
 @pytest.mark.parametrize("dialect", ["mn", "modbus"])
 def test_a_whole_run_works_in_the_other_dialects(tmp_path, dialect):
     """`bench run` on the simulator served in $MN (TCP) and Modbus TCP: same plan, same precision."""
-    from run_helpers import cli, config_text, load_json, only_file
+    from tests.helpers.run import cli, config_text, load_json, only_file
 
     config = tmp_path / "bench.toml"
     config.write_text(config_text(dialect=dialect, positions="traditional-12", rotations="traditional-3s6r"),

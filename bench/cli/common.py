@@ -91,22 +91,24 @@ def run_plan(run: BenchRun, prog: str, *, quiet: bool, simulated: bool) -> ExitC
     Returns the exit code (after printing one line) when it could not start (USAGE,
     nothing moved) or enable the table (FAULT); None once the plan ran (see
     `run.sequencer` for how it ended)."""
-    try:
-        run.open()
-    except (TurntableError, ImuError, BenchError, ValueError, OSError) as exc:
-        # ValueError: a device URL or bus option python-can or the transport refuses
-        return fail(prog, f"cannot start: {exc}; nothing moved", ExitCode.USAGE)
-    progress = ProgressPrinter(run.plan.steps, quiet=quiet, simulated=simulated)
-    run.extra_listeners.append(progress)
+    # Ctrl-C from here on aborts the run, also while the devices open (the run then ends at its start)
     previous_handler = signal.signal(signal.SIGINT, lambda *_: run.abort("interrupted (Ctrl-C)"))
     try:
+        try:
+            run.open()
+        except (TurntableError, ImuError, BenchError, ValueError, OSError) as exc:
+            # ValueError: a device URL or bus option python-can or the transport refuses
+            return fail(prog, f"cannot start: {exc}; nothing moved", ExitCode.USAGE)
+        progress = ProgressPrinter(run.plan.steps, quiet=quiet, simulated=simulated)
+        run.extra_listeners.append(progress)
         try:
             run.run()
         except TurntableError as exc:
             return fail(prog, f"cannot enable the table: {exc}; nothing moved", ExitCode.FAULT)
+        finally:
+            progress.close()
     finally:
         signal.signal(signal.SIGINT, previous_handler)
-        progress.close()
     return None
 
 

@@ -26,7 +26,7 @@ from pathlib import Path
 from bench.config.load import BenchConfig, ConfigError, parse_config
 from bench.log.reader import LogError, RunLog
 from bench.model.earth import Site
-from bench.plan.steps import DwellStep, MoveStep, SettleStep, Step, TurnStep
+from bench.plan.steps import Step, step_from_dict
 from drivers.errors import ImuConfigError
 from drivers.imu import DEFAULT_DBC, DEFAULT_FD_DBC, DEFAULT_FD_SPEC, DEFAULT_SPEC, ImuFrameSpec, ImuLayout
 from schedules import builtin_names
@@ -35,7 +35,6 @@ from schedules.tomllines import locate_lines
 #: Keys of the configuration that name files the run attaches to its log (by base name).
 _ATTACHED_FILE_KEYS = (("imu", "dbc"), ("plan", "positions"), ("plan", "rotations"))
 _STRING_LITERAL = re.compile(r'"(?:[^"\\\n]|\\.)*"|\'[^\'\n]*\'')
-_STEP_TYPES = {cls.__dataclass_fields__["kind"].default: cls for cls in (MoveStep, SettleStep, DwellStep, TurnStep)}
 
 
 @dataclass(frozen=True)
@@ -89,20 +88,6 @@ def steps_from_log(log: RunLog) -> tuple[Step, ...]:
         return tuple(step_from_dict(r) for r in rows)
     except (ValueError, TypeError, KeyError) as exc:
         raise LogError(f"{log.path}: the plan record does not hold valid steps ({exc})") from exc
-
-
-def step_from_dict(d: dict) -> Step:
-    """Inverse of `bench.plan.steps.step_to_dict` (ValueError/KeyError/TypeError on a malformed dict)."""
-    if not isinstance(d, dict):
-        raise TypeError(f"a step must be an object, got {type(d).__name__}")
-    cls = _STEP_TYPES.get(d.get("kind"))
-    if cls is None:
-        raise ValueError(f"unknown step kind {d.get('kind')!r}")
-    names = [f.name for f in dataclasses.fields(cls)]
-    missing = [n for n in names if n not in d and n != "kind"]
-    if missing:
-        raise KeyError(f"{d.get('kind')} step lacks {', '.join(missing)}")
-    return cls(**{n: tuple(d[n]) if isinstance(d[n], list) else d[n] for n in names if n in d})
 
 
 # -- configuration -------------------------------------------------------------------------
@@ -253,4 +238,4 @@ def _site_from_metadata(log: RunLog, notes: list[str]) -> Site | None:
         return None
 
 
-__all__ = ["LogSetup", "layout_and_config_from_log", "step_from_dict", "steps_from_log"]
+__all__ = ["LogSetup", "layout_and_config_from_log", "steps_from_log"]

@@ -335,16 +335,20 @@ def _emit(units, order, start_deg, motion, steps: list) -> tuple[float, float, f
     legs, _, end = _walk(units, order, start_deg, motion)
     t = motion.timing
     for unit, target, move_s in legs:
-        steps.append(MoveStep(len(steps), unit.label, target, motion.move_rate_dps, move_s))
-        steps.append(SettleStep(len(steps), unit.label, t.settle_s, t.settle_s))
+        steps.append(MoveStep(index=len(steps), unit=unit.label, target_deg=target, rate_dps=motion.move_rate_dps,
+                              estimated_s=move_s))
+        steps.append(SettleStep(index=len(steps), unit=unit.label, duration_s=t.settle_s, estimated_s=t.settle_s))
         if unit.rotation is None:
-            steps.append(DwellStep(len(steps), unit.label, unit.schedule, unit.schedule_index, unit.nominal_deg,
-                                   target, t.dwell_s, t.dwell_s))
+            steps.append(DwellStep(index=len(steps), unit=unit.label, schedule=unit.schedule,
+                                   schedule_index=unit.schedule_index, angles_deg=unit.nominal_deg,
+                                   target_deg=target, dwell_s=t.dwell_s, estimated_s=t.dwell_s))
         else:
             r = unit.rotation
-            steps.append(TurnStep(len(steps), unit.label, unit.schedule, unit.schedule_index, unit.nominal_deg,
-                                  target, r.frame, r.direction, unit.revolutions, t.turn_rate_dps,
-                                  t.turn_accel_dps2, t.rest_s, motion.turn_time(unit.revolutions)))
+            steps.append(TurnStep(index=len(steps), unit=unit.label, schedule=unit.schedule,
+                                  schedule_index=unit.schedule_index, start_deg=unit.nominal_deg, target_deg=target,
+                                  frame=r.frame, direction=r.direction, revolutions=unit.revolutions,
+                                  rate_dps=t.turn_rate_dps, accel_dps2=t.turn_accel_dps2, rest_s=t.rest_s,
+                                  estimated_s=motion.turn_time(unit.revolutions)))
     return end
 
 

@@ -9,7 +9,13 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
+
+if TYPE_CHECKING:   # types only: the plan layer does not import the drivers or python-can at run time
+    import can
+
+    from drivers.imu import ImuSampleBlock
+    from drivers.turntable import TableState
 
 
 class RunState(enum.Enum):
@@ -66,13 +72,13 @@ class RunListener:
     def on_event(self, event: Event) -> None:
         pass
 
-    def on_table_state(self, state) -> None:
+    def on_table_state(self, state: TableState) -> None:
         pass
 
-    def on_imu(self, block) -> None:
+    def on_imu(self, block: ImuSampleBlock) -> None:
         pass
 
-    def on_can_frames(self, frames: Sequence) -> None:
+    def on_can_frames(self, frames: Sequence[can.Message]) -> None:
         pass
 
     def close(self) -> None:

@@ -12,13 +12,14 @@ skips complete units and redoes the moves of the rest.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
-from typing import Union
+from typing import Any, Union
 
 from bench.model.kinematics import FRAMES
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class MoveStep:
     """Move all three axes to absolute angles at `rate_dps` and wait until in position."""
 
@@ -30,7 +31,7 @@ class MoveStep:
     kind: str = "move"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SettleStep:
     """Stay at rest for `duration_s` (data recorded, not used by the solver)."""
 
@@ -41,7 +42,7 @@ class SettleStep:
     kind: str = "settle"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class DwellStep:
     """Record the IMU at rest for `dwell_s`: one position observation."""
 
@@ -56,7 +57,7 @@ class DwellStep:
     kind: str = "dwell"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class TurnStep:
     """Rest `rest_s`, turn one frame N whole revolutions rest to rest, rest `rest_s`: one rotation observation.
 
@@ -87,7 +88,7 @@ class TurnStep:
     def end_deg(self) -> tuple[float, float, float]:
         end = list(self.target_deg)
         end[self.frame_index] += (-360.0 if self.direction == "ccw" else 360.0) * self.revolutions
-        return tuple(end)
+        return end[0], end[1], end[2]
 
 
 Step = Union[MoveStep, SettleStep, DwellStep, TurnStep]
@@ -100,3 +101,21 @@ def step_to_dict(step: Step) -> dict:
     if isinstance(step, TurnStep):
         out["end_deg"] = list(step.end_deg)
     return out
+
+
+_STEP_TYPES = {cls.__dataclass_fields__["kind"].default: cls for cls in (MoveStep, SettleStep, DwellStep, TurnStep)}
+
+
+def step_from_dict(d: dict) -> Step:
+    """Inverse of `step_to_dict` (ValueError/KeyError/TypeError on a malformed dict)."""
+    if not isinstance(d, dict):
+        raise TypeError(f"a step must be an object, got {type(d).__name__}")
+    cls: type[Step] | None = _STEP_TYPES.get(d.get("kind"))
+    if cls is None:
+        raise ValueError(f"unknown step kind {d.get('kind')!r}")
+    names = [f.name for f in dataclasses.fields(cls)]
+    missing = [n for n in names if n not in d and n != "kind"]
+    if missing:
+        raise KeyError(f"{d.get('kind')} step lacks {', '.join(missing)}")
+    values: dict[str, Any] = {n: tuple(d[n]) if isinstance(d[n], list) else d[n] for n in names if n in d}
+    return cls(**values)

@@ -16,12 +16,26 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
 
+import can
+
 from bench import __version__
 from bench.config.load import BenchConfig
+from bench.errors import BenchError
+from bench.log.reader import read_log
+from bench.log.recorder import McapRecorder
+from bench.model.result import CalibrationResult
 from bench.plan.compiler import CompiledPlan, compile_plan
 from bench.plan.events import RunListener, RunState
 from bench.plan.steps import step_to_dict
+from bench.report.markdown import write_reports
 from bench.run.sequencer import Sequencer, SequencerOptions
+from bench.sim.world import SimWorld
+from bench.solve.extract import finished_observation_steps
+from bench.solve.from_logs import solve_logs
+from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.imu.receiver import ImuReceiver
+from drivers.turntable import Turntable, open_turntable
+from schedules import builtin_path
 
 #: The sequencer's loop periods on the simulator: coarse, because the simulated clock jumps.
 SIM_OPTIONS = dict(move_poll_s=0.1, imu_poll_s=0.5, state_period_s=1.0)
@@ -33,7 +47,7 @@ class RunOutcome:
     log_path: Path
     result_path: Path | None = None
     report_path: Path | None = None
-    result: object | None = None                 # bench.model.result.CalibrationResult
+    result: CalibrationResult | None = None
     failures: list[str] = field(default_factory=list)
     error: BaseException | None = None
     html_report_path: Path | None = None
@@ -49,8 +63,6 @@ def completed_units(resume_log: str | None) -> tuple[set[str], list[str]]:
     """Units complete in the log to resume, and every log of that run so far (oldest first)."""
     if not resume_log:
         return set(), []
-    from bench.log.reader import read_log
-    from bench.solve.extract import finished_observation_steps
 
     log = read_log(resume_log)
     previous = json.loads(log.metadata.get("run", {}).get("logs_before", "[]"))
@@ -65,7 +77,6 @@ def schedule_file(schedule) -> Path | None:
     if schedule is None:
         return None
     if schedule.source.startswith("builtin:"):
-        from schedules import builtin_path
 
         return builtin_path(schedule.source.split(":", 1)[1])
     path = Path(schedule.source)
@@ -79,7 +90,7 @@ def _name(schedule) -> str:
 class BenchRun:
     """A run of `plan` with `config`'s devices (or the simulator when `sim`)."""
 
-    def __init__(self, config, plan, *, sim: bool, out_dir: str | Path, operator: str = "",
+    def __init__(self, config: BenchConfig, plan: CompiledPlan, *, sim: bool, out_dir: str | Path, operator: str = "",
                  completed: Iterable[str] = (), previous_logs: Iterable[str] = (),
                  listeners: Iterable[RunListener] = ()):
         self.config, self.plan, self.sim = config, plan, sim
@@ -90,38 +101,39 @@ class BenchRun:
         self.extra_listeners = list(listeners)
         self.run_id = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + "-" + secrets.token_hex(3)
         self.log_path = self.out_dir / f"{self.run_id}.mcap"
-        self.world = self.table = self.receiver = self.recorder = self.sequencer = None
-        self.clock = None
+        # set by open() and run(); None before
+        self.world: SimWorld | None = None
+        self.table: Turntable | None = None
+        self.receiver: ImuReceiver | None = None
+        self.recorder: McapRecorder | None = None
+        self.sequencer: Sequencer | None = None
+        self.clock: Clock | None = None
+        self._abort_reason: str | None = None      # an abort asked for before the sequencer existed
         self._stack = ExitStack()
 
     # -- devices -----------------------------------------------------------------------
     def open(self) -> None:
         """Open the devices and the recorder. Raises TurntableError/ImuError/OSError/ValueError; nothing moves."""
-        from drivers.clock import SYSTEM_CLOCK
-        from drivers.imu.receiver import ImuReceiver
-        from drivers.turntable import open_turntable
-
         config = self.config
         try:
             if self.sim:
-                from bench.sim.world import SimWorld
-
                 self.world = self._stack.enter_context(SimWorld(
                     config.site.site, config.sim.imu, config.sim.noise, black_box_rad=config.sim.black_box_rad,
                     dialect=config.table.dialect, imu_rate_hz=config.imu.rate_hz, layout=config.imu.layout,
                     seed=config.sim.seed, register_map=config.table.register_map))
-                self.clock, url, bus = self.world.clock, self.world.table_url, self.world.receiver_bus()
+                self.clock, url = self.world.clock, self.world.table_url
+                bus: can.BusABC | dict = self.world.receiver_bus()
             else:
                 self.clock, url, bus = SYSTEM_CLOCK, config.table.url, config.imu.bus_kwargs()
-            options = {"limits": config.table.limits, "clock": self.clock, "timeout_s": config.table.timeout_s,
-                       "retries": config.table.retries}
+            options: dict[str, object] = {"limits": config.table.limits, "clock": self.clock,
+                                          "timeout_s": config.table.timeout_s, "retries": config.table.retries}
             if config.table.dialect == "modbus" and config.table.register_map is not None:
                 options["register_map"] = config.table.register_map
-            self.table = open_turntable(url, config.table.dialect, **options)
-            self.table.connect()
-            self._stack.callback(self.table.close)
-            self.receiver = ImuReceiver(bus, config.imu.layout, config.imu.rate_hz)
-            self._stack.callback(self.receiver.close)
+            self.table = table = open_turntable(url, config.table.dialect, **options)
+            table.connect()
+            self._stack.callback(table.close)
+            self.receiver = receiver = ImuReceiver(bus, config.imu.layout, config.imu.rate_hz)
+            self._stack.callback(receiver.close)
             self.out_dir.mkdir(parents=True, exist_ok=True)
             self._open_recorder()
         except BaseException:
@@ -129,18 +141,16 @@ class BenchRun:
             raise
 
     def _open_recorder(self) -> None:
-        from bench.log.recorder import McapRecorder
-
         config = self.config
-        self.recorder = McapRecorder(str(self.log_path), metadata=self._metadata())
-        self._stack.callback(self.recorder.close)
-        self.recorder.add_attachment(config.imu.dbc.name, "text/plain", config.imu.layout.dbc_text.encode())
+        self.recorder = recorder = McapRecorder(str(self.log_path), metadata=self._metadata())
+        self._stack.callback(recorder.close)
+        recorder.add_attachment(config.imu.dbc.name, "text/plain", config.imu.layout.dbc_text.encode())
         if config.path:
-            self.recorder.add_attachment(Path(config.path).name, "application/toml", config.source_text.encode())
+            recorder.add_attachment(Path(config.path).name, "application/toml", config.source_text.encode())
         for schedule in (config.plan.positions, config.plan.rotations):
             path = schedule_file(schedule)
             if path is not None:
-                self.recorder.add_attachment(path.name, "application/toml", path.read_bytes())
+                recorder.add_attachment(path.name, "application/toml", path.read_bytes())
 
     def _metadata(self) -> dict:
         config, identity = self.config, self.config.imu.identity
@@ -164,39 +174,47 @@ class BenchRun:
         return SequencerOptions(**{"settle_tolerance_deg": self.config.table.settle_tolerance_deg,
                                    "move_poll_s": self.config.table.poll_s, **(SIM_OPTIONS if self.sim else {})})
 
+    def _opened(self) -> tuple[Turntable, ImuReceiver, McapRecorder, Clock]:
+        if self.table is None or self.receiver is None or self.recorder is None or self.clock is None:
+            raise BenchError("BenchRun: open() it first")
+        return self.table, self.receiver, self.recorder, self.clock
+
     def run(self) -> RunState:
         """Enable the table and execute the plan (blocking). Errors end in a safe stop, see `sequencer.error`."""
-        imu = self.world.imu_source(self.receiver) if self.world is not None else self.receiver
-        self.sequencer = Sequencer(self.plan.steps, self.table, imu, self.clock,
-                                   [self.recorder, *self.extra_listeners], self.options(), self.completed)
-        self.table.reset_faults()
-        self.table.enable()
+        table, receiver, recorder, clock = self._opened()
+        imu = self.world.imu_source(receiver) if self.world is not None else receiver
+        self.sequencer = sequencer = Sequencer(self.plan.steps, table, imu, clock,
+                                               [recorder, *self.extra_listeners], self.options(), self.completed)
+        if self._abort_reason is not None:      # asked for while the devices opened: the run ends at once
+            sequencer.abort(self._abort_reason)
+        table.reset_faults()
+        table.enable()
         try:
-            state = self.sequencer.run()
+            state = sequencer.run()
         finally:
             # The samples still pending in the assembler reach every listener, like all the others.
-            block = self.receiver.flush()
+            block = receiver.flush()
             if len(block):
-                for listener in self.sequencer.listeners:
+                for listener in sequencer.listeners:
                     listener.on_imu(block)
         return state
 
     def abort(self, reason: str = "abort requested") -> None:
+        """End the run as soon as possible, the table stopped; asked before `run()`, the run aborts at its start."""
+        if self._abort_reason is None:
+            self._abort_reason = reason
         if self.sequencer is not None:
             self.sequencer.abort(reason)
 
     # -- after the run ---------------------------------------------------------------------
     def finish(self) -> RunOutcome:
         """Solve from the log(s), write result and report, attach the result, close the log."""
-        from bench.log.reader import read_log
-        from bench.report.markdown import write_reports
-        from bench.solve.from_logs import solve_logs
-
+        _, receiver, recorder, _ = self._opened()
         seq = self.sequencer
         if seq is None or seq.error is not None:
-            self.recorder.close()
+            recorder.close()
             return RunOutcome(seq.state if seq else RunState.FAILED, self.log_path, error=seq.error if seq else None)
-        self.recorder.flush()
+        recorder.flush()
         logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
         config, identity = self.config, self.config.imu.identity
         gyro_stability, acc_stability = bias_stabilities(config, self.sim)
@@ -204,7 +222,7 @@ class BenchRun:
                               gyro_bias_stability_dph=gyro_stability, acc_bias_stability_ug=acc_stability,
                               # A log being resumed was cut off: its missing summary is expected, not damage.
                               still_open=frozenset({str(self.log_path), *map(str, self.previous_logs)}))
-        failures = quality_failures(solution, self.receiver.stats)
+        failures = quality_failures(solution, receiver.stats)
         run_info = {"run_id": self.run_id, "mode": "simulator" if self.sim else "hardware", "operator": self.operator,
                     "software_version": __version__, "state": seq.state.value, "log": self.log_path.name,
                     "logs": [Path(p).name for p in self.previous_logs] + [self.log_path.name],
@@ -212,16 +230,16 @@ class BenchRun:
                     "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                     "imu": {"model": identity.model, "serial": identity.serial},
                     "site": config.site.site.to_dict(), "quality_failures": failures,
-                    "imu_link": self.receiver.stats.as_dict()}
+                    "imu_link": receiver.stats.as_dict()}
         result = solution.calibration.to_result(run=run_info, sim_truth=config.sim.imu if self.sim else None)
         result_path = self.out_dir / f"{self.run_id}.result.json"
         result.save(result_path)
         report_path, html_report_path = write_reports(
             result, self.out_dir, self.run_id, log=logs[-1], layout=config.imu.layout, log_still_open=True,
-            problems=solution.extraction.problems, failures=failures, imu_link=self.receiver.stats.as_dict(),
+            problems=solution.extraction.problems, failures=failures, imu_link=receiver.stats.as_dict(),
             title=f"Calibration report {self.run_id}")
-        self.recorder.add_attachment(result_path.name, "application/json", result_path.read_bytes())
-        self.recorder.close()
+        recorder.add_attachment(result_path.name, "application/json", result_path.read_bytes())
+        recorder.close()
         return RunOutcome(seq.state, self.log_path, result_path, report_path, result, failures,
                           html_report_path=html_report_path)
 

@@ -132,7 +132,7 @@ class Sequencer:
         if (self.state, new) not in _TRANSITIONS:
             raise SequencerError(f"illegal transition {self.state.value} -> {new.value}")
         old, self.state = self.state, new
-        self._emit("transition", message, **{"from": old.value})
+        self._emit("transition", message, None, **{"from": old.value})
 
     def _on_frames(self, frames) -> None:
         for listener in self.listeners:
