@@ -1,21 +1,33 @@
-"""Fixtures shared by test files (opt-in by name)."""
+"""Fixtures shared by test files: the leftover-thread check runs for every test (autouse)."""
 
 from __future__ import annotations
 
-import threading
-import time
-
 import pytest
+
+# assertion introspection in the shared helpers too (registered before any of them is imported)
+pytest.register_assert_rewrite("tests.helpers")
+
+from tests.helpers.threads import check_no_leftover_threads, project_threads  # noqa: E402
+
+
+@pytest.fixture(autouse=True)
+def no_leftover_project_threads():
+    """Fails the test if a project thread (tests/helpers/threads.py) started during it is still
+    running 5 s after it. Threads alive before the test (e.g. started by a module-scoped fixture)
+    are not blamed on it; being autouse and function-scoped, this runs its check after the test's
+    other function-scoped fixtures are torn down."""
+    before = project_threads()
+    yield
+    failure = None
+    try:
+        check_no_leftover_threads(before)
+    except AssertionError as e:
+        failure = str(e)
+    if failure is not None:
+        pytest.fail(failure, pytrace=False)
 
 
 @pytest.fixture
-def no_leftover_tui_threads():
-    """Fails the test if a TUI worker thread (`bench-tui-*`) is still running 5 s after it."""
+def no_leftover_tui_threads(no_leftover_project_threads):
+    """Former opt-in name of the check, kept as an alias: every test is checked anyway."""
     yield
-    deadline = time.monotonic() + 5.0
-    while time.monotonic() < deadline:
-        left = [t.name for t in threading.enumerate() if t.name.startswith("bench-tui-")]
-        if not left:
-            return
-        time.sleep(0.05)
-    raise AssertionError(f"threads left running: {left}")

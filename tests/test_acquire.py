@@ -14,7 +14,7 @@ from bench.sim.imu import SimImu
 from bench.sim.table import SimTable
 from bench.model.units import ARCSEC, DEG_PER_HOUR, MICRO_G
 from schedules import load_builtin
-from tests.test_solver import assert_recovered
+from tests.helpers.solver import assert_recovered
 
 SITE = Site(30.27)
 FAST = AcquisitionTiming(dwell_s=5.0, settle_s=1.0, move_rate_dps=60, move_accel_dps2=30, turn_rate_dps=20,

@@ -6,7 +6,7 @@ import math
 import threading
 
 import pytest
-from exchange import Exchange
+from tests.helpers.exchange import Exchange
 from hypothesis import given, settings
 from hypothesis import strategies as st
 

@@ -28,7 +28,7 @@ from drivers.errors import (
 from drivers.turntable.base import AxisLimits, AxisMode, AxisStatus, TableState, TurntableLimits
 from drivers.turntable.modbus import ModbusTurntable, parse_modbus_url
 from drivers.turntable.modbus_map import RegisterMap, crc16
-from modbus_exchange import DROP, GONE, ModbusExchange
+from tests.helpers.modbus_exchange import DROP, GONE, ModbusExchange
 
 NO_WATCHDOG = RegisterMap.default().with_changes(watchdog_s=0)
 

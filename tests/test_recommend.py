@@ -20,7 +20,7 @@ from bench.schedule_design.sensitivity import position_sensitivity
 from bench.table_check.estimate import Conversion, estimate, horizontal_force
 from bench.table_check.from_log import TableCheckAnalysis
 from bench.model.units import ARCSEC
-from run_helpers import cli
+from tests.helpers.run import cli
 from schedules import ScheduleError, builtin_path, load_builtin
 
 NOISE = NoiseModel()

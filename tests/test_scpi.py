@@ -5,7 +5,7 @@ from __future__ import annotations
 import threading
 
 import pytest
-from exchange import Exchange
+from tests.helpers.exchange import Exchange
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 

@@ -8,11 +8,12 @@ import pytest
 from bench.solve.calibrate import solve
 from bench.model.closed_form import exact_observations
 from bench.model.earth import Site
-from bench.model.imu import ImuCoefficients, canonical_names, default_sim_imu, family
+from bench.model.imu import canonical_names, default_sim_imu
 from bench.model.result import CalibrationResult, ResultFormatError
 from bench.solve.methods import SolverError
 from bench.model.units import ARCSEC
 from schedules import load_builtin
+from tests.helpers.solver import assert_recovered
 
 SITE = Site(30.27)
 
@@ -21,21 +22,6 @@ def _schedule(pos_name, rot_name):
     pos = np.array([p.angles_deg for p in load_builtin(pos_name).positions])
     rot = list(load_builtin(rot_name).rotations)
     return pos, rot
-
-
-def assert_recovered(values: dict, truth: ImuCoefficients):
-    true_values = truth.to_canonical()
-    for name in canonical_names():
-        fam = family(name)
-        got, want = values[name], true_values[name]
-        if fam in ("Kg", "Ka"):
-            assert got == pytest.approx(want, rel=1e-9), name
-        elif fam in ("Eg", "Ea"):
-            assert abs(got - want) < 1e-12, name
-        elif fam == "D0":   # deg/h; 1e-12 rad/s absolute is 2e-7 deg/h
-            assert abs(got - want) < 1e-12 / 4.84813681109536e-06, name
-        else:               # K0 in g; 1e-12 m/s^2 absolute
-            assert abs(got - want) < 1e-12 / 9.80665, name
 
 
 @pytest.mark.parametrize("pos_name, rot_name", [

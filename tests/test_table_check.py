@@ -27,7 +27,7 @@ from bench.table_check.estimate import (ANGLE_NAMES, COMBINATION_KEYS, TableChec
                                observability, true_combinations)
 from bench.model.units import ARCSEC
 from bench.log.reader import read_log
-from run_helpers import AT_REST_DPS, cli, config_text, only_file, start_cli, stop_process, transitions, wait_for
+from tests.helpers.run import AT_REST_DPS, cli, config_text, only_file, start_cli, stop_process, transitions, wait_for
 from schedules import load_builtin
 
 CHECK_324 = np.array([p.angles_deg for p in load_builtin("table-check-324").positions])

@@ -20,11 +20,9 @@ from bench.cli.run import compile_from_config
 from bench.tui.buffer import STEP_DONE, STEP_FAILED, STEP_PENDING, STEP_RUNNING, ImuScales, UiBuffer, progress
 from drivers.imu import ImuSampleBlock
 from drivers.turntable import AxisMode, AxisState, AxisStatus, TableState
-from run_helpers import assert_disabled
-from tui_helpers import (SIZE, connected, dialog_open, events_text, make_app, make_config, press, run, snap,
-                         start_plan, submit, wait_ended, wait_until)
-
-pytestmark = pytest.mark.usefixtures("no_leftover_tui_threads")
+from tests.helpers.run import assert_disabled
+from tests.helpers.tui import (SIZE, connected, dialog_open, events_text, make_app, make_config, press, run, snap,
+                               start_plan, submit, wait_ended, wait_until)
 
 
 # -- the buffer (no Textual) -------------------------------------------------------------------
@@ -335,7 +333,7 @@ def test_snapshot_results(tmp_path, snap_compare):
 
 
 def test_cli_needs_config_or_sim(tmp_path):
-    from run_helpers import cli
+    from tests.helpers.run import cli
 
     rc, _, err = cli(["tui"])
     assert rc == 2 and "--config FILE, --sim or --replay LOG" in err

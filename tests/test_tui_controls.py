@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from run_helpers import assert_disabled
-from tui_helpers import SIZE, connected, dialog_open, events_text, make_app, press, run, snap, wait_until
-
-pytestmark = pytest.mark.usefixtures("no_leftover_tui_threads")
+from tests.helpers.run import assert_disabled
+from tests.helpers.tui import SIZE, connected, dialog_open, events_text, make_app, press, run, snap, wait_until
 
 
 def test_connect_enable_disable_disconnect_keys_and_theme(tmp_path):

@@ -6,16 +6,14 @@ import pytest
 
 from bench.plan.events import RunState
 from bench.tui.buffer import STEP_DONE
-from run_helpers import config_text
-from tui_helpers import SIZE, events_text, press, run, snap, wait_until
-
-pytestmark = pytest.mark.usefixtures("no_leftover_tui_threads")
+from tests.helpers.run import config_text
+from tests.helpers.tui import SIZE, events_text, press, run, snap, wait_until
 
 
 @pytest.fixture(scope="module")
 def recorded_log(tmp_path_factory):
     """A short simulated run recorded with `bench run` (1 s dwells): its log and result JSON."""
-    from run_helpers import cli
+    from tests.helpers.run import cli
 
     out = tmp_path_factory.mktemp("tui-replay")
     config = out / "bench.toml"

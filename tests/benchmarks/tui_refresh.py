@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(REPO / "tests"))
+sys.path.insert(0, str(REPO))   # tests.helpers
 
 
 async def measure(app, seconds: float) -> dict:
@@ -68,7 +68,7 @@ def main() -> int:
     from bench.config.load import parse_config
     from bench.log.reader import read_log
     from bench.tui import create_app
-    from run_helpers import config_text
+    from tests.helpers.run import config_text
 
     with tempfile.TemporaryDirectory() as out:
         config = parse_config(config_text(rate_hz=args.rate_hz, dwell_s=3.0), source=f"{out}/bench.toml",

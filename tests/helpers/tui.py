@@ -12,7 +12,7 @@ from pathlib import Path
 
 from bench.config.load import parse_config
 from bench.plan.events import RunState
-from run_helpers import config_text
+from tests.helpers.run import config_text
 
 SIZE = (100, 30)
 

@@ -36,7 +36,7 @@ from drivers.turntable import AxisMode, AxisStatus
 
 AT_REST_DPS = 1e-9
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DWELL_S = 3.0
 RATE_HZ = 50.0
 #: The CAN signals' resolution (counts): the simulated IMU's increments are quantised to it
