@@ -5,14 +5,15 @@ import math
 import numpy as np
 import pytest
 
-from bench.solve.calibrate import solve
 from bench.model.earth import Site
-from bench.model.imu import NoiseModel, canonical_names, default_sim_imu
+from bench.model.families import canonical_names
+from bench.model.imu import NoiseModel, default_sim_imu
 from bench.model.observations import turn_axis_in_body, turn_earth_integral
+from bench.model.units import ARCSEC, DEG_PER_HOUR, MICRO_G
 from bench.sim.acquire import AcquisitionTiming, acquire
 from bench.sim.imu import SimImu
 from bench.sim.table import SimTable
-from bench.model.units import ARCSEC, DEG_PER_HOUR, MICRO_G
+from bench.solve.calibrate import solve
 from schedules import load_builtin
 from tests.helpers.solver import assert_recovered
 

@@ -8,8 +8,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivers.errors import ImuConfigError, ImuError, ImuFrameError
-from drivers.imu import (EXTENDED_ID_FLAG, ImuEncoder, ImuSampleBlock, SampleAssembler, decode_frames,
-                         default_fd_layout, default_layout)
+from drivers.imu import (
+    EXTENDED_ID_FLAG,
+    ImuEncoder,
+    ImuSampleBlock,
+    SampleAssembler,
+    decode_frames,
+    default_fd_layout,
+    default_layout,
+)
 
 LAYOUT = default_layout()
 M = len(LAYOUT.messages)   # 7 frames per sample

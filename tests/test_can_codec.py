@@ -9,8 +9,20 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivers.errors import ImuConfigError, ImuFrameError
-from drivers.imu import (DEFAULT_DBC, DEFAULT_FD_DBC, DEFAULT_SPEC, EXTENDED_ID_FLAG, ImuEncoder, ImuFrameSpec,
-                         ImuLayout, SampleAssembler, decode_frames, default_fd_layout, default_layout, encode_block)
+from drivers.imu import (
+    DEFAULT_DBC,
+    DEFAULT_FD_DBC,
+    DEFAULT_SPEC,
+    EXTENDED_ID_FLAG,
+    ImuEncoder,
+    ImuFrameSpec,
+    ImuLayout,
+    SampleAssembler,
+    decode_frames,
+    default_fd_layout,
+    default_layout,
+    encode_block,
+)
 from drivers.imu.crc import LinearCrc, crc8, frame_crc
 
 

@@ -14,8 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.config.load import (SIM_CONFIG_TOML, BenchConfig, ConfigError, default_sim_config, load_config,
-                          parse_config)
+from bench.config.load import SIM_CONFIG_TOML, BenchConfig, ConfigError, default_sim_config, load_config, parse_config
 from bench.model.imu import NoiseModel, default_sim_imu
 from bench.model.units import ARCSEC
 from drivers.imu import DEFAULT_FD_DBC, DEFAULT_FD_SPEC, default_fd_layout, default_layout

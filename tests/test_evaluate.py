@@ -8,10 +8,17 @@ import pytest
 
 from bench.cli.main import main
 from bench.model.earth import Site
-from bench.schedule_design.monte_carlo import (POSITION_KEYS, ROTATION_KEYS, builtin_schedules, draw_black_boxes, evaluate,
-                            paper_value, position_errors)
 from bench.model.imu import default_sim_imu
 from bench.model.units import ARCSEC
+from bench.schedule_design.monte_carlo import (
+    POSITION_KEYS,
+    ROTATION_KEYS,
+    builtin_schedules,
+    draw_black_boxes,
+    evaluate,
+    paper_value,
+    position_errors,
+)
 from schedules import load_builtin
 
 

@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from bench.log.format import CHANNELS, SCHEMAS, TF_FRAMES, TOPIC_EVENTS, TOPIC_LOG, TOPIC_TF
+from bench.log.recorder import McapRecorder
 from bench.plan.events import Event
-from bench.log.recorder import CHANNELS, SCHEMAS, TF_FRAMES, TOPIC_EVENTS, TOPIC_LOG, TOPIC_TF, McapRecorder
 from drivers.imu import ImuSampleBlock
 from drivers.turntable import AxisMode, AxisState, AxisStatus, TableState
 

@@ -2,8 +2,16 @@ import numpy as np
 import pytest
 
 from bench.model.earth import Site, normal_gravity
-from bench.model.kinematics import (attitude, black_box_matrix, body_rate_from_frame_rates, frame_axes_in_body,
-                              pointing_labels, rot_y, rot_z, split_at_frame)
+from bench.model.kinematics import (
+    attitude,
+    black_box_matrix,
+    body_rate_from_frame_rates,
+    frame_axes_in_body,
+    pointing_labels,
+    rot_y,
+    rot_z,
+    split_at_frame,
+)
 from bench.model.units import ARCSEC, DEG
 
 # Paper Table 1, pointing column translated (东E 西W 南S 北N 天U 地D).

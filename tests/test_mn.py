@@ -6,7 +6,6 @@ import math
 import threading
 
 import pytest
-from tests.helpers.exchange import Exchange
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -14,12 +13,20 @@ from bench.sim.controller import SimController
 from bench.sim.mn_server import GARBAGE, MnSimHandler
 from bench.sim.serve import LineServer
 from drivers.clock import ManualClock
-from drivers.errors import (TurntableChecksumError, TurntableCommandError, TurntableConnectionError,
-                            TurntableEStop, TurntableFault, TurntableLimitError, TurntableProtocolError,
-                            TurntableTimeout)
+from drivers.errors import (
+    TurntableChecksumError,
+    TurntableCommandError,
+    TurntableConnectionError,
+    TurntableEStop,
+    TurntableFault,
+    TurntableLimitError,
+    TurntableProtocolError,
+    TurntableTimeout,
+)
 from drivers.turntable import mn_codec as codec
 from drivers.turntable.base import AxisLimits, AxisMode, AxisStatus, TurntableLimits
 from drivers.turntable.mn import MnTurntable
+from tests.helpers.exchange import Exchange
 
 CRLF = b"\r\n"
 CHK = (b"$MNCHK,1*CE\r\n", b"$ASCHK,OK*30\r\n")

@@ -10,8 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bench.sim import controller as simctl
-from drivers.errors import (TurntableChecksumError, TurntableCommandError, TurntableError,
-                            TurntableProtocolError)
+from drivers.errors import TurntableChecksumError, TurntableCommandError, TurntableError, TurntableProtocolError
 from drivers.turntable import mn_codec as codec
 from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
 

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from bench.model.motion import trapezoid_timing
-from bench.plan.compiler import CompiledPlan, PlanError, PlanTiming, compile_plan, format_hms
+from bench.model.units import format_hms
+from bench.plan.compiler import CompiledPlan, PlanError, PlanTiming, compile_plan
 from bench.plan.order import _exact_order, _path_cost, order_units
 from bench.plan.steps import DwellStep, MoveStep, SettleStep, TurnStep
 from drivers.turntable.base import AxisLimits, TurntableLimits

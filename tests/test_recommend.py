@@ -9,19 +9,26 @@ import numpy as np
 import pytest
 
 from bench.config.load import SIM_CONFIG_TOML, parse_config
-from bench.schedule_design.monte_carlo import position_errors
-from bench.model.imu import NoiseModel, default_sim_imu
 from bench.model.earth import Site
+from bench.model.imu import NoiseModel, default_sim_imu
+from bench.model.units import ARCSEC
 from bench.plan.compiler import PlanTiming, compile_plan
-from bench.schedule_design.recommend import (FAMILIES, PointingLevel, RecommendError, load_table_check, plan_snippet,
-                             pointing_from_table_check, recommend)
-from bench.cli.run import compile_from_config
+from bench.run.runner import compile_from_config
+from bench.schedule_design.monte_carlo import position_errors
+from bench.schedule_design.recommend import (
+    FAMILIES,
+    PointingLevel,
+    RecommendError,
+    load_table_check,
+    plan_snippet,
+    pointing_from_table_check,
+    recommend,
+)
 from bench.schedule_design.sensitivity import position_sensitivity
 from bench.table_check.estimate import Conversion, estimate, horizontal_force
 from bench.table_check.from_log import TableCheckAnalysis
-from bench.model.units import ARCSEC
-from tests.helpers.run import cli
 from schedules import ScheduleError, builtin_path, load_builtin
+from tests.helpers.run import cli
 
 NOISE = NoiseModel()
 OPT = (load_builtin("optimal-24"), load_builtin("optimal-5s6r"))

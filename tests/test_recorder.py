@@ -14,11 +14,11 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
-from bench.plan.events import Event
-from bench.model.kinematics import rot_y, rot_z
+from bench.log.format import CAN_ENCODING, CHANNELS, FLAG_ERROR, FLAG_FD, FLAG_REMOTE
 from bench.log.reader import LogError, read_log
-from bench.log.recorder import (CAN_ENCODING, CHANNELS, FLAG_ERROR, FLAG_FD, FLAG_REMOTE, McapRecorder, RecorderError,
-                            frame_quaternions)
+from bench.log.recorder import McapRecorder, RecorderError, frame_quaternions
+from bench.model.kinematics import rot_y, rot_z
+from bench.plan.events import Event
 from drivers.imu import ImuEncoder, decode_frames, default_layout
 from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
 

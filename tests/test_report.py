@@ -18,13 +18,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bench.model.imu import canonical_names
 from bench.log.reader import read_log
-from bench.report.plots import envelope, inline_svg
-from bench.report.markdown import compare_results, markdown_report, write_reports
-from bench.report.html import html_report, log_damage, log_series
+from bench.model.families import canonical_names
 from bench.model.result import CalibrationResult
-from run_helpers import cli, config_text, only_file
+from bench.report.html import html_report, log_damage, log_series
+from bench.report.compare import compare_results
+from bench.report.markdown import markdown_report, write_reports
+from bench.report.plots import envelope, inline_svg
+from tests.helpers.run import cli, config_text, only_file
 
 #: Elements without an end tag in HTML.
 VOID = {"area", "base", "br", "col", "embed", "hr", "img", "input", "link", "meta", "source", "track", "wbr"}

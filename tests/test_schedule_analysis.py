@@ -5,8 +5,13 @@ import pytest
 
 from bench.cli.main import main
 from bench.model.imu import ImuCoefficients, NoiseModel
-from bench.schedule_design.sensitivity import (ANGLE_NAMES, position_noise_sigma, position_sensitivity, rotation_noise_sigma,
-                               rotation_sensitivity)
+from bench.schedule_design.sensitivity import (
+    ANGLE_NAMES,
+    position_noise_sigma,
+    position_sensitivity,
+    rotation_noise_sigma,
+    rotation_sensitivity,
+)
 from bench.solve.methods import SolverError
 from schedules import load_builtin
 
@@ -69,8 +74,8 @@ def test_traditional_3s6r_leaves_first_order_axis_terms_and_all_96_cancels_all_b
 def test_sensitivity_matches_a_monte_carlo_difference_at_small_angles():
     # Linear prediction vs the actual solve at a 0.5 arcsec black box on one angle.
     from bench.model.earth import Site
-    from bench.schedule_design.sensitivity import solve_positions_batch
     from bench.model.units import ARCSEC, G0
+    from bench.schedule_design.sensitivity import solve_positions_batch
     angles = _angles("traditional-12")
     sens = position_sensitivity(angles)
     box = np.zeros((1, 3, 3))

@@ -9,11 +9,20 @@ import pytest
 from bench.cli.main import main
 from bench.model.earth import Site
 from bench.model.imu import ImuCoefficients
-from bench.schedule_design.search import (POSITION_GROUPS, SCALE_BIAS_ENTRIES, all_rotations, combo_of_angles,
-                                   combo_of_turns, group_angles, position_combo_sensitivity, position_tables,
-                                   search_positions, search_rotations)
-from bench.schedule_design.sensitivity import position_sensitivity, rotation_sensitivity
 from bench.model.units import ARCSEC, DEG_PER_HOUR, G0
+from bench.schedule_design.search import (
+    POSITION_GROUPS,
+    SCALE_BIAS_ENTRIES,
+    all_rotations,
+    combo_of_angles,
+    combo_of_turns,
+    group_angles,
+    position_combo_sensitivity,
+    position_tables,
+    search_positions,
+    search_rotations,
+)
+from bench.schedule_design.sensitivity import position_sensitivity, rotation_sensitivity
 from schedules import load_builtin, load_schedule
 
 PAPER = combo_of_angles([p.angles_deg for p in load_builtin("optimal-24").positions])

@@ -5,7 +5,6 @@ from __future__ import annotations
 import threading
 
 import pytest
-from tests.helpers.exchange import Exchange
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -14,12 +13,20 @@ from bench.sim.controller import SimController
 from bench.sim.scpi_server import SIM_TO_SCPI, ScpiSimHandler, serve_scpi
 from bench.sim.serve import LineServer
 from drivers.clock import ManualClock
-from drivers.errors import (TurntableChecksumError, TurntableCommandError, TurntableConnectionError, TurntableEStop,
-                            TurntableFault, TurntableLimitError, TurntableProtocolError,
-                            TurntableTimeout)
+from drivers.errors import (
+    TurntableChecksumError,
+    TurntableCommandError,
+    TurntableConnectionError,
+    TurntableEStop,
+    TurntableFault,
+    TurntableLimitError,
+    TurntableProtocolError,
+    TurntableTimeout,
+)
 from drivers.turntable import scpi_codec as sc
 from drivers.turntable.base import AxisLimits, AxisMode, AxisStatus, TurntableLimits
 from drivers.turntable.scpi import ScpiTurntable
+from tests.helpers.exchange import Exchange
 
 OK = b'0,"No error"\r\n'
 CLS = (b"*CLS\r\n", None)

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from bench.sim.controller import (ERR_FAULT, ERR_LIMIT, ERR_NOT_ENABLED, ERR_WRONG_MODE, SimCommandError,
-                                  SimController)
+from bench.sim.controller import ERR_FAULT, ERR_LIMIT, ERR_NOT_ENABLED, ERR_WRONG_MODE, SimCommandError, SimController
 from drivers.clock import ManualClock
 from drivers.turntable.base import AxisLimits, AxisMode, AxisStatus
 

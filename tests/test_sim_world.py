@@ -11,8 +11,8 @@ from bench.model import kinematics
 from bench.model.earth import Site
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
 from bench.model.motion import trapezoid_timing
-from bench.sim import ImuSamples, SimImu, SimTable, TableLimits
 from bench.model.units import ARCSEC, DEG, DEG_PER_HOUR, MICRO_G
+from bench.sim import ImuSamples, SimImu, SimTable, TableLimits
 
 TWO_PI = 2.0 * math.pi
 

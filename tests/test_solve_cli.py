@@ -23,13 +23,13 @@ from mcap.records import Chunk
 from mcap.stream_reader import StreamReader
 
 from bench.config.load import parse_config
-from bench.solve.extract import finished_observation_steps
 from bench.log.reader import read_log
-from bench.model.imu import canonical_names
+from bench.model.families import canonical_names
 from bench.solve.compare import METHODS
+from bench.solve.extract import finished_observation_steps
 from bench.solve.resolve import angle_key
-from run_helpers import cli, config_text, kill_run_after_units, load_json, only_file
 from schedules import load_builtin
+from tests.helpers.run import cli, config_text, kill_run_after_units, load_json, only_file
 
 #: Timing of the all-data plan (64 dwells, 96 turns): short rests, turns as fast as the
 #: simulated table's acceleration allows (~3.8 s a revolution), about 970 s simulated.

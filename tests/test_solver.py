@@ -5,13 +5,14 @@ import json
 import numpy as np
 import pytest
 
-from bench.solve.calibrate import solve
 from bench.model.closed_form import exact_observations
 from bench.model.earth import Site
-from bench.model.imu import canonical_names, default_sim_imu
+from bench.model.families import canonical_names
+from bench.model.imu import default_sim_imu
 from bench.model.result import CalibrationResult, ResultFormatError
-from bench.solve.methods import SolverError
 from bench.model.units import ARCSEC
+from bench.solve.calibrate import solve
+from bench.solve.methods import SolverError
 from schedules import load_builtin
 from tests.helpers.solver import assert_recovered
 

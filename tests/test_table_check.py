@@ -19,16 +19,25 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bench.log.reader import read_log
 from bench.model.closed_form import position_outputs
 from bench.model.earth import Site
 from bench.model.imu import default_sim_imu
-from bench.table_check.estimate import (ANGLE_NAMES, COMBINATION_KEYS, TableCheckError, black_box_jacobian,
-                               combination_matrix, estimate, horizontal_force, horizontal_from_counts,
-                               observability, true_combinations)
 from bench.model.units import ARCSEC
-from bench.log.reader import read_log
-from tests.helpers.run import AT_REST_DPS, cli, config_text, only_file, start_cli, stop_process, transitions, wait_for
+from bench.table_check.estimate import (
+    ANGLE_NAMES,
+    COMBINATION_KEYS,
+    TableCheckError,
+    black_box_jacobian,
+    combination_matrix,
+    estimate,
+    horizontal_force,
+    horizontal_from_counts,
+    observability,
+    true_combinations,
+)
 from schedules import load_builtin
+from tests.helpers.run import AT_REST_DPS, cli, config_text, only_file, start_cli, stop_process, transitions, wait_for
 
 CHECK_324 = np.array([p.angles_deg for p in load_builtin("table-check-324").positions])
 SITE = Site(30.27)

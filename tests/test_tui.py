@@ -14,16 +14,28 @@ import threading
 import numpy as np
 import pytest
 
-from bench.plan.events import Event, RunState
 from bench.model.result import CalibrationResult, coefficient_table
-from bench.cli.run import compile_from_config
+from bench.plan.events import Event, RunState
+from bench.run.runner import compile_from_config
 from bench.tui.buffer import STEP_DONE, STEP_FAILED, STEP_PENDING, STEP_RUNNING, ImuScales, UiBuffer, progress
 from drivers.imu import ImuSampleBlock
 from drivers.turntable import AxisMode, AxisState, AxisStatus, TableState
 from tests.helpers.run import assert_disabled
-from tests.helpers.tui import (SIZE, connected, dialog_open, events_text, make_app, make_config, press, run, snap,
-                               start_plan, submit, wait_ended, wait_until)
-
+from tests.helpers.tui import (
+    SIZE,
+    connected,
+    dialog_open,
+    events_text,
+    make_app,
+    make_config,
+    press,
+    run,
+    snap,
+    start_plan,
+    submit,
+    wait_ended,
+    wait_until,
+)
 
 # -- the buffer (no Textual) -------------------------------------------------------------------
 

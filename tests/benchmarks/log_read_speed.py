@@ -76,8 +76,8 @@ def synthetic_path(cache: Path, args) -> Path:
 def write_synthetic(path: Path, n_samples: int, decimation: int = 1) -> None:
     import can
 
-    from bench.plan.events import Event
     from bench.log.recorder import McapRecorder
+    from bench.plan.events import Event
     from drivers.imu import ImuSampleBlock
     from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
 
@@ -187,7 +187,7 @@ def one_hour_config_text(dwell_s: float) -> str:
 def one_hour_config(out_dir: Path):
     """The default simulated configuration at 1 kHz, dwell stretched so the plan lasts ~1 h."""
     from bench.config.load import parse_config
-    from bench.cli.run import compile_from_config
+    from bench.run.runner import compile_from_config
 
     def total(dwell_s: float) -> tuple[float, int]:
         config = parse_config(one_hour_config_text(dwell_s), source=str(out_dir / "bench.toml"), base_dir=out_dir)

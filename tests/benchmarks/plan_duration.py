@@ -20,7 +20,8 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
 
-    from bench.plan.compiler import PlanTiming, compile_plan, format_hms
+    from bench.model.units import format_hms
+    from bench.plan.compiler import PlanTiming, compile_plan
     from schedules import load_builtin
 
     timing = PlanTiming(dwell_s=60, settle_s=5, move_rate_dps=20, move_accel_dps2=10, turn_rate_dps=10,

@@ -25,9 +25,9 @@ import time
 import can
 import numpy as np
 
-from bench.plan.events import Event
 from bench.log.reader import read_log
 from bench.log.recorder import McapRecorder
+from bench.plan.events import Event
 from drivers.imu import ImuEncoder, ImuSampleBlock, decode_frames, default_layout
 from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
 

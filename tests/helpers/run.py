@@ -23,15 +23,15 @@ from typing import Callable
 
 from mcap.reader import make_reader
 
-from bench.solve.calibrate import solve
 from bench.config.load import parse_config
+from bench.model.families import family_of
+from bench.model.imu import NoiseModel
 from bench.plan.events import RunListener
-from bench.model.imu import NoiseModel, family
-from bench.cli.run import compile_from_config
-from bench.run.runner import BenchRun
+from bench.run.runner import BenchRun, compile_from_config
 from bench.sim.acquire import AcquisitionTiming, acquire
 from bench.sim.imu import SimImu
 from bench.sim.table import SimTable
+from bench.solve.calibrate import solve
 from drivers.turntable import AxisMode, AxisStatus
 
 AT_REST_DPS = 1e-9
@@ -102,7 +102,7 @@ def noise_free_floor(family_name: str, dwell_s: float = DWELL_S) -> float:
 def coefficient_error(name: str, value: float, reference: float) -> float:
     """|value - reference|, relative for scale factors (Kg, Ka), absolute (display units) otherwise."""
     diff = abs(value - reference)
-    return diff / abs(reference) if family(name) in ("Kg", "Ka") else diff
+    return diff / abs(reference) if family_of(name) in ("Kg", "Ka") else diff
 
 
 def values(result_json: dict, section: str = "coefficients") -> dict[str, float]:
@@ -116,7 +116,7 @@ def mismatches(actual: dict[str, float], reference: dict[str, float],
     out = []
     for name, ref in reference.items():
         err = coefficient_error(name, actual[name], ref)
-        tol = tolerance(family(name))
+        tol = tolerance(family_of(name))
         if not err <= tol:
             out.append(f"{name}: {actual[name]!r} vs {ref!r} (error {err:.3g} > {tol:.3g})")
     return out
@@ -281,8 +281,8 @@ def load_json(path: Path) -> dict:
 def kill_run_after_units(config: Path, out: Path, units: int = 5) -> tuple[Path, dict]:
     """Start `bench run --config` as a process, SIGKILL it once its log holds `units` finished
     observation steps; returns the killed log and those steps (unit -> events)."""
-    from bench.solve.extract import finished_observation_steps
     from bench.log.reader import LogError, read_log
+    from bench.solve.extract import finished_observation_steps
 
     seen: dict = {}
 

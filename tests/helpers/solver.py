@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import pytest
 
-from bench.model.imu import ImuCoefficients, canonical_names, family
+from bench.model.families import canonical_names, family_of
+from bench.model.imu import ImuCoefficients
 
 
 def assert_recovered(values: dict, truth: ImuCoefficients):
     true_values = truth.to_canonical()
     for name in canonical_names():
-        fam = family(name)
+        fam = family_of(name)
         got, want = values[name], true_values[name]
         if fam in ("Kg", "Ka"):
             assert got == pytest.approx(want, rel=1e-9), name
