@@ -210,21 +210,22 @@ def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
         failed = run_plan(run, PROG, quiet=args.quiet, simulated=sim)
         if failed is not None:
             return failed
-        seq = run.sequencer
+        seq, recorder = run.sequencer, run.recorder
+        assert seq is not None and recorder is not None   # run_plan returned None: the run opened and ran
         if seq.error is not None:
-            run.recorder.close()
+            recorder.close()
             return fail(PROG, f"{seq.state.value}: {seq.error}; table stopped. Log: {run.log_path}", ExitCode.FAULT)
         # Not BenchRun.finish(): that solves a calibration. The check reads the log it just wrote.
-        run.recorder.flush()
+        recorder.flush()
         try:
             analysis = analyse_log(run.log_path, calibration=calibration, still_open=True)
         except (LogError, TableCheckError) as exc:
-            run.recorder.close()
+            recorder.close()
             return fail(PROG, f"the run finished but the check cannot be computed: {exc}. Log: {run.log_path}",
                          ExitCode.QUALITY)
         paths = write_outputs(analysis, out_dir)
-        run.recorder.add_attachment(paths["json"].name, "application/json", paths["json"].read_bytes())
-        run.recorder.close()
+        recorder.add_attachment(paths["json"].name, "application/json", paths["json"].read_bytes())
+        recorder.close()
     return _report(args, analysis, out_dir, paths)
 
 
@@ -268,5 +269,6 @@ def _report(args, analysis, out_dir: Path, paths: dict | None = None) -> ExitCod
     if analysis.problems:
         return fail(PROG, "quality check failed: " + "; ".join(analysis.problems), ExitCode.QUALITY)
     if analysis.sim_within_3_sigma is False:
-        return fail(PROG, "the estimate misses the simulated table's truth by more than 3 sigma", ExitCode.SIM_TRUTH_MISSED)
+        return fail(PROG, "the estimate misses the simulated table's truth by more than 3 sigma",
+                    ExitCode.SIM_TRUTH_MISSED)
     return ExitCode.OK

@@ -48,7 +48,8 @@ class ProgressPrinter(RunListener):
         filled = int(round(fraction * self.bar_width))
         bar = "#" * filled + "-" * (self.bar_width - filled)
         what = f"step {step.index + 1}/{len(self.steps)} {step.unit} {step.kind}" if step else ""
-        left = f" {format_hms(step.estimated_s - elapsed_in_step)} left" if step and step.kind in ("dwell", "settle") else ""
+        left = (f" {format_hms(step.estimated_s - elapsed_in_step)} left" if step and step.kind in ("dwell", "settle")
+                else "")
         clock = " sim" if self.simulated else ""
         self.stream.write(f"\r[{bar}] {fraction:5.1%} {what}{left}  ETA{clock} {format_hms(self.total_s - done)}   ")
         self.stream.flush()
@@ -61,10 +62,11 @@ class ProgressPrinter(RunListener):
         if self.quiet:
             return
         if event.kind == "step_started":
-            self._current = self.steps[event.step_index] if event.step_index is not None else None
+            index = event.step_index
+            self._current = self.steps[index] if index is not None else None
             self._started_at = event.time_s
-            if not self.live and self._current is not None:
-                self._print(f"[{format_hms(event.time_s)}] step {event.step_index + 1}/{len(self.steps)} {event.message}")
+            if not self.live and index is not None:
+                self._print(f"[{format_hms(event.time_s)}] step {index + 1}/{len(self.steps)} {event.message}")
         elif event.kind in ("step_finished", "step_skipped"):
             if event.step_index is not None:
                 self._done_s += self.steps[event.step_index].estimated_s

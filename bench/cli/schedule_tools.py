@@ -105,7 +105,8 @@ def cmd_analyze(args: argparse.Namespace) -> ExitCode:
     print(f"\nFirst-order sensitivity to the nine black-box angles (simulated IMU, latitude {args.latitude} deg):")
     for line in sensitivity_lines(sens):
         print(line)
-    print(f"\nNoise-driven 1-sigma ({'turn rate %g deg/s' % args.turn_rate_dps if rotations else 'dwell %g s' % args.dwell_s}"
+    setting = 'turn rate %g deg/s' % args.turn_rate_dps if rotations else 'dwell %g s' % args.dwell_s
+    print(f"\nNoise-driven 1-sigma ({setting}"
           f"; ARW {noise.gyro_arw_deg_rt_h} deg/rt h, VRW {noise.acc_vrw_ug_rt_hz} ug/rt Hz, bias instability "
           f"{noise.gyro_bias_instability_dph} deg/h / {noise.acc_bias_instability_ug} ug, "
           f"quantisation {'on' if noise.quantise else 'off'}):")
@@ -119,6 +120,7 @@ def cmd_analyze(args: argparse.Namespace) -> ExitCode:
     except PlanError as exc:
         print(f"\nPlan duration: not compiled ({exc})")
     reference = "optimal-5s6r" if rotations else "optimal-24"
+    keys: tuple[str, ...]
     if rotations:
         table = evaluate({}, {schedule.name: turns, reference: list(load_builtin(reference).rotations)},
                          runs=args.runs, site=site, rate_dps=args.turn_rate_dps)["rotations"]

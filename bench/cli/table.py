@@ -66,14 +66,19 @@ def register_table(subparsers: argparse._SubParsersAction) -> None:
 def format_state(state: TableState) -> str:
     lines = [f"{'frame':<7} {'angle deg':>14} {'rate deg/s':>12}  {'mode':<9} status"]
     for name, axis in zip(FRAMES, state.axes):
-        flags = " ".join(flag.name.lower().replace("_", "-") for flag in AxisStatus if axis.status & flag) or "-"
+        names = []
+        for flag in AxisStatus:
+            if axis.status & flag:
+                assert flag.name is not None  # single members of a Flag always have a name
+                names.append(flag.name.lower().replace("_", "-"))
+        flags = " ".join(names) or "-"
         lines.append(f"{name:<7} {axis.angle_deg:>14.6f} {axis.rate_dps:>12.6f}  {axis.mode.value:<9} {flags}")
     fault = state.describe_fault()
     lines.append(f"fault: {fault}" if fault else "fault: none")
     return "\n".join(lines)
 
 
-def _run_table_command(table: Turntable, args: argparse.Namespace) -> int:
+def _run_table_command(table: Turntable, args: argparse.Namespace) -> ExitCode:
     command = args.table_command
     if command == "status":
         state = table.read_state()
@@ -105,7 +110,8 @@ def _run_table_command(table: Turntable, args: argparse.Namespace) -> int:
 def cmd_table(args: argparse.Namespace) -> ExitCode:
     prog = f"bench table {args.table_command}"
     try:
-        limits = TurntableLimits(tuple(AxisLimits(max_rate_dps=args.max_rate_dps) for _ in range(3)))
+        outer, middle, inner = (AxisLimits(max_rate_dps=args.max_rate_dps) for _ in range(3))
+        limits = TurntableLimits((outer, middle, inner))
         table = open_turntable(args.url, args.dialect, limits=limits, timeout_s=args.timeout_s,
                                retries=args.retries)
     except ValueError as exc:
@@ -194,23 +200,28 @@ def _listen(controller, dialect: str, where: str, closers: list) -> str:
     if dialect == "modbus":
         from bench.sim.modbus_server import ModbusSimServer  # pymodbus: only for the Modbus simulator
 
-        server = ModbusSimServer(controller)
-        closers.append(server.close)
+        modbus = ModbusSimServer(controller)
+        closers.append(modbus.close)
         if where == "pty":
-            return f"modbus+rtu://{server.start_rtu_pty()}"
+            return f"modbus+rtu://{modbus.start_rtu_pty()}"
         parts = urlsplit(where)
         if parts.scheme != "modbus+tcp" or parts.port is None:
             raise ValueError(f"the modbus simulator listens on modbus+tcp://HOST:PORT or pty, not {where!r}")
-        host, port = server.start_tcp(parts.hostname, parts.port)
+        host, port = modbus.start_tcp(parts.hostname, parts.port)
         return f"modbus+tcp://{host}:{port}"
     # the simulators load only for `bench sim` (the Modbus one imports pymodbus)
-    from bench.sim.serve import LineServer
+    from bench.sim.serve import Handler, LineServer
 
+    handler: Handler
     if dialect == "scpi":
-        from bench.sim.scpi_server import ScpiSimHandler as Handler  # the simulators: only for `bench sim`
+        from bench.sim.scpi_server import ScpiSimHandler  # the simulators: only for `bench sim`
+
+        handler = ScpiSimHandler(controller)
     else:
-        from bench.sim.mn_server import MnSimHandler as Handler  # the simulators: only for `bench sim`
-    server = LineServer(Handler(controller))
+        from bench.sim.mn_server import MnSimHandler  # the simulators: only for `bench sim`
+
+        handler = MnSimHandler(controller)
+    server = LineServer(handler)
     closers.append(server.close)
     if where == "pty":
         return server.open_pty()

@@ -12,9 +12,10 @@ from __future__ import annotations
 import os
 import struct
 import zlib
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from io import BytesIO
+from types import ModuleType
 
 import numpy as np
 from mcap.data_stream import ReadDataStream
@@ -22,12 +23,14 @@ from mcap.records import Channel
 
 from bench.errors import BenchError
 
+zstandard: ModuleType | None   # None when it is not installed
 try:
     import zstandard
 except ImportError:    # pragma: no cover - mcap depends on it
     zstandard = None
 try:
-    import lz4.frame as lz4_frame
+    # lz4 ships no type information (no stubs, no py.typed), and pyproject's list of such packages lacks it
+    import lz4.frame as lz4_frame  # type: ignore[import-untyped]
 except ImportError:    # pragma: no cover - mcap depends on it
     lz4_frame = None
 
@@ -44,6 +47,9 @@ MESSAGE_HEAD = struct.Struct("<BQHIQ")     # opcode, length, channel id, sequenc
 _CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
 _U64 = struct.Struct("<Q")
 MESSAGE_DATA_OFFSET = 9 + 22                   # record header + message header
+
+#: (start, end, uncompressed size, crc, compression, data start, data length) of a chunk record
+ChunkFields = tuple[int, int, int, int, str, int, int]
 
 
 class WalkError(BenchError):
@@ -164,18 +170,20 @@ class Prefetch:
             found = _deferrable(buf, fields, index, deferred_channels)
             if found is not None:
                 self.deferred[pos] = found
-        self.futures: dict[int, object] = {}
+        self.futures: dict[int, Future] = {}
         self.submitted = 0
         workers = workers or min(4, os.cpu_count() or 1)
         self.pool = (ThreadPoolExecutor(workers, thread_name_prefix="mcap-inflate")
                      if len(self.chunks) >= self.MIN_CHUNKS and workers > 1 else None)
         self.ahead = workers * self.AHEAD_PER_WORKER
 
-    def _scan(self, buf) -> list[tuple]:
+    def _scan(self, buf) -> list[tuple[int, ChunkFields, list[tuple[int, int]]]]:
         """(offset, `chunk_fields`, the message index records right after it) of every chunk; the
         channel topics of the channel records outside chunks into `self.topics`."""
-        size, pos, found = len(buf), 8, []
-        current = None   # the index records of the last chunk, while only such records follow it
+        size, pos = len(buf), 8
+        found: list[tuple[int, ChunkFields, list[tuple[int, int]]]] = []
+        # the index records of the last chunk, while only such records follow it
+        current: list[tuple[int, int]] | None = None
         while pos + 9 <= size:
             op, length = RECORD_HEAD.unpack_from(buf, pos)
             end = pos + 9 + length
@@ -228,7 +236,7 @@ class Prefetch:
             self.futures.clear()
 
 
-def chunk_fields(buf, body: int, length: int):
+def chunk_fields(buf, body: int, length: int) -> ChunkFields | None:
     """(start, end, usize, crc, compression, data_start, data_len) of a chunk body, or None if inconsistent."""
     if length < 40:
         return None

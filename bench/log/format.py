@@ -246,14 +246,16 @@ def _frame_offsets(p: bytes) -> list[int] | None:
 
 def _general_can(payloads: list[bytes]) -> tuple[tuple, int]:
     """Frames of mixed lengths, message by message; malformed messages are dropped and counted."""
-    good, offsets, base, bad = [], [], 0, 0
+    good: list[bytes] = []
+    offsets: list[int] = []
+    base, bad = 0, 0
     for p in payloads:
-        offs = _frame_offsets(p)
-        if offs is None:
+        found = _frame_offsets(p)
+        if found is None:
             bad += 1
             continue
         good.append(p)
-        offsets.extend(o + base for o in offs)
+        offsets.extend(o + base for o in found)
         base += len(p)
     if not offsets:
         return _empty_can(), bad

@@ -213,7 +213,7 @@ class RunLog:
     def check_deferred(self) -> list[str]:
         """Decompress and check the deferred `/imu/samples` chunks; returns (and adds to `damage`)
         what was lost in them."""
-        if not self.unchecked_chunks:
+        if self._samples is None or not self.unchecked_chunks:
             return []
         found = self._samples.inflate_deferred(TOPIC_SAMPLES)
         self.lost.extend(found)

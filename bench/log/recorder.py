@@ -140,12 +140,12 @@ def frame_quaternions(angles_deg: Sequence[float]) -> list[tuple[float, float, f
 
     Each is the rotation `(C_parent^child)^T`: -theta about the frame axis (Z, Y, Z).
     """
-    out = []
+    out: list[tuple[float, float, float, float]] = []
     for axis, angle_deg in zip((2, 1, 2), angles_deg):
         half = -math.radians(angle_deg) / 2.0
         q = [0.0, 0.0, 0.0, math.cos(half)]
         q[axis] = math.sin(half)
-        out.append(tuple(q))
+        out.append((q[0], q[1], q[2], q[3]))
     return out
 
 

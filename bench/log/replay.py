@@ -178,6 +178,7 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
             stats.frame_batches += 1
             s_lo, s_hi = int(sample_bounds[k]), int(sample_bounds[k + 1])
             if s_hi > s_lo:
+                assert samples is not None   # sample bounds are all 0 unless samples were decoded
                 block = _slice(samples, s_lo, s_hi)
                 for listener in listeners:
                     listener.on_imu(block)
@@ -240,12 +241,12 @@ def _table_states(log: RunLog) -> tuple[list[TableState], int]:
     angles, rates, status = s.angles_deg.tolist(), s.rates_dps.tolist(), s.status.tolist()
     for i, t in enumerate(s.time_s.tolist()):
         try:
-            axes = tuple(AxisState(angles[i][a], rates[i][a], AxisMode(s.modes[i][a]), AxisStatus(status[i][a]))
-                         for a in range(3))
+            outer, middle, inner = (AxisState(angles[i][a], rates[i][a], AxisMode(s.modes[i][a]),
+                                              AxisStatus(status[i][a])) for a in range(3))
         except (ValueError, IndexError, TypeError):
             bad += 1
             continue
-        out.append(TableState(t, axes, s.fault_text[i]))
+        out.append(TableState(t, (outer, middle, inner), s.fault_text[i]))
     return out, bad
 
 

@@ -70,9 +70,10 @@ def layout_and_config_from_log(log: RunLog) -> LogSetup:
     try:
         rate_hz = float(imu_meta["rate_hz"])
     except (KeyError, ValueError) as exc:
-        rate_hz = _toml_rate(text)
-        if rate_hz is None:
+        toml_rate_hz = _toml_rate(text)
+        if toml_rate_hz is None:
             raise LogError(f"{log.path}: the log records no IMU sample rate") from exc
+        rate_hz = toml_rate_hz
     return LogSetup(layout, rate_hz, None, _site_from_metadata(log, notes), tuple(notes))
 
 

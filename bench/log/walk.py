@@ -73,7 +73,9 @@ class Damage:
     lost: dict[str, int] = field(default_factory=dict)   # topic -> messages lost, when known
 
     def describe(self) -> str:
-        where = f" ({_fmt_range(self.start_ns, self.end_ns)})" if self.start_ns is not None else ""
+        where = ""
+        if self.start_ns is not None and self.end_ns is not None:   # a range is known whole or not at all
+            where = f" ({_fmt_range(self.start_ns, self.end_ns)})"
         if self.kind == "chunk":
             what = (", ".join(f"{n} on {t}" for t, n in sorted(self.lost.items())) if self.lost
                     else "count unknown")
@@ -210,7 +212,8 @@ class _Walker:
         self.defer_topics = defer_topics
         self.w = Walk(size=len(buf))
         self.lost_chunk: Damage | None = None   # message index records after a lost chunk count its messages
-        self.pending = None                     # a good chunk waiting for its message index records
+        # a good chunk waiting for its message index records: (offset, start, end, data or still compressed)
+        self.pending: tuple[int, int, int, bytes | DeferredChunk] | None = None
         self.pending_index: list[tuple[int, int]] = []
         self.prefetch: Prefetch | None = None
         self.framed = None   # (message index records, `index_chunk` answer) of the pending chunk, from a worker
@@ -361,8 +364,9 @@ class _Walker:
             self.lost_chunk = w.damage[-1]
             return False
         start, end, usize, crc, compression, dstart, dlen = f
-        deferred = self.prefetch.deferred.get(pos) if self.prefetch is not None else None
-        if deferred is not None and self.prefetch.chunks[self.prefetch.index[pos]][1] == f:
+        prefetch = self.prefetch
+        deferred = prefetch.deferred.get(pos) if prefetch is not None else None
+        if deferred is not None and prefetch is not None and prefetch.chunks[prefetch.index[pos]][1] == f:
             ch, t, o = deferred
             self.pending = (pos, start, end, DeferredChunk(pos, start, end, compression,
                                                            bytes(buf[dstart:dstart + dlen]), usize, crc, ch, t, o))
@@ -399,6 +403,7 @@ class _Walker:
         self.pending, self.pending_index = None, []
         if isinstance(data, DeferredChunk):
             chunk = data
+            assert self.prefetch is not None   # only the prefetch's scan defers chunks
             if index == self.prefetch.chunks[self.prefetch.index[pos]][2]:
                 self.channel_data(chunk.channel).add(chunk, chunk.lengths, chunk.log_times)
                 self.w.chunks += 1

@@ -183,10 +183,12 @@ class _Unit:
 
     def exit_deg(self, target_deg: tuple[float, ...]) -> tuple[float, float, float]:
         if self.rotation is None:
-            return tuple(target_deg)
+            outer, middle, inner = target_deg
+            return outer, middle, inner
         end = list(target_deg)
         end[self.rotation.frame_index] += self.turn_delta_deg
-        return tuple(end)
+        outer, middle, inner = end
+        return outer, middle, inner
 
 
 def _k_range(nominal: float, lo_deg: float | None, hi_deg: float | None, span: float = 0.0) -> tuple[float, float]:

@@ -98,15 +98,15 @@ def _local_search(m: np.ndarray, path: np.ndarray, max_rounds: int = 2000) -> np
                     best_move = ("or", flat // cols + 1, flat % cols, length, reverse)
         if best_move is None:
             return path
-        kind, i, j, length, reverse = best_move
+        kind, bi, bj, length, reverse = best_move   # the best move's i and j (ints; i, j above are arrays)
         p = list(path)
         if kind == "2opt":
-            p[i:j + 1] = p[i:j + 1][::-1]
+            p[bi:bj + 1] = p[bi:bj + 1][::-1]
         else:
-            seg = p[i:i + length]
+            seg = p[bi:bi + length]
             seg = seg[::-1] if reverse else seg
-            rest = p[:i] + p[i + length:]
-            at = j + 1 if j < i else j + 1 - length   # insert after old position j
+            rest = p[:bi] + p[bi + length:]
+            at = bj + 1 if bj < bi else bj + 1 - length   # insert after old position j
             p = rest[:at] + seg + rest[at:]
         path = np.array(p)
     return path

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeGuard
 
 from bench.model.families import canonical_names
 from bench.model.result import CalibrationResult
@@ -29,7 +29,7 @@ def fmt(x: float | None, digits: int = 8) -> str:
 _fmt = fmt
 
 
-def _finite(x: Any) -> bool:
+def _finite(x: Any) -> TypeGuard[float]:
     return isinstance(x, (int, float)) and math.isfinite(x)
 
 
@@ -129,9 +129,10 @@ def compare_results(new: CalibrationResult, old: CalibrationResult, threshold: f
     changes = []
     for name in canonical_names():
         a, b = old.coefficients.get(name), new.coefficients.get(name)
-        if a is None and b is None:
+        shown = b or a
+        if shown is None:   # in neither result
             continue
-        changes.append(CoefficientChange(name, (b or a).unit, a.value if a else None, b.value if b else None,
+        changes.append(CoefficientChange(name, shown.unit, a.value if a else None, b.value if b else None,
                                          sig(a), sig(b)))
     run_changes = [(k, old.run.get(k), new.run.get(k)) for k in COMPARED_RUN_FIELDS
                    if old.run.get(k) != new.run.get(k)]
@@ -139,7 +140,8 @@ def compare_results(new: CalibrationResult, old: CalibrationResult, threshold: f
     for key in ("accelerometers", "gyros", "gyro_bias"):
         qa, qb = old.quality.get(key) or {}, new.quality.get(key) or {}
         if qa.get("chi2_per_dof") != qb.get("chi2_per_dof") and (qa or qb):
-            notes.append(f"{key} chi2/dof per axis: {fmt_list(qa.get('chi2_per_dof'))} -> {fmt_list(qb.get('chi2_per_dof'))}")
+            notes.append(f"{key} chi2/dof per axis: {fmt_list(qa.get('chi2_per_dof'))} -> "
+                         f"{fmt_list(qb.get('chi2_per_dof'))}")
     na, nb = len(old.quality.get("outliers", [])), len(new.quality.get("outliers", []))
     if na != nb:
         notes.append(f"residual outliers: {na} -> {nb}")

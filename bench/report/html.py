@@ -14,7 +14,7 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from html import escape
-from typing import Any
+from typing import Any, Collection
 
 import numpy as np
 
@@ -150,7 +150,7 @@ def _e(x: Any) -> str:
     return escape(str(x), quote=True)
 
 
-def _table(header: list[str], rows: list[tuple[list[str], str]], numeric: set[int] = frozenset(),
+def _table(header: list[str], rows: list[tuple[list[str], str]], numeric: Collection[int] = frozenset(),
            row_ids: list[str] | None = None) -> str:
     """`rows`: (already escaped cells, css class). Columns in `numeric` are right-aligned."""
     out = ["<table>", "<thead><tr>" + "".join(f"<th>{_e(h)}</th>" for h in header) + "</tr></thead>", "<tbody>"]

@@ -8,7 +8,7 @@ call it.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 from bench.model.result import CalibrationResult
 from bench.report.compare import (
@@ -27,7 +27,7 @@ from bench.report.html import html_report
 #: |change| / sigma above which a coefficient counts as changed in a comparison.
 # -- Markdown -------------------------------------------------------------------------------
 
-def markdown_report(result: CalibrationResult, *, problems: list[str] = (), failures: list[str] = (),
+def markdown_report(result: CalibrationResult, *, problems: Sequence[str] = (), failures: Sequence[str] = (),
                     imu_link: dict[str, Any] | None = None, title: str = "Calibration report",
                     against: CalibrationResult | None = None, against_label: str | None = None) -> str:
     """Run metadata, verdict, coefficients (with the truth for a simulated run), quality, residuals
@@ -154,7 +154,7 @@ def _markdown_comparison(comparison: Comparison) -> list[str]:
 # -- both files -------------------------------------------------------------------------------
 
 def write_reports(result: CalibrationResult, out_dir: str | Path, run_id: str, *, log=None, layout=None,
-                  problems: list[str] = (), failures: list[str] = (), imu_link: dict[str, Any] | None = None,
+                  problems: Sequence[str] = (), failures: Sequence[str] = (), imu_link: dict[str, Any] | None = None,
                   against: CalibrationResult | None = None, against_label: str | None = None,
                   title: str | None = None, log_still_open: bool = False) -> tuple[Path, Path]:
     """Write `<run-id>.report.md` and the self-contained `<run-id>.report.html` into `out_dir`.

@@ -15,7 +15,7 @@ from __future__ import annotations
 import io
 import itertools
 import re
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import matplotlib
 
@@ -26,14 +26,18 @@ import numpy as np  # noqa: E402
 
 from bench.model.kinematics import FRAMES
 
+if TYPE_CHECKING:   # for the type checker only: the rc keys matplotlib accepts
+    from matplotlib.typing import RcKeyType
+
 #: Points per channel a time-series figure keeps at most (min/max pairs).
 MAX_POINTS = 2000
 AXIS_COLORS = ("#1f77b4", "#2ca02c", "#d62728")     # x / outer, y / middle, z / inner
 OUTLIER_COLOR = "#d62728"
 DWELL_SHADE, TURN_SHADE = "#cfe3f5", "#f8dfc4"
 
-_RC = {"svg.fonttype": "none", "svg.hashsalt": "turntable-bench", "font.size": 8.0, "axes.titlesize": 9.0,
-       "axes.grid": True, "grid.alpha": 0.3, "figure.dpi": 72.0}
+_RC: dict[RcKeyType, str | float | bool] = {
+    "svg.fonttype": "none", "svg.hashsalt": "turntable-bench", "font.size": 8.0, "axes.titlesize": 9.0,
+    "axes.grid": True, "grid.alpha": 0.3, "figure.dpi": 72.0}
 _NO_METADATA = {"Creator": None, "Date": None, "Format": None, "Type": None}
 _counter = itertools.count(1)
 _ID_REF = re.compile(r'(\bid="|href="#|url\(#)([^")]+)')
