@@ -131,3 +131,10 @@ def test_sim_table_stops_on_sigint_even_when_started_with_sigint_ignored():
             proc.wait(timeout=5)
         for stream in (proc.stdin, proc.stdout, proc.stderr):
             stream.close()
+
+
+@pytest.mark.parametrize("dialect, where", [("scpi", "tcp://:5025"), ("modbus", "modbus+tcp://:5020")])
+def test_sim_table_refuses_a_listen_address_without_a_host(dialect, where, capsys):
+    assert main(["sim", "table", "--dialect", dialect, "--listen", where]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "HOST:PORT" in err, err

@@ -205,7 +205,7 @@ def _listen(controller, dialect: str, where: str, closers: list) -> str:
         if where == "pty":
             return f"modbus+rtu://{modbus.start_rtu_pty()}"
         parts = urlsplit(where)
-        if parts.scheme != "modbus+tcp" or parts.port is None:
+        if parts.scheme != "modbus+tcp" or parts.port is None or not parts.hostname:
             raise ValueError(f"the modbus simulator listens on modbus+tcp://HOST:PORT or pty, not {where!r}")
         host, port = modbus.start_tcp(parts.hostname, parts.port)
         return f"modbus+tcp://{host}:{port}"
@@ -226,7 +226,7 @@ def _listen(controller, dialect: str, where: str, closers: list) -> str:
     if where == "pty":
         return server.open_pty()
     parts = urlsplit(where)
-    if parts.scheme != "tcp" or parts.port is None:
+    if parts.scheme != "tcp" or parts.port is None or not parts.hostname:
         raise ValueError(f"the {dialect} simulator listens on tcp://HOST:PORT or pty, not {where!r}")
     host, port = server.listen_tcp(parts.hostname, parts.port)
     return f"tcp://{host}:{port}"
