@@ -1,8 +1,6 @@
 """ruff and mypy, configured in pyproject.toml, run by the README's test command.
 
-`CHECKED` lists the code held at zero findings. Everything in drivers/ and schedules/
-is; bench/ joins package by package as it gets there (issue 12), and a package once
-listed must stay clean.
+`CHECKED` lists the code held at zero findings: all of bench, drivers and schedules.
 """
 
 from __future__ import annotations
@@ -13,9 +11,8 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 
-#: held at zero ruff and mypy findings
-CHECKED = ["drivers", "schedules", "bench/errors.py", "bench/__init__.py", "bench/run", "bench/plan/events.py",
-           "bench/plan/steps.py"]
+#: held at zero ruff and mypy findings (the tests themselves are not, yet)
+CHECKED = ["bench", "drivers", "schedules"]
 
 
 def _run(*command: str) -> subprocess.CompletedProcess:

@@ -15,6 +15,7 @@ import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import can.interfaces
 import numpy as np
@@ -182,9 +183,10 @@ def _table(t: Table) -> TableConfig:
     tolerance_deg = t.number("settle_tolerance_deg", 0.001, gt=0, unit="deg")
     poll_s = t.number("poll_s", 0.05, gt=0, unit="s")
     limits_table = t.table("limits", FRAMES)
-    limits = TurntableLimits(tuple(_axis_limits(limits_table.table(frame, ("min_deg", "max_deg", "max_rate_dps",
-                                                                             "max_accel_dps2")))
-                                   for frame in FRAMES))
+    outer, middle, inner = (_axis_limits(limits_table.table(frame, ("min_deg", "max_deg", "max_rate_dps",
+                                                                     "max_accel_dps2")))
+                            for frame in FRAMES)
+    limits = TurntableLimits((outer, middle, inner))
     register_map = _register_map(t, dialect)
     return TableConfig(url, dialect, timeout_s, retries, tolerance_deg, poll_s, limits, register_map)
 
@@ -208,7 +210,8 @@ def _register_map(t: Table, dialect: str) -> RegisterMap | None:
     if not path.is_file():
         raise t.error("register_map", f"no such register map file {str(path)!r}")
     text = read_text(path, "the register map file")
-    data, lines, prefix = parse_toml(text, str(path)), locate_lines(text), ()
+    data, lines = parse_toml(text, str(path)), locate_lines(text)
+    prefix: tuple[str, ...] = ()
     if "modbus" in data:
         for key in data:
             if key != "modbus":
@@ -361,7 +364,7 @@ def _noise(t: Table) -> NoiseModel:
     n = t.table("noise", ("enabled",) + _NOISE_FIELDS)
     enabled = n.boolean("enabled", True)
     base = NoiseModel() if enabled else NoiseModel.off()
-    changes = {}
+    changes: dict[str, Any] = {}      # field -> value: a float level, or the bool `quantise`
     for name in _NOISE_FIELDS:
         if not n.has(name):
             continue

@@ -8,17 +8,27 @@ from __future__ import annotations
 
 import datetime
 import difflib
+import enum
 import math
 import re
 import tomllib
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any, overload
 
 from bench.errors import InputError
 from schedules.tomllines import LineMap
 
 _TOML_LOCATION = re.compile(r"\s*\(at line (\d+), column (\d+)\)")
-_REQUIRED = object()
+
+
+class _Required(enum.Enum):
+    """The type of `_REQUIRED`: "no default, the key must be there" (an enum so it can be typed)."""
+
+    REQUIRED = "required"
+
+
+_REQUIRED = _Required.REQUIRED
 
 
 class ConfigError(InputError):
@@ -125,15 +135,24 @@ class Table:
     def has(self, key: str) -> bool:
         return key in self.data
 
-    def get(self, key: str, default=_REQUIRED):
+    def get(self, key: str, default: Any = _REQUIRED) -> Any:
         if key in self.data:
             return self.data[key]
         if default is _REQUIRED:
             raise self.error(key, "missing required key")
         return default
 
-    def number(self, key: str, default=_REQUIRED, *, gt: float | None = None, ge: float | None = None,
-               le: float | None = None, unit: str = "") -> float | None:
+    @overload
+    def number(self, key: str, default: float | _Required = _REQUIRED, *, gt: float | None = None,
+               ge: float | None = None, le: float | None = None, unit: str = "") -> float: ...
+
+    @overload
+    def number(self, key: str, default: None, *, gt: float | None = None, ge: float | None = None,
+               le: float | None = None, unit: str = "") -> float | None: ...
+
+    def number(self, key: str, default: float | None | _Required = _REQUIRED, *, gt: float | None = None,
+               ge: float | None = None, le: float | None = None, unit: str = "") -> float | None:
+        """A finite number (an int is taken as a float); `default` when the key is absent."""
         value = self.get(key, default)
         if key not in self.data:
             return value
@@ -148,7 +167,14 @@ class Table:
             raise self.error(key, f"must be <= {le:g}{unit}, got {value:g}")
         return float(value)
 
-    def integer(self, key: str, default=_REQUIRED, *, ge: int | None = None) -> int | None:
+    @overload
+    def integer(self, key: str, default: int | _Required = _REQUIRED, *, ge: int | None = None) -> int: ...
+
+    @overload
+    def integer(self, key: str, default: None, *, ge: int | None = None) -> int | None: ...
+
+    def integer(self, key: str, default: int | None | _Required = _REQUIRED, *, ge: int | None = None) -> int | None:
+        """A whole number (not a boolean); `default` when the key is absent."""
         value = self.get(key, default)
         if key not in self.data:
             return value

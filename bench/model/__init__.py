@@ -1,1 +1,2 @@
-"""The calibration model: units, Earth, kinematics of the table, motion profiles, the IMU model, observations, closed forms, the result file and the coefficient families."""
+"""The calibration model: units, Earth, kinematics of the table, motion profiles, the IMU model,
+observations, closed forms, the result file and the coefficient families."""

@@ -12,6 +12,8 @@ axis (the paper's "clockwise"), so a CCW turn has angular velocity +rate about
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 
 FRAMES = ("outer", "middle", "inner")
@@ -23,6 +25,12 @@ FRAME_AXES = {
 }
 ENU_LABELS = ("E", "N", "U")
 ENU_NEGATIVE = ("W", "S", "D")
+
+
+def triple(values: Iterable[float]) -> tuple[float, float, float]:
+    """Three numbers (one per frame or axis) as a tuple of floats; ValueError for any other count."""
+    a, b, c = (float(v) for v in values)
+    return a, b, c
 
 
 def _stack(rows) -> np.ndarray:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.model.earth import Site
-from bench.model.kinematics import FRAMES, frame_axes_in_body, frame_matrix_parts, split_at_frame
+from bench.model.kinematics import FRAMES, frame_axes_in_body, frame_matrix_parts, split_at_frame, triple
 from bench.model.motion import Piece, trig_integrals
 from bench.model.units import DEG
 
@@ -48,7 +48,7 @@ class PositionObservation:
     label: str = ""
 
     def __post_init__(self) -> None:
-        self.angles_deg = tuple(float(a) for a in _vec3(self.angles_deg, "angles_deg"))
+        self.angles_deg = triple(_vec3(self.angles_deg, "angles_deg"))
         self.gyro_mean = _vec3(self.gyro_mean, "gyro_mean")
         self.acc_mean = _vec3(self.acc_mean, "acc_mean")
         for name in ("gyro_std", "acc_std", "gyro_sem", "acc_sem"):
@@ -120,7 +120,7 @@ class RotationObservation:
     label: str = ""
 
     def __post_init__(self) -> None:
-        self.start_deg = tuple(float(a) for a in _vec3(self.start_deg, "start_deg"))
+        self.start_deg = triple(_vec3(self.start_deg, "start_deg"))
         if self.frame not in FRAME_INDEX:
             raise ValueError(f"frame must be one of {', '.join(FRAME_INDEX)}, got {self.frame!r}")
         if self.direction not in DIRECTION_SIGN:

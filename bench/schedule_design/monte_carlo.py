@@ -123,8 +123,8 @@ def paper_value(table: str, level: float, method: str, key: str) -> float | None
     if table == "positions":
         row = PAPER_POSITIONS.get((level, method))
         return None if row is None else row[POSITION_KEYS.index(key)]
-    row = PAPER_ROTATIONS.get((level, method))
-    return None if row is None else row[ROTATION_KEYS.index(key)]
+    rotation_row = PAPER_ROTATIONS.get((level, method))
+    return None if rotation_row is None else rotation_row[ROTATION_KEYS.index(key)]
 
 
 def builtin_schedules() -> tuple[dict[str, np.ndarray], dict[str, list[RotationStep]]]:

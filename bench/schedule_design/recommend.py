@@ -46,7 +46,15 @@ import numpy as np
 
 from bench.errors import InputError
 from bench.model.earth import Site
-from bench.model.families import DESIGN_UNITS, POSITION_FAMILIES, ROTATION_FAMILIES, TITLES, family_of
+from bench.model.families import (
+    BODY_AXES,
+    DESIGN_UNITS,
+    POSITION_FAMILIES,
+    ROTATION_FAMILIES,
+    SENSOR_AXES,
+    TITLES,
+    family_of,
+)
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
 from bench.model.units import ARCSEC
 from bench.plan.compiler import PlanError, PlanTiming, compile_plan
@@ -63,6 +71,7 @@ from bench.schedule_design.sensitivity import (
     solve_rotations_batch,
 )
 from bench.solve.methods import SolverError
+from bench.table_check.estimate import ANGLE_NAMES as CHECK_ANGLES  # same flat order as the black box
 from schedules import Schedule, load_builtin, resolve_schedule
 
 FAMILIES = POSITION_FAMILIES + ROTATION_FAMILIES
@@ -109,8 +118,6 @@ def pointing_from_table_check(data: dict, source: str = "<table check>") -> Poin
     combos = data.get("combinations")
     if not isinstance(combos, list) or not combos:
         raise RecommendError(f"{source}: field 'combinations' must be a non-empty list")
-    from bench.table_check.estimate import ANGLE_NAMES as CHECK_ANGLES  # same flat order as the black box
-
     levels = np.full(9, np.nan)
     notes = []
     for i, c in enumerate(combos):
@@ -239,8 +246,6 @@ def _first_order(sens: Sensitivity, level_arcsec: np.ndarray) -> tuple[dict[str,
 
 def _display_rows(solved: dict[str, np.ndarray], names: tuple[str, ...], imu: ImuCoefficients) -> np.ndarray:
     """(R, C) solved coefficients in display units, in `names` order (scale factors as ppm of truth)."""
-    from bench.model.families import BODY_AXES, SENSOR_AXES
-
     cols = []
     for name in names:
         fam, suffix = name.split("_", 1)
@@ -371,8 +376,8 @@ def recommend(budget_s: float, level: PointingLevel, noise: NoiseModel, *, posit
         angles = np.array([x.angles_deg for x in positions[p].positions])
         try:
             sens = position_sensitivity(angles, imu, site)
-            second = _second_order(lambda b: solve_positions_batch(angles, b, imu, site), sens, unit_draws,
-                                   level_arcsec, imu)
+            second = _second_order(lambda b, angles=angles: solve_positions_batch(angles, b, imu, site), sens,
+                                   unit_draws, level_arcsec, imu)
         except SolverError as exc:
             raise RecommendError(f"{positions[p].source}: {exc}") from exc
         first, irreducible = _first_order(sens, level_arcsec)
@@ -384,8 +389,9 @@ def recommend(budget_s: float, level: PointingLevel, noise: NoiseModel, *, posit
         turns = list(_with_revolutions(rotations[r], revs).rotations)
         try:
             sens = rotation_sensitivity(turns, imu, site, timing.turn_rate_dps)
-            second = _second_order(lambda b: solve_rotations_batch(turns, b, imu, site, timing.turn_rate_dps),
-                                   sens, unit_draws, level_arcsec, imu)
+            second = _second_order(
+                lambda b, turns=turns: solve_rotations_batch(turns, b, imu, site, timing.turn_rate_dps),
+                sens, unit_draws, level_arcsec, imu)
             sigma = rotation_noise_sigma(turns, noise, timing.turn_rate_dps, imu, site)
         except SolverError as exc:
             raise RecommendError(f"{rotations[r].source}: {exc}") from exc

@@ -26,13 +26,16 @@ import math
 import time
 from dataclasses import dataclass, field
 from itertools import combinations
+from pathlib import Path
 
 import numpy as np
 
+from bench.model.closed_form import turn_closed_form
 from bench.model.earth import EARTH_RATE, Site
-from bench.model.kinematics import FRAMES, attitude, frame_axes_in_body
+from bench.model.kinematics import FRAMES, attitude, frame_axes_in_body, pointing_labels, triple
 from bench.model.units import DEG
 from bench.schedule_design.sensitivity import probe_boxes
+from schedules import RotationStep
 
 #: The 32 inner-symmetric groups: (outer, middle, inner) with the inner angle and +180 deg.
 POSITION_GROUPS = tuple((o, m, i) for o in (0, 90, 180, 270) for m in (0, 90, 180, 270) for i in (0, 90))
@@ -208,12 +211,18 @@ class SearchResult:
     extra: dict = field(default_factory=dict)
 
 
-def _position_key(tables: PositionTables, idx: np.ndarray, rows: np.ndarray) -> np.ndarray:
+def _position_key(tables: PositionTables, idx: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(n, 3, 4, 9) integer S and (n, 3, 9, 2) gyro sums of subsets `idx` (n, k) of the half `rows`."""
     if idx.shape[1] == 0:
         return np.zeros((len(idx), 3, 4, 9), dtype=np.int64), np.zeros((len(idx), 3, 9, 2), dtype=np.int64)
     sel = rows[idx]
     return tables.rhs[sel].sum(axis=1), tables.gyro[sel].sum(axis=1)
+
+
+def _zero_sum_key(lin: np.ndarray, comp: np.ndarray, s: np.ndarray, w: np.ndarray, members: np.ndarray) -> np.ndarray:
+    """Per member subset: the (b) quantities (scale and bias rows of adj(N) S, gyro sums) that must sum to zero."""
+    proj = np.einsum("er,nerj->nej", lin, s[members][:, comp])   # (n, 6, 9)
+    return np.concatenate([proj.reshape(len(members), -1), w[members].reshape(len(members), -1)], axis=1)
 
 
 def search_positions(groups=POSITION_GROUPS, choose: int = GROUP_SIZE, reference_groups=None) -> SearchResult:
@@ -254,12 +263,7 @@ def search_positions(groups=POSITION_GROUPS, choose: int = GROUP_SIZE, reference
                 # (b): the scale and bias rows of adj(N) S vanish, and the gyro sums vanish.
                 lin = np.stack([adj[r] for _, r in SCALE_BIAS_ENTRIES])            # (6, 4)
                 comp = np.array([c for c, _ in SCALE_BIAS_ENTRIES])
-
-                def key(s, w, members):
-                    proj = np.einsum("er,nerj->nej", lin, s[members][:, comp])   # (n, 6, 9)
-                    return np.concatenate([proj.reshape(len(members), -1), w[members].reshape(len(members), -1)],
-                                          axis=1)
-                pa, pb = join_zero_sum(key(sa, wa, ma), key(sb, wb, mb))
+                pa, pb = join_zero_sum(_zero_sum_key(lin, comp, sa, wa, ma), _zero_sum_key(lin, comp, sb, wb, mb))
                 if len(pa) == 0:
                     continue
                 counts["b"] += len(pa)
@@ -301,7 +305,6 @@ def combo_of_angles(angles_deg, groups=POSITION_GROUPS) -> tuple[int, ...] | Non
 
 def all_rotations(revolutions: int = 1) -> tuple:
     """The 96 rotations: 48 positive initial states (turning frame at 0) x CCW/CW."""
-    from schedules import RotationStep
     out = []
     for frame_index, frame in enumerate(FRAMES):
         others = [k for k in range(3) if k != frame_index]
@@ -310,7 +313,7 @@ def all_rotations(revolutions: int = 1) -> tuple:
                 start = [0.0, 0.0, 0.0]
                 start[others[0]], start[others[1]] = float(a), float(b)
                 for direction in ("ccw", "cw"):
-                    out.append(RotationStep(tuple(start), frame, direction, revolutions))
+                    out.append(RotationStep(triple(start), frame, direction, revolutions))
     return tuple(out)
 
 
@@ -333,7 +336,6 @@ def rotation_geometry(turns) -> tuple[np.ndarray, np.ndarray]:
 
 def rotation_tables(turns, site: Site | None = None, rate_dps: float = 10.0) -> tuple[np.ndarray, np.ndarray]:
     """Per-turn design rows (K, 4) SI and d(integral)/dtheta (K, 3, 9), Earth rate included, ideal IMU."""
-    from bench.model.closed_form import turn_closed_form
     site = site or Site()
     rot, earth, dur = turn_closed_form(turns, site, rate_dps)
     rp, ep, _ = turn_closed_form(turns, site, rate_dps, probe_boxes(_H))              # (18, K, 3)
@@ -422,7 +424,6 @@ def combo_of_turns(turns, candidates=None) -> tuple[int, ...] | None:
 # --- schedule files ------------------------------------------------------------
 
 def _pointing(angles_deg) -> str:
-    from bench.model.kinematics import pointing_labels
     return pointing_labels(attitude(np.radians(np.asarray(angles_deg, dtype=float))))
 
 
@@ -453,8 +454,7 @@ def rotation_schedule_toml(name: str, description: str, turns) -> str:
 
 def write_best(result: SearchResult, out_dir, best: int, prefix: str = "search") -> list:
     """Write the first `best` optimal sets as schedule files in `out_dir`; returns the paths."""
-    import pathlib
-    out = pathlib.Path(out_dir)
+    out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = []
     for rank, combo in enumerate(result.optimal[:best], start=1):

@@ -179,12 +179,17 @@ def _difference(solved, imu: ImuCoefficients, families, step_rad: float) -> np.n
     return (rows[:9] - rows[9:]).T / (2.0 * step_rad / ARCSEC)
 
 
-class _NoEarthSite:
+@dataclass(frozen=True)
+class _NoEarthSite(Site):
     """A site whose Earth rate is zero: isolates the geometric part of a turn's sensitivity."""
 
-    def __init__(self, site: Site):
-        self.specific_force_enu = site.specific_force_enu
-        self.earth_rate_enu = np.zeros(3)
+    @classmethod
+    def of(cls, site: Site) -> _NoEarthSite:
+        return cls(site.latitude_deg, site.height_m, site.local_g)
+
+    @property
+    def earth_rate_enu(self) -> np.ndarray:
+        return np.zeros(3)
 
 
 def _sensitivity(method: str, families, solved, imu: ImuCoefficients, step_rad: float,
@@ -213,7 +218,7 @@ def rotation_sensitivity(turns, imu: ImuCoefficients | None = None, site: Site |
     site = site or Site()
     boxes = probe_boxes(step_rad)
     solved = solve_rotations_batch(turns, boxes, imu, site, rate_dps)
-    no_earth = solve_rotations_batch(turns, boxes, imu, _NoEarthSite(site), rate_dps)
+    no_earth = solve_rotations_batch(turns, boxes, imu, _NoEarthSite.of(site), rate_dps)
     geometric = _difference(no_earth, imu, ROTATION_FAMILIES, step_rad)
     return _sensitivity("rotations", ROTATION_FAMILIES, solved, imu, step_rad, geometric)
 
@@ -298,6 +303,6 @@ def rotation_noise_sigma(turns, noise: NoiseModel, rate_dps: float = 10.0, imu: 
     return {n: out[n] for n in coefficient_names(ROTATION_FAMILIES)}
 
 
-__all__ = ["ANGLE_NAMES", "INNER_ZERO_OFFSET", "STEP_RAD", "ZERO_REL", "Sensitivity", "coefficient_names", "position_noise_sigma",
-           "position_sensitivity", "rotation_design_nominal", "rotation_noise_sigma", "rotation_sensitivity",
-           "solve_positions_batch", "solve_rotations_batch"]
+__all__ = ["ANGLE_NAMES", "INNER_ZERO_OFFSET", "STEP_RAD", "ZERO_REL", "Sensitivity", "coefficient_names",
+           "position_noise_sigma", "position_sensitivity", "rotation_design_nominal", "rotation_noise_sigma",
+           "rotation_sensitivity", "solve_positions_batch", "solve_rotations_batch"]

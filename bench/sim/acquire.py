@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from bench.model.kinematics import triple
 from bench.model.observations import (
     FRAME_INDEX,
     PositionObservation,
@@ -23,6 +24,7 @@ from bench.sim.table import SimTable
 #: The in-memory acquisition takes the same timing as a compiled plan (revolutions and
 #: move overhead are not used here: turns keep their own revolutions).
 AcquisitionTiming = PlanTiming
+_DEFAULT_TIMING = AcquisitionTiming()
 
 
 def _window(samples: ImuSamples, t0: float, t1: float) -> np.ndarray:
@@ -32,8 +34,8 @@ def _window(samples: ImuSamples, t0: float, t1: float) -> np.ndarray:
 
 
 def acquire(table: SimTable, imu: SimImu, position_angles_deg, turns,
-            timing: AcquisitionTiming = AcquisitionTiming()) -> tuple[list[PositionObservation],
-                                                                      list[RotationObservation]]:
+            timing: AcquisitionTiming = _DEFAULT_TIMING) -> tuple[list[PositionObservation],
+                                                                  list[RotationObservation]]:
     """Observe every position (dwell) then every turn (rest to rest) of a schedule.
 
     `turns` are objects with start_deg, frame, direction, revolutions (schedule steps).
@@ -52,7 +54,7 @@ def acquire(table: SimTable, imu: SimImu, position_angles_deg, turns,
         gyro_mean, gyro_std, gyro_sem = mean_and_standard_error(block.gyro_rate[mask], duration_s=n / block.rate_hz)
         acc_mean, acc_std, acc_sem = mean_and_standard_error(block.acc_rate[mask], duration_s=n / block.rate_hz)
         positions.append(PositionObservation(
-            tuple(float(a) for a in angles), n / block.rate_hz, n, gyro_mean, acc_mean, gyro_std, acc_std,
+            triple(angles), n / block.rate_hz, n, gyro_mean, acc_mean, gyro_std, acc_std,
             gyro_sem, acc_sem, label=f"P{k + 1:02d}"))
         t = end
     rotations: list[RotationObservation] = []
@@ -70,7 +72,7 @@ def acquire(table: SimTable, imu: SimImu, position_angles_deg, turns,
         earth = turn_earth_integral(table.site, turn.start_deg, FRAME_INDEX[turn.frame],
                                     table.pieces(turn.frame), first, last, mounting=table.mounting)
         rotations.append(RotationObservation(
-            tuple(float(a) for a in turn.start_deg), turn.frame, turn.direction, turn.revolutions,
+            triple(turn.start_deg), turn.frame, turn.direction, turn.revolutions,
             n / block.rate_hz, n, block.gyro_counts[mask].sum(axis=0), earth_integral_rad=earth,
             label=f"R{k + 1:02d}"))
         t = window_end

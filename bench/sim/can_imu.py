@@ -42,7 +42,8 @@ class SimCanImu:
         if isinstance(source, SimController):
             self.table = source.table
             self._now = source.now
-            self._table_lock = source.lock      # commands rewrite the trajectory: read it under their lock
+            # commands rewrite the trajectory: read it under their lock
+            self._table_lock: contextlib.AbstractContextManager[object] = source.lock
         elif isinstance(source, SimTable):
             self.table = source
             clock = clock if clock is not None else SYSTEM_CLOCK
@@ -113,8 +114,8 @@ class SimCanImu:
         width = frames.data.shape[1]
         raw = frames.data.tobytes()
         message = can.Message
-        return [message(timestamp=t, arbitration_id=key & ~EXTENDED_ID_FLAG, is_extended_id=bool(key & EXTENDED_ID_FLAG),
-                        is_fd=fd[key], data=raw[i * width:i * width + n])
+        return [message(timestamp=t, arbitration_id=key & ~EXTENDED_ID_FLAG,
+                        is_extended_id=bool(key & EXTENDED_ID_FLAG), is_fd=fd[key], data=raw[i * width:i * width + n])
                 for i, (t, key, n) in enumerate(zip(times, keys, lengths))]
 
     def _apply_faults(self, messages: list[can.Message]) -> list[can.Message]:

@@ -279,7 +279,8 @@ class SimController:
     def state(self) -> TableState:
         with self._lock:
             t = self.now()
-            return TableState(t, tuple(self.axis_state(k, t) for k in range(3)), self._fault_text)
+            return TableState(t, (self.axis_state(0, t), self.axis_state(1, t), self.axis_state(2, t)),
+                              self._fault_text)
 
     @property
     def lock(self) -> threading.RLock:

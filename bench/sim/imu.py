@@ -91,10 +91,13 @@ class _Quantiser:
         return out
 
 
+_NO_NOISE = NoiseModel.off()
+
+
 class SimImu:
     """Signal generator of a simulated IMU mounted on a `SimTable`'s inner frame."""
 
-    def __init__(self, coefficients: ImuCoefficients, noise: NoiseModel = NoiseModel.off(),
+    def __init__(self, coefficients: ImuCoefficients, noise: NoiseModel = _NO_NOISE,
                  rate_hz: float = 1000.0, seed: int = 0, start_time_s: float = 0.0):
         if not (math.isfinite(rate_hz) and rate_hz > 0):
             raise ValueError(f"rate_hz must be positive, got {rate_hz}")

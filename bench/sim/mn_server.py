@@ -102,8 +102,8 @@ class MnSimHandler:
         """All targeted axes or none: check each before the first one starts moving."""
         ctl = self.controller
         state = ctl.state()
-        targeted = [k for k, t in enumerate(request.targets_deg) if t is not None]
-        for k in targeted:
+        targeted = [(k, t) for k, t in enumerate(request.targets_deg) if t is not None]
+        for k, target in targeted:
             axis = state.axes[k]
             if axis.status & (AxisStatus.ESTOP | AxisStatus.FAULT | AxisStatus.LIMIT):
                 raise SimCommandError(f"{FRAMES[k]} axis has a latched fault; reset first", ERR_FAULT)
@@ -112,14 +112,14 @@ class MnSimHandler:
             if axis.mode is not AxisMode.POSITION:
                 raise SimCommandError(f"{FRAMES[k]} axis is in {axis.mode.value} mode", ERR_WRONG_MODE)
             lim = ctl.limits[k]
-            target, rate = request.targets_deg[k], request.rates_dps[k]
+            rate = request.rates_dps[k]
             if (lim.min_deg is not None and target < lim.min_deg) or (lim.max_deg is not None and target > lim.max_deg):
                 raise SimCommandError(f"{FRAMES[k]} position {target} outside travel", codec.ERR_LIMIT)
             if rate is not None and not 0 < rate <= lim.max_rate_dps:
                 raise SimCommandError(f"{FRAMES[k]} move rate {rate} outside (0, {lim.max_rate_dps}]",
                                       codec.ERR_LIMIT if rate > 0 else codec.ERR_ARGUMENT)
-        for k in targeted:
-            ctl.demand_position(k, request.targets_deg[k], request.rates_dps[k])
+        for k, target in targeted:
+            ctl.demand_position(k, target, request.rates_dps[k])
 
 
 def serve_mn(controller: SimController) -> LineServer:

@@ -160,7 +160,7 @@ class ModbusSimServer:
             if a in self._names:
                 name, k, word = self._names[a]
                 touched.setdefault((name, k), set()).add(word)
-        for (name, k), words in touched.items():
+        for (name, _k), words in touched.items():
             if len(words) != m.width(name):
                 raise _Refused(ExcCodes.ILLEGAL_ADDRESS, f"write covers one word of 32-bit {name}")
         image = dict(self._image)
@@ -298,7 +298,10 @@ class ModbusSimServer:
         self._watchdog_task = asyncio.get_running_loop().create_task(self._watchdog_loop())
 
     def _call(self, coro, timeout_s: float = 5.0):
-        return asyncio.run_coroutine_threadsafe(coro, self._loop).result(timeout_s)
+        loop = self._loop
+        if loop is None:        # every caller starts the loop first
+            raise RuntimeError("the Modbus simulator's event loop is not running")
+        return asyncio.run_coroutine_threadsafe(coro, loop).result(timeout_s)
 
     # -- TCP ---------------------------------------------------------------------------------
     def start_tcp(self, host: str = "127.0.0.1", port: int = 0) -> tuple[str, int]:
@@ -367,7 +370,7 @@ class ModbusSimServer:
     def close(self) -> None:
         """Stop the servers, the event loop and the bridges; join every thread."""
         if self._loop is not None:
-            loop = self._loop
+            loop, loop_thread = self._loop, self._loop_thread
 
             async def shutdown() -> None:
                 for server in self._servers:
@@ -381,7 +384,8 @@ class ModbusSimServer:
                 self._call(shutdown())
             finally:
                 loop.call_soon_threadsafe(loop.stop)
-                self._loop_thread.join(timeout=5.0)
+                if loop_thread is not None:
+                    loop_thread.join(timeout=5.0)
                 loop.close()
                 self._loop = None
                 self._servers.clear()

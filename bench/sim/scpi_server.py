@@ -108,10 +108,12 @@ class ScpiSimHandler:
             else:
                 try:
                     response = self._execute(unit)
+                    if unit.query and response is None:     # every query the codec knows answers or raises
+                        raise SimCommandError(f"{unit.name} not implemented", ERR_SYNTAX)
                 except SimCommandError as exc:
                     entry = (scpi_error_code(exc.code), str(exc))
                 else:
-                    if unit.query:
+                    if unit.query and response is not None:
                         responses.append(response)
                     continue
             if unit.query:
@@ -122,36 +124,39 @@ class ScpiSimHandler:
 
     def _execute(self, request: sc.ScpiRequest) -> str | None:
         """Run one request on the controller; a query's response text (None for a command)."""
-        ctl, k, name, values = self.controller, request.frame, request.name, request.values
+        ctl, name, values = self.controller, request.name, request.values
         if name in _MODES:
-            ctl.set_mode(k, _MODES[name])
+            ctl.set_mode(_axis(request), _MODES[name])
         elif name == "DEMAND:POSITION":
+            k = _axis(request)
             rate = values[1] if len(values) > 1 else self.move_rate_dps[k]
             ctl.demand_position(k, values[0], rate)
         elif name == "DEMAND:RATE":
-            ctl.demand_rate(k, values[0])
+            ctl.demand_rate(_axis(request), values[0])
         elif name == "LIMIT:RATE":
+            k = _axis(request)
             if not 0 < values[0] <= ctl.limits[k].max_rate_dps:
                 raise SimCommandError(f"move rate {values[0]} deg/s outside (0, {ctl.limits[k].max_rate_dps}]",
                                       ERR_LIMIT)
             self.move_rate_dps[k] = values[0]
         elif name == "LIMIT:RATE?":
+            k = _axis(request)
             rate = self.move_rate_dps[k]
             return sc.format_number(ctl.limits[k].max_rate_dps if rate is None else rate)
         elif name == "INTERLOCK:CLOSE":
-            ctl.enable(k)
+            ctl.enable(_axis(request))
         elif name == "INTERLOCK:OPEN":
-            ctl.disable(k)
+            ctl.disable(_axis(request))
         elif name == "INTERLOCK:RESET":
-            ctl.reset(k)
+            ctl.reset(_axis(request))
         elif name == "STOP":
             ctl.stop()
         elif name == "ABORT":
             ctl.abort()
         elif name == "READ:ALL?":
             return sc.format_state(ctl.state())
-        elif name.startswith("READ:") and k is not None:
-            axis = ctl.axis_state(k)
+        elif name.startswith("READ:") and request.frame is not None:
+            axis = ctl.axis_state(request.frame)
             return {"READ:POSITION?": lambda: sc.format_number(axis.angle_deg),
                     "READ:RATE?": lambda: sc.format_number(axis.rate_dps),
                     "READ:MODE?": lambda: str(sc.MODE_CODES[axis.mode]),
@@ -167,6 +172,13 @@ class ScpiSimHandler:
         else:  # a command in the codec's table that this simulator does not implement
             raise SimCommandError(f"{name} not implemented", ERR_SYNTAX)
         return None
+
+
+def _axis(request: sc.ScpiRequest) -> int:
+    """The axis (0-2) of a per-axis command; the codec gives every one an axis."""
+    if request.frame is None:
+        raise SimCommandError(f"{request.name} needs an axis", ERR_SYNTAX)
+    return request.frame
 
 
 def serve_scpi(controller: SimController, tcp: bool = True, pty: bool = False,

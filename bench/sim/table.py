@@ -139,7 +139,7 @@ class SimTable:
                         self.limits.max_rate_dps[k], "rate_dps", k) * DEG
         return self._move_axis(k, t, float(angle_deg) * DEG, rate, self._accel(k, accel_dps2))
 
-    def turn(self, t: float, frame: str, direction: str, revolutions: int, rate_dps: float,
+    def turn(self, t: float, frame: str | int, direction: str, revolutions: int, rate_dps: float,
              accel_dps2: float | None = None) -> float:
         """Rest-to-rest turn of one frame by whole revolutions; returns the time it is at rest.
 
@@ -160,7 +160,7 @@ class SimTable:
         self._axes[k].extend(pieces)
         return pieces[-1].t0
 
-    def set_rate(self, t: float, frame: str, rate_dps: float, accel_dps2: float | None = None) -> float:
+    def set_rate(self, t: float, frame: str | int, rate_dps: float, accel_dps2: float | None = None) -> float:
         """Rate mode: ramp one frame to the signed angle rate (deg/s) and hold it; returns when reached."""
         k = _frame_index(frame)
         lim = self.limits.max_rate_dps[k]

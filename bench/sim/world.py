@@ -26,6 +26,9 @@ from bench.model.imu import ImuCoefficients, NoiseModel
 from bench.sim.can_imu import SimCanImu
 from bench.sim.controller import SimController
 from bench.sim.imu import SimImu
+from bench.sim.mn_server import MnSimHandler
+from bench.sim.scpi_server import ScpiSimHandler
+from bench.sim.serve import Handler, LineServer
 from bench.sim.table import SimTable, TableLimits
 from drivers.clock import ManualClock
 from drivers.imu.layout import ImuLayout
@@ -125,12 +128,15 @@ class PumpedReceiver:
         self._receiver.close()
 
 
+_DEFAULT_TABLE_LIMITS = TableLimits()
+
+
 class SimWorld:
     """A simulated table (served in `dialect`) and IMU (on a virtual CAN bus) on one `SimClock`."""
 
     def __init__(self, site: Site, coefficients: ImuCoefficients, noise: NoiseModel, *,
                  black_box_rad: np.ndarray | None = None, dialect: str = "scpi", imu_rate_hz: float = 200.0,
-                 layout: ImuLayout | None = None, seed: int = 0, table_limits: TableLimits = TableLimits(),
+                 layout: ImuLayout | None = None, seed: int = 0, table_limits: TableLimits = _DEFAULT_TABLE_LIMITS,
                  register_map=None):
         self.clock = SimClock()
         self.dialect = dialect
@@ -168,21 +174,21 @@ class SimWorld:
 
     def _serve(self, dialect: str, register_map) -> str:
         if dialect == "modbus":
+            # local: bench.sim.modbus_server imports pymodbus (heavy), needed only for a Modbus table
             from bench.sim.modbus_server import ModbusSimServer
 
-            server = ModbusSimServer(self.controller, register_map)
-            self._closers.append(server.close)
-            host, port = server.start_tcp("127.0.0.1", 0)
+            modbus_server = ModbusSimServer(self.controller, register_map)
+            self._closers.append(modbus_server.close)
+            host, port = modbus_server.start_tcp("127.0.0.1", 0)
             return f"modbus+tcp://{host}:{port}"
-        from bench.sim.serve import LineServer
-
+        handler: Handler
         if dialect == "scpi":
-            from bench.sim.scpi_server import ScpiSimHandler as Handler
+            handler = ScpiSimHandler(self.controller)
         elif dialect == "mn":
-            from bench.sim.mn_server import MnSimHandler as Handler
+            handler = MnSimHandler(self.controller)
         else:
             raise ValueError(f"no simulator for dialect {dialect!r}")
-        server = LineServer(Handler(self.controller))
+        server = LineServer(handler)
         self._closers.append(server.close)
         host, port = server.listen_tcp("127.0.0.1", 0)
         return f"tcp://{host}:{port}"

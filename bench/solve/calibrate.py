@@ -75,9 +75,9 @@ class Calibration:
                 row["gyro_normalized"] = _floats(self.gyro_bias.normalized[k])
             pos_rows.append(row)
         rot_rows = []
-        for k, obs in enumerate(self.rotations):
-            row = {"index": k, "label": obs.label, "start_deg": list(obs.start_deg), "frame": obs.frame,
-                   "direction": obs.direction, "revolutions": obs.revolutions}
+        for k, turn in enumerate(self.rotations):
+            row = {"index": k, "label": turn.label, "start_deg": list(turn.start_deg), "frame": turn.frame,
+                   "direction": turn.direction, "revolutions": turn.revolutions}
             if self.gyros is not None:
                 r = self.gyros.fit.residuals[k]
                 row["gyro_counts"] = _floats(r)
@@ -94,7 +94,8 @@ class Calibration:
                 q[key] = {"chi2_per_dof": _floats(fit.chi2_per_dof), "dof": fit.dof, "weighted": fit.weighted,
                           "sigma_scaled": fit.scaled}
         if self.gyro_bias is not None:
-            q["gyro_bias"] = {"chi2_per_dof": _floats(self.gyro_bias.chi2_per_dof), "sigma_scaled": self.gyro_bias.scaled}
+            q["gyro_bias"] = {"chi2_per_dof": _floats(self.gyro_bias.chi2_per_dof),
+                              "sigma_scaled": self.gyro_bias.scaled}
         outliers = []
         tables = self.residual_tables()
         for kind, rows in (("position", tables["positions"]), ("rotation", tables["rotations"])):

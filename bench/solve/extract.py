@@ -107,7 +107,8 @@ def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: 
             if n < expected:
                 out.problems.append(f"{unit}: {expected - n} of {expected} samples missing in the dwell; "
                                     f"mean over the {n} received")
-            gyro_mean, gyro_std, gyro_sem = mean_and_standard_error(gyro_counts[window] * rate_hz, duration_s=n / rate_hz)
+            gyro_mean, gyro_std, gyro_sem = mean_and_standard_error(gyro_counts[window] * rate_hz,
+                                                                    duration_s=n / rate_hz)
             acc_mean, acc_std, acc_sem = mean_and_standard_error(acc_counts[window] * rate_hz, duration_s=n / rate_hz)
             out.positions.append(PositionObservation(tuple(step["angles_deg"]), n / rate_hz, n, gyro_mean, acc_mean,
                                                      gyro_std, acc_std, gyro_sem, acc_sem, label=unit))

@@ -53,10 +53,11 @@ def fit_per_sensor(design: np.ndarray, y: np.ndarray, sigma: np.ndarray | None) 
     """Weighted (if `sigma` is given and positive) least squares, one sensor per column of y."""
     k, p = design.shape
     dof = k - p
-    use_weights = sigma is not None and np.all(np.isfinite(sigma)) and np.all(sigma > 0)
+    weights = sigma if sigma is not None and np.all(np.isfinite(sigma)) and np.all(sigma > 0) else None
+    use_weights = weights is not None
     params, covs, resid, normd, chi2n, scaled = [], [], [], [], [], []
     for s in range(y.shape[1]):
-        w = 1.0 / sigma[:, s] if use_weights else np.ones(k)
+        w = 1.0 / weights[:, s] if weights is not None else np.ones(k)
         aw = design * w[:, None]
         sol, *_ = np.linalg.lstsq(aw, y[:, s] * w, rcond=None)
         r = y[:, s] - design @ sol

@@ -20,17 +20,22 @@ import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Sequence
 
 from bench import __version__
 from bench.errors import InputError
 from bench.log.reader import LogError, RunLog, read_log
 from bench.log.run_info import LogSetup, layout_and_config_from_log, steps_from_log
+from bench.model.earth import Site
+from bench.model.observations import PositionObservation, RotationObservation
 from bench.model.result import CalibrationResult
+from bench.report.markdown import markdown_report, write_reports
 from bench.run.runner import bias_stabilities, quality_failures
 from bench.solve.extract import Extraction, finished_observation_steps
 from bench.solve.from_logs import LogSolution, extract_from_logs, solve_extraction
 from bench.solve.methods import SolverError
 from drivers.imu import ImuStats
+from schedules import ScheduleError, resolve_schedule
 
 #: Subset value that keeps none of a kind (e.g. `--rotations none`: a positions-only solve).
 NONE = "none"
@@ -71,6 +76,13 @@ class Recorded:
     def final_state(self) -> str:
         states = [e.state for e in self.logs[-1].events if e.kind == "transition" and e.state]
         return states[-1] if states else "unknown"
+
+    @property
+    def site(self) -> Site:
+        """The run's site (`load_recorded` refuses logs that record none)."""
+        if self.setup.site is None:
+            raise SolveInputError(f"{self.logs[0].path}: the log records no usable site")
+        return self.setup.site
 
     @property
     def truth(self):
@@ -121,7 +133,8 @@ def read_logs(paths: list[str], *, earlier: bool = True) -> tuple[list[RunLog], 
             for recorded in _earlier_names(log):
                 if _name(recorded) in logs:
                     continue
-                found = next((p for p in (Path(log.path).parent / _name(recorded), Path(recorded)) if p.is_file()), None)
+                found = next((p for p in (Path(log.path).parent / _name(recorded), Path(recorded)) if p.is_file()),
+                             None)
                 if found is None:
                     notes.append(f"{_name(log.path)} resumed {_name(recorded)}, which is not found here: "
                                  "its units are not in this solve")
@@ -250,7 +263,6 @@ def load_subset_schedule(spec: str | None, kind: str):
         return None
     if spec == NONE:
         return NONE
-    from schedules import ScheduleError, resolve_schedule
 
     try:
         schedule = resolve_schedule(spec)
@@ -296,13 +308,13 @@ def select(extraction: Extraction, positions=None, rotations=None) -> Extraction
     if rotations == NONE:
         chosen.rotations = []
     elif rotations is not None:
-        keys = [(angle_key(o.start_deg), o.frame, o.direction) for o in extraction.rotations]
-        wanted = [(angle_key(r.start_deg), r.frame, r.direction) for r in rotations.rotations]
-        idx, lacking = _pick(keys, wanted,
+        turn_keys = [(angle_key(o.start_deg), o.frame, o.direction) for o in extraction.rotations]
+        wanted_turns = [(angle_key(r.start_deg), r.frame, r.direction) for r in rotations.rotations]
+        idx, lacking = _pick(turn_keys, wanted_turns,
                              lambda k: "(" + ", ".join(f"{a:g}" for a in k[0]) + f") {k[1]} {k[2]}")
         chosen.rotations = [extraction.rotations[i] for i in idx]
         if lacking:
-            missing.append(f"{len(lacking)} of the {len(wanted)} rotations of {rotations.name} "
+            missing.append(f"{len(lacking)} of the {len(wanted_turns)} rotations of {rotations.name} "
                            f"({', '.join(lacking)})")
     if missing:
         raise SolveInputError("the logs lack " + " and ".join(missing))
@@ -350,8 +362,9 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolv
                 "started_utc": recorded.logs[0].metadata.get("run", {}).get("started_utc", ""),
                 "solved_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "solved_by": "bench solve",
                 "imu": {"model": imu.get("model", ""), "serial": imu.get("serial", "")},
-                "site": setup.site.to_dict(), "quality_failures": failures, "imu_link": link.as_dict(),
-                "left_out": sorted({*recorded.left_out, *dropped}), "damage": list(recorded.damage), "notes": list(recorded.notes)}
+                "site": recorded.site.to_dict(), "quality_failures": failures, "imu_link": link.as_dict(),
+                "left_out": sorted({*recorded.left_out, *dropped}), "damage": list(recorded.damage),
+                "notes": list(recorded.notes)}
     result = calibration.to_result(run=run_info, sim_truth=recorded.truth)
     return Resolved(solution, result, failures, pos_name, rot_name, positions is not None or rotations is not None)
 
@@ -369,12 +382,14 @@ def _solve_what_can_be(chosen: Extraction, site, gyro_stability, acc_stability):
         return attempt(chosen), chosen, []
     except SolverError as exc:
         first = exc
+    kept: Sequence[PositionObservation | RotationObservation]
+    dropped: Sequence[PositionObservation | RotationObservation]
     for keep_positions in (True, False):
         kept, dropped = (chosen.positions, chosen.rotations) if keep_positions else (chosen.rotations, chosen.positions)
         if not kept or not dropped:
             continue
-        part = Extraction(list(kept) if keep_positions else [], [] if keep_positions else list(kept),
-                          list(chosen.problems))
+        part = (Extraction(list(chosen.positions), [], list(chosen.problems)) if keep_positions
+                else Extraction([], list(chosen.rotations), list(chosen.problems)))
         try:
             calibration = attempt(part)
         except SolverError:
@@ -399,8 +414,6 @@ def write_outputs(recorded: Recorded, resolved: Resolved, out_dir: str | Path, *
     """Write `<stem>.result.json`, `<stem>.report.md` and (with `html`) `<stem>.report.html` as
     `bench run` does (`against`: an earlier result the reports compare with).
     Returns their paths (None for the HTML report not written)."""
-    from bench.report.markdown import markdown_report, write_reports
-
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = output_stem(recorded, resolved)

@@ -188,6 +188,7 @@ def observability(angles_deg, rel_tol: float = 1e-8) -> Observability:
     basis = _rref(vt[:rank], 1e-6)
     named = combination_matrix()
     matches = basis.shape == named.shape and np.allclose(basis, named, atol=1e-6)
+    combos: tuple[Combination, ...]
     if matches:
         combos = COMBINATIONS
     else:
@@ -447,8 +448,8 @@ def horizontal_from_counts(acc_mean, acc_sem, local_g_mps2: float, *, calibratio
                                                        False, NOMINAL_RELATIVE_UNCERTAINTY)
 
 
-__all__ = ["ANGLE_NAMES", "COMBINATIONS", "COMBINATION_KEYS", "Combination", "Conversion", "NOMINAL_RELATIVE_UNCERTAINTY",
-           "Observability",
+__all__ = ["ANGLE_NAMES", "COMBINATIONS", "COMBINATION_KEYS", "Combination", "Conversion",
+           "NOMINAL_RELATIVE_UNCERTAINTY", "Observability",
            "TableCheckError", "TableCheckEstimate", "black_box_jacobian", "check_positions", "combination_matrix",
            "estimate", "horizontal_force", "horizontal_from_counts", "model_horizontal", "observability",
            "offset_columns", "true_combinations"]

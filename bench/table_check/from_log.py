@@ -14,7 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from bench import __version__
+from bench.log.reader import LogError, read_log
+from bench.log.run_info import layout_and_config_from_log
 from bench.model.units import ARCSEC
+from bench.solve.from_logs import extract_from_logs
 from bench.table_check.estimate import (
     COMBINATIONS,
     Conversion,
@@ -76,8 +79,8 @@ class TableCheckAnalysis:
                                                           est.sigma_g, est.residual_g)],
             "problems": list(self.problems), "notes": list(self.notes),
         }
-        if self.black_box_rad is not None:
-            truth = self.truth_rad
+        truth = self.truth_rad
+        if truth is not None:       # a simulated run: its black box is known
             out["sim_truth"] = {
                 "black_box_arcsec": (np.asarray(self.black_box_rad) / ARCSEC).tolist(),
                 "combinations_arcsec": {c.key: float(t) for c, t in zip(COMBINATIONS, truth / ARCSEC)},
@@ -103,9 +106,9 @@ def analyse_observations(observations, local_g_mps2: float, *, calibration=None)
     angles = np.array([o.angles_deg for o in observations], dtype=float)
     acc = np.array([o.acc_mean for o in observations], dtype=float)
     sem = np.array([_sem(o) for o in observations], dtype=float)
-    horizontal, sigma, conversion = horizontal_from_counts(acc, sem, local_g_mps2, calibration=calibration)
-    if not np.all(sigma > 0):
-        sigma = None    # no usable standard errors: the residual scatter sets the uncertainty
+    horizontal, sem_g, conversion = horizontal_from_counts(acc, sem, local_g_mps2, calibration=calibration)
+    # without usable standard errors (None) the residual scatter sets the uncertainty
+    sigma = sem_g if np.all(sem_g > 0) else None
     return estimate(angles, horizontal, sigma, relative_scale_uncertainty=conversion.relative_uncertainty), conversion
 
 
@@ -121,10 +124,6 @@ def analyse_log(path: str | Path, *, calibration=None, still_open: bool = False)
     the positions cannot determine the combinations). `still_open`: the live check
     reading the log it is still writing (its missing summary is not damage).
     """
-    from bench.log.reader import LogError, read_log
-    from bench.log.run_info import layout_and_config_from_log
-    from bench.solve.from_logs import extract_from_logs
-
     log = read_log(str(path))
     setup = layout_and_config_from_log(log)
     if setup.site is None:

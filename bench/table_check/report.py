@@ -123,6 +123,7 @@ def _header(analysis: TableCheckAnalysis) -> list[str]:
 def _facts(analysis: TableCheckAnalysis) -> list[tuple[str, str]]:
     est = analysis.estimate
     obs = est.observability
+    noise_rad, conversion_rad = est.sigma_noise_rad, est.sigma_conversion_rad   # set by `estimate`
     facts = [("log", Path(analysis.log_path).name), ("mode", analysis.mode or "unknown"),
              ("positions", f"{len(analysis.labels)} (dwell {analysis.dwell_s:g} s)"),
              ("residual RMS", f"{est.residual_rms_g / UG:.3f} ug ({est.residual_rms_g / ARCSEC:.3f} arcsec of tilt)"),
@@ -133,8 +134,10 @@ def _facts(analysis: TableCheckAnalysis) -> list[tuple[str, str]]:
              ("1-sigma", "noise (the dwells' standard errors) "
               + (f"and conversion ({est.relative_scale_uncertainty:g} x each tilt vector's length: "
                  + ", ".join(f"{c.key} {n / ARCSEC:.3f} + {v / ARCSEC:.3f}" for c, n, v in
-                             zip(est.combinations, est.sigma_noise_rad, est.sigma_conversion_rad))
-                 + " arcsec) in quadrature" if est.relative_scale_uncertainty else "only")),
+                             zip(est.combinations, noise_rad, conversion_rad))
+                 + " arcsec) in quadrature"
+                 if est.relative_scale_uncertainty and noise_rad is not None and conversion_rad is not None
+                 else "only")),
              ("accelerometer scale", f"{analysis.conversion.source}: "
               + ", ".join(f"{s:.1f}" for s in analysis.conversion.scale_counts_per_g) + " counts/s per g")]
     if obs is not None:

@@ -18,8 +18,12 @@ from textual.containers import Horizontal, Vertical
 from textual.css.query import NoMatches
 from textual.widgets import Footer, Header, TabbedContent, TabPane
 
+from bench.config.load import default_sim_config
+from bench.model.result import CalibrationResult
+from bench.run.runner import compile_from_config
 from bench.tui.buffer import ImuScales, UiBuffer
 from bench.tui.panels import EventLog, ImuPanel, PlanPanel, ResultsPanel, TablePanel
+from bench.tui.replay_session import ReplaySession, open_log
 from bench.tui.screens import ConfirmScreen, GotoScreen, HelpScreen, RateScreen
 from bench.tui.session import BenchSession, SessionError
 from drivers.turntable import FRAMES
@@ -92,7 +96,7 @@ class BenchApp(App):
         Binding("q", "quit_app", "quit"),
     ]
 
-    def __init__(self, session: BenchSession, buffer: UiBuffer, *, steps, limits, scales: ImuScales,
+    def __init__(self, session: BenchSession | ReplaySession, buffer: UiBuffer, *, steps, limits, scales: ImuScales,
                  simulated: bool, auto_connect: bool = True, refresh_hz: float = 20.0, subtitle: str = "",
                  jog_step_deg: float = 1.0, theme: str = DARK_THEME):
         super().__init__()
@@ -104,7 +108,7 @@ class BenchApp(App):
         self.refresh_hz = float(refresh_hz)
         self.sub_title = subtitle
         self.refreshes = 0                   # timer ticks drawn (the refresh benchmark reads it)
-        self._result_shown = None
+        self._result_shown: CalibrationResult | None = None
         self.jog_frame = 0                   # the frame [ and ] move
         self.jog_step_deg = float(jog_step_deg)
         self.rate_dps = 0.0                  # the rate dialog's last value
@@ -132,7 +136,7 @@ class BenchApp(App):
         self.query_one("#imu-panel").border_title = "IMU"
         self.set_interval(1.0 / self.refresh_hz, self.refresh_panels)
         self.theme_changed_signal.subscribe(self, self._theme_changed)
-        if self.session.replaying:
+        if isinstance(self.session, ReplaySession):     # its `replaying` is True
             self.session.play()
         elif self.auto_connect:
             self.action_connect()
@@ -349,9 +353,6 @@ def create_app(*, config=None, sim: bool = False, replay: str | Path | None = No
     """
     if replay is not None:
         return _create_replay_app(replay, speed, refresh_hz=refresh_hz, jog_step_deg=jog_step_deg, theme=theme)
-    from bench.config.load import default_sim_config
-    from bench.run.runner import compile_from_config
-
     if config is None:
         if not sim:
             raise ValueError("say config=..., sim=True or replay=LOG")
@@ -369,8 +370,6 @@ def create_app(*, config=None, sim: bool = False, replay: str | Path | None = No
 
 
 def _create_replay_app(path, speed, **kwargs) -> BenchApp:
-    from bench.tui.replay_session import ReplaySession, open_log
-
     opened = open_log(path)
     buffer = UiBuffer(opened.steps)
     session = ReplaySession(opened, buffer=buffer, speed=speed)

@@ -16,7 +16,12 @@ from typing import Sequence
 
 import numpy as np
 
+from bench.model.kinematics import triple
+from bench.model.result import CalibrationResult
+from bench.model.units import DEG, G0
 from bench.plan.events import Event, RunListener, RunState
+from drivers.imu import ImuStats
+from drivers.turntable import TableState
 
 #: The six IMU channels in display order: gyro x/y/z, accelerometer x/y/z.
 CHANNELS = ("gx", "gy", "gz", "ax", "ay", "az")
@@ -45,7 +50,7 @@ class UiSnapshot:
 
     run_state: RunState
     run_time_s: float | None               # latest time seen on the run's clock
-    table_state: object | None             # drivers.turntable.TableState
+    table_state: TableState | None
     table_states: int
     imu: ImuView
     step_states: tuple[str, ...]
@@ -53,7 +58,7 @@ class UiSnapshot:
     current_started_s: float | None
     done_estimated_s: float
     event_count: int                       # events ever added (the UI appends the new ones)
-    result: object | None = None           # bench.model.result.CalibrationResult
+    result: CalibrationResult | None = None
     outcome_text: str = ""
 
 
@@ -71,7 +76,7 @@ class UiBuffer(RunListener):
             raise ValueError(f"history must be at least 2 samples, got {history}")
         self._lock = threading.Lock()
         self.history = int(history)
-        self.stats_source = None
+        self.stats_source: ImuStats | None = None
         self._events: deque[tuple[int, Event]] = deque(maxlen=max_events)
         self._event_count = 0
         self._ring = np.zeros((6, self.history))
@@ -82,10 +87,10 @@ class UiBuffer(RunListener):
         self._gyro: tuple | None = None
         self._acc: tuple | None = None
         self._temperature = math.nan
-        self._table_state = None
+        self._table_state: TableState | None = None
         self._table_states = 0
         self._run_time_s: float | None = None
-        self._result = None
+        self._result: CalibrationResult | None = None
         self._outcome_text = ""
         self.begin_run(steps)
 
@@ -112,7 +117,7 @@ class UiBuffer(RunListener):
             t = self._run_time_s if self._run_time_s is not None else 0.0
             self._add_event(Event(t, kind, message, data=data))
 
-    def set_outcome(self, result=None, text: str = "") -> None:
+    def set_outcome(self, result: CalibrationResult | None = None, text: str = "") -> None:
         """The finished run's result (a CalibrationResult, or None) and a one-line account."""
         with self._lock:
             self._result, self._outcome_text = result, text
@@ -126,25 +131,25 @@ class UiBuffer(RunListener):
         with self._lock:
             self._add_event(event)
             self._run_time_s = event.time_s
-            k = event.step_index
-            valid = k is not None and 0 <= k < len(self._step_states)
+            index = event.step_index
+            k = index if index is not None and 0 <= index < len(self._step_states) else None  # None: no valid step
             if event.kind == "transition" and event.state is not None:
                 self._run_state = RunState(event.state)
                 if self._run_state is RunState.FAILED and self._current is not None:
                     self._step_states[self._current] = STEP_FAILED
                     self._current = None
-            elif event.kind == "step_started" and valid:
+            elif event.kind == "step_started" and k is not None:
                 self._step_states[k] = STEP_RUNNING
                 self._current, self._current_started = k, event.time_s
-            elif event.kind in ("step_finished", "step_skipped") and valid:
+            elif event.kind in ("step_finished", "step_skipped") and k is not None:
                 self._step_states[k] = STEP_DONE if event.kind == "step_finished" else STEP_SKIPPED
                 self._done_estimated += self.steps[k].estimated_s
                 if self._current == k:
                     self._current = None
-            elif event.kind == "fault" and valid:
+            elif event.kind == "fault" and k is not None:
                 self._step_states[k] = STEP_FAILED
 
-    def on_table_state(self, state) -> None:
+    def on_table_state(self, state: TableState) -> None:
         with self._lock:
             self._table_state = state
             self._table_states += 1
@@ -230,9 +235,7 @@ class ImuScales:
         (the configuration has no nominal scale factors of a real IMU)."""
         if not sim or config is None:
             return cls()
-        from bench.model.units import DEG, G0
-
         imu = config.sim.imu
-        return cls(tuple(float(k) * DEG for k in imu.gyro_scale), tuple(float(k) * G0 for k in imu.acc_scale),
+        return cls(triple(float(k) * DEG for k in imu.gyro_scale), triple(float(k) * G0 for k in imu.acc_scale),
                    "deg/s, deg/h, g (sim truth scale)")
 

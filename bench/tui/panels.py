@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass
 from typing import Sequence
 
+from rich.console import JustifyMethod
 from rich.table import Table as RichTable
 from rich.text import Text
 from textual.app import ComposeResult
@@ -73,8 +74,10 @@ class TablePanel(Static):
         pal = palette(self.app)
         state = snapshot.table_state
         grid = RichTable.grid(padding=(0, 1))
-        for header, justify in (("axis", "left"), ("angle deg", "right"), ("rate deg/s", "right"), ("mode", "left"),
-                                ("servo", "left"), ("in-pos", "left"), ("limits", "left")):
+        columns: tuple[tuple[str, JustifyMethod], ...] = (
+            ("axis", "left"), ("angle deg", "right"), ("rate deg/s", "right"), ("mode", "left"), ("servo", "left"),
+            ("in-pos", "left"), ("limits", "left"))
+        for header, justify in columns:
             grid.add_column(header, justify=justify, no_wrap=True)
         rows = [("axis", "angle°", "rate°/s", "mode", "servo", "inpos", "limits")]
         short = {"position": "pos", "rate": "rate", "off": "off"}
@@ -84,8 +87,9 @@ class TablePanel(Static):
                 rows.append((name, "-", "-", "-", "-", "-", limit))
                 continue
             axis = state.axes[k]
-            rows.append((name, f"{axis.angle_deg:.4f}", f"{axis.rate_dps:.4f}", short.get(axis.mode.value, axis.mode.value),
-                         "on" if axis.enabled else "off", "yes" if axis.in_position else "no", limit))
+            rows.append((name, f"{axis.angle_deg:.4f}", f"{axis.rate_dps:.4f}",
+                         short.get(axis.mode.value, axis.mode.value), "on" if axis.enabled else "off",
+                         "yes" if axis.in_position else "no", limit))
         grid.add_row(*(Text(h, style="bold") for h in rows[0]))
         for row in rows[1:]:
             grid.add_row(*row[:4], Text(row[4], style=f"bold {pal.ok}" if row[4] == "on" else ""), *row[5:])
@@ -245,7 +249,8 @@ class PlanPanel(Vertical):
             current = f"step {k + 1}/{len(self.steps)} {step.unit} {step.kind}{left}"
         else:
             current = "no step running"
-        status = (f"run {snapshot.run_state.value}  {p.fraction:6.1%}  ETA{clock} {format_hms(p.remaining_s)}\n{current}")
+        status = (f"run {snapshot.run_state.value}  {p.fraction:6.1%}  ETA{clock} {format_hms(p.remaining_s)}\n"
+                  f"{current}")
         set_text(self.query_one("#plan-status", Label), status)
         bar = self.query_one("#plan-progress", ProgressBar)
         percent = round(p.fraction * 100.0, 1)
@@ -273,7 +278,7 @@ class EventLog(RichLog):
     DEFAULT_CSS = "EventLog { height: 1fr; }"
     MAX_LINES = 2000
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs) -> None:
         super().__init__(max_lines=self.MAX_LINES, wrap=True, markup=False, min_width=20, **kwargs)
         self.seen = 0
         self.plain_lines: list[str] = []

@@ -16,9 +16,17 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
+from bench.config.load import BenchConfig
+from bench.log.reader import LogError, RunLog, read_log
+from bench.log.replay import ReplayStats, replay
+from bench.log.run_info import layout_and_config_from_log, steps_from_log
+from bench.model.result import CalibrationResult, ResultFormatError
+from bench.solve.methods import SolverError
+from bench.solve.resolve import SolveInputError, load_recorded, solve_recorded
 from bench.tui.buffer import UiBuffer
 from bench.tui.session import LINK_DISCONNECTED, SessionError
 from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.turntable import TurntableLimits
 
 LINK_REPLAY = "replay"
 
@@ -61,20 +69,16 @@ class OpenedLog:
     """A run log read for replay, with what the app needs to draw it."""
 
     path: Path
-    log: object                 # bench.log.reader.RunLog
+    log: RunLog
     steps: tuple
-    config: object | None       # the recorded configuration (None if it cannot be rebuilt)
-    limits: object              # drivers.turntable.TurntableLimits
+    config: BenchConfig | None  # the recorded configuration (None if it cannot be rebuilt)
+    limits: TurntableLimits
     simulated: bool
     notes: tuple[str, ...]
 
 
 def open_log(path: str | Path) -> OpenedLog:
     """Read `path` for replay; `bench.log.reader.LogError` if it is not a readable run log."""
-    from bench.log.reader import LogError, read_log
-    from bench.log.run_info import layout_and_config_from_log, steps_from_log
-    from drivers.turntable import TurntableLimits
-
     log = read_log(str(path))
     notes = [f"damaged log: {line}" for line in log.damage]
     try:
@@ -92,10 +96,8 @@ def open_log(path: str | Path) -> OpenedLog:
     return OpenedLog(Path(path), log, steps, config, limits, simulated, tuple(notes))
 
 
-def log_result(opened: OpenedLog):
+def log_result(opened: OpenedLog) -> tuple[CalibrationResult | None, str]:
     """(CalibrationResult or None, one line): the result attached to the log, else a fresh solve."""
-    from bench.model.result import CalibrationResult, ResultFormatError
-
     why = ""
     for name, (_media, data) in sorted(opened.log.attachments.items()):
         if name.endswith(".result.json"):
@@ -104,10 +106,6 @@ def log_result(opened: OpenedLog):
                         f"result attached to the log ({name})")
             except (ResultFormatError, UnicodeDecodeError) as exc:
                 why = f"the attached {name} is unreadable ({exc}); "
-    from bench.log.reader import LogError
-    from bench.solve.methods import SolverError
-    from bench.solve.resolve import SolveInputError, load_recorded, solve_recorded
-
     try:
         resolved = solve_recorded(load_recorded([str(opened.path)], earlier=False))
     except (LogError, SolveInputError, SolverError) as exc:
@@ -131,7 +129,7 @@ class ReplaySession:
         self.join_timeout_s = float(join_timeout_s)
         self.clock = PlaybackClock(clock)
         self.run = None
-        self.stats = None                     # bench.log.replay.ReplayStats once played
+        self.stats: ReplayStats | None = None     # once played
         self.link = LINK_DISCONNECTED
         self.link_detail = ""
         self._stop = threading.Event()
@@ -168,8 +166,6 @@ class ReplaySession:
         return self._thread
 
     def _body(self) -> None:
-        from bench.log.replay import replay
-
         self.buffer.note("info", f"replaying {self.opened.path.name} (no hardware)")
         try:
             self.stats = stats = replay(self.opened.log, [self.buffer], speed=self.speed, clock=self.clock,

@@ -8,6 +8,7 @@ from textual.containers import Horizontal, Vertical
 from textual.screen import ModalScreen
 from textual.widgets import Button, Input, Label, Select, Static
 
+from bench.model.kinematics import triple
 from bench.tui.session import check_rate_command
 from drivers.errors import TurntableLimitError
 from drivers.turntable import FRAMES
@@ -97,7 +98,7 @@ class GotoScreen(ModalScreen["tuple[float, float, float] | None"]):
                 return None
             angles.append(value)
         error.update("")
-        return tuple(angles)
+        return triple(angles)
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
         self._move()
@@ -155,7 +156,11 @@ class RateScreen(ModalScreen["tuple | None"]):
     def validate(self) -> tuple | None:
         """("rate", frame, deg/s), or None after showing what is wrong."""
         error = self.query_one("#rate-error", Label)
-        frame = int(self.query_one("#rate-frame", Select).value)
+        select: Select[int] = self.query_one("#rate-frame", Select)
+        frame = select.selection        # never blank: the select has allow_blank=False
+        if frame is None:
+            error.update("choose a frame")
+            return None
         text = self.query_one("#rate-value", Input).value.strip()
         try:
             rate = float(text)

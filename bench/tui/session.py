@@ -23,8 +23,13 @@ from typing import Callable, Sequence
 
 from bench.errors import BenchError
 from bench.plan.events import RunState
+from bench.run.runner import BenchRun, RunOutcome
+from bench.sim.world import PumpedReceiver
+from bench.solve.methods import SolverError
 from bench.tui.buffer import UiBuffer
-from drivers.turntable import FRAMES, AxisMode, frame_index
+from drivers.errors import ImuError, TurntableError, TurntableLimitError
+from drivers.imu.receiver import ImuReceiver
+from drivers.turntable import FRAMES, AxisMode, Turntable, frame_index
 
 LINK_DISCONNECTED, LINK_CONNECTING, LINK_CONNECTED, LINK_ERROR = "disconnected", "connecting", "connected", "error"
 
@@ -51,8 +56,8 @@ class BenchSession:
         self.operator = operator
         self.poll_s = float(poll_s)
         self.join_timeout_s = float(join_timeout_s)
-        self.run = None                       # bench.run.runner.BenchRun
-        self.outcome = None                   # bench.run.runner.RunOutcome of the last run
+        self.run: BenchRun | None = None
+        self.outcome: RunOutcome | None = None    # of the last run
         self.link = LINK_DISCONNECTED
         self.link_detail = ""
         self._spent = False                   # the current BenchRun has run: a new run needs a new one
@@ -62,7 +67,7 @@ class BenchSession:
         self._threads: list[threading.Thread] = []
         self._monitor: threading.Thread | None = None
         self._monitor_stop = threading.Event()
-        self._imu = None
+        self._imu: PumpedReceiver | ImuReceiver | None = None
 
     # -- state -----------------------------------------------------------------------------
     @property
@@ -83,7 +88,7 @@ class BenchSession:
     def describe_plan(self) -> str:
         """What starting the plan will do, for the confirmation dialog."""
         steps = self.plan.steps
-        kinds = {}
+        kinds: dict[str, int] = {}
         for s in steps:
             kinds[s.kind] = kinds.get(s.kind, 0) + 1
         what = ", ".join(f"{n} {k}" for k, n in kinds.items())
@@ -130,18 +135,16 @@ class BenchSession:
             monitor.join(self.join_timeout_s)
 
     def _monitor_loop(self, stop: threading.Event) -> None:
-        from drivers.errors import ImuError, TurntableError
-
         failing = False
         while not stop.wait(self.poll_s):
-            run = self.run
-            if run is None:
+            run, imu = self.run, self._imu
+            if run is None or imu is None:
                 return
             try:
-                if self.sim:
-                    run.clock.advance(self.poll_s)
-                self.buffer.on_table_state(run.table.read_state())
-                block = self._imu.poll()
+                if self.sim and run.world is not None:
+                    run.world.clock.advance(self.poll_s)       # the run's clock on the simulator
+                self.buffer.on_table_state(_table(run).read_state())
+                block = imu.poll()
                 self.buffer.on_imu(block)
                 if failing:
                     failing = False
@@ -156,8 +159,6 @@ class BenchSession:
     # -- connect -------------------------------------------------------------------------------
     def connect(self) -> None:
         """Open the devices and the log (blocking; call it off the UI thread). Nothing moves."""
-        from bench.run.runner import BenchRun
-
         with self._lock:
             if self.run is not None:
                 raise SessionError("already connected")
@@ -170,9 +171,10 @@ class BenchSession:
             self.link, self.link_detail = LINK_ERROR, f"{type(exc).__name__}: {exc}"
             raise
         with self._lock:
+            receiver = _receiver(run)
             self.run, self._spent, self._estop = run, False, False
-            self._imu = run.world.imu_source(run.receiver) if run.world is not None else run.receiver
-            self.buffer.stats_source = run.receiver.stats
+            self._imu = run.world.imu_source(receiver) if run.world is not None else receiver
+            self.buffer.stats_source = receiver.stats
             self.link = LINK_CONNECTED
             self.link_detail = (f"{self.config.table.dialect}, simulator" if self.sim
                                 else f"{self.config.table.dialect} at {self.config.table.url}")
@@ -189,8 +191,9 @@ class BenchSession:
         if run is None:
             return
         try:
-            run.table.safe_stop()
-            run.table.disable()
+            table = _table(run)
+            table.safe_stop()
+            table.disable()
         except Exception as exc:  # noqa: BLE001 - closing matters more; the log says what failed
             self.buffer.note("warning", f"stop on disconnect failed: {type(exc).__name__}: {exc}")
         run.close()
@@ -316,10 +319,7 @@ class BenchSession:
         self._worker.start()
         return self._worker
 
-    def _run_body(self, run) -> None:
-        from bench.solve.methods import SolverError
-        from drivers.errors import TurntableError
-
+    def _run_body(self, run: BenchRun) -> None:
         text, result = "", None
         try:
             if self._estop:
@@ -343,14 +343,17 @@ class BenchSession:
                 text = f"{outcome.state.value}: {outcome.error}; table stopped. Log: {outcome.log_path.name}"
             elif outcome.failures:
                 text = "quality check failed: " + "; ".join(outcome.failures)
-            else:
+            elif outcome.result_path is not None:
                 text = f"done; result {outcome.result_path.name}"
+            else:                               # finish() writes a result whenever the run ended without error
+                text = f"{outcome.state.value}: no result written"
             self.buffer.note("info", text)
         except Exception as exc:  # noqa: BLE001 - the operator must see it; the sequencer already stopped the table
             text = f"run error: {type(exc).__name__}: {exc}"
             self.buffer.note("fault", text)
         finally:
-            run.receiver.on_frames = None          # the finished sequencer's listeners are closed
+            if run.receiver is not None:
+                run.receiver.on_frames = None      # the finished sequencer's listeners are closed
             self.buffer.set_outcome(result, text)
             if self.run is run and run.table is not None:
                 self._start_monitor()
@@ -365,17 +368,20 @@ class BenchSession:
         self.buffer.note("info", "resume requested")
 
     def abort(self, reason: str = "aborted by the operator") -> None:
-        self._sequencer()
-        self.run.abort(reason)
+        self._active_run().abort(reason)
         self.buffer.note("warning", f"abort requested: {reason}")
 
-    def _sequencer(self):
+    def _active_run(self) -> BenchRun:
+        """The run under way, its sequencer running, paused or about to start (SessionError otherwise)."""
         run = self.run
         if not self.running or run is None or run.sequencer is None:
             raise SessionError("no run is active")
         if run.sequencer.state not in (RunState.RUNNING, RunState.PAUSED, RunState.IDLE):
             raise SessionError(f"the run is {run.sequencer.state.value}")
-        return run.sequencer
+        return run
+
+    def _sequencer(self):
+        return self._active_run().sequencer
 
     def estop(self) -> threading.Thread | None:
         """Emergency stop: abort the run and send the controller's abort (servos off) at once."""
@@ -386,6 +392,8 @@ class BenchSession:
             return None
         run.abort("emergency stop by the operator")
         table = run.table
+        if table is None:                   # a run in the session is open: cannot happen
+            return None
 
         def body() -> None:
             table.safe_abort()
@@ -410,6 +418,20 @@ class BenchSession:
                 self.run.close()
 
 
+def _table(run: BenchRun) -> Turntable:
+    """The table of an opened run (the session holds only opened runs)."""
+    if run.table is None:
+        raise SessionError("not connected")
+    return run.table
+
+
+def _receiver(run: BenchRun) -> ImuReceiver:
+    """The IMU receiver of an opened run."""
+    if run.receiver is None:
+        raise SessionError("not connected")
+    return run.receiver
+
+
 def _require_at_rest(state, k: int) -> None:
     axis = state.axes[k]
     if not axis.enabled:
@@ -421,8 +443,6 @@ def _require_at_rest(state, k: int) -> None:
 def check_rate_command(limits, frame: int, rate_dps: float) -> None:
     """Raise `TurntableLimitError` unless `rate_dps` may be commanded on `frame`: within its rate limit,
     and the axis has no travel limits (a constant rate would run into them; use go to or jog there)."""
-    from drivers.errors import TurntableLimitError
-
     limits.check_rate(frame, rate_dps)
     axis = limits.axes[frame]
     if axis.min_deg is not None or axis.max_deg is not None:
