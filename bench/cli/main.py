@@ -9,7 +9,7 @@ from bench import __version__
 from bench.cli import check_table, evaluate, replay, run, schedules, solve, table, tui
 from bench.cli.common import ExitCode
 from bench.errors import BenchError
-from drivers.errors import ImuError, TurntableError
+from drivers.errors import ImuError, TurntableConfigError, TurntableError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -41,6 +41,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("bench: interrupted", file=sys.stderr)
         return ExitCode.INTERRUPTED
+    except TurntableConfigError as exc:
+        # a URL, dialect, option or limit the driver refused before sending anything: nothing moved
+        print(f"bench {args.command}: {exc}", file=sys.stderr)
+        return ExitCode.USAGE
     except (TurntableError, ImuError) as exc:
         # a command that moves hardware handles these itself (and stops the table); this is the backstop
         print(f"bench {args.command}: {type(exc).__name__}: {exc}", file=sys.stderr)
