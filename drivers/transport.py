@@ -209,13 +209,17 @@ class SerialTransport:
             raise ConnectionError(f"{self.url}: {exc}") from exc
 
 
+#: URL schemes of the Modbus dialect (and of no other); pymodbus opens those, not this module
+MODBUS_SCHEMES = ("modbus+tcp://", "modbus+rtu://")
+
+
 def open_transport(url: str) -> ByteTransport:
     """An unopened transport for `url` (see the module docstring); TurntableConfigError (a ValueError) on a bad URL."""
     if not url:
         raise TurntableConfigError("empty transport URL")
     if url.startswith("tcp://"):
         return TcpTransport(url)
-    if url.startswith(("modbus+tcp://", "modbus+rtu://")):
+    if url.startswith(MODBUS_SCHEMES):
         raise TurntableConfigError(f"{url!r} is a Modbus URL: use the modbus dialect")
     return SerialTransport(url)
 

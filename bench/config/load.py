@@ -26,9 +26,9 @@ from bench.model.families import BODY_AXES, SENSOR_AXES, canonical_names, family
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
 from bench.model.units import ARCSEC
 from bench.plan.compiler import ORDERS, PlanTiming
-from drivers.errors import ImuConfigError
+from drivers.errors import ImuConfigError, TurntableConfigError
 from drivers.imu import DEFAULT_DBC, DEFAULT_FD_DBC, DEFAULT_FD_SPEC, DEFAULT_SPEC, ImuFrameSpec, ImuLayout
-from drivers.turntable import DIALECTS, FRAMES, AxisLimits, TurntableLimits
+from drivers.turntable import DIALECTS, FRAMES, AxisLimits, TurntableLimits, check_url_dialect
 from drivers.turntable.modbus_map import RegisterMap, RegisterMapError
 from schedules import Schedule, ScheduleError, builtin_names, resolve_schedule
 from schedules.tomllines import LineMap, locate_lines
@@ -173,11 +173,11 @@ def _table(t: Table) -> TableConfig:
     if dialect not in DIALECTS:
         raise t.error("dialect", f"unknown dialect {dialect!r}" + suggest(dialect, DIALECTS).replace(
             " (known:", " (known dialects:"))
-    is_modbus_url = url.startswith(("modbus+tcp://", "modbus+rtu://"))
-    if url != SIM_URL and dialect == "modbus" and not is_modbus_url:
-        raise t.error("url", f"the modbus dialect needs a modbus+tcp:// or modbus+rtu:// url, got {url!r}")
-    if dialect != "modbus" and is_modbus_url:
-        raise t.error("url", f"{url!r} is a Modbus url but table.dialect is {dialect!r}")
+    if url != SIM_URL:
+        try:
+            check_url_dialect(url, dialect, dialect_label="table.dialect")
+        except TurntableConfigError as exc:
+            raise t.error("url", str(exc)) from exc
     timeout_s = t.number("timeout_s", 0.5, gt=0, unit="s")
     retries = t.integer("retries", 2, ge=0)
     tolerance_deg = t.number("settle_tolerance_deg", 0.001, gt=0, unit="deg")

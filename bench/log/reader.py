@@ -88,7 +88,12 @@ class TableStates:
 
 @dataclass
 class ImuRecords:
-    """The decoded samples as recorded on `/imu/samples` (possibly decimated), in log order."""
+    """The decoded samples as recorded on `/imu/samples` (possibly decimated), in log order.
+
+    Derived data for viewing: the solver decodes the raw frames instead
+    (`RunLog.imu_samples`, a `drivers.imu.ImuSampleBlock`); see `bench.sim.imu.ImuSamples`
+    for how the three sample arrays differ.
+    """
 
     counter: np.ndarray         # (n,) int64
     time_s: np.ndarray          # (n,) counter / rate

@@ -28,7 +28,16 @@ _STREAMS = ("gyro_white", "acc_white", "gyro_gm", "acc_gm", "quantise")
 
 @dataclass
 class ImuSamples:
-    """A block of IMU samples; increments are per sample, in output counts."""
+    """What the simulated IMU *produces*: a block of true samples before any wire.
+
+    Increments are per sample, in output counts; `time_s` is the simulated time. The
+    three sample arrays of the project differ by where they stand in the data flow:
+    `ImuSamples` (here) is the simulator's output, before it is encoded into CAN frames;
+    `drivers.imu.ImuSampleBlock` is what the driver *decodes* from frames (live, or in bulk
+    from a log's `/can/raw`: unwrapped counter, receive time, temperature, status);
+    `bench.log.reader.ImuRecords` is what the log's derived `/imu/samples` topic holds
+    (possibly decimated; for people and Foxglove, not for the solver).
+    """
 
     counter: np.ndarray      # (n,) int64, the IMU's own sample counter: 0 for the first sample, wraps at 2**32
     time_s: np.ndarray       # (n,) end time of each sample interval, simulated seconds

@@ -10,6 +10,7 @@ import importlib
 from typing import Callable
 
 from drivers.errors import TurntableConfigError
+from drivers.transport import MODBUS_SCHEMES
 from drivers.turntable.base import (
     ALL_FRAMES,
     FRAMES,
@@ -40,23 +41,33 @@ def dialect_class(dialect: str) -> type[Turntable]:
     return getattr(importlib.import_module(module), name)
 
 
+def check_url_dialect(url: str, dialect: str, *, dialect_label: str = "the dialect") -> None:
+    """TurntableConfigError when `url` cannot carry `dialect`: Modbus URLs are for the modbus dialect only.
+
+    `dialect_label` names the dialect's source in the message (e.g. "table.dialect").
+    """
+    is_modbus_url = url.startswith(MODBUS_SCHEMES)
+    if dialect.lower() == "modbus" and not is_modbus_url:
+        raise TurntableConfigError(f"the modbus dialect needs a modbus+tcp:// or modbus+rtu:// url, got {url!r}")
+    if dialect.lower() != "modbus" and is_modbus_url:
+        raise TurntableConfigError(f"{url!r} is a Modbus url but {dialect_label} is {dialect!r}")
+
+
 def open_turntable(url: str, dialect: str | None = None, **options) -> Turntable:
     """An unconnected driver for `url` in `dialect` (`modbus+...` URLs imply 'modbus').
 
     `options` go to the dialect's constructor (limits, clock, timeout_s, retries, ...).
     """
     if dialect is None:
-        if not url.startswith(("modbus+tcp://", "modbus+rtu://")):
+        if not url.startswith(MODBUS_SCHEMES):
             raise TurntableConfigError(f"say which dialect {url!r} speaks (known: {', '.join(DIALECTS)})")
         dialect = "modbus"
-    if dialect.lower() == "modbus" and not url.startswith(("modbus+tcp://", "modbus+rtu://")):
-        raise TurntableConfigError(f"the modbus dialect needs a modbus+tcp:// or modbus+rtu:// URL, got {url!r}")
-    if dialect.lower() != "modbus" and url.startswith(("modbus+tcp://", "modbus+rtu://")):
-        raise TurntableConfigError(f"{url!r} is a Modbus URL but the dialect is {dialect!r}")
+    check_url_dialect(url, dialect)
     # Each dialect's constructor takes the URL (or transport) first: not Turntable.__init__'s signature.
     make: Callable[..., Turntable] = dialect_class(dialect)
     return make(url, **options)
 
 
 __all__ = ["ALL_FRAMES", "DIALECTS", "FRAMES", "AxisLimits", "AxisMode", "AxisState", "AxisStatus", "TableState",
-           "Turntable", "TurntableLimits", "dialect_class", "frame_index", "open_turntable"]
+           "Turntable", "TurntableLimits", "MODBUS_SCHEMES", "check_url_dialect", "dialect_class", "frame_index",
+           "open_turntable"]
