@@ -25,7 +25,7 @@ from bench.tui.buffer import ImuScales, UiBuffer
 from bench.tui.panels import EventLog, ImuPanel, PlanPanel, ResultsPanel, TablePanel
 from bench.tui.replay_session import ReplaySession, open_log
 from bench.tui.screens import ConfirmScreen, GotoScreen, HelpScreen, RateScreen
-from bench.tui.session import BenchSession, SessionError
+from bench.tui.session import OPERATOR_ERRORS, BenchSession, SessionError
 from drivers.turntable import FRAMES
 
 ESTOP_KEY = "f12"
@@ -225,7 +225,7 @@ class BenchApp(App):
                 try:
                     self.query_one(TabbedContent).active = "plan-tab"
                     self.session.start()
-                except (SessionError, Exception) as exc:  # noqa: BLE001 - shown to the operator
+                except OPERATOR_ERRORS as exc:
                     self._refuse(exc)
 
         self.push_screen(ConfirmScreen("Start the calibration plan?", self.session.describe_plan(),
@@ -271,7 +271,7 @@ class BenchApp(App):
             if angles is not None:
                 try:
                     self.session.go_to(angles)
-                except Exception as exc:  # noqa: BLE001 - limits/link: shown to the operator
+                except OPERATOR_ERRORS as exc:   # limits, link: shown to the operator
                     self._refuse(exc)
 
         self.push_screen(GotoScreen(self.limits, current), chosen)
@@ -290,7 +290,7 @@ class BenchApp(App):
                     _, frame, rate = choice
                     self.jog_frame, self.rate_dps = frame, rate
                     self.session.set_rate(frame, rate)
-            except Exception as exc:  # noqa: BLE001 - limits/link: shown to the operator
+            except OPERATOR_ERRORS as exc:   # limits, link: shown to the operator
                 self._refuse(exc)
 
         self.push_screen(RateScreen(self.limits, self.jog_frame, self.rate_dps), chosen)
@@ -309,7 +309,7 @@ class BenchApp(App):
             return
         try:
             self.session.jog(self.jog_frame, direction * self.jog_step_deg)
-        except Exception as exc:  # noqa: BLE001 - servo off, limits: shown to the operator
+        except OPERATOR_ERRORS as exc:   # servo off, limits: shown to the operator
             self._refuse(exc)
 
     def action_toggle_theme(self) -> None:

@@ -38,6 +38,11 @@ class SessionError(BenchError):
     """An operator command that cannot be done now (says why)."""
 
 
+#: what an operator command can fail with, shown to the operator; anything else is a bug and ends the app,
+#: whose unmount stops the table
+OPERATOR_ERRORS = (BenchError, TurntableError, ImuError, OSError)
+
+
 class BenchSession:
     """An interactive bench: `config` and compiled `plan`, on the simulator when `sim`.
 
