@@ -305,7 +305,7 @@ def test_non_finite_values_become_null(tmp_path):
         rec.on_imu(block)
     with open(path, "rb") as f:
         for _, channel, msg in make_reader(f).iter_messages():
-            json.loads(msg.data, parse_constant=lambda c: pytest.fail(f"{channel.topic}: {c}"))
+            json.loads(msg.data, parse_constant=lambda c, channel=channel: pytest.fail(f"{channel.topic}: {c}"))
     log = read_log(path)
     assert np.isnan(log.table_states.angles_deg).all() and log.events[0].data == {"x": None}
     assert np.isnan(log.imu_records.temperature_c).all() and np.isnan(log.imu_records.gyro_counts[1, 2])
@@ -428,7 +428,8 @@ def test_imu_samples_have_chunks_of_their_own_checked_when_first_read(tmp_path, 
     assert f"{len(samples_only)} /imu/samples chunks" in log.summary()
     records = log.imu_records   # now they are read: one chunk is lost, and said so
     assert log.unchecked_chunks == 0 and not log.complete and len(log.damage) == 1
-    assert log.damage[0].startswith(f"chunk at byte {start}") and f"{SAMPLES_PER_BATCH} on /imu/samples" in log.damage[0]
+    assert log.damage[0].startswith(f"chunk at byte {start}")
+    assert f"{SAMPLES_PER_BATCH} on /imu/samples" in log.damage[0]
     if compression == "none":
         assert "CRC mismatch" in log.damage[0]
     assert len(records) == len(run.batch_frames) * SAMPLES_PER_BATCH - SAMPLES_PER_BATCH
@@ -558,3 +559,31 @@ def test_random_bytes_after_the_magic_are_an_error_or_damage(tmp_path, body):
     except LogError:
         return
     assert not log.complete
+
+
+def test_malformed_messages_found_on_first_use_are_counted_in_damage_and_lost(tmp_path):
+    # The derived topics are parsed when first used; what cannot be parsed is skipped, the rest
+    # kept, and the skipped messages are named in `damage` and counted per topic in `lost`.
+    from mcap.writer import Writer
+
+    from bench.log.format import TOPIC_SAMPLES, TOPIC_STATE
+
+    good_sample = {"counter": 7, "time_s": 0.07, "gyro_counts": [1, 2, 3], "acc_counts": [4, 5, 6],
+                   "temperature_c": None, "status": 0}
+    good_state = {"time_s": 1.0, "angles_deg": [0, 90, 0], "rates_dps": [0, 0, 0], "modes": ["position"] * 3,
+                  "status": [5, 5, 5], "estop": False, "fault_text": ""}
+    path = tmp_path / "malformed.mcap"
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        for topic, good in ((TOPIC_SAMPLES, good_sample), (TOPIC_STATE, good_state)):
+            schema = writer.register_schema(name=topic, encoding="jsonschema", data=b"{}")
+            channel = writer.register_channel(topic=topic, message_encoding="json", schema_id=schema)
+            for k, payload in enumerate((b"not json", json.dumps(good).encode(), b'{"counter": [1, 2]}')):
+                writer.add_message(channel, log_time=k + 1, data=payload, publish_time=k + 1)
+        writer.finish()
+    log = read_log(path)
+    assert len(log.imu_records) == 1 and log.imu_records.counter.tolist() == [7]
+    assert len(log.table_states.time_s) == 1
+    assert {topic: n for d in log.lost for topic, n in d.lost.items()} == {TOPIC_SAMPLES: 2, TOPIC_STATE: 2}
+    assert len(log.damage) == len(log.lost) == 2 and not log.complete

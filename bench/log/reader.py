@@ -156,9 +156,7 @@ class RunLog:
                     bad += 1
             states = TableStates.from_dicts(good)
         if bad:
-            damage = Damage("message", 0, f"{bad} malformed {TOPIC_STATE} messages skipped")
-            self.lost.append(damage)
-            self.damage.append(damage.describe())
+            self._add(_malformed(TOPIC_STATE, bad))
         return states
 
     @cached_property
@@ -170,20 +168,17 @@ class RunLog:
             return ImuRecords(np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)),
                               np.zeros(0), np.zeros(0, np.int64))
         rows, bad = _parse_json_rows(d)
-        if bad:
-            self.damage.append(f"{bad} malformed messages on {TOPIC_SAMPLES} skipped")
         times = d.log_time_ns[[i for i, r in enumerate(rows) if r is not None]] / 1e9
         rows = [r for r in rows if r is not None]
         try:
-            return ImuRecords(np.array([r["counter"] for r in rows], np.int64),
-                              np.array([r["time_s"] for r in rows], float), times,
-                              np.array([r["gyro_counts"] for r in rows], float).reshape(-1, 3),
-                              np.array([r["acc_counts"] for r in rows], float).reshape(-1, 3),
-                              np.array([np.nan if r["temperature_c"] is None else r["temperature_c"] for r in rows],
-                                       float),
-                              np.array([r["status"] for r in rows], np.int64))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise LogError(f"{self.path}: {TOPIC_SAMPLES} messages do not have the expected fields ({exc})") from exc
+            records = _imu_records(rows, times)
+        except (KeyError, TypeError, ValueError):   # some rows lack fields: keep the others, count these
+            good = [k for k, r in enumerate(rows) if _parses(_imu_records, [r], times[k:k + 1])]
+            bad += len(rows) - len(good)
+            records = _imu_records([rows[k] for k in good], times[good])
+        if bad:
+            self._add(_malformed(TOPIC_SAMPLES, bad))
+        return records
 
     def imu_samples(self, layout: ImuLayout | None = None, rate_hz: float = 1000.0,
                     reorder_window: int = 8) -> tuple[ImuSampleBlock, ImuStats]:
@@ -221,10 +216,14 @@ class RunLog:
         if self._samples is None or not self.unchecked_chunks:
             return []
         found = self._samples.inflate_deferred(TOPIC_SAMPLES)
-        self.lost.extend(found)
-        lines = [d.describe() for d in found]
-        self.damage.extend(lines)
-        return lines
+        for damage in found:
+            self._add(damage)
+        return [d.describe() for d in found]
+
+    def _add(self, damage: Damage) -> None:
+        """Damage found after `read_log`: into `lost` and `damage` alike."""
+        self.lost.append(damage)
+        self.damage.append(damage.describe())
 
     def summary(self) -> str:
         """One line: what the log holds and whether anything was lost."""
@@ -233,6 +232,34 @@ class RunLog:
                      if self.unchecked_chunks else "")
         return (f"{self.path}: {len(self.can_ids)} CAN frames, {len(self.table_states)} table states, "
                 f"{len(self.events)} events, {self.chunks} chunks{unchecked}; {state}")
+
+
+def _imu_records(rows: list[dict], times: np.ndarray) -> ImuRecords:
+    """`/imu/samples` rows as arrays (KeyError/TypeError/ValueError when a row lacks a field or has a wrong one)."""
+    n = len(rows)
+    records = ImuRecords(np.array([r["counter"] for r in rows], np.int64),
+                         np.array([r["time_s"] for r in rows], float), times,
+                         np.array([r["gyro_counts"] for r in rows], float).reshape(n, 3),
+                         np.array([r["acc_counts"] for r in rows], float).reshape(n, 3),
+                         np.array([np.nan if r["temperature_c"] is None else r["temperature_c"] for r in rows],
+                                  float),
+                         np.array([r["status"] for r in rows], np.int64))
+    if any(a.shape != (n,) for a in (records.counter, records.time_s, records.temperature_c, records.status)):
+        raise ValueError("a scalar field holds an array")
+    return records
+
+
+def _parses(parse, *args) -> bool:
+    try:
+        parse(*args)
+    except (KeyError, TypeError, ValueError):
+        return False
+    return True
+
+
+def _malformed(topic: str, count: int) -> Damage:
+    """`count` messages on `topic` that could not be parsed: skipped, and counted as lost."""
+    return Damage("message", 0, f"{count} malformed {topic} messages skipped", lost={topic: count})
 
 
 def _parse_json_rows(d: ChannelData) -> tuple[list, int]:
@@ -312,7 +339,7 @@ def read_log(path, *, defer_samples: bool = True) -> RunLog:
 
     (t, ids, data, lengths, flags), bad_can = decode_can_frames(by_topic.get(TOPIC_CAN))
     if bad_can:
-        damage.append(Damage("message", 0, f"{bad_can} malformed {TOPIC_CAN} messages skipped"))
+        damage.append(_malformed(TOPIC_CAN, bad_can))
 
     events: list[Event] = []
     if TOPIC_EVENTS in by_topic:
@@ -323,7 +350,7 @@ def read_log(path, *, defer_samples: bool = True) -> RunLog:
             except (KeyError, TypeError, ValueError, AttributeError):
                 bad += 1
         if bad:
-            damage.append(Damage("message", 0, f"{bad} malformed {TOPIC_EVENTS} messages skipped"))
+            damage.append(_malformed(TOPIC_EVENTS, bad))
 
     library = w.header.library if w.header is not None else ""
     return RunLog(path=path, metadata=w.metadata, attachments=w.attachments, events=events,
