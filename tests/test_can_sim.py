@@ -42,8 +42,8 @@ def moving_table() -> SimTable:
     return table
 
 
-def make_imu(noise=NoiseModel()) -> SimImu:
-    return SimImu(default_sim_imu(), noise, rate_hz=1000.0, seed=11)
+def make_imu(noise: NoiseModel | None = None) -> SimImu:
+    return SimImu(default_sim_imu(), NoiseModel() if noise is None else noise, rate_hz=1000.0, seed=11)
 
 
 def receive_all(receiver: ImuReceiver) -> ImuSampleBlock:

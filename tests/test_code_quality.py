@@ -1,6 +1,7 @@
 """ruff and mypy, configured in pyproject.toml, run by the README's test command.
 
-`CHECKED` lists the code held at zero findings: all of bench, drivers and schedules.
+`CHECKED` lists the code held at zero findings: all of bench, drivers and schedules; ruff also holds the tests
+at zero findings (mypy does not check them: the tests are not typed).
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 
-#: held at zero ruff and mypy findings (the tests themselves are not, yet)
+#: held at zero ruff and mypy findings (the tests are held at zero ruff findings too, but are not typed for mypy)
 CHECKED = ["bench", "drivers", "schedules"]
 
 
@@ -20,7 +21,7 @@ def _run(*command: str) -> subprocess.CompletedProcess:
 
 
 def test_ruff_finds_nothing():
-    done = _run("ruff", "check", *CHECKED)
+    done = _run("ruff", "check", *CHECKED, "tests")
     assert done.returncode == 0, done.stdout + done.stderr
 
 

@@ -293,7 +293,7 @@ def test_every_frame_on_the_dialect_page_has_a_correct_checksum():
                 codec.decode_frame(frame.encode())
         else:
             codec.decode_frame(frame.encode())
-    for request_, line in REQUESTS:
+    for _request, line in REQUESTS:
         assert line.decode() in text
 
 

@@ -21,8 +21,8 @@ import pytest
 from bench.log.reader import read_log
 from bench.model.families import canonical_names
 from bench.model.result import CalibrationResult
-from bench.report.html import html_report, log_damage, log_series
 from bench.report.compare import compare_results
+from bench.report.html import html_report, log_damage, log_series
 from bench.report.markdown import markdown_report, write_reports
 from bench.report.plots import envelope, inline_svg
 from tests.helpers.run import cli, config_text, only_file

@@ -134,7 +134,9 @@ def test_abort_while_paused_ends_the_run(bench):
     listener = Recorder()
     seq = _sequencer(bench, listener)
     listener.hooks[("step_started", 1)] = seq.pause
-    listener.hooks[("transition", None)] = lambda: seq.abort("abort while paused") if seq.state is RunState.PAUSED else None
+    listener.hooks[("transition", None)] = (
+        lambda: seq.abort("abort while paused") if seq.state is RunState.PAUSED else None
+    )
     assert seq.run() is RunState.FAILED
     assert [e.state for e in listener.events if e.kind == "transition"] == ["running", "paused", "aborting", "failed"]
 

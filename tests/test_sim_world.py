@@ -195,7 +195,10 @@ def test_chunked_generation_equals_one_shot():
 
 def test_seed_determinism_and_independent_streams():
     table = SimTable()
-    gen = lambda noise, seed: SimImu(default_sim_imu(), noise, rate_hz=100.0, seed=seed).generate(table, 5.0)
+
+    def gen(noise, seed):
+        return SimImu(default_sim_imu(), noise, rate_hz=100.0, seed=seed).generate(table, 5.0)
+
     a, b, c = gen(_noisy(), 1), gen(_noisy(), 1), gen(_noisy(), 2)
     np.testing.assert_array_equal(a.gyro_counts, b.gyro_counts)
     np.testing.assert_array_equal(a.acc_counts, b.acc_counts)

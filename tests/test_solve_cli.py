@@ -138,7 +138,8 @@ def test_default_output_goes_next_to_the_first_log(noisy, tmp_path):
 
 def _residual_keys(result: dict) -> tuple[list, list]:
     positions = sorted(angle_key(r["angles_deg"]) for r in result["residuals"]["positions"])
-    rotations = sorted((angle_key(r["start_deg"]), r["frame"], r["direction"]) for r in result["residuals"]["rotations"])
+    rotations = sorted((angle_key(r["start_deg"]), r["frame"], r["direction"])
+                       for r in result["residuals"]["rotations"])
     return positions, rotations
 
 

@@ -226,7 +226,7 @@ def test_simulated_table_is_recovered_within_three_sigma(tilted):
     assert len(result["per_position"]) == 16
     # The printed table shows truth and verdict beside each estimate.
     for key in COMBINATION_KEYS:
-        line = next(l for l in tilted.stdout.splitlines() if l.startswith(key))
+        line = next(text for text in tilted.stdout.splitlines() if text.startswith(key))
         assert line.rstrip().endswith("ok")
     for suffix in (".table-check.md", ".table-check.html", ".table-check-curves.svg", ".table-check-map.svg"):
         assert only_file(tilted.out, "*" + suffix).stat().st_size > 500

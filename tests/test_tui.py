@@ -46,7 +46,11 @@ def _block(counter0: int, n: int, gyro: float, acc: float, rate_hz: float = 50.0
     return ImuSampleBlock(counter, counter / rate_hz, g, a, np.full(n, 25.0), np.zeros(n, np.int64), rate_hz)
 
 
-def _state(t: float, angles=(0.0, 0.0, 0.0), status=AxisStatus(0), mode=AxisMode.OFF) -> TableState:
+#: No status bits set: the default of _state().
+NO_STATUS = AxisStatus(0)
+
+
+def _state(t: float, angles=(0.0, 0.0, 0.0), status=NO_STATUS, mode=AxisMode.OFF) -> TableState:
     return TableState(t, tuple(AxisState(a, 0.0, mode, status) for a in angles))
 
 

@@ -44,7 +44,8 @@ def main() -> int:
         print(f"{positions_name + ' + ' + rotations_name:<34} {cell(plan.estimated_total_s):>17} "
               f"{cell(plan.listed_total_s):>17} {cell(plan.lower_bound_s):>17} {saving:>6.1f}% "
               f"{plan.estimated_total_s / plan.lower_bound_s:>7.3f} "
-              f"{f'{plan.move_total_s:.1f} / {listed.move_total_s:.1f} s':>17} {statistics.median(times) * 1e3:>7.1f} ms")
+              f"{f'{plan.move_total_s:.1f} / {listed.move_total_s:.1f} s':>17} "
+              f"{statistics.median(times) * 1e3:>7.1f} ms")
     print(f"compile time: median of {args.repeats}, in process, includes compiling the listing order too")
     return 0
 

@@ -31,7 +31,8 @@ def main() -> int:
     for _ in range(args.repeats):
         with tempfile.TemporaryDirectory() as out:
             t0 = time.perf_counter()
-            code = subprocess.run([sys.executable, "-m", "bench.cli", "run", "--sim", "--quiet", "--out", out]).returncode
+            command = [sys.executable, "-m", "bench.cli", "run", "--sim", "--quiet", "--out", out]
+            code = subprocess.run(command).returncode
             walls.append(time.perf_counter() - t0)
             log = read_log(glob.glob(f"{out}/*.mcap")[0])
             result = json.load(open(glob.glob(f"{out}/*.result.json")[0]))
