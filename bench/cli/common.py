@@ -96,8 +96,7 @@ def run_plan(run: BenchRun, prog: str, *, quiet: bool, simulated: bool) -> ExitC
     try:
         try:
             run.open()
-        except (TurntableError, ImuError, BenchError, ValueError, OSError) as exc:
-            # ValueError: a device URL or bus option python-can or the transport refuses
+        except (TurntableError, ImuError, BenchError, OSError) as exc:
             return fail(prog, f"cannot start: {exc}; nothing moved", ExitCode.USAGE)
         progress = ProgressPrinter(run.plan.steps, quiet=quiet, simulated=simulated)
         run.extra_listeners.append(progress)

@@ -14,7 +14,8 @@ import threading
 from urllib.parse import urlsplit
 
 from bench.cli.common import ExitCode, fail
-from drivers.errors import TurntableError, TurntableLimitError
+from bench.errors import InputError
+from drivers.errors import TurntableConfigError, TurntableError, TurntableLimitError
 from drivers.turntable import (
     DIALECTS,
     FRAMES,
@@ -114,7 +115,7 @@ def cmd_table(args: argparse.Namespace) -> ExitCode:
         limits = TurntableLimits((outer, middle, inner))
         table = open_turntable(args.url, args.dialect, limits=limits, timeout_s=args.timeout_s,
                                retries=args.retries)
-    except ValueError as exc:
+    except TurntableConfigError as exc:
         return fail(prog, f"{exc}", ExitCode.USAGE)
     try:
         table.connect()
@@ -206,7 +207,7 @@ def _listen(controller, dialect: str, where: str, closers: list) -> str:
             return f"modbus+rtu://{modbus.start_rtu_pty()}"
         parts = urlsplit(where)
         if parts.scheme != "modbus+tcp" or parts.port is None or not parts.hostname:
-            raise ValueError(f"the modbus simulator listens on modbus+tcp://HOST:PORT or pty, not {where!r}")
+            raise InputError(f"the modbus simulator listens on modbus+tcp://HOST:PORT or pty, not {where!r}")
         host, port = modbus.start_tcp(parts.hostname, parts.port)
         return f"modbus+tcp://{host}:{port}"
     # the simulators load only for `bench sim` (the Modbus one imports pymodbus)
@@ -227,7 +228,7 @@ def _listen(controller, dialect: str, where: str, closers: list) -> str:
         return server.open_pty()
     parts = urlsplit(where)
     if parts.scheme != "tcp" or parts.port is None or not parts.hostname:
-        raise ValueError(f"the {dialect} simulator listens on tcp://HOST:PORT or pty, not {where!r}")
+        raise InputError(f"the {dialect} simulator listens on tcp://HOST:PORT or pty, not {where!r}")
     host, port = server.listen_tcp(parts.hostname, parts.port)
     return f"tcp://{host}:{port}"
 
@@ -243,7 +244,7 @@ def cmd_sim_table(args: argparse.Namespace) -> ExitCode:
 
     try:
         site = Site(args.latitude)
-    except ValueError as exc:
+    except InputError as exc:
         return fail("bench sim table", f"{exc}", ExitCode.USAGE)
     black_box = np.random.default_rng(args.seed).normal(0.0, args.black_box_arcsec * ARCSEC, (3, 3))
     controller = SimController(SimTable(site, black_box_rad=black_box))
@@ -262,7 +263,7 @@ def cmd_sim_table(args: argparse.Namespace) -> ExitCode:
             if reply:
                 print(reply, flush=True)
         done.wait()
-    except (ValueError, OSError) as exc:
+    except (InputError, OSError) as exc:
         return fail("bench sim table", f"{exc}", ExitCode.USAGE)
     except KeyboardInterrupt:
         return fail("bench sim table", "stopped", ExitCode.OK)
