@@ -1,6 +1,6 @@
 """`bench replay`: a log played back delivers what the live run delivered to its listeners.
 
-One short simulated run (tests/run_helpers.py's plan, ~4 s) is captured live by a
+One short simulated run (tests/helpers/run.py's plan, ~4 s) is captured live by a
 listener; its log is then replayed into another one and the two are compared item by
 item. Pacing runs on a ManualClock, so `--speed` tests take no wall time.
 """

@@ -280,7 +280,7 @@ def test_sigkill_then_resume_gives_the_uninterrupted_result(ideal, tmp_path):
     skipped = {e.step_unit for e in resumed_log.events if e.kind == "step_skipped"}
     assert skipped == set(done)
     assert not any(e.kind == "step_started" and e.step_unit in done for e in resumed_log.events)
-    # equal to the uninterrupted run to noise-free precision (the CAN resolution, see run_helpers)
+    # equal to the uninterrupted run to noise-free precision (the CAN resolution, see tests/helpers/run.py)
     tolerance = {"Kg": 1e-9, "Eg": 1e-9, "Ka": 2 * noise_free_floor("Ka"), "Ea": 2 * noise_free_floor("Ea"),
                  "K0": 2 * noise_free_floor("K0"), "D0": 2 * noise_free_floor("D0")}
     assert not mismatches(values(resumed), values(ideal.result), tolerance.get)

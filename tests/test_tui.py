@@ -1,7 +1,7 @@
 """The lab-operator TUI (bench/tui): buffer logic, pilot tests against the simulator, snapshots.
 
 Pilot tests drive the real app (`App.run_test`, 100x30) against a simulated bench (the
-short test plan of tests/run_helpers.py): every wait is bounded. pytest-asyncio is not
+short test plan of tests/helpers/run.py): every wait is bounded. pytest-asyncio is not
 installed: each test runs its coroutine with `asyncio.run`. Snapshot tests render
 states fed straight into the UI buffer (no wall-clock text, no run ids), so they are
 deterministic; the SVGs live in tests/__snapshots__/test_tui/.
