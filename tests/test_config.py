@@ -103,7 +103,7 @@ max_rate_dps max_accel_dps2 min_deg max_deg interface channel bitrate fd dbc rat
 acc_y acc_z temperature status counter crc model serial gyro_bias_stability_dph acc_bias_stability_ug
 positions rotations dwell_s settle_s move_rate_dps move_accel_dps2 turn_rate_dps turn_accel_dps2 rest_s
 revolutions order folder seed black_box_arcsec noise enabled gyro_arw_deg_rt_h gyro_bias_instability_dph
-acc_vrw_ug_rt_hz acc_bias_instability_ug correlation_time_s quantise""".split()
+acc_vrw_ug_rt_hz acc_bias_instability_ug correlation_time_s quantise chunk_run_interval_s""".split()
 EXAMPLE_TABLES = """site table table.modbus table.limits.outer table.limits.middle table.limits.inner imu
 imu.signals imu.bus_options imu.identity plan output sim sim.noise sim.imu""".split()
 
@@ -142,7 +142,7 @@ def test_defaults_of_a_minimal_file():
     assert (plan.dwell_s, plan.settle_s, plan.move_rate_dps, plan.move_accel_dps2, plan.turn_rate_dps,
             plan.turn_accel_dps2, plan.rest_s, plan.revolutions, plan.order) == (60, 5, 20, 10, 10, 5, 2, None,
                                                                                  "optimal")
-    assert config.output.folder == Path("runs")
+    assert config.output.folder == Path("runs") and config.output.chunk_run_interval_s is None
     assert config.sim.seed == 0 and config.sim.black_box_arcsec == 20.0 and config.sim.imu_overrides == {}
     assert config.sim.imu.to_canonical() == pytest.approx(default_sim_imu().to_canonical(), rel=1e-12)
 
@@ -218,6 +218,7 @@ ERRORS = [
      "the IMU signal mapping lacks gyro_y"),
     ("rate_hz = 200.0", "rate_hz = 200.0\nsignals = 3", 18, "imu.signals", "must be a table"),
     ("[plan]", "[output]\nfolder = 3\n[plan]", 20, "output.folder", "must be a string, got 3"),
+    ("[plan]", "[output]\nchunk_run_interval_s = 0\n[plan]", 20, "output.chunk_run_interval_s", "must be > 0 s"),
     ("rate_hz = 200.0", "rate_hz = = 200.0", 17, None, "invalid TOML: Invalid value (column 11)"),
     ('channel = "test"', 'channel = "test', 16, None, "invalid TOML"),
 ]

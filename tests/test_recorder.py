@@ -340,6 +340,35 @@ def test_chunk_closes_after_the_interval_so_an_unclosed_file_is_readable(tmp_pat
         rec.on_can_frames(msgs[:1])
 
 
+def _run_clock_recording(path, chunk_run_interval_s):
+    """Table states every 0.5 s of run time for 10 s, then three CAN batches 7 s of run time
+    apart, with a wall clock that never advances (a fast machine records it in no time)."""
+    rec = McapRecorder(path, clock=FakeClock(), chunk_run_interval_s=chunk_run_interval_s)
+    for k in range(20):
+        rec.on_table_state(state_at(0.5 * k, k))
+    msgs, _ = make_messages(3)
+    for b in range(3):
+        rec.on_can_frames([can.Message(timestamp=12.0 + 7.0 * b + 1e-3 * j, arbitration_id=m.arbitration_id,
+                                       is_extended_id=False, data=m.data) for j, m in enumerate(msgs)])
+    rec.close()
+    return chunk_layout(path), len(msgs)
+
+
+def test_chunks_close_by_run_clock_time_whatever_the_wall_clock_does(tmp_path):
+    """Every multiple of `chunk_run_interval_s` on the run clock (the messages' log times)
+    starts a new chunk, so a simulated run is chunked the same on any machine."""
+    chunks, n_frames = _run_clock_recording(tmp_path / "run-clock.mcap", 2.0)
+    spans = [(c[3].message_start_time / 1e9, c[3].message_end_time / 1e9) for c in chunks]
+    # the states: 4 per 2 s chunk; the CAN batches, each more than the interval after the last: one chunk each
+    assert spans[:5] == [(2.0 * k, 2.0 * k + 1.5) for k in range(5)]
+    assert spans[5:] == [pytest.approx((t, t)) for t in (12.02, 19.02, 26.02)]
+    assert [c[2] for c in chunks] == [0] * 5 + [n_frames] * 3
+    assert len(chunks) == 8
+    # without the run-clock rule the frozen wall clock never closes a chunk: one chunk for everything
+    chunks, _ = _run_clock_recording(tmp_path / "wall-only.mcap", None)
+    assert len(chunks) == 1
+
+
 @pytest.fixture(scope="module")
 def chunked_log(tmp_path_factory):
     path = tmp_path_factory.mktemp("chunked") / "run.mcap"
@@ -506,6 +535,9 @@ def test_recorder_rejects_bad_arguments(tmp_path):
         McapRecorder(tmp_path / "a.mcap", imu_samples_topic_decimation=0)
     with pytest.raises(RecorderError, match="compression"):
         McapRecorder(tmp_path / "b.mcap", compression="brotli")
+    for interval in (0.0, -1.0, math.nan, math.inf):
+        with pytest.raises(RecorderError, match="chunk_run_interval_s"):
+            McapRecorder(tmp_path / "b.mcap", chunk_run_interval_s=interval)
     with pytest.raises(RecorderError, match="cannot create"):
         McapRecorder(tmp_path / "no" / "such" / "dir.mcap")
     with pytest.raises(RecorderError, match="key"):

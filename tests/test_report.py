@@ -29,13 +29,17 @@ from tests.helpers.run import cli, config_text, only_file
 
 #: Elements without an end tag in HTML.
 VOID = {"area", "base", "br", "col", "embed", "hr", "img", "input", "link", "meta", "source", "track", "wbr"}
+#: The run's log closes a chunk every this many seconds of simulated time: ~50 chunks of
+#: events and frames (and as many of /imu/samples), however fast the machine records it.
+CHUNK_RUN_S = 5.0
 
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("report")
     config = folder / "bench.toml"
-    config.write_text(config_text(noise="true", black_box_arcsec=20.0, seed=3), encoding="utf-8")
+    config.write_text(config_text(noise="true", black_box_arcsec=20.0, seed=3)
+                      + f"[output]\nchunk_run_interval_s = {CHUNK_RUN_S}\n", encoding="utf-8")
     out = folder / "out"
     rc, _, stderr = cli(["run", "--config", str(config), "--out", str(out), "--quiet"])
     assert rc in (0, 4), stderr   # 4: finished, a quality check failed (still has reports)
@@ -289,6 +293,9 @@ def test_damaged_log_without_its_dbc_is_reported(run, tmp_path):
     cut.write_bytes(data[: len(data) * 2 // 3])
     log = read_log(cut)
     assert not log.complete
+    assert log.chunks >= 20 and log.unchecked_chunks >= 10, \
+        (f"test setup: the cut keeps many whole chunks, /imu/samples ones among them: {log.chunks} chunks, "
+         f"{log.unchecked_chunks} of /imu/samples")
     log.attachments.clear()   # as if the DBC attachment were lost too: plots fall back to /imu/samples
     html = html_report(run.result, log=log)
     assert_self_contained(html)

@@ -118,9 +118,11 @@ class PlanConfig(PlanTiming):
 
 @dataclass(frozen=True)
 class OutputConfig:
-    """[output]: where runs are written."""
+    """[output]: where runs are written, and how their logs are chunked."""
 
     folder: Path  # relative paths start at the current directory at run time
+    #: the recorder closes a log chunk every this many seconds of run clock; None: its default
+    chunk_run_interval_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -434,8 +436,9 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
     plan = _plan(root.table("plan", ("positions", "rotations", "dwell_s", "settle_s", "move_rate_dps",
                                      "move_accel_dps2", "turn_rate_dps", "turn_accel_dps2", "rest_s", "revolutions",
                                      "order"), required=True), table.limits)
-    out = root.table("output", ("folder",))
-    output = OutputConfig(Path(out.string("folder", "runs", nonempty=True)).expanduser())
+    out = root.table("output", ("folder", "chunk_run_interval_s"))
+    output = OutputConfig(Path(out.string("folder", "runs", nonempty=True)).expanduser(),
+                          out.number("chunk_run_interval_s", None, gt=0, unit="s"))
     sim = _sim(root.table("sim", ("seed", "black_box_arcsec", "noise", "imu")))
     return BenchConfig(site, table, imu, plan, output, sim, source_text=text)
 

@@ -29,15 +29,14 @@ Times: MCAP log times are unsigned nanoseconds on the run clock; a negative time
 recorded as 0. Metadata records are written when given; attachments any time before
 `close()`. Chunks are zstd-compressed with CRCs and closed when they reach `chunk_size`
 bytes, `chunk_interval_s` of wall time after the previous close (so a crash loses at
-most about that much), and whenever the run clock (the log times of the messages)
-passes a multiple of `chunk_run_interval_s` (default 5 s). The last rule makes the
-chunk layout of a simulated run (simulated seconds, many per wall second) independent
-of the machine's speed and load: each chunk spans less than that interval of run time
-(plus the span of one recorded batch), whatever the wall clock does; on hardware the
-run clock keeps pace with the wall clock and the wall-time rule closes chunks first.
-`/imu/samples` messages are held back and written at each close in
-chunks of their own: they are derived from `/can/raw` and are the bulk of a log, so a
-reader that needs the frames, events and states skips them without decompressing
+most about that much), and at every multiple of `chunk_run_interval_s` (default 5 s) of
+run clock, the messages' log time: the first message at or past one starts a new chunk.
+That rule makes the chunk boundaries of a simulated run (many simulated seconds per wall
+second) the same on any machine, however fast or loaded (the wall-time rule only adds
+boundaries); on hardware the run clock is the monotonic clock, so it adds one close per
+interval. `/imu/samples` messages are held back and written at each close in chunks of
+their own: they are derived from `/can/raw` and are the bulk of a log, so a reader that
+needs the frames, events and states skips them without decompressing
 (`bench.log.reader` defers them until asked for). Schema and Channel records are also written outside the first chunk,
 so a reader can decode every later chunk even if the first one is damaged.
 The recorder is single-threaded: call it from the sequencer's thread only.
@@ -154,9 +153,10 @@ class McapRecorder(RunListener):
 
     `metadata`: name -> {key: value} records written at once (values str; numbers are
     converted). A chunk is closed at `chunk_size` bytes, `chunk_interval_s` seconds of
-    `clock` (a wall clock, used only for this) after the previous close, and each time
-    the newest log time recorded (run clock) passes a multiple of `chunk_run_interval_s`
-    (None: no run-clock rule). `compression`: "zstd" (default), "lz4" or "none".
+    `clock` (a wall clock, used only for this) after the previous close, and before the
+    first message whose log time (run clock) reaches the next multiple of
+    `chunk_run_interval_s` seconds (None: no run-clock rule). `compression`: "zstd"
+    (default), "lz4" or "none".
     """
 
     def __init__(self, path, *, metadata: Mapping[str, Mapping[str, str]] | None = None,
@@ -262,9 +262,10 @@ class McapRecorder(RunListener):
         text = event.message if event.step_unit is None else f"[{event.step_unit}] {event.message}"
         log = to_json({"timestamp": {"sec": t // 1_000_000_000, "nsec": t % 1_000_000_000}, "level": level,
                        "message": text, "name": f"sequencer.{event.kind}", "file": "", "line": 0})
+        self._run_clock(t)
         self._io(self._put, TOPIC_EVENTS, t, to_json(event.to_dict()))
         self._io(self._put, TOPIC_LOG, t, log)
-        self._tick(t)
+        self._tick()
 
     def on_table_state(self, state) -> None:
         self._check_open()
@@ -275,6 +276,7 @@ class McapRecorder(RunListener):
                 f'"modes":[{",".join(json.dumps(m.value) for m in state.modes)}],'
                 f'"status":[{",".join(str(int(a.status)) for a in state.axes)}],'
                 f'"estop":{"true" if state.estop else "false"},"fault_text":{json.dumps(state.fault_text)}}}')
+        self._run_clock(t)
         self._io(self._put, TOPIC_STATE, t, body.encode())
         stamp = _stamp(state.time_s)
         finite = [a if math.isfinite(a) else 0.0 for a in angles]
@@ -282,14 +284,15 @@ class McapRecorder(RunListener):
             tf = (f'{{"timestamp":{stamp},"parent_frame_id":"{TF_FRAMES[k]}","child_frame_id":"{TF_FRAMES[k + 1]}",'
                   f'"translation":{{"x":0.0,"y":0.0,"z":0.0}},"rotation":{{"x":{x!r},"y":{y!r},"z":{z!r},"w":{w!r}}}}}')
             self._io(self._put, TOPIC_TF, t, tf.encode())
-        self._tick(t)
+        self._tick()
 
     def on_imu(self, block) -> None:
         self._check_open()
         if not len(block):
             return
+        self._run_clock(time_ns(float(block.receive_time_s.max())))
         self._io(self._put_samples, block)
-        self._tick(time_ns(float(block.receive_time_s.max())))
+        self._tick()
 
     def on_can_frames(self, frames: Sequence) -> None:
         self._check_open()
@@ -299,10 +302,10 @@ class McapRecorder(RunListener):
             payload, newest = encode_can_frames(frames)
         except (AttributeError, TypeError, struct.error) as exc:
             raise RecorderError(f"cannot encode CAN frames for {TOPIC_CAN}: {exc}") from exc
-        t = time_ns(newest)
-        self._io(self._put, TOPIC_CAN, t, payload)
+        self._run_clock(time_ns(newest))
+        self._io(self._put, TOPIC_CAN, time_ns(newest), payload)
         self.frames_written += len(frames)
-        self._tick(t)
+        self._tick()
 
     def flush(self) -> None:
         """Close the open chunk and push everything to the OS now."""
@@ -409,16 +412,19 @@ class McapRecorder(RunListener):
         self._write_held_samples()
         self._writer.flush()
 
-    def _tick(self, log_time: int) -> None:
-        """Close the chunk when it is due by wall time, or when `log_time` (ns, the newest of
-        the call) reached the next multiple of the run-clock interval."""
-        now = self._clock()
+    def _run_clock(self, log_time: int) -> None:
+        """Before writing messages at `log_time` (ns): close the chunk when that time reached the
+        next multiple of the run-clock interval (the first message only arms the rule)."""
         due = self._run_due
         if log_time >= due:
             self._run_due = (log_time // self._run_step + 1) * self._run_step
-            if due < 0:     # the first message: the grid starts, nothing to close yet
-                due = _NEVER
-        if log_time >= due or now - self._last_close >= self.chunk_interval_s:
+            if due >= 0:    # (not the first message)
+                self._io(self._close_chunks)
+                self._last_close = self._clock()
+
+    def _tick(self) -> None:
+        now = self._clock()
+        if now - self._last_close >= self.chunk_interval_s:
             self._io(self._close_chunks)
             self._last_close = now
 

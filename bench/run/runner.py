@@ -22,7 +22,7 @@ from bench import __version__
 from bench.config.load import BenchConfig
 from bench.errors import BenchError
 from bench.log.reader import read_log
-from bench.log.recorder import McapRecorder
+from bench.log.recorder import CHUNK_RUN_INTERVAL_S, McapRecorder
 from bench.model.result import CalibrationResult
 from bench.plan.compiler import CompiledPlan, compile_plan
 from bench.plan.events import RunListener, RunState
@@ -142,7 +142,10 @@ class BenchRun:
 
     def _open_recorder(self) -> None:
         config = self.config
-        self.recorder = recorder = McapRecorder(str(self.log_path), metadata=self._metadata())
+        interval = config.output.chunk_run_interval_s
+        self.recorder = recorder = McapRecorder(
+            str(self.log_path), metadata=self._metadata(),
+            chunk_run_interval_s=CHUNK_RUN_INTERVAL_S if interval is None else interval)
         self._stack.callback(recorder.close)
         recorder.add_attachment(config.imu.dbc.name, "text/plain", config.imu.layout.dbc_text.encode())
         if config.path:
