@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
@@ -25,6 +26,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     ev.set_defaults(func=cmd_evaluate)
 
 
+def _unwritable(path: Path) -> str:
+    """Why `path` cannot be written as a file ('' if it looks writable): checked before the work."""
+    folder = path.parent
+    if path.is_dir():
+        return "it is a folder"
+    if not folder.is_dir():
+        return f"folder {folder} does not exist" if not folder.exists() else f"{folder} is not a folder"
+    if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        return "permission denied"
+    return ""
+
 
 def cmd_evaluate(args: argparse.Namespace) -> ExitCode:
     # imported when the command runs: `bench` starts without the bench core
@@ -40,6 +52,10 @@ def cmd_evaluate(args: argparse.Namespace) -> ExitCode:
         site = Site(args.latitude)
     except InputError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
+    if args.json:
+        problem = _unwritable(Path(args.json))
+        if problem:     # before the work, not after it
+            return fail(PROG, f"cannot write {args.json}: {problem}", ExitCode.USAGE)
     positions, rotations = builtin_schedules()
     started = time.perf_counter()
     table = evaluate(positions, rotations, runs=args.runs, seed=args.seed, site=site,
@@ -62,6 +78,9 @@ def cmd_evaluate(args: argparse.Namespace) -> ExitCode:
             print(f"{row['level_arcsec']:>7.1f}\" {row['method']:<12}" + "".join(cells))
         print()
     if args.json:
-        Path(args.json).write_text(json.dumps(table, indent=2) + "\n", encoding="utf-8")
+        try:
+            Path(args.json).write_text(json.dumps(table, indent=2) + "\n", encoding="utf-8")
+        except OSError as exc:
+            return fail(PROG, f"cannot write {args.json}: {exc.strerror or exc}", ExitCode.USAGE)
         print(f"wrote {args.json}")
     return ExitCode.OK

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -155,6 +156,12 @@ def cmd_search(args: argparse.Namespace) -> ExitCode:
         site = Site(args.latitude)
     except InputError as exc:
         return fail("bench schedules search", str(exc), ExitCode.USAGE)
+    if args.out and args.best:
+        try:    # the output folder is checked (and made) before the search, not after it
+            Path(args.out).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            reason = "a file of that name exists" if isinstance(exc, FileExistsError) else exc.strerror or exc
+            return fail("bench schedules search", f"cannot write to --out {args.out}: {reason}", ExitCode.USAGE)
     started = time.perf_counter()
     groups = POSITION_GROUPS[:args.groups]
     pos = search_positions(groups, args.choose, reference_groups=POSITION_GROUPS)
@@ -175,7 +182,12 @@ def cmd_search(args: argparse.Namespace) -> ExitCode:
         found = paper is not None and any(tuple(sorted(c)) == tuple(sorted(paper)) for c in result.optimal)
         print(f"  {paper_name}: {'among the optimal' if found else 'NOT among the optimal'}")
         if args.out and args.best:
-            for path in write_best(result, args.out, args.best):
+            try:
+                written = write_best(result, args.out, args.best)
+            except OSError as exc:
+                return fail("bench schedules search", f"cannot write to --out {args.out}: {exc.strerror or exc}",
+                            ExitCode.USAGE)
+            for path in written:
                 load_schedule(path)  # every written file must load; raises ScheduleError otherwise
                 print(f"  wrote {path}")
         print()
