@@ -133,8 +133,53 @@ def test_sim_table_stops_on_sigint_even_when_started_with_sigint_ignored():
             stream.close()
 
 
-@pytest.mark.parametrize("dialect, where", [("scpi", "tcp://:5025"), ("modbus", "modbus+tcp://:5020")])
+@pytest.mark.parametrize("dialect, where", [
+    ("scpi", "tcp://:5025"), ("modbus", "modbus+tcp://:5020"),
+    # a port urllib cannot read, a broken IPv6 literal: one line, not a ValueError's traceback
+    ("scpi", "tcp://127.0.0.1:99999"), ("mn", "tcp://[::1"), ("modbus", "modbus+tcp://127.0.0.1:abc"),
+])
 def test_sim_table_refuses_a_listen_address_without_a_host(dialect, where, capsys):
     assert main(["sim", "table", "--dialect", dialect, "--listen", where]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "HOST:PORT" in err, err
+
+
+@pytest.mark.parametrize("dialect, where", [
+    ("scpi", "tcp://0.0.0.0:0"), ("mn", "tcp://[::]:0"), ("modbus", "modbus+tcp://0.0.0.0:0"),
+    ("scpi", "tcp://bench-host.example:5025"),        # a name may resolve to anything: remote unless localhost
+])
+def test_sim_table_refuses_a_non_loopback_address_without_allow_remote(dialect, where, capsys, monkeypatch):
+    def no_console():
+        raise AssertionError("read stdin before refusing")
+
+    monkeypatch.setattr(sys, "stdin", type("NoStdin", (), {"__iter__": lambda self: no_console()})())
+    assert main(["sim", "table", "--dialect", dialect, "--listen", "pty", "--listen", where]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert len(err.splitlines()) == 1 and where in err and "--allow-remote" in err, err
+    assert captured.out == ""                     # nothing was served, not even the pty
+
+
+def test_loopback_addresses_need_no_flag():
+    from bench.cli.table import _remote_hosts
+
+    assert _remote_hosts(["tcp://127.0.0.1:0", "tcp://localhost:1", "tcp://[::1]:2", "modbus+tcp://127.0.0.2:3",
+                          "pty"]) == []
+    assert _remote_hosts(["tcp://127.0.0.1:0", "tcp://10.0.0.5:1"]) == ["tcp://10.0.0.5:1"]
+
+
+def test_sim_table_with_allow_remote_warns_loudly(capsys, monkeypatch):
+    # Without binding beyond loopback in a test: the listener is stood in for and Ctrl-C comes from the console.
+    import bench.cli.table as table_cli
+
+    class CtrlC:
+        def __iter__(self):
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(table_cli, "_listen", lambda controller, dialect, where, closers: "tcp://0.0.0.0:5025")
+    monkeypatch.setattr(sys, "stdin", CtrlC())
+    assert main(["sim", "table", "--dialect", "scpi", "--listen", "tcp://0.0.0.0:5025", "--allow-remote"]) == 0
+    captured = capsys.readouterr()
+    assert "listening on tcp://0.0.0.0:5025" in captured.out
+    warning = [line for line in captured.err.splitlines() if line.startswith("WARNING")]
+    assert len(warning) == 1 and "reachable from the NETWORK" in warning[0] and "0.0.0.0:5025" in warning[0]

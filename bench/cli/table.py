@@ -8,6 +8,7 @@ link fails, or the command was interrupted (the table is then commanded to stop)
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import signal
 import sys
 import threading
@@ -155,7 +156,11 @@ def register_sim(subparsers: argparse._SubParsersAction) -> None:
     table.add_argument("--dialect", required=True, choices=sorted(DIALECTS))
     table.add_argument("--listen", action="append", required=True, metavar="WHERE",
                        help="tcp://127.0.0.1:PORT (scpi, mn), modbus+tcp://127.0.0.1:PORT (modbus) or pty "
-                            "(RTU for modbus); repeatable; port 0 picks a free port")
+                            "(RTU for modbus); repeatable; port 0 picks a free port; a host other than "
+                            "127.0.0.1, ::1 or localhost needs --allow-remote")
+    table.add_argument("--allow-remote", action="store_true",
+                       help="allow a --listen address beyond loopback (e.g. 0.0.0.0): anyone who can reach this "
+                            "machine can then command the simulated table")
     table.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg (default 30.27)")
     table.add_argument("--black-box-arcsec", type=float, default=0.0,
                        help="RMS of the nine black-box pointing-error angles (default 0: ideal table)")
@@ -196,6 +201,43 @@ def _apply_fault_command(controller, line: str) -> str:
     return "ok"
 
 
+def _is_loopback(host: str) -> bool:
+    """True for a loopback address literal (127.0.0.0/8, ::1) or `localhost`; any other name counts as remote."""
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def _remote_hosts(listen: list[str]) -> list[str]:
+    """The --listen addresses that bind beyond loopback (`pty` and malformed ones are left to `_listen`)."""
+    remote = []
+    for where in listen:
+        if where == "pty":
+            continue
+        try:
+            host = urlsplit(where).hostname
+        except ValueError:
+            continue
+        if host and not _is_loopback(host):
+            remote.append(where)
+    return remote
+
+
+def _host_port(where: str, scheme: str, expected: str) -> tuple[str, int]:
+    """(host, port) of a --listen address of `scheme`; InputError saying what is `expected` otherwise."""
+    try:
+        parts = urlsplit(where)
+        host, port = parts.hostname, parts.port
+    except ValueError as exc:                   # a port out of range or not a number, a broken [IPv6]
+        raise InputError(f"{expected}, not {where!r} ({exc})") from exc
+    if parts.scheme != scheme or port is None or not host:
+        raise InputError(f"{expected}, not {where!r}")
+    return host, port
+
+
 def _listen(controller, dialect: str, where: str, closers: list) -> str:
     """Start one listener; returns the address a client uses."""
     if dialect == "modbus":
@@ -205,10 +247,8 @@ def _listen(controller, dialect: str, where: str, closers: list) -> str:
         closers.append(modbus.close)
         if where == "pty":
             return f"modbus+rtu://{modbus.start_rtu_pty()}"
-        parts = urlsplit(where)
-        if parts.scheme != "modbus+tcp" or parts.port is None or not parts.hostname:
-            raise InputError(f"the modbus simulator listens on modbus+tcp://HOST:PORT or pty, not {where!r}")
-        host, port = modbus.start_tcp(parts.hostname, parts.port)
+        host, port = _host_port(where, "modbus+tcp", "the modbus simulator listens on modbus+tcp://HOST:PORT or pty")
+        host, port = modbus.start_tcp(host, port)
         return f"modbus+tcp://{host}:{port}"
     # the simulators load only for `bench sim` (the Modbus one imports pymodbus)
     from bench.sim.serve import Handler, LineServer
@@ -226,10 +266,8 @@ def _listen(controller, dialect: str, where: str, closers: list) -> str:
     closers.append(server.close)
     if where == "pty":
         return server.open_pty()
-    parts = urlsplit(where)
-    if parts.scheme != "tcp" or parts.port is None or not parts.hostname:
-        raise InputError(f"the {dialect} simulator listens on tcp://HOST:PORT or pty, not {where!r}")
-    host, port = server.listen_tcp(parts.hostname, parts.port)
+    host, port = _host_port(where, "tcp", f"the {dialect} simulator listens on tcp://HOST:PORT or pty")
+    host, port = server.listen_tcp(host, port)
     return f"tcp://{host}:{port}"
 
 
@@ -246,6 +284,10 @@ def cmd_sim_table(args: argparse.Namespace) -> ExitCode:
         site = Site(args.latitude)
     except InputError as exc:
         return fail("bench sim table", f"{exc}", ExitCode.USAGE)
+    remote = _remote_hosts(args.listen)
+    if remote and not args.allow_remote:       # checked before anything binds or stdin is read
+        return fail("bench sim table", f"{remote[0]} is reachable from the network, not only from this machine; "
+                    "add --allow-remote to serve it there, or listen on 127.0.0.1", ExitCode.USAGE)
     black_box = np.random.default_rng(args.seed).normal(0.0, args.black_box_arcsec * ARCSEC, (3, 3))
     controller = SimController(SimTable(site, black_box_rad=black_box))
     closers: list = []
@@ -256,6 +298,10 @@ def cmd_sim_table(args: argparse.Namespace) -> ExitCode:
         for where in args.listen:
             address = _listen(controller, args.dialect, where, closers)
             print(f"simulated table ({args.dialect}) listening on {address}", flush=True)
+            if where in remote:
+                print(f"WARNING: bench sim table: {address} is reachable from the NETWORK (--allow-remote): anyone "
+                      "who can reach this machine can command the simulated table; there is no authentication",
+                      file=sys.stderr, flush=True)
         print("Ctrl-C stops; type 'help' for the fault console", flush=True)
         done = threading.Event()
         for line in sys.stdin:               # the fault console; on EOF keep serving until Ctrl-C

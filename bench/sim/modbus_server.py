@@ -19,6 +19,11 @@ instead of executing. The fault code register reads 1 e-stop, 2 limit, 3 servo f
 pymodbus's server is asyncio-based: it runs on an event loop in one dedicated thread;
 the RTU server sits on one pty of a pair bridged by a thread to a second pty whose
 path clients open. `close()` stops everything and joins the threads.
+
+Connections cost no thread here and pymodbus forgets each one when it ends, but their
+number is capped like the line servers' (`bench.sim.serve.MAX_CONNECTIONS` per TCP
+listener): one more is accepted and closed at once, so idle clients cannot use up the
+process's file descriptors.
 """
 
 from __future__ import annotations
@@ -46,6 +51,7 @@ from bench.sim.controller import (
     SimCommandError,
     SimController,
 )
+from bench.sim.serve import MAX_CONNECTIONS
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import TurntableError
 from drivers.turntable.base import AxisStatus, TableState
@@ -69,6 +75,29 @@ EXCEPTION_FOR_ERROR = {
 GARBAGE = bytes.fromhex("de ad be ef 00 ff 13 37 42")
 
 
+class _CloseAtOnce(asyncio.Protocol):
+    """The protocol of a connection beyond the cap: closed as soon as it is made."""
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        transport.close()
+
+
+class _BoundedTcpServer(ModbusTcpServer):
+    """pymodbus's TCP server serving at most `max_connections` connections at once."""
+
+    def __init__(self, *args, max_connections: int = MAX_CONNECTIONS, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.max_connections = max_connections
+        self.refused = 0
+
+    def handle_new_connection(self):
+        # the listener's protocol factory; active_connections holds the live connections only
+        if len(self.active_connections) >= self.max_connections:
+            self.refused += 1
+            return _CloseAtOnce()
+        return super().handle_new_connection()
+
+
 class _Refused(Exception):
     def __init__(self, code: ExcCodes, message: str):
         super().__init__(message)
@@ -79,12 +108,17 @@ class ModbusSimServer:
     """The simulated controller as a Modbus server (any number of TCP listeners and RTU ptys).
 
     `wall_clock` times the watchdog: it guards the link, so it runs on real time even
-    when the controller runs on a simulated clock.
+    when the controller runs on a simulated clock. `max_connections` caps the TCP
+    connections each listener serves at once (the excess is accepted and closed at once).
     """
 
     def __init__(self, controller: SimController, register_map: RegisterMap | None = None,
-                 wall_clock: Clock = SYSTEM_CLOCK, watchdog_poll_s: float = 0.02):
+                 wall_clock: Clock = SYSTEM_CLOCK, watchdog_poll_s: float = 0.02,
+                 max_connections: int = MAX_CONNECTIONS):
+        if max_connections < 1:
+            raise ValueError(f"max_connections must be at least 1, got {max_connections}")
         self.controller = controller
+        self.max_connections = max_connections
         self.map = register_map if register_map is not None else RegisterMap.default()
         self.wall_clock = wall_clock
         self.watchdog_poll_s = watchdog_poll_s
@@ -309,8 +343,8 @@ class ModbusSimServer:
         self._ensure_loop()
 
         async def start():
-            server = ModbusTcpServer(self._device, address=(host, port), trace_packet=self._trace_packet,
-                                     trace_pdu=self._trace_pdu)
+            server = _BoundedTcpServer(self._device, address=(host, port), trace_packet=self._trace_packet,
+                                       trace_pdu=self._trace_pdu, max_connections=self.max_connections)
             await server.serve_forever(background=True)
             return server
 
@@ -318,6 +352,19 @@ class ModbusSimServer:
         self._servers.append(server)
         self._tcp_servers.append(server)
         return tuple(server.transport.sockets[0].getsockname()[:2])
+
+    @property
+    def connections(self) -> int:
+        """How many Modbus TCP connections are being served now (over every TCP listener)."""
+        async def count() -> int:
+            return sum(len(server.active_connections) for server in self._tcp_servers)
+
+        return self._call(count()) if self._loop is not None else 0
+
+    @property
+    def refused(self) -> int:
+        """Connections closed at once because `max_connections` were being served."""
+        return sum(server.refused for server in self._tcp_servers)
 
     def drop_connections(self) -> int:
         """Close every open TCP connection (a lost link, for tests); returns how many."""

@@ -4,6 +4,13 @@ A dialect gives a `handle(line) -> reply bytes | None` function (reply with its
 terminator; None = say nothing, e.g. an injected timeout). `LineServer` reads CR/LF
 terminated lines from each connection and writes the replies. Threads are daemons and
 `close()` joins them, so tests leave nothing running.
+
+Connections are bounded: at most `MAX_CONNECTIONS` are served at once (one thread each);
+one more is accepted and closed at once (the client sees the connection closed), and
+a connection is forgotten when it ends, so the server's bookkeeping does not grow with
+the number of connections it has seen. The accept loop outlives any per-connection
+failure (a socket option, a thread that cannot start, an accept error such as too many
+open files): only `close()` ends it.
 """
 
 from __future__ import annotations
@@ -17,6 +24,8 @@ from typing import Callable
 
 Handler = Callable[[bytes], "bytes | None"]
 MAX_LINE = 4096
+#: connections served at once per server (over all its TCP listeners); one more is accepted and closed at once
+MAX_CONNECTIONS = 32
 
 
 def _split_lines(buffer: bytearray) -> list[bytes]:
@@ -38,14 +47,32 @@ def _split_lines(buffer: bytearray) -> list[bytes]:
 
 
 class LineServer:
-    """Serves one handler on any number of TCP listeners and ptys until `close()`."""
+    """Serves one handler on any number of TCP listeners and ptys until `close()`.
 
-    def __init__(self, handle: Handler):
+    At most `max_connections` TCP connections are served at once; the excess is accepted
+    and closed at once. `connections` is how many are being served now.
+    """
+
+    def __init__(self, handle: Handler, max_connections: int = MAX_CONNECTIONS):
+        if max_connections < 1:
+            raise ValueError(f"max_connections must be at least 1, got {max_connections}")
         self.handle = handle
+        self.max_connections = max_connections
+        #: connections closed at once because `max_connections` were being served (for tests and logs)
+        self.refused = 0
         self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
-        self._closers: list[Callable[[], None]] = []
+        self._threads: list[threading.Thread] = []          # listeners and ptys: a few, for the server's life
+        self._closers: list[Callable[[], None]] = []        # their sockets and file descriptors
+        self._connections: dict[int, tuple[socket.socket, threading.Thread]] = {}   # live ones only
+        self._next_id = 0
         self._lock = threading.Lock()
+        self._thread_factory = threading.Thread
+
+    @property
+    def connections(self) -> int:
+        """How many TCP connections are being served now."""
+        with self._lock:
+            return len(self._connections)
 
     def _spawn(self, target, *args) -> None:
         thread = threading.Thread(target=target, args=args, daemon=True, name=f"sim-{target.__name__}")
@@ -58,10 +85,14 @@ class LineServer:
         """Start listening; returns the (host, port) actually bound (port 0 = any free port)."""
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         sock = socket.socket(family, socket.SOCK_STREAM)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        sock.bind((host, port))
-        sock.listen(8)
-        sock.settimeout(0.1)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.bind((host, port))
+            sock.listen(16)
+            sock.settimeout(0.1)
+        except OSError:
+            sock.close()
+            raise
         self._closers.append(sock.close)
         self._spawn(self._accept_loop, sock)
         return sock.getsockname()[:2]
@@ -73,32 +104,63 @@ class LineServer:
             except (socket.timeout, TimeoutError):
                 continue
             except OSError:
+                if self._stop.is_set() or sock.fileno() < 0:
+                    return                   # closed: the server is shutting down
+                self._stop.wait(0.05)        # EMFILE, ENOBUFS, ECONNABORTED, ...: keep listening
+                continue
+            try:
+                self._serve_connection(conn)
+            except Exception:  # noqa: BLE001 - one connection's failure must not end the accept loop
+                conn.close()
+
+    def _serve_connection(self, conn: socket.socket) -> None:
+        """Start a thread for `conn`, or close it at once when `max_connections` are served."""
+        with self._lock:
+            if len(self._connections) >= self.max_connections:
+                self.refused += 1
+                conn.close()
                 return
+            key = self._next_id
+            self._next_id += 1
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             conn.settimeout(0.1)
-            self._closers.append(conn.close)
-            self._spawn(self._tcp_loop, conn)
+            thread = self._thread_factory(target=self._tcp_loop, args=(key, conn), daemon=True,
+                                          name=f"sim-connection-{key}")
+            self._connections[key] = (conn, thread)
+        try:
+            thread.start()
+        except BaseException:
+            with self._lock:
+                self._connections.pop(key, None)
+            raise
 
-    def _tcp_loop(self, conn: socket.socket) -> None:
+    def _tcp_loop(self, key: int, conn: socket.socket) -> None:
+        try:
+            self._converse(conn)
+        finally:
+            with self._lock:
+                self._connections.pop(key, None)     # forgotten as soon as it ends
+            conn.close()
+
+    def _converse(self, conn: socket.socket) -> None:
         buffer = bytearray()
-        with conn:
-            while not self._stop.is_set():
-                try:
-                    data = conn.recv(4096)
-                except (socket.timeout, TimeoutError):
-                    continue
-                except OSError:
-                    return
-                if not data:
-                    return
-                buffer += data
-                for line in _split_lines(buffer):
-                    reply = self.handle(line)
-                    if reply:
-                        try:
-                            conn.sendall(reply)
-                        except OSError:
-                            return
+        while not self._stop.is_set():
+            try:
+                data = conn.recv(4096)
+            except (socket.timeout, TimeoutError):
+                continue
+            except OSError:
+                return
+            if not data:
+                return
+            buffer += data
+            for line in _split_lines(buffer):
+                reply = self.handle(line)
+                if reply:
+                    try:
+                        conn.sendall(reply)
+                    except OSError:
+                        return
 
     # -- pty --------------------------------------------------------------------
     def open_pty(self) -> str:
@@ -135,7 +197,10 @@ class LineServer:
         self._stop.set()
         with self._lock:
             threads = list(self._threads)
+            connections = list(self._connections.values())
         for thread in threads:
+            thread.join(timeout=2.0)
+        for _conn, thread in connections:      # each sees the stop within its 0.1 s receive timeout
             thread.join(timeout=2.0)
         for close in reversed(self._closers):
             try:
