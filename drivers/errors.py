@@ -6,6 +6,31 @@ pymodbus exception) so a traceback shows both what the bench tried and what fail
 
 from __future__ import annotations
 
+#: how much of a peer's data an error message quotes: the first this many bytes (characters), then the length
+QUOTE_LIMIT = 64
+
+
+def quote_bytes(raw: bytes | bytearray | memoryview | str, limit: int = QUOTE_LIMIT, *, hex_dump: bool = False) -> str:
+    """Data from the wire as an error message shows it: whole up to `limit` bytes, else its start and its length.
+
+    Every error message in drivers/ that quotes what a peer sent goes through here, so a
+    peer streaming garbage cannot make a message of megabytes. `quote_bytes(b'OK')` is
+    `b'OK'` (its repr); 41.5 MB of junk is `b'\\xde\\xad...'... (41,500,000 bytes)` (the first
+    `limit` bytes). `hex_dump=True` gives hex pairs instead (`de ad be ef`, or
+    `de ad ... ... (41,500,000 bytes)`). A `str` (text already decoded from the wire) is
+    quoted the same way, counted in characters.
+    """
+    if isinstance(raw, str):
+        if len(raw) <= limit:
+            return repr(raw)
+        return f"{raw[:limit]!r}... ({len(raw):,} characters)"
+    data = bytes(raw[:limit])
+    total = len(raw)
+    text = data.hex(" ") if hex_dump else repr(data)
+    if total <= limit:
+        return text
+    return f"{text} ... ({total:,} bytes)" if hex_dump else f"{text}... ({total:,} bytes)"
+
 
 class TurntableError(Exception):
     """Base of every turntable driver error."""

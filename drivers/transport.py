@@ -11,6 +11,11 @@
 Transports raise the builtin `ConnectionError` (lost or refused link) and return b''
 from `read` on a timeout; clients translate those into their own error tree. A URL or
 option they cannot use raises `TurntableConfigError` (also a `ValueError`) at once.
+
+What a client reads while waiting for one reply is bounded, so a peer that streams
+garbage ends in a protocol error, not in a growing buffer: a line is at most
+`LineChannel.max_line` bytes (4096), `discard_input` drops at most `MAX_REPLY_BYTES`,
+and the Modbus client gives up on a reply after `MAX_REPLY_BYTES` (64 KiB).
 """
 
 from __future__ import annotations
@@ -23,6 +28,9 @@ from urllib.parse import parse_qs, urlsplit
 import serial
 
 from drivers.errors import TurntableConfigError
+
+#: the most bytes a client takes in while waiting for one reply (or drops before a retry)
+MAX_REPLY_BYTES = 64 * 1024
 
 
 class ByteTransport(Protocol):
@@ -129,11 +137,16 @@ class TcpTransport:
         return data
 
     def discard_input(self) -> None:
+        """Drop what has arrived, at most MAX_REPLY_BYTES: a peer streaming without pause cannot hold us here."""
         sock = self._require()
         sock.setblocking(False)
         try:
-            while sock.recv(4096):
-                pass
+            dropped = 0
+            while dropped < MAX_REPLY_BYTES:
+                chunk = sock.recv(4096)
+                if not chunk:
+                    break
+                dropped += len(chunk)
         except (BlockingIOError, InterruptedError):
             pass
         except OSError as exc:

@@ -15,7 +15,7 @@ import re
 from dataclasses import dataclass
 from typing import ClassVar, Sequence, Union
 
-from drivers.errors import TurntableChecksumError, TurntableCommandError, TurntableProtocolError
+from drivers.errors import TurntableChecksumError, TurntableCommandError, TurntableProtocolError, quote_bytes
 from drivers.turntable.base import FRAMES, AxisMode, AxisState, AxisStatus, TableState
 
 REQUEST_PREFIX = "MN"
@@ -149,13 +149,14 @@ def decode_frame(line: bytes) -> Frame:
         if not 0x20 <= byte <= 0x7E:
             raise TurntableProtocolError(f"byte 0x{byte:02X} at offset {i} is not printable ASCII", raw)
     if text[:1] != b"$":
-        raise TurntableProtocolError(f"frame must start with '$', got {text[:12]!r}", raw)
+        raise TurntableProtocolError(f"frame must start with '$', got {quote_bytes(text, 12)}", raw)
     star = text.rfind(b"*")
     if star < 0:
         raise TurntableProtocolError("no '*' before the checksum", raw)
     digits = text[star + 1:]
     if not _HEX2.fullmatch(digits):
-        raise TurntableProtocolError(f"checksum must be two upper-case hex digits after '*', got {digits!r}", raw)
+        raise TurntableProtocolError(f"checksum must be two upper-case hex digits after '*', got {quote_bytes(digits)}",
+                                     raw)
     body = text[1:star]
     for stray in (b"$", b"*"):
         if stray in body:
@@ -172,23 +173,23 @@ def decode_frame(line: bytes) -> Frame:
     if not _CMD.fullmatch(cmd):
         raise TurntableProtocolError(f"command must be three upper-case letters, got {cmd!r}", raw)
     if rest and rest[0] != ",":
-        raise TurntableProtocolError(f"expected ',' after command {cmd}, got {rest[:8]!r}", raw)
+        raise TurntableProtocolError(f"expected ',' after command {cmd}, got {quote_bytes(rest, 8)}", raw)
     return Frame(prefix, cmd, tuple(rest[1:].split(",")) if rest else ())
 
 
 # -- field parsers (error type chosen by the caller: requests -> MnRequestError) -------------
 def _number(text: str, what: str) -> float:
     if not _NUMBER.fullmatch(text):
-        raise ValueError(f"{what} must be a decimal number, got {text!r}")
+        raise ValueError(f"{what} must be a decimal number, got {quote_bytes(text)}")
     value = float(text)
     if not math.isfinite(value):
-        raise ValueError(f"{what} {text!r} is out of range")
+        raise ValueError(f"{what} {quote_bytes(text)} is out of range")
     return value
 
 
 def _axis(text: str) -> int:
     if text not in ("1", "2", "3"):
-        raise ValueError(f"axis must be 1, 2 or 3 (outer, middle, inner), got {text!r}")
+        raise ValueError(f"axis must be 1, 2 or 3 (outer, middle, inner), got {quote_bytes(text)}")
     return int(text) - 1
 
 
@@ -196,7 +197,7 @@ def _mode(text: str) -> AxisMode:
     try:
         return _MODE_BY_LETTER[text]
     except KeyError:
-        raise ValueError(f"mode must be P, R or O, got {text!r}") from None
+        raise ValueError(f"mode must be P, R or O, got {quote_bytes(text)}") from None
 
 
 def status_word(status: AxisStatus) -> int:
@@ -342,12 +343,12 @@ def decode_request(line: bytes) -> Request:
     try:
         if cmd == "CHK":
             if not (fields[0].isdigit() and len(fields[0]) <= 2 and int(fields[0]) >= 1):
-                raise ValueError(f"CHK station must be 1-99, got {fields[0]!r}")
+                raise ValueError(f"CHK station must be 1-99, got {quote_bytes(fields[0])}")
             return Check(int(fields[0]))
         if cmd in _AXIS_LIST:
             axes = tuple(_axis(f) for f in fields)
             if len(set(axes)) != len(axes):
-                raise ValueError(f"axis listed twice in {','.join(fields)}")
+                raise ValueError(f"axis listed twice in {quote_bytes(','.join(fields))}")
             return _AXIS_LIST[cmd](axes)
         if cmd == "MOD":
             return SetMode(_axis(fields[0]), _mode(fields[1]))
@@ -408,7 +409,8 @@ def decode_reply(line: bytes, cmd: str, n_fields: int = 0) -> tuple[str, ...]:
     code = None
     if is_error:
         if len(fields) != 2 or not (fields[1].isdigit() and len(fields[1]) <= 3):
-            raise TurntableProtocolError(f"error reply must be ERR,<code 0-999>, got {','.join(fields)!r}", raw)
+            raise TurntableProtocolError(f"error reply must be ERR,<code 0-999>, got {quote_bytes(','.join(fields))}",
+                                         raw)
         code = int(fields[1])
         if code == ERR_CHECKSUM:
             raise TurntableChecksumError(f"controller saw a checksum error in the {cmd} request", raw)
@@ -442,7 +444,7 @@ def decode_state(fields: Sequence[str], time_s: float, raw: bytes | None = None)
             rate_dps = _number(rate, f"{FRAMES[k]} rate")
             axis_mode = _mode(mode)
             if not _STATUS.fullmatch(word):
-                raise ValueError(f"{FRAMES[k]} status word must be four upper-case hex digits, got {word!r}")
+                raise ValueError(f"{FRAMES[k]} status word must be four upper-case hex digits, got {quote_bytes(word)}")
         except ValueError as exc:
             raise TurntableProtocolError(f"STA reply: {exc}", raw) from exc
         axes.append(AxisState(angle_deg, rate_dps, axis_mode, axis_status(int(word, 16))))

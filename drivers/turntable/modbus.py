@@ -8,7 +8,10 @@ Failures map onto drivers.errors: no reply -> retry, then `TurntableTimeout`; a 
 that does not decode (garbage, bad CRC, malformed MBAP) -> retry, then
 `TurntableProtocolError`/`TurntableChecksumError`; a Modbus exception reply ->
 `TurntableCommandError(code)` at once (the controller refused); a lost link ->
-reconnect and resend once, then `TurntableConnectionError`.
+reconnect and resend once, then `TurntableConnectionError`. A reply that grows past
+`MAX_REPLY_BYTES` (64 KiB; a Modbus reply is at most 260 bytes) without decoding -> the
+link is closed (the next request reconnects) and `TurntableProtocolError` at once: a
+peer streaming garbage costs a bounded buffer and a short message.
 """
 
 from __future__ import annotations
@@ -29,8 +32,9 @@ from drivers.errors import (
     TurntableError,
     TurntableProtocolError,
     TurntableTimeout,
+    quote_bytes,
 )
-from drivers.transport import serial_settings
+from drivers.transport import MAX_REPLY_BYTES, serial_settings
 from drivers.turntable.base import AxisMode, TableState, Turntable, TurntableLimits
 from drivers.turntable.modbus_map import (
     RegisterMap,
@@ -45,6 +49,10 @@ from drivers.turntable.modbus_map import (
 logging.getLogger("pymodbus").addHandler(logging.NullHandler())
 
 DEFAULT_TCP_PORT = 502
+
+
+class _ReplyTooLong(Exception):
+    """Raised through pymodbus from the packet trace: a reply past MAX_REPLY_BYTES that has not decoded."""
 
 
 def parse_modbus_url(url: str) -> tuple[str, dict, int | None]:
@@ -134,10 +142,14 @@ class ModbusTurntable(Turntable):
 
     def _trace_packet(self, sending: bool, data: bytes) -> bytes:
         # Keep what went out and what came back, to say why a reply did not decode.
+        # pymodbus hands over everything received for the reply so far (one more read each time):
+        # stop it there once it passes MAX_REPLY_BYTES.
         if sending:
             self._tx = bytes(data)
         else:
             self._rx = bytes(data)
+            if len(data) > MAX_REPLY_BYTES:
+                raise _ReplyTooLong()
         return data
 
     def _open(self) -> None:
@@ -229,6 +241,11 @@ class ModbusTurntable(Turntable):
                 failure = (self._no_reply(what, function_code), exc)
                 attempt += 1
                 continue
+            except _ReplyTooLong:
+                self._client.close()        # the rest of the stream goes with the link; the next request reconnects
+                raise TurntableProtocolError(
+                    f"{what}: no Modbus reply in more than {MAX_REPLY_BYTES:,} bytes from {self.url} (garbage?): "
+                    f"{quote_bytes(self._rx, hex_dump=True)}", self._rx) from None
             except ModbusException as exc:
                 raise TurntableProtocolError(f"{what}: {exc}", self._rx or None) from exc
             if response is None:        # pragma: no cover - only with no_response_expected

@@ -14,7 +14,13 @@ import struct
 from dataclasses import dataclass, field, replace
 from typing import Any, Iterable, Mapping, Sequence
 
-from drivers.errors import TurntableChecksumError, TurntableError, TurntableLimitError, TurntableProtocolError
+from drivers.errors import (
+    TurntableChecksumError,
+    TurntableError,
+    TurntableLimitError,
+    TurntableProtocolError,
+    quote_bytes,
+)
 from drivers.turntable.base import FRAMES, AxisMode, AxisState, AxisStatus, TableState
 
 MAX_READ_REGISTERS = 125          # Modbus limit for one read (function 3)
@@ -440,9 +446,9 @@ def explain_bad_reply(raw: bytes, framing: str, unit: int, function_code: int,
             if crc16(raw[:-2]) != raw[-2:]:
                 return TurntableChecksumError(
                     f"reply CRC {raw[-2:].hex(' ')} does not match its content (expected "
-                    f"{crc16(raw[:-2]).hex(' ')}): {raw.hex(' ')}", raw)
-            return TurntableProtocolError(f"reply frame does not decode: {raw.hex(' ')}", raw)
-        return TurntableProtocolError(f"garbage instead of a Modbus RTU reply: {raw.hex(' ')}", raw)
+                    f"{crc16(raw[:-2]).hex(' ')}): {quote_bytes(raw, hex_dump=True)}", raw)
+            return TurntableProtocolError(f"reply frame does not decode: {quote_bytes(raw, hex_dump=True)}", raw)
+        return TurntableProtocolError(f"garbage instead of a Modbus RTU reply: {quote_bytes(raw, hex_dump=True)}", raw)
     if framing != "tcp":
         raise ValueError(f"framing must be 'rtu' or 'tcp', got {framing!r}")
     if len(raw) >= 8 and (transaction_id is None or int.from_bytes(raw[0:2], "big") == transaction_id):
@@ -450,12 +456,12 @@ def explain_bad_reply(raw: bytes, framing: str, unit: int, function_code: int,
         length = int.from_bytes(raw[4:6], "big")
         if protocol != 0:
             return TurntableProtocolError(f"malformed MBAP header: protocol id {protocol} (must be 0): "
-                                          f"{raw.hex(' ')}", raw)
+                                          f"{quote_bytes(raw, hex_dump=True)}", raw)
         if length != len(raw) - 6:
             return TurntableProtocolError(f"malformed MBAP header: length field {length} but {len(raw) - 6} "
-                                          f"bytes follow it: {raw.hex(' ')}", raw)
-        return TurntableProtocolError(f"reply PDU does not decode: {raw.hex(' ')}", raw)
-    return TurntableProtocolError(f"garbage instead of a Modbus TCP reply: {raw.hex(' ')}", raw)
+                                          f"bytes follow it: {quote_bytes(raw, hex_dump=True)}", raw)
+        return TurntableProtocolError(f"reply PDU does not decode: {quote_bytes(raw, hex_dump=True)}", raw)
+    return TurntableProtocolError(f"garbage instead of a Modbus TCP reply: {quote_bytes(raw, hex_dump=True)}", raw)
 
 
 # -- helpers ------------------------------------------------------------------------

@@ -60,7 +60,7 @@ class ScpiTurntable(LineTurntable):
                     break
                 if code == sc.NO_ERROR:
                     break
-                entries.append(f"SCPI controller error {code}: {text}")
+                entries.append(f"SCPI controller error {code}: {sc.error_text(text)}")
             raise TurntableCommandError("; ".join(entries), first.code) from first
 
     # -- LineTurntable / Turntable ------------------------------------------------------

@@ -20,7 +20,7 @@ import math
 import re
 from dataclasses import dataclass
 
-from drivers.errors import TurntableCommandError, TurntableProtocolError
+from drivers.errors import QUOTE_LIMIT, TurntableCommandError, TurntableProtocolError, quote_bytes
 from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
 
 # -- keywords and commands -------------------------------------------------------------
@@ -157,17 +157,17 @@ def format_number(value: float, decimals: int = 6) -> str:
 def _number(field: str, what: str, raw: bytes | None = None) -> float:
     text = field.strip()
     if not _NUMBER.fullmatch(text):
-        raise TurntableProtocolError(f"{what}: {text!r} is not a decimal number", raw)
+        raise TurntableProtocolError(f"{what}: {quote_bytes(text)} is not a decimal number", raw)
     value = float(text)
     if not math.isfinite(value):
-        raise TurntableProtocolError(f"{what}: {text!r} is out of range", raw)
+        raise TurntableProtocolError(f"{what}: {quote_bytes(text)} is out of range", raw)
     return value
 
 
 def _integer(field: str, what: str, raw: bytes | None = None) -> int:
     text = field.strip()
     if not _INTEGER.fullmatch(text) or len(text) > 12:
-        raise TurntableProtocolError(f"{what}: {text!r} is not an integer", raw)
+        raise TurntableProtocolError(f"{what}: {quote_bytes(text)} is not an integer", raw)
     return int(text)
 
 
@@ -245,7 +245,7 @@ def split_fields(line: bytes) -> list[str]:
 
 def _unquote(field: str, what: str, raw: bytes) -> str:
     if len(field) < 2 or field[0] != '"' or field[-1] != '"' or '"' in field[1:-1].replace('""', ""):
-        raise TurntableProtocolError(f"{what}: expected a quoted string, got {field!r}", raw)
+        raise TurntableProtocolError(f"{what}: expected a quoted string, got {quote_bytes(field)}", raw)
     return field[1:-1].replace('""', '"')
 
 
@@ -262,10 +262,15 @@ def decode_error(line: bytes) -> tuple[int, str]:
     return _integer(fields[0], "error code", line), _unquote(fields[1], "error text", line)
 
 
+def error_text(text: str) -> str:
+    """A controller's error text as a message shows it: as sent up to QUOTE_LIMIT characters, else cut (quote_bytes)."""
+    return text if len(text) <= QUOTE_LIMIT else quote_bytes(text)
+
+
 def raise_for_error(code: int, text: str) -> None:
     """A non-zero error entry -> TurntableCommandError(code)."""
     if code != NO_ERROR:
-        raise TurntableCommandError(f"SCPI controller error {code}: {text}", code)
+        raise TurntableCommandError(f"SCPI controller error {code}: {error_text(text)}", code)
 
 
 def decode_confirmation(line: bytes) -> None:
@@ -388,7 +393,7 @@ def parse_request(unit: str, path: tuple[str, ...] = ()) -> tuple[ScpiRequest, t
         raise ScpiRequestError(f"character {bad[0]!r} not allowed", SYNTAX_ERROR, looks_query)
     match = _HEADER.fullmatch(unit)
     if not match:
-        raise ScpiRequestError(f"cannot parse {unit.strip()!r}", SYNTAX_ERROR, looks_query)
+        raise ScpiRequestError(f"cannot parse {quote_bytes(unit.strip())}", SYNTAX_ERROR, looks_query)
     head, args = match.group(1), match.group(2)
     query = head.endswith("?")
     if head.startswith("*"):
@@ -398,11 +403,11 @@ def parse_request(unit: str, path: tuple[str, ...] = ()) -> tuple[ScpiRequest, t
         absolute = words[0] == ""
         resolved = _resolve(words[1:] if absolute else words, () if absolute else path)
         if resolved is None:
-            raise ScpiRequestError(f"undefined header {head!r}", UNDEFINED_HEADER, query)
+            raise ScpiRequestError(f"undefined header {quote_bytes(head)}", UNDEFINED_HEADER, query)
         name, next_path = ":".join(resolved) + ("?" if query else ""), resolved[:-1]
     spec = COMMANDS.get(name)
     if spec is None:
-        raise ScpiRequestError(f"undefined header {head!r}", UNDEFINED_HEADER, query)
+        raise ScpiRequestError(f"undefined header {quote_bytes(head)}", UNDEFINED_HEADER, query)
     fields = [] if args is None or args == "" else [f.strip() for f in args.split(",")]
     wanted_min = int(spec.axis) + spec.min_values
     wanted_max = int(spec.axis) + spec.max_values
@@ -414,17 +419,17 @@ def parse_request(unit: str, path: tuple[str, ...] = ()) -> tuple[ScpiRequest, t
     if spec.axis:
         axis_text = fields.pop(0)
         if not _INTEGER.fullmatch(axis_text) or len(axis_text) > 12:
-            raise ScpiRequestError(f"axis {axis_text!r} is not an integer", DATA_TYPE_ERROR, query)
+            raise ScpiRequestError(f"axis {quote_bytes(axis_text)} is not an integer", DATA_TYPE_ERROR, query)
         if not 1 <= int(axis_text) <= 3:
             raise ScpiRequestError(f"axis {axis_text} is not 1, 2 or 3", DATA_OUT_OF_RANGE, query)
         frame = int(axis_text) - 1
     values = []
     for field in fields:
         if not _NUMBER.fullmatch(field):
-            raise ScpiRequestError(f"{field!r} is not a number", DATA_TYPE_ERROR, query)
+            raise ScpiRequestError(f"{quote_bytes(field)} is not a number", DATA_TYPE_ERROR, query)
         value = float(field)
         if not math.isfinite(value):
-            raise ScpiRequestError(f"{field!r} is out of range", DATA_OUT_OF_RANGE, query)
+            raise ScpiRequestError(f"{quote_bytes(field)} is out of range", DATA_OUT_OF_RANGE, query)
         values.append(value)
     return ScpiRequest(name, frame, tuple(values)), next_path
 
