@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bench.config.load import BenchConfig, ConfigError, parse_config
+from bench.log.names import safe_name, shown
 from bench.log.reader import LogError, RunLog
 from bench.model.earth import Site
 from bench.plan.steps import Step, step_from_dict
@@ -95,8 +96,11 @@ def steps_from_log(log: RunLog) -> tuple[Step, ...]:
 
 def _base_dir(log: RunLog) -> Path:
     path = log.metadata.get("config", {}).get("path", "")
-    if path and not path.startswith("<"):
-        return Path(path).expanduser().parent
+    if path and not path.startswith("<") and "\0" not in path:
+        try:
+            return Path(path).expanduser().parent
+        except RuntimeError:        # "~user/..." of a user unknown here
+            pass
     return Path.cwd()
 
 
@@ -108,7 +112,7 @@ def _rebuild_config(log: RunLog, text: str, notes: list[str]) -> BenchConfig | N
         first = str(exc)
     try:
         with tempfile.TemporaryDirectory(prefix="bench-log-") as tmp:
-            relocated, moved = _relocate_missing_files(log, text, base_dir, Path(tmp))
+            relocated, moved = _relocate_missing_files(log, text, base_dir, Path(tmp), notes)
             if not moved:
                 notes.append(f"configuration not rebuilt: {first}")
                 return None
@@ -122,9 +126,12 @@ def _rebuild_config(log: RunLog, text: str, notes: list[str]) -> BenchConfig | N
 
 
 def _resolve(base_dir: Path, value) -> Path | None:
-    if not isinstance(value, str) or not value:
+    if not isinstance(value, str) or not value or "\0" in value:
         return None
-    path = Path(value).expanduser()
+    try:
+        path = Path(value).expanduser()
+    except RuntimeError:            # "~user/..." of a user unknown here
+        path = Path(value)
     return path if path.is_absolute() else base_dir / path
 
 
@@ -138,8 +145,10 @@ def _toml_value(text: str, key_path: tuple[str, ...]):
         return None
 
 
-def _relocate_missing_files(log: RunLog, text: str, base_dir: Path, tmp: Path) -> tuple[str, list[str]]:
-    """The TOML text with every attached file that is missing here pointed at a copy of its attachment."""
+def _relocate_missing_files(log: RunLog, text: str, base_dir: Path, tmp: Path,
+                            notes: list[str]) -> tuple[str, list[str]]:
+    """The TOML text with every attached file that is missing here pointed at a copy of its attachment
+    (only attachments whose names are safe file names, `bench.log.names.safe_name`)."""
 
     lines = text.splitlines(keepends=True)
     where = locate_lines(text)
@@ -152,6 +161,9 @@ def _relocate_missing_files(log: RunLog, text: str, base_dir: Path, tmp: Path) -
         attached = log.attachments.get(path.name)
         line_no = where.exact(*key_path)
         if attached is None or line_no is None:
+            continue
+        if safe_name(path.name) is None:        # the name becomes a file name: never "..", a path or a NUL
+            notes.append(f"the attachment {shown(path.name)} is not a safe file name: not used")
             continue
         copy = tmp / path.name
         copy.write_bytes(attached[1])

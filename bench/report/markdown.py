@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Sequence
 
+from bench.log.names import output_path
 from bench.model.result import CalibrationResult
 from bench.report.compare import (
     Comparison,
@@ -168,7 +169,8 @@ def write_reports(result: CalibrationResult, out_dir: str | Path, run_id: str, *
 
     out_dir = Path(out_dir)
     title = title or f"Calibration report {run_id}"
-    md_path, html_path = out_dir / f"{run_id}.report.md", out_dir / f"{run_id}.report.html"
+    # never a path out of out_dir, whatever the run id
+    md_path, html_path = output_path(out_dir, f"{run_id}.report.md"), output_path(out_dir, f"{run_id}.report.html")
     md_path.write_text(markdown_report(result, problems=problems, failures=failures, imu_link=imu_link, title=title,
                                        against=against, against_label=against_label), encoding="utf-8")
     html_path.write_text(html_report(result, log=log, layout=layout, problems=problems, failures=failures,

@@ -15,7 +15,6 @@ same start state, frame and direction); with no subset it is the very computatio
 from __future__ import annotations
 
 import dataclasses
-import json
 import re
 import time
 from dataclasses import dataclass, field
@@ -24,6 +23,7 @@ from typing import Sequence
 
 from bench import __version__
 from bench.errors import InputError
+from bench.log.names import logs_before, output_path, run_id_of, sibling_log
 from bench.log.reader import LogError, RunLog, read_log
 from bench.log.run_info import LogSetup, layout_and_config_from_log, steps_from_log
 from bench.model.earth import Site
@@ -70,7 +70,8 @@ class Recorded:
 
     @property
     def run_id(self) -> str:
-        return self.run_meta.get("run_id") or Path(self.logs[-1].path).name.removesuffix(".mcap")
+        """The run id outputs are named by: the log's own when it is a safe file name (`bench.log.names`)."""
+        return run_id_of(self.logs[-1].path, self.logs[-1].metadata)[0]
 
     @property
     def final_state(self) -> str:
@@ -109,19 +110,36 @@ def _name(path: str) -> str:
 
 
 def _earlier_names(log: RunLog) -> list[str]:
-    try:
-        earlier = json.loads(log.metadata.get("run", {}).get("logs_before", "[]"))
-    except ValueError:
-        return []
-    return [str(p) for p in earlier] if isinstance(earlier, list) else []
+    """The file names of the earlier logs `log` names (`run.logs_before`), those that can be its siblings."""
+    entries, _ = logs_before(log.metadata)
+    return [path.name for path in (sibling_log(log.path, entry)[0] for entry in entries) if path is not None]
+
+
+def _earlier_logs(log: RunLog, notes: list[str]) -> list[Path]:
+    """The earlier logs `log` names that are `.mcap` files next to it; a note for every other entry."""
+    entries, malformed = logs_before(log.metadata)
+    if malformed:
+        notes.append(f"{_name(log.path)}: {malformed}")
+    found = []
+    for entry in entries:
+        path, why = sibling_log(log.path, entry)
+        if path is None:
+            notes.append(f"{_name(log.path)} {why}")
+        elif not path.is_file():
+            notes.append(f"{_name(log.path)} resumed {path.name}, which is not found next to it: "
+                         "its units are not in this solve")
+        else:
+            found.append(path)
+    return found
 
 
 def read_logs(paths: list[str], *, earlier: bool = True) -> tuple[list[RunLog], list[str]]:
     """Read the logs (LogError on one that cannot be read at all), oldest first.
 
     With `earlier`, the logs a resumed log names as its run's earlier ones are read too
-    when found (next to the resumed log, or at the path it recorded). Returns the logs and
-    notes on what was added or not found.
+    when found next to the resumed log (by base name: an entry that is not a `.mcap` file
+    name is skipped with a note, see `bench.log.names.sibling_log`). Returns the logs and
+    notes on what was added, skipped or not found.
     """
     logs: dict[str, RunLog] = {}
     notes: list[str] = []
@@ -130,16 +148,10 @@ def read_logs(paths: list[str], *, earlier: bool = True) -> tuple[list[RunLog], 
             logs[_name(str(path))] = read_log(path)
     if earlier:
         for log in list(logs.values()):
-            for recorded in _earlier_names(log):
-                if _name(recorded) in logs:
+            for found in _earlier_logs(log, notes):
+                if found.name in logs:
                     continue
-                found = next((p for p in (Path(log.path).parent / _name(recorded), Path(recorded)) if p.is_file()),
-                             None)
-                if found is None:
-                    notes.append(f"{_name(log.path)} resumed {_name(recorded)}, which is not found here: "
-                                 "its units are not in this solve")
-                    continue
-                logs[_name(recorded)] = read_log(found)
+                logs[found.name] = read_log(found)
                 notes.append(f"also read {found}: the run of {_name(log.path)} resumed it")
     listed_before = {name: sum(name in map(_name, _earlier_names(other)) for other in logs.values()) for name in logs}
     order = sorted(logs, key=lambda n: (-listed_before[n], logs[n].metadata.get("run", {}).get("started_utc", ""),
@@ -237,6 +249,9 @@ def load_recorded(paths: list[str], *, earlier: bool = True) -> Recorded:
     _check_units_agree(logs)
     setup = layout_and_config_from_log(logs[0])
     notes += list(setup.notes)
+    _, renamed = run_id_of(logs[-1].path, logs[-1].metadata)
+    if renamed:
+        notes.append(f"{_name(logs[-1].path)}: {renamed}")
     site = setup.site
     if site is None:
         raise SolveInputError(f"{logs[0].path}: the log records no usable site: cannot solve "
@@ -417,7 +432,7 @@ def write_outputs(recorded: Recorded, resolved: Resolved, out_dir: str | Path, *
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = output_stem(recorded, resolved)
-    result_path = out_dir / f"{stem}.result.json"
+    result_path = output_path(out_dir, f"{stem}.result.json")     # a name from the log never leaves out_dir
     resolved.result.save(result_path)
     report = dict(problems=resolved.solution.extraction.problems, failures=resolved.failures,
                   imu_link=resolved.result.run["imu_link"], against=against, against_label=against_label,
@@ -426,7 +441,7 @@ def write_outputs(recorded: Recorded, resolved: Resolved, out_dir: str | Path, *
         md_path, html_path = write_reports(resolved.result, out_dir, stem, log=recorded.logs[-1],
                                            layout=recorded.setup.layout, **report)
     else:
-        md_path, html_path = out_dir / f"{stem}.report.md", None
+        md_path, html_path = output_path(out_dir, f"{stem}.report.md"), None
         md_path.write_text(markdown_report(resolved.result, **report), encoding="utf-8")
     with open(md_path, "a", encoding="utf-8") as f:
         f.write("\n" + _provenance(recorded))

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import __version__
+from bench.log.names import run_id_of
 from bench.log.reader import LogError, read_log
 from bench.log.run_info import layout_and_config_from_log
 from bench.model.units import ARCSEC
@@ -142,11 +143,13 @@ def analyse_log(path: str | Path, *, calibration=None, still_open: bool = False)
         problems.append(f"IMU link lost samples: {stats[0].summary()}")
     imu_meta = log.metadata.get("imu", {})
     dwell = float(np.median([o.duration_s for o in observations]))
+    run_id, renamed = run_id_of(log.path, log.metadata)      # names the output files: a safe name only
     return TableCheckAnalysis(
-        run_id=run_meta.get("run_id") or Path(log.path).stem, log_path=log.path, mode=mode, estimate=est,
+        run_id=run_id, log_path=log.path, mode=mode, estimate=est,
         conversion=conversion, labels=[o.label for o in observations], dwell_s=dwell,
         site=setup.site.to_dict(), imu={"model": imu_meta.get("model", ""), "serial": imu_meta.get("serial", "")},
-        black_box_rad=black_box, problems=problems, notes=list(setup.notes) + list(est.notes))
+        black_box_rad=black_box, problems=problems,
+        notes=list(setup.notes) + ([renamed] if renamed else []) + list(est.notes))
 
 
 __all__ = ["FORMAT", "VERSION", "TableCheckAnalysis", "analyse_log", "analyse_observations",

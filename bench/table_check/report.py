@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.log.names import output_path
 from bench.model.units import ARCSEC
 from bench.report.html import CSS
 from bench.report.plots import _NO_METADATA, _RC, _figure, inline_svg, plt
@@ -214,8 +215,10 @@ def write_outputs(analysis: TableCheckAnalysis, out_dir: str | Path) -> dict[str
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     stem = f"{analysis.run_id}.table-check"
-    paths = {"json": out / f"{stem}.json", "markdown": out / f"{stem}.md", "html": out / f"{stem}.html",
-             "curves": out / f"{stem}-curves.svg", "map": out / f"{stem}-map.svg"}
+    # the run id comes from a log: a name that is not a safe file name never becomes a path
+    paths = {kind: output_path(out, f"{stem}{suffix}") for kind, suffix in
+             (("json", ".json"), ("markdown", ".md"), ("html", ".html"), ("curves", "-curves.svg"),
+              ("map", "-map.svg"))}
     curves, grid = curves_figure(analysis), map_figure(analysis)
     paths["curves"].write_text(curves, encoding="utf-8")
     paths["map"].write_text(grid, encoding="utf-8")
