@@ -286,6 +286,72 @@ def test_sigkill_then_resume_gives_the_uninterrupted_result(ideal, tmp_path):
     assert not mismatches(values(resumed), values(ideal.result), tolerance.get)
 
 
+@pytest.mark.parametrize("change, named", [
+    ({"T-0001": "T-0002"}, 'IMU "test IMU" serial "T-0001" in the log, "test IMU" serial "T-0002" in this run'),
+    ({"latitude_deg = 30.27": "latitude_deg = 45.0"}, "site latitude 30.27 deg"),
+    ({'positions = "optimal-24.toml"': 'positions = "all-64"'},
+     'position schedule "optimal-24" in the log, "all-64" in this run'),
+    ({"dwell_s = 3.0": "dwell_s = 2.0"}, "dwell 3.0 s in the log, 2.0 s in this run"),
+    ({'dialect = "scpi"': 'dialect = "mn"'}, 'table "sim" ("scpi") in the log, "sim" ("mn") in this run'),
+])
+def test_resume_refuses_a_log_of_another_plan_imu_site_or_table(ideal, tmp_path, change, named):
+    """Units are skipped by label: a log of anything but this run's setup is refused, nothing moved."""
+    text = ideal.config.read_text(encoding="utf-8")
+    for old, new in change.items():
+        assert old in text
+        text = text.replace(old, new)
+    config = ideal.config.parent / f"other-{tmp_path.name}.toml"     # next to the schedule files it names
+    config.write_text(text, encoding="utf-8")
+    out = tmp_path / "out"
+    rc, stdout, stderr = cli(["run", "--config", str(config), "--out", str(out), "--quiet", "--resume",
+                              str(ideal.log)])
+    assert rc == 2 and stdout == "", stderr
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"bench run: {ideal.log} is not a log of this run: "), stderr
+    assert named in lines[0]
+    assert not out.exists()                  # nothing opened, nothing recorded, nothing moved
+    # --dry-run checks the same, before printing the plan
+    rc, stdout, stderr = cli(["run", "--config", str(config), "--dry-run", "--resume", str(ideal.log)])
+    assert rc == 2 and stdout == "" and named in stderr
+
+
+def test_resume_refuses_a_log_of_a_schedule_of_the_same_name_with_other_positions(ideal, tmp_path):
+    """An edited schedule file keeps its name: the content is compared too, unit by unit."""
+    original = (ideal.config.parent / "optimal-24.toml").read_text(encoding="utf-8")
+    first = original.index("angles_deg = [")
+    edited = original[:first] + "angles_deg = [90, 0, 0" + original[original.index("]", first):]
+    (tmp_path / "optimal-24.toml").write_text(edited, encoding="utf-8")
+    config = tmp_path / "bench.toml"
+    rotations = json.dumps(str(ideal.config.parent / "optimal-5s6r.toml"))
+    config.write_text(ideal.config.read_text(encoding="utf-8").replace('"optimal-5s6r.toml"', rotations),
+                      encoding="utf-8")
+    rc, stdout, stderr = cli(["run", "--config", str(config), "--out", str(tmp_path / "out"), "--quiet",
+                              "--resume", str(ideal.log)])
+    assert rc == 2 and len(stderr.strip().splitlines()) == 1, stderr
+    assert 'schedule content differs: unit "P01" is (0, 0, 0) in the log, (90, 0, 0) in this run' in stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_resume_skips_earlier_log_entries_that_are_not_logs_next_to_it(ideal, tmp_path):
+    """`logs_before` of a log from outside is hostile: only a .mcap next to the log is ever read."""
+    from tests.helpers.crafted import rewrite_log
+
+    entries = ["/etc/passwd", "../x", "sub/../../elsewhere.mcap"]
+    crafted = rewrite_log(ideal.log, tmp_path / "crafted.mcap", metadata={"run": {"logs_before": json.dumps(entries)}})
+    rc, stdout, stderr = cli(["run", "--config", str(ideal.config), "--dry-run", "--resume", str(crafted)])
+    assert rc == 0, stderr
+    assert 'note: crafted.mcap names "/etc/passwd" as an earlier log, which is not a .mcap file next to it: ' \
+           "skipped" in stdout
+    assert 'note: crafted.mcap names "../x" as an earlier log' in stdout
+    assert "note: crafted.mcap names elsewhere.mcap as an earlier log of its run, which is not next to it" in stdout
+    done = finished_observation_steps(read_log(ideal.log).events)
+    assert f"resume: {len(done)} units complete in earlier logs would be skipped" in stdout
+    for malformed in ("[", '{"a": 1}'):
+        crafted = rewrite_log(ideal.log, tmp_path / "m.mcap", metadata={"run": {"logs_before": malformed}})
+        rc, stdout, stderr = cli(["run", "--config", str(ideal.config), "--dry-run", "--resume", str(crafted)])
+        assert rc == 0 and "is not a JSON list: ignored" in stdout, (stdout, stderr)
+
+
 # -- 6. simulated faults -------------------------------------------------------------------------
 
 def _fault_events(log, error: str) -> list:

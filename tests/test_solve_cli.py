@@ -289,6 +289,41 @@ def test_logs_of_different_imus_or_runs_are_not_merged(noisy, all_data):
     assert str(noisy.log) in line and str(all_data.log) in line and "one IMU" in line
 
 
+@pytest.mark.parametrize("record, value, named", [
+    ("site", {"latitude_deg": "45.0"}, "site latitude 45.0 deg, height 0.0 m, local g None in crafted.mcap, "
+                                       "latitude 30.27 deg"),
+    ("plan", {"positions": "all-64"}, 'position schedule "all-64" in crafted.mcap, "optimal-24" in '),
+    ("imu", {"serial": "T-0002"}, "one IMU"),
+    ("config", None, 'table "tcp://127.0.0.1:5025" ("scpi") in crafted.mcap, "sim" ("scpi") in '),
+])
+def test_logs_of_different_plans_sites_or_tables_are_not_merged(noisy, tmp_path, record, value, named):
+    """Units merge by label: two logs of one IMU at one rate but another site, plan or table are refused."""
+    from tests.helpers.crafted import rewrite_log
+
+    metadata = read_log(noisy.log).metadata
+    if value is None:       # the configuration as recorded, with another table url
+        value = {"toml": metadata["config"]["toml"].replace('url = "sim"', 'url = "tcp://127.0.0.1:5025"')}
+    crafted = rewrite_log(noisy.log, tmp_path / "crafted.mcap", metadata={record: value})
+    rc, stdout, stderr = _solve(noisy.log, crafted, "--out", tmp_path / "out")
+    line = _one_line(stderr)
+    assert rc == 2 and stdout == "", stderr
+    assert named in line, line
+    assert not (tmp_path / "out").exists()
+
+
+def test_resuming_with_a_log_of_another_plan_is_refused(all_data, tmp_path):
+    """The issue's case: `bench run --sim --resume` an all-64 run's log would skip its P01-P24 and R01-R06 by
+    label and solve them as optimal-24 and optimal-5s6r: a wrong calibration with exit 0. Refused, nothing moved."""
+    rc, stdout, stderr = cli(["run", "--sim", "--out", str(tmp_path / "out"), "--quiet", "--resume",
+                              str(all_data.log)])
+    line = _one_line(stderr)
+    assert rc == 2 and stdout == "", stderr
+    assert line.startswith(f"bench run: {all_data.log} is not a log of this run: ")
+    assert 'position schedule "all-64" in the log, "optimal-24" in this run' in line
+    assert 'rotation schedule "all-96" in the log, "optimal-5s6r" in this run' in line
+    assert not (tmp_path / "out").exists()
+
+
 # -- 5. damaged logs -------------------------------------------------------------------------------------------
 
 def _chunks(path: Path) -> list[tuple[int, int, list[str]]]:

@@ -40,19 +40,26 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
     # imported when the command runs, so that `bench --help` and the other commands start without them
     from bench.config.load import ConfigError, default_sim_config, load_config
     from bench.log.reader import LogError
+    from bench.log.run_setup import SetupMismatch
     from bench.plan.compiler import PlanError
-    from bench.run.runner import BenchRun, compile_from_config, completed_units
+    from bench.run.resume import resume_point
+    from bench.run.runner import BenchRun, compile_from_config
     from bench.solve.methods import SolverError
 
     if not args.config and not args.sim:
         return fail(PROG, "say --config FILE or --sim", ExitCode.USAGE)
     try:
         config = load_config(args.config) if args.config else default_sim_config()
-        completed, previous_logs = completed_units(args.resume)
         plan = compile_from_config(config)
-    except (ConfigError, LogError, PlanError, OSError) as exc:
+        sim = args.sim or config.table.is_sim
+        # a log of another plan, IMU, site or table is refused here, before anything moves
+        resumed = resume_point(args.resume, config, plan, sim=sim)
+    except (ConfigError, LogError, PlanError, SetupMismatch, OSError) as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
-    sim = args.sim or config.table.is_sim
+    completed, previous_logs = resumed.completed, resumed.previous_logs
+    if not args.quiet:
+        for note in resumed.notes:
+            print(f"note: {note}")
     if args.dry_run:
         print(plan.format_dry_run())
         if completed:

@@ -30,7 +30,6 @@ from bench.plan.steps import step_to_dict
 from bench.report.markdown import write_reports
 from bench.run.sequencer import Sequencer, SequencerOptions
 from bench.sim.world import SimWorld
-from bench.solve.extract import finished_observation_steps
 from bench.solve.from_logs import solve_logs
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.imu.receiver import ImuReceiver
@@ -57,19 +56,6 @@ def compile_from_config(config: BenchConfig) -> CompiledPlan:
     """The compiled plan of a configuration (PlanError on a plan that cannot run)."""
     plan = config.plan
     return compile_plan(plan.positions, plan.rotations, plan, limits=config.table.limits, order=plan.order)
-
-
-def completed_units(resume_log: str | None) -> tuple[set[str], list[str]]:
-    """Units complete in the log to resume, and every log of that run so far (oldest first)."""
-    if not resume_log:
-        return set(), []
-
-    log = read_log(resume_log)
-    previous = json.loads(log.metadata.get("run", {}).get("logs_before", "[]"))
-    earlier = set()
-    for path in previous:
-        earlier |= set(finished_observation_steps(read_log(path).events))
-    return earlier | set(finished_observation_steps(log.events)), [*previous, str(resume_log)]
 
 
 def schedule_file(schedule) -> Path | None:

@@ -26,6 +26,7 @@ from bench.errors import InputError
 from bench.log.names import logs_before, output_path, run_id_of, sibling_log
 from bench.log.reader import LogError, RunLog, read_log
 from bench.log.run_info import LogSetup, layout_and_config_from_log, steps_from_log
+from bench.log.run_setup import differences, setup_of_log
 from bench.model.earth import Site
 from bench.model.observations import PositionObservation, RotationObservation
 from bench.model.result import CalibrationResult
@@ -174,6 +175,16 @@ def _check_one_imu(logs: list[RunLog]) -> None:
                                   "solve logs of one IMU together")
 
 
+def _check_one_setup(logs: list[RunLog]) -> None:
+    """Logs merged by unit label must be of one plan, IMU, site and table (`bench.log.run_setup`)."""
+    first, setup = logs[0], setup_of_log(logs[0])
+    for log in logs[1:]:
+        found = differences(setup_of_log(log), setup, _name(log.path), _name(first.path))
+        if found:
+            raise SolveInputError(f"{log.path} and {first.path} are not logs of one run: {'; '.join(found)}: "
+                                  "solve them separately")
+
+
 def _nominal(step: dict) -> tuple:
     if step.get("kind") == "dwell":
         return ("dwell", angle_key(step["angles_deg"]))
@@ -246,6 +257,7 @@ def load_recorded(paths: list[str], *, earlier: bool = True) -> Recorded:
         raise SolveInputError("no log given")
     logs, notes = read_logs(list(map(str, paths)), earlier=earlier)
     _check_one_imu(logs)
+    _check_one_setup(logs)
     _check_units_agree(logs)
     setup = layout_and_config_from_log(logs[0])
     notes += list(setup.notes)
