@@ -115,7 +115,7 @@ def test_solve_names_outputs_after_the_log_when_its_run_id_is_not_safe(recorded,
     result = json.loads((out / "crafted.solved.result.json").read_text())
     assert result["run"]["run_id"] == "crafted"
     md = (out / "crafted.solved.report.md").read_text(encoding="utf-8")
-    assert "\x00" not in md
+    assert "<img" not in md and "\x00" not in md
 
 
 def test_solve_skips_logs_before_entries_that_are_not_sibling_logs(recorded, tmp_path):
@@ -172,3 +172,10 @@ def test_check_table_outputs_stay_in_out_and_the_run_id_is_checked(recorded, tmp
                for line in stdout.splitlines()), stdout
     assert json.loads((out / "check.table-check.json").read_text())["run"]["run_id"] == "check"
 
+
+def test_the_table_check_records_the_operator_escaped(recorded):
+    assert recorded.check_json["run"]["operator"] == SCRIPT
+    assert "<script" not in recorded.check_md and "- operator: &lt;script&gt;alert(1)&lt;/script&gt;" in \
+        recorded.check_md
+    assert "<script" not in recorded.check_html
+    assert "<tr><th>operator</th><td>&lt;script&gt;alert(1)&lt;/script&gt;</td></tr>" in recorded.check_html

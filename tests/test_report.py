@@ -18,6 +18,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from bench.errors import InputError
 from bench.log.reader import read_log
 from bench.model.families import canonical_names
 from bench.model.result import CalibrationResult
@@ -283,6 +284,37 @@ def test_reports_against_an_earlier_result(run, tmp_path):
     assert w.rows["change-Eg_Xy"][1] == "-"
     assert re.search(r'<tr id="change-Kg_x" class="changed">', html)
     assert html.count("<svg ") == 3   # truth, residuals, change in sigma
+
+
+# -- free text from a log, a configuration or a result file ------------------------------------
+
+def test_markdown_escapes_free_text_as_the_html_report_does(run, tmp_path):
+    """Many viewers render Markdown as HTML: an operator named <script> must not become a script there."""
+    hostile = copy.deepcopy(run.result)
+    hostile.run = {**hostile.run, "operator": "<script>alert(1)</script>", "mode": "simulator\n# forged heading",
+                   "imu": {"model": "<b>IMU</b>", "serial": "[x](javascript:alert(1)) | y"}}
+    hostile.residuals["positions"][0]["label"] = "<img src=x onerror=alert(1)>"
+    old = _moved(run.result)
+    old.run = {**old.run, "positions": "<i>old</i>"}
+    md = markdown_report(hostile, problems=["P02: <iframe src=x>"], failures=["**PASSED** _really_"],
+                         title="report <script>", against=old, against_label="<u>old</u>.result.json")
+    for raw in ("<script", "<b>", "<img", "<iframe", "<i>", "<u>", "[x](javascript", "\n# forged"):
+        assert raw not in md, raw
+    assert "- **operator**: &lt;script&gt;alert(1)&lt;/script&gt;" in md
+    assert "- **mode**: simulator # forged heading" in md
+    assert "- **IMU**: &lt;b&gt;IMU&lt;/b&gt; \\[x\\](javascript:alert(1)) \\| y" in md
+    assert "- P02: &lt;iframe src=x&gt;" in md and "- \\*\\*PASSED\\*\\* \\_really\\_" in md
+    assert "| &lt;img src=x onerror=alert(1)&gt; |" in md
+    assert "## Comparison with &lt;u&gt;old&lt;/u&gt;.result.json" in md
+    assert "- positions: &lt;i&gt;old&lt;/i&gt; -> " in md
+    assert md.startswith("# report &lt;script&gt;\n")
+    # the same in the HTML report, which always escaped it
+    html = html_report(hostile)
+    assert "<script" not in html and "&lt;script&gt;alert(1)&lt;/script&gt;" in html
+    # an output name that is not a safe file name is refused before anything is written
+    with pytest.raises(InputError):
+        write_reports(hostile, tmp_path, "../escape")
+    assert list(tmp_path.iterdir()) == []
 
 
 # -- logs that are not pristine -------------------------------------------------------------

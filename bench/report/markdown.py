@@ -3,10 +3,17 @@
 What both formats share (outliers, the comparison with an earlier result) is in
 `bench.report.compare`. `write_reports` writes both files; `bench run` and `bench solve`
 call it.
+
+Text taken from a log, a configuration or a result file (operator, IMU model and serial,
+unit labels, problems, notes, ...) goes into the Markdown through `md_text`: many viewers
+render Markdown as HTML, so it is escaped as the HTML report escapes it, and Markdown's
+own markup (links, emphasis, table bars, a leading heading or list mark) is escaped too.
 """
 
 from __future__ import annotations
 
+import re
+from html import escape
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -25,7 +32,20 @@ from bench.report.compare import (
 )
 from bench.report.html import html_report
 
-#: |change| / sigma above which a coefficient counts as changed in a comparison.
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]+")
+_MARKUP = re.compile(r"([\\`*\[\]|])")
+_EMPHASIS_UNDERSCORE = re.compile(r"(?<![A-Za-z0-9])_|_(?![A-Za-z0-9])")
+
+
+def md_text(value: object) -> str:
+    """`value` as inert Markdown text on one line: HTML escaped (`<`, `>`, `&`), control characters
+    as spaces, Markdown markup backslash-escaped (backslash, backquote, `*`, `[`, `]`, `|`, an
+    underscore that could start or end emphasis, a leading `#`, `-` or `+`)."""
+    text = escape(_CONTROL.sub(" ", str(value)), quote=False)
+    text = _EMPHASIS_UNDERSCORE.sub(r"\\_", _MARKUP.sub(r"\\\1", text))
+    return "\\" + text if text[:1] in ("#", "-", "+") else text
+
+
 # -- Markdown -------------------------------------------------------------------------------
 
 def markdown_report(result: CalibrationResult, *, problems: Sequence[str] = (), failures: Sequence[str] = (),
@@ -34,17 +54,20 @@ def markdown_report(result: CalibrationResult, *, problems: Sequence[str] = (), 
     """Run metadata, verdict, coefficients (with the truth for a simulated run), quality, residuals
     with outliers flagged, and the comparison with `against` (an earlier result) when given."""
     run = result.run
-    lines = [f"# {title}", ""]
+    lines = [f"# {md_text(title)}", ""]
     for key in ("run_id", "mode", "operator", "started_utc", "finished_utc", "state", "software_version",
                 "positions", "rotations", "log"):
         if run.get(key) not in (None, ""):
-            lines.append(f"- **{key.replace('_', ' ')}**: {run[key]}")
+            lines.append(f"- **{key.replace('_', ' ')}**: {md_text(run[key])}")
+    imu = run.get("imu") if isinstance(run.get("imu"), dict) else {}
+    if imu and any(imu.get(k) for k in ("model", "serial")):
+        lines.append("- **IMU**: " + md_text(" ".join(str(imu[k]) for k in ("model", "serial") if imu.get(k))))
     lines.append("")
     lines.append("## Verdict")
     lines.append("")
     if failures:
         lines.append("Quality check **failed**:")
-        lines += [f"- {f}" for f in failures]
+        lines += [f"- {md_text(f)}" for f in failures]
     else:
         lines.append("Quality checks passed.")
     lines.append("")
@@ -75,14 +98,15 @@ def markdown_report(result: CalibrationResult, *, problems: Sequence[str] = (), 
     outliers = result.quality.get("outliers", [])
     lines.append(f"- outliers beyond {result.quality.get('outlier_sigma', 4)} sigma: {len(outliers)}")
     for o in outliers:
-        lines.append(f"  - {o['step']} {o['index']} {o['sensor']}: {fmt(o['normalized'], 3)} sigma")
+        lines.append(f"  - {md_text(o['step'])} {md_text(o['index'])} {md_text(o['sensor'])}: "
+                     f"{fmt(o['normalized'], 3)} sigma")
     if problems:
         lines.append("")
         lines.append("Steps left out or degraded:")
-        lines += [f"- {p}" for p in problems]
+        lines += [f"- {md_text(p)}" for p in problems]
     if imu_link:
         lines.append("")
-        lines.append("IMU link: " + ", ".join(f"{k} {v}" for k, v in imu_link.items()))
+        lines.append("IMU link: " + md_text(", ".join(f"{k} {v}" for k, v in imu_link.items())))
     lines.append("")
     lines += _markdown_residuals(result)
     if against is not None:
@@ -107,7 +131,7 @@ def _markdown_residuals(result: CalibrationResult) -> list[str]:
             acc = ", ".join(fmt(v, 3) for v in row.get("acc_counts_per_s", []))
             gyro = ", ".join(fmt(v, 3) for v in row.get("gyro_dph", []))
             flag = row_outliers(result, "position", row)
-            label = f"**{row['label']}**" if flag else row["label"]
+            label = f"**{md_text(row['label'])}**" if flag else md_text(row["label"])
             lines.append(f"| {label} | {row['angles_deg']} | {acc} | {gyro} | {fmt(max_normalized(row), 3)} | "
                          f"{'**OUTLIER** ' + outlier_text(flag) if flag else ''} |")
         lines.append("")
@@ -117,7 +141,7 @@ def _markdown_residuals(result: CalibrationResult) -> list[str]:
         for row in rotations:
             arcsec = ", ".join(fmt(v, 3) for v in row.get("gyro_arcsec", []))
             flag = row_outliers(result, "rotation", row)
-            label = f"**{row['label']}**" if flag else row["label"]
+            label = f"**{md_text(row['label'])}**" if flag else md_text(row["label"])
             lines.append(f"| {label} | {row['start_deg']} | {row['frame']} {row['direction']} "
                          f"x{row['revolutions']} | {arcsec} | {fmt(max_normalized(row), 3)} | "
                          f"{'**OUTLIER** ' + outlier_text(flag) if flag else ''} |")
@@ -127,7 +151,7 @@ def _markdown_residuals(result: CalibrationResult) -> list[str]:
 
 def _markdown_comparison(comparison: Comparison) -> list[str]:
     flagged = comparison.flagged
-    lines = [f"## Comparison with {comparison.label}", ""]
+    lines = [f"## Comparison with {md_text(comparison.label)}", ""]
     if flagged:
         lines.append(f"**{len(flagged)} coefficient(s) changed by more than {comparison.threshold:g} sigma**: "
                      + ", ".join(f"{c.name} ({fmt(c.z, 3)} sigma)" for c in flagged))
@@ -137,9 +161,9 @@ def _markdown_comparison(comparison: Comparison) -> list[str]:
     lines.append("change / sigma = (new - old) / sqrt(sigma_new^2 + sigma_old^2)")
     lines.append("")
     if comparison.run_changes:
-        lines += [f"- {k.replace('_', ' ')}: {old if old not in (None, '') else '-'} -> "
-                  f"{new if new not in (None, '') else '-'}" for k, old, new in comparison.run_changes]
-    lines += [f"- {n}" for n in comparison.notes]
+        lines += [f"- {k.replace('_', ' ')}: {md_text(old) if old not in (None, '') else '-'} -> "
+                  f"{md_text(new) if new not in (None, '') else '-'}" for k, old, new in comparison.run_changes]
+    lines += [f"- {md_text(n)}" for n in comparison.notes]
     if comparison.run_changes or comparison.notes:
         lines.append("")
     lines.append("| name | old | new | change | unit | change / sigma | flag |")

@@ -30,7 +30,7 @@ from bench.log.run_setup import differences, setup_of_log
 from bench.model.earth import Site
 from bench.model.observations import PositionObservation, RotationObservation
 from bench.model.result import CalibrationResult
-from bench.report.markdown import markdown_report, write_reports
+from bench.report.markdown import markdown_report, md_text, write_reports
 from bench.run.runner import bias_stabilities, quality_failures
 from bench.solve.extract import Extraction, finished_observation_steps
 from bench.solve.from_logs import LogSolution, extract_from_logs, solve_extraction
@@ -463,13 +463,13 @@ def write_outputs(recorded: Recorded, resolved: Resolved, out_dir: str | Path, *
 def _provenance(recorded: Recorded) -> str:
     lines = ["## Logs", ""]
     for log in recorded.logs:
-        lines.append(f"- {log.summary()}")
-        lines += [f"  - {d}" for d in log.damage]
+        lines.append(f"- {md_text(log.summary())}")
+        lines += [f"  - {md_text(d)}" for d in log.damage]
     if recorded.left_out:
         lines += ["", f"Units planned but not solved ({len(recorded.left_out)}): "
-                  + ", ".join(sorted(recorded.left_out))]
+                  + md_text(", ".join(sorted(recorded.left_out)))]
     if recorded.notes:
-        lines += ["", "Notes:"] + [f"- {n}" for n in recorded.notes]
+        lines += ["", "Notes:"] + [f"- {md_text(n)}" for n in recorded.notes]
     return "\n".join(lines) + "\n"
 
 

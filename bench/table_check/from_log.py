@@ -47,6 +47,7 @@ class TableCheckAnalysis:
     site: dict
     imu: dict
     black_box_rad: np.ndarray | None = None     # the simulated table's black box (truth), None on hardware
+    operator: str = ""                          # who ran the check (the log's run record)
     problems: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
 
@@ -68,6 +69,7 @@ class TableCheckAnalysis:
         out = {
             "format": FORMAT, "version": VERSION, "software_version": __version__,
             "run": {"run_id": self.run_id, "log": Path(self.log_path).name, "mode": self.mode,
+                    "operator": self.operator,
                     "positions": len(self.labels), "dwell_s": self.dwell_s, "site": self.site, "imu": self.imu},
             "conversion": {"scale_counts_per_g": [float(s) for s in self.conversion.scale_counts_per_g],
                            "source": self.conversion.source, "calibrated": self.conversion.calibrated,
@@ -149,7 +151,8 @@ def analyse_log(path: str | Path, *, calibration=None, still_open: bool = False)
         conversion=conversion, labels=[o.label for o in observations], dwell_s=dwell,
         site=setup.site.to_dict(), imu={"model": imu_meta.get("model", ""), "serial": imu_meta.get("serial", "")},
         black_box_rad=black_box, problems=problems,
-        notes=list(setup.notes) + ([renamed] if renamed else []) + list(est.notes))
+        notes=list(setup.notes) + ([renamed] if renamed else []) + list(est.notes),
+        operator=str(run_meta.get("operator", "")))
 
 
 __all__ = ["FORMAT", "VERSION", "TableCheckAnalysis", "analyse_log", "analyse_observations",

@@ -18,6 +18,7 @@ import numpy as np
 from bench.log.names import output_path
 from bench.model.units import ARCSEC
 from bench.report.html import CSS
+from bench.report.markdown import md_text
 from bench.report.plots import _NO_METADATA, _RC, _figure, inline_svg, plt
 from bench.table_check.from_log import TableCheckAnalysis
 
@@ -126,6 +127,7 @@ def _facts(analysis: TableCheckAnalysis) -> list[tuple[str, str]]:
     obs = est.observability
     noise_rad, conversion_rad = est.sigma_noise_rad, est.sigma_conversion_rad   # set by `estimate`
     facts = [("log", Path(analysis.log_path).name), ("mode", analysis.mode or "unknown"),
+             *([("operator", analysis.operator)] if analysis.operator else []),
              ("positions", f"{len(analysis.labels)} (dwell {analysis.dwell_s:g} s)"),
              ("residual RMS", f"{est.residual_rms_g / UG:.3f} ug ({est.residual_rms_g / ARCSEC:.3f} arcsec of tilt)"),
              ("reduced chi-square", f"{est.reduced_chi2:.3f} (sigmas scaled by {est.sigma_scale:.3f})"),
@@ -159,8 +161,8 @@ def _explanation() -> list[str]:
 
 def markdown_report(analysis: TableCheckAnalysis, curves_name: str, map_name: str) -> str:
     est = analysis.estimate
-    lines = [f"# Table check {analysis.run_id}", ""]
-    lines += [f"- {k}: {v}" for k, v in _facts(analysis)]
+    lines = [f"# Table check {md_text(analysis.run_id)}", ""]
+    lines += [f"- {k}: {md_text(v)}" for k, v in _facts(analysis)]
     lines += ["", "## Observable combinations of the black-box angles", ""]
     head = _header(analysis)
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -172,7 +174,7 @@ def markdown_report(analysis: TableCheckAnalysis, curves_name: str, map_name: st
         verdict = "all within 3 sigma" if analysis.sim_within_3_sigma else "NOT all within 3 sigma"
         lines += ["", f"Simulated table: {verdict} of the truth (the exact projection of the simulated black box)."]
     if analysis.problems or analysis.notes:
-        lines += ["", "## Problems and notes", ""] + [f"- {p}" for p in analysis.problems + analysis.notes]
+        lines += ["", "## Problems and notes", ""] + [f"- {md_text(p)}" for p in analysis.problems + analysis.notes]
     lines += ["", "## Figures", "", f"![horizontal accelerometers over the inner angle]({curves_name})", "",
               f"![outer x inner map]({map_name})", ""]
     return "\n".join(lines)
