@@ -167,6 +167,74 @@ def test_silent_imu_while_recording_is_a_fault_and_a_safe_stop(bench):
     assert all(not a.enabled for a in world.controller.state().axes)
 
 
+class Raising(RunListener):
+    """Raises from `method` from its `after + 1`-th call on, as a progress printer does on a closed pipe."""
+
+    def __init__(self, method: str, after: int):
+        self.method, self.after, self.calls, self.raised = method, after, 0, 0
+
+    def _call(self, method: str) -> None:
+        if method == self.method:
+            self.calls += 1
+            if self.calls > self.after:
+                self.raised += 1
+                raise BrokenPipeError(32, "Broken pipe")
+
+    def on_event(self, event):
+        self._call("on_event")
+
+    def on_imu(self, block):
+        self._call("on_imu")
+
+
+class TableAtFault(RunListener):
+    """The simulated controller's state when the fault event arrives."""
+
+    def __init__(self, controller):
+        self.controller, self.state = controller, None
+
+    def on_event(self, event):
+        if event.kind == "fault" and self.state is None:
+            self.state = self.controller.state()
+
+
+@pytest.mark.parametrize("method", ["on_event", "on_imu"])
+def test_a_listener_that_raises_ends_the_run_with_the_table_stopped_and_the_others_told(bench, method):
+    world, table, imu = bench
+    before, failing, after, at_fault = Recorder(), Raising(method, after=5), Recorder(), TableAtFault(world.controller)
+    seq = Sequencer(STEPS, table, imu, world.clock, [before, failing, after, at_fault], OPTIONS)
+    assert seq.run() is RunState.FAILED
+    assert type(seq.error).__name__ == "ListenerError"
+    assert str(seq.error) == "Raising failed: BrokenPipeError: [Errno 32] Broken pipe"
+    assert failing.raised == 1                         # set aside at its first error: nothing more to it
+    assert [(listener, type(exc)) for listener, exc in seq.listener_errors] == [(failing, BrokenPipeError)]
+    assert all(not axis.enabled and axis.rate_dps == 0.0 for axis in world.controller.state().axes)
+    # the table was stopped before any listener heard of the failure
+    assert at_fault.state is not None and all(not axis.enabled for axis in at_fault.state.axes)
+    for listener in (before, after):                   # the others got everything, in order
+        assert [e.state for e in listener.events if e.kind == "transition"] == ["running", "aborting", "failed"]
+        faults = [e for e in listener.events if e.kind == "fault"]
+        assert len(faults) == 1 and "Raising failed: BrokenPipeError" in faults[0].message
+        kinds = [e.kind for e in listener.events]
+        assert kinds.index("fault") < kinds.index("info") < len(kinds) - 1
+        assert any(e.kind == "info" and "servos off" in e.message for e in listener.events)
+        assert not listener.states[-1].axes[0].enabled
+    assert before.kinds() == after.kinds() and before.samples == after.samples > 0
+
+
+def test_listener_errors_while_the_table_stops_are_reported_once_each(bench):
+    world, table, imu = bench
+    first, second, other = Raising("on_event", after=3), Raising("on_event", after=4), Recorder()
+    seq = Sequencer(STEPS, table, imu, world.clock, [first, second, other], OPTIONS)
+    assert seq.run() is RunState.FAILED
+    assert [listener for listener, _ in seq.listener_errors] == [first, second]
+    assert first.raised == second.raised == 1
+    faults = [e for e in other.events if e.kind == "fault"]
+    warnings = [e for e in other.events if e.kind == "warning" and "Raising failed" in e.message]
+    assert len(faults) == 1 and len(warnings) == 1
+    assert all(not axis.enabled for axis in world.controller.state().axes)
+
+
 def test_illegal_transitions_are_refused(bench):
     seq = _sequencer(bench, Recorder())
     with pytest.raises(SequencerError, match="illegal transition idle -> done"):

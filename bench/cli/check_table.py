@@ -196,6 +196,7 @@ def _from_log(args, calibration) -> ExitCode:
 def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
     # imported when the command runs: `bench` starts without the bench core
     from bench.log.reader import LogError
+    from bench.log.recorder import RecorderError
     from bench.run.runner import BenchRun
     from bench.table_check.estimate import TableCheckError
     from bench.table_check.from_log import analyse_log
@@ -212,20 +213,27 @@ def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
             return failed
         seq, recorder = run.sequencer, run.recorder
         assert seq is not None and recorder is not None   # run_plan returned None: the run opened and ran
-        if seq.error is not None:
-            recorder.close()
-            return fail(PROG, f"{seq.state.value}: {seq.error}; table stopped. Log: {run.log_path}", ExitCode.FAULT)
-        # Not BenchRun.finish(): that solves a calibration. The check reads the log it just wrote.
-        recorder.flush()
         try:
-            analysis = analyse_log(run.log_path, calibration=calibration, still_open=True)
-        except (LogError, TableCheckError) as exc:
+            if seq.error is not None:
+                recorder.close()
+                return fail(PROG, f"{seq.state.value}: {seq.error}; table stopped. Log: {run.log_path}",
+                            ExitCode.FAULT)
+            # Not BenchRun.finish(): that solves a calibration. The check reads the log it just wrote.
+            recorder.flush()
+            try:
+                analysis = analyse_log(run.log_path, calibration=calibration, still_open=True)
+            except (LogError, TableCheckError) as exc:
+                recorder.close()
+                return fail(PROG, f"the run finished but the check cannot be computed: {exc}. Log: {run.log_path}",
+                             ExitCode.QUALITY)
+            paths = write_outputs(analysis, out_dir)
+            recorder.add_attachment(paths["json"].name, "application/json", paths["json"].read_bytes())
             recorder.close()
-            return fail(PROG, f"the run finished but the check cannot be computed: {exc}. Log: {run.log_path}",
-                         ExitCode.QUALITY)
-        paths = write_outputs(analysis, out_dir)
-        recorder.add_attachment(paths["json"].name, "application/json", paths["json"].read_bytes())
-        recorder.close()
+        except RecorderError as exc:            # the log's last records could not be written
+            return fail(PROG, f"{exc}; table stopped. Log: {run.log_path}", ExitCode.FAULT)
+        except OSError as exc:                  # the check's outputs could not be written
+            return fail(PROG, f"the run finished but the check cannot be written: {exc.strerror or exc} "
+                              f"({exc.filename}). Log: {run.log_path}", ExitCode.FAULT)
     return _report(args, analysis, out_dir, paths)
 
 

@@ -46,8 +46,11 @@ KNOWN_ERRORS = (BenchError, TurntableError, ImuError)
 
 
 def fail(prog: str, message: str, code: ExitCode) -> ExitCode:
-    """Print `prog: message` on stderr (one line) and return `code`."""
-    print(f"{prog}: {message}", file=sys.stderr)
+    """Print `prog: message` on stderr (one line) and return `code` (also when stderr is gone: a closed pipe)."""
+    try:
+        print(f"{prog}: {message}", file=sys.stderr, flush=True)
+    except OSError:
+        pass
     return code
 
 

@@ -40,6 +40,7 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
     # imported when the command runs, so that `bench --help` and the other commands start without them
     from bench.config.load import ConfigError, default_sim_config, load_config
     from bench.log.reader import LogError
+    from bench.log.recorder import RecorderError
     from bench.log.run_setup import SetupMismatch
     from bench.plan.compiler import PlanError
     from bench.run.resume import resume_point
@@ -76,6 +77,11 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
             outcome = run.finish()
         except SolverError as exc:
             return fail(PROG, f"the run finished but cannot be solved: {exc}. Log: {run.log_path}", ExitCode.QUALITY)
+        except RecorderError as exc:            # the log's last records (result, summary) could not be written
+            return fail(PROG, f"{exc}; table stopped. Log: {run.log_path}", ExitCode.FAULT)
+        except OSError as exc:                  # the result or the report could not be written
+            return fail(PROG, f"the run finished but its result cannot be written: "
+                              f"{exc.strerror or exc} ({exc.filename}). Log: {run.log_path}", ExitCode.FAULT)
     if outcome.error is not None:
         return fail(PROG, f"{outcome.state.value}: {outcome.error}; table stopped. Log: {outcome.log_path} "
                      f"(continue with --resume {outcome.log_path})", ExitCode.FAULT)

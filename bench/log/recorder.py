@@ -44,6 +44,7 @@ The recorder is single-threaded: call it from the sequencer's thread only.
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -83,7 +84,18 @@ _NEVER = 1 << 64   # past every MCAP log time (uint64)
 
 
 class RecorderError(BenchError):
-    """The recorder cannot write (bad arguments, closed, or an I/O error)."""
+    """The recorder cannot write (bad arguments, closed, or an I/O error).
+
+    After an I/O error the recorder is broken: every later call raises it again and
+    `close()` closes the file as it is (no summary: readable like a crashed run's log)."""
+
+
+def _io_error_text(path: str, exc: BaseException, doing: str = "write") -> str:
+    """One line for an I/O error on the log: "log disk full: ..." when it is, else the OS's reason."""
+    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return f"log disk full: cannot {doing} MCAP log {path}: {exc.strerror}"
+    reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+    return f"cannot {doing} MCAP log {path}: {reason}"
 
 
 def time_ns(time_s: float) -> int:
@@ -187,6 +199,7 @@ class McapRecorder(RunListener):
         self.samples_written = 0
         self.messages_written = 0
         self._closed = False
+        self._broken: RecorderError | None = None    # the I/O error that broke the log (see RecorderError)
         self._chunk_size = chunk_size
         self._held_samples: list[tuple[int, bytes]] = []   # /imu/samples messages for the next samples chunk
         self._held_bytes = 0
@@ -318,13 +331,18 @@ class McapRecorder(RunListener):
         if self._closed:
             return
         self._closed = True
+        if self._broken is not None:
+            # the writer's state after a failed write is unknown (and the disk may still be full): the file
+            # is closed as it is; the error was raised when it happened
+            _close_quietly(self._file)
+            return
         try:
             self._write_held_samples()
             self._writer.finish()
-        except Exception as exc:
-            raise RecorderError(f"cannot finish MCAP log {self.path}: {exc}") from exc
-        finally:
             self._file.close()
+        except Exception as exc:
+            _close_quietly(self._file)
+            raise RecorderError(_io_error_text(self.path, exc, "finish")) from exc
 
     @property
     def closed(self) -> bool:
@@ -343,6 +361,8 @@ class McapRecorder(RunListener):
 
     # -- internals ---------------------------------------------------------------------
     def _check_open(self) -> None:
+        if self._broken is not None:
+            raise RecorderError(str(self._broken))
         if self._closed:
             raise RecorderError(f"MCAP log {self.path} is closed")
 
@@ -350,7 +370,8 @@ class McapRecorder(RunListener):
         try:
             fn(*args)
         except (OSError, ValueError) as exc:
-            raise RecorderError(f"cannot write MCAP log {self.path}: {exc}") from exc
+            self._broken = RecorderError(_io_error_text(self.path, exc))
+            raise self._broken from exc
 
     def _put(self, topic: str, log_time: int, data: bytes) -> None:
         self._writer.add_message(self._channel[topic], log_time, data, log_time)
@@ -427,6 +448,15 @@ class McapRecorder(RunListener):
         if now - self._last_close >= self.chunk_interval_s:
             self._io(self._close_chunks)
             self._last_close = now
+
+
+def _close_quietly(file) -> None:
+    """Close a file whose data cannot all be written (its buffer's flush fails again): the error is
+    already on its way to the caller."""
+    try:
+        file.close()
+    except OSError:
+        pass
 
 
 def _file_size(path: str) -> int:

@@ -28,7 +28,7 @@ from bench.plan.compiler import CompiledPlan, compile_plan
 from bench.plan.events import RunListener, RunState
 from bench.plan.steps import step_to_dict
 from bench.report.markdown import write_reports
-from bench.run.sequencer import Sequencer, SequencerOptions
+from bench.run.sequencer import ListenerError, Sequencer, SequencerOptions, describe_listener_error
 from bench.sim.world import SimWorld
 from bench.solve.from_logs import solve_logs
 from drivers.clock import SYSTEM_CLOCK, Clock
@@ -184,8 +184,7 @@ class BenchRun:
             # The samples still pending in the assembler reach every listener, like all the others.
             block = receiver.flush()
             if len(block):
-                for listener in sequencer.listeners:
-                    listener.on_imu(block)
+                sequencer.publish_imu(block)
         return state
 
     def abort(self, reason: str = "abort requested") -> None:
@@ -203,6 +202,11 @@ class BenchRun:
         if seq is None or seq.error is not None:
             recorder.close()
             return RunOutcome(seq.state if seq else RunState.FAILED, self.log_path, error=seq.error if seq else None)
+        broken = next((exc for listener, exc in seq.listener_errors if listener is recorder), None)
+        if broken is not None:          # the log failed on the run's very last event: no result from it
+            recorder.close()
+            error = ListenerError(describe_listener_error(recorder, broken))
+            return RunOutcome(seq.state, self.log_path, error=error)
         recorder.flush()
         logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
         config, identity = self.config, self.config.imu.identity

@@ -15,6 +15,15 @@ goes straight to the controller's abort. Every transition and step boundary is a
 event to the listeners (recorder, progress, TUI). Time comes from the injected clock:
 with the simulator a simulated clock runs the plan far faster than real time.
 
+Listeners cannot prevent the safe stop (DESIGN section 4, "Safety"). Each call to a
+listener is contained: a listener that raises (a recorder on a full disk, a progress
+printer on a closed pipe) gets nothing more, the others still get everything, and
+the run ends at its next check as a fault (`ListenerError`, naming the error once).
+When a run ends early the table is stopped first, before any listener hears of it
+(one that raises or blocks cannot keep the table moving); then the listeners get,
+in order, the fault, the transition to aborting, what the stop produced, and the
+transition to failed.
+
 While the table moves, settles, dwells or turns, the sequencer keeps draining the IMU
 receiver (every frame goes to the listeners: nothing is lost while the table moves)
 and polls the table state. An observation step (dwell, turn) records the IMU sample
@@ -52,7 +61,19 @@ class SequencerError(BenchError):
 
 
 class RunAborted(SequencerError):
-    """The run was aborted on request (operator, Ctrl-C, API)."""
+    """The run was aborted on request (operator, Ctrl-C, a signal, API)."""
+
+
+class ListenerError(SequencerError):
+    """A listener (recorder, progress output, TUI) raised: the run ended, the table stopped."""
+
+
+def describe_listener_error(listener: RunListener, exc: Exception) -> str:
+    """One line on a listener's failure: the bench's own errors say what failed (the recorder's:
+    "log disk full: ..."), anything else is named with the listener."""
+    if isinstance(exc, BenchError):
+        return str(exc)
+    return f"{type(listener).__name__} failed: {type(exc).__name__}: {exc}"
 
 
 @dataclass(frozen=True)
@@ -75,6 +96,7 @@ class Sequencer:
     `stats` and `on_frames`); the sequencer installs itself as its frame callback.
     `completed_units` (from an interrupted run's log) are skipped: resume.
     `pause()`, `resume()` and `abort()` may be called from any thread.
+    `listener_errors` holds (listener, error) for every listener that raised (each one once).
     """
 
     def __init__(self, steps: Sequence[Step], table: Turntable, imu, clock: Clock,
@@ -83,6 +105,10 @@ class Sequencer:
         self.steps = tuple(steps)
         self.table, self.imu, self.clock = table, imu, clock
         self.listeners = list(listeners)
+        self.listener_errors: list[tuple[RunListener, Exception]] = []
+        self._working = list(self.listeners)          # the listeners that have not raised
+        self._reported = 0                             # listener_errors already raised or reported
+        self._held: list[tuple[str, object]] | None = None    # deliveries held back while the table stops
         self.options = options
         self.completed_units = set(completed_units)
         self.state = RunState.IDLE
@@ -121,12 +147,47 @@ class Sequencer:
     def abort_requested(self) -> bool:
         return self._abort_reason is not None
 
+    # -- listeners ---------------------------------------------------------------------
+    def _dispatch(self, method: str, payload: object) -> None:
+        """Hand `payload` to `method` of every listener still working; never raises.
+
+        A listener that raises is set aside (it gets nothing more) and its error kept in
+        `listener_errors`: the run ends at its next check (`_check_listeners`). While the
+        table is being stopped the deliveries are held back (see `_fail`)."""
+        if self._held is not None:
+            self._held.append((method, payload))
+            return
+        for listener in tuple(self._working):
+            try:
+                getattr(listener, method)(payload)
+            except Exception as exc:  # noqa: BLE001 - a listener must not stop the others or the safe stop
+                self._working.remove(listener)
+                self.listener_errors.append((listener, exc))
+
+    def publish_imu(self, block) -> None:
+        """Hand IMU samples to the listeners, the way the run does (the runner's last samples after a run)."""
+        self._dispatch("on_imu", block)
+
+    def _check_listeners(self) -> None:
+        """Raise `ListenerError` for the first listener error not raised yet (the others: see `_fail`)."""
+        if self._reported < len(self.listener_errors):
+            listener, exc = self.listener_errors[self._reported]
+            self._reported += 1
+            raise ListenerError(describe_listener_error(listener, exc)) from exc
+
+    def _report_listener_errors(self) -> None:
+        """A warning to the listeners still working for each listener error not reported yet."""
+        while self._reported < len(self.listener_errors):     # bounded: a listener fails at most once
+            listener, exc = self.listener_errors[self._reported]
+            self._reported += 1
+            self._emit("warning", f"{describe_listener_error(listener, exc)} (it gets nothing more)",
+                       self.current_step)
+
     # -- events ----------------------------------------------------------------------
     def _emit(self, kind: str, message: str, at: Step | None = None, **data) -> None:
         event = Event(self.clock.now(), kind, message, self.state.value if kind == "transition" else None,
                       at.index if at is not None else None, at.unit if at is not None else None, data)
-        for listener in self.listeners:
-            listener.on_event(event)
+        self._dispatch("on_event", event)
 
     def _transition(self, new: RunState, message: str) -> None:
         if (self.state, new) not in _TRANSITIONS:
@@ -135,8 +196,7 @@ class Sequencer:
         self._emit("transition", message, None, **{"from": old.value})
 
     def _on_frames(self, frames) -> None:
-        for listener in self.listeners:
-            listener.on_can_frames(frames)
+        self._dispatch("on_can_frames", frames)
 
     # -- the run ---------------------------------------------------------------------
     def run(self) -> RunState:
@@ -153,6 +213,7 @@ class Sequencer:
                     continue
                 self._execute(step)
             self._drain_imu()
+            self._check_listeners()
             self._transition(RunState.DONE, "run complete")
         except BaseException as exc:  # noqa: BLE001 - every way out must stop the table; re-raised if not ours
             self.error = exc
@@ -165,19 +226,29 @@ class Sequencer:
         self._transition(RunState.PAUSED, "paused at a step boundary; the table holds its position")
         while not self._resume.wait(0.05):
             self._drain_imu()
+            self._check_listeners()
         self._check_abort()
         self._transition(RunState.RUNNING, "resumed")
 
     def _fail(self, exc: BaseException) -> None:
-        if isinstance(exc, RunAborted):
-            message = f"aborted: {exc}"
-        else:
-            message = f"{type(exc).__name__}: {exc}"
-            self._emit("fault", message, self.current_step, error=type(exc).__name__)
-        if self.state is not RunState.ABORTING:
-            self._transition(RunState.ABORTING, message)
-        self._safe_stop(estop=isinstance(exc, TurntableEStop))
-        self._transition(RunState.FAILED, "run ended early; table stopped")
+        """Stop the table, then tell the listeners: nothing a listener does can delay or skip the stop."""
+        self._held = []
+        try:
+            if isinstance(exc, RunAborted):
+                message = str(exc)
+            else:
+                message = f"{type(exc).__name__}: {exc}"
+                self._emit("fault", message, self.current_step, error=type(exc).__name__)
+            if (self.state, RunState.ABORTING) in _TRANSITIONS:    # not from done (a KeyboardInterrupt after it)
+                self._transition(RunState.ABORTING, message)
+            self._safe_stop(estop=isinstance(exc, TurntableEStop))
+        finally:
+            held, self._held = self._held, None
+            for method, payload in held:
+                self._dispatch(method, payload)
+        self._report_listener_errors()
+        if self.state is RunState.ABORTING:
+            self._transition(RunState.FAILED, "run ended early; table stopped")
 
     def _safe_stop(self, estop: bool) -> None:
         """Stop the table, wait (bounded) for rest, switch servos off; abort if anything fails."""
@@ -206,9 +277,9 @@ class Sequencer:
             pass
 
     def _check_abort(self) -> None:
+        """Raise when the run must end: a listener failed (`ListenerError`) or an abort was asked (`RunAborted`)."""
+        self._check_listeners()
         if self._abort_reason is not None:
-            if self.state in (RunState.RUNNING, RunState.PAUSED):
-                self._transition(RunState.ABORTING, self._abort_reason)
             raise RunAborted(self._abort_reason)
 
     # -- steps -------------------------------------------------------------------------
@@ -288,8 +359,7 @@ class Sequencer:
     # -- data ----------------------------------------------------------------------------
     def _publish_state(self, state) -> None:
         self._last_state_poll = self.clock.now()
-        for listener in self.listeners:
-            listener.on_table_state(state)
+        self._dispatch("on_table_state", state)
 
     def _drain_imu_when_due(self) -> None:
         if self.clock.now() - self._last_drain >= self.options.imu_poll_s - 1e-9:
@@ -307,8 +377,7 @@ class Sequencer:
                     self._window[2] += len(block)
                 else:
                     self._window.extend([first, last, len(block)])
-            for listener in self.listeners:
-                listener.on_imu(block)
+            self._dispatch("on_imu", block)
         elif (self._window is not None and self._last_sample_at is not None
               and now - self._last_sample_at > self.options.imu_timeout_s):
             raise ImuTimeout(f"no IMU sample for {now - self._last_sample_at:.1f} s while recording")
