@@ -9,8 +9,16 @@ subprocesses (for signals and pipes); every wait is bounded.
 from __future__ import annotations
 
 import errno
+import fcntl
 import io
 import os
+import pty
+import signal
+import struct
+import subprocess
+import sys
+import termios
+import threading
 
 import numpy as np
 import pytest
@@ -20,8 +28,10 @@ from bench.config.load import load_config
 from bench.log.reader import read_log
 from bench.plan.events import RunListener
 from bench.run.runner import BenchRun, compile_from_config
+from drivers.turntable import AxisStatus
 from tests.helpers.run import (
     AT_REST_DPS,
+    REPO,
     Trigger,
     cli,
     config_text,
@@ -30,6 +40,7 @@ from tests.helpers.run import (
     step_index,
     stop_process,
     transitions,
+    wait_for,
 )
 
 
@@ -149,4 +160,139 @@ def test_a_closed_progress_pipe_ends_the_run_exit_3_with_the_table_stopped(confi
     assert any(e.kind == "info" and "servos off" in e.message for e in log.events)
     assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS
     assert not list(out.glob("*.result.json"))
+
+
+# -- 2. signals ----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
+def test_sigterm_and_sighup_abort_bench_run_like_ctrl_c(signum, tmp_path):
+    config_path = tmp_path / "bench.toml"
+    # long dwells: the run must still be going when the signal comes, however fast the simulator gets
+    config_path.write_text(config_text(dwell_s=20.0), encoding="utf-8")
+    out = tmp_path / "out"
+    proc = start_cli("run", "--config", str(config_path), "--out", str(out), "--quiet")
+    try:
+        log_path = wait_for(lambda: next((p for p in out.glob("*.mcap") if p.stat().st_size > 200_000), None),
+                            60.0, "the log to pass 200 kB", proc=proc)
+        proc.send_signal(signum)
+        _, stderr = proc.communicate(timeout=60)
+    finally:
+        stop_process(proc)
+    name = signal.Signals(signum).name
+    assert proc.returncode == 3, stderr
+    assert len(stderr.strip().splitlines()) == 1, stderr
+    assert f"interrupted ({name})" in stderr and f"--resume {log_path}" in stderr
+    log = read_log(log_path)
+    assert log.summary_present and log.complete, log.damage
+    assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS
+    assert not (log.table_states.status[-1] & AxisStatus.ENABLED).any()     # servos off
+    assert transitions(log.events)[-2:] == ["aborting", "failed"]
+    assert any(e.kind == "info" and "servos off" in e.message for e in log.events)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+def test_a_stop_signal_while_solving_ends_bench_run_with_exit_3_and_the_log_closed(config, tmp_path, monkeypatch,
+                                                                                 signum):
+    original_finish = BenchRun.finish
+
+    def finish_interrupted(self):
+        handler = signal.getsignal(signum)     # what the signal would run now (called here, not sent)
+        assert callable(handler)
+        handler(signum, None)
+        return original_finish(self)
+
+    monkeypatch.setattr(BenchRun, "finish", finish_interrupted)
+    out = tmp_path / "out"
+    stop = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    before = [signal.getsignal(s) for s in stop]
+    rc, _, stderr = cli(["run", "--config", str(config), "--out", str(out), "--quiet"])
+    assert [signal.getsignal(s) for s in stop] == before      # the handlers put back as they were
+    assert rc == 3, stderr
+    log_path = only_file(out, "*.mcap")
+    name = "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
+    assert stderr.strip() == (f"bench run: interrupted ({name}) while solving; the table is at rest. Log: {log_path} "
+                              f"(bench solve {log_path} solves it)")
+    assert read_log(log_path).summary_present
+
+
+def test_sigterm_aborts_bench_check_table_like_ctrl_c(tmp_path):
+    config_path = tmp_path / "bench.toml"
+    config_path.write_text(config_text(), encoding="utf-8")
+    out = tmp_path / "out"
+    proc = start_cli("check-table", "--config", str(config_path), "--dwell-s", "20", "--out", str(out), "--quiet")
+    try:
+        log_path = wait_for(lambda: next((p for p in out.glob("*.mcap") if p.stat().st_size > 100_000), None),
+                            60.0, "the log to pass 100 kB", proc=proc)
+        proc.send_signal(signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=60)
+    finally:
+        stop_process(proc)
+    assert proc.returncode == 3, stderr
+    assert len(stderr.strip().splitlines()) == 1 and "interrupted (SIGTERM)" in stderr, stderr
+    log = read_log(log_path)
+    assert log.summary_present and log.complete, log.damage
+    assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS
+    assert not (log.table_states.status[-1] & AxisStatus.ENABLED).any()
+    assert transitions(log.events)[-2:] == ["aborting", "failed"]
+
+
+class PtyOutput:
+    """Everything a process writes to the pty, read by a thread until the pty closes."""
+
+    def __init__(self, master: int):
+        self.master, self.chunks = master, []
+        self.thread = threading.Thread(target=self._read, daemon=True)
+        self.thread.start()
+
+    def _read(self) -> None:
+        while True:
+            try:
+                data = os.read(self.master, 65536)
+            except OSError:              # EIO: every writer has closed the pty
+                return
+            if not data:
+                return
+            self.chunks.append(data)
+
+    def text(self) -> str:
+        return b"".join(self.chunks).decode("utf-8", "replace")
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
+def test_a_stop_signal_ends_bench_tui_mid_run_with_the_table_stopped(signum, tmp_path):
+    config_path = tmp_path / "bench.toml"
+    # long dwells: the run must still be going when the signal comes
+    config_path.write_text(config_text(dwell_s=120.0), encoding="utf-8")
+    out = tmp_path / "out"
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 30, 100, 0, 0))
+    proc = subprocess.Popen([sys.executable, "-m", "bench.cli", "tui", "--config", str(config_path), "--out", str(out)],
+                            cwd=REPO, stdin=slave, stdout=slave, stderr=slave,
+                            env={**os.environ, "TERM": "xterm-256color", "COLUMNS": "100", "LINES": "30"})
+    os.close(slave)
+    output = PtyOutput(master)
+    try:
+        wait_for(lambda: "connected" in output.text(), 60.0, "the TUI to connect", proc=proc)
+        os.write(master, b"s")
+        wait_for(lambda: "Start the calibration plan?" in output.text(), 20.0, "the start dialog", proc=proc)
+        os.write(master, b"y")
+        log_path = wait_for(lambda: next((p for p in out.glob("*.mcap") if p.stat().st_size > 200_000), None),
+                            60.0, "the log to pass 200 kB", proc=proc)
+        proc.send_signal(signum)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
+        output.thread.join(timeout=10)
+        os.close(master)
+    name = signal.Signals(signum).name
+    assert proc.returncode == 3, output.text()[-2000:]
+    assert f"bench tui: interrupted ({name}); any run aborted, the table stopped" in output.text()
+    log = read_log(log_path)
+    assert log.summary_present and log.complete, log.damage
+    assert transitions(log.events)[-2:] == ["aborting", "failed"]
+    assert any(e.kind == "info" and "servos off" in e.message for e in log.events)
+    assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS
+    assert not (log.table_states.status[-1] & AxisStatus.ENABLED).any()
 

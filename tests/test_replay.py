@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 import signal
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -24,7 +26,7 @@ from bench.plan.steps import step_from_dict, step_to_dict
 from bench.run.runner import BenchRun, compile_from_config
 from drivers.clock import ManualClock
 from drivers.imu import DEFAULT_DBC, ImuSampleBlock
-from tests.helpers.run import cli, config_text, start_cli, stop_process
+from tests.helpers.run import REPO, cli, config_text, start_cli, stop_process
 
 
 class Capture(RunListener):
@@ -353,6 +355,24 @@ def test_cli_ctrl_c_stops_a_paced_replay_with_the_summary(recorded):
         first = proc.stderr.readline()       # printed once the Ctrl-C handler is in place
         assert recorded.log_path.name in first, first
         proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=20)
+    finally:
+        stop_process(proc)
+    assert proc.returncode == 130, err
+    assert out.startswith("replayed ") and "stopped early" in out
+
+
+@pytest.mark.parametrize("signum, ignored", [(signal.SIGINT, True), (signal.SIGTERM, False), (signal.SIGHUP, False)])
+def test_cli_a_stop_signal_stops_a_paced_replay_even_with_sigint_ignored(recorded, signum, ignored):
+    # A shell starts `bench replay LOG &` in a script with SIGINT ignored: SIGINT must still stop it;
+    # SIGTERM and SIGHUP stop it the same way (exit 130, the summary printed).
+    proc = subprocess.Popen([sys.executable, "-m", "bench.cli", "replay", str(recorded.log_path), "--speed", "1"],
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=(lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)) if ignored else None)
+    try:
+        first = proc.stderr.readline()       # printed once the stop handler is in place
+        assert recorded.log_path.name in first, first
+        proc.send_signal(signum)
         out, err = proc.communicate(timeout=20)
     finally:
         stop_process(proc)

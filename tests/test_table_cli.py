@@ -14,6 +14,8 @@ import time
 import pytest
 
 from bench.cli.main import main
+from drivers.turntable import open_turntable
+from tests.helpers.run import stop_process, wait_for
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -183,3 +185,35 @@ def test_sim_table_with_allow_remote_warns_loudly(capsys, monkeypatch):
     assert "listening on tcp://0.0.0.0:5025" in captured.out
     warning = [line for line in captured.err.splitlines() if line.startswith("WARNING")]
     assert len(warning) == 1 and "reachable from the NETWORK" in warning[0] and "0.0.0.0:5025" in warning[0]
+
+
+@pytest.mark.parametrize("simulator", [("scpi", "tcp://127.0.0.1:0")], indirect=True)
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
+def test_sigterm_and_sighup_stop_a_goto_like_ctrl_c(simulator, signum, capsys):
+    _proc, dialect, url = simulator
+    assert main(["table", "--url", url, "--dialect", dialect, "enable"]) == 0
+    capsys.readouterr()
+    watcher = open_turntable(url, dialect, timeout_s=1.0)
+    watcher.connect()
+    goto = subprocess.Popen([sys.executable, "-m", "bench.cli", "table", "--url", url, "--dialect", dialect,
+                             "goto", "0", "0", "180", "--rate-dps", "10"], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        wait_for(lambda: abs(watcher.read_state().axes[2].rate_dps) > 1.0, 20.0, "the inner frame to turn",
+                 proc=goto)
+        goto.send_signal(signum)
+        _, stderr = goto.communicate(timeout=20)
+        assert goto.returncode == 3, stderr
+        name = signal.Signals(signum).name
+        assert stderr.strip() == f"bench table goto: interrupted ({name}); table commanded to stop"
+
+        def at_rest():
+            state = watcher.read_state()
+            return state if all(abs(r) < 1e-9 for r in state.rates_dps) else None
+
+        # the table decelerates to rest short of the target (at 10 deg/s it had ~18 s to go)
+        state = wait_for(at_rest, 20.0, "the table at rest")
+        assert state.axes[2].angle_deg < 170.0
+    finally:
+        stop_process(goto)
+        watcher.close()

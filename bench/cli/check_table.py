@@ -21,7 +21,7 @@ import dataclasses
 import re
 from pathlib import Path
 
-from bench.cli.common import ExitCode, fail, run_plan
+from bench.cli.common import ExitCode, fail, raise_interrupted, run_plan, stop_signals
 from bench.errors import BenchError
 from bench.model.units import format_hms
 
@@ -207,7 +207,10 @@ def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
         print(f"table check: {config.plan.positions.name}, {len(config.plan.positions.positions)} positions, dwell "
               f"{config.plan.dwell_s:g} s, about {format_hms(plan.estimated_total_s)} of table time"
               + (" (simulated)" if sim else ""))
-    with BenchRun(config, plan, sim=sim, out_dir=out_dir, operator=args.operator) as run:
+    # A stop signal (Ctrl-C, SIGTERM, SIGHUP) aborts the plan while it runs (run_plan); after it, it ends
+    # the analysis (an Interrupted): either way the devices and the log are closed.
+    with stop_signals(raise_interrupted), BenchRun(config, plan, sim=sim, out_dir=out_dir,
+                                                   operator=args.operator) as run:
         failed = run_plan(run, PROG, quiet=args.quiet, simulated=sim)
         if failed is not None:
             return failed
@@ -229,6 +232,10 @@ def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
             paths = write_outputs(analysis, out_dir)
             recorder.add_attachment(paths["json"].name, "application/json", paths["json"].read_bytes())
             recorder.close()
+        except KeyboardInterrupt as exc:        # a stop signal after the plan ended: the table is at rest
+            return fail(PROG, f"interrupted ({exc or 'Ctrl-C'}) while analysing; the table is at rest. "
+                              f"Log: {run.log_path} (bench check-table --log {run.log_path} analyses it)",
+                        ExitCode.FAULT)
         except RecorderError as exc:            # the log's last records could not be written
             return fail(PROG, f"{exc}; table stopped. Log: {run.log_path}", ExitCode.FAULT)
         except OSError as exc:                  # the check's outputs could not be written

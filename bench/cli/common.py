@@ -8,11 +8,14 @@ lets an exception that is not a `BenchError` or a driver error raise (a bug).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import signal
 import sys
+import threading
 from enum import IntEnum
-from typing import TYPE_CHECKING
+from types import FrameType
+from typing import TYPE_CHECKING, Any, Callable, Iterator
 
 from bench.cli.progress import ProgressPrinter
 from bench.errors import BenchError
@@ -88,15 +91,65 @@ def noise_from_args(args: argparse.Namespace) -> NoiseModel:
                       _DEFAULT_NOISE.correlation_time_s, not args.no_quantise)
 
 
-def run_plan(run: BenchRun, prog: str, *, quiet: bool, simulated: bool) -> ExitCode | None:
-    """Open `run`'s devices and execute its plan with terminal progress, Ctrl-C aborting it.
+#: The signals that end a command the way Ctrl-C does: SIGINT (Ctrl-C), SIGTERM (kill, systemd, a CI job
+#: cancelled) and SIGHUP (the terminal or SSH session went away).
+STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(
+    getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
+
+def signal_name(signum: int) -> str:
+    """How a message names a stop signal: "Ctrl-C" for SIGINT, else the signal's name."""
+    return "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
+
+
+class Interrupted(KeyboardInterrupt):
+    """A stop signal (`STOP_SIGNALS`) raised where the command is (`raise_interrupted`), like Ctrl-C.
+
+    A KeyboardInterrupt, so that whatever handles Ctrl-C handles SIGTERM and SIGHUP alike."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal_name(signum))
+        self.signum = signum
+
+
+def raise_interrupted(signum: int) -> None:
+    """A `stop_signals` handler: end the command where it is, as Ctrl-C does (see `Interrupted`)."""
+    raise Interrupted(signum)
+
+
+@contextlib.contextmanager
+def stop_signals(on_signal: Callable[[int], None]) -> Iterator[None]:
+    """While the block runs, SIGINT, SIGTERM and SIGHUP call `on_signal(signum)`; the previous handlers
+    come back when it ends. Only in the main thread (elsewhere Python cannot install handlers: nothing is).
+
+    SIGINT and SIGTERM are caught even when ignored (a shell starts `bench ... &` with SIGINT ignored);
+    an ignored SIGHUP stays ignored (`nohup bench run ...` asks for exactly that)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous: dict[int, Callable[[int, FrameType | None], Any] | int] = {}
+    try:
+        for signum in STOP_SIGNALS:
+            if signum == getattr(signal, "SIGHUP", None) and signal.getsignal(signum) is signal.SIG_IGN:
+                continue
+            handler = signal.signal(signum, lambda received, _frame: on_signal(received))
+            # (None: a handler not installed from Python; the default is the closest to put back)
+            previous[signum] = signal.SIG_DFL if handler is None else handler
+        yield
+    finally:
+        for installed, handler in previous.items():
+            signal.signal(installed, handler)
+
+
+def run_plan(run: BenchRun, prog: str, *, quiet: bool, simulated: bool) -> ExitCode | None:
+    """Open `run`'s devices and execute its plan with terminal progress; a stop signal aborts it.
+
+    SIGINT (Ctrl-C), SIGTERM and SIGHUP (`stop_signals`) abort the run from here on, also while the
+    devices open (the run then ends at its start): the table is stopped, servos off, the log kept.
     Returns the exit code (after printing one line) when it could not start (USAGE,
     nothing moved) or enable the table (FAULT); None once the plan ran (see
     `run.sequencer` for how it ended)."""
-    # Ctrl-C from here on aborts the run, also while the devices open (the run then ends at its start)
-    previous_handler = signal.signal(signal.SIGINT, lambda *_: run.abort("interrupted (Ctrl-C)"))
-    try:
+    with stop_signals(lambda signum: run.abort(f"interrupted ({signal_name(signum)})")):
         try:
             run.open()
         except (TurntableError, ImuError, BenchError, OSError) as exc:
@@ -109,9 +162,8 @@ def run_plan(run: BenchRun, prog: str, *, quiet: bool, simulated: bool) -> ExitC
             return fail(prog, f"cannot enable the table: {exc}; nothing moved", ExitCode.FAULT)
         finally:
             progress.close()
-    finally:
-        signal.signal(signal.SIGINT, previous_handler)
     return None
 
 
-__all__ = ["KNOWN_ERRORS", "ExitCode", "add_noise_arguments", "fail", "noise_from_args", "run_plan", "speed_factor"]
+__all__ = ["KNOWN_ERRORS", "STOP_SIGNALS", "ExitCode", "Interrupted", "add_noise_arguments", "fail", "noise_from_args",
+           "raise_interrupted", "run_plan", "signal_name", "speed_factor", "stop_signals"]

@@ -2,17 +2,17 @@
 
 Exit codes: 0 replayed (a damaged log replays what is readable; the damage is printed
 first, on stderr); 2 the file cannot be read as a run log (one line); 130 stopped by
-Ctrl-C (the summary still says how far it got).
+Ctrl-C, SIGTERM or SIGHUP (the summary still says how far it got), also when started
+with SIGINT ignored (`bench replay LOG &` in a script).
 """
 
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import threading
 
-from bench.cli.common import ExitCode, fail, speed_factor
+from bench.cli.common import ExitCode, fail, speed_factor, stop_signals
 from bench.cli.progress import ProgressPrinter
 
 PROG = "bench replay"
@@ -33,6 +33,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def cmd_replay(args: argparse.Namespace) -> ExitCode:
+    stop = threading.Event()
+    # from the start (reading a large log takes a while): SIGINT even when the shell ignored it, SIGTERM, SIGHUP
+    with stop_signals(lambda _signum: stop.set()):
+        return _replay(args, stop)
+
+
+def _replay(args: argparse.Namespace, stop: threading.Event) -> ExitCode:
     # imported when the command runs: `bench` starts without the bench core
     from bench.log.reader import LogError, read_log
     from bench.log.replay import replay
@@ -51,16 +58,9 @@ def cmd_replay(args: argparse.Namespace) -> ExitCode:
         steps = ()
     progress = TolerantProgress(steps, quiet=args.quiet,
                                 simulated=log.metadata.get("run", {}).get("mode") == "simulator")
-    stop = threading.Event()
-    in_main = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, lambda *_: stop.set()) if in_main else None
-    try:
-        if not args.quiet:
-            print(log.summary(), file=sys.stderr, flush=True)
-        stats = replay(log, [progress], speed=args.speed, stop=stop)
-    finally:
-        if in_main:
-            signal.signal(signal.SIGINT, previous)
+    if not args.quiet:
+        print(log.summary(), file=sys.stderr, flush=True)
+    stats = replay(log, [progress], speed=args.speed, stop=stop)
     for note in stats.notes:
         print(f"bench replay: {note}", file=sys.stderr)
     print(stats.summary())

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bench.cli.common import ExitCode, fail, run_plan
+from bench.cli.common import ExitCode, fail, raise_interrupted, run_plan, stop_signals
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -68,13 +68,18 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
                   f"{', '.join(sorted(completed))}")
         return ExitCode.OK
     out_dir = Path(args.out) if args.out else Path(config.output.folder)
-    with BenchRun(config, plan, sim=sim, out_dir=out_dir, operator=args.operator, completed=completed,
-                  previous_logs=previous_logs) as run:
+    # A stop signal (Ctrl-C, SIGTERM, SIGHUP) aborts the plan while it runs (run_plan); after it, it ends
+    # the solve (an Interrupted): either way the devices and the log are closed.
+    with stop_signals(raise_interrupted), BenchRun(config, plan, sim=sim, out_dir=out_dir, operator=args.operator,
+                                                   completed=completed, previous_logs=previous_logs) as run:
         failed = run_plan(run, PROG, quiet=args.quiet, simulated=sim)
         if failed is not None:
             return failed
         try:
             outcome = run.finish()
+        except KeyboardInterrupt as exc:        # a stop signal after the plan ended: the table is at rest
+            return fail(PROG, f"interrupted ({exc or 'Ctrl-C'}) while solving; the table is at rest. Log: "
+                              f"{run.log_path} (bench solve {run.log_path} solves it)", ExitCode.FAULT)
         except SolverError as exc:
             return fail(PROG, f"the run finished but cannot be solved: {exc}. Log: {run.log_path}", ExitCode.QUALITY)
         except RecorderError as exc:            # the log's last records (result, summary) could not be written

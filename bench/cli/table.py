@@ -14,7 +14,7 @@ import sys
 import threading
 from urllib.parse import urlsplit
 
-from bench.cli.common import ExitCode, fail
+from bench.cli.common import ExitCode, fail, raise_interrupted, stop_signals
 from bench.errors import InputError
 from drivers.errors import TurntableConfigError, TurntableError, TurntableLimitError
 from drivers.turntable import (
@@ -123,17 +123,26 @@ def cmd_table(args: argparse.Namespace) -> ExitCode:
     except TurntableError as exc:
         return fail(prog, f"cannot reach the controller: {exc}", ExitCode.FAULT)
     try:
-        return _run_table_command(table, args)
+        # SIGTERM and SIGHUP end the command like Ctrl-C (an `Interrupted`, a KeyboardInterrupt)
+        with stop_signals(raise_interrupted):
+            return _run_table_command(table, args)
     except TurntableLimitError as exc:
         return fail(prog, f"refused, nothing sent: {exc}", ExitCode.USAGE)
     except TurntableError as exc:
-        table.safe_stop()
+        _stop_table(table)
         return fail(prog, f"{type(exc).__name__}: {exc}", ExitCode.FAULT)
-    except KeyboardInterrupt:
-        table.safe_stop()
-        return fail(prog, "interrupted; table commanded to stop", ExitCode.FAULT)
+    except KeyboardInterrupt as exc:
+        _stop_table(table)
+        return fail(prog, f"interrupted ({exc or 'Ctrl-C'}); table commanded to stop", ExitCode.FAULT)
     finally:
         table.close()
+
+
+def _stop_table(table: Turntable) -> None:
+    """The table's controlled stop (abort if that fails); a second stop signal cannot cut it short
+    (it is bounded by the driver's timeouts and retries)."""
+    with stop_signals(lambda _signum: None):
+        table.safe_stop()
 
 
 # -- bench sim table --------------------------------------------------------------

@@ -1,5 +1,9 @@
 """`bench tui`: the lab-operator TUI (bench/tui) on hardware (--config), the simulator (--sim) or a
-recorded run (--replay LOG, no hardware)."""
+recorded run (--replay LOG, no hardware).
+
+SIGINT, SIGTERM and SIGHUP end the app as quitting does, without asking: any run is
+aborted, the table stopped (servos off) and the log closed; exit 3 (130 for a replay).
+"""
 
 from __future__ import annotations
 
@@ -45,6 +49,8 @@ def cmd_tui(args: argparse.Namespace) -> ExitCode:
     except (BenchError, OSError) as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     app.run()
+    if app.stopped_by is not None:
+        return fail(PROG, f"interrupted ({app.stopped_by}); any run aborted, the table stopped", ExitCode.FAULT)
     return ExitCode.OK
 
 
@@ -57,4 +63,6 @@ def _replay(args: argparse.Namespace) -> ExitCode:
     except (BenchError, OSError) as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     app.run()
+    if app.stopped_by is not None:
+        return fail(PROG, f"interrupted ({app.stopped_by})", ExitCode.INTERRUPTED)
     return ExitCode.OK

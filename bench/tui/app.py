@@ -9,8 +9,13 @@ is handled before any widget sees the key.
 
 from __future__ import annotations
 
+import asyncio
+import signal
 import sys
+import threading
 from pathlib import Path
+from types import FrameType
+from typing import Any, Callable
 
 from textual.app import App, ComposeResult
 from textual.binding import Binding
@@ -35,6 +40,10 @@ ESTOP_KEY = "f12"
 #: their refresh rate under a 2 kHz IMU (tests/benchmarks/tui_refresh.py).
 SWITCH_INTERVAL_S = 0.001
 DARK_THEME, LIGHT_THEME = "textual-dark", "textual-light"
+#: Signals that end the app at once, without the quit question, as quitting does: the session closes (any run
+#: aborted, the table stopped, servos off, the log closed). Ctrl-C in the TUI is a key, not SIGINT.
+STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(
+    getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
 HELP = f"""[b]turntable-bench operator keys[/b]
 
@@ -112,6 +121,8 @@ class BenchApp(App):
         self.jog_frame = 0                   # the frame [ and ] move
         self.jog_step_deg = float(jog_step_deg)
         self.rate_dps = 0.0                  # the rate dialog's last value
+        self.stopped_by: str | None = None   # the stop signal that ended the app (its name), if one did
+        self._previous_handlers: dict[int, Callable[[int, FrameType | None], Any] | int] = {}
 
     def compose(self) -> ComposeResult:
         yield Header(show_clock=False)
@@ -129,6 +140,7 @@ class BenchApp(App):
         yield Footer()
 
     def on_mount(self) -> None:
+        self._install_stop_signals()
         self._switch_interval = sys.getswitchinterval()
         sys.setswitchinterval(min(self._switch_interval, SWITCH_INTERVAL_S))
         self.query_one("#events").border_title = "Events"
@@ -334,9 +346,45 @@ class BenchApp(App):
         self.action_quit_app()
 
     def on_unmount(self) -> None:
-        # Whatever ends the app (quit, Ctrl-C, a test leaving run_test) stops the table and closes the devices.
-        self.session.close()
-        sys.setswitchinterval(getattr(self, "_switch_interval", sys.getswitchinterval()))
+        # Whatever ends the app (quit, a stop signal, a test leaving run_test) stops the table and closes the
+        # devices; a stop signal meanwhile changes nothing (the loop is busy here), then the handlers go.
+        try:
+            self.session.close()
+        finally:
+            sys.setswitchinterval(getattr(self, "_switch_interval", sys.getswitchinterval()))
+            self._remove_stop_signals()
+
+    # -- stop signals ----------------------------------------------------------------------------------
+    def _install_stop_signals(self) -> None:
+        """SIGINT, SIGTERM and SIGHUP end the app (`stop_signal`), through the event loop; only in the main
+        thread (where the loop can take signals). An ignored SIGHUP stays ignored (`nohup`)."""
+        if threading.current_thread() is not threading.main_thread():
+            return
+        loop = asyncio.get_running_loop()
+        for signum in STOP_SIGNALS:
+            if signum == getattr(signal, "SIGHUP", None) and signal.getsignal(signum) is signal.SIG_IGN:
+                continue
+            previous = signal.getsignal(signum)
+            loop.add_signal_handler(signum, self.stop_signal, signum)
+            # (None: a handler not installed from Python; the default is the closest to put back)
+            self._previous_handlers[signum] = signal.SIG_DFL if previous is None else previous
+
+    def _remove_stop_signals(self) -> None:
+        """Put back the handlers `_install_stop_signals` replaced."""
+        handlers, self._previous_handlers = self._previous_handlers, {}
+        if not handlers:
+            return
+        loop = asyncio.get_running_loop()
+        for signum, previous in handlers.items():
+            loop.remove_signal_handler(signum)
+            signal.signal(signum, previous)
+
+    def stop_signal(self, signum: int) -> None:
+        """A stop signal: quit at once (no question); unmounting aborts any run and stops the table."""
+        if self.stopped_by is None:
+            self.stopped_by = signal.Signals(signum).name
+            self.buffer.note("warning", f"{self.stopped_by}: quitting; any run is aborted and the table stopped")
+        self.exit()
 
 
 def create_app(*, config=None, sim: bool = False, replay: str | Path | None = None, speed: float | None = 1.0,
