@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 import bench.log.recorder as recorder_module
+import bench.run.runner as runner_module
 from bench.config.load import load_config
 from bench.log.reader import read_log
 from bench.plan.events import RunListener
@@ -296,3 +297,18 @@ def test_a_stop_signal_ends_bench_tui_mid_run_with_the_table_stopped(signum, tmp
     assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS
     assert not (log.table_states.status[-1] & AxisStatus.ENABLED).any()
 
+
+# -- 3. an output folder that cannot be written ------------------------------------------------------
+
+@pytest.mark.parametrize("command", ["run", "check-table"])
+def test_an_unwritable_output_folder_is_exit_2_one_line_and_no_device_opened(command, config, tmp_path, monkeypatch):
+    (tmp_path / "afile").write_text("a file, not a folder\n", encoding="utf-8")
+    out = tmp_path / "afile" / "sub"          # cannot be made, also for root (chmod would not stop root)
+    opened = []
+    original_open_turntable = runner_module.open_turntable
+    monkeypatch.setattr(runner_module, "open_turntable",
+                        lambda *args, **kwargs: opened.append(args) or original_open_turntable(*args, **kwargs))
+    rc, _, stderr = cli([command, "--config", str(config), "--out", str(out), "--quiet"])
+    assert rc == 2, stderr
+    assert opened == []                       # the table was not even connected
+    assert stderr.strip() == f"bench {command}: cannot start: output folder {out}: Not a directory; nothing moved"

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import secrets
+import tempfile
 import time
 from contextlib import ExitStack
 from dataclasses import dataclass, field
@@ -73,6 +74,10 @@ def _name(schedule) -> str:
     return schedule.name if schedule is not None else ""
 
 
+class OutputFolderError(BenchError):
+    """The output folder cannot be made or written: the run does not start (no device is opened)."""
+
+
 class BenchRun:
     """A run of `plan` with `config`'s devices (or the simulator when `sim`)."""
 
@@ -99,8 +104,12 @@ class BenchRun:
 
     # -- devices -----------------------------------------------------------------------
     def open(self) -> None:
-        """Open the devices and the recorder. Raises TurntableError/ImuError/OSError/ValueError; nothing moves."""
+        """Open the devices and the recorder. Raises TurntableError/ImuError/OSError/ValueError; nothing moves.
+
+        The output folder is checked first (`OutputFolderError`): no device is opened for a run that could
+        not be logged."""
         config = self.config
+        self._check_output_folder()
         try:
             if self.sim:
                 self.world = self._stack.enter_context(SimWorld(
@@ -120,11 +129,19 @@ class BenchRun:
             self._stack.callback(table.close)
             self.receiver = receiver = ImuReceiver(bus, config.imu.layout, config.imu.rate_hz)
             self._stack.callback(receiver.close)
-            self.out_dir.mkdir(parents=True, exist_ok=True)
             self._open_recorder()
         except BaseException:
             self.close()
             raise
+
+    def _check_output_folder(self) -> None:
+        """Make the output folder if missing and check it takes a new file (a file created and removed)."""
+        try:
+            self.out_dir.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryFile(dir=self.out_dir):
+                pass
+        except OSError as exc:
+            raise OutputFolderError(f"output folder {self.out_dir}: {exc.strerror or exc}") from exc
 
     def _open_recorder(self) -> None:
         config = self.config
