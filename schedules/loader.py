@@ -18,7 +18,7 @@ degrees, DESIGN section 2 sign convention)::
     start_deg = [0, 90, 0]      # outer, middle, inner initial state
     frame = "outer"             # "outer" | "middle" | "inner"
     direction = "ccw"           # "ccw" | "cw"
-    revolutions = 1             # whole number >= 1
+    revolutions = 1             # whole number, 1..100
 
 Rules checked here (each violation is a one-line `ScheduleError` naming the file,
 the 1-based line and the field):
@@ -29,21 +29,24 @@ the 1-based line and the field):
   missing required fields, no wrong types (a bool is not a number);
 - "positions" angles and rotation start states are positive positions: multiples of
   90 in [0, 360); "table-check" angles are any finite value in [0, 360);
+- `group` is a whole number 1..10000, `revolutions` a whole number 1..100;
 - no duplicate steps (same angles; same start, frame and direction);
 - positions/table-check files hold >= 1 ``[[position]]`` and no ``[[rotation]]``,
-  rotations files the reverse.
+  rotations files the reverse; at most 10000 steps;
+- the file is a regular file of at most 1 MiB of UTF-8 text, with arrays and inline
+  tables nested at most 32 deep (`schedules.tomlinput`).
 
 Steps are numbered from 1 in field names, e.g. ``position[3].angles_deg``.
 """
 
 from __future__ import annotations
 
-import math
 import pathlib
 import re
 import tomllib
 from dataclasses import dataclass, replace
 
+from schedules.tomlinput import InputLimitError, loads, read_text_file
 from schedules.tomllines import LineMap, locate_lines
 
 FORMAT = "turntable-bench/schedule"
@@ -56,6 +59,9 @@ _REQUIRED_TOP = ("format", "version", "name", "kind", "description")
 _OPTIONAL_TOP = ("source", "position", "rotation")
 _POSITION_KEYS = {"angles_deg": True, "group": False}  # key -> required
 _ROTATION_KEYS = {"start_deg": True, "frame": True, "direction": True, "revolutions": True}
+MAX_STEPS = 10_000        # steps per file (the shipped files have up to 324)
+MAX_GROUP = 10_000
+MAX_REVOLUTIONS = 100     # whole turns per rotation
 
 
 @dataclass(frozen=True)
@@ -135,6 +141,15 @@ def _is_int(value: object) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
 
+def _show(value: object, limit: int = 60) -> str:
+    """`repr(value)` for a message, a long one shortened (a 400-digit number, a 100 kB string)."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10 ** 20:
+        digits, sign = str(abs(value)), "-" if value < 0 else ""
+        return f"{sign}{digits[0]}.{digits[1:4]}e+{len(digits) - 1} (a {len(digits)}-digit integer)"
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
 class _Validator:
     """Turns a parsed TOML document into a `Schedule`, raising on the first problem."""
 
@@ -147,7 +162,7 @@ class _Validator:
     def top_string(self, key: str) -> str:
         value = self.doc[key]
         if not isinstance(value, str):
-            raise self.fail(self.lines.exact(key), key, f"must be a string, got {value!r}")
+            raise self.fail(self.lines.exact(key), key, f"must be a string, got {_show(value)}")
         return value
 
     def run(self) -> Schedule:
@@ -155,12 +170,12 @@ class _Validator:
         if "format" not in doc:
             raise self.fail(None, "format", f"missing required key (expected {FORMAT!r})")
         if doc["format"] != FORMAT:
-            raise self.fail(lines.exact("format"), "format", f"expected {FORMAT!r}, got {doc['format']!r}")
+            raise self.fail(lines.exact("format"), "format", f"expected {FORMAT!r}, got {_show(doc['format'])}")
         if "version" not in doc:
             raise self.fail(None, "version", "missing required key")
         if not _is_int(doc["version"]) or doc["version"] != VERSION:
             raise self.fail(lines.exact("version"), "version",
-                            f"unsupported version {doc['version']!r} (supported: {VERSION})")
+                            f"unsupported version {_show(doc['version'])} (supported: {VERSION})")
         for key in doc:
             if key not in _REQUIRED_TOP and key not in _OPTIONAL_TOP:
                 allowed = ", ".join(_REQUIRED_TOP + _OPTIONAL_TOP)
@@ -173,7 +188,8 @@ class _Validator:
         if not name.strip():
             raise self.fail(lines.exact("name"), "name", "must not be empty")
         if kind not in KINDS:
-            raise self.fail(lines.exact("kind"), "kind", f"unknown kind {kind!r} (expected one of {', '.join(KINDS)})")
+            raise self.fail(lines.exact("kind"), "kind",
+                            f"unknown kind {_show(kind)} (expected one of {', '.join(KINDS)})")
 
         wanted, unwanted = ("rotation", "position") if kind == "rotations" else ("position", "rotation")
         if unwanted in doc:
@@ -184,6 +200,9 @@ class _Validator:
             raise self.fail(lines.exact(wanted), wanted, f"must be an array of tables ([[{wanted}]])")
         if not tables:
             raise self.fail(None, wanted, f"a {kind!r} schedule needs at least one [[{wanted}]] table")
+        if len(tables) > MAX_STEPS:
+            raise self.fail(self.lines.line(wanted, MAX_STEPS), wanted,
+                            f"{len(tables)} [[{wanted}]] tables: a schedule holds at most {MAX_STEPS} steps")
 
         positions, rotations = (), ()
         if kind == "rotations":
@@ -207,10 +226,11 @@ class _Validator:
                 positive_only: bool) -> tuple[float, float, float]:
         line, label = self.lines.line(table_name, index, key), f"{table_name}[{index + 1}].{key}"
         if not isinstance(value, list) or len(value) != 3 or not all(_is_number(v) for v in value):
-            raise self.fail(line, label, f"must be 3 numbers [outer, middle, inner] in degrees, got {value!r}")
+            raise self.fail(line, label, f"must be 3 numbers [outer, middle, inner] in degrees, got {_show(value)}")
         for axis, angle_deg in zip(FRAMES, value):
-            if not math.isfinite(angle_deg) or not 0 <= angle_deg < 360:
-                raise self.fail(line, label, f"{axis} angle {angle_deg!r} is outside [0, 360) deg")
+            # Compared before any float(): a 400-digit integer compares exactly; NaN fails both tests.
+            if not 0 <= angle_deg < 360:
+                raise self.fail(line, label, f"{axis} angle {_show(angle_deg)} is outside [0, 360) deg")
             # Exact test on purpose: positive positions are written as whole multiples.
             if positive_only and angle_deg % 90 != 0:
                 raise self.fail(line, label, f"{axis} angle {angle_deg!r} is not a multiple of 90 deg "
@@ -224,9 +244,9 @@ class _Validator:
             self._check_keys("position", index, table, _POSITION_KEYS)
             angles_deg = self._angles("position", index, "angles_deg", table["angles_deg"], positive_only)
             group = table.get("group")
-            if group is not None and (not _is_int(group) or group < 1):
+            if group is not None and (not _is_int(group) or not 1 <= group <= MAX_GROUP):
                 raise self.fail(self.lines.line("position", index, "group"), f"position[{index + 1}].group",
-                                f"must be a positive integer, got {group!r}")
+                                f"must be a positive integer in 1..{MAX_GROUP}, got {_show(group)}")
             header = self.lines.line("position", index)
             if angles_deg in seen:
                 earlier = seen[angles_deg]
@@ -245,11 +265,11 @@ class _Validator:
             for key, choices in (("frame", FRAMES), ("direction", DIRECTIONS)):
                 if table[key] not in choices:
                     raise self.fail(self.lines.line("rotation", index, key), f"{label}.{key}",
-                                    f"got {table[key]!r}, expected one of {', '.join(choices)}")
+                                    f"got {_show(table[key])}, expected one of {', '.join(choices)}")
             revolutions = table["revolutions"]
-            if not _is_int(revolutions) or revolutions < 1:
+            if not _is_int(revolutions) or not 1 <= revolutions <= MAX_REVOLUTIONS:
                 raise self.fail(self.lines.line("rotation", index, "revolutions"), f"{label}.revolutions",
-                                f"must be a whole number >= 1, got {revolutions!r}")
+                                f"must be a whole number in 1..{MAX_REVOLUTIONS}, got {_show(revolutions)}")
             header = self.lines.line("rotation", index)
             step_key = (start_deg, table["frame"], table["direction"])
             if step_key in seen:
@@ -271,7 +291,9 @@ def parse_schedule(text: str, path: str = "<string>") -> Schedule:
     """Parse and validate schedule TOML `text`; `path` names it in errors and `Schedule.source`."""
     path = str(path)
     try:
-        doc = tomllib.loads(text)
+        doc = loads(text)
+    except InputLimitError as exc:
+        raise ScheduleError(path, exc.line, None, exc.message) from None
     except tomllib.TOMLDecodeError as exc:
         message = str(exc)
         location = _TOML_LOCATION.search(message)
@@ -288,8 +310,8 @@ def parse_schedule(text: str, path: str = "<string>") -> Schedule:
 def load_schedule(path: str | pathlib.Path) -> Schedule:
     """Load and validate a schedule file."""
     try:
-        text = pathlib.Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
+        text = read_text_file(path)  # a regular file of at most 1 MiB
+    except (OSError, ValueError) as exc:  # unreadable, not UTF-8, beyond the limits, a NUL in the name
         reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
         raise ScheduleError(str(path), None, None, f"cannot read schedule file: {reason}") from None
     return parse_schedule(text, str(path))
@@ -318,7 +340,12 @@ def resolve_schedule(name_or_path: str) -> Schedule:
     """A builtin schedule by name, else the schedule file at that path."""
     if name_or_path in builtin_names():
         return load_builtin(name_or_path)
-    if not pathlib.Path(name_or_path).exists():
+    try:
+        exists = pathlib.Path(name_or_path).exists()
+    except (OSError, ValueError) as exc:  # a name too long for the file system, a NUL character
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise ScheduleError(_show(name_or_path), None, None, f"cannot read schedule file: {reason}") from None
+    if not exists:
         raise ScheduleError(str(name_or_path), None, None,
                             f"no such schedule file or builtin name (builtins: {', '.join(builtin_names())})")
     return load_schedule(name_or_path)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import re
 import subprocess
 import sys
@@ -16,6 +17,7 @@ import pytest
 import schedules
 from bench.cli import schedules as schedules_cli
 from schedules import ScheduleError, load_builtin, load_schedule, parse_schedule
+from schedules.tomlinput import nesting_error_line
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
@@ -338,3 +340,100 @@ def test_cli_validate(tmp_path, capsys):
     assert len(errors) == 2
     assert errors[0].startswith(f"{bad}:11: position[2].angles_deg: ")
     assert errors[1].startswith(f"{tmp_path / 'missing.toml'}: ")
+
+
+# --- input limits (issue 13 item 8) -----------------------------------------------------------
+
+DIGITS_400 = "1" + "0" * 399
+
+
+@pytest.mark.parametrize("text, line, field, fragment", [
+    (_positions_file(f"[[position]]\nangles_deg = [0, 0, {DIGITS_400}]\n"), 8, "position[1].angles_deg",
+     "inner angle 1.000e+399 (a 400-digit integer) is outside [0, 360) deg"),
+    (_positions_file("[[position]]\nangles_deg = [0, nan, 0]\n", kind="table-check"), 8, "position[1].angles_deg",
+     "middle angle nan is outside [0, 360)"),
+    (_positions_file(f"[[position]]\nangles_deg = [0, 0, 0]\ngroup = {DIGITS_400}\n"), 9, "position[1].group",
+     "must be a positive integer in 1..10000, got 1.000e+399 (a 400-digit integer)"),
+    (_positions_file("[[position]]\nangles_deg = [0, 0, 0]\ngroup = 10001\n"), 9, "position[1].group", "1..10000"),
+    (HEAD + 'kind = "rotations"\n\n' + ROTATION.replace("= 1", f"= {DIGITS_400}"), 11, "rotation[1].revolutions",
+     "must be a whole number in 1..100, got 1.000e+399"),
+    (HEAD + 'kind = "rotations"\n\n' + ROTATION.replace("= 1", "= 101"), 11, "rotation[1].revolutions",
+     "must be a whole number in 1..100, got 101"),
+    (HEAD + 'kind = "rotations"\n\n' + ROTATION.replace("= 1", "= 1000000000000"), 11, "rotation[1].revolutions",
+     "in 1..100"),
+    (_positions_file("[[position]]\nangles_deg = " + "[" * 5000 + "]" * 5000 + "\n"), 8, None,
+     "arrays and inline tables nested more than 32 levels deep"),
+    (_positions_file("[[position]]\nangles_deg = [0, 0, 0]\nx = " + "{a=" * 3000 + "1" + "}" * 3000 + "\n"), 9, None,
+     "nested more than 32 levels deep"),
+    (_positions_file("[[position]]\nangles_deg = [0, 0, " + "1" * 5000 + "]\n"), 8, None,
+     "an integer with more than 4300 digits"),
+    (HEAD + 'kind = "table-check"\nposition = [' + ", ".join(f"{{angles_deg = [0, 0, {i / 100}]}}"
+                                                             for i in range(10_001)) + "]\n",
+     6, "position", "10001 [[position]] tables: a schedule holds at most 10000 steps"),
+    (HEAD.replace('name = "t"', 'name = "t"\nsource = ' + "[" * 20 + "]" * 20) + 'kind = "positions"\n', 4, "source",
+     "must be a string, got [[[[[[[[[[[[[[[[[[[[]]]]]]]]]]]]]]]]]]]]"),
+    (HEAD.replace("version = 1", f"version = {DIGITS_400}"), 2, "version",
+     "unsupported version 1.000e+399 (a 400-digit integer) (supported: 1)"),
+], ids=["angle-400-digits", "angle-nan", "group-400-digits", "group-10001", "revolutions-400-digits",
+        "revolutions-101", "revolutions-1e12", "deep-array", "deep-inline-table", "5000-digits", "10001-steps",
+        "deep-source", "version-400-digits"])
+def test_out_of_range_and_oversized_values_give_one_located_line(tmp_path, text, line, field, fragment):
+    path = tmp_path / "s.toml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(ScheduleError) as info:
+        load_schedule(path)
+    error = info.value
+    assert (error.path, error.line, error.field) == (str(path), line, field), str(error)
+    assert fragment in error.message and "\n" not in str(error), str(error)
+    assert len(str(error)) < 400, str(error)
+
+
+def test_limits_hold_at_their_edges():
+    rotations = parse_schedule(HEAD + 'kind = "rotations"\n\n' + ROTATION.replace("= 1", "= 100"))
+    assert rotations.rotations[0].revolutions == 100
+    positions = parse_schedule(_positions_file("[[position]]\nangles_deg = [0, 0, 270]\ngroup = 10000\n"))
+    assert positions.positions[0].group == 10000
+    many = HEAD + 'kind = "table-check"\nposition = [' + ", ".join(f"{{angles_deg = [0, 0, {i / 100}]}}"
+                                                                 for i in range(10_000)) + "]\n"
+    assert len(parse_schedule(many).positions) == 10_000
+
+
+def test_only_small_regular_files_are_read(tmp_path):
+    """/dev/zero would fill the memory, a FIFO without a writer would block: neither is read."""
+    for special, fragment in (("/dev/zero", "not a regular file (a character device)"),
+                              (str(tmp_path), "Is a directory")):
+        with pytest.raises(ScheduleError) as info:
+            load_schedule(special)
+        assert str(info.value) == f"{special}: cannot read schedule file: {fragment}"
+    fifo = tmp_path / "fifo.toml"
+    os.mkfifo(fifo)
+    with pytest.raises(ScheduleError, match=r"not a regular file \(a FIFO\)"):
+        load_schedule(fifo)
+    big = tmp_path / "big.toml"
+    good = schedules.builtin_path("optimal-24").read_text(encoding="utf-8")
+    big.write_text(good + "#" * (1024 * 1024 - len(good)), encoding="utf-8")  # exactly 1 MiB: read
+    assert load_schedule(big).name == "optimal-24"
+    with big.open("a", encoding="utf-8") as f:
+        f.write("\n")
+    with pytest.raises(ScheduleError) as info:
+        load_schedule(big)
+    assert str(info.value) == f"{big}: cannot read schedule file: larger than the 1 MiB limit for input files"
+
+
+@pytest.mark.parametrize("name, fragment", [("a\0b.toml", "no such schedule file|embedded null byte"),
+                                            ("p" * 5000, "File name too long")], ids=["nul", "long"])
+def test_unusable_schedule_names_are_schedule_errors(name, fragment):
+    with pytest.raises(ScheduleError, match=fragment) as info:
+        schedules.resolve_schedule(name)
+    assert "\n" not in str(info.value) and len(str(info.value)) < 300
+    with pytest.raises(ScheduleError, match=fragment):
+        load_schedule(name)
+
+
+def test_nesting_check_skips_strings_and_comments():
+    deep = "[" * 40
+    text = (f'# {deep}\na = "{deep} \\" {deep}"\nb = \'{deep}\'\nc = """\n{deep}\\"""\n{deep}"""\n'
+            f"d = '''{deep}\n'''\ne = [[1], {{ f = [2] }}]  # {deep}\n")
+    assert nesting_error_line(text) is None
+    assert nesting_error_line(text + "g = " + "[" * 33 + "]" * 33 + "\n") == 10
+    assert nesting_error_line("h = " + "[" * 32 + "]" * 32) is None
