@@ -4,6 +4,7 @@ file gives one ConfigError line naming the file, line and key; the TOML line loc
 from __future__ import annotations
 
 import json
+import math
 import pickle
 import re
 import tomllib
@@ -16,7 +17,7 @@ from hypothesis import strategies as st
 
 from bench.config.load import SIM_CONFIG_TOML, BenchConfig, ConfigError, default_sim_config, load_config, parse_config
 from bench.model.imu import NoiseModel, default_sim_imu
-from bench.model.units import ARCSEC
+from bench.model.units import ARCSEC, format_hms
 from drivers.imu import DEFAULT_FD_DBC, DEFAULT_FD_SPEC, default_fd_layout, default_layout
 from drivers.turntable import AxisLimits
 from drivers.turntable.modbus_map import RegisterMap
@@ -597,3 +598,11 @@ def test_locator_finds_what_a_writer_wrote(doc):
     lines = locate_lines(text)
     assert {path: lines.exact(*path) for path in expected} == expected
     assert set(leaf_paths(parsed)) <= set(lines.lines)
+
+
+# --- input limits (issue 13 item 8) ----------------------------------------------------------
+
+def test_format_hms_of_durations_that_are_not_finite():
+    assert (format_hms(3725.4), format_hms(-5.0), format_hms(0.4)) == ("1:02:05", "0:00:00", "0:00:00")
+    assert (format_hms(math.inf), format_hms(math.nan), format_hms(-math.inf)) == ("?:??:??", "?:??:??", "0:00:00")
+    assert format_hms(1e30).endswith(":24:16")

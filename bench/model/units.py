@@ -14,6 +14,10 @@ MICRO_G = 1e-6 * G0
 
 
 def format_hms(seconds: float) -> str:
-    """A duration as h:mm:ss, rounded to the second (a negative one as 0:00:00)."""
-    total = max(0, int(round(seconds)))
+    """A duration as h:mm:ss, rounded to the second (a negative one as 0:00:00); one that is
+    not a finite number (an estimate that overflowed, NaN) as ?:??:??."""
+    try:
+        total = max(0, int(round(seconds)))
+    except (OverflowError, ValueError):  # round(inf), round(nan)
+        return "0:00:00" if seconds < 0 else "?:??:??"
     return f"{total // 3600}:{total // 60 % 60:02d}:{total % 60:02d}"
