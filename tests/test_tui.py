@@ -171,7 +171,8 @@ def test_connect_shows_table_and_imu_then_go_to_position(tmp_path):
             await wait_until(pilot, arrived, "the table to reach the position")
             await pilot.pause(0.15)
             assert "outer  10.0000" in app.query_one("#table-panel").plain
-            assert "moving to 10, -20, 5.5 deg" in events_text(app)
+            # the event-log panel is redrawn at 20 Hz: it may show the event a refresh later
+            await wait_until(pilot, lambda: "moving to 10, -20, 5.5 deg" in events_text(app), "the event log")
             controller = app.session.run.world.controller
         assert_disabled(controller, at_rest=True)           # leaving the app stops the table, servos off
     run(body)
@@ -248,7 +249,8 @@ def test_estop_from_an_open_dialog(tmp_path, dialog_key, dialog):
             await wait_until(pilot, lambda: len(app.screen_stack) == 1, "the dialog to close")
             await wait_until(pilot, lambda: not any(a.enabled for a in snap(app).table_state.axes), "servos off")
             assert_disabled(app.session.run.world.controller, at_rest=False)
-            assert "EMERGENCY STOP" in events_text(app)
+            # the event-log panel is redrawn at 20 Hz: it may show the event a refresh later
+            await wait_until(pilot, lambda: "EMERGENCY STOP" in events_text(app), "the event log")
             assert not app.session.running                   # the confirmation never started the plan
     run(body)
 
@@ -265,7 +267,9 @@ def test_a_limit_fault_mid_run_shows_in_the_table_panel_and_the_log(tmp_path):
             assert snap(app).run_state is RunState.FAILED and STEP_FAILED in snap(app).step_states
             table = app.query_one("#table-panel").plain
             assert "FAULT" in table and "middle: limit" in table, table
-            assert "fault: TurntableLimitError" in events_text(app) or "fault: Turntable" in events_text(app)
+            # the event-log panel is redrawn at 20 Hz: it may show the event a refresh later
+            await wait_until(pilot, lambda: ("fault: TurntableLimitError" in events_text(app)
+                                             or "fault: Turntable" in events_text(app)), "the event log")
             assert_disabled(app.session.run.world.controller, at_rest=False)
     run(body)
 

@@ -34,7 +34,8 @@ def test_connect_enable_disable_disconnect_keys_and_theme(tmp_path):
             await wait_until(pilot, lambda: app.session.run is None, "the disconnect")
             await pilot.pause(0.1)
             assert "link: disconnected" in app.query_one("#table-panel").plain
-            assert "disconnected" in events_text(app)
+            # the event-log panel is redrawn at 20 Hz: it may show the event a refresh later
+            await wait_until(pilot, lambda: "disconnected" in events_text(app), "the event log")
             assert app.theme == "textual-dark"
             await press(pilot, "t")
             assert app.theme == "textual-light" and not app.current_theme.dark
@@ -76,7 +77,8 @@ def test_rate_mode_stop_and_jog_on_the_simulator(tmp_path):
             assert "inner" in app.query_one("#table-panel").plain.split("-15.0000")[0].splitlines()[-1]
             assert "rate" in [line for line in app.query_one("#table-panel").plain.splitlines()
                               if line.startswith("inner")][0]
-            assert "inner turning at -15 deg/s" in events_text(app)
+            # the event-log panel is redrawn at 20 Hz: it may show the event a refresh later
+            await wait_until(pilot, lambda: "inner turning at -15 deg/s" in events_text(app), "the event log")
             await press(pilot, "v")                             # the dialog's Stop all: decelerate and hold
             dialog = await dialog_open(pilot, "RateScreen", "#stop")
             dialog.query_one("#stop").press()
@@ -120,7 +122,8 @@ def test_rate_mode_stop_and_jog_on_the_simulator(tmp_path):
             await wait_until(pilot, lambda: len(app.screen_stack) == 1, "the dialog to close")
             await wait_until(pilot, lambda: not any(a.enabled for a in snap(app).table_state.axes), "servos off")
             assert_disabled(controller, at_rest=False)
-            assert "EMERGENCY STOP" in events_text(app)
+            # the event-log panel is redrawn at 20 Hz: it may show the event a refresh later
+            await wait_until(pilot, lambda: "EMERGENCY STOP" in events_text(app), "the event log")
             await wait_until(pilot, lambda: abs(snap(app).table_state.axes[0].rate_dps) < 1e-9, "outer at rest")
         assert_disabled(controller, at_rest=True)
     run(body)
