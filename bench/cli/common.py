@@ -40,8 +40,10 @@ class ExitCode(IntEnum):
     QUALITY = 4
     #: `bench check-table` on the simulator: the estimate misses the simulated truth by more than 3 sigma
     SIM_TRUTH_MISSED = 5
-    #: stopped by Ctrl-C where nothing can move (`bench replay`)
+    #: stopped by a signal (SIGINT, SIGTERM, SIGHUP) where nothing can move (`bench replay`)
     INTERRUPTED = 130
+    #: stdout closed by its reader (`bench evaluate | head`): a quiet stop, 128 + SIGPIPE
+    BROKEN_PIPE = 141
 
 
 #: errors a command turns into one line and an exit code; anything else is a bug and raises

@@ -42,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 #: exit code when stdout is closed under us (`bench evaluate | head -3`): 128 + SIGPIPE, what a shell reports
 #: for a program SIGPIPE killed, so `set -o pipefail` sees a cut-short output as it does for any other tool
-EXIT_BROKEN_PIPE = 141
+EXIT_BROKEN_PIPE = ExitCode.BROKEN_PIPE
 
 
 def main(argv: list[str] | None = None) -> int:
