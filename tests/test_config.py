@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import pickle
 import re
 import tomllib
@@ -18,6 +19,7 @@ from hypothesis import strategies as st
 from bench.config.load import SIM_CONFIG_TOML, BenchConfig, ConfigError, default_sim_config, load_config, parse_config
 from bench.model.imu import NoiseModel, default_sim_imu
 from bench.model.units import ARCSEC, format_hms
+from bench.run.runner import compile_from_config
 from drivers.imu import DEFAULT_FD_DBC, DEFAULT_FD_SPEC, default_fd_layout, default_layout
 from drivers.turntable import AxisLimits
 from drivers.turntable.modbus_map import RegisterMap
@@ -606,3 +608,184 @@ def test_format_hms_of_durations_that_are_not_finite():
     assert (format_hms(3725.4), format_hms(-5.0), format_hms(0.4)) == ("1:02:05", "0:00:00", "0:00:00")
     assert (format_hms(math.inf), format_hms(math.nan), format_hms(-math.inf)) == ("?:??:??", "?:??:??", "0:00:00")
     assert format_hms(1e30).endswith(":24:16")
+
+
+DIGITS_400 = "1" + "0" * 399
+PLAN_LINE = 'rotations = "optimal-5s6r"'
+
+LIMIT_ERRORS = [
+    # (text, line, key, message fragment): every numeric key has a range
+    (edit(PLAN_LINE, f"{PLAN_LINE}\ndwell_s = 1e308"), 22, "plan.dwell_s", "must be <= 86400 s, got 1e+308"),
+    (edit(PLAN_LINE, f"{PLAN_LINE}\ndwell_s = 86401"), 22, "plan.dwell_s", "must be <= 86400 s"),
+    (edit(PLAN_LINE, f"{PLAN_LINE}\ndwell_s = 0"), 22, "plan.dwell_s", "must be > 0 s"),
+    (edit(PLAN_LINE, f"{PLAN_LINE}\nsettle_s = 3601"), 22, "plan.settle_s", "must be <= 3600 s"),
+    (edit(PLAN_LINE, f"{PLAN_LINE}\nrest_s = -1"), 22, "plan.rest_s", "must be >= 0 s"),
+    (edit(PLAN_LINE, f"{PLAN_LINE}\nturn_rate_dps = 1e-300"), 22, "plan.turn_rate_dps",
+     "must be >= 0.001 deg/s, got 1e-300"),
+    (edit(PLAN_LINE, f"{PLAN_LINE}\nmove_rate_dps = 1001"), 22, "plan.move_rate_dps", "must be <= 1000 deg/s"),
+    (edit(PLAN_LINE, f"{PLAN_LINE}\nturn_accel_dps2 = 0"), 22, "plan.turn_accel_dps2", "must be >= 0.001 deg/s^2"),
+    (edit(PLAN_LINE, f"{PLAN_LINE}\nmove_accel_dps2 = 1e5"), 22, "plan.move_accel_dps2", "must be <= 10000 deg/s^2"),
+    (edit(PLAN_LINE, f"{PLAN_LINE}\nrevolutions = 1000000000000"), 22, "plan.revolutions",
+     "must be <= 100, got 1000000000000"),
+    (edit(PLAN_LINE, f"{PLAN_LINE}\nrevolutions = {DIGITS_400}"), 22, "plan.revolutions",
+     "must be <= 100, got 1.000e+399 (a 400-digit integer)"),
+    (edit(PLAN_LINE, f"{PLAN_LINE}\nrevolutions = 'many'"), 22, "plan.revolutions",
+     "must be a whole number, got the string 'many' (allowed: 1 <= revolutions <= 100)"),
+    (edit(PLAN_LINE, f"{PLAN_LINE}\ndwell_s = true"), 22, "plan.dwell_s",
+     "must be a finite number, got true (a boolean) (allowed: 0 < dwell_s <= 86400 s)"),
+    (edit(PLAN_LINE, f"{PLAN_LINE}\ndwell_s = nan"), 22, "plan.dwell_s", "must be a finite number, got nan"),
+    (edit("latitude_deg = 30.27", f"latitude_deg = -{DIGITS_400}"), 5, "site.latitude_deg",
+     "must be >= -90 deg, got -1.000e+399 (a 400-digit integer)"),
+    (edit("latitude_deg = 30.27", "latitude_deg = " + "9" * 5000), 5, None, "an integer with more than 4300 digits"),
+    (edit("latitude_deg = 30.27", "latitude_deg = " + "[" * 5000 + "]" * 5000), 5, None,
+     "arrays and inline tables nested more than 32 levels deep"),
+    (edit("latitude_deg = 30.27", "latitude_deg = " + "{a=" * 3000 + "1" + "}" * 3000), 5, None,
+     "nested more than 32 levels deep"),
+    (edit('dialect = "scpi"', 'dialect = "scpi"\ntimeout_s = 61'), 10, "table.timeout_s", "must be <= 60 s"),
+    (edit('dialect = "scpi"', 'dialect = "scpi"\ntimeout_s = 1e-300'), 10, "table.timeout_s", "must be >= 0.001 s"),
+    (edit('dialect = "scpi"', 'dialect = "scpi"\nretries = 1e12'), 10, "table.retries", "must be a whole number"),
+    (edit('dialect = "scpi"', 'dialect = "scpi"\nretries = 11'), 10, "table.retries", "must be <= 10, got 11"),
+    (edit('dialect = "scpi"', 'dialect = "scpi"\nsettle_tolerance_deg = 5'), 10, "table.settle_tolerance_deg",
+     "must be <= 1 deg"),
+    (edit('dialect = "scpi"', 'dialect = "scpi"\npoll_s = 0'), 10, "table.poll_s", "must be >= 0.001 s"),
+    (edit("max_rate_dps = 50.0", "max_rate_dps = 1e9"), 12, "table.limits.outer.max_rate_dps",
+     "must be <= 1000 deg/s"),
+    (edit("max_rate_dps = 50.0", "max_rate_dps = 50.0\nmax_accel_dps2 = 1e-300"), 13,
+     "table.limits.outer.max_accel_dps2", "must be >= 0.001 deg/s^2"),
+    (edit("max_rate_dps = 50.0", "max_rate_dps = 50.0\nmin_deg = -1e308"), 13, "table.limits.outer.min_deg",
+     "must be >= -3600 deg"),
+    (edit("rate_hz = 200.0", "rate_hz = 0.5"), 17, "imu.rate_hz", "must be >= 1 Hz, got 0.5"),
+    (edit("rate_hz = 200.0", "rate_hz = 1e6"), 17, "imu.rate_hz", "must be <= 100000 Hz"),
+    (edit("rate_hz = 200.0", "rate_hz = 200.0\nbitrate = 100000000"), 18, "imu.bitrate", "must be <= 10000000"),
+    (edit('channel = "test"', "channel = -1"), 16, "imu.channel", "must be >= 0, got -1"),
+    (edit('channel = "test"', f"channel = {DIGITS_400}"), 16, "imu.channel", "must be <= 65535"),
+    (edit("rate_hz = 200.0", "rate_hz = 200.0\n[imu.identity]\ngyro_bias_stability_dph = 1e300"), 19,
+     "imu.identity.gyro_bias_stability_dph", "must be <= 3600 deg/h"),
+    (edit("rate_hz = 200.0", "rate_hz = 200.0\n[imu.identity]\nacc_bias_stability_ug = 1e6"), 19,
+     "imu.identity.acc_bias_stability_ug", "must be <= 100000 ug"),
+    (BASE + "[output]\nchunk_run_interval_s = 1e-300\n", 23, "output.chunk_run_interval_s", "must be >= 0.01 s"),
+    (BASE + "[output]\nchunk_run_interval_s = 1e300\n", 23, "output.chunk_run_interval_s", "must be <= 3600 s"),
+    (BASE + "[sim]\nseed = 4294967296\n", 23, "sim.seed", "must be <= 4294967295, got 4294967296"),
+    (BASE + "[sim]\nblack_box_arcsec = 3601\n", 23, "sim.black_box_arcsec", "must be <= 3600 arcsec"),
+    (BASE + f"[sim]\nblack_box_arcsec = [[0, 0, 0], [0, {DIGITS_400}, 0], [0, 0, 0]]\n", 23,
+     "sim.black_box_arcsec[1]", "got [0, 1000"),
+    (BASE + "[sim]\nblack_box_arcsec = [[0, 0, 0], [0, 0, 0], [0, 0, 1e308]]\n", 23, "sim.black_box_arcsec[2]",
+     "(allowed: -3600 <= angle <= 3600 arcsec)"),
+    (BASE + "[sim.noise]\ngyro_arw_deg_rt_h = 11\n", 23, "sim.noise.gyro_arw_deg_rt_h", "must be <= 10 deg/sqrt(h)"),
+    (BASE + "[sim.noise]\nacc_vrw_ug_rt_hz = 1e300\n", 23, "sim.noise.acc_vrw_ug_rt_hz",
+     "must be <= 10000 ug/sqrt(Hz)"),
+    (BASE + "[sim.noise]\ncorrelation_time_s = 1e7\n", 23, "sim.noise.correlation_time_s", "must be <= 1e+06 s"),
+    (BASE + "[sim.imu]\nKg_x = 1e7\n", 23, "sim.imu.Kg_x", "must be <= 1e+06 counts/s per deg/s"),
+    (BASE + f"[sim.imu]\nD0_x = {DIGITS_400}\n", 23, "sim.imu.D0_x", "must be <= 36000 deg/h"),
+    (BASE + "[sim.imu]\nK0_y = -2\n", 23, "sim.imu.K0_y", "must be >= -1 g"),
+    (BASE + "[sim.imu]\nEg_Yx = 1e300\n", 23, "sim.imu.Eg_Yx", "must be <= 1, got 1e+300"),
+    (edit('dialect = "scpi"', 'dialect = "modbus"\n[table.modbus]\nangle_scale_deg = 0',
+          edit('url = "tcp://127.0.0.1:5000"', 'url = "modbus+tcp://127.0.0.1:5020"')), 11,
+     "table.modbus.angle_scale_deg", "must be >= 1e-09 deg, got 0"),
+    (edit('dialect = "scpi"', f'dialect = "modbus"\n[table.modbus]\nwatchdog_s = {DIGITS_400}',
+          edit('url = "tcp://127.0.0.1:5000"', 'url = "modbus+tcp://127.0.0.1:5020"')), 11,
+     "table.modbus.watchdog_s", "must be <= 3600 s"),
+    # missing keys point at the table they belong in
+    (edit('url = "tcp://127.0.0.1:5000"\n', ""), 7, "table.url", "missing required key"),
+    (edit('channel = "test"\n', ""), 14, "imu.channel", "missing required key"),
+    # [table] only implied by [table.limits.outer]: its line
+    (edit('[table]\nurl = "tcp://127.0.0.1:5000"\ndialect = "scpi"\n', ""), 8, "table.url", "missing required key"),
+]
+LIMIT_IDS = ["dwell-1e308", "dwell-86401", "dwell-0", "settle", "rest", "turn-rate-1e-300", "move-rate",
+             "turn-accel", "move-accel", "revolutions-1e12", "revolutions-400-digits", "revolutions-string",
+             "dwell-bool", "dwell-nan", "latitude-400-digits", "5000-digits", "deep-array", "deep-inline-table",
+             "timeout-61", "timeout-tiny", "retries-float", "retries-11", "tolerance", "poll", "limit-rate",
+             "limit-accel", "min-deg", "rate-hz-0.5", "rate-hz-1e6", "bitrate", "channel-negative", "channel-huge",
+             "gyro-stability", "acc-stability", "chunk-tiny", "chunk-huge", "seed", "black-box-rms",
+             "black-box-400-digits", "black-box-1e308", "arw", "vrw", "correlation", "Kg", "D0", "K0", "Eg",
+             "modbus-scale", "modbus-watchdog", "missing-url", "missing-channel", "missing-url-implied-table"]
+
+
+@pytest.mark.parametrize("text, line, key, fragment", LIMIT_ERRORS, ids=LIMIT_IDS)
+def test_out_of_range_values_give_one_located_line(text, line, key, fragment):
+    err = error_of(text)
+    assert (err.path, err.line, err.key) == ("bench.toml", line, key), str(err)
+    assert fragment in err.message and "\n" not in str(err) and len(str(err)) < 400, str(err)
+
+
+def test_every_range_holds_at_its_edges():
+    text = edit(PLAN_LINE, f"{PLAN_LINE}\ndwell_s = 86400\nsettle_s = 3600\nrest_s = 0\nmove_rate_dps = 1000\n"
+                "move_accel_dps2 = 10000\nturn_rate_dps = 0.001\nturn_accel_dps2 = 0.001\nrevolutions = 100")
+    text = edit("[table.limits.outer]\nmax_rate_dps = 50.0",
+                "timeout_s = 60\nretries = 10\nsettle_tolerance_deg = 1e-6\npoll_s = 10\n" + "".join(
+                    f"[table.limits.{frame}]\nmax_rate_dps = 1000\nmax_accel_dps2 = 10000\n"
+                    for frame in ("outer", "inner", "middle")) + "min_deg = -3600\nmax_deg = 3600\n", text)
+    text = edit("rate_hz = 200.0", "rate_hz = 100000\nbitrate = 10000000\n[imu.identity]\n"
+                "gyro_bias_stability_dph = 3600\nacc_bias_stability_ug = 100000", text)
+    text += ("[output]\nchunk_run_interval_s = 0.01\n[sim]\nseed = 4294967295\n"
+             "black_box_arcsec = [[3600, -3600, 0], [0, 0, 0], [0, 0, 0]]\n[sim.noise]\ngyro_arw_deg_rt_h = 10\n"
+             "gyro_bias_instability_dph = 3600\nacc_vrw_ug_rt_hz = 10000\nacc_bias_instability_ug = 100000\n"
+             "correlation_time_s = 1e6\n[sim.imu]\nKg_x = 1e6\nKa_z = 1e6\nD0_y = -36000\nK0_x = 1\n")
+    config = parse(text)
+    assert (config.plan.dwell_s, config.plan.revolutions, config.plan.turn_rate_dps) == (86400, 100, 0.001)
+    assert (config.imu.rate_hz, config.sim.seed, config.output.chunk_run_interval_s) == (100000, 2 ** 32 - 1, 0.01)
+    assert config.table.limits.axes[1] == AxisLimits(-3600, 3600, 1000, 10000)
+    assert "\n" in compile_from_config(config).format_dry_run()
+
+
+def test_dry_run_of_the_longest_plan_the_ranges_allow_prints_finite_estimates():
+    text = edit(PLAN_LINE, 'rotations = "all-96"\ndwell_s = 86400\nturn_rate_dps = 0.001\nrevolutions = 100',
+                edit('positions = "optimal-24"', 'positions = "all-64"'))
+    out = compile_from_config(parse(text)).format_dry_run()
+    assert "?:??:??" not in out and "inf" not in out and "nan" not in out
+
+
+def test_only_small_regular_files_are_read(tmp_path):
+    for special, fragment in (("/dev/zero", "not a regular file (a character device)"),
+                              (str(tmp_path), "Is a directory")):
+        with pytest.raises(ConfigError) as info:
+            load_config(special)
+        assert str(info.value) == f"{special}: cannot read the configuration file: {fragment}"
+    fifo = tmp_path / "fifo.toml"
+    os.mkfifo(fifo)
+    with pytest.raises(ConfigError, match=r"not a regular file \(a FIFO\)"):
+        load_config(fifo)  # does not wait for a writer
+    big = tmp_path / "bench.toml"
+    big.write_text(BASE + "#" * (1024 * 1024 - len(BASE)), encoding="utf-8")  # exactly 1 MiB: read
+    assert load_config(big).plan.positions.name == "optimal-24"
+    big.write_text(BASE + "#" * (1024 * 1024 - len(BASE) + 1), encoding="utf-8")
+    with pytest.raises(ConfigError) as info:
+        load_config(big)
+    assert str(info.value) == f"{big}: cannot read the configuration file: larger than the 1 MiB limit for input files"
+    latin1 = tmp_path / "latin1.toml"
+    latin1.write_bytes(BASE.encode() + b"# caf\xe9\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(latin1)
+    assert info.value.line == 22  # where the bad byte is
+
+
+MODBUS_URL = ('url = "tcp://127.0.0.1:5000"', 'url = "modbus+tcp://127.0.0.1:5020"')
+REFERENCES = {  # key: (line, dotted key, the BASE edit that sets it to {value})
+    "dbc": (18, "imu.dbc", ("rate_hz = 200.0", "rate_hz = 200.0\ndbc = {value}"), BASE),
+    "register_map": (10, "table.register_map", ('dialect = "scpi"', 'dialect = "modbus"\nregister_map = {value}'),
+                     edit(*MODBUS_URL)),
+    "positions": (20, "plan.positions", ('positions = "optimal-24"', "positions = {value}"), BASE),
+}
+
+
+@pytest.mark.parametrize("name", sorted(REFERENCES))
+@pytest.mark.parametrize("value, fragment", [
+    ('"/dev/zero"', "not a regular file"), ('"folder"', "not a regular file"),
+    ('"big"', "larger than the 1 MiB limit"), ('"a\\u0000b"', "must not contain a NUL character"),
+    ('"~nosuchuser-fuzz/x"', "cannot expand '~nosuchuser-fuzz/x'"), ('"' + "p" * 5000 + '"', "File name too long"),
+], ids=["dev-zero", "directory", "big", "nul", "unknown-user", "long-name"])
+def test_a_referenced_file_must_be_a_small_regular_file(tmp_path, name, value, fragment):
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "big").write_bytes(b"#" * (1024 * 1024 + 1))
+    line, key, (old, new), base = REFERENCES[name]
+    err = error_of(edit(old, new.format(value=value), base), base_dir=tmp_path)
+    if value == '"big"' and name != "dbc":  # refused by the reader of that file, which it names
+        assert (err.path, err.line) == (str(tmp_path / "big"), None) and fragment in err.message, str(err)
+    else:
+        assert (err.path, err.line, err.key) == ("bench.toml", line, key) and fragment in err.message, str(err)
+    assert len(str(err)) < 400, str(err)
+
+
+def test_output_folder_with_an_unknown_user_is_a_config_error():
+    err = error_of(BASE + '[output]\nfolder = "~nosuchuser-fuzz/runs"\n')
+    assert (err.line, err.key) == (23, "output.folder") and "cannot expand" in err.message

@@ -3,7 +3,9 @@
 `load_config(path)` reads, checks and builds everything a run needs (site, table
 limits and register map, the compiled IMU frame layout, the schedules, the simulator's
 truth) so that a bad file fails before any hardware moves, with one `ConfigError`
-line ``file:line: key: message``. Relative paths inside the file (register map, DBC,
+line ``file:line: key: message``. Every number has a documented range (the example's
+comments; a message names it); the file, a register map and a DBC are read only when
+they are regular files of at most 1 MiB. Relative paths inside the file (register map, DBC,
 schedule files) start at the file's folder; `[output] folder` starts at the current
 directory at run time.
 """
@@ -13,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,7 +23,7 @@ from typing import Any
 import can.interfaces
 import numpy as np
 
-from bench.config.reader import ConfigError, Located, Table, describe, parse_toml, read_text, suggest
+from bench.config.reader import ConfigError, Located, Table, describe, parse_toml, read_text, show, suggest
 from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
 from bench.model.families import BODY_AXES, SENSOR_AXES, canonical_names, family_of
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
@@ -31,6 +34,7 @@ from drivers.imu import DEFAULT_DBC, DEFAULT_FD_DBC, DEFAULT_FD_SPEC, DEFAULT_SP
 from drivers.turntable import DIALECTS, FRAMES, AxisLimits, TurntableLimits, check_url_dialect
 from drivers.turntable.modbus_map import RegisterMap, RegisterMapError
 from schedules import Schedule, ScheduleError, builtin_names, resolve_schedule
+from schedules.tomlinput import MAX_FILE_BYTES
 from schedules.tomllines import LineMap, locate_lines
 
 FORMAT = "turntable-bench/config"
@@ -38,6 +42,21 @@ VERSION = 1
 SIM_URL = "sim"  # table url: serve the simulated table over loopback in the configured dialect
 _BLACK_BOX_RMS_ARCSEC = 20.0  # [sim] default: a good but real table
 _NOISE_FIELDS = tuple(f.name for f in dataclasses.fields(NoiseModel))
+# Ranges shared by several keys (bench.example.toml documents each key's range).
+MAX_RATE_DPS = 1000.0          # table limits, moves and turns
+MIN_RATE_DPS = 1e-3
+MAX_ACCEL_DPS2 = 10000.0
+MIN_ACCEL_DPS2 = 1e-3
+MAX_TRAVEL_DEG = 3600.0        # |min_deg|, |max_deg|: ten turns
+MAX_BLACK_BOX_ARCSEC = 3600.0  # RMS or each angle: one degree
+#: [sim.noise] level -> (upper bound, unit); the lower bound is 0 (correlation_time_s: > 0)
+_NOISE_RANGES = {"gyro_arw_deg_rt_h": (10.0, "deg/sqrt(h)"), "gyro_bias_instability_dph": (3600.0, "deg/h"),
+                 "acc_vrw_ug_rt_hz": (10000.0, "ug/sqrt(Hz)"), "acc_bias_instability_ug": (100000.0, "ug"),
+                 "correlation_time_s": (1e6, "s")}
+#: [sim.imu] coefficient family -> (lower or None for -upper, upper, unit)
+_SIM_IMU_RANGES = {"Kg": (0.0, 1e6, "counts/s per deg/s"), "Ka": (0.0, 1e6, "counts/s per g"),
+                   "D0": (None, 36000.0, "deg/h"), "K0": (None, 1.0, "g"), "Eg": (None, 1.0, ""),
+                   "Ea": (None, 1.0, "")}
 
 __all__ = ["FORMAT", "ORDERS", "SIM_CONFIG_TOML", "SIM_URL", "VERSION", "BenchConfig", "ConfigError",
            "ImuConfig", "ImuIdentity", "OutputConfig", "PlanConfig", "SimConfig", "SiteConfig", "TableConfig",
@@ -162,28 +181,31 @@ def _site(t: Table) -> SiteConfig:
 
 def _axis_limits(t: Table) -> AxisLimits:
     default = AxisLimits()
-    min_deg, max_deg = t.number("min_deg", None, unit="deg"), t.number("max_deg", None, unit="deg")
+    min_deg, max_deg = (t.number(key, None, ge=-MAX_TRAVEL_DEG, le=MAX_TRAVEL_DEG, unit="deg")
+                        for key in ("min_deg", "max_deg"))
     if min_deg is not None and max_deg is not None and not min_deg < max_deg:
         raise t.error("max_deg", f"must be above min_deg ({min_deg:g} deg), got {max_deg:g}")
-    return AxisLimits(min_deg, max_deg, t.number("max_rate_dps", default.max_rate_dps, gt=0, unit="deg/s"),
-                      t.number("max_accel_dps2", default.max_accel_dps2, gt=0, unit="deg/s^2"))
+    return AxisLimits(min_deg, max_deg,
+                      t.number("max_rate_dps", default.max_rate_dps, ge=MIN_RATE_DPS, le=MAX_RATE_DPS, unit="deg/s"),
+                      t.number("max_accel_dps2", default.max_accel_dps2, ge=MIN_ACCEL_DPS2, le=MAX_ACCEL_DPS2,
+                               unit="deg/s^2"))
 
 
 def _table(t: Table) -> TableConfig:
     url = t.string("url", nonempty=True).strip()
     dialect = t.string("dialect", nonempty=True).strip().lower()
     if dialect not in DIALECTS:
-        raise t.error("dialect", f"unknown dialect {dialect!r}" + suggest(dialect, DIALECTS).replace(
+        raise t.error("dialect", f"unknown dialect {show(dialect)}" + suggest(dialect, DIALECTS).replace(
             " (known:", " (known dialects:"))
     if url != SIM_URL:
         try:
             check_url_dialect(url, dialect, dialect_label="table.dialect")
         except TurntableConfigError as exc:
             raise t.error("url", str(exc)) from exc
-    timeout_s = t.number("timeout_s", 0.5, gt=0, unit="s")
-    retries = t.integer("retries", 2, ge=0)
-    tolerance_deg = t.number("settle_tolerance_deg", 0.001, gt=0, unit="deg")
-    poll_s = t.number("poll_s", 0.05, gt=0, unit="s")
+    timeout_s = t.number("timeout_s", 0.5, ge=0.001, le=60.0, unit="s")
+    retries = t.integer("retries", 2, ge=0, le=10)
+    tolerance_deg = t.number("settle_tolerance_deg", 0.001, ge=1e-6, le=1.0, unit="deg")
+    poll_s = t.number("poll_s", 0.05, ge=0.001, le=10.0, unit="s")
     limits_table = t.table("limits", FRAMES)
     outer, middle, inner = (_axis_limits(limits_table.table(frame, ("min_deg", "max_deg", "max_rate_dps",
                                                                      "max_accel_dps2")))
@@ -209,8 +231,10 @@ def _register_map(t: Table, dialect: str) -> RegisterMap | None:
             raise t.error("modbus", f"must be a table ([table.modbus]), got {describe(data)}")
         return _build_map(data, t.doc.source, t.doc.lines, t.path + ("modbus",))
     path = t.file("register_map")
-    if not path.is_file():
-        raise t.error("register_map", f"no such register map file {str(path)!r}")
+    if not t.is_file("register_map", path):
+        if path.exists():  # a directory, a device such as /dev/zero, a FIFO
+            raise t.error("register_map", f"{show(str(path))} is not a regular file")
+        raise t.error("register_map", f"no such register map file {show(str(path))}")
     text = read_text(path, "the register map file")
     data, lines = parse_toml(text, str(path)), locate_lines(text)
     prefix: tuple[str, ...] = ()
@@ -226,7 +250,17 @@ def _register_map(t: Table, dialect: str) -> RegisterMap | None:
 _MAP_KEY = re.compile(r"(?:unknown key )?([A-Za-z_][\w]*(?:\.\w+)*)(?=[: ])")
 
 
+#: register map number -> (lower, upper, unit): what the driver accepts, within a sane range
+_MAP_RANGES = {"angle_scale_deg": (1e-9, 1.0, "deg"), "rate_scale_dps": (1e-9, 1.0, "deg/s"),
+               "watchdog_s": (0.0, 3600.0, "s")}
+
+
 def _build_map(data, source: str, lines: LineMap, prefix: tuple) -> RegisterMap:
+    if isinstance(data, dict):  # the driver checks the rest (types, unknown keys, registers)
+        numbers = Table(Located(source, lines, Path(".")), prefix, data, allowed=tuple(data))
+        for key, (low, high, unit) in _MAP_RANGES.items():
+            if numbers.has(key) and isinstance(data[key], (int, float)) and not isinstance(data[key], bool):
+                numbers.number(key, ge=low, le=high, unit=unit)
     try:
         return RegisterMap.from_dict(data, source=source)
     except (RegisterMapError, ValueError) as exc:
@@ -243,15 +277,21 @@ def _build_map(data, source: str, lines: LineMap, prefix: tuple) -> RegisterMap:
 def _imu(t: Table) -> ImuConfig:
     interface = t.string("interface", nonempty=True)
     if interface not in can.interfaces.VALID_INTERFACES:
-        raise t.error("interface", f"unknown python-can interface {interface!r}"
+        raise t.error("interface", f"unknown python-can interface {show(interface)}"
                       + suggest(interface, sorted(can.interfaces.VALID_INTERFACES)))
     channel = t.get("channel")
     if isinstance(channel, bool) or not isinstance(channel, (str, int)) or channel == "":
         raise t.error("channel", f"must be a non-empty string or a whole number, got {describe(channel)}")
-    bitrate = t.integer("bitrate", None, ge=1)
+    if isinstance(channel, int):
+        t.integer("channel", ge=0, le=65535)
+    bitrate = t.integer("bitrate", None, ge=1000, le=10_000_000)
     fd = t.boolean("fd", False)
-    rate_hz = t.number("rate_hz", gt=0, unit="Hz")
-    dbc = t.file("dbc") if t.has("dbc") else (DEFAULT_FD_DBC if fd else DEFAULT_DBC)
+    rate_hz = t.number("rate_hz", gt=0, ge=1.0, le=100000.0, unit="Hz")
+    if t.has("dbc"):
+        dbc = t.file("dbc")
+        _check_dbc(t, dbc)
+    else:
+        dbc = DEFAULT_FD_DBC if fd else DEFAULT_DBC
     signals = t.get("signals", None)
     if signals is None:
         spec = DEFAULT_FD_SPEC if fd else DEFAULT_SPEC
@@ -281,9 +321,22 @@ def _imu(t: Table) -> ImuConfig:
                               "instead of passing it in bus_options")
     ident = t.table("identity", ("model", "serial", "gyro_bias_stability_dph", "acc_bias_stability_ug"))
     identity = ImuIdentity(ident.string("model", ""), ident.string("serial", ""),
-                           ident.number("gyro_bias_stability_dph", None, gt=0, unit="deg/h"),
-                           ident.number("acc_bias_stability_ug", None, gt=0, unit="ug"))
+                           ident.number("gyro_bias_stability_dph", None, gt=0, le=3600.0, unit="deg/h"),
+                           ident.number("acc_bias_stability_ug", None, gt=0, le=100000.0, unit="ug"))
     return ImuConfig(interface, channel, bitrate, fd, Path(dbc), rate_hz, spec, layout, bus_options, identity)
+
+
+def _check_dbc(t: Table, dbc: Path) -> None:
+    """Read a DBC only when it is a regular file of at most 1 MiB (/dev/zero would fill the memory)."""
+    try:
+        status = dbc.stat()
+    except OSError as exc:
+        raise t.error("dbc", f"cannot read the DBC file {show(str(dbc))}: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(status.st_mode):
+        raise t.error("dbc", f"cannot read the DBC file {show(str(dbc))}: not a regular file")
+    if status.st_size > MAX_FILE_BYTES:
+        raise t.error("dbc", f"cannot read the DBC file {show(str(dbc))}: larger than the "
+                             f"{MAX_FILE_BYTES >> 20} MiB limit for input files")
 
 
 def _schedule(t: Table, key: str, kind: str, revolutions: int | None) -> Schedule | None:
@@ -294,10 +347,12 @@ def _schedule(t: Table, key: str, kind: str, revolutions: int | None) -> Schedul
         if name in builtin_names():
             schedule = resolve_schedule(name)
         else:
-            path = Path(name).expanduser()
-            path = path if path.is_absolute() else t.doc.base_dir / path
-            if not path.is_file():
-                raise t.error(key, f"no builtin schedule {name!r} and no such file {str(path)!r}"
+            path = t.resolve(key, name)
+            if not t.is_file(key, path):
+                if path.exists():  # a directory, a device such as /dev/zero, a FIFO
+                    raise t.error(key, f"{show(str(path))} is not a regular file (a schedule file or one of the "
+                                       f"builtins: {', '.join(builtin_names())})")
+                raise t.error(key, f"no builtin schedule {show(name)} and no such file {show(str(path))}"
                               + suggest(name, builtin_names()).replace(" (known:", " (builtins:"))
             schedule = resolve_schedule(str(path))
     except ScheduleError as exc:  # it names the schedule file, line and field already
@@ -312,20 +367,22 @@ def _schedule(t: Table, key: str, kind: str, revolutions: int | None) -> Schedul
 
 
 def _plan(t: Table, limits: TurntableLimits) -> PlanConfig:
-    revolutions = t.integer("revolutions", None, ge=1)
+    revolutions = t.integer("revolutions", None, ge=1, le=100)
     order = t.string("order", "optimal", choices=ORDERS)
     positions = _schedule(t, "positions", "positions", revolutions)
     rotations = _schedule(t, "rotations", "rotations", revolutions)
     if positions is None and rotations is None:
         raise t.error(None, "the plan needs a positions schedule, a rotations schedule or both "
                             "(plan.positions / plan.rotations)")
-    values = {"dwell_s": t.number("dwell_s", 60.0, gt=0, unit="s"),
-              "settle_s": t.number("settle_s", 5.0, ge=0, unit="s"),
-              "move_rate_dps": t.number("move_rate_dps", 20.0, gt=0, unit="deg/s"),
-              "move_accel_dps2": t.number("move_accel_dps2", 10.0, gt=0, unit="deg/s^2"),
-              "turn_rate_dps": t.number("turn_rate_dps", 10.0, gt=0, unit="deg/s"),
-              "turn_accel_dps2": t.number("turn_accel_dps2", 5.0, gt=0, unit="deg/s^2"),
-              "rest_s": t.number("rest_s", 2.0, ge=0, unit="s")}
+    values = {"dwell_s": t.number("dwell_s", 60.0, gt=0, le=86400.0, unit="s"),
+              "settle_s": t.number("settle_s", 5.0, ge=0, le=3600.0, unit="s"),
+              "move_rate_dps": t.number("move_rate_dps", 20.0, ge=MIN_RATE_DPS, le=MAX_RATE_DPS, unit="deg/s"),
+              "move_accel_dps2": t.number("move_accel_dps2", 10.0, ge=MIN_ACCEL_DPS2, le=MAX_ACCEL_DPS2,
+                                          unit="deg/s^2"),
+              "turn_rate_dps": t.number("turn_rate_dps", 10.0, ge=MIN_RATE_DPS, le=MAX_RATE_DPS, unit="deg/s"),
+              "turn_accel_dps2": t.number("turn_accel_dps2", 5.0, ge=MIN_ACCEL_DPS2, le=MAX_ACCEL_DPS2,
+                                          unit="deg/s^2"),
+              "rest_s": t.number("rest_s", 2.0, ge=0, le=3600.0, unit="s")}
     # Moves drive every axis; turns only the frames the rotation schedule turns.
     turned = sorted({step.frame_index for step in rotations.rotations}) if rotations else []
     for key, attr, frames in (("move_rate_dps", "max_rate_dps", range(3)),
@@ -348,14 +405,17 @@ def _black_box(t: Table, seed: int) -> tuple[float | tuple, np.ndarray]:
         if len(value) != 3:
             raise t.error("black_box_arcsec", f"must be 3 rows (o0, m0, i0) of 3 angles, got {len(value)} rows")
         for i, row in enumerate(value):
+            # Compared before any float(): a 400-digit integer compares exactly; NaN fails.
             if not (isinstance(row, list) and len(row) == 3
-                    and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-                            for v in row)):
+                    and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                            and -MAX_BLACK_BOX_ARCSEC <= v <= MAX_BLACK_BOX_ARCSEC for v in row)):
                 raise t.doc.error(t.path + ("black_box_arcsec", i),
-                                  f"must be 3 finite angles [alpha, beta, gamma] in arcsec, got {row!r}")
+                                  f"must be 3 finite angles [alpha, beta, gamma] in arcsec, got {show(row)} "
+                                  f"(allowed: -{MAX_BLACK_BOX_ARCSEC:g} <= angle <= {MAX_BLACK_BOX_ARCSEC:g} "
+                                  "arcsec)")
             rows.append(tuple(float(v) for v in row))
         return tuple(rows), np.array(rows) * ARCSEC
-    rms_arcsec = t.number("black_box_arcsec", _BLACK_BOX_RMS_ARCSEC, ge=0, unit="arcsec")
+    rms_arcsec = t.number("black_box_arcsec", _BLACK_BOX_RMS_ARCSEC, ge=0, le=MAX_BLACK_BOX_ARCSEC, unit="arcsec")
     return rms_arcsec, np.random.default_rng(seed).standard_normal((3, 3)) * rms_arcsec * ARCSEC
 
 
@@ -375,14 +435,18 @@ def _noise(t: Table) -> NoiseModel:
         elif not enabled:
             raise n.error(name, "noise levels need sim.noise.enabled = true")
         else:
+            high, unit = _NOISE_RANGES[name]
             changes[name] = n.number(name, gt=0 if name == "correlation_time_s" else None,
-                                     ge=None if name == "correlation_time_s" else 0)
+                                     ge=None if name == "correlation_time_s" else 0, le=high, unit=unit)
     return dataclasses.replace(base, **changes)
 
 
 def _sim_imu(t: Table) -> tuple[ImuCoefficients, dict]:
     s = t.table("imu", canonical_names())
-    overrides = {name: s.number(name, gt=0 if family_of(name) in ("Kg", "Ka") else None) for name in s.data}
+    overrides = {}
+    for name in s.data:
+        low, high, unit = _SIM_IMU_RANGES[family_of(name)]
+        overrides[name] = s.number(name, gt=low, ge=None if low is not None else -high, le=high, unit=unit)
     values = {**default_sim_imu().to_canonical(), **overrides}
     # Direction-cosine rows are unit vectors: a row with overrides gets its diagonal
     # from its off-diagonals, unless the diagonal is given too (then it must fit).
@@ -408,7 +472,7 @@ def _sim_imu(t: Table) -> tuple[ImuCoefficients, dict]:
 
 
 def _sim(t: Table) -> SimConfig:
-    seed = t.integer("seed", 0, ge=0)
+    seed = t.integer("seed", 0, ge=0, le=2 ** 32 - 1)
     written, black_box_rad = _black_box(t, seed)
     imu, overrides = _sim_imu(t)
     return SimConfig(seed, written, black_box_rad, _noise(t), imu, overrides)
@@ -424,7 +488,7 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
     root = Table(located, (), doc, ("format", "version", "site", "table", "imu", "plan", "output", "sim"))
     fmt = root.string("format")
     if fmt != FORMAT:
-        raise root.error("format", f"expected {FORMAT!r}, got {fmt!r}")
+        raise root.error("format", f"expected {FORMAT!r}, got {show(fmt)}")
     version = root.get("version")
     if isinstance(version, bool) or version != VERSION:
         raise root.error("version", f"unsupported version: must be {VERSION}, got {describe(version)}")
@@ -437,8 +501,8 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
                                      "move_accel_dps2", "turn_rate_dps", "turn_accel_dps2", "rest_s", "revolutions",
                                      "order"), required=True), table.limits)
     out = root.table("output", ("folder", "chunk_run_interval_s"))
-    output = OutputConfig(Path(out.string("folder", "runs", nonempty=True)).expanduser(),
-                          out.number("chunk_run_interval_s", None, gt=0, unit="s"))
+    output = OutputConfig(out.path_value("folder", out.string("folder", "runs", nonempty=True)),
+                          out.number("chunk_run_interval_s", None, gt=0, ge=0.01, le=3600.0, unit="s"))
     sim = _sim(root.table("sim", ("seed", "black_box_arcsec", "noise", "imu")))
     return BenchConfig(site, table, imu, plan, output, sim, source_text=text)
 
