@@ -311,7 +311,11 @@ def load_schedule(path: str | pathlib.Path) -> Schedule:
     """Load and validate a schedule file."""
     try:
         text = read_text_file(path)  # a regular file of at most 1 MiB
-    except (OSError, ValueError) as exc:  # unreadable, not UTF-8, beyond the limits, a NUL in the name
+    except UnicodeDecodeError as exc:
+        line = exc.object[:exc.start].count(b"\n") + 1
+        raise ScheduleError(str(path), line, None, f"cannot read schedule file: not UTF-8 text ({exc.reason} at "
+                                                   f"byte {exc.start})") from None
+    except (OSError, ValueError) as exc:  # unreadable, beyond the limits, a NUL in the name
         reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
         raise ScheduleError(str(path), None, None, f"cannot read schedule file: {reason}") from None
     return parse_schedule(text, str(path))

@@ -437,3 +437,14 @@ def test_nesting_check_skips_strings_and_comments():
     assert nesting_error_line(text) is None
     assert nesting_error_line(text + "g = " + "[" * 33 + "]" * 33 + "\n") == 10
     assert nesting_error_line("h = " + "[" * 32 + "]" * 32) is None
+
+
+def test_a_file_that_is_not_utf8_names_the_line(tmp_path):
+    path = tmp_path / "latin1.toml"
+    text = _positions_file("[[position]]\nangles_deg = [0, 0, 0]  # caf\xe9\n")
+    path.write_bytes(text.encode("latin-1"))
+    at = text.index("\xe9")
+    with pytest.raises(ScheduleError) as info:
+        load_schedule(path)
+    assert str(info.value) == (f"{path}:8: cannot read schedule file: not UTF-8 text (invalid continuation byte "
+                               f"at byte {at})")
