@@ -5,6 +5,17 @@ plausibility checks used to resynchronise after damage, the vectorised framing o
 chunk by its message index, and `Prefetch`, which decompresses and frames chunks on
 worker threads ahead of the walk (zstd, zlib and numpy release the GIL). Everything
 here is pure: the walk decides what to do with what it returns.
+
+Limits (a log from outside is hostile): a chunk may declare at most `MAX_CHUNK_BYTES`
+uncompressed, and it must inflate to exactly what it declares, whatever its compression
+(zstd, lz4 or none): at most that many bytes are ever produced, a size that does not
+match is damage of that chunk (`ChunkRefused`), and a chunk declaring more than the limit
+is not decompressed at all. A zstd or lz4 frame that states its own content size is
+checked against the chunk header before anything is allocated; one that does not is
+decompressed in steps, never past the declared size. All the chunks of one log together
+inflate to at most `inflate_budget(file size)` (`MAX_INFLATE_RATIO` times the file plus
+`INFLATE_ALLOWANCE`, at most `MAX_LOG_INFLATED`): recorded logs inflate 3 to 7 times, a
+decompression bomb thousands of times.
 """
 
 from __future__ import annotations
@@ -51,44 +62,158 @@ MESSAGE_DATA_OFFSET = 9 + 22                   # record header + message header
 #: (start, end, uncompressed size, crc, compression, data start, data length) of a chunk record
 ChunkFields = tuple[int, int, int, int, str, int, int]
 
+#: The most a chunk may declare (and inflate to) uncompressed. The recorder closes its chunks at
+#: 4 MiB (`McapRecorder(chunk_size=...)`); a chunk declaring more is damage, never decompressed.
+MAX_CHUNK_BYTES = 256 << 20
+#: What the chunks of one log may inflate to in all: `MAX_INFLATE_RATIO` times the file's size plus
+#: `INFLATE_ALLOWANCE`, and never more than `MAX_LOG_INFLATED` (see `inflate_budget`). Chunks past
+#: the budget (in file order, each counted at its declared size) are damage, never decompressed.
+MAX_INFLATE_RATIO = 16
+INFLATE_ALLOWANCE = 256 << 20
+MAX_LOG_INFLATED = 1 << 30
+#: Records a log may hold outside chunks (a recorded log holds a few per chunk); the walk reads no further.
+MAX_RECORDS = 1_000_000
+#: Schema and channel records a chunk may hold (a recorded log has six channels).
+MAX_DEFINITIONS = 4096
+#: Decompressed chunks the prefetch may hold ahead of the walk, in bytes (at least one chunk).
+PREFETCH_BYTES = 64 << 20
+_FIRST_STEP, _MAX_STEP = 1 << 20, 64 << 20   # output steps of a frame that does not state its size
+
+
+def inflate_budget(file_size: int) -> int:
+    """The total uncompressed size the chunks of a log of `file_size` bytes may declare (see above)."""
+    return min(MAX_LOG_INFLATED, INFLATE_ALLOWANCE + MAX_INFLATE_RATIO * file_size)
+
+
+@dataclass
+class InflateBudget:
+    """What the chunks of one log may still inflate to: each chunk is counted at its declared size when
+    it is decompressed (a deferred chunk when it is first needed), in that order."""
+
+    total: int
+    used: int = 0
+
+    def take(self, size: int) -> str | None:
+        """Count a chunk of `size` bytes; the reason it may not be decompressed (`over_limits`) instead."""
+        reason = over_limits(size, self.used, self.total)
+        if reason is None:
+            self.used += size
+        return reason
+
 
 class WalkError(BenchError):
     """The file cannot be read as MCAP at all (the caller turns this into its own error)."""
+
+
+class ChunkRefused(Exception):
+    """A chunk not decompressed, or not kept, because of its size; the message is the reason (damage)."""
 
 
 def body_stream(buf, start: int, end: int) -> ReadDataStream:
     return ReadDataStream(BytesIO(bytes(buf[start:end])))
 
 
+def _bounded(read, size: int, stated: bool) -> bytes:
+    """What `read(n)` gives until it gives nothing, at most `size + 1` bytes: in one step when the frame
+    `stated` its size (already checked equal to `size`), else in growing steps (nothing is allocated
+    for output that does not come)."""
+    parts, total = [], 0
+    step = size + 1 if stated else min(size + 1, _FIRST_STEP)
+    while total <= size:
+        piece = read(min(step, size + 1 - total))
+        if not piece:
+            break
+        parts.append(piece)
+        total += len(piece)
+        step = min(2 * step, _MAX_STEP)
+    if total > size:
+        raise ChunkRefused(f"inflates to more than the {size} bytes its header says; not decompressed further")
+    return parts[0] if len(parts) == 1 else b"".join(parts)
+
+
+def _zstd(payload, size: int) -> bytes:
+    if zstandard is None:
+        raise WalkError("zstd chunks need the zstandard package")
+    stated = zstandard.frame_content_size(payload)   # -1: not stated; ZstdError: not a zstd frame
+    if stated >= 0 and stated != size:
+        raise ChunkRefused(f"its zstd frame says {stated} bytes, its header {size}; not decompressed")
+    if stated >= 0:   # zstd itself checks the output against the stated size
+        return zstandard.ZstdDecompressor().decompress(payload)
+    return _bounded(zstandard.ZstdDecompressor().stream_reader(payload).read, size, False)
+
+
+def _lz4(payload, size: int) -> bytes:
+    if lz4_frame is None:
+        raise WalkError("lz4 chunks need the lz4 package")
+    stated = lz4_frame.get_frame_info(payload)["content_size"]   # 0: not stated; RuntimeError: not lz4
+    if stated and stated != size:
+        raise ChunkRefused(f"its lz4 frame says {stated} bytes, its header {size}; not decompressed")
+    d = lz4_frame.LZ4FrameDecompressor()
+    pending = [payload]
+
+    def read(n: int) -> bytes:
+        return b"" if d.eof else d.decompress(pending.pop() if pending else b"", max_length=n)
+
+    data = _bounded(read, size, bool(stated))
+    if not d.eof:
+        raise ValueError("the lz4 frame is cut short")
+    return data
+
+
 def _decompress(compression: str, payload, size: int) -> bytes:
+    """The chunk's data, exactly `size` bytes (ChunkRefused, or the library's error, otherwise)."""
+    if size > MAX_CHUNK_BYTES:
+        raise ChunkRefused(f"declares {size} bytes uncompressed, more than a chunk may hold "
+                           f"({MAX_CHUNK_BYTES} bytes); not decompressed")
     if compression == "":
-        return bytes(payload)
-    if compression == "zstd":
-        if zstandard is None:
-            raise WalkError("zstd chunks need the zstandard package")
-        return zstandard.ZstdDecompressor().decompress(payload, max_output_size=size)
-    if compression == "lz4":
-        if lz4_frame is None:
-            raise WalkError("lz4 chunks need the lz4 package")
-        return lz4_frame.decompress(payload)
-    raise ValueError(f"unknown compression {compression!r}")
+        data = payload
+    elif compression == "zstd":
+        data = _zstd(payload, size)
+    elif compression == "lz4":
+        data = _lz4(payload, size)
+    else:
+        raise ValueError(f"unknown compression {compression!r}")
+    if len(data) != size:
+        raise ChunkRefused(f"decompressed to {len(data)} bytes, header says {size}")
+    return bytes(data) if compression == "" else data
+
+
+def over_limits(size: int, used: int, budget: int) -> str | None:
+    """Why a chunk declaring `size` bytes is not decompressed when the chunks before it declared `used`
+    of the log's `budget` (`inflate_budget`); None if it may be."""
+    if size > MAX_CHUNK_BYTES:
+        return (f"declares {size} bytes uncompressed, more than a chunk may hold ({MAX_CHUNK_BYTES} bytes); "
+                "not decompressed")
+    if used + size > budget:
+        return (f"declares {size} bytes uncompressed, past what this log's chunks may inflate to in all "
+                f"({budget} bytes: {MAX_INFLATE_RATIO} times the file's size plus {INFLATE_ALLOWANCE} bytes, "
+                f"at most {MAX_LOG_INFLATED}); not decompressed")
+    return None
+
+
+def chunk_failure(compression: str, exc: BaseException) -> str:
+    """The damage reason for `inflate_chunk`'s exception."""
+    if isinstance(exc, ChunkRefused):
+        return str(exc)
+    return f"{compression or 'uncompressed'} data cannot be decompressed ({exc})"
 
 
 def inflate_chunk(compression: str, payload, size: int, crc: int):
-    """Decompress one chunk and compute its CRC (when it has one and the size is right), in a worker
-    thread: (data, computed crc or None, exception or None)."""
+    """Decompress one chunk and compute its CRC (when it has one), in a worker thread: (data, computed
+    crc or None, exception or None); the data is exactly `size` bytes (else the exception says why,
+    `chunk_failure` turns it into the damage reason)."""
     try:
         data = _decompress(compression, payload, size)
     except Exception as exc:
         return None, None, exc
-    return data, (zlib.crc32(data) if crc != 0 and len(data) == size else None), None
+    return data, (zlib.crc32(data) if crc != 0 else None), None
 
 
 def _inflate_and_frame(compression: str, payload, size: int, crc: int, buf, index: list[tuple[int, int]]):
     """`inflate_chunk`, then `index_chunk` on a good chunk with the message index records that follow it."""
     data, computed, exc = inflate_chunk(compression, payload, size, crc)
     framed = None
-    if exc is None and len(data) == size and (crc == 0 or computed == crc):
+    if exc is None and (crc == 0 or computed == crc):
         framed = index_chunk(buf, data, index)
     return data, computed, exc, framed
 
@@ -120,9 +245,7 @@ class DeferredChunk:
         exactly by its index; else a reason string."""
         data, computed, exc = inflate_chunk(self.compression, self.payload, self.size, self.crc)
         if exc is not None:
-            return f"{self.compression} data cannot be decompressed ({exc})"
-        if len(data) != self.size:
-            return f"decompressed to {len(data)} bytes, header says {self.size}"
+            return chunk_failure(self.compression, exc)
         if self.crc != 0 and computed != self.crc:
             return "CRC mismatch"
         framed = _frame_by_entries(data, [(self.channel, self.log_times, self.offsets)])
@@ -159,7 +282,8 @@ class Prefetch:
     AHEAD_PER_WORKER = 3
     MIN_CHUNKS = 3   # fewer: not worth the threads
 
-    def __init__(self, buf, workers: int | None = None, defer_topics: frozenset[str] = frozenset()):
+    def __init__(self, buf, workers: int | None = None, defer_topics: frozenset[str] = frozenset(),
+                 budget: int | None = None):
         self.buf = buf
         self.topics: dict[int, str] = {}
         self.chunks = self._scan(buf)
@@ -167,10 +291,16 @@ class Prefetch:
         deferred_channels = {ch for ch, topic in self.topics.items() if topic in defer_topics}
         self.deferred: dict[int, tuple] = {}
         for pos, fields, index in self.chunks if deferred_channels else ():
-            found = _deferrable(buf, fields, index, deferred_channels)
+            found = _deferrable(buf, fields, index, deferred_channels) if fields[2] <= MAX_CHUNK_BYTES else None
             if found is not None:
                 self.deferred[pos] = found
+        # the chunks within the limits, counted in file order as the walk counts them (a deferred one at its
+        # compressed size: it is kept so)
+        room = InflateBudget(inflate_budget(len(buf)) if budget is None else budget)
+        self.allowed = {pos for pos, fields, _ in self.chunks
+                        if room.take(fields[6] if pos in self.deferred else fields[2]) is None}
         self.futures: dict[int, Future] = {}
+        self.in_flight = 0   # declared bytes of the chunks submitted and not taken yet
         self.submitted = 0
         workers = workers or min(4, os.cpu_count() or 1)
         self.pool = (ThreadPoolExecutor(workers, thread_name_prefix="mcap-inflate")
@@ -184,7 +314,9 @@ class Prefetch:
         found: list[tuple[int, ChunkFields, list[tuple[int, int]]]] = []
         # the index records of the last chunk, while only such records follow it
         current: list[tuple[int, int]] | None = None
-        while pos + 9 <= size:
+        records = 0
+        while pos + 9 <= size and records < MAX_RECORDS:
+            records += 1
             op, length = RECORD_HEAD.unpack_from(buf, pos)
             end = pos + 9 + length
             if op not in OP_NAMES or end > size or op == OP_FOOTER:
@@ -217,16 +349,20 @@ class Prefetch:
             return None
         while self.submitted < min(len(self.chunks), k + 1 + self.ahead):
             cpos, (_, _, usize, crc, compression, dstart, dlen), index = self.chunks[self.submitted][:3]
-            if cpos in self.deferred:
+            if cpos in self.deferred or cpos not in self.allowed:
                 self.submitted += 1
                 continue
+            if self.futures and self.in_flight + usize > PREFETCH_BYTES:
+                break   # enough decompressed data ahead already
             self.futures[cpos] = self.pool.submit(_inflate_and_frame, compression,
                                                   memoryview(self.buf)[dstart:dstart + dlen], usize, crc, self.buf,
                                                   index)
+            self.in_flight += usize
             self.submitted += 1
         future = self.futures.pop(pos, None)
         if future is None:
             return None
+        self.in_flight -= self.chunks[k][1][2]
         data, computed, exc, framed = future.result()
         return data, computed, exc, (self.chunks[k][2], framed)
 
@@ -271,16 +407,43 @@ def plausible_record_at(buf, pos: int, size: int) -> bool:
     return buf[pos] in OP_NAMES   # a length past the end is a truncation, told apart by the main loop
 
 
-def resync(buf, pos: int, size: int) -> int:
-    """The offset of the next plausible chunk record after `pos`, or `size`."""
+_RESYNC_TRIES, _RESYNC_WINDOW = 64, 1 << 22
+
+
+def _chunk_candidates(buf, start: int, stop: int, size: int) -> np.ndarray:
+    """Offsets in [start, stop) of a chunk opcode followed by a length that fits the file (vectorised)."""
+    if size < 9 + 40:
+        return np.zeros(0, np.int64)
+    u8 = np.frombuffer(buf, np.uint8, count=stop - start, offset=start)
+    cand = np.flatnonzero(u8 == OP_CHUNK).astype(np.int64) + start
+    cand = cand[cand + 9 + 40 <= size]
+    if not len(cand):
+        return cand
+    lengths = np.ndarray((size - 8,), "<u8", buf, 1, (1,))[cand]
+    return cand[(lengths >= 40) & (lengths <= (size - 9 - cand).astype(np.uint64))]
+
+
+def resync(buf, pos: int, size: int, passed=None) -> int:
+    """The offset of the next plausible chunk record after `pos`, or `size`: the next few chunk opcodes
+    one by one, then windows of the file screened at once (a file of chunk opcodes takes no longer);
+    `passed(offset)` is told after each window (the walk unmaps what it has left behind)."""
     p = pos + 1
-    while True:
+    for _ in range(_RESYNC_TRIES):
         p = buf.find(b"\x06", p)
         if p < 0:
             return size
         if _plausible_chunk_at(buf, p, size):
             return p
         p += 1
+    while p < size:
+        stop = min(size, p + _RESYNC_WINDOW)
+        for c in _chunk_candidates(buf, p, stop, size).tolist():
+            if _plausible_chunk_at(buf, c, size):
+                return c
+        p = stop
+        if passed is not None:
+            passed(p)
+    return size
 
 
 def index_chunk(buf, data: bytes, index: list[tuple[int, int]]):

@@ -164,37 +164,22 @@ def _empty_can(width: int = CLASSIC_WIDTH):
             np.zeros(0, np.uint8))
 
 
-def _uniform_can(buf: bytes):
-    """Fast path: every frame has the same length (a classic or fixed-size FD layout)."""
-    u8 = np.frombuffer(buf, np.uint8)
-    length = int(u8[LENGTH_OFFSET])
-    rec = HEADER_SIZE + length
-    if len(buf) % rec or not (u8[LENGTH_OFFSET::rec] == length).all():
-        return None
-    dt = record_dtype(("data", "u1", (length,)))
-    arr = np.frombuffer(buf, dt)
-    width = CLASSIC_WIDTH if length <= CLASSIC_WIDTH else FD_WIDTH
-    data = np.zeros((len(arr), width), np.uint8)
-    data[:, :length] = arr["data"]
-    return (arr["t"].astype(np.float64), arr["id"].astype(np.uint32), data,
-            np.full(len(arr), length, np.int64), arr["flags"].astype(np.uint8))
-
-
-def _uniform_can_parts(d: ChannelData):
-    """The same as `_uniform_can(d.joined())` without joining the whole channel: part by part
-    (one chunk's messages each, still in cache) into the output arrays, on worker threads (numpy
-    copies release the GIL). None when some part is not whole records of one length (the caller
-    then takes the general route over the joined payloads)."""
+def _uniform_can_parts(d: ChannelData, release: bool = False):
+    """The frames part by part (one chunk's messages each, still in cache) into the output arrays, on
+    worker threads (numpy copies release the GIL), when the first record's length holds for whole parts;
+    a part that is not whole records of that length takes the general route on its own, and the pieces
+    are put together in order. `release`: drop each part once its frames are copied (the chunk it points
+    into is freed as the arrays fill: what `read_log` holds at its peak is about the larger of the two,
+    not their sum). ((timestamps, ids, data, lengths, flags), malformed messages), or None when not even
+    the first record is readable."""
     sizes = [int(x.sum()) for x in d.lengths]
-    total = sum(sizes)
     first = next((k for k, size in enumerate(sizes) if size), None)
-    if first is None or total < HEADER_SIZE or sizes[first] < HEADER_SIZE:
+    if first is None or sizes[first] < HEADER_SIZE:
         return None
     length = d.part_bytes(first)[LENGTH_OFFSET]
     rec = HEADER_SIZE + length
-    if any(size % rec for size in sizes):
-        return None
-    n = total // rec
+    whole = [size // rec if size % rec == 0 else 0 for size in sizes]
+    n = sum(whole)
     width = CLASSIC_WIDTH if length <= CLASSIC_WIDTH else FD_WIDTH
     # 8 data bytes move as one uint64 per frame (classic frames: the common case)
     words = length == 8 == width
@@ -202,15 +187,20 @@ def _uniform_can_parts(d: ChannelData):
     t, ids, flags = np.empty(n), np.empty(n, np.uint32), np.empty(n, np.uint8)
     data = (np.empty if length == width else np.zeros)((n, width), np.uint8)
     data_out = data.view("<u8").reshape(n) if words else data
-    starts = np.concatenate(([0], np.cumsum(sizes) // rec)).tolist()
+    starts = np.concatenate(([0], np.cumsum(whole))).tolist()
+    general: list[int] = []   # parts for the general route (list.append is atomic: the workers share it)
 
-    def fill(parts: range) -> bool:
+    def fill(parts: range) -> None:
         for k in parts:
             if not sizes[k]:
                 continue
+            if not whole[k]:
+                general.append(k)
+                continue
             arr = np.frombuffer(d.part_bytes(k), dt)
             if not (arr["len"] == length).all():
-                return False
+                general.append(k)
+                continue
             a, b = starts[k], starts[k + 1]
             t[a:b] = arr["t"]
             ids[a:b] = arr["id"]
@@ -219,18 +209,32 @@ def _uniform_can_parts(d: ChannelData):
             else:
                 data_out[a:b, :length] = arr["data"]
             flags[a:b] = arr["flags"]
-        return True
+            if release:
+                d.parts[k] = b""
 
     workers = min(len(sizes) // 4, os.cpu_count() or 1, 4)
     if workers > 1:
         step = -(-len(sizes) // workers)
         with ThreadPoolExecutor(workers, thread_name_prefix="can-frames") as pool:
-            ok = all(pool.map(fill, [range(a, min(a + step, len(sizes))) for a in range(0, len(sizes), step)]))
+            list(pool.map(fill, [range(a, min(a + step, len(sizes))) for a in range(0, len(sizes), step)]))
     else:
-        ok = fill(range(len(sizes)))
-    if not ok:
-        return None
-    return t, ids, data, np.full(n, length, np.int64), flags
+        fill(range(len(sizes)))
+    if not general:
+        return (t, ids, data, np.full(n, length, np.int64), flags), 0
+    # some parts differ (mixed frame lengths, or malformed): the pieces in order, those parts decoded alone
+    pieces, bad, other = [], 0, set(general)
+    for k in range(len(sizes)):
+        if k in other:
+            piece, b = _general_can(d.part_payloads(k))
+            pieces.append(piece)
+            bad += b
+        elif sizes[k]:
+            a, b = starts[k], starts[k + 1]
+            pieces.append((t[a:b], ids[a:b], data[a:b], np.full(b - a, length, np.int64), flags[a:b]))
+    top = max(p[2].shape[1] for p in pieces)
+    return (np.concatenate([p[0] for p in pieces]), np.concatenate([p[1] for p in pieces]),
+            np.concatenate([np.pad(p[2], ((0, 0), (0, top - p[2].shape[1]))) for p in pieces]),
+            np.concatenate([p[3] for p in pieces]), np.concatenate([p[4] for p in pieces])), bad
 
 
 def _frame_offsets(p: bytes) -> list[int] | None:
@@ -272,19 +276,13 @@ def _general_can(payloads: list[bytes]) -> tuple[tuple, int]:
     return (t, ids, data, lengths, flags), bad
 
 
-def decode_can_frames(d: ChannelData | None) -> tuple[tuple, int]:
-    """`/can/raw` messages -> ((timestamps, ids, data, lengths, flags), malformed messages dropped)."""
+def decode_can_frames(d: ChannelData | None, *, release: bool = False) -> tuple[tuple, int]:
+    """`/can/raw` messages -> ((timestamps, ids, data, lengths, flags), malformed messages dropped).
+    `release`: `d` is not needed afterwards, its parts are dropped as they are decoded."""
     if d is None or not len(d):
         return _empty_can(), 0
-    fast = _uniform_can_parts(d)
-    if fast is not None:
-        return fast, 0
-    buf = d.joined()
-    if len(buf) >= HEADER_SIZE:
-        fast = _uniform_can(buf)
-        if fast is not None:
-            return fast, 0
-    return _general_can(d.payloads())
+    done = _uniform_can_parts(d, release)
+    return done if done is not None else _general_can(d.payloads())
 
 
 __all__ = ["CAN_ENCODING", "CAN_RECORD", "CAN_SCHEMA_NAME", "CAN_SCHEMA_TEXT", "CHANNELS", "CLASSIC_WIDTH",

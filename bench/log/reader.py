@@ -18,11 +18,21 @@ leaves those compressed and unchecked until `RunLog.imu_records` (or
 `RunLog.check_deferred()`) needs them, and adds any damage found then to `damage`
 (`read_log(path, defer_samples=False)` checks every chunk at once).
 The file is memory-mapped; `/can/raw` batches of one frame length (the usual case) are
-unpacked chunk by chunk on worker threads straight into the frame arrays.
+unpacked chunk by chunk on worker threads straight into the frame arrays, each chunk freed
+as its frames are copied.
+
+A log from outside is hostile: what the reader does for one is bounded (the limits are
+module constants). Chunks: see `bench.log.chunks` (a chunk inflates to exactly what it
+declares, at most `MAX_CHUNK_BYTES`; all of a log's chunks to at most its inflate
+budget; at most `MAX_RECORDS` records outside chunks). Records: see `bench.log.walk`
+(`MAX_RECORD_BYTES`). At most `MAX_JSON_MESSAGES` table states and samples and
+`MAX_EVENTS` events are parsed. What is refused is damage, with its reason; a machine that
+still runs out of memory gives a `LogError`, never a traceback.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import mmap
 from dataclasses import dataclass, field
@@ -31,6 +41,7 @@ from functools import cached_property
 import numpy as np
 
 from bench.errors import BenchError
+from bench.log.chunks import InflateBudget
 from bench.log.format import (
     CAN_ENCODING,
     FLAG_ERROR,
@@ -51,6 +62,14 @@ class LogError(BenchError):
     """The file cannot be read as a run log at all."""
 
 
+#: Messages of a JSON topic (`/table/state`, `/imu/samples`) parsed at most, and events: a recorded log
+#: has about 6 table states a second, one sample per IMU period, and a few events per step. Past these,
+#: messages are not read (damage, counted as lost): parsing costs time and memory per message.
+MAX_JSON_MESSAGES = 1_000_000
+MAX_EVENTS = 100_000
+_JSON_BATCH = 1 << 16
+
+
 @dataclass
 class TableStates:
     """The polled table states, in log order."""
@@ -65,6 +84,15 @@ class TableStates:
 
     def __len__(self) -> int:
         return len(self.time_s)
+
+    @classmethod
+    def concatenate(cls, parts: list["TableStates"]) -> "TableStates":
+        if len(parts) == 1:
+            return parts[0]
+        return cls(np.concatenate([p.time_s for p in parts]), np.concatenate([p.angles_deg for p in parts]),
+                   np.concatenate([p.rates_dps for p in parts]), np.concatenate([p.status for p in parts]),
+                   np.concatenate([p.estop for p in parts]), [m for p in parts for m in p.modes],
+                   [t for p in parts for t in p.fault_text])
 
     @classmethod
     def from_dicts(cls, rows: list[dict]) -> "TableStates":
@@ -129,6 +157,7 @@ class RunLog:
     _samples: ChannelData | None = field(default=None, repr=False)
     _states: ChannelData | None = field(default=None, repr=False)
     _decoded: list = field(default_factory=list, repr=False)   # (layout, rate, window, (block, stats))
+    _budget: InflateBudget | None = field(default=None, repr=False)   # what is left for the deferred chunks
 
     @property
     def complete(self) -> bool:
@@ -138,47 +167,58 @@ class RunLog:
     @cached_property
     def table_states(self) -> TableStates:
         """The `/table/state` topic as arrays (parsed on first use; malformed messages are skipped
-        and counted in `damage`)."""
+        and counted in `damage`, as are those past the first `MAX_JSON_MESSAGES`)."""
         d = self._states
         if d is None or not len(d):
             return TableStates.from_dicts([])
-        rows, bad = _parse_json_rows(d)
-        rows = [r for r in rows if r is not None]
-        try:
-            states = TableStates.from_dicts(rows)
-        except (KeyError, TypeError, ValueError):
-            good = []
-            for r in rows:
-                try:
-                    TableStates.from_dicts([r])
-                    good.append(r)
-                except (KeyError, TypeError, ValueError):
-                    bad += 1
-            states = TableStates.from_dicts(good)
+        parts, bad = [], 0
+        for rows, _, malformed in self._json_batches(d, TOPIC_STATE):
+            bad += malformed
+            rows = [r for r in rows if r is not None]
+            try:
+                parts.append(TableStates.from_dicts(rows))
+            except (KeyError, TypeError, ValueError, OverflowError):   # keep the rows that check out
+                good = [r for r in rows if _state_row(r)]
+                bad += len(rows) - len(good)
+                parts.append(TableStates.from_dicts(good))
         if bad:
             self._add(_malformed(TOPIC_STATE, bad))
-        return states
+        return TableStates.concatenate(parts)
 
     @cached_property
     def imu_records(self) -> ImuRecords:
-        """The `/imu/samples` topic as arrays (parsed on first use)."""
+        """The `/imu/samples` topic as arrays (parsed on first use; as `table_states`)."""
         self.check_deferred()
         d = self._samples
         if d is None or not len(d):
-            return ImuRecords(np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)),
-                              np.zeros(0), np.zeros(0, np.int64))
-        rows, bad = _parse_json_rows(d)
-        times = d.log_time_ns[[i for i, r in enumerate(rows) if r is not None]] / 1e9
-        rows = [r for r in rows if r is not None]
-        try:
-            records = _imu_records(rows, times)
-        except (KeyError, TypeError, ValueError):   # some rows lack fields: keep the others, count these
-            good = [k for k, r in enumerate(rows) if _parses(_imu_records, [r], times[k:k + 1])]
-            bad += len(rows) - len(good)
-            records = _imu_records([rows[k] for k in good], times[good])
+            return _imu_records([], np.zeros(0))
+        parts, bad = [], 0
+        for rows, times, malformed in self._json_batches(d, TOPIC_SAMPLES):
+            bad += malformed
+            times = times[[i for i, r in enumerate(rows) if r is not None]] / 1e9
+            rows = [r for r in rows if r is not None]
+            try:
+                parts.append(_imu_records(rows, times))
+            except (KeyError, TypeError, ValueError, OverflowError):   # some rows lack fields: keep the others
+                good = [k for k, r in enumerate(rows) if _sample_row(r)]
+                bad += len(rows) - len(good)
+                parts.append(_imu_records([rows[k] for k in good], times[good]))
         if bad:
             self._add(_malformed(TOPIC_SAMPLES, bad))
-        return records
+        return ImuRecords(*(np.concatenate([getattr(p, f.name) for p in parts])
+                            for f in dataclasses.fields(ImuRecords)))
+
+    def _json_batches(self, d: ChannelData, topic: str):
+        """(rows, log times, malformed count) of the topic's messages in batches of `_JSON_BATCH` (what is
+        parsed at once stays small); rows are dicts, None where malformed. Messages past the first
+        `MAX_JSON_MESSAGES` are not parsed: said in `damage`, counted as lost."""
+        skipped = d.keep_first(MAX_JSON_MESSAGES)
+        if skipped:
+            self._add(_not_read(topic, skipped, MAX_JSON_MESSAGES))
+        payloads, times = d.payloads(), d.log_time_ns
+        for a in range(0, len(payloads), _JSON_BATCH):
+            rows, bad = _parse_json_rows(payloads[a:a + _JSON_BATCH])
+            yield rows, times[a:a + _JSON_BATCH], bad
 
     def imu_samples(self, layout: ImuLayout | None = None, rate_hz: float = 1000.0,
                     reorder_window: int = 8) -> tuple[ImuSampleBlock, ImuStats]:
@@ -195,8 +235,11 @@ class RunLog:
         if self.non_data_frames:
             keep = (self.can_flags & (FLAG_REMOTE | FLAG_ERROR)) == 0
             ids, data, lengths, times = ids[keep], data[keep], lengths[keep], times[keep]
-        decoded = decode_frames(ids, data, lengths, times, layout=layout, rate_hz=rate_hz,
-                                reorder_window=reorder_window)
+        try:
+            decoded = decode_frames(ids, data, lengths, times, layout=layout, rate_hz=rate_hz,
+                                    reorder_window=reorder_window)
+        except MemoryError as exc:
+            raise LogError(f"{self.path}: not enough memory to decode its {len(ids)} CAN frames") from exc
         self._decoded.append((layout, rate_hz, reorder_window, decoded))
         return decoded
 
@@ -215,7 +258,7 @@ class RunLog:
         what was lost in them."""
         if self._samples is None or not self.unchecked_chunks:
             return []
-        found = self._samples.inflate_deferred(TOPIC_SAMPLES)
+        found = self._samples.inflate_deferred(TOPIC_SAMPLES, self._budget)
         for damage in found:
             self._add(damage)
         return [d.describe() for d in found]
@@ -249,12 +292,44 @@ def _imu_records(rows: list[dict], times: np.ndarray) -> ImuRecords:
     return records
 
 
-def _parses(parse, *args) -> bool:
+_INT64 = (-(1 << 63), 1 << 63)
+
+
+def _is_int(x) -> bool:
+    """A JSON integer (or boolean) that fits an int64."""
+    return type(x) in (int, bool) and _INT64[0] <= x < _INT64[1]
+
+
+def _is_number(x) -> bool:
+    """A JSON number numpy reads as a float64, or null (NaN)."""
+    return x is None or type(x) is float or _is_int(x)
+
+
+def _is_vec3(v, item=_is_number) -> bool:
+    return type(v) is list and len(v) == 3 and all(map(item, v))
+
+
+def _state_row(r: dict) -> bool:
+    """Whether a `/table/state` row converts (`TableStates.from_dicts`): every field of the right shape."""
     try:
-        parse(*args)
-    except (KeyError, TypeError, ValueError):
+        return (_is_number(r["time_s"]) and _is_vec3(r["angles_deg"]) and _is_vec3(r["rates_dps"])
+                and _is_vec3(r["status"], _is_int) and type(r["modes"]) is list and len(r["modes"]) == 3)
+    except KeyError:
         return False
-    return True
+
+
+def _sample_row(r: dict) -> bool:
+    """Whether an `/imu/samples` row converts (`_imu_records`)."""
+    try:
+        return (_is_int(r["counter"]) and _is_number(r["time_s"]) and _is_vec3(r["gyro_counts"])
+                and _is_vec3(r["acc_counts"]) and _is_number(r["temperature_c"]) and _is_int(r["status"]))
+    except KeyError:
+        return False
+
+
+def _not_read(topic: str, count: int, limit: int) -> Damage:
+    """`count` messages on `topic` past the `limit` the reader parses: not read, counted as lost."""
+    return Damage("message", 0, f"{count} {topic} messages past the first {limit} not read", lost={topic: count})
 
 
 def _malformed(topic: str, count: int) -> Damage:
@@ -262,9 +337,8 @@ def _malformed(topic: str, count: int) -> Damage:
     return Damage("message", 0, f"{count} malformed {topic} messages skipped", lost={topic: count})
 
 
-def _parse_json_rows(d: ChannelData) -> tuple[list, int]:
+def _parse_json_rows(payloads: list[bytes]) -> tuple[list, int]:
     """Each message of a JSON channel as a dict (None where malformed) and the malformed count."""
-    payloads = d.payloads()
     try:
         rows = json.loads(b"[" + b",".join(payloads) + b"]")
         if len(rows) == len(payloads) and all(isinstance(r, dict) for r in rows):
@@ -299,6 +373,13 @@ def _map_file(path: str):
 def read_log(path, *, defer_samples: bool = True) -> RunLog:
     """Read a run log; see the module docstring for how damage is handled and what `defer_samples` does."""
     path = str(path)
+    try:
+        return _read_log(path, defer_samples)
+    except MemoryError as exc:   # within the reader's limits, but more than this machine has
+        raise LogError(f"{path}: not enough memory to read it") from exc
+
+
+def _read_log(path: str, defer_samples: bool) -> RunLog:
     buf = _map_file(path)
     try:
         w = walk(buf, defer_topics=frozenset({TOPIC_SAMPLES}) if defer_samples else frozenset())
@@ -337,13 +418,23 @@ def read_log(path, *, defer_samples: bool = True) -> RunLog:
                 damage.append(Damage("message", w.size, f"the summary counts {missing} more messages on {topic} "
                                                         f"than were read"))
 
-    (t, ids, data, lengths, flags), bad_can = decode_can_frames(by_topic.get(TOPIC_CAN))
-    if bad_can:
-        damage.append(_malformed(TOPIC_CAN, bad_can))
+    # Only what is kept may keep the decompressed chunks alive: the other topics go, the table states are
+    # joined (small), and the CAN frames are dropped chunk by chunk as they are decoded into arrays.
+    by_topic = {t: d for t, d in by_topic.items() if t in (TOPIC_CAN, TOPIC_SAMPLES, TOPIC_STATE, TOPIC_EVENTS)}
+    w.data.clear()
+    if TOPIC_STATE in by_topic:
+        skipped = by_topic[TOPIC_STATE].keep_first(MAX_JSON_MESSAGES)
+        if skipped:
+            damage.append(_not_read(TOPIC_STATE, skipped, MAX_JSON_MESSAGES))
+        by_topic[TOPIC_STATE].compact()
 
     events: list[Event] = []
     if TOPIC_EVENTS in by_topic:
-        rows, bad = _parse_json_rows(by_topic[TOPIC_EVENTS])
+        d = by_topic.pop(TOPIC_EVENTS)
+        skipped = d.keep_first(MAX_EVENTS)
+        if skipped:
+            damage.append(_not_read(TOPIC_EVENTS, skipped, MAX_EVENTS))
+        rows, bad = _parse_json_rows(d.payloads())
         for r in filter(None, rows):
             try:
                 events.append(Event.from_dict(r))
@@ -352,12 +443,17 @@ def read_log(path, *, defer_samples: bool = True) -> RunLog:
         if bad:
             damage.append(_malformed(TOPIC_EVENTS, bad))
 
+    (t, ids, data, lengths, flags), bad_can = decode_can_frames(by_topic.pop(TOPIC_CAN, None), release=True)
+    if bad_can:
+        damage.append(_malformed(TOPIC_CAN, bad_can))
+
     library = w.header.library if w.header is not None else ""
     return RunLog(path=path, metadata=w.metadata, attachments=w.attachments, events=events,
                   can_timestamp_s=t, can_ids=ids, can_data=data, can_lengths=lengths, can_flags=flags,
                   summary_present=w.footer is not None and w.statistics is not None,
                   damage=[d.describe() for d in damage], lost=damage, message_counts=counts, chunks=w.chunks,
-                  library=library, _samples=by_topic.get(TOPIC_SAMPLES), _states=by_topic.get(TOPIC_STATE))
+                  library=library, _samples=by_topic.get(TOPIC_SAMPLES), _states=by_topic.get(TOPIC_STATE),
+                  _budget=w.budget)
 
 
 __all__ = ["ImuRecords", "LogError", "RunLog", "TableStates", "read_log"]

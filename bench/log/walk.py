@@ -20,9 +20,11 @@ would inline. The record layout and chunk decoding live in `bench.log.chunks`.
 
 from __future__ import annotations
 
+import mmap
 import os
 import struct
 import zlib
+from array import array
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -31,6 +33,8 @@ from mcap.records import Attachment, Channel, Footer, Header, Metadata, Schema, 
 
 from bench.log.chunks import (
     MAGIC,
+    MAX_DEFINITIONS,
+    MAX_RECORDS,
     MESSAGE_DATA_OFFSET,
     MESSAGE_HEAD,
     OP_ATTACHMENT,
@@ -46,11 +50,14 @@ from bench.log.chunks import (
     OP_STATISTICS,
     RECORD_HEAD,
     DeferredChunk,
+    InflateBudget,
     Prefetch,
     WalkError,
     body_stream,
+    chunk_failure,
     chunk_fields,
     index_chunk,
+    inflate_budget,
     inflate_chunk,
     plausible_record_at,
     resync,
@@ -59,6 +66,9 @@ from bench.log.chunks import (
 
 def _fmt_range(start_ns: int, end_ns: int) -> str:
     return f"log time {start_ns / 1e9:.3f}..{end_ns / 1e9:.3f} s"
+
+
+_DROP_BEHIND = 64 << 20   # bytes of a mapped file the walk leaves mapped behind it
 
 
 @dataclass
@@ -117,20 +127,23 @@ class ChannelData:
         """Parts still compressed and unchecked."""
         return sum(isinstance(p, DeferredChunk) for p in self.parts)
 
-    def inflate_deferred(self, topic: str) -> list[Damage]:
-        """Decompress and check the deferred parts (on worker threads); a part that fails is dropped
-        and told as a `Damage` (its messages lost, on `topic`)."""
+    def inflate_deferred(self, topic: str, budget: InflateBudget | None = None) -> list[Damage]:
+        """Decompress and check the deferred parts (on worker threads); a part that fails, or does not fit
+        what is left of the log's `budget`, is dropped and told as a `Damage` (its messages lost, on `topic`)."""
         todo = [k for k, p in enumerate(self.parts) if isinstance(p, DeferredChunk)]
         if not todo:
             return []
         chunks = [self.parts[k] for k in todo]
-        if len(chunks) >= 3:
+        refused = {k: budget.take(c.size) for k, c in zip(todo, chunks)} if budget is not None else {}
+        inflate = [c for k, c in zip(todo, chunks) if refused.get(k) is None]
+        if len(inflate) >= 3:
             with ThreadPoolExecutor(min(4, os.cpu_count() or 1), thread_name_prefix="mcap-inflate") as pool:
-                answers = list(pool.map(DeferredChunk.inflate, chunks))
+                answers = iter(list(pool.map(DeferredChunk.inflate, inflate)))
         else:
-            answers = [c.inflate() for c in chunks]
+            answers = iter([c.inflate() for c in inflate])
         damage, dropped = [], set()
-        for k, chunk, answer in zip(todo, chunks, answers):
+        for k, chunk in zip(todo, chunks):
+            answer = refused.get(k) or next(answers)
             if isinstance(answer, str):
                 damage.append(Damage("chunk", chunk.offset, answer, chunk.start_ns, chunk.end_ns,
                                      {topic: len(chunk.offsets)}))
@@ -154,13 +167,36 @@ class ChannelData:
                                                                     (starts + self.lengths[k]).tolist())])
         return self.parts
 
-    def payloads(self) -> list[bytes]:
-        """One bytes per message."""
-        out = []
+    def payloads(self, limit: int | None = None) -> list[bytes]:
+        """One bytes per message (the first `limit` messages only, when given: see `keep_first`)."""
+        if limit is not None:
+            self.keep_first(limit)
+        out: list[bytes] = []
         for part, lengths in zip(self._gathered(), self.lengths):
             ends = np.cumsum(lengths).tolist()
             out += [part[e - n:e] for e, n in zip(ends, lengths.tolist())]
         return out
+
+    def keep_first(self, limit: int) -> int:
+        """Keep the first `limit` messages only (the parts after them are dropped unread); how many went."""
+        dropped, seen = 0, 0
+        for k, lengths in enumerate(self.lengths):
+            if seen + len(lengths) > limit:
+                keep = limit - seen
+                dropped = len(self) - limit
+                part = self.parts[k]
+                if isinstance(part, tuple):
+                    part = (part[0], part[1][:keep])
+                elif isinstance(part, bytes):
+                    part = part[:int(lengths[:keep].sum())]
+                else:   # a deferred chunk: inflate_deferred first
+                    raise RuntimeError("inflate_deferred() first: this channel has deferred chunks")
+                self.parts = self.parts[:k] + [part]
+                self.lengths = self.lengths[:k] + [lengths[:keep]]
+                self.log_times = self.log_times[:k] + [self.log_times[k][:keep]]
+                break
+            seen += len(lengths)
+        return dropped
 
     def part_bytes(self, k: int) -> bytes:
         """Part `k`'s payloads back to back, without keeping them (for one pass over a large channel:
@@ -173,6 +209,15 @@ class ChannelData:
         data, starts = part
         view = memoryview(data)
         return b"".join([view[a:b] for a, b in zip(starts.tolist(), (starts + self.lengths[k]).tolist())])
+
+    def part_payloads(self, k: int) -> list[bytes]:
+        """Part `k`'s payloads, one bytes per message."""
+        part, ends = self.part_bytes(k), np.cumsum(self.lengths[k]).tolist()
+        return [part[e - n:e] for e, n in zip(ends, self.lengths[k].tolist())]
+
+    def compact(self) -> None:
+        """Join the lazy parts' payloads now: the decompressed chunks they point into can then be freed."""
+        self._gathered()
 
     def joined_parts(self):
         """`part_bytes` of every part, in order."""
@@ -200,23 +245,32 @@ class Walk:
     chunks: int = 0
     damage: list[Damage] = field(default_factory=list)
     size: int = 0
+    budget: InflateBudget = field(default_factory=lambda: InflateBudget(0))   # what the chunks may inflate to
 
     def topic(self, channel_id: int) -> str:
         ch = self.channels.get(channel_id)
         return ch.topic if ch is not None else f"<channel {channel_id}>"
 
 
+#: The most a record other than a chunk, its message index or an attachment may hold (a recorded log's
+#: largest, a metadata record with the configuration, holds a few KB).
+MAX_RECORD_BYTES = 16 << 20
+_CAPPED = frozenset({OP_HEADER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_METADATA, OP_STATISTICS})
+
+
 class _Walker:
     def __init__(self, buf: bytes, defer_topics: frozenset[str] = frozenset()):
         self.buf = buf
         self.defer_topics = defer_topics
-        self.w = Walk(size=len(buf))
+        self.w = Walk(size=len(buf), budget=InflateBudget(inflate_budget(len(buf))))
         self.lost_chunk: Damage | None = None   # message index records after a lost chunk count its messages
         # a good chunk waiting for its message index records: (offset, start, end, data or still compressed)
         self.pending: tuple[int, int, int, bytes | DeferredChunk] | None = None
         self.pending_index: list[tuple[int, int]] = []
         self.prefetch: Prefetch | None = None
         self.framed = None   # (message index records, `index_chunk` answer) of the pending chunk, from a worker
+        self.loose: dict[int, tuple[list, list, list]] = {}   # messages outside chunks not yet in their channel
+        self.dropped = 0   # the file's pages before this offset were unmapped (`drop_behind`)
 
     def channel_data(self, channel_id: int) -> ChannelData:
         d = self.w.data.get(channel_id)
@@ -225,7 +279,7 @@ class _Walker:
         return d
 
     def run(self) -> Walk:
-        self.prefetch = Prefetch(self.buf, defer_topics=self.defer_topics)
+        self.prefetch = Prefetch(self.buf, defer_topics=self.defer_topics, budget=self.w.budget.total)
         try:
             return self._run()
         finally:
@@ -241,22 +295,28 @@ class _Walker:
         pos = 8
         if size < 17 or buf[8] != OP_HEADER or not plausible_record_at(buf, 8, size):
             raise WalkError("not a readable MCAP file (no header record after the magic)")
+        records = 0
         while pos < size:
             if size - pos < 9:
                 w.damage.append(Damage("truncated", size, f"a record header at byte {pos} is incomplete"))
+                break
+            records += 1
+            if records > MAX_RECORDS:
+                w.damage.append(Damage("corrupt", pos, f"more than {MAX_RECORDS} records outside chunks (a recorded "
+                                                       f"log holds a few per chunk): bytes {pos}..{size} not read"))
                 break
             op, length = RECORD_HEAD.unpack_from(buf, pos)
             body, end = pos + 9, pos + 9 + length
             if op != OP_MESSAGE_INDEX or end > size:
                 self.finish_chunk()
             if op not in OP_NAMES:
-                nxt = resync(buf, pos, size)
+                nxt = resync(buf, pos, size, self.passed)
                 w.damage.append(Damage("corrupt", pos, f"unreadable record (opcode {op:#x}); bytes {pos}..{nxt} "
                                                        f"skipped" + (" to the next chunk" if nxt < size else "")))
                 pos = nxt
                 continue
             if end > size:
-                nxt = resync(buf, pos, size)
+                nxt = resync(buf, pos, size, self.passed)
                 if nxt == size:   # nothing readable follows: the file was cut off here
                     self.truncated(op, pos, body, length)
                     break
@@ -272,7 +332,7 @@ class _Walker:
                 break
             if op == OP_CHUNK:
                 if not self.chunk(pos, body, length):
-                    nxt = end if plausible_record_at(buf, end, size) else resync(buf, pos, size)
+                    nxt = end if plausible_record_at(buf, end, size) else resync(buf, pos, size, self.passed)
                     pos = nxt
                     continue
             else:
@@ -281,12 +341,14 @@ class _Walker:
                 except Exception as exc:   # a damaged record body: skip it, say so
                     w.damage.append(Damage("corrupt", pos, f"{OP_NAMES[op]} record unreadable ({exc}); skipped"))
             if not plausible_record_at(buf, end, size):
-                nxt = resync(buf, end, size)
+                nxt = resync(buf, end, size, self.passed)
                 w.damage.append(Damage("corrupt", end, f"unreadable record after byte {end}; bytes {end}..{nxt} "
                                                        f"skipped" + (" to the next chunk" if nxt < size else "")))
                 end = nxt
             pos = end
+            self.passed(pos)
         self.finish_chunk()
+        self.flush_loose()
         if w.footer is None:
             w.damage.append(Damage("no_summary", size, "no summary or footer: the recording was not closed "
                                                        "(stopped or crashed); anything not yet in a closed chunk "
@@ -319,8 +381,34 @@ class _Walker:
             self.w.damage.append(Damage("truncated", size, f"the last {OP_NAMES[op]} record (at byte {pos}) is "
                                         f"incomplete ({size - body} of {length} bytes)"))
 
+    def passed(self, pos: int) -> None:
+        """The walk (or a resync) has read up to `pos`."""
+        if pos - self.dropped > _DROP_BEHIND:
+            self.drop_behind(pos)
+
+    def drop_behind(self, pos: int) -> None:
+        """Unmap the pages of a memory-mapped file well behind `pos` (they are read again from the page cache
+        if needed): a file read once does not count whole towards the process' memory."""
+        start = self.dropped - self.dropped % mmap.PAGESIZE
+        stop = pos - _DROP_BEHIND // 2
+        stop -= stop % mmap.PAGESIZE
+        if stop > start and isinstance(self.buf, mmap.mmap) and hasattr(mmap, "MADV_DONTNEED"):
+            self.buf.madvise(mmap.MADV_DONTNEED, start, stop - start)
+        self.dropped = max(self.dropped, stop)
+
+    def flush_loose(self) -> None:
+        """The messages read outside chunks since the last chunk, into their channels (one part each)."""
+        for ch, (payloads, lengths, times) in self.loose.items():
+            self.channel_data(ch).add(b"".join(payloads), lengths, times)
+        self.loose = {}
+
     def record(self, op: int, pos: int, body: int, end: int) -> None:
         w, buf = self.w, self.buf
+        if op in _CAPPED and end - body > MAX_RECORD_BYTES:
+            w.damage.append(Damage("corrupt", pos, f"{OP_NAMES[op]} record of {end - body} bytes, more than "
+                                                   f"{MAX_RECORD_BYTES} bytes such a record may hold; skipped"))
+            self.lost_chunk = None
+            return
         if op == OP_HEADER:
             w.header = Header.read(body_stream(buf, body, end))
         elif op == OP_SCHEMA:
@@ -329,10 +417,15 @@ class _Walker:
         elif op == OP_CHANNEL:
             c = Channel.read(body_stream(buf, body, end))
             w.channels.setdefault(c.id, c)
-        elif op == OP_MESSAGE:   # a message outside any chunk (unchunked files)
+        elif op == OP_MESSAGE:   # a message outside any chunk (unchunked files): gathered per channel
             _, _, ch, _, log_time = MESSAGE_HEAD.unpack_from(buf, pos)
             start = pos + MESSAGE_DATA_OFFSET
-            self.channel_data(ch).add(bytes(buf[start:end]), [end - start], [log_time])
+            loose = self.loose.get(ch)
+            if loose is None:
+                loose = self.loose[ch] = ([], [], [])
+            loose[0].append(bytes(buf[start:end]))
+            loose[1].append(end - start)
+            loose[2].append(log_time)
         elif op == OP_MESSAGE_INDEX:
             if self.pending is not None:
                 self.pending_index.append((body, end))
@@ -364,13 +457,26 @@ class _Walker:
             self.lost_chunk = w.damage[-1]
             return False
         start, end, usize, crc, compression, dstart, dlen = f
+        self.flush_loose()
         prefetch = self.prefetch
         deferred = prefetch.deferred.get(pos) if prefetch is not None else None
         if deferred is not None and prefetch is not None and prefetch.chunks[prefetch.index[pos]][1] == f:
+            # kept compressed: counted against the budget at that size now, at its own when it is inflated
+            # (`ChannelData.inflate_deferred`)
+            refused = w.budget.take(dlen)
+            if refused is not None:
+                w.damage.append(Damage("chunk", pos, refused, start, end))
+                self.lost_chunk = w.damage[-1]
+                return True
             ch, t, o = deferred
             self.pending = (pos, start, end, DeferredChunk(pos, start, end, compression,
                                                            bytes(buf[dstart:dstart + dlen]), usize, crc, ch, t, o))
             self.pending_index = []
+            return True
+        refused = w.budget.take(usize)
+        if refused is not None:
+            w.damage.append(Damage("chunk", pos, refused, start, end))
+            self.lost_chunk = w.damage[-1]
             return True
         done = self.prefetch.take(pos, f) if self.prefetch is not None else None
         if done is not None:
@@ -381,12 +487,10 @@ class _Walker:
         if isinstance(exc, WalkError):
             raise exc
         if exc is not None:
-            w.damage.append(Damage("chunk", pos, f"{compression} data cannot be decompressed ({exc})", start, end))
+            w.damage.append(Damage("chunk", pos, chunk_failure(compression, exc), start, end))
             self.lost_chunk = w.damage[-1]
             return True
-        if len(data) != usize:
-            reason = f"decompressed to {len(data)} bytes, header says {usize}"
-        elif crc != 0 and computed != crc:
+        if crc != 0 and computed != crc:
             reason = "CRC mismatch"
         else:   # good: its records are gathered once the message index records after it are seen
             self.pending, self.pending_index = (pos, start, end, data), []
@@ -409,7 +513,7 @@ class _Walker:
                 self.w.chunks += 1
                 return
             # the walk found other index records after it than the scan did: check it now, inline
-            answer = chunk.inflate()
+            answer = self.w.budget.take(chunk.size) or chunk.inflate()
             if isinstance(answer, str):
                 self.w.damage.append(Damage("chunk", pos, answer, start, end,
                                             {self.w.topic(chunk.channel): len(chunk.offsets)}))
@@ -444,48 +548,65 @@ class _Walker:
 
     def chunk_records(self, data: bytes, messages: bool = True) -> str | None:
         """Gather the chunk's records; a reason string if its content is malformed (nothing kept then),
-        or (with `messages` False) if it holds a message."""
-        unpack_msg, unpack_rec = MESSAGE_HEAD.unpack_from, RECORD_HEAD.unpack_from
+        or (with `messages` False) if it holds a message. A chunk holds schema, channel and message
+        records only (MCAP spec). The framing is followed record by record, except where the messages
+        provably follow at one stride (checked at once); the messages' fields are read vectorised and
+        kept as lazy parts, like the message index gives them."""
+        unpack_rec = RECORD_HEAD.unpack_from
         size = len(data)
-        view = memoryview(data)
-        slices: dict[int, tuple[list, list, list]] = {}
-        others = []
+        starts = array("q")
+        strided = np.zeros(0, np.int64)   # the messages found at one stride, to the end of the chunk
+        others: list[tuple[int, int, int]] = []
         q = 0
         while q < size:
-            if q + 31 <= size:
-                op, ln, ch, _, log_time = unpack_msg(data, q)
-            elif q + 9 <= size:
-                op, ln = unpack_rec(data, q)
-            else:
+            if q + 9 > size:
                 return f"malformed chunk content at offset {q}"
+            op, ln = unpack_rec(data, q)
             end = q + 9 + ln
             if end > size:
                 return f"malformed chunk content: record at offset {q} overruns the chunk"
             if op == OP_MESSAGE:
                 if ln < 22 or not messages:
                     return f"malformed message at chunk offset {q}"
-                s = slices.get(ch)
-                if s is None:
-                    s = slices[ch] = ([], [], [])
-                s[0].append(view[q + MESSAGE_DATA_OFFSET:end])
-                s[1].append(ln - 22)
-                s[2].append(log_time)
+                if not starts and (size - q) % (9 + ln) == 0 and _one_stride(data, q, 9 + ln):
+                    strided = np.arange(q, size, 9 + ln, dtype=np.int64)
+                    break
+                starts.append(q)
             elif op in (OP_SCHEMA, OP_CHANNEL):
+                if len(others) >= MAX_DEFINITIONS:
+                    return f"malformed chunk content: more than {MAX_DEFINITIONS} schema and channel records"
                 others.append((op, q, end))
+            else:
+                return f"malformed chunk content: {OP_NAMES.get(op, f'opcode {op:#x}')} record at offset {q}"
             q = end
         for op, q, end in others:
             try:
                 if op == OP_SCHEMA:
-                    s = Schema.read(body_stream(data, q + 9, end))
-                    self.w.schemas.setdefault(s.id, s)
+                    schema = Schema.read(body_stream(data, q + 9, end))
+                    self.w.schemas.setdefault(schema.id, schema)
                 else:
                     c = Channel.read(body_stream(data, q + 9, end))
                     self.w.channels.setdefault(c.id, c)
             except Exception as exc:
                 return f"malformed {OP_NAMES[op]} record in the chunk ({exc})"
-        for ch, (parts, lengths, times) in slices.items():
-            self.channel_data(ch).add(b"".join(parts), lengths, times)
+        o = np.frombuffer(starts, np.int64) if starts else strided
+        if not len(o):
+            return None
+        lengths = np.ndarray((size - 8,), "<u8", data, 1, (1,))[o].astype(np.int64) - 22
+        channels = np.ndarray((size - 10,), "<u2", data, 9, (1,))[o]
+        times = np.ndarray((size - 22,), "<u8", data, 15, (1,))[o]
+        for ch in np.unique(channels).tolist():
+            mine = channels == ch
+            self.channel_data(ch).add((data, o[mine] + MESSAGE_DATA_OFFSET), lengths[mine], times[mine])
         return None
+
+
+def _one_stride(data: bytes, q: int, stride: int) -> bool:
+    """Whether every record from `q` to the end of `data` is a message of length `stride` (vectorised)."""
+    n = (len(data) - q) // stride
+    ops = np.ndarray((n,), np.uint8, data, q, (stride,))
+    lengths = np.ndarray((n,), "<u8", data, q + 1, (stride,))
+    return bool((ops == OP_MESSAGE).all() and (lengths == stride - 9).all())
 
 
 def walk(buf: bytes, defer_topics: frozenset[str] = frozenset()) -> Walk:
