@@ -1,14 +1,17 @@
-"""A log from outside is hostile (issue 13, item 6): bounded memory, bounded time.
+"""A log from outside is hostile (issue 13, items 6 and 7): bounded memory, bounded time, one line.
 
 Decompression bombs are refused as damage of their chunk, quickly and without allocating
 what they declare: a chunk must inflate to exactly its declared uncompressed size
 (zstd, lz4 or none), declare at most `MAX_CHUNK_BYTES`, and all chunks together at most
-the log's inflate budget. The crafted files are a real log with one chunk replaced
-(`tests/helpers/mcap_surgery.py`).
+the log's inflate budget. Crafted content (a CAN record claiming 255 data bytes, an event
+whose step is a string, table angles of 1e308, a DBC padded to megabytes) becomes damage
+or a left-out step with a reason, never a traceback. The crafted files are a real log with
+one chunk replaced (`tests/helpers/mcap_surgery.py`) or rewritten through `mcap.writer`.
 """
 
 from __future__ import annotations
 
+import json
 import tracemalloc
 import zlib
 from pathlib import Path
@@ -19,9 +22,9 @@ from mcap.reader import make_reader
 
 import bench.log.chunks as chunks_module
 from bench.log.chunks import MAX_CHUNK_BYTES, MAX_RECORDS
-from bench.log.format import TOPIC_CAN
+from bench.log.format import TOPIC_CAN, TOPIC_EVENTS
 from bench.log.reader import read_log
-from bench.log.walk import walk
+from bench.log.walk import MAX_ATTACHMENT_BYTES, MAX_DBC_BYTES, walk
 from tests.helpers.mcap_surgery import (
     can_frames,
     chunk_fields,
@@ -32,6 +35,7 @@ from tests.helpers.mcap_surgery import (
     message_index,
     message_record,
     replace_chunk,
+    rewrite,
     top_records,
     zstd_bomb,
 )
@@ -210,6 +214,102 @@ def test_records_outside_chunks_are_counted_and_the_walk_stops_at_the_limit(can_
     assert MAX_RECORDS >= 100 * len(top_records(buf))   # a recorded log is far from the real limit
 
 
+# -- item 7: crafted content, never a traceback ------------------------------------------------
+
+_EVENT_CHANGES = {   # unit -> how its step_finished event is spoiled, and the reason the solve gives
+    "P01": (lambda d: d["data"].update(step="dwell"), "its step record is not an object"),
+    "P02": (lambda d: d["data"].update(step=["dwell"]), "its step record is not an object"),
+    "P03": (lambda d: d["data"].update(counter_first="x"), "its IMU counter window is not two integers"),
+    "P04": (lambda d: d["data"]["step"].pop("angles_deg"), "its angles_deg are not three finite numbers"),
+    "P05": (lambda d: d.update(step_unit=["P05"]), None),   # the event itself is unreadable: log damage
+    "R01": (lambda d: d["data"]["step"].update(frame="sideways"), "its frame or direction is not one the bench knows"),
+    "R02": (lambda d: d["data"]["step"].update(revolutions="two"), "its revolutions are not a positive integer"),
+}
+
+
+@pytest.fixture(scope="module")
+def crafted_content(run_log, tmp_path_factory):
+    """The run log with item 7's crafted content: the first /can/raw message holds a record claiming 255
+    data bytes; the step_finished events of the units in `_EVENT_CHANGES` are spoiled; every table state's
+    angles are +-1e308; the DBC attachment is padded with a 2 MiB comment."""
+    spoiled_can = []
+
+    def message(topic, data):
+        if topic == TOPIC_CAN and not spoiled_can:
+            spoiled_can.append(len(data) // 22)
+            return can_frames(3) + can_frames(1, length=255) + can_frames(2)
+        if topic == "/table/state":
+            d = json.loads(data)
+            d["angles_deg"] = [1e308, -1e308, d["angles_deg"][2]]
+            return json.dumps(d).encode()
+        if topic == TOPIC_EVENTS:
+            d = json.loads(data)
+            change = _EVENT_CHANGES.get(d.get("step_unit"))
+            if change and d["kind"] == "step_finished" and d["data"]["step"]["kind"] in ("dwell", "turn"):
+                change[0](d)
+                return json.dumps(d).encode()
+        return data
+
+    def attachment(name, data):
+        return data + b'\nCM_ "' + b"x" * (2 << 20) + b'";\n' if name.endswith(".dbc") else data
+
+    path = rewrite(run_log, tmp_path_factory.mktemp("crafted") / "crafted.mcap", message, attachment)
+    return path, spoiled_can[0]
+
+
+def test_crafted_content_is_read_as_damage_with_bounded_memory(run_log, crafted_content):
+    path, frames_replaced = crafted_content
+    log, peak = _peak_while(lambda: read_log(path))
+    assert peak < 64 << 20     # the 255-byte claim allocates nothing per claim, the DBC is not kept
+    good = read_log(run_log)
+    assert len(log.can_ids) == len(good.can_ids) - frames_replaced and int(log.can_lengths.max()) <= 64
+    assert not any(name.endswith(".dbc") for name in log.attachments)
+    for text in (f"1 malformed {TOPIC_CAN} messages skipped", f"1 malformed {TOPIC_EVENTS} messages skipped",
+                 f"attachment 'sim_imu.dbc' holds {len(good.attachments['sim_imu.dbc'][1]) + (2 << 20) + 9} bytes, "
+                 f"more than {MAX_DBC_BYTES} bytes"):
+        assert any(text in d for d in log.damage), (text, log.damage)
+    assert np.abs(log.table_states.angles_deg[:, :2]).max() == 1e308
+    block, stats = log.imu_samples()
+    assert len(block.counter)
+
+
+def test_crafted_content_solves_with_steps_left_out_and_a_report_without_the_bad_plot(crafted_content, tmp_path):
+    path, _ = crafted_content
+    rc, _, stderr = cli(["solve", str(path), "--out", str(tmp_path)])
+    assert rc == 4 and "Traceback" not in stderr and len(stderr.strip().splitlines()) == 1, stderr
+    report = next(tmp_path.glob("*.report.md")).read_text(encoding="utf-8")
+    for unit, (_, reason) in _EVENT_CHANGES.items():
+        if reason is not None:
+            assert f"{unit}: its step_finished event is malformed ({reason}" in report, unit
+    assert "P05: left out" in report and f"1 malformed {TOPIC_EVENTS} messages skipped" in report
+    assert f"1 malformed {TOPIC_CAN} messages skipped" in report and "sim_imu.dbc" in report
+    html = next(tmp_path.glob("*.report.html")).read_text(encoding="utf-8")
+    assert "The figure of the table angles is not drawn: the table angles reach 1e+308" in html
+    assert html.count("<svg") >= 3   # the other figures are there
+    rc, _, stderr = cli(["replay", str(path), "--quiet"])   # replay notes each damage on a line of its own
+    assert rc == 0 and "Traceback" not in stderr and "malformed" in stderr, stderr
+
+
+def test_a_message_of_records_all_claiming_255_bytes_is_malformed_not_an_error(run_log, tmp_path):
+    def edit(topic, data):
+        return can_frames(50, length=255) if topic == TOPIC_CAN else data
+
+    log = read_log(rewrite(run_log, tmp_path / "all255.mcap", message=edit))
+    assert len(log.can_ids) == 0
+    assert any(f"malformed {TOPIC_CAN} messages skipped" in d for d in log.damage)
+    block, stats = log.imu_samples()
+    assert len(block.counter) == 0
+
+
+def test_attachments_over_their_limit_are_skipped_without_reading_them(run_log, tmp_path):
+    big = b"#" * (MAX_ATTACHMENT_BYTES + 1)
+    path = rewrite(run_log, tmp_path / "big.mcap", attachment=lambda name, data: big if name == "bench.toml" else data)
+    log, peak = _peak_while(lambda: read_log(path))
+    assert "bench.toml" not in log.attachments and "sim_imu.dbc" in log.attachments
+    assert any(f"attachment 'bench.toml' holds {len(big)} bytes" in d for d in log.damage)
+    assert peak < MAX_ATTACHMENT_BYTES   # reading it would copy it at least twice
+
+
 def test_honest_chunks_still_read_exactly_as_before(can_chunk, tmp_path):
     # the same chunk rewritten honestly in each compression reads back frame for frame
     buf, pos, _ = can_chunk
@@ -224,3 +324,29 @@ def test_honest_chunks_still_read_exactly_as_before(can_chunk, tmp_path):
         log = read_log(_crafted(tmp_path, replace_chunk(buf, pos, chunk, drop_index=False)))
         assert not [d for d in log.damage if "chunk" in d], (compression, log.damage)
         np.testing.assert_array_equal(log.can_data, expected.can_data)
+
+
+def test_a_turn_window_holding_many_or_repeated_table_states_is_integrated_in_bounded_time():
+    # A log from outside may hold any number of table states inside a turn's window, in any order: they
+    # are taken in time order, once per time, a block of pieces at a time (the same integral).
+    from bench.model.earth import Site
+    from bench.model.motion import Piece
+    from bench.model.observations import turn_earth_integral
+    from bench.model.units import DEG
+    from bench.solve.extract import _turn_earth_integral
+
+    site, n = Site(latitude_deg=30.0), 3000
+    step = {"frame": "outer", "start_deg": [0.0, 90.0, 0.0], "target_deg": [360.0, 90.0, 0.0]}
+    t = np.linspace(0.0, 36.0, n)
+    angles = np.zeros((n, 3))
+    angles[:, 0] = 10.0 * t
+    angles[:, 1] = 90.0
+    theta = (angles[:, 0] - 360.0) * DEG
+    pieces = [Piece(float(t[i]), float(theta[i]), float((theta[i + 1] - theta[i]) / (t[i + 1] - t[i])), 0.0)
+              for i in range(n - 1)] + [Piece(float(t[-1]), float(theta[-1]), 0.0, 0.0)]
+    one_call = turn_earth_integral(site, step["start_deg"], 0, pieces, 0.0, 36.0)
+    blocked = _turn_earth_integral(site, step, 36.0, -1.0, 37.0, t, angles, None)
+    np.testing.assert_allclose(blocked, one_call, rtol=1e-12, atol=1e-18)   # its at-rest terms cancel here
+    repeated = _turn_earth_integral(site, step, 36.0, -1.0, 37.0, np.concatenate([t] * 20),
+                                    np.concatenate([angles] * 20), None)
+    np.testing.assert_array_equal(repeated, blocked)

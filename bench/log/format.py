@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import os
 import struct
+from array import array
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Sequence
 
@@ -29,6 +30,8 @@ _T_END, _ID_END = 8, 12                 # end of the timestamp and of the id in 
 FLAGS_OFFSET, LENGTH_OFFSET = 12, 13    # where the flags and the data length byte sit
 #: Data width of `RunLog.can_data` when every frame fits a classic frame; CAN FD logs get 64.
 CLASSIC_WIDTH, FD_WIDTH = 8, 64
+#: The most data bytes a frame has (CAN FD): a record claiming more makes its message malformed.
+MAX_DATA = FD_WIDTH
 
 
 def record_dtype(data_field: tuple) -> np.dtype:
@@ -177,6 +180,8 @@ def _uniform_can_parts(d: ChannelData, release: bool = False):
     if first is None or sizes[first] < HEADER_SIZE:
         return None
     length = d.part_bytes(first)[LENGTH_OFFSET]
+    if length > MAX_DATA:
+        return None
     rec = HEADER_SIZE + length
     whole = [size // rec if size % rec == 0 else 0 for size in sizes]
     n = sum(whole)
@@ -237,42 +242,49 @@ def _uniform_can_parts(d: ChannelData, release: bool = False):
             np.concatenate([p[3] for p in pieces]), np.concatenate([p[4] for p in pieces])), bad
 
 
-def _frame_offsets(p: bytes) -> list[int] | None:
-    """Record offsets within one `/can/raw` message, None if its framing is broken."""
-    offsets, pos, n = [], 0, len(p)
+def _frame_offsets(p: bytes, base: int, offsets: array) -> bool:
+    """Append the record offsets within one `/can/raw` message (plus `base`) to `offsets`; False (nothing
+    appended) if its framing is broken or a record claims more than `MAX_DATA` data bytes."""
+    pos, n, mark = 0, len(p), len(offsets)
     while pos < n:
-        if pos + HEADER_SIZE > n:
-            return None
-        offsets.append(pos)
+        if pos + HEADER_SIZE > n or p[pos + LENGTH_OFFSET] > MAX_DATA:
+            del offsets[mark:]
+            return False
+        offsets.append(base + pos)
         pos += HEADER_SIZE + p[pos + LENGTH_OFFSET]
-    return offsets if pos == n else None
+    if pos != n:
+        del offsets[mark:]
+        return False
+    return True
 
 
 def _general_can(payloads: list[bytes]) -> tuple[tuple, int]:
     """Frames of mixed lengths, message by message; malformed messages are dropped and counted."""
     good: list[bytes] = []
-    offsets: list[int] = []
+    offsets = array("q")
     base, bad = 0, 0
     for p in payloads:
-        found = _frame_offsets(p)
-        if found is None:
+        if not _frame_offsets(p, base, offsets):
             bad += 1
             continue
         good.append(p)
-        offsets.extend(o + base for o in found)
         base += len(p)
     if not offsets:
         return _empty_can(), bad
-    buf = np.frombuffer(b"".join(good), np.uint8)
-    offs = np.asarray(offsets, np.int64)
-    t = buf[offs[:, None] + np.arange(_T_END)].copy().view("<f8").reshape(-1)
-    ids = buf[offs[:, None] + np.arange(_T_END, _ID_END)].copy().view("<u4").reshape(-1)
+    joined = b"".join(good)
+    buf = np.frombuffer(joined, np.uint8)
+    offs = np.frombuffer(offsets, np.int64)
+    # header fields read in place through unaligned views at every byte offset (no per-frame index arrays)
+    t = np.ndarray((len(joined) - 7,), "<f8", joined, 0, (1,))[offs]
+    ids = np.ndarray((len(joined) - 3 - _T_END,), "<u4", joined, _T_END, (1,))[offs]
     flags = buf[offs + FLAGS_OFFSET]
     lengths = buf[offs + LENGTH_OFFSET].astype(np.int64)
     width = CLASSIC_WIDTH if lengths.max() <= CLASSIC_WIDTH else FD_WIDTH
-    cols = np.arange(width)
-    idx = np.minimum(offs[:, None] + HEADER_SIZE + cols, len(buf) - 1)
-    data = np.where(cols < lengths[:, None], buf[idx], 0).astype(np.uint8)
+    data = np.zeros((len(offs), width), np.uint8)
+    last = len(buf) - 1
+    for c in range(width):   # column by column: memory of one column at a time
+        has = lengths > c
+        data[has, c] = buf[np.minimum(offs[has] + HEADER_SIZE + c, last)]
     return (t, ids, data, lengths, flags), bad
 
 
@@ -286,7 +298,7 @@ def decode_can_frames(d: ChannelData | None, *, release: bool = False) -> tuple[
 
 
 __all__ = ["CAN_ENCODING", "CAN_RECORD", "CAN_SCHEMA_NAME", "CAN_SCHEMA_TEXT", "CHANNELS", "CLASSIC_WIDTH",
-           "EXTENDED_ID_FLAG", "FD_WIDTH", "FLAGS_OFFSET", "FLAG_BRS", "FLAG_ERROR", "FLAG_ESI", "FLAG_FD",
+           "EXTENDED_ID_FLAG", "FD_WIDTH", "MAX_DATA", "FLAGS_OFFSET", "FLAG_BRS", "FLAG_ERROR", "FLAG_ESI", "FLAG_FD",
            "FLAG_REMOTE", "HEADER_SIZE", "LENGTH_OFFSET", "LOG_ERROR", "LOG_INFO", "LOG_WARNING", "SCHEMAS",
            "TF_FRAMES", "TOPIC_CAN", "TOPIC_EVENTS", "TOPIC_LOG", "TOPIC_SAMPLES", "TOPIC_STATE", "TOPIC_TF",
            "decode_can_frames", "encode_can_frames", "record_dtype"]

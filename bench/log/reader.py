@@ -24,10 +24,13 @@ as its frames are copied.
 A log from outside is hostile: what the reader does for one is bounded (the limits are
 module constants). Chunks: see `bench.log.chunks` (a chunk inflates to exactly what it
 declares, at most `MAX_CHUNK_BYTES`; all of a log's chunks to at most its inflate
-budget; at most `MAX_RECORDS` records outside chunks). Records: see `bench.log.walk`
-(`MAX_RECORD_BYTES`). At most `MAX_JSON_MESSAGES` table states and samples and
-`MAX_EVENTS` events are parsed. What is refused is damage, with its reason; a machine that
-still runs out of memory gives a `LogError`, never a traceback.
+budget; at most `MAX_RECORDS` records outside chunks). Records and attachments: see
+`bench.log.walk` (`MAX_RECORD_BYTES`, `MAX_ATTACHMENT_BYTES`, `MAX_DBC_BYTES`; the DBC
+file the run's metadata names counts as one whatever its name). A CAN record claiming more
+than 64 data bytes makes its message malformed. At most `MAX_JSON_MESSAGES` table states
+and samples and `MAX_EVENTS` events are parsed; an event whose fields have the wrong types
+is malformed. What is refused is damage, with its reason; a machine that still runs out of
+memory gives a `LogError`, never a traceback.
 """
 
 from __future__ import annotations
@@ -52,7 +55,7 @@ from bench.log.format import (
     TOPIC_STATE,
     decode_can_frames,
 )
-from bench.log.walk import ChannelData, Damage, WalkError, walk
+from bench.log.walk import MAX_DBC_BYTES, ChannelData, Damage, WalkError, walk
 from bench.plan.events import Event
 from drivers.imu import ImuSampleBlock, ImuStats, decode_frames
 from drivers.imu.layout import ImuLayout
@@ -327,6 +330,13 @@ def _sample_row(r: dict) -> bool:
         return False
 
 
+def _event_ok(e: Event) -> bool:
+    """Whether an event's fields have the types the readers of events rely on (`Event.from_dict` keeps
+    whatever the log holds)."""
+    return ((e.state is None or type(e.state) is str) and (e.step_unit is None or type(e.step_unit) is str)
+            and (e.step_index is None or _is_int(e.step_index)))
+
+
 def _not_read(topic: str, count: int, limit: int) -> Damage:
     """`count` messages on `topic` past the `limit` the reader parses: not read, counted as lost."""
     return Damage("message", 0, f"{count} {topic} messages past the first {limit} not read", lost={topic: count})
@@ -343,7 +353,7 @@ def _parse_json_rows(payloads: list[bytes]) -> tuple[list, int]:
         rows = json.loads(b"[" + b",".join(payloads) + b"]")
         if len(rows) == len(payloads) and all(isinstance(r, dict) for r in rows):
             return rows, 0
-    except ValueError:
+    except (ValueError, RecursionError):   # RecursionError: arrays nested too deep
         pass
     rows, bad = [], 0
     for p in payloads:
@@ -352,7 +362,7 @@ def _parse_json_rows(payloads: list[bytes]) -> tuple[list, int]:
             if not isinstance(r, dict):
                 raise ValueError("not an object")
             rows.append(r)
-        except ValueError:
+        except (ValueError, RecursionError):
             rows.append(None)
             bad += 1
     return rows, bad
@@ -404,6 +414,12 @@ def _read_log(path: str, defer_samples: bool) -> RunLog:
                            f"expected {CAN_ENCODING!r}")
         by_topic[topic] = d
     damage = list(w.damage)
+    dbc = w.metadata.get("imu", {}).get("dbc")   # the DBC file the run names, whatever its name ends with
+    if dbc in w.attachments and len(w.attachments[dbc][1]) > MAX_DBC_BYTES:
+        damage.append(Damage("attachment", w.attachment_offsets.get(dbc, 0),
+                             f"attachment {dbc[:64]!r} (the run's DBC file) holds {len(w.attachments[dbc][1])} bytes, "
+                             f"more than a DBC file may ({MAX_DBC_BYTES} bytes); dropped"))
+        del w.attachments[dbc]
 
     # The summary's statistics tell how many messages each channel should have.
     if w.statistics is not None:
@@ -437,8 +453,13 @@ def _read_log(path: str, defer_samples: bool) -> RunLog:
         rows, bad = _parse_json_rows(d.payloads())
         for r in filter(None, rows):
             try:
-                events.append(Event.from_dict(r))
-            except (KeyError, TypeError, ValueError, AttributeError):
+                event = Event.from_dict(r)
+            except (KeyError, TypeError, ValueError, AttributeError, OverflowError):
+                bad += 1
+                continue
+            if _event_ok(event):
+                events.append(event)
+            else:
                 bad += 1
         if bad:
             damage.append(_malformed(TOPIC_EVENTS, bad))

@@ -68,6 +68,7 @@ def _fmt_range(start_ns: int, end_ns: int) -> str:
     return f"log time {start_ns / 1e9:.3f}..{end_ns / 1e9:.3f} s"
 
 
+_MAX_DESCRIBE = 600   # characters of a damage line
 _DROP_BEHIND = 64 << 20   # bytes of a mapped file the walk leaves mapped behind it
 
 
@@ -83,6 +84,10 @@ class Damage:
     lost: dict[str, int] = field(default_factory=dict)   # topic -> messages lost, when known
 
     def describe(self) -> str:
+        """One line (whatever the reason quotes from the file)."""
+        return " ".join(self._describe().split())[:_MAX_DESCRIBE]
+
+    def _describe(self) -> str:
         where = ""
         if self.start_ns is not None and self.end_ns is not None:   # a range is known whole or not at all
             where = f" ({_fmt_range(self.start_ns, self.end_ns)})"
@@ -240,6 +245,7 @@ class Walk:
     data: dict[int, ChannelData] = field(default_factory=dict)
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     attachments: dict[str, tuple[str, bytes]] = field(default_factory=dict)
+    attachment_offsets: dict[str, int] = field(default_factory=dict)   # name -> byte offset of its record
     statistics: Statistics | None = None
     footer: Footer | None = None
     chunks: int = 0
@@ -256,6 +262,31 @@ class Walk:
 #: largest, a metadata record with the configuration, holds a few KB).
 MAX_RECORD_BYTES = 16 << 20
 _CAPPED = frozenset({OP_HEADER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_METADATA, OP_STATISTICS})
+#: The most an attachment may hold (configuration, schedules, the result) and a DBC file (by its name).
+MAX_ATTACHMENT_BYTES = 16 << 20
+MAX_DBC_BYTES = 1 << 20
+
+
+def attachment_limit(name: str) -> int:
+    """How many bytes the attachment `name` may hold: `MAX_DBC_BYTES` for a DBC file (`*.dbc`)."""
+    return MAX_DBC_BYTES if name.lower().endswith(".dbc") else MAX_ATTACHMENT_BYTES
+
+
+def attachment_head(buf, body: int, end: int) -> tuple[str, int] | None:
+    """(name, data length) of an attachment record, read without its data; None if malformed."""
+    q = body + 16                                    # log time, create time
+    if q + 4 > end:
+        return None
+    (n,) = struct.unpack_from("<I", buf, q)
+    if q + 4 + n + 4 > end:
+        return None
+    name = bytes(buf[q + 4:q + 4 + n]).decode("utf-8", "replace")
+    q += 4 + n
+    (m,) = struct.unpack_from("<I", buf, q)
+    q += 4 + m
+    if q + 8 > end:
+        return None
+    return name, struct.unpack_from("<Q", buf, q)[0]
 
 
 class _Walker:
@@ -436,12 +467,21 @@ class _Walker:
             m = Metadata.read(body_stream(buf, body, end))
             w.metadata[m.name] = m.metadata
         elif op == OP_ATTACHMENT:
-            a = Attachment.read(body_stream(buf, body, end))
-            (crc,) = struct.unpack_from("<I", buf, end - 4)
-            if crc != 0 and zlib.crc32(buf[body:end - 4]) != crc:
-                w.damage.append(Damage("attachment", pos, f"attachment {a.name!r} fails its CRC check; dropped"))
+            head = attachment_head(buf, body, end)
+            if head is not None and head[1] > attachment_limit(head[0]):
+                name, n = head
+                w.damage.append(Damage("attachment", pos, f"attachment {name[:64]!r} holds {n} bytes, more than "
+                                                          f"{attachment_limit(name)} bytes (the limit for its kind); "
+                                                          "dropped"))
             else:
-                w.attachments[a.name] = (a.media_type, a.data)
+                a = Attachment.read(body_stream(buf, body, end))
+                (crc,) = struct.unpack_from("<I", buf, end - 4)
+                if crc != 0 and zlib.crc32(buf[body:end - 4]) != crc:
+                    w.damage.append(Damage("attachment", pos, f"attachment {a.name[:64]!r} fails its CRC check; "
+                                                              "dropped"))
+                else:
+                    w.attachments[a.name] = (a.media_type, a.data)
+                    w.attachment_offsets[a.name] = pos
         elif op == OP_STATISTICS:
             w.statistics = Statistics.read(body_stream(buf, body, end))
         if op != OP_MESSAGE_INDEX and op != OP_CHUNK:

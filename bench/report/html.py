@@ -168,6 +168,17 @@ def _figure(svg: str | None, caption: str) -> str:
     return f'<figure>\n{svg}\n<figcaption>{_e(caption)}</figcaption>\n</figure>'
 
 
+def _plot(what: str, caption: str, draw, *args) -> str:
+    """The figure `draw(*args)` with its caption; where it cannot be drawn from the data (a log from
+    outside may hold anything, e.g. angles of 1e308: `plots.PlotError`, or what matplotlib raises on
+    such data), a note in its place that says which figure is missing and why."""
+    try:
+        svg = draw(*args)
+    except (ValueError, OverflowError, FloatingPointError) as exc:   # PlotError is a ValueError
+        return f'<p class="fail">The figure of {_e(what)} is not drawn: {_e(exc)}.</p>'
+    return _figure(svg, caption)
+
+
 def log_damage(log, still_open: bool = False) -> list[str]:
     """What the log lost; a log still being written (`still_open`) lacks its summary by design."""
     expected = {d.describe() for d in log.lost if d.kind == "no_summary"} if still_open else set()
@@ -243,9 +254,10 @@ def _coefficients(result: CalibrationResult) -> str:
     numeric = {1, 2} | ({4, 5} if truth else set())
     html = ["<h2>Coefficients</h2>", _table(header, rows, numeric, ids)]
     if truth and names:
-        html.append(_figure(plots.sigma_bars_figure(names, zs, 3.0, "error / sigma against the simulated truth"),
-                            "Simulated run: each coefficient's error against the simulator's true value, in units "
-                            "of its 1-sigma (red beyond 3 sigma)."))
+        html.append(_plot("the errors against the simulated truth",
+                          "Simulated run: each coefficient's error against the simulator's true value, in units "
+                          "of its 1-sigma (red beyond 3 sigma).",
+                          plots.sigma_bars_figure, names, zs, 3.0, "error / sigma against the simulated truth"))
     return "\n".join(html)
 
 
@@ -302,8 +314,9 @@ def _residuals(result: CalibrationResult) -> str:
         html.append("<h3>Rotations</h3>")
         html.append(_table(["rotation", "start deg", "turn", "gyro arcsec (x, y, z)", "gyro r/sigma",
                             "max |r|/sigma", "flag"], rows, {3, 4, 5}))
-    html.append(_figure(plots.residual_figure(positions, rotations, threshold),
-                        "Normalized residuals per position and per rotation; circled points are outliers."))
+    html.append(_plot("the normalized residuals",
+                      "Normalized residuals per position and per rotation; circled points are outliers.",
+                      plots.residual_figure, positions, rotations, threshold))
     return "\n".join(html)
 
 
@@ -313,20 +326,22 @@ def _log_plots(series: LogSeries) -> str:
     html = ["<h2>IMU outputs and table angles</h2>"]
     html += [f'<p class="note">{_e(n)}</p>' for n in series.notes]
     if series.dwell_labels:
-        html.append(_figure(plots.step_means_figure(series.dwell_labels, series.acc_mean, series.acc_std,
-                                                    series.gyro_mean, series.gyro_std),
-                            "Accelerometer and gyro output per dwell step: mean over the dwell window, "
-                            "error bars +-1 standard deviation of its samples."))
+        html.append(_plot("the mean output per dwell",
+                          "Accelerometer and gyro output per dwell step: mean over the dwell window, "
+                          "error bars +-1 standard deviation of its samples.",
+                          plots.step_means_figure, series.dwell_labels, series.acc_mean, series.acc_std,
+                          series.gyro_mean, series.gyro_std))
     if len(series.sample_t_s):
-        html.append(_figure(plots.timeseries_figure(series.sample_t_s, series.acc_rate, series.gyro_rate,
-                                                    series.spans),
-                            f"Accelerometer and gyro outputs over the run ({len(series.sample_t_s)} samples, drawn as "
-                            f"a min/max envelope of at most {plots.MAX_POINTS} points per channel)."))
+        html.append(_plot("the IMU outputs over the run",
+                          f"Accelerometer and gyro outputs over the run ({len(series.sample_t_s)} samples, drawn as "
+                          f"a min/max envelope of at most {plots.MAX_POINTS} points per channel).",
+                          plots.timeseries_figure, series.sample_t_s, series.acc_rate, series.gyro_rate, series.spans))
     else:
         html.append('<p class="note">No IMU samples in the log.</p>')
     if len(series.state_t_s):
-        html.append(_figure(plots.angles_figure(series.state_t_s, series.angles_deg, series.spans),
-                            f"Table frame angles as the controller reported them ({len(series.state_t_s)} states)."))
+        html.append(_plot("the table angles",
+                          f"Table frame angles as the controller reported them ({len(series.state_t_s)} states).",
+                          plots.angles_figure, series.state_t_s, series.angles_deg, series.spans))
     else:
         html.append('<p class="note">No table states in the log.</p>')
     return "\n".join(html)
@@ -358,9 +373,10 @@ def _comparison(comparison: Comparison) -> str:
     html.append(_table(["name", "old", "new", "change", "unit", "change / sigma", "flag"], rows, {1, 2, 3, 5}, ids))
     names = [c.name for c in comparison.changes]
     if names:
-        html.append(_figure(plots.sigma_bars_figure(names, [c.z for c in comparison.changes], comparison.threshold,
-                                                    f"change against {comparison.label}, in sigma"),
-                            "Each coefficient's change in units of the combined sigma (red beyond the threshold)."))
+        html.append(_plot("the changes in sigma",
+                          "Each coefficient's change in units of the combined sigma (red beyond the threshold).",
+                          plots.sigma_bars_figure, names, [c.z for c in comparison.changes], comparison.threshold,
+                          f"change against {comparison.label}, in sigma"))
     return "\n".join(html)
 
 

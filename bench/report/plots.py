@@ -31,6 +31,9 @@ if TYPE_CHECKING:   # for the type checker only: the rc keys matplotlib accepts
 
 #: Points per channel a time-series figure keeps at most (min/max pairs).
 MAX_POINTS = 2000
+#: The largest magnitude a figure draws: matplotlib's axis arithmetic overflows near 1e308, so a figure
+#: whose data reach beyond this is not drawn (`PlotError`; the report says so in its place).
+MAX_MAGNITUDE = 1e100
 AXIS_COLORS = ("#1f77b4", "#2ca02c", "#d62728")     # x / outer, y / middle, z / inner
 OUTLIER_COLOR = "#d62728"
 DWELL_SHADE, TURN_SHADE = "#cfe3f5", "#f8dfc4"
@@ -41,6 +44,20 @@ _RC: dict[RcKeyType, str | float | bool] = {
 _NO_METADATA = {"Creator": None, "Date": None, "Format": None, "Type": None}
 _counter = itertools.count(1)
 _ID_REF = re.compile(r'(\bid="|href="#|url\(#)([^")]+)')
+
+
+class PlotError(ValueError):
+    """A figure cannot be drawn from these data; the message says why."""
+
+
+def check_drawable(what: str, *arrays) -> None:
+    """PlotError if a finite value in `arrays` is beyond +-`MAX_MAGNITUDE` (NaN and inf are left out of
+    a plot anyway)."""
+    for a in arrays:
+        v = np.asarray(a, float)
+        v = np.abs(v[np.isfinite(v)])
+        if v.size and v.max() > MAX_MAGNITUDE:
+            raise PlotError(f"{what} reach {v.max():.3g}, beyond the +-{MAX_MAGNITUDE:g} a figure can show")
 
 
 def envelope(t: np.ndarray, y: np.ndarray, max_points: int = MAX_POINTS) -> tuple[np.ndarray, np.ndarray]:
@@ -128,6 +145,8 @@ def residual_figure(positions: list[dict], rotations: list[dict], threshold: flo
         panels.append(("rotations: gyros", rotations, "gyro_normalized"))
     if not panels:
         return None
+    check_drawable("the normalized residuals",
+                   *([np.nan if x is None else x for x in (r.get(key) or [])] for _, rows, key in panels for r in rows))
     with plt.rc_context(_RC):
         fig, axes = _figure(len(panels), 1, 10.0, 2.6 * len(panels) + 0.3, hgap_in=0.95, bottom_in=0.65)
         for ax, (title, rows, key) in zip(axes[:, 0], panels):
@@ -150,6 +169,7 @@ def residual_figure(positions: list[dict], rotations: list[dict], threshold: flo
 def step_means_figure(labels: list[str], acc_mean: np.ndarray, acc_std: np.ndarray,
                       gyro_mean: np.ndarray, gyro_std: np.ndarray) -> str:
     """Each dwell's mean output per axis (counts/s) with +-1 std of its samples: accelerometers, gyros."""
+    check_drawable("the dwell means", acc_mean, acc_std, gyro_mean, gyro_std)
     with plt.rc_context(_RC):
         # One panel per sensor, the three axes side by side: every axis shares its sensor's range,
         # and ticks are what drawing costs.
@@ -170,6 +190,8 @@ def step_means_figure(labels: list[str], acc_mean: np.ndarray, acc_std: np.ndarr
 def timeseries_figure(t_s: np.ndarray, acc: np.ndarray, gyro: np.ndarray,
                       spans: Sequence[tuple[float, float, str]], max_points: int = MAX_POINTS) -> str:
     """Accelerometer and gyro outputs (counts/s per axis) over run time, dwells and turns shaded."""
+    check_drawable("the IMU outputs", acc, gyro)
+    check_drawable("the sample and step times", t_s, [x for t0, t1, _ in spans for x in (t0, t1)])
     with plt.rc_context(_RC):
         fig, axes = _figure(2, 1, 10.0, 5.0, sharex=True, top_in=0.3, hgap_in=0.3)
         for ax, name, data in ((axes[0, 0], "accelerometers", acc), (axes[1, 0], "gyros", gyro)):
@@ -186,6 +208,8 @@ def timeseries_figure(t_s: np.ndarray, acc: np.ndarray, gyro: np.ndarray,
 def angles_figure(t_s: np.ndarray, angles_deg: np.ndarray, spans: Sequence[tuple[float, float, str]],
                   max_points: int = MAX_POINTS) -> str:
     """The controller's frame angles (outer, middle, inner) over run time."""
+    check_drawable("the table angles", angles_deg)
+    check_drawable("the table state and step times", t_s, [x for t0, t1, _ in spans for x in (t0, t1)])
     with plt.rc_context(_RC):
         fig, axes = _figure(1, 1, 10.0, 3.0, top_in=0.3)
         ax = axes[0, 0]
@@ -201,6 +225,7 @@ def angles_figure(t_s: np.ndarray, angles_deg: np.ndarray, spans: Sequence[tuple
 
 def sigma_bars_figure(names: list[str], z: list[float | None], threshold: float, title: str) -> str:
     """One bar per coefficient: a difference in units of its sigma, bars beyond +-threshold in red."""
+    check_drawable("the differences", [np.nan if x is None else x for x in z])
     with plt.rc_context(_RC):
         fig, axes = _figure(1, 1, 10.0, 3.2, bottom_in=0.7)
         ax = axes[0, 0]

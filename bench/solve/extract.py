@@ -19,6 +19,7 @@ serves the live run (which solves from the log it just wrote) and `bench solve`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,6 +28,7 @@ from bench.model.earth import Site
 from bench.model.kinematics import FRAMES
 from bench.model.motion import Piece
 from bench.model.observations import (
+    DIRECTION_SIGN,
     PositionObservation,
     RotationObservation,
     mean_and_standard_error,
@@ -47,19 +49,76 @@ class Extraction:
         return [o.label for o in self.positions] + [o.label for o in self.rotations]
 
 
+def _vector(v, n: int = 3) -> bool:
+    return (isinstance(v, list) and len(v) == n
+            and all(type(x) in (int, float) and math.isfinite(x) for x in v))
+
+
+def _int(x) -> bool:
+    return type(x) is int and abs(x) < 1 << 62
+
+
+def malformed_step(event: Event) -> str | None:
+    """Why a dwell's or turn's step_finished event cannot be used (a log from outside may hold anything
+    in its events), or None: the step record and the counter window the extraction and the reports read."""
+    step, data = event.data.get("step"), event.data
+    if not isinstance(step, dict):
+        return "its step record is not an object"
+    if not (_int(data.get("counter_first")) and _int(data.get("counter_last"))
+            and data["counter_first"] <= data["counter_last"]):
+        return "its IMU counter window is not two integers, first <= last"
+    if step.get("kind") == "dwell":
+        return None if _vector(step.get("angles_deg")) else "its angles_deg are not three finite numbers"
+    if not (_vector(step.get("start_deg")) and _vector(step.get("target_deg"))):
+        return "its start_deg or target_deg are not three finite numbers"
+    if step.get("frame") not in FRAMES or step.get("direction") not in DIRECTION_SIGN:
+        return "its frame or direction is not one the bench knows"
+    if not (_int(step.get("revolutions")) and step["revolutions"] > 0):
+        return "its revolutions are not a positive integer"
+    return None
+
+
+def _observation(event: Event) -> bool:
+    """Whether `event` belongs to a dwell or a turn (its step record says so)."""
+    step = event.data.get("step")
+    return isinstance(step, dict) and step.get("kind") in ("dwell", "turn")
+
+
 def finished_observation_steps(events: list[Event]) -> dict[str, tuple[Event | None, Event]]:
-    """unit -> (its step_started event, its step_finished event) for dwells and turns; a re-run wins."""
+    """unit -> (its step_started event, its step_finished event) for dwells and turns; a re-run wins.
+    Only well-formed finished steps count (`malformed_step`; `malformed_observation_steps` lists the others)."""
     started: dict[str, Event] = {}
     done: dict[str, tuple[Event | None, Event]] = {}
     for event in events:
-        step = event.data.get("step") or {}
-        if step.get("kind") not in ("dwell", "turn") or event.step_unit is None:
+        unit = event.step_unit
+        if unit is None or not _observation(event):
             continue
         if event.kind == "step_started":
-            started[event.step_unit] = event
-        elif event.kind == "step_finished" and "counter_first" in event.data:
-            done[event.step_unit] = (started.get(event.step_unit), event)
+            started[unit] = event
+        elif event.kind == "step_finished" and "counter_first" in event.data and malformed_step(event) is None:
+            done[unit] = (started.get(unit), event)
     return done
+
+
+def malformed_observation_steps(events: list[Event]) -> list[str]:
+    """One line per dwell or turn whose step_finished event cannot be used (`malformed_step`), unless a
+    well-formed one of the same unit replaces it."""
+    good = finished_observation_steps(events)
+    lines = {}
+    for event in events:
+        if (event.kind != "step_finished" or "counter_first" not in event.data or event.step_unit is None
+                or event.step_unit in good):
+            continue
+        step = event.data.get("step")
+        if isinstance(step, dict) and step.get("kind") not in ("dwell", "turn"):
+            continue
+        why = malformed_step(event)
+        if why is not None:
+            lines[event.step_unit] = f"{event.step_unit}: its step_finished event is malformed ({why}); left out"
+    return [lines[k] for k in sorted(lines)]
+
+
+_PIECES_AT_ONCE = 256   # table-state pieces per Earth-rate integral call (see `_turn_earth_integral`)
 
 
 def _window(counter: np.ndarray, first: int, last: int) -> slice:
@@ -73,17 +132,24 @@ def _turn_earth_integral(site: Site, step: dict, samples_duration_s: float, t0: 
     start_nominal = np.asarray(step["start_deg"], dtype=float)
     rest = [Piece(0.0, start_nominal[k] * DEG, 0.0, 0.0)]
     base = turn_earth_integral(site, start_nominal, k, rest, 0.0, samples_duration_s, mounting=mounting)
-    inside = (state_time_s >= t0) & (state_time_s <= t1)
-    times = state_time_s[inside]
+    inside = np.flatnonzero((state_time_s >= t0) & (state_time_s <= t1))
+    # the states in time order, one per time (a recorded log's already are; a log from outside may repeat)
+    times, first = np.unique(state_time_s[inside], return_index=True)
     if len(times) < 2:
         return base
     # Frame angle in the schedule's nominal terms (the controller's is multi-turn).
-    theta = (state_angles_deg[inside, k] - step["target_deg"][k] + start_nominal[k]) * DEG
+    theta = (state_angles_deg[inside[first], k] - step["target_deg"][k] + start_nominal[k]) * DEG
     pieces = [Piece(float(times[i]), float(theta[i]), float((theta[i + 1] - theta[i]) / (times[i + 1] - times[i])), 0.0)
-              for i in range(len(times) - 1) if times[i + 1] > times[i]]
+              for i in range(len(times) - 1)]
     pieces.append(Piece(float(times[-1]), float(theta[-1]), 0.0, 0.0))
     span = float(times[-1] - times[0])
-    moving = turn_earth_integral(site, start_nominal, k, pieces, float(times[0]), float(times[-1]), mounting=mounting)
+    # the integral is additive over time: many states are taken a block at a time (its cost grows with the
+    # square of the pieces given at once)
+    moving = np.zeros(3)
+    for a in range(0, len(pieces) - 1, _PIECES_AT_ONCE):
+        b = min(a + _PIECES_AT_ONCE, len(pieces) - 1)
+        moving = moving + turn_earth_integral(site, start_nominal, k, pieces[a:b + 1], float(times[a]),
+                                              float(times[b]), mounting=mounting)
     at_rest = turn_earth_integral(site, start_nominal, k, rest, 0.0, span, mounting=mounting)
     return base + moving - at_rest
 
@@ -92,7 +158,7 @@ def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: 
                          rate_hz: float, site: Site, state_time_s: np.ndarray, state_angles_deg: np.ndarray,
                          mounting=None) -> Extraction:
     """Observations of every finished dwell and turn, in the order the units were listed (P.., R..)."""
-    out = Extraction()
+    out = Extraction(problems=malformed_observation_steps(events))
     counter = np.asarray(counter, dtype=np.int64)
     for unit, (started, finished) in sorted(finished_observation_steps(events).items()):
         step, data = finished.data["step"], finished.data

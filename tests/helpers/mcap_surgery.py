@@ -4,7 +4,8 @@ Built on the record layout in `bench.log.chunks` (opcode u8 | length u64 | body;
 body is start u64 | end u64 | uncompressed size u64 | crc u32 | compression string |
 data length u64 | data): find the top-level records, build chunk, message and message
 index records, put a crafted chunk in place of a real one, and compress a repeated block
-to any size without holding the output (`zstd_bomb`, `lz4_bomb`).
+to any size without holding the output (`zstd_bomb`, `lz4_bomb`); copy a log through
+`mcap.writer` with its messages and attachments edited (`rewrite`).
 """
 
 from __future__ import annotations
@@ -13,6 +14,8 @@ import struct
 
 import lz4.frame
 import zstandard
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
 
 from bench.log.chunks import OP_CHUNK, OP_FOOTER, OP_MESSAGE, OP_MESSAGE_INDEX, RECORD_HEAD
 from bench.log.format import CAN_RECORD
@@ -109,3 +112,30 @@ def lz4_bomb(block: bytes, total: int, *, content_size: bool = True) -> bytes:
     out = [comp.begin(source_size=total if content_size else 0)]   # 0: the frame states no size
     out += [comp.compress(piece) for piece in _repeat(block, total)]
     return b"".join(out + [comp.flush()])
+
+
+def rewrite(src, dst, message=None, attachment=None):
+    """A copy of log `src` at `dst` through `mcap.writer`, each message's data through
+    `message(topic, data) -> data` and each attachment's through `attachment(name, data) -> data`."""
+    with open(src, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        messages = list(reader.iter_messages(log_time_order=False))
+        attachments = list(reader.iter_attachments())
+        metadata = list(reader.iter_metadata())
+    with open(dst, "wb") as f:
+        w = Writer(f, compression=CompressionType.ZSTD)
+        w.start(profile="", library="tests/helpers/mcap_surgery.py")
+        schemas = {s.id: w.register_schema(s.name, s.encoding, s.data) for s in summary.schemas.values()}
+        channels = {c.id: w.register_channel(c.topic, c.message_encoding, schemas.get(c.schema_id, 0), c.metadata)
+                    for c in summary.channels.values()}
+        for _, channel, m in messages:
+            data = m.data if message is None else message(channel.topic, m.data)
+            w.add_message(channels[channel.id], m.log_time, data, m.publish_time, m.sequence)
+        for a in attachments:
+            data = a.data if attachment is None else attachment(a.name, a.data)
+            w.add_attachment(a.log_time, a.create_time, a.name, a.media_type, data)
+        for m in metadata:
+            w.add_metadata(m.name, m.metadata)
+        w.finish()
+    return dst
