@@ -124,6 +124,8 @@ def test_sim_table_stops_on_sigint_even_when_started_with_sigint_ignored():
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     try:
         assert "listening on" in proc.stdout.readline()
+        # the signal while it serves (reading the fault console), not while it still prints its start-up lines
+        assert "Ctrl-C stops" in proc.stdout.readline()
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=10) == 0
         assert "stopped" in proc.stderr.read()
