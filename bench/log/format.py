@@ -227,19 +227,29 @@ def _uniform_can_parts(d: ChannelData, release: bool = False):
     if not general:
         return (t, ids, data, np.full(n, length, np.int64), flags), 0
     # some parts differ (mixed frame lengths, or malformed): the pieces in order, those parts decoded alone
+    # (and dropped as they are, with `release`), then put together a field at a time (each field's pieces
+    # are let go as it is done: what is held at once is the pieces and one field, not two copies of all)
     pieces, bad, other = [], 0, set(general)
     for k in range(len(sizes)):
         if k in other:
             piece, b = _general_can(d.part_payloads(k))
-            pieces.append(piece)
+            pieces.append(list(piece))
             bad += b
+            if release:
+                d.parts[k] = b""
         elif sizes[k]:
             a, b = starts[k], starts[k + 1]
-            pieces.append((t[a:b], ids[a:b], data[a:b], np.full(b - a, length, np.int64), flags[a:b]))
+            pieces.append([t[a:b], ids[a:b], data[a:b], np.full(b - a, length, np.int64), flags[a:b]])
     top = max(p[2].shape[1] for p in pieces)
-    return (np.concatenate([p[0] for p in pieces]), np.concatenate([p[1] for p in pieces]),
-            np.concatenate([np.pad(p[2], ((0, 0), (0, top - p[2].shape[1]))) for p in pieces]),
-            np.concatenate([p[3] for p in pieces]), np.concatenate([p[4] for p in pieces])), bad
+    fields = []
+    for f in range(5):
+        column = [p[f] if f != 2 or p[f].shape[1] == top else np.pad(p[f], ((0, 0), (0, top - p[f].shape[1])))
+                  for p in pieces]
+        fields.append(np.concatenate(column))
+        del column
+        for p in pieces:
+            p[f] = None
+    return tuple(fields), bad
 
 
 def _frame_offsets(p: bytes, base: int, offsets: array) -> bool:
