@@ -372,6 +372,21 @@ def test_wire_faults_end_to_end(live):
     table.check_link()                   # the link is fine again
 
 
+def test_a_late_reply_is_dropped_not_read_as_the_reply_to_the_next_request(live):
+    """See tests/test_scpi.py: the same over `$MN`, whose echo check cannot tell two STA replies apart."""
+    table, ctl, clock = live
+    table.enable(["outer"])
+    table.set_rate("outer", 10.0)
+    ctl.faults.late = 1
+    first = table.read_state()
+    assert table.stats.timeouts == 1 and table.stats.late_replies == 1
+    clock.advance(2.0)
+    second = table.read_state()
+    assert second.angles_deg == pytest.approx(ctl.state().angles_deg, abs=1e-6)
+    assert second.angles_deg[0] > first.angles_deg[0] + 10.0
+    assert table.stats.timeouts == 1
+
+
 def test_estop_aborts_a_move(live):
     table, ctl, clock = live
     table.enable()

@@ -171,6 +171,22 @@ def test_dwells_whose_block_means_agree_exactly_still_solve(tmp_path, noise, bla
         _assert_within_three_sigma(result, bound=4.0)
 
 
+def test_a_late_controller_reply_does_not_change_a_simulated_run(tmp_path):
+    """A reply that comes after the driver's timeout (a loaded machine, or a slow controller) must not
+    shift the run: once, the next reply was read as the answer to the request after it, a stale 'not
+    yet in position' cost a move poll, and every later dwell window moved (a 3-sigma test failed)."""
+    text = config_text()
+    windows = {}
+    for late in (False, True):
+        trigger = Trigger(step_index(_plan(text), "move", 3),
+                          lambda run: setattr(run.world.controller.faults, "late", 1), moving_dps=10.0)
+        with api_run(text, tmp_path / str(late), *([trigger] if late else [])) as (run, outcome):
+            assert outcome.state.value == "done"
+            assert run.table.stats.late_replies == (1 if late else 0)
+            windows[late] = dict(run.sequencer.windows)
+    assert windows[True] == windows[False]
+
+
 # -- 3. abort through the API ---------------------------------------------------------------
 
 @pytest.mark.parametrize("where", ["dwell start", "mid-move"])

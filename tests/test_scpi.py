@@ -291,6 +291,23 @@ def test_reply_timeout_is_retried_then_raised(table):
     driver.read_state()
 
 
+def test_a_late_reply_is_dropped_not_read_as_the_reply_to_the_next_request(table):
+    """A controller that answers after the client gave up answers the retry too: that second reply
+    must not answer the next request (every state would be one poll old from then on)."""
+    driver, controller, clock = table
+    driver.enable(["outer"])
+    driver.set_rate("outer", 10.0)
+    controller.faults.late = 1
+    first = driver.read_state()
+    assert driver.stats.timeouts == 1 and driver.stats.late_replies == 1
+    clock.advance(2.0)
+    second = driver.read_state()
+    assert second.time_s == pytest.approx(first.time_s + 2.0)
+    assert second.angles_deg == pytest.approx(controller.state().angles_deg, abs=1e-6)
+    assert second.angles_deg[0] > first.angles_deg[0] + 10.0
+    assert driver.stats.timeouts == 1
+
+
 @pytest.mark.parametrize("fault", ["garbage", "checksum"])
 def test_corrupted_replies_are_retried_then_raised(table, fault):
     driver, controller, _ = table

@@ -59,24 +59,39 @@ class WireFaults:
 
     `timeout`: swallow the reply; `garbage`: reply with junk bytes; `checksum`: corrupt
     the reply's checksum/CRC (the dialect decides how); `exception`: reply with an error
-    or Modbus exception code `exception_code` instead of executing.
+    or Modbus exception code `exception_code` instead of executing; `late` (line dialects):
+    hold the reply back and send it just before the reply to the next request, as a slow
+    controller does when the client has given up waiting.
     """
 
     timeout: int = 0
     garbage: int = 0
     checksum: int = 0
     exception: int = 0
+    late: int = 0
     exception_code: int = 4
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    _held: bytes = field(default=b"", repr=False)
 
     def take(self) -> str | None:
         """The fault to apply to the reply being built (and count it), or None."""
         with self._lock:
-            for name in ("timeout", "garbage", "checksum", "exception"):
+            for name in ("timeout", "garbage", "checksum", "exception", "late"):
                 if getattr(self, name) > 0:
                     setattr(self, name, getattr(self, name) - 1)
                     return name
         return None
+
+    def hold(self, reply: bytes) -> None:
+        """Keep `reply` (a `late` fault) for `release`."""
+        with self._lock:
+            self._held += reply
+
+    def release(self) -> bytes:
+        """The replies held back so far (sent before the next reply), and forget them."""
+        with self._lock:
+            held, self._held = self._held, b""
+        return held
 
 
 class SimController:

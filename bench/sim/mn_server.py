@@ -6,7 +6,8 @@ the `SimController` and applies `controller.faults` to the reply:
 - timeout: the command executes, the reply is lost (nothing is sent);
 - garbage: the command executes, junk bytes + CR LF are sent instead of the reply;
 - checksum: the command executes, the reply's checksum digits are wrong;
-- exception: nothing executes, the reply is `ERR,<faults.exception_code>`.
+- exception: nothing executes, the reply is `ERR,<faults.exception_code>`;
+- late: the command executes, the reply is sent just before the reply to the next line.
 A request whose checksum is wrong is answered `ERR,7` and not executed; one that cannot
 be read at all is answered with command `ERR` (`$ASERR,ERR,1`).
 
@@ -35,6 +36,10 @@ class MnSimHandler:
         self.controller = controller
 
     def __call__(self, line: bytes) -> bytes | None:
+        held = self.controller.faults.release()     # replies a `late` fault held back go first
+        return (held + (self._faulty_reply(line) or b"")) or None
+
+    def _faulty_reply(self, line: bytes) -> bytes | None:
         fault = self.controller.faults.take()
         hint = _CMD_HINT.match(line)
         cmd = hint.group(1).decode("ascii") if hint else codec.UNREADABLE_CMD
@@ -42,6 +47,9 @@ class MnSimHandler:
             return codec.encode_error(cmd, self.controller.faults.exception_code) + codec.TERMINATOR
         reply = self.reply(line)
         if fault == "timeout":
+            return None
+        if fault == "late":
+            self.controller.faults.hold(reply + codec.TERMINATOR)
             return None
         if fault == "garbage":
             return GARBAGE + codec.TERMINATOR

@@ -15,7 +15,8 @@ Wire faults (`controller.faults`), taken once per reply:
   codec rejects as a non-ASCII reply (a corruption that stayed a valid character would
   go unnoticed on a real plain-SCPI link);
 - exception: the line is not executed and the reply is the error entry of
-  `faults.exception_code` (a SimCommandError code, mapped as below).
+  `faults.exception_code` (a SimCommandError code, mapped as below);
+- late: the line is executed, the reply is sent just before the reply to the next line.
 """
 
 from __future__ import annotations
@@ -79,6 +80,10 @@ class ScpiSimHandler:
         self.errors.append(sc.format_error(code, detail))
 
     def __call__(self, line: bytes) -> bytes | None:
+        held = self.controller.faults.release()     # replies a `late` fault held back go first
+        return (held + (self._reply(line) or b"")) or None
+
+    def _reply(self, line: bytes) -> bytes | None:
         units = sc.parse_program(line)
         if not any(u.query for u in units):
             with self._lock:
@@ -91,6 +96,9 @@ class ScpiSimHandler:
         with self._lock:
             reply = sc.format_reply(self._run(units))
         if fault == "timeout":
+            return None
+        if fault == "late":
+            self.controller.faults.hold(reply)
             return None
         if fault == "garbage":
             return GARBAGE + b"\r\n"

@@ -3,6 +3,11 @@
 `LineTurntable._transact` sends one request line and parses one reply line with the
 dialect's pure codec. What goes wrong is handled here once for both dialects:
 - no reply within `timeout_s`: retry (input discarded first), then `TurntableTimeout`;
+- a controller that was only slow answers the timed-out attempts as well: the reply that
+  comes first answers the request (it is the same request), and the replies still owed
+  are read and dropped before the call returns (each waited for at most `timeout_s`).
+  Otherwise every later call would read the reply to the call before it: a state one
+  poll old, for the rest of the session;
 - a reply the codec rejects (garbage, bad checksum, wrong echo): retry, then that error;
 - the link drops: reopen the transport once per attempt, then `TurntableConnectionError`;
 - the controller refuses the command (`TurntableCommandError`): raised at once, a
@@ -35,6 +40,7 @@ class LinkStats:
     timeouts: int = 0
     protocol_errors: int = 0
     reconnects: int = 0
+    late_replies: int = 0     # replies to timed-out attempts, read and dropped
 
 
 class LineTurntable(Turntable):
@@ -69,6 +75,7 @@ class LineTurntable(Turntable):
     def _transact(self, request: bytes, parse: Callable[[bytes], T]) -> T:
         """Send `request` (without terminator) and return `parse(reply line)`, retrying as above."""
         last: TurntableError | None = None
+        unanswered = 0       # attempts of this request that timed out: a slow controller still answers them
         for attempt in range(self.retries + 1):
             self.stats.requests += 1
             try:
@@ -89,9 +96,14 @@ class LineTurntable(Turntable):
                 continue
             if line is None:
                 self.stats.timeouts += 1
+                unanswered += 1
                 last = TurntableTimeout(f"{self.dialect}: no reply to {request!r} from {self.url} "
                                         f"within {self.timeout_s} s ({attempt + 1} attempts)")
                 continue
+            if unanswered:
+                # `line` answers the first attempt still owed a reply (replies come in order);
+                # the replies to the later attempts would answer the next calls
+                self._drop_late_replies(unanswered)
             try:
                 return parse(line)
             except TurntableProtocolError as exc:
@@ -99,3 +111,16 @@ class LineTurntable(Turntable):
                 last = exc
         assert last is not None
         raise last
+
+    def _drop_late_replies(self, owed: int) -> None:
+        """Read and drop up to `owed` replies, each waited for at most `timeout_s` (a request lost on
+        the way is never answered: its wait ends the drain)."""
+        for _ in range(owed):
+            try:
+                line = self.channel.read_line(self.timeout_s)
+            except ConnectionError:
+                self.transport.close()     # the next call reopens the link
+                return
+            if line is None:
+                return
+            self.stats.late_replies += 1
