@@ -21,7 +21,8 @@ degrees, DESIGN section 2 sign convention)::
     revolutions = 1             # whole number, 1..100
 
 Rules checked here (each violation is a one-line `ScheduleError` naming the file,
-the 1-based line and the field):
+the 1-based line and the field; the steps are all checked, and the error carries the
+file's other problems in `more`):
 
 - top-level keys exactly as above (`source`, `position`, `rotation` optional);
   `format` and `version` must match, `kind` must be known;
@@ -113,22 +114,38 @@ class Schedule:
 
 
 class ScheduleError(ValueError):
-    """A schedule problem, rendered as one line ``path:line: field: message``."""
+    """A schedule problem, rendered as one line ``path:line: field: message``.
 
-    def __init__(self, path: str, line: int | None, field: str | None, message: str):
+    `more` holds the file's other problems (the steps are all checked): `str()` names how many
+    there are, `lines()` gives one line per problem (`bench schedules validate` prints them all)."""
+
+    def __init__(self, path: str, line: int | None, field: str | None, message: str,
+                 more: tuple[ScheduleError, ...] = ()):
         self.path = str(path)
         self.line = line
         self.field = field
         # One line, always: CLI output and logs rely on it.
         self.message = " ".join(str(message).split())
+        self.more = tuple(more)
         super().__init__(str(self))
 
     def __reduce__(self):  # keep it picklable despite the custom __init__
-        return type(self), (self.path, self.line, self.field, self.message)
+        return type(self), (self.path, self.line, self.field, self.message, self.more)
 
-    def __str__(self) -> str:
+    def head(self) -> str:
+        """This problem alone, as one line."""
         head = self.path if self.line is None else f"{self.path}:{self.line}"
         return ": ".join([head] + ([self.field] if self.field else []) + [self.message])
+
+    def lines(self) -> list[str]:
+        """One line per problem of the file, this one first."""
+        return [self.head()] + [problem.head() for problem in self.more]
+
+    def __str__(self) -> str:
+        if not self.more:
+            return self.head()
+        n = len(self.more)
+        return f"{self.head()} (and {n} more problem{'s' if n > 1 else ''} in this file)"
 
 
 # --- validation -------------------------------------------------------------------
@@ -151,10 +168,12 @@ def _show(value: object, limit: int = 60) -> str:
 
 
 class _Validator:
-    """Turns a parsed TOML document into a `Schedule`, raising on the first problem."""
+    """Turns a parsed TOML document into a `Schedule`. A problem with the file's structure raises
+    at once; the steps are all checked, each field on its own, and their problems raised together."""
 
     def __init__(self, doc: dict, lines: LineMap, path: str):
         self.doc, self.lines, self.path = doc, lines, path
+        self.problems: list[ScheduleError] = []
 
     def fail(self, line: int | None, field: str | None, message: str) -> ScheduleError:
         return ScheduleError(self.path, line, field, message)
@@ -209,18 +228,34 @@ class _Validator:
             rotations = tuple(self._rotations(tables))
         else:
             positions = tuple(self._positions(tables, positive_only=kind == "positions"))
+        if self.problems:
+            first, *more = self.problems
+            raise ScheduleError(first.path, first.line, first.field, first.message, more=tuple(more))
         return Schedule(name=name, kind=kind, description=description, source=self.path,
                         positions=positions, rotations=rotations, reference=reference)
 
-    def _check_keys(self, table_name: str, index: int, table: dict, allowed: dict[str, bool]) -> None:
+    def _check_keys(self, table_name: str, index: int, table: dict, allowed: dict[str, bool]) -> bool:
+        """Note unknown and missing keys; whether every required key is there."""
         label = f"{table_name}[{index + 1}]"
         for key in table:
             if key not in allowed:
-                raise self.fail(self.lines.line(table_name, index, key), f"{label}.{key}",
-                                f"unknown key (allowed: {', '.join(allowed)})")
+                self.problems.append(self.fail(self.lines.line(table_name, index, key), f"{label}.{key}",
+                                               f"unknown key (allowed: {', '.join(allowed)})"))
+        complete = True
         for key, required in allowed.items():
             if required and key not in table:
-                raise self.fail(self.lines.line(table_name, index), f"{label}.{key}", "missing required field")
+                self.problems.append(self.fail(self.lines.line(table_name, index), f"{label}.{key}",
+                                               "missing required field"))
+                complete = False
+        return complete
+
+    def _noted(self, check, *args):
+        """`check(*args)`, or None with its ScheduleError noted."""
+        try:
+            return check(*args)
+        except ScheduleError as exc:
+            self.problems.append(exc)
+            return None
 
     def _angles(self, table_name: str, index: int, key: str, value: object,
                 positive_only: bool) -> tuple[float, float, float]:
@@ -241,41 +276,57 @@ class _Validator:
     def _positions(self, tables: list[dict], positive_only: bool):
         seen: dict[tuple, int] = {}
         for index, table in enumerate(tables):
-            self._check_keys("position", index, table, _POSITION_KEYS)
-            angles_deg = self._angles("position", index, "angles_deg", table["angles_deg"], positive_only)
+            if not self._check_keys("position", index, table, _POSITION_KEYS):
+                continue
+            angles_deg = self._noted(self._angles, "position", index, "angles_deg", table["angles_deg"],
+                                     positive_only)
             group = table.get("group")
             if group is not None and (not _is_int(group) or not 1 <= group <= MAX_GROUP):
-                raise self.fail(self.lines.line("position", index, "group"), f"position[{index + 1}].group",
-                                f"must be a positive integer in 1..{MAX_GROUP}, got {_show(group)}")
+                self.problems.append(self.fail(self.lines.line("position", index, "group"),
+                                               f"position[{index + 1}].group",
+                                               f"must be a positive integer in 1..{MAX_GROUP}, got {_show(group)}"))
+                continue
+            if angles_deg is None:
+                continue
             header = self.lines.line("position", index)
             if angles_deg in seen:
                 earlier = seen[angles_deg]
-                raise self.fail(self.lines.line("position", index, "angles_deg"),
-                                f"position[{index + 1}].angles_deg",
-                                f"duplicate of position[{earlier + 1}] at line {self.lines.line('position', earlier)}")
+                self.problems.append(self.fail(
+                    self.lines.line("position", index, "angles_deg"), f"position[{index + 1}].angles_deg",
+                    f"duplicate of position[{earlier + 1}] at line {self.lines.line('position', earlier)}"))
+                continue
             seen[angles_deg] = index
             yield PositionStep(angles_deg=angles_deg, group=group, line=header)
 
     def _rotations(self, tables: list[dict]):
         seen: dict[tuple, int] = {}
         for index, table in enumerate(tables):
-            self._check_keys("rotation", index, table, _ROTATION_KEYS)
+            if not self._check_keys("rotation", index, table, _ROTATION_KEYS):
+                continue
             label = f"rotation[{index + 1}]"
-            start_deg = self._angles("rotation", index, "start_deg", table["start_deg"], positive_only=True)
+            start_deg = self._noted(self._angles, "rotation", index, "start_deg", table["start_deg"], True)
+            valid = start_deg is not None
             for key, choices in (("frame", FRAMES), ("direction", DIRECTIONS)):
                 if table[key] not in choices:
-                    raise self.fail(self.lines.line("rotation", index, key), f"{label}.{key}",
-                                    f"got {_show(table[key])}, expected one of {', '.join(choices)}")
+                    self.problems.append(self.fail(self.lines.line("rotation", index, key), f"{label}.{key}",
+                                                   f"got {_show(table[key])}, expected one of {', '.join(choices)}"))
+                    valid = False
             revolutions = table["revolutions"]
             if not _is_int(revolutions) or not 1 <= revolutions <= MAX_REVOLUTIONS:
-                raise self.fail(self.lines.line("rotation", index, "revolutions"), f"{label}.revolutions",
-                                f"must be a whole number in 1..{MAX_REVOLUTIONS}, got {_show(revolutions)}")
+                self.problems.append(self.fail(
+                    self.lines.line("rotation", index, "revolutions"), f"{label}.revolutions",
+                    f"must be a whole number in 1..{MAX_REVOLUTIONS}, got {_show(revolutions)}"))
+                valid = False
+            if not valid:
+                continue
             header = self.lines.line("rotation", index)
             step_key = (start_deg, table["frame"], table["direction"])
             if step_key in seen:
                 earlier = seen[step_key]
-                raise self.fail(header, label, f"duplicate of rotation[{earlier + 1}] at line "
-                                f"{self.lines.line('rotation', earlier)} (same start, frame and direction)")
+                self.problems.append(self.fail(header, label, f"duplicate of rotation[{earlier + 1}] at line "
+                                               f"{self.lines.line('rotation', earlier)} (same start, frame and "
+                                               "direction)"))
+                continue
             seen[step_key] = index
             yield RotationStep(start_deg=start_deg, frame=table["frame"], direction=table["direction"],
                                revolutions=revolutions, line=header)

@@ -342,6 +342,23 @@ def test_cli_validate(tmp_path, capsys):
     assert errors[1].startswith(f"{tmp_path / 'missing.toml'}: ")
 
 
+def test_cli_validate_prints_every_problem_of_a_file(tmp_path, capsys):
+    """Not just the first: each bad field of each step is one line (and `str()` says how many more)."""
+    bad = tmp_path / "three.toml"
+    bad.write_text(HEAD + 'kind = "rotations"\n\n'
+                   + ROTATION.replace("[0, 90, 0]", "[0, 90]").replace('"ccw"', '"clockwise"').replace("= 1", "= -1")
+                   + "\n" + ROTATION.replace("outer", "inner").replace("wrong_key", "x") + "nonsense = 1\n",
+                   encoding="utf-8")
+    assert run_cli(["schedules", "validate", str(bad)]) == 1
+    errors = capsys.readouterr().err.splitlines()
+    assert [line.split(": ")[1] for line in errors] == [
+        "rotation[1].start_deg", "rotation[1].direction", "rotation[1].revolutions", "rotation[2].nonsense"]
+    assert all(line.startswith(f"{bad}:") for line in errors)
+    with pytest.raises(schedules.ScheduleError) as info:
+        schedules.load_schedule(bad)
+    assert str(info.value) == errors[0] + " (and 3 more problems in this file)"
+
+
 # --- input limits (issue 13 item 8) -----------------------------------------------------------
 
 DIGITS_400 = "1" + "0" * 399

@@ -73,13 +73,14 @@ def cmd_show(args: argparse.Namespace) -> ExitCode:
 
 
 def cmd_validate(args: argparse.Namespace) -> ExitCode:
-    """`OK <file>: ...` per valid file, the one-line error on stderr otherwise; 1 if any failed."""
+    """`OK <file>: ...` per valid file, one line per problem on stderr otherwise; 1 if any failed."""
     exit_code = ExitCode.OK
     for path in args.files:
         try:
             schedule = load_schedule(path)
         except ScheduleError as exc:
-            print(exc, file=sys.stderr)
+            for line in exc.lines():
+                print(line, file=sys.stderr)
             exit_code = ExitCode.INVALID_SCHEDULE
             continue
         print(f"OK {path}: {schedule.name} ({schedule.kind}, {len(schedule.steps)} steps)")
