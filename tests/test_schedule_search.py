@@ -105,3 +105,11 @@ def test_cli_search_writes_loadable_files(tmp_path, capsys):
         schedule = load_schedule(path)
         assert schedule.kind in ("positions", "rotations")
     assert main(["schedules", "validate", *map(str, files)]) == 0
+
+
+def test_cli_search_without_out_says_that_nothing_was_written(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["schedules", "search", "--groups", "8", "--choose", "3", "--best", "2"]) == 0
+    out = capsys.readouterr().out
+    assert out.splitlines()[-1] == "no schedule files written: give --out DIR to write the best 2 of each kind as TOML"
+    assert list(tmp_path.iterdir()) == []

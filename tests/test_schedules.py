@@ -285,7 +285,8 @@ def run_cli(argv: list[str]) -> int:
 
 def test_cli_list(capsys):
     assert run_cli(["schedules", "list"]) == 0
-    lines = capsys.readouterr().out.splitlines()
+    header, *lines = capsys.readouterr().out.splitlines()
+    assert header.split() == ["name", "kind", "steps", "description"]
     assert len(lines) == 7
     fields = {line.split()[0]: line.split()[1:3] for line in lines}
     assert fields == {name: [kind, str(count)] for name, (kind, count) in EXPECTED_COUNTS.items()}

@@ -22,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     ev.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     ev.add_argument("--json", metavar="FILE", help="also write the table as JSON")
     ev.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg (default Hangzhou 30.27)")
-    ev.add_argument("--rate-dps", type=float, default=10.0, help="turn rate of the rotation method, deg/s")
+    ev.add_argument("--rate-dps", type=float, default=10.0, help="turn rate of the rotation method, deg/s (default 10)")
     ev.set_defaults(func=cmd_evaluate)
 
 

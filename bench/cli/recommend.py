@@ -25,7 +25,7 @@ def register_recommend(commands: argparse._SubParsersAction) -> None:
     level.add_argument("--pointing-arcsec", type=float, metavar="RMS", help="the table's pointing error, RMS per angle")
     level.add_argument("--check", metavar="FILE", help="a <run-id>.table-check.json written by `bench check-table`")
     add_noise_arguments(rc)
-    rc.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg")
+    rc.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg (default 30.27)")
     rc.add_argument("--candidates", nargs="+", default=[], metavar="NAME|FILE",
                     help="more position or rotation schedules to consider (e.g. from `bench schedules search`)")
     rc.add_argument("--runs", type=int, default=64, help="Monte-Carlo draws for the second-order part (default 64)")

@@ -30,12 +30,13 @@ def register_tools(commands: argparse._SubParsersAction) -> None:
                              description="Analyse a position or rotation schedule: which black-box angles cancel "
                                          "at first order, the noise-driven 1-sigma per coefficient, the plan "
                                          "duration and a Monte-Carlo table beside the paper's optimal schedule.")
-    an.add_argument("schedule", metavar="NAME|FILE")
+    an.add_argument("schedule", metavar="NAME|FILE",
+                    help="a built-in schedule name (see bench schedules list) or a schedule TOML file")
     an.add_argument("--dwell-s", type=float, default=60.0, help="dwell per position, s (default 60)")
     an.add_argument("--turn-rate-dps", type=float, default=10.0, help="turn rate, deg/s (default 10)")
     add_noise_arguments(an)
     an.add_argument("--runs", type=int, default=30, help="Monte-Carlo runs per level (default 30)")
-    an.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg")
+    an.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg (default 30.27)")
     an.set_defaults(func=cmd_analyze)
 
     se = commands.add_parser("search", help="exhaustive search of 24-position and 6-rotation schedules",
@@ -46,7 +47,7 @@ def register_tools(commands: argparse._SubParsersAction) -> None:
     se.add_argument("--best", type=int, default=3, help="how many of each kind to write (default 3)")
     se.add_argument("--groups", type=int, default=32, help=argparse.SUPPRESS)   # tests: first N groups only
     se.add_argument("--choose", type=int, default=12, help=argparse.SUPPRESS)   # tests: groups per schedule
-    se.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg")
+    se.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg (default 30.27)")
     se.set_defaults(func=cmd_search)
 
 
@@ -193,4 +194,6 @@ def cmd_search(args: argparse.Namespace) -> ExitCode:
         print()
     print(f"total {time.perf_counter() - started:.1f} s; criteria are first order at a zero black box with an "
           "ideal IMU (a real IMU's first-order errors are a linear map of these)")
+    if not args.out and args.best:
+        print(f"no schedule files written: give --out DIR to write the best {args.best} of each kind as TOML")
     return ExitCode.OK

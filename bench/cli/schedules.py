@@ -27,8 +27,11 @@ _AXIS_TOL = 1e-6  # a frame axis within this of a unit body axis counts as along
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `schedules` command and its subcommands to a `bench` CLI parser."""
-    parser = subparsers.add_parser("schedules", help="list, show and validate calibration schedules",
-                                   description="List, show and validate calibration schedules.")
+    parser = subparsers.add_parser(
+        "schedules", help="list, show, validate, analyze and search calibration schedules; recommend a plan",
+        description="Calibration schedules: list the built-in ones, show and validate schedule files, analyze "
+                    "their sensitivity to the table's pointing error, search for better ones and recommend "
+                    "a plan for a time budget and a table.")
     commands = parser.add_subparsers(dest="schedules_command", metavar="COMMAND", required=True)
 
     listing = commands.add_parser("list", help="list the built-in schedules")
@@ -46,9 +49,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def cmd_list(args: argparse.Namespace) -> ExitCode:
-    """One line per built-in schedule: name, kind, step count, description."""
+    """A header row, then one line per built-in schedule: name, kind, step count, description."""
     loaded = [load_builtin(name) for name in builtin_names()]
     name_width = max((len(s.name) for s in loaded), default=4)
+    print(f"{'name':<{name_width}}  {'kind':<11}  {'steps':>4}  description")
     for schedule in loaded:
         print(f"{schedule.name:<{name_width}}  {schedule.kind:<11}  {len(schedule.steps):>4}  "
               f"{schedule.description}")

@@ -58,8 +58,9 @@ def register_table(subparsers: argparse._SubParsersAction) -> None:
     goto.add_argument("--wait-s", type=float, default=300.0, help="give up (and stop) after this (default 300)")
     goto.add_argument("--no-wait", action="store_true", help="send the demand and return")
     rate = commands.add_parser("rate", help="rate mode on one frame at a signed rate d(angle)/dt, deg/s")
-    rate.add_argument("frame", choices=FRAMES)
-    rate.add_argument("rate_dps", type=float)
+    rate.add_argument("frame", choices=FRAMES, help="the frame to turn: outer, middle or inner")
+    rate.add_argument("rate_dps", type=float, metavar="RATE_DPS",
+                      help="signed rate d(angle)/dt, deg/s (positive is the paper's clockwise: drivers/README.md)")
     commands.add_parser("stop", help="controlled stop of every axis (servo stays on)")
     commands.add_parser("abort", help="every servo off at once")
     parser.set_defaults(func=cmd_table)
@@ -162,7 +163,8 @@ def register_sim(subparsers: argparse._SubParsersAction) -> None:
                     "Prints where it listens, then runs until Ctrl-C. Faults are injected by typing "
                     "commands on stdin.\n\n" + FAULT_HELP,
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    table.add_argument("--dialect", required=True, choices=sorted(DIALECTS))
+    table.add_argument("--dialect", required=True, choices=sorted(DIALECTS),
+                       help="the controller dialect to serve (drivers/SCPI.md, MN.md, MODBUS.md)")
     table.add_argument("--listen", action="append", required=True, metavar="WHERE",
                        help="tcp://127.0.0.1:PORT (scpi, mn), modbus+tcp://127.0.0.1:PORT (modbus) or pty "
                             "(RTU for modbus); repeatable; port 0 picks a free port; a host other than "
@@ -173,7 +175,7 @@ def register_sim(subparsers: argparse._SubParsersAction) -> None:
     table.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg (default 30.27)")
     table.add_argument("--black-box-arcsec", type=float, default=0.0,
                        help="RMS of the nine black-box pointing-error angles (default 0: ideal table)")
-    table.add_argument("--seed", type=int, default=0, help="seed of the black-box angles")
+    table.add_argument("--seed", type=int, default=0, help="seed of the black-box angles (default 0)")
     table.set_defaults(func=cmd_sim_table)
 
 
