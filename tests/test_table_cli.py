@@ -65,14 +65,23 @@ def _fault(proc: subprocess.Popen, command: str) -> str:
 
 @pytest.mark.parametrize("simulator", [("scpi", "tcp://127.0.0.1:0"), ("mn", "pty"),
                                        ("modbus", "modbus+tcp://127.0.0.1:0")], indirect=True)
-def test_operator_session_against_the_served_simulator(simulator, capsys):
+def test_operator_session_against_the_served_simulator(simulator, capsys, monkeypatch):
     proc, dialect, url = simulator
     base = ["table", "--url", url, "--dialect", dialect, "--timeout-s", "0.5"]
     assert main(base + ["status"]) == 0
+    # a refused move says why in the same words in every dialect (Modbus itself says only "exception 4")
+    assert main(base + ["goto", "10", "0", "0"]) == 3
+    assert "refused: outer, middle, inner axes not enabled (controller: " in capsys.readouterr().err
+    assert main(base + ["rate", "inner", "5"]) == 3
+    assert "refused: inner axis not enabled (controller: " in capsys.readouterr().err
     assert main(base + ["enable"]) == 0
+    capsys.readouterr()
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)     # a terminal: goto shows its progress
     assert main(base + ["goto", "10", "-5", "20", "--rate-dps", "50"]) == 0
-    out = capsys.readouterr().out
-    assert "10.000000" in out and "-5.000000" in out and "in-position" in out
+    captured = capsys.readouterr()
+    out = captured.out
+    assert "10.000000" in out and "-5.000000" in out and "enabled, in position" in out
+    assert captured.err.startswith("\rmoving: outer") and captured.err.endswith("\r"), captured.err
     assert main(base + ["--max-rate-dps", "10", "goto", "0", "0", "0", "--rate-dps", "20"]) == 2
     assert "nothing sent" in capsys.readouterr().err
     assert main(base + ["rate", "inner", "-30"]) == 0

@@ -12,6 +12,8 @@ import ipaddress
 import signal
 import sys
 import threading
+import time
+from typing import TextIO
 from urllib.parse import urlsplit
 
 from bench.cli.common import ExitCode, fail, raise_interrupted, stop_signals
@@ -21,7 +23,6 @@ from drivers.turntable import (
     DIALECTS,
     FRAMES,
     AxisLimits,
-    AxisStatus,
     TableState,
     Turntable,
     TurntableLimits,
@@ -69,16 +70,37 @@ def register_table(subparsers: argparse._SubParsersAction) -> None:
 def format_state(state: TableState) -> str:
     lines = [f"{'frame':<7} {'angle deg':>14} {'rate deg/s':>12}  {'mode':<9} status"]
     for name, axis in zip(FRAMES, state.axes):
-        names = []
-        for flag in AxisStatus:
-            if axis.status & flag:
-                assert flag.name is not None  # single members of a Flag always have a name
-                names.append(flag.name.lower().replace("_", "-"))
-        flags = " ".join(names) or "-"
-        lines.append(f"{name:<7} {axis.angle_deg:>14.6f} {axis.rate_dps:>12.6f}  {axis.mode.value:<9} {flags}")
+        lines.append(f"{name:<7} {axis.angle_deg:>14.6f} {axis.rate_dps:>12.6f}  {axis.mode.value:<9} "
+                     f"{axis.status.describe()}")
     fault = state.describe_fault()
     lines.append(f"fault: {fault}" if fault else "fault: none")
     return "\n".join(lines)
+
+
+class GotoProgress:
+    """The angles and rates of a `goto` on one terminal line, redrawn at most 10 times a second."""
+
+    def __init__(self, stream: TextIO, min_interval_s: float = 0.1):
+        self.stream, self.min_interval_s = stream, min_interval_s
+        self._drawn_at: float | None = None
+        self._width = 0
+
+    def __call__(self, state: TableState) -> None:
+        now = time.monotonic()
+        if self._drawn_at is not None and now - self._drawn_at < self.min_interval_s:
+            return
+        self._drawn_at = now
+        text = "moving: " + "  ".join(f"{name} {axis.angle_deg:10.4f} deg {axis.rate_dps:8.3f} deg/s"
+                                      for name, axis in zip(FRAMES, state.axes))
+        # pad over what the last draw left on the line
+        self.stream.write("\r" + text.ljust(self._width))
+        self.stream.flush()
+        self._width = len(text)
+
+    def end(self) -> None:
+        if self._drawn_at is not None:
+            self.stream.write("\r" + " " * self._width + "\r")
+            self.stream.flush()
 
 
 def _run_table_command(table: Turntable, args: argparse.Namespace) -> ExitCode:
@@ -95,8 +117,13 @@ def _run_table_command(table: Turntable, args: argparse.Namespace) -> ExitCode:
         table.check_state()
         table.move_to(target, rate_dps=args.rate_dps)
         if not args.no_wait:
-            state = table.wait_in_position(target, tolerance_deg=args.tolerance_deg, settle_s=args.settle_s,
-                                           timeout_s=args.wait_s, poll_s=0.05)
+            progress = GotoProgress(sys.stderr) if sys.stderr.isatty() else None
+            try:
+                state = table.wait_in_position(target, tolerance_deg=args.tolerance_deg, settle_s=args.settle_s,
+                                               timeout_s=args.wait_s, poll_s=0.05, on_state=progress)
+            finally:
+                if progress is not None:
+                    progress.end()
             print(format_state(state))
             return ExitCode.OK
     elif command == "rate":
@@ -150,7 +177,7 @@ def _stop_table(table: Turntable) -> None:
 
 FAULT_HELP = """fault console (one command per line on stdin):
   estop | release | limit FRAME | fault FRAME | reset
-  timeout N | garbage N | checksum N | exception N [CODE]   (next N replies)
+  timeout N | garbage N | checksum N | late N | exception N [CODE]   (next N replies)
   state | help"""
 
 
@@ -196,7 +223,7 @@ def _apply_fault_command(controller, line: str) -> str:
         elif cmd == "reset":
             for k in range(3):
                 controller.reset(k)
-        elif cmd in ("timeout", "garbage", "checksum", "exception"):
+        elif cmd in ("timeout", "garbage", "checksum", "exception", "late"):
             count = int(rest[0]) if rest else 1
             if cmd == "exception" and len(rest) > 1:
                 controller.faults.exception_code = int(rest[1])

@@ -12,15 +12,17 @@ move to complete, safe shutdown); a dialect implements the small `_` methods.
 
 from __future__ import annotations
 
+import contextlib
 import enum
 import math
 import threading
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Iterable, Sequence
+from typing import Callable, Iterable, Sequence
 
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import (
+    TurntableCommandError,
     TurntableConfigError,
     TurntableError,
     TurntableEStop,
@@ -61,6 +63,16 @@ class AxisStatus(enum.IntFlag):
     FAULT = 0x08         # servo/amplifier fault latched; needs a reset
     ESTOP = 0x10         # emergency stop active
     LIMIT = 0x20         # a travel/rate limit tripped
+
+    def describe(self) -> str:
+        """In words, the same for every dialect: 'enabled, moving', 'disabled, fault, e-stop'."""
+        words = ["enabled" if self & AxisStatus.ENABLED else "disabled"]
+        words += [_STATUS_WORDS[flag] for flag in _STATUS_WORDS if self & flag]
+        return ", ".join(words)
+
+
+_STATUS_WORDS = {AxisStatus.MOVING: "moving", AxisStatus.IN_POSITION: "in position", AxisStatus.FAULT: "fault",
+                 AxisStatus.ESTOP: "e-stop", AxisStatus.LIMIT: "limit tripped"}
 
 
 @dataclass(frozen=True)
@@ -109,6 +121,24 @@ class TableState:
     @property
     def fault(self) -> bool:
         return any(a.status & (AxisStatus.FAULT | AxisStatus.LIMIT) for a in self.axes)
+
+    def why_refused(self, frames: Iterable[int]) -> str:
+        """Why a controller refuses to move `frames`, in the same words for every dialect ('' if the
+        state shows no reason): an e-stop, a latched fault or limit, an axis not enabled."""
+        if self.estop:
+            return "emergency stop active"
+        reasons, disabled = [], []
+        for k in sorted(set(frames)):
+            axis, name = self.axes[k], FRAMES[k]
+            if axis.status & (AxisStatus.FAULT | AxisStatus.LIMIT):
+                reasons.append(f"{name} axis: " + ", ".join(
+                    word for flag, word in ((AxisStatus.FAULT, "fault"), (AxisStatus.LIMIT, "limit tripped"))
+                    if axis.status & flag))
+            elif not axis.enabled:
+                disabled.append(name)
+        if disabled:
+            reasons.append(f"{', '.join(disabled)} ax{'e' if len(disabled) > 1 else 'i'}s not enabled")
+        return "; ".join(reasons)
 
     def describe_fault(self) -> str:
         """A one-line account of what is wrong ('' when nothing is)."""
@@ -277,7 +307,7 @@ class Turntable(ABC):
             rates[k] = rate
         if not targets:
             return
-        with self._lock:
+        with self._lock, self._explained_refusal(targets):
             for k in targets:
                 self._set_mode(k, AxisMode.POSITION)
             self._demand_positions(targets, rates)
@@ -286,9 +316,24 @@ class Turntable(ABC):
         """Rate mode on one frame at the signed rate d(angle)/dt, deg/s (limits checked first)."""
         k = frame_index(frame)
         self.limits.check_rate(k, float(rate_dps))
-        with self._lock:
+        with self._lock, self._explained_refusal([k]):
             self._set_mode(k, AxisMode.RATE)
             self._demand_rate(k, float(rate_dps))
+
+    @contextlib.contextmanager
+    def _explained_refusal(self, frames: Iterable[int]):
+        """A refused move says why in the same words for every dialect (a Modbus controller only says
+        "exception 4"): the state is read and its reason put first, the controller's own words after."""
+        try:
+            yield
+        except TurntableCommandError as exc:
+            try:
+                reason = self._read_state().why_refused(frames)
+            except TurntableError:
+                reason = ""
+            if not reason:
+                raise
+            raise TurntableCommandError(f"refused: {reason} (controller: {exc})", exc.code) from exc
 
     def stop(self) -> None:
         with self._lock:
@@ -312,8 +357,10 @@ class Turntable(ABC):
         return state
 
     def wait_in_position(self, targets_deg: Sequence[float | None], tolerance_deg: float = 0.001,
-                         settle_s: float = 0.0, timeout_s: float = 60.0, poll_s: float = 0.05) -> TableState:
-        """Poll until every targeted frame reports in-position within tolerance for `settle_s`.
+                         settle_s: float = 0.0, timeout_s: float = 60.0, poll_s: float = 0.05,
+                         on_state: Callable[[TableState], None] | None = None) -> TableState:
+        """Poll until every targeted frame reports in-position within tolerance for `settle_s`;
+        `on_state` sees every state read (progress on a terminal).
 
         A fault or e-stop during the wait stops the table (abort on e-stop) and raises;
         no completion within `timeout_s` stops the table and raises `TurntableTimeout`.
@@ -322,6 +369,8 @@ class Turntable(ABC):
         settled_since: float | None = None
         while True:
             state = self.read_state()
+            if on_state is not None:
+                on_state(state)
             try:
                 self.check_state(state)
             except TurntableEStop:
