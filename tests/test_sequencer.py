@@ -2,11 +2,8 @@
 
 from __future__ import annotations
 
-import io
-
 import pytest
 
-from bench.cli.progress import ProgressPrinter
 from bench.model.earth import Site
 from bench.model.imu import NoiseModel, default_sim_imu
 from bench.plan.events import RunListener, RunState
@@ -239,29 +236,6 @@ def test_illegal_transitions_are_refused(bench):
     seq = _sequencer(bench, Recorder())
     with pytest.raises(SequencerError, match="illegal transition idle -> done"):
         seq._transition(RunState.DONE, "no")
-
-
-def test_progress_plain_lines_and_live_bar():
-    plain, live = io.StringIO(), io.StringIO()
-    from bench.plan.events import Event
-    from bench.plan.steps import step_to_dict
-
-    printers = [ProgressPrinter(STEPS, plain, live=False), ProgressPrinter(STEPS, live, live=True, simulated=True)]
-    events = [Event(0.0, "transition", "run started", "running"),
-              Event(0.0, "step_started", "P01 move", None, 0, "P01", {"step": step_to_dict(STEPS[0])}),
-              Event(2.0, "step_finished", "P01 move done", None, 0, "P01", {"step": step_to_dict(STEPS[0])}),
-              Event(2.0, "fault", "TurntableTimeout: no reply", None, 1, "P01", {"error": "TurntableTimeout"})]
-    for p in printers:
-        for e in events:
-            p.on_event(e)
-        p.close()
-    assert "step 1/6 P01 move" in plain.getvalue() and "FAULT: TurntableTimeout" in plain.getvalue()
-    assert "\r[" in live.getvalue() and "ETA sim" in live.getvalue() and "FAULT" in live.getvalue()
-    quiet = io.StringIO()
-    q = ProgressPrinter(STEPS, quiet, quiet=True, live=False)
-    for e in events:
-        q.on_event(e)
-    assert quiet.getvalue() == "FAULT: TurntableTimeout: no reply\n"
 
 
 @pytest.mark.parametrize("dialect", ["mn", "modbus"])

@@ -1,37 +1,57 @@
 """Run progress on a terminal: a live status line on a TTY, plain lines otherwise.
 
-A `RunListener`: the current step, an overall bar by estimated time, and the ETA in
-the run clock's time (simulated seconds under the simulator, which says so). Plain
-mode (not a TTY: logs, CI) prints one line per step start, warning, fault and
-transition; quiet mode prints faults only.
+A `RunListener`. Live mode (a TTY): the current step, an overall bar by estimated time and
+the ETA in the run clock's time; under the simulator, whose clock runs faster than the
+wall, the wall-clock ETA as well. The line is redrawn in place (erased to its end, so no
+stale text stays) and no longer once the run is ending (an abort prints its lines, not the
+bar again after each). Plain mode (not a TTY: logs, CI): one line per unit (a position or
+a rotation with its moves and settles), warnings, faults and transitions. Both end with a
+summary line. Quiet mode prints faults only.
 """
 
 from __future__ import annotations
 
 import sys
-from typing import Sequence, TextIO
+import time
+from typing import Callable, Sequence, TextIO
 
 from bench.model.units import format_hms
-from bench.plan.events import Event, RunListener
+from bench.plan.events import Event, RunListener, RunState
 from bench.plan.steps import Step
+
+#: erase from the cursor to the end of the line (ECMA-48 EL): what the last draw left goes
+ERASE_TO_END = "\x1b[K"
+#: below this fraction done the wall-clock ETA is not yet worth stating
+_MIN_FRACTION_FOR_WALL_ETA = 0.01
+_ENDING = {RunState.ABORTING.value, RunState.DONE.value, RunState.FAILED.value}
 
 
 class ProgressPrinter(RunListener):
-    """Prints progress of a run of `steps` to `stream` (default stderr)."""
+    """Prints progress of a run of `steps` to `stream` (default stderr); `wall_clock` (seconds,
+    default `time.monotonic`) measures the wall time for the simulator's wall ETA and the summary."""
 
     def __init__(self, steps: Sequence[Step], stream: TextIO | None = None, *, quiet: bool = False,
-                 live: bool | None = None, simulated: bool = False, bar_width: int = 24):
+                 live: bool | None = None, simulated: bool = False, bar_width: int = 24,
+                 wall_clock: Callable[[], float] = time.monotonic):
         self.stream = stream if stream is not None else sys.stderr
         self.steps = list(steps)
         self.quiet = quiet
         self.live = self.stream.isatty() if live is None else live
         self.simulated = simulated
         self.bar_width = bar_width
+        self.wall_clock = wall_clock
         self.total_s = sum(s.estimated_s for s in self.steps) or 1.0
+        self.units = list(dict.fromkeys(s.unit for s in self.steps))
         self._done_s = 0.0
         self._current: Step | None = None
         self._started_at = 0.0
         self._line_open = False
+        self._ending = False
+        self._last_unit: str | None = None
+        self._first_time_s: float | None = None
+        self._last_time_s = 0.0
+        self._wall_start = wall_clock()
+        self._finished = self._skipped = 0
 
     def _print(self, text: str) -> None:
         if self._line_open:
@@ -40,50 +60,89 @@ class ProgressPrinter(RunListener):
         self.stream.write(text + "\n")
         self.stream.flush()
 
+    def _fraction(self, now: float) -> float:
+        step = self._current
+        done = self._done_s + (min(now - self._started_at, step.estimated_s) if step else 0.0)
+        return min(1.0, done / self.total_s)
+
     def _status(self, now: float) -> None:
         step = self._current
         elapsed_in_step = now - self._started_at
-        done = self._done_s + (min(elapsed_in_step, step.estimated_s) if step else 0.0)
-        fraction = min(1.0, done / self.total_s)
+        fraction = self._fraction(now)
         filled = int(round(fraction * self.bar_width))
         bar = "#" * filled + "-" * (self.bar_width - filled)
         what = f"step {step.index + 1}/{len(self.steps)} {step.unit} {step.kind}" if step else ""
         left = (f" {format_hms(step.estimated_s - elapsed_in_step)} left" if step and step.kind in ("dwell", "settle")
                 else "")
-        clock = " sim" if self.simulated else ""
-        self.stream.write(f"\r[{bar}] {fraction:5.1%} {what}{left}  ETA{clock} {format_hms(self.total_s - done)}   ")
+        remaining_s = self.total_s * (1.0 - fraction)
+        eta = f"ETA sim {format_hms(remaining_s)}" if self.simulated else f"ETA {format_hms(remaining_s)}"
+        if self.simulated and fraction >= _MIN_FRACTION_FOR_WALL_ETA:
+            wall_s = self.wall_clock() - self._wall_start
+            eta += f", wall ~{format_hms(wall_s * (1.0 - fraction) / fraction)}"
+        self.stream.write(f"\r[{bar}] {fraction:5.1%} {what}{left}  {eta}{ERASE_TO_END}")
         self.stream.flush()
         self._line_open = True
 
+    def _note_time(self, time_s: float) -> None:
+        if self._first_time_s is None:
+            self._first_time_s = time_s
+        self._last_time_s = max(self._last_time_s, time_s)
+
     def on_event(self, event: Event) -> None:
-        if event.kind in ("fault",):
+        self._note_time(event.time_s)
+        if event.kind == "fault":
             self._print(f"FAULT: {event.message}")
             return
+        if event.kind == "transition" and event.state in _ENDING:
+            self._ending = True
         if self.quiet:
             return
         if event.kind == "step_started":
             index = event.step_index
             self._current = self.steps[index] if index is not None else None
             self._started_at = event.time_s
-            if not self.live and index is not None:
-                self._print(f"[{format_hms(event.time_s)}] step {index + 1}/{len(self.steps)} {event.message}")
+            if not self.live and self._current is not None and self._current.unit != self._last_unit:
+                self._last_unit = self._current.unit
+                number = self.units.index(self._current.unit) + 1
+                self._print(f"[{format_hms(event.time_s)}] {self._current.unit} ({number}/{len(self.units)} units, "
+                            f"{self._fraction(event.time_s):.0%})")
         elif event.kind in ("step_finished", "step_skipped"):
             if event.step_index is not None:
                 self._done_s += self.steps[event.step_index].estimated_s
             self._current = None
-            if event.kind == "step_skipped" and not self.live:
-                self._print(f"skipped {event.message}")
+            if event.kind == "step_finished":
+                self._finished += 1
+            else:
+                self._skipped += 1
+                if not self.live and event.step_unit != self._last_unit:
+                    self._last_unit = event.step_unit
+                    self._print(f"skipped {event.step_unit} (complete in an earlier log)")
         elif event.kind in ("transition", "warning", "info"):
             self._print(f"[{format_hms(event.time_s)}] {event.kind}: {event.message}")
-        if self.live:
+        if self.live and not self._ending:
             self._status(event.time_s)
 
     def on_table_state(self, state) -> None:
-        if self.live and not self.quiet and self._current is not None:
+        if self.live and not self.quiet and not self._ending and self._current is not None:
             self._status(state.time_s)
 
     def close(self) -> None:
+        """End the line and print the summary; never raises (it runs on the way out of every run, and
+        a stream whose reader went away has already failed this listener, which the run reported)."""
+        try:
+            self._close()
+        except (OSError, ValueError):       # BrokenPipeError; ValueError: the stream was closed
+            pass
+
+    def _close(self) -> None:
         if self._line_open:
             self.stream.write("\n")
-            self.stream.flush()
             self._line_open = False
+        if not self.quiet and self._first_time_s is not None:
+            run_s = self._last_time_s - self._first_time_s
+            wall_s = self.wall_clock() - self._wall_start
+            clock = f"{format_hms(run_s)} simulated, {format_hms(wall_s)} wall" if self.simulated \
+                else format_hms(run_s)
+            skipped = f", {self._skipped} skipped" if self._skipped else ""
+            self.stream.write(f"{self._finished} of {len(self.steps)} steps done{skipped} in {clock}\n")
+        self.stream.flush()
