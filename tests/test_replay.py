@@ -26,7 +26,7 @@ from bench.plan.steps import step_from_dict, step_to_dict
 from bench.run.runner import BenchRun, compile_from_config
 from drivers.clock import ManualClock
 from drivers.imu import DEFAULT_DBC, ImuSampleBlock
-from tests.helpers.run import REPO, cli, config_text, start_cli, stop_process
+from tests.helpers.run import REPO, Trigger, api_run, cli, config_text, start_cli, step_index, stop_process
 
 
 class Capture(RunListener):
@@ -218,6 +218,23 @@ def test_stop_ends_the_replay_early_and_closes_the_listeners(log):
     capture = EventClock(stop_after=10, stop=stop)
     stats = replay(log, [capture], speed=1000.0, clock=ManualClock(), stop=stop)
     assert stats.stopped and stats.events == 10 and capture.closed == 1
+    # the summary says how far it got, not the log's whole length as if it had played it all
+    tenth = log.events[9].time_s - stats.log_start_s
+    assert stats.log_reached_s == pytest.approx(tenth, abs=0.1) and stats.log_reached_s < stats.log_duration_s
+    assert (f"stopped early at log time {stats.log_reached_s:.1f} s of {stats.log_duration_s:.1f} s in "
+            in stats.summary())
+
+
+def test_the_summary_says_when_the_recorded_run_ended_early(tmp_path):
+    """A log of an aborted run replays to its end, and the summary says the run itself failed."""
+    text = config_text(dwell_s=1.0)
+    plan = compile_from_config(parse_config(text, source=str(tmp_path / "bench.toml"), base_dir=tmp_path))
+    trigger = Trigger(step_index(plan, "dwell", 1), lambda run: run.abort("operator abort"))
+    with api_run(text, tmp_path, trigger) as (run, outcome):
+        assert outcome.state.value == "failed"
+    stats = replay(read_log(outcome.log_path), [Capture()])
+    assert not stats.stopped and stats.run_state == "failed"
+    assert f"log time {stats.log_duration_s:.1f} s (the recorded run ended early: failed) in " in stats.summary()
 
 
 def test_a_listener_error_propagates_after_every_listener_is_closed(log):

@@ -54,6 +54,8 @@ class ReplayStats:
     frame_batches: int = 0
     log_start_s: float = 0.0
     log_duration_s: float = 0.0
+    log_reached_s: float = 0.0                 # log time of the last item delivered, from the start
+    run_state: str = ""                        # the recorded run's last transition ("done", "failed", ...)
     wall_s: float = 0.0
     stopped: bool = False                      # `stop` was set before the end
     imu_stats: ImuStats | None = None          # from decoding the raw frames (None: not decoded)
@@ -61,9 +63,15 @@ class ReplayStats:
 
     def summary(self) -> str:
         """One line: what was replayed, over how much log time, in how much clock time."""
-        ended = "stopped early; " if self.stopped else ""
+        if self.stopped:
+            span = f"stopped early at log time {self.log_reached_s:.1f} s of {self.log_duration_s:.1f} s"
+        else:
+            span = f"log time {self.log_duration_s:.1f} s"
+        if self.run_state and self.run_state != "done":
+            span += f" (the recorded run ended early: {self.run_state})" if self.run_state == "failed" \
+                else f" (the recorded run's last state: {self.run_state})"
         return (f"replayed {self.events} events, {self.table_states} table states, {self.samples} IMU samples, "
-                f"{self.frames} CAN frames; {ended}log time {self.log_duration_s:.1f} s in {self.wall_s:.2f} s")
+                f"{self.frames} CAN frames; {span} in {self.wall_s:.2f} s")
 
 
 def replay(log: RunLog, listeners: Iterable[RunListener], *, speed: float | None = None, clock: Clock = SYSTEM_CLOCK,
@@ -109,6 +117,7 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
     if bad_states:
         stats.notes.append(f"{bad_states} table states with an unknown mode not replayed")
     events = log.events
+    stats.run_state = next((str(e.state) for e in reversed(events) if e.kind == "transition" and e.state), "")
 
     ev_t = _monotone(np.array([e.time_s for e in events], float))
     st_t = _monotone(np.array([s.time_s for s in states], float))
@@ -160,6 +169,7 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
             stats.stopped = True
             break
         kind, k = kinds[i], index[i]
+        stats.log_reached_s = float(times[i] - t0)
         if kind == _EVENT:
             for listener in listeners:
                 listener.on_event(events[k])
