@@ -364,6 +364,18 @@ def test_minimal_result_renders(run):
     assert "Quality check **failed**" in markdown_report(bare, failures=["x"])
 
 
+def test_both_reports_name_every_log_of_a_resumed_run_and_the_site_in_words(run):
+    """The HTML report said `local_g None`; the Markdown one named only the resumed run's last log."""
+    result = CalibrationResult({k: run.result.coefficients[k] for k in ("Ka_x", "K0_x")},
+                               run={"run_id": "r1", "log": "r1-b.mcap", "logs": ["r1-a.mcap", "r1-b.mcap"],
+                                    "site": {"latitude_deg": 30.27, "height_m": 12.5, "local_g": None}})
+    md, html = markdown_report(result), html_report(result)
+    assert "- **logs**: r1-a.mcap, r1-b.mcap" in md
+    assert "- **site**: latitude 30.27 deg, height 12.5 m" in md
+    assert "latitude 30.27 deg, height 12.5 m" in html and "r1-a.mcap, r1-b.mcap" in html
+    assert "None" not in md and "None" not in html
+
+
 # -- plot helpers ---------------------------------------------------------------------------
 
 def test_envelope_keeps_spikes_within_the_point_budget():

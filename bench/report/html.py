@@ -30,6 +30,7 @@ from bench.report.compare import (
     row_outliers,
     truth_z,
 )
+from bench.report.facts import run_facts
 from bench.solve.extract import finished_observation_steps
 from drivers.errors import ImuError
 from drivers.imu import DEFAULT_FD_SPEC, DEFAULT_SPEC, ImuFrameSpec, ImuLayout
@@ -187,19 +188,7 @@ def log_damage(log, still_open: bool = False) -> list[str]:
 
 def _metadata(result: CalibrationResult, log, imu_link, log_still_open: bool) -> str:
     run = result.run
-    rows = []
-    for key in ("run_id", "mode", "operator", "started_utc", "finished_utc", "state", "software_version",
-                "positions", "rotations", "log"):
-        if run.get(key) not in (None, ""):
-            rows.append(([_e(key.replace("_", " ")), _e(run[key])], ""))
-    if len(run.get("logs", [])) > 1:
-        rows.append(([_e("logs"), _e(", ".join(map(str, run["logs"])))], ""))
-    imu = run.get("imu") or {}
-    if imu:
-        rows.append(([_e("IMU"), _e(" ".join(str(imu[k]) for k in ("model", "serial") if imu.get(k)))], ""))
-    site = run.get("site") or {}
-    if site:
-        rows.append(([_e("site"), _e(", ".join(f"{k} {v}" for k, v in site.items()))], ""))
+    rows = [([_e(label), _e(text)], "") for label, text in run_facts(run)]
     if imu_link:
         rows.append(([_e("IMU link"), _e(", ".join(f"{k} {v}" for k, v in imu_link.items()))], ""))
     if log is not None:

@@ -30,6 +30,7 @@ from bench.report.compare import (
     row_outliers,
     truth_z,
 )
+from bench.report.facts import run_facts
 from bench.report.html import html_report
 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]+")
@@ -55,13 +56,7 @@ def markdown_report(result: CalibrationResult, *, problems: Sequence[str] = (), 
     with outliers flagged, and the comparison with `against` (an earlier result) when given."""
     run = result.run
     lines = [f"# {md_text(title)}", ""]
-    for key in ("run_id", "mode", "operator", "started_utc", "finished_utc", "state", "software_version",
-                "positions", "rotations", "log"):
-        if run.get(key) not in (None, ""):
-            lines.append(f"- **{key.replace('_', ' ')}**: {md_text(run[key])}")
-    imu = run.get("imu") if isinstance(run.get("imu"), dict) else {}
-    if imu and any(imu.get(k) for k in ("model", "serial")):
-        lines.append("- **IMU**: " + md_text(" ".join(str(imu[k]) for k in ("model", "serial") if imu.get(k))))
+    lines += [f"- **{label}**: {md_text(text)}" for label, text in run_facts(run)]
     lines.append("")
     lines.append("## Verdict")
     lines.append("")
