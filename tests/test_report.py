@@ -232,6 +232,8 @@ def test_html_highlights_outliers(run):
     labels = [re.search(r"<td>([^<]*)</td>", r).group(1) for r in rows]
     assert labels == [edited.residuals["positions"][3]["label"], edited.residuals["rotations"][1]["label"]]
     assert "OUTLIER acc_y 7.5 sigma" in rows[0] and "OUTLIER gyro_z -6.25 sigma" in rows[1]
+    # x, y and z one above the other (the tables were too wide for a page): no comma lists in residual cells
+    assert re.search(r'<td class="num">[^<,]+<br>[^<,]+<br>[^<,]+</td>', rows[0]), rows[0]
     # without a log: truth and residual plots only
     assert html.count("<svg ") == 2 and "IMU outputs" not in html
 

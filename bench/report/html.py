@@ -269,6 +269,11 @@ def _vector(values) -> str:
     return _e(", ".join(fmt(v, 3) for v in values or []))
 
 
+def _stacked(values) -> str:
+    """x, y and z one above the other: the residual tables' eight columns then fit a page."""
+    return "<br>".join(_e(fmt(v, 3)) for v in values or []) or "-"
+
+
 def _residuals(result: CalibrationResult) -> str:
     from bench.report import plots  # matplotlib: loaded only when a report draws
 
@@ -282,9 +287,9 @@ def _residuals(result: CalibrationResult) -> str:
         rows = []
         for row in positions:
             flag = row_outliers(result, "position", row)
-            rows.append(([_e(row["label"]), _vector(row.get("angles_deg")), _vector(row.get("acc_counts_per_s")),
-                          _vector(row.get("acc_normalized")), _vector(row.get("gyro_dph")),
-                          _vector(row.get("gyro_normalized")), _e(fmt(max_normalized(row), 3)),
+            rows.append(([_e(row["label"]), _vector(row.get("angles_deg")), _stacked(row.get("acc_counts_per_s")),
+                          _stacked(row.get("acc_normalized")), _stacked(row.get("gyro_dph")),
+                          _stacked(row.get("gyro_normalized")), _e(fmt(max_normalized(row), 3)),
                           f'<span class="flag">OUTLIER {_e(outlier_text(flag))}</span>' if flag else ""],
                          "outlier" if flag else ""))
         html.append("<h3>Positions</h3>")
@@ -296,7 +301,7 @@ def _residuals(result: CalibrationResult) -> str:
             flag = row_outliers(result, "rotation", row)
             rows.append(([_e(row["label"]), _vector(row.get("start_deg")),
                           _e(f"{row.get('frame')} {row.get('direction')} x{row.get('revolutions')}"),
-                          _vector(row.get("gyro_arcsec")), _vector(row.get("gyro_normalized")),
+                          _stacked(row.get("gyro_arcsec")), _stacked(row.get("gyro_normalized")),
                           _e(fmt(max_normalized(row), 3)),
                           f'<span class="flag">OUTLIER {_e(outlier_text(flag))}</span>' if flag else ""],
                          "outlier" if flag else ""))
