@@ -124,3 +124,14 @@ def test_close_on_a_stream_whose_reader_went_away_does_not_raise():
     printer = ProgressPrinter(STEPS, Gone(), live=False)
     printer._first_time_s = 0.0       # something to summarise
     printer.close()
+
+
+def test_times_are_from_the_runs_start_not_the_machines_uptime():
+    """A hardware run's clock is the monotonic clock: its lines said [0:53:50] for the first step."""
+    out = io.StringIO()
+    shifted = [Event(e.time_s + 3230.0, e.kind, e.message, e.state, e.step_index, e.step_unit, e.data)
+               for e in _whole_run()]
+    _feed(ProgressPrinter(STEPS, out, live=False), shifted)
+    lines = out.getvalue().splitlines()
+    assert lines[:2] == ["[0:00:00] transition: run started", "[0:00:00] P01 (1/3 units, 0%)"]
+    assert lines[-1] == "6 of 6 steps done in 0:00:10"

@@ -86,7 +86,13 @@ class ProgressPrinter(RunListener):
     def _note_time(self, time_s: float) -> None:
         if self._first_time_s is None:
             self._first_time_s = time_s
+            self._last_time_s = time_s
         self._last_time_s = max(self._last_time_s, time_s)
+
+    def _stamp(self, time_s: float) -> str:
+        """`[h:mm:ss]` since the run's first event: a hardware run's clock is the machine's monotonic
+        clock (its uptime), which means nothing to a reader."""
+        return f"[{format_hms(time_s - (self._first_time_s or 0.0))}]"
 
     def on_event(self, event: Event) -> None:
         self._note_time(event.time_s)
@@ -104,7 +110,7 @@ class ProgressPrinter(RunListener):
             if not self.live and self._current is not None and self._current.unit != self._last_unit:
                 self._last_unit = self._current.unit
                 number = self.units.index(self._current.unit) + 1
-                self._print(f"[{format_hms(event.time_s)}] {self._current.unit} ({number}/{len(self.units)} units, "
+                self._print(f"{self._stamp(event.time_s)} {self._current.unit} ({number}/{len(self.units)} units, "
                             f"{self._fraction(event.time_s):.0%})")
         elif event.kind in ("step_finished", "step_skipped"):
             if event.step_index is not None:
@@ -118,7 +124,7 @@ class ProgressPrinter(RunListener):
                     self._last_unit = event.step_unit
                     self._print(f"skipped {event.step_unit} (complete in an earlier log)")
         elif event.kind in ("transition", "warning", "info"):
-            self._print(f"[{format_hms(event.time_s)}] {event.kind}: {event.message}")
+            self._print(f"{self._stamp(event.time_s)} {event.kind}: {event.message}")
         if self.live and not self._ending:
             self._status(event.time_s)
 
