@@ -26,10 +26,9 @@ import threading
 from dataclasses import dataclass, field
 from typing import Iterable
 
-import can
 import numpy as np
 
-from bench.log.format import EXTENDED_ID_FLAG, FLAG_BRS, FLAG_ERROR, FLAG_ESI, FLAG_FD, FLAG_REMOTE
+from bench.log.can_export import can_messages
 from bench.log.reader import LogError, RunLog
 from bench.log.run_info import layout_and_config_from_log
 from bench.plan.events import RunListener
@@ -180,7 +179,7 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
             stats.table_states += 1
         else:
             lo, hi = int(starts[k]), int(ends[k])
-            frames = _messages(log, lo, hi) if want_frames else ()
+            frames = can_messages(log, lo, hi) if want_frames else ()
             if want_frames:
                 for listener in listeners:
                     listener.on_can_frames(frames)
@@ -258,23 +257,6 @@ def _table_states(log: RunLog) -> tuple[list[TableState], int]:
             continue
         out.append(TableState(t, (outer, middle, inner), s.fault_text[i]))
     return out, bad
-
-
-def _messages(log: RunLog, lo: int, hi: int) -> list[can.Message]:
-    """Frames `lo:hi` of the log as python-can Messages, as the bus delivered them (channel not recorded)."""
-    ids = log.can_ids[lo:hi].tolist()
-    flags = log.can_flags[lo:hi].tolist()
-    lengths = log.can_lengths[lo:hi].tolist()
-    stamps = log.can_timestamp_s[lo:hi].tolist()
-    data = log.can_data[lo:hi]
-    out = []
-    for j, (i, f, n, t) in enumerate(zip(ids, flags, lengths, stamps)):
-        out.append(can.Message(timestamp=t, arbitration_id=i & ~EXTENDED_ID_FLAG,
-                               is_extended_id=bool(i & EXTENDED_ID_FLAG),
-                               is_remote_frame=bool(f & FLAG_REMOTE), is_error_frame=bool(f & FLAG_ERROR),
-                               dlc=n, data=data[j, :n].tobytes(), is_fd=bool(f & FLAG_FD),
-                               bitrate_switch=bool(f & FLAG_BRS), error_state_indicator=bool(f & FLAG_ESI)))
-    return out
 
 
 __all__ = ["ReplayStats", "replay"]

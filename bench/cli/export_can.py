@@ -1,0 +1,56 @@
+"""`bench export-can LOG --out FILE`: a run log's raw CAN frames in a format CAN tools read.
+
+The format comes from the extension (`.asc`, `.blf`, `.log` candump, `.csv`; python-can's
+writers). Exit codes: 0 written; 2 a file that cannot be read as a run log, an unknown
+format, an empty time range or an output that cannot be written (one line).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+from bench.cli.common import ExitCode, fail
+
+PROG = "bench export-can"
+
+
+def _seconds(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds >= 0, got {text!r}")
+    return value
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "export-can", help="write a run log's raw CAN frames as .asc, .blf, .log (candump) or .csv",
+        description="Write the raw CAN frames recorded on /can/raw, with their recorded timestamps (the run "
+                    "clock), in the format the output's extension names: .asc (Vector ASC), .blf (Vector "
+                    "BLF), .log (candump -L) or .csv (python-can CSV). Exit codes: 0 written, 2 unreadable log, "
+                    "unknown format, empty range or unwritable output.")
+    parser.add_argument("log", metavar="LOG", help="the run's .mcap file")
+    parser.add_argument("--out", required=True, metavar="FILE", help="the file to write (.asc, .blf, .log, .csv)")
+    parser.add_argument("--from-s", type=_seconds, metavar="S",
+                        help="first frame to write, seconds after the log's first frame (default: the first)")
+    parser.add_argument("--to-s", type=_seconds, metavar="S",
+                        help="last frame to write, seconds after the log's first frame (default: the last)")
+    parser.set_defaults(func=cmd_export_can)
+
+
+def cmd_export_can(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without the bench core
+    from bench.log.can_export import CanExportError, can_format, export_can
+    from bench.log.reader import LogError, read_log
+
+    try:
+        can_format(args.out)              # before reading a large log
+        log = read_log(args.log)
+        for line in log.damage:
+            print(f"{PROG}: damaged log: {line}", file=sys.stderr)
+        count = export_can(log, args.out, args.from_s, args.to_s)
+    except (LogError, CanExportError) as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
+    print(f"wrote {count} CAN frames to {args.out}")
+    return ExitCode.OK

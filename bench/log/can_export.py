@@ -1,0 +1,86 @@
+"""The raw CAN frames of a run log as python-can Messages, and written in the formats CAN tools read.
+
+`export_can(log, path)` writes `/can/raw` with python-can's own writers, chosen by the file's
+extension: `.asc` (Vector ASCII), `.blf` (Vector binary logging format), `.log` (candump -L) or
+`.csv`. Timestamps are the frames' recorded ones (the run clock); a time range is given in
+seconds from the log's first frame. Frames are written in batches, so memory stays bounded by
+the log's own arrays.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import can
+
+from bench.errors import BenchError
+from bench.log.format import EXTENDED_ID_FLAG, FLAG_BRS, FLAG_ERROR, FLAG_ESI, FLAG_FD, FLAG_REMOTE
+from bench.log.reader import RunLog
+
+#: extension -> (python-can writer, what it is)
+CAN_FORMATS: dict[str, tuple[type[can.io.generic.MessageWriter], str]] = {
+    ".asc": (can.ASCWriter, "Vector ASC"),
+    ".blf": (can.BLFWriter, "Vector BLF"),
+    ".log": (can.CanutilsLogWriter, "candump -L log"),
+    ".csv": (can.CSVWriter, "python-can CSV"),
+}
+_BATCH = 10_000
+
+
+class CanExportError(BenchError):
+    """An export that cannot be done (unknown format, empty range); one line."""
+
+
+def can_messages(log: RunLog, lo: int, hi: int) -> list[can.Message]:
+    """Frames `lo:hi` of the log as python-can Messages, as the bus delivered them (channel not recorded)."""
+    ids = log.can_ids[lo:hi].tolist()
+    flags = log.can_flags[lo:hi].tolist()
+    lengths = log.can_lengths[lo:hi].tolist()
+    stamps = log.can_timestamp_s[lo:hi].tolist()
+    data = log.can_data[lo:hi]
+    out = []
+    for j, (i, f, n, t) in enumerate(zip(ids, flags, lengths, stamps)):
+        out.append(can.Message(timestamp=t, arbitration_id=i & ~EXTENDED_ID_FLAG,
+                               is_extended_id=bool(i & EXTENDED_ID_FLAG),
+                               is_remote_frame=bool(f & FLAG_REMOTE), is_error_frame=bool(f & FLAG_ERROR),
+                               dlc=n, data=data[j, :n].tobytes(), is_fd=bool(f & FLAG_FD),
+                               bitrate_switch=bool(f & FLAG_BRS), error_state_indicator=bool(f & FLAG_ESI)))
+    return out
+
+
+def can_format(path: str | Path) -> str:
+    """The extension of `path` if it is a format `export_can` writes; CanExportError otherwise."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in CAN_FORMATS:
+        known = ", ".join(f"{ext} ({what})" for ext, (_, what) in CAN_FORMATS.items())
+        raise CanExportError(f"{path}: unknown CAN log format {suffix or '(no extension)'!r}; known: {known}")
+    return suffix
+
+
+def frame_range(log: RunLog, from_s: float | None = None, to_s: float | None = None) -> tuple[int, int]:
+    """Indices lo:hi of the frames from `from_s` to `to_s` seconds after the log's first frame (inclusive)."""
+    stamps = log.can_timestamp_s
+    if not len(stamps):
+        return 0, 0
+    t0 = float(stamps[0])
+    lo = 0 if from_s is None else int(stamps.searchsorted(t0 + from_s, side="left"))
+    hi = len(stamps) if to_s is None else int(stamps.searchsorted(t0 + to_s, side="right"))
+    return lo, max(lo, hi)
+
+
+def export_can(log: RunLog, path: str | Path, from_s: float | None = None, to_s: float | None = None) -> int:
+    """Write the log's frames (optionally from `from_s` to `to_s` s after the first frame) to `path` in the
+    format its extension names; returns how many were written. CanExportError when there is nothing."""
+    writer_class, _ = CAN_FORMATS[can_format(path)]
+    lo, hi = frame_range(log, from_s, to_s)
+    if hi <= lo:
+        raise CanExportError(f"{log.path}: no CAN frames"
+                             + ("" if from_s is None and to_s is None else " in the time range given"))
+    with writer_class(str(path)) as writer:
+        for start in range(lo, hi, _BATCH):
+            for message in can_messages(log, start, min(hi, start + _BATCH)):
+                writer.on_message_received(message)
+    return hi - lo
+
+
+__all__ = ["CAN_FORMATS", "CanExportError", "can_format", "can_messages", "export_can", "frame_range"]
