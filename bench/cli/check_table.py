@@ -230,7 +230,8 @@ def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
                 return fail(PROG, f"the run finished but the check cannot be computed: {exc}. Log: {run.log_path}",
                              ExitCode.QUALITY)
             paths = write_outputs(analysis, out_dir)
-            recorder.add_attachment(paths["json"].name, "application/json", paths["json"].read_bytes())
+            recorder.add_attachment(paths["json"].name, "application/json", paths["json"].read_bytes(),
+                                    run.clock.now() if run.clock is not None else 0.0)
             recorder.close()
         except KeyboardInterrupt as exc:        # a stop signal after the plan ended: the table is at rest
             return fail(PROG, f"interrupted ({exc or 'Ctrl-C'}) while analysing; the table is at rest. "

@@ -3,8 +3,8 @@
 The recorder (`bench.log.recorder`) writes it, the reader (`bench.log.reader`) and
 replay read it. The raw CAN frames on `/can/raw` use a compact binary encoding,
 `turntable-bench/can-frames-v1` (described in `CAN_SCHEMA_TEXT`, which is also the
-schema record in every log); `encode_can_frames` and `decode_can_frames` are its two
-directions, side by side.
+schema record in every log, with that same name as its schema encoding); `encode_can_frames`
+and `decode_can_frames` are its two directions, side by side.
 """
 
 from __future__ import annotations
@@ -136,7 +136,7 @@ CHANNELS: dict[str, tuple[str, str, str]] = {
     TOPIC_EVENTS: ("turntable_bench.Event", "jsonschema", "json"),
     TOPIC_LOG: ("foxglove.Log", "jsonschema", "json"),
     TOPIC_TF: ("foxglove.FrameTransform", "jsonschema", "json"),
-    TOPIC_CAN: (CAN_SCHEMA_NAME, "", CAN_ENCODING),
+    TOPIC_CAN: (CAN_SCHEMA_NAME, CAN_ENCODING, CAN_ENCODING),
 }
 
 

@@ -225,13 +225,15 @@ class McapRecorder(RunListener):
     def _register(self) -> dict[str, int]:
         schema_ids: dict[str, int] = {}
         records = RecordBuilder()
-        for name, body in SCHEMAS.items():
-            data = json.dumps(body, indent=1).encode()
-            schema_ids[name] = self._writer.register_schema(name, "jsonschema", data)
-            Schema(id=schema_ids[name], name=name, encoding="jsonschema", data=data).write(records)
-        data = CAN_SCHEMA_TEXT.encode()
-        schema_ids[CAN_SCHEMA_NAME] = self._writer.register_schema(CAN_SCHEMA_NAME, "", data)
-        Schema(id=schema_ids[CAN_SCHEMA_NAME], name=CAN_SCHEMA_NAME, encoding="", data=data).write(records)
+        # The /can/raw schema's encoding names the binary layout its text describes (as "protobuf" does for
+        # a protobuf schema): an empty encoding with data breaks the MCAP spec (`mcap doctor`: an error).
+        encodings = {schema: schema_encoding for schema, schema_encoding, _ in CHANNELS.values()}
+        bodies = {**{name: json.dumps(body, indent=1).encode() for name, body in SCHEMAS.items()},
+                  CAN_SCHEMA_NAME: CAN_SCHEMA_TEXT.encode()}
+        for name, data in bodies.items():
+            encoding = encodings.get(name, "jsonschema")
+            schema_ids[name] = self._writer.register_schema(name, encoding, data)
+            Schema(id=schema_ids[name], name=name, encoding=encoding, data=data).write(records)
         channel_ids = {}
         for topic, (schema, _, encoding) in CHANNELS.items():
             channel_ids[topic] = self._writer.register_channel(topic, encoding, schema_ids[schema])
@@ -262,11 +264,13 @@ class McapRecorder(RunListener):
         self._io(self._add_metadata, name, data)
 
     def add_attachment(self, name: str, media_type: str, data: bytes, log_time_s: float = 0.0) -> None:
-        """Attach a file (schedule, DBC, result JSON) to the log."""
+        """Attach a file (schedule, DBC, result JSON) to the log: its log time is `log_time_s` on the
+        run clock (when it was attached), its create time the wall clock's now (ns since the epoch)."""
         self._check_open()
         if not isinstance(data, (bytes, bytearray, memoryview)):
             raise RecorderError(f"attachment {name!r}: data must be bytes, got {type(data).__name__}")
-        self._io(self._writer.add_attachment, 0, time_ns(log_time_s), str(name), str(media_type), bytes(data))
+        self._io(self._writer.add_attachment, time.time_ns(), time_ns(log_time_s), str(name), str(media_type),
+                 bytes(data))
 
     def on_event(self, event: Event) -> None:
         self._check_open()

@@ -150,13 +150,15 @@ class BenchRun:
             str(self.log_path), metadata=self._metadata(),
             chunk_run_interval_s=CHUNK_RUN_INTERVAL_S if interval is None else interval)
         self._stack.callback(recorder.close)
-        recorder.add_attachment(config.imu.dbc.name, "text/plain", config.imu.layout.dbc_text.encode())
+        assert self.clock is not None   # open() chose the clock before the recorder
+        now_s = self.clock.now()        # attachments carry the run clock's time, like every record
+        recorder.add_attachment(config.imu.dbc.name, "text/plain", config.imu.layout.dbc_text.encode(), now_s)
         if config.path:
-            recorder.add_attachment(Path(config.path).name, "application/toml", config.source_text.encode())
+            recorder.add_attachment(Path(config.path).name, "application/toml", config.source_text.encode(), now_s)
         for schedule in (config.plan.positions, config.plan.rotations):
             path = schedule_file(schedule)
             if path is not None:
-                recorder.add_attachment(path.name, "application/toml", path.read_bytes())
+                recorder.add_attachment(path.name, "application/toml", path.read_bytes(), now_s)
 
     def _metadata(self) -> dict:
         config, identity = self.config, self.config.imu.identity
@@ -166,7 +168,8 @@ class BenchRun:
                     "mode": "simulator" if self.sim else "hardware",
                     "logs_before": json.dumps(self.previous_logs), "resumed_units": json.dumps(sorted(self.completed))},
             "config": {"toml": config.source_text, "path": str(config.path or "<built-in --sim>")},
-            "site": {k: str(v) for k, v in config.site.site.to_dict().items()},
+            # a value the site does not have (local g: from latitude and height) is left out, not "None"
+            "site": {k: str(v) for k, v in config.site.site.to_dict().items() if v is not None},
             "imu": {"model": identity.model, "serial": identity.serial, "rate_hz": str(config.imu.rate_hz),
                     "interface": str(config.imu.interface), "channel": str(config.imu.channel),
                     "dbc": config.imu.dbc.name},
@@ -248,7 +251,8 @@ class BenchRun:
             result, self.out_dir, self.run_id, log=logs[-1], layout=config.imu.layout, log_still_open=True,
             problems=solution.extraction.problems, failures=failures, imu_link=receiver.stats.as_dict(),
             title=f"Calibration report {self.run_id}")
-        recorder.add_attachment(result_path.name, "application/json", result_path.read_bytes())
+        recorder.add_attachment(result_path.name, "application/json", result_path.read_bytes(),
+                                self.clock.now() if self.clock is not None else 0.0)
         recorder.close()
         return RunOutcome(seq.state, self.log_path, result_path, report_path, result, failures,
                           html_report_path=html_report_path)
