@@ -10,6 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bench.sim import controller as simctl
+from bench.sim.controller import SimController
+from bench.sim.mn_server import MnSimHandler
 from drivers.errors import TurntableChecksumError, TurntableCommandError, TurntableError, TurntableProtocolError
 from drivers.turntable import mn_codec as codec
 from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
@@ -48,7 +50,6 @@ def test_frames_with_and_without_fields():
     (b"MNCHK,1*CE", "must start with '\\$'"),
     (b"#MNCHK,1*CE", "must start with '\\$'"),
     (b"$MNCHK,1", "no '\\*'"),
-    (b"$MNCHK,1*ce", "two upper-case hex digits"),
     (b"$MNCHK,1*C", "two upper-case hex digits"),
     (b"$MNCHK,1*CEF", "two upper-case hex digits"),
     (b"$MNCHK,1*G0", "two upper-case hex digits"),
@@ -64,6 +65,16 @@ def test_malformed_frames_name_the_problem(line, match):
         codec.decode_frame(line)
     assert not isinstance(info.value, TurntableChecksumError)
     assert info.value.raw == line
+
+
+def test_a_lower_case_checksum_is_a_checksum_error_answered_err_7():
+    """The page says lower case is rejected as a checksum error (ERR 7); the simulator said ERR 1, command ERR."""
+    with pytest.raises(codec.MnChecksumError, match="two upper-case hex digits after '\\*', got b'ce'") as info:
+        codec.decode_frame(b"$MNCHK,1*ce")
+    assert (info.value.expected, info.value.got) == (0xCE, 0xCE)
+    handler = MnSimHandler(SimController())
+    assert handler(b"$MNENA,1*ab") == codec.encode_error("ENA", codec.ERR_CHECKSUM) + codec.TERMINATOR
+    assert handler(b"$MNSTA*8e") == b"$ASSTA,ERR,7*F4\r\n"
 
 
 def test_checksum_mismatch_says_expected_and_got():

@@ -531,3 +531,24 @@ def test_no_threads_left_behind():
                 table.read_state()
     time.sleep(0.05)
     assert set(threading.enumerate()) <= before
+
+
+def test_the_simulator_answers_function_04_and_other_unit_ids_as_the_page_says():
+    """drivers/MODBUS.md: 04 reads the same registers as 03; another unit id gets exception 04 over TCP."""
+    controller = SimController()
+    server = ModbusSimServer(controller, NO_WATCHDOG)
+    try:
+        host, port = server.start_tcp("127.0.0.1", 0)
+        raw = ModbusTcpClient(host, port=port, timeout=5, retries=0)
+        assert raw.connect()
+        try:
+            holding = raw.read_holding_registers(0, count=20, device_id=1)
+            inputs = raw.read_input_registers(0, count=20, device_id=1)
+            assert not holding.isError() and not inputs.isError()
+            assert inputs.registers == holding.registers
+            other = raw.read_holding_registers(0, count=20, device_id=7)
+            assert other.isError() and other.exception_code == 4
+        finally:
+            raw.close()
+    finally:
+        server.close()

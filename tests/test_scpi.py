@@ -192,6 +192,9 @@ def test_handler_answers_queries_and_queues_command_errors(handler):
     assert handler(b":Interlock:Close 1;:L:R 1,12.5;:L:R? 1;:R:M? 1;:R:S? 1;:SYST:ERR?") == \
         b'12.5;1;3;0,"No error"\r\n'
     assert handler(b":L:R 1,500;:SYST:ERR?").startswith(b"-222,")
+    # a move rate <= 0 is an illegal value (-224) as the page says, not out of range (it said -222)
+    assert handler(b":L:R 1,0;:SYST:ERR?").startswith(b"-224,")
+    assert handler(b":L:R 1,-5;:SYST:ERR?").startswith(b"-224,")
     assert handler(b":READ:POSITION? 1;:READ:FAULT?") == b'0.0;""\r\n'
 
 

@@ -143,7 +143,9 @@ class ScpiSimHandler:
             ctl.demand_rate(_axis(request), values[0])
         elif name == "LIMIT:RATE":
             k = _axis(request)
-            if not 0 < values[0] <= ctl.limits[k].max_rate_dps:
+            if not values[0] > 0:       # an illegal value (-224), as for :D:P; above the maximum: a limit (-222)
+                raise SimCommandError(f"move rate must be positive, got {values[0]} deg/s", ERR_ARGUMENT)
+            if values[0] > ctl.limits[k].max_rate_dps:
                 raise SimCommandError(f"move rate {values[0]} deg/s outside (0, {ctl.limits[k].max_rate_dps}]",
                                       ERR_LIMIT)
             self.move_rate_dps[k] = values[0]

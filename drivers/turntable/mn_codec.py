@@ -55,6 +55,7 @@ MODE_LETTERS = {AxisMode.POSITION: "P", AxisMode.RATE: "R", AxisMode.OFF: "O"}
 _MODE_BY_LETTER = {v: k for k, v in MODE_LETTERS.items()}
 
 _HEX2 = re.compile(rb"[0-9A-F]{2}")
+_ANY_CASE_HEX2 = re.compile(rb"[0-9A-Fa-f]{2}")
 _CMD = re.compile(r"[A-Z]{3}")
 _STATUS = re.compile(r"[0-9A-F]{4}")
 _NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)")
@@ -155,8 +156,11 @@ def decode_frame(line: bytes) -> Frame:
         raise TurntableProtocolError("no '*' before the checksum", raw)
     digits = text[star + 1:]
     if not _HEX2.fullmatch(digits):
-        raise TurntableProtocolError(f"checksum must be two upper-case hex digits after '*', got {quote_bytes(digits)}",
-                                     raw)
+        message = f"checksum must be two upper-case hex digits after '*', got {quote_bytes(digits)}"
+        if _ANY_CASE_HEX2.fullmatch(digits):
+            # a checksum in lower case is a checksum error (a controller answers ERR 7, command echoed)
+            raise MnChecksumError(message, raw, checksum(text[1:star]), int(digits, 16))
+        raise TurntableProtocolError(message, raw)
     body = text[1:star]
     for stray in (b"$", b"*"):
         if stray in body:
