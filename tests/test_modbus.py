@@ -154,8 +154,10 @@ def test_float32_little_word_order_on_the_wire():
             table.set_rate(0, 12.5)
 
 
-def test_watchdog_is_written_on_connect():
-    script = [echo("0001 0000 0006 01 06 0007 0001"), (read_req(2), read_rep(2))]
+def test_watchdog_is_written_on_connect_and_released_on_close():
+    # the release (0) at close: a command that ends on purpose must not leave the table to fault
+    script = [echo("0001 0000 0006 01 06 0007 0001"), (read_req(2), read_rep(2)),
+              echo("0003 0000 0006 01 06 0007 0000")]
     with ModbusExchange(script) as ex:
         with client(ex.start_tcp(), RegisterMap.default(), watchdog_refresh_s=60.0) as table:
             table.read_state()
@@ -503,7 +505,8 @@ def test_e2e_watchdog_holds_while_connected_and_trips_when_the_client_goes_silen
     controller = SimController(clock=ManualClock())
     with ModbusSimServer(controller, wmap) as server:
         host, port = server.start_tcp()
-        with client(f"modbus+tcp://{host}:{port}", wmap) as table:
+        # release_watchdog=False: a client that dies without closing the link (it leaves the watchdog armed)
+        with client(f"modbus+tcp://{host}:{port}", wmap, release_watchdog=False) as table:
             table.enable()
             time.sleep(0.8)
             assert not server.watchdog_tripped and table.watchdog_error is None

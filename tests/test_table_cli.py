@@ -228,3 +228,50 @@ def test_sigterm_and_sighup_stop_a_goto_like_ctrl_c(simulator, signum, capsys):
     finally:
         stop_process(goto)
         watcher.close()
+
+
+# -- bench table on a Modbus controller: register map and watchdog (issue 14, item 4) ----------------
+
+@pytest.fixture
+def modbus_controller(tmp_path):
+    """A simulated Modbus controller whose map arms a 0.2 s watchdog, served in this process; yields
+    (controller, server, url, map file)."""
+    from bench.config.load import load_register_map
+    from bench.sim.controller import SimController
+    from bench.sim.modbus_server import ModbusSimServer
+
+    map_file = tmp_path / "map.toml"
+    map_file.write_text("[modbus]\nwatchdog_s = 0.2\n", encoding="utf-8")
+    controller = SimController()
+    server = ModbusSimServer(controller, load_register_map(map_file))
+    host, port = server.start_tcp("127.0.0.1", 0)
+    try:
+        yield controller, server, f"modbus+tcp://{host}:{port}", map_file
+    finally:
+        server.close()
+
+
+@pytest.mark.parametrize("extra", [[], ["--no-watchdog"]], ids=["released on exit", "never armed"])
+def test_bench_table_on_modbus_leaves_no_watchdog_to_trip_after_it_ends(modbus_controller, extra, capsys):
+    """`bench table enable` armed the watchdog and exited: 2 s later the table faulted, servos off."""
+    controller, server, url, map_file = modbus_controller
+    assert main(["table", "--url", url, "--register-map", str(map_file), *extra, "enable"]) == 0, \
+        capsys.readouterr().err
+    time.sleep(1.0)                  # five watchdog periods after the command ended
+    state = controller.state()
+    assert not server.watchdog_tripped and not state.fault
+    assert all(axis.enabled for axis in state.axes)
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["--url", "tcp://127.0.0.1:9", "--dialect", "scpi", "--no-watchdog", "status"], "for the modbus dialect only"),
+    (["--url", "modbus+tcp://127.0.0.1:9", "--register-map", "BAD", "status"],
+     ":2: modbus.watchdog_s: must be <= 3600 s"),
+])
+def test_bench_table_register_map_options_are_checked_before_connecting(tmp_path, args, fragment, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[modbus]\nwatchdog_s = 1e9\n", encoding="utf-8")
+    args = [str(bad) if a == "BAD" else a for a in args]
+    assert main(["table", *args]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and fragment in err, err

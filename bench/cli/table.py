@@ -13,12 +13,15 @@ import signal
 import sys
 import threading
 import time
+from dataclasses import replace
 from typing import TextIO
 from urllib.parse import urlsplit
 
 from bench.cli.common import ExitCode, fail, raise_interrupted, stop_signals
+from bench.config.load import ConfigError, load_register_map
 from bench.errors import InputError
 from drivers.errors import TurntableConfigError, TurntableError, TurntableLimitError
+from drivers.transport import MODBUS_SCHEMES
 from drivers.turntable import (
     DIALECTS,
     FRAMES,
@@ -29,6 +32,7 @@ from drivers.turntable import (
     frame_index,
     open_turntable,
 )
+from drivers.turntable.modbus_map import RegisterMap
 
 # -- bench table ------------------------------------------------------------------
 
@@ -44,6 +48,12 @@ def register_table(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--retries", type=int, default=2, help="retries after a timeout or bad reply (default 2)")
     parser.add_argument("--max-rate-dps", type=float, default=100.0,
                         help="largest rate this command may demand on any axis (default 100 deg/s)")
+    parser.add_argument("--register-map", metavar="FILE",
+                        help="modbus: the controller's register map (a [modbus] table as in a bench configuration; "
+                             "default: the map of drivers/MODBUS.md)")
+    parser.add_argument("--no-watchdog", action="store_true",
+                        help="modbus: do not arm the controller's watchdog (by default it is fed while the command "
+                             "runs and released when it ends)")
     commands = parser.add_subparsers(dest="table_command", metavar="COMMAND", required=True)
     commands.add_parser("status", help="print angles, rates, modes and status; exit 3 on a fault")
     for name, text in (("enable", "servo on"), ("disable", "servo off"), ("reset", "clear latched faults")):
@@ -142,9 +152,16 @@ def cmd_table(args: argparse.Namespace) -> ExitCode:
     try:
         outer, middle, inner = (AxisLimits(max_rate_dps=args.max_rate_dps) for _ in range(3))
         limits = TurntableLimits((outer, middle, inner))
+        options: dict[str, object] = {}
+        if args.register_map is not None or args.no_watchdog:
+            if (args.dialect or ("modbus" if args.url.startswith(MODBUS_SCHEMES) else None)) != "modbus":
+                return fail(prog, "--register-map and --no-watchdog are for the modbus dialect only", ExitCode.USAGE)
+            register_map = (load_register_map(args.register_map) if args.register_map is not None
+                            else RegisterMap.default())
+            options["register_map"] = replace(register_map, watchdog_s=0.0) if args.no_watchdog else register_map
         table = open_turntable(args.url, args.dialect, limits=limits, timeout_s=args.timeout_s,
-                               retries=args.retries)
-    except TurntableConfigError as exc:
+                               retries=args.retries, **options)
+    except (TurntableConfigError, ConfigError) as exc:
         return fail(prog, f"{exc}", ExitCode.USAGE)
     try:
         table.connect()

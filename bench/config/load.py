@@ -60,7 +60,7 @@ _SIM_IMU_RANGES = {"Kg": (0.0, 1e6, "counts/s per deg/s"), "Ka": (0.0, 1e6, "cou
 
 __all__ = ["FORMAT", "ORDERS", "SIM_CONFIG_TOML", "SIM_URL", "VERSION", "BenchConfig", "ConfigError",
            "ImuConfig", "ImuIdentity", "OutputConfig", "PlanConfig", "SimConfig", "SiteConfig", "TableConfig",
-           "default_sim_config", "load_config", "parse_config"]
+           "default_sim_config", "load_config", "load_register_map", "parse_config"]
 
 
 @dataclass(frozen=True)
@@ -235,7 +235,13 @@ def _register_map(t: Table, dialect: str) -> RegisterMap | None:
         if path.exists():  # a directory, a device such as /dev/zero, a FIFO
             raise t.error("register_map", f"{show(str(path))} is not a regular file")
         raise t.error("register_map", f"no such register map file {show(str(path))}")
-    text = read_text(path, "the register map file")
+    return load_register_map(path)
+
+
+def load_register_map(path: str | Path) -> RegisterMap:
+    """A Modbus register map file (a [modbus] table, or its keys at the top level): a ConfigError
+    `file:line: key: message` when it cannot be used (`bench table --register-map`, `[table] register_map`)."""
+    text = read_text(Path(path), "the register map file")
     data, lines = parse_toml(text, str(path)), locate_lines(text)
     prefix: tuple[str, ...] = ()
     if "modbus" in data:

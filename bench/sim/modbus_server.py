@@ -209,7 +209,8 @@ class ModbusSimServer:
 
         try:
             if ("watchdog", -1) in touched:
-                self._watchdog_armed = m.watchdog_s > 0
+                # any other value arms (and feeds) it; 0 releases it (a client closing on purpose)
+                self._watchdog_armed = m.watchdog_s > 0 and image[m.watchdog] != 0
                 self._watchdog_at = self.wall_clock.now()
             if ("command", -1) in touched:
                 try:

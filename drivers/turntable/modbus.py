@@ -101,14 +101,17 @@ class ModbusTurntable(Turntable):
     `timeout_s` is the reply timeout of one attempt (real seconds); a request is tried
     `retries + 1` times. With a watchdog in the map, a small thread writes an
     incrementing watchdog value every `watchdog_refresh_s` (default a quarter of the
-    map's period) while connected; a failing refresh is kept in `watchdog_error`.
+    map's period) while connected; a failing refresh is kept in `watchdog_error`. Closing
+    the link releases the watchdog (writes 0, which disarms it) unless `release_watchdog`
+    is False: a command that ends on purpose must not leave the table to fault 2 s later,
+    while a client that dies without closing still trips it.
     """
 
     dialect = "modbus"
 
     def __init__(self, url: str, register_map: RegisterMap | None = None, limits: TurntableLimits | None = None,
                  clock: Clock = SYSTEM_CLOCK, timeout_s: float = 0.5, retries: int = 2,
-                 watchdog_refresh_s: float | None = None):
+                 watchdog_refresh_s: float | None = None, release_watchdog: bool = True):
         super().__init__(limits, clock)
         if not timeout_s > 0:
             raise TurntableConfigError(f"timeout_s must be positive, got {timeout_s}")
@@ -123,6 +126,7 @@ class ModbusTurntable(Turntable):
         period = self.map.watchdog_s
         self.watchdog_refresh_s = (max(period / 4, 0.02) if watchdog_refresh_s is None else float(watchdog_refresh_s))
         self.watchdog_error: TurntableError | None = None
+        self.release_watchdog = release_watchdog
         self.reconnects = 0
         self._client: ModbusTcpClient | ModbusSerialClient | None = None
         self._watchdog_value = 0
@@ -180,6 +184,11 @@ class ModbusTurntable(Turntable):
     def _close(self) -> None:
         self._stop_watchdog()
         if self._client is not None:
+            if self.release_watchdog and self.map.watchdog_s > 0 and self._watchdog_value:
+                try:
+                    self._write_single(self.map.watchdog, 0, "watchdog release")
+                except TurntableError:
+                    pass      # best effort: the link may be what failed; the watchdog then trips, which is safe
             self._client.close()
             self._client = None
 
