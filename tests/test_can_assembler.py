@@ -100,6 +100,21 @@ def test_lost_frame_makes_one_incomplete_sample():
     assert (stats.incomplete_samples, stats.counter_gaps, stats.frames_ok) == (1, 0, 349)
 
 
+def test_joining_a_stream_mid_sample_is_not_a_lost_sample():
+    """A live stream is joined while a sample is being sent: its first frames went out before the bench
+    listened. That first sample is dropped and counted as such, not as lost (a clean run exited 4)."""
+    frames = frames_of(range(40))[3:]            # joined after 3 of sample 0's 7 frames
+    del frames[20 * M - 3 + 2]                    # and a frame of sample 20 genuinely lost
+    block, stats = check_both(frames)
+    assert_intact(block, [c for c in range(1, 40) if c != 20])
+    assert (stats.joined_mid_sample, stats.incomplete_samples, stats.lost_samples) == (1, 1, 1)
+    assert "joined mid-sample" in stats.summary()
+    block, stats = check_both(frames_of(range(40))[3:])
+    assert (stats.joined_mid_sample, stats.lost_samples) == (1, 0)
+    block, stats = check_both(frames_of(range(40)))          # joined at a sample boundary: nothing to say
+    assert stats.joined_mid_sample == 0 and "joined" not in stats.summary()
+
+
 def test_lost_frames_of_whole_samples_are_counter_gaps():
     frames = frames_of(range(60))
     del frames[10 * M:13 * M]     # samples 10, 11, 12 never arrive
@@ -296,6 +311,7 @@ def test_live_and_bulk_agree_on_random_faults(case):
     if stats.samples:
         span = int(block.counter.max() - block.counter.min()) + 1
         assert stats.samples + stats.lost_samples >= span
+    assert stats.joined_mid_sample in (0, 1)
 
 
 @settings(max_examples=250, deadline=None)

@@ -15,7 +15,9 @@ Rules (the bulk decoder in `drivers.imu.bulk` implements exactly the same ones):
 4. A sample is emitted once it has every mapped frame and every older counter is
    resolved, so samples leave in counter order. A counter leaves the window when head
    reaches counter + reorder_window: with some frames it is an incomplete sample
-   (dropped, counted), with none it is a counter gap (counted per missing sample).
+   (dropped, counted), with none it is a counter gap (counted per missing sample). The
+   first counter's sample, incomplete, is counted as joined mid-sample instead: its first
+   frames went out before the bench started listening, which loses nothing it could have had.
    `flush()` resolves everything still pending at the end of a stream.
 """
 
@@ -72,6 +74,7 @@ class SampleAssembler:
         self._done: list[list] = []
         self._done_t: list[float] = []
         self._prev: int | None = None   # unwrapped counter of the previous valid frame
+        self._first: int | None = None  # counter of the first valid frame: its sample may have begun before we joined
         self._start = self._head = self._lowest = 0
 
     # -- feeding ------------------------------------------------------------------
@@ -120,6 +123,7 @@ class SampleAssembler:
                 c = ((vb if cbig else v) >> cshift) & cmask
                 if prev is None:
                     u = start = head = lowest = c
+                    self._first = c
                 else:
                     d = (c - prev) & cmask
                     u = prev + (d - modulus if d >= half else d)
@@ -188,7 +192,10 @@ class SampleAssembler:
                 lowest = stop
             else:
                 del pending[lowest]
-                s.incomplete_samples += 1
+                if lowest == self._first:   # its first frames went out before the stream was joined
+                    s.joined_mid_sample += 1
+                else:
+                    s.incomplete_samples += 1
                 lowest += 1
         self._lowest = lowest
 

@@ -83,7 +83,9 @@ class ImuStats:
     first frame), duplicates (same id and counter as a frame already used). `out_of_order`
     counts the frames_ok that belonged to an older counter than one already seen. Every
     counter from the first to the newest resolved is exactly one of: samples (emitted),
-    incomplete_samples (some but not all frames: dropped), counter_gaps (no frame at all).
+    incomplete_samples (some but not all frames: dropped), counter_gaps (no frame at all),
+    joined_mid_sample (the first counter's sample when it came incomplete: the bench began
+    listening while it was being sent; not a loss, 0 or 1).
     """
 
     frames: int = 0
@@ -97,6 +99,7 @@ class ImuStats:
     samples: int = 0
     incomplete_samples: int = 0
     counter_gaps: int = 0
+    joined_mid_sample: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return asdict(self)
@@ -116,4 +119,5 @@ class ImuStats:
         return (f"{self.samples} samples, {self.lost_samples} lost ({self.counter_gaps} in counter gaps, "
                 f"{self.incomplete_samples} incomplete); {self.frames} frames: {self.crc_errors} CRC errors, "
                 f"{self.wrong_length} wrong length, {self.unknown_id} unknown id, {self.late} late, "
-                f"{self.duplicates} duplicates, {self.out_of_order} out of order")
+                f"{self.duplicates} duplicates, {self.out_of_order} out of order"
+                + ("; joined mid-sample (its first sample dropped, not a loss)" if self.joined_mid_sample else ""))
