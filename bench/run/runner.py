@@ -29,6 +29,7 @@ from bench.plan.compiler import CompiledPlan, compile_plan
 from bench.plan.events import RunListener, RunState
 from bench.plan.steps import step_to_dict
 from bench.report.markdown import write_reports
+from bench.run.imu_check import check_imu_stream
 from bench.run.sequencer import ListenerError, Sequencer, SequencerOptions, describe_listener_error
 from bench.sim.world import SimWorld
 from bench.solve.from_logs import solve_logs
@@ -96,6 +97,7 @@ class BenchRun:
         self.world: SimWorld | None = None
         self.table: Turntable | None = None
         self.receiver: ImuReceiver | None = None
+        self.imu_check = ""                      # what the check of a hardware IMU found before the run
         self.recorder: McapRecorder | None = None
         self.sequencer: Sequencer | None = None
         self.clock: Clock | None = None
@@ -129,6 +131,11 @@ class BenchRun:
             self._stack.callback(table.close)
             self.receiver = receiver = ImuReceiver(bus, config.imu.layout, config.imu.rate_hz)
             self._stack.callback(receiver.close)
+            if not self.sim:
+                # the IMU must be there, at its rate and layout, before anything moves (the simulated one
+                # runs on the run clock and always is)
+                self.imu_check = check_imu_stream(
+                    receiver, config.imu.rate_hz, f"interface {config.imu.interface} channel {config.imu.channel}")
             self._open_recorder()
         except BaseException:
             self.close()

@@ -1,0 +1,67 @@
+"""Before anything moves: is the IMU there, at the configured rate, with the configured layout?
+
+A hardware run used to find a silent IMU only at its first dwell, after the servos were on
+and the table had moved ("no IMU sample for 2.0 s", exit 3). `check_imu_stream` listens
+first, on the wall clock, for a bounded time: no frames at all, frames that do not decode
+with the configured DBC/layout, or a sample rate off the configured one are a one-line
+`ImuCheckError` (exit 2, nothing moved).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+import numpy as np
+
+from bench.errors import BenchError
+
+#: how long to listen at most, s (wall clock)
+CHECK_TIMEOUT_S = 3.0
+#: how much of the stream to see before judging the rate, s of samples (and at least MIN_SAMPLES)
+CHECK_SPAN_S = 0.5
+MIN_SAMPLES = 10
+#: measured rate / configured rate must be within this factor of 1
+RATE_TOLERANCE = 0.2
+
+
+class ImuCheckError(BenchError):
+    """The IMU stream is not what the configuration says (one line)."""
+
+
+def check_imu_stream(receiver, rate_hz: float, where: str, *, timeout_s: float = CHECK_TIMEOUT_S,
+                     monotonic: Callable[[], float] = time.monotonic) -> str:
+    """Listen on `receiver` (an `ImuReceiver`) until enough samples came or `timeout_s` passed; the
+    one-line finding when the stream is fine, `ImuCheckError` otherwise. `where` names the bus."""
+    wanted = max(MIN_SAMPLES, int(round(CHECK_SPAN_S * rate_hz)))
+    counters: list[np.ndarray] = []
+    times: list[np.ndarray] = []
+    got = 0
+    deadline = monotonic() + timeout_s
+    for _ in range(int(timeout_s / 0.02) + 2):          # bounded: each poll waits at most 20 ms
+        block = receiver.poll(timeout_s=0.02)
+        if len(block):
+            counters.append(block.counter)
+            times.append(block.receive_time_s)
+            got += len(block)
+        if got >= wanted or monotonic() > deadline:
+            break
+    stats = receiver.stats
+    if got == 0:
+        if stats.frames == 0:
+            raise ImuCheckError(f"no IMU frames on {where} in {timeout_s:g} s: is the IMU powered and on this bus?")
+        raise ImuCheckError(f"{stats.frames} CAN frames on {where} in {timeout_s:g} s but no IMU sample decodes with "
+                            f"the configured DBC and signals ({stats.unknown_id} unknown ids, {stats.wrong_length} "
+                            f"of the wrong length, {stats.crc_errors} CRC errors)")
+    counter, received = np.concatenate(counters), np.concatenate(times)
+    span_s = float(received[-1] - received[0])
+    if len(counter) >= MIN_SAMPLES and span_s > 0:
+        measured_hz = float(counter[-1] - counter[0]) / span_s
+        if abs(measured_hz / rate_hz - 1.0) > RATE_TOLERANCE:
+            raise ImuCheckError(f"the IMU on {where} sends about {measured_hz:.4g} samples/s, the configuration "
+                                f"says imu.rate_hz = {rate_hz:g}")
+        return f"IMU on {where}: {got} samples at about {measured_hz:.4g} samples/s"
+    return f"IMU on {where}: {got} samples"
+
+
+__all__ = ["ImuCheckError", "check_imu_stream"]
