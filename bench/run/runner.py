@@ -129,7 +129,10 @@ class BenchRun:
             self.table = table = open_turntable(url, config.table.dialect, **options)
             table.connect()
             self._stack.callback(table.close)
-            self.receiver = receiver = ImuReceiver(bus, config.imu.layout, config.imu.rate_hz)
+            # hardware: the interface's frame timestamps are mapped onto the run clock (one time base in the
+            # log); the simulator's frames carry the run clock's time already
+            self.receiver = receiver = ImuReceiver(bus, config.imu.layout, config.imu.rate_hz,
+                                                   time_base=None if self.sim else self.clock.now)
             self._stack.callback(receiver.close)
             if not self.sim:
                 # the IMU must be there, at its rate and layout, before anything moves (the simulated one
@@ -179,11 +182,19 @@ class BenchRun:
             "site": {k: str(v) for k, v in config.site.site.to_dict().items() if v is not None},
             "imu": {"model": identity.model, "serial": identity.serial, "rate_hz": str(config.imu.rate_hz),
                     "interface": str(config.imu.interface), "channel": str(config.imu.channel),
-                    "dbc": config.imu.dbc.name},
+                    "dbc": config.imu.dbc.name, **self._time_base()},
             "plan": {"steps_json": json.dumps([step_to_dict(s) for s in self.plan.steps]),
                      "estimated_total_s": f"{self.plan.estimated_total_s:.1f}", "order": self.plan.order,
                      "positions": _name(config.plan.positions), "rotations": _name(config.plan.rotations)},
         }
+
+    def _time_base(self) -> dict[str, str]:
+        """How the CAN interface's timestamps map onto the run clock (hardware; the IMU check has seen
+        frames by the time the metadata is written): interface time = run time + can_time_offset_s."""
+        base = self.receiver.time_base if self.receiver is not None else None
+        if base is None or base.offset_s is None:
+            return {}
+        return {"can_time_offset_s": repr(base.offset_s)}
 
     # -- the run -------------------------------------------------------------------------
     def options(self) -> SequencerOptions:
@@ -250,7 +261,8 @@ class BenchRun:
                     "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                     "imu": {"model": identity.model, "serial": identity.serial},
                     "site": config.site.site.to_dict(), "quality_failures": failures,
-                    "imu_link": receiver.stats.as_dict()}
+                    "imu_link": {**receiver.stats.as_dict(),
+                                 **(receiver.time_base.as_dict() if receiver.time_base is not None else {})}}
         result = solution.calibration.to_result(run=run_info, sim_truth=config.sim.imu if self.sim else None)
         result_path = self.out_dir / f"{self.run_id}.result.json"
         result.save(result_path)

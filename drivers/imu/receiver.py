@@ -8,6 +8,7 @@ callback before decoding, so a recorder can log all of them losslessly.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 
 import can
@@ -29,15 +30,60 @@ def open_bus(config: Mapping) -> can.BusABC:
         raise ImuConnectionError(f"cannot open the CAN bus ({where}): {exc}") from exc
 
 
+class TimeBase:
+    """Maps the timestamps a CAN interface puts on frames onto the run clock (`now`, seconds).
+
+    Interfaces stamp frames with their own clock (python-can's virtual and slcan interfaces
+    with the epoch, ~1.8e9 s; an adapter with its own counter), while the run clock of a
+    hardware run is the host's monotonic clock: one log with both had a duration of half a
+    million hours. The offset is taken at the first frame (`offset_s` = interface time - run
+    time there); every frame's time becomes interface time - offset_s. `lag_min_s` and
+    `lag_max_s` record run time at receipt minus the mapped time over the run: the delivery
+    latency, and how far the interface's clock drifts from the run clock (a negative lag:
+    frames stamped in the run's future).
+    """
+
+    def __init__(self, now: Callable[[], float]):
+        self.now = now
+        self.offset_s: float | None = None
+        self.lag_min_s = math.inf
+        self.lag_max_s = -math.inf
+
+    def map(self, messages: list[can.Message]) -> None:
+        """Re-stamp `messages` (in place) on the run clock."""
+        now = self.now()
+        if self.offset_s is None:
+            self.offset_s = float(messages[0].timestamp) - now
+        offset = self.offset_s
+        for m in messages:
+            m.timestamp = float(m.timestamp) - offset
+        # the batch's newest frame has the least lag, its oldest the most
+        self.lag_min_s = min(self.lag_min_s, now - messages[-1].timestamp)
+        self.lag_max_s = max(self.lag_max_s, now - messages[0].timestamp)
+
+    def as_dict(self) -> dict[str, float]:
+        """The offset and the lag extremes (empty before the first frame)."""
+        if self.offset_s is None:
+            return {}
+        return {"can_time_offset_s": self.offset_s, "can_lag_min_s": self.lag_min_s,
+                "can_lag_max_s": self.lag_max_s}
+
+
 class ImuReceiver:
-    """Receive an IMU's frames from a CAN bus and assemble them into samples."""
+    """Receive an IMU's frames from a CAN bus and assemble them into samples.
+
+    With `time_base` (the run clock's `now`), every frame's timestamp is mapped onto that clock
+    (`TimeBase`) before anything else sees it: the samples' receive times and the logged frames
+    then share the run's one time base."""
 
     def __init__(self, bus: Mapping | can.BusABC, layout: ImuLayout | None = None, rate_hz: float = 1000.0,
                  reorder_window: int = 8,
-                 on_frames: Callable[[list[can.Message]], None] | None = None):
+                 on_frames: Callable[[list[can.Message]], None] | None = None,
+                 time_base: Callable[[], float] | None = None):
         self.assembler = SampleAssembler(layout, rate_hz, reorder_window)
         self.layout, self.rate_hz = self.assembler.layout, self.assembler.rate_hz
         self.on_frames = on_frames
+        self.time_base = TimeBase(time_base) if time_base is not None else None
         self.bus: can.BusABC
         if isinstance(bus, can.BusABC):
             self._owns_bus = False
@@ -77,6 +123,8 @@ class ImuReceiver:
         return self.assembler.take_block()
 
     def _deliver(self, messages: list[can.Message]) -> None:
+        if self.time_base is not None:
+            self.time_base.map(messages)
         self.frames_received += len(messages)
         if self.on_frames is not None:
             self.on_frames(messages)
