@@ -7,16 +7,12 @@ import numpy as np
 import pytest
 
 from bench.log.reader import read_log
-from tests.helpers.run import api_run, cli, config_text
+from tests.helpers.run import cli, record_short_run
 
 
 @pytest.fixture(scope="module")
 def log_path(tmp_path_factory):
-    out = tmp_path_factory.mktemp("export_can")
-    text = config_text(positions="traditional-12", rotations="traditional-3s6r", dwell_s=1.0)
-    with api_run(text, out) as (_, outcome):
-        assert outcome.error is None
-    return outcome.log_path
+    return record_short_run(tmp_path_factory.mktemp("export_can"))[0]
 
 
 @pytest.mark.parametrize("extension", [".asc", ".blf", ".log", ".csv"])

@@ -14,17 +14,12 @@ import pytest
 from mcap.reader import make_reader
 
 from bench.log.format import CAN_ENCODING, CAN_SCHEMA_NAME
-from tests.helpers.run import api_run, config_text
+from tests.helpers.run import record_short_run
 
 
 @pytest.fixture(scope="module")
 def run_log(tmp_path_factory):
-    out = tmp_path_factory.mktemp("conformance")
-    text = config_text(positions="traditional-12", rotations="traditional-3s6r", dwell_s=1.0)
-    with api_run(text, out) as (run, outcome):
-        assert outcome.error is None
-        last_event_s = run.clock.now()
-    return outcome.log_path, last_event_s
+    return record_short_run(tmp_path_factory.mktemp("conformance"))
 
 
 def test_every_schema_with_data_names_its_encoding(run_log):

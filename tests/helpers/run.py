@@ -171,6 +171,16 @@ def api_run(text: str, out_dir: Path, *listeners: RunListener):
         yield run, run.finish()
 
 
+def record_short_run(out_dir: Path) -> tuple[Path, float]:
+    """A finished simulated run of the shortest plan (traditional-12 + traditional-3s6r, 1 s dwells):
+    (its log, the run clock's time when it finished)."""
+    text = config_text(positions="traditional-12", rotations="traditional-3s6r", dwell_s=1.0)
+    with api_run(text, out_dir) as (run, outcome):
+        assert outcome.error is None, outcome.error
+        finished_s = run.clock.now()
+    return outcome.log_path, finished_s
+
+
 def cli(argv: list[str]) -> tuple[int, str, str]:
     """`bench ...` in-process: (exit code, stdout, stderr)."""
     from bench.cli.main import main
