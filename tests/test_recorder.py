@@ -181,7 +181,7 @@ def test_round_trip_is_lossless(closed_log):
     np.testing.assert_array_equal(rec.temperature_c, run.block.temperature_c)
     np.testing.assert_array_equal(rec.status, run.block.status)
     np.testing.assert_allclose(rec.receive_time_s, run.block.receive_time_s, atol=1e-9)
-    np.testing.assert_allclose(rec.time_s, run.block.counter / RATE_HZ)
+    np.testing.assert_allclose(rec.imu_time_s, run.block.counter / RATE_HZ)
     assert [e.to_dict() for e in log.events] == [json.loads(json.dumps(e.to_dict(), default=int)) for e in run.events]
     assert log.metadata["run"]["operator"] == "ana" and log.metadata["config"]["toml"].startswith("[imu]")
     assert log.metadata["result"] == {"rms": "1.5", "ok": "true"}
@@ -263,9 +263,12 @@ def test_json_channels_are_strict_json_with_the_documented_fields(closed_log):
                 by_topic.setdefault(channel.topic, []).append((msg.log_time, strict(msg.data)))
             else:
                 assert channel.message_encoding == CAN_ENCODING and b"uint32" in schema.data
-    sample = by_topic["/imu/samples"][0][1]
-    assert set(sample) == {"counter", "time_s", "gyro_counts", "acc_counts", "gyro_rate", "acc_rate",
+    log_time, sample = by_topic["/imu/samples"][0]
+    assert set(sample) == {"counter", "time_s", "imu_time_s", "gyro_counts", "acc_counts", "gyro_rate", "acc_rate",
                            "temperature_c", "status"}
+    # one time base: time_s is the message's log time on the run clock; the IMU's own clock is imu_time_s
+    assert sample["time_s"] == pytest.approx(log_time / 1e9, abs=1e-9)
+    assert sample["imu_time_s"] == pytest.approx(sample["counter"] / RATE_HZ)
     np.testing.assert_allclose(sample["gyro_rate"], np.array(sample["gyro_counts"]) * RATE_HZ)
     levels = {m["message"]: m["level"] for _, m in by_topic["/log"]}
     assert levels["[P03] fault at batch 6"] == 4 and levels["[P03] warning at batch 6"] == 3 and levels["start"] == 2

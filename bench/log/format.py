@@ -69,7 +69,9 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "title": "turntable_bench.ImuSample", "description": "One decoded IMU sample", "type": "object",
         "properties": {
             "counter": {"type": "integer", "description": "unwrapped sample counter"},
-            "time_s": {"type": "number", "description": "counter / sample rate, s (IMU time base)"},
+            "time_s": {"type": "number", "description": "when the sample was complete, on the run clock, s "
+                                                        "(the message's log time)"},
+            "imu_time_s": {"type": "number", "description": "counter / sample rate, s (the IMU's own time base)"},
             "gyro_counts": {**_VEC3, "description": "gyro increments this sample, output counts"},
             "acc_counts": {**_VEC3, "description": "accelerometer increments this sample, output counts"},
             "gyro_rate": {**_VEC3, "description": "gyro outputs as rates, counts/s"},

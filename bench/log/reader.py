@@ -127,8 +127,8 @@ class ImuRecords:
     """
 
     counter: np.ndarray         # (n,) int64
-    time_s: np.ndarray          # (n,) counter / rate
-    receive_time_s: np.ndarray  # (n,) the message log times
+    imu_time_s: np.ndarray      # (n,) counter / rate: the IMU's own time base
+    receive_time_s: np.ndarray  # (n,) the message log times: when each sample was complete, on the run clock
     gyro_counts: np.ndarray     # (n, 3)
     acc_counts: np.ndarray      # (n, 3)
     temperature_c: np.ndarray   # (n,) NaN where not recorded
@@ -284,13 +284,14 @@ def _imu_records(rows: list[dict], times: np.ndarray) -> ImuRecords:
     """`/imu/samples` rows as arrays (KeyError/TypeError/ValueError when a row lacks a field or has a wrong one)."""
     n = len(rows)
     records = ImuRecords(np.array([r["counter"] for r in rows], np.int64),
-                         np.array([r["time_s"] for r in rows], float), times,
+                         # logs before 2026-11-24 hold counter / rate in "time_s" and no "imu_time_s"
+                         np.array([r.get("imu_time_s", r["time_s"]) for r in rows], float), times,
                          np.array([r["gyro_counts"] for r in rows], float).reshape(n, 3),
                          np.array([r["acc_counts"] for r in rows], float).reshape(n, 3),
                          np.array([np.nan if r["temperature_c"] is None else r["temperature_c"] for r in rows],
                                   float),
                          np.array([r["status"] for r in rows], np.int64))
-    if any(a.shape != (n,) for a in (records.counter, records.time_s, records.temperature_c, records.status)):
+    if any(a.shape != (n,) for a in (records.counter, records.imu_time_s, records.temperature_c, records.status)):
         raise ValueError("a scalar field holds an array")
     return records
 
@@ -324,7 +325,8 @@ def _state_row(r: dict) -> bool:
 def _sample_row(r: dict) -> bool:
     """Whether an `/imu/samples` row converts (`_imu_records`)."""
     try:
-        return (_is_int(r["counter"]) and _is_number(r["time_s"]) and _is_vec3(r["gyro_counts"])
+        return (_is_int(r["counter"]) and _is_number(r["time_s"]) and _is_number(r.get("imu_time_s", 0.0))
+                and _is_vec3(r["gyro_counts"])
                 and _is_vec3(r["acc_counts"]) and _is_number(r["temperature_c"]) and _is_int(r["status"]))
     except KeyError:
         return False

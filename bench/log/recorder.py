@@ -402,13 +402,15 @@ class McapRecorder(RunListener):
         held, size = self._held_samples, self._held_bytes
         for c, r, (g0, g1, g2), (a0, a1, a2), temp, st in zip(counters, recv, g, a, temps, status):
             if finite:
-                body = (f'{{"counter":{c},"time_s":{c / rate!r},"gyro_counts":[{g0!r},{g1!r},{g2!r}],'
+                body = (f'{{"counter":{c},"time_s":{_num(r)},"imu_time_s":{c / rate!r},'
+                        f'"gyro_counts":[{g0!r},{g1!r},{g2!r}],'
                         f'"acc_counts":[{a0!r},{a1!r},{a2!r}],"gyro_rate":[{g0 * rate!r},{g1 * rate!r},'
                         f'{g2 * rate!r}],"acc_rate":[{a0 * rate!r},{a1 * rate!r},{a2 * rate!r}],'
                         f'"temperature_c":{temp},"status":{st}}}')
             else:
                 gv, av = (g0, g1, g2), (a0, a1, a2)
-                body = (f'{{"counter":{c},"time_s":{c / rate!r},"gyro_counts":[{",".join(map(_num, gv))}],'
+                body = (f'{{"counter":{c},"time_s":{_num(r)},"imu_time_s":{c / rate!r},'
+                        f'"gyro_counts":[{",".join(map(_num, gv))}],'
                         f'"acc_counts":[{",".join(map(_num, av))}],'
                         f'"gyro_rate":[{",".join(_num(x * rate) for x in gv)}],'
                         f'"acc_rate":[{",".join(_num(x * rate) for x in av)}],'
