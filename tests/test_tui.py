@@ -124,6 +124,31 @@ def test_buffer_concurrent_writers_and_reader():
     assert buf.snapshot().table_states > 0
 
 
+def test_event_log_shows_an_event_added_between_snapshot_and_draw_once(tmp_path):
+    """The sequencer's thread may add an event after the UI took its snapshot and before it fetched the
+    new events: the event log showed that event twice ("P01 move done" twice; issue 19)."""
+    async def body():
+        app = make_app(tmp_path, auto_connect=False, refresh_hz=1.0)
+        async with app.run_test(size=SIZE) as pilot:
+            buf = app.buffer
+            real_snapshot = buf.snapshot
+            late = [Event(1.0, "step_finished", "P01 move done in 0.0 s", step_index=0, step_unit="P01")]
+
+            def snapshot_then_an_event():
+                s = real_snapshot()
+                if late:
+                    buf.on_event(late.pop())         # what the run's thread does between the two calls
+                return s
+            buf.snapshot = snapshot_then_an_event
+            buf.on_event(Event(0.0, "transition", "run started: 3 steps", state="running", data={"from": "idle"}))
+            for _ in range(3):
+                app.refresh_panels()
+                await pilot.pause(0.05)
+            assert events_text(app).count("P01 move done") == 1, events_text(app)
+            assert events_text(app).count("run started") == 1
+    run(body)
+
+
 def test_imu_scales_are_the_sim_truth_or_raw(tmp_path):
     config = make_config(tmp_path)
     sim = ImuScales.from_config(config, sim=True)

@@ -180,7 +180,8 @@ class BenchApp(App):
         self.query_one(PlanPanel).show(snap)
         log = self.query_one(EventLog)
         if snap.event_count > log.seen:
-            log.add(self.buffer.events_after(log.seen), snap.event_count)
+            # the events and their count in one call: an event added since the snapshot is shown once
+            log.add(*self.buffer.events_since(log.seen))
         if snap.result is not self._result_shown or (snap.result is None and snap.outcome_text
                                                      and self._result_shown is None):
             self._result_shown = snap.result

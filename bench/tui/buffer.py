@@ -176,8 +176,14 @@ class UiBuffer(RunListener):
     # -- the UI thread -------------------------------------------------------------------------
     def events_after(self, seen: int) -> list[Event]:
         """Events added after the `seen`-th one (those still kept), oldest first."""
+        return self.events_since(seen)[0]
+
+    def events_since(self, seen: int) -> tuple[list[Event], int]:
+        """(events added after the `seen`-th one, oldest first; the count of events ever added), taken
+        together: the count is the `seen` of the next call, so no event is handed out twice or skipped
+        (an event added between a `snapshot()` and this call is counted with the events it returns)."""
         with self._lock:
-            return [e for k, e in self._events if k > seen]
+            return [e for k, e in self._events if k > seen], self._event_count
 
     def snapshot(self) -> UiSnapshot:
         stats = self.stats_source
