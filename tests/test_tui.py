@@ -14,7 +14,6 @@ import threading
 import numpy as np
 import pytest
 
-from bench.model.result import CalibrationResult, coefficient_table
 from bench.plan.events import Event, RunState
 from bench.run.runner import compile_from_config
 from bench.tui.buffer import STEP_DONE, STEP_FAILED, STEP_PENDING, STEP_RUNNING, ImuScales, UiBuffer, progress
@@ -26,6 +25,8 @@ from tests.helpers.tui import (
     connected,
     dialog_open,
     events_text,
+    feed_result,
+    feed_running,
     make_app,
     make_config,
     press,
@@ -269,7 +270,7 @@ def test_estop_from_an_open_dialog(tmp_path, dialog_key, dialog):
             app.session.enable().join(5)                    # servos on: the e-stop must switch them off
             await wait_until(pilot, lambda: all(a.enabled for a in snap(app).table_state.axes), "servos on")
             await press(pilot, dialog_key)
-            await dialog_open(pilot, dialog, "Button")
+            await dialog_open(pilot, dialog, "Button" if dialog != "HelpScreen" else "#help-text")
             await press(pilot, "f12")
             await wait_until(pilot, lambda: len(app.screen_stack) == 1, "the dialog to close")
             await wait_until(pilot, lambda: not any(a.enabled for a in snap(app).table_state.axes), "servos off")
@@ -330,34 +331,9 @@ def test_snapshot_idle(tmp_path, snap_compare):
     assert snap_compare(_snapshot_app(tmp_path), terminal_size=SIZE)
 
 
-def _feed_running(app) -> None:
-    buf, steps = app.buffer, app.steps
-    app.session.link, app.session.link_detail = "connected", "scpi, simulator"
-    buf.on_event(Event(0.0, "transition", "run started: %d steps" % len(steps), state="running",
-                       data={"from": "idle"}))
-    t = 0.0
-    dwell = [s for s in steps if s.kind == "dwell"][2]
-    for s in steps[:dwell.index]:
-        buf.on_event(Event(t, "step_started", f"{s.unit} {s.kind}", step_index=s.index, step_unit=s.unit))
-        t += s.estimated_s
-        buf.on_event(Event(t, "step_finished", f"{s.unit} {s.kind} done in {s.estimated_s:.1f} s",
-                           step_index=s.index, step_unit=s.unit))
-    buf.on_event(Event(t, "step_started", f"{dwell.unit} dwell", step_index=dwell.index, step_unit=dwell.unit))
-    enabled = AxisStatus.ENABLED | AxisStatus.IN_POSITION
-    buf.on_table_state(TableState(t + 1.0, tuple(AxisState(a, 0.0, AxisMode.POSITION, enabled)
-                                                 for a in dwell.target_deg)))
-    n = 40
-    k = np.arange(n)
-    g = (np.array([0.5, -0.25, 0.1]) * 36000.0)[None, :] + 50.0 * np.sin(k / 4.0)[:, None]
-    a = (np.array([0.0, 0.0, 1.0]) * 40000.0)[None, :] + 20.0 * np.cos(k / 5.0)[:, None]
-    block = ImuSampleBlock(k.astype(np.int64), k / 50.0, g / 50.0, a / 50.0, np.full(n, 24.5),
-                           np.zeros(n, np.int64), 50.0)
-    buf.on_imu(block)
-
-
 def test_snapshot_running(tmp_path, snap_compare):
     async def before(pilot):
-        _feed_running(pilot.app)
+        feed_running(pilot.app)
         pilot.app.refresh_panels()
         await pilot.pause(0.2)
     assert snap_compare(_snapshot_app(tmp_path), terminal_size=SIZE, run_before=before)
@@ -366,12 +342,8 @@ def test_snapshot_running(tmp_path, snap_compare):
 def test_snapshot_results(tmp_path, snap_compare):
     async def before(pilot):
         app = pilot.app
-        _feed_running(app)
-        truth = app.session.config.sim.imu.to_canonical()
-        sigmas = {name: (abs(v) * 1e-6 if abs(v) > 1 else 1e-6) for name, v in truth.items()}
-        result = CalibrationResult(coefficient_table(truth, sigmas), sim_truth=coefficient_table(truth))
-        app.buffer.on_event(Event(300.0, "transition", "run complete", state="done", data={"from": "running"}))
-        app.buffer.set_outcome(result, "done; result run.result.json")
+        feed_running(app)
+        feed_result(app)
         app.refresh_panels()
         await pilot.pause(0.2)
     assert snap_compare(_snapshot_app(tmp_path), terminal_size=SIZE, run_before=before)
@@ -397,7 +369,7 @@ def test_cli_needs_config_or_sim(tmp_path):
 
 def test_snapshot_running_light_theme(tmp_path, snap_compare):
     async def before(pilot):
-        _feed_running(pilot.app)
+        feed_running(pilot.app)
         pilot.app.buffer.note("warning", "a warning line")
         pilot.app.buffer.note("fault", "a fault line")
         pilot.app.refresh_panels()

@@ -45,28 +45,28 @@ DARK_THEME, LIGHT_THEME = "textual-dark", "textual-light"
 STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(
     getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
-HELP = f"""[b]turntable-bench operator keys[/b]
-
-  [b]{ESTOP_KEY.upper()}[/b]  EMERGENCY STOP: aborts the run and sends the controller's abort
-        (servos off). Works on every screen, dialogs included.
-  s     start the plan (asks first and says what will move)
-  p     pause at the next step boundary (the table holds its position)
-  r     resume a paused run
-  a     abort the run (controlled stop, then servos off)
-  g     go to a position (outer, middle, inner; checked against the limits)
-  v     rate mode: one frame turns at a set rate (checked against the limits)
-  h     halt: controlled stop of every axis (servos stay on, holding position)
-  j     choose the frame the jog keys move (outer, middle, inner)
-  [ / ] jog the chosen frame by -/+ the jog step (servo must be on)
-  e / x enable (servos on) / stop and disable (servos off), when no run is active
-  c / d connect / disconnect the table and IMU
-  t     light / dark theme
-  ?     this help
-  q     quit (asks first while a run is active; the table is stopped)
-
-Manual commands are refused while a plan runs. Times are on the run's clock:
-simulated seconds with the simulator. Replay mode (bench tui --replay LOG) has no
-hardware: p / r pause and resume the playback, q quits, the rest is refused."""
+#: The help screen: (key, what it does), one row each; a long text wraps under its own column.
+HELP_KEYS: tuple[tuple[str, str], ...] = (
+    (ESTOP_KEY.upper(), "EMERGENCY STOP, at once (no question): aborts the run and sends the controller's "
+                        "abort (servos off). Works on every screen, dialogs included."),
+    ("s", "start the plan (asks first and says what will move)"),
+    ("p", "pause at the next step boundary (the table holds its position)"),
+    ("r", "resume a paused run"),
+    ("a", "abort the run (controlled stop, then servos off)"),
+    ("g", "go to a position (outer, middle, inner; checked against the limits)"),
+    ("v", "rate mode: one frame turns at a set rate (checked against the limits)"),
+    ("h", "halt: controlled stop of every axis (servos stay on, holding position)"),
+    ("j", "choose the frame the jog keys move (outer, middle, inner)"),
+    ("[ ]", "jog the chosen frame by -/+ the jog step (servo must be on)"),
+    ("e x", "enable (servos on) / stop and disable (servos off), when no run is active"),
+    ("c d", "connect / disconnect the table and IMU"),
+    ("t", "light / dark theme"),
+    ("?", "this help (Esc, q or ? closes it)"),
+    ("q", "quit (asks first while a run is active: the run is aborted, the table stopped)"),
+)
+HELP_NOTE = ("Manual commands are refused while a plan runs. Times are on the run's clock: simulated seconds with "
+             "the simulator. Replay mode (bench tui --replay LOG) has no hardware: p / r pause and resume the "
+             "playback, q quits, the rest is refused.")
 
 
 class BenchApp(App):
@@ -75,12 +75,13 @@ class BenchApp(App):
     TITLE = "turntable-bench"
     ENABLE_COMMAND_PALETTE = False      # its footer entry would push "quit" off a 100-column footer
     CSS = """
-    #top { height: 13; }
+    #top { height: auto; }
     #top > * { border: round $primary; }
     #table-panel { width: 58; }
     #imu-panel { width: 1fr; }
     #bottom { height: 1fr; }
-    #bottom > * { width: 1fr; }
+    #left-tabs { width: 1fr; min-width: 64; }
+    #events { width: 1fr; min-width: 34; }
     #left-tabs { border: round $primary; }
     #events { border: round $primary; }
     """
@@ -329,7 +330,7 @@ class BenchApp(App):
         self.theme = LIGHT_THEME if self.current_theme.dark else DARK_THEME
 
     def action_help(self) -> None:
-        self.push_screen(HelpScreen(HELP))
+        self.push_screen(HelpScreen(HELP_KEYS, HELP_NOTE))
 
     def action_quit_app(self) -> None:
         if not self.session.busy:

@@ -17,6 +17,7 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widgets import DataTable, Label, ProgressBar, RichLog, Sparkline, Static
 
+from bench.model.families import family_of
 from bench.model.kinematics import FRAMES
 from bench.model.units import format_hms
 from bench.plan.events import Event, RunState
@@ -306,11 +307,13 @@ class EventLog(RichLog):
 
 
 class ResultsPanel(Vertical):
-    """The solved coefficients with 1-sigma uncertainties (and the simulator's truth when known)."""
+    """The solved coefficients with 1-sigma uncertainties (and the simulator's truth and the error in sigmas,
+    (value - truth) / sigma, when known); their units on a line below."""
 
     DEFAULT_CSS = """
     ResultsPanel { height: 1fr; }
     ResultsPanel #results-status { height: auto; }
+    ResultsPanel #results-units { height: auto; width: 1fr; }
     ResultsPanel DataTable { height: 1fr; }
     """
 
@@ -322,6 +325,7 @@ class ResultsPanel(Vertical):
     def compose(self) -> ComposeResult:
         yield Label("no result yet: a finished run is solved from its log", id="results-status")
         yield DataTable(id="results-table", zebra_stripes=True)
+        yield Label("", id="results-units")
 
     def show_result(self, result, text: str = "") -> None:
         if result is self.result:
@@ -335,13 +339,18 @@ class ResultsPanel(Vertical):
             self.plain = text
             return
         truth = result.sim_truth or {}
-        table.add_columns("coefficient", "value", "1-sigma", "unit", *(("sim truth",) if truth else ()))
+        # The units go on one line under the table, not in a column: with the simulator's truth and
+        # error/sigma the table then fits the 60 columns the panel has on a 100-column terminal.
+        table.add_columns("name", "value", "1-sigma", *(("sim truth", "err/σ") if truth else ()))
         lines = []
         for name, c in result.coefficients.items():
+            finite_sigma = c.sigma is not None and math.isfinite(c.sigma) and c.sigma > 0
             sigma = f"{c.sigma:.3g}" if c.sigma is not None and math.isfinite(c.sigma) else "-"
-            row = [name, f"{c.value:.8g}", sigma, c.unit]
+            row = [name, f"{c.value:.8g}", sigma]
             if truth:
-                row.append(f"{truth[name].value:.8g}" if name in truth else "-")
+                true = truth.get(name)
+                row.append(f"{true.value:.8g}" if true is not None else "-")
+                row.append(f"{(c.value - true.value) / c.sigma:+.2g}" if true is not None and finite_sigma else "-")
             table.add_row(*row)
             lines.append(" ".join(row))
         failures = result.quality.get("failures") if isinstance(result.quality, dict) else None
@@ -349,7 +358,20 @@ class ResultsPanel(Vertical):
         if failures:
             head += f"; quality: {failures}"
         status.update(head)
-        self.plain = "\n".join([head, *lines])
+        units = units_line(result.coefficients)
+        self.query_one("#results-units", Label).update(Text(units, style="dim"))
+        self.plain = "\n".join([head, *lines, units])
+
+
+def units_line(coefficients) -> str:
+    """The units of `coefficients` by family, one line: 'units: Kg counts/s per deg/s, D0 deg/h, ...'."""
+    by_unit: dict[str, list[str]] = {}
+    for name, c in coefficients.items():
+        families = by_unit.setdefault(c.unit, [])
+        if family_of(name) not in families:
+            families.append(family_of(name))
+    return "units: " + ", ".join(f"{' '.join(families)} {'1 (direction cosines)' if unit == '1' else unit}"
+                                 for unit, families in by_unit.items())
 
 
 def run_is_active(state: RunState) -> bool:
