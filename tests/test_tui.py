@@ -16,7 +16,16 @@ import pytest
 
 from bench.plan.events import Event, RunState
 from bench.run.runner import compile_from_config
-from bench.tui.buffer import STEP_DONE, STEP_FAILED, STEP_PENDING, STEP_RUNNING, ImuScales, UiBuffer, progress
+from bench.tui.buffer import (
+    STEP_ABORTED,
+    STEP_DONE,
+    STEP_FAILED,
+    STEP_PENDING,
+    STEP_RUNNING,
+    ImuScales,
+    UiBuffer,
+    progress,
+)
 from drivers.imu import ImuSampleBlock
 from drivers.turntable import AxisMode, AxisState, AxisStatus, TableState
 from tests.helpers.run import assert_disabled
@@ -84,6 +93,24 @@ def test_buffer_step_states_progress_and_countdown(tmp_path):
     assert [e.kind for e in buf.events_after(s.event_count - 2)] == ["transition", "transition"]
     buf.begin_run(steps)
     assert set(buf.snapshot().step_states) == {STEP_PENDING}
+
+
+def test_buffer_tells_an_aborted_run_from_a_failed_one(tmp_path):
+    """The sequencer ends both in `failed`; a fault event comes before the failure it was not asked for,
+    none before a requested abort (operator, e-stop, quit): the TUI says `aborted` for those (issue 19)."""
+    steps = compile_from_config(make_config(tmp_path)).steps
+    for fault, shown, step_shown in ((False, "aborted", STEP_ABORTED), (True, "failed", STEP_FAILED)):
+        buf = UiBuffer(steps)
+        buf.on_event(Event(0.0, "transition", "run started", state="running", data={"from": "idle"}))
+        buf.on_event(Event(1.0, "step_started", "", step_index=0, step_unit=steps[0].unit))
+        if fault:
+            buf.on_event(Event(2.0, "fault", "TurntableLimitError: limit", step_index=0, step_unit=steps[0].unit))
+        buf.on_event(Event(2.0, "transition", "aborted by the operator", state="aborting", data={"from": "running"}))
+        buf.on_event(Event(3.0, "transition", "run ended early", state="failed", data={"from": "aborting"}))
+        s = buf.snapshot()
+        assert s.run_state is RunState.FAILED and s.run_state_text == shown and s.step_states[0] == step_shown
+        buf.begin_run(steps)
+        assert buf.snapshot().run_state_text == "idle" and not buf.snapshot().aborted
 
 
 def test_buffer_keeps_the_last_samples_per_channel():
@@ -231,13 +258,26 @@ def test_start_pause_resume_abort_ends_stopped(tmp_path):
             assert len(app.screen_stack) == 1
             await wait_until(pilot, lambda: events_text(app).count("refused: a run is active") == 4,
                              "four refusals")
+            await press(pilot, "a")                          # abort asks first (issue 19): no keeps the run going
+            dialog = await dialog_open(pilot, "ConfirmScreen", "#no")
+            assert "Abort the run?" in str(dialog.query_one(".title").render())
+            await press(pilot, "n")
+            await wait_until(pilot, lambda: len(app.screen_stack) == 1, "the dialog to close")
+            done = snap(app).step_states.count(STEP_DONE)
+            await wait_until(pilot, lambda: snap(app).step_states.count(STEP_DONE) > done, "the run going on")
+            assert snap(app).run_state is RunState.RUNNING
             await press(pilot, "a")
+            await dialog_open(pilot, "ConfirmScreen", "#no")
+            await press(pilot, "y")
             await wait_ended(pilot)
             s = snap(app)
             assert s.run_state is RunState.FAILED and STEP_PENDING in s.step_states
-            assert "run failed" in app.query_one("#plan-panel").plain
+            assert s.run_state_text == "aborted" and STEP_ABORTED in s.step_states and STEP_FAILED not in s.step_states
+            await wait_until(pilot, lambda: "run aborted" in app.query_one("#plan-panel").plain, "the plan panel")
+            assert "run failed" not in app.query_one("#plan-panel").plain
             log = events_text(app)
             assert "aborted by the operator" in log and "table stopped and servos off" in log
+            assert s.outcome_text.startswith("aborted: aborted by the operator; table stopped. Log: "), s.outcome_text
             controller = app.session.run.world.controller
             assert_disabled(controller, at_rest=True)
             assert "servo" in app.query_one("#table-panel").plain and " on " not in app.query_one("#table-panel").plain
@@ -251,9 +291,11 @@ def test_estop_from_the_main_screen_during_a_run(tmp_path):
             await connected(pilot)
             await start_plan(pilot)
             await wait_until(pilot, lambda: snap(app).step_states.count(STEP_DONE) >= 1, "a step done")
-            await press(pilot, "f12")
+            await press(pilot, "f12")                        # never asks (issue 19: `a` asks, F12 does not)
+            assert len(app.screen_stack) == 1
             await wait_ended(pilot)
-            assert snap(app).run_state is RunState.FAILED
+            assert len(app.screen_stack) == 1
+            assert snap(app).run_state is RunState.FAILED and snap(app).run_state_text == "aborted"
             assert_disabled(app.session.run.world.controller, at_rest=False)
             log = events_text(app)
             assert "EMERGENCY STOP" in log and "servos off" in log

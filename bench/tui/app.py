@@ -52,7 +52,7 @@ HELP_KEYS: tuple[tuple[str, str], ...] = (
     ("s", "start the plan (asks first and says what will move)"),
     ("p", "pause at the next step boundary (the table holds its position)"),
     ("r", "resume a paused run"),
-    ("a", "abort the run (controlled stop, then servos off)"),
+    ("a", "abort the run (asks first; controlled stop, then servos off)"),
     ("g", "go to a position (outer, middle, inner; checked against the limits)"),
     ("v", "rate mode: one frame turns at a set rate (checked against the limits)"),
     ("h", "halt: controlled stop of every axis (servos stay on, holding position)"),
@@ -258,7 +258,20 @@ class BenchApp(App):
         self._control("resume")
 
     def action_abort(self) -> None:
-        self._control("abort")
+        """Abort the run after a yes (as `s` asks before starting); F12 is the stop that never asks."""
+        if not self._hardware("abort a run"):
+            return
+        if not self.session.running:
+            self._refuse(SessionError("no run is active"))
+            return
+
+        def confirmed(yes: bool | None) -> None:
+            if yes:
+                self._control("abort")
+
+        self.push_screen(ConfirmScreen("Abort the run?", "The table is stopped (controlled stop), then the servos "
+                                       "are switched off. The log is kept; the run ends as aborted.",
+                                       yes="Abort run", no="Continue"), confirmed)
 
     def action_enable(self) -> None:
         self._control("enable")

@@ -27,6 +27,11 @@ from drivers.turntable import TableState
 CHANNELS = ("gx", "gy", "gz", "ax", "ay", "az")
 
 STEP_PENDING, STEP_RUNNING, STEP_DONE, STEP_SKIPPED, STEP_FAILED = "pending", "running", "done", "skipped", "failed"
+#: the step under way when the operator aborted the run (an abort request, not a fault)
+STEP_ABORTED = "aborted"
+#: what the TUI calls a run that failed because it was aborted on request (operator, e-stop, quit): the
+#: sequencer's state is `failed` either way; the log tells them apart (a fault event comes before a failure)
+RUN_ABORTED = "aborted"
 
 
 @dataclass(frozen=True)
@@ -60,6 +65,14 @@ class UiSnapshot:
     event_count: int                       # events ever added (the UI appends the new ones)
     result: CalibrationResult | None = None
     outcome_text: str = ""
+    aborted: bool = False                  # the run went to `aborting` on request, with no fault before it
+
+    @property
+    def run_state_text(self) -> str:
+        """The run's state as the operator reads it: the sequencer's, with `aborted` for a requested abort."""
+        if self.run_state is RunState.FAILED and self.aborted:
+            return RUN_ABORTED
+        return self.run_state.value
 
 
 class UiBuffer(RunListener):
@@ -104,6 +117,8 @@ class UiBuffer(RunListener):
             self._current_started: float | None = None
             self._done_estimated = 0.0
             self._run_state = RunState.IDLE
+            self._fault_seen = False
+            self._aborted = False
             self._result = None
             self._outcome_text = ""
 
@@ -133,10 +148,14 @@ class UiBuffer(RunListener):
             self._run_time_s = event.time_s
             index = event.step_index
             k = index if index is not None and 0 <= index < len(self._step_states) else None  # None: no valid step
+            if event.kind == "fault":
+                self._fault_seen = True
             if event.kind == "transition" and event.state is not None:
                 self._run_state = RunState(event.state)
+                if self._run_state is RunState.ABORTING and not self._fault_seen:
+                    self._aborted = True        # the sequencer emits a fault before an abort it was not asked for
                 if self._run_state is RunState.FAILED and self._current is not None:
-                    self._step_states[self._current] = STEP_FAILED
+                    self._step_states[self._current] = STEP_ABORTED if self._aborted else STEP_FAILED
                     self._current = None
             elif event.kind == "step_started" and k is not None:
                 self._step_states[k] = STEP_RUNNING
@@ -196,7 +215,8 @@ class UiBuffer(RunListener):
                           self._temperature, history, lost, bad)
             return UiSnapshot(self._run_state, self._run_time_s, self._table_state, self._table_states, imu,
                               tuple(self._step_states), self._current, self._current_started,
-                              self._done_estimated, self._event_count, self._result, self._outcome_text)
+                              self._done_estimated, self._event_count, self._result, self._outcome_text,
+                              self._aborted)
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,16 @@ from bench.model.families import family_of
 from bench.model.kinematics import FRAMES
 from bench.model.units import format_hms
 from bench.plan.events import Event, RunState
-from bench.tui.buffer import CHANNELS, STEP_DONE, STEP_FAILED, STEP_RUNNING, ImuScales, UiSnapshot, progress
+from bench.tui.buffer import (
+    CHANNELS,
+    STEP_ABORTED,
+    STEP_DONE,
+    STEP_FAILED,
+    STEP_RUNNING,
+    ImuScales,
+    UiSnapshot,
+    progress,
+)
 
 DEG_PER_HOUR_PER_DPS = 3600.0
 
@@ -193,7 +202,8 @@ def describe_step(step) -> str:
 
 
 def state_style(state: str, pal: Palette) -> str:
-    return {STEP_RUNNING: f"bold {pal.warn}", STEP_DONE: pal.ok, STEP_FAILED: f"bold {pal.error}"}.get(state, "dim")
+    return {STEP_RUNNING: f"bold {pal.warn}", STEP_DONE: pal.ok, STEP_FAILED: f"bold {pal.error}",
+            STEP_ABORTED: f"bold {pal.warn}"}.get(state, "dim")
 
 
 class PlanPanel(Vertical):
@@ -250,7 +260,7 @@ class PlanPanel(Vertical):
             current = f"step {k + 1}/{len(self.steps)} {step.unit} {step.kind}{left}"
         else:
             current = "no step running"
-        status = (f"run {snapshot.run_state.value}  {p.fraction:6.1%}  ETA{clock} {format_hms(p.remaining_s)}\n"
+        status = (f"run {snapshot.run_state_text}  {p.fraction:6.1%}  ETA{clock} {format_hms(p.remaining_s)}\n"
                   f"{current}")
         set_text(self.query_one("#plan-status", Label), status)
         bar = self.query_one("#plan-progress", ProgressBar)

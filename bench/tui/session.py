@@ -24,6 +24,7 @@ from typing import Callable, Sequence
 from bench.errors import BenchError
 from bench.plan.events import RunState
 from bench.run.runner import BenchRun, RunOutcome
+from bench.run.sequencer import RunAborted
 from bench.sim.world import PumpedReceiver
 from bench.solve.methods import SolverError
 from bench.tui.buffer import UiBuffer
@@ -344,7 +345,9 @@ class BenchSession:
                 return
             outcome = self.outcome
             result = outcome.result
-            if outcome.error is not None:
+            if isinstance(outcome.error, RunAborted):
+                text = f"aborted: {outcome.error}; table stopped. Log: {outcome.log_path.name}"
+            elif outcome.error is not None:
                 text = f"{outcome.state.value}: {outcome.error}; table stopped. Log: {outcome.log_path.name}"
             elif outcome.failures:
                 text = "quality check failed: " + "; ".join(outcome.failures)
