@@ -18,6 +18,7 @@ with the simulator a new simulated world, table back at zero).
 from __future__ import annotations
 
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -37,6 +38,23 @@ LINK_DISCONNECTED, LINK_CONNECTING, LINK_CONNECTED, LINK_ERROR = "disconnected",
 
 class SessionError(BenchError):
     """An operator command that cannot be done now (says why)."""
+
+
+#: how a session's run ended (`RunEnd.kind`)
+END_DONE, END_QUALITY, END_UNSOLVED, END_ABORTED, END_FAILED = "done", "quality", "unsolved", "aborted", "failed"
+
+
+@dataclass(frozen=True)
+class RunEnd:
+    """How the session's last run ended, for what `bench tui` says and returns when it quits.
+
+    `kind`: done, quality (a quality check failed), unsolved (finished, cannot be solved), aborted
+    (on request: a, F12, quit), failed (a fault; the table was stopped). `reason`: one line, '' when done.
+    `log_path`: the run's log."""
+
+    kind: str
+    reason: str
+    log_path: Path | None
 
 
 #: what an operator command can fail with, shown to the operator; anything else is a bug and ends the app,
@@ -64,6 +82,7 @@ class BenchSession:
         self.join_timeout_s = float(join_timeout_s)
         self.run: BenchRun | None = None
         self.outcome: RunOutcome | None = None    # of the last run
+        self.last_end: RunEnd | None = None       # how the last run ended (None: no run ended yet)
         self.link = LINK_DISCONNECTED
         self.link_detail = ""
         self._spent = False                   # the current BenchRun has run: a new run needs a new one
@@ -327,41 +346,52 @@ class BenchSession:
 
     def _run_body(self, run: BenchRun) -> None:
         text, result = "", None
+        kind, reason = END_FAILED, ""
         try:
             if self._estop:
                 text = "not started: emergency stop"
+                kind, reason = END_ABORTED, "emergency stop before the start"
                 return
             try:
                 run.run()
             except TurntableError as exc:
                 text = f"cannot enable the table: {exc}; nothing moved"
+                reason = text
                 self.buffer.note("fault", text)
                 return
             try:
                 self.outcome = run.finish()
             except SolverError as exc:
                 text = f"the run finished but cannot be solved: {exc}"
+                kind, reason = END_UNSOLVED, text
                 self.buffer.note("warning", text)
                 return
             outcome = self.outcome
             result = outcome.result
             if isinstance(outcome.error, RunAborted):
+                kind, reason = END_ABORTED, str(outcome.error)
                 text = f"aborted: {outcome.error}; table stopped. Log: {outcome.log_path.name}"
             elif outcome.error is not None:
+                reason = f"{outcome.error}"
                 text = f"{outcome.state.value}: {outcome.error}; table stopped. Log: {outcome.log_path.name}"
             elif outcome.failures:
                 text = "quality check failed: " + "; ".join(outcome.failures)
+                kind, reason = END_QUALITY, text
             elif outcome.result_path is not None:
                 text = f"done; result {outcome.result_path.name}"
+                kind = END_DONE
             else:                               # finish() writes a result whenever the run ended without error
                 text = f"{outcome.state.value}: no result written"
+                kind, reason = END_UNSOLVED, text
             self.buffer.note("info", text)
         except Exception as exc:  # noqa: BLE001 - the operator must see it; the sequencer already stopped the table
             text = f"run error: {type(exc).__name__}: {exc}"
+            kind, reason = END_FAILED, text
             self.buffer.note("fault", text)
         finally:
             if run.receiver is not None:
                 run.receiver.on_frames = None      # the finished sequencer's listeners are closed
+            self.last_end = RunEnd(kind, reason, run.log_path if run.recorder is not None else None)
             self.buffer.set_outcome(result, text)
             if self.run is run and run.table is not None:
                 self._start_monitor()
