@@ -423,3 +423,68 @@ def test_snapshot_running_light_theme(tmp_path, snap_compare):
 
 
 # -- replay: a recorded run, no hardware ------------------------------------------------------------
+
+
+# -- the run's log starts with the plan (issue 19) ---------------------------------------------------
+
+def test_connecting_and_moving_by_hand_write_no_log_a_plan_does(tmp_path):
+    """Every session wrote an .mcap at connect, even when nothing was run."""
+    async def body():
+        app = make_app(tmp_path)
+        async with app.run_test(size=SIZE) as pilot:
+            await connected(pilot)
+            app.session.go_to((5.0, 0.0, 0.0)).join(10)
+            await wait_until(pilot, lambda: abs(snap(app).table_state.angles_deg[0] - 5.0) < 1e-3
+                             and snap(app).table_state.axes[0].in_position, "the manual move")
+            assert list(tmp_path.glob("*.mcap")) == []
+            await start_plan(pilot)
+            log = app.session.run.log_path
+            assert list(tmp_path.glob("*.mcap")) == [log]
+            await wait_until(pilot, lambda: f"info: log {log}" in events_text(app), "the log's name in the events")
+            await press(pilot, "a")
+            await dialog_open(pilot, "ConfirmScreen", "#no")
+            await press(pilot, "y")
+            await wait_ended(pilot)
+        assert list(tmp_path.glob("*.mcap")) == [log]
+        assert app.session.last_end.log_path == log
+    run(body)
+
+
+def test_a_session_that_runs_nothing_leaves_no_file(tmp_path):
+    async def body():
+        app = make_app(tmp_path)
+        async with app.run_test(size=SIZE) as pilot:
+            await connected(pilot)
+            await press(pilot, "d")
+            await wait_until(pilot, lambda: app.session.run is None, "the disconnect")
+            await press(pilot, "c")
+            await connected(pilot)
+    run(body)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_plan_whose_log_cannot_be_written_does_not_move_the_table(tmp_path):
+    """The output folder is checked again when the plan starts: gone since the connect (a file in its place,
+    which stops root too), the start is refused and nothing moves."""
+    import shutil
+
+    out = tmp_path / "out"
+
+    async def body():
+        app = make_app(tmp_path, out_dir=out)
+        async with app.run_test(size=SIZE) as pilot:
+            await connected(pilot)
+            controller = app.session.run.world.controller
+            shutil.rmtree(out)
+            out.write_text("not a folder\n", encoding="utf-8")
+            await press(pilot, "s")
+            await dialog_open(pilot, "ConfirmScreen", "#no")
+            await press(pilot, "y")
+            await wait_until(pilot, lambda: "refused: cannot start the run's log: output folder" in events_text(app),
+                             "the refusal")
+            assert "nothing moved" in events_text(app)
+            assert not app.session.running and snap(app).run_state is RunState.IDLE
+            state = controller.state()
+            assert not any(a.enabled for a in state.axes) and state.angles_deg == (0.0, 0.0, 0.0)
+            assert app.session.last_end is None
+    run(body)

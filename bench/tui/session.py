@@ -3,7 +3,9 @@
 `BenchSession` owns a `bench.run.runner.BenchRun` (the same devices, sequencer, recorder
 and solve as `bench run`) and adds only what an interactive session needs:
 
-- connect / disconnect (open the devices and the log; close them);
+- connect / disconnect (open the devices; close them); the run's log is opened when a plan
+  starts (`start`), after the output folder is checked again: connecting writes no file, and
+  a plan whose log cannot be written does not start;
 - an idle monitor thread that reads the table and drains the IMU into the `UiBuffer`
   while no run is active (with the simulator it also advances the simulated clock in
   real time, so a manual move takes as long as on the real table);
@@ -183,7 +185,7 @@ class BenchSession:
 
     # -- connect -------------------------------------------------------------------------------
     def connect(self) -> None:
-        """Open the devices and the log (blocking; call it off the UI thread). Nothing moves."""
+        """Open the devices, not the log (blocking; call it off the UI thread). Nothing moves."""
         with self._lock:
             if self.run is not None:
                 raise SessionError("already connected")
@@ -191,7 +193,7 @@ class BenchSession:
         run = BenchRun(self.config, self.plan, sim=self.sim, out_dir=self.out_dir, operator=self.operator,
                        listeners=[self.buffer])
         try:
-            run.open()
+            run.open(record=False)          # the log starts with the plan (start): connecting writes no file
         except BaseException as exc:
             self.link, self.link_detail = LINK_ERROR, f"{type(exc).__name__}: {exc}"
             raise
@@ -203,7 +205,7 @@ class BenchSession:
             self.link = LINK_CONNECTED
             self.link_detail = (f"{self.config.table.dialect}, simulator" if self.sim
                                 else f"{self.config.table.dialect} at {self.config.table.url}")
-        self.buffer.note("info", f"connected ({self.link_detail}); log {run.log_path.name}")
+        self.buffer.note("info", f"connected ({self.link_detail})")
         self._start_monitor()
 
     def disconnect(self) -> None:
@@ -335,8 +337,15 @@ class BenchSession:
             self._estop = False
         if self.run is None:
             self.connect()
-        self._stop_monitor()
         run = self.run
+        if run is None:                     # connect() sets it or raises
+            raise SessionError("not connected")
+        try:
+            run.start_log()                 # before anything moves: a run that cannot be logged does not start
+        except (BenchError, OSError) as exc:      # OutputFolderError: the folder or the file cannot be written
+            raise SessionError(f"cannot start the run's log: {exc}; nothing moved") from exc
+        self.buffer.note("info", f"log {run.log_path}")
+        self._stop_monitor()
         self._spent = True
         self.outcome = None
         self.buffer.begin_run(self.plan.steps)
