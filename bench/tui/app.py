@@ -402,6 +402,17 @@ class BenchApp(App):
         self.exit()
 
 
+#: the footer's keys that command hardware: a replay hides them (pressed anyway, they say "replay mode: no hardware")
+HARDWARE_ACTIONS = ("estop", "start", "abort", "goto", "rate", "halt")
+
+
+class ReplayApp(BenchApp):
+    """The app on a replay session: the same screen, with only the playback's keys in the footer."""
+
+    BINDINGS = [Binding(b.key, b.action, b.description, show=False, priority=b.priority)
+                for b in BenchApp.BINDINGS if isinstance(b, Binding) and b.action in HARDWARE_ACTIONS]
+
+
 def create_app(*, config=None, sim: bool = False, replay: str | Path | None = None, speed: float | None = 1.0,
                out_dir: str | Path | None = None, operator: str = "", auto_connect: bool = True,
                refresh_hz: float = 20.0, poll_s: float = 0.1, jog_step_deg: float = 1.0,
@@ -437,6 +448,6 @@ def _create_replay_app(path, speed, **kwargs) -> BenchApp:
     buffer = UiBuffer(opened.steps)
     session = ReplaySession(opened, buffer=buffer, speed=speed)
     pace = f"{speed:g}x" if speed is not None else "as fast as possible"
-    return BenchApp(session, buffer, steps=opened.steps, limits=opened.limits,
+    return ReplayApp(session, buffer, steps=opened.steps, limits=opened.limits,
                     scales=ImuScales.from_config(opened.config, opened.simulated), simulated=opened.simulated,
                     auto_connect=False, subtitle=f"replay of {opened.path.name} ({pace}, no hardware)", **kwargs)
