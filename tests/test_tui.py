@@ -121,7 +121,9 @@ def test_buffer_keeps_the_last_samples_per_channel():
     buf.on_imu(_block(5, 20, 300.0, 400.0))
     s = buf.snapshot()
     assert s.imu.history[0] == (300.0,) * 8 and s.imu.history[5] == (400.0,) * 8
-    assert s.imu.gyro_cps == (300.0,) * 3 and s.imu.last_counter == 24 and s.imu.samples == 25
+    # the mean over the last second (50 samples at 50 Hz): both blocks, 25 samples
+    assert s.imu.gyro_cps == pytest.approx(((5 * 100.0 + 20 * 300.0) / 25,) * 3) and s.imu.mean_s == 0.5
+    assert s.imu.last_counter == 24 and s.imu.samples == 25
     assert s.imu.rate_hz == 50.0 and s.imu.temperature_c == 25.0
     buf.on_imu(_block(25, 0, 1.0, 1.0))            # an empty block changes nothing
     assert buf.snapshot().imu.samples == 25
@@ -174,6 +176,57 @@ def test_event_log_shows_an_event_added_between_snapshot_and_draw_once(tmp_path)
                 await pilot.pause(0.05)
             assert events_text(app).count("P01 move done") == 1, events_text(app)
             assert events_text(app).count("run started") == 1
+    run(body)
+
+
+def test_imu_values_are_means_over_the_last_second_of_whole_blocks():
+    """The panel showed the mean of the last block (0.1 s at idle): whole-count increments then move it in
+    steps of 1 count / 0.1 s, about 1 deg/h. It now shows the mean over the last whole blocks covering 1 s."""
+    buf = UiBuffer()
+    rate_hz = 50.0
+    for k in range(20):                                  # 0.1 s blocks: 5 samples of 10 or 11 counts/s
+        buf.on_imu(_block(5 * k, 5, 10.0 + (k % 2), 0.0, rate_hz))
+    s = buf.snapshot()
+    assert s.imu.mean_s == pytest.approx(1.0)            # the last 10 blocks
+    assert s.imu.gyro_cps == pytest.approx((10.5,) * 3)
+    buf.on_imu(_block(100, 75, 20.0, 0.0, rate_hz))      # one block longer than the window: that block alone
+    assert buf.snapshot().imu.mean_s == pytest.approx(1.5) and buf.snapshot().imu.gyro_cps == pytest.approx((20.0,) * 3)
+
+
+def test_imu_panel_shows_the_decimals_the_data_resolve(tmp_path):
+    """The simulated IMU counts whole pulses (quantisation on in the built-in --sim bench): a 1 s mean resolves
+    1 count/s, 0.1 deg/h at 36000 counts/s per deg/s; the panel showed 3 decimals of deg/h (issue 19)."""
+    import re
+
+    from bench.config.load import default_sim_config
+
+    config = default_sim_config()
+    scales = ImuScales.from_config(config, sim=True)
+    assert config.sim.noise.quantise and scales.step_counts == (1.0, 1.0)
+    kg = scales.gyro_cps_per_dps[0]
+    assert scales.decimals(True, 3600.0 / kg, 3) == 1           # 1/36000 deg/s = 0.1 deg/h
+    assert scales.decimals(True, 1.0 / kg, 5) == 5              # 2.8e-5 deg/s
+    assert scales.decimals(False, 1.0 / scales.acc_cps_per_g[0], 6) == 5      # 2.5e-5 g
+    fine = ImuScales.from_config(make_config(tmp_path), sim=True)      # noise off: the DBC's 1/256 count steps
+    assert fine.step_counts == (1.0 / 256, 1.0 / 256) and fine.decimals(True, 3600.0 / kg, 3) == 3
+    raw = ImuScales.from_config(config, sim=False)
+    assert raw.step_counts == (1.0 / 256, 1.0 / 256) and raw.decimals(True, 1.0, 3) == 3   # the DBC's resolution
+    assert "1 s means" in raw.source
+
+    async def body():
+        app = make_app(tmp_path, config=config)
+        async with app.run_test(size=SIZE) as pilot:
+            await connected(pilot)
+            await wait_until(pilot, lambda: snap(app).imu.mean_s >= 1.0, "a second of IMU data")
+            await pilot.pause(0.15)
+            imu = app.query_one("#imu-panel").plain
+            for ch in ("gx", "gy", "gz"):
+                line = next(x for x in imu.splitlines() if x.startswith(ch))
+                assert re.fullmatch(rf"{ch} +-?\d+\.\d{{5}} +-?\d+\.\d", line), line
+            for ch in ("ax", "ay", "az"):
+                line = next(x for x in imu.splitlines() if x.startswith(ch))
+                assert re.fullmatch(rf"{ch} +-?\d+\.\d{{5}} g", line), line
+            assert "1 s means" in imu
     run(body)
 
 

@@ -25,6 +25,10 @@ from drivers.turntable import TableState
 
 #: The six IMU channels in display order: gyro x/y/z, accelerometer x/y/z.
 CHANNELS = ("gx", "gy", "gz", "ax", "ay", "az")
+#: The IMU panel's values are means over this much data (the last whole blocks reaching it): a mean over
+#: T seconds resolves one increment step per T, so the 0.1 s blocks of the idle monitor resolved only
+#: about 1 deg/h of a 36000 counts/s per deg/s gyro counting whole pulses; over 1 s, 0.1 deg/h.
+MEAN_WINDOW_S = 1.0
 
 STEP_PENDING, STEP_RUNNING, STEP_DONE, STEP_SKIPPED, STEP_FAILED = "pending", "running", "done", "skipped", "failed"
 #: the step under way when the operator aborted the run (an abort request, not a fault)
@@ -41,12 +45,13 @@ class ImuView:
     samples: int = 0                       # decoded samples seen by this buffer
     last_counter: int | None = None
     rate_hz: float = math.nan              # the samples' nominal rate
-    gyro_cps: tuple[float, float, float] | None = None   # mean of the last block, counts/s
+    gyro_cps: tuple[float, float, float] | None = None   # mean over the last MEAN_WINDOW_S, counts/s
     acc_cps: tuple[float, float, float] | None = None
     temperature_c: float = math.nan
     history: tuple[tuple[float, ...], ...] = ((),) * 6  # per channel, oldest first, counts/s
     lost_samples: int = 0
     bad_frames: int = 0
+    mean_s: float = 0.0                    # the data the means cover (seconds of samples)
 
 
 @dataclass(frozen=True)
@@ -94,12 +99,14 @@ class UiBuffer(RunListener):
         self._event_count = 0
         self._ring = np.zeros((6, self.history))
         self._ring_fill = 0
+        self._blocks: deque[tuple[int, np.ndarray]] = deque()   # (samples, per-channel sums) of recent blocks
         self._imu_samples = 0
         self._last_counter: int | None = None
         self._rate_hz = math.nan
         self._gyro: tuple | None = None
         self._acc: tuple | None = None
         self._temperature = math.nan
+        self._mean_s = 0.0
         self._table_state: TableState | None = None
         self._table_states = 0
         self._run_time_s: float | None = None
@@ -188,7 +195,13 @@ class UiBuffer(RunListener):
             self._imu_samples += n
             self._last_counter = int(block.counter[-1])
             self._rate_hz = float(block.rate_hz)
-            mean = rates.mean(axis=0)
+            self._blocks.append((n, rates.sum(axis=0)))
+            window = max(1, round(MEAN_WINDOW_S * self._rate_hz)) if math.isfinite(self._rate_hz) else n
+            held = sum(k for k, _ in self._blocks)
+            while len(self._blocks) > 1 and held - self._blocks[0][0] >= window:   # whole blocks, >= the window
+                held -= self._blocks.popleft()[0]
+            mean = np.sum([total for _, total in self._blocks], axis=0) / held
+            self._mean_s = held / self._rate_hz if self._rate_hz > 0 else math.nan
             self._gyro, self._acc = tuple(map(float, mean[:3])), tuple(map(float, mean[3:]))
             self._temperature = float(block.temperature_c[-1])
 
@@ -212,7 +225,7 @@ class UiBuffer(RunListener):
             fill = self._ring_fill
             history = tuple(tuple(map(float, row[self.history - fill:])) for row in self._ring)
             imu = ImuView(self._imu_samples, self._last_counter, self._rate_hz, self._gyro, self._acc,
-                          self._temperature, history, lost, bad)
+                          self._temperature, history, lost, bad, self._mean_s)
             return UiSnapshot(self._run_state, self._run_time_s, self._table_state, self._table_states, imu,
                               tuple(self._step_states), self._current, self._current_started,
                               self._done_estimated, self._event_count, self._result, self._outcome_text,
@@ -245,23 +258,45 @@ def progress(snapshot: UiSnapshot, steps: Sequence) -> Progress:
 
 @dataclass(frozen=True)
 class ImuScales:
-    """Nominal scale factors to show the IMU in physical units, and where they came from.
+    """Nominal scale factors to show the IMU in physical units, where they came from, and the
+    data's resolution.
 
     `gyro_cps_per_dps` (counts/s per deg/s) and `acc_cps_per_g` (counts/s per g) per
-    axis; None = unknown: the panel shows raw counts/s.
+    axis; None = unknown: the panel shows raw counts/s. `step_counts`: the smallest step of a
+    sample's increment, in counts (gyro, accelerometer): the layout's signal resolution, or one whole
+    count when the IMU counts whole pulses (the simulated IMU with quantisation on). A mean over T
+    seconds resolves `step_counts / T` counts/s: the panel shows that many decimals, no more.
     """
 
     gyro_cps_per_dps: tuple[float, float, float] | None = None
     acc_cps_per_g: tuple[float, float, float] | None = None
     source: str = "raw counts/s (no nominal scale known)"
+    step_counts: tuple[float, float] = (1.0, 1.0)
 
     @classmethod
     def from_config(cls, config, sim: bool) -> "ImuScales":
         """The simulated IMU's true scale factors with the simulator; raw counts otherwise
         (the configuration has no nominal scale factors of a real IMU)."""
-        if not sim or config is None:
+        if config is None:
             return cls()
+        scale = config.imu.layout.scale      # the signals' resolution: counts per raw unit
+        step = (float(max(scale[0:3])), float(max(scale[3:6])))
+        if sim and config.sim.noise.quantise:
+            step = (max(step[0], 1.0), max(step[1], 1.0))    # the simulated IMU counts whole pulses
+        means = f"{MEAN_WINDOW_S:g} s means"
+        if not sim:
+            return cls(source=f"raw counts/s, {means}, no scale", step_counts=step)
         imu = config.sim.imu
         return cls(triple(float(k) * DEG for k in imu.gyro_scale), triple(float(k) * G0 for k in imu.acc_scale),
-                   "deg/s, deg/h, g (sim truth scale)")
+                   f"deg/s deg/h g: sim truth, {means}", step)
+
+    def decimals(self, gyro: bool, per_count: float, most: int) -> int:
+        """Decimals that show what a `MEAN_WINDOW_S` mean resolves in a unit of `per_count` units per
+        count/s (1 for counts/s; 3600 / scale for deg/h): the fewest decimals whose last digit steps by at
+        most 1.5 resolution steps (0.1 deg/h for a resolution of 0.09997 deg/h, 0.01 for 0.05); at most
+        `most` (the panel's column width)."""
+        step = self.step_counts[0 if gyro else 1] / MEAN_WINDOW_S * abs(per_count)
+        if not (math.isfinite(step) and step > 0):
+            return 0
+        return min(most, max(0, math.ceil(-math.log10(1.5 * step))))
 

@@ -155,19 +155,20 @@ class ImuPanel(Vertical):
         yield Label(Text(self.scales.source, style="dim"), id="imu-units")
 
     def _value(self, k: int, cps: float | None) -> str:
+        """One channel's mean (`MEAN_WINDOW_S`) with the decimals it resolves (`ImuScales.decimals`)."""
         name = CHANNELS[k]
         if cps is None or not math.isfinite(cps):
             return f"{name}  -"
-        if k < 3:
-            scale = self.scales.gyro_cps_per_dps
-            if scale is None:
-                return f"{name} {cps:14.1f} counts/s"
-            dps = cps / scale[k]
-            return f"{name} {dps:9.5f} {dps * DEG_PER_HOUR_PER_DPS:10.3f}"
-        scale = self.scales.acc_cps_per_g
+        gyro = k < 3
+        scale = self.scales.gyro_cps_per_dps if gyro else self.scales.acc_cps_per_g
         if scale is None:
-            return f"{name} {cps:14.1f} counts/s"
-        return f"{name} {cps / scale[k - 3]:9.6f} g"
+            return f"{name} {cps:14.{self.scales.decimals(gyro, 1.0, 3)}f} counts/s"
+        if gyro:
+            dps = cps / scale[k]
+            d_dps = self.scales.decimals(True, 1.0 / scale[k], 5)
+            d_dph = self.scales.decimals(True, DEG_PER_HOUR_PER_DPS / scale[k], 3)
+            return f"{name} {dps:9.{d_dps}f} {dps * DEG_PER_HOUR_PER_DPS:10.{d_dph}f}"
+        return f"{name} {cps / scale[k - 3]:9.{self.scales.decimals(False, 1.0 / scale[k - 3], 6)}f} g"
 
     def show(self, snapshot: UiSnapshot) -> None:
         imu = snapshot.imu
