@@ -49,7 +49,7 @@ STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(
 HELP_KEYS: tuple[tuple[str, str], ...] = (
     (ESTOP_KEY.upper(), "EMERGENCY STOP, at once (no question): aborts the run and sends the controller's "
                         "abort (servos off). Works on every screen, dialogs included."),
-    ("s", "start the plan (asks first and says what will move)"),
+    ("s", "start the plan (asks first and says what will move); the run's log starts here"),
     ("p", "pause at the next step boundary (the table holds its position)"),
     ("r", "resume a paused run"),
     ("a", "abort the run (asks first; controlled stop, then servos off)"),
