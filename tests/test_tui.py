@@ -14,10 +14,18 @@ import threading
 import numpy as np
 import pytest
 
-from bench.model.result import CalibrationResult, coefficient_table
 from bench.plan.events import Event, RunState
 from bench.run.runner import compile_from_config
-from bench.tui.buffer import STEP_DONE, STEP_FAILED, STEP_PENDING, STEP_RUNNING, ImuScales, UiBuffer, progress
+from bench.tui.buffer import (
+    STEP_ABORTED,
+    STEP_DONE,
+    STEP_FAILED,
+    STEP_PENDING,
+    STEP_RUNNING,
+    ImuScales,
+    UiBuffer,
+    progress,
+)
 from drivers.imu import ImuSampleBlock
 from drivers.turntable import AxisMode, AxisState, AxisStatus, TableState
 from tests.helpers.run import assert_disabled
@@ -26,6 +34,8 @@ from tests.helpers.tui import (
     connected,
     dialog_open,
     events_text,
+    feed_result,
+    feed_running,
     make_app,
     make_config,
     press,
@@ -85,6 +95,24 @@ def test_buffer_step_states_progress_and_countdown(tmp_path):
     assert set(buf.snapshot().step_states) == {STEP_PENDING}
 
 
+def test_buffer_tells_an_aborted_run_from_a_failed_one(tmp_path):
+    """The sequencer ends both in `failed`; a fault event comes before the failure it was not asked for,
+    none before a requested abort (operator, e-stop, quit): the TUI says `aborted` for those (issue 19)."""
+    steps = compile_from_config(make_config(tmp_path)).steps
+    for fault, shown, step_shown in ((False, "aborted", STEP_ABORTED), (True, "failed", STEP_FAILED)):
+        buf = UiBuffer(steps)
+        buf.on_event(Event(0.0, "transition", "run started", state="running", data={"from": "idle"}))
+        buf.on_event(Event(1.0, "step_started", "", step_index=0, step_unit=steps[0].unit))
+        if fault:
+            buf.on_event(Event(2.0, "fault", "TurntableLimitError: limit", step_index=0, step_unit=steps[0].unit))
+        buf.on_event(Event(2.0, "transition", "aborted by the operator", state="aborting", data={"from": "running"}))
+        buf.on_event(Event(3.0, "transition", "run ended early", state="failed", data={"from": "aborting"}))
+        s = buf.snapshot()
+        assert s.run_state is RunState.FAILED and s.run_state_text == shown and s.step_states[0] == step_shown
+        buf.begin_run(steps)
+        assert buf.snapshot().run_state_text == "idle" and not buf.snapshot().aborted
+
+
 def test_buffer_keeps_the_last_samples_per_channel():
     buf = UiBuffer(history=8)
     buf.on_imu(_block(0, 5, 100.0, 200.0))
@@ -93,7 +121,9 @@ def test_buffer_keeps_the_last_samples_per_channel():
     buf.on_imu(_block(5, 20, 300.0, 400.0))
     s = buf.snapshot()
     assert s.imu.history[0] == (300.0,) * 8 and s.imu.history[5] == (400.0,) * 8
-    assert s.imu.gyro_cps == (300.0,) * 3 and s.imu.last_counter == 24 and s.imu.samples == 25
+    # the mean over the last second (50 samples at 50 Hz): both blocks, 25 samples
+    assert s.imu.gyro_cps == pytest.approx(((5 * 100.0 + 20 * 300.0) / 25,) * 3) and s.imu.mean_s == 0.5
+    assert s.imu.last_counter == 24 and s.imu.samples == 25
     assert s.imu.rate_hz == 50.0 and s.imu.temperature_c == 25.0
     buf.on_imu(_block(25, 0, 1.0, 1.0))            # an empty block changes nothing
     assert buf.snapshot().imu.samples == 25
@@ -122,6 +152,82 @@ def test_buffer_concurrent_writers_and_reader():
     for t in threads:
         t.join(10)
     assert buf.snapshot().table_states > 0
+
+
+def test_event_log_shows_an_event_added_between_snapshot_and_draw_once(tmp_path):
+    """The sequencer's thread may add an event after the UI took its snapshot and before it fetched the
+    new events: the event log showed that event twice ("P01 move done" twice; issue 19)."""
+    async def body():
+        app = make_app(tmp_path, auto_connect=False, refresh_hz=1.0)
+        async with app.run_test(size=SIZE) as pilot:
+            buf = app.buffer
+            real_snapshot = buf.snapshot
+            late = [Event(1.0, "step_finished", "P01 move done in 0.0 s", step_index=0, step_unit="P01")]
+
+            def snapshot_then_an_event():
+                s = real_snapshot()
+                if late:
+                    buf.on_event(late.pop())         # what the run's thread does between the two calls
+                return s
+            buf.snapshot = snapshot_then_an_event
+            buf.on_event(Event(0.0, "transition", "run started: 3 steps", state="running", data={"from": "idle"}))
+            for _ in range(3):
+                app.refresh_panels()
+                await pilot.pause(0.05)
+            assert events_text(app).count("P01 move done") == 1, events_text(app)
+            assert events_text(app).count("run started") == 1
+    run(body)
+
+
+def test_imu_values_are_means_over_the_last_second_of_whole_blocks():
+    """The panel showed the mean of the last block (0.1 s at idle): whole-count increments then move it in
+    steps of 1 count / 0.1 s, about 1 deg/h. It now shows the mean over the last whole blocks covering 1 s."""
+    buf = UiBuffer()
+    rate_hz = 50.0
+    for k in range(20):                                  # 0.1 s blocks: 5 samples of 10 or 11 counts/s
+        buf.on_imu(_block(5 * k, 5, 10.0 + (k % 2), 0.0, rate_hz))
+    s = buf.snapshot()
+    assert s.imu.mean_s == pytest.approx(1.0)            # the last 10 blocks
+    assert s.imu.gyro_cps == pytest.approx((10.5,) * 3)
+    buf.on_imu(_block(100, 75, 20.0, 0.0, rate_hz))      # one block longer than the window: that block alone
+    assert buf.snapshot().imu.mean_s == pytest.approx(1.5) and buf.snapshot().imu.gyro_cps == pytest.approx((20.0,) * 3)
+
+
+def test_imu_panel_shows_the_decimals_the_data_resolve(tmp_path):
+    """The simulated IMU counts whole pulses (quantisation on in the built-in --sim bench): a 1 s mean resolves
+    1 count/s, 0.1 deg/h at 36000 counts/s per deg/s; the panel showed 3 decimals of deg/h (issue 19)."""
+    import re
+
+    from bench.config.load import default_sim_config
+
+    config = default_sim_config()
+    scales = ImuScales.from_config(config, sim=True)
+    assert config.sim.noise.quantise and scales.step_counts == (1.0, 1.0)
+    kg = scales.gyro_cps_per_dps[0]
+    assert scales.decimals(True, 3600.0 / kg, 3) == 1           # 1/36000 deg/s = 0.1 deg/h
+    assert scales.decimals(True, 1.0 / kg, 5) == 5              # 2.8e-5 deg/s
+    assert scales.decimals(False, 1.0 / scales.acc_cps_per_g[0], 6) == 5      # 2.5e-5 g
+    fine = ImuScales.from_config(make_config(tmp_path), sim=True)      # noise off: the DBC's 1/256 count steps
+    assert fine.step_counts == (1.0 / 256, 1.0 / 256) and fine.decimals(True, 3600.0 / kg, 3) == 3
+    raw = ImuScales.from_config(config, sim=False)
+    assert raw.step_counts == (1.0 / 256, 1.0 / 256) and raw.decimals(True, 1.0, 3) == 3   # the DBC's resolution
+    assert "1 s means" in raw.source
+
+    async def body():
+        app = make_app(tmp_path, config=config)
+        async with app.run_test(size=SIZE) as pilot:
+            await connected(pilot)
+            await wait_until(pilot, lambda: snap(app).imu.mean_s >= 1.0, "a second of IMU data")
+            await pilot.pause(0.15)
+            imu = app.query_one("#imu-panel").plain
+            for ch in ("gx", "gy", "gz"):
+                line = next(x for x in imu.splitlines() if x.startswith(ch))
+                assert re.fullmatch(rf"{ch} +-?\d+\.\d{{5}} +-?\d+\.\d", line), line
+            for ch in ("ax", "ay", "az"):
+                line = next(x for x in imu.splitlines() if x.startswith(ch))
+                assert re.fullmatch(rf"{ch} +-?\d+\.\d{{5}} g", line), line
+            assert "1 s means" in imu
+    run(body)
 
 
 def test_imu_scales_are_the_sim_truth_or_raw(tmp_path):
@@ -205,13 +311,28 @@ def test_start_pause_resume_abort_ends_stopped(tmp_path):
             assert len(app.screen_stack) == 1
             await wait_until(pilot, lambda: events_text(app).count("refused: a run is active") == 4,
                              "four refusals")
+            await press(pilot, "a")                          # abort asks first (issue 19): no keeps the run going
+            dialog = await dialog_open(pilot, "ConfirmScreen", "#no")
+            assert "Abort the run?" in str(dialog.query_one(".title").render())
+            await press(pilot, "n")
+            await wait_until(pilot, lambda: len(app.screen_stack) == 1, "the dialog to close")
+            done = snap(app).step_states.count(STEP_DONE)
+            await wait_until(pilot, lambda: snap(app).step_states.count(STEP_DONE) > done, "the run going on")
+            assert snap(app).run_state is RunState.RUNNING
             await press(pilot, "a")
+            await dialog_open(pilot, "ConfirmScreen", "#no")
+            await press(pilot, "y")
             await wait_ended(pilot)
             s = snap(app)
             assert s.run_state is RunState.FAILED and STEP_PENDING in s.step_states
-            assert "run failed" in app.query_one("#plan-panel").plain
+            # (the step under way, if the abort came within one rather than at a step boundary, reads aborted)
+            assert s.run_state_text == "aborted" and STEP_FAILED not in s.step_states, s.step_states
+            assert set(s.step_states) <= {STEP_DONE, STEP_PENDING, STEP_ABORTED}
+            await wait_until(pilot, lambda: "run aborted" in app.query_one("#plan-panel").plain, "the plan panel")
+            assert "run failed" not in app.query_one("#plan-panel").plain
             log = events_text(app)
             assert "aborted by the operator" in log and "table stopped and servos off" in log
+            assert s.outcome_text.startswith("aborted: aborted by the operator; table stopped. Log: "), s.outcome_text
             controller = app.session.run.world.controller
             assert_disabled(controller, at_rest=True)
             assert "servo" in app.query_one("#table-panel").plain and " on " not in app.query_one("#table-panel").plain
@@ -225,9 +346,11 @@ def test_estop_from_the_main_screen_during_a_run(tmp_path):
             await connected(pilot)
             await start_plan(pilot)
             await wait_until(pilot, lambda: snap(app).step_states.count(STEP_DONE) >= 1, "a step done")
-            await press(pilot, "f12")
+            await press(pilot, "f12")                        # never asks (issue 19: `a` asks, F12 does not)
+            assert len(app.screen_stack) == 1
             await wait_ended(pilot)
-            assert snap(app).run_state is RunState.FAILED
+            assert len(app.screen_stack) == 1
+            assert snap(app).run_state is RunState.FAILED and snap(app).run_state_text == "aborted"
             assert_disabled(app.session.run.world.controller, at_rest=False)
             log = events_text(app)
             assert "EMERGENCY STOP" in log and "servos off" in log
@@ -244,7 +367,7 @@ def test_estop_from_an_open_dialog(tmp_path, dialog_key, dialog):
             app.session.enable().join(5)                    # servos on: the e-stop must switch them off
             await wait_until(pilot, lambda: all(a.enabled for a in snap(app).table_state.axes), "servos on")
             await press(pilot, dialog_key)
-            await dialog_open(pilot, dialog, "Button")
+            await dialog_open(pilot, dialog, "Button" if dialog != "HelpScreen" else "#help-text")
             await press(pilot, "f12")
             await wait_until(pilot, lambda: len(app.screen_stack) == 1, "the dialog to close")
             await wait_until(pilot, lambda: not any(a.enabled for a in snap(app).table_state.axes), "servos off")
@@ -305,34 +428,9 @@ def test_snapshot_idle(tmp_path, snap_compare):
     assert snap_compare(_snapshot_app(tmp_path), terminal_size=SIZE)
 
 
-def _feed_running(app) -> None:
-    buf, steps = app.buffer, app.steps
-    app.session.link, app.session.link_detail = "connected", "scpi, simulator"
-    buf.on_event(Event(0.0, "transition", "run started: %d steps" % len(steps), state="running",
-                       data={"from": "idle"}))
-    t = 0.0
-    dwell = [s for s in steps if s.kind == "dwell"][2]
-    for s in steps[:dwell.index]:
-        buf.on_event(Event(t, "step_started", f"{s.unit} {s.kind}", step_index=s.index, step_unit=s.unit))
-        t += s.estimated_s
-        buf.on_event(Event(t, "step_finished", f"{s.unit} {s.kind} done in {s.estimated_s:.1f} s",
-                           step_index=s.index, step_unit=s.unit))
-    buf.on_event(Event(t, "step_started", f"{dwell.unit} dwell", step_index=dwell.index, step_unit=dwell.unit))
-    enabled = AxisStatus.ENABLED | AxisStatus.IN_POSITION
-    buf.on_table_state(TableState(t + 1.0, tuple(AxisState(a, 0.0, AxisMode.POSITION, enabled)
-                                                 for a in dwell.target_deg)))
-    n = 40
-    k = np.arange(n)
-    g = (np.array([0.5, -0.25, 0.1]) * 36000.0)[None, :] + 50.0 * np.sin(k / 4.0)[:, None]
-    a = (np.array([0.0, 0.0, 1.0]) * 40000.0)[None, :] + 20.0 * np.cos(k / 5.0)[:, None]
-    block = ImuSampleBlock(k.astype(np.int64), k / 50.0, g / 50.0, a / 50.0, np.full(n, 24.5),
-                           np.zeros(n, np.int64), 50.0)
-    buf.on_imu(block)
-
-
 def test_snapshot_running(tmp_path, snap_compare):
     async def before(pilot):
-        _feed_running(pilot.app)
+        feed_running(pilot.app)
         pilot.app.refresh_panels()
         await pilot.pause(0.2)
     assert snap_compare(_snapshot_app(tmp_path), terminal_size=SIZE, run_before=before)
@@ -341,12 +439,8 @@ def test_snapshot_running(tmp_path, snap_compare):
 def test_snapshot_results(tmp_path, snap_compare):
     async def before(pilot):
         app = pilot.app
-        _feed_running(app)
-        truth = app.session.config.sim.imu.to_canonical()
-        sigmas = {name: (abs(v) * 1e-6 if abs(v) > 1 else 1e-6) for name, v in truth.items()}
-        result = CalibrationResult(coefficient_table(truth, sigmas), sim_truth=coefficient_table(truth))
-        app.buffer.on_event(Event(300.0, "transition", "run complete", state="done", data={"from": "running"}))
-        app.buffer.set_outcome(result, "done; result run.result.json")
+        feed_running(app)
+        feed_result(app)
         app.refresh_panels()
         await pilot.pause(0.2)
     assert snap_compare(_snapshot_app(tmp_path), terminal_size=SIZE, run_before=before)
@@ -372,7 +466,7 @@ def test_cli_needs_config_or_sim(tmp_path):
 
 def test_snapshot_running_light_theme(tmp_path, snap_compare):
     async def before(pilot):
-        _feed_running(pilot.app)
+        feed_running(pilot.app)
         pilot.app.buffer.note("warning", "a warning line")
         pilot.app.buffer.note("fault", "a fault line")
         pilot.app.refresh_panels()
@@ -382,3 +476,68 @@ def test_snapshot_running_light_theme(tmp_path, snap_compare):
 
 
 # -- replay: a recorded run, no hardware ------------------------------------------------------------
+
+
+# -- the run's log starts with the plan (issue 19) ---------------------------------------------------
+
+def test_connecting_and_moving_by_hand_write_no_log_a_plan_does(tmp_path):
+    """Every session wrote an .mcap at connect, even when nothing was run."""
+    async def body():
+        app = make_app(tmp_path)
+        async with app.run_test(size=SIZE) as pilot:
+            await connected(pilot)
+            app.session.go_to((5.0, 0.0, 0.0)).join(10)
+            await wait_until(pilot, lambda: abs(snap(app).table_state.angles_deg[0] - 5.0) < 1e-3
+                             and snap(app).table_state.axes[0].in_position, "the manual move")
+            assert list(tmp_path.glob("*.mcap")) == []
+            await start_plan(pilot)
+            log = app.session.run.log_path
+            assert list(tmp_path.glob("*.mcap")) == [log]
+            await wait_until(pilot, lambda: f"info: log {log}" in events_text(app), "the log's name in the events")
+            await press(pilot, "a")
+            await dialog_open(pilot, "ConfirmScreen", "#no")
+            await press(pilot, "y")
+            await wait_ended(pilot)
+        assert list(tmp_path.glob("*.mcap")) == [log]
+        assert app.session.last_end.log_path == log
+    run(body)
+
+
+def test_a_session_that_runs_nothing_leaves_no_file(tmp_path):
+    async def body():
+        app = make_app(tmp_path)
+        async with app.run_test(size=SIZE) as pilot:
+            await connected(pilot)
+            await press(pilot, "d")
+            await wait_until(pilot, lambda: app.session.run is None, "the disconnect")
+            await press(pilot, "c")
+            await connected(pilot)
+    run(body)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_plan_whose_log_cannot_be_written_does_not_move_the_table(tmp_path):
+    """The output folder is checked again when the plan starts: gone since the connect (a file in its place,
+    which stops root too), the start is refused and nothing moves."""
+    import shutil
+
+    out = tmp_path / "out"
+
+    async def body():
+        app = make_app(tmp_path, out_dir=out)
+        async with app.run_test(size=SIZE) as pilot:
+            await connected(pilot)
+            controller = app.session.run.world.controller
+            shutil.rmtree(out)
+            out.write_text("not a folder\n", encoding="utf-8")
+            await press(pilot, "s")
+            await dialog_open(pilot, "ConfirmScreen", "#no")
+            await press(pilot, "y")
+            await wait_until(pilot, lambda: "refused: cannot start the run's log: output folder" in events_text(app),
+                             "the refusal")
+            assert "nothing moved" in events_text(app)
+            assert not app.session.running and snap(app).run_state is RunState.IDLE
+            state = controller.state()
+            assert not any(a.enabled for a in state.axes) and state.angles_deg == (0.0, 0.0, 0.0)
+            assert app.session.last_end is None
+    run(body)

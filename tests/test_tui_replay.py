@@ -108,3 +108,41 @@ def test_replay_result_is_solved_when_not_attached(recorded_log, tmp_path):
     junk.write_bytes(b"not a log")
     result, text = log_result(dataclasses.replace(bare, path=junk))
     assert result is None and text.startswith("no result in this log")
+
+
+def test_replay_footer_shows_only_the_playback_keys(recorded_log):
+    """The footer listed E-STOP, start, abort, go to, rate and halt in replay mode too (issue 19); they
+    are hidden there, and pressed anyway they still say why nothing happens."""
+    async def body():
+        from textual.widgets import Footer
+
+        from bench.tui import create_app
+
+        app = create_app(replay=recorded_log[0], speed=1.0, refresh_hz=20.0)
+        async with app.run_test(size=SIZE) as pilot:
+            await wait_until(pilot, lambda: snap(app).event_count >= 1, "the playback under way")
+            await pilot.pause(0.2)
+            shown = {b.action for _, b, enabled, _ in app.active_bindings.values() if b.show}
+            assert shown == {"pause", "resume", "help", "quit_app"}, shown
+            footer = app.query_one(Footer)
+            keys = " ".join(str(k.render()) for k in footer.query("FooterKey"))
+            for hidden in ("E-STOP", "start", "abort", "go to", "rate", "halt"):
+                assert hidden not in keys, keys
+            assert "pause" in keys and "quit" in keys
+            await press(pilot, "s")
+            await wait_until(pilot, lambda: "refused: replay mode: no hardware" in events_text(app), "the refusal")
+            await press(pilot, "q")
+            await wait_until(pilot, lambda: not app.is_running, "the app to exit")
+    run(body)
+
+
+def test_live_footer_keeps_the_hardware_keys(tmp_path):
+    async def body():
+        from tests.helpers.tui import make_app
+
+        app = make_app(tmp_path, auto_connect=False)
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.pause(0.2)
+            shown = {b.action for _, b, enabled, _ in app.active_bindings.values() if b.show}
+            assert {"estop", "start", "abort", "goto", "rate", "halt", "pause", "quit_app"} <= shown, shown
+    run(body)

@@ -3,16 +3,26 @@ recorded run (--replay LOG, no hardware).
 
 SIGINT, SIGTERM and SIGHUP end the app as quitting does, without asking: any run is
 aborted, the table stopped (servos off) and the log closed; exit 3 (130 for a replay).
+Quitting says where the last run's log is (one line) and exits with that run's code
+(`exit_status`): 0 done (or no run), 4 quality check failed or not solvable, 3 aborted or
+failed with the table stopped. It needs a terminal: without one (stdin or stdout not a
+TTY) it refuses to start (exit 2) instead of drawing into nothing.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
+from typing import TYPE_CHECKING
 
 from bench.cli.common import ExitCode, fail, speed_factor
 from bench.errors import BenchError
 
+if TYPE_CHECKING:
+    from bench.tui.app import BenchApp
+
 PROG = "bench tui"
+NO_TERMINAL = "needs a terminal (stdin and stdout must be one); for an unattended run use `bench run`"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -25,8 +35,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="the simulator: the built-in simulated bench, or --config's plan and [sim]")
     parser.add_argument("--replay", metavar="LOG",
                         help="replay a run log (.mcap) in the TUI: no hardware; p/r pause and resume the playback")
-    parser.add_argument("--speed", type=speed_factor, default=1.0, metavar="X",
-                        help="with --replay: X times real time (default 1)")
+    parser.add_argument("--speed", type=speed_factor, default=None, metavar="X",
+                        help="with --replay only: X times real time (default 1)")
     parser.add_argument("--out", metavar="DIR", help="output folder (default: the config's [output] folder)")
     parser.add_argument("--operator", default="", help="who runs it (recorded in the log)")
     parser.set_defaults(func=cmd_tui)
@@ -43,15 +53,54 @@ def cmd_tui(args: argparse.Namespace) -> ExitCode:
         return _replay(args)
     if not args.config and not args.sim:
         return fail(PROG, "say --config FILE, --sim or --replay LOG", ExitCode.USAGE)
+    if args.speed is not None:
+        return fail(PROG, "--speed is for --replay LOG only: a live run, also on the simulator, runs in real time",
+                    ExitCode.USAGE)
     try:
         config = load_config(args.config) if args.config else default_sim_config()
         app = create_app(config=config, sim=args.sim, out_dir=args.out, operator=args.operator)
     except (BenchError, OSError) as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
+    if not has_terminal():
+        return fail(PROG, NO_TERMINAL, ExitCode.USAGE)
     app.run()
+    return exit_status(app)
+
+
+def has_terminal() -> bool:
+    """stdin and stdout are a terminal (without one the app would spin drawing into nothing)."""
+    try:
+        return sys.stdin is not None and sys.stdout is not None and sys.stdin.isatty() and sys.stdout.isatty()
+    except (OSError, ValueError):           # a closed stream
+        return False
+
+
+def exit_status(app: BenchApp) -> ExitCode:
+    """What `bench tui` says and returns once the live app has ended: the last run's log (one line) and
+    its exit code (`ExitCode`: 0 done or no run, 4 quality check failed or not solvable, 3 aborted or
+    failed with the table stopped, 3 after a stop signal)."""
+    # imported when the command runs: `bench` starts without the bench core
+    from bench.tui.session import END_DONE, END_QUALITY, END_UNSOLVED
+
+    session = app.session
+    end = getattr(session, "last_end", None)
+    log = f". Log: {end.log_path}" if end is not None and end.log_path is not None else ""
     if app.stopped_by is not None:
-        return fail(PROG, f"interrupted ({app.stopped_by}); any run aborted, the table stopped", ExitCode.FAULT)
-    return ExitCode.OK
+        return fail(PROG, f"interrupted ({app.stopped_by}); any run aborted, the table stopped{log}", ExitCode.FAULT)
+    if session.running:                     # the run did not end within the session's bounded wait
+        return fail(PROG, "the run had not ended when the app closed; the table was commanded to stop",
+                    ExitCode.FAULT)
+    if end is None:
+        return ExitCode.OK
+    if end.kind == END_DONE:
+        try:
+            print(f"{PROG}: last run done{log}", flush=True)
+        except OSError:
+            pass
+        return ExitCode.OK
+    if end.kind in (END_QUALITY, END_UNSOLVED):
+        return fail(PROG, f"last run finished: {end.reason}{log}", ExitCode.QUALITY)
+    return fail(PROG, f"last run {end.kind} ({end.reason}); the table was stopped{log}", ExitCode.FAULT)
 
 
 def _replay(args: argparse.Namespace) -> ExitCode:
@@ -59,9 +108,11 @@ def _replay(args: argparse.Namespace) -> ExitCode:
     from bench.tui import create_app
 
     try:
-        app = create_app(replay=args.replay, speed=args.speed)
+        app = create_app(replay=args.replay, speed=args.speed if args.speed is not None else 1.0)
     except (BenchError, OSError) as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
+    if not has_terminal():
+        return fail(PROG, NO_TERMINAL, ExitCode.USAGE)
     app.run()
     if app.stopped_by is not None:
         return fail(PROG, f"interrupted ({app.stopped_by})", ExitCode.INTERRUPTED)

@@ -54,6 +54,11 @@ class RunOutcome:
     html_report_path: Path | None = None
 
 
+def _new_run_id() -> str:
+    """A run's id: its UTC start time and a random suffix (the log and result files are named by it)."""
+    return time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + "-" + secrets.token_hex(3)
+
+
 def compile_from_config(config: BenchConfig) -> CompiledPlan:
     """The compiled plan of a configuration (PlanError on a plan that cannot run)."""
     plan = config.plan
@@ -91,7 +96,7 @@ class BenchRun:
         self.completed = set(completed)
         self.previous_logs = list(previous_logs)
         self.extra_listeners = list(listeners)
-        self.run_id = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + "-" + secrets.token_hex(3)
+        self.run_id = _new_run_id()
         self.log_path = self.out_dir / f"{self.run_id}.mcap"
         # set by open() and run(); None before
         self.world: SimWorld | None = None
@@ -105,11 +110,12 @@ class BenchRun:
         self._stack = ExitStack()
 
     # -- devices -----------------------------------------------------------------------
-    def open(self) -> None:
+    def open(self, *, record: bool = True) -> None:
         """Open the devices and the recorder. Raises TurntableError/ImuError/OSError/ValueError; nothing moves.
 
         The output folder is checked first (`OutputFolderError`): no device is opened for a run that could
-        not be logged."""
+        not be logged. `record=False` leaves the log for `start_log()` (the TUI opens it when a plan starts,
+        so a session that runs nothing writes no log); `run()` refuses to start without it."""
         config = self.config
         self._check_output_folder()
         try:
@@ -139,10 +145,30 @@ class BenchRun:
                 # runs on the run clock and always is)
                 self.imu_check = check_imu_stream(
                     receiver, config.imu.rate_hz, f"interface {config.imu.interface} channel {config.imu.channel}")
-            self._open_recorder()
+            if record:
+                self._open_recorder()
         except BaseException:
             self.close()
             raise
+
+    def start_log(self) -> None:
+        """Open the log of a run opened with `record=False` (nothing if it is open): the output folder is
+        checked again first and the run id and log name are taken now. Raises `OutputFolderError` when the
+        log cannot be written: the run must not start (nothing has moved)."""
+        if self.recorder is not None:
+            return
+        if self.table is None:
+            raise BenchError("BenchRun: open() it first")
+        self._check_output_folder()
+        self.run_id = _new_run_id()
+        self.log_path = self.out_dir / f"{self.run_id}.mcap"
+        try:
+            self._open_recorder()
+        except OSError as exc:
+            recorder, self.recorder = self.recorder, None
+            if recorder is not None:
+                recorder.close()            # (the run's exit stack closes it again: closing twice is a no-op)
+            raise OutputFolderError(f"log {self.log_path}: {exc.strerror or exc}") from exc
 
     def _check_output_folder(self) -> None:
         """Make the output folder if missing and check it takes a new file (a file created and removed)."""

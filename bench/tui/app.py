@@ -45,28 +45,28 @@ DARK_THEME, LIGHT_THEME = "textual-dark", "textual-light"
 STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(
     getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
-HELP = f"""[b]turntable-bench operator keys[/b]
-
-  [b]{ESTOP_KEY.upper()}[/b]  EMERGENCY STOP: aborts the run and sends the controller's abort
-        (servos off). Works on every screen, dialogs included.
-  s     start the plan (asks first and says what will move)
-  p     pause at the next step boundary (the table holds its position)
-  r     resume a paused run
-  a     abort the run (controlled stop, then servos off)
-  g     go to a position (outer, middle, inner; checked against the limits)
-  v     rate mode: one frame turns at a set rate (checked against the limits)
-  h     halt: controlled stop of every axis (servos stay on, holding position)
-  j     choose the frame the jog keys move (outer, middle, inner)
-  [ / ] jog the chosen frame by -/+ the jog step (servo must be on)
-  e / x enable (servos on) / stop and disable (servos off), when no run is active
-  c / d connect / disconnect the table and IMU
-  t     light / dark theme
-  ?     this help
-  q     quit (asks first while a run is active; the table is stopped)
-
-Manual commands are refused while a plan runs. Times are on the run's clock:
-simulated seconds with the simulator. Replay mode (bench tui --replay LOG) has no
-hardware: p / r pause and resume the playback, q quits, the rest is refused."""
+#: The help screen: (key, what it does), one row each; a long text wraps under its own column.
+HELP_KEYS: tuple[tuple[str, str], ...] = (
+    (ESTOP_KEY.upper(), "EMERGENCY STOP, at once (no question): aborts the run and sends the controller's "
+                        "abort (servos off). Works on every screen, dialogs included."),
+    ("s", "start the plan (asks first and says what will move); the run's log starts here"),
+    ("p", "pause at the next step boundary (the table holds its position)"),
+    ("r", "resume a paused run"),
+    ("a", "abort the run (asks first; controlled stop, then servos off)"),
+    ("g", "go to a position (outer, middle, inner; checked against the limits)"),
+    ("v", "rate mode: one frame turns at a set rate (checked against the limits)"),
+    ("h", "halt: controlled stop of every axis (servos stay on, holding position)"),
+    ("j", "choose the frame the jog keys move (outer, middle, inner)"),
+    ("[ ]", "jog the chosen frame by -/+ the jog step (servo must be on)"),
+    ("e x", "enable (servos on) / stop and disable (servos off), when no run is active"),
+    ("c d", "connect / disconnect the table and IMU"),
+    ("t", "light / dark theme"),
+    ("?", "this help (Esc, q or ? closes it)"),
+    ("q", "quit (asks first while a run is active: the run is aborted, the table stopped)"),
+)
+HELP_NOTE = ("Manual commands are refused while a plan runs. Times are on the run's clock: simulated seconds with "
+             "the simulator. Replay mode (bench tui --replay LOG) has no hardware: p / r pause and resume the "
+             "playback, q quits, the rest is refused.")
 
 
 class BenchApp(App):
@@ -75,12 +75,13 @@ class BenchApp(App):
     TITLE = "turntable-bench"
     ENABLE_COMMAND_PALETTE = False      # its footer entry would push "quit" off a 100-column footer
     CSS = """
-    #top { height: 13; }
+    #top { height: auto; }
     #top > * { border: round $primary; }
     #table-panel { width: 58; }
     #imu-panel { width: 1fr; }
     #bottom { height: 1fr; }
-    #bottom > * { width: 1fr; }
+    #left-tabs { width: 1fr; min-width: 64; }
+    #events { width: 1fr; min-width: 34; }
     #left-tabs { border: round $primary; }
     #events { border: round $primary; }
     """
@@ -180,7 +181,8 @@ class BenchApp(App):
         self.query_one(PlanPanel).show(snap)
         log = self.query_one(EventLog)
         if snap.event_count > log.seen:
-            log.add(self.buffer.events_after(log.seen), snap.event_count)
+            # the events and their count in one call: an event added since the snapshot is shown once
+            log.add(*self.buffer.events_since(log.seen))
         if snap.result is not self._result_shown or (snap.result is None and snap.outcome_text
                                                      and self._result_shown is None):
             self._result_shown = snap.result
@@ -256,7 +258,20 @@ class BenchApp(App):
         self._control("resume")
 
     def action_abort(self) -> None:
-        self._control("abort")
+        """Abort the run after a yes (as `s` asks before starting); F12 is the stop that never asks."""
+        if not self._hardware("abort a run"):
+            return
+        if not self.session.running:
+            self._refuse(SessionError("no run is active"))
+            return
+
+        def confirmed(yes: bool | None) -> None:
+            if yes:
+                self._control("abort")
+
+        self.push_screen(ConfirmScreen("Abort the run?", "The table is stopped (controlled stop), then the servos "
+                                       "are switched off. The log is kept; the run ends as aborted.",
+                                       yes="Abort run", no="Continue"), confirmed)
 
     def action_enable(self) -> None:
         self._control("enable")
@@ -328,7 +343,7 @@ class BenchApp(App):
         self.theme = LIGHT_THEME if self.current_theme.dark else DARK_THEME
 
     def action_help(self) -> None:
-        self.push_screen(HelpScreen(HELP))
+        self.push_screen(HelpScreen(HELP_KEYS, HELP_NOTE))
 
     def action_quit_app(self) -> None:
         if not self.session.busy:
@@ -387,6 +402,17 @@ class BenchApp(App):
         self.exit()
 
 
+#: the footer's keys that command hardware: a replay hides them (pressed anyway, they say "replay mode: no hardware")
+HARDWARE_ACTIONS = ("estop", "start", "abort", "goto", "rate", "halt")
+
+
+class ReplayApp(BenchApp):
+    """The app on a replay session: the same screen, with only the playback's keys in the footer."""
+
+    BINDINGS = [Binding(b.key, b.action, b.description, show=False, priority=b.priority)
+                for b in BenchApp.BINDINGS if isinstance(b, Binding) and b.action in HARDWARE_ACTIONS]
+
+
 def create_app(*, config=None, sim: bool = False, replay: str | Path | None = None, speed: float | None = 1.0,
                out_dir: str | Path | None = None, operator: str = "", auto_connect: bool = True,
                refresh_hz: float = 20.0, poll_s: float = 0.1, jog_step_deg: float = 1.0,
@@ -422,6 +448,6 @@ def _create_replay_app(path, speed, **kwargs) -> BenchApp:
     buffer = UiBuffer(opened.steps)
     session = ReplaySession(opened, buffer=buffer, speed=speed)
     pace = f"{speed:g}x" if speed is not None else "as fast as possible"
-    return BenchApp(session, buffer, steps=opened.steps, limits=opened.limits,
+    return ReplayApp(session, buffer, steps=opened.steps, limits=opened.limits,
                     scales=ImuScales.from_config(opened.config, opened.simulated), simulated=opened.simulated,
                     auto_connect=False, subtitle=f"replay of {opened.path.name} ({pace}, no hardware)", **kwargs)

@@ -25,8 +25,17 @@ from drivers.turntable import TableState
 
 #: The six IMU channels in display order: gyro x/y/z, accelerometer x/y/z.
 CHANNELS = ("gx", "gy", "gz", "ax", "ay", "az")
+#: The IMU panel's values are means over this much data (the last whole blocks reaching it): a mean over
+#: T seconds resolves one increment step per T, so the 0.1 s blocks of the idle monitor resolved only
+#: about 1 deg/h of a 36000 counts/s per deg/s gyro counting whole pulses; over 1 s, 0.1 deg/h.
+MEAN_WINDOW_S = 1.0
 
 STEP_PENDING, STEP_RUNNING, STEP_DONE, STEP_SKIPPED, STEP_FAILED = "pending", "running", "done", "skipped", "failed"
+#: the step under way when the operator aborted the run (an abort request, not a fault)
+STEP_ABORTED = "aborted"
+#: what the TUI calls a run that failed because it was aborted on request (operator, e-stop, quit): the
+#: sequencer's state is `failed` either way; the log tells them apart (a fault event comes before a failure)
+RUN_ABORTED = "aborted"
 
 
 @dataclass(frozen=True)
@@ -36,12 +45,13 @@ class ImuView:
     samples: int = 0                       # decoded samples seen by this buffer
     last_counter: int | None = None
     rate_hz: float = math.nan              # the samples' nominal rate
-    gyro_cps: tuple[float, float, float] | None = None   # mean of the last block, counts/s
+    gyro_cps: tuple[float, float, float] | None = None   # mean over the last MEAN_WINDOW_S, counts/s
     acc_cps: tuple[float, float, float] | None = None
     temperature_c: float = math.nan
     history: tuple[tuple[float, ...], ...] = ((),) * 6  # per channel, oldest first, counts/s
     lost_samples: int = 0
     bad_frames: int = 0
+    mean_s: float = 0.0                    # the data the means cover (seconds of samples)
 
 
 @dataclass(frozen=True)
@@ -60,6 +70,14 @@ class UiSnapshot:
     event_count: int                       # events ever added (the UI appends the new ones)
     result: CalibrationResult | None = None
     outcome_text: str = ""
+    aborted: bool = False                  # the run went to `aborting` on request, with no fault before it
+
+    @property
+    def run_state_text(self) -> str:
+        """The run's state as the operator reads it: the sequencer's, with `aborted` for a requested abort."""
+        if self.run_state is RunState.FAILED and self.aborted:
+            return RUN_ABORTED
+        return self.run_state.value
 
 
 class UiBuffer(RunListener):
@@ -81,12 +99,14 @@ class UiBuffer(RunListener):
         self._event_count = 0
         self._ring = np.zeros((6, self.history))
         self._ring_fill = 0
+        self._blocks: deque[tuple[int, np.ndarray]] = deque()   # (samples, per-channel sums) of recent blocks
         self._imu_samples = 0
         self._last_counter: int | None = None
         self._rate_hz = math.nan
         self._gyro: tuple | None = None
         self._acc: tuple | None = None
         self._temperature = math.nan
+        self._mean_s = 0.0
         self._table_state: TableState | None = None
         self._table_states = 0
         self._run_time_s: float | None = None
@@ -104,6 +124,8 @@ class UiBuffer(RunListener):
             self._current_started: float | None = None
             self._done_estimated = 0.0
             self._run_state = RunState.IDLE
+            self._fault_seen = False
+            self._aborted = False
             self._result = None
             self._outcome_text = ""
 
@@ -133,10 +155,14 @@ class UiBuffer(RunListener):
             self._run_time_s = event.time_s
             index = event.step_index
             k = index if index is not None and 0 <= index < len(self._step_states) else None  # None: no valid step
+            if event.kind == "fault":
+                self._fault_seen = True
             if event.kind == "transition" and event.state is not None:
                 self._run_state = RunState(event.state)
+                if self._run_state is RunState.ABORTING and not self._fault_seen:
+                    self._aborted = True        # the sequencer emits a fault before an abort it was not asked for
                 if self._run_state is RunState.FAILED and self._current is not None:
-                    self._step_states[self._current] = STEP_FAILED
+                    self._step_states[self._current] = STEP_ABORTED if self._aborted else STEP_FAILED
                     self._current = None
             elif event.kind == "step_started" and k is not None:
                 self._step_states[k] = STEP_RUNNING
@@ -169,15 +195,27 @@ class UiBuffer(RunListener):
             self._imu_samples += n
             self._last_counter = int(block.counter[-1])
             self._rate_hz = float(block.rate_hz)
-            mean = rates.mean(axis=0)
+            self._blocks.append((n, rates.sum(axis=0)))
+            window = max(1, round(MEAN_WINDOW_S * self._rate_hz)) if math.isfinite(self._rate_hz) else n
+            held = sum(k for k, _ in self._blocks)
+            while len(self._blocks) > 1 and held - self._blocks[0][0] >= window:   # whole blocks, >= the window
+                held -= self._blocks.popleft()[0]
+            mean = np.sum([total for _, total in self._blocks], axis=0) / held
+            self._mean_s = held / self._rate_hz if self._rate_hz > 0 else math.nan
             self._gyro, self._acc = tuple(map(float, mean[:3])), tuple(map(float, mean[3:]))
             self._temperature = float(block.temperature_c[-1])
 
     # -- the UI thread -------------------------------------------------------------------------
     def events_after(self, seen: int) -> list[Event]:
         """Events added after the `seen`-th one (those still kept), oldest first."""
+        return self.events_since(seen)[0]
+
+    def events_since(self, seen: int) -> tuple[list[Event], int]:
+        """(events added after the `seen`-th one, oldest first; the count of events ever added), taken
+        together: the count is the `seen` of the next call, so no event is handed out twice or skipped
+        (an event added between a `snapshot()` and this call is counted with the events it returns)."""
         with self._lock:
-            return [e for k, e in self._events if k > seen]
+            return [e for k, e in self._events if k > seen], self._event_count
 
     def snapshot(self) -> UiSnapshot:
         stats = self.stats_source
@@ -187,10 +225,11 @@ class UiBuffer(RunListener):
             fill = self._ring_fill
             history = tuple(tuple(map(float, row[self.history - fill:])) for row in self._ring)
             imu = ImuView(self._imu_samples, self._last_counter, self._rate_hz, self._gyro, self._acc,
-                          self._temperature, history, lost, bad)
+                          self._temperature, history, lost, bad, self._mean_s)
             return UiSnapshot(self._run_state, self._run_time_s, self._table_state, self._table_states, imu,
                               tuple(self._step_states), self._current, self._current_started,
-                              self._done_estimated, self._event_count, self._result, self._outcome_text)
+                              self._done_estimated, self._event_count, self._result, self._outcome_text,
+                              self._aborted)
 
 
 @dataclass(frozen=True)
@@ -219,23 +258,45 @@ def progress(snapshot: UiSnapshot, steps: Sequence) -> Progress:
 
 @dataclass(frozen=True)
 class ImuScales:
-    """Nominal scale factors to show the IMU in physical units, and where they came from.
+    """Nominal scale factors to show the IMU in physical units, where they came from, and the
+    data's resolution.
 
     `gyro_cps_per_dps` (counts/s per deg/s) and `acc_cps_per_g` (counts/s per g) per
-    axis; None = unknown: the panel shows raw counts/s.
+    axis; None = unknown: the panel shows raw counts/s. `step_counts`: the smallest step of a
+    sample's increment, in counts (gyro, accelerometer): the layout's signal resolution, or one whole
+    count when the IMU counts whole pulses (the simulated IMU with quantisation on). A mean over T
+    seconds resolves `step_counts / T` counts/s: the panel shows that many decimals, no more.
     """
 
     gyro_cps_per_dps: tuple[float, float, float] | None = None
     acc_cps_per_g: tuple[float, float, float] | None = None
     source: str = "raw counts/s (no nominal scale known)"
+    step_counts: tuple[float, float] = (1.0, 1.0)
 
     @classmethod
     def from_config(cls, config, sim: bool) -> "ImuScales":
         """The simulated IMU's true scale factors with the simulator; raw counts otherwise
         (the configuration has no nominal scale factors of a real IMU)."""
-        if not sim or config is None:
+        if config is None:
             return cls()
+        scale = config.imu.layout.scale      # the signals' resolution: counts per raw unit
+        step = (float(max(scale[0:3])), float(max(scale[3:6])))
+        if sim and config.sim.noise.quantise:
+            step = (max(step[0], 1.0), max(step[1], 1.0))    # the simulated IMU counts whole pulses
+        means = f"{MEAN_WINDOW_S:g} s means"
+        if not sim:
+            return cls(source=f"raw counts/s, {means}, no scale", step_counts=step)
         imu = config.sim.imu
         return cls(triple(float(k) * DEG for k in imu.gyro_scale), triple(float(k) * G0 for k in imu.acc_scale),
-                   "deg/s, deg/h, g (sim truth scale)")
+                   f"deg/s deg/h g: sim truth, {means}", step)
+
+    def decimals(self, gyro: bool, per_count: float, most: int) -> int:
+        """Decimals that show what a `MEAN_WINDOW_S` mean resolves in a unit of `per_count` units per
+        count/s (1 for counts/s; 3600 / scale for deg/h): the fewest decimals whose last digit steps by at
+        most 1.5 resolution steps (0.1 deg/h for a resolution of 0.09997 deg/h, 0.01 for 0.05); at most
+        `most` (the panel's column width)."""
+        step = self.step_counts[0 if gyro else 1] / MEAN_WINDOW_S * abs(per_count)
+        if not (math.isfinite(step) and step > 0):
+            return 0
+        return min(most, max(0, math.ceil(-math.log10(1.5 * step))))
 

@@ -17,10 +17,20 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widgets import DataTable, Label, ProgressBar, RichLog, Sparkline, Static
 
+from bench.model.families import family_of
 from bench.model.kinematics import FRAMES
 from bench.model.units import format_hms
 from bench.plan.events import Event, RunState
-from bench.tui.buffer import CHANNELS, STEP_DONE, STEP_FAILED, STEP_RUNNING, ImuScales, UiSnapshot, progress
+from bench.tui.buffer import (
+    CHANNELS,
+    STEP_ABORTED,
+    STEP_DONE,
+    STEP_FAILED,
+    STEP_RUNNING,
+    ImuScales,
+    UiSnapshot,
+    progress,
+)
 
 DEG_PER_HOUR_PER_DPS = 3600.0
 
@@ -145,19 +155,20 @@ class ImuPanel(Vertical):
         yield Label(Text(self.scales.source, style="dim"), id="imu-units")
 
     def _value(self, k: int, cps: float | None) -> str:
+        """One channel's mean (`MEAN_WINDOW_S`) with the decimals it resolves (`ImuScales.decimals`)."""
         name = CHANNELS[k]
         if cps is None or not math.isfinite(cps):
             return f"{name}  -"
-        if k < 3:
-            scale = self.scales.gyro_cps_per_dps
-            if scale is None:
-                return f"{name} {cps:14.1f} counts/s"
-            dps = cps / scale[k]
-            return f"{name} {dps:9.5f} {dps * DEG_PER_HOUR_PER_DPS:10.3f}"
-        scale = self.scales.acc_cps_per_g
+        gyro = k < 3
+        scale = self.scales.gyro_cps_per_dps if gyro else self.scales.acc_cps_per_g
         if scale is None:
-            return f"{name} {cps:14.1f} counts/s"
-        return f"{name} {cps / scale[k - 3]:9.6f} g"
+            return f"{name} {cps:14.{self.scales.decimals(gyro, 1.0, 3)}f} counts/s"
+        if gyro:
+            dps = cps / scale[k]
+            d_dps = self.scales.decimals(True, 1.0 / scale[k], 5)
+            d_dph = self.scales.decimals(True, DEG_PER_HOUR_PER_DPS / scale[k], 3)
+            return f"{name} {dps:9.{d_dps}f} {dps * DEG_PER_HOUR_PER_DPS:10.{d_dph}f}"
+        return f"{name} {cps / scale[k - 3]:9.{self.scales.decimals(False, 1.0 / scale[k - 3], 6)}f} g"
 
     def show(self, snapshot: UiSnapshot) -> None:
         imu = snapshot.imu
@@ -192,7 +203,8 @@ def describe_step(step) -> str:
 
 
 def state_style(state: str, pal: Palette) -> str:
-    return {STEP_RUNNING: f"bold {pal.warn}", STEP_DONE: pal.ok, STEP_FAILED: f"bold {pal.error}"}.get(state, "dim")
+    return {STEP_RUNNING: f"bold {pal.warn}", STEP_DONE: pal.ok, STEP_FAILED: f"bold {pal.error}",
+            STEP_ABORTED: f"bold {pal.warn}"}.get(state, "dim")
 
 
 class PlanPanel(Vertical):
@@ -249,7 +261,7 @@ class PlanPanel(Vertical):
             current = f"step {k + 1}/{len(self.steps)} {step.unit} {step.kind}{left}"
         else:
             current = "no step running"
-        status = (f"run {snapshot.run_state.value}  {p.fraction:6.1%}  ETA{clock} {format_hms(p.remaining_s)}\n"
+        status = (f"run {snapshot.run_state_text}  {p.fraction:6.1%}  ETA{clock} {format_hms(p.remaining_s)}\n"
                   f"{current}")
         set_text(self.query_one("#plan-status", Label), status)
         bar = self.query_one("#plan-progress", ProgressBar)
@@ -306,11 +318,13 @@ class EventLog(RichLog):
 
 
 class ResultsPanel(Vertical):
-    """The solved coefficients with 1-sigma uncertainties (and the simulator's truth when known)."""
+    """The solved coefficients with 1-sigma uncertainties (and the simulator's truth and the error in sigmas,
+    (value - truth) / sigma, when known); their units on a line below."""
 
     DEFAULT_CSS = """
     ResultsPanel { height: 1fr; }
     ResultsPanel #results-status { height: auto; }
+    ResultsPanel #results-units { height: auto; width: 1fr; }
     ResultsPanel DataTable { height: 1fr; }
     """
 
@@ -322,6 +336,7 @@ class ResultsPanel(Vertical):
     def compose(self) -> ComposeResult:
         yield Label("no result yet: a finished run is solved from its log", id="results-status")
         yield DataTable(id="results-table", zebra_stripes=True)
+        yield Label("", id="results-units")
 
     def show_result(self, result, text: str = "") -> None:
         if result is self.result:
@@ -335,13 +350,18 @@ class ResultsPanel(Vertical):
             self.plain = text
             return
         truth = result.sim_truth or {}
-        table.add_columns("coefficient", "value", "1-sigma", "unit", *(("sim truth",) if truth else ()))
+        # The units go on one line under the table, not in a column: with the simulator's truth and
+        # error/sigma the table then fits the 60 columns the panel has on a 100-column terminal.
+        table.add_columns("name", "value", "1-sigma", *(("sim truth", "err/σ") if truth else ()))
         lines = []
         for name, c in result.coefficients.items():
+            finite_sigma = c.sigma is not None and math.isfinite(c.sigma) and c.sigma > 0
             sigma = f"{c.sigma:.3g}" if c.sigma is not None and math.isfinite(c.sigma) else "-"
-            row = [name, f"{c.value:.8g}", sigma, c.unit]
+            row = [name, f"{c.value:.8g}", sigma]
             if truth:
-                row.append(f"{truth[name].value:.8g}" if name in truth else "-")
+                true = truth.get(name)
+                row.append(f"{true.value:.8g}" if true is not None else "-")
+                row.append(f"{(c.value - true.value) / c.sigma:+.2g}" if true is not None and finite_sigma else "-")
             table.add_row(*row)
             lines.append(" ".join(row))
         failures = result.quality.get("failures") if isinstance(result.quality, dict) else None
@@ -349,7 +369,20 @@ class ResultsPanel(Vertical):
         if failures:
             head += f"; quality: {failures}"
         status.update(head)
-        self.plain = "\n".join([head, *lines])
+        units = units_line(result.coefficients)
+        self.query_one("#results-units", Label).update(Text(units, style="dim"))
+        self.plain = "\n".join([head, *lines, units])
+
+
+def units_line(coefficients) -> str:
+    """The units of `coefficients` by family, one line: 'units: Kg counts/s per deg/s, D0 deg/h, ...'."""
+    by_unit: dict[str, list[str]] = {}
+    for name, c in coefficients.items():
+        families = by_unit.setdefault(c.unit, [])
+        if family_of(name) not in families:
+            families.append(family_of(name))
+    return "units: " + ", ".join(f"{' '.join(families)} {'1 (direction cosines)' if unit == '1' else unit}"
+                                 for unit, families in by_unit.items())
 
 
 def run_is_active(state: RunState) -> bool:

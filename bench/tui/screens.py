@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+from typing import Sequence
+
+from rich.table import Table as RichTable
+from rich.text import Text
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
@@ -196,23 +200,37 @@ class RateScreen(ModalScreen["tuple | None"]):
 
 
 class HelpScreen(ModalScreen[None]):
-    """The key bindings and what they do."""
+    """The key bindings and what they do: a key column and a description column that wraps under itself,
+    in a dialog as wide as a 100-column terminal allows (Esc, q, ? or F1 closes it)."""
 
-    DEFAULT_CSS = DIALOG_CSS.format(name="HelpScreen")
+    DEFAULT_CSS = DIALOG_CSS.format(name="HelpScreen") + """
+    HelpScreen > Vertical { width: 96; max-width: 100%; padding: 0 1; }
+    HelpScreen #help-title { margin-bottom: 1; }
+    HelpScreen #help-note { margin-top: 1; }
+    """
     BINDINGS = [Binding("escape,q,question_mark,f1", "close", "close")]
 
-    def __init__(self, text: str, **kwargs):
+    def __init__(self, keys: Sequence[tuple[str, str]], note: str = "", **kwargs):
         super().__init__(**kwargs)
-        self.text = text
+        self.keys, self.note = tuple(keys), note
 
     def compose(self) -> ComposeResult:
+        grid = RichTable.grid(padding=(0, 2))
+        grid.add_column("key", no_wrap=True, style="bold")
+        grid.add_column("what", ratio=1)
+        for key, what in self.keys:
+            grid.add_row(key, what)
         with Vertical():
-            yield Static(self.text, id="help-text")
-            with Horizontal(classes="buttons"):
-                yield Button("Close", id="close")
+            yield Label(Text.assemble(("turntable-bench operator keys", "bold"), "   (Esc, q or ? closes)"),
+                        id="help-title")
+            yield Static(grid, id="help-text")
+            if self.note:
+                yield Static(self.note, id="help-note")
 
-    def on_button_pressed(self, event: Button.Pressed) -> None:
-        self.dismiss(None)
+    @property
+    def text(self) -> str:
+        """The help as plain text (key and description per row, then the note)."""
+        return "\n".join([*(f"{key}  {what}" for key, what in self.keys), self.note])
 
     def action_close(self) -> None:
         self.dismiss(None)

@@ -3,7 +3,9 @@
 `BenchSession` owns a `bench.run.runner.BenchRun` (the same devices, sequencer, recorder
 and solve as `bench run`) and adds only what an interactive session needs:
 
-- connect / disconnect (open the devices and the log; close them);
+- connect / disconnect (open the devices; close them); the run's log is opened when a plan
+  starts (`start`), after the output folder is checked again: connecting writes no file, and
+  a plan whose log cannot be written does not start;
 - an idle monitor thread that reads the table and drains the IMU into the `UiBuffer`
   while no run is active (with the simulator it also advances the simulated clock in
   real time, so a manual move takes as long as on the real table);
@@ -18,12 +20,14 @@ with the simulator a new simulated world, table back at zero).
 from __future__ import annotations
 
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
 from bench.errors import BenchError
 from bench.plan.events import RunState
 from bench.run.runner import BenchRun, RunOutcome
+from bench.run.sequencer import RunAborted
 from bench.sim.world import PumpedReceiver
 from bench.solve.methods import SolverError
 from bench.tui.buffer import UiBuffer
@@ -36,6 +40,23 @@ LINK_DISCONNECTED, LINK_CONNECTING, LINK_CONNECTED, LINK_ERROR = "disconnected",
 
 class SessionError(BenchError):
     """An operator command that cannot be done now (says why)."""
+
+
+#: how a session's run ended (`RunEnd.kind`)
+END_DONE, END_QUALITY, END_UNSOLVED, END_ABORTED, END_FAILED = "done", "quality", "unsolved", "aborted", "failed"
+
+
+@dataclass(frozen=True)
+class RunEnd:
+    """How the session's last run ended, for what `bench tui` says and returns when it quits.
+
+    `kind`: done, quality (a quality check failed), unsolved (finished, cannot be solved), aborted
+    (on request: a, F12, quit), failed (a fault; the table was stopped). `reason`: one line, '' when done.
+    `log_path`: the run's log."""
+
+    kind: str
+    reason: str
+    log_path: Path | None
 
 
 #: what an operator command can fail with, shown to the operator; anything else is a bug and ends the app,
@@ -63,6 +84,7 @@ class BenchSession:
         self.join_timeout_s = float(join_timeout_s)
         self.run: BenchRun | None = None
         self.outcome: RunOutcome | None = None    # of the last run
+        self.last_end: RunEnd | None = None       # how the last run ended (None: no run ended yet)
         self.link = LINK_DISCONNECTED
         self.link_detail = ""
         self._spent = False                   # the current BenchRun has run: a new run needs a new one
@@ -163,7 +185,7 @@ class BenchSession:
 
     # -- connect -------------------------------------------------------------------------------
     def connect(self) -> None:
-        """Open the devices and the log (blocking; call it off the UI thread). Nothing moves."""
+        """Open the devices, not the log (blocking; call it off the UI thread). Nothing moves."""
         with self._lock:
             if self.run is not None:
                 raise SessionError("already connected")
@@ -171,7 +193,7 @@ class BenchSession:
         run = BenchRun(self.config, self.plan, sim=self.sim, out_dir=self.out_dir, operator=self.operator,
                        listeners=[self.buffer])
         try:
-            run.open()
+            run.open(record=False)          # the log starts with the plan (start): connecting writes no file
         except BaseException as exc:
             self.link, self.link_detail = LINK_ERROR, f"{type(exc).__name__}: {exc}"
             raise
@@ -183,7 +205,7 @@ class BenchSession:
             self.link = LINK_CONNECTED
             self.link_detail = (f"{self.config.table.dialect}, simulator" if self.sim
                                 else f"{self.config.table.dialect} at {self.config.table.url}")
-        self.buffer.note("info", f"connected ({self.link_detail}); log {run.log_path.name}")
+        self.buffer.note("info", f"connected ({self.link_detail})")
         self._start_monitor()
 
     def disconnect(self) -> None:
@@ -315,8 +337,15 @@ class BenchSession:
             self._estop = False
         if self.run is None:
             self.connect()
-        self._stop_monitor()
         run = self.run
+        if run is None:                     # connect() sets it or raises
+            raise SessionError("not connected")
+        try:
+            run.start_log()                 # before anything moves: a run that cannot be logged does not start
+        except (BenchError, OSError) as exc:      # OutputFolderError: the folder or the file cannot be written
+            raise SessionError(f"cannot start the run's log: {exc}; nothing moved") from exc
+        self.buffer.note("info", f"log {run.log_path}")
+        self._stop_monitor()
         self._spent = True
         self.outcome = None
         self.buffer.begin_run(self.plan.steps)
@@ -326,39 +355,52 @@ class BenchSession:
 
     def _run_body(self, run: BenchRun) -> None:
         text, result = "", None
+        kind, reason = END_FAILED, ""
         try:
             if self._estop:
                 text = "not started: emergency stop"
+                kind, reason = END_ABORTED, "emergency stop before the start"
                 return
             try:
                 run.run()
             except TurntableError as exc:
                 text = f"cannot enable the table: {exc}; nothing moved"
+                reason = text
                 self.buffer.note("fault", text)
                 return
             try:
                 self.outcome = run.finish()
             except SolverError as exc:
                 text = f"the run finished but cannot be solved: {exc}"
+                kind, reason = END_UNSOLVED, text
                 self.buffer.note("warning", text)
                 return
             outcome = self.outcome
             result = outcome.result
-            if outcome.error is not None:
+            if isinstance(outcome.error, RunAborted):
+                kind, reason = END_ABORTED, str(outcome.error)
+                text = f"aborted: {outcome.error}; table stopped. Log: {outcome.log_path.name}"
+            elif outcome.error is not None:
+                reason = f"{outcome.error}"
                 text = f"{outcome.state.value}: {outcome.error}; table stopped. Log: {outcome.log_path.name}"
             elif outcome.failures:
                 text = "quality check failed: " + "; ".join(outcome.failures)
+                kind, reason = END_QUALITY, text
             elif outcome.result_path is not None:
                 text = f"done; result {outcome.result_path.name}"
+                kind = END_DONE
             else:                               # finish() writes a result whenever the run ended without error
                 text = f"{outcome.state.value}: no result written"
+                kind, reason = END_UNSOLVED, text
             self.buffer.note("info", text)
         except Exception as exc:  # noqa: BLE001 - the operator must see it; the sequencer already stopped the table
             text = f"run error: {type(exc).__name__}: {exc}"
+            kind, reason = END_FAILED, text
             self.buffer.note("fault", text)
         finally:
             if run.receiver is not None:
                 run.receiver.on_frames = None      # the finished sequencer's listeners are closed
+            self.last_end = RunEnd(kind, reason, run.log_path if run.recorder is not None else None)
             self.buffer.set_outcome(result, text)
             if self.run is run and run.table is not None:
                 self._start_monitor()

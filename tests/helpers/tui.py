@@ -10,8 +10,13 @@ import asyncio
 import time
 from pathlib import Path
 
+import numpy as np
+
 from bench.config.load import parse_config
-from bench.plan.events import RunState
+from bench.model.result import CalibrationResult, coefficient_table
+from bench.plan.events import Event, RunState
+from drivers.imu import ImuSampleBlock
+from drivers.turntable import AxisMode, AxisState, AxisStatus, TableState
 from tests.helpers.run import config_text
 
 SIZE = (100, 30)
@@ -95,3 +100,40 @@ async def wait_ended(pilot):
     app = pilot.app
     await wait_until(pilot, lambda: not app.session.running, "the run to end", timeout_s=30.0)
     await pilot.pause(0.15)
+
+
+def feed_running(app) -> None:
+    """A run under way fed straight into the app's buffer (no wall-clock text, no run ids): for snapshots."""
+    buf, steps = app.buffer, app.steps
+    app.session.link, app.session.link_detail = "connected", "scpi, simulator"
+    buf.on_event(Event(0.0, "transition", "run started: %d steps" % len(steps), state="running",
+                       data={"from": "idle"}))
+    t = 0.0
+    dwell = [s for s in steps if s.kind == "dwell"][2]
+    for s in steps[:dwell.index]:
+        buf.on_event(Event(t, "step_started", f"{s.unit} {s.kind}", step_index=s.index, step_unit=s.unit))
+        t += s.estimated_s
+        buf.on_event(Event(t, "step_finished", f"{s.unit} {s.kind} done in {s.estimated_s:.1f} s",
+                           step_index=s.index, step_unit=s.unit))
+    buf.on_event(Event(t, "step_started", f"{dwell.unit} dwell", step_index=dwell.index, step_unit=dwell.unit))
+    enabled = AxisStatus.ENABLED | AxisStatus.IN_POSITION
+    buf.on_table_state(TableState(t + 1.0, tuple(AxisState(a, 0.0, AxisMode.POSITION, enabled)
+                                                 for a in dwell.target_deg)))
+    n = 40
+    k = np.arange(n)
+    g = (np.array([0.5, -0.25, 0.1]) * 36000.0)[None, :] + 50.0 * np.sin(k / 4.0)[:, None]
+    a = (np.array([0.0, 0.0, 1.0]) * 40000.0)[None, :] + 20.0 * np.cos(k / 5.0)[:, None]
+    block = ImuSampleBlock(k.astype(np.int64), k / 50.0, g / 50.0, a / 50.0, np.full(n, 24.5),
+                           np.zeros(n, np.int64), 50.0)
+    buf.on_imu(block)
+
+
+def feed_result(app) -> None:
+    """A finished run's result (the simulator's truth, each value off by a few tenths to a few sigma)."""
+    truth = app.session.config.sim.imu.to_canonical()
+    sigmas = {name: (abs(v) * 1e-6 if abs(v) > 1 else 1e-6) for name, v in truth.items()}
+    offsets = (0.4, -1.3, 2.6, 0.0, -0.7)
+    values = {name: v + offsets[k % len(offsets)] * sigmas[name] for k, (name, v) in enumerate(truth.items())}
+    result = CalibrationResult(coefficient_table(values, sigmas), sim_truth=coefficient_table(truth))
+    app.buffer.on_event(Event(300.0, "transition", "run complete", state="done", data={"from": "running"}))
+    app.buffer.set_outcome(result, "done; result run.result.json")
