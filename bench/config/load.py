@@ -52,7 +52,8 @@ MAX_BLACK_BOX_ARCSEC = 3600.0  # RMS or each angle: one degree
 #: [sim.noise] level -> (upper bound, unit); the lower bound is 0 (correlation_time_s: > 0)
 _NOISE_RANGES = {"gyro_arw_deg_rt_h": (10.0, "deg/sqrt(h)"), "gyro_bias_instability_dph": (3600.0, "deg/h"),
                  "acc_vrw_ug_rt_hz": (10000.0, "ug/sqrt(Hz)"), "acc_bias_instability_ug": (100000.0, "ug"),
-                 "correlation_time_s": (1e6, "s")}
+                 "correlation_time_s": (1e6, "s"), "gyro_rrw_dph_rt_h": (1000.0, "deg/h/sqrt(h)"),
+                 "acc_rrw_ug_rt_h": (100000.0, "ug/sqrt(h)")}
 #: [sim.imu] coefficient family -> (lower or None for -upper, upper, unit)
 _SIM_IMU_RANGES = {"Kg": (0.0, 1e6, "counts/s per deg/s"), "Ka": (0.0, 1e6, "counts/s per g"),
                    "D0": (None, 36000.0, "deg/h"), "K0": (None, 1.0, "g"), "Eg": (None, 1.0, ""),
