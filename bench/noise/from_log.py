@@ -57,8 +57,10 @@ def _longest_run(counter: np.ndarray) -> tuple[int, int]:
 
 
 def static_record(path: str | Path, *, calibration: ImuCoefficients | None = None,
-                  calibration_label: str = "") -> StaticRecord:
-    """The longest finished dwell of a log as (n, 6) input units (LogError, NoiseInputError)."""
+                  calibration_label: str = "", still_open: bool = False) -> StaticRecord:
+    """The longest finished dwell of a log as (n, 6) input units (LogError, NoiseInputError).
+
+    `still_open`: the live run's own log, read before it is closed (its missing summary is not damage)."""
     log = read_log(str(path))
     setup = layout_and_config_from_log(log)
     notes = list(setup.notes)
@@ -93,14 +95,15 @@ def static_record(path: str | Path, *, calibration: ImuCoefficients | None = Non
     if renamed:
         notes.append(renamed)
     source = {"kind": "log", "log": Path(log.path).name, "run_id": run_id, "dwell": unit, "scales": scales_from,
-              "damage": list(log.damage)}
+              "damage": [d.describe() for d in log.lost if not (still_open and d.kind == "no_summary")]}
     return StaticRecord(data, rate_hz, run_id, source, tuple(notes))
 
 
 def analyse_log(path: str | Path, *, calibration: ImuCoefficients | None = None, calibration_label: str = "",
-                points_per_octave: int = 1, threads: int = 2) -> tuple[NoiseResult, str]:
+                points_per_octave: int = 1, threads: int = 2, still_open: bool = False) -> tuple[NoiseResult, str]:
     """(the noise result of a log's longest dwell, the run id to name its outputs by)."""
-    record = static_record(path, calibration=calibration, calibration_label=calibration_label)
+    record = static_record(path, calibration=calibration, calibration_label=calibration_label,
+                           still_open=still_open)
     channels = analyse(record.data, record.rate_hz, points_per_octave=points_per_octave, threads=threads)
     result = NoiseResult.from_channels(channels, record.rate_hz, len(record.data), points_per_octave=points_per_octave,
                                        source=record.source, notes=list(record.notes))
