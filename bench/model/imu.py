@@ -123,7 +123,7 @@ class NoiseModel:
     Bias instability is a first-order Gauss-Markov process with the given 1-sigma
     and correlation time (its Allan deviation peaks at 0.617 sigma at tau = 1.89
     correlation times, which IEEE 952's flat-region rule B = min ADEV / 0.664 reads as
-    0.93 sigma: see `bench.noise.theory`). Rate random walk: a bias that random-walks
+    0.929 sigma: see `bench.noise.theory`). Rate random walk: a bias that random-walks
     from 0 (Allan slope +1/2), off by default.
     """
 

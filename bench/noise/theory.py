@@ -16,7 +16,7 @@ The Gauss-Markov bias is *not* IEEE 952's flicker (bias instability) noise, whos
 deviation is flat at 0.664 B. What the flat-region rule B = min ADEV / 0.664 reads
 from a curve made by this model is `expected_bias_instability`: the minimum of the
 total theoretical curve at the same taus over 0.664; alone (white noise and RRW far
-below) that is 0.617 / 0.664 s = 0.930 s (`GM_TO_ALLAN_BI`).
+below) that is 0.617 / 0.664 s = 0.929 s (`GM_TO_ALLAN_BI`).
 """
 
 from __future__ import annotations
