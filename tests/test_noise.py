@@ -304,3 +304,19 @@ def test_sim_noise_random_walk_keys_have_ranges(key, value, bound):
         parse_config(text)
     good = parse_config(config_text().replace("noise = false", f"[sim.noise]\n{key} = 2.5"))
     assert getattr(good.sim.noise, key) == 2.5
+
+
+def test_a_static_run_whose_dwell_cannot_be_analysed_keeps_its_log_and_says_how(tmp_path, monkeypatch):
+    import bench.run.runner as runner
+    from bench.noise.from_log import NoiseInputError
+
+    def refuse(path, **_):
+        raise NoiseInputError(f"{path}: a hardware log needs the scale factors of a calibration")
+
+    monkeypatch.setattr(runner, "analyse_log", refuse)
+    with api_run(_noise_config(dwell_s=20.0), tmp_path) as (_, outcome):
+        assert outcome.error is None and outcome.result_path is None
+        assert any("bench noise" in f and "--calibration" in f for f in outcome.failures)
+    from bench.log.reader import read_log
+
+    assert read_log(str(outcome.log_path)).complete          # closed with its summary
