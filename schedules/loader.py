@@ -6,11 +6,11 @@ degrees, DESIGN section 2 sign convention)::
     format = "turntable-bench/schedule"
     version = 1
     name = "optimal-24"
-    kind = "positions"          # "positions" | "rotations" | "table-check"
+    kind = "positions"          # "positions" | "rotations" | "table-check" | "static"
     description = "Optimal 24 positions, 12 inner-symmetric groups (paper Table 1)"
     source = "Ma & Zhou 2020, Table 1"   # optional literature reference
 
-    [[position]]                # kinds "positions" and "table-check"
+    [[position]]                # kinds "positions", "table-check" and "static"
     angles_deg = [0, 0, 0]      # outer, middle, inner
     group = 1                   # optional positive int
 
@@ -28,8 +28,9 @@ file's other problems in `more`):
   `format` and `version` must match, `kind` must be known;
 - no unknown keys inside a step table (catches typos such as ``angle_deg``), no
   missing required fields, no wrong types (a bool is not a number);
-- "positions" angles and rotation start states are positive positions: multiples of
-  90 in [0, 360); "table-check" angles are any finite value in [0, 360);
+- "positions" and "static" angles and rotation start states are positive positions:
+  multiples of 90 in [0, 360); "table-check" angles are any finite value in [0, 360);
+- a "static" file (one long dwell for noise characterisation) holds exactly one position;
 - `group` is a whole number 1..10000, `revolutions` a whole number 1..100;
 - no duplicate steps (same angles; same start, frame and direction);
 - positions/table-check files hold >= 1 ``[[position]]`` and no ``[[rotation]]``,
@@ -52,7 +53,7 @@ from schedules.tomllines import LineMap, locate_lines
 
 FORMAT = "turntable-bench/schedule"
 VERSION = 1
-KINDS = ("positions", "rotations", "table-check")
+KINDS = ("positions", "rotations", "table-check", "static")
 FRAMES = ("outer", "middle", "inner")
 DIRECTIONS = ("ccw", "cw")
 
@@ -223,11 +224,14 @@ class _Validator:
             raise self.fail(self.lines.line(wanted, MAX_STEPS), wanted,
                             f"{len(tables)} [[{wanted}]] tables: a schedule holds at most {MAX_STEPS} steps")
 
+        if kind == "static" and len(tables) != 1:
+            raise self.fail(self.lines.line(wanted, 1), wanted,
+                            f"a 'static' schedule holds exactly one [[position]], got {len(tables)}")
         positions, rotations = (), ()
         if kind == "rotations":
             rotations = tuple(self._rotations(tables))
         else:
-            positions = tuple(self._positions(tables, positive_only=kind == "positions"))
+            positions = tuple(self._positions(tables, positive_only=kind in ("positions", "static")))
         if self.problems:
             first, *more = self.problems
             raise ScheduleError(first.path, first.line, first.field, first.message, more=tuple(more))

@@ -13,6 +13,7 @@ import sys
 
 from bench import __version__
 from bench.cli import check_table, evaluate, export_can, replay, run, schedules, solve, table, tui
+from bench.cli import noise as noise_command
 from bench.cli.common import ExitCode
 from bench.errors import BenchError
 from drivers.errors import ImuError, TurntableConfigError, TurntableError
@@ -38,6 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     table.register_sim(sub)
     check_table.register(sub)
     export_can.register(sub)
+    noise_command.register(sub)
     return parser
 
 

@@ -28,6 +28,7 @@ from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
 from bench.model.families import BODY_AXES, SENSOR_AXES, canonical_names, family_of
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
 from bench.model.units import ARCSEC
+from bench.noise.result import NoiseResult, NoiseResultError
 from bench.plan.compiler import ORDERS, PlanTiming
 from drivers.errors import ImuConfigError, TurntableConfigError
 from drivers.imu import DEFAULT_DBC, DEFAULT_FD_DBC, DEFAULT_FD_SPEC, DEFAULT_SPEC, ImuFrameSpec, ImuLayout
@@ -52,7 +53,8 @@ MAX_BLACK_BOX_ARCSEC = 3600.0  # RMS or each angle: one degree
 #: [sim.noise] level -> (upper bound, unit); the lower bound is 0 (correlation_time_s: > 0)
 _NOISE_RANGES = {"gyro_arw_deg_rt_h": (10.0, "deg/sqrt(h)"), "gyro_bias_instability_dph": (3600.0, "deg/h"),
                  "acc_vrw_ug_rt_hz": (10000.0, "ug/sqrt(Hz)"), "acc_bias_instability_ug": (100000.0, "ug"),
-                 "correlation_time_s": (1e6, "s")}
+                 "correlation_time_s": (1e6, "s"), "gyro_rrw_dph_rt_h": (1000.0, "deg/h/sqrt(h)"),
+                 "acc_rrw_ug_rt_h": (100000.0, "ug/sqrt(h)")}
 #: [sim.imu] coefficient family -> (lower or None for -upper, upper, unit)
 _SIM_IMU_RANGES = {"Kg": (0.0, 1e6, "counts/s per deg/s"), "Ka": (0.0, 1e6, "counts/s per g"),
                    "D0": (None, 36000.0, "deg/h"), "K0": (None, 1.0, "g"), "Eg": (None, 1.0, ""),
@@ -60,7 +62,7 @@ _SIM_IMU_RANGES = {"Kg": (0.0, 1e6, "counts/s per deg/s"), "Ka": (0.0, 1e6, "cou
 
 __all__ = ["FORMAT", "ORDERS", "SIM_CONFIG_TOML", "SIM_URL", "VERSION", "BenchConfig", "ConfigError",
            "ImuConfig", "ImuIdentity", "OutputConfig", "PlanConfig", "SimConfig", "SiteConfig", "TableConfig",
-           "default_sim_config", "load_config", "load_register_map", "parse_config"]
+           "default_sim_config", "load_config", "load_register_map", "parse_config", "ImuNoise"]
 
 
 @dataclass(frozen=True)
@@ -103,6 +105,15 @@ class ImuIdentity:
 
 
 @dataclass(frozen=True)
+class ImuNoise:
+    """[imu] noise = "FILE": a `bench noise` result whose bias instabilities the solve uses."""
+
+    path: Path
+    gyro_bias_stability_dph: float    # the largest of the three gyros'
+    acc_bias_stability_ug: float      # the largest of the three accelerometers'
+
+
+@dataclass(frozen=True)
 class ImuConfig:
     """[imu]: the CAN bus and the compiled frame layout."""
 
@@ -116,6 +127,7 @@ class ImuConfig:
     layout: ImuLayout
     bus_options: dict = field(default_factory=dict)
     identity: ImuIdentity = ImuIdentity()
+    noise: ImuNoise | None = None     # [imu] noise = "FILE"; its stabilities replace the identity's
 
     def bus_kwargs(self) -> dict:
         """Keyword arguments for `can.Bus(**kwargs)`."""
@@ -329,7 +341,33 @@ def _imu(t: Table) -> ImuConfig:
     identity = ImuIdentity(ident.string("model", ""), ident.string("serial", ""),
                            ident.number("gyro_bias_stability_dph", None, gt=0, le=3600.0, unit="deg/h"),
                            ident.number("acc_bias_stability_ug", None, gt=0, le=100000.0, unit="ug"))
-    return ImuConfig(interface, channel, bitrate, fd, Path(dbc), rate_hz, spec, layout, bus_options, identity)
+    noise = _imu_noise(t) if t.has("noise") else None
+    return ImuConfig(interface, channel, bitrate, fd, Path(dbc), rate_hz, spec, layout, bus_options, identity, noise)
+
+
+def _imu_noise(t: Table) -> ImuNoise:
+    """`noise = "FILE"`: a noise result (`bench noise`) with a bias instability for the gyros and the accelerometers."""
+    path = t.file("noise")
+    if not t.is_file("noise", path):
+        if path.exists():  # a directory, a device such as /dev/zero, a FIFO
+            raise t.error("noise", f"{show(str(path))} is not a regular file (a *.noise.json from `bench noise`)")
+        raise t.error("noise", f"no such noise result file {show(str(path))}")
+    try:
+        result = NoiseResult.load(path)
+    except OSError as exc:
+        raise t.error("noise", f"cannot read {show(str(path))}: {exc.strerror or exc}") from None
+    except NoiseResultError as exc:
+        raise t.error("noise", str(exc).removeprefix(f"{path}: ")) from None
+    values = []
+    for what, value, key, high in (("gyro", result.gyro_bias_stability_dph, "gyro_bias_stability_dph", 3600.0),
+                                   ("accelerometer", result.acc_bias_stability_ug, "acc_bias_stability_ug", 100000.0)):
+        if value is None:
+            raise t.error("noise", f"{show(str(path))} holds no {what} bias instability")
+        if not 0 < value <= high:
+            raise t.error("noise", f"{show(str(path))}: {what} bias instability {value:g} is outside the range of "
+                                   f"imu.identity.{key} (> 0 and <= {high:g})")
+        values.append(value)
+    return ImuNoise(path, values[0], values[1])
 
 
 def _check_dbc(t: Table, dbc: Path) -> None:
@@ -363,7 +401,8 @@ def _schedule(t: Table, key: str, kind: str, revolutions: int | None) -> Schedul
             schedule = resolve_schedule(str(path))
     except ScheduleError as exc:  # it names the schedule file, line and field already
         raise ConfigError(exc.path, exc.line, exc.field, exc.message) from exc
-    if schedule.kind != kind:
+    # a "static" schedule (one long dwell: `bench noise`) runs as a positions schedule
+    if schedule.kind != kind and not (kind == "positions" and schedule.kind == "static"):
         raise t.error(key, f"schedule {schedule.name!r} is a {schedule.kind!r} schedule; plan.{key} needs "
                       f"a {kind!r} schedule")
     if revolutions is not None and schedule.rotations:
@@ -380,6 +419,9 @@ def _plan(t: Table, limits: TurntableLimits) -> PlanConfig:
     if positions is None and rotations is None:
         raise t.error(None, "the plan needs a positions schedule, a rotations schedule or both "
                             "(plan.positions / plan.rotations)")
+    if positions is not None and positions.kind == "static" and rotations is not None:
+        raise t.error("rotations", f"plan.positions {positions.name!r} is a static noise recording (one dwell, "
+                                   "analysed by `bench noise`): leave plan.rotations out")
     values = {"dwell_s": t.number("dwell_s", 60.0, gt=0, le=86400.0, unit="s"),
               "settle_s": t.number("settle_s", 5.0, ge=0, le=3600.0, unit="s"),
               "move_rate_dps": t.number("move_rate_dps", 20.0, ge=MIN_RATE_DPS, le=MAX_RATE_DPS, unit="deg/s"),
@@ -502,7 +544,7 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
     table = _table(root.table("table", ("url", "dialect", "timeout_s", "retries", "settle_tolerance_deg", "poll_s",
                                         "register_map", "modbus", "limits"), required=True))
     imu = _imu(root.table("imu", ("interface", "channel", "bitrate", "fd", "dbc", "rate_hz", "signals",
-                                  "bus_options", "identity"), required=True))
+                                  "bus_options", "identity", "noise"), required=True))
     plan = _plan(root.table("plan", ("positions", "rotations", "dwell_s", "settle_s", "move_rate_dps",
                                      "move_accel_dps2", "turn_rate_dps", "turn_accel_dps2", "rest_s", "revolutions",
                                      "order"), required=True), table.limits)

@@ -324,6 +324,18 @@ class McapRecorder(RunListener):
         self.frames_written += len(frames)
         self._tick()
 
+    def on_encoded_can_frames(self, payload: bytes, count: int, newest_s: float) -> None:
+        """A batch of `count` frames already in the `/can/raw` encoding (`bench.log.format`), newest at
+        `newest_s`: what a bulk writer (a benchmark's synthetic log, a converter) hands over without
+        building a python-can message per frame."""
+        self._check_open()
+        if not count:
+            return
+        self._run_clock(time_ns(newest_s))
+        self._io(self._put, TOPIC_CAN, time_ns(newest_s), payload)
+        self.frames_written += count
+        self._tick()
+
     def flush(self) -> None:
         """Close the open chunk and push everything to the OS now."""
         self._check_open()

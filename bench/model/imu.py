@@ -121,7 +121,10 @@ class NoiseModel:
     """Sensor noise of the simulated IMU (display units; zero disables a term).
 
     Bias instability is a first-order Gauss-Markov process with the given 1-sigma
-    and correlation time.
+    and correlation time (its Allan deviation peaks at 0.617 sigma at tau = 1.89
+    correlation times, which IEEE 952's flat-region rule B = min ADEV / 0.664 reads as
+    0.929 sigma: see `bench.noise.theory`). Rate random walk: a bias that random-walks
+    from 0 (Allan slope +1/2), off by default.
     """
 
     gyro_arw_deg_rt_h: float = 0.002            # angle random walk, deg/sqrt(h)
@@ -130,6 +133,8 @@ class NoiseModel:
     acc_bias_instability_ug: float = 2.0        # ug
     correlation_time_s: float = 300.0
     quantise: bool = True                       # integer counts per sample, remainder carried
+    gyro_rrw_dph_rt_h: float = 0.0              # rate random walk (a bias that random-walks), deg/h/sqrt(h)
+    acc_rrw_ug_rt_h: float = 0.0                # accelerometer bias random walk, ug/sqrt(h)
 
     @classmethod
     def off(cls) -> "NoiseModel":
@@ -138,7 +143,8 @@ class NoiseModel:
     @property
     def enabled(self) -> bool:
         return bool(self.gyro_arw_deg_rt_h or self.gyro_bias_instability_dph or self.acc_vrw_ug_rt_hz
-                    or self.acc_bias_instability_ug or self.quantise)
+                    or self.acc_bias_instability_ug or self.quantise or self.gyro_rrw_dph_rt_h
+                    or self.acc_rrw_ug_rt_h)
 
 
 __all__ = ["ImuCoefficients", "NoiseModel", "default_sim_imu"]

@@ -202,7 +202,7 @@ def _build_units(positions: Schedule | None, rotations: Schedule | None, timing:
                  limits: TurntableLimits) -> tuple[list[_Unit], list[_Unit]]:
     pos_units, rot_units = [], []
     if positions is not None:
-        if positions.kind not in ("positions", "table-check"):
+        if positions.kind not in ("positions", "table-check", "static"):
             raise PlanError(f"schedule {positions.name!r} is a {positions.kind!r} schedule, not positions")
         width = max(2, len(str(len(positions.positions))))
         for i, p in enumerate(positions.positions):

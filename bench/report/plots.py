@@ -238,3 +238,45 @@ def sigma_bars_figure(names: list[str], z: list[float | None], threshold: float,
         ax.set_ylabel("sigma")
         ax.set_title(title)
     return to_svg(fig)
+
+
+#: Noise terms of an Allan figure: result key -> (slope label, colour).
+ALLAN_TERMS = {"quantisation": ("-1: quantisation", "#9467bd"), "arw": ("-1/2: ARW", "#1f77b4"),
+               "vrw": ("-1/2: VRW", "#1f77b4"), "bias_instability": ("0: bias instability (x0.664)", "#2ca02c"),
+               "rrw": ("+1/2: RRW", "#d62728")}
+
+
+def allan_figure(channels: Sequence[tuple[str, dict, dict[str, np.ndarray]]]) -> str:
+    """Log-log Allan deviation of each channel (points with +-1 sigma bars) and its fitted term lines.
+
+    `channels`: (name, the result's channel dict, {term: line values at the channel's taus}); a line is
+    drawn thin over all taus and thick over the region it was fitted on.
+    """
+    for name, ch, lines in channels:
+        check_drawable(f"the Allan deviation of {name}", ch["tau_s"], ch["adev"], ch["adev_low"], ch["adev_high"],
+                       *lines.values())
+    rows = -(-len(channels) // 2)
+    with plt.rc_context(_RC):
+        fig, axes = _figure(rows, 2, 10.0, 3.0 * rows + 0.2, hgap_in=0.75, wgap_in=0.8, bottom_in=0.55)
+        for ax in axes.reshape(-1)[len(channels):]:
+            ax.set_visible(False)
+        for ax, (name, ch, lines) in zip(axes.reshape(-1), channels):
+            tau = np.asarray(ch["tau_s"], float)
+            adev = np.asarray(ch["adev"], float)
+            err = np.vstack([adev - np.asarray(ch["adev_low"], float), np.asarray(ch["adev_high"], float) - adev])
+            ax.errorbar(tau, adev, yerr=err, fmt="o", ms=3, color="#333333", capsize=2, lw=0.8, label="ADEV")
+            for term, line in lines.items():
+                label, color = ALLAN_TERMS[term]
+                ax.plot(tau, line, ls="--", lw=0.8, color=color)
+                points = ch["terms"][term]["points"]
+                ax.plot(tau[points], line[points], lw=3.0, alpha=0.6, color=color, label=label)
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            low = float(np.nanmin(np.asarray(ch["adev_low"], float)[np.asarray(ch["adev_low"], float) > 0],
+                                  initial=float(adev.min())))
+            ax.set_ylim(low / 2.0, float(np.max(ch["adev_high"])) * 2.0)
+            ax.set_xlabel("tau, s")
+            ax.set_ylabel(f"Allan deviation, {ch['unit']}")
+            ax.set_title(name)
+            ax.legend(loc="lower left", fontsize=6.5, frameon=False)
+    return to_svg(fig)

@@ -25,10 +25,12 @@ from bench.errors import BenchError
 from bench.log.reader import read_log
 from bench.log.recorder import CHUNK_RUN_INTERVAL_S, McapRecorder
 from bench.model.result import CalibrationResult
+from bench.noise.from_log import NoiseInputError, analyse_log
 from bench.plan.compiler import CompiledPlan, compile_plan
 from bench.plan.events import RunListener, RunState
 from bench.plan.steps import step_to_dict
 from bench.report.markdown import write_reports
+from bench.report.noise import write_noise_outputs
 from bench.run.imu_check import check_imu_stream
 from bench.run.sequencer import ListenerError, Sequencer, SequencerOptions, describe_listener_error
 from bench.sim.world import SimWorld
@@ -272,6 +274,8 @@ class BenchRun:
             error = ListenerError(describe_listener_error(recorder, broken))
             return RunOutcome(seq.state, self.log_path, error=error)
         recorder.flush()
+        if self.is_static_noise:
+            return self._finish_noise(seq.state, receiver, recorder)
         logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
         config, identity = self.config, self.config.imu.identity
         gyro_stability, acc_stability = bias_stabilities(config, self.sim)
@@ -302,6 +306,34 @@ class BenchRun:
         return RunOutcome(seq.state, self.log_path, result_path, report_path, result, failures,
                           html_report_path=html_report_path)
 
+    @property
+    def is_static_noise(self) -> bool:
+        """A plan of one long dwell (a "static" schedule): analysed by `bench noise`, not solved."""
+        positions = self.config.plan.positions
+        return positions is not None and positions.kind == "static"
+
+    def _finish_noise(self, state: RunState, receiver: ImuReceiver, recorder: McapRecorder) -> RunOutcome:
+        """The Allan deviation and noise terms of the dwell just recorded: `<run-id>.noise.json/.md/.html`.
+
+        On the simulator the outputs become deg/h and ug with the simulated IMU's true scales; a
+        hardware log needs a calibration's (`bench noise LOG --calibration RESULT.json`)."""
+        failures = []
+        if receiver.stats.lost_samples:
+            failures.append(f"IMU link lost samples: {receiver.stats.summary()}")
+        try:
+            result, _ = analyse_log(self.log_path, still_open=True)
+        except NoiseInputError as exc:
+            recorder.close()
+            failures.append(f"noise not analysed: {exc}; analyse the log with `bench noise {self.log_path} "
+                            "--calibration RESULT.json`")
+            return RunOutcome(state, self.log_path, failures=failures)
+        result.source["operator"] = self.operator
+        json_path, md_path, html_path = write_noise_outputs(result, self.out_dir, self.run_id)
+        recorder.add_attachment(json_path.name, "application/json", json_path.read_bytes())
+        recorder.close()
+        return RunOutcome(state, self.log_path, json_path, md_path, None, failures + list(result.source["damage"]),
+                          html_report_path=html_path)
+
     def close(self) -> None:
         self._stack.close()
 
@@ -315,10 +347,14 @@ class BenchRun:
 def bias_stabilities(config, sim: bool) -> tuple[float | None, float | None]:
     """(gyro deg/h, accelerometer ug) bias instabilities the solver adds to the bias sigmas.
 
-    The IMU identity's datasheet values; on the simulator with noise on, the simulated
-    IMU's own where the identity gives none (it is what its datasheet would say).
+    A measured noise result (`[imu] noise = "FILE"`, from `bench noise`: the largest of
+    the three axes' Allan bias instability) first; else the IMU identity's datasheet
+    values; on the simulator with noise on, the simulated IMU's own where neither gives
+    one (it is what its datasheet would say).
     """
-    identity = config.imu.identity
+    identity, noise = config.imu.identity, config.imu.noise
+    if noise is not None:
+        return noise.gyro_bias_stability_dph, noise.acc_bias_stability_ug
     gyro_stability, acc_stability = identity.gyro_bias_stability_dph, identity.acc_bias_stability_ug
     if sim and config.sim.noise.enabled:
         if gyro_stability is None:

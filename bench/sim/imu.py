@@ -23,7 +23,7 @@ from bench.sim.table import SimTable
 COUNTER_MODULUS = 2 ** 32
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(3)
 # Independent random streams, so that switching one noise term off leaves the others unchanged.
-_STREAMS = ("gyro_white", "acc_white", "gyro_gm", "acc_gm", "quantise")
+_STREAMS = ("gyro_white", "acc_white", "gyro_gm", "acc_gm", "quantise", "gyro_rrw", "acc_rrw")
 
 
 @dataclass
@@ -83,6 +83,21 @@ class _GaussMarkov:
         return y
 
 
+class _RandomWalk:
+    """A bias that random-walks from 0 per channel (rate random walk): state carried across calls."""
+
+    def __init__(self, step_sigma: float, rng: np.random.Generator):
+        self.step_sigma, self.rng = step_sigma, rng
+        self.state = np.zeros(3)
+
+    def draw(self, n: int) -> np.ndarray:
+        if self.step_sigma <= 0 or n == 0:
+            return np.zeros((n, 3))
+        walk = self.state + np.cumsum(self.step_sigma * self.rng.standard_normal((n, 3)), axis=0)
+        self.state = walk[-1].copy()
+        return walk
+
+
 class _Quantiser:
     """Integer counts per sample: accumulated output = floor(r0 + cumulative true count)."""
 
@@ -113,11 +128,16 @@ class SimImu:
         self.coefficients, self.noise = coefficients, noise
         self.rate_hz, self.start_time_s = float(rate_hz), float(start_time_s)
         self._done = 0  # samples generated so far
-        rngs = dict(zip(_STREAMS, (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(5))))
+        # (spawned children depend on their index only: adding streams at the end leaves the others as they were)
+        seeds = np.random.SeedSequence(seed).spawn(len(_STREAMS))
+        rngs = dict(zip(_STREAMS, (np.random.default_rng(s) for s in seeds)))
         self._rng = rngs
         dt, tau = 1.0 / self.rate_hz, noise.correlation_time_s
         self._gyro_gm = _GaussMarkov(noise.gyro_bias_instability_dph * DEG_PER_HOUR, tau, dt, rngs["gyro_gm"])
         self._acc_gm = _GaussMarkov(noise.acc_bias_instability_ug * MICRO_G, tau, dt, rngs["acc_gm"])
+        # Rate random walk K (per sqrt(h)): a step of K / 60 * sqrt(dt) per sample (1/sqrt(h) = 1/60 per sqrt(s)).
+        self._gyro_rw = _RandomWalk(noise.gyro_rrw_dph_rt_h * DEG_PER_HOUR / 60.0 * math.sqrt(dt), rngs["gyro_rrw"])
+        self._acc_rw = _RandomWalk(noise.acc_rrw_ug_rt_h * MICRO_G / 60.0 * math.sqrt(dt), rngs["acc_rrw"])
         # White noise, 1-sigma per sample in input units (rad/s, m/s^2).
         self._gyro_sigma = noise.gyro_arw_deg_rt_h * DEG / 60.0 * math.sqrt(self.rate_hz)
         self._acc_sigma = noise.acc_vrw_ug_rt_hz * MICRO_G * math.sqrt(self.rate_hz)
@@ -174,10 +194,10 @@ class SimImu:
         n = len(n_idx)
         gyro, acc = self._true_increments(table, a, b) if n else (np.zeros((0, 3)), np.zeros((0, 3)))
         dt = 1.0 / self.rate_hz
-        gyro_noise = self._gyro_gm.draw(n)
+        gyro_noise = self._gyro_gm.draw(n) + self._gyro_rw.draw(n)
         if self._gyro_sigma > 0:
             gyro_noise = gyro_noise + self._gyro_sigma * self._rng["gyro_white"].standard_normal((n, 3))
-        acc_noise = self._acc_gm.draw(n)
+        acc_noise = self._acc_gm.draw(n) + self._acc_rw.draw(n)
         if self._acc_sigma > 0:
             acc_noise = acc_noise + self._acc_sigma * self._rng["acc_white"].standard_normal((n, 3))
         gyro = gyro + self.coefficients.gyro_scale * gyro_noise * dt

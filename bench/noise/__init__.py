@@ -1,0 +1,1 @@
+"""Noise characterisation of a static recording: Allan deviation and its noise terms (IEEE Std 952)."""
