@@ -12,7 +12,9 @@ import select
 import sys
 
 from bench import __version__
+from bench.cli import apply as apply_cli
 from bench.cli import check_table, evaluate, replay, run, schedules, solve, table, tui
+from bench.cli import export as export_cli
 from bench.cli.common import ExitCode
 from bench.errors import BenchError
 from drivers.errors import ImuError, TurntableConfigError, TurntableError
@@ -37,6 +39,8 @@ def build_parser() -> argparse.ArgumentParser:
     table.register_table(sub)
     table.register_sim(sub)
     check_table.register(sub)
+    export_cli.register(sub)
+    apply_cli.register(sub)
     return parser
 
 
