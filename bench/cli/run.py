@@ -91,8 +91,20 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
         return fail(PROG, f"{outcome.state.value}: {outcome.error}; table stopped. Log: {outcome.log_path} "
                      f"(continue with --resume {outcome.log_path})", ExitCode.FAULT)
     if not args.quiet:
-        print(f"log:    {outcome.log_path}\nresult: {outcome.result_path}\nreport: {outcome.report_path}, "
-              f"{outcome.html_report_path}")
-    if outcome.failures:
-        return fail(PROG, "quality check failed: " + "; ".join(outcome.failures), ExitCode.QUALITY)
+        print(f"log:    {outcome.log_path}")
+    # the summary, also with --quiet: the verdict, its worst check, where the result and reports are
+    print(run_summary(outcome))
+    if outcome.verdict is not None and not outcome.verdict.passed:
+        return fail(PROG, "quality check failed: " + "; ".join(c.describe() for c in outcome.verdict.failed),
+                    ExitCode.QUALITY)
     return ExitCode.OK
+
+
+def run_summary(outcome) -> str:
+    """Three lines: `verdict: PASS (...)`, `worst:   ...`, `result:  FILE  report: FILE, FILE`."""
+    verdict = outcome.verdict
+    worst = verdict.worst if verdict is not None else None
+    reports = ", ".join(str(p) for p in (outcome.report_path, outcome.html_report_path) if p is not None)
+    return (f"verdict: {verdict.headline() if verdict is not None else 'none'}\n"
+            f"worst:   {worst.describe() if worst is not None else 'no checks'}\n"
+            f"result:  {outcome.result_path}  report: {reports}")

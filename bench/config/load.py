@@ -23,6 +23,8 @@ from typing import Any
 import can.interfaces
 import numpy as np
 
+from bench.acceptance.limits import AcceptanceLimits
+from bench.config.acceptance import ACCEPTANCE_KEYS, acceptance_limits
 from bench.config.reader import ConfigError, Located, Table, describe, parse_toml, read_text, show, suggest
 from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
 from bench.model.families import BODY_AXES, SENSOR_AXES, canonical_names, family_of
@@ -168,6 +170,7 @@ class BenchConfig:
     sim: SimConfig
     source_text: str = field(repr=False)
     path: Path | None = None  # None when parsed from a string
+    acceptance: AcceptanceLimits = field(default_factory=AcceptanceLimits)  # [acceptance]: limits of the verdict
 
 
 # --- sections -----------------------------------------------------------------------
@@ -485,7 +488,8 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
     paths start at `base_dir` (default: the current directory)."""
     doc = parse_toml(text, source)
     located = Located(source, locate_lines(text), Path.cwd() if base_dir is None else Path(base_dir))
-    root = Table(located, (), doc, ("format", "version", "site", "table", "imu", "plan", "output", "sim"))
+    root = Table(located, (), doc, ("format", "version", "site", "table", "imu", "plan", "output", "sim",
+                                       "acceptance"))
     fmt = root.string("format")
     if fmt != FORMAT:
         raise root.error("format", f"expected {FORMAT!r}, got {show(fmt)}")
@@ -504,7 +508,8 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
     output = OutputConfig(out.path_value("folder", out.string("folder", "runs", nonempty=True)),
                           out.number("chunk_run_interval_s", None, gt=0, ge=0.01, le=3600.0, unit="s"))
     sim = _sim(root.table("sim", ("seed", "black_box_arcsec", "noise", "imu")))
-    return BenchConfig(site, table, imu, plan, output, sim, source_text=text)
+    acceptance = acceptance_limits(root.table("acceptance", ACCEPTANCE_KEYS))
+    return BenchConfig(site, table, imu, plan, output, sim, source_text=text, acceptance=acceptance)
 
 
 def load_config(path: str | Path) -> BenchConfig:

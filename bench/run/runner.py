@@ -20,6 +20,8 @@ from typing import Iterable
 import can
 
 from bench import __version__
+from bench.acceptance.limits import AcceptanceLimits
+from bench.acceptance.verdict import Verdict, judge
 from bench.config.load import BenchConfig
 from bench.errors import BenchError
 from bench.log.reader import read_log
@@ -51,6 +53,7 @@ class RunOutcome:
     failures: list[str] = field(default_factory=list)
     error: BaseException | None = None
     html_report_path: Path | None = None
+    verdict: Verdict | None = None        # the acceptance verdict of the result (None: no result)
 
 
 def compile_from_config(config: BenchConfig) -> CompiledPlan:
@@ -157,6 +160,9 @@ class BenchRun:
             path = schedule_file(schedule)
             if path is not None:
                 recorder.add_attachment(path.name, "application/toml", path.read_bytes())
+        if config.acceptance.reference_path:
+            reference = Path(config.acceptance.reference_path)
+            recorder.add_attachment(reference.name, "application/json", reference.read_bytes())
 
     def _metadata(self) -> dict:
         config, identity = self.config, self.config.imu.identity
@@ -242,6 +248,9 @@ class BenchRun:
                     "site": config.site.site.to_dict(), "quality_failures": failures,
                     "imu_link": receiver.stats.as_dict()}
         result = solution.calibration.to_result(run=run_info, sim_truth=config.sim.imu if self.sim else None)
+        verdict = judge(result, config.acceptance, lost_samples=receiver.stats.lost_samples,
+                        quality_failures=judged_failures(failures, config.acceptance))
+        result.verdict = verdict.to_json()
         result_path = self.out_dir / f"{self.run_id}.result.json"
         result.save(result_path)
         report_path, html_report_path = write_reports(
@@ -251,7 +260,7 @@ class BenchRun:
         recorder.add_attachment(result_path.name, "application/json", result_path.read_bytes())
         recorder.close()
         return RunOutcome(seq.state, self.log_path, result_path, report_path, result, failures,
-                          html_report_path=html_report_path)
+                          html_report_path=html_report_path, verdict=verdict)
 
     def close(self) -> None:
         self._stack.close()
@@ -279,12 +288,24 @@ def bias_stabilities(config, sim: bool) -> tuple[float | None, float | None]:
     return gyro_stability, acc_stability
 
 
+#: how `quality_failures` words the two failures an [acceptance] limit can take over
+LOST_SAMPLES_FAILURE, OUTLIERS_FAILURE = "IMU link lost samples", "residual outliers beyond the outlier threshold"
+
+
 def quality_failures(solution, live_stats) -> list[str]:
     """Why a finished run's result should not be trusted as is (empty = passed)."""
     failures = list(solution.extraction.problems) + list(solution.damage)
     outliers = solution.calibration.quality().get("outliers", [])
     if outliers:
-        failures.append(f"{len(outliers)} residual outliers beyond the outlier threshold")
+        failures.append(f"{len(outliers)} {OUTLIERS_FAILURE}")
     if live_stats.lost_samples:
-        failures.append(f"IMU link lost samples: {live_stats.summary()}")
+        failures.append(f"{LOST_SAMPLES_FAILURE}: {live_stats.summary()}")
     return failures
+
+
+def judged_failures(failures: list[str], limits: AcceptanceLimits) -> list[str]:
+    """The quality failures that fail the verdict as they are: lost samples and residual outliers are
+    judged by `max_lost_samples` and `max_residual_sigma` instead when the configuration sets them."""
+    return [f for f in failures
+            if not (limits.max_lost_samples is not None and f.startswith(LOST_SAMPLES_FAILURE))
+            and not (limits.max_residual_sigma is not None and f.endswith(OUTLIERS_FAILURE))]
