@@ -31,10 +31,11 @@ EXPECTED_COUNTS = {
     "traditional-3s6r": ("rotations", 6),
     "all-96": ("rotations", 96),
     "table-check-324": ("table-check", 324),
+    "verify-default": ("verification", 34),
 }
 
 
-def test_builtin_names_are_the_seven_shipped_files():
+def test_builtin_names_are_the_eight_shipped_files():
     assert schedules.builtin_names() == sorted(EXPECTED_COUNTS)
 
 
@@ -286,7 +287,7 @@ def run_cli(argv: list[str]) -> int:
 def test_cli_list(capsys):
     assert run_cli(["schedules", "list"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert len(lines) == 7
+    assert len(lines) == len(EXPECTED_COUNTS)
     fields = {line.split()[0]: line.split()[1:3] for line in lines}
     assert fields == {name: [kind, str(count)] for name, (kind, count) in EXPECTED_COUNTS.items()}
 

@@ -6,13 +6,18 @@ overrides its family key by key), in the result's units (`bench.model.families`)
 (largest |value - reference|, the reference being `nominal` when given, else the same
 coefficient in `[acceptance] reference`, the IMU's previous or nominal result file).
 Run-wide: `max_lost_samples` (IMU samples lost on the link), `max_residual_sigma` (largest
-|residual| / sigma of a position or rotation).
+|residual| / sigma of a position or rotation). `[acceptance.verification]`: the largest
+|error| after compensation on the verification plan, per quantity (`VERIFICATION_LIMITS`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
 
+#: `[acceptance.verification]` key -> (unit, upper bound of the limit)
+VERIFICATION_LIMITS = {"gyro_bias_dph": ("deg/h", 3600.0), "gyro_scale_ppm": ("ppm", 1e6),
+                       "gyro_misalignment_arcsec": ("arcsec", 3600.0), "acc_bias_ug": ("ug", 1e6),
+                       "acc_scale_ppm": ("ppm", 1e6), "acc_misalignment_arcsec": ("arcsec", 3600.0)}
 #: the keys of one family's or coefficient's limits, in the order checks are listed
 COEFFICIENT_KEYS = ("min", "max", "max_sigma", "max_change", "nominal")
 
@@ -49,10 +54,12 @@ class AcceptanceLimits:
     reference: dict[str, float] = field(default_factory=dict)
     reference_name: str = ""
     reference_path: str = ""      # the file, attached to the run log (a re-solve elsewhere finds it there)
+    #: `[acceptance.verification]`: verification quantity (`gyro_bias_dph`, ...) -> largest |error|
+    verification: dict[str, float] = field(default_factory=dict)
 
     def for_coefficient(self, name: str, family: str) -> CoefficientLimits:
         own = self.coefficients.get(name, CoefficientLimits())
         return own.over(self.families.get(family, CoefficientLimits()))
 
 
-__all__ = ["COEFFICIENT_KEYS", "AcceptanceLimits", "CoefficientLimits"]
+__all__ = ["COEFFICIENT_KEYS", "VERIFICATION_LIMITS", "AcceptanceLimits", "CoefficientLimits"]

@@ -12,6 +12,7 @@ import argparse
 from pathlib import Path
 
 from bench.cli.common import ExitCode, fail, raise_interrupted, run_plan, stop_signals
+from bench.cli.verify import run_verification
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -46,6 +47,7 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
     from bench.run.resume import resume_point
     from bench.run.runner import BenchRun, compile_from_config
     from bench.solve.methods import SolverError
+    from bench.verify.plan import format_errors
 
     if not args.config and not args.sim:
         return fail(PROG, "say --config FILE or --sim", ExitCode.USAGE)
@@ -92,19 +94,50 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
                      f"(continue with --resume {outcome.log_path})", ExitCode.FAULT)
     if not args.quiet:
         print(f"log:    {outcome.log_path}")
+    verified = None
+    if config.plan.verification is not None and outcome.result is not None and outcome.result_path is not None:
+        # after the calibration, on data it did not use; its checks join the result's verdict
+        code, verified = run_verification(config, outcome.result, calibration_label=outcome.result_path.name,
+                                          sim=sim, out_dir=out_dir, run_id=f"{run.run_id}-verify", quiet=args.quiet,
+                                          prog=PROG, operator=args.operator)
+        if code is not None or verified is None:
+            return code if code is not None else ExitCode.FAULT
+        if not args.quiet:
+            print(format_errors(verified.verification))
+        add_verification(outcome, verified, config)
     # the summary, also with --quiet: the verdict, its worst check, where the result and reports are
-    print(run_summary(outcome))
+    print(run_summary(outcome, verified))
     if outcome.verdict is not None and not outcome.verdict.passed:
         return fail(PROG, "quality check failed: " + "; ".join(c.describe() for c in outcome.verdict.failed),
                     ExitCode.QUALITY)
     return ExitCode.OK
 
 
-def run_summary(outcome) -> str:
-    """Three lines: `verdict: PASS (...)`, `worst:   ...`, `result:  FILE  report: FILE, FILE`."""
+def run_summary(outcome, verified=None) -> str:
+    """Three lines: `verdict: PASS (...)`, `worst:   ...`, `result:  FILE  report: FILE, FILE[  verification: FILE]`."""
     verdict = outcome.verdict
     worst = verdict.worst if verdict is not None else None
     reports = ", ".join(str(p) for p in (outcome.report_path, outcome.html_report_path) if p is not None)
+    verification = f"  verification: {verified.md_path}" if verified is not None else ""
     return (f"verdict: {verdict.headline() if verdict is not None else 'none'}\n"
             f"worst:   {worst.describe() if worst is not None else 'no checks'}\n"
-            f"result:  {outcome.result_path}  report: {reports}")
+            f"result:  {outcome.result_path}  report: {reports}{verification}")
+
+
+def add_verification(outcome, verified, config) -> None:
+    """The verification's checks into the result's verdict; the result file and its reports written again."""
+    # imported when the command runs: `bench` starts without the bench core
+    from bench.acceptance.verdict import Verdict
+    from bench.log.reader import read_log
+    from bench.report.markdown import write_reports
+
+    outcome.verdict = Verdict([*outcome.verdict.checks, *verified.checks])
+    result = outcome.result
+    result.verdict = outcome.verdict.to_json()
+    result.run["verification"] = {"file": verified.json_path.name, "log": verified.log_path.name,
+                                  "errors": len(verified.verification.errors)}
+    result.save(outcome.result_path)
+    run_id = outcome.result_path.name.removesuffix(".result.json")
+    write_reports(result, outcome.result_path.parent, run_id, log=read_log(str(outcome.log_path)),
+                  layout=config.imu.layout, problems=outcome.problems, failures=outcome.failures,
+                  imu_link=result.run.get("imu_link"), title=f"Calibration report {run_id}")

@@ -4,13 +4,14 @@ Ranges (documented in the README's "Input limits"): per family or coefficient, `
 and `nominal` within the family's value range (`VALUE_RANGES`, result units), `min` below
 `max` and both or neither; `max_sigma` and `max_change` > 0 and at most the width of that
 range; `max_change` needs a `nominal` or `[acceptance] reference`. `max_lost_samples`
-0..1e9, `max_residual_sigma` > 0 and <= 1e6. `reference` is a result file of at most 1 MiB,
-read and checked here (so a bad one is refused before anything moves).
+0..1e9, `max_residual_sigma` > 0 and <= 1e6. `[acceptance.verification]`: the largest |error|
+per verification quantity, > 0 and at most 3600 deg/h, 1e6 ppm, 3600 arcsec or 1e6 ug.
+`reference` is a result file of at most 1 MiB, read and checked here (so a bad one is refused before anything moves).
 """
 
 from __future__ import annotations
 
-from bench.acceptance.limits import COEFFICIENT_KEYS, AcceptanceLimits, CoefficientLimits
+from bench.acceptance.limits import COEFFICIENT_KEYS, VERIFICATION_LIMITS, AcceptanceLimits, CoefficientLimits
 from bench.config.reader import ConfigError, Table, read_text, show
 from bench.model.families import FAMILY_INFO, canonical_names, family_of
 from bench.model.result import CalibrationResult, ResultFormatError
@@ -21,7 +22,8 @@ VALUE_RANGES = {"Kg": (0.0, 1e9, "counts/s per deg/s"), "Ka": (0.0, 1e9, "counts
                 "Ea": (-1.0, 1.0, "")}
 MAX_LOST_SAMPLES = 10 ** 9
 MAX_RESIDUAL_SIGMA = 1e6
-ACCEPTANCE_KEYS = ("max_lost_samples", "max_residual_sigma", "reference", *FAMILY_INFO, *canonical_names())
+ACCEPTANCE_KEYS = ("max_lost_samples", "max_residual_sigma", "reference", "verification", *FAMILY_INFO,
+                   *canonical_names())
 
 
 def _limits(t: Table, family: str) -> CoefficientLimits:
@@ -36,6 +38,16 @@ def _limits(t: Table, family: str) -> CoefficientLimits:
     if values["min"] is not None and values["max"] is not None and not values["min"] < values["max"]:
         raise t.error("max", f"must be above min ({values['min']:g}), got {values['max']:g}")
     return CoefficientLimits(**values)
+
+
+def _verification(t: Table) -> dict[str, float]:
+    v = t.table("verification", VERIFICATION_LIMITS)
+    out = {}
+    for key, (unit, high) in VERIFICATION_LIMITS.items():
+        value = v.number(key, None, gt=0, le=high, unit=unit)
+        if value is not None:
+            out[key] = value
+    return out
 
 
 def acceptance_limits(t: Table) -> AcceptanceLimits:
@@ -63,7 +75,7 @@ def acceptance_limits(t: Table) -> AcceptanceLimits:
     limits = AcceptanceLimits(families, coefficients,
                               t.integer("max_lost_samples", None, ge=0, le=MAX_LOST_SAMPLES),
                               t.number("max_residual_sigma", None, gt=0, le=MAX_RESIDUAL_SIGMA, unit="sigma"),
-                              reference, reference_name, reference_path)
+                              reference, reference_name, reference_path, _verification(t))
     if not reference:
         for name in canonical_names():
             merged = limits.for_coefficient(name, family_of(name))

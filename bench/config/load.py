@@ -135,6 +135,8 @@ class PlanConfig(PlanTiming):
     # every step's revolutions already overridden by `revolutions`
     rotations: Schedule | None = field(default=None, kw_only=True)
     order: str = field(default="optimal", kw_only=True)
+    #: the verification schedule (`[plan] verification`): run after the calibration, None: none
+    verification: Schedule | None = field(default=None, kw_only=True)
 
 
 @dataclass(frozen=True)
@@ -398,7 +400,9 @@ def _plan(t: Table, limits: TurntableLimits) -> PlanConfig:
                 unit = "deg/s" if key.endswith("_dps") else "deg/s^2"
                 raise t.error(key, f"{values[key]:g} {unit} exceeds the {FRAMES[frame]} axis limit {limit:g} "
                                    f"{unit} (table.limits.{FRAMES[frame]}.{attr})")
-    return PlanConfig(positions=positions, rotations=rotations, revolutions=revolutions, order=order, **values)
+    verification = _schedule(t, "verification", "verification", None)
+    return PlanConfig(positions=positions, rotations=rotations, revolutions=revolutions, order=order,
+                      verification=verification, **values)
 
 
 def _black_box(t: Table, seed: int) -> tuple[float | tuple, np.ndarray]:
@@ -503,7 +507,7 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
                                   "bus_options", "identity"), required=True))
     plan = _plan(root.table("plan", ("positions", "rotations", "dwell_s", "settle_s", "move_rate_dps",
                                      "move_accel_dps2", "turn_rate_dps", "turn_accel_dps2", "rest_s", "revolutions",
-                                     "order"), required=True), table.limits)
+                                     "order", "verification"), required=True), table.limits)
     out = root.table("output", ("folder", "chunk_run_interval_s"))
     output = OutputConfig(out.path_value("folder", out.string("folder", "runs", nonempty=True)),
                           out.number("chunk_run_interval_s", None, gt=0, ge=0.01, le=3600.0, unit="s"))

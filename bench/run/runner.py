@@ -33,7 +33,8 @@ from bench.plan.steps import step_to_dict
 from bench.report.markdown import write_reports
 from bench.run.sequencer import ListenerError, Sequencer, SequencerOptions, describe_listener_error
 from bench.sim.world import SimWorld
-from bench.solve.from_logs import solve_logs
+from bench.solve.extract import Extraction
+from bench.solve.from_logs import extract_from_logs, solve_logs
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.imu.receiver import ImuReceiver
 from drivers.turntable import Turntable, open_turntable
@@ -54,6 +55,7 @@ class RunOutcome:
     error: BaseException | None = None
     html_report_path: Path | None = None
     verdict: Verdict | None = None        # the acceptance verdict of the result (None: no result)
+    problems: list[str] = field(default_factory=list)   # steps left out or degraded (the extraction's lines)
 
 
 def compile_from_config(config: BenchConfig) -> CompiledPlan:
@@ -86,14 +88,15 @@ class BenchRun:
 
     def __init__(self, config: BenchConfig, plan: CompiledPlan, *, sim: bool, out_dir: str | Path, operator: str = "",
                  completed: Iterable[str] = (), previous_logs: Iterable[str] = (),
-                 listeners: Iterable[RunListener] = ()):
+                 listeners: Iterable[RunListener] = (), run_id: str | None = None):
         self.config, self.plan, self.sim = config, plan, sim
         self.out_dir = Path(out_dir)
         self.operator = operator
         self.completed = set(completed)
         self.previous_logs = list(previous_logs)
         self.extra_listeners = list(listeners)
-        self.run_id = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + "-" + secrets.token_hex(3)
+        # (`run_id`: a name of the caller's, e.g. a verification run named after its calibration run)
+        self.run_id = run_id or time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + "-" + secrets.token_hex(3)
         self.log_path = self.out_dir / f"{self.run_id}.mcap"
         # set by open() and run(); None before
         self.world: SimWorld | None = None
@@ -260,7 +263,26 @@ class BenchRun:
         recorder.add_attachment(result_path.name, "application/json", result_path.read_bytes())
         recorder.close()
         return RunOutcome(seq.state, self.log_path, result_path, report_path, result, failures,
-                          html_report_path=html_report_path, verdict=verdict)
+                          html_report_path=html_report_path, verdict=verdict,
+                          problems=list(solution.extraction.problems))
+
+    def finish_observations(self) -> tuple[Extraction | None, BaseException | None]:
+        """For a run that is not solved (a verification): close the log and extract its observations.
+
+        Returns (observations, None), or (None, the error) when the run failed."""
+        _, receiver, recorder, _ = self._opened()
+        seq = self.sequencer
+        if seq is None or seq.error is not None:
+            recorder.close()
+            return None, seq.error if seq is not None else BenchError("the run did not start")
+        recorder.close()
+        config = self.config
+        extraction, _, damage = extract_from_logs([read_log(str(self.log_path))], config.site.site,
+                                                  config.imu.layout, config.imu.rate_hz)
+        extraction.problems += damage
+        if receiver.stats.lost_samples:
+            extraction.problems.append(f"{LOST_SAMPLES_FAILURE}: {receiver.stats.summary()}")
+        return extraction, None
 
     def close(self) -> None:
         self._stack.close()
