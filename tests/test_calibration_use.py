@@ -9,6 +9,7 @@ and run against it when a C compiler is present.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
@@ -32,6 +33,7 @@ from bench.model.result import CalibrationResult, coefficient_table
 from bench.model.units import DEG, G0
 from bench.sim.imu import SimImu
 from bench.sim.table import SimTable
+from drivers.imu import DEFAULT_FD_DBC
 from tests.helpers.run import CAN_RESOLUTION_COUNTS, RATE_HZ, api_run, cli, config_text
 
 UNIT_IMU = ImuCoefficients(np.ones(3), np.zeros(3), np.eye(3), np.ones(3), np.zeros(3), np.eye(3))
@@ -169,11 +171,23 @@ def test_the_c_header_keeps_hostile_text_inside_its_comment(compensation):
 
 # -- bench apply on a recorded noise-free run ----------------------------------------------------
 
-@pytest.fixture(scope="module")
-def noise_free_run(tmp_path_factory):
-    """A noise-free run on an ideal table (the short plan), its world kept open for the truth."""
-    out = tmp_path_factory.mktemp("noise-free")
-    with api_run(config_text(), out) as (run, outcome):
+#: The shipped CAN FD layout's 64-bit increments at a resolution of 2^-40 count instead of 2^-16: the log then
+#: carries the simulated IMU's increments to ~1e-12 count, so that what `bench apply` returns can be compared
+#: with the truth sample by sample (with the classic layout's 1/256 count a sample is only good to that step).
+FINE_FACTOR, FD_FACTOR = "9.094947017729282E-013", "1.52587890625E-005"
+
+
+def _fine_dbc(folder: Path) -> None:
+    text = DEFAULT_FD_DBC.read_text(encoding="utf-8")
+    assert text.count(FD_FACTOR) == 6
+    text = text.replace(FD_FACTOR, FINE_FACTOR).replace("[-140737488355328|140737488355328]", "[-8388608|8388607]")
+    (folder / "fine.dbc").write_text(text, encoding="utf-8")
+
+
+@contextlib.contextmanager
+def _recorded(out: Path, text: str):
+    """A run of `text` with its samples decoded from the log and the true inputs of each (its world open)."""
+    with api_run(text, out) as (run, outcome):
         assert not outcome.failures and outcome.result_path is not None
         truth_path = out / "truth.result.json"
         CalibrationResult(outcome.result.sim_truth, run=outcome.result.run).save(truth_path)
@@ -183,6 +197,24 @@ def noise_free_run(tmp_path_factory):
         yield SimpleNamespace(out=out, log=outcome.log_path, result=outcome.result_path, truth=truth_path,
                               true_rates=inputs.gyro_rate[samples.counter],
                               true_forces=inputs.acc_rate[samples.counter], samples=samples)
+
+
+@pytest.fixture(scope="module")
+def noise_free_run(tmp_path_factory):
+    """A noise-free run on an ideal table (the short plan) logged at a resolution of 2^-40 count."""
+    out = tmp_path_factory.mktemp("noise-free")
+    _fine_dbc(out)
+    text = config_text().replace(f"rate_hz = {RATE_HZ}\n", f'rate_hz = {RATE_HZ}\nfd = true\ndbc = "fine.dbc"\n')
+    assert 'dbc = "fine.dbc"' in text
+    with _recorded(out, text) as recorded:
+        yield recorded
+
+
+@pytest.fixture(scope="module")
+def coarse_run(tmp_path_factory):
+    """The same run with the default classic layout (1/256 count per sample)."""
+    with _recorded(tmp_path_factory.mktemp("coarse"), config_text()) as recorded:
+        yield recorded
 
 
 def _read_csv(path: Path) -> tuple[list[str], np.ndarray]:
@@ -196,28 +228,47 @@ def _can_bound(matrix: np.ndarray) -> np.ndarray:
     return np.abs(matrix).sum(axis=1) * CAN_RESOLUTION_COUNTS * RATE_HZ
 
 
-@pytest.mark.parametrize("calibration", ["solved", "truth"])
-def test_bench_apply_returns_the_true_body_rates_and_specific_force(noise_free_run, tmp_path, calibration):
-    run = noise_free_run
-    result = run.result if calibration == "solved" else run.truth
-    out = tmp_path / "applied.csv"
-    rc, stdout, stderr = cli(["apply", str(result), str(run.log), "--out", str(out), "--rate-unit", "rad/s",
+def _apply_csv(result: Path, log: Path, out: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rc, stdout, stderr = cli(["apply", str(result), str(log), "--out", str(out), "--rate-unit", "rad/s",
                               "--force-unit", "m/s^2"])
     assert rc == 0, stderr
     assert "compensated" in stdout
     header, data = _read_csv(out)
     assert header[3:] == ["rate_x_rps", "rate_y_rps", "rate_z_rps", "force_x_mps2", "force_y_mps2", "force_z_mps2"]
-    assert np.array_equal(data[:, 0], run.samples.counter)
-    rates, forces = data[:, 3:6], data[:, 6:9]
+    return data, data[:, 3:6], data[:, 6:9]
+
+
+def _relative(got: np.ndarray, true: np.ndarray) -> float:
+    """The largest per-sample error relative to that sample's true vector."""
+    return float((np.linalg.norm(got - true, axis=1) / np.linalg.norm(true, axis=1)).max())
+
+
+@pytest.mark.parametrize("calibration", ["solved", "truth"])
+def test_bench_apply_returns_the_true_body_rates_and_specific_force(noise_free_run, tmp_path, calibration):
+    """Sample by sample to 1e-9 relative, with the run's own solved calibration or the true coefficients
+    (measured: solved 4.6e-10 and 3.7e-15, true 3.0e-12 and 2.8e-15)."""
+    run = noise_free_run
+    data, rates, forces = _apply_csv(run.result if calibration == "solved" else run.truth, run.log,
+                                     tmp_path / "applied.csv")
+    assert np.array_equal(data[:, 0], run.samples.counter) and len(data) == len(run.samples) > 10000
+    assert np.abs(run.true_rates).max() > 0.5                     # turns at 30 deg/s, and at rest
+    assert _relative(rates, run.true_rates) <= 1e-9
+    assert _relative(forces, run.true_forces) <= 1e-9
+
+
+@pytest.mark.parametrize("calibration", ["solved", "truth"])
+def test_with_the_classic_layout_a_sample_is_true_to_one_resolution_step(coarse_run, tmp_path, calibration):
+    run = coarse_run
+    result = run.result if calibration == "solved" else run.truth
+    _, rates, forces = _apply_csv(result, run.log, tmp_path / "applied.csv")
     c = compensation_of(CalibrationResult.load(result))
-    # each sample: the truth to within one CAN resolution step (the log's own quantisation) and 1e-9 relative
-    # (the solved calibration's own error on this plan: 3 s dwells; see the README)
+    # each sample: the truth to within one CAN resolution step (the log's own quantisation), plus the solved
+    # calibration's own error on this plan (3 s dwells at 1/256 count)
     rel = 1e-9 if calibration == "truth" else 5e-8
     assert np.all(np.abs(rates - run.true_rates) <= _can_bound(c.gyro.matrix) + rel * np.abs(run.true_rates).max())
     assert np.all(np.abs(forces - run.true_forces)
                   <= _can_bound(c.acc.matrix) + rel * np.abs(run.true_forces).max())
-    # integrated (what a navigation computer does with them): the quantisation carries over, leaving the
-    # calibration's own error
+    # integrated (what a navigation computer does with them): the quantisation carries over
     for got, true, tolerance in ((rates, run.true_rates, 2e-9 if calibration == "truth" else 5e-9),
                                  (forces, run.true_forces, 5e-9 if calibration == "truth" else 5e-8)):
         integral, true_integral = np.cumsum(got, axis=0), np.cumsum(true, axis=0)
@@ -240,8 +291,8 @@ def test_bench_apply_writes_an_mcap_with_the_raw_and_the_compensated_topics(nois
     assert len(compensated) == len(topics["/imu/samples"]) == len(run.samples)
     assert compensated[0]["rate_unit"] == "deg/s" and compensated[0]["force_unit"] == "g"   # the defaults
     rates = np.array([m["angular_rate"] for m in compensated]) * DEG
-    c = compensation_of(CalibrationResult.load(run.truth))
-    assert np.all(np.abs(rates - run.true_rates) <= _can_bound(c.gyro.matrix) + 1e-9 * np.abs(run.true_rates).max())
+    forces = np.array([m["specific_force"] for m in compensated]) * G0
+    assert _relative(rates, run.true_rates) <= 1e-9 and _relative(forces, run.true_forces) <= 1e-9
     assert metadata["compensation"]["source_log"] == run.log.name
     assert [m["counter"] for m in topics["/imu/samples"]] == run.samples.counter.tolist()
 

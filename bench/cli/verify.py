@@ -86,7 +86,11 @@ def run_verification(config: BenchConfig, calibration: CalibrationResult, *, cal
         failed = run_plan(run, prog, quiet=quiet, simulated=sim)
         if failed is not None:
             return failed, None
-        extraction, error = run.finish_observations()
+        try:
+            extraction, error = run.finish_observations()
+        except KeyboardInterrupt as exc:        # a stop signal after the plan ended: the table is at rest
+            return fail(prog, f"interrupted ({exc or 'Ctrl-C'}) while reading the verification; the table is at "
+                              f"rest. Log: {run.log_path}", ExitCode.FAULT), None
     if extraction is None:
         state = run.sequencer.state.value if run.sequencer is not None else "failed"
         return fail(prog, f"verification {state}: {error}; table stopped. Log: {run.log_path}", ExitCode.FAULT), None
