@@ -218,3 +218,17 @@ def test_bench_run_judges_the_result_and_says_so_in_three_lines(tmp_path, limits
     assert html.index("Acceptance verdict") < html.index("<h2>Run</h2>")
     assert CalibrationResult.load(result_path).verdict == verdict      # read back
     assert json.loads(result_path.read_text())["coefficients"]["Kg_x"]["unit"] == "counts/s per deg/s"
+
+
+def test_bench_solve_judges_a_log_by_its_recorded_acceptance_limits(tmp_path):
+    out = tmp_path / "out"
+    rc, _, _ = cli(["run", "--config", str(_config(tmp_path, FAILING)), "--out", str(out), "--quiet"])
+    assert rc == 4
+    run_verdict = load_json(only_file(out, "*.result.json"))["verdict"]
+    rc, stdout, stderr = cli(["solve", str(only_file(out, "*.mcap")), "--out", str(tmp_path / "solved"),
+                              "--no-html"])
+    assert rc == 4 and "verdict: FAIL (3 of 11 checks: Kg_x sigma, Kg_y sigma, Kg_z sigma)" in stdout
+    assert stderr.startswith("bench solve: quality check failed: Kg_x sigma ")
+    solved = load_json(only_file(tmp_path / "solved", "*.result.json"))["verdict"]
+    assert [(c["name"], c["passed"]) for c in solved["checks"]] == [(c["name"], c["passed"])
+                                                                   for c in run_verdict["checks"]]

@@ -234,3 +234,19 @@ def test_bad_verification_settings_are_refused_with_file_line_and_key(tmp_path, 
         load_config(path)
     line = next(i for i, ln in enumerate(text.splitlines(), 1) if ln.startswith(message.split(": ")[0].split(".")[-1]))
     assert str(info.value).startswith(f"{path}:{line}: ") and message in str(info.value)
+
+
+def test_a_verification_plan_beyond_the_table_limits_is_refused_before_anything_moves(tmp_path):
+    text = config_text().replace("[plan]\n", '[plan]\nverification = "verify-default"\n').replace(
+        "move_rate_dps = 60.0", "move_rate_dps = 30.0") + "[table.limits.inner]\nmax_rate_dps = 40.0\n"
+    path = tmp_path / "bench.toml"
+    path.write_text(text, encoding="utf-8")
+    rc, stdout, stderr = cli(["run", "--config", str(path), "--out", str(tmp_path / "out"), "--quiet"])
+    assert rc == 2 and stdout == "" and "inner turn at 60 deg/s" in stderr and len(stderr.splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+    rc, stdout, _ = cli(["run", "--config", str(path), "--dry-run"])
+    assert rc == 2 and stdout == ""
+    fits = tmp_path / "fits.toml"
+    fits.write_text(text.replace("max_rate_dps = 40.0", "max_rate_dps = 100.0"), encoding="utf-8")
+    rc, stdout, stderr = cli(["run", "--config", str(fits), "--dry-run"])
+    assert rc == 0 and "then the verification (verify-default): 102 steps, estimated " in stdout, stderr

@@ -43,17 +43,21 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
     from bench.log.reader import LogError
     from bench.log.recorder import RecorderError
     from bench.log.run_setup import SetupMismatch
+    from bench.model.units import format_hms
     from bench.plan.compiler import PlanError
     from bench.run.resume import resume_point
     from bench.run.runner import BenchRun, compile_from_config
     from bench.solve.methods import SolverError
-    from bench.verify.plan import format_errors
+    from bench.verify.plan import format_errors, verification_config, verification_plan
 
     if not args.config and not args.sim:
         return fail(PROG, "say --config FILE or --sim", ExitCode.USAGE)
     try:
         config = load_config(args.config) if args.config else default_sim_config()
         plan = compile_from_config(config)
+        # a verification plan that does not fit the table is refused here, before the calibration moves anything
+        verification = (verification_plan(verification_config(config)) if config.plan.verification is not None
+                        else None)
         sim = args.sim or config.table.is_sim
         # a log of another plan, IMU, site or table is refused here, before anything moves
         resumed = resume_point(args.resume, config, plan, sim=sim)
@@ -65,6 +69,9 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
             print(f"note: {note}")
     if args.dry_run:
         print(plan.format_dry_run())
+        if config.plan.verification is not None and verification is not None:
+            print(f"then the verification ({config.plan.verification.name}): {len(verification.steps)} steps, "
+                  f"estimated {format_hms(verification.estimated_total_s)}")
         if completed:
             print(f"resume: {len(completed)} units complete in earlier logs would be skipped: "
                   f"{', '.join(sorted(completed))}")
