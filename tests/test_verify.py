@@ -211,7 +211,7 @@ def test_bench_verify_refuses_a_calibration_it_cannot_use(tmp_path):
     bad = tmp_path / "bad.result.json"
     bad.write_text(json.dumps({"format": "turntable-bench/result", "version": 1, "coefficients": {}}))
     rc, stdout, stderr = cli(["verify", "--sim", "--calibration", str(bad), "--out", str(tmp_path / "o")])
-    assert rc == 2 and "lacks 30 of the 30 coefficients" in stderr and "nothing moved" in stderr
+    assert rc == 2 and "lacks 30 of the 30 coefficients" in stderr and "did not start" in stderr
     assert not (tmp_path / "o").exists() and stdout == ""
     rc, _, stderr = cli(["verify", "--calibration", str(bad)])
     assert rc == 2 and "--config FILE or --sim" in stderr

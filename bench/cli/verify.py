@@ -80,7 +80,7 @@ def run_verification(config: BenchConfig, calibration: CalibrationResult, *, cal
         vconfig = verification_config(config)
         plan = verification_plan(vconfig)
     except InputError as exc:
-        return fail(prog, f"cannot verify: {exc}; nothing moved", ExitCode.USAGE), None
+        return fail(prog, f"cannot verify: {exc}; the verification did not start", ExitCode.USAGE), None
     with stop_signals(raise_interrupted), BenchRun(vconfig, plan, sim=sim, out_dir=out_dir, operator=operator,
                                                    run_id=run_id) as run:
         failed = run_plan(run, prog, quiet=quiet, simulated=sim)
