@@ -275,7 +275,10 @@ class BenchRun:
         if seq is None or seq.error is not None:
             recorder.close()
             return None, seq.error if seq is not None else BenchError("the run did not start")
+        broken = next((exc for listener, exc in seq.listener_errors if listener is recorder), None)
         recorder.close()
+        if broken is not None:          # the log failed on the run's very last event
+            return None, ListenerError(describe_listener_error(recorder, broken))
         config = self.config
         extraction, _, damage = extract_from_logs([read_log(str(self.log_path))], config.site.site,
                                                   config.imu.layout, config.imu.rate_hz)
