@@ -6,7 +6,7 @@ degrees, DESIGN section 2 sign convention)::
     format = "turntable-bench/schedule"
     version = 1
     name = "optimal-24"
-    kind = "positions"          # "positions" | "rotations" | "table-check" | "static"
+    kind = "positions"          # "positions" | "rotations" | "table-check" | "static" | "verification"
     description = "Optimal 24 positions, 12 inner-symmetric groups (paper Table 1)"
     source = "Ma & Zhou 2020, Table 1"   # optional literature reference
 
@@ -19,6 +19,12 @@ degrees, DESIGN section 2 sign convention)::
     frame = "outer"             # "outer" | "middle" | "inner"
     direction = "ccw"           # "ccw" | "cw"
     revolutions = 1             # whole number, 1..100
+    rate_dps = 20.0             # kind "verification" only, optional: this turn's rate
+                                # (default: the plan's turn rate), 0.001..1000 deg/s
+
+A "verification" schedule (data to check a calibration with, `bench verify`) holds
+positions (any angles in [0, 360): tilts of 45 deg) and rotations (with their own rates),
+at least one of either.
 
 Rules checked here (each violation is a one-line `ScheduleError` naming the file,
 the 1-based line and the field; the steps are all checked, and the error carries the
@@ -53,7 +59,7 @@ from schedules.tomllines import LineMap, locate_lines
 
 FORMAT = "turntable-bench/schedule"
 VERSION = 1
-KINDS = ("positions", "rotations", "table-check", "static")
+KINDS = ("positions", "rotations", "table-check", "static", "verification")
 FRAMES = ("outer", "middle", "inner")
 DIRECTIONS = ("ccw", "cw")
 
@@ -64,6 +70,7 @@ _ROTATION_KEYS = {"start_deg": True, "frame": True, "direction": True, "revoluti
 MAX_STEPS = 10_000        # steps per file (the shipped files have up to 324)
 MAX_GROUP = 10_000
 MAX_REVOLUTIONS = 100     # whole turns per rotation
+MIN_RATE_DPS, MAX_RATE_DPS = 1e-3, 1000.0   # a verification turn's own rate_dps
 
 
 @dataclass(frozen=True)
@@ -84,6 +91,7 @@ class RotationStep:
     direction: str
     revolutions: int
     line: int | None = None  # 1-based line of its [[rotation]] header
+    rate_dps: float | None = None   # its own turn rate (verification schedules); None: the plan's
 
     @property
     def sign(self) -> int:
@@ -110,7 +118,9 @@ class Schedule:
 
     @property
     def steps(self) -> tuple[PositionStep | RotationStep, ...]:
-        """The positions or the rotations, whichever this kind holds."""
+        """The positions or the rotations, whichever this kind holds (a verification: both)."""
+        if self.kind == "verification":
+            return self.positions + self.rotations
         return self.rotations if self.kind == "rotations" else self.positions
 
 
@@ -211,18 +221,18 @@ class _Validator:
             raise self.fail(lines.exact("kind"), "kind",
                             f"unknown kind {_show(kind)} (expected one of {', '.join(KINDS)})")
 
+        if kind == "verification":
+            positions, rotations = self._verification()
+            self._raise_problems()
+            return Schedule(name=name, kind=kind, description=description, source=self.path,
+                            positions=positions, rotations=rotations, reference=reference)
         wanted, unwanted = ("rotation", "position") if kind == "rotations" else ("position", "rotation")
         if unwanted in doc:
             raise self.fail(lines.exact(unwanted), unwanted,
                             f"[[{unwanted}]] tables are not allowed in a {kind!r} schedule")
-        tables = doc.get(wanted, [])
-        if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
-            raise self.fail(lines.exact(wanted), wanted, f"must be an array of tables ([[{wanted}]])")
+        tables = self._tables(wanted)
         if not tables:
             raise self.fail(None, wanted, f"a {kind!r} schedule needs at least one [[{wanted}]] table")
-        if len(tables) > MAX_STEPS:
-            raise self.fail(self.lines.line(wanted, MAX_STEPS), wanted,
-                            f"{len(tables)} [[{wanted}]] tables: a schedule holds at most {MAX_STEPS} steps")
 
         if kind == "static" and len(tables) != 1:
             raise self.fail(self.lines.line(wanted, 1), wanted,
@@ -232,11 +242,34 @@ class _Validator:
             rotations = tuple(self._rotations(tables))
         else:
             positions = tuple(self._positions(tables, positive_only=kind in ("positions", "static")))
+        self._raise_problems()
+        return Schedule(name=name, kind=kind, description=description, source=self.path,
+                        positions=positions, rotations=rotations, reference=reference)
+
+    def _raise_problems(self) -> None:
+        """The steps' problems, all of them, as one ScheduleError (the first, with the others in `more`)."""
         if self.problems:
             first, *more = self.problems
             raise ScheduleError(first.path, first.line, first.field, first.message, more=tuple(more))
-        return Schedule(name=name, kind=kind, description=description, source=self.path,
-                        positions=positions, rotations=rotations, reference=reference)
+
+    def _tables(self, wanted: str) -> list:
+        tables = self.doc.get(wanted, [])
+        if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+            raise self.fail(self.lines.exact(wanted), wanted, f"must be an array of tables ([[{wanted}]])")
+        if len(tables) > MAX_STEPS:
+            raise self.fail(self.lines.line(wanted, MAX_STEPS), wanted,
+                            f"{len(tables)} [[{wanted}]] tables: a schedule holds at most {MAX_STEPS} steps")
+        return tables
+
+    def _verification(self) -> tuple[tuple[PositionStep, ...], tuple[RotationStep, ...]]:
+        position_tables, rotation_tables = self._tables("position"), self._tables("rotation")
+        if not position_tables and not rotation_tables:
+            raise self.fail(None, "position", "a 'verification' schedule needs at least one [[position]] or "
+                                              "[[rotation]] table")
+        if len(position_tables) + len(rotation_tables) > MAX_STEPS:
+            raise self.fail(None, "rotation", f"a schedule holds at most {MAX_STEPS} steps")
+        return (tuple(self._positions(position_tables, positive_only=False)),
+                tuple(self._rotations(rotation_tables, with_rate=True)))
 
     def _check_keys(self, table_name: str, index: int, table: dict, allowed: dict[str, bool]) -> bool:
         """Note unknown and missing keys; whether every required key is there."""
@@ -302,10 +335,11 @@ class _Validator:
             seen[angles_deg] = index
             yield PositionStep(angles_deg=angles_deg, group=group, line=header)
 
-    def _rotations(self, tables: list[dict]):
+    def _rotations(self, tables: list[dict], with_rate: bool = False):
         seen: dict[tuple, int] = {}
         for index, table in enumerate(tables):
-            if not self._check_keys("rotation", index, table, _ROTATION_KEYS):
+            if not self._check_keys("rotation", index, table, {**_ROTATION_KEYS, "rate_dps": False} if with_rate
+                                    else _ROTATION_KEYS):
                 continue
             label = f"rotation[{index + 1}]"
             start_deg = self._noted(self._angles, "rotation", index, "start_deg", table["start_deg"], True)
@@ -321,19 +355,26 @@ class _Validator:
                     self.lines.line("rotation", index, "revolutions"), f"{label}.revolutions",
                     f"must be a whole number in 1..{MAX_REVOLUTIONS}, got {_show(revolutions)}"))
                 valid = False
+            rate_dps = table.get("rate_dps")
+            if rate_dps is not None and (not _is_number(rate_dps) or not MIN_RATE_DPS <= rate_dps <= MAX_RATE_DPS):
+                self.problems.append(self.fail(
+                    self.lines.line("rotation", index, "rate_dps"), f"{label}.rate_dps",
+                    f"must be a number in {MIN_RATE_DPS:g}..{MAX_RATE_DPS:g} deg/s, got {_show(rate_dps)}"))
+                valid = False
             if not valid:
                 continue
             header = self.lines.line("rotation", index)
-            step_key = (start_deg, table["frame"], table["direction"])
+            step_key = (start_deg, table["frame"], table["direction"], rate_dps)
             if step_key in seen:
                 earlier = seen[step_key]
                 self.problems.append(self.fail(header, label, f"duplicate of rotation[{earlier + 1}] at line "
-                                               f"{self.lines.line('rotation', earlier)} (same start, frame and "
-                                               "direction)"))
+                                               f"{self.lines.line('rotation', earlier)} (same start, frame, "
+                                               f"direction{' and rate' if with_rate else ''})"))
                 continue
             seen[step_key] = index
             yield RotationStep(start_deg=start_deg, frame=table["frame"], direction=table["direction"],
-                               revolutions=revolutions, line=header)
+                               revolutions=revolutions, line=header,
+                               rate_dps=None if rate_dps is None else float(rate_dps))
 
 
 # --- public entry points ----------------------------------------------------------

@@ -32,6 +32,7 @@ EXPECTED_COUNTS = {
     "all-96": ("rotations", 96),
     "table-check-324": ("table-check", 324),
     "static-noise": ("static", 1),
+    "verify-default": ("verification", 34),
 }
 
 

@@ -12,8 +12,11 @@ import select
 import sys
 
 from bench import __version__
+from bench.cli import apply as apply_cli
 from bench.cli import check_table, evaluate, export_can, replay, run, schedules, solve, table, tui
+from bench.cli import export as export_cli
 from bench.cli import noise as noise_command
+from bench.cli import verify as verify_cli
 from bench.cli.common import ExitCode
 from bench.errors import BenchError
 from drivers.errors import ImuError, TurntableConfigError, TurntableError
@@ -40,6 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
     check_table.register(sub)
     export_can.register(sub)
     noise_command.register(sub)
+    export_cli.register(sub)
+    apply_cli.register(sub)
+    verify_cli.register(sub)
     return parser
 
 

@@ -12,6 +12,7 @@ import argparse
 from pathlib import Path
 
 from bench.cli.common import ExitCode, fail, raise_interrupted, run_plan, stop_signals
+from bench.cli.verify import run_verification
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -42,16 +43,21 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
     from bench.log.reader import LogError
     from bench.log.recorder import RecorderError
     from bench.log.run_setup import SetupMismatch
+    from bench.model.units import format_hms
     from bench.plan.compiler import PlanError
     from bench.run.resume import resume_point
     from bench.run.runner import BenchRun, compile_from_config
     from bench.solve.methods import SolverError
+    from bench.verify.plan import format_errors, verification_config, verification_plan
 
     if not args.config and not args.sim:
         return fail(PROG, "say --config FILE or --sim", ExitCode.USAGE)
     try:
         config = load_config(args.config) if args.config else default_sim_config()
         plan = compile_from_config(config)
+        # a verification plan that does not fit the table is refused here, before the calibration moves anything
+        verification = (verification_plan(verification_config(config)) if config.plan.verification is not None
+                        else None)
         sim = args.sim or config.table.is_sim
         # a log of another plan, IMU, site or table is refused here, before anything moves
         resumed = resume_point(args.resume, config, plan, sim=sim)
@@ -63,6 +69,9 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
             print(f"note: {note}")
     if args.dry_run:
         print(plan.format_dry_run())
+        if config.plan.verification is not None and verification is not None:
+            print(f"then the verification ({config.plan.verification.name}): {len(verification.steps)} steps, "
+                  f"estimated {format_hms(verification.estimated_total_s)}")
         if completed:
             print(f"resume: {len(completed)} units complete in earlier logs would be skipped: "
                   f"{', '.join(sorted(completed))}")
@@ -91,8 +100,51 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
         return fail(PROG, f"{outcome.state.value}: {outcome.error}; table stopped. Log: {outcome.log_path} "
                      f"(continue with --resume {outcome.log_path})", ExitCode.FAULT)
     if not args.quiet:
-        print(f"log:    {outcome.log_path}\nresult: {outcome.result_path}\nreport: {outcome.report_path}, "
-              f"{outcome.html_report_path}")
-    if outcome.failures:
-        return fail(PROG, "quality check failed: " + "; ".join(outcome.failures), ExitCode.QUALITY)
+        print(f"log:    {outcome.log_path}")
+    verified = None
+    if config.plan.verification is not None and outcome.result is not None and outcome.result_path is not None:
+        # after the calibration, on data it did not use; its checks join the result's verdict
+        code, verified = run_verification(config, outcome.result, calibration_label=outcome.result_path.name,
+                                          sim=sim, out_dir=out_dir, run_id=f"{run.run_id}-verify", quiet=args.quiet,
+                                          prog=PROG, operator=args.operator)
+        if code is not None or verified is None:
+            return code if code is not None else ExitCode.FAULT
+        if not args.quiet:
+            print(format_errors(verified.verification))
+        add_verification(outcome, verified, config)
+    # the summary, also with --quiet: the verdict, its worst check, where the result and reports are
+    print(run_summary(outcome, verified))
+    if outcome.verdict is not None and not outcome.verdict.passed:
+        return fail(PROG, "quality check failed: " + "; ".join(c.describe() for c in outcome.verdict.failed),
+                    ExitCode.QUALITY)
     return ExitCode.OK
+
+
+def run_summary(outcome, verified=None) -> str:
+    """Three lines: `verdict: PASS (...)`, `worst:   ...`, `result:  FILE  report: FILE, FILE[  verification: FILE]`."""
+    verdict = outcome.verdict
+    worst = verdict.worst if verdict is not None else None
+    reports = ", ".join(str(p) for p in (outcome.report_path, outcome.html_report_path) if p is not None)
+    verification = f"  verification: {verified.md_path}" if verified is not None else ""
+    return (f"verdict: {verdict.headline() if verdict is not None else 'none'}\n"
+            f"worst:   {worst.describe() if worst is not None else 'no checks'}\n"
+            f"result:  {outcome.result_path}  report: {reports}{verification}")
+
+
+def add_verification(outcome, verified, config) -> None:
+    """The verification's checks into the result's verdict; the result file and its reports written again."""
+    # imported when the command runs: `bench` starts without the bench core
+    from bench.acceptance.verdict import Verdict
+    from bench.log.reader import read_log
+    from bench.report.markdown import write_reports
+
+    outcome.verdict = Verdict([*outcome.verdict.checks, *verified.checks])
+    result = outcome.result
+    result.verdict = outcome.verdict.to_json()
+    result.run["verification"] = {"file": verified.json_path.name, "log": verified.log_path.name,
+                                  "errors": len(verified.verification.errors)}
+    result.save(outcome.result_path)
+    run_id = outcome.result_path.name.removesuffix(".result.json")
+    write_reports(result, outcome.result_path.parent, run_id, log=read_log(str(outcome.log_path)),
+                  layout=config.imu.layout, problems=outcome.problems, failures=outcome.failures,
+                  imu_link=result.run.get("imu_link"), title=f"Calibration report {run_id}")

@@ -52,9 +52,10 @@ def cmd_list(args: argparse.Namespace) -> ExitCode:
     """A header row, then one line per built-in schedule: name, kind, step count, description."""
     loaded = [load_builtin(name) for name in builtin_names()]
     name_width = max((len(s.name) for s in loaded), default=4)
-    print(f"{'name':<{name_width}}  {'kind':<11}  {'steps':>4}  description")
+    kind_width = max((len(s.kind) for s in loaded), default=4)
+    print(f"{'name':<{name_width}}  {'kind':<{kind_width}}  {'steps':>4}  description")
     for schedule in loaded:
-        print(f"{schedule.name:<{name_width}}  {schedule.kind:<11}  {len(schedule.steps):>4}  "
+        print(f"{schedule.name:<{name_width}}  {schedule.kind:<{kind_width}}  {len(schedule.steps):>4}  "
               f"{schedule.description}")
     return ExitCode.OK
 
@@ -93,7 +94,13 @@ def cmd_validate(args: argparse.Namespace) -> ExitCode:
 
 def format_steps(schedule: Schedule) -> list[str]:
     """Table lines (column header first) for the steps of `schedule`."""
-    if schedule.kind == "rotations":
+    if schedule.kind == "verification":       # both kinds of step; a turn's own rate after it
+        lines = ["   #  group  angles (o, m, i) deg  body X Y Z"]
+        lines += [_position_line(k, step) for k, step in enumerate(schedule.positions, start=1)]
+        lines += ["", "   #  start (o, m, i) deg  body X Y Z  frame   dir  revs  axis  rate deg/s"]
+        lines += [_rotation_line(k, step) + (f"  {step.rate_dps:g}" if step.rate_dps is not None else "  plan's")
+                  for k, step in enumerate(schedule.rotations, start=1)]
+    elif schedule.kind == "rotations":
         lines = ["   #  start (o, m, i) deg  body X Y Z  frame   dir  revs  axis"]
         lines += [_rotation_line(k, step) for k, step in enumerate(schedule.rotations, start=1)]
     else:

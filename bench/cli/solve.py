@@ -111,6 +111,11 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
                 print(f"note: {note}")
             print(f"result: {result_path}\nreport: {report_path}" + (f"\n        {html_path}" if html_path else ""))
         failures = resolved.failures
+        if resolved.verdict is not None:
+            if not args.quiet:
+                print(f"verdict: {resolved.verdict.headline()}")
+            # the recorded [acceptance] limits judge (they include the quality checks)
+            failures = [c.describe() for c in resolved.verdict.failed]
     if failures:
         return fail(PROG, "quality check failed: " + "; ".join(failures), ExitCode.QUALITY)
     return ExitCode.OK

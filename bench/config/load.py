@@ -23,6 +23,8 @@ from typing import Any
 import can.interfaces
 import numpy as np
 
+from bench.acceptance.limits import AcceptanceLimits
+from bench.config.acceptance import ACCEPTANCE_KEYS, acceptance_limits
 from bench.config.reader import ConfigError, Located, Table, describe, parse_toml, read_text, show, suggest
 from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
 from bench.model.families import BODY_AXES, SENSOR_AXES, canonical_names, family_of
@@ -145,6 +147,8 @@ class PlanConfig(PlanTiming):
     # every step's revolutions already overridden by `revolutions`
     rotations: Schedule | None = field(default=None, kw_only=True)
     order: str = field(default="optimal", kw_only=True)
+    #: the verification schedule (`[plan] verification`): run after the calibration, None: none
+    verification: Schedule | None = field(default=None, kw_only=True)
 
 
 @dataclass(frozen=True)
@@ -180,6 +184,7 @@ class BenchConfig:
     sim: SimConfig
     source_text: str = field(repr=False)
     path: Path | None = None  # None when parsed from a string
+    acceptance: AcceptanceLimits = field(default_factory=AcceptanceLimits)  # [acceptance]: limits of the verdict
 
 
 # --- sections -----------------------------------------------------------------------
@@ -443,7 +448,9 @@ def _plan(t: Table, limits: TurntableLimits) -> PlanConfig:
                 unit = "deg/s" if key.endswith("_dps") else "deg/s^2"
                 raise t.error(key, f"{values[key]:g} {unit} exceeds the {FRAMES[frame]} axis limit {limit:g} "
                                    f"{unit} (table.limits.{FRAMES[frame]}.{attr})")
-    return PlanConfig(positions=positions, rotations=rotations, revolutions=revolutions, order=order, **values)
+    verification = _schedule(t, "verification", "verification", None)
+    return PlanConfig(positions=positions, rotations=rotations, revolutions=revolutions, order=order,
+                      verification=verification, **values)
 
 
 def _black_box(t: Table, seed: int) -> tuple[float | tuple, np.ndarray]:
@@ -533,7 +540,8 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
     paths start at `base_dir` (default: the current directory)."""
     doc = parse_toml(text, source)
     located = Located(source, locate_lines(text), Path.cwd() if base_dir is None else Path(base_dir))
-    root = Table(located, (), doc, ("format", "version", "site", "table", "imu", "plan", "output", "sim"))
+    root = Table(located, (), doc, ("format", "version", "site", "table", "imu", "plan", "output", "sim",
+                                       "acceptance"))
     fmt = root.string("format")
     if fmt != FORMAT:
         raise root.error("format", f"expected {FORMAT!r}, got {show(fmt)}")
@@ -547,12 +555,13 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
                                   "bus_options", "identity", "noise"), required=True))
     plan = _plan(root.table("plan", ("positions", "rotations", "dwell_s", "settle_s", "move_rate_dps",
                                      "move_accel_dps2", "turn_rate_dps", "turn_accel_dps2", "rest_s", "revolutions",
-                                     "order"), required=True), table.limits)
+                                     "order", "verification"), required=True), table.limits)
     out = root.table("output", ("folder", "chunk_run_interval_s"))
     output = OutputConfig(out.path_value("folder", out.string("folder", "runs", nonempty=True)),
                           out.number("chunk_run_interval_s", None, gt=0, ge=0.01, le=3600.0, unit="s"))
     sim = _sim(root.table("sim", ("seed", "black_box_arcsec", "noise", "imu")))
-    return BenchConfig(site, table, imu, plan, output, sim, source_text=text)
+    acceptance = acceptance_limits(root.table("acceptance", ACCEPTANCE_KEYS))
+    return BenchConfig(site, table, imu, plan, output, sim, source_text=text, acceptance=acceptance)
 
 
 def load_config(path: str | Path) -> BenchConfig:

@@ -34,7 +34,7 @@ from schedules import builtin_names
 from schedules.tomllines import locate_lines
 
 #: Keys of the configuration that name files the run attaches to its log (by base name).
-_ATTACHED_FILE_KEYS = (("imu", "dbc"), ("plan", "positions"), ("plan", "rotations"))
+_ATTACHED_FILE_KEYS = (("imu", "dbc"), ("plan", "positions"), ("plan", "rotations"), ("acceptance", "reference"))
 _STRING_LITERAL = re.compile(r'"(?:[^"\\\n]|\\.)*"|\'[^\'\n]*\'')
 
 

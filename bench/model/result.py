@@ -59,11 +59,17 @@ class CalibrationResult:
     quality: dict[str, Any] = field(default_factory=dict)
     run: dict[str, Any] = field(default_factory=dict)
     sim_truth: dict[str, Coefficient] | None = None
+    #: the acceptance verdict (`bench.acceptance.verdict.Verdict.to_json`), when judged
+    verdict: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {
             "format": RESULT_FORMAT,
             "version": RESULT_VERSION,
+        }
+        if self.verdict is not None:        # first: what a reader wants to know first
+            out["verdict"] = self.verdict
+        out |= {
             "coefficients": {k: c.to_json() for k, c in self.coefficients.items()},
             "residuals": self.residuals,
             "quality": self.quality,
@@ -87,6 +93,7 @@ class CalibrationResult:
             raise ResultFormatError(f"{origin}: result version {data.get('version')!r} is not supported "
                                     f"(this software reads version {RESULT_VERSION})")
         truth = data.get("sim_truth")
+        verdict = data.get("verdict")
         return cls(
             coefficients=_read_table(data.get("coefficients"), origin, "coefficients"),
             residuals=data.get("residuals", {}),
@@ -94,6 +101,7 @@ class CalibrationResult:
             run=data.get("run", {}),
             sim_truth=None if truth is None else _read_table(truth.get("coefficients"), origin,
                                                              "sim_truth.coefficients"),
+            verdict=verdict if isinstance(verdict, dict) else None,
         )
 
     @classmethod

@@ -202,7 +202,7 @@ def _build_units(positions: Schedule | None, rotations: Schedule | None, timing:
                  limits: TurntableLimits) -> tuple[list[_Unit], list[_Unit]]:
     pos_units, rot_units = [], []
     if positions is not None:
-        if positions.kind not in ("positions", "table-check", "static"):
+        if positions.kind not in ("positions", "table-check", "static", "verification"):
             raise PlanError(f"schedule {positions.name!r} is a {positions.kind!r} schedule, not positions")
         width = max(2, len(str(len(positions.positions))))
         for i, p in enumerate(positions.positions):
@@ -216,16 +216,17 @@ def _build_units(positions: Schedule | None, rotations: Schedule | None, timing:
                                     f"[{lim.min_deg}, {lim.max_deg}] deg")
             pos_units.append(_Unit(label, positions.name, i, p.angles_deg, tuple(ranges)))
     if rotations is not None:
-        if rotations.kind != "rotations":
+        if rotations.kind not in ("rotations", "verification"):
             raise PlanError(f"schedule {rotations.name!r} is a {rotations.kind!r} schedule, not rotations")
         width = max(2, len(str(len(rotations.rotations))))
         for i, r in enumerate(rotations.rotations):
             label = f"R{i + 1:0{width}d}"
             revs = timing.revolutions if timing.revolutions is not None else r.revolutions
             lim_turn = limits.axes[r.frame_index]
-            if timing.turn_rate_dps > lim_turn.max_rate_dps or timing.turn_accel_dps2 > lim_turn.max_accel_dps2:
+            rate_dps = r.rate_dps if r.rate_dps is not None else timing.turn_rate_dps   # a verification turn's own
+            if rate_dps > lim_turn.max_rate_dps or timing.turn_accel_dps2 > lim_turn.max_accel_dps2:
                 raise PlanError(f"{label} ({rotations.name} #{i + 1}, turn): {r.frame} turn at "
-                                f"{timing.turn_rate_dps:g} deg/s, {timing.turn_accel_dps2:g} deg/s^2 exceeds the "
+                                f"{rate_dps:g} deg/s, {timing.turn_accel_dps2:g} deg/s^2 exceeds the "
                                 f"axis limits {lim_turn.max_rate_dps:g} deg/s, {lim_turn.max_accel_dps2:g} deg/s^2")
             unit = _Unit(label, rotations.name, i, r.start_deg, (), r, revs)
             ranges = []
@@ -261,8 +262,8 @@ class _Motion:
         moved = any(abs(to_deg[k] - from_deg[k]) > _EPS_DEG for k in range(3))
         return t + self.timing.move_overhead_s if moved else 0.0
 
-    def turn_time(self, revolutions: int) -> float:
-        ramp, cruise, _ = trapezoid_timing(360.0 * revolutions, self.timing.turn_rate_dps,
+    def turn_time(self, revolutions: int, rate_dps: float | None = None) -> float:
+        ramp, cruise, _ = trapezoid_timing(360.0 * revolutions, rate_dps or self.timing.turn_rate_dps,
                                            self.timing.turn_accel_dps2)
         return 2.0 * self.timing.rest_s + 2.0 * ramp + cruise
 
@@ -349,8 +350,8 @@ def _emit(units, order, start_deg, motion, steps: list) -> tuple[float, float, f
             steps.append(TurnStep(index=len(steps), unit=unit.label, schedule=unit.schedule,
                                   schedule_index=unit.schedule_index, start_deg=unit.nominal_deg, target_deg=target,
                                   frame=r.frame, direction=r.direction, revolutions=unit.revolutions,
-                                  rate_dps=t.turn_rate_dps, accel_dps2=t.turn_accel_dps2, rest_s=t.rest_s,
-                                  estimated_s=motion.turn_time(unit.revolutions)))
+                                  rate_dps=r.rate_dps or t.turn_rate_dps, accel_dps2=t.turn_accel_dps2,
+                                  rest_s=t.rest_s, estimated_s=motion.turn_time(unit.revolutions, r.rate_dps)))
     return end
 
 

@@ -209,6 +209,23 @@ def _metadata(result: CalibrationResult, log, imu_link, log_still_open: bool) ->
     return "\n".join(html)
 
 
+def _acceptance(verdict) -> str:
+    """The acceptance verdict, first in the report: headline, worst check, every check."""
+    if not isinstance(verdict, dict):
+        return ""
+    passed = verdict.get("passed") is True
+    html = [f'<h2>Acceptance verdict: <span class="{"pass" if passed else "fail"}">{"PASS" if passed else "FAIL"}'
+            "</span></h2>", f"<p>{_e(verdict.get('headline', ''))}</p>"]
+    if verdict.get("worst"):
+        html.append(f"<p>Worst check: {_e(verdict['worst'])}</p>")
+    checks = [c for c in verdict.get("checks", []) if isinstance(c, dict)]
+    if checks:
+        html.append(_table(["check", "result"], [
+            ([_e(str(c.get("text", c.get("name", "")))), "pass" if c.get("passed") is True else "FAIL"],
+             "" if c.get("passed") is True else "fail") for c in checks]))
+    return "\n".join(html)
+
+
 def _verdict(failures, problems) -> str:
     html = ["<h2>Verdict</h2>"]
     if failures:
@@ -385,7 +402,8 @@ def html_report(result: CalibrationResult, *, log=None, layout=None, problems=()
     to the log); `against` an earlier `CalibrationResult` to compare with. `log_still_open`:
     the log is the live run's, read before it was closed (its missing summary is not damage).
     """
-    parts = [_metadata(result, log, imu_link, log_still_open), _verdict(list(failures), list(problems)),
+    parts = [_acceptance(result.verdict), _metadata(result, log, imu_link, log_still_open),
+             _verdict(list(failures), list(problems)),
              _coefficients(result), _quality(result), _residuals(result)]
     if log is not None:
         parts.append(_log_plots(log_series(log, layout)))

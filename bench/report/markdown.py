@@ -56,6 +56,7 @@ def markdown_report(result: CalibrationResult, *, problems: Sequence[str] = (), 
     with outliers flagged, and the comparison with `against` (an earlier result) when given."""
     run = result.run
     lines = [f"# {md_text(title)}", ""]
+    lines += _markdown_verdict(result.verdict)
     lines += [f"- **{label}**: {md_text(text)}" for label, text in run_facts(run)]
     lines.append("")
     lines.append("## Verdict")
@@ -107,6 +108,22 @@ def markdown_report(result: CalibrationResult, *, problems: Sequence[str] = (), 
     if against is not None:
         lines += _markdown_comparison(compare_results(result, against, label=against_label))
     return "\n".join(lines) + "\n"
+
+
+def _markdown_verdict(verdict: dict[str, Any] | None) -> list[str]:
+    """The acceptance verdict, first in the report: headline, worst check, every check."""
+    if not isinstance(verdict, dict):
+        return []
+    lines = [f"**Acceptance verdict: {md_text(verdict.get('headline', ''))}**", ""]
+    if verdict.get("worst"):
+        lines += [f"Worst check: {md_text(verdict['worst'])}", ""]
+    checks = [c for c in verdict.get("checks", []) if isinstance(c, dict)]
+    if checks:
+        lines += ["| check | result |", "|---|---|"]
+        lines += [f"| {md_text(c.get('text', c.get('name', '')))} | "
+                  f"{'pass' if c.get('passed') is True else '**FAIL**'} |" for c in checks]
+        lines.append("")
+    return lines
 
 
 def _markdown_residuals(result: CalibrationResult) -> list[str]:

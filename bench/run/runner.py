@@ -20,6 +20,8 @@ from typing import Iterable
 import can
 
 from bench import __version__
+from bench.acceptance.limits import AcceptanceLimits
+from bench.acceptance.verdict import Verdict, judge
 from bench.config.load import BenchConfig
 from bench.errors import BenchError
 from bench.log.reader import read_log
@@ -34,7 +36,8 @@ from bench.report.noise import write_noise_outputs
 from bench.run.imu_check import check_imu_stream
 from bench.run.sequencer import ListenerError, Sequencer, SequencerOptions, describe_listener_error
 from bench.sim.world import SimWorld
-from bench.solve.from_logs import solve_logs
+from bench.solve.extract import Extraction
+from bench.solve.from_logs import extract_from_logs, solve_logs
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.imu.receiver import ImuReceiver
 from drivers.turntable import Turntable, open_turntable
@@ -54,6 +57,8 @@ class RunOutcome:
     failures: list[str] = field(default_factory=list)
     error: BaseException | None = None
     html_report_path: Path | None = None
+    verdict: Verdict | None = None        # the acceptance verdict of the result (None: no result)
+    problems: list[str] = field(default_factory=list)   # steps left out or degraded (the extraction's lines)
 
 
 def _new_run_id() -> str:
@@ -91,14 +96,15 @@ class BenchRun:
 
     def __init__(self, config: BenchConfig, plan: CompiledPlan, *, sim: bool, out_dir: str | Path, operator: str = "",
                  completed: Iterable[str] = (), previous_logs: Iterable[str] = (),
-                 listeners: Iterable[RunListener] = ()):
+                 listeners: Iterable[RunListener] = (), run_id: str | None = None):
         self.config, self.plan, self.sim = config, plan, sim
         self.out_dir = Path(out_dir)
         self.operator = operator
         self.completed = set(completed)
         self.previous_logs = list(previous_logs)
         self.extra_listeners = list(listeners)
-        self.run_id = _new_run_id()
+        # (`run_id`: a name of the caller's, e.g. a verification run named after its calibration run)
+        self.run_id = run_id or _new_run_id()
         self.log_path = self.out_dir / f"{self.run_id}.mcap"
         # set by open() and run(); None before
         self.world: SimWorld | None = None
@@ -197,6 +203,9 @@ class BenchRun:
             path = schedule_file(schedule)
             if path is not None:
                 recorder.add_attachment(path.name, "application/toml", path.read_bytes(), now_s)
+        if config.acceptance.reference_path:
+            reference = Path(config.acceptance.reference_path)
+            recorder.add_attachment(reference.name, "application/json", reference.read_bytes(), now_s)
 
     def _metadata(self) -> dict:
         config, identity = self.config, self.config.imu.identity
@@ -294,6 +303,9 @@ class BenchRun:
                     "imu_link": {**receiver.stats.as_dict(),
                                  **(receiver.time_base.as_dict() if receiver.time_base is not None else {})}}
         result = solution.calibration.to_result(run=run_info, sim_truth=config.sim.imu if self.sim else None)
+        verdict = judge(result, config.acceptance, lost_samples=receiver.stats.lost_samples,
+                        quality_failures=judged_failures(failures, config.acceptance))
+        result.verdict = verdict.to_json()
         result_path = self.out_dir / f"{self.run_id}.result.json"
         result.save(result_path)
         report_path, html_report_path = write_reports(
@@ -304,7 +316,29 @@ class BenchRun:
                                 self.clock.now() if self.clock is not None else 0.0)
         recorder.close()
         return RunOutcome(seq.state, self.log_path, result_path, report_path, result, failures,
-                          html_report_path=html_report_path)
+                          html_report_path=html_report_path, verdict=verdict,
+                          problems=list(solution.extraction.problems))
+
+    def finish_observations(self) -> tuple[Extraction | None, BaseException | None]:
+        """For a run that is not solved (a verification): close the log and extract its observations.
+
+        Returns (observations, None), or (None, the error) when the run failed."""
+        _, receiver, recorder, _ = self._opened()
+        seq = self.sequencer
+        if seq is None or seq.error is not None:
+            recorder.close()
+            return None, seq.error if seq is not None else BenchError("the run did not start")
+        broken = next((exc for listener, exc in seq.listener_errors if listener is recorder), None)
+        recorder.close()
+        if broken is not None:          # the log failed on the run's very last event
+            return None, ListenerError(describe_listener_error(recorder, broken))
+        config = self.config
+        extraction, _, damage = extract_from_logs([read_log(str(self.log_path))], config.site.site,
+                                                  config.imu.layout, config.imu.rate_hz)
+        extraction.problems += damage
+        if receiver.stats.lost_samples:
+            extraction.problems.append(f"{LOST_SAMPLES_FAILURE}: {receiver.stats.summary()}")
+        return extraction, None
 
     @property
     def is_static_noise(self) -> bool:
@@ -364,12 +398,24 @@ def bias_stabilities(config, sim: bool) -> tuple[float | None, float | None]:
     return gyro_stability, acc_stability
 
 
+#: how `quality_failures` words the two failures an [acceptance] limit can take over
+LOST_SAMPLES_FAILURE, OUTLIERS_FAILURE = "IMU link lost samples", "residual outliers beyond the outlier threshold"
+
+
 def quality_failures(solution, live_stats) -> list[str]:
     """Why a finished run's result should not be trusted as is (empty = passed)."""
     failures = list(solution.extraction.problems) + list(solution.damage)
     outliers = solution.calibration.quality().get("outliers", [])
     if outliers:
-        failures.append(f"{len(outliers)} residual outliers beyond the outlier threshold")
+        failures.append(f"{len(outliers)} {OUTLIERS_FAILURE}")
     if live_stats.lost_samples:
-        failures.append(f"IMU link lost samples: {live_stats.summary()}")
+        failures.append(f"{LOST_SAMPLES_FAILURE}: {live_stats.summary()}")
     return failures
+
+
+def judged_failures(failures: list[str], limits: AcceptanceLimits) -> list[str]:
+    """The quality failures that fail the verdict as they are: lost samples and residual outliers are
+    judged by `max_lost_samples` and `max_residual_sigma` instead when the configuration sets them."""
+    return [f for f in failures
+            if not (limits.max_lost_samples is not None and f.startswith(LOST_SAMPLES_FAILURE))
+            and not (limits.max_residual_sigma is not None and f.endswith(OUTLIERS_FAILURE))]

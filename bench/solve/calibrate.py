@@ -138,7 +138,7 @@ def solve(positions: list[PositionObservation], rotations: list[RotationObservat
     acc = solve_accelerometers(positions, site, mounting) if positions else None
     gyros = None
     if rotations:
-        noise_density = _pooled_gyro_noise(positions)
+        noise_density = pooled_gyro_noise(positions)
         gyros = solve_gyros(rotations, site, mounting, noise_density=noise_density)
         if not all(o.gyro_integral_sigma is not None for o in rotations) and noise_density is None:
             flags.append("rotation uncertainties from residual scatter only (no static noise estimate)")
@@ -160,7 +160,7 @@ def solve(positions: list[PositionObservation], rotations: list[RotationObservat
     return Calibration(acc, gyros, bias, list(positions), list(rotations), flags)
 
 
-def _pooled_gyro_noise(positions: list[PositionObservation]) -> np.ndarray | None:
+def pooled_gyro_noise(positions: list[PositionObservation]) -> np.ndarray | None:
     """White-noise density of each gyro (counts/s * sqrt(s)) pooled over the static dwells.
 
     A dwell of length T with a mean known to sem has density sem * sqrt(T); a turn of

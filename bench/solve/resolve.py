@@ -22,6 +22,8 @@ from pathlib import Path
 from typing import Sequence
 
 from bench import __version__
+from bench.acceptance.limits import AcceptanceLimits
+from bench.acceptance.verdict import Verdict, judge
 from bench.errors import InputError
 from bench.log.names import logs_before, output_path, run_id_of, sibling_log
 from bench.log.reader import LogError, RunLog, read_log
@@ -31,7 +33,7 @@ from bench.model.earth import Site
 from bench.model.observations import PositionObservation, RotationObservation
 from bench.model.result import CalibrationResult
 from bench.report.markdown import markdown_report, md_text, write_reports
-from bench.run.runner import bias_stabilities, quality_failures
+from bench.run.runner import bias_stabilities, judged_failures, quality_failures
 from bench.solve.extract import Extraction, finished_observation_steps
 from bench.solve.from_logs import LogSolution, extract_from_logs, solve_extraction
 from bench.solve.methods import SolverError
@@ -366,6 +368,7 @@ class Resolved:
     positions: str                     # schedule names ("" = none)
     rotations: str
     subset: bool                       # a subset was selected (the output name says which)
+    verdict: Verdict | None = None     # the acceptance verdict (the recorded configuration's [acceptance])
 
 
 def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolved:
@@ -393,7 +396,11 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolv
                 "left_out": sorted({*recorded.left_out, *dropped}), "damage": list(recorded.damage),
                 "notes": list(recorded.notes)}
     result = calibration.to_result(run=run_info, sim_truth=recorded.truth)
-    return Resolved(solution, result, failures, pos_name, rot_name, positions is not None or rotations is not None)
+    limits = config.acceptance if config is not None else AcceptanceLimits()
+    verdict = judge(result, limits, lost_samples=link.lost_samples, quality_failures=judged_failures(failures, limits))
+    result.verdict = verdict.to_json()
+    return Resolved(solution, result, failures, pos_name, rot_name, positions is not None or rotations is not None,
+                    verdict)
 
 
 def _solve_what_can_be(chosen: Extraction, site, gyro_stability, acc_stability):

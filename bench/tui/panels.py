@@ -368,6 +368,10 @@ class ResultsPanel(Vertical):
         head = text or f"{len(result.coefficients)} coefficients"
         if failures:
             head += f"; quality: {failures}"
+        verdict = result.verdict if isinstance(result.verdict, dict) else None
+        if verdict is not None:     # the verdict first: what an operator looks for
+            worst = f"; worst: {verdict['worst']}" if verdict.get("worst") else ""
+            head = f"VERDICT {verdict.get('headline', '?')}{worst}\n{head}"
         status.update(head)
         units = units_line(result.coefficients)
         self.query_one("#results-units", Label).update(Text(units, style="dim"))

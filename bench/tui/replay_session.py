@@ -99,7 +99,9 @@ def open_log(path: str | Path) -> OpenedLog:
 def log_result(opened: OpenedLog) -> tuple[CalibrationResult | None, str]:
     """(CalibrationResult or None, one line): the result attached to the log, else a fresh solve."""
     why = ""
-    for name, (_media, data) in sorted(opened.log.attachments.items()):
+    # the run's own result first: an [acceptance] reference result may be attached too
+    own = f"{opened.log.metadata.get('run', {}).get('run_id', '')}.result.json"
+    for name, (_media, data) in sorted(opened.log.attachments.items(), key=lambda item: (item[0] != own, item[0])):
         if name.endswith(".result.json"):
             try:
                 return (CalibrationResult.loads(data.decode("utf-8"), origin=f"{opened.path.name}:{name}"),

@@ -1,0 +1,172 @@
+"""The verdict of a calibration: every acceptance check with its value and limit, and pass/fail.
+
+`judge(result, limits, ...)` checks the result's coefficients against `AcceptanceLimits`,
+the run's lost samples and residuals, and adds the run's quality failures (steps left out,
+damage, outliers: each a failed check). A check's `ratio` says how close it came to its
+limit (|value| / limit; for a range, the distance from its middle over half its width):
+at most 1 passes, and the worst check is the one with the largest ratio (a failed one first).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+from bench.acceptance.limits import AcceptanceLimits
+from bench.model.families import RESULT_UNITS, canonical_names, family_of
+from bench.model.result import CalibrationResult
+
+
+@dataclass(frozen=True)
+class Check:
+    """One check: `name` (`Kg_x value`, `lost samples`), its value and its limit, in `unit`."""
+
+    name: str
+    value: float | None             # None: unknown (a missing coefficient, an unknown sigma)
+    limit: float | tuple[float, float] | None
+    unit: str
+    passed: bool
+    ratio: float                    # how close to the limit: <= 1 passes (inf when unknown)
+    note: str = ""
+    signed: bool = False            # a difference, limited in magnitude: "within/beyond +-limit"
+
+    def describe(self) -> str:
+        """`Kg_x sigma 0.02 > 0.01 counts/s per deg/s` (one line)."""
+        unit = f" {self.unit}" if self.unit and self.unit != "1" else ""
+        if self.value is None:
+            return f"{self.name}: {self.note or 'unknown'}"
+        if isinstance(self.limit, tuple):
+            inside = self.limit[0] <= self.value <= self.limit[1]
+            relation = "in" if inside else "outside"
+            return f"{self.name} {self.value:.6g}{unit} {relation} [{self.limit[0]:.6g}, {self.limit[1]:.6g}]"
+        if self.limit is None:
+            return f"{self.name}: {self.note}"
+        if self.signed:
+            relation = f"{'within' if self.passed else 'beyond'} +-{self.limit:.6g}"
+        else:
+            relation = f"{'<=' if self.passed else '>'} {self.limit:.6g}"
+        return f"{self.name} {self.value:.6g} {relation}{unit}" + (f" ({self.note})" if self.note else "")
+
+    def to_json(self) -> dict[str, Any]:
+        limit: Any = list(self.limit) if isinstance(self.limit, tuple) else self.limit
+        return {"name": self.name, "value": _finite_or_none(self.value), "limit": limit, "unit": self.unit,
+                "passed": self.passed, "ratio": _finite_or_none(self.ratio), "text": self.describe()}
+
+
+def _finite_or_none(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Pass or fail, with every check."""
+
+    checks: list[Check] = field(default_factory=list)
+
+    @property
+    def passed(self) -> bool:
+        return all(c.passed for c in self.checks)
+
+    @property
+    def failed(self) -> list[Check]:
+        return [c for c in self.checks if not c.passed]
+
+    @property
+    def worst(self) -> Check | None:
+        """The failed check furthest beyond its limit, else the passed one closest to it."""
+        if not self.checks:
+            return None
+        return max(self.checks, key=lambda c: (not c.passed, c.ratio if math.isfinite(c.ratio) else math.inf))
+
+    def headline(self) -> str:
+        """`PASS (31 checks)` / `FAIL (2 of 31 checks: Kg_x sigma, lost samples)`."""
+        n = len(self.checks)
+        if self.passed:
+            return f"PASS ({n} check{'s' if n != 1 else ''})" if n else "PASS (no acceptance limits configured)"
+        names = [c.name for c in self.failed]
+        shown = ", ".join(names[:6]) + (f", ... ({len(names) - 6} more)" if len(names) > 6 else "")
+        return f"FAIL ({len(names)} of {n} checks: {shown})"
+
+    def to_json(self) -> dict[str, Any]:
+        worst = self.worst
+        return {"passed": self.passed, "verdict": "pass" if self.passed else "fail", "headline": self.headline(),
+                "worst": worst.describe() if worst else None, "checks": [c.to_json() for c in self.checks]}
+
+
+def _max_check(name: str, value: float | None, limit: float, unit: str, note: str = "",
+               signed: bool = False) -> Check:
+    if value is None or not math.isfinite(value):
+        return Check(name, None, limit, unit, False, math.inf, note or "unknown", signed)
+    ratio = abs(value) / limit if limit > 0 else (0.0 if value == 0 else math.inf)
+    return Check(name, value, limit, unit, abs(value) <= limit, ratio, note, signed)
+
+
+def _range_check(name: str, value: float, low: float, high: float, unit: str) -> Check:
+    middle, half = (low + high) / 2, (high - low) / 2
+    ratio = abs(value - middle) / half if half > 0 else (0.0 if value == middle else math.inf)
+    return Check(name, value, (low, high), unit, low <= value <= high, ratio)
+
+
+def coefficient_checks(result: CalibrationResult, limits: AcceptanceLimits) -> list[Check]:
+    """The checks of the coefficients' limits (a limited coefficient the result lacks fails)."""
+    checks = []
+    for name in canonical_names():
+        family = family_of(name)
+        lim = limits.for_coefficient(name, family)
+        if lim.min is None and lim.max_sigma is None and lim.max_change is None:
+            continue
+        unit = RESULT_UNITS[family][0]
+        c = result.coefficients.get(name)
+        if c is None:
+            checks.append(Check(f"{name}", None, None, unit, False, math.inf, "not in the result"))
+            continue
+        if lim.min is not None and lim.max is not None:     # the configuration gives both or neither
+            checks.append(_range_check(f"{name} value", c.value, lim.min, lim.max, unit))
+        if lim.max_sigma is not None:
+            checks.append(_max_check(f"{name} sigma", c.sigma, lim.max_sigma, unit))
+        if lim.max_change is not None:
+            reference = lim.nominal if lim.nominal is not None else limits.reference.get(name)
+            if reference is None:
+                checks.append(Check(f"{name} change", None, lim.max_change, unit, False, math.inf,
+                                    f"not in the reference {limits.reference_name}".rstrip()))
+            else:
+                source = "nominal" if lim.nominal is not None else f"reference {limits.reference_name}"
+                checks.append(_max_check(f"{name} change", c.value - reference, lim.max_change, unit,
+                                         f"from {source} {reference:.10g}", signed=True))
+    return checks
+
+
+def max_residual_sigma(result: CalibrationResult) -> float | None:
+    """The largest |residual| / sigma of any position or rotation in the result (None: none recorded)."""
+    values = []
+    for kind in ("positions", "rotations"):
+        rows = result.residuals.get(kind, []) if isinstance(result.residuals, dict) else []
+        for row in rows if isinstance(rows, list) else []:
+            if not isinstance(row, dict):
+                continue
+            for key in ("acc_normalized", "gyro_normalized"):
+                for v in row.get(key) or []:
+                    if isinstance(v, (int, float)) and math.isfinite(v):
+                        values.append(abs(float(v)))
+    return max(values) if values else None
+
+
+def judge(result: CalibrationResult, limits: AcceptanceLimits, *, lost_samples: int | None = None,
+          quality_failures: Sequence[str] = (), extra: Sequence[Check] = ()) -> Verdict:
+    """The verdict of `result`: its coefficient limits, lost samples, residuals, the run's quality failures
+    and `extra` checks (the verification's)."""
+    checks = coefficient_checks(result, limits)
+    if limits.max_lost_samples is not None:
+        checks.append(_max_check("lost samples", None if lost_samples is None else float(lost_samples),
+                                 float(limits.max_lost_samples), "samples",
+                                 "" if lost_samples is not None else "not known"))
+    if limits.max_residual_sigma is not None:
+        checks.append(_max_check("residual", max_residual_sigma(result), limits.max_residual_sigma, "sigma",
+                                 "largest |residual| / sigma"))
+    checks += list(extra)
+    checks += [Check("quality", None, None, "", False, math.inf, text) for text in quality_failures]
+    return Verdict(checks)
+
+
+__all__ = ["Check", "Verdict", "coefficient_checks", "judge", "max_residual_sigma"]

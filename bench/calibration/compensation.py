@@ -1,0 +1,169 @@
+"""The compensation of a calibration: the inverse of the IMU model (DESIGN section 2).
+
+The model, per sensor s (outputs `F`, `J` in counts/s):
+
+    gyro:  F_s = Kg_s (Eg_s . w_b + D0_s)        accel:  J_s = Ka_s (Ea_s . f_b + K0_s)
+
+per triad in matrix form `y = K E u + K d` with `K = diag(scale)`, `E` the rows of direction
+cosines, `d` the biases (input units). Its inverse, what firmware applies:
+
+    u_b = C (y - b),   C = (K E)^-1,   b = K d
+
+`C` in SI input units per counts/s (rad/s per counts/s, m/s^2 per counts/s), `b` in counts/s
+(the output at zero input). A positive bias `D0` raises the output, so it is subtracted.
+Uncertainties (1-sigma) are propagated to first order from the result's coefficient
+sigmas, taken as independent (the result file holds no covariances).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import stat
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from bench.errors import InputError
+from bench.model.families import BODY_AXES, RESULT_UNITS, SENSOR_AXES, canonical_names
+from bench.model.result import CalibrationResult
+from bench.model.units import DEG, G0
+
+#: the two triads: (key, scale family, bias family, axes family, SI input unit, what it measures)
+TRIADS = (("gyro", "Kg", "D0", "Eg", "rad/s", "body angular rate w_b"),
+          ("acc", "Ka", "K0", "Ea", "m/s^2", "body specific force f_b"))
+RAW_UNIT = "counts/s"
+
+#: output units `compensate` can give: name -> factor SI -> that unit
+RATE_UNITS = {"rad/s": 1.0, "deg/s": 1.0 / DEG}
+FORCE_UNITS = {"m/s^2": 1.0, "g": 1.0 / G0}
+
+EQUATIONS = {
+    "gyro": "w_b = C_gyro (F - b_gyro); C_gyro = (diag(Kg) Eg)^-1, b_gyro = diag(Kg) D0",
+    "acc": "f_b = C_acc (J - b_acc); C_acc = (diag(Ka) Ea)^-1, b_acc = diag(Ka) K0",
+}
+
+
+class CompensationError(InputError):
+    """A result that does not give a full compensation (a coefficient missing, a singular matrix)."""
+
+
+@dataclass(frozen=True)
+class TriadCompensation:
+    """`u_b = matrix (y - bias_counts)` for one triad, with 1-sigma uncertainties (NaN: unknown)."""
+
+    sensor: str                 # "gyro" | "acc"
+    input_unit: str             # SI unit of u_b: "rad/s" | "m/s^2"
+    matrix: np.ndarray          # (3, 3) input_unit per counts/s
+    bias_counts: np.ndarray     # (3,) counts/s
+    matrix_sigma: np.ndarray    # (3, 3)
+    bias_sigma: np.ndarray      # (3,)
+
+    @property
+    def matrix_unit(self) -> str:
+        return f"{self.input_unit} per {RAW_UNIT}"
+
+    def apply(self, outputs: np.ndarray) -> np.ndarray:
+        """Compensated inputs (..., 3) in SI for raw outputs (..., 3) in counts/s."""
+        return (np.asarray(outputs, dtype=float) - self.bias_counts) @ self.matrix.T
+
+
+@dataclass(frozen=True)
+class Compensation:
+    """The compensation of both triads, and who it is for (from the result's `run`)."""
+
+    gyro: TriadCompensation
+    acc: TriadCompensation
+    imu_model: str = ""
+    imu_serial: str = ""
+    run_id: str = ""
+    calibrated_utc: str = ""
+    software_version: str = ""
+
+    def triads(self) -> tuple[TriadCompensation, TriadCompensation]:
+        return self.gyro, self.acc
+
+    def compensate(self, gyro_counts_per_s: np.ndarray, acc_counts_per_s: np.ndarray, *,
+                   rate_unit: str = "rad/s", force_unit: str = "m/s^2") -> tuple[np.ndarray, np.ndarray]:
+        """Body rates and specific forces for raw outputs (counts/s), in the units asked for."""
+        return (self.gyro.apply(gyro_counts_per_s) * RATE_UNITS[rate_unit],
+                self.acc.apply(acc_counts_per_s) * FORCE_UNITS[force_unit])
+
+
+def _text(value: Any) -> str:
+    return value if isinstance(value, str) else ""
+
+
+def compensation_of(result: CalibrationResult) -> Compensation:
+    """The compensation of a result holding all 30 coefficients (CompensationError otherwise)."""
+    missing = [name for name in canonical_names() if name not in result.coefficients]
+    if missing:
+        raise CompensationError(f"the result lacks {len(missing)} of the 30 coefficients ({', '.join(missing[:4])}"
+                                f"{', ...' if len(missing) > 4 else ''}): a compensation needs all of them")
+    triads = [_triad(result, *spec) for spec in TRIADS]
+    run = result.run if isinstance(result.run, dict) else {}
+    imu = run.get("imu")
+    imu = imu if isinstance(imu, dict) else {}
+    return Compensation(triads[0], triads[1], imu_model=_text(imu.get("model")), imu_serial=_text(imu.get("serial")),
+                        run_id=_text(run.get("run_id")), calibrated_utc=_text(run.get("finished_utc")),
+                        software_version=_text(run.get("software_version")))
+
+
+def _triad(result: CalibrationResult, sensor: str, scale: str, bias: str, axes: str, unit: str,
+           _what: str) -> TriadCompensation:
+    c = result.coefficients
+
+    def si(prefix: str, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
+        factor = RESULT_UNITS[prefix][1]
+        return (np.array([c[n].value * factor for n in names]),
+                np.array([c[n].sigma * factor if math.isfinite(c[n].sigma) else math.nan for n in names]))
+
+    k, k_sigma = si(scale, [f"{scale}_{s}" for s in SENSOR_AXES])
+    d, d_sigma = si(bias, [f"{bias}_{s}" for s in SENSOR_AXES])
+    rows = [[f"{axes}_{a}{s}" for a in BODY_AXES] for s in SENSOR_AXES]
+    e = np.array([[c[n].value for n in row] for row in rows])
+    e_sigma = np.array([[c[n].sigma for n in row] for row in rows])
+    m = k[:, None] * e
+    if not np.all(np.isfinite(m)) or abs(np.linalg.det(m)) <= 1e-12 * np.prod(np.linalg.norm(m, axis=1)):
+        raise CompensationError(f"the {sensor} scale x direction-cosine matrix is singular or not finite: "
+                                "it has no inverse")
+    matrix = np.linalg.inv(m)
+    # first order: dC = -C dM C; M_ij = k_i e_ij, so dM/dk_i = row i of E, dM/de_ij = k_i at (i, j)
+    variance = np.zeros((3, 3))
+    for i in range(3):
+        variance += np.outer(matrix[:, i], e[i] @ matrix) ** 2 * k_sigma[i] ** 2
+        for j in range(3):
+            variance += (k[i] * np.outer(matrix[:, i], matrix[j, :])) ** 2 * e_sigma[i, j] ** 2
+    bias_counts = k * d
+    bias_sigma = np.hypot(d * k_sigma, k * d_sigma)
+    return TriadCompensation(sensor, unit, matrix, bias_counts, np.sqrt(variance), bias_sigma)
+
+
+__all__ = ["EQUATIONS", "FORCE_UNITS", "RATE_UNITS", "RAW_UNIT", "TRIADS", "Compensation", "CompensationError",
+           "TriadCompensation", "compensation_of", "load_result"]
+
+
+#: the largest result file read (a result of the bench is a few tens of kB)
+MAX_RESULT_BYTES = 16 * 1024 * 1024
+
+
+def load_result(path: str) -> CalibrationResult:
+    """A result file from outside, bounded: a regular file of at most `MAX_RESULT_BYTES`, UTF-8 JSON
+    (`InputError` in one line otherwise; OSError when it cannot be read)."""
+    info = os.stat(path)
+    if not stat.S_ISREG(info.st_mode):
+        raise CompensationError(f"{path}: not a regular file")
+    if info.st_size > MAX_RESULT_BYTES:
+        raise CompensationError(f"{path}: {info.st_size} bytes, more than a result file holds "
+                                f"(at most {MAX_RESULT_BYTES})")
+    with open(path, "rb") as f:
+        data = f.read(MAX_RESULT_BYTES + 1)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise CompensationError(f"{path}: not UTF-8 (byte {exc.start})") from exc
+    try:
+        return CalibrationResult.loads(text, path)
+    except RecursionError as exc:
+        raise CompensationError(f"{path}: JSON nested too deeply") from exc

@@ -1,0 +1,73 @@
+"""`bench apply`: compensate a run log's IMU samples with a calibration (logic in `bench.calibration.apply`).
+
+Exit codes: 0 written; 2 usage error, a result or log that cannot be used, an output that
+cannot be written.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from bench.cli.common import ExitCode, fail
+from bench.errors import InputError
+
+PROG = "bench apply"
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "apply", help="compensate a run log's IMU samples with a calibration (MCAP or CSV)",
+        description="Decode a run log's IMU samples from its raw CAN frames, compensate them with a result's "
+                    "calibration (u = C (y - b)) and write them: a new MCAP (--out FILE.mcap: the raw samples on "
+                    "/imu/samples and the compensated ones on /imu/compensated; the log itself is not changed) or "
+                    "CSV (--out FILE.csv). Exit codes: 0 written, 2 usage error, unusable result or log, or "
+                    "unwritable output.")
+    parser.add_argument("result", metavar="RESULT", help="a result file (<run-id>.result.json)")
+    parser.add_argument("log", metavar="LOG", help="a run log (.mcap)")
+    parser.add_argument("--out", metavar="FILE", required=True, help="output file: .mcap or .csv")
+    parser.add_argument("--format", choices=("mcap", "csv"), help="output format (default: from --out's suffix)")
+    parser.add_argument("--rate-unit", choices=("deg/s", "rad/s"), default="deg/s",
+                        help="unit of the angular rates (default %(default)s)")
+    parser.add_argument("--force-unit", choices=("g", "m/s^2"), default="g",
+                        help="unit of the specific force (default %(default)s)")
+    parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    parser.set_defaults(func=cmd_apply)
+
+
+def cmd_apply(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without the bench core
+    from bench.calibration.apply import apply_to_log, write_csv, write_mcap
+    from bench.calibration.compensation import compensation_of, load_result
+    from bench.log.reader import LogError
+
+    out = Path(args.out)
+    fmt = args.format or {".mcap": "mcap", ".csv": "csv"}.get(out.suffix.lower())
+    if fmt is None:
+        return fail(PROG, f"say --format mcap|csv: {args.out!r} ends in neither .mcap nor .csv", ExitCode.USAGE)
+    try:
+        compensation = compensation_of(load_result(args.result))
+    except InputError as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
+    except OSError as exc:
+        return fail(PROG, f"{args.result}: cannot read: {exc.strerror or exc}", ExitCode.USAGE)
+    if out.resolve() == Path(args.log).resolve():
+        return fail(PROG, f"--out {args.out} is the log itself: write the compensated samples to a new file",
+                    ExitCode.USAGE)
+    try:
+        samples, _log = apply_to_log(compensation, args.log, rate_unit=args.rate_unit, force_unit=args.force_unit)
+    except (LogError, InputError) as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
+    if not len(samples):
+        return fail(PROG, f"{args.log}: no IMU samples to compensate", ExitCode.USAGE)
+    try:
+        if fmt == "csv":
+            write_csv(samples, out)
+        else:
+            write_mcap(samples, out, compensation=compensation, source_log=args.log)
+    except OSError as exc:
+        return fail(PROG, f"{args.out}: cannot write: {exc.strerror or exc}", ExitCode.USAGE)
+    if not args.quiet:
+        print(f"compensated {len(samples)} samples of {Path(args.log).name} with the calibration of run "
+              f"{compensation.run_id or '(unnamed)'}: {out} ({args.rate_unit}, {args.force_unit})")
+    return ExitCode.OK

@@ -1,0 +1,58 @@
+"""`bench export`: a result's compensation in the form firmware uses (logic in `bench.calibration.export`).
+
+Exit codes: 0 written; 2 usage error, a result that cannot be read or lacks coefficients,
+an output that cannot be written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from bench.cli.common import ExitCode, fail
+from bench.errors import InputError
+
+PROG = "bench export"
+#: file suffix -> format, when --format is not given
+SUFFIXES = {".json": "json", ".csv": "csv", ".h": "c", ".yaml": "yaml", ".yml": "yaml", ".toml": "toml"}
+FORMAT_NAMES = ("json", "csv", "c", "yaml", "toml")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "export", help="write a result's compensation (matrix, bias, uncertainties) for firmware",
+        description="Write the compensation of a calibration result, u = C (y - b) per triad (C the inverse of "
+                    "scale x direction cosines in rad/s or m/s^2 per counts/s, b the bias in counts/s), with "
+                    "its 1-sigma uncertainties, as JSON, CSV, a C header, kalibr-style YAML or TOML. Exit codes: "
+                    "0 written, 2 usage error, unreadable result or unwritable output.")
+    parser.add_argument("result", metavar="RESULT", help="a result file (<run-id>.result.json)")
+    parser.add_argument("--format", choices=FORMAT_NAMES,
+                        help="json, csv, c (a C header), yaml (kalibr-style) or toml (default: from --out's suffix)")
+    parser.add_argument("--out", metavar="FILE", required=True, help="the file to write ('-' for stdout)")
+    parser.set_defaults(func=cmd_export)
+
+
+def cmd_export(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without the bench core
+    from bench.calibration.compensation import compensation_of, load_result
+    from bench.calibration.export import export_text
+
+    fmt = args.format or SUFFIXES.get(Path(args.out).suffix.lower())
+    if fmt is None:
+        return fail(PROG, f"say --format ({', '.join(FORMAT_NAMES)}): {args.out!r} has no known suffix",
+                    ExitCode.USAGE)
+    try:
+        text = export_text(compensation_of(load_result(args.result)), fmt)
+    except InputError as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
+    except OSError as exc:
+        return fail(PROG, f"{args.result}: cannot read: {exc.strerror or exc}", ExitCode.USAGE)
+    if args.out == "-":
+        sys.stdout.write(text)
+        return ExitCode.OK
+    try:
+        Path(args.out).write_text(text, encoding="utf-8")
+    except OSError as exc:
+        return fail(PROG, f"{args.out}: cannot write: {exc.strerror or exc}", ExitCode.USAGE)
+    return ExitCode.OK

@@ -1,0 +1,90 @@
+"""The configuration's `[acceptance]` section -> `bench.acceptance.limits.AcceptanceLimits`.
+
+Ranges (documented in the README's "Input limits"): per family or coefficient, `min`, `max`
+and `nominal` within the family's value range (`VALUE_RANGES`, result units), `min` below
+`max` and both or neither; `max_sigma` and `max_change` > 0 and at most the width of that
+range; `max_change` needs a `nominal` or `[acceptance] reference`. `max_lost_samples`
+0..1e9, `max_residual_sigma` > 0 and <= 1e6. `[acceptance.verification]`: the largest |error|
+per verification quantity, > 0 and at most 3600 deg/h, 1e6 ppm, 3600 arcsec or 1e6 ug.
+`reference` is a result file of at most 1 MiB, read and checked here (so a bad one is refused before anything moves).
+"""
+
+from __future__ import annotations
+
+from bench.acceptance.limits import COEFFICIENT_KEYS, VERIFICATION_LIMITS, AcceptanceLimits, CoefficientLimits
+from bench.config.reader import ConfigError, Table, read_text, show
+from bench.model.families import FAMILY_INFO, canonical_names, family_of
+from bench.model.result import CalibrationResult, ResultFormatError
+
+#: family -> (lowest, highest, unit) of a value, in result units
+VALUE_RANGES = {"Kg": (0.0, 1e9, "counts/s per deg/s"), "Ka": (0.0, 1e9, "counts/s per g"),
+                "D0": (-36000.0, 36000.0, "deg/h"), "K0": (-1.0, 1.0, "g"), "Eg": (-1.0, 1.0, ""),
+                "Ea": (-1.0, 1.0, "")}
+MAX_LOST_SAMPLES = 10 ** 9
+MAX_RESIDUAL_SIGMA = 1e6
+ACCEPTANCE_KEYS = ("max_lost_samples", "max_residual_sigma", "reference", "verification", *FAMILY_INFO,
+                   *canonical_names())
+
+
+def _limits(t: Table, family: str) -> CoefficientLimits:
+    low, high, unit = VALUE_RANGES[family]
+    width = high - low
+    values = {key: t.number(key, None, ge=low, le=high, unit=unit) for key in ("min", "max", "nominal")}
+    for key in ("max_sigma", "max_change"):
+        values[key] = t.number(key, None, gt=0, le=width, unit=unit)
+    if (values["min"] is None) != (values["max"] is None):
+        given = "min" if values["min"] is not None else "max"
+        raise t.error(given, "a range needs both min and max")
+    if values["min"] is not None and values["max"] is not None and not values["min"] < values["max"]:
+        raise t.error("max", f"must be above min ({values['min']:g}), got {values['max']:g}")
+    return CoefficientLimits(**values)
+
+
+def _verification(t: Table) -> dict[str, float]:
+    v = t.table("verification", VERIFICATION_LIMITS)
+    out = {}
+    for key, (unit, high) in VERIFICATION_LIMITS.items():
+        value = v.number(key, None, gt=0, le=high, unit=unit)
+        if value is not None:
+            out[key] = value
+    return out
+
+
+def acceptance_limits(t: Table) -> AcceptanceLimits:
+    """Parse `[acceptance]` (an empty table: no limits)."""
+    families, coefficients = {}, {}
+    for key in t.data:
+        if key in FAMILY_INFO:
+            families[key] = _limits(t.table(key, COEFFICIENT_KEYS), key)
+        elif key in canonical_names():
+            coefficients[key] = _limits(t.table(key, COEFFICIENT_KEYS), family_of(key))
+    reference, reference_name, reference_path = {}, "", ""
+    if t.has("reference"):
+        path = t.file("reference")
+        if not t.is_file("reference", path):
+            raise t.error("reference", f"no such result file {show(str(path))}" if not path.exists()
+                          else f"{show(str(path))} is not a regular file")
+        try:
+            result = CalibrationResult.loads(read_text(path, "the reference result file"), str(path))
+        except ConfigError as exc:
+            raise t.error("reference", exc.message) from exc
+        except (ResultFormatError, RecursionError) as exc:
+            raise t.error("reference", str(exc) if isinstance(exc, ResultFormatError) else
+                          f"{show(str(path))}: JSON nested too deeply") from exc
+        reference, reference_name, reference_path = result.values(), path.name, str(path)
+    limits = AcceptanceLimits(families, coefficients,
+                              t.integer("max_lost_samples", None, ge=0, le=MAX_LOST_SAMPLES),
+                              t.number("max_residual_sigma", None, gt=0, le=MAX_RESIDUAL_SIGMA, unit="sigma"),
+                              reference, reference_name, reference_path, _verification(t))
+    if not reference:
+        for name in canonical_names():
+            merged = limits.for_coefficient(name, family_of(name))
+            if merged.max_change is not None and merged.nominal is None:
+                own = coefficients.get(name)
+                where = name if own is not None and own.max_change is not None else family_of(name)
+                raise t.doc.error(t.path + (where, "max_change"),
+                                  "needs a nominal value or an [acceptance] reference result file")
+    return limits
+
+
+__all__ = ["ACCEPTANCE_KEYS", "VALUE_RANGES", "acceptance_limits"]

@@ -1,0 +1,252 @@
+"""The errors left after compensation, in physical units, from a verification run's observations.
+
+The verification plan's dwells and turns are extracted as for a solve
+(`bench.solve.extract`), then compensated with the calibration under test through the
+same `Compensation` that `bench apply` uses, and compared with their nominal inputs on
+an ideal table:
+
+- positions: per accelerometer axis i, the compensated mean specific force minus the
+  nominal one is fitted as `e_i = b_i + S_i . f_nominal` (weighted least squares): `b_i` is
+  the **accelerometer bias error** (ug), `S_ii` the **scale-factor error** (ppm), `S_ij` the
+  **misalignment** (arcsec: axis i's sensitivity to body axis j, the error of `Ea_Ji`).
+  The compensated mean rate minus the nominal Earth rate, averaged, is the **gyro bias
+  error** (deg/h);
+- turns: for each body axis and rate, the compensated angle of a CCW and a CW turn minus
+  the nominal `+-2 pi N u + Earth` (rad). Half the difference of the two, over `2 pi N`,
+  is the **gyro scale-factor error** along the axis (ppm) and the **misalignment** towards
+  the two other axes (arcsec, the error of `Eg_Kv`), the bias cancelling between the two.
+
+Every error comes with its expanded uncertainty `U = 2 sqrt(s_meas^2 + s_cal^2)`: the
+verification data's own 1-sigma (dwell standard errors, turn integral sigmas; scaled up by
+the residual scatter) and the calibration's 1-sigma of the coefficient the error measures.
+The turntable's pointing error is not in U (zero on an ideal simulated table).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from bench.calibration.compensation import Compensation, TriadCompensation
+from bench.model.earth import Site
+from bench.model.families import BODY_AXES, SENSOR_AXES
+from bench.model.kinematics import attitude
+from bench.model.observations import PositionObservation, RotationObservation, turn_axis_in_body
+from bench.model.result import CalibrationResult
+from bench.model.units import ARCSEC, DEG, DEG_PER_HOUR, G0, MICRO_G
+from bench.solve.calibrate import pooled_gyro_noise
+from bench.solve.extract import Extraction
+from bench.solve.methods import SolverError, fit_per_sensor, nominal_position_inputs
+
+#: verification quantity -> (unit, what it is); the keys of `[acceptance.verification]` limits
+QUANTITIES = {
+    "gyro_bias_dph": ("deg/h", "gyro bias"),
+    "gyro_scale_ppm": ("ppm", "gyro scale factor"),
+    "gyro_misalignment_arcsec": ("arcsec", "gyro misalignment"),
+    "acc_bias_ug": ("ug", "accelerometer bias"),
+    "acc_scale_ppm": ("ppm", "accelerometer scale factor"),
+    "acc_misalignment_arcsec": ("arcsec", "accelerometer misalignment"),
+}
+COVERAGE_K = 2.0
+_RATE_DECIMALS = 6
+
+
+@dataclass(frozen=True)
+class VerificationError:
+    """One error after compensation: `name` (`gyro scale x @ 20 deg/s`), value and expanded uncertainty."""
+
+    quantity: str          # a key of QUANTITIES
+    name: str
+    value: float
+    uncertainty: float     # expanded, k = 2
+    unit: str
+
+    def __post_init__(self) -> None:        # plain floats (numpy scalars in, JSON out)
+        object.__setattr__(self, "value", float(self.value))
+        object.__setattr__(self, "uncertainty", float(self.uncertainty))
+
+    @property
+    def within_uncertainty(self) -> bool:
+        return bool(abs(self.value) <= self.uncertainty)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"quantity": self.quantity, "name": self.name, "value": _finite(self.value),
+                "uncertainty": _finite(self.uncertainty), "k": COVERAGE_K, "unit": self.unit,
+                "within_uncertainty": self.within_uncertainty}
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+@dataclass
+class Verification:
+    """The errors of a verification run, and what could not be verified."""
+
+    errors: list[VerificationError] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def of(self, quantity: str) -> list[VerificationError]:
+        return [e for e in self.errors if e.quantity == quantity]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"errors": [e.to_json() for e in self.errors], "notes": list(self.notes),
+                "coverage_k": COVERAGE_K}
+
+
+def _sigma_of(result: CalibrationResult, name: str) -> float:
+    c = result.coefficients.get(name)
+    return c.sigma if c is not None and math.isfinite(c.sigma) else 0.0
+
+
+def _relative_sigma_of(result: CalibrationResult, name: str) -> float:
+    c = result.coefficients.get(name)
+    return c.sigma / abs(c.value) if c is not None and math.isfinite(c.sigma) and c.value else 0.0
+
+
+def _expanded(*sigmas: float) -> float:
+    return COVERAGE_K * math.sqrt(sum(s * s for s in sigmas))
+
+
+def _mapped_sigma(triad: TriadCompensation, sigma_counts: np.ndarray | None) -> np.ndarray:
+    """1-sigma of compensated inputs for independent output sigmas (counts/s or counts)."""
+    return np.sqrt((triad.matrix ** 2) @ (np.asarray(sigma_counts, dtype=float) ** 2))
+
+
+def position_errors(obs: list[PositionObservation], compensation: Compensation, calibration: CalibrationResult,
+                    site: Site, mounting=None) -> list[VerificationError]:
+    """Accelerometer bias, scale and misalignment errors and gyro bias errors from the dwells."""
+    angles = np.array([o.angles_deg for o in obs])
+    f_nominal, w_nominal = nominal_position_inputs(angles, site, mounting)
+    acc_mean = np.array([o.acc_mean for o in obs])
+    gyro_mean = np.array([o.gyro_mean for o in obs])
+    f_error = compensation.acc.apply(acc_mean) - f_nominal
+    w_error = compensation.gyro.apply(gyro_mean) - w_nominal
+    acc_sem = [o.standard_error("acc") for o in obs]
+    gyro_sem = [o.standard_error("gyro") for o in obs]
+    f_sigma = (np.array([_mapped_sigma(compensation.acc, s) for s in acc_sem])
+               if all(s is not None for s in acc_sem) else None)
+    w_sigma = (np.array([_mapped_sigma(compensation.gyro, s) for s in gyro_sem])
+               if all(s is not None for s in gyro_sem) else None)
+    errors = []
+    acc_fit = fit_per_sensor(np.column_stack([np.ones(len(obs)), f_nominal]), f_error, f_sigma)
+    for i, s in enumerate(SENSOR_AXES):
+        sigma = np.sqrt(np.diag(acc_fit.cov[i]))
+        bias = acc_fit.params[i, 0]
+        errors.append(VerificationError("acc_bias_ug", f"acc bias {s}", bias / MICRO_G,
+                                        _expanded(sigma[0] / MICRO_G, _sigma_of(calibration, f"K0_{s}") * G0 / MICRO_G),
+                                        "ug"))
+    for i, s in enumerate(SENSOR_AXES):
+        sigma = np.sqrt(np.diag(acc_fit.cov[i]))
+        errors.append(VerificationError("acc_scale_ppm", f"acc scale {s}", acc_fit.params[i, 1 + i] * 1e6,
+                                        _expanded(sigma[1 + i] * 1e6, _relative_sigma_of(calibration, f"Ka_{s}") * 1e6),
+                                        "ppm"))
+    for i, s in enumerate(SENSOR_AXES):
+        sigma = np.sqrt(np.diag(acc_fit.cov[i]))
+        for j, axis in enumerate(BODY_AXES):
+            if i != j:
+                errors.append(VerificationError(
+                    "acc_misalignment_arcsec", f"acc misalignment {s} to {axis}", acc_fit.params[i, 1 + j] / ARCSEC,
+                    _expanded(sigma[1 + j] / ARCSEC, _sigma_of(calibration, f"Ea_{axis}{s}") / ARCSEC), "arcsec"))
+    gyro_fit = fit_per_sensor(np.ones((len(obs), 1)), w_error, w_sigma)
+    for i, s in enumerate(SENSOR_AXES):
+        bias_sigma = math.sqrt(gyro_fit.cov[i, 0, 0])
+        errors.append(VerificationError("gyro_bias_dph", f"gyro bias {s}", gyro_fit.params[i, 0] / DEG_PER_HOUR,
+                                        _expanded(bias_sigma / DEG_PER_HOUR, _sigma_of(calibration, f"D0_{s}")),
+                                        "deg/h"))
+    return errors
+
+
+def _turn_error(obs: RotationObservation, compensation: Compensation, site: Site, mounting,
+                noise_density: np.ndarray | None) -> tuple[int, float, np.ndarray, np.ndarray] | None:
+    """(axis k, sign of the axis, error vector rad, its 1-sigma rad) of one turn; None if not along an axis."""
+    u = turn_axis_in_body(obs.start_deg, obs.frame_index, mounting=mounting)
+    k = int(np.argmax(np.abs(u)))
+    if abs(abs(u[k]) - 1.0) > 1e-9:
+        return None
+    angle = compensation.gyro.apply(obs.gyro_integral / obs.duration_s) * obs.duration_s
+    earth = obs.earth_integral_rad
+    if earth is None:
+        w_b = attitude(np.asarray(obs.start_deg) * DEG, mounting=mounting) @ site.earth_rate_enu
+        earth = obs.duration_s * float(u @ w_b) * u
+    nominal = obs.sign * 2.0 * math.pi * obs.revolutions * u + earth
+    # the integral's noise: its own sigma, else the static dwells' white-noise density over the turn's length
+    counts_sigma = obs.gyro_integral_sigma
+    if counts_sigma is None and noise_density is not None:
+        counts_sigma = noise_density * math.sqrt(obs.duration_s)
+    sigma = _mapped_sigma(compensation.gyro, counts_sigma) if counts_sigma is not None else np.zeros(3)
+    # in the frame of +axis k: a turn about -X is a turn about +X the other way
+    sign = 1.0 if u[k] > 0 else -1.0
+    return k, sign * obs.sign, angle - nominal, sigma
+
+
+def rotation_errors(obs: list[RotationObservation], rates_dps: dict[str, float], compensation: Compensation,
+                    calibration: CalibrationResult, site: Site, mounting=None,
+                    noise_density: np.ndarray | None = None) -> tuple[list[VerificationError], list[str]]:
+    """Gyro scale-factor (per axis and rate) and misalignment errors from CCW/CW turn pairs (`noise_density`:
+    the gyros' white noise, counts/s sqrt(s), for turns without their own integral sigma)."""
+    groups: dict[tuple[int, float], dict[float, list]] = {}
+    notes = []
+    for o in obs:
+        found = _turn_error(o, compensation, site, mounting, noise_density)
+        if found is None:
+            notes.append(f"{o.label}: the turn's axis is not along a body axis: not used")
+            continue
+        k, direction, error, sigma = found
+        rate = round(rates_dps.get(o.label, math.nan), _RATE_DECIMALS)
+        groups.setdefault((k, rate), {}).setdefault(direction, []).append((error, sigma, o.revolutions))
+    errors = []
+    for (k, rate), by_direction in sorted(groups.items()):
+        at = f" @ {rate:g} deg/s" if math.isfinite(rate) else ""
+        if set(by_direction) != {1.0, -1.0}:
+            notes.append(f"turns about body {BODY_AXES[k]}{at}: no CCW/CW pair, not used")
+            continue
+        (e_p, s_p, n_p), (e_m, s_m, n_m) = by_direction[1.0][0], by_direction[-1.0][0]
+        if n_p != n_m:
+            notes.append(f"turns about body {BODY_AXES[k]}{at}: CCW and CW of different revolutions, not used")
+            continue
+        # e_p = +2 pi N m + b T, e_m = -2 pi N m + b T (m: the scale error along k and the leaks into v)
+        span = 2.0 * (2.0 * math.pi * n_p)
+        diff, sigma = (e_p - e_m) / span, np.hypot(s_p, s_m) / span
+        sensor = SENSOR_AXES[k]
+        scale_sigma_cal = _relative_sigma_of(calibration, f"Kg_{sensor}") * 1e6
+        errors.append(VerificationError("gyro_scale_ppm", f"gyro scale {sensor}{at}", diff[k] * 1e6,
+                                        _expanded(sigma[k] * 1e6, scale_sigma_cal), "ppm"))
+        for v in range(3):
+            if v != k:
+                errors.append(VerificationError(
+                    "gyro_misalignment_arcsec", f"gyro misalignment {SENSOR_AXES[v]} to {BODY_AXES[k]}{at}",
+                    diff[v] / ARCSEC, _expanded(sigma[v] / ARCSEC,
+                                                _sigma_of(calibration, f"Eg_{BODY_AXES[k]}{SENSOR_AXES[v]}") / ARCSEC),
+                    "arcsec"))
+    return errors, notes
+
+
+def verify_extraction(extraction: Extraction, rates_dps: dict[str, float], compensation: Compensation,
+                      calibration: CalibrationResult, site: Site, mounting=None) -> Verification:
+    """All the errors the verification's observations determine (a note for what they cannot)."""
+    out = Verification(notes=list(extraction.problems))
+    if len(extraction.positions) >= 4:
+        try:
+            out.errors += position_errors(extraction.positions, compensation, calibration, site, mounting)
+        except SolverError as exc:
+            out.notes.append(f"positions: {exc}: no accelerometer or gyro bias errors")
+    else:
+        out.notes.append(f"{len(extraction.positions)} positions: at least 4 are needed for the accelerometer "
+                         "and gyro bias errors")
+    if extraction.rotations:
+        density = pooled_gyro_noise(extraction.positions)
+        errors, notes = rotation_errors(extraction.rotations, rates_dps, compensation, calibration, site, mounting,
+                                        density)
+        out.errors += errors
+        out.notes += notes
+    else:
+        out.notes.append("no turns: no gyro scale-factor or misalignment errors")
+    return out
+
+
+__all__ = ["COVERAGE_K", "QUANTITIES", "Verification", "VerificationError", "position_errors", "rotation_errors",
+           "verify_extraction"]
