@@ -30,7 +30,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", metavar="DIR", help="output folder (default: the config's [output] folder)")
     parser.add_argument("--resume", metavar="LOG", help="continue an interrupted run from its log")
     parser.add_argument("--operator", default="", help="who runs it (recorded in the log)")
-    parser.add_argument("--quiet", action="store_true", help="no progress output")
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress output (the three-line summary, verdict, worst check and the result and "
+                             "report paths, is always printed)")
     parser.set_defaults(func=cmd_run)
 
 
