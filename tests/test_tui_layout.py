@@ -63,8 +63,8 @@ def test_results_show_truth_and_error_in_sigmas_without_scrolling(tmp_path, size
             plain = app.query_one("#results-panel").plain
             truth = app.session.config.sim.imu.to_canonical()
             # feed_result puts Kg_y 1.3 sigma below its truth and Kg_z 2.6 sigma above
-            sigma = {name: abs(v) * 1e-6 for name, v in truth.items()}
-            for name, z in (("Kg_y", "-1.3"), ("Kg_z", "+2.6")):
+            sigma = {name: (abs(v) * 1e-6 if abs(v) > 1 else 1e-6) for name, v in truth.items()}   # feed_result's
+            for name, z in (("Kg_y", "-1.3"), ("Kg_z", "+2.6"), ("D0_x", "+0.0")):   # to a tenth of a sigma
                 value = truth[name] + float(z) * sigma[name]
                 assert f"{name} {value:.8g} {sigma[name]:.3g} {truth[name]:.8g} {z}" in plain, plain
             assert "units: Kg counts/s per deg/s, D0 deg/h, Eg Ea 1 (direction cosines), Ka counts/s per g" in plain

@@ -361,7 +361,7 @@ class ResultsPanel(Vertical):
             if truth:
                 true = truth.get(name)
                 row.append(f"{true.value:.8g}" if true is not None else "-")
-                row.append(f"{(c.value - true.value) / c.sigma:+.2g}" if true is not None and finite_sigma else "-")
+                row.append(_sigmas((c.value - true.value) / c.sigma) if true is not None and finite_sigma else "-")
             table.add_row(*row)
             lines.append(" ".join(row))
         failures = result.quality.get("failures") if isinstance(result.quality, dict) else None
@@ -376,6 +376,11 @@ class ResultsPanel(Vertical):
         units = units_line(result.coefficients)
         self.query_one("#results-units", Label).update(Text(units, style="dim"))
         self.plain = "\n".join([head, *lines, units])
+
+
+def _sigmas(z: float) -> str:
+    """An error in sigmas to a tenth ('+0.0', '-2.3'); beyond +-1000 in powers of ten."""
+    return f"{z:+.1f}" if abs(z) < 999.95 else f"{z:+.0e}"
 
 
 def units_line(coefficients) -> str:

@@ -227,10 +227,5 @@ class HelpScreen(ModalScreen[None]):
             if self.note:
                 yield Static(self.note, id="help-note")
 
-    @property
-    def text(self) -> str:
-        """The help as plain text (key and description per row, then the note)."""
-        return "\n".join([*(f"{key}  {what}" for key, what in self.keys), self.note])
-
     def action_close(self) -> None:
         self.dismiss(None)

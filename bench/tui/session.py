@@ -355,7 +355,7 @@ class BenchSession:
 
     def _run_body(self, run: BenchRun) -> None:
         text, result = "", None
-        kind, reason = END_FAILED, ""
+        kind, reason = END_FAILED, "the run's thread ended without an account"    # replaced on every known path
         try:
             if self._estop:
                 text = "not started: emergency stop"
