@@ -179,6 +179,26 @@ def test_event_log_shows_an_event_added_between_snapshot_and_draw_once(tmp_path)
     run(body)
 
 
+def test_event_log_times_count_from_the_run_start_not_the_machines_uptime(tmp_path):
+    """A hardware run's clock is the monotonic clock: its event lines said [0:53:50] (issue 14, item 3)."""
+    async def body():
+        app = make_app(tmp_path, auto_connect=False, refresh_hz=1.0)
+        async with app.run_test(size=SIZE) as pilot:
+            buf = app.buffer
+            buf.on_event(Event(3230.0, "info", "connected (scpi at tcp://lab:5025)"))
+            buf.on_event(Event(3290.0, "transition", "run started: 3 steps", state="running", data={"from": "idle"}))
+            buf.on_event(Event(3305.0, "transition", "paused", state="paused", data={"from": "running"}))
+            buf.on_event(Event(3320.0, "transition", "resumed", state="running", data={"from": "paused"}))
+            buf.on_event(Event(3351.0, "step_finished", "P01 move done in 2.0 s", step_index=0, step_unit="P01"))
+            app.refresh_panels()
+            await pilot.pause(0.05)
+            text = events_text(app)
+            for line in ("[0:00:00] info: connected", "[0:00:00] transition: run started", "[0:00:15] transition: paused",
+                         "[0:00:30] transition: resumed", "[0:01:01] step_finished: P01 move done"):
+                assert line in text, text
+    run(body)
+
+
 def test_imu_values_are_means_over_the_last_second_of_whole_blocks():
     """The panel showed the mean of the last block (0.1 s at idle): whole-count increments then move it in
     steps of 1 count / 0.1 s, about 1 deg/h. It now shows the mean over the last whole blocks covering 1 s."""

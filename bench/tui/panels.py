@@ -285,7 +285,9 @@ def event_style(kind: str, pal: Palette) -> str:
 
 
 class EventLog(RichLog):
-    """The run's events and the UI's own notes, one line each, in the run clock's time."""
+    """The run's events and the UI's own notes, one line each, timed from the start of the current run
+    (before any run: from the session's first line). A hardware run's clock is the host's monotonic
+    clock, whose raw value (the machine's uptime) means nothing to an operator."""
 
     DEFAULT_CSS = "EventLog { height: 1fr; }"
     MAX_LINES = 2000
@@ -295,13 +297,17 @@ class EventLog(RichLog):
         self.seen = 0
         self.plain_lines: list[str] = []
         self._kinds: list[str] = []
+        self.origin_s: float | None = None      # the time shown as 0:00:00
 
     def add(self, events: Sequence[Event], total: int) -> None:
         pal = palette(self.app)
         for e in events:
+            if self.origin_s is None or (e.kind == "transition" and e.state == "running"
+                                         and (e.data or {}).get("from") == "idle"):
+                self.origin_s = e.time_s         # a run starts (not a resume): its times count from here
             if e.kind == "step_started":
                 continue                 # the plan panel shows the running step
-            line = f"[{format_hms(e.time_s)}] {e.kind}: {e.message}"
+            line = f"[{format_hms(e.time_s - self.origin_s)}] {e.kind}: {e.message}"
             self.plain_lines.append(line)
             self._kinds.append(e.kind)
             self.write(Text(line, style=event_style(e.kind, pal)))
