@@ -193,8 +193,9 @@ def test_event_log_times_count_from_the_run_start_not_the_machines_uptime(tmp_pa
             app.refresh_panels()
             await pilot.pause(0.05)
             text = events_text(app)
-            for line in ("[0:00:00] info: connected", "[0:00:00] transition: run started", "[0:00:15] transition: paused",
-                         "[0:00:30] transition: resumed", "[0:01:01] step_finished: P01 move done"):
+            for line in ("[0:00:00] info: connected", "[0:00:00] transition: run started",
+                         "[0:00:15] transition: paused", "[0:00:30] transition: resumed",
+                         "[0:01:01] step_finished: P01 move done"):
                 assert line in text, text
     run(body)
 
