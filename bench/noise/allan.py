@@ -170,7 +170,7 @@ def allan_curves(channels: np.ndarray, rate_hz: float, *, points_per_octave: int
     data = np.asarray(channels)
     if data.ndim != 2:
         raise AllanError(f"channels must be an (n, k) array, got shape {data.shape}")
-    with ThreadPoolExecutor(max_workers=max(1, threads), thread_name_prefix="allan") as pool:
+    with ThreadPoolExecutor(max_workers=max(1, threads), thread_name_prefix="allan-channel") as pool:
         return list(pool.map(lambda k: allan_curve(data[:, k], rate_hz, points_per_octave=points_per_octave),
                              range(data.shape[1])))
 

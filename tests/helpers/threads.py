@@ -14,7 +14,7 @@ and each name falls under one of `PROJECT_THREAD_PREFIXES`:
 - `mcap-inflate`, `can-frames`, `imu-screen`: `ThreadPoolExecutor` workers of the log reader
   (bench/log/chunks.py, bench/log/walk.py, bench/log/reader.py) and of the bulk IMU decoder
   (drivers/imu/bulk.py); an executor names its threads `<prefix>_<n>`
-- `allan`: the Allan deviation's per-channel workers (bench/noise/allan.py)
+- `allan-channel`: `ThreadPoolExecutor` workers of the Allan deviation, one channel each (bench/noise/allan.py)
 
 Threads of pytest, Textual (thread workers run in asyncio's default executor, `asyncio_<n>`),
 asyncio and third-party libraries are not project threads and are not checked.
@@ -35,7 +35,7 @@ PROJECT_THREAD_PREFIXES: tuple[str, ...] = (
     "mcap-inflate",
     "can-frames",
     "imu-screen",
-    "allan",
+    "allan-channel",
 )
 
 #: How long a test's project threads get to finish after it (its fixtures torn down) before it fails.
