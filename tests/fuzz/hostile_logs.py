@@ -16,6 +16,8 @@ tried, crashes (a traceback, or a death by signal), hangs (timeouts), the peak R
 
 `--code ROOT` runs the bench from another checkout through PYTHONPATH (e.g. `git worktree add
 /tmp/before <commit>`); given twice, every input runs against both. Default: this checkout.
+Give fixed checkouts (worktrees of commits), not a tree being edited while this runs (an hour
+with --big): a run that meets a half-edited file counts its SyntaxError as a crash.
 """
 
 from __future__ import annotations
