@@ -12,7 +12,7 @@ import select
 import sys
 
 from bench import __version__
-from bench.cli import check_table, evaluate, export_can, replay, run, schedules, solve, table, tui
+from bench.cli import check_table, evaluate, export_can, replay, run, schedules, sim_rig, solve, table, tui
 from bench.cli.common import ExitCode
 from bench.errors import BenchError
 from drivers.errors import ImuError, TurntableConfigError, TurntableError
@@ -35,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     solve.register(sub)
     schedules.register(sub)
     table.register_table(sub)
-    table.register_sim(sub)
+    sim_rig.register(table.register_sim(sub))
     check_table.register(sub)
     export_can.register(sub)
     return parser

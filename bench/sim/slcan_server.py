@@ -1,0 +1,293 @@
+"""A simulated SLCAN adapter (what USB-CAN adapters such as CANable or USBtin speak) on a pty.
+
+python-can opens it with its own client, `can.Bus(interface="slcan", channel="/dev/pts/N")`.
+The protocol is Lawicel's serial-line CAN as CANable firmware answers it: ASCII commands
+ending in CR, each answered with CR (ok) or BEL (error), and the bus's frames sent to the
+host as they arrive:
+
+    O / L       open the channel (normal / listen-only): frames flow      -> \\r  (\\a if already open)
+    C           close the channel: frames stop                            -> \\r
+    S0..S8      bit rate 10k..1M (only while closed)                      -> \\r  (\\a while open or unknown)
+    Z0 / Z1     frame timestamps off / on (4 hex digits, ms modulo 60000) -> \\r
+    V / v / N   hardware+software version, firmware version, serial       -> V1013\\r, vCANBENCH\\r, NA123\\r
+    F           status flags                                              -> F00\\r
+    t.. T.. r.. R..  transmit a frame (only while open, not listen-only)  -> z\\r / Z\\r
+    (empty)     python-can sends one for "no data bit rate"               -> \\r
+    anything else (s BTR registers, Y data bit rates, d/D/b/B FD frames)  -> \\a
+
+A received frame goes to the host as `t<id:3 hex><dlc><data hex>\\r` (11-bit id) or
+`T<id:8 hex><dlc><data hex>\\r` (29-bit id). SLCAN has no CAN FD frames here (CANable 1
+firmware): `encode_frame` refuses one. `SlcanPeer` is the pure state machine (bytes in,
+bytes out); `SlcanPtyServer` serves it on the master side of a pty from a thread.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import select
+import termios
+import threading
+import time
+import tty
+from collections.abc import Iterable
+
+import can
+
+OK = b"\r"
+ERROR = b"\a"
+#: `S<n>` -> bit rate, bit/s (Lawicel; python-can's slcan client sends these)
+BITRATES = {"S0": 10_000, "S1": 20_000, "S2": 50_000, "S3": 100_000, "S4": 125_000, "S5": 250_000,
+            "S6": 500_000, "S7": 750_000, "S8": 1_000_000}
+#: `V`: hardware 1.0, software 1.3 (python-can reads two decimal digits each)
+VERSION_REPLY = b"V1013\r"
+FIRMWARE_REPLY = b"vCANBENCH\r"
+SERIAL_REPLY = b"NA123\r"
+MAX_LINE = 64              # longer than any SLCAN command: junk is cut there and answered as an error
+
+
+class SlcanError(ValueError):
+    """A frame SLCAN cannot carry (CAN FD, more than 8 bytes)."""
+
+
+def encode_frame(msg: can.Message, timestamp_ms: int | None = None) -> bytes:
+    """One received frame as the adapter sends it to the host (with a timestamp when Z1 is on)."""
+    if msg.is_fd:
+        raise SlcanError("SLCAN carries classic CAN frames only, not CAN FD: use a classic (fd = false) layout, "
+                         "or serve the IMU over socketcan")
+    data = bytes(msg.data)
+    if len(data) > 8:
+        raise SlcanError(f"a classic CAN frame has at most 8 data bytes, got {len(data)}")
+    if msg.is_remote_frame:
+        head = (f"R{msg.arbitration_id:08X}{msg.dlc:d}" if msg.is_extended_id
+                else f"r{msg.arbitration_id:03X}{msg.dlc:d}")
+        body = ""
+    else:
+        head = (f"T{msg.arbitration_id:08X}{len(data):d}" if msg.is_extended_id
+                else f"t{msg.arbitration_id:03X}{len(data):d}")
+        body = data.hex().upper()
+    stamp = "" if timestamp_ms is None else f"{timestamp_ms % 60000:04X}"
+    return (head + body + stamp).encode("ascii") + OK
+
+
+def _is_hex(text: str) -> bool:
+    return all(c in "0123456789abcdefABCDEF" for c in text)
+
+
+def _valid_transmit(line: str) -> bool:
+    """A well-formed `t`, `T`, `r` or `R` command (id, dlc 0..8, data of that length)."""
+    id_len = 8 if line[0] in "TR" else 3
+    head = line[1:1 + id_len + 1]
+    if len(head) != id_len + 1 or not _is_hex(head[:-1]) or not head[-1].isdigit():
+        return False
+    dlc = int(head[-1])
+    data = line[2 + id_len:]
+    if dlc > 8 or int(head[:-1], 16) >= (1 << (29 if id_len == 8 else 11)):
+        return False
+    return data == "" if line[0] in "rR" else (len(data) == 2 * dlc and _is_hex(data))
+
+
+class SlcanPeer:
+    """The adapter's command state machine: `handle(line)` -> reply bytes; `is_open` says whether frames flow."""
+
+    def __init__(self) -> None:
+        self.is_open = False
+        self.listen_only = False
+        self.bitrate: int | None = None
+        self.timestamps = False
+        self.transmitted: list[str] = []     # frames the host asked to send (kept for tests, bounded)
+
+    def handle(self, line: bytes) -> bytes:
+        try:
+            text = line.decode("ascii")
+        except UnicodeDecodeError:
+            return ERROR
+        if text == "":
+            return OK
+        cmd = text[0]
+        if cmd in "OL" and len(text) == 1:
+            if self.is_open:
+                return ERROR
+            self.is_open, self.listen_only = True, cmd == "L"
+            return OK
+        if text == "C":
+            self.is_open = False
+            return OK
+        if text in BITRATES:
+            if self.is_open:
+                return ERROR
+            self.bitrate = BITRATES[text]
+            return OK
+        if text in ("Z0", "Z1"):
+            if self.is_open:
+                return ERROR
+            self.timestamps = text == "Z1"
+            return OK
+        if text == "V":
+            return VERSION_REPLY
+        if text == "v":
+            return FIRMWARE_REPLY
+        if text == "N":
+            return SERIAL_REPLY
+        if text == "F":
+            return b"F00\r"
+        if cmd in "tTrR":
+            if not (self.is_open and not self.listen_only and _valid_transmit(text)):
+                return ERROR
+            if len(self.transmitted) < 1000:
+                self.transmitted.append(text)
+            return b"Z\r" if cmd in "TR" else b"z\r"
+        return ERROR
+
+
+def split_commands(buffer: bytearray) -> list[bytes]:
+    """Pop every CR-terminated command off the front of `buffer` (LF ignored; overlong junk cut)."""
+    out: list[bytes] = []
+    while True:
+        end = buffer.find(b"\r")
+        if end < 0:
+            if len(buffer) > MAX_LINE:
+                out.append(bytes(buffer[:MAX_LINE]))
+                del buffer[:]
+            return out
+        out.append(bytes(buffer[:end]).replace(b"\n", b""))
+        del buffer[:end + 1]
+
+
+class SlcanPtyServer:
+    """Serves a `SlcanPeer` on a pty until `close()`; `send(messages)` puts bus frames on it while open.
+
+    The pty survives its clients: one that closes the channel (`C`, as python-can does on
+    shutdown) or just goes away (the pty hangs up) leaves the channel closed, and what was
+    still queued for it is discarded, so the next client starts with fresh frames.
+    Frames that do not fit (a client that does not read) are dropped and counted.
+    """
+
+    def __init__(self, peer: SlcanPeer | None = None):
+        self.peer = peer if peer is not None else SlcanPeer()
+        self.frames_sent = 0
+        self.frames_dropped = 0      # not written: the host did not read fast enough
+        self.clients = 0             # how many times the channel was opened
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._t0 = time.monotonic()
+        master, slave = os.openpty()
+        tty.setraw(slave)            # no echo, no CR/LF translation
+        self.path = os.ttyname(slave)
+        os.close(slave)              # no slave of our own: a client that goes away is seen as a hang-up
+        flags = fcntl.fcntl(master, fcntl.F_GETFL)
+        fcntl.fcntl(master, fcntl.F_SETFL, flags | os.O_NONBLOCK)
+        self._master = master
+        self._thread = threading.Thread(target=self._loop, daemon=True, name="slcan-pty")
+        self._thread.start()
+
+    def send(self, messages: Iterable[can.Message]) -> None:
+        """Frames on the bus: written to the host while the channel is open, else nothing (as an adapter)."""
+        with self._lock:
+            if not self.peer.is_open:
+                return
+            stamp = (lambda: int((time.monotonic() - self._t0) * 1000)) if self.peer.timestamps else (lambda: None)
+            data = b"".join(encode_frame(m, stamp()) for m in messages)
+            count = data.count(OK)
+            try:
+                written = os.write(self._master, data)
+            except BlockingIOError:
+                written = 0
+            except OSError:            # the client went away (EIO): the loop sees the hang-up
+                self.frames_dropped += count
+                return
+            if written < len(data):
+                # finish the frame cut in two, drop the rest (a full USB buffer loses whole frames)
+                end = data.find(OK, written) + 1 if written else 0
+                if end:
+                    self._write_all(data[written:end])
+                sent = data[:end].count(OK) if written else 0
+                self.frames_sent += sent
+                self.frames_dropped += count - sent
+            else:
+                self.frames_sent += count
+
+    def _write_all(self, data: bytes) -> None:
+        """Write the rest of one frame (bounded wait: a frame is a few dozen bytes)."""
+        for _ in range(100):
+            try:
+                data = data[os.write(self._master, data):]
+            except BlockingIOError:
+                pass
+            except OSError:
+                return
+            if not data:
+                return
+            select.select([], [self._master], [], 0.01)
+
+    def _reply(self, reply: bytes) -> None:
+        try:
+            os.write(self._master, reply)
+        except OSError:
+            pass
+
+    def _hang_up(self) -> None:
+        """No client has the pty open: close the channel and discard what it did not read."""
+        with self._lock:
+            if self.peer.is_open:
+                self.peer.is_open = False
+            try:
+                own = os.open(self.path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+            except OSError:
+                return
+            try:
+                termios.tcflush(own, termios.TCIFLUSH)
+            except termios.error:
+                pass
+            finally:
+                os.close(own)
+
+    def _loop(self) -> None:
+        poller = select.poll()
+        poller.register(self._master, select.POLLIN)
+        buffer = bytearray()
+        hung_up = True
+        while not self._stop.is_set():
+            events = poller.poll(100)
+            if not events:
+                continue
+            if events[0][1] & select.POLLHUP:
+                if not hung_up:
+                    hung_up = True
+                    buffer.clear()
+                    self._hang_up()
+                self._stop.wait(0.05)      # nobody there: look again soon
+                continue
+            hung_up = False
+            try:
+                chunk = os.read(self._master, 4096)
+            except BlockingIOError:
+                continue
+            except OSError:
+                self._stop.wait(0.05)
+                continue
+            buffer += chunk
+            for command in split_commands(buffer):
+                with self._lock:
+                    was_open = self.peer.is_open
+                    reply = self.peer.handle(command)
+                    if self.peer.is_open and not was_open:
+                        self.clients += 1
+                self._reply(reply)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        try:
+            os.close(self._master)
+        except OSError:
+            pass
+
+    def __enter__(self) -> "SlcanPtyServer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+__all__ = ["SlcanError", "SlcanPeer", "SlcanPtyServer", "encode_frame", "split_commands"]
