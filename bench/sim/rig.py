@@ -30,7 +30,7 @@ from bench.sim.controller import SimController
 from bench.sim.imu import SimImu
 from bench.sim.slcan_server import SlcanPtyServer
 from bench.sim.socketcand_server import SocketcandServer
-from bench.sim.table import SimTable
+from bench.sim.table import SimTable, TableLimits
 from drivers.imu import DEFAULT_DBC
 
 #: how often the IMU thread catches up with the wall clock, s
@@ -106,7 +106,13 @@ class SimRig:
     def __init__(self, config: BenchConfig):
         self.config = config
         sim = config.sim
-        self.controller = SimController(SimTable(config.site.site, black_box_rad=sim.black_box_rad))
+        # the simulated table moves as fast as [table.limits] allows (its rates and accelerations)
+        axes = config.table.limits.axes
+        outer, middle, inner = axes
+        table_limits = TableLimits((outer.max_rate_dps, middle.max_rate_dps, inner.max_rate_dps),
+                                   (outer.max_accel_dps2, middle.max_accel_dps2, inner.max_accel_dps2))
+        self.controller = SimController(SimTable(config.site.site, black_box_rad=sim.black_box_rad,
+                                                 limits=table_limits), limits=axes)
         self.imu = SimImu(sim.imu, sim.noise, rate_hz=config.imu.rate_hz, seed=sim.seed)
         self.bus = RigBus()
         self.can_imu = SimCanImu(self.controller, self.imu, self.bus, config.imu.layout)
@@ -255,6 +261,12 @@ def rig_config_text(config: BenchConfig, table_url: str, dialect: str, peer: Rig
         imu_lines.insert(2, f"bitrate = {peer.bitrate}")
     if imu.dbc != DEFAULT_DBC:
         imu_lines.append(f"dbc = {_toml(str(imu.dbc.resolve()))}   # signals: the shipped mapping unless set")
+    limit_lines = []
+    for frame, axis in zip(("outer", "middle", "inner"), config.table.limits.axes):
+        limit_lines += ["", f"[table.limits.{frame}]", f"max_rate_dps = {axis.max_rate_dps!r}",
+                        f"max_accel_dps2 = {axis.max_accel_dps2!r}"]
+        limit_lines += [f"{key} = {value!r}" for key, value in (("min_deg", axis.min_deg), ("max_deg", axis.max_deg))
+                        if value is not None]
     options = "".join(f"{k} = {_toml(v)}\n" for k, v in peer.bus_options.items())
     if options:
         options = "\n[imu.bus_options]\n" + options
@@ -271,6 +283,8 @@ version = 1
 [table]
 url = {_toml(table_url)}
 dialect = {_toml(dialect)}
+# what the bench may demand; the simulated table moves at these rates and accelerations
+{chr(10).join(limit_lines).lstrip()}
 
 [imu]
 {chr(10).join(imu_lines)}

@@ -1,0 +1,199 @@
+"""`bench sim rig`'s CAN peers: the SLCAN adapter on a pty and socketcand on TCP.
+
+Codecs are checked with the byte strings the protocol documents print (Lawicel SLCAN;
+socketcand's doc/protocol.md); the servers with python-can's own client classes
+(`can.Bus(interface="slcan")`, `can.Bus(interface="socketcand")`) receiving the simulated
+IMU's frames in wall-clock time, decoded by the bench's `ImuReceiver` with no loss, across
+a disconnect and a reconnect. Loopback and ptys only; every wait is bounded.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import can
+import numpy as np
+import pytest
+
+from bench.config.load import load_config, parse_config
+from bench.sim.rig import SimRig, apply_imu_command, imu_status, rig_config_text
+from bench.sim.slcan_server import SlcanError, SlcanPeer, encode_frame, split_commands
+from bench.sim.socketcand_server import SocketcandError, SocketcandSession, split_elements
+from bench.sim.socketcand_server import encode_frame as socketcand_frame
+from drivers.imu import default_fd_layout
+from drivers.imu.receiver import ImuReceiver
+from tests.helpers.run import config_text, wait_for
+
+RATE_HZ = 200.0
+
+
+@pytest.fixture
+def rig():
+    config = parse_config(config_text(rate_hz=RATE_HZ, noise="true"))
+    with SimRig(config) as sim_rig:
+        yield sim_rig
+
+
+# -- SLCAN codec and command peer ----------------------------------------------------
+
+def test_slcan_frames_as_the_protocol_prints_them():
+    # Lawicel: "t10021133[CR]" = id 0x100, 2 bytes 0x11 0x33; "T0000010021133[CR]" the same with a 29-bit id
+    assert encode_frame(can.Message(arbitration_id=0x100, data=b"\x11\x33", is_extended_id=False)) == b"t10021133\r"
+    assert encode_frame(can.Message(arbitration_id=0x100, data=b"\x11\x33", is_extended_id=True)) == (
+        b"T0000010021133\r")
+    assert encode_frame(can.Message(arbitration_id=0x7FF, data=b"", is_extended_id=False)) == b"t7FF0\r"
+    # with timestamps on (Z1): 4 hex digits of milliseconds modulo 60000
+    assert encode_frame(can.Message(arbitration_id=0x1, data=b"\xab", is_extended_id=False), 60001) == (
+        b"t0011AB0001\r")
+    with pytest.raises(SlcanError, match="not CAN FD"):
+        encode_frame(can.Message(arbitration_id=0x100, data=bytes(12), is_fd=True, is_extended_id=False))
+
+
+def test_slcan_peer_answers_as_a_canable():
+    peer = SlcanPeer()
+    # what python-can's slcan client sends on open with a bit rate: C, S8, "" (no data bit rate), O, O
+    assert [peer.handle(c) for c in (b"C", b"S8", b"", b"O")] == [b"\r", b"\r", b"\r", b"\r"]
+    assert peer.is_open and peer.bitrate == 1_000_000
+    assert peer.handle(b"O") == b"\a"               # already open
+    assert peer.handle(b"S6") == b"\a"              # no bit rate change while open
+    assert peer.handle(b"V") == b"V1013\r" and peer.handle(b"N") == b"NA123\r" and peer.handle(b"F") == b"F00\r"
+    assert peer.handle(b"t10021133") == b"z\r" and peer.handle(b"T0000010021133") == b"Z\r"
+    assert peer.handle(b"t1002113") == b"\a"        # data shorter than its dlc
+    for unsupported in (b"s031C", b"Y2", b"d1009" + b"00" * 12, b"x", b"S9", b"\xff"):
+        assert peer.handle(unsupported) == b"\a", unsupported
+    assert peer.handle(b"C") == b"\r" and not peer.is_open
+    assert peer.handle(b"t10021133") == b"\a"       # closed: nothing to send on
+    assert peer.handle(b"L") == b"\r" and peer.listen_only and peer.handle(b"t10021133") == b"\a"
+
+
+def test_slcan_command_split():
+    buffer = bytearray(b"C\rS8\r\r\nO\rV\rpartial")      # LF is not a terminator: ignored
+    assert split_commands(buffer) == [b"C", b"S8", b"", b"O", b"V"]
+    assert buffer == bytearray(b"partial")
+    junk = bytearray(b"x" * 100)
+    assert split_commands(junk) == [b"x" * 64] and not junk
+
+
+# -- socketcand codec and session ----------------------------------------------------
+
+def test_socketcand_frames_as_the_protocol_prints_them():
+    # doc/protocol.md: "< frame 123 23.424242 11223344 >"
+    msg = can.Message(arbitration_id=0x123, data=bytes.fromhex("11223344"), is_extended_id=False)
+    assert socketcand_frame(msg, 23.424242) == b"< frame 123 23.424242 11223344 >"
+    ext = can.Message(arbitration_id=0x123, data=b"", is_extended_id=True)
+    assert socketcand_frame(ext, 1.9999999) == b"< frame 00000123 2.000000  >"
+    with pytest.raises(SocketcandError, match="not CAN FD"):
+        socketcand_frame(can.Message(arbitration_id=1, data=bytes(12), is_fd=True), 0.0)
+
+
+def test_socketcand_session_handshake_and_commands():
+    session = SocketcandSession()
+    assert session.handle("rawmode") == b"< error open a bus first >"
+    assert session.handle("open vcan1").startswith(b"< error")
+    assert session.handle("open can0") == b"< ok >"
+    assert session.handle("rawmode") == b"< ok >" and session.raw
+    assert session.handle("send 123 2 11 22") == b"" and session.sent == ["send 123 2 11 22"]
+    assert session.handle("send 123 2 11").startswith(b"< error")
+    assert session.handle("echo") == b"< echo >"
+    assert session.handle("bcmmode").startswith(b"< error")
+    buffer = bytearray(b"junk< open  can0 >< rawmode ><send 1 0>< part")
+    assert split_elements(buffer) == ["open can0", "rawmode", "send 1 0"]
+    assert buffer == bytearray(b"< part")
+
+
+# -- python-can's clients against the rig's peers --------------------------------------
+
+def _receive(receiver: ImuReceiver, samples: int, timeout_s: float = 20.0) -> np.ndarray:
+    """Poll until `samples` samples came (bounded); their counters."""
+    counters = []
+    got = 0
+    deadline = time.monotonic() + timeout_s
+    for _ in range(int(timeout_s / 0.02) + 1):
+        block = receiver.poll(timeout_s=0.02)
+        counters.append(block.counter)
+        got += len(block)
+        if got >= samples or time.monotonic() > deadline:
+            break
+    assert got >= samples, f"{got} samples in {timeout_s} s, wanted {samples}"
+    return np.concatenate(counters)
+
+
+def _assert_no_loss(receiver: ImuReceiver, counters: np.ndarray) -> None:
+    stats = receiver.stats
+    assert np.all(np.diff(counters) == 1), "a counter gap"
+    assert stats.frame_faults == 0 and stats.incomplete_samples == 0 and stats.counter_gaps == 0, stats
+    assert stats.late == 0 and stats.duplicates == 0, stats
+
+
+def _sessions(rig: SimRig, bus_kwargs: dict) -> None:
+    layout, rate_hz = rig.config.imu.layout, rig.config.imu.rate_hz
+    rig.start()
+    for _ in range(2):                          # connect, receive, disconnect; then again
+        with ImuReceiver(bus_kwargs, layout, rate_hz) as receiver:
+            counters = _receive(receiver, 100)
+            _assert_no_loss(receiver, counters)
+        assert receiver.bus._is_shutdown
+    # a fault typed on the console reaches the next client: one dropped frame is one incomplete sample
+    with ImuReceiver(bus_kwargs, layout, rate_hz) as receiver:
+        _receive(receiver, 20)
+        assert apply_imu_command(rig, ["drop", "1"]) == "ok"
+        _receive(receiver, 40)
+        assert receiver.stats.incomplete_samples == 1, receiver.stats
+    assert "frames out" in imu_status(rig)
+
+
+def test_python_can_slcan_client_receives_every_sample_and_reconnects(rig):
+    peer = rig.serve_slcan()
+    _sessions(rig, {"interface": "slcan", "channel": peer.channel, "bitrate": peer.bitrate, "sleep_after_open": 0})
+    server = rig.server(0)
+    wait_for(lambda: not server.peer.is_open, 5.0, "the last client's 'C' to close the channel")
+    assert server.clients == 3
+    assert server.frames_dropped == 0
+
+
+def test_python_can_socketcand_client_receives_every_sample_and_reconnects(rig):
+    peer = rig.serve_socketcand()
+    assert peer.channel == "can0"
+    _sessions(rig, {"interface": "socketcand", "channel": "can0", **peer.bus_options})
+    server = rig.server(0)
+    assert server.clients == 3 and server.frames_dropped == 0
+
+
+def test_a_client_that_goes_away_without_closing_leaves_the_slcan_pty_usable(rig):
+    peer = rig.serve_slcan()
+    rig.start()
+    kwargs = {"interface": "slcan", "channel": peer.channel, "sleep_after_open": 0}
+    bus = can.Bus(**kwargs)
+    assert bus.recv(5.0) is not None
+    bus.serialPortOrig.close()                  # gone without 'C', as a killed process
+    server = rig.server(0)
+    wait_for(lambda: not server.peer.is_open, 5.0, "the hang-up to close the channel")
+    with ImuReceiver(kwargs, rig.config.imu.layout, RATE_HZ) as receiver:
+        _assert_no_loss(receiver, _receive(receiver, 50))
+    bus.shutdown = lambda: None                 # its port is closed already
+
+
+def test_fd_layouts_are_refused_for_slcan_and_socketcand():
+    config = parse_config(config_text(rate_hz=RATE_HZ))
+    config = dataclasses.replace(config, imu=dataclasses.replace(config.imu, layout=default_fd_layout(), fd=True))
+    with SimRig(config) as fd_rig:
+        with pytest.raises(ValueError, match="classic CAN frames only"):
+            fd_rig.serve_slcan()
+        with pytest.raises(ValueError, match="classic CAN frames only"):
+            fd_rig.serve_socketcand()
+
+
+def test_the_written_configuration_loads_and_rebuilds_the_truth(rig, tmp_path):
+    peer = rig.serve_socketcand()
+    text = rig_config_text(rig.config, "tcp://127.0.0.1:5025", "scpi", peer)
+    path = tmp_path / "bench.toml"
+    path.write_text(text)
+    written = load_config(path)
+    assert written.imu.bus_kwargs() == {"interface": "socketcand", "channel": "can0", "fd": False,
+                                        "host": peer.bus_options["host"], "port": peer.bus_options["port"]}
+    assert written.table.url == "tcp://127.0.0.1:5025" and written.imu.rate_hz == RATE_HZ
+    assert written.sim.noise == rig.config.sim.noise and written.sim.seed == rig.config.sim.seed
+    assert np.array_equal(written.sim.black_box_rad, rig.config.sim.black_box_rad)
+    assert written.sim.imu.to_canonical() == rig.config.sim.imu.to_canonical()
+    assert written.site.site == rig.config.site.site
