@@ -10,6 +10,10 @@ a disconnect and a reconnect. Loopback and ptys only; every wait is bounded.
 from __future__ import annotations
 
 import dataclasses
+import json
+import signal
+import subprocess
+import sys
 import time
 
 import can
@@ -17,13 +21,14 @@ import numpy as np
 import pytest
 
 from bench.config.load import load_config, parse_config
+from bench.model.result import coefficient_table
 from bench.sim.rig import SimRig, apply_imu_command, imu_status, rig_config_text
 from bench.sim.slcan_server import SlcanError, SlcanPeer, encode_frame, split_commands
 from bench.sim.socketcand_server import SocketcandError, SocketcandSession, split_elements
 from bench.sim.socketcand_server import encode_frame as socketcand_frame
 from drivers.imu import default_fd_layout
 from drivers.imu.receiver import ImuReceiver
-from tests.helpers.run import config_text, wait_for
+from tests.helpers.run import REPO, config_text, only_file, stop_process, wait_for
 
 RATE_HZ = 200.0
 
@@ -197,3 +202,118 @@ def test_the_written_configuration_loads_and_rebuilds_the_truth(rig, tmp_path):
     assert np.array_equal(written.sim.black_box_rad, rig.config.sim.black_box_rad)
     assert written.sim.imu.to_canonical() == rig.config.sim.imu.to_canonical()
     assert written.site.site == rig.config.site.site
+
+
+# -- end to end: `bench sim rig` and `bench run` as two processes -----------------------
+
+RIG_CONFIG = """\
+format = "turntable-bench/config"
+version = 1
+[site]
+latitude_deg = 30.27
+[table]
+url = "sim"
+dialect = "scpi"
+[table.limits.outer]
+max_rate_dps = 300.0
+max_accel_dps2 = 600.0
+[table.limits.middle]
+max_rate_dps = 300.0
+max_accel_dps2 = 600.0
+[table.limits.inner]
+max_rate_dps = 300.0
+max_accel_dps2 = 600.0
+[imu]
+interface = "virtual"
+channel = "unused"
+rate_hz = 100.0
+[plan]
+positions = "traditional-12"
+[sim]
+seed = 7
+black_box_arcsec = 0.0
+noise = true
+"""
+
+#: the short plan written into the rig's configuration: traditional-12 + traditional-3s6r, 1 s dwells, fast turns
+SHORT_PLAN = """\
+[plan]
+positions = "traditional-12"
+rotations = "traditional-3s6r"
+dwell_s = 1.0
+settle_s = 0.2
+rest_s = 0.5
+move_rate_dps = 200.0
+move_accel_dps2 = 600.0
+turn_rate_dps = 200.0
+turn_accel_dps2 = 600.0
+
+"""
+#: a coefficient may miss the truth by this many of its reported sigmas
+K_SIGMA = 4.0
+
+
+def _start_rig(*args: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "bench.cli", "sim", "rig", *args], cwd=REPO,
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _read_until(proc: subprocess.Popen, marker: str, lines: int = 20) -> list[str]:
+    """The rig's start-up lines up to the one holding `marker` (bounded: it prints a handful)."""
+    seen = []
+    for _ in range(lines):
+        line = proc.stdout.readline()
+        if not line:
+            break
+        seen.append(line)
+        if marker in line:
+            return seen
+    stderr = proc.stderr.read() if proc.poll() is not None else ""
+    raise AssertionError(f"no {marker!r} in the rig's output: {seen}; stderr: {stderr}")
+
+
+def _with_plan(text: str, plan: str) -> str:
+    start, end = text.index("[plan]"), text.index("[output]")
+    return text[:start] + plan + text[end:]
+
+
+def test_bench_run_against_the_rig_in_another_process_recovers_its_truth(tmp_path):
+    rig_config = tmp_path / "rig.toml"
+    rig_config.write_text(RIG_CONFIG)
+    written = tmp_path / "bench.toml"
+    rig = _start_rig("--config", str(rig_config), "--dialect", "scpi", "--table-listen", "tcp://127.0.0.1:0",
+                     "--imu-listen", "slcan", "--write-config", str(written))
+    try:
+        startup = _read_until(rig, "Ctrl-C stops")
+        assert any("on slcan /dev/pts/" in line for line in startup), startup
+        written.write_text(_with_plan(written.read_text(), SHORT_PLAN))
+        config = load_config(written)
+        assert config.imu.interface == "slcan" and config.table.url.startswith("tcp://127.0.0.1:")
+        out = tmp_path / "runs"
+        started = time.monotonic()
+        run = subprocess.run([sys.executable, "-m", "bench.cli", "run", "--config", str(written), "--out", str(out),
+                              "--quiet"], cwd=REPO, capture_output=True, text=True, timeout=170)
+        wall_s = time.monotonic() - started
+        assert run.returncode == 0, run.stderr
+        result = json.loads(only_file(out, "*.result.json").read_text())
+        link = result["run"]["imu_link"]
+        assert result["run"]["mode"] == "hardware"
+        assert link["incomplete_samples"] == link["counter_gaps"] == link["crc_errors"] == link["late"] == 0, link
+        truth = {name: entry.to_json()["value"]
+                 for name, entry in coefficient_table(config.sim.imu.to_canonical()).items()}
+        misses = []
+        for name, value in truth.items():
+            got = result["coefficients"][name]
+            if not abs(got["value"] - value) <= K_SIGMA * got["sigma"]:
+                misses.append(f"{name}: {got['value']!r} vs {value!r} (sigma {got['sigma']:.3g})")
+        assert not misses, misses
+        rig.stdin.write("imu status\n")
+        rig.stdin.flush()
+        status = _read_until(rig, "IMU on")[-1]
+        assert " 0 dropped" in status, status          # every frame reached bench run
+        print(f"e2e: bench run took {wall_s:.1f} s; {link['samples']} samples, {link['frames']} frames; {status}")
+        rig.send_signal(signal.SIGTERM)
+        assert rig.wait(timeout=10) == 0
+        assert "stopped" in rig.stderr.read()
+    finally:
+        stop_process(rig)

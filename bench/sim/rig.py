@@ -209,8 +209,10 @@ def imu_status(rig: SimRig) -> str:
     parts = [f"IMU {'off' if rig.bus.silent else 'on'}: {rig.can_imu.samples_sent} samples, "
              f"{rig.can_imu.frames_sent} frames generated"]
     for peer, server in zip(rig.peers, rig._servers):
+        backlog = getattr(server, "peak_pending", None)
         parts.append(f"{peer.kind} {peer.where}: {server.frames_sent} frames out, "
-                     f"{server.frames_dropped} dropped (not read)")
+                     f"{server.frames_dropped} dropped (not read)"
+                     + (f", longest backlog {backlog} bytes" if backlog is not None else ""))
     return "; ".join(parts)
 
 

@@ -43,6 +43,9 @@ BITRATES = {"S0": 10_000, "S1": 20_000, "S2": 50_000, "S3": 100_000, "S4": 125_0
 VERSION_REPLY = b"V1013\r"
 FIRMWARE_REPLY = b"vCANBENCH\r"
 SERIAL_REPLY = b"NA123\r"
+#: bytes queued for a host that does not read (an adapter's and the USB host's buffers), then frames drop:
+#: about 10 s of a 1000-frame/s stream
+MAX_PENDING_BYTES = 256 * 1024
 MAX_LINE = 64              # longer than any SLCAN command: junk is cut there and answered as an error
 
 
@@ -160,17 +163,20 @@ class SlcanPtyServer:
     The pty survives its clients: one that closes the channel (`C`, as python-can does on
     shutdown) or just goes away (the pty hangs up) leaves the channel closed, and what was
     still queued for it is discarded, so the next client starts with fresh frames.
-    Frames that do not fit (a client that does not read) are dropped and counted.
+    Frames wait in a bounded queue while the host does not read (a busy process); beyond
+    `MAX_PENDING_BYTES` they are dropped and counted.
     """
 
     def __init__(self, peer: SlcanPeer | None = None):
         self.peer = peer if peer is not None else SlcanPeer()
-        self.frames_sent = 0
-        self.frames_dropped = 0      # not written: the host did not read fast enough
+        self.frames_sent = 0         # queued for the host
+        self.frames_dropped = 0      # not queued: the host did not read for a long time (the queue was full)
         self.clients = 0             # how many times the channel was opened
+        self.peak_pending = 0        # the longest the queue for the host has been, bytes
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._t0 = time.monotonic()
+        self._pending = bytearray()  # what the host has not taken yet (the adapter's and USB's buffers)
         master, slave = os.openpty()
         tty.setraw(slave)            # no echo, no CR/LF translation
         self.path = os.ttyname(slave)
@@ -182,55 +188,42 @@ class SlcanPtyServer:
         self._thread.start()
 
     def send(self, messages: Iterable[can.Message]) -> None:
-        """Frames on the bus: written to the host while the channel is open, else nothing (as an adapter)."""
+        """Frames on the bus: queued for the host while the channel is open, else nothing (as an adapter)."""
         with self._lock:
             if not self.peer.is_open:
                 return
             stamp = (lambda: int((time.monotonic() - self._t0) * 1000)) if self.peer.timestamps else (lambda: None)
             data = b"".join(encode_frame(m, stamp()) for m in messages)
             count = data.count(OK)
-            try:
-                written = os.write(self._master, data)
-            except BlockingIOError:
-                written = 0
-            except OSError:            # the client went away (EIO): the loop sees the hang-up
+            if len(self._pending) + len(data) > MAX_PENDING_BYTES:
                 self.frames_dropped += count
                 return
-            if written < len(data):
-                # finish the frame cut in two, drop the rest (a full USB buffer loses whole frames)
-                end = data.find(OK, written) + 1 if written else 0
-                if end:
-                    self._write_all(data[written:end])
-                sent = data[:end].count(OK) if written else 0
-                self.frames_sent += sent
-                self.frames_dropped += count - sent
-            else:
-                self.frames_sent += count
+            self._pending += data
+            self.frames_sent += count
+            self._flush()
+            self.peak_pending = max(self.peak_pending, len(self._pending))
 
-    def _write_all(self, data: bytes) -> None:
-        """Write the rest of one frame (bounded wait: a frame is a few dozen bytes)."""
-        for _ in range(100):
-            try:
-                data = data[os.write(self._master, data):]
-            except BlockingIOError:
-                pass
-            except OSError:
-                return
-            if not data:
-                return
-            select.select([], [self._master], [], 0.01)
+    def _flush(self) -> None:
+        """Write what the pty takes now (under the lock; the rest waits for the loop)."""
+        if not self._pending:
+            return
+        try:
+            written = os.write(self._master, self._pending)
+        except OSError:              # full (EAGAIN), or nobody there (EIO: the loop sees the hang-up)
+            return
+        del self._pending[:written]
 
     def _reply(self, reply: bytes) -> None:
-        try:
-            os.write(self._master, reply)
-        except OSError:
-            pass
+        """A reply goes after the frames already queued, never inside one."""
+        with self._lock:
+            self._pending += reply
+            self._flush()
 
     def _hang_up(self) -> None:
         """No client has the pty open: close the channel and discard what it did not read."""
         with self._lock:
-            if self.peer.is_open:
-                self.peer.is_open = False
+            self.peer.is_open = False
+            self._pending.clear()
             try:
                 own = os.open(self.path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
             except OSError:
@@ -248,7 +241,10 @@ class SlcanPtyServer:
         buffer = bytearray()
         hung_up = True
         while not self._stop.is_set():
-            events = poller.poll(100)
+            with self._lock:
+                waiting = bool(self._pending)
+            poller.modify(self._master, select.POLLIN | (select.POLLOUT if waiting else 0))
+            events = poller.poll(20 if waiting else 100)
             if not events:
                 continue
             if events[0][1] & select.POLLHUP:
@@ -259,6 +255,11 @@ class SlcanPtyServer:
                 self._stop.wait(0.05)      # nobody there: look again soon
                 continue
             hung_up = False
+            if events[0][1] & select.POLLOUT:
+                with self._lock:
+                    self._flush()
+            if not events[0][1] & select.POLLIN:
+                continue
             try:
                 chunk = os.read(self._master, 4096)
             except BlockingIOError:

@@ -141,6 +141,7 @@ class SocketcandServer:
         self.frames_sent = 0          # frames queued to clients (one per client in raw mode)
         self.frames_dropped = 0       # not queued: a client's output was full
         self.clients = 0              # connections accepted so far
+        self.peak_pending = 0         # the longest a client's output queue has been, bytes
         self.max_connections = max_connections
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -187,6 +188,7 @@ class SocketcandServer:
                 else:
                     conn.pending += data
                     self.frames_sent += len(frames)
+                    self.peak_pending = max(self.peak_pending, len(conn.pending))
 
     def _accept_loop(self) -> None:
         key = 0
