@@ -213,7 +213,7 @@ version = 1
 latitude_deg = 30.27
 [table]
 url = "sim"
-dialect = "scpi"
+dialect = "{dialect}"
 [table.limits.outer]
 max_rate_dps = 300.0
 max_accel_dps2 = 600.0
@@ -277,18 +277,25 @@ def _with_plan(text: str, plan: str) -> str:
     return text[:start] + plan + text[end:]
 
 
-def test_bench_run_against_the_rig_in_another_process_recovers_its_truth(tmp_path):
+@pytest.mark.parametrize("dialect, table_listen, imu_listen, url_prefix", [
+    ("scpi", "tcp://127.0.0.1:0", "slcan", "tcp://127.0.0.1:"),
+    ("modbus", "pty", "socketcand://127.0.0.1:0", "modbus+rtu:///dev/pts/"),
+], ids=["scpi-tcp-slcan", "modbus-rtu-pty-socketcand"])
+def test_bench_run_against_the_rig_in_another_process_recovers_its_truth(tmp_path, dialect, table_listen, imu_listen,
+                                                                         url_prefix):
     rig_config = tmp_path / "rig.toml"
-    rig_config.write_text(RIG_CONFIG)
+    rig_config.write_text(RIG_CONFIG.format(dialect=dialect))
     written = tmp_path / "bench.toml"
-    rig = _start_rig("--config", str(rig_config), "--dialect", "scpi", "--table-listen", "tcp://127.0.0.1:0",
-                     "--imu-listen", "slcan", "--write-config", str(written))
+    rig = _start_rig("--config", str(rig_config), "--table-listen", table_listen, "--imu-listen", imu_listen,
+                     "--write-config", str(written))
     try:
         startup = _read_until(rig, "Ctrl-C stops")
-        assert any("on slcan /dev/pts/" in line for line in startup), startup
+        kind = imu_listen.split(":")[0]
+        assert any(f"simulated IMU (100 Hz) on {kind} " in line for line in startup), startup
         written.write_text(_with_plan(written.read_text(), SHORT_PLAN))
         config = load_config(written)
-        assert config.imu.interface == "slcan" and config.table.url.startswith("tcp://127.0.0.1:")
+        assert config.imu.interface == kind and config.table.url.startswith(url_prefix)
+        assert config.table.dialect == dialect
         out = tmp_path / "runs"
         started = time.monotonic()
         run = subprocess.run([sys.executable, "-m", "bench.cli", "run", "--config", str(written), "--out", str(out),
