@@ -28,7 +28,7 @@ from bench.sim.socketcand_server import SocketcandError, SocketcandSession, spli
 from bench.sim.socketcand_server import encode_frame as socketcand_frame
 from drivers.imu import default_fd_layout
 from drivers.imu.receiver import ImuReceiver
-from tests.helpers.run import REPO, config_text, only_file, stop_process, wait_for
+from tests.helpers.run import REPO, cli, config_text, only_file, stop_process, wait_for
 
 RATE_HZ = 200.0
 
@@ -277,6 +277,7 @@ def _with_plan(text: str, plan: str) -> str:
     return text[:start] + plan + text[end:]
 
 
+@pytest.mark.timeout(240)     # a plan in wall-clock time: ~1 min, the suite's 120 s per test is too tight under load
 @pytest.mark.parametrize("dialect, table_listen, imu_listen, url_prefix", [
     ("scpi", "tcp://127.0.0.1:0", "slcan", "tcp://127.0.0.1:"),
     ("modbus", "pty", "socketcand://127.0.0.1:0", "modbus+rtu:///dev/pts/"),
@@ -299,7 +300,7 @@ def test_bench_run_against_the_rig_in_another_process_recovers_its_truth(tmp_pat
         out = tmp_path / "runs"
         started = time.monotonic()
         run = subprocess.run([sys.executable, "-m", "bench.cli", "run", "--config", str(written), "--out", str(out),
-                              "--quiet"], cwd=REPO, capture_output=True, text=True, timeout=170)
+                              "--quiet"], cwd=REPO, capture_output=True, text=True, timeout=200)
         wall_s = time.monotonic() - started
         assert run.returncode == 0, run.stderr
         result = json.loads(only_file(out, "*.result.json").read_text())
@@ -324,3 +325,32 @@ def test_bench_run_against_the_rig_in_another_process_recovers_its_truth(tmp_pat
         assert "stopped" in rig.stderr.read()
     finally:
         stop_process(rig)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGHUP])
+def test_the_rig_stops_on_sigint_even_when_ignored_and_on_sighup(signum):
+    # a shell starts `bench sim rig ... &` in a script with SIGINT ignored; SIGINT and SIGHUP must still stop it
+    proc = subprocess.Popen([sys.executable, "-m", "bench.cli", "sim", "rig", "--imu-listen",
+                             "socketcand://127.0.0.1:0"], cwd=REPO, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    try:
+        _read_until(proc, "Ctrl-C stops")
+        proc.send_signal(signum)
+        assert proc.wait(timeout=10) == 0
+        assert "stopped" in proc.stderr.read()
+    finally:
+        stop_process(proc)
+
+
+def test_rig_usage_errors_are_one_line_exit_2(tmp_path):
+    assert cli(["sim", "rig", "--imu-listen", "usb0"])[0] == 2
+    code, _, err = cli(["sim", "rig", "--table-listen", "tcp://0.0.0.0:0"])
+    assert code == 2 and "--allow-remote" in err
+    code, _, err = cli(["sim", "rig", "--imu-listen", "socketcand://192.0.2.1:0"])
+    assert code == 2 and "--allow-remote" in err
+    fd_config = tmp_path / "fd.toml"
+    fd_config.write_text(config_text().replace('rate_hz =', 'fd = true\nrate_hz ='))
+    code, _, err = cli(["sim", "rig", "--config", str(fd_config), "--imu-listen", "slcan"])
+    assert code == 2 and "classic CAN frames only" in err, err
+    assert len(err.strip().splitlines()) == 1
