@@ -354,3 +354,20 @@ def test_rig_usage_errors_are_one_line_exit_2(tmp_path):
     code, _, err = cli(["sim", "rig", "--config", str(fd_config), "--imu-listen", "slcan"])
     assert code == 2 and "classic CAN frames only" in err, err
     assert len(err.strip().splitlines()) == 1
+
+
+def _has_vcan0() -> bool:
+    try:
+        bus = can.Bus(interface="socketcan", channel="vcan0")
+    except Exception:  # noqa: BLE001 - no SocketCAN, no vcan0, no permission: all mean skip
+        return False
+    bus.shutdown()
+    return True
+
+
+@pytest.mark.skipif(not _has_vcan0(), reason="no SocketCAN interface vcan0 on this host")
+def test_python_can_socketcan_client_receives_every_sample_on_vcan0(rig):
+    peer = rig.serve_socketcan("vcan0")
+    rig.start()
+    with ImuReceiver({"interface": "socketcan", "channel": peer.channel}, rig.config.imu.layout, RATE_HZ) as receiver:
+        _assert_no_loss(receiver, _receive(receiver, 100))
