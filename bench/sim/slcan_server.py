@@ -184,7 +184,7 @@ class SlcanPtyServer:
         flags = fcntl.fcntl(master, fcntl.F_GETFL)
         fcntl.fcntl(master, fcntl.F_SETFL, flags | os.O_NONBLOCK)
         self._master = master
-        self._thread = threading.Thread(target=self._loop, daemon=True, name="slcan-pty")
+        self._thread = threading.Thread(target=self._loop, daemon=True, name="sim-slcan-pty")
         self._thread.start()
 
     def send(self, messages: Iterable[can.Message]) -> None:

@@ -159,10 +159,10 @@ class SocketcandServer:
             raise
         self._listener = sock
         self.host, self.port = sock.getsockname()[:2]
-        self._spawn(self._accept_loop, "socketcand-accept")
+        self._spawn(self._accept_loop, "accept")
 
     def _spawn(self, target, name: str, *args) -> None:
-        thread = threading.Thread(target=target, args=args, daemon=True, name=name)
+        thread = threading.Thread(target=target, args=args, daemon=True, name=f"sim-socketcand-{name}")
         with self._lock:
             self._threads = [t for t in self._threads if t.is_alive()] + [thread]
         thread.start()
@@ -215,7 +215,7 @@ class SocketcandServer:
                 with self._lock:
                     self._connections[key] = conn
                     self.clients += 1
-                self._spawn(self._serve, f"socketcand-{key}", key, conn)
+                self._spawn(self._serve, f"{key}", key, conn)
             except Exception:  # noqa: BLE001 - one connection's failure must not end the accept loop
                 with self._lock:
                     self._connections.pop(key, None)
