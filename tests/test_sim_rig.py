@@ -374,3 +374,16 @@ def test_python_can_socketcan_client_receives_every_sample_on_vcan0(rig):
     rig.start()
     with ImuReceiver({"interface": "socketcan", "channel": peer.channel}, rig.config.imu.layout, RATE_HZ) as receiver:
         _assert_no_loss(receiver, _receive(receiver, 100))
+
+
+def test_imu_off_and_on_from_the_console(rig):
+    rig.serve_socketcand()
+    rig.start()
+    assert apply_imu_command(rig, ["off"]) == "ok"
+    wait_for(lambda: rig.bus.frames_silenced > 0, 5.0, "the silenced IMU to swallow a frame")
+    assert "IMU off" in imu_status(rig)
+    assert apply_imu_command(rig, ["on"]) == "ok" and "IMU on" in imu_status(rig)
+    assert apply_imu_command(rig, ["drop", "x"]).startswith("error:")
+    assert apply_imu_command(rig, ["bogus"]).startswith("unknown imu command")
+    for fault in (["corrupt", "2"], ["length"], ["swap"]):
+        assert apply_imu_command(rig, fault) == "ok"
