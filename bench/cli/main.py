@@ -13,7 +13,7 @@ import sys
 
 from bench import __version__
 from bench.cli import apply as apply_cli
-from bench.cli import check_table, evaluate, export_can, replay, run, schedules, solve, table, tui
+from bench.cli import check_table, evaluate, export_can, replay, run, schedules, sim_rig, solve, table, tui
 from bench.cli import export as export_cli
 from bench.cli import noise as noise_command
 from bench.cli import verify as verify_cli
@@ -39,7 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     solve.register(sub)
     schedules.register(sub)
     table.register_table(sub)
-    table.register_sim(sub)
+    sim_rig.register(table.register_sim(sub))
     check_table.register(sub)
     export_can.register(sub)
     noise_command.register(sub)

@@ -198,7 +198,8 @@ FAULT_HELP = """fault console (one command per line on stdin):
   state | help"""
 
 
-def register_sim(subparsers: argparse._SubParsersAction) -> None:
+def register_sim(subparsers: argparse._SubParsersAction) -> argparse._SubParsersAction:
+    """`bench sim` and its `table`; returns the `sim` subcommands for the others (`bench sim rig`)."""
     sim = subparsers.add_parser("sim", help="serve simulated devices for manual or external testing")
     kinds = sim.add_subparsers(dest="sim_command", metavar="DEVICE", required=True)
     table = kinds.add_parser(
@@ -221,6 +222,7 @@ def register_sim(subparsers: argparse._SubParsersAction) -> None:
                        help="RMS of the nine black-box pointing-error angles (default 0: ideal table)")
     table.add_argument("--seed", type=int, default=0, help="seed of the black-box angles (default 0)")
     table.set_defaults(func=cmd_sim_table)
+    return kinds
 
 
 def _apply_fault_command(controller, line: str) -> str:

@@ -9,7 +9,9 @@ and each name falls under one of `PROJECT_THREAD_PREFIXES`:
 - `SimCanImu`: the simulated CAN IMU's sender (bench/sim/can_imu.py)
 - `modbus-sim-`: the Modbus simulator's event loop (`modbus-sim-loop`) and its RTU pty bridge
   (`modbus-sim-pty-bridge`) (bench/sim/modbus_server.py)
-- `sim-`: the line simulators' accept/serve threads (`sim-<function>`, bench/sim/serve.py)
+- `sim-`: the line simulators' accept/serve threads (`sim-<function>`, bench/sim/serve.py) and the
+  rig's CAN peers (`sim-slcan-pty`, bench/sim/slcan_server.py; `sim-socketcand-<n>`,
+  bench/sim/socketcand_server.py)
 - `modbus-watchdog`: the Modbus turntable driver's watchdog (drivers/turntable/modbus.py)
 - `mcap-inflate`, `can-frames`, `imu-screen`: `ThreadPoolExecutor` workers of the log reader
   (bench/log/chunks.py, bench/log/walk.py, bench/log/reader.py) and of the bulk IMU decoder

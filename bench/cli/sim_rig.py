@@ -1,0 +1,172 @@
+"""`bench sim rig`: a whole simulated bench (table and IMU) in wall-clock time, for `bench run` in another process.
+
+The table is served as `bench sim table` serves it (any dialect, TCP or a pty); the IMU's
+CAN frames on a simulated SLCAN adapter (a pty), a simulated socketcand (TCP) or a real
+SocketCAN interface, which `bench run` opens with python-can's own interfaces.
+`--write-config FILE` writes the bench configuration that points at both. Runs until
+Ctrl-C, SIGTERM or SIGHUP (exit 0); faults are typed on stdin.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import signal
+import sys
+import threading
+from pathlib import Path
+
+from bench.cli.common import ExitCode, fail, raise_interrupted, stop_signals
+from bench.cli.table import FAULT_HELP, _apply_fault_command, _host_port, _listen, _remote_hosts
+from bench.config.load import BenchConfig, ConfigError, default_sim_config, load_config, parse_config
+from bench.errors import InputError
+from bench.model.imu import NoiseModel
+from drivers.turntable import DIALECTS
+
+PROG = "bench sim rig"
+IMU_LISTEN_HELP = ("slcan (a simulated SLCAN adapter on a new pty: python-can interface slcan), "
+                   "socketcand://127.0.0.1:PORT (a simulated socketcand serving can0: interface socketcand), or "
+                   "socketcan:CHANNEL (a SocketCAN interface of this host, e.g. socketcan:vcan0); repeatable; "
+                   "the written configuration points at the first; default slcan")
+IMU_FAULT_HELP = """  imu off | imu on | imu drop N | imu corrupt N | imu length N | imu swap | imu status
+      (the IMU stops/starts sending; the next N frames are dropped, sent with a bad CRC or one byte short;
+       swap: the next sample's last frame comes after the frame that follows it)"""
+
+
+def register(kinds: argparse._SubParsersAction) -> None:
+    """`rig` under `bench sim` (`kinds` is what `bench.cli.table.register_sim` returns)."""
+    rig = kinds.add_parser(
+        "rig", help="serve a whole simulated bench (table and CAN IMU) in wall-clock time until Ctrl-C",
+        description="Serve the simulated turntable in a controller dialect and the simulated IMU mounted on it "
+                    "on a CAN transport that python-can opens from another process (SLCAN on a pty, "
+                    "socketcand on TCP, SocketCAN), in wall-clock time. --write-config writes the bench "
+                    "configuration that points at both (`bench run --config FILE` in another terminal). "
+                    "The truth (site, black box, noise, IMU coefficients, IMU rate) comes from --config's "
+                    "[site], [imu] and [sim] (default: `bench run --sim`'s), overridden by the flags. Prints "
+                    "where it listens, then runs until Ctrl-C, SIGTERM or SIGHUP.\n\n" + FAULT_HELP + "\n"
+                    + IMU_FAULT_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    rig.add_argument("--dialect", choices=sorted(DIALECTS),
+                     help="the table's controller dialect (default: --config's, else scpi)")
+    rig.add_argument("--table-listen", metavar="WHERE",
+                     help="tcp://127.0.0.1:PORT (scpi, mn), modbus+tcp://127.0.0.1:PORT (modbus) or pty (RTU for "
+                          "modbus); port 0 picks a free port; default: TCP on a free loopback port")
+    rig.add_argument("--imu-listen", action="append", metavar="WHERE", help=IMU_LISTEN_HELP)
+    rig.add_argument("--allow-remote", action="store_true",
+                     help="allow a listen address beyond loopback: anyone who can reach this machine can then "
+                          "command the simulated table")
+    rig.add_argument("--write-config", metavar="FILE", help="write the bench configuration pointing at the rig")
+    rig.add_argument("--config", metavar="FILE",
+                     help="a bench configuration whose [site], [sim], imu.rate_hz and IMU layout the rig uses")
+    rig.add_argument("--seed", type=int, help="[sim] seed (black-box draw and sensor noise)")
+    rig.add_argument("--black-box-arcsec", type=float, help="[sim] RMS of the nine black-box angles, arcsec")
+    rig.add_argument("--noise", choices=("on", "off"), help="[sim] noise on (default levels) or off")
+    rig.add_argument("--imu-rate-hz", type=float, help="the IMU's sample rate, Hz")
+    rig.add_argument("--latitude", type=float, help="site latitude, deg")
+    rig.set_defaults(func=cmd_sim_rig)
+
+
+def _truth_config(args: argparse.Namespace) -> BenchConfig:
+    """--config (or the built-in sim configuration) with the flags applied, written out and read back
+    through the configuration loader, so the rig's world is exactly what the written file says."""
+    from bench.sim.rig import RigPeer, rig_config_text  # the simulators: only for `bench sim`
+
+    base = load_config(args.config) if args.config else default_sim_config()
+    sim, site, imu = base.sim, base.site, base.imu
+    if args.seed is not None:
+        sim = dataclasses.replace(sim, seed=args.seed)
+    if args.black_box_arcsec is not None:
+        sim = dataclasses.replace(sim, black_box_arcsec=args.black_box_arcsec)
+    if args.noise is not None:
+        sim = dataclasses.replace(sim, noise=NoiseModel() if args.noise == "on" else NoiseModel.off())
+    if args.latitude is not None:
+        site = dataclasses.replace(site, latitude_deg=args.latitude, local_g_mps2=None)
+    if args.imu_rate_hz is not None:
+        imu = dataclasses.replace(imu, rate_hz=args.imu_rate_hz)
+    base = dataclasses.replace(base, sim=sim, site=site, imu=imu)
+    placeholder = RigPeer("virtual", "", "virtual", "turntable-bench-rig", {})
+    text = rig_config_text(base, "sim", base.table.dialect, placeholder)
+    return parse_config(text, source="<bench sim rig options>")
+
+
+def _serve_imu(rig, where: str):
+    if where == "slcan":
+        return rig.serve_slcan()
+    if where.startswith("socketcan:"):
+        return rig.serve_socketcan(where.split(":", 1)[1])
+    host, port = _host_port(where, "socketcand", "the IMU listens on slcan, socketcand://HOST:PORT or "
+                                                  "socketcan:CHANNEL")
+    return rig.serve_socketcand(host, port)
+
+
+def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
+    from bench.sim.rig import SimRig, apply_imu_command, rig_config_text  # only for `bench sim`
+
+    try:
+        config = _truth_config(args)
+    except (ConfigError, InputError) as exc:
+        return fail(PROG, f"{exc}", ExitCode.USAGE)
+    dialect = args.dialect or config.table.dialect
+    table_listen = args.table_listen or ("modbus+tcp://127.0.0.1:0" if dialect == "modbus" else "tcp://127.0.0.1:0")
+    imu_listen = args.imu_listen or ["slcan"]
+    socket_addresses = [w.replace("socketcand://", "tcp://", 1) for w in imu_listen if w.startswith("socketcand://")]
+    remote = _remote_hosts([table_listen, *socket_addresses])
+    if remote and not args.allow_remote:
+        return fail(PROG, f"{remote[0]} is reachable from the network, not only from this machine; add "
+                          "--allow-remote to serve it there, or listen on 127.0.0.1", ExitCode.USAGE)
+    for where in imu_listen:
+        if not (where == "slcan" or where.startswith(("socketcand://", "socketcan:"))):
+            return fail(PROG, f"the IMU listens on slcan, socketcand://HOST:PORT or socketcan:CHANNEL, not "
+                              f"{where!r}", ExitCode.USAGE)
+    closers: list = []
+    # SIGINT stops the rig even when it was started with SIGINT ignored (`bench sim rig ... &` in a script)
+    previous_handler = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with stop_signals(raise_interrupted):
+            rig = SimRig(config)
+            closers.append(rig.close)
+            table_url = _listen(rig.controller, dialect, table_listen, closers)
+            print(f"simulated table ({dialect}) listening on {table_url}", flush=True)
+            peers = [_serve_imu(rig, where) for where in imu_listen]
+            for peer in peers:
+                print(f"simulated IMU ({config.imu.rate_hz:g} Hz) on {peer.kind} {peer.where}: python-can "
+                      f"interface {peer.interface!r}, channel {peer.channel!r}"
+                      + "".join(f", {k} {v!r}" for k, v in peer.bus_options.items()), flush=True)
+            rig.start()
+            if args.write_config:
+                text = rig_config_text(config, table_url, dialect, peers[0])
+                parse_config(text, source=args.write_config, base_dir=Path(args.write_config).resolve().parent)
+                Path(args.write_config).write_text(text, encoding="utf-8")
+                print(f"bench configuration written to {args.write_config}", flush=True)
+            print("Ctrl-C stops; type 'help' for the fault console", flush=True)
+            for line in sys.stdin:           # the fault console; on EOF keep serving until a stop signal
+                reply = _console(rig, line, apply_imu_command)
+                if reply:
+                    print(reply, flush=True)
+            threading.Event().wait()
+    except (InputError, ConfigError, ValueError, OSError) as exc:
+        return fail(PROG, f"{exc}", ExitCode.USAGE)
+    except KeyboardInterrupt:
+        return fail(PROG, "stopped", ExitCode.OK)
+    finally:
+        signal.signal(signal.SIGINT, previous_handler)
+        for close in reversed(closers):
+            try:
+                close()
+            except Exception as exc:  # noqa: BLE001 - report what stopped the IMU, close the rest
+                print(f"{PROG}: while closing: {type(exc).__name__}: {exc}", file=sys.stderr)
+    return ExitCode.OK
+
+
+def _console(rig, line: str, apply_imu_command) -> str:
+    words = line.split()
+    if not words:
+        return ""
+    if words[0].lower() == "imu":
+        return apply_imu_command(rig, words[1:])
+    if words[0].lower() == "help":
+        return FAULT_HELP + "\n" + IMU_FAULT_HELP
+    return _apply_fault_command(rig.controller, line)
+
+
+__all__ = ["cmd_sim_rig", "register"]

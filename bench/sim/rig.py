@@ -1,0 +1,313 @@
+"""A whole simulated bench in wall-clock time, for another process to run against (`bench sim rig`).
+
+`SimRig` holds the simulated controller (kinematics on the system clock; the CLI serves it
+in a dialect as `bench sim table` does) and the simulated IMU mounted on its table
+(`SimCanImu`, a thread that catches up with wall-clock time every few milliseconds). The
+IMU's frames go onto `RigBus`, which hands them to every CAN peer the rig serves: a
+simulated SLCAN adapter on a pty (`bench.sim.slcan_server`), a simulated socketcand on
+127.0.0.1 (`bench.sim.socketcand_server`) or a real SocketCAN interface. Another process
+opens those with python-can's own interfaces (`slcan`, `socketcand`, `socketcan`).
+
+`rig_config_text` writes the bench configuration that points at what the rig serves, with
+the rig's simulated truth in `[sim]` (so the written file rebuilds the same world; a
+hardware run ignores the section).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass, fields
+from typing import Any, Protocol
+
+import can
+
+from bench.config.load import BenchConfig, SimConfig
+from bench.model.imu import NoiseModel
+from bench.sim.can_imu import SimCanImu
+from bench.sim.controller import SimController
+from bench.sim.imu import SimImu
+from bench.sim.slcan_server import SlcanPtyServer
+from bench.sim.socketcand_server import SocketcandServer
+from bench.sim.table import SimTable, TableLimits
+from drivers.imu import DEFAULT_DBC
+
+#: how often the IMU thread catches up with the wall clock, s
+IMU_PERIOD_S = 0.005
+
+
+class FramePeer(Protocol):
+    """Something that puts the IMU's frames on a wire (an SLCAN pty, a socketcand server, a SocketCAN bus)."""
+
+    def send(self, messages: Iterable[can.Message]) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class SocketcanPeer:
+    """A real SocketCAN interface (e.g. vcan0) as a peer: every frame is sent on it."""
+
+    def __init__(self, channel: str):
+        self.bus = can.Bus(interface="socketcan", channel=channel)
+        self.frames_sent = 0
+        self.frames_dropped = 0
+
+    def send(self, messages: Iterable[can.Message]) -> None:
+        for msg in messages:
+            try:
+                self.bus.send(msg, timeout=0.01)
+                self.frames_sent += 1
+            except can.CanError:
+                self.frames_dropped += 1
+
+    def close(self) -> None:
+        self.bus.shutdown()
+
+
+class RigBus(can.BusABC):
+    """The simulated IMU's own bus: what it sends goes to every peer; `silent` swallows it (IMU off)."""
+
+    def __init__(self) -> None:
+        super().__init__(channel="sim-rig")
+        self.peers: list[FramePeer] = []
+        self.silent = False
+        self.frames_silenced = 0
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self.send_batch([msg])
+
+    def send_batch(self, messages: list[can.Message]) -> None:
+        if self.silent:
+            self.frames_silenced += len(messages)
+            return
+        for peer in self.peers:
+            peer.send(messages)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        return None, False
+
+
+@dataclass(frozen=True)
+class RigPeer:
+    """One CAN transport the rig serves and how a bench configuration reaches it."""
+
+    kind: str                 # "slcan", "socketcand", "socketcan"
+    where: str                # what to print: the pty path, tcp://host:port, the interface
+    interface: str            # python-can interface name
+    channel: str
+    bus_options: dict
+    bitrate: int | None = None
+
+
+class SimRig:
+    """The simulated controller and IMU of `config` (its site, [sim] truth, IMU rate and layout), in wall-clock time."""
+
+    def __init__(self, config: BenchConfig):
+        self.config = config
+        sim = config.sim
+        # the simulated table moves as fast as [table.limits] allows (its rates and accelerations)
+        axes = config.table.limits.axes
+        outer, middle, inner = axes
+        table_limits = TableLimits((outer.max_rate_dps, middle.max_rate_dps, inner.max_rate_dps),
+                                   (outer.max_accel_dps2, middle.max_accel_dps2, inner.max_accel_dps2))
+        self.controller = SimController(SimTable(config.site.site, black_box_rad=sim.black_box_rad,
+                                                 limits=table_limits), limits=axes)
+        self.imu = SimImu(sim.imu, sim.noise, rate_hz=config.imu.rate_hz, seed=sim.seed)
+        self.bus = RigBus()
+        self.can_imu = SimCanImu(self.controller, self.imu, self.bus, config.imu.layout)
+        self.peers: list[RigPeer] = []
+        self._servers: list[Any] = []
+
+    def _classic_only(self, kind: str) -> None:
+        if any(m.is_fd for m in self.config.imu.layout.messages):
+            raise ValueError(f"{kind} carries classic CAN frames only and the IMU layout has CAN FD frames: use a "
+                             "classic layout (imu.fd = false and a classic DBC) or serve the IMU on socketcan")
+
+    def serve_slcan(self) -> RigPeer:
+        """A simulated SLCAN adapter on a new pty."""
+        self._classic_only("SLCAN")
+        server = SlcanPtyServer()
+        return self._add("slcan", server, RigPeer("slcan", server.path, "slcan", server.path, {}, 1_000_000))
+
+    def serve_socketcand(self, host: str = "127.0.0.1", port: int = 0) -> RigPeer:
+        """A simulated socketcand serving `can0` on TCP."""
+        self._classic_only("socketcand (as python-can reads it)")
+        server = SocketcandServer(host, port)
+        return self._add("socketcand", server, RigPeer(
+            "socketcand", f"socketcand://{server.host}:{server.port}", "socketcand", "can0",
+            {"host": server.host, "port": server.port}))
+
+    def serve_socketcan(self, channel: str) -> RigPeer:
+        """A real SocketCAN interface (vcan0, can0) of this host."""
+        peer = SocketcanPeer(channel)
+        return self._add("socketcan", peer, RigPeer("socketcan", channel, "socketcan", channel, {}))
+
+    def _add(self, kind: str, server: Any, peer: RigPeer) -> RigPeer:
+        self._servers.append(server)
+        self.bus.peers.append(server)
+        self.peers.append(peer)
+        return peer
+
+    def server(self, index: int = 0) -> Any:
+        """The server behind `peers[index]` (its counters: frames_sent, frames_dropped, clients)."""
+        return self._servers[index]
+
+    def start(self) -> None:
+        """The IMU starts sending (in wall-clock time, from its own thread)."""
+        self.can_imu.start(IMU_PERIOD_S)
+
+    def close(self) -> None:
+        """Stop the IMU, then the peers; re-raises what stopped the IMU's thread, if anything did."""
+        try:
+            self.can_imu.stop()
+        finally:
+            for server in reversed(self._servers):
+                try:
+                    server.close()
+                except Exception:  # noqa: BLE001 - closing everything matters more than the first failure
+                    pass
+            self._servers.clear()
+            self.bus.shutdown()
+
+    def __enter__(self) -> "SimRig":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# -- the IMU's fault console ---------------------------------------------------------
+
+def apply_imu_command(rig: SimRig, words: list[str]) -> str:
+    """One `imu ...` console line (without the word `imu`); returns what to print."""
+    if not words:
+        return "imu: say off, on, drop N, corrupt N, length N, swap or status"
+    cmd, rest = words[0].lower(), words[1:]
+    try:
+        if cmd == "off":
+            rig.bus.silent = True
+        elif cmd == "on":
+            rig.bus.silent = False
+        elif cmd in ("drop", "corrupt", "length"):
+            count = int(rest[0]) if rest else 1
+            {"drop": rig.can_imu.drop_frames, "corrupt": rig.can_imu.corrupt_crc,
+             "length": rig.can_imu.wrong_length}[cmd](count)
+        elif cmd == "swap":
+            rig.can_imu.swap_frames()
+        elif cmd == "status":
+            return imu_status(rig)
+        else:
+            return f"unknown imu command {cmd!r}; type help"
+    except (ValueError, IndexError) as exc:
+        return f"error: {exc}"
+    return "ok"
+
+
+def imu_status(rig: SimRig) -> str:
+    """One line: samples and frames sent, and per peer what went out and what was dropped."""
+    parts = [f"IMU {'off' if rig.bus.silent else 'on'}: {rig.can_imu.samples_sent} samples, "
+             f"{rig.can_imu.frames_sent} frames generated"]
+    for peer, server in zip(rig.peers, rig._servers):
+        backlog = getattr(server, "peak_pending", None)
+        parts.append(f"{peer.kind} {peer.where}: {server.frames_sent} frames out, "
+                     f"{server.frames_dropped} dropped (not read)"
+                     + (f", longest backlog {backlog} bytes" if backlog is not None else ""))
+    return "; ".join(parts)
+
+
+# -- the configuration the rig writes ----------------------------------------------
+
+def _toml(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value) if math.isfinite(value) else "nan"
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    raise TypeError(f"no TOML for {type(value).__name__}")
+
+
+def sim_section(sim: SimConfig) -> str:
+    """The `[sim]` section that rebuilds `sim` (seed, black box as written, noise, IMU overrides)."""
+    lines = ["[sim]", "# The rig's simulated truth (a hardware run ignores this section; "
+             "`bench run --sim` rebuilds the same world).",
+             f"seed = {sim.seed}", f"black_box_arcsec = {_toml(sim.black_box_arcsec)}"]
+    noise = sim.noise
+    levels = {f.name: getattr(noise, f.name) for f in fields(NoiseModel) if f.name != "quantise"}
+    on = any(v for k, v in levels.items() if k != "correlation_time_s")
+    if noise == NoiseModel() or noise == NoiseModel.off():
+        lines.append(f"noise = {_toml(noise == NoiseModel())}")
+    else:
+        lines += ["", "[sim.noise]", f"enabled = {_toml(on)}"]
+        if on:
+            lines += [f"{k} = {_toml(v)}" for k, v in levels.items()]
+        lines.append(f"quantise = {_toml(noise.quantise)}")
+    if sim.imu_overrides:
+        lines += ["", "[sim.imu]"] + [f"{k} = {_toml(v)}" for k, v in sim.imu_overrides.items()]
+    return "\n".join(lines) + "\n"
+
+
+def rig_config_text(config: BenchConfig, table_url: str, dialect: str, peer: RigPeer) -> str:
+    """A bench configuration (bench.example.toml's format) pointing at the rig: its table and IMU, its site
+    and truth, and a default plan to edit."""
+    site, imu = config.site, config.imu
+    site_lines = [f"latitude_deg = {site.latitude_deg!r}", f"height_m = {site.height_m!r}"]
+    if site.local_g_mps2 is not None:
+        site_lines.append(f"local_g_mps2 = {site.local_g_mps2!r}")
+    imu_lines = [f"interface = {_toml(peer.interface)}", f"channel = {_toml(peer.channel)}",
+                 f"fd = {_toml(imu.fd)}", f"rate_hz = {imu.rate_hz!r}"]
+    if peer.bitrate is not None:
+        imu_lines.insert(2, f"bitrate = {peer.bitrate}")
+    if imu.dbc != DEFAULT_DBC:
+        imu_lines.append(f"dbc = {_toml(str(imu.dbc.resolve()))}   # signals: the shipped mapping unless set")
+    limit_lines = []
+    for frame, axis in zip(("outer", "middle", "inner"), config.table.limits.axes):
+        limit_lines += ["", f"[table.limits.{frame}]", f"max_rate_dps = {axis.max_rate_dps!r}",
+                        f"max_accel_dps2 = {axis.max_accel_dps2!r}"]
+        limit_lines += [f"{key} = {value!r}" for key, value in (("min_deg", axis.min_deg), ("max_deg", axis.max_deg))
+                        if value is not None]
+    options = "".join(f"{k} = {_toml(v)}\n" for k, v in peer.bus_options.items())
+    if options:
+        options = "\n[imu.bus_options]\n" + options
+    return f"""\
+# Written by `bench sim rig`: a bench configuration pointing at the simulated rig.
+# For the real bench, change [table] url/dialect and [imu] interface/channel (see README,
+# "Before the hardware arrives"); everything else stays.
+format = "turntable-bench/config"
+version = 1
+
+[site]
+{chr(10).join(site_lines)}
+
+[table]
+url = {_toml(table_url)}
+dialect = {_toml(dialect)}
+# what the bench may demand; the simulated table moves at these rates and accelerations
+{chr(10).join(limit_lines).lstrip()}
+
+[imu]
+{chr(10).join(imu_lines)}
+{options}
+[imu.identity]
+model = "simulated FOG IMU (bench sim rig)"
+serial = "RIG-0001"
+
+[plan]
+positions = "optimal-24"
+rotations = "optimal-5s6r"
+dwell_s = 60.0
+settle_s = 5.0
+turn_rate_dps = 10.0
+revolutions = 1
+
+[output]
+folder = "runs"
+
+{sim_section(config.sim)}"""
+
+
+__all__ = ["RigBus", "RigPeer", "SimRig", "SocketcanPeer", "apply_imu_command", "imu_status",
+           "rig_config_text", "sim_section"]
