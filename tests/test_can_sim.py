@@ -245,3 +245,33 @@ def test_fault_arguments_are_checked(buses):
         sim.corrupt_crc(1, frame_id=0x7FF)
     with pytest.raises(TypeError):
         SimCanImu(object(), make_imu(), tx)
+
+
+def test_a_poll_returns_on_a_bus_that_never_runs_dry():
+    """A bus delivering frames as fast as they are read (a saturated SLCAN link): the poll drained 'until
+    empty' and never returned, starving the sequencer that checks the table between polls."""
+    from drivers.imu import ImuEncoder, default_layout
+    from drivers.imu.receiver import MAX_POLL_FRAMES, ImuReceiver
+
+    encoded = ImuEncoder(default_layout()).encode(np.arange(1), np.zeros((1, 3)), np.zeros((1, 3)), 25.0, 0)
+    key, data = encoded.frame(0)
+
+    class EndlessBus(can.BusABC):
+        def __init__(self):
+            super().__init__(channel="endless")
+            self.sent = 0
+
+        def _recv_internal(self, timeout):
+            self.sent += 1
+            return can.Message(arbitration_id=key, data=data, is_extended_id=False), False
+
+        def send(self, msg, timeout=None):
+            raise NotImplementedError
+
+    bus = EndlessBus()
+    receiver = ImuReceiver(bus, rate_hz=100.0)
+    receiver.poll(timeout_s=0.0)
+    assert 0 < receiver.frames_received <= MAX_POLL_FRAMES
+    receiver.poll(timeout_s=0.0)          # and again: each poll takes its share and returns
+    assert receiver.frames_received <= 2 * MAX_POLL_FRAMES
+    bus.shutdown()

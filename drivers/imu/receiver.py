@@ -9,6 +9,7 @@ callback before decoding, so a recorder can log all of them losslessly.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Mapping
 
 import can
@@ -28,6 +29,12 @@ def open_bus(config: Mapping) -> can.BusABC:
         return can.Bus(**config)
     except Exception as exc:   # backends raise CanError, OSError, ImportError, ValueError, TypeError...
         raise ImuConnectionError(f"cannot open the CAN bus ({where}): {exc}") from exc
+
+
+#: A poll takes at most this many frames and drains for at most this long after its first frame (the
+#: rest stays queued for the next poll).
+MAX_POLL_FRAMES = 65_536
+MAX_DRAIN_S = 0.05
 
 
 class TimeBase:
@@ -97,10 +104,13 @@ class ImuReceiver:
 
     def poll(self, max_frames: int | None = None, timeout_s: float = 0.0) -> ImuSampleBlock:
         """Drain the bus: wait up to `timeout_s` for a first frame, then take what is queued
-        (at most `max_frames`); returns the samples completed so far (possibly none)."""
+        (at most `max_frames`, default `MAX_POLL_FRAMES`, and for at most `MAX_DRAIN_S` after the
+        first frame); returns the samples completed so far (possibly none). The bounds matter on a
+        bus that delivers frames as fast as they are read: draining "until empty" never ended there,
+        and the caller (the sequencer, checking the table between polls) was starved."""
         if self._closed:
             raise ImuConnectionError("the IMU receiver is closed")
-        limit = max_frames if max_frames is not None else 1 << 62
+        limit = max_frames if max_frames is not None else MAX_POLL_FRAMES
         recv = self.bus.recv
         messages: list[can.Message] = []
         drain = getattr(self.bus, "drain_messages", None)   # a bus that can hand over a whole batch
@@ -111,10 +121,13 @@ class ImuReceiver:
                 if drain is not None and limit > 1:
                     messages += drain(None if max_frames is None else limit - 1)
                     msg = None
+            drain_until = time.monotonic() + MAX_DRAIN_S
             while msg is not None and len(messages) < limit:
                 msg = recv(0.0)
                 if msg is not None:
                     messages.append(msg)
+                    if not len(messages) % 256 and time.monotonic() > drain_until:
+                        break
         except can.CanError as exc:
             raise ImuConnectionError(f"CAN bus {self.bus.channel_info!r} failed while receiving: {exc}") from exc
         finally:
