@@ -59,15 +59,22 @@ def fail(prog: str, message: str, code: ExitCode) -> ExitCode:
     return code
 
 
-def speed_factor(text: str) -> float:
-    """argparse type of a `--speed X` option: a positive factor of real time."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive factor of real time, got {text!r}")
-    return value
+def number_type(rule: str, accept: Callable[[float], bool]) -> Callable[[str], float]:
+    """An argparse type: a finite number that `accept`s, else "not a number: ..." or "must be `rule`, got ..."."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        if not (math.isfinite(value) and accept(value)):
+            raise argparse.ArgumentTypeError(f"must be {rule}, got {text!r}")
+        return value
+
+    return parse
+
+
+#: argparse type of a `--speed X` option: a positive factor of real time
+speed_factor = number_type("a positive factor of real time", lambda value: value > 0)
 
 
 _DEFAULT_NOISE = NoiseModel()

@@ -8,19 +8,14 @@ format, an empty time range or an output that cannot be written (one line).
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 
-from bench.cli.common import ExitCode, fail
+from bench.cli.common import ExitCode, fail, number_type
 
 PROG = "bench export-can"
 
 
-def _seconds(text: str) -> float:
-    value = float(text)
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"must be a number of seconds >= 0, got {text!r}")
-    return value
+_seconds = number_type("a number of seconds >= 0", lambda value: value >= 0)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -12,20 +12,13 @@ import dataclasses
 import math
 from pathlib import Path
 
-from bench.cli.common import ExitCode, add_noise_arguments, fail, noise_from_args
+from bench.cli.common import ExitCode, add_noise_arguments, fail, noise_from_args, number_type
 
 PROG = "bench noise"
 MAX_SIM_SAMPLES = 100_000_000     # per channel: 6 channels of float64 are 4.8 GB
 
 
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return value
+_positive = number_type("a positive number", lambda value: value > 0)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

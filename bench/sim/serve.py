@@ -46,6 +46,22 @@ def _split_lines(buffer: bytearray) -> list[bytes]:
             lines.append(line)
 
 
+def tcp_listener(host: str, port: int, backlog: int) -> socket.socket:
+    """A listening TCP socket on (host, port) (port 0 = any free port) whose accept() times out every 0.1 s,
+    so that an accept loop sees its stop flag; OSError when it cannot be bound (nothing left open)."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((host, port))
+        sock.listen(backlog)
+        sock.settimeout(0.1)
+    except OSError:
+        sock.close()
+        raise
+    return sock
+
+
 class LineServer:
     """Serves one handler on any number of TCP listeners and ptys until `close()`.
 
@@ -83,16 +99,7 @@ class LineServer:
     # -- TCP --------------------------------------------------------------------
     def listen_tcp(self, host: str = "127.0.0.1", port: int = 0) -> tuple[str, int]:
         """Start listening; returns the (host, port) actually bound (port 0 = any free port)."""
-        family = socket.AF_INET6 if ":" in host else socket.AF_INET
-        sock = socket.socket(family, socket.SOCK_STREAM)
-        try:
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            sock.bind((host, port))
-            sock.listen(16)
-            sock.settimeout(0.1)
-        except OSError:
-            sock.close()
-            raise
+        sock = tcp_listener(host, port, backlog=16)
         self._closers.append(sock.close)
         self._spawn(self._accept_loop, sock)
         return sock.getsockname()[:2]

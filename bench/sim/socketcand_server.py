@@ -30,6 +30,8 @@ from collections.abc import Iterable
 
 import can
 
+from bench.sim.serve import tcp_listener
+
 BUS = "can0"
 HI = b"< hi >"
 OK = b"< ok >"
@@ -147,17 +149,7 @@ class SocketcandServer:
         self._stop = threading.Event()
         self._connections: dict[int, _Connection] = {}
         self._threads: list[threading.Thread] = []
-        family = socket.AF_INET6 if ":" in host else socket.AF_INET
-        sock = socket.socket(family, socket.SOCK_STREAM)
-        try:
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            sock.bind((host, port))
-            sock.listen(8)
-            sock.settimeout(0.1)
-        except OSError:
-            sock.close()
-            raise
-        self._listener = sock
+        self._listener = sock = tcp_listener(host, port, backlog=8)
         self.host, self.port = sock.getsockname()[:2]
         self._spawn(self._accept_loop, "accept")
 
