@@ -8,9 +8,7 @@ subprocesses (for signals and pipes); every wait is bounded.
 
 from __future__ import annotations
 
-import errno
 import fcntl
-import io
 import os
 import pty
 import re
@@ -31,6 +29,7 @@ from bench.log.reader import read_log
 from bench.plan.events import RunListener
 from bench.run.runner import BenchRun, compile_from_config
 from drivers.turntable import AxisStatus
+from tests.helpers.disk import FillingDisk
 from tests.helpers.run import (
     AT_REST_DPS,
     REPO,
@@ -44,42 +43,6 @@ from tests.helpers.run import (
     transitions,
     wait_for,
 )
-
-
-class FillingDisk(io.RawIOBase):
-    """A file on a disk that fills up when told: once `FillingDisk.full` is set, every write fails with ENOSPC."""
-
-    full = False
-
-    def __init__(self, path: str):
-        super().__init__()
-        self._file = io.FileIO(path, "wb")
-
-    @classmethod
-    def open(cls, path, mode: str = "r", *args, **kwargs):
-        assert mode == "wb", mode
-        return io.BufferedWriter(cls(path))
-
-    def writable(self) -> bool:
-        return True
-
-    def seekable(self) -> bool:
-        return True
-
-    def write(self, data) -> int:
-        if FillingDisk.full:
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-        return self._file.write(data)
-
-    def seek(self, pos: int, whence: int = 0) -> int:
-        return self._file.seek(pos, whence)
-
-    def tell(self) -> int:
-        return self._file.tell()
-
-    def close(self) -> None:
-        self._file.close()
-        super().close()
 
 
 class Capture(RunListener):

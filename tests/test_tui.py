@@ -14,6 +14,7 @@ import threading
 import numpy as np
 import pytest
 
+from bench.log.reader import read_log
 from bench.plan.events import Event, RunState
 from bench.run.runner import compile_from_config
 from bench.tui.buffer import (
@@ -501,26 +502,38 @@ def test_snapshot_running_light_theme(tmp_path, snap_compare):
 
 # -- the run's log starts with the plan (issue 19) ---------------------------------------------------
 
-def test_connecting_and_moving_by_hand_write_no_log_a_plan_does(tmp_path):
-    """Every session wrote an .mcap at connect, even when nothing was run."""
+def test_connecting_writes_no_log_a_manual_move_and_a_plan_each_write_theirs(tmp_path):
+    """Every session wrote an .mcap at connect, even when nothing was run. Now connecting writes nothing, the
+    first manual move starts a log of manual moves, a plan closes it and writes its own log, and a manual move
+    after the plan starts a new log of manual moves (tests/test_tui_manual_log.py: its contents)."""
     async def body():
         app = make_app(tmp_path)
         async with app.run_test(size=SIZE) as pilot:
             await connected(pilot)
+            assert list(tmp_path.glob("*.mcap")) == []
             app.session.go_to((5.0, 0.0, 0.0)).join(10)
             await wait_until(pilot, lambda: abs(snap(app).table_state.angles_deg[0] - 5.0) < 1e-3
                              and snap(app).table_state.axes[0].in_position, "the manual move")
-            assert list(tmp_path.glob("*.mcap")) == []
+            [manual] = list(tmp_path.glob("*.mcap"))
+            assert manual.name.endswith("-manual.mcap") and app.session.manual_logs == [manual]
             await start_plan(pilot)
             log = app.session.run.log_path
-            assert list(tmp_path.glob("*.mcap")) == [log]
+            assert sorted(tmp_path.glob("*.mcap")) == sorted([manual, log])
             await wait_until(pilot, lambda: f"info: log {log}" in events_text(app), "the log's name in the events")
             await press(pilot, "a")
             await dialog_open(pilot, "ConfirmScreen", "#no")
             await press(pilot, "y")
             await wait_ended(pilot)
-        assert list(tmp_path.glob("*.mcap")) == [log]
+            closing = [e for e in read_log(str(manual)).events if e.message.startswith("manual log closed")]
+            assert [e.message for e in closing] == [f"manual log closed: a plan starts; it writes its own log, "
+                                                    f"{log.name}"]
+            app.session.enable().join(10)
+            await wait_until(pilot, lambda: all(a.enabled for a in snap(app).table_state.axes), "servos on")
+            await press(pilot, "right_square_bracket")          # a jog after the plan: a new log of manual moves
+            await wait_until(pilot, lambda: len(app.session.manual_logs) == 2, "the second log of manual moves")
+        assert sorted(tmp_path.glob("*.mcap")) == sorted([manual, log, app.session.manual_logs[1]])
         assert app.session.last_end.log_path == log
+        assert len(read_log(str(log)).events) > 0 and "kind" not in read_log(str(log)).metadata["run"]
     run(body)
 
 

@@ -43,7 +43,7 @@ def _replay(args: argparse.Namespace, stop: threading.Event) -> ExitCode:
     # imported when the command runs: `bench` starts without the bench core
     from bench.log.reader import LogError, read_log
     from bench.log.replay import replay
-    from bench.log.run_info import steps_from_log
+    from bench.log.run_info import is_manual_log, steps_from_log
 
     try:
         log = read_log(args.log)
@@ -54,7 +54,8 @@ def _replay(args: argparse.Namespace, stop: threading.Event) -> ExitCode:
     try:
         steps = steps_from_log(log)
     except LogError as exc:
-        print(f"bench replay: {exc}; progress without step names", file=sys.stderr)
+        why = f"{log.path}: a log of manual moves (bench tui), no plan" if is_manual_log(log) else str(exc)
+        print(f"bench replay: {why}; progress without step names", file=sys.stderr)
         steps = ()
     progress = TolerantProgress(steps, quiet=args.quiet,
                                 simulated=log.metadata.get("run", {}).get("mode") == "simulator")

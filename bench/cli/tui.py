@@ -5,7 +5,8 @@ SIGINT, SIGTERM and SIGHUP end the app as quitting does, without asking: any run
 aborted, the table stopped (servos off) and the log closed; exit 3 (130 for a replay).
 Quitting says where the last run's log is (one line) and exits with that run's code
 (`exit_status`): 0 done (or no run), 4 quality check failed or not solvable, 3 aborted or
-failed with the table stopped. It needs a terminal: without one (stdin or stdout not a
+failed with the table stopped; a session that moved the table by hand also names its logs
+of manual moves (`bench.tui.manual_log`). It needs a terminal: without one (stdin or stdout not a
 TTY) it refuses to start (exit 2) instead of drawing into nothing.
 """
 
@@ -83,6 +84,9 @@ def exit_status(app: BenchApp) -> ExitCode:
     from bench.tui.session import END_DONE, END_QUALITY, END_UNSOLVED
 
     session = app.session
+    manual = getattr(session, "manual_logs", ())
+    if manual:
+        _say(f"{PROG}: manual moves logged to {', '.join(map(str, manual))}")
     end = getattr(session, "last_end", None)
     log = f". Log: {end.log_path}" if end is not None and end.log_path is not None else ""
     if app.stopped_by is not None:
@@ -93,14 +97,19 @@ def exit_status(app: BenchApp) -> ExitCode:
     if end is None:
         return ExitCode.OK
     if end.kind == END_DONE:
-        try:
-            print(f"{PROG}: last run done{log}", flush=True)
-        except OSError:
-            pass
+        _say(f"{PROG}: last run done{log}")
         return ExitCode.OK
     if end.kind in (END_QUALITY, END_UNSOLVED):
         return fail(PROG, f"last run finished: {end.reason}{log}", ExitCode.QUALITY)
     return fail(PROG, f"last run {end.kind} ({end.reason}); the table was stopped{log}", ExitCode.FAULT)
+
+
+def _say(line: str) -> None:
+    """A line on stdout; a closed stdout loses it (the exit code still says how the session ended)."""
+    try:
+        print(line, flush=True)
+    except OSError:
+        pass
 
 
 def _replay(args: argparse.Namespace) -> ExitCode:

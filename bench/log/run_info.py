@@ -11,6 +11,10 @@ signal mapping in the recorded TOML, and `LogSetup.notes` says why `config` is N
 
 `steps_from_log(log)` rebuilds the compiled plan's step records from the "plan"
 metadata (`steps_json`, the `bench.plan.steps.step_to_dict` form).
+
+A log of manual moves (`bench tui`: the operator's go-to, rate and jog commands, no plan;
+`run.kind` = `MANUAL_LOG_KIND`) has no plan record: `is_manual_log` tells it, and
+`steps_from_log` says so in its `LogError` (`NO_PLAN_IN_MANUAL_LOG`).
 """
 
 from __future__ import annotations
@@ -35,6 +39,11 @@ from schedules.tomllines import locate_lines
 
 #: Keys of the configuration that name files the run attaches to its log (by base name).
 _ATTACHED_FILE_KEYS = (("imu", "dbc"), ("plan", "positions"), ("plan", "rotations"), ("acceptance", "reference"))
+#: `run.kind` of a log of manual moves (`bench tui`); its run id ends with `MANUAL_LOG_SUFFIX`.
+MANUAL_LOG_KIND, MANUAL_LOG_SUFFIX = "manual", "-manual"
+#: Why such a log cannot be solved or resumed.
+NO_PLAN_IN_MANUAL_LOG = ("a log of manual moves (bench tui), not a calibration run: it holds no calibration plan, "
+                         "so there is nothing to solve")
 _STRING_LITERAL = re.compile(r'"(?:[^"\\\n]|\\.)*"|\'[^\'\n]*\'')
 
 
@@ -78,9 +87,16 @@ def layout_and_config_from_log(log: RunLog) -> LogSetup:
     return LogSetup(layout, rate_hz, None, _site_from_metadata(log, notes), tuple(notes))
 
 
+def is_manual_log(log: RunLog) -> bool:
+    """The log is one of manual moves (`bench tui`), not of a calibration run."""
+    return (log.metadata.get("run") or {}).get("kind") == MANUAL_LOG_KIND
+
+
 def steps_from_log(log: RunLog) -> tuple[Step, ...]:
     """The compiled plan's steps as recorded in the log's "plan" metadata (LogError if absent or malformed)."""
     raw = log.metadata.get("plan", {}).get("steps_json")
+    if raw is None and is_manual_log(log):
+        raise LogError(f"{log.path}: {NO_PLAN_IN_MANUAL_LOG}")
     if raw is None:
         raise LogError(f"{log.path}: the log has no plan record (plan.steps_json)")
     try:
@@ -251,4 +267,5 @@ def _site_from_metadata(log: RunLog, notes: list[str]) -> Site | None:
         return None
 
 
-__all__ = ["LogSetup", "layout_and_config_from_log", "steps_from_log"]
+__all__ = ["MANUAL_LOG_KIND", "MANUAL_LOG_SUFFIX", "NO_PLAN_IN_MANUAL_LOG", "LogSetup", "is_manual_log",
+           "layout_and_config_from_log", "steps_from_log"]

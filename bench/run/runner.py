@@ -12,7 +12,7 @@ import json
 import secrets
 import tempfile
 import time
-from contextlib import ExitStack
+from contextlib import ExitStack, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
@@ -25,7 +25,8 @@ from bench.acceptance.verdict import Verdict, judge
 from bench.config.load import BenchConfig
 from bench.errors import BenchError
 from bench.log.reader import read_log
-from bench.log.recorder import CHUNK_RUN_INTERVAL_S, McapRecorder
+from bench.log.recorder import CHUNK_RUN_INTERVAL_S, McapRecorder, RecorderError
+from bench.log.run_info import MANUAL_LOG_KIND, MANUAL_LOG_SUFFIX
 from bench.model.result import CalibrationResult
 from bench.noise.from_log import NoiseInputError, analyse_log
 from bench.plan.compiler import CompiledPlan, compile_plan
@@ -188,12 +189,43 @@ class BenchRun:
             raise OutputFolderError(f"output folder {self.out_dir}: {exc.strerror or exc}") from exc
 
     def _open_recorder(self) -> None:
+        self.recorder = recorder = self._new_recorder(self.log_path, self._metadata())
+        self._stack.callback(recorder.close)
+
+    def open_manual_log(self) -> McapRecorder:
+        """A new log of manual moves (the TUI's, `<id>-manual.mcap`): this run's devices, configuration, site
+        and IMU records, no plan (`run.kind` = `MANUAL_LOG_KIND`). Not the run's log (`recorder`): the caller
+        writes it from one thread and closes it. Raises `OutputFolderError` when it cannot be written."""
+        if self.table is None:
+            raise BenchError("BenchRun: open() it first")
+        self._check_output_folder()
+        run_id = _new_run_id() + MANUAL_LOG_SUFFIX
+        path = self.out_dir / f"{run_id}.mcap"
+        metadata = self._metadata(run_id)
+        del metadata["plan"]
+        metadata["run"]["kind"] = MANUAL_LOG_KIND
+        try:
+            return self._new_recorder(path, metadata)
+        except OSError as exc:
+            raise OutputFolderError(f"log {path}: {exc.strerror or exc}") from exc
+
+    def _new_recorder(self, path: Path, metadata: dict) -> McapRecorder:
+        """A recorder on `path` with `metadata` and the run's files attached (the DBC, the configuration, the
+        schedules, the acceptance reference); closed again when attaching fails."""
         config = self.config
         interval = config.output.chunk_run_interval_s
-        self.recorder = recorder = McapRecorder(
-            str(self.log_path), metadata=self._metadata(),
-            chunk_run_interval_s=CHUNK_RUN_INTERVAL_S if interval is None else interval)
-        self._stack.callback(recorder.close)
+        recorder = McapRecorder(str(path), metadata=metadata,
+                                chunk_run_interval_s=CHUNK_RUN_INTERVAL_S if interval is None else interval)
+        try:
+            self._attach_files(recorder)
+        except BaseException:
+            with suppress(RecorderError):   # the attaching error is the one to raise
+                recorder.close()
+            raise
+        return recorder
+
+    def _attach_files(self, recorder: McapRecorder) -> None:
+        config = self.config
         assert self.clock is not None   # open() chose the clock before the recorder
         now_s = self.clock.now()        # attachments carry the run clock's time, like every record
         recorder.add_attachment(config.imu.dbc.name, "text/plain", config.imu.layout.dbc_text.encode(), now_s)
@@ -207,10 +239,10 @@ class BenchRun:
             reference = Path(config.acceptance.reference_path)
             recorder.add_attachment(reference.name, "application/json", reference.read_bytes(), now_s)
 
-    def _metadata(self) -> dict:
+    def _metadata(self, run_id: str | None = None) -> dict:
         config, identity = self.config, self.config.imu.identity
         return {
-            "run": {"run_id": self.run_id, "operator": self.operator, "software_version": __version__,
+            "run": {"run_id": run_id or self.run_id, "operator": self.operator, "software_version": __version__,
                     "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                     "mode": "simulator" if self.sim else "hardware",
                     "logs_before": json.dumps(self.previous_logs), "resumed_units": json.dumps(sorted(self.completed))},

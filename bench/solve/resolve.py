@@ -27,7 +27,13 @@ from bench.acceptance.verdict import Verdict, judge
 from bench.errors import InputError
 from bench.log.names import logs_before, output_path, run_id_of, sibling_log
 from bench.log.reader import LogError, RunLog, read_log
-from bench.log.run_info import LogSetup, layout_and_config_from_log, steps_from_log
+from bench.log.run_info import (
+    NO_PLAN_IN_MANUAL_LOG,
+    LogSetup,
+    is_manual_log,
+    layout_and_config_from_log,
+    steps_from_log,
+)
 from bench.log.run_setup import differences, setup_of_log
 from bench.model.earth import Site
 from bench.model.observations import PositionObservation, RotationObservation
@@ -258,6 +264,9 @@ def load_recorded(paths: list[str], *, earlier: bool = True) -> Recorded:
     if not paths:
         raise SolveInputError("no log given")
     logs, notes = read_logs(list(map(str, paths)), earlier=earlier)
+    manual = next((log for log in logs if is_manual_log(log)), None)
+    if manual is not None:
+        raise SolveInputError(f"{manual.path}: {NO_PLAN_IN_MANUAL_LOG}")
     _check_one_imu(logs)
     _check_one_setup(logs)
     _check_units_agree(logs)

@@ -19,7 +19,7 @@ from pathlib import Path
 from bench.config.load import BenchConfig
 from bench.log.reader import LogError, RunLog, read_log
 from bench.log.replay import ReplayStats, replay
-from bench.log.run_info import layout_and_config_from_log, steps_from_log
+from bench.log.run_info import NO_PLAN_IN_MANUAL_LOG, is_manual_log, layout_and_config_from_log, steps_from_log
 from bench.model.result import CalibrationResult, ResultFormatError
 from bench.solve.methods import SolverError
 from bench.solve.resolve import SolveInputError, load_recorded, solve_recorded
@@ -84,7 +84,8 @@ def open_log(path: str | Path) -> OpenedLog:
     try:
         steps = tuple(steps_from_log(log))
     except LogError as exc:
-        notes.append(f"{exc}; no plan shown")
+        if not is_manual_log(log):          # (a log of manual moves has no plan: `log_result` says so)
+            notes.append(f"{exc}; no plan shown")
         steps = ()
     try:
         config = layout_and_config_from_log(log).config
@@ -98,6 +99,8 @@ def open_log(path: str | Path) -> OpenedLog:
 
 def log_result(opened: OpenedLog) -> tuple[CalibrationResult | None, str]:
     """(CalibrationResult or None, one line): the result attached to the log, else a fresh solve."""
+    if is_manual_log(opened.log):
+        return None, f"no result: {NO_PLAN_IN_MANUAL_LOG}"
     why = ""
     # the run's own result first: an [acceptance] reference result may be attached too
     own = f"{opened.log.metadata.get('run', {}).get('run_id', '')}.result.json"
@@ -188,7 +191,7 @@ class ReplaySession:
             result, text = log_result(self.opened)
         except Exception as exc:  # noqa: BLE001 - shown, not raised: the replay itself went fine
             result, text = None, f"no result: {type(exc).__name__}: {exc}"
-        self.buffer.note("info" if result is not None else "warning", text)
+        self.buffer.note("info" if result is not None or is_manual_log(self.opened.log) else "warning", text)
         self.buffer.set_outcome(result, text)
         self.link_detail = f"{self.opened.path.name}, played to the end"
 

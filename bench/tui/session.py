@@ -6,9 +6,12 @@ and solve as `bench run`) and adds only what an interactive session needs:
 - connect / disconnect (open the devices; close them); the run's log is opened when a plan
   starts (`start`), after the output folder is checked again: connecting writes no file, and
   a plan whose log cannot be written does not start;
-- an idle monitor thread that reads the table and drains the IMU into the `UiBuffer`
-  while no run is active (with the simulator it also advances the simulated clock in
-  real time, so a manual move takes as long as on the real table);
+- the log of manual moves (`bench.tui.manual_log`): opened by the first manual move (go to,
+  rate, jog), closed when a plan starts (which writes its own log) or the session ends; a log
+  that cannot be opened or written is a warning, never a refusal or a delay of a table command;
+- an idle monitor thread that reads the table and drains the IMU into the `UiBuffer` (and the
+  log of manual moves, when one is open) while no run is active (with the simulator it also
+  advances the simulated clock in real time, so a manual move takes as long as on the real table);
 - manual commands (enable, disable, go to position, rate mode, jog, stop) and the run controls (start,
   pause, resume, abort) and the emergency stop (abort the run and the controller's
   abort, servos off), each off the caller's thread: the UI never waits on the wire.
@@ -31,6 +34,7 @@ from bench.run.sequencer import RunAborted
 from bench.sim.world import PumpedReceiver
 from bench.solve.methods import SolverError
 from bench.tui.buffer import UiBuffer
+from bench.tui.manual_log import ManualLog
 from drivers.errors import ImuError, TurntableError, TurntableLimitError
 from drivers.imu.receiver import ImuReceiver
 from drivers.turntable import FRAMES, AxisMode, Turntable, frame_index
@@ -95,6 +99,10 @@ class BenchSession:
         self._monitor: threading.Thread | None = None
         self._monitor_stop = threading.Event()
         self._imu: PumpedReceiver | ImuReceiver | None = None
+        self._manual: ManualLog | None = None     # the open log of manual moves
+        self._manual_lock = threading.Lock()
+        self._manual_warned = False               # said that manual moves cannot be logged (until one is)
+        self.manual_logs: list[Path] = []          # the logs of manual moves this session wrote
 
     # -- state -----------------------------------------------------------------------------
     @property
@@ -140,7 +148,7 @@ class BenchSession:
             try:
                 body()
             except Exception as exc:  # noqa: BLE001 - an operator command failed: say so in the log
-                self.buffer.note("warning", f"{name} failed: {type(exc).__name__}: {exc}")
+                self._note("warning", f"{name} failed: {type(exc).__name__}: {exc}")
 
         thread = threading.Thread(target=guarded, name=f"bench-tui-{name}", daemon=True)
         with self._lock:
@@ -167,21 +175,27 @@ class BenchSession:
             run, imu = self.run, self._imu
             if run is None or imu is None:
                 return
+            manual = self._manual                               # (its frames come through the receiver)
             try:
                 if self.sim and run.world is not None:
                     run.world.clock.advance(self.poll_s)       # the run's clock on the simulator
-                self.buffer.on_table_state(_table(run).read_state())
+                state = _table(run).read_state()
+                self.buffer.on_table_state(state)
+                if manual is not None:
+                    manual.on_table_state(state)
                 block = imu.poll()
                 self.buffer.on_imu(block)
+                if manual is not None:
+                    manual.on_imu(block)
                 if failing:
                     failing = False
                     self.link, self.link_detail = LINK_CONNECTED, ""
-                    self.buffer.note("info", "link to the table is back")
+                    self._note("info", "link to the table is back")
             except (TurntableError, ImuError, OSError) as exc:
                 if not failing:
                     failing = True
                     self.link, self.link_detail = LINK_ERROR, f"{type(exc).__name__}: {exc}"
-                    self.buffer.note("warning", f"idle monitor: {type(exc).__name__}: {exc}")
+                    self._note("warning", f"idle monitor: {type(exc).__name__}: {exc}")
 
     # -- connect -------------------------------------------------------------------------------
     def connect(self) -> None:
@@ -208,8 +222,9 @@ class BenchSession:
         self.buffer.note("info", f"connected ({self.link_detail})")
         self._start_monitor()
 
-    def disconnect(self) -> None:
-        """Stop the table (servos off) and close the devices. Refused while a run is active."""
+    def disconnect(self, reason: str = "disconnected") -> None:
+        """Stop the table (servos off), then close the log of manual moves (`reason` is its last event) and
+        the devices. Refused while a run is active."""
         if self.running:
             raise SessionError("a run is active: abort it first")
         self._stop_monitor()
@@ -221,8 +236,13 @@ class BenchSession:
             table = _table(run)
             table.safe_stop()
             table.disable()
+            manual = self._manual
+            if manual is not None:
+                manual.event("info", "table stopped, servos off")
+                manual.on_table_state(table.read_state())       # the log ends with the table at rest
         except Exception as exc:  # noqa: BLE001 - closing matters more; the log says what failed
-            self.buffer.note("warning", f"stop on disconnect failed: {type(exc).__name__}: {exc}")
+            self._note("warning", f"stop on disconnect failed: {type(exc).__name__}: {exc}")
+        self._close_manual_log(run, reason)
         run.close()
         self.link, self.link_detail = LINK_DISCONNECTED, ""
         self.buffer.note("info", "disconnected")
@@ -234,6 +254,58 @@ class BenchSession:
             raise SessionError("a run is active")
         return self.run.table
 
+    def _require_idle_run(self) -> BenchRun:
+        """The connected run, no plan running (SessionError otherwise)."""
+        run = self.run
+        if run is None or self._require_idle_table() is None:
+            raise SessionError("not connected")
+        return run
+
+    # -- the log of manual moves ---------------------------------------------------------------
+    def _note(self, kind: str, message: str, **data) -> None:
+        """A line in the event log, and an event in the log of manual moves when one is open."""
+        self.buffer.note(kind, message, **data)
+        manual = self._manual
+        if manual is not None:
+            manual.event(kind, message, **data)
+
+    def _log_manual_moves(self, run: BenchRun, what: str) -> None:
+        """Before a manual move: open the log of manual moves unless one is open (on the command's thread, before
+        anything is sent). A log that cannot be opened is a warning, never a refusal: the move goes ahead."""
+        with self._manual_lock:
+            if self._manual is not None or self.run is not run or self.running:
+                return
+            try:
+                recorder = run.open_manual_log()
+            except Exception as exc:  # noqa: BLE001 - the operator's move matters more than its record
+                if not self._manual_warned:
+                    self._manual_warned = True
+                    self.buffer.note("warning", f"manual moves are not logged: {exc}")
+                return
+            assert run.clock is not None and run.receiver is not None     # an opened run has both
+            manual = ManualLog(recorder, run.clock, lambda text: self.buffer.note("warning", text))
+            self._manual, self._manual_warned = manual, False
+            self.manual_logs.append(manual.path)
+            run.receiver.on_frames = manual.on_can_frames       # the frames the monitor's polls receive
+        self._note("info", f"log of manual moves {manual.path} (from the first manual move: {what})")
+        try:
+            manual.on_table_state(_table(run).read_state())     # where the table was before the move
+        except (TurntableError, OSError):
+            pass                                                # the monitor's next poll records it
+
+    def _close_manual_log(self, run: BenchRun | None, reason: str) -> None:
+        """Close the log of manual moves, if one is open (after the table was stopped, or before a plan starts)."""
+        with self._manual_lock:
+            manual, self._manual = self._manual, None
+        if manual is None:
+            return
+        receiver = run.receiver if run is not None else None
+        if receiver is not None and receiver.on_frames == manual.on_can_frames:
+            receiver.on_frames = None
+        closed = manual.close(reason, self.join_timeout_s)
+        if closed and manual.failure is None:
+            self.buffer.note("info", f"log of manual moves closed ({reason}): {manual.path}")
+
     # -- manual commands (return at once; the work runs on a session thread) -------------------
     def enable(self) -> threading.Thread:
         table = self._require_idle_table()
@@ -241,7 +313,7 @@ class BenchSession:
         def body() -> None:
             table.reset_faults()
             table.enable()
-            self.buffer.note("info", "servos on")
+            self._note("info", "servos on", command="enable")
         return self._spawn("enable", body)
 
     def disable(self) -> threading.Thread:
@@ -250,36 +322,42 @@ class BenchSession:
         def body() -> None:
             table.safe_stop()
             table.disable()
-            self.buffer.note("info", "table stopped, servos off")
+            self._note("info", "table stopped, servos off", command="disable")
         return self._spawn("disable", body)
 
     def go_to(self, angles_deg: Sequence[float]) -> threading.Thread:
         """Enable and move to `angles_deg` (outer, middle, inner) at the plan's move rate; limits checked first."""
-        table = self._require_idle_table()
+        run = self._require_idle_run()
+        table = _table(run)
         angles = tuple(float(a) for a in angles_deg)
         for k, a in enumerate(angles):
             table.limits.check_position(k, a)     # TurntableLimitError before anything is sent
         rate = self.config.plan.move_rate_dps
+        text = f"moving to {', '.join(f'{a:g}' for a in angles)} deg at {rate:g} deg/s"
 
         def body() -> None:
+            self._log_manual_moves(run, f"go to {', '.join(f'{a:g}' for a in angles)} deg")
             table.reset_faults()
             table.enable()
             table.move_to(angles, rate_dps=rate)
-            self.buffer.note("info", f"moving to {', '.join(f'{a:g}' for a in angles)} deg at {rate:g} deg/s")
+            self._note("info", text, command="go_to", angles_deg=list(angles), rate_dps=rate)
         return self._spawn("go-to", body)
 
     def set_rate(self, frame: int | str, rate_dps: float) -> threading.Thread:
         """Servo on and rate mode on one frame at the signed `rate_dps`; checked first (`check_rate_command`)."""
-        table = self._require_idle_table()
+        run = self._require_idle_run()
+        table = _table(run)
         k = frame_index(frame)
         rate = float(rate_dps)
         check_rate_command(table.limits, k, rate)     # TurntableLimitError before anything is sent
 
         def body() -> None:
+            self._log_manual_moves(run, f"{FRAMES[k]} at {rate:g} deg/s")
             table.reset_faults()
             table.enable([k])
             table.set_rate(k, rate)
-            self.buffer.note("info", f"{FRAMES[k]} turning at {rate:g} deg/s (rate mode; h stops)")
+            self._note("info", f"{FRAMES[k]} turning at {rate:g} deg/s (rate mode; h stops)", command="rate",
+                       frame=FRAMES[k], rate_dps=rate)
         return self._spawn("rate", body)
 
     def stop_motion(self) -> threading.Thread:
@@ -288,14 +366,15 @@ class BenchSession:
 
         def body() -> None:
             table.stop()
-            self.buffer.note("info", "stop: every axis decelerates and holds its position (servos on)")
+            self._note("info", "stop: every axis decelerates and holds its position (servos on)", command="stop")
         return self._spawn("stop", body)
 
     def jog(self, frame: int | str, step_deg: float) -> threading.Thread:
         """Move one frame by `step_deg` from where it is, at the plan's move rate. Refused unless the
         frame's servo is on (a jog key never switches servos on); the target is checked against the
         limits before the move is sent."""
-        table = self._require_idle_table()
+        run = self._require_idle_run()
+        table = _table(run)
         k = frame_index(frame)
         step = float(step_deg)
         state = self.buffer.snapshot().table_state
@@ -310,10 +389,12 @@ class BenchSession:
             _require_at_rest(fresh, k)         # a jog goes from where the frame rests, never from mid-move
             target = fresh.axes[k].angle_deg + step
             table.limits.check_position(k, target)
+            self._log_manual_moves(run, f"jog {FRAMES[k]} {step:+g} deg")
             angles = [None, None, None]
             angles[k] = target
             table.move_to(angles, rate_dps=rate)
-            self.buffer.note("info", f"jog {FRAMES[k]} {step:+g} deg to {target:.4f} deg")
+            self._note("info", f"jog {FRAMES[k]} {step:+g} deg to {target:.4f} deg", command="jog", frame=FRAMES[k],
+                       step_deg=step, target_deg=target, rate_dps=rate)
         return self._spawn("jog", body)
 
     def require_hardware(self, what: str) -> None:
@@ -331,6 +412,7 @@ class BenchSession:
                 # One BenchRun, one log: a new run opens the devices afresh.
                 old = self.run
                 self._stop_monitor()
+                self._close_manual_log(old, "a plan starts; it writes its own log")
                 old.close()
                 self.run = None
                 self.link = LINK_DISCONNECTED
@@ -344,8 +426,9 @@ class BenchSession:
             run.start_log()                 # before anything moves: a run that cannot be logged does not start
         except (BenchError, OSError) as exc:      # OutputFolderError: the folder or the file cannot be written
             raise SessionError(f"cannot start the run's log: {exc}; nothing moved") from exc
-        self.buffer.note("info", f"log {run.log_path}")
         self._stop_monitor()
+        self._close_manual_log(run, f"a plan starts; it writes its own log, {run.log_path.name}")
+        self.buffer.note("info", f"log {run.log_path}")
         self._spent = True
         self.outcome = None
         self.buffer.begin_run(self.plan.steps)
@@ -434,7 +517,7 @@ class BenchSession:
         """Emergency stop: abort the run and send the controller's abort (servos off) at once."""
         self._estop = True
         run = self.run
-        self.buffer.note("fault", "EMERGENCY STOP by the operator")
+        self._note("fault", "EMERGENCY STOP by the operator", command="estop")
         if run is None:
             return None
         run.abort("emergency stop by the operator")
@@ -444,7 +527,7 @@ class BenchSession:
 
         def body() -> None:
             table.safe_abort()
-            self.buffer.note("info", "e-stop: controller abort sent (servos off)")
+            self._note("info", "e-stop: controller abort sent (servos off)")
         return self._spawn("e-stop", body)
 
     # -- the end -----------------------------------------------------------------------------------
@@ -458,9 +541,10 @@ class BenchSession:
         for thread in list(self._threads):
             thread.join(self.join_timeout_s)
         try:
-            self.disconnect()
+            self.disconnect("the session ended")
         except SessionError:
             self._stop_monitor()
+            self._close_manual_log(self.run, "the session ended")
             if self.run is not None:
                 self.run.close()
 
