@@ -134,7 +134,8 @@ def test_bench_solve_says_there_is_no_calibration_plan(manual_session, tmp_path)
     path = _manual_logs(out)[0]
     rc, stdout, stderr = cli(["solve", str(path), "--out", str(tmp_path)])
     assert rc == 2 and stdout == ""
-    assert stderr.strip() == f"bench solve: {path}: {NO_PLAN_IN_MANUAL_LOG}"
+    assert stderr.strip() == f"bench solve: {path}: {NO_PLAN_IN_MANUAL_LOG}, so there is nothing to solve"
+    assert stderr.count("\n") == 1
     assert list(tmp_path.iterdir()) == []
 
 
@@ -148,7 +149,7 @@ def test_tui_replay_shows_the_manual_moves(manual_session):
         app = create_app(replay=path, speed=None, refresh_hz=20.0)
         async with app.run_test(size=SIZE) as pilot:
             await wait_until(pilot, lambda: snap(app).outcome_text, "the end of the playback")
-            assert snap(app).outcome_text == f"no result: {NO_PLAN_IN_MANUAL_LOG}"
+            assert snap(app).outcome_text == f"no result: {NO_PLAN_IN_MANUAL_LOG}, so there is nothing to solve"
             assert snap(app).result is None and app.session.stats.table_states > 5
             assert app.session.stats.samples > 0
             assert abs(snap(app).table_state.angles_deg[0] - 5.0) < 1e-3
@@ -260,3 +261,12 @@ def test_a_full_disk_warns_the_controls_still_work_and_quit_stops_the_table(tmp_
     # what reached the disk is kept: a log cut short at the failure, readable like a crashed run's
     log = read_log(str(app.session.manual_logs[0]))
     assert not log.complete and log.metadata["run"]["kind"] == "manual"
+
+
+def test_bench_run_will_not_resume_a_log_of_manual_moves(manual_session, tmp_path):
+    out, _ = manual_session
+    path = _manual_logs(out)[0]
+    rc, _, stderr = cli(["run", "--sim", "--resume", str(path), "--out", str(tmp_path / "out"), "--quiet"])
+    assert rc == 2
+    assert stderr.strip() == f"bench run: {path}: {NO_PLAN_IN_MANUAL_LOG}, so there is nothing to resume"
+    assert not (tmp_path / "out").exists() or list((tmp_path / "out").iterdir()) == []

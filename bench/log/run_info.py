@@ -42,8 +42,7 @@ _ATTACHED_FILE_KEYS = (("imu", "dbc"), ("plan", "positions"), ("plan", "rotation
 #: `run.kind` of a log of manual moves (`bench tui`); its run id ends with `MANUAL_LOG_SUFFIX`.
 MANUAL_LOG_KIND, MANUAL_LOG_SUFFIX = "manual", "-manual"
 #: Why such a log cannot be solved or resumed.
-NO_PLAN_IN_MANUAL_LOG = ("a log of manual moves (bench tui), not a calibration run: it holds no calibration plan, "
-                         "so there is nothing to solve")
+NO_PLAN_IN_MANUAL_LOG = "a log of manual moves (bench tui), not a calibration run: it holds no calibration plan"
 _STRING_LITERAL = re.compile(r'"(?:[^"\\\n]|\\.)*"|\'[^\'\n]*\'')
 
 

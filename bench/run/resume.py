@@ -17,6 +17,7 @@ from pathlib import Path
 from bench.config.load import BenchConfig
 from bench.log.names import logs_before, shown, sibling_log
 from bench.log.reader import RunLog, read_log
+from bench.log.run_info import NO_PLAN_IN_MANUAL_LOG, is_manual_log
 from bench.log.run_setup import SetupMismatch, check_same_setup, nominal, setup_of_log, setup_of_run
 from bench.plan.compiler import CompiledPlan
 from bench.plan.steps import step_to_dict
@@ -43,6 +44,8 @@ def resume_point(resume_log: str | Path | None, config: BenchConfig, plan: Compi
     here = setup_of_run(config, plan, sim=sim)
     planned = {s.unit: nominal(step_to_dict(s)) for s in plan.steps if s.kind in ("dwell", "turn")}
     log = read_log(str(resume_log))
+    if is_manual_log(log):
+        raise SetupMismatch(f"{log.path}: {NO_PLAN_IN_MANUAL_LOG}, so there is nothing to resume")
     name = Path(log.path).name
     notes: list[str] = []
     entries, malformed = logs_before(log.metadata)

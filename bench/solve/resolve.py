@@ -266,7 +266,7 @@ def load_recorded(paths: list[str], *, earlier: bool = True) -> Recorded:
     logs, notes = read_logs(list(map(str, paths)), earlier=earlier)
     manual = next((log for log in logs if is_manual_log(log)), None)
     if manual is not None:
-        raise SolveInputError(f"{manual.path}: {NO_PLAN_IN_MANUAL_LOG}")
+        raise SolveInputError(f"{manual.path}: {NO_PLAN_IN_MANUAL_LOG}, so there is nothing to solve")
     _check_one_imu(logs)
     _check_one_setup(logs)
     _check_units_agree(logs)

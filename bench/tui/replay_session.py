@@ -100,7 +100,7 @@ def open_log(path: str | Path) -> OpenedLog:
 def log_result(opened: OpenedLog) -> tuple[CalibrationResult | None, str]:
     """(CalibrationResult or None, one line): the result attached to the log, else a fresh solve."""
     if is_manual_log(opened.log):
-        return None, f"no result: {NO_PLAN_IN_MANUAL_LOG}"
+        return None, f"no result: {NO_PLAN_IN_MANUAL_LOG}, so there is nothing to solve"
     why = ""
     # the run's own result first: an [acceptance] reference result may be attached too
     own = f"{opened.log.metadata.get('run', {}).get('run_id', '')}.result.json"

@@ -390,7 +390,7 @@ class BenchSession:
             target = fresh.axes[k].angle_deg + step
             table.limits.check_position(k, target)
             self._log_manual_moves(run, f"jog {FRAMES[k]} {step:+g} deg")
-            angles = [None, None, None]
+            angles: list[float | None] = [None, None, None]
             angles[k] = target
             table.move_to(angles, rate_dps=rate)
             self._note("info", f"jog {FRAMES[k]} {step:+g} deg to {target:.4f} deg", command="jog", frame=FRAMES[k],
