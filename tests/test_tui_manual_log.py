@@ -9,12 +9,20 @@ Every wait is bounded; no timing is asserted.
 
 from __future__ import annotations
 
+import threading
+
+import numpy as np
 import pytest
 
 import bench.log.recorder as recorder_module
 from bench.cli.tui import exit_status
 from bench.log.reader import read_log
+from bench.log.recorder import McapRecorder
 from bench.log.run_info import NO_PLAN_IN_MANUAL_LOG
+from bench.tui.manual_log import ManualLog
+from drivers.clock import ManualClock
+from drivers.imu import ImuSampleBlock
+from drivers.turntable import AxisMode, AxisState, AxisStatus, TableState
 from tests.helpers.disk import FillingDisk
 from tests.helpers.run import assert_disabled, assert_mcap_readable, cli, read_all_messages
 from tests.helpers.tui import (
@@ -270,3 +278,63 @@ def test_bench_run_will_not_resume_a_log_of_manual_moves(manual_session, tmp_pat
     assert rc == 2
     assert stderr.strip() == f"bench run: {path}: {NO_PLAN_IN_MANUAL_LOG}, so there is nothing to resume"
     assert not (tmp_path / "out").exists() or list((tmp_path / "out").iterdir()) == []
+
+
+# -- ManualLog on its own: a slow disk drops records and says so; a failing one is contained ------------------
+
+class _SlowRecorder(McapRecorder):
+    """A recorder whose first table state waits until released (a disk that stalls)."""
+
+    def __init__(self, path):
+        super().__init__(path)
+        self.entered, self.release = threading.Event(), threading.Event()
+
+    def on_table_state(self, state):
+        if not self.entered.is_set():
+            self.entered.set()
+            assert self.release.wait(30.0), "never released"
+        super().on_table_state(state)
+
+
+def _state(t: float) -> TableState:
+    return TableState(t, tuple(AxisState(0.0, 0.0, AxisMode.OFF, AxisStatus(0)) for _ in range(3)))
+
+
+def test_a_stalled_disk_drops_records_without_blocking_and_says_how_many(tmp_path):
+    warnings: list[str] = []
+    recorder = _SlowRecorder(tmp_path / "m.mcap")
+    manual = ManualLog(recorder, ManualClock(), warnings.append, max_pending=3)
+    manual.on_table_state(_state(0.0))
+    assert recorder.entered.wait(30.0)              # the writer is stuck in the first write
+    for k in range(1, 11):                          # 3 fit in the queue, 7 are dropped: none of these calls waits
+        manual.on_table_state(_state(float(k)))
+    assert manual.dropped == 7
+    assert warnings == ["manual log m.mcap: the disk does not keep up; records are being dropped"]
+    recorder.release.set()
+    assert manual.close("test over")
+    log = read_log(str(tmp_path / "m.mcap"))
+    assert log.complete and list(log.table_states.time_s) == [0.0, 1.0, 2.0, 3.0]
+    assert [e.message for e in log.events] == ["7 records were dropped: the disk did not keep up",
+                                               "manual log closed: test over"]
+
+
+class _BrokenRecorder(McapRecorder):
+    def on_imu(self, block):
+        raise OSError(28, "No space left on device")
+
+
+def test_a_failing_write_is_contained_warned_once_and_the_file_closed(tmp_path):
+    warnings: list[str] = []
+    manual = ManualLog(_BrokenRecorder(tmp_path / "b.mcap"), ManualClock(), warnings.append)
+    manual.on_table_state(_state(0.0))
+    block = ImuSampleBlock(np.arange(3), np.arange(3) / 10.0, np.zeros((3, 3)), np.zeros((3, 3)), np.full(3, 20.0),
+                           np.zeros(3, np.int64), 10.0)
+    for _ in range(3):
+        manual.on_imu(block)                        # never raises here: the writer thread meets the error
+    manual.event("info", "after the failure")
+    assert manual.close("test over")
+    assert manual.failure == "OSError: [Errno 28] No space left on device"
+    assert warnings == [f"manual log b.mcap failed: {manual.failure}; manual moves are no longer recorded "
+                        "(the table and the controls are not affected)"]
+    assert manual.closed and manual.recorder.closed
+    assert read_log(str(tmp_path / "b.mcap")).events == []      # nothing after the failure

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import queue
 import threading
+import time
 from pathlib import Path
 from typing import Callable
 
@@ -115,15 +116,19 @@ class ManualLog:
         Waits at most about `timeout_s`; False when the writer did not finish by then (a disk that hangs:
         the file may then lack its summary, readable like a crashed run's log)."""
         if not self._closing:
+            self._closing = True                  # nothing more from the callers; the last records wait for room
+            now = self.clock.now()
+            last = [Event(now, "info", f"manual log closed: {reason}")]
             if self.dropped:
-                self.event("warning", f"{self.dropped} records were dropped: the disk did not keep up")
-            self.event("info", f"manual log closed: {reason}")
-            self._closing = True
+                last.insert(0, Event(now, "warning", f"{self.dropped} records were dropped: the disk did not keep up"))
+            deadline = time.monotonic() + timeout_s
             try:
-                self._queue.put(_END, timeout=timeout_s)
+                for item in [*(("on_event", event) for event in last), _END]:
+                    self._queue.put(item, timeout=max(0.0, deadline - time.monotonic()))
             except queue.Full:
                 self._warn(f"manual log {self.path.name}: the writer did not finish; the file may be cut short")
                 return False
+            timeout_s = max(0.0, deadline - time.monotonic())
         self._thread.join(timeout_s)
         return not self._thread.is_alive()
 
