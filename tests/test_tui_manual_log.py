@@ -231,7 +231,7 @@ def test_a_log_that_cannot_be_opened_warns_once_and_the_moves_go_ahead(tmp_path)
 
 
 @pytest.mark.parametrize("size", SIZES, ids=[f"{w}x{h}" for w, h in SIZES])
-def test_a_full_disk_warns_the_controls_still_work_and_quit_stops_the_table(tmp_path, monkeypatch, size):
+def test_a_full_disk_warns_the_controls_still_work_and_quit_stops_the_table(tmp_path, monkeypatch, capsys, size):
     monkeypatch.setattr(FillingDisk, "full", False)
     monkeypatch.setattr(recorder_module, "open", FillingDisk.open, raising=False)
 
@@ -266,6 +266,11 @@ def test_a_full_disk_warns_the_controls_still_work_and_quit_stops_the_table(tmp_
     app, controller = holder[0]
     assert_disabled(controller, at_rest=False)          # quit stopped the table while it turned: servos off
     assert app.session.run is None
+    path = app.session.manual_logs[0]
+    capsys.readouterr()
+    assert exit_status(app) == 0
+    assert capsys.readouterr().out.strip() == (f"bench tui: manual moves logged to {path} (cut short: log disk full: "
+                                               f"cannot write MCAP log {path}: No space left on device)")
     # what reached the disk is kept: a log cut short at the failure, readable like a crashed run's
     log = read_log(str(app.session.manual_logs[0]))
     assert not log.complete and log.metadata["run"]["kind"] == "manual"

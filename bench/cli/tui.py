@@ -86,7 +86,9 @@ def exit_status(app: BenchApp) -> ExitCode:
     session = app.session
     manual = getattr(session, "manual_logs", ())
     if manual:
-        _say(f"{PROG}: manual moves logged to {', '.join(map(str, manual))}")
+        cut = getattr(session, "manual_log_failures", {})
+        _say(f"{PROG}: manual moves logged to "
+             + ", ".join(f"{path}" + (f" (cut short: {cut[path]})" if path in cut else "") for path in manual))
     end = getattr(session, "last_end", None)
     log = f". Log: {end.log_path}" if end is not None and end.log_path is not None else ""
     if app.stopped_by is not None:

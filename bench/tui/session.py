@@ -103,6 +103,7 @@ class BenchSession:
         self._manual_lock = threading.Lock()
         self._manual_warned = False               # said that manual moves cannot be logged (until one is)
         self.manual_logs: list[Path] = []          # the logs of manual moves this session wrote
+        self.manual_log_failures: dict[Path, str] = {}    # those cut short: why (one line)
 
     # -- state -----------------------------------------------------------------------------
     @property
@@ -303,7 +304,11 @@ class BenchSession:
         if receiver is not None and receiver.on_frames == manual.on_can_frames:
             receiver.on_frames = None
         closed = manual.close(reason, self.join_timeout_s)
-        if closed and manual.failure is None:
+        if manual.failure is not None:
+            self.manual_log_failures[manual.path] = manual.failure
+        elif not closed:
+            self.manual_log_failures[manual.path] = "its writer did not finish"
+        else:
             self.buffer.note("info", f"log of manual moves closed ({reason}): {manual.path}")
 
     # -- manual commands (return at once; the work runs on a session thread) -------------------
