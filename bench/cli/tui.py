@@ -84,11 +84,11 @@ def exit_status(app: BenchApp) -> ExitCode:
     from bench.tui.session import END_DONE, END_QUALITY, END_UNSOLVED
 
     session = app.session
-    manual = getattr(session, "manual_logs", ())
-    if manual:
-        cut = getattr(session, "manual_log_failures", {})
+    manual = getattr(session, "manual", None)           # (a replay session has no logs of manual moves)
+    if manual is not None and manual.paths:
+        cut = manual.failures
         _say(f"{PROG}: manual moves logged to "
-             + ", ".join(f"{path}" + (f" (cut short: {cut[path]})" if path in cut else "") for path in manual))
+             + ", ".join(f"{path}" + (f" (cut short: {cut[path]})" if path in cut else "") for path in manual.paths))
     end = getattr(session, "last_end", None)
     log = f". Log: {end.log_path}" if end is not None and end.log_path is not None else ""
     if app.stopped_by is not None:

@@ -29,6 +29,7 @@ from typing import Callable
 from bench.errors import BenchError
 from bench.log.recorder import McapRecorder
 from bench.plan.events import Event
+from bench.run.runner import BenchRun
 from drivers.clock import Clock
 
 #: Records waiting for the writer thread (about a minute of a 10 Hz monitor's states and IMU blocks).
@@ -137,4 +138,65 @@ class ManualLog:
         return self._closing and not self._thread.is_alive()
 
 
-__all__ = ["MAX_PENDING", "ManualLog"]
+class ManualLogs:
+    """A session's logs of manual moves, at most one open at a time. `note(kind, text)`: the TUI's event log."""
+
+    def __init__(self, note: Callable[[str, str], None], join_timeout_s: float = 20.0):
+        self._note = note
+        self.join_timeout_s = float(join_timeout_s)
+        self.current: ManualLog | None = None
+        self.paths: list[Path] = []                 # every log opened, in order
+        self.failures: dict[Path, str] = {}         # those cut short: why (one line)
+        self._lock = threading.Lock()
+        self._warned = False                        # said that manual moves cannot be logged (until one is)
+
+    def event(self, kind: str, message: str, **data) -> None:
+        """An event in the open log (nothing when none is open)."""
+        current = self.current
+        if current is not None:
+            current.event(kind, message, **data)
+
+    def open_for_move(self, run: BenchRun, what: str, may_open: Callable[[], bool]) -> ManualLog | None:
+        """Before a manual move (`what`): open a log of manual moves on `run`'s devices unless one is open or
+        `may_open()` says no (a plan started meanwhile). Returns the log opened now, else None. A log that cannot
+        be opened is one warning (until one opens again), never an error: the move goes ahead."""
+        with self._lock:
+            if self.current is not None or not may_open():
+                return None
+            try:
+                recorder = run.open_manual_log()
+            except Exception as exc:  # noqa: BLE001 - the operator's move matters more than its record
+                if not self._warned:
+                    self._warned = True
+                    self._note("warning", f"manual moves are not logged: {exc}")
+                return None
+            assert run.clock is not None and run.receiver is not None     # an opened run has both
+            manual = ManualLog(recorder, run.clock, lambda text: self._note("warning", text))
+            self.current, self._warned = manual, False
+            self.paths.append(manual.path)
+            run.receiver.on_frames = manual.on_can_frames       # the frames the idle monitor's polls receive
+        text = f"log of manual moves {manual.path} (from the first manual move: {what})"
+        self._note("info", text)
+        manual.event("info", text)
+        return manual
+
+    def close(self, run: BenchRun | None, reason: str) -> None:
+        """Close the open log, if any (after the table was stopped, or before a plan starts): `reason` is its last
+        event."""
+        with self._lock:
+            manual, self.current = self.current, None
+        if manual is None:
+            return
+        receiver = run.receiver if run is not None else None
+        if receiver is not None and receiver.on_frames == manual.on_can_frames:
+            receiver.on_frames = None
+        closed = manual.close(reason, self.join_timeout_s)
+        if manual.failure is not None:
+            self.failures[manual.path] = manual.failure
+        elif not closed:
+            self.failures[manual.path] = "its writer did not finish"
+        else:
+            self._note("info", f"log of manual moves closed ({reason}): {manual.path}")
+
+
+__all__ = ["MAX_PENDING", "ManualLog", "ManualLogs"]

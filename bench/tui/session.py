@@ -34,7 +34,7 @@ from bench.run.sequencer import RunAborted
 from bench.sim.world import PumpedReceiver
 from bench.solve.methods import SolverError
 from bench.tui.buffer import UiBuffer
-from bench.tui.manual_log import ManualLog
+from bench.tui.manual_log import ManualLogs
 from drivers.errors import ImuError, TurntableError, TurntableLimitError
 from drivers.imu.receiver import ImuReceiver
 from drivers.turntable import FRAMES, AxisMode, Turntable, frame_index
@@ -99,11 +99,7 @@ class BenchSession:
         self._monitor: threading.Thread | None = None
         self._monitor_stop = threading.Event()
         self._imu: PumpedReceiver | ImuReceiver | None = None
-        self._manual: ManualLog | None = None     # the open log of manual moves
-        self._manual_lock = threading.Lock()
-        self._manual_warned = False               # said that manual moves cannot be logged (until one is)
-        self.manual_logs: list[Path] = []          # the logs of manual moves this session wrote
-        self.manual_log_failures: dict[Path, str] = {}    # those cut short: why (one line)
+        self.manual = ManualLogs(self.buffer.note, self.join_timeout_s)   # the logs of manual moves
 
     # -- state -----------------------------------------------------------------------------
     @property
@@ -176,7 +172,7 @@ class BenchSession:
             run, imu = self.run, self._imu
             if run is None or imu is None:
                 return
-            manual = self._manual                               # (its frames come through the receiver)
+            manual = self.manual.current                        # (its frames come through the receiver)
             try:
                 if self.sim and run.world is not None:
                     run.world.clock.advance(self.poll_s)       # the run's clock on the simulator
@@ -237,7 +233,7 @@ class BenchSession:
             table = _table(run)
             table.safe_stop()
             table.disable()
-            manual = self._manual
+            manual = self.manual.current
             if manual is not None:
                 manual.event("info", "table stopped, servos off")
                 manual.on_table_state(table.read_state())       # the log ends with the table at rest
@@ -263,53 +259,29 @@ class BenchSession:
         return run
 
     # -- the log of manual moves ---------------------------------------------------------------
+    @property
+    def manual_logs(self) -> list[Path]:
+        """The logs of manual moves this session wrote."""
+        return self.manual.paths
+
     def _note(self, kind: str, message: str, **data) -> None:
         """A line in the event log, and an event in the log of manual moves when one is open."""
         self.buffer.note(kind, message, **data)
-        manual = self._manual
-        if manual is not None:
-            manual.event(kind, message, **data)
+        self.manual.event(kind, message, **data)
 
     def _log_manual_moves(self, run: BenchRun, what: str) -> None:
-        """Before a manual move: open the log of manual moves unless one is open (on the command's thread, before
-        anything is sent). A log that cannot be opened is a warning, never a refusal: the move goes ahead."""
-        with self._manual_lock:
-            if self._manual is not None or self.run is not run or self.running:
-                return
-            try:
-                recorder = run.open_manual_log()
-            except Exception as exc:  # noqa: BLE001 - the operator's move matters more than its record
-                if not self._manual_warned:
-                    self._manual_warned = True
-                    self.buffer.note("warning", f"manual moves are not logged: {exc}")
-                return
-            assert run.clock is not None and run.receiver is not None     # an opened run has both
-            manual = ManualLog(recorder, run.clock, lambda text: self.buffer.note("warning", text))
-            self._manual, self._manual_warned = manual, False
-            self.manual_logs.append(manual.path)
-            run.receiver.on_frames = manual.on_can_frames       # the frames the monitor's polls receive
-        self._note("info", f"log of manual moves {manual.path} (from the first manual move: {what})")
+        """Before a manual move (on the command's thread, before anything is sent): open the log of manual moves
+        unless one is open, and record where the table is. Never refuses: the move goes ahead."""
+        manual = self.manual.open_for_move(run, what, lambda: self.run is run and not self.running)
+        if manual is None:
+            return
         try:
             manual.on_table_state(_table(run).read_state())     # where the table was before the move
         except (TurntableError, OSError):
             pass                                                # the monitor's next poll records it
 
     def _close_manual_log(self, run: BenchRun | None, reason: str) -> None:
-        """Close the log of manual moves, if one is open (after the table was stopped, or before a plan starts)."""
-        with self._manual_lock:
-            manual, self._manual = self._manual, None
-        if manual is None:
-            return
-        receiver = run.receiver if run is not None else None
-        if receiver is not None and receiver.on_frames == manual.on_can_frames:
-            receiver.on_frames = None
-        closed = manual.close(reason, self.join_timeout_s)
-        if manual.failure is not None:
-            self.manual_log_failures[manual.path] = manual.failure
-        elif not closed:
-            self.manual_log_failures[manual.path] = "its writer did not finish"
-        else:
-            self.buffer.note("info", f"log of manual moves closed ({reason}): {manual.path}")
+        self.manual.close(run, reason)
 
     # -- manual commands (return at once; the work runs on a session thread) -------------------
     def enable(self) -> threading.Thread:
