@@ -64,9 +64,10 @@ HELP_KEYS: tuple[tuple[str, str], ...] = (
     ("?", "this help (Esc, q or ? closes it)"),
     ("q", "quit (asks first while a run is active: the run is aborted, the table stopped)"),
 )
-HELP_NOTE = ("Manual commands are refused while a plan runs. Times are on the run's clock: simulated seconds with "
-             "the simulator. Replay mode (bench tui --replay LOG) has no hardware: p / r pause and resume the "
-             "playback, q quits, the rest is refused.")
+HELP_NOTE = ("Manual commands are refused while a plan runs; the first manual move (g, v, [ ]) starts a log of "
+             "manual moves (<id>-manual.mcap), a plan writes its own. Times are on the run's clock: simulated "
+             "seconds with the simulator. Replay mode (bench tui --replay LOG) has no hardware: p / r pause and "
+             "resume the playback, q quits, the rest is refused.")
 
 
 class BenchApp(App):
