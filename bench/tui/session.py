@@ -233,12 +233,10 @@ class BenchSession:
             table = _table(run)
             table.safe_stop()
             table.disable()
-            manual = self.manual.current
-            if manual is not None:
-                manual.event("info", "table stopped, servos off")
-                manual.on_table_state(table.read_state())       # the log ends with the table at rest
         except Exception as exc:  # noqa: BLE001 - closing matters more; the log says what failed
             self._note("warning", f"stop on disconnect failed: {type(exc).__name__}: {exc}")
+        else:
+            self._end_manual_log(table)
         self._close_manual_log(run, reason)
         run.close()
         self.link, self.link_detail = LINK_DISCONNECTED, ""
@@ -279,6 +277,17 @@ class BenchSession:
             manual.on_table_state(_table(run).read_state())     # where the table was before the move
         except (TurntableError, OSError):
             pass                                                # the monitor's next poll records it
+
+    def _end_manual_log(self, table: Turntable) -> None:
+        """The last records of an open log of manual moves, after the table was stopped: the stop, the table's state."""
+        manual = self.manual.current
+        if manual is None:
+            return
+        manual.event("info", "table stopped, servos off")
+        try:
+            manual.on_table_state(table.read_state())
+        except (TurntableError, OSError):
+            pass                                    # the stop is in the log; the link is going anyway
 
     def _close_manual_log(self, run: BenchRun | None, reason: str) -> None:
         self.manual.close(run, reason)
