@@ -161,9 +161,10 @@ def test_the_chunks_of_one_log_inflate_to_a_bounded_total(can_chunk, monkeypatch
 
 
 def test_deferred_sample_chunks_count_against_the_budget_kept_and_inflated(run_log, monkeypatch):
-    # /imu/samples chunks are kept compressed (counted at that size) and inflated only when asked for
-    # (counted then at their own): with no room left for that, they are refused when asked for.
-    used = walk(run_log.read_bytes(), frozenset({"/imu/samples"})).budget.used
+    # /imu/samples chunks are left in the file (counted at nothing: read_log walks with a source to read
+    # them again) and inflated only when asked for (counted then at their own size): with no room left for
+    # that, they are refused when asked for. (/can/raw chunks are streamed: a budget of their own.)
+    used = walk(run_log.read_bytes(), frozenset({"/imu/samples", TOPIC_CAN}), source=lambda o, n: b"").budget.used
     monkeypatch.setattr(chunks_module, "MAX_LOG_INFLATED", used)
     log = read_log(run_log)
     assert log.complete and log.unchecked_chunks and len(log.can_ids)

@@ -159,6 +159,7 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
     order = np.lexsort((index, kinds, times))
 
     want_frames = any(_overrides(listener, "on_can_frames") for listener in listeners)
+    every_frame = log.can_frames() if want_frames else None   # held only for a listener that takes frames
     wall0 = clock.now()
     for i in order.tolist():
         if stop is not None and stop.is_set():
@@ -179,7 +180,7 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
             stats.table_states += 1
         else:
             lo, hi = int(starts[k]), int(ends[k])
-            frames = can_messages(log, lo, hi) if want_frames else ()
+            frames = can_messages(every_frame, lo, hi) if every_frame is not None else ()
             if want_frames:
                 for listener in listeners:
                     listener.on_can_frames(frames)
