@@ -73,9 +73,11 @@ MAX_INFLATE_RATIO = 16
 INFLATE_ALLOWANCE = 256 << 20
 MAX_LOG_INFLATED = 1 << 30
 #: What a log's streamed chunks (the raw CAN frames, read one chunk at a time and let go: memory does not
-#: grow with them) may inflate to in all, on top: `MAX_INFLATE_RATIO` times the file's size, at most this.
-#: It bounds time, not memory: about 2.5 GiB per hour of a 1 kHz IMU's frames.
-MAX_STREAMED_INFLATED = 24 << 30
+#: grow with them) may inflate to in all, on top: `INFLATE_ALLOWANCE` plus `STREAMED_INFLATE_RATIO` times
+#: the file's size, at most `MAX_STREAMED_INFLATED`. It bounds time, not memory: a recorded log's frames
+#: inflate about 3 times (0.6 GiB per hour of a 1 kHz IMU's frames), a decompression bomb thousands.
+STREAMED_INFLATE_RATIO = 8
+MAX_STREAMED_INFLATED = 64 << 30
 #: Records a log may hold outside chunks (a recorded log holds a few per chunk); the walk reads no further.
 MAX_RECORDS = 1_000_000
 #: Schema and channel records a chunk may hold (a recorded log has six channels).
@@ -92,7 +94,7 @@ def inflate_budget(file_size: int) -> int:
 
 def streamed_budget(file_size: int) -> int:
     """What the streamed chunks of a log of `file_size` bytes may declare in all (see above)."""
-    return min(MAX_STREAMED_INFLATED, INFLATE_ALLOWANCE + MAX_INFLATE_RATIO * file_size)
+    return min(MAX_STREAMED_INFLATED, INFLATE_ALLOWANCE + STREAMED_INFLATE_RATIO * file_size)
 
 
 @dataclass
@@ -102,11 +104,12 @@ class InflateBudget:
 
     total: int
     used: int = 0
-    cap: int = MAX_LOG_INFLATED   # what `total` is capped at (said in the refusal)
+    cap: int = MAX_LOG_INFLATED   # what `total` is capped at, and the ratio to the file size (said in the refusal)
+    ratio: int = MAX_INFLATE_RATIO
 
     def take(self, size: int) -> str | None:
         """Count a chunk of `size` bytes; the reason it may not be decompressed (`over_limits`) instead."""
-        reason = over_limits(size, self.used, self.total, self.cap)
+        reason = over_limits(size, self.used, self.total, self.cap, self.ratio)
         if reason is None:
             self.used += size
         return reason
@@ -189,7 +192,8 @@ def _decompress(compression: str, payload, size: int) -> bytes:
     return bytes(data) if compression == "" else data
 
 
-def over_limits(size: int, used: int, budget: int, cap: int = MAX_LOG_INFLATED) -> str | None:
+def over_limits(size: int, used: int, budget: int, cap: int = MAX_LOG_INFLATED,
+                ratio: int = MAX_INFLATE_RATIO) -> str | None:
     """Why a chunk declaring `size` bytes is not decompressed when the chunks before it declared `used`
     of the log's `budget` (`inflate_budget`); None if it may be."""
     if size > MAX_CHUNK_BYTES:
@@ -197,7 +201,7 @@ def over_limits(size: int, used: int, budget: int, cap: int = MAX_LOG_INFLATED) 
                 "not decompressed")
     if used + size > budget:
         return (f"declares {size} bytes uncompressed, past what this log's chunks may inflate to in all "
-                f"({budget} bytes: {MAX_INFLATE_RATIO} times the file's size plus {INFLATE_ALLOWANCE} bytes, "
+                f"({budget} bytes: {ratio} times the file's size plus {INFLATE_ALLOWANCE} bytes, "
                 f"at most {cap}); not decompressed")
     return None
 

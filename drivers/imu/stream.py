@@ -92,7 +92,10 @@ class StreamDecoder:
 
     def _resolve(self, cutoff: int) -> None:
         """Emit the samples of the counters from `_next` up to `cutoff` (inclusive); keep the rest pending."""
-        if self._pending is None or cutoff < self._next:
+        if self._pending is None:
+            return
+        if cutoff < self._next:   # nothing final yet: what waits is kept at one frame per (counter, message)
+            self._pending = self._dedupe(*self._pending)
             return
         data, t, u, k, h = self._pending
         now = u <= cutoff
