@@ -92,9 +92,10 @@ def inflate_budget(file_size: int) -> int:
     return min(MAX_LOG_INFLATED, INFLATE_ALLOWANCE + MAX_INFLATE_RATIO * file_size)
 
 
-def streamed_budget(file_size: int) -> int:
+def streamed_budget(file_size: int) -> "InflateBudget":
     """What the streamed chunks of a log of `file_size` bytes may declare in all (see above)."""
-    return min(MAX_STREAMED_INFLATED, INFLATE_ALLOWANCE + STREAMED_INFLATE_RATIO * file_size)
+    return InflateBudget(min(MAX_STREAMED_INFLATED, INFLATE_ALLOWANCE + STREAMED_INFLATE_RATIO * file_size),
+                         cap=MAX_STREAMED_INFLATED, ratio=STREAMED_INFLATE_RATIO)
 
 
 @dataclass

@@ -46,13 +46,7 @@ from functools import cached_property
 import numpy as np
 
 from bench.errors import BenchError
-from bench.log.chunks import (
-    MAX_STREAMED_INFLATED,
-    STREAMED_INFLATE_RATIO,
-    DeferredChunk,
-    InflateBudget,
-    streamed_budget,
-)
+from bench.log.chunks import DeferredChunk, InflateBudget, streamed_budget
 from bench.log.format import (
     CAN_ENCODING,
     FLAG_ERROR,
@@ -650,8 +644,7 @@ def _read_log(path: str, defer_samples: bool) -> RunLog:
                   message_counts=counts, chunks=w.chunks, library=library,
                   _damage=[d.describe() for d in damage], _lost=damage, _can=by_topic.get(TOPIC_CAN),
                   _samples=by_topic.get(TOPIC_SAMPLES), _states=by_topic.get(TOPIC_STATE), _budget=w.budget,
-                  _stream_budget=InflateBudget(streamed_budget(w.size), cap=MAX_STREAMED_INFLATED,
-                                                ratio=STREAMED_INFLATE_RATIO))
+                  _stream_budget=streamed_budget(w.size))
 
 
 __all__ = ["ImuRecords", "LogError", "RunLog", "TableStates", "read_log"]

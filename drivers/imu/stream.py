@@ -151,10 +151,15 @@ class StreamDecoder:
         """The first frame of each (counter, message) only; the others counted as duplicates."""
         if len(u) < 2:
             return data, t, u, k, h
-        key_order = np.lexsort((np.arange(len(u)), k, u))
-        su, sk = u[key_order], k[key_order]
+        key = (u - u.min()) * len(self.layout.messages) + k
+        if int(key.max()) < (1 << 15):
+            # what waits spans at most the reorder window: a 16-bit key sorts in linear time (radix)
+            key_order = np.argsort(key.astype(np.int16), kind="stable")
+        else:
+            key_order = np.argsort(key, kind="stable")
+        sk = key[key_order]
         repeat = np.zeros(len(u), bool)
-        repeat[key_order[1:]] = (su[1:] == su[:-1]) & (sk[1:] == sk[:-1])
+        repeat[key_order[1:]] = sk[1:] == sk[:-1]
         dups = int(np.count_nonzero(repeat))
         if not dups:
             return data, t, u, k, h
