@@ -17,6 +17,7 @@ from drivers.imu import (
     default_fd_layout,
     default_layout,
 )
+from drivers.imu.stream import StreamDecoder
 
 LAYOUT = default_layout()
 M = len(LAYOUT.messages)   # 7 frames per sample
@@ -63,12 +64,32 @@ def assert_same(a: ImuSampleBlock, b: ImuSampleBlock) -> None:
     assert np.array_equal(a.receive_time_s, b.receive_time_s, equal_nan=True)
 
 
+def streamed(frames, cuts, layout=LAYOUT, window=8, width=64):
+    """The stream decoder fed the frames in pieces ending at `cuts` (then the rest)."""
+    decoder = StreamDecoder(layout, 1000.0, window)
+    bounds = [0, *sorted(c for c in cuts if 0 < c < len(frames)), len(frames)]
+    for a, b in zip(bounds, bounds[1:]):
+        piece = frames[a:b]
+        ids = np.array([k for k, _, _ in piece], np.int64)
+        data = np.zeros((len(piece), width), np.uint8)
+        for i, (_, d, _) in enumerate(piece):
+            data[i, :len(d)] = np.frombuffer(d, np.uint8)
+        decoder.feed(ids, data, np.array([len(d) for _, d, _ in piece], np.int64),
+                     np.array([t for _, _, t in piece], float))
+    return decoder.finish()
+
+
 def check_both(frames, layout=LAYOUT, window=8):
-    """Live and bulk agree exactly; the books balance; returns (block, stats)."""
+    """Live, bulk and streamed (cut anywhere) agree exactly; the books balance; returns (block, stats)."""
     block, stats = live(frames, layout, window)
     block_b, stats_b = bulk(frames, layout, window)
     assert stats == stats_b
     assert_same(block, block_b)
+    n = len(frames)
+    for cuts in ([], [1], [n // 2], [n - 1], range(3, n, 3), range(1, n), range(5, n, 17)):
+        block_s, stats_s = streamed(frames, list(cuts), layout, window)
+        assert stats_s == stats, list(cuts)[:5]
+        assert_same(block_s, block)
     assert stats.frames == len(frames) == stats.frames_ok + stats.frame_faults
     assert stats.samples == len(block)
     return block, stats

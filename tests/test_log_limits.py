@@ -161,9 +161,10 @@ def test_the_chunks_of_one_log_inflate_to_a_bounded_total(can_chunk, monkeypatch
 
 
 def test_deferred_sample_chunks_count_against_the_budget_kept_and_inflated(run_log, monkeypatch):
-    # /imu/samples chunks are kept compressed (counted at that size) and inflated only when asked for
-    # (counted then at their own): with no room left for that, they are refused when asked for.
-    used = walk(run_log.read_bytes(), frozenset({"/imu/samples"})).budget.used
+    # /imu/samples chunks are left in the file (counted at nothing: read_log walks with a source to read
+    # them again) and inflated only when asked for (counted then at their own size): with no room left for
+    # that, they are refused when asked for. (/can/raw chunks are streamed: a budget of their own.)
+    used = walk(run_log.read_bytes(), frozenset({"/imu/samples", TOPIC_CAN}), source=lambda o, n: b"").budget.used
     monkeypatch.setattr(chunks_module, "MAX_LOG_INFLATED", used)
     log = read_log(run_log)
     assert log.complete and log.unchecked_chunks and len(log.can_ids)
@@ -350,3 +351,68 @@ def test_a_turn_window_holding_many_or_repeated_table_states_is_integrated_in_bo
     repeated = _turn_earth_integral(site, step, 36.0, -1.0, 37.0, np.concatenate([t] * 20),
                                     np.concatenate([angles] * 20), None)
     np.testing.assert_array_equal(repeated, blocked)
+
+
+# -- item 6: the raw CAN frames are streamed, never held -----------------------------------------
+
+def test_the_can_frames_are_decoded_chunk_by_chunk_and_never_held(run_log, monkeypatch):
+    """1 GiB of a log's frames made the reader hold 2-3.8 GB (every frame as arrays); now each chunk is read
+    from the file, decoded and let go, and the samples are those of decoding every frame at once."""
+    from drivers.imu import decode_frames
+    from drivers.imu.stream import StreamDecoder
+    from bench.log.chunks import DeferredChunk
+    from bench.log.run_info import layout_and_config_from_log
+
+    fed: list[int] = []
+    feed = StreamDecoder.feed
+
+    def counting(self, ids, *args, **kwargs):
+        fed.append(len(ids))
+        return feed(self, ids, *args, **kwargs)
+
+    monkeypatch.setattr(StreamDecoder, "feed", counting)
+    log = read_log(run_log)
+    setup = layout_and_config_from_log(log)
+    block, stats = log.imu_samples(setup.layout, setup.rate_hz)
+    parts = log._can.parts
+    assert len(parts) > 10 and all(isinstance(p, DeferredChunk) and p.payload is None for p in parts)
+    assert len(fed) == len(parts) and max(fed) < sum(fed) // 5       # piece by piece
+    assert log._frame_times is None and "_all_frames" not in vars(log)   # nothing of the frames kept
+    t, ids, data, lengths, flags = log.can_frames()
+    assert sum(fed) == len(ids) == log.can_frame_count
+    whole, whole_stats = decode_frames(ids, data, lengths, t, layout=setup.layout, rate_hz=setup.rate_hz)
+    assert whole_stats == stats and np.array_equal(whole.counter, block.counter)
+    assert np.array_equal(whole.gyro_counts, block.gyro_counts) and np.array_equal(whole.receive_time_s,
+                                                                                  block.receive_time_s)
+
+
+def test_a_log_larger_than_what_may_be_held_is_still_read_whole(run_log, monkeypatch):
+    """The 1 GiB budget of what the reader holds cut an 8 h 1 kHz static log at about 1.9 h (issue 17): the
+    streamed frames have a budget of their own (time, not memory), so a log past the first is read whole."""
+    good = read_log(run_log)
+    n_frames, n_samples = good.can_frame_count, len(good.imu_samples(*_setup(good))[0])
+    can_bytes = sum(p.size for p in good._can.parts)
+    held = walk(run_log.read_bytes(), frozenset({"/imu/samples", TOPIC_CAN}), source=lambda o, n: b"").budget.used
+    assert can_bytes > held > 0
+    monkeypatch.setattr(chunks_module, "MAX_LOG_INFLATED", held)   # room for what is held, not the frames
+    log = read_log(run_log)
+    assert log.complete, log.damage
+    assert log.can_frame_count == n_frames and len(log.imu_samples(*_setup(log))[0]) == n_samples
+
+
+def test_the_streamed_frames_have_a_budget_of_their_own(run_log, monkeypatch):
+    good = read_log(run_log)
+    sizes = [p.size for p in good._can.parts]
+    monkeypatch.setattr(chunks_module, "MAX_STREAMED_INFLATED", sum(sizes) // 2)
+    log = read_log(run_log)
+    refused = [d for d in log.damage if "past what this log's chunks may inflate to in all" in d]
+    assert refused and all(f"on {TOPIC_CAN}" in d and f"at most {sum(sizes) // 2})" in d for d in refused)
+    assert 0 < log.can_frame_count < good.can_frame_count
+    lost = sum(d.lost.get(TOPIC_CAN, 0) for d in log.lost)
+    assert lost == good.message_counts[TOPIC_CAN] - sum(len(p.offsets) for p in log._can.parts if p is not None)
+
+
+def _setup(log):
+    from bench.log.run_info import layout_and_config_from_log
+    setup = layout_and_config_from_log(log)
+    return setup.layout, setup.rate_hz

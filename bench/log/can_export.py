@@ -3,8 +3,8 @@
 `export_can(log, path)` writes `/can/raw` with python-can's own writers, chosen by the file's
 extension: `.asc` (Vector ASCII), `.blf` (Vector binary logging format), `.log` (candump -L) or
 `.csv`. Timestamps are the frames' recorded ones (the run clock); a time range is given in
-seconds from the log's first frame. Frames are written in batches, so memory stays bounded by
-the log's own arrays.
+seconds from the log's first frame. Frames are read chunk by chunk and written in batches, so
+memory stays bounded whatever the log's size.
 """
 
 from __future__ import annotations
@@ -31,13 +31,15 @@ class CanExportError(BenchError):
     """An export that cannot be done (unknown format, empty range); one line."""
 
 
-def can_messages(log: RunLog, lo: int, hi: int) -> list[can.Message]:
-    """Frames `lo:hi` of the log as python-can Messages, as the bus delivered them (channel not recorded)."""
-    ids = log.can_ids[lo:hi].tolist()
-    flags = log.can_flags[lo:hi].tolist()
-    lengths = log.can_lengths[lo:hi].tolist()
-    stamps = log.can_timestamp_s[lo:hi].tolist()
-    data = log.can_data[lo:hi]
+def can_messages(frames, lo: int, hi: int) -> list[can.Message]:
+    """Frames `lo:hi` of `frames` ((timestamps, ids, data, lengths, flags), as `RunLog.can_pieces` gives
+    them) as python-can Messages, as the bus delivered them (channel not recorded)."""
+    stamps_all, ids_all, data_all, lengths_all, flags_all = frames
+    ids = ids_all[lo:hi].tolist()
+    flags = flags_all[lo:hi].tolist()
+    lengths = lengths_all[lo:hi].tolist()
+    stamps = stamps_all[lo:hi].tolist()
+    data = data_all[lo:hi]
     out = []
     for j, (i, f, n, t) in enumerate(zip(ids, flags, lengths, stamps)):
         out.append(can.Message(timestamp=t, arbitration_id=i & ~EXTENDED_ID_FLAG,
@@ -77,9 +79,16 @@ def export_can(log: RunLog, path: str | Path, from_s: float | None = None, to_s:
         raise CanExportError(f"{log.path}: no CAN frames"
                              + ("" if from_s is None and to_s is None else " in the time range given"))
     with writer_class(str(path)) as writer:
-        for start in range(lo, hi, _BATCH):
-            for message in can_messages(log, start, min(hi, start + _BATCH)):
-                writer.on_message_received(message)
+        first = 0   # index of the piece's first frame in the log
+        for piece in log.can_pieces():
+            n = len(piece[1])
+            a, b = max(lo, first) - first, min(hi, first + n) - first
+            for start in range(a, b, _BATCH):
+                for message in can_messages(piece, start, min(b, start + _BATCH)):
+                    writer.on_message_received(message)
+            first += n
+            if first >= hi:
+                break
     return hi - lo
 
 

@@ -24,9 +24,10 @@ import os
 import struct
 import zlib
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from io import BytesIO
 from types import ModuleType
+from typing import Callable
 
 import numpy as np
 from mcap.data_stream import ReadDataStream
@@ -71,6 +72,12 @@ MAX_CHUNK_BYTES = 256 << 20
 MAX_INFLATE_RATIO = 16
 INFLATE_ALLOWANCE = 256 << 20
 MAX_LOG_INFLATED = 1 << 30
+#: What a log's streamed chunks (the raw CAN frames, read one chunk at a time and let go: memory does not
+#: grow with them) may inflate to in all, on top: `INFLATE_ALLOWANCE` plus `STREAMED_INFLATE_RATIO` times
+#: the file's size, at most `MAX_STREAMED_INFLATED`. It bounds time, not memory: a recorded log's frames
+#: inflate about 3 times (0.6 GiB per hour of a 1 kHz IMU's frames), a decompression bomb thousands.
+STREAMED_INFLATE_RATIO = 8
+MAX_STREAMED_INFLATED = 64 << 30
 #: Records a log may hold outside chunks (a recorded log holds a few per chunk); the walk reads no further.
 MAX_RECORDS = 1_000_000
 #: Schema and channel records a chunk may hold (a recorded log has six channels).
@@ -85,6 +92,12 @@ def inflate_budget(file_size: int) -> int:
     return min(MAX_LOG_INFLATED, INFLATE_ALLOWANCE + MAX_INFLATE_RATIO * file_size)
 
 
+def streamed_budget(file_size: int) -> "InflateBudget":
+    """What the streamed chunks of a log of `file_size` bytes may declare in all (see above)."""
+    return InflateBudget(min(MAX_STREAMED_INFLATED, INFLATE_ALLOWANCE + STREAMED_INFLATE_RATIO * file_size),
+                         cap=MAX_STREAMED_INFLATED, ratio=STREAMED_INFLATE_RATIO)
+
+
 @dataclass
 class InflateBudget:
     """What the chunks of one log may still inflate to: each chunk is counted at its declared size when
@@ -92,10 +105,12 @@ class InflateBudget:
 
     total: int
     used: int = 0
+    cap: int = MAX_LOG_INFLATED   # what `total` is capped at, and the ratio to the file size (said in the refusal)
+    ratio: int = MAX_INFLATE_RATIO
 
     def take(self, size: int) -> str | None:
         """Count a chunk of `size` bytes; the reason it may not be decompressed (`over_limits`) instead."""
-        reason = over_limits(size, self.used, self.total)
+        reason = over_limits(size, self.used, self.total, self.cap, self.ratio)
         if reason is None:
             self.used += size
         return reason
@@ -178,7 +193,8 @@ def _decompress(compression: str, payload, size: int) -> bytes:
     return bytes(data) if compression == "" else data
 
 
-def over_limits(size: int, used: int, budget: int) -> str | None:
+def over_limits(size: int, used: int, budget: int, cap: int = MAX_LOG_INFLATED,
+                ratio: int = MAX_INFLATE_RATIO) -> str | None:
     """Why a chunk declaring `size` bytes is not decompressed when the chunks before it declared `used`
     of the log's `budget` (`inflate_budget`); None if it may be."""
     if size > MAX_CHUNK_BYTES:
@@ -186,8 +202,8 @@ def over_limits(size: int, used: int, budget: int) -> str | None:
                 "not decompressed")
     if used + size > budget:
         return (f"declares {size} bytes uncompressed, past what this log's chunks may inflate to in all "
-                f"({budget} bytes: {MAX_INFLATE_RATIO} times the file's size plus {INFLATE_ALLOWANCE} bytes, "
-                f"at most {MAX_LOG_INFLATED}); not decompressed")
+                f"({budget} bytes: {ratio} times the file's size plus {INFLATE_ALLOWANCE} bytes, "
+                f"at most {cap}); not decompressed")
     return None
 
 
@@ -227,12 +243,15 @@ class DeferredChunk:
     start_ns: int
     end_ns: int
     compression: str
-    payload: bytes              # the compressed data (a copy: the file's mapping is closed after the walk)
+    payload: bytes | None       # the compressed data (a copy: the file's mapping is closed after the walk),
+                                # or None: read from `source` at `span` when inflated (nothing held meanwhile)
     size: int                   # uncompressed size
     crc: int
     channel: int
     log_times: np.ndarray       # uint64, per message, file order
     offsets: np.ndarray         # uint64, record offsets in the uncompressed data, increasing
+    span: tuple[int, int] = (0, 0)                                 # (file offset, length) of the compressed data
+    source: Callable[[int, int], bytes] | None = field(default=None, repr=False)
 
     @property
     def lengths(self) -> np.ndarray:
@@ -243,7 +262,17 @@ class DeferredChunk:
     def inflate(self):
         """(chunk data, payload starts) when the chunk decompresses, passes its CRC and is framed
         exactly by its index; else a reason string."""
-        data, computed, exc = inflate_chunk(self.compression, self.payload, self.size, self.crc)
+        payload = self.payload
+        if payload is None:
+            if self.source is None:
+                return "chunk data not available"
+            try:
+                payload = self.source(*self.span)
+            except OSError as exc:
+                return f"cannot read the chunk's data again: {exc.strerror or exc}"
+            if len(payload) != self.span[1]:
+                return "the file is shorter than when it was walked"
+        data, computed, exc = inflate_chunk(self.compression, payload, self.size, self.crc)
         if exc is not None:
             return chunk_failure(self.compression, exc)
         if self.crc != 0 and computed != self.crc:
@@ -283,7 +312,7 @@ class Prefetch:
     MIN_CHUNKS = 3   # fewer: not worth the threads
 
     def __init__(self, buf, workers: int | None = None, defer_topics: frozenset[str] = frozenset(),
-                 budget: int | None = None):
+                 budget: int | None = None, lazy: bool = False):
         self.buf = buf
         self.topics: dict[int, str] = {}
         self.chunks = self._scan(buf)
@@ -295,10 +324,10 @@ class Prefetch:
             if found is not None:
                 self.deferred[pos] = found
         # the chunks within the limits, counted in file order as the walk counts them (a deferred one at its
-        # compressed size: it is kept so)
+        # compressed size: it is kept so; nothing when `lazy`: it is read again from the file when needed)
         room = InflateBudget(inflate_budget(len(buf)) if budget is None else budget)
         self.allowed = {pos for pos, fields, _ in self.chunks
-                        if room.take(fields[6] if pos in self.deferred else fields[2]) is None}
+                        if room.take((0 if lazy else fields[6]) if pos in self.deferred else fields[2]) is None}
         self.futures: dict[int, Future] = {}
         self.in_flight = 0   # declared bytes of the chunks submitted and not taken yet
         self.submitted = 0

@@ -38,13 +38,15 @@ from __future__ import annotations
 import dataclasses
 import json
 import mmap
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
 
 from bench.errors import BenchError
-from bench.log.chunks import InflateBudget
+from bench.log.chunks import DeferredChunk, InflateBudget, streamed_budget
 from bench.log.format import (
     CAN_ENCODING,
     FLAG_ERROR,
@@ -57,7 +59,8 @@ from bench.log.format import (
 )
 from bench.log.walk import MAX_DBC_BYTES, ChannelData, Damage, WalkError, walk
 from bench.plan.events import Event
-from drivers.imu import ImuSampleBlock, ImuStats, decode_frames
+from drivers.imu import ImuSampleBlock, ImuStats
+from drivers.imu.stream import StreamDecoder
 from drivers.imu.layout import ImuLayout
 
 
@@ -140,32 +143,131 @@ class ImuRecords:
 
 @dataclass
 class RunLog:
-    """Everything read from one run log. CAN frames are arrays for the bulk decoder."""
+    """Everything read from one run log.
+
+    The raw CAN frames are not held: `imu_samples` decodes them chunk by chunk (each chunk read
+    from the file, decompressed, decoded and let go), and so do `can_pieces`, `can_timestamp_s`
+    and the frame counts. Damage in those chunks is found by the first of them (or by reading
+    `damage`, `lost` or `complete`, which make sure every chunk was looked at).
+    """
 
     path: str
     metadata: dict[str, dict[str, str]]
     attachments: dict[str, tuple[str, bytes]]
     events: list[Event]
-    can_timestamp_s: np.ndarray   # (n,) float64, each frame's own timestamp (run clock)
-    can_ids: np.ndarray           # (n,) uint32, bit 31 set = extended id
-    can_data: np.ndarray          # (n, 8) uint8 (n, 64 if any frame is longer), zero-padded
-    can_lengths: np.ndarray       # (n,) int64
-    can_flags: np.ndarray         # (n,) uint8, bits as in bench.log.recorder (FD, BRS, ESI, remote, error)
     summary_present: bool
-    damage: list[str]
-    lost: list[Damage]            # the damage entries behind `damage`, with offsets and counts
     message_counts: dict[str, int]
     chunks: int
     library: str
+    _damage: list[str] = field(default_factory=list, repr=False)
+    _lost: list[Damage] = field(default_factory=list, repr=False)   # the entries behind `damage`, with offsets
+    _can: ChannelData | None = field(default=None, repr=False)       # `/can/raw`, chunks mostly deferred
     _samples: ChannelData | None = field(default=None, repr=False)
     _states: ChannelData | None = field(default=None, repr=False)
     _decoded: list = field(default_factory=list, repr=False)   # (layout, rate, window, (block, stats))
     _budget: InflateBudget | None = field(default=None, repr=False)   # what is left for the deferred chunks
+    _stream_budget: InflateBudget | None = field(default=None, repr=False)   # for the streamed CAN chunks
+    _can_scanned: bool = field(default=False, repr=False)   # every `/can/raw` chunk looked at (damage known)
+    _scan_pos: int = field(default=0, repr=False)   # the `/can/raw` parts before this one are counted
+    _frame_count: int = field(default=0, repr=False)
+    _non_data: int = field(default=0, repr=False)
+    _frame_times: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def damage(self) -> list[str]:
+        """What was lost, one line each (every chunk looked at first)."""
+        self._scan_can()
+        return self._damage
+
+    @property
+    def lost(self) -> list[Damage]:
+        """The damage entries behind `damage`, with offsets and counts."""
+        self._scan_can()
+        return self._lost
 
     @property
     def complete(self) -> bool:
         """True when nothing was lost (the file was closed and every record read)."""
         return not self.damage
+
+    @property
+    def can_frame_count(self) -> int:
+        """Frames in `/can/raw` (read)."""
+        self._scan_can()
+        return self._frame_count
+
+    @property
+    def non_data_frames(self) -> int:
+        """Error and remote frames in `/can/raw` (recorded, never decoded)."""
+        self._scan_can()
+        return self._non_data
+
+    @property
+    def can_timestamp_s(self) -> np.ndarray:
+        """Every frame's own timestamp (run clock), float64 (8 bytes a frame: one pass over the chunks)."""
+        if self._frame_times is None:
+            times: list[np.ndarray] = []
+            for t, *_ in self.can_pieces():
+                times.append(np.asarray(t, float))
+            self._frame_times = np.concatenate(times) if times else np.zeros(0)
+        return self._frame_times
+
+    def can_frames(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Every frame at once, (timestamps, ids, data, lengths, flags) as `can_pieces` gives them, joined
+        (30 to 90 bytes a frame: for small logs and tests; large ones go piece by piece)."""
+        pieces = list(self.can_pieces())
+        if not pieces:
+            return decode_can_frames(None)[0]
+        width = max(p[2].shape[1] for p in pieces)
+        data = np.zeros((sum(len(p[1]) for p in pieces), width), np.uint8)
+        a = 0
+        for p in pieces:
+            data[a:a + len(p[1]), :p[2].shape[1]] = p[2]
+            a += len(p[1])
+        return (np.concatenate([p[0] for p in pieces]), np.concatenate([p[1] for p in pieces]), data,
+                np.concatenate([p[3] for p in pieces]), np.concatenate([p[4] for p in pieces]))
+
+    @cached_property
+    def _all_frames(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        return self.can_frames()
+
+    # Every frame at once (`can_frames`, kept): for tests and small logs; the bench's own readers stream.
+    can_ids = property(lambda self: self._all_frames[1], doc="(n,) uint32 ids, bit 31 set = extended id")
+    can_data = property(lambda self: self._all_frames[2], doc="(n, 8 or 64) uint8 data, zero-padded")
+    can_lengths = property(lambda self: self._all_frames[3], doc="(n,) int64 data lengths")
+    can_flags = property(lambda self: self._all_frames[4], doc="(n,) uint8 flags (FD, BRS, ESI, remote, error)")
+
+    def can_pieces(self):
+        """The `/can/raw` frames chunk by chunk, in file order: (timestamps s, ids uint32 (bit 31: extended),
+        data (n, 8 or 64) uint8 zero-padded, lengths int64, flags uint8 (bits as in `bench.log.format`)).
+        Each chunk's damage and counts are recorded the first time a pass reaches it; the caller lets each
+        piece go (what is held is a few chunks, not the log)."""
+        d = self._can
+        if d is None:
+            self._can_scanned = True
+            return
+        for k, answer in _inflated_parts(d, self._stream_budget, self._scan_pos):
+            fresh = k >= self._scan_pos
+            if fresh:
+                self._scan_pos = k + 1
+            if isinstance(answer, Damage):
+                if fresh:
+                    self._add(answer)
+                    d.parts[k], d.lengths[k], d.log_times[k] = None, d.lengths[k][:0], d.log_times[k][:0]
+                continue
+            (t, ids, data, lengths, flags), bad = answer
+            if fresh:
+                self._frame_count += len(ids)
+                self._non_data += int(np.count_nonzero(flags & (FLAG_REMOTE | FLAG_ERROR)))
+                if bad:
+                    self._add(_malformed(TOPIC_CAN, bad))
+            yield t, ids, data, lengths, flags
+        self._can_scanned = True
+
+    def _scan_can(self) -> None:
+        if not self._can_scanned:
+            for _ in self.can_pieces():
+                pass
 
     @cached_property
     def table_states(self) -> TableStates:
@@ -225,31 +327,29 @@ class RunLog:
 
     def imu_samples(self, layout: ImuLayout | None = None, rate_hz: float = 1000.0,
                     reorder_window: int = 8) -> tuple[ImuSampleBlock, ImuStats]:
-        """Decode the raw data frames into samples (the source of truth) and link statistics.
+        """Decode the raw data frames into samples (the source of truth) and link statistics, chunk by
+        chunk (memory: the samples, not the frames).
 
         Error and remote frames are logged but never decoded, as live (`non_data_frames` counts
         them). The decode is kept: solving and the report both ask for it (treat the arrays as
         read-only).
         """
         for cached_layout, cached_rate, cached_window, decoded in self._decoded:
-            if cached_layout is layout and cached_rate == rate_hz and cached_window == reorder_window:
+            if (cached_layout is layout or cached_layout == layout) and cached_rate == rate_hz \
+                    and cached_window == reorder_window:
                 return decoded
-        ids, data, lengths, times = self.can_ids, self.can_data, self.can_lengths, self.can_timestamp_s
-        if self.non_data_frames:
-            keep = (self.can_flags & (FLAG_REMOTE | FLAG_ERROR)) == 0
-            ids, data, lengths, times = ids[keep], data[keep], lengths[keep], times[keep]
+        decoder = StreamDecoder(layout, rate_hz, reorder_window)
         try:
-            decoded = decode_frames(ids, data, lengths, times, layout=layout, rate_hz=rate_hz,
-                                    reorder_window=reorder_window)
+            for t, ids, data, lengths, flags in self.can_pieces():
+                keep = (flags & (FLAG_REMOTE | FLAG_ERROR)) == 0
+                if not keep.all():
+                    t, ids, data, lengths = t[keep], ids[keep], data[keep], lengths[keep]
+                decoder.feed(ids, data, lengths, t)
+            decoded = decoder.finish()
         except MemoryError as exc:
-            raise LogError(f"{self.path}: not enough memory to decode its {len(ids)} CAN frames") from exc
+            raise LogError(f"{self.path}: not enough memory to decode its CAN frames") from exc
         self._decoded.append((layout, rate_hz, reorder_window, decoded))
         return decoded
-
-    @cached_property
-    def non_data_frames(self) -> int:
-        """Error and remote frames in `/can/raw` (recorded, never decoded)."""
-        return int(np.count_nonzero(self.can_flags & (FLAG_REMOTE | FLAG_ERROR)))
 
     @property
     def unchecked_chunks(self) -> int:
@@ -268,16 +368,85 @@ class RunLog:
 
     def _add(self, damage: Damage) -> None:
         """Damage found after `read_log`: into `lost` and `damage` alike."""
-        self.lost.append(damage)
-        self.damage.append(damage.describe())
+        self._lost.append(damage)
+        self._damage.append(damage.describe())
 
     def summary(self) -> str:
         """One line: what the log holds and whether anything was lost."""
         state = "complete" if self.complete else f"DAMAGED ({len(self.damage)} problems)"
         unchecked = (f" ({self.unchecked_chunks} {TOPIC_SAMPLES} chunks, derived from {TOPIC_CAN}, not read)"
                      if self.unchecked_chunks else "")
-        return (f"{self.path}: {len(self.can_ids)} CAN frames, {len(self.table_states)} table states, "
+        return (f"{self.path}: {self.can_frame_count} CAN frames, {len(self.table_states)} table states, "
                 f"{len(self.events)} events, {self.chunks} chunks{unchecked}; {state}")
+
+
+#: Declared bytes of `/can/raw` chunks decompressed ahead of the one being decoded (at least one chunk).
+_STREAM_AHEAD_BYTES = 96 << 20
+
+
+def _can_part(part, lengths: np.ndarray, log_times: np.ndarray):
+    """(frames, malformed count) of one `/can/raw` part (a deferred chunk is read and decompressed first),
+    or the reason a deferred chunk cannot be used."""
+    if isinstance(part, DeferredChunk):
+        answer = part.inflate()
+        if isinstance(answer, str):
+            return answer
+        part = answer
+    return decode_can_frames(ChannelData([part], [lengths], [log_times]), release=True)
+
+
+def _inflated_parts(d: ChannelData, budget: InflateBudget | None, fresh_from: int):
+    """(part index, (frames, malformed) or `Damage`) for every part of `d` still there, in order; the next
+    parts are read and decompressed on a worker thread while the caller decodes (zstd releases the GIL).
+    A deferred chunk from `fresh_from` on counts against `budget` first, in file order."""
+    todo = [k for k, p in enumerate(d.parts) if p is not None]
+    pool = ThreadPoolExecutor(2, thread_name_prefix="can-stream") if len(todo) > 1 else None
+    ahead: deque = deque()   # (k, future or Damage, declared bytes)
+    in_flight, nxt = 0, 0
+    try:
+        while ahead or nxt < len(todo):
+            while nxt < len(todo) and (not ahead or in_flight < _STREAM_AHEAD_BYTES):
+                k = todo[nxt]
+                nxt += 1
+                part = d.parts[k]
+                size = part.size if isinstance(part, DeferredChunk) else int(d.lengths[k].sum())
+                if isinstance(part, DeferredChunk) and k >= fresh_from and budget is not None:
+                    refused = budget.take(part.size)
+                    if refused is not None:
+                        ahead.append((k, Damage("chunk", part.offset, refused, part.start_ns, part.end_ns,
+                                                {TOPIC_CAN: len(part.offsets)}), 0))
+                        continue
+                job = (pool.submit(_can_part, part, d.lengths[k], d.log_times[k]) if pool is not None
+                       else _can_part(part, d.lengths[k], d.log_times[k]))
+                ahead.append((k, job, size))
+                in_flight += size
+            k, job, size = ahead.popleft()
+            in_flight -= size
+            answer = job.result() if isinstance(job, Future) else job
+            if isinstance(answer, str):
+                part = d.parts[k]
+                answer = Damage("chunk", part.offset, answer, part.start_ns, part.end_ns,
+                                {TOPIC_CAN: len(part.offsets)})
+            yield k, answer
+    finally:
+        if pool is not None:
+            for _, job, _ in ahead:
+                if isinstance(job, Future):
+                    job.cancel()
+            pool.shutdown(wait=True)
+
+
+class _FileSource:
+    """Reads spans of a log file again when a deferred chunk is needed (the walk keeps no copy). The
+    chunk's CRC and framing are checked on every read, as the first time."""
+
+    def __init__(self, path: str):
+        self.path = path
+
+    def __call__(self, offset: int, length: int) -> bytes:
+        with open(self.path, "rb") as f:
+            f.seek(offset)
+            return f.read(length)
 
 
 def _imu_records(rows: list[dict], times: np.ndarray) -> ImuRecords:
@@ -394,7 +563,10 @@ def read_log(path, *, defer_samples: bool = True) -> RunLog:
 def _read_log(path: str, defer_samples: bool) -> RunLog:
     buf = _map_file(path)
     try:
-        w = walk(buf, defer_topics=frozenset({TOPIC_SAMPLES}) if defer_samples else frozenset())
+        # /can/raw chunks are streamed (`RunLog.can_pieces`), /imu/samples ones inflated when first asked
+        # for; neither is held meanwhile: both are read from the file again
+        w = walk(buf, defer_topics=frozenset({TOPIC_CAN, TOPIC_SAMPLES} if defer_samples else {TOPIC_CAN}),
+                 source=_FileSource(path))
     except WalkError as exc:
         raise LogError(f"{path}: {exc}") from exc
     finally:
@@ -437,7 +609,7 @@ def _read_log(path: str, defer_samples: bool) -> RunLog:
                                                         f"than were read"))
 
     # Only what is kept may keep the decompressed chunks alive: the other topics go, the table states are
-    # joined (small), and the CAN frames are dropped chunk by chunk as they are decoded into arrays.
+    # joined (small); the CAN frames are read chunk by chunk when asked for (`RunLog.can_pieces`).
     by_topic = {t: d for t, d in by_topic.items() if t in (TOPIC_CAN, TOPIC_SAMPLES, TOPIC_STATE, TOPIC_EVENTS)}
     w.data.clear()
     if TOPIC_STATE in by_topic:
@@ -466,17 +638,13 @@ def _read_log(path: str, defer_samples: bool) -> RunLog:
         if bad:
             damage.append(_malformed(TOPIC_EVENTS, bad))
 
-    (t, ids, data, lengths, flags), bad_can = decode_can_frames(by_topic.pop(TOPIC_CAN, None), release=True)
-    if bad_can:
-        damage.append(_malformed(TOPIC_CAN, bad_can))
-
     library = w.header.library if w.header is not None else ""
     return RunLog(path=path, metadata=w.metadata, attachments=w.attachments, events=events,
-                  can_timestamp_s=t, can_ids=ids, can_data=data, can_lengths=lengths, can_flags=flags,
                   summary_present=w.footer is not None and w.statistics is not None,
-                  damage=[d.describe() for d in damage], lost=damage, message_counts=counts, chunks=w.chunks,
-                  library=library, _samples=by_topic.get(TOPIC_SAMPLES), _states=by_topic.get(TOPIC_STATE),
-                  _budget=w.budget)
+                  message_counts=counts, chunks=w.chunks, library=library,
+                  _damage=[d.describe() for d in damage], _lost=damage, _can=by_topic.get(TOPIC_CAN),
+                  _samples=by_topic.get(TOPIC_SAMPLES), _states=by_topic.get(TOPIC_STATE), _budget=w.budget,
+                  _stream_budget=streamed_budget(w.size))
 
 
 __all__ = ["ImuRecords", "LogError", "RunLog", "TableStates", "read_log"]

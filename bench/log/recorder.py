@@ -34,10 +34,10 @@ run clock, the messages' log time: the first message at or past one starts a new
 That rule makes the chunk boundaries of a simulated run (many simulated seconds per wall
 second) the same on any machine, however fast or loaded (the wall-time rule only adds
 boundaries); on hardware the run clock is the monotonic clock, so it adds one close per
-interval. `/imu/samples` messages are held back and written at each close in chunks of
-their own: they are derived from `/can/raw` and are the bulk of a log, so a reader that
-needs the frames, events and states skips them without decompressing
-(`bench.log.reader` defers them until asked for). Schema and Channel records are also written outside the first chunk,
+interval. `/can/raw` and `/imu/samples` messages are held back and written at each close in
+chunks of their own (the frames first): they are the bulk of a log, so a reader that needs
+the events and states skips them without decompressing, and `bench.log.reader` streams the
+frames chunk by chunk (and defers the samples, derived from the frames, until asked for). Schema and Channel records are also written outside the first chunk,
 so a reader can decode every later chunk even if the first one is damaged.
 The recorder is single-threaded: call it from the sequencer's thread only.
 """
@@ -202,7 +202,8 @@ class McapRecorder(RunListener):
         self._broken: RecorderError | None = None    # the I/O error that broke the log (see RecorderError)
         self._chunk_size = chunk_size
         self._held_samples: list[tuple[int, bytes]] = []   # /imu/samples messages for the next samples chunk
-        self._held_bytes = 0
+        self._held_can: list[tuple[int, bytes]] = []       # /can/raw messages for the next frames chunk
+        self._held_bytes = 0   # of both
         try:
             self._file = open(self.path, "wb")
         except OSError as exc:
@@ -320,7 +321,7 @@ class McapRecorder(RunListener):
         except (AttributeError, TypeError, struct.error) as exc:
             raise RecorderError(f"cannot encode CAN frames for {TOPIC_CAN}: {exc}") from exc
         self._run_clock(time_ns(newest))
-        self._io(self._put, TOPIC_CAN, time_ns(newest), payload)
+        self._io(self._hold_can, time_ns(newest), payload)
         self.frames_written += len(frames)
         self._tick()
 
@@ -332,7 +333,7 @@ class McapRecorder(RunListener):
         if not count:
             return
         self._run_clock(time_ns(newest_s))
-        self._io(self._put, TOPIC_CAN, time_ns(newest_s), payload)
+        self._io(self._hold_can, time_ns(newest_s), payload)
         self.frames_written += count
         self._tick()
 
@@ -353,7 +354,7 @@ class McapRecorder(RunListener):
             _close_quietly(self._file)
             return
         try:
-            self._write_held_samples()
+            self._write_held()
             self._writer.finish()
             self._file.close()
         except Exception as exc:
@@ -436,19 +437,29 @@ class McapRecorder(RunListener):
         if size >= self._chunk_size:
             self._close_chunks()
 
-    def _write_held_samples(self) -> None:
-        """Close the open chunk, then write the held samples as chunks holding nothing else."""
-        if not self._held_samples:
-            return
-        writer, channel = self._writer, self._channel[TOPIC_SAMPLES]
-        writer.flush()
-        add = writer.add_message
-        for t, body in self._held_samples:
-            add(channel, t, body, t)
-        self._held_samples, self._held_bytes = [], 0
+    def _hold_can(self, log_time: int, payload: bytes) -> None:
+        """A `/can/raw` message, written at the next close in a chunk of frames only."""
+        self._held_can.append((log_time, payload))
+        self._held_bytes += len(payload)
+        self.messages_written += 1
+        if self._held_bytes >= self._chunk_size:
+            self._close_chunks()
+
+    def _write_held(self) -> None:
+        """Close the open chunk, then write the held frames, then the held samples, each in chunks holding
+        nothing else."""
+        writer = self._writer
+        for topic, held in ((TOPIC_CAN, self._held_can), (TOPIC_SAMPLES, self._held_samples)):
+            if not held:
+                continue
+            writer.flush()
+            channel, add = self._channel[topic], writer.add_message
+            for t, body in held:
+                add(channel, t, body, t)
+        self._held_samples, self._held_can, self._held_bytes = [], [], 0
 
     def _close_chunks(self) -> None:
-        self._write_held_samples()
+        self._write_held()
         self._writer.flush()
 
     def _run_clock(self, log_time: int) -> None:

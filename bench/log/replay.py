@@ -120,29 +120,19 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
 
     ev_t = _monotone(np.array([e.time_s for e in events], float))
     st_t = _monotone(np.array([s.time_s for s in states], float))
-    fr_t = _monotone(np.asarray(log.can_timestamp_s, float))
-    firsts = [t[0] for t in (ev_t, st_t, fr_t) if len(t)]
-    lasts = [t[-1] for t in (ev_t, st_t, fr_t) if len(t)]
+    # Frame batches: cut where the time grid or the count of earlier events/states changes; found chunk by
+    # chunk (the frames are never all held: only each batch's bounds and last time).
+    marks = np.sort(np.concatenate([ev_t, st_t]))
+    starts, ends, batch_end, t0 = _frame_batches(log, marks, ev_t, st_t, block_s)
+    n_frames = int(ends[-1]) if len(ends) else 0
+    firsts = [t[0] for t in (ev_t, st_t) if len(t)] + ([t0] if n_frames else [])
+    lasts = [t[-1] for t in (ev_t, st_t, batch_end) if len(t)]
     t0 = min(firsts) if firsts else 0.0
     stats.log_start_s, stats.log_duration_s = float(t0), float(max(lasts) - t0) if lasts else 0.0
-
-    # Frame batches: cut where the time grid or the count of earlier events/states changes.
-    marks = np.sort(np.concatenate([ev_t, st_t]))
-    n_frames = len(fr_t)
-    if n_frames:
-        # The run clock and the frame stamps may round differently: within _SAME_TIME_S is "at".
-        key_marks = np.searchsorted(marks, fr_t - _SAME_TIME_S, side="left")
-        key_grid = np.floor((fr_t - t0) / block_s)
-        cut = np.flatnonzero((np.diff(key_marks) != 0) | (np.diff(key_grid) != 0)) + 1
-        starts = np.concatenate([[0], cut])
-        ends = np.concatenate([cut, [n_frames]])
-    else:
-        starts = ends = np.zeros(0, np.int64)
-    batch_end = fr_t[ends - 1] if n_frames else np.zeros(0)
     batch_t = batch_end
     if n_frames and len(marks):
         # A batch goes before the first event or state it precedes, even if stamped a hair later.
-        following = key_marks[ends - 1]
+        following = np.searchsorted(marks, batch_end - _SAME_TIME_S, side="left")
         inside = following < len(marks)
         batch_t = np.where(inside, np.minimum(batch_t, marks[np.minimum(following, len(marks) - 1)]), batch_t)
     # Each sample goes after the batch holding the frame that completed it.
@@ -159,6 +149,7 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
     order = np.lexsort((index, kinds, times))
 
     want_frames = any(_overrides(listener, "on_can_frames") for listener in listeners)
+    cursor = _FrameCursor(log) if want_frames else None
     wall0 = clock.now()
     for i in order.tolist():
         if stop is not None and stop.is_set():
@@ -179,7 +170,7 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
             stats.table_states += 1
         else:
             lo, hi = int(starts[k]), int(ends[k])
-            frames = can_messages(log, lo, hi) if want_frames else ()
+            frames = cursor.messages(lo, hi) if cursor is not None else ()
             if want_frames:
                 for listener in listeners:
                     listener.on_can_frames(frames)
@@ -194,6 +185,76 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
                 stats.samples += s_hi - s_lo
                 stats.imu_blocks += 1
     stats.wall_s = float(clock.now() - wall0)
+
+
+def _frame_batches(log: RunLog, marks: np.ndarray, ev_t: np.ndarray, st_t: np.ndarray, block_s: float):
+    """(starts, ends, last frame time of each batch, the first frame's time) of the frame batches: a batch
+    ends where the count of events/states before a frame or its cell of the `block_s` grid changes. The
+    grid starts at the log's first time (the earliest of the first event, state and frame). Frame times
+    are made monotone as `_monotone` does, across the chunks."""
+    begin: list[np.ndarray] = []       # global index of each batch's first frame
+    before: list[np.ndarray] = []      # the time of the frame before it (the previous batch's last)
+    t0 = first_frame = None
+    prev_t, prev_key, total = -np.inf, None, 0
+    for t, *_ in log.can_pieces():
+        if not len(t):
+            continue
+        t = np.where(np.isfinite(t), np.asarray(t, float), -np.inf)
+        t = np.maximum.accumulate(np.maximum(t, prev_t))
+        if not np.isfinite(t[0]):   # no finite time yet: these take the first one found
+            finite = np.isfinite(t)
+            fill = t[finite][0] if finite.any() else min([x[0] for x in (ev_t, st_t) if len(x)], default=0.0)
+            t = np.where(finite, t, fill)
+        if t0 is None:
+            first_frame = float(t[0])
+            t0 = min([first_frame] + [float(x[0]) for x in (ev_t, st_t) if len(x)])
+        key_marks = np.searchsorted(marks, t - _SAME_TIME_S, side="left")
+        key_grid = np.floor((t - t0) / block_s)
+        local = np.flatnonzero((np.diff(key_marks) != 0) | (np.diff(key_grid) != 0)) + 1
+        if prev_key is None or prev_key != (int(key_marks[0]), float(key_grid[0])):
+            begin.append(np.array([total]))
+            before.append(np.array([prev_t]))
+        begin.append(local + total)
+        before.append(t[local - 1])
+        prev_t, prev_key = t[-1], (int(key_marks[-1]), float(key_grid[-1]))
+        total += len(t)
+    if not total:
+        z = np.zeros(0, np.int64)
+        return z, z, np.zeros(0), 0.0
+    starts = np.concatenate(begin).astype(np.int64)
+    ends = np.append(starts[1:], total)
+    batch_end = np.append(np.concatenate(before)[1:], prev_t).astype(float)
+    return starts, ends, batch_end, float(first_frame)
+
+
+class _FrameCursor:
+    """The log's frames as python-can Messages, by index ranges asked for in order (one pass over the
+    chunks, a piece held at a time)."""
+
+    def __init__(self, log: RunLog):
+        self.log = log
+        self._restart()
+
+    def _restart(self) -> None:
+        self.pieces = self.log.can_pieces()
+        self.piece, self.first = None, 0   # the current piece and the index of its first frame
+
+    def messages(self, lo: int, hi: int) -> list:
+        if self.piece is not None and lo < self.first:
+            self._restart()
+        out: list = []
+        while lo < hi:
+            if self.piece is None or lo >= self.first + len(self.piece[1]):
+                if self.piece is not None:
+                    self.first += len(self.piece[1])
+                self.piece = next(self.pieces, None)
+                if self.piece is None:
+                    break
+                continue
+            a, b = lo - self.first, min(hi, self.first + len(self.piece[1])) - self.first
+            out += can_messages(self.piece, a, b)
+            lo = self.first + b
+        return out
 
 
 def _wait_until(clock: Clock, target: float, step_s: float, stop: threading.Event | None) -> bool:

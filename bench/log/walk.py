@@ -27,6 +27,7 @@ import zlib
 from array import array
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 from mcap.records import Attachment, Channel, Footer, Header, Metadata, Schema, Statistics
@@ -290,9 +291,11 @@ def attachment_head(buf, body: int, end: int) -> tuple[str, int] | None:
 
 
 class _Walker:
-    def __init__(self, buf: bytes, defer_topics: frozenset[str] = frozenset()):
+    def __init__(self, buf: bytes, defer_topics: frozenset[str] = frozenset(),
+                 source: Callable[[int, int], bytes] | None = None):
         self.buf = buf
         self.defer_topics = defer_topics
+        self.source = source
         self.w = Walk(size=len(buf), budget=InflateBudget(inflate_budget(len(buf))))
         self.lost_chunk: Damage | None = None   # message index records after a lost chunk count its messages
         # a good chunk waiting for its message index records: (offset, start, end, data or still compressed)
@@ -310,7 +313,8 @@ class _Walker:
         return d
 
     def run(self) -> Walk:
-        self.prefetch = Prefetch(self.buf, defer_topics=self.defer_topics, budget=self.w.budget.total)
+        self.prefetch = Prefetch(self.buf, defer_topics=self.defer_topics, budget=self.w.budget.total,
+                                 lazy=self.source is not None)
         try:
             return self._run()
         finally:
@@ -502,15 +506,16 @@ class _Walker:
         deferred = prefetch.deferred.get(pos) if prefetch is not None else None
         if deferred is not None and prefetch is not None and prefetch.chunks[prefetch.index[pos]][1] == f:
             # kept compressed: counted against the budget at that size now, at its own when it is inflated
-            # (`ChannelData.inflate_deferred`)
-            refused = w.budget.take(dlen)
+            # (`ChannelData.inflate_deferred`); with a `source`, nothing is kept: it is read again when needed
+            refused = w.budget.take(0 if self.source is not None else dlen)
             if refused is not None:
                 w.damage.append(Damage("chunk", pos, refused, start, end))
                 self.lost_chunk = w.damage[-1]
                 return True
             ch, t, o = deferred
-            self.pending = (pos, start, end, DeferredChunk(pos, start, end, compression,
-                                                           bytes(buf[dstart:dstart + dlen]), usize, crc, ch, t, o))
+            payload = None if self.source is not None else bytes(buf[dstart:dstart + dlen])
+            self.pending = (pos, start, end, DeferredChunk(pos, start, end, compression, payload, usize, crc,
+                                                           ch, t, o, (dstart, dlen), self.source))
             self.pending_index = []
             return True
         refused = w.budget.take(usize)
@@ -649,9 +654,11 @@ def _one_stride(data: bytes, q: int, stride: int) -> bool:
     return bool((ops == OP_MESSAGE).all() and (lengths == stride - 9).all())
 
 
-def walk(buf: bytes, defer_topics: frozenset[str] = frozenset()) -> Walk:
+def walk(buf: bytes, defer_topics: frozenset[str] = frozenset(),
+         source: Callable[[int, int], bytes] | None = None) -> Walk:
     """Walk an MCAP file held in memory; raises `WalkError` if it is not MCAP at all.
 
     Chunks holding nothing but messages of `defer_topics` are not decompressed: their channel
-    data holds them as `DeferredChunk` parts (see `ChannelData.inflate_deferred`)."""
-    return _Walker(buf, frozenset(defer_topics)).run()
+    data holds them as `DeferredChunk` parts (see `ChannelData.inflate_deferred`), with their
+    compressed data copied, or read again through `source(offset, length)` when given (nothing held)."""
+    return _Walker(buf, frozenset(defer_topics), source).run()

@@ -199,7 +199,7 @@ def _metadata(result: CalibrationResult, log, imu_link, log_still_open: bool) ->
         cfg = log.metadata.get("config", {})
         if cfg.get("path"):
             rows.append(([_e("configuration"), _e(cfg["path"])], ""))
-        rows.append(([_e("log file"), _e(f"{log.path}: {len(log.can_ids)} CAN frames, {len(log.table_states)} table "
+        rows.append(([_e("log file"), _e(f"{log.path}: {log.can_frame_count} CAN frames, {len(log.table_states)} table "
                                             f"states, {len(log.events)} events, {log.chunks} chunks")], ""))
     damage = log_damage(log, log_still_open) if log is not None else []
     html = ["<h2>Run</h2>", _table(["field", "value"], rows)]

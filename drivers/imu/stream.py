@@ -1,0 +1,180 @@
+"""The bulk decoder fed in pieces: a log's frames chunk by chunk, in bounded memory.
+
+`StreamDecoder.feed(...)` takes the next frames in arrival order (the arrays
+`decode_frames` takes) and `finish()` ends the stream: the samples and counts are exactly
+those of `decode_frames` given all the frames at once (the tests hold the two to that),
+whatever the cuts. The state carried from piece to piece is small: the last counter seen
+(for unwrapping), the reorder head, the first counter, and the accepted frames of the
+counters still inside the reorder window (at most `reorder_window` x messages frames once
+duplicates are dropped). A counter at or below head - window can receive no more frames
+(a frame that old is late), so its sample is final and emitted.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from drivers.errors import ImuFrameError
+from drivers.imu.bulk import _as_arrays, _block, _counters, _screen, _unwrap_steps, extract
+from drivers.imu.layout import ImuLayout, default_layout
+from drivers.imu.samples import ImuSampleBlock, ImuStats
+
+
+class StreamDecoder:
+    """Decode frames given piece by piece; `samples()` after `finish()` is `decode_frames`' block."""
+
+    def __init__(self, layout: ImuLayout | None = None, rate_hz: float = 1000.0, reorder_window: int = 8):
+        if not (isinstance(reorder_window, int) and reorder_window >= 1):
+            raise ImuFrameError(f"reorder_window must be a positive integer, got {reorder_window!r}")
+        self.layout = layout if layout is not None else default_layout()
+        self.rate_hz = float(rate_hz)
+        self.window = reorder_window
+        self.stats = ImuStats()
+        self._blocks: list[ImuSampleBlock] = []
+        self._c_last: np.ndarray | None = None   # the last valid frame's raw counter (1 element, its dtype)
+        self._u_last = self._head = self._u0 = self._next = 0
+        # accepted frames of counters not resolved yet: data rows, times, counters, messages, heads at arrival
+        self._pending: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._finished = False
+
+    def feed(self, ids, data, lengths=None, timestamps=None) -> None:
+        """The next frames, in arrival order (arrays as `decode_frames` takes them)."""
+        if self._finished:
+            raise ImuFrameError("this stream is finished")
+        ids, data, lengths, timestamps = _as_arrays(ids, data, lengths, timestamps)
+        n, stats, layout = len(ids), self.stats, self.layout
+        stats.frames += n
+        if not n:
+            return
+        msg_index, valid, n_known, n_length_ok = _screen(ids, data, lengths, layout)
+        stats.unknown_id += n - n_known
+        stats.wrong_length += n_known - n_length_ok
+        n_valid = int(np.count_nonzero(valid))
+        stats.crc_errors += n_length_ok - n_valid
+        if not n_valid:
+            return
+        vi = None if n_valid == n else np.flatnonzero(valid)
+        c = _counters(data, msg_index, valid, vi, layout)
+        first = self._c_last is None
+        if first:
+            self._u_last = self._head = self._u0 = self._next = int(c[0])
+            self._c_last = np.asarray(c[:1]).copy()
+        d = _unwrap_steps(np.concatenate([np.asarray(self._c_last, dtype=c.dtype), c]), layout.counter_bits)
+        u = np.cumsum(d, dtype=np.int64)
+        u += self._u_last
+        head = np.maximum.accumulate(u)
+        np.maximum(head, self._head, out=head)
+        self._c_last = np.asarray(c[-1:]).copy()
+        self._u_last, self._head = int(u[-1]), int(head[-1])
+        accepted = (u > head - self.window) & (u >= self._u0)
+        stats.late += n_valid - int(np.count_nonzero(accepted))
+        rows = np.flatnonzero(accepted) if vi is None else vi[accepted]
+        ka = msg_index[rows].astype(np.int64)
+        new = (np.ascontiguousarray(data[rows]), timestamps[rows], u[accepted], ka, head[accepted])
+        if self._pending is not None:
+            new = tuple(np.concatenate([p, q]) for p, q in zip(self._pending, new))   # type: ignore[assignment]
+        self._pending = new
+        self._resolve(self._head - self.window)
+
+    def finish(self) -> tuple[ImuSampleBlock, ImuStats]:
+        """End of the stream: every counter up to the newest is resolved; the samples and the counts."""
+        if not self._finished:
+            self._finished = True
+            if self._c_last is not None:
+                self._resolve(self._head)
+        return self.samples(), self.stats
+
+    def samples(self) -> ImuSampleBlock:
+        """The samples resolved so far, in counter order."""
+        if len(self._blocks) > 1:
+            self._blocks = [ImuSampleBlock.concatenate(self._blocks)]
+        return self._blocks[0] if self._blocks else ImuSampleBlock.empty(self.rate_hz)
+
+    def _resolve(self, cutoff: int) -> None:
+        """Emit the samples of the counters from `_next` up to `cutoff` (inclusive); keep the rest pending."""
+        if self._pending is None:
+            return
+        if cutoff < self._next:   # nothing final yet: what waits is kept at one frame per (counter, message)
+            self._pending = self._dedupe(*self._pending)
+            return
+        data, t, u, k, h = self._pending
+        now = u <= cutoff
+        later = ~now
+        self._pending = self._dedupe(*(a[later] for a in self._pending)) if later.any() else None
+        data, t, u, k, h = data[now], t[now], u[now], k[now], h[now]
+        du = np.diff(u)
+        # in order: a counter's frames are consecutive and in message order, so nothing repeats
+        in_order = bool(((du > 0) | ((du == 0) & (np.diff(k) > 0))).all())
+        if not in_order:
+            data, t, u, k, h = self._dedupe(data, t, u, k, h)
+        stats, n_msgs = self.stats, len(self.layout.messages)
+        lo, self._next = self._next, cutoff + 1
+        stats.frames_ok += len(u)
+        stats.out_of_order += int(np.count_nonzero(u < h))
+        if not len(u):
+            stats.counter_gaps += cutoff - lo + 1
+            return
+        if in_order:
+            starts = np.flatnonzero(np.diff(u, prepend=u[0] - 1) != 0)
+            counters = u[starts]
+            present = np.diff(starts, append=len(u))
+            complete = present == n_msgs
+            firsts = starts[complete]
+
+            def frames_of(m):
+                return firsts + m
+            last = t[firsts + n_msgs - 1] if len(firsts) else t[:0]
+            block = _block(self.layout, data, frames_of, counters[complete].copy(), last, self.rate_hz)
+        else:
+            counters, row = np.unique(u, return_inverse=True)
+            row = row.reshape(-1)
+            present = np.bincount(row, minlength=len(counters))
+            complete = present == n_msgs
+            raw = np.zeros((len(counters), 8), np.int64)
+            for m, message in enumerate(self.layout.messages):
+                sel = np.flatnonzero(k == m)
+                for column, sig in message.values:
+                    raw[row[sel], column] = extract(data, sel, sig)
+            last_frame = np.full(len(counters), -1, np.int64)
+            np.maximum.at(last_frame, row, np.arange(len(u)))
+            block = ImuSampleBlock.from_raw(self.layout, counters[complete], t[last_frame[complete]], raw[complete],
+                                            self.rate_hz)
+        joined = int(lo == self._u0 and counters[0] == self._u0 and not complete[0])
+        stats.joined_mid_sample += joined
+        stats.samples += int(np.count_nonzero(complete))
+        stats.incomplete_samples += int(np.count_nonzero(~complete)) - joined
+        stats.counter_gaps += (cutoff - lo + 1) - len(counters)
+        if len(block):
+            self._blocks.append(block)
+
+    def _dedupe(self, data, t, u, k, h):
+        """The first frame of each (counter, message) only; the others counted as duplicates."""
+        if len(u) < 2:
+            return data, t, u, k, h
+        key = (u - u.min()) * len(self.layout.messages) + k
+        if int(key.max()) < (1 << 15):
+            # what waits spans at most the reorder window: a 16-bit key sorts in linear time (radix)
+            key_order = np.argsort(key.astype(np.int16), kind="stable")
+        else:
+            key_order = np.argsort(key, kind="stable")
+        sk = key[key_order]
+        repeat = np.zeros(len(u), bool)
+        repeat[key_order[1:]] = sk[1:] == sk[:-1]
+        dups = int(np.count_nonzero(repeat))
+        if not dups:
+            return data, t, u, k, h
+        self.stats.duplicates += dups
+        keep = ~repeat
+        return data[keep], t[keep], u[keep], k[keep], h[keep]
+
+
+def decode_stream(pieces, layout: ImuLayout | None = None, rate_hz: float = 1000.0,
+                  reorder_window: int = 8) -> tuple[ImuSampleBlock, ImuStats]:
+    """`decode_frames` over an iterable of (ids, data, lengths, timestamps) pieces."""
+    decoder = StreamDecoder(layout, rate_hz, reorder_window)
+    for piece in pieces:
+        decoder.feed(*piece)
+    return decoder.finish()
+
+
+__all__ = ["StreamDecoder", "decode_stream"]
