@@ -283,6 +283,36 @@ class DeferredChunk:
         return data, framed[1][0][1]
 
 
+@dataclass
+class ChunkSlice(DeferredChunk):
+    """One channel's messages in a chunk the walk decompressed and let go (a chunk shared with other
+    channels): `inflate` reads the chunk from the file again, decompresses and checks it, and gives its
+    payloads where the walk found them (`offsets` holds the payload starts here)."""
+
+    payload_lengths: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+
+    @property
+    def lengths(self) -> np.ndarray:
+        return self.payload_lengths
+
+    def inflate(self):
+        """(chunk data, payload starts), or the reason the chunk cannot be used again."""
+        if self.source is None:
+            return "chunk data not available"
+        try:
+            payload = self.source(*self.span)
+        except OSError as exc:
+            return f"cannot read the chunk's data again: {exc.strerror or exc}"
+        if len(payload) != self.span[1]:
+            return "the file is shorter than when it was walked"
+        data, computed, exc = inflate_chunk(self.compression, payload, self.size, self.crc)
+        if exc is not None:
+            return chunk_failure(self.compression, exc)
+        if self.crc != 0 and computed != self.crc:
+            return "CRC mismatch"
+        return data, self.offsets
+
+
 def _deferrable(buf, fields: tuple, index: list[tuple[int, int]], deferred_channels: set[int]):
     """(channel, log times, offsets) when the chunk holds messages of one deferred channel and
     nothing else, as far as its message index says; else None."""

@@ -565,8 +565,11 @@ def _read_log(path: str, defer_samples: bool) -> RunLog:
     try:
         # /can/raw chunks are streamed (`RunLog.can_pieces`), /imu/samples ones inflated when first asked
         # for; neither is held meanwhile: both are read from the file again
+        # (with a source, no decompressed chunk outlives its gathering: the topics not read are only counted,
+        # the table states and events copied out up to what is parsed, the frames and samples left in the file)
         w = walk(buf, defer_topics=frozenset({TOPIC_CAN, TOPIC_SAMPLES} if defer_samples else {TOPIC_CAN}),
-                 source=_FileSource(path))
+                 source=_FileSource(path), keep_topics=frozenset({TOPIC_CAN, TOPIC_SAMPLES, TOPIC_STATE, TOPIC_EVENTS}),
+                 keep_limits={TOPIC_STATE: MAX_JSON_MESSAGES, TOPIC_EVENTS: MAX_EVENTS})
     except WalkError as exc:
         raise LogError(f"{path}: {exc}") from exc
     finally:
@@ -581,7 +584,7 @@ def _read_log(path: str, defer_samples: bool) -> RunLog:
     counts: dict[str, int] = {}
     for ch, d in w.data.items():
         topic = w.topic(ch)
-        counts[topic] = counts.get(topic, 0) + len(d)
+        counts[topic] = counts.get(topic, 0) + len(d) + d.not_kept + d.over_limit
         channel = w.channels.get(ch)
         if channel is not None and topic == TOPIC_CAN and channel.message_encoding != CAN_ENCODING:
             raise LogError(f"{path}: {TOPIC_CAN} has message encoding {channel.message_encoding!r}, "
@@ -613,7 +616,7 @@ def _read_log(path: str, defer_samples: bool) -> RunLog:
     by_topic = {t: d for t, d in by_topic.items() if t in (TOPIC_CAN, TOPIC_SAMPLES, TOPIC_STATE, TOPIC_EVENTS)}
     w.data.clear()
     if TOPIC_STATE in by_topic:
-        skipped = by_topic[TOPIC_STATE].keep_first(MAX_JSON_MESSAGES)
+        skipped = by_topic[TOPIC_STATE].keep_first(MAX_JSON_MESSAGES) + by_topic[TOPIC_STATE].over_limit
         if skipped:
             damage.append(_not_read(TOPIC_STATE, skipped, MAX_JSON_MESSAGES))
         by_topic[TOPIC_STATE].compact()
@@ -621,7 +624,7 @@ def _read_log(path: str, defer_samples: bool) -> RunLog:
     events: list[Event] = []
     if TOPIC_EVENTS in by_topic:
         d = by_topic.pop(TOPIC_EVENTS)
-        skipped = d.keep_first(MAX_EVENTS)
+        skipped = d.keep_first(MAX_EVENTS) + d.over_limit
         if skipped:
             damage.append(_not_read(TOPIC_EVENTS, skipped, MAX_EVENTS))
         rows, bad = _parse_json_rows(d.payloads())

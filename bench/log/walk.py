@@ -33,6 +33,7 @@ import numpy as np
 from mcap.records import Attachment, Channel, Footer, Header, Metadata, Schema, Statistics
 
 from bench.log.chunks import (
+    ChunkSlice,
     MAGIC,
     MAX_DEFINITIONS,
     MAX_RECORDS,
@@ -115,6 +116,8 @@ class ChannelData:
     parts: list = field(default_factory=list)      # bytes or (chunk bytes, starts array), one per chunk
     lengths: list = field(default_factory=list)    # int64 arrays, payload lengths, one per part
     log_times: list = field(default_factory=list)  # uint64 arrays, log times (ns), one per part
+    not_kept: int = 0       # messages counted, not kept: a topic the walk was not asked to keep
+    over_limit: int = 0     # messages counted, not kept: past the walk's limit for the topic
 
     def add(self, part, lengths, log_times) -> None:
         self.parts.append(part)
@@ -144,7 +147,7 @@ class ChannelData:
         inflate = [c for k, c in zip(todo, chunks) if refused.get(k) is None]
         if len(inflate) >= 3:
             with ThreadPoolExecutor(min(4, os.cpu_count() or 1), thread_name_prefix="mcap-inflate") as pool:
-                answers = iter(list(pool.map(DeferredChunk.inflate, inflate)))
+                answers = iter(list(pool.map(lambda c: c.inflate(), inflate)))
         else:
             answers = iter([c.inflate() for c in inflate])
         damage, dropped = [], set()
@@ -292,10 +295,15 @@ def attachment_head(buf, body: int, end: int) -> tuple[str, int] | None:
 
 class _Walker:
     def __init__(self, buf: bytes, defer_topics: frozenset[str] = frozenset(),
-                 source: Callable[[int, int], bytes] | None = None):
+                 source: Callable[[int, int], bytes] | None = None, keep_topics: frozenset[str] | None = None,
+                 keep_limits: dict[str, int] | None = None):
         self.buf = buf
         self.defer_topics = defer_topics
         self.source = source
+        self.keep_topics = keep_topics
+        self.keep_limits = keep_limits or {}
+        self.current: tuple | None = None   # (offset, start, end, compression, span, size, crc) of the chunk gathered
+        self.pending_where: tuple | None = None   # the same of the pending chunk
         self.w = Walk(size=len(buf), budget=InflateBudget(inflate_budget(len(buf))))
         self.lost_chunk: Damage | None = None   # message index records after a lost chunk count its messages
         # a good chunk waiting for its message index records: (offset, start, end, data or still compressed)
@@ -539,6 +547,7 @@ class _Walker:
             reason = "CRC mismatch"
         else:   # good: its records are gathered once the message index records after it are seen
             self.pending, self.pending_index = (pos, start, end, data), []
+            self.pending_where = (pos, start, end, compression, (dstart, dlen), usize, crc)
             return True
         w.damage.append(Damage("chunk", pos, reason, start, end))
         self.lost_chunk = w.damage[-1]
@@ -550,6 +559,13 @@ class _Walker:
             return
         (pos, start, end, data), index = self.pending, self.pending_index
         self.pending, self.pending_index = None, []
+        self.current, self.pending_where = self.pending_where, None
+        try:
+            self._finish_chunk(pos, start, end, data, index)
+        finally:
+            self.current = None
+
+    def _finish_chunk(self, pos: int, start: int, end: int, data, index) -> None:
         if isinstance(data, DeferredChunk):
             chunk = data
             assert self.prefetch is not None   # only the prefetch's scan defers chunks
@@ -564,6 +580,7 @@ class _Walker:
                                             {self.w.topic(chunk.channel): len(chunk.offsets)}))
                 return
             data = answer[0]
+            self.current = (pos, start, end, chunk.compression, chunk.span, chunk.size, chunk.crc)
         framed = None
         if self.framed is not None and self.framed[0] == index:   # the worker framed it with these records
             framed = self.framed[1]
@@ -588,7 +605,7 @@ class _Walker:
             if self.chunk_records(data[:first], messages=False) is not None:
                 return False
         for ch, starts, lengths, t in per_channel:
-            self.channel_data(ch).add((data, starts), lengths, t)
+            self.add_part(ch, data, starts, lengths, t)
         return True
 
     def chunk_records(self, data: bytes, messages: bool = True) -> str | None:
@@ -642,8 +659,37 @@ class _Walker:
         times = np.ndarray((size - 22,), "<u8", data, 15, (1,))[o]
         for ch in np.unique(channels).tolist():
             mine = channels == ch
-            self.channel_data(ch).add((data, o[mine] + MESSAGE_DATA_OFFSET), lengths[mine], times[mine])
+            self.add_part(ch, data, o[mine] + MESSAGE_DATA_OFFSET, lengths[mine], times[mine])
         return None
+
+    def add_part(self, ch: int, data: bytes, starts: np.ndarray, lengths: np.ndarray, times: np.ndarray) -> None:
+        """One channel's messages in the chunk being gathered. Without a `source`: a lazy part (the chunk stays
+        in memory while it lives). With one, nothing keeps the chunk: a deferred topic's messages become a
+        `ChunkSlice` (read again from the file when needed), a topic not kept is only counted, and the
+        others are copied out (up to the topic's limit, the rest counted)."""
+        d = self.channel_data(ch)
+        topic = self.w.channels[ch].topic if ch in self.w.channels else None
+        if self.source is None or self.current is None or topic is None:
+            d.add((data, starts), lengths, times)
+            return
+        if topic in self.defer_topics:
+            pos, start, end, compression, span, size, crc = self.current
+            d.add(ChunkSlice(pos, start, end, compression, None, size, crc, ch, times, starts, span, self.source,
+                             lengths), lengths, times)
+            return
+        if self.keep_topics is not None and topic not in self.keep_topics:
+            d.not_kept += len(lengths)
+            return
+        limit = self.keep_limits.get(topic)
+        if limit is not None:
+            room = max(0, limit - len(d))
+            if room < len(lengths):
+                d.over_limit += len(lengths) - room
+                starts, lengths, times = starts[:room], lengths[:room], times[:room]
+            if not len(lengths):
+                return
+        view = memoryview(data)
+        d.add(b"".join([view[a:a + n] for a, n in zip(starts.tolist(), lengths.tolist())]), lengths, times)
 
 
 def _one_stride(data: bytes, q: int, stride: int) -> bool:
@@ -655,10 +701,13 @@ def _one_stride(data: bytes, q: int, stride: int) -> bool:
 
 
 def walk(buf: bytes, defer_topics: frozenset[str] = frozenset(),
-         source: Callable[[int, int], bytes] | None = None) -> Walk:
+         source: Callable[[int, int], bytes] | None = None, keep_topics: frozenset[str] | None = None,
+         keep_limits: dict[str, int] | None = None) -> Walk:
     """Walk an MCAP file held in memory; raises `WalkError` if it is not MCAP at all.
 
     Chunks holding nothing but messages of `defer_topics` are not decompressed: their channel
     data holds them as `DeferredChunk` parts (see `ChannelData.inflate_deferred`), with their
-    compressed data copied, or read again through `source(offset, length)` when given (nothing held)."""
-    return _Walker(buf, frozenset(defer_topics), source).run()
+    compressed data copied, or read again through `source(offset, length)` when given (nothing held).
+    With a `source`, no decompressed chunk outlives its gathering: see `_Walker.add_part` (`keep_topics`:
+    the topics whose messages are kept, None for all; `keep_limits`: the most messages kept per topic)."""
+    return _Walker(buf, frozenset(defer_topics), source, keep_topics, keep_limits).run()
