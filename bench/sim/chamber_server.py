@@ -189,5 +189,34 @@ def serve_chamber_ascii(chamber: SimChamber, tcp: bool = True, pty: bool = False
     return server, urls
 
 
+
+
+def serve_chamber(chamber: SimChamber, dialect: str, where: str = "tcp", host: str = "127.0.0.1", port: int = 0,
+                  register_map: ChamberRegisterMap | None = None) -> tuple[Callable[[], None], str]:
+    """Serve `chamber` in `dialect` ('ascii' or 'modbus') on TCP (`where` 'tcp', at host:port) or a new pty
+    (`where` 'pty'; Modbus RTU for modbus); returns (close, the URL a client opens)."""
+    if dialect == "modbus":
+        modbus = ChamberModbusServer(chamber, register_map)
+        try:
+            if where == "pty":
+                return modbus.close, f"modbus+rtu://{modbus.start_rtu_pty()}?baud=115200"
+            bound_host, bound_port = modbus.start_tcp(host, port)
+        except BaseException:
+            modbus.close()
+            raise
+        return modbus.close, f"modbus+tcp://{bound_host}:{bound_port}"
+    if dialect != "ascii":
+        raise ValueError(f"no simulated chamber for dialect {dialect!r} (ascii, modbus)")
+    server = LineServer(ChamberAsciiHandler(chamber))
+    try:
+        if where == "pty":
+            return server.close, server.open_pty()
+        bound_host, bound_port = server.listen_tcp(host, port)
+    except BaseException:
+        server.close()
+        raise
+    return server.close, f"tcp://{bound_host}:{bound_port}"
+
+
 __all__ = ["ChamberAsciiHandler", "ChamberModbusServer", "EXCEPTION_FOR_ERROR", "GARBAGE", "NA_FOR_ERROR",
-           "serve_chamber_ascii"]
+           "serve_chamber", "serve_chamber_ascii"]
