@@ -3,6 +3,8 @@ kind of bad value (the same style as the rest of the configuration)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from bench.config.load import ConfigError, parse_config
@@ -90,3 +92,13 @@ def test_register_map_file(tmp_path):
     err = error_of(text, base_dir=tmp_path)
     assert (err.path, err.line, err.key) == (str(tmp_path / "chamber-map.toml"), 4, "modbus.alarm_bits.door_open")
     assert "must be 0-15" in err.message
+
+
+def test_the_examples_commented_chamber_section_loads_when_uncommented():
+    example = (Path(__file__).resolve().parents[1] / "bench.example.toml").read_text(encoding="utf-8")
+    start = example.index("# [chamber]\n")
+    keys = ("url", "dialect", "timeout_s", "retries", "poll_s", "safe_setpoint_c", "[chamber", "min_", "max_")
+    section = [line[2:] for line in example[start:].splitlines() if line.startswith("# ") and line[2:].startswith(keys)]
+    chamber = parse(example[:start] + "\n".join(section) + "\n", base_dir=Path(__file__).resolve().parents[1]).chamber
+    assert chamber.url == "tcp://192.168.1.40:5030" and chamber.safe_setpoint_c == 23.0
+    assert chamber.limits == ChamberLimits(-40.0, 85.0, 5.0)

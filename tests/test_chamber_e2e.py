@@ -147,3 +147,14 @@ def test_a_lost_link_is_a_connection_error_and_make_safe_does_not_raise(rig):
         chamber.read_state()
     assert isinstance(info.value, ChamberError)
     assert chamber.make_safe(23.0).endswith("stop failed: the chamber may still be controlling")
+
+
+def test_the_modbus_simulator_refuses_writes_as_the_page_says():
+    sim = SimChamber(ChamberPhysics(), ManualClock())
+    with served("modbus-tcp", sim) as (url, _, _):
+        with open_chamber(url, "modbus", timeout_s=0.3) as chamber:
+            for address, value, code in ((100, 5, 2), (101, 5, 2), (103, 1, 2), (200, 9, 3), (301, 0x8000, 3)):
+                with pytest.raises(ChamberCommandError) as info:
+                    chamber._write_single(address, value, f"write {value} at {address}")
+                assert info.value.code == code, (address, info.value)
+            assert chamber.read_state().temperature_c == pytest.approx(23.0)
