@@ -22,6 +22,7 @@ from drivers.errors import (
     ChamberProtocolError,
     ChamberTimeout,
 )
+from tests.test_bounded_errors import SHORT, WAIT_S, GarbagePeer
 
 TRANSPORTS = ["ascii-tcp", "ascii-pty", "modbus-tcp", "modbus-rtu"]
 WIDE = ChamberLimits(-100.0, 200.0, 30.0)    # wider than the simulated controller's own range
@@ -158,3 +159,22 @@ def test_the_modbus_simulator_refuses_writes_as_the_page_says():
                     chamber._write_single(address, value, f"write {value} at {address}")
                 assert info.value.code == code, (address, info.value)
             assert chamber.read_state().temperature_c == pytest.approx(23.0)
+
+
+@pytest.mark.parametrize("dialect, chunk, needle", [
+    ("ascii", b"x", "longer than any reply"),                      # no terminator: cut at max_line, then refused
+    ("modbus", bytes.fromhex("de ad be ef 00 ff 13 37 42"), "no Modbus reply in more than"),
+])
+def test_a_peer_streaming_garbage_ends_in_a_short_chamber_error(dialect, chunk, needle):
+    with GarbagePeer(chunk) as peer:
+        host, port = peer.address
+        url = f"{'modbus+tcp' if dialect == 'modbus' else 'tcp'}://{host}:{port}"
+        chamber = open_chamber(url, dialect, timeout_s=WAIT_S, retries=0)
+        try:
+            with pytest.raises(ChamberProtocolError) as info:
+                chamber.connect()
+                chamber.read_state()
+        finally:
+            chamber.close()
+    message = str(info.value)
+    assert needle in message and len(message) < SHORT, f"{len(message):,} characters: {message[:200]}..."
