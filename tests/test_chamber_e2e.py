@@ -178,3 +178,19 @@ def test_a_peer_streaming_garbage_ends_in_a_short_chamber_error(dialect, chunk, 
             chamber.close()
     message = str(info.value)
     assert needle in message and len(message) < SHORT, f"{len(message):,} characters: {message[:200]}..."
+
+
+@pytest.mark.parametrize("dialect", ["ascii", "modbus"])
+def test_the_simulated_world_serves_a_chamber_on_its_clock(dialect):
+    from bench.config.load import default_sim_config
+    from bench.sim.world import SimWorld
+
+    config = default_sim_config()
+    with SimWorld(config.site.site, config.sim.imu, config.sim.noise) as world:
+        url = world.add_chamber(dialect)
+        with open_chamber(url, dialect, timeout_s=1.0) as chamber:
+            chamber.set_setpoint(50.0)
+            chamber.run()
+            world.clock.advance(2 * 3600.0)          # the run clock: the chamber's time with the table's
+            assert chamber.check_state().temperature_c == pytest.approx(50.0, abs=0.051)
+            assert world.chamber.state().time_s == pytest.approx(2 * 3600.0)
