@@ -126,3 +126,30 @@ def test_usage_errors_are_one_line_exit_2(tmp_path):
 def test_an_unreachable_chamber_is_exit_3():
     code, _, err = cli(["chamber", "--url", "tcp://127.0.0.1:9", "--dialect", "ascii", "status"])
     assert code == 3 and "cannot reach the chamber" in err
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
+def test_a_stop_signal_while_waiting_for_the_chamber_makes_it_safe(signum):
+    from bench.sim.chamber import SimChamber
+    from bench.sim.chamber_server import serve_chamber
+    from tests.helpers.run import wait_for
+
+    sim = SimChamber()
+    sim.set_setpoint(40.0)
+    sim.run()
+    sim.faults.timeout = 1                       # the status request's reply never comes: the command waits
+    close, url = serve_chamber(sim, "ascii")
+    proc = subprocess.Popen([sys.executable, "-m", "bench.cli", "chamber", "--url", url, "--dialect", "ascii",
+                             "--timeout-s", "60", "--retries", "0", "status"], cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        wait_for(lambda: sim.faults.timeout == 0, 30.0, "the status request to arrive", proc=proc)
+        proc.send_signal(signum)
+        _, stderr = proc.communicate(timeout=30)
+        assert proc.returncode == 3, stderr
+        name = "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
+        assert stderr.strip() == f"bench chamber status: interrupted ({name}); chamber: stopped", stderr
+        assert not sim.state().running
+    finally:
+        stop_process(proc)
+        close()
