@@ -1,10 +1,12 @@
-"""The drivers' exception trees: one for the turntable, one for the IMU over CAN.
+"""The drivers' exception trees: one for the turntable, one for the thermal chamber, one for the IMU over CAN.
 
 Every driver error is raised `from` the low-level cause (socket error, serial error,
 pymodbus exception) so a traceback shows both what the bench tried and what failed.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 #: how much of a peer's data an error message quotes: the first this many bytes (characters), then the length
 QUOTE_LIMIT = 64
@@ -88,6 +90,75 @@ class TurntableLimitError(TurntableError, ValueError):
 
 class TurntableConfigError(TurntableError, ValueError):
     """A URL, dialect, option or limit the driver cannot use; raised before anything is sent."""
+
+
+class ChamberError(Exception):
+    """Base of every thermal-chamber driver error."""
+
+
+class ChamberTimeout(ChamberError, TimeoutError):
+    """No (complete) reply within the timeout, after the configured retries."""
+
+
+class ChamberConnectionError(ChamberError, ConnectionError):
+    """The link to the chamber controller could not be opened or was lost and not regained."""
+
+
+class ChamberProtocolError(ChamberError):
+    """A reply that does not follow the dialect; `raw` holds the offending bytes (or None)."""
+
+    def __init__(self, message: str, raw: bytes | None = None):
+        super().__init__(message)
+        self.raw = raw
+
+
+class ChamberChecksumError(ChamberProtocolError):
+    """A framed reply (Modbus RTU) whose CRC does not match its content."""
+
+
+class ChamberCommandError(ChamberError):
+    """The controller understood the request and refused it (an `NA:` reply, a Modbus exception); `code`
+    is the controller's code when it gives one."""
+
+    def __init__(self, message: str, code: int | None = None):
+        super().__init__(message)
+        self.code = code
+
+
+class ChamberAlarm(ChamberError):
+    """The controller reports an alarm (over-temperature, door open, ...); `state` is the last ChamberState read."""
+
+    def __init__(self, message: str, state=None):
+        super().__init__(message)
+        self.state = state
+
+
+class ChamberLimitError(ChamberError, ValueError):
+    """A setpoint or ramp rate outside the configured limits; raised before anything is sent."""
+
+
+class ChamberConfigError(ChamberError, ValueError):
+    """A URL, dialect, register map, option or limit the chamber driver cannot use; raised before anything is sent."""
+
+
+@dataclass(frozen=True)
+class LinkErrors:
+    """The error classes the shared request machinery (drivers.line_link, drivers.modbus_link) raises for one
+    device family, so the turntable and the chamber share one retry/reconnect logic and keep their own trees."""
+
+    timeout: type[Exception]
+    connection: type[Exception]
+    protocol: type[Exception]      # takes (message, raw)
+    checksum: type[Exception]      # takes (message, raw); a subclass of `protocol`
+    command: type[Exception]       # takes (message, code)
+    config: type[Exception]
+    base: type[Exception]
+
+
+TURNTABLE_LINK_ERRORS = LinkErrors(TurntableTimeout, TurntableConnectionError, TurntableProtocolError,
+                                   TurntableChecksumError, TurntableCommandError, TurntableConfigError, TurntableError)
+CHAMBER_LINK_ERRORS = LinkErrors(ChamberTimeout, ChamberConnectionError, ChamberProtocolError, ChamberChecksumError,
+                                 ChamberCommandError, ChamberConfigError, ChamberError)
 
 
 class ImuError(Exception):

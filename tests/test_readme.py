@@ -25,3 +25,5 @@ def test_readme_python_example_runs(tmp_path, monkeypatch, capsys):
     assert "Kg_x" in out
     # the driver example prints each axis's state in words, not status numbers such as '5'
     assert "outer    10.0000 deg  position  enabled, in position" in out, out
+    # the chamber example: three hours of simulated chamber time at -20 degC
+    assert "-20.0 degC, setpoint -20.0 degC, ramp 2 degC/min, running, alarms: none" in out, out

@@ -13,13 +13,14 @@ import sys
 
 from bench import __version__
 from bench.cli import apply as apply_cli
+from bench.cli import chamber as chamber_cli
 from bench.cli import check_table, evaluate, export_can, replay, run, schedules, sim_rig, solve, table, tui
 from bench.cli import export as export_cli
 from bench.cli import noise as noise_command
 from bench.cli import verify as verify_cli
 from bench.cli.common import ExitCode
 from bench.errors import BenchError
-from drivers.errors import ImuError, TurntableConfigError, TurntableError
+from drivers.errors import ChamberConfigError, ChamberError, ImuError, TurntableConfigError, TurntableError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -39,7 +40,10 @@ def build_parser() -> argparse.ArgumentParser:
     solve.register(sub)
     schedules.register(sub)
     table.register_table(sub)
-    sim_rig.register(table.register_sim(sub))
+    sim_kinds = table.register_sim(sub)
+    sim_rig.register(sim_kinds)
+    chamber_cli.register_sim_chamber(sim_kinds)
+    chamber_cli.register_chamber(sub)
     check_table.register(sub)
     export_can.register(sub)
     noise_command.register(sub)
@@ -95,11 +99,11 @@ def _run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print("bench: interrupted", file=sys.stderr)
         return ExitCode.INTERRUPTED
-    except TurntableConfigError as exc:
+    except (TurntableConfigError, ChamberConfigError) as exc:
         # a URL, dialect, option or limit the driver refused before sending anything: nothing moved
         print(f"bench {args.command}: {exc}", file=sys.stderr)
         return ExitCode.USAGE
-    except (TurntableError, ImuError) as exc:
+    except (TurntableError, ChamberError, ImuError) as exc:
         # a command that moves hardware handles these itself (and stops the table); this is the backstop.
         # (TurntableTimeout and TurntableConnectionError are OSErrors too: they end here, not as I/O errors.)
         print(f"bench {args.command}: {type(exc).__name__}: {exc}", file=sys.stderr)

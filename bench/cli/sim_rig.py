@@ -16,11 +16,13 @@ import sys
 import threading
 from pathlib import Path
 
+from bench.cli.chamber import CHAMBER_LISTEN_HELP, apply_chamber_command, listen_chamber
 from bench.cli.common import ExitCode, fail, raise_interrupted, stop_signals
 from bench.cli.table import FAULT_HELP, _apply_fault_command, _host_port, _listen, _remote_hosts
 from bench.config.load import BenchConfig, ConfigError, default_sim_config, load_config, parse_config
 from bench.errors import InputError
 from bench.model.imu import NoiseModel
+from drivers.chamber import DIALECTS as CHAMBER_DIALECTS
 from drivers.turntable import DIALECTS
 
 PROG = "bench sim rig"
@@ -33,6 +35,10 @@ IMU_FAULT_HELP = """  imu off | imu on | imu drop N | imu corrupt N | imu length
        swap: the next sample's last frame comes after the frame that follows it)"""
 
 
+CHAMBER_RIG_HELP = ("  chamber COMMAND: the chamber's console, e.g. chamber alarm door_open, chamber garbage 3 "
+                    "(chamber help)")
+
+
 def register(kinds: argparse._SubParsersAction) -> None:
     """`rig` under `bench sim` (`kinds` is what `bench.cli.table.register_sim` returns)."""
     rig = kinds.add_parser(
@@ -42,7 +48,9 @@ def register(kinds: argparse._SubParsersAction) -> None:
                     "socketcand on TCP, SocketCAN), in wall-clock time. --write-config writes the bench "
                     "configuration that points at both (`bench run --config FILE` in another terminal). "
                     "The truth (site, black box, noise, IMU coefficients, IMU rate) comes from --config's "
-                    "[site], [imu] and [sim] (default: `bench run --sim`'s), overridden by the flags. Prints "
+                    "[site], [imu] and [sim] (default: `bench run --sim`'s), overridden by the flags. "
+                    "--chamber-dialect/--chamber-listen also serve the simulated thermal chamber (its [chamber] "
+                    "limits and safe setpoint from --config, written into the configuration). Prints "
                     "where it listens, then runs until Ctrl-C, SIGTERM or SIGHUP.\n\n" + FAULT_HELP + "\n"
                     + IMU_FAULT_HELP,
         formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -52,6 +60,11 @@ def register(kinds: argparse._SubParsersAction) -> None:
                      help="tcp://127.0.0.1:PORT (scpi, mn), modbus+tcp://127.0.0.1:PORT (modbus) or pty (RTU for "
                           "modbus); port 0 picks a free port; default: TCP on a free loopback port")
     rig.add_argument("--imu-listen", action="append", metavar="WHERE", help=IMU_LISTEN_HELP)
+    rig.add_argument("--chamber-dialect", choices=sorted(CHAMBER_DIALECTS),
+                     help="also serve the simulated thermal chamber in this dialect (default with --chamber-listen: "
+                          "--config's [chamber] dialect, else ascii)")
+    rig.add_argument("--chamber-listen", metavar="WHERE", help="where the chamber listens: " + CHAMBER_LISTEN_HELP
+                     + "; default with --chamber-dialect: TCP on a free loopback port")
     rig.add_argument("--allow-remote", action="store_true",
                      help="allow a listen address beyond loopback: anyone who can reach this machine can then "
                           "command the simulated table")
@@ -86,7 +99,8 @@ def _truth_config(args: argparse.Namespace) -> BenchConfig:
     base = dataclasses.replace(base, sim=sim, site=site, imu=imu)
     placeholder = RigPeer("virtual", "", "virtual", "turntable-bench-rig", {})
     text = rig_config_text(base, "sim", base.table.dialect, placeholder)
-    return parse_config(text, source="<bench sim rig options>")
+    # the chamber's limits, safe setpoint and register map come from --config as they are
+    return dataclasses.replace(parse_config(text, source="<bench sim rig options>"), chamber=base.chamber)
 
 
 def _serve_imu(rig, where: str):
@@ -110,7 +124,8 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
     table_listen = args.table_listen or ("modbus+tcp://127.0.0.1:0" if dialect == "modbus" else "tcp://127.0.0.1:0")
     imu_listen = args.imu_listen or ["slcan"]
     socket_addresses = [w.replace("socketcand://", "tcp://", 1) for w in imu_listen if w.startswith("socketcand://")]
-    remote = _remote_hosts([table_listen, *socket_addresses])
+    chamber_dialect, chamber_listen = _chamber_options(args, config)
+    remote = _remote_hosts([table_listen, *socket_addresses, *([chamber_listen] if chamber_listen else [])])
     if remote and not args.allow_remote:
         return fail(PROG, f"{remote[0]} is reachable from the network, not only from this machine; add "
                           "--allow-remote to serve it there, or listen on 127.0.0.1", ExitCode.USAGE)
@@ -132,15 +147,24 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
                 print(f"simulated IMU ({config.imu.rate_hz:g} Hz) on {peer.kind} {peer.where}: python-can "
                       f"interface {peer.interface!r}, channel {peer.channel!r}"
                       + "".join(f", {k} {v!r}" for k, v in peer.bus_options.items()), flush=True)
+            chamber, chamber_url = None, ""
+            if chamber_listen:
+                from bench.sim.chamber import SimChamber  # the simulators: only for `bench sim`
+
+                chamber = SimChamber()
+                register_map = config.chamber.register_map if config.chamber is not None else None
+                chamber_url = listen_chamber(chamber, chamber_dialect, chamber_listen, closers, register_map)
+                print(f"simulated chamber ({chamber_dialect}) listening on {chamber_url}", flush=True)
             rig.start()
             if args.write_config:
-                text = rig_config_text(config, table_url, dialect, peers[0])
+                text = rig_config_text(config, table_url, dialect, peers[0],
+                                       (chamber_url, chamber_dialect) if chamber is not None else None)
                 parse_config(text, source=args.write_config, base_dir=Path(args.write_config).resolve().parent)
                 Path(args.write_config).write_text(text, encoding="utf-8")
                 print(f"bench configuration written to {args.write_config}", flush=True)
             print("Ctrl-C stops; type 'help' for the fault console", flush=True)
             for line in sys.stdin:           # the fault console; on EOF keep serving until a stop signal
-                reply = _console(rig, line, apply_imu_command)
+                reply = _console(rig, line, apply_imu_command, chamber)
                 if reply:
                     print(reply, flush=True)
             threading.Event().wait()
@@ -158,14 +182,27 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
     return ExitCode.OK
 
 
-def _console(rig, line: str, apply_imu_command) -> str:
+def _chamber_options(args: argparse.Namespace, config: BenchConfig) -> tuple[str, str | None]:
+    """(dialect, where) of the rig's chamber; where None: no chamber."""
+    configured = config.chamber.dialect if config.chamber is not None else "ascii"
+    dialect = args.chamber_dialect or configured
+    if args.chamber_listen is None and args.chamber_dialect is None:
+        return dialect, None
+    return dialect, args.chamber_listen or ("modbus+tcp://127.0.0.1:0" if dialect == "modbus" else "tcp://127.0.0.1:0")
+
+
+def _console(rig, line: str, apply_imu_command, chamber=None) -> str:
     words = line.split()
     if not words:
         return ""
     if words[0].lower() == "imu":
         return apply_imu_command(rig, words[1:])
+    if words[0].lower() == "chamber":
+        if chamber is None:
+            return "no chamber: start the rig with --chamber-dialect or --chamber-listen"
+        return apply_chamber_command(chamber, " ".join(words[1:]))
     if words[0].lower() == "help":
-        return FAULT_HELP + "\n" + IMU_FAULT_HELP
+        return FAULT_HELP + "\n" + IMU_FAULT_HELP + ("" if chamber is None else "\n" + CHAMBER_RIG_HELP)
     return _apply_fault_command(rig.controller, line)
 
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import re
 import stat
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +24,9 @@ import numpy as np
 
 from bench.acceptance.limits import AcceptanceLimits
 from bench.config.acceptance import ACCEPTANCE_KEYS, acceptance_limits
+from bench.config.chamber import CHAMBER_KEYS, ChamberConfig, chamber_config
 from bench.config.reader import ConfigError, Located, Table, describe, parse_toml, read_text, show, suggest
+from bench.config.register_map import TABLE_MAP, load_register_map, register_map_value
 from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
 from bench.model.families import BODY_AXES, SENSOR_AXES, canonical_names, family_of
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
@@ -35,10 +36,10 @@ from bench.plan.compiler import ORDERS, PlanTiming
 from drivers.errors import ImuConfigError, TurntableConfigError
 from drivers.imu import DEFAULT_DBC, DEFAULT_FD_DBC, DEFAULT_FD_SPEC, DEFAULT_SPEC, ImuFrameSpec, ImuLayout
 from drivers.turntable import DIALECTS, FRAMES, AxisLimits, TurntableLimits, check_url_dialect
-from drivers.turntable.modbus_map import RegisterMap, RegisterMapError
+from drivers.turntable.modbus_map import RegisterMap
 from schedules import Schedule, ScheduleError, builtin_names, resolve_schedule
 from schedules.tomlinput import MAX_FILE_BYTES
-from schedules.tomllines import LineMap, locate_lines
+from schedules.tomllines import locate_lines
 
 FORMAT = "turntable-bench/config"
 VERSION = 1
@@ -62,7 +63,7 @@ _SIM_IMU_RANGES = {"Kg": (0.0, 1e6, "counts/s per deg/s"), "Ka": (0.0, 1e6, "cou
                    "D0": (None, 36000.0, "deg/h"), "K0": (None, 1.0, "g"), "Eg": (None, 1.0, ""),
                    "Ea": (None, 1.0, "")}
 
-__all__ = ["FORMAT", "ORDERS", "SIM_CONFIG_TOML", "SIM_URL", "VERSION", "BenchConfig", "ConfigError",
+__all__ = ["FORMAT", "ORDERS", "SIM_CONFIG_TOML", "SIM_URL", "VERSION", "BenchConfig", "ChamberConfig", "ConfigError",
            "ImuConfig", "ImuIdentity", "OutputConfig", "PlanConfig", "SimConfig", "SiteConfig", "TableConfig",
            "default_sim_config", "load_config", "load_register_map", "parse_config", "ImuNoise"]
 
@@ -185,6 +186,7 @@ class BenchConfig:
     source_text: str = field(repr=False)
     path: Path | None = None  # None when parsed from a string
     acceptance: AcceptanceLimits = field(default_factory=AcceptanceLimits)  # [acceptance]: limits of the verdict
+    chamber: ChamberConfig | None = None  # [chamber]: the thermal chamber, None: none
 
 
 # --- sections -----------------------------------------------------------------------
@@ -234,67 +236,7 @@ def _table(t: Table) -> TableConfig:
 
 def _register_map(t: Table, dialect: str) -> RegisterMap | None:
     """`register_map = "file.toml"` (a file holding a [modbus] table) or an inline [table.modbus]."""
-    inline, in_file = t.has("modbus"), t.has("register_map")
-    if not (inline or in_file):
-        return None
-    if dialect != "modbus":
-        raise t.error("modbus" if inline else "register_map",
-                      f"a register map is for the modbus dialect only (table.dialect is {dialect!r})")
-    if inline and in_file:
-        raise t.error("register_map", "give either register_map (a file) or a [table.modbus] table, not both")
-    if inline:
-        data = t.get("modbus")
-        if not isinstance(data, dict):
-            raise t.error("modbus", f"must be a table ([table.modbus]), got {describe(data)}")
-        return _build_map(data, t.doc.source, t.doc.lines, t.path + ("modbus",))
-    path = t.file("register_map")
-    if not t.is_file("register_map", path):
-        if path.exists():  # a directory, a device such as /dev/zero, a FIFO
-            raise t.error("register_map", f"{show(str(path))} is not a regular file")
-        raise t.error("register_map", f"no such register map file {show(str(path))}")
-    return load_register_map(path)
-
-
-def load_register_map(path: str | Path) -> RegisterMap:
-    """A Modbus register map file (a [modbus] table, or its keys at the top level): a ConfigError
-    `file:line: key: message` when it cannot be used (`bench table --register-map`, `[table] register_map`)."""
-    text = read_text(Path(path), "the register map file")
-    data, lines = parse_toml(text, str(path)), locate_lines(text)
-    prefix: tuple[str, ...] = ()
-    if "modbus" in data:
-        for key in data:
-            if key != "modbus":
-                raise ConfigError(str(path), lines.line(key), key,
-                                  "unknown key (a register map file holds one [modbus] table)")
-        data, prefix = data["modbus"], ("modbus",)
-    return _build_map(data, str(path), lines, prefix)
-
-
-_MAP_KEY = re.compile(r"(?:unknown key )?([A-Za-z_][\w]*(?:\.\w+)*)(?=[: ])")
-
-
-#: register map number -> (lower, upper, unit): what the driver accepts, within a sane range
-_MAP_RANGES = {"angle_scale_deg": (1e-9, 1.0, "deg"), "rate_scale_dps": (1e-9, 1.0, "deg/s"),
-               "watchdog_s": (0.0, 3600.0, "s")}
-
-
-def _build_map(data, source: str, lines: LineMap, prefix: tuple) -> RegisterMap:
-    if isinstance(data, dict):  # the driver checks the rest (types, unknown keys, registers)
-        numbers = Table(Located(source, lines, Path(".")), prefix, data, allowed=tuple(data))
-        for key, (low, high, unit) in _MAP_RANGES.items():
-            if numbers.has(key) and isinstance(data[key], (int, float)) and not isinstance(data[key], bool):
-                numbers.number(key, ge=low, le=high, unit=unit)
-    try:
-        return RegisterMap.from_dict(data, source=source)
-    except (RegisterMapError, ValueError) as exc:
-        message = str(exc).removeprefix(f"{source}: ")
-        found = _MAP_KEY.match(message)
-        path = prefix
-        if found and (found.group(0).startswith("unknown key") or message[found.end():].startswith((":", " must"))):
-            key = found.group(1)
-            path = prefix + tuple(key.split("."))
-            message = message.replace(f"unknown key {key}", "unknown key", 1).removeprefix(key).lstrip(": ")
-        raise ConfigError(source, lines.line(*path), ".".join(map(str, path)) or None, message) from exc
+    return register_map_value(t, dialect, "table", TABLE_MAP)
 
 
 def _imu(t: Table) -> ImuConfig:
@@ -541,7 +483,7 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
     doc = parse_toml(text, source)
     located = Located(source, locate_lines(text), Path.cwd() if base_dir is None else Path(base_dir))
     root = Table(located, (), doc, ("format", "version", "site", "table", "imu", "plan", "output", "sim",
-                                       "acceptance"))
+                                       "acceptance", "chamber"))
     fmt = root.string("format")
     if fmt != FORMAT:
         raise root.error("format", f"expected {FORMAT!r}, got {show(fmt)}")
@@ -561,7 +503,8 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
                           out.number("chunk_run_interval_s", None, gt=0, ge=0.01, le=3600.0, unit="s"))
     sim = _sim(root.table("sim", ("seed", "black_box_arcsec", "noise", "imu")))
     acceptance = acceptance_limits(root.table("acceptance", ACCEPTANCE_KEYS))
-    return BenchConfig(site, table, imu, plan, output, sim, source_text=text, acceptance=acceptance)
+    chamber = chamber_config(root.table("chamber", CHAMBER_KEYS)) if root.has("chamber") else None
+    return BenchConfig(site, table, imu, plan, output, sim, source_text=text, acceptance=acceptance, chamber=chamber)
 
 
 def load_config(path: str | Path) -> BenchConfig:

@@ -23,6 +23,7 @@ from typing import Any, Protocol
 
 import can
 
+from bench.config.chamber import ChamberConfig
 from bench.config.load import BenchConfig, SimConfig
 from bench.model.imu import NoiseModel
 from bench.sim.can_imu import SimCanImu
@@ -31,6 +32,7 @@ from bench.sim.imu import SimImu
 from bench.sim.slcan_server import SlcanPtyServer
 from bench.sim.socketcand_server import SocketcandServer
 from bench.sim.table import SimTable, TableLimits
+from drivers.chamber import ChamberLimits
 from drivers.imu import DEFAULT_DBC
 
 #: how often the IMU thread catches up with the wall clock, s
@@ -250,9 +252,29 @@ def sim_section(sim: SimConfig) -> str:
     return "\n".join(lines) + "\n"
 
 
-def rig_config_text(config: BenchConfig, table_url: str, dialect: str, peer: RigPeer) -> str:
+def chamber_section(url: str, dialect: str, chamber: ChamberConfig | None) -> str:
+    """The `[chamber]` section pointing at a served chamber, with `chamber`'s limits, safe setpoint and register
+    map (defaults: drivers' limits, safe setpoint 23 degC, the documented map)."""
+    limits = chamber.limits if chamber is not None else ChamberLimits()
+    safe = chamber.safe_setpoint_c if chamber is not None else 23.0
+    lines = ["[chamber]", f"url = {_toml(url)}", f"dialect = {_toml(dialect)}"]
+    if safe is not None:
+        lines.append(f"safe_setpoint_c = {safe!r}   # on abort or fault the chamber goes here (absent: it stops)")
+    lines += ["", "[chamber.limits]", f"min_setpoint_c = {limits.min_setpoint_c!r}",
+              f"max_setpoint_c = {limits.max_setpoint_c!r}", f"max_ramp_c_per_min = {limits.max_ramp_c_per_min!r}"]
+    if chamber is not None and chamber.register_map is not None:
+        table = chamber.register_map.to_dict()
+        lines += ["", "[chamber.modbus]"] + [f"{k} = {_toml(v)}" for k, v in table.items() if not isinstance(v, dict)]
+        for key, sub in table.items():
+            if isinstance(sub, dict):
+                lines += ["", f"[chamber.modbus.{key}]"] + [f"{k} = {_toml(v)}" for k, v in sub.items()]
+    return "\n".join(lines) + "\n"
+
+
+def rig_config_text(config: BenchConfig, table_url: str, dialect: str, peer: RigPeer,
+                    chamber: tuple[str, str] | None = None) -> str:
     """A bench configuration (bench.example.toml's format) pointing at the rig: its table and IMU, its site
-    and truth, and a default plan to edit."""
+    and truth, and a default plan to edit; `chamber` (url, dialect) adds the rig's chamber."""
     site, imu = config.site, config.imu
     site_lines = [f"latitude_deg = {site.latitude_deg!r}", f"height_m = {site.height_m!r}"]
     if site.local_g_mps2 is not None:
@@ -306,8 +328,8 @@ revolutions = 1
 [output]
 folder = "runs"
 
-{sim_section(config.sim)}"""
+{sim_section(config.sim)}""" + ("" if chamber is None else "\n" + chamber_section(*chamber, config.chamber))
 
 
-__all__ = ["RigBus", "RigPeer", "SimRig", "SocketcanPeer", "apply_imu_command", "imu_status",
+__all__ = ["RigBus", "RigPeer", "SimRig", "SocketcanPeer", "apply_imu_command", "chamber_section", "imu_status",
            "rig_config_text", "sim_section"]

@@ -1,126 +1,29 @@
-"""Request/reply machinery shared by the ASCII dialects (SCPI-like and $MN).
+"""The turntable's line dialects (SCPI-like and $MN): a `Turntable` over `drivers.line_link.LineRequests`.
 
-`LineTurntable._transact` sends one request line and parses one reply line with the
-dialect's pure codec. What goes wrong is handled here once for both dialects:
-- no reply within `timeout_s`: retry (input discarded first), then `TurntableTimeout`;
-- a controller that was only slow answers the timed-out attempts as well: the reply that
-  comes first answers the request (it is the same request), and the replies still owed
-  are read and dropped before the call returns (each waited for at most `timeout_s`).
-  Otherwise every later call would read the reply to the call before it: a state one
-  poll old, for the rest of the session;
-- a reply the codec rejects (garbage, bad checksum, wrong echo): retry, then that error;
-- the link drops: reopen the transport once per attempt, then `TurntableConnectionError`;
-- the controller refuses the command (`TurntableCommandError`): raised at once, a
-  retry would be refused the same way.
-Every retry and reconnect is counted in `stats`, so a run can log link quality.
+The request/reply machinery (retries, late replies, reconnects, `stats`) is shared with
+the chamber's ASCII dialect and documented in `drivers.line_link`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Callable, TypeVar
-
 from drivers.clock import SYSTEM_CLOCK, Clock
-from drivers.errors import (
-    TurntableConfigError,
-    TurntableConnectionError,
-    TurntableError,
-    TurntableProtocolError,
-    TurntableTimeout,
-)
-from drivers.transport import ByteTransport, LineChannel, open_transport
+from drivers.errors import TURNTABLE_LINK_ERRORS
+from drivers.line_link import LineRequests, LinkStats
+from drivers.transport import ByteTransport
 from drivers.turntable.base import Turntable, TurntableLimits
 
-T = TypeVar("T")
+__all__ = ["LineTurntable", "LinkStats"]
 
 
-@dataclass
-class LinkStats:
-    requests: int = 0
-    timeouts: int = 0
-    protocol_errors: int = 0
-    reconnects: int = 0
-    late_replies: int = 0     # replies to timed-out attempts, read and dropped
-
-
-class LineTurntable(Turntable):
+class LineTurntable(LineRequests, Turntable):
     """A turntable whose controller speaks one request line -> one reply line."""
 
-    terminator = b"\r\n"
+    link_errors = TURNTABLE_LINK_ERRORS
 
     def __init__(self, transport: ByteTransport | str, limits: TurntableLimits | None = None,
                  clock: Clock = SYSTEM_CLOCK, timeout_s: float = 0.5, retries: int = 2):
-        super().__init__(limits, clock)
-        if timeout_s <= 0 or retries < 0:
-            raise TurntableConfigError(f"timeout_s must be positive and retries >= 0, got {timeout_s}, {retries}")
-        self.transport = open_transport(transport) if isinstance(transport, str) else transport
-        self.channel = LineChannel(self.transport)
-        self.timeout_s, self.retries = timeout_s, retries
-        self.stats = LinkStats()
-
-    @property
-    def url(self) -> str:
-        return self.transport.url
-
-    def _open(self) -> None:
-        try:
-            self.transport.open()
-        except ConnectionError as exc:
-            raise TurntableConnectionError(f"{self.dialect}: {exc}") from exc
-        self.channel.discard_input()
+        Turntable.__init__(self, limits, clock)
+        self._setup_link(transport, timeout_s, retries)
 
     def _close(self) -> None:
         self.transport.close()
-
-    def _transact(self, request: bytes, parse: Callable[[bytes], T]) -> T:
-        """Send `request` (without terminator) and return `parse(reply line)`, retrying as above."""
-        last: TurntableError | None = None
-        unanswered = 0       # attempts of this request that timed out: a slow controller still answers them
-        for attempt in range(self.retries + 1):
-            self.stats.requests += 1
-            try:
-                if not self.transport.is_open:
-                    self.stats.reconnects += 1
-                    self._open()
-                elif attempt:
-                    self.channel.discard_input()
-                self.channel.write_line(request, self.terminator)
-                line = self.channel.read_line(self.timeout_s)
-            except ConnectionError as exc:
-                self.transport.close()
-                last = TurntableConnectionError(f"{self.dialect} link {self.url} lost: {exc}")
-                last.__cause__ = exc
-                continue
-            except TurntableConnectionError as exc:
-                last = exc
-                continue
-            if line is None:
-                self.stats.timeouts += 1
-                unanswered += 1
-                last = TurntableTimeout(f"{self.dialect}: no reply to {request!r} from {self.url} "
-                                        f"within {self.timeout_s} s ({attempt + 1} attempts)")
-                continue
-            if unanswered:
-                # `line` answers the first attempt still owed a reply (replies come in order);
-                # the replies to the later attempts would answer the next calls
-                self._drop_late_replies(unanswered)
-            try:
-                return parse(line)
-            except TurntableProtocolError as exc:
-                self.stats.protocol_errors += 1
-                last = exc
-        assert last is not None
-        raise last
-
-    def _drop_late_replies(self, owed: int) -> None:
-        """Read and drop up to `owed` replies, each waited for at most `timeout_s` (a request lost on
-        the way is never answered: its wait ends the drain)."""
-        for _ in range(owed):
-            try:
-                line = self.channel.read_line(self.timeout_s)
-            except ConnectionError:
-                self.transport.close()     # the next call reopens the link
-                return
-            if line is None:
-                return
-            self.stats.late_replies += 1

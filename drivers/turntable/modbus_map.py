@@ -122,10 +122,10 @@ class RegisterMap:
             raise RegisterMapError(f"{source}: a register map must be a table, got {type(d).__name__}")
         known = {"unit", "encoding", "angle_scale_deg", "rate_scale_dps", "word_order", "watchdog_s",
                  "registers", "status_bits", "command_codes", "mode_codes", "fault_codes"}
-        _no_unknown(d, known, source, "")
+        map_no_unknown(d, known, source, "")
         kw: dict[str, Any] = {"source": source}
         if "unit" in d:
-            kw["unit"] = _int(d["unit"], source, "unit", 0, 255)
+            kw["unit"] = map_int(d["unit"], source, "unit", 0, 255)
         for key in ("encoding", "word_order"):
             if key in d:
                 if not isinstance(d[key], str):
@@ -133,27 +133,27 @@ class RegisterMap:
                 kw[key] = d[key].strip().lower()
         for key in ("angle_scale_deg", "rate_scale_dps", "watchdog_s"):
             if key in d:
-                kw[key] = _number(d[key], source, key)
+                kw[key] = map_number(d[key], source, key)
         if "registers" in d:
-            regs = _table(d["registers"], source, "registers")
-            _no_unknown(regs, set(AXIS_REGISTERS) | set(SINGLE_REGISTERS), source, "registers.")
+            regs = map_table(d["registers"], source, "registers")
+            map_no_unknown(regs, set(AXIS_REGISTERS) | set(SINGLE_REGISTERS), source, "registers.")
             for name, value in regs.items():
                 if name in AXIS_REGISTERS:
                     kw[name] = _axis_addresses(value, source, f"registers.{name}")
                 else:
-                    kw[name] = _int(value, source, f"registers.{name}", 0, 65535)
+                    kw[name] = map_int(value, source, f"registers.{name}", 0, 65535)
         for key, names in (("status_bits", STATUS_FLAGS), ("command_codes", COMMANDS), ("mode_codes", MODES)):
             if key in d:
-                table = _table(d[key], source, key)
-                _no_unknown(table, set(names), source, f"{key}.")
+                table = map_table(d[key], source, key)
+                map_no_unknown(table, set(names), source, f"{key}.")
                 current = list(getattr(cls, key))
                 for i, name in enumerate(names):
                     if name in table:
                         hi = 15 if key == "status_bits" else 65535
-                        current[i] = _int(table[name], source, f"{key}.{name}", 0, hi)
+                        current[i] = map_int(table[name], source, f"{key}.{name}", 0, hi)
                 kw[key] = tuple(current)
         if "fault_codes" in d:
-            table = _table(d["fault_codes"], source, "fault_codes")
+            table = map_table(d["fault_codes"], source, "fault_codes")
             texts = []
             for code, text in table.items():
                 try:
@@ -193,23 +193,23 @@ class RegisterMap:
     # -- validation ---------------------------------------------------------------
     def _validate(self) -> None:
         src = self.source
-        _int(self.unit, src, "unit", 0, 255)
+        map_int(self.unit, src, "unit", 0, 255)
         if self.encoding not in ENCODINGS:
             raise RegisterMapError(f"{src}: encoding must be one of {ENCODINGS}, got {self.encoding!r}")
         if self.word_order not in WORD_ORDERS:
             raise RegisterMapError(f"{src}: word_order must be one of {WORD_ORDERS}, got {self.word_order!r}")
         for key in ("angle_scale_deg", "rate_scale_dps"):
-            value = _number(getattr(self, key), src, key)
+            value = map_number(getattr(self, key), src, key)
             if not value > 0:
                 raise RegisterMapError(f"{src}: {key} must be positive, got {value}")
-        watchdog = _number(self.watchdog_s, src, "watchdog_s")
+        watchdog = map_number(self.watchdog_s, src, "watchdog_s")
         if watchdog < 0:
             raise RegisterMapError(f"{src}: watchdog_s must be >= 0 (0 disables), got {watchdog}")
         owner: dict[int, str] = {}
         for name, width in (*AXIS_REGISTERS.items(), *SINGLE_REGISTERS.items()):
             value = getattr(self, name)
             addresses = _axis_addresses(value, src, f"registers.{name}") if name in AXIS_REGISTERS else (
-                (_int(value, src, f"registers.{name}", 0, 65535),))
+                (map_int(value, src, f"registers.{name}", 0, 65535),))
             for k, address in enumerate(addresses):
                 label = f"registers.{name}" + (f"[{k}] ({FRAMES[k]})" if name in AXIS_REGISTERS else "")
                 if address + width - 1 > 65535:
@@ -229,7 +229,7 @@ class RegisterMap:
             if not isinstance(values, tuple) or len(values) != len(names):
                 raise RegisterMapError(f"{src}: {key} needs {len(names)} entries ({', '.join(names)})")
             for name, value in zip(names, values):
-                _int(value, src, f"{key}.{name}", 0, hi)
+                map_int(value, src, f"{key}.{name}", 0, hi)
             if len(set(values)) != len(values):
                 raise RegisterMapError(f"{src}: {key} must be distinct, got {dict(zip(names, values))}")
         if 0 in self.command_codes:
@@ -301,7 +301,7 @@ class RegisterMap:
     def decode_value(self, registers: Sequence[int], kind: str = "angle") -> float:
         """Two registers -> position (deg) or rate (deg/s); `TurntableProtocolError` if malformed."""
         scale = self._scale(kind)
-        words = _check_registers(registers, 2, f"a 32-bit {kind}")
+        words = check_registers(registers, 2, f"a 32-bit {kind}")
         if self.word_order == "little":
             words = words[::-1]
         raw = words[0].to_bytes(2, "big") + words[1].to_bytes(2, "big")
@@ -358,7 +358,7 @@ class RegisterMap:
     def decode_state(self, block: Sequence[int], time_s: float = 0.0) -> TableState:
         """The registers of `state_span` (in order) -> TableState; `TurntableProtocolError` if malformed."""
         start, count = self.state_span
-        words = _check_registers(block, count, "the state block")
+        words = check_registers(block, count, "the state block")
 
         def at(address: int, n: int = 1) -> list[int]:
             return words[address - start:address - start + n]
@@ -464,8 +464,8 @@ def explain_bad_reply(raw: bytes, framing: str, unit: int, function_code: int,
     return TurntableProtocolError(f"garbage instead of a Modbus TCP reply: {quote_bytes(raw, hex_dump=True)}", raw)
 
 
-# -- helpers ------------------------------------------------------------------------
-def _check_registers(registers: Sequence[int], count: int, what: str) -> list[int]:
+# -- helpers (also the chamber's register map's) ------------------------------------------
+def check_registers(registers: Sequence[int], count: int, what: str) -> list[int]:
     try:
         words = list(registers)
     except TypeError as exc:
@@ -478,19 +478,19 @@ def _check_registers(registers: Sequence[int], count: int, what: str) -> list[in
     return words
 
 
-def _no_unknown(d: Mapping[str, Any], known: set[str], source: str, prefix: str) -> None:
+def map_no_unknown(d: Mapping[str, Any], known: set[str], source: str, prefix: str) -> None:
     for key in d:
         if key not in known:
             raise RegisterMapError(f"{source}: unknown key {prefix}{key} (known: {', '.join(sorted(known))})")
 
 
-def _table(value: Any, source: str, key: str) -> Mapping[str, Any]:
+def map_table(value: Any, source: str, key: str) -> Mapping[str, Any]:
     if not isinstance(value, Mapping):
         raise RegisterMapError(f"{source}: {key} must be a table, got {value!r}")
     return value
 
 
-def _int(value: Any, source: str, key: str, lo: int, hi: int) -> int:
+def map_int(value: Any, source: str, key: str, lo: int, hi: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise RegisterMapError(f"{source}: {key} must be an integer, got {value!r}")
     if not lo <= value <= hi:
@@ -498,7 +498,7 @@ def _int(value: Any, source: str, key: str, lo: int, hi: int) -> int:
     return value
 
 
-def _number(value: Any, source: str, key: str) -> float:
+def map_number(value: Any, source: str, key: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise RegisterMapError(f"{source}: {key} must be a finite number, got {value!r}")
     return float(value)
@@ -507,10 +507,11 @@ def _number(value: Any, source: str, key: str) -> float:
 def _axis_addresses(value: Any, source: str, key: str) -> tuple[int, int, int]:
     if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) or len(value) != 3:
         raise RegisterMapError(f"{source}: {key} must be three addresses (outer, middle, inner), got {value!r}")
-    outer, middle, inner = (_int(v, source, f"{key}[{k}]", 0, 65535) for k, v in enumerate(value))
+    outer, middle, inner = (map_int(v, source, f"{key}[{k}]", 0, 65535) for k, v in enumerate(value))
     return outer, middle, inner
 
 
 __all__ = ["RegisterMap", "RegisterMapError", "EXCEPTION_NAMES", "exception_name", "axis_mask", "mask_axes",
-           "contiguous_runs", "crc16", "explain_bad_reply", "MAX_READ_REGISTERS"]
+           "contiguous_runs", "crc16", "explain_bad_reply", "MAX_READ_REGISTERS", "check_registers", "map_int",
+           "map_number", "map_table", "map_no_unknown"]
 

@@ -1,0 +1,94 @@
+"""The `[chamber]` section of a bench configuration: the thermal chamber's controller, limits and safe setpoint.
+
+    [chamber]
+    url = "sim"                  # or tcp://..., a serial device, modbus+tcp://..., modbus+rtu://...
+    dialect = "ascii"            # ascii | modbus (drivers/CHAMBER.md)
+    timeout_s = 1.0
+    retries = 2
+    poll_s = 1.0
+    safe_setpoint_c = 23.0       # on abort or fault the chamber is sent here; absent: it is stopped
+    [chamber.limits]
+    min_setpoint_c = -40.0
+    max_setpoint_c = 85.0
+    max_ramp_c_per_min = 5.0
+    # modbus: register_map = "file.toml" or an inline [chamber.modbus] table (drivers/CHAMBER.md)
+
+The section is optional (a configuration without it has no chamber; `BenchConfig.chamber` is None). Every problem is one
+`ConfigError` ``file:line: key: message``, as for the rest of the file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from bench.config.reader import Table, show, suggest
+from bench.config.register_map import CHAMBER_MAP, register_map_value
+from drivers.chamber import DIALECTS, ChamberLimits, check_url_dialect
+from drivers.chamber.base import ABSOLUTE_MAX_C, ABSOLUTE_MIN_C
+from drivers.chamber.modbus_map import ChamberRegisterMap
+from drivers.errors import ChamberConfigError
+
+#: chamber url: the simulated chamber, served over loopback in the configured dialect
+SIM_URL = "sim"
+CHAMBER_KEYS = ("url", "dialect", "timeout_s", "retries", "poll_s", "safe_setpoint_c", "limits", "register_map",
+                "modbus")
+LIMIT_KEYS = ("min_setpoint_c", "max_setpoint_c", "max_ramp_c_per_min")
+MAX_RAMP_C_PER_MIN = 100.0
+
+
+@dataclass(frozen=True)
+class ChamberConfig:
+    """[chamber]: the controller, its limits, the safe setpoint and (Modbus) register map."""
+
+    url: str
+    dialect: str
+    timeout_s: float
+    retries: int
+    poll_s: float
+    limits: ChamberLimits
+    safe_setpoint_c: float | None            # None: on abort or fault the chamber is stopped
+    register_map: ChamberRegisterMap | None  # modbus only; None = the documented default map
+
+    @property
+    def is_sim(self) -> bool:
+        return self.url == SIM_URL
+
+    def driver_options(self) -> dict:
+        """Keyword arguments of `drivers.chamber.open_chamber` (besides url and dialect)."""
+        options: dict = {"limits": self.limits, "timeout_s": self.timeout_s, "retries": self.retries}
+        if self.register_map is not None:
+            options["register_map"] = self.register_map
+        return options
+
+
+def _limits(t: Table) -> ChamberLimits:
+    default = ChamberLimits()
+    low, high = (t.number(key, getattr(default, key), ge=ABSOLUTE_MIN_C, le=ABSOLUTE_MAX_C, unit="degC")
+                 for key in ("min_setpoint_c", "max_setpoint_c"))
+    if not low < high:
+        raise t.error("max_setpoint_c", f"must be above min_setpoint_c ({low:g} degC), got {high:g}")
+    ramp = t.number("max_ramp_c_per_min", default.max_ramp_c_per_min, gt=0, le=MAX_RAMP_C_PER_MIN, unit="degC/min")
+    return ChamberLimits(low, high, ramp)
+
+
+def chamber_config(t: Table) -> ChamberConfig:
+    """The checked [chamber] section (its url and dialect are required)."""
+    url = t.string("url", nonempty=True).strip()
+    dialect = t.string("dialect", nonempty=True).strip().lower()
+    if dialect not in DIALECTS:
+        raise t.error("dialect", f"unknown chamber dialect {show(dialect)}" + suggest(dialect, DIALECTS))
+    if url != SIM_URL:
+        try:
+            check_url_dialect(url, dialect, dialect_label="chamber.dialect")
+        except ChamberConfigError as exc:
+            raise t.error("url", str(exc)) from exc
+    timeout_s = t.number("timeout_s", 1.0, ge=0.001, le=60.0, unit="s")
+    retries = t.integer("retries", 2, ge=0, le=10)
+    poll_s = t.number("poll_s", 1.0, ge=0.01, le=600.0, unit="s")
+    limits = _limits(t.table("limits", LIMIT_KEYS))
+    safe = t.number("safe_setpoint_c", None, ge=limits.min_setpoint_c, le=limits.max_setpoint_c, unit="degC")
+    register_map = register_map_value(t, dialect, "chamber", CHAMBER_MAP)
+    return ChamberConfig(url, dialect, timeout_s, retries, poll_s, limits, safe, register_map)
+
+
+__all__ = ["CHAMBER_KEYS", "ChamberConfig", "SIM_URL", "chamber_config"]

@@ -1,0 +1,222 @@
+"""The simulated chamber served in both dialects (drivers/CHAMBER.md): ASCII lines and Modbus TCP/RTU.
+
+`ChamberAsciiHandler(chamber)` is a `LineServer` handler: one request line in, one reply
+line out, parsed with the client's own codec. `ChamberModbusServer(chamber, map)` serves
+the register map (reads computed from the live state, writes executed as commands).
+Refusals: `SimChamberError` ERR_RANGE -> `NA:OUT OF RANGE` / exception 03 illegal data
+value; ERR_ALARM -> `NA:ALARM ACTIVE` / exception 04 server device failure; an unknown
+command -> `NA:COMMAND ERR` / 03; a write to a read-only register -> 02.
+
+Wire faults (`chamber.faults`, one per reply) as the table simulator's: timeout (the
+command executes, no reply), garbage (junk instead of the reply), checksum (ASCII: one
+character's top bit flipped, as a parity error would; Modbus: a bad CRC or MBAP length),
+exception (not executed; `NA:INJECTED <code>` or Modbus exception `exception_code`), late
+(ASCII: the reply comes just before the next one).
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Callable
+
+from pymodbus.constants import ExcCodes
+from pymodbus.simulator import DataType, SimData, SimDevice
+
+from bench.sim.chamber import ERR_ALARM, ERR_RANGE, SimChamber, SimChamberError
+from bench.sim.modbus_serving import ModbusServing
+from bench.sim.serve import LineServer
+from drivers.chamber import ascii_codec as codec
+from drivers.chamber.modbus_map import READ_ONLY, ChamberRegisterMap
+from drivers.errors import ChamberError
+
+GARBAGE = b"\x00\xfe#?%garbage\x1b"
+NA_FOR_ERROR = {ERR_RANGE: codec.NA_RANGE, ERR_ALARM: codec.NA_ALARM}
+EXCEPTION_FOR_ERROR = {ERR_RANGE: ExcCodes.ILLEGAL_VALUE, ERR_ALARM: ExcCodes.DEVICE_FAILURE}
+
+
+class ChamberAsciiHandler:
+    """`(line: bytes) -> bytes | None`: the ASCII face of a SimChamber."""
+
+    def __init__(self, chamber: SimChamber):
+        self.chamber = chamber
+
+    def __call__(self, line: bytes) -> bytes | None:
+        held = self.chamber.faults.release()     # replies a `late` fault held back go first
+        return (held + (self._faulty_reply(line) or b"")) or None
+
+    def _faulty_reply(self, line: bytes) -> bytes | None:
+        faults = self.chamber.faults
+        fault = faults.take()
+        if fault == "exception":
+            return codec.format_na(f"INJECTED {faults.exception_code}")
+        reply = self.reply(line)
+        if fault == "timeout":
+            return None
+        if fault == "late":
+            faults.hold(reply)
+            return None
+        if fault == "garbage":
+            return GARBAGE + codec.TERMINATOR
+        if fault == "checksum":
+            body = bytearray(reply[:-2])
+            body[len(body) // 2] ^= 0x80
+            return bytes(body) + codec.TERMINATOR
+        return reply
+
+    def reply(self, line: bytes) -> bytes:
+        """The reply to one request line, with its terminator (no faults)."""
+        try:
+            request = codec.parse_request(line)
+        except codec.RequestError as exc:
+            return codec.format_na(exc.reason)
+        c = self.chamber
+        try:
+            if request.name == "MON?":
+                return codec.format_monitor(c.state())
+            if request.name == "TEMP?":
+                state = c.state()
+                return (f"{codec.format_temperature(state.temperature_c)},"
+                        f"{codec.format_temperature(state.setpoint_c)}").encode("ascii") + codec.TERMINATOR
+            if request.name == "RAMP?":
+                return codec.format_temperature(c.state().ramp_c_per_min or 0.0).encode("ascii") + codec.TERMINATOR
+            if request.name == "MODE?":
+                return (b"RUN" if c.state().running else b"STOP") + codec.TERMINATOR
+            if request.name == "ALARM?":
+                return codec.format_alarm_fields(c.state().alarms).encode("ascii") + codec.TERMINATOR
+            if request.name == "TEMP,S":
+                assert isinstance(request.value, float)
+                c.set_setpoint(request.value)
+            elif request.name == "RAMP":
+                assert isinstance(request.value, float)
+                c.set_ramp(request.value)
+            elif request.name == "MODE":
+                (c.run if request.value == "RUN" else c.stop)()
+            elif request.name == "ALARM,CLEAR":
+                c.clear_alarms()
+        except SimChamberError as exc:
+            return codec.format_na(NA_FOR_ERROR.get(exc.code, codec.NA_COMMAND))
+        return codec.format_ok(line)
+
+
+class _Refused(Exception):
+    def __init__(self, code: ExcCodes, message: str):
+        super().__init__(message)
+        self.code = code
+
+
+class ChamberModbusServer(ModbusServing):
+    """The simulated chamber as a Modbus server (TCP listeners and RTU ptys, `ModbusServing`)."""
+
+    def __init__(self, chamber: SimChamber, register_map: ChamberRegisterMap | None = None, **kwargs):
+        super().__init__(**kwargs)
+        self.chamber = chamber
+        self.wire_faults = chamber.faults
+        self.map = register_map if register_map is not None else ChamberRegisterMap.default()
+        self.last_refusal = ""
+        self._names = self.map.register_names()
+        self._lock = threading.RLock()
+        self._device = self._build_device()
+
+    def _build_device(self) -> SimDevice:
+        # one register space from the lowest address to the highest, so a read may span the unused registers
+        # between two (they read 0); unused and read-only registers refuse writes (02 illegal data address)
+        def read_only(address: int) -> bool:
+            name = self._names.get(address)
+            return name is None or name in READ_ONLY
+
+        lo, hi = min(self._names), max(self._names)
+        blocks: list[SimData] = []
+        start = lo
+        for address in range(lo, hi + 2):
+            if address == hi + 1 or (address > start and read_only(address) != read_only(start)):
+                blocks.append(SimData(start, count=address - start, values=0, datatype=DataType.REGISTERS,
+                                      readonly=read_only(start)))
+                start = address
+        return SimDevice(self.map.unit, simdata=blocks, action=self._action)
+
+    async def _action(self, function_code, start_address, address, count, registers, set_values):
+        try:
+            with self._lock:
+                if set_values is not None:
+                    for i, value in enumerate(set_values):
+                        self._write(address + i, int(value))
+                    return None
+                image = self.map.encode_state(self.chamber.state())
+                for i in range(count):
+                    registers[address - start_address + i] = image.get(address + i, 0)
+                return None
+        except _Refused as exc:
+            self.last_refusal = str(exc)
+            return exc.code
+        except (ChamberError, ValueError) as exc:
+            self.last_refusal = str(exc)
+            return ExcCodes.ILLEGAL_VALUE
+
+    def _write(self, address: int, value: int) -> None:
+        name, m, c = self._names.get(address), self.map, self.chamber
+        actions: dict[str, Callable[[], None]] = {
+            "setpoint": lambda: c.set_setpoint(m.decode_temperature(value)),
+            "ramp_rate": lambda: c.set_ramp(m.decode_ramp(value)),
+            "command": lambda: {"run": c.run, "stop": c.stop, "clear_alarms": c.clear_alarms}[
+                m.decode_command(value)](),
+        }
+        if name not in actions:
+            raise _Refused(ExcCodes.ILLEGAL_ADDRESS, f"register {address} ({name or 'unused'}) is not writable")
+        try:
+            actions[name]()
+        except SimChamberError as exc:
+            raise _Refused(EXCEPTION_FOR_ERROR.get(exc.code, ExcCodes.ILLEGAL_VALUE), str(exc)) from exc
+
+    def __enter__(self) -> "ChamberModbusServer":
+        return self
+
+
+def serve_chamber_ascii(chamber: SimChamber, tcp: bool = True, pty: bool = False,
+                        port: int = 0) -> tuple[LineServer, dict[str, str]]:
+    """Serve `chamber` in the ASCII dialect; returns the server (close it) and its URLs
+    ({'tcp': 'tcp://127.0.0.1:port', 'pty': '/dev/pts/N'} as requested)."""
+    server = LineServer(ChamberAsciiHandler(chamber))
+    urls = {}
+    try:
+        if tcp:
+            host, bound = server.listen_tcp("127.0.0.1", port)
+            urls["tcp"] = f"tcp://{host}:{bound}"
+        if pty:
+            urls["pty"] = server.open_pty()
+    except OSError:
+        server.close()
+        raise
+    return server, urls
+
+
+
+
+def serve_chamber(chamber: SimChamber, dialect: str, where: str = "tcp", host: str = "127.0.0.1", port: int = 0,
+                  register_map: ChamberRegisterMap | None = None) -> tuple[Callable[[], None], str]:
+    """Serve `chamber` in `dialect` ('ascii' or 'modbus') on TCP (`where` 'tcp', at host:port) or a new pty
+    (`where` 'pty'; Modbus RTU for modbus); returns (close, the URL a client opens)."""
+    if dialect == "modbus":
+        modbus = ChamberModbusServer(chamber, register_map)
+        try:
+            if where == "pty":
+                return modbus.close, f"modbus+rtu://{modbus.start_rtu_pty()}?baud=115200"
+            bound_host, bound_port = modbus.start_tcp(host, port)
+        except BaseException:
+            modbus.close()
+            raise
+        return modbus.close, f"modbus+tcp://{bound_host}:{bound_port}"
+    if dialect != "ascii":
+        raise ValueError(f"no simulated chamber for dialect {dialect!r} (ascii, modbus)")
+    server = LineServer(ChamberAsciiHandler(chamber))
+    try:
+        if where == "pty":
+            return server.close, server.open_pty()
+        bound_host, bound_port = server.listen_tcp(host, port)
+    except BaseException:
+        server.close()
+        raise
+    return server.close, f"tcp://{bound_host}:{bound_port}"
+
+
+__all__ = ["ChamberAsciiHandler", "ChamberModbusServer", "EXCEPTION_FOR_ERROR", "GARBAGE", "NA_FOR_ERROR",
+           "serve_chamber", "serve_chamber_ascii"]
