@@ -84,6 +84,8 @@ class Damage:
     start_ns: int | None = None  # log-time range of a lost chunk, when its header was readable
     end_ns: int | None = None
     lost: dict[str, int] = field(default_factory=dict)   # topic -> messages lost, when known
+    chunks: int = 1              # consecutive chunks refused for the same reason, told as one
+    last_offset: int = 0         # byte offset of the last of them
 
     def describe(self) -> str:
         """One line (whatever the reason quotes from the file)."""
@@ -96,6 +98,9 @@ class Damage:
         if self.kind == "chunk":
             what = (", ".join(f"{n} on {t}" for t, n in sorted(self.lost.items())) if self.lost
                     else "count unknown")
+            if self.chunks > 1:
+                return (f"{self.chunks} chunks at bytes {self.offset}..{self.last_offset}{where}, each: "
+                        f"{self.reason}; their messages lost ({what})")
             return f"chunk at byte {self.offset}{where}: {self.reason}; its messages lost ({what})"
         if self.kind == "truncated":
             return f"truncated after byte {self.offset}: {self.reason}{where}"
@@ -306,6 +311,7 @@ class _Walker:
         self.pending_where: tuple | None = None   # the same of the pending chunk
         self.w = Walk(size=len(buf), budget=InflateBudget(inflate_budget(len(buf))))
         self.lost_chunk: Damage | None = None   # message index records after a lost chunk count its messages
+        self.last_refused: Damage | None = None   # the refusal the next refused chunk joins, if nothing came between
         # a good chunk waiting for its message index records: (offset, start, end, data or still compressed)
         self.pending: tuple[int, int, int, bytes | DeferredChunk] | None = None
         self.pending_index: list[tuple[int, int]] = []
@@ -474,7 +480,8 @@ class _Walker:
                 self.pending_index.append((body, end))
             elif self.lost_chunk is not None and end - body >= 6:
                 ch, n = struct.unpack_from("<HI", buf, body)
-                self.lost_chunk.lost[w.topic(ch)] = n // 16
+                lost = self.lost_chunk.lost   # (refused chunks told as one add up)
+                lost[w.topic(ch)] = lost.get(w.topic(ch), 0) + n // 16
         elif op == OP_METADATA:
             m = Metadata.read(body_stream(buf, body, end))
             w.metadata[m.name] = m.metadata
@@ -499,10 +506,26 @@ class _Walker:
         if op != OP_MESSAGE_INDEX and op != OP_CHUNK:
             self.lost_chunk = None
 
+    def refuse(self, pos: int, reason: str, start: int, end: int, joinable: Damage | None) -> None:
+        """A chunk refused by the limits: damage, told with the refused chunks right before it when they were
+        refused for the same reason (a file of a million bomb chunks is one line, not a million)."""
+        w = self.w
+        last = w.damage[-1] if w.damage else None
+        if last is not None and last is joinable and last.reason == reason:
+            last.chunks += 1
+            last.last_offset = pos
+            last.start_ns = min(last.start_ns, start) if last.start_ns is not None else None
+            last.end_ns = max(last.end_ns, end) if last.end_ns is not None else None
+            self.lost_chunk = self.last_refused = last
+            return
+        w.damage.append(Damage("chunk", pos, reason, start, end, last_offset=pos))
+        self.lost_chunk = self.last_refused = w.damage[-1]
+
     def chunk(self, pos: int, body: int, length: int) -> bool:
         """Read one chunk record; False when its framing is broken (the caller re-syncs)."""
         buf, w = self.buf, self.w
         self.lost_chunk = None
+        joinable, self.last_refused = self.last_refused, None
         f = chunk_fields(buf, body, length)
         if f is None:
             w.damage.append(Damage("chunk", pos, "chunk header inconsistent"))
@@ -517,8 +540,7 @@ class _Walker:
             # (`ChannelData.inflate_deferred`); with a `source`, nothing is kept: it is read again when needed
             refused = w.budget.take(0 if self.source is not None else dlen)
             if refused is not None:
-                w.damage.append(Damage("chunk", pos, refused, start, end))
-                self.lost_chunk = w.damage[-1]
+                self.refuse(pos, refused, start, end, joinable)
                 return True
             ch, t, o = deferred
             payload = None if self.source is not None else bytes(buf[dstart:dstart + dlen])
@@ -528,8 +550,7 @@ class _Walker:
             return True
         refused = w.budget.take(usize)
         if refused is not None:
-            w.damage.append(Damage("chunk", pos, refused, start, end))
-            self.lost_chunk = w.damage[-1]
+            self.refuse(pos, refused, start, end, joinable)
             return True
         done = self.prefetch.take(pos, f) if self.prefetch is not None else None
         if done is not None:
