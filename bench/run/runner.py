@@ -131,7 +131,7 @@ class BenchRun:
                 self.world = self._stack.enter_context(SimWorld(
                     config.site.site, config.sim.imu, config.sim.noise, black_box_rad=config.sim.black_box_rad,
                     dialect=config.table.dialect, imu_rate_hz=config.imu.rate_hz, layout=config.imu.layout,
-                    seed=config.sim.seed, register_map=config.table.register_map))
+                    seed=config.sim.seed, register_map=config.table.register_map, imu_thermal=config.sim.thermal))
                 self.clock, url = self.world.clock, self.world.table_url
                 bus: can.BusABC | dict = self.world.receiver_bus()
             else:
