@@ -18,12 +18,15 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from bench.calibration.compensation import MAX_RESULT_BYTES
 from bench.errors import InputError
 from bench.model.families import RESULT_UNITS, canonical_names, family_of
 from bench.model.result import CalibrationResult
@@ -173,11 +176,40 @@ class ThermalModel:
             data = json.loads(text)
         except json.JSONDecodeError as exc:
             raise ThermalFormatError(f"{origin}:{exc.lineno}: invalid JSON: {exc.msg}") from exc
+        except RecursionError as exc:
+            raise ThermalFormatError(f"{origin}: JSON nested too deeply") from exc
         return cls.from_json(data, origin)
 
     @classmethod
     def load(cls, path: str | Path) -> "ThermalModel":
-        return cls.loads(Path(path).read_text(encoding="utf-8"), str(path))
+        """A thermal file from outside, bounded as a result file is (`ThermalFormatError` in one line; OSError
+        when it cannot be read)."""
+        return cls.loads(read_bounded_text(str(path)), str(path))
+
+
+def read_bounded_text(path: str) -> str:
+    """The UTF-8 text of a regular file of at most `MAX_RESULT_BYTES` (`ThermalFormatError` otherwise)."""
+    info = os.stat(path)
+    if not stat.S_ISREG(info.st_mode):
+        raise ThermalFormatError(f"{path}: not a regular file")
+    if info.st_size > MAX_RESULT_BYTES:
+        raise ThermalFormatError(f"{path}: {info.st_size} bytes, more than a thermal file holds "
+                                 f"(at most {MAX_RESULT_BYTES})")
+    with open(path, "rb") as f:
+        data = f.read(MAX_RESULT_BYTES + 1)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ThermalFormatError(f"{path}: not UTF-8 (byte {exc.start})") from exc
+
+
+def is_thermal_text(text: str) -> bool:
+    """Whether `text` is JSON of a thermal file (any version), to tell it from a calibration result."""
+    try:
+        data = json.loads(text)
+    except (json.JSONDecodeError, RecursionError):
+        return False
+    return isinstance(data, dict) and data.get("format") == THERMAL_FORMAT
 
 
 def fit_thermal_model(points: list[ThermalPoint], reference_c: float = 25.0) -> ThermalModel:
@@ -215,4 +247,5 @@ def fit_thermal_model(points: list[ThermalPoint], reference_c: float = 25.0) -> 
 
 
 __all__ = ["MODEL_FORMAT", "MODEL_VERSION", "THERMAL_FORMAT", "THERMAL_VERSION", "ThermalFormatError",
-           "ThermalModel", "ThermalPoint", "fit_thermal_model", "point_from_result"]
+           "ThermalModel", "ThermalPoint", "fit_thermal_model", "is_thermal_text", "point_from_result",
+           "read_bounded_text"]
