@@ -32,11 +32,11 @@ def sim_thermal(t: Table, family_ranges: dict[str, tuple[float, str]]) -> ImuThe
         if key in DIAGONAL_NAMES:
             raise t.error(key, "a direction-cosine diagonal has no polynomial: it follows from the row's "
                                "off-diagonals (unit rows at every temperature)")
-    temps = {"ge": MIN_TEMPERATURE_C, "le": MAX_TEMPERATURE_C, "unit": "degC"}
-    reference_c = t.number("reference_c", 25.0, **temps)
+    low, high = MIN_TEMPERATURE_C, MAX_TEMPERATURE_C
+    reference_c = t.number("reference_c", 25.0, ge=low, le=high, unit="degC")
     time_constant_s = t.number("time_constant_s", 600.0, gt=0, le=MAX_TIME_CONSTANT_S, unit="s")
-    ambient_c = t.number("ambient_c", reference_c, **temps)
-    initial_c = t.number("initial_c", None, **temps)
+    ambient_c = t.number("ambient_c", reference_c, ge=low, le=high, unit="degC")
+    initial_c = t.number("initial_c", None, ge=low, le=high, unit="degC")
     polynomials: dict[str, tuple[float, ...]] = {}
     for name in THERMAL_NAMES:
         if not t.has(name):

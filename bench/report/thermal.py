@@ -53,7 +53,7 @@ def _truth_z(model: ThermalModel, name: str) -> str:
     fit = model.fits[name]
     low, high = model.range_c
     temps = np.linspace(low, high, 15)
-    z = [(fit.value(t) - model.truth_at(name, t)) / fit.sigma_at(t) for t in temps]   # type: ignore[operator]
+    z = [(fit.value(t) - model.truth_at(name, t)) / fit.sigma_at(t) for t in temps]
     return f"{max(z, key=abs):+.2f}"
 
 

@@ -69,10 +69,10 @@ class ImuSamples:
     @classmethod
     def concatenate(cls, blocks: list["ImuSamples"]) -> "ImuSamples":
         """Join consecutive blocks of one IMU (at least one block)."""
-        temps = [b.temperature_c for b in blocks]
+        temps = [b.temperature_c for b in blocks if b.temperature_c is not None]
         return cls(np.concatenate([b.counter for b in blocks]), np.concatenate([b.time_s for b in blocks]),
                    np.concatenate([b.gyro_counts for b in blocks]), np.concatenate([b.acc_counts for b in blocks]),
-                   blocks[0].rate_hz, None if any(t is None for t in temps) else np.concatenate(temps))
+                   blocks[0].rate_hz, np.concatenate(temps) if len(temps) == len(blocks) else None)
 
 
 class _GaussMarkov:

@@ -165,7 +165,7 @@ class ThermalModel:
             raise ThermalFormatError(f"{origin}: no points")
         truth = data.get("sim_truth")
         return cls(float(reference), fits, points, [str(n) for n in data.get("notes") or []],
-                   data.get("run") if isinstance(data.get("run"), dict) else {},
+                   run if isinstance(run := data.get("run"), dict) else {},
                    None if not isinstance(truth, dict) else {k: [float(c) for c in v]
                                                              for k, v in truth.get("polynomials", {}).items()},
                    None if not isinstance(truth, dict) else float(truth["reference_c"]))

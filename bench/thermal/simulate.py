@@ -11,7 +11,7 @@ as it takes result files from disk.
 from __future__ import annotations
 
 import dataclasses
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -60,8 +60,8 @@ def simulate_point(config: BenchConfig, thermal: ImuThermal, temperature_c: floa
                         acc_bias_stability=(acc_ug or 0.0) * MICRO_G)
     assert imu.case is not None
     summary = imu.case.summary() or {"mean_c": float(temperature_c)}
-    temperature = {**summary, "source": "simulated IMU case", "ambient_c": float(temperature_c)}
-    truth = thermal.coefficients_at(config.sim.imu, temperature["mean_c"])
+    temperature: dict[str, Any] = {**summary, "source": "simulated IMU case", "ambient_c": float(temperature_c)}
+    truth = thermal.coefficients_at(config.sim.imu, summary["mean_c"])
     result = calibration.to_result({"mode": "simulator (in memory, soaked)", "seed": seed,
                                     "temperature_setpoint_c": float(temperature_c)}, sim_truth=truth)
     result.temperature = temperature
