@@ -23,7 +23,8 @@ MAX_TIME_CONSTANT_S = 1e6
 #: a polynomial term may move its coefficient by at most its range over this span
 _SPAN_C = 100.0
 _SETTINGS = ("reference_c", "time_constant_s", "ambient_c", "initial_c")
-THERMAL_KEYS = _SETTINGS + THERMAL_NAMES
+#: the keys of the table (a diagonal is accepted here to be refused with its reason)
+THERMAL_KEYS = _SETTINGS + THERMAL_NAMES + tuple(sorted(DIAGONAL_NAMES))
 
 
 def sim_thermal(t: Table, family_ranges: dict[str, tuple[float, str]]) -> ImuThermal:
