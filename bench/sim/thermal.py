@@ -60,6 +60,10 @@ class CaseTemperature:
         h = np.diff(ts)
         if np.any(h <= 0):
             raise ValueError("case temperature times must increase")
+        if not callable(self._ambient):       # a constant ambient: the closed form, exact at any step
+            u0 = float(self._ambient)
+            out = u0 + (self.temperature_c - u0) * np.exp(-(times - self.time_s) / self.time_constant_s)
+            return self._moved(times, out)
         u = self.ambient_at(ts)
         tau = self.time_constant_s
         e = np.exp(-h / tau)
@@ -73,6 +77,9 @@ class CaseTemperature:
             for k in range(len(g)):
                 temp = e[k] * temp + g[k]
                 out[k] = temp
+        return self._moved(times, out)
+
+    def _moved(self, times: np.ndarray, out: np.ndarray) -> np.ndarray:
         self.time_s, self.temperature_c = float(times[-1]), float(out[-1])
         self.count += len(out)
         self.total += float(out.sum())

@@ -27,7 +27,7 @@ from bench.thermal.model import ThermalModel, ThermalPoint, fit_thermal_model
 
 #: the thermal behaviour `bench thermal sim` gives the simulated IMU when the configuration has no
 #: [sim.imu.thermal]: of the size a navigation-grade FOG IMU shows (bias some 0.002 deg/h and 5 ug per degC,
-#: scale factors 10-20 ppm per degC, axes 1 to 2 arcsec per degC), of degrees 0 to 3
+#: scale factors 5-20 ppm per degC, axes 1 to 2 arcsec per degC), of degrees 0 to 3
 DEMO_THERMAL = ImuThermal(reference_c=25.0, time_constant_s=900.0, polynomials={
     "Kg_x": (0.36,), "Kg_y": (-0.25, 0.004), "Kg_z": (0.18,),
     "D0_x": (0.002, 2.0e-5), "D0_y": (-0.0015,), "D0_z": (0.001, 0.0, 2.0e-6),
@@ -62,8 +62,10 @@ def simulate_point(config: BenchConfig, thermal: ImuThermal, temperature_c: floa
     summary = imu.case.summary() or {"mean_c": float(temperature_c)}
     temperature: dict[str, Any] = {**summary, "source": "simulated IMU case", "ambient_c": float(temperature_c)}
     truth = thermal.coefficients_at(config.sim.imu, summary["mean_c"])
+    identity = config.imu.identity
     result = calibration.to_result({"mode": "simulator (in memory, soaked)", "seed": seed,
-                                    "temperature_setpoint_c": float(temperature_c)}, sim_truth=truth)
+                                    "temperature_setpoint_c": float(temperature_c),
+                                    "imu": {"model": identity.model, "serial": identity.serial}}, sim_truth=truth)
     result.temperature = temperature
     return ThermalPoint(f"sim {temperature_c:g} degC", temperature, result)
 
