@@ -18,11 +18,12 @@ import tomllib
 import pytest
 
 from bench.config.load import SIM_CONFIG_TOML, parse_config
+from bench.model.result import CalibrationResult
 from bench.model.thermal import DIAGONAL_NAMES
 from bench.thermal.export import CSV_COLUMNS
 from bench.thermal.model import ThermalModel
 from bench.thermal.simulate import simulate_thermal
-from tests.helpers.run import cli
+from tests.helpers.run import cli, config_text, only_file
 
 THERMAL_TOML = """
 [sim.imu.thermal]
@@ -205,3 +206,29 @@ def test_cli_errors_are_one_line(tmp_path):
     assert rc == 2 and "r.json: the result records no IMU temperature" in stderr
     rc, _, stderr = cli(["thermal", "fit", str(tmp_path / "missing.json"), "--out", str(tmp_path / "o")])
     assert rc == 2 and "missing.json: cannot read" in stderr
+
+
+def test_bench_run_and_bench_solve_record_the_imu_temperature_and_thermal_fit_takes_the_results(tmp_path):
+    """The IMU's case warms from 30 towards a 40 degC ambient during a short `bench run --sim`; the result
+    carries the temperatures its frames reported (0.01 degC resolution), and so does a re-solve."""
+    config = tmp_path / "bench.toml"
+    config.write_text(config_text() + "\n[sim.imu.thermal]\nambient_c = 40.0\ninitial_c = 30.0\n"
+                                      "time_constant_s = 60.0\nKg_x = [0.36]\n", encoding="utf-8")
+    rc, _, stderr = cli(["run", "--config", str(config), "--out", str(tmp_path / "run"), "--quiet"])
+    assert rc == 0, stderr
+    result = CalibrationResult.load(only_file(tmp_path / "run", "*.result.json"))
+    t = result.temperature
+    assert t is not None and t["source"] == "IMU frames"
+    assert 30.0 <= t["min_c"] < 30.1 and 39.0 < t["max_c"] <= 40.0 and 30.0 < t["mean_c"] < 40.0
+    rc, _, stderr = cli(["solve", str(only_file(tmp_path / "run", "*.mcap")), "--out", str(tmp_path / "solve"),
+                         "--no-html"])
+    assert rc == 0, stderr
+    resolved = CalibrationResult.load(only_file(tmp_path / "solve", "*.result.json"))
+    assert resolved.temperature == t
+    # a result of a run is a thermal point like any other
+    rc, _, stderr = cli(["thermal", "fit", str(only_file(tmp_path / "run", "*.result.json")),
+                         f"{only_file(tmp_path / 'run', '*.result.json')}@-10", "--out", str(tmp_path / "fit"),
+                         "--quiet"])
+    assert rc == 0, stderr
+    model = ThermalModel.load(tmp_path / "fit" / "thermal.json")
+    assert model.range_c == pytest.approx((-10.0, t["mean_c"]))

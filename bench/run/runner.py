@@ -26,6 +26,7 @@ from bench.config.load import BenchConfig
 from bench.errors import BenchError
 from bench.log.reader import read_log
 from bench.log.recorder import CHUNK_RUN_INTERVAL_S, McapRecorder
+from bench.log.temperature import imu_temperature
 from bench.model.result import CalibrationResult
 from bench.noise.from_log import NoiseInputError, analyse_log
 from bench.plan.compiler import CompiledPlan, compile_plan
@@ -303,6 +304,7 @@ class BenchRun:
                     "imu_link": {**receiver.stats.as_dict(),
                                  **(receiver.time_base.as_dict() if receiver.time_base is not None else {})}}
         result = solution.calibration.to_result(run=run_info, sim_truth=config.sim.imu if self.sim else None)
+        result.temperature = imu_temperature(logs, config.imu.layout, config.imu.rate_hz)
         verdict = judge(result, config.acceptance, lost_samples=receiver.stats.lost_samples,
                         quality_failures=judged_failures(failures, config.acceptance))
         result.verdict = verdict.to_json()
