@@ -113,6 +113,9 @@ def test_the_model_fits_every_shared_coefficient_and_notes_the_others(tmp_path):
     assert model.fits["D0_x"].degree == 1
     assert any("K0_y" in n and "r50.json" in n for n in model.notes)
     assert any("Kg_x" in n and "no uncertainty" in n and "r0.json" in n for n in model.notes)
+    fit = model.fits["D0_x"]
+    assert fit.prediction_sigma(0.0) == pytest.approx(np.hypot(fit.sigma_at(0.0), 0.001))
+    assert fit.prediction_sigma(10.0) > fit.sigma_at(10.0)
     # round trip through the file
     path = tmp_path / "thermal.json"
     model.save(path)
@@ -148,3 +151,14 @@ def test_a_bad_thermal_file_is_one_clear_error(mutate, message):
         ThermalModel.loads(json.dumps(data), "t.json")
     with pytest.raises(ThermalFormatError, match="t.json:1: invalid JSON"):
         ThermalModel.loads("{", "t.json")
+
+
+def test_calibrations_of_different_imus_are_refused():
+    points = []
+    for t, serial in ((0.0, "A-1"), (25.0, "A-1"), (50.0, "B-7")):
+        r = _result(t, {"D0_x": 0.1}, {"D0_x": 0.01})
+        r.run = {"imu": {"model": "m", "serial": serial}}
+        points.append(point_from_result(r, f"r{t:g}.json"))
+    with pytest.raises(ThermalFitError, match="different IMUs.*'B-7'"):
+        fit_thermal_model(points)
+    fit_thermal_model(points[:2])

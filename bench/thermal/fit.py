@@ -101,10 +101,6 @@ class CoefficientFit:
         """1-sigma of each polynomial coefficient."""
         return np.sqrt(np.diag(self.covariance))
 
-    @property
-    def range_c(self) -> tuple[float, float]:
-        return float(self.temperatures_c.min()), float(self.temperatures_c.max())
-
     def value(self, temperature_c) -> np.ndarray:
         """The model's value at `temperature_c` (a number or an array)."""
         x = _design(np.atleast_1d(np.asarray(temperature_c, float)) - self.reference_c, self.degree)

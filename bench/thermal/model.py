@@ -212,14 +212,24 @@ def is_thermal_text(text: str) -> bool:
     return isinstance(data, dict) and data.get("format") == THERMAL_FORMAT
 
 
+def _serial(point: ThermalPoint) -> str:
+    imu = point.result.run.get("imu") if isinstance(point.result.run, dict) else None
+    return str(imu.get("serial") or "") if isinstance(imu, dict) else ""
+
+
 def fit_thermal_model(points: list[ThermalPoint], reference_c: float = 25.0) -> ThermalModel:
     """Fit every coefficient the points share (module `bench.thermal.fit`: degree rule, uncertainty).
 
-    A coefficient missing from a point, or without a sigma there, is left out with a note.
+    A coefficient missing from a point, or without a sigma there, is left out with a note; calibrations
+    of IMUs with different serial numbers are refused.
     """
     if len(points) < 2:
         raise ThermalFitError(f"a thermal model needs calibrations at two temperatures at least, got {len(points)}")
     points = sorted(points, key=lambda p: p.temperature_c)
+    serials = {p.label: _serial(p) for p in points if _serial(p)}
+    if len(set(serials.values())) > 1:
+        raise ThermalFitError("the calibrations are of different IMUs: "
+                              + ", ".join(f"{label}: serial {serial!r}" for label, serial in serials.items()))
     temps = np.array([p.temperature_c for p in points])
     if len(np.unique(np.round(temps / SAME_TEMPERATURE_C))) < 2:
         raise ThermalFitError("the calibrations are all at one temperature: nothing to fit in temperature")
