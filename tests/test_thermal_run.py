@@ -195,6 +195,20 @@ def test_the_c_header_compiles_and_evaluates_the_model(model, tmp_path):
         assert float(sigma) == pytest.approx(expected[name][1], rel=1e-9)
 
 
+def test_eval_prints_every_coefficient_at_a_temperature_and_flags_extrapolation(sim_out, model):
+    _, m = model
+    path = str(sim_out[0] / "thermal.json")
+    rc, stdout, stderr = cli(["thermal", "eval", path, "--temperature-c", "10"])
+    assert rc == 0, stderr
+    lines = stdout.splitlines()
+    assert "inside the calibrated range -20 to 50 degC" in lines[0] and len(lines) == 31
+    kg = next(line.split() for line in lines if line.startswith("Kg_x "))
+    value, sigma = m.evaluate(10.0)["Kg_x"]
+    assert float(kg[1]) == pytest.approx(value, rel=1e-11) and float(kg[3]) == pytest.approx(sigma, rel=1e-2)
+    rc, stdout, _ = cli(["thermal", "eval", path, "--temperature-c", "80"])
+    assert rc == 0 and "OUTSIDE (extrapolated)" in stdout.splitlines()[0]
+
+
 def test_cli_errors_are_one_line(tmp_path):
     rc, _, stderr = cli(["thermal", "sim", "--temperatures-c", "25", "--out", str(tmp_path)])
     assert rc == 2 and "two different temperatures" in stderr and len(stderr.splitlines()) == 1
@@ -206,6 +220,8 @@ def test_cli_errors_are_one_line(tmp_path):
     assert rc == 2 and "r.json: the result records no IMU temperature" in stderr
     rc, _, stderr = cli(["thermal", "fit", str(tmp_path / "missing.json"), "--out", str(tmp_path / "o")])
     assert rc == 2 and "missing.json: cannot read" in stderr
+    rc, _, stderr = cli(["thermal", "eval", str(bad), "--temperature-c", "10"])
+    assert rc == 2 and "not a turntable-bench/thermal file" in stderr and len(stderr.splitlines()) == 1
 
 
 def test_bench_run_and_bench_solve_record_the_imu_temperature_and_thermal_fit_takes_the_results(tmp_path):

@@ -4,7 +4,8 @@
 soaked at each temperature, in memory, and fits the thermal model; `bench thermal fit
 RESULT[@DEGC]... --out DIR` fits it to calibration results from disk. Both write
 `thermal.json` (format turntable-bench/thermal), `thermal.md` and `thermal.html`;
-`sim` also each temperature's `sim_<T>C.result.json`. Exit codes: 0 done, 2 usage
+`sim` also each temperature's `sim_<T>C.result.json`. `bench thermal eval THERMAL.json
+--temperature-c T` prints every coefficient at T with its 1-sigma. Exit codes: 0 done, 2 usage
 error, a configuration or a result that cannot be used.
 """
 
@@ -40,7 +41,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "(sim) or result files (fit). Writes thermal.json, thermal.md and thermal.html; `bench export "
                     "thermal.json` writes the model for firmware. Exit codes: 0 done, 2 usage error or an input "
                     "that cannot be used.")
-    sub = parser.add_subparsers(dest="thermal_command", metavar="{sim,fit}")
+    sub = parser.add_subparsers(dest="thermal_command", metavar="{sim,fit,eval}")
     sub.required = True
     sim = sub.add_parser("sim", help="calibrate the simulated IMU soaked at each temperature, then fit",
                          description="In memory, without a chamber: the simulated IMU (its [sim.imu.thermal], or a "
@@ -65,6 +66,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     fit.add_argument("--out", metavar="DIR", required=True, help="output folder (created if missing)")
     fit.add_argument("--quiet", action="store_true", help="print nothing but errors")
     fit.set_defaults(func=cmd_thermal_fit)
+    ev = sub.add_parser("eval", help="every modelled coefficient at a temperature, with its 1-sigma",
+                        description="Evaluate a thermal model (thermal.json) at a temperature: value and 1-sigma of "
+                                    "every coefficient; outside the calibrated range the output says so.")
+    ev.add_argument("model", metavar="THERMAL.json", help="a thermal model from `bench thermal sim|fit`")
+    ev.add_argument("--temperature-c", type=_TEMPERATURE, required=True, metavar="T", help="IMU temperature, degC")
+    ev.set_defaults(func=cmd_thermal_eval)
 
 
 def _out_dir(text: str) -> Path:
@@ -171,4 +178,23 @@ def cmd_thermal_fit(args: argparse.Namespace) -> ExitCode:
         return fail(PROG, str(exc), ExitCode.USAGE)
     model.run = {"mode": "fitted to result files", "results": [p.label for p in model.points]}
     _write(model, _out_dir(args.out), args.quiet)
+    return ExitCode.OK
+
+
+def cmd_thermal_eval(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without the bench core
+    from bench.thermal.model import ThermalModel
+
+    try:
+        model = ThermalModel.load(args.model)
+    except InputError as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
+    except OSError as exc:
+        return fail(PROG, f"{args.model}: cannot read: {exc.strerror or exc}", ExitCode.USAGE)
+    low, high = model.range_c
+    t = args.temperature_c
+    where = "inside" if low <= t <= high else "OUTSIDE (extrapolated)"
+    print(f"at {t:g} degC, {where} the calibrated range {low:g} to {high:g} degC; value +- 1 sigma of the model")
+    for name, (value, sigma) in model.evaluate(t).items():
+        print(f"{name:<6} {value:>22.12g} +- {sigma:<10.3g} {model.fits[name].unit}")
     return ExitCode.OK
