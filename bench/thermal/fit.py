@@ -52,6 +52,11 @@ DEGREE_RULE = (f"lowest degree d in 0..min({MAX_DEGREE}, n-1) that no higher deg
                "covariance scaled by chi2/dof when that exceeds 1")
 
 
+UNCERTAINTY_RULE = ("covariance (A^T W A)^-1, scaled by chi2/dof when that exceeds 1; c0's variance increased by the "
+                    "common error every calibration shares (common_sigma; without a split of the sigmas, the smallest "
+                    "point variance); band sigma(T) = sqrt(x^T C x), x = (1, T - reference_c, ...)")
+
+
 class ThermalFitError(InputError):
     """Points a thermal polynomial cannot be fitted to (too few, no usable sigma)."""
 
@@ -183,4 +188,5 @@ def fit_coefficient(name: str, unit: str, temperatures_c, values, sigmas, refere
                           tuple(chi2s), t, y, s, float(math.sqrt(common_var)))
 
 
-__all__ = ["ALPHA", "DEGREE_RULE", "MAX_DEGREE", "CoefficientFit", "ThermalFitError", "fit_coefficient"]
+__all__ = ["ALPHA", "DEGREE_RULE", "MAX_DEGREE", "UNCERTAINTY_RULE", "CoefficientFit", "ThermalFitError",
+           "fit_coefficient"]

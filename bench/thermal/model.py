@@ -8,7 +8,7 @@ over its run (the result's `temperature` section, or one given with it).
 File (format `turntable-bench/thermal`, version 1):
     {"format", "version",
      "thermal_model": {"format": "turntable-bench/thermal-model", "version": 1, "reference_c",
-                       "degree_rule", "alpha", "temperature_range_c",
+                       "degree_rule", "uncertainty_rule", "alpha", "temperature_range_c",
                        "coefficients": {name: CoefficientFit.to_json()}},
      "points": [{"label", "temperature": {...}, "coefficients": {name: {value, sigma, unit}}}],
      "notes": [...], "run": {...}, "sim_truth": {...} (simulated runs)}
@@ -30,7 +30,7 @@ from bench.calibration.compensation import MAX_RESULT_BYTES
 from bench.errors import InputError
 from bench.model.families import RESULT_UNITS, canonical_names, family_of
 from bench.model.result import CalibrationResult
-from bench.thermal.fit import ALPHA, DEGREE_RULE, CoefficientFit, ThermalFitError, fit_coefficient
+from bench.thermal.fit import ALPHA, DEGREE_RULE, UNCERTAINTY_RULE, CoefficientFit, ThermalFitError, fit_coefficient
 
 THERMAL_FORMAT = "turntable-bench/thermal"
 THERMAL_VERSION = 1
@@ -106,7 +106,8 @@ class ThermalModel:
         """The versioned `thermal_model` section."""
         low, high = self.range_c
         return {"format": MODEL_FORMAT, "version": MODEL_VERSION, "reference_c": self.reference_c,
-                "degree_rule": DEGREE_RULE, "alpha": ALPHA, "temperature_range_c": [low, high],
+                "degree_rule": DEGREE_RULE, "uncertainty_rule": UNCERTAINTY_RULE, "alpha": ALPHA,
+                "temperature_range_c": [low, high],
                 "coefficients": {name: f.to_json() for name, f in self.fits.items()}}
 
     def to_json(self) -> dict[str, Any]:
