@@ -106,9 +106,10 @@ max_rate_dps max_accel_dps2 min_deg max_deg interface channel bitrate fd dbc rat
 acc_y acc_z temperature status counter crc model serial gyro_bias_stability_dph acc_bias_stability_ug
 positions rotations dwell_s settle_s move_rate_dps move_accel_dps2 turn_rate_dps turn_accel_dps2 rest_s
 revolutions order folder seed black_box_arcsec noise enabled gyro_arw_deg_rt_h gyro_bias_instability_dph
-acc_vrw_ug_rt_hz acc_bias_instability_ug correlation_time_s quantise chunk_run_interval_s""".split()
+acc_vrw_ug_rt_hz acc_bias_instability_ug correlation_time_s quantise chunk_run_interval_s reference_c
+time_constant_s ambient_c initial_c Kg_x""".split()
 EXAMPLE_TABLES = """site table table.modbus table.limits.outer table.limits.middle table.limits.inner imu
-imu.signals imu.bus_options imu.identity plan output sim sim.noise sim.imu""".split()
+imu.signals imu.bus_options imu.identity plan output sim sim.noise sim.imu sim.imu.thermal""".split()
 
 
 def test_example_shows_every_key_and_table_with_a_comment():

@@ -1,4 +1,5 @@
-"""`bench export`: a result's compensation in the form firmware uses (logic in `bench.calibration.export`).
+"""`bench export`: a result's compensation in the form firmware uses (logic in `bench.calibration.export`),
+or a thermal model's polynomials (`thermal.json` from `bench thermal`; logic in `bench.thermal.export`).
 
 Exit codes: 0 written; 2 usage error, a result that cannot be read or lacks coefficients,
 an output that cannot be written.
@@ -24,9 +25,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "export", help="write a result's compensation (matrix, bias, uncertainties) for firmware",
         description="Write the compensation of a calibration result, u = C (y - b) per triad (C the inverse of "
                     "scale x direction cosines in rad/s or m/s^2 per counts/s, b the bias in counts/s), with "
-                    "its 1-sigma uncertainties, as JSON, CSV, a C header, kalibr-style YAML or TOML. Exit codes: "
+                    "its 1-sigma uncertainties, as JSON, CSV, a C header, kalibr-style YAML or TOML; of a thermal "
+                    "model, every coefficient's polynomial in temperature with its covariance. Exit codes: "
                     "0 written, 2 usage error, unreadable result or unwritable output.")
-    parser.add_argument("result", metavar="RESULT", help="a result file (<run-id>.result.json)")
+    parser.add_argument("result", metavar="RESULT", help="a result file (<run-id>.result.json) or a thermal model "
+                                                          "(thermal.json from `bench thermal`)")
     parser.add_argument("--format", choices=FORMAT_NAMES,
                         help="json, csv, c (a C header), yaml (kalibr-style) or toml (default: from --out's suffix)")
     parser.add_argument("--out", metavar="FILE", required=True, help="the file to write ('-' for stdout)")
@@ -37,13 +40,18 @@ def cmd_export(args: argparse.Namespace) -> ExitCode:
     # imported when the command runs: `bench` starts without the bench core
     from bench.calibration.compensation import compensation_of, load_result
     from bench.calibration.export import export_text
+    from bench.thermal.export import export_thermal
+    from bench.thermal.model import ThermalModel, is_thermal_text, read_bounded_text
 
     fmt = args.format or SUFFIXES.get(Path(args.out).suffix.lower())
     if fmt is None:
         return fail(PROG, f"say --format ({', '.join(FORMAT_NAMES)}): {args.out!r} has no known suffix",
                     ExitCode.USAGE)
     try:
-        text = export_text(compensation_of(load_result(args.result)), fmt)
+        if is_thermal_text(read_bounded_text(args.result)):    # a thermal model (`bench thermal`)
+            text = export_thermal(ThermalModel.load(args.result), fmt)
+        else:
+            text = export_text(compensation_of(load_result(args.result)), fmt)
     except InputError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     except OSError as exc:

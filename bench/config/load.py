@@ -27,9 +27,11 @@ from bench.config.acceptance import ACCEPTANCE_KEYS, acceptance_limits
 from bench.config.chamber import CHAMBER_KEYS, ChamberConfig, chamber_config
 from bench.config.reader import ConfigError, Located, Table, describe, parse_toml, read_text, show, suggest
 from bench.config.register_map import TABLE_MAP, load_register_map, register_map_value
+from bench.config.thermal import THERMAL_KEYS, sim_thermal
 from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
 from bench.model.families import BODY_AXES, SENSOR_AXES, canonical_names, family_of
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
+from bench.model.thermal import ImuThermal
 from bench.model.units import ARCSEC
 from bench.noise.result import NoiseResult, NoiseResultError
 from bench.plan.compiler import ORDERS, PlanTiming
@@ -171,6 +173,8 @@ class SimConfig:
     noise: NoiseModel
     imu: ImuCoefficients             # the simulated IMU's true coefficients
     imu_overrides: dict = field(default_factory=dict)  # canonical name -> display-unit value as written
+    #: [sim.imu.thermal]: `imu` holds at its reference temperature; None: no temperature dependence
+    thermal: ImuThermal | None = None
 
 
 @dataclass(frozen=True)
@@ -438,10 +442,16 @@ def _noise(t: Table) -> NoiseModel:
     return dataclasses.replace(base, **changes)
 
 
-def _sim_imu(t: Table) -> tuple[ImuCoefficients, dict]:
-    s = t.table("imu", canonical_names())
+def _sim_imu(t: Table) -> tuple[ImuCoefficients, dict, ImuThermal | None]:
+    s = t.table("imu", canonical_names() + ["thermal"])
+    thermal = None
+    if s.has("thermal"):
+        ranges = {family: (high, unit) for family, (_low, high, unit) in _SIM_IMU_RANGES.items()}
+        thermal = sim_thermal(s.table("thermal", THERMAL_KEYS), ranges)
     overrides = {}
     for name in s.data:
+        if name == "thermal":
+            continue
         low, high, unit = _SIM_IMU_RANGES[family_of(name)]
         overrides[name] = s.number(name, gt=low, ge=None if low is not None else -high, le=high, unit=unit)
     values = {**default_sim_imu().to_canonical(), **overrides}
@@ -465,14 +475,14 @@ def _sim_imu(t: Table) -> tuple[ImuCoefficients, dict]:
                     raise s.error(next(name for name in row if name in overrides),
                                   f"the off-diagonal direction cosines of {prefix}_*{sensor} leave no unit row")
                 values[diag] = math.copysign(math.sqrt(rest), values[diag])
-    return ImuCoefficients.from_canonical(values), overrides
+    return ImuCoefficients.from_canonical(values), overrides, thermal
 
 
 def _sim(t: Table) -> SimConfig:
     seed = t.integer("seed", 0, ge=0, le=2 ** 32 - 1)
     written, black_box_rad = _black_box(t, seed)
-    imu, overrides = _sim_imu(t)
-    return SimConfig(seed, written, black_box_rad, _noise(t), imu, overrides)
+    imu, overrides, thermal = _sim_imu(t)
+    return SimConfig(seed, written, black_box_rad, _noise(t), imu, overrides, thermal)
 
 
 # --- entry points -------------------------------------------------------------------

@@ -61,6 +61,9 @@ class CalibrationResult:
     sim_truth: dict[str, Coefficient] | None = None
     #: the acceptance verdict (`bench.acceptance.verdict.Verdict.to_json`), when judged
     verdict: dict[str, Any] | None = None
+    #: the IMU's temperature over the run (`mean_c`, `min_c`, `max_c`, degC; `source`), when known:
+    #: what a thermal model (`bench.thermal`) places the result at
+    temperature: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -75,6 +78,8 @@ class CalibrationResult:
             "quality": self.quality,
             "run": self.run,
         }
+        if self.temperature is not None:
+            out["temperature"] = self.temperature
         if self.sim_truth is not None:
             out["sim_truth"] = {"coefficients": {k: c.to_json() for k, c in self.sim_truth.items()}}
         return out
@@ -102,6 +107,7 @@ class CalibrationResult:
             sim_truth=None if truth is None else _read_table(truth.get("coefficients"), origin,
                                                              "sim_truth.coefficients"),
             verdict=verdict if isinstance(verdict, dict) else None,
+            temperature=_read_temperature(data.get("temperature"), origin),
         )
 
     @classmethod
@@ -122,6 +128,15 @@ class CalibrationResult:
     def imu_coefficients(self) -> ImuCoefficients:
         """All 30 coefficients as an `ImuCoefficients` (KeyError if the result lacks some)."""
         return ImuCoefficients.from_canonical(self.values())
+
+
+def _read_temperature(section: Any, origin: str) -> dict[str, Any] | None:
+    if section is None:
+        return None
+    mean = section.get("mean_c") if isinstance(section, dict) else None
+    if isinstance(mean, bool) or not isinstance(mean, (int, float)) or not math.isfinite(mean):
+        raise ResultFormatError(f"{origin}: temperature.mean_c must be a finite number of degC")
+    return section
 
 
 def _read_table(table: Any, origin: str, where: str) -> dict[str, Coefficient]:

@@ -27,6 +27,7 @@ from bench.errors import BenchError
 from bench.log.reader import read_log
 from bench.log.recorder import CHUNK_RUN_INTERVAL_S, McapRecorder, RecorderError
 from bench.log.run_info import MANUAL_LOG_KIND, MANUAL_LOG_SUFFIX
+from bench.log.temperature import imu_temperature
 from bench.model.result import CalibrationResult
 from bench.noise.from_log import NoiseInputError, analyse_log
 from bench.plan.compiler import CompiledPlan, compile_plan
@@ -132,7 +133,7 @@ class BenchRun:
                 self.world = self._stack.enter_context(SimWorld(
                     config.site.site, config.sim.imu, config.sim.noise, black_box_rad=config.sim.black_box_rad,
                     dialect=config.table.dialect, imu_rate_hz=config.imu.rate_hz, layout=config.imu.layout,
-                    seed=config.sim.seed, register_map=config.table.register_map))
+                    seed=config.sim.seed, register_map=config.table.register_map, imu_thermal=config.sim.thermal))
                 self.clock, url = self.world.clock, self.world.table_url
                 bus: can.BusABC | dict = self.world.receiver_bus()
             else:
@@ -335,6 +336,7 @@ class BenchRun:
                     "imu_link": {**receiver.stats.as_dict(),
                                  **(receiver.time_base.as_dict() if receiver.time_base is not None else {})}}
         result = solution.calibration.to_result(run=run_info, sim_truth=config.sim.imu if self.sim else None)
+        result.temperature = imu_temperature(logs, config.imu.layout, config.imu.rate_hz)
         verdict = judge(result, config.acceptance, lost_samples=receiver.stats.lost_samples,
                         quality_failures=judged_failures(failures, config.acceptance))
         result.verdict = verdict.to_json()

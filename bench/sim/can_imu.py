@@ -105,8 +105,10 @@ class SimCanImu:
 
     # -- sending --------------------------------------------------------------------
     def _messages(self, samples: ImuSamples) -> list[can.Message]:
+        # a thermal IMU reports its case temperature; otherwise the constant `temperature_c`
+        temperature = samples.temperature_c if samples.temperature_c is not None else self.temperature_c
         frames = self.encoder.encode(samples.counter, samples.gyro_counts, samples.acc_counts,
-                                     self.temperature_c, self.status)
+                                     temperature, self.status)
         fd = {m.key: m.is_fd for m in self.layout.messages}
         # Plain Python values up front: per-frame numpy scalar indexing costs more than the frame.
         times = samples.time_s[frames.sample].tolist()

@@ -6,6 +6,10 @@ integral of the model output (DESIGN section 2, counts/s) over that interval, wi
 rest-to-rest turn integrates exactly), plus noise on the input side
 (`F = Kg*(Eg.w + D0 + n)`, `J = Ka*(Ea.f + K0 + n)`) and optional quantisation.
 Successive `generate` calls continue seamlessly and are bit-identical to one call.
+
+With an `ImuThermal` the coefficients follow the case temperature (`bench.sim.thermal`:
+first order behind an ambient), evaluated at every quadrature node, and the samples
+carry the case temperature the IMU reports; without one, nothing of this runs.
 """
 
 from __future__ import annotations
@@ -17,8 +21,10 @@ import numpy as np
 from scipy.signal import lfilter
 
 from bench.model.imu import ImuCoefficients, NoiseModel
+from bench.model.thermal import ImuThermal
 from bench.model.units import DEG, DEG_PER_HOUR, MICRO_G
 from bench.sim.table import SimTable
+from bench.sim.thermal import Ambient, CaseTemperature
 
 COUNTER_MODULUS = 2 ** 32
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(3)
@@ -44,6 +50,8 @@ class ImuSamples:
     gyro_counts: np.ndarray  # (n, 3) per-sample increments (integral-valued when quantised)
     acc_counts: np.ndarray   # (n, 3)
     rate_hz: float
+    #: (n,) the case temperature at the end of each sample, degC; None: the IMU has no thermal model
+    temperature_c: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.counter)
@@ -61,9 +69,10 @@ class ImuSamples:
     @classmethod
     def concatenate(cls, blocks: list["ImuSamples"]) -> "ImuSamples":
         """Join consecutive blocks of one IMU (at least one block)."""
+        temps = [b.temperature_c for b in blocks if b.temperature_c is not None]
         return cls(np.concatenate([b.counter for b in blocks]), np.concatenate([b.time_s for b in blocks]),
                    np.concatenate([b.gyro_counts for b in blocks]), np.concatenate([b.acc_counts for b in blocks]),
-                   blocks[0].rate_hz)
+                   blocks[0].rate_hz, np.concatenate(temps) if len(temps) == len(blocks) else None)
 
 
 class _GaussMarkov:
@@ -122,12 +131,21 @@ class SimImu:
     """Signal generator of a simulated IMU mounted on a `SimTable`'s inner frame."""
 
     def __init__(self, coefficients: ImuCoefficients, noise: NoiseModel = _NO_NOISE,
-                 rate_hz: float = 1000.0, seed: int = 0, start_time_s: float = 0.0):
+                 rate_hz: float = 1000.0, seed: int = 0, start_time_s: float = 0.0,
+                 thermal: ImuThermal | None = None, ambient_c: Ambient | None = None):
+        """`coefficients` are the truth at `thermal.reference_c`; `ambient_c` (default
+        `thermal.ambient_c`) drives the case temperature."""
         if not (math.isfinite(rate_hz) and rate_hz > 0):
             raise ValueError(f"rate_hz must be positive, got {rate_hz}")
         self.coefficients, self.noise = coefficients, noise
         self.rate_hz, self.start_time_s = float(rate_hz), float(start_time_s)
         self._done = 0  # samples generated so far
+        self.thermal = thermal
+        self.case: CaseTemperature | None = None
+        if thermal is not None:
+            self.case = CaseTemperature(thermal.time_constant_s, thermal.ambient_c if ambient_c is None else ambient_c,
+                                        thermal.initial_c, self.start_time_s)
+        self._grid: tuple[np.ndarray, np.ndarray] | None = None   # (times, case temperatures) of this block
         # (spawned children depend on their index only: adding streams at the end leaves the others as they were)
         seeds = np.random.SeedSequence(seed).spawn(len(_STREAMS))
         rngs = dict(zip(_STREAMS, (np.random.default_rng(s) for s in seeds)))
@@ -162,9 +180,23 @@ class SimImu:
         nodes = (0.5 * (a + b))[:, None] + half[:, None] * _GL_X
         w = half[:, None] * _GL_W                                        # (n, 3 nodes)
         w_b, f_b = table.body_rate_and_specific_force(nodes.reshape(-1))
-        gyro = self.coefficients.gyro_output(w_b).reshape(len(a), 3, 3)
-        acc = self.coefficients.acc_output(f_b).reshape(len(a), 3, 3)
+        if self.thermal is None:
+            gyro = self.coefficients.gyro_output(w_b).reshape(len(a), 3, 3)
+            acc = self.coefficients.acc_output(f_b).reshape(len(a), 3, 3)
+        else:
+            gyro, acc = self._thermal_outputs(nodes.reshape(-1), w_b, f_b)
+            gyro, acc = gyro.reshape(len(a), 3, 3), acc.reshape(len(a), 3, 3)
         return np.einsum("kn,knc->kc", w, gyro), np.einsum("kn,knc->kc", w, acc)
+
+    def _thermal_outputs(self, times: np.ndarray, w_b: np.ndarray, f_b: np.ndarray):
+        """Outputs with the coefficients at the case temperature of each time (linear between the
+        block's sample boundaries: the case moves on a scale of minutes, a sample lasts milliseconds)."""
+        assert self.thermal is not None and self._grid is not None
+        temps = np.interp(times, *self._grid)
+        kg, d0, eg, ka, k0, ea = self.thermal.arrays_at(self.coefficients, temps)
+        gyro = np.einsum("mij,mj->mi", kg[:, :, None] * eg, w_b) + kg * d0
+        acc = np.einsum("mij,mj->mi", ka[:, :, None] * ea, f_b) + ka * k0
+        return gyro, acc
 
     def _true_increments(self, table: SimTable, a: np.ndarray, b: np.ndarray):
         gyro, acc = self._integrate(table, a, b)
@@ -192,6 +224,13 @@ class SimImu:
         self._done = total
         a, b = self._time(n_idx), self._time(n_idx + 1)
         n = len(n_idx)
+        temperature = None
+        if self.case is not None and n:
+            t0, temp0 = self.case.time_s, self.case.temperature_c      # the block's first sample start
+            temperature = self.case.advance(b)
+            self._grid = (np.concatenate([[t0], b]), np.concatenate([[temp0], temperature]))
+        elif self.case is not None:
+            temperature = np.zeros(0)
         gyro, acc = self._true_increments(table, a, b) if n else (np.zeros((0, 3)), np.zeros((0, 3)))
         dt = 1.0 / self.rate_hz
         gyro_noise = self._gyro_gm.draw(n) + self._gyro_rw.draw(n)
@@ -204,4 +243,4 @@ class SimImu:
         acc = acc + self.coefficients.acc_scale * acc_noise * dt
         if self.noise.quantise:
             gyro, acc = self._q_gyro(gyro), self._q_acc(acc)
-        return ImuSamples(n_idx % COUNTER_MODULUS, b, gyro, acc, self.rate_hz)
+        return ImuSamples(n_idx % COUNTER_MODULUS, b, gyro, acc, self.rate_hz, temperature)

@@ -115,7 +115,7 @@ class SimRig:
                                    (outer.max_accel_dps2, middle.max_accel_dps2, inner.max_accel_dps2))
         self.controller = SimController(SimTable(config.site.site, black_box_rad=sim.black_box_rad,
                                                  limits=table_limits), limits=axes)
-        self.imu = SimImu(sim.imu, sim.noise, rate_hz=config.imu.rate_hz, seed=sim.seed)
+        self.imu = SimImu(sim.imu, sim.noise, rate_hz=config.imu.rate_hz, seed=sim.seed, thermal=sim.thermal)
         self.bus = RigBus()
         self.can_imu = SimCanImu(self.controller, self.imu, self.bus, config.imu.layout)
         self.peers: list[RigPeer] = []

@@ -35,6 +35,7 @@ from bench.log.run_info import (
     steps_from_log,
 )
 from bench.log.run_setup import differences, setup_of_log
+from bench.log.temperature import imu_temperature
 from bench.model.earth import Site
 from bench.model.observations import PositionObservation, RotationObservation
 from bench.model.result import CalibrationResult
@@ -405,6 +406,7 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolv
                 "left_out": sorted({*recorded.left_out, *dropped}), "damage": list(recorded.damage),
                 "notes": list(recorded.notes)}
     result = calibration.to_result(run=run_info, sim_truth=recorded.truth)
+    result.temperature = imu_temperature(recorded.logs, setup.layout, setup.rate_hz)
     limits = config.acceptance if config is not None else AcceptanceLimits()
     verdict = judge(result, limits, lost_samples=link.lost_samples, quality_failures=judged_failures(failures, limits))
     result.verdict = verdict.to_json()

@@ -1,0 +1,1 @@
+"""Calibration over temperature: per-temperature results -> per-coefficient polynomials in temperature."""

@@ -1,0 +1,164 @@
+"""The thermal polynomial fit: degree chosen by the data, uncertainties that hold, the model file."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from bench.model.result import CalibrationResult, coefficient_table
+from bench.thermal.fit import ThermalFitError, fit_coefficient
+from bench.thermal.model import ThermalFormatError, ThermalModel, fit_thermal_model, point_from_result
+
+TEMPS = np.array([-20.0, 0.0, 25.0, 50.0])
+
+
+def _poly(coeffs, t, ref=25.0):
+    return sum(c * (np.asarray(t) - ref) ** k for k, c in enumerate(coeffs))
+
+
+@pytest.mark.parametrize("truth, degree", [([3.0], 0), ([3.0, 0.05], 1), ([3.0, 0.05, 0.002], 2),
+                                           ([3.0, 0.0, 0.0, 1e-4], 3)])
+def test_noise_free_points_give_the_true_degree_and_polynomial(truth, degree):
+    sigma = np.full(4, 0.01)
+    fit = fit_coefficient("D0_x", "deg/h", TEMPS, _poly(truth, TEMPS), sigma)
+    assert fit.degree == degree
+    assert fit.polynomial == pytest.approx(truth, rel=1e-9, abs=1e-12)
+    assert fit.value(10.0) == pytest.approx(_poly(truth, 10.0), rel=1e-12)
+
+
+def test_over_many_seeds_terms_and_interpolated_values_scatter_as_their_sigmas_say():
+    """Independent Gaussian errors, no common part: z-scores of the terms and of values between the
+    temperatures are standard normal (the common-mode allowance only widens c0)."""
+    truth = [1.0, 0.02, 3e-4]
+    rng = np.random.default_rng(12)
+    temps = np.array([-40.0, -20.0, 0.0, 25.0, 50.0, 70.0])
+    z_terms, z_values, degrees = [], [], []
+    for _ in range(400):
+        sigma = rng.uniform(0.01, 0.03, len(temps))
+        y = _poly(truth, temps) + sigma * rng.standard_normal(len(temps))
+        fit = fit_coefficient("K0_x", "g", temps, y, sigma, common_sigmas=np.zeros(len(temps)))
+        degrees.append(fit.degree)
+        if fit.degree == 2:
+            z_terms += list((fit.polynomial[1:] - truth[1:]) / fit.sigma[1:])
+            z_values += [(fit.value(t) - _poly(truth, t)) / fit.sigma_at(t) for t in (-30.0, 10.0, 60.0)]
+    assert np.mean(np.array(degrees) == 2) > 0.95         # the quadratic term is 5 sigma: found
+    for z in (np.array(z_terms), np.array(z_values)):
+        assert abs(np.mean(z)) < 0.15 and 0.85 < np.std(z) < 1.15
+        assert np.mean(np.abs(z) > 3) < 0.01
+
+
+def test_a_term_that_is_not_there_is_rarely_chosen():
+    rng = np.random.default_rng(3)
+    degrees = [fit_coefficient("K0_x", "g", TEMPS, 1.0 + 0.01 * rng.standard_normal(4), np.full(4, 0.01)).degree
+               for _ in range(500)]
+    assert np.mean(np.array(degrees) > 0) < 0.05          # alpha 0.01 per comparison
+
+
+def test_an_error_common_to_every_temperature_is_covered_by_the_band():
+    """The same offset in every point (the table's black box): without a split of the sigmas the band
+    at every temperature still covers it; the temperature terms are not biased by it."""
+    truth = [5.0, 0.1]
+    rng = np.random.default_rng(8)
+    z = []
+    for _ in range(300):
+        sigma = np.full(4, 0.2)
+        common = 0.19 * rng.standard_normal()           # nearly all of each point's sigma is shared
+        y = _poly(truth, TEMPS) + common + np.sqrt(0.2 ** 2 - 0.19 ** 2) * rng.standard_normal(4)
+        fit = fit_coefficient("Kg_x", "counts/s per deg/s", TEMPS, y, sigma)
+        z.append((fit.value(10.0) - _poly(truth, 10.0)) / fit.sigma_at(10.0))
+        assert fit.degree == 1 and abs(fit.polynomial[1] - 0.1) < 3 * fit.sigma[1]
+    z = np.array(z)
+    assert np.std(z) < 1.0 and np.mean(np.abs(z) > 3) < 0.01
+    # and without the allowance (saying the common part is 0) the same data would be overconfident
+    y = _poly(truth, TEMPS) + 0.5 + 0.01 * rng.standard_normal(4)
+    naive = fit_coefficient("Kg_x", "u", TEMPS, y, np.full(4, 0.2), common_sigmas=np.zeros(4))
+    careful = fit_coefficient("Kg_x", "u", TEMPS, y, np.full(4, 0.2))
+    assert careful.sigma_at(10.0) > 1.9 * naive.sigma_at(10.0)
+
+
+def test_more_scatter_than_the_sigmas_say_scales_the_covariance():
+    y = np.array([0.0, 1.0, 0.0, 1.0, 0.0, 1.0])
+    fit = fit_coefficient("D0_x", "deg/h", np.linspace(-20, 50, 6), y, np.full(6, 0.01))
+    assert fit.sigma_scale > 10 and fit.dof > 0
+
+
+def test_bad_points_are_refused():
+    with pytest.raises(ThermalFitError, match="positive finite sigma"):
+        fit_coefficient("D0_x", "deg/h", TEMPS, np.ones(4), np.array([0.1, np.nan, 0.1, 0.1]))
+    with pytest.raises(ThermalFitError, match="as many"):
+        fit_coefficient("D0_x", "deg/h", TEMPS, np.ones(3), np.ones(4))
+
+
+# -- the model over results --------------------------------------------------------------------
+
+def _result(temperature_c, values, sigmas, with_temperature=True):
+    r = CalibrationResult(coefficient_table(values, sigmas))
+    if with_temperature:
+        r.temperature = {"mean_c": temperature_c, "min_c": temperature_c - 0.1, "max_c": temperature_c + 0.1}
+    return r
+
+
+def test_the_model_fits_every_shared_coefficient_and_notes_the_others(tmp_path):
+    points = []
+    for t in TEMPS:
+        values = {"D0_x": _poly([0.05, 0.002], t), "K0_y": 1e-4, "Kg_x": 36000.0 + 0.3 * (t - 25)}
+        sigmas = {"D0_x": 0.001, "K0_y": 1e-6, "Kg_x": float("nan") if t == 0 else 0.01}
+        if t == 50.0:
+            del values["K0_y"]
+        points.append(point_from_result(_result(t, values, sigmas), f"r{t:g}.json"))
+    model = fit_thermal_model(points)
+    assert set(model.fits) == {"D0_x"}
+    assert model.fits["D0_x"].degree == 1
+    assert any("K0_y" in n and "r50.json" in n for n in model.notes)
+    assert any("Kg_x" in n and "no uncertainty" in n and "r0.json" in n for n in model.notes)
+    fit = model.fits["D0_x"]
+    assert fit.prediction_sigma(0.0) == pytest.approx(np.hypot(fit.sigma_at(0.0), 0.001))
+    assert fit.prediction_sigma(10.0) > fit.sigma_at(10.0)
+    # round trip through the file
+    path = tmp_path / "thermal.json"
+    model.save(path)
+    back = ThermalModel.load(path)
+    assert back.evaluate(10.0) == model.evaluate(10.0)
+    assert [p.temperature_c for p in back.points] == [p.temperature_c for p in model.points]
+
+
+def test_a_result_without_temperature_needs_one_given():
+    r = _result(0.0, {"D0_x": 0.1}, {"D0_x": 0.01}, with_temperature=False)
+    with pytest.raises(Exception, match="records no IMU temperature.*FILE@DEGC"):
+        point_from_result(r, "a.json")
+    assert point_from_result(r, "a.json", -5.0).temperature_c == -5.0
+    with pytest.raises(ThermalFitError, match="two temperatures"):
+        fit_thermal_model([point_from_result(r, "a.json", 1.0)])
+    with pytest.raises(ThermalFitError, match="one temperature"):
+        fit_thermal_model([point_from_result(r, "a.json", 1.0), point_from_result(r, "b.json", 1.0)])
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda d: d.update(format="x"), "not a turntable-bench/thermal file"),
+    (lambda d: d.update(version=9), "version 9 is not supported"),
+    (lambda d: d["thermal_model"].update(version=2), "thermal_model: not a"),
+    (lambda d: d["thermal_model"]["coefficients"].update(Zz_q={}), "unknown coefficient name"),
+    (lambda d: d["thermal_model"]["coefficients"]["D0_x"].update(degree=3), "D0_x: malformed"),
+    (lambda d: d["thermal_model"]["coefficients"]["D0_x"].update(polynomial=[float("nan"), 1.0]), "D0_x: malformed"),
+])
+def test_a_bad_thermal_file_is_one_clear_error(mutate, message):
+    points = [point_from_result(_result(t, {"D0_x": 0.1 * t}, {"D0_x": 0.01}), f"r{t:g}") for t in TEMPS]
+    data = json.loads(fit_thermal_model(points).dumps())
+    mutate(data)
+    with pytest.raises(ThermalFormatError, match=message):
+        ThermalModel.loads(json.dumps(data), "t.json")
+    with pytest.raises(ThermalFormatError, match="t.json:1: invalid JSON"):
+        ThermalModel.loads("{", "t.json")
+
+
+def test_calibrations_of_different_imus_are_refused():
+    points = []
+    for t, serial in ((0.0, "A-1"), (25.0, "A-1"), (50.0, "B-7")):
+        r = _result(t, {"D0_x": 0.1}, {"D0_x": 0.01})
+        r.run = {"imu": {"model": "m", "serial": serial}}
+        points.append(point_from_result(r, f"r{t:g}.json"))
+    with pytest.raises(ThermalFitError, match="different IMUs.*'B-7'"):
+        fit_thermal_model(points)
+    fit_thermal_model(points[:2])
