@@ -18,15 +18,26 @@ from drivers.errors import ImuConfigError, ImuConnectionError
 from drivers.imu.assembler import SampleAssembler
 from drivers.imu.layout import ImuLayout
 from drivers.imu.samples import ImuSampleBlock, ImuStats
+from drivers.imu.slcan_bus import SLCAN_CLIENTS, BulkSlcanBus
 
 
 def open_bus(config: Mapping) -> can.BusABC:
-    """`can.Bus(**config)`; any failure -> `ImuConnectionError` naming interface and channel."""
+    """`can.Bus(**config)`, except that an SLCAN adapter (`interface = "slcan"`) is read by the bulk reader
+    `BulkSlcanBus` unless `slcan_client = "python-can"` asks for python-can's own; any failure ->
+    `ImuConnectionError` naming interface and channel."""
     if not isinstance(config, Mapping):
         raise ImuConfigError(f"a CAN bus configuration must be a table, got {type(config).__name__}")
+    kwargs = dict(config)
+    client = kwargs.pop("slcan_client", "bench")
+    if client not in SLCAN_CLIENTS:
+        raise ImuConfigError(f"slcan_client must be one of {', '.join(SLCAN_CLIENTS)}, got {client!r}")
     where = f"interface {config.get('interface')!r}, channel {config.get('channel')!r}"
     try:
-        return can.Bus(**config)
+        if kwargs.get("interface") == "slcan" and client == "bench":
+            kwargs.pop("interface")
+            kwargs.pop("fd", None)           # python-can's Bus takes it for every interface; the adapter decides
+            return BulkSlcanBus(**kwargs)
+        return can.Bus(**kwargs)
     except Exception as exc:   # backends raise CanError, OSError, ImportError, ValueError, TypeError...
         raise ImuConnectionError(f"cannot open the CAN bus ({where}): {exc}") from exc
 
