@@ -400,6 +400,24 @@ def test_bench_run_against_the_rig_in_another_process_recovers_its_truth(tmp_pat
         stop_process(rig)
 
 
+def test_the_rig_serves_the_packed_layout_and_writes_it(tmp_path):
+    written = tmp_path / "bench.toml"
+    rig = _start_rig("--imu-layout", "packed", "--imu-rate-hz", "2000", "--imu-listen", "socketcand://127.0.0.1:0",
+                     "--write-config", str(written))
+    try:
+        startup = _read_until(rig, "Ctrl-C stops")
+        assert any("simulated IMU (2000 Hz) on socketcand" in line for line in startup), startup
+        config = load_config(written)
+        assert config.imu.layout_name == "packed" and config.imu.rate_hz == 2000.0
+        with ImuReceiver(config.imu.bus_kwargs(), config.imu.layout, config.imu.rate_hz) as receiver:
+            counters = _receive(receiver, 500)
+            _assert_no_loss(receiver, counters)
+        rig.send_signal(signal.SIGTERM)
+        assert rig.wait(timeout=10) == 0
+    finally:
+        stop_process(rig)
+
+
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGHUP])
 def test_the_rig_stops_on_sigint_even_when_ignored_and_on_sighup(signum):
     # a shell starts `bench sim rig ... &` in a script with SIGINT ignored; SIGINT and SIGHUP must still stop it
