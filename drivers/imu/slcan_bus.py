@@ -282,6 +282,8 @@ class BulkSlcanBus(can.BusABC):
         return self._fd
 
     def shutdown(self) -> None:
+        if self._is_shutdown:
+            return
         super().shutdown()
         try:
             self.close()
