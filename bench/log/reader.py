@@ -60,8 +60,8 @@ from bench.log.format import (
 from bench.log.walk import MAX_DBC_BYTES, ChannelData, Damage, WalkError, walk
 from bench.plan.events import Event
 from drivers.imu import ImuSampleBlock, ImuStats
-from drivers.imu.stream import StreamDecoder
 from drivers.imu.layout import ImuLayout
+from drivers.imu.stream import StreamDecoder
 
 
 class LogError(BenchError):
