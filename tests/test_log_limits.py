@@ -361,10 +361,10 @@ def test_a_turn_window_holding_many_or_repeated_table_states_is_integrated_in_bo
 def test_the_can_frames_are_decoded_chunk_by_chunk_and_never_held(run_log, monkeypatch):
     """1 GiB of a log's frames made the reader hold 2-3.8 GB (every frame as arrays); now each chunk is read
     from the file, decoded and let go, and the samples are those of decoding every frame at once."""
-    from drivers.imu import decode_frames
-    from drivers.imu.stream import StreamDecoder
     from bench.log.chunks import DeferredChunk
     from bench.log.run_info import layout_and_config_from_log
+    from drivers.imu import decode_frames
+    from drivers.imu.stream import StreamDecoder
 
     fed: list[int] = []
     feed = StreamDecoder.feed

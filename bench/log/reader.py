@@ -60,8 +60,8 @@ from bench.log.format import (
 from bench.log.walk import MAX_DBC_BYTES, ChannelData, Damage, WalkError, walk
 from bench.plan.events import Event
 from drivers.imu import ImuSampleBlock, ImuStats
-from drivers.imu.stream import StreamDecoder
 from drivers.imu.layout import ImuLayout
+from drivers.imu.stream import StreamDecoder
 
 
 class LogError(BenchError):
@@ -344,7 +344,9 @@ class RunLog:
                 keep = (flags & (FLAG_REMOTE | FLAG_ERROR)) == 0
                 if not keep.all():
                     t, ids, data, lengths = t[keep], ids[keep], data[keep], lengths[keep]
-                decoder.feed(ids, data, lengths, t)
+                for a in range(0, len(ids), _FEED_FRAMES):   # a chunk of 256 MiB holds ~11 M frames
+                    b = a + _FEED_FRAMES
+                    decoder.feed(ids[a:b], data[a:b], lengths[a:b], t[a:b])
             decoded = decoder.finish()
         except MemoryError as exc:
             raise LogError(f"{self.path}: not enough memory to decode its CAN frames") from exc
@@ -380,6 +382,8 @@ class RunLog:
                 f"{len(self.events)} events, {self.chunks} chunks{unchecked}; {state}")
 
 
+#: Frames handed to the stream decoder at once (its working arrays are about 100 bytes a frame).
+_FEED_FRAMES = 1 << 20
 #: Declared bytes of `/can/raw` chunks decompressed ahead of the one being decoded (at least one chunk).
 _STREAM_AHEAD_BYTES = 96 << 20
 

@@ -33,7 +33,6 @@ import numpy as np
 from mcap.records import Attachment, Channel, Footer, Header, Metadata, Schema, Statistics
 
 from bench.log.chunks import (
-    ChunkSlice,
     MAGIC,
     MAX_DEFINITIONS,
     MAX_RECORDS,
@@ -51,6 +50,7 @@ from bench.log.chunks import (
     OP_SCHEMA,
     OP_STATISTICS,
     RECORD_HEAD,
+    ChunkSlice,
     DeferredChunk,
     InflateBudget,
     Prefetch,

@@ -67,10 +67,14 @@ class StreamDecoder:
         self._c_last = np.asarray(c[-1:]).copy()
         self._u_last, self._head = int(u[-1]), int(head[-1])
         accepted = (u > head - self.window) & (u >= self._u0)
-        stats.late += n_valid - int(np.count_nonzero(accepted))
-        rows = np.flatnonzero(accepted) if vi is None else vi[accepted]
-        ka = msg_index[rows].astype(np.int64)
-        new = (np.ascontiguousarray(data[rows]), timestamps[rows], u[accepted], ka, head[accepted])
+        n_accepted = int(np.count_nonzero(accepted))
+        stats.late += n_valid - n_accepted
+        if vi is None and n_accepted == n:   # every frame good and in time (the usual piece): no gathers
+            new = (data, timestamps, u, msg_index.astype(np.int64), head)
+        else:
+            rows = np.flatnonzero(accepted) if vi is None else vi[accepted]
+            new = (np.ascontiguousarray(data[rows]), timestamps[rows], u[accepted],
+                   msg_index[rows].astype(np.int64), head[accepted])
         if self._pending is not None:
             new = tuple(np.concatenate([p, q]) for p, q in zip(self._pending, new))   # type: ignore[assignment]
         self._pending = new
@@ -115,7 +119,8 @@ class StreamDecoder:
             stats.counter_gaps += cutoff - lo + 1
             return
         if in_order:
-            starts = np.flatnonzero(np.diff(u, prepend=u[0] - 1) != 0)
+            starts = np.flatnonzero(du != 0) + 1
+            starts = np.concatenate([[0], starts]) if len(u) else starts
             counters = u[starts]
             present = np.diff(starts, append=len(u))
             complete = present == n_msgs
