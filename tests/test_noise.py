@@ -320,3 +320,15 @@ def test_a_static_run_whose_dwell_cannot_be_analysed_keeps_its_log_and_says_how(
     from bench.log.reader import read_log
 
     assert read_log(str(outcome.log_path)).complete          # closed with its summary
+
+
+def test_bench_solve_of_a_static_noise_log_points_to_bench_noise(tmp_path):
+    # regression: `bench solve` on a static-noise log exited 4 with "position method needs at least 4 positions"
+    with api_run(_noise_config(dwell_s=20.0), tmp_path) as (_, outcome):
+        assert outcome.error is None
+    log = next(tmp_path.glob("*.mcap"))
+    for extra in ([], ["--compare", "optimal,all"]):
+        rc, out, err = cli(["solve", str(log), "--out", str(tmp_path / "solved"), *extra])
+        assert rc == 2 and out == "" and err.count("\n") == 1
+        assert "is a static noise recording" in err and f"bench noise {log}" in err
+    assert not (tmp_path / "solved").exists()
