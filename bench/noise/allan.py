@@ -7,9 +7,14 @@ and, for each cluster size `m` (tau = m / rate_hz),
 
     AVAR(tau) = sum_k (x[k+2m] - 2 x[k+m] + x[k])^2 / (2 tau^2 (N - 2m)),  N = len(x).
 
-Each tau is one pass over `x` in cache-sized blocks (no full-length temporaries), and
-the channels are spread over threads (numpy releases the GIL), so 6 channels of
-28.8 M samples take seconds.
+The phase of all channels is one (N + 1, k) float64 array, accumulated block by block
+(`PhaseAccumulator`: a streaming reader hands it each decoded block; nothing else of the
+record is kept, 8 bytes per sample and channel). The sums of squared second differences
+run over blocks of rows with the cluster sizes inner: at octave sizes the rows x[k + 2m]
+one size reads are the rows x[k + m'] the next one (m' = 2m) reads, so each block's
+rows are fetched from memory about once per size instead of three times, every numpy
+call works on all channels at once, and the range of k is split over threads (numpy
+releases the GIL).
 
 Confidence intervals: chi-square with the equivalent degrees of freedom of SP 1065
 (section 5.2.3, "simple" formulas) for the noise type the local log-log slope shows
@@ -32,7 +37,7 @@ from bench.errors import InputError
 CI_COVERAGE = 0.682689492137
 #: A tau is computed only with at least this many independent clusters (N / m): beyond, the estimate is noise.
 MIN_CLUSTERS = 4
-_BLOCK = 1 << 13          # samples per block of the second-difference pass: 4 x 64 kB, in L2 (best of 2k..256k)
+_BLOCK = 1 << 13          # values (rows x channels) per block of the second-difference pass: 64 kB
 #: Local slopes of ADEV in log-log and the noise type each stands for.
 SLOPES = {-1.0: "white PM (quantisation)", -0.5: "white FM (random walk of angle/velocity)",
           0.0: "flicker FM (bias instability)", 0.5: "random walk FM (rate random walk)"}
@@ -81,28 +86,107 @@ def integrate(y: np.ndarray, rate_hz: float) -> np.ndarray:
     return x
 
 
-def _sum_second_differences(x: np.ndarray, m: int) -> float:
-    """sum_k (x[k+2m] - 2 x[k+m] + x[k])^2 over k in [0, len(x) - 2m), block by block."""
-    n = len(x) - 2 * m
-    total = 0.0
-    d = np.empty(min(_BLOCK, n))
-    for start in range(0, n, _BLOCK):
-        stop = min(start + _BLOCK, n)
-        block = d[:stop - start]
-        np.multiply(x[start + m:stop + m], -2.0, out=block)
-        block += x[start + 2 * m:stop + 2 * m]
-        block += x[start:stop]
-        total += float(np.dot(block, block))
-    return total
+class PhaseAccumulator:
+    """The phase of k channels, built from blocks of rate samples handed in order (a streaming log reader's).
+
+    `add(block)` takes an (n, k) block (1-D for one channel) and appends its running sum; the first
+    block's mean is taken off every sample (allantools takes off the whole record's mean, which it knows
+    in advance: a constant offset cancels in every second difference, and any offset near the mean keeps
+    the running sum small enough for float64), unless `offset` is given. The sum is kept in sample units
+    (the 1 / rate is applied to the deviations). `capacity`, the number of samples expected (e.g. a dwell's
+    counter window), avoids regrowing the array. Memory: 8 bytes per sample and channel."""
+
+    def __init__(self, rate_hz: float, n_channels: int, *, offset: np.ndarray | None = None, capacity: int = 0):
+        if not (math.isfinite(rate_hz) and rate_hz > 0):
+            raise AllanError(f"sample rate must be a positive number of Hz, got {rate_hz!r}")
+        self.rate_hz, self.n_channels = float(rate_hz), int(n_channels)
+        self._offset = None if offset is None else np.asarray(offset, dtype=np.float64).reshape(self.n_channels)
+        self._phase = np.zeros((max(int(capacity), 0) + 1, self.n_channels))
+        self.n_samples = 0
+
+    def add(self, block: np.ndarray) -> None:
+        """Append an (n, k) block of rate samples (AllanError if not finite or of another width)."""
+        block = np.asarray(block, dtype=np.float64)
+        if block.ndim == 1 and self.n_channels == 1:
+            block = block[:, None]
+        if block.ndim != 2 or block.shape[1] != self.n_channels:
+            raise AllanError(f"a block of {self.n_channels} channel(s) expected, got an array of shape {block.shape}")
+        n = len(block)
+        if n == 0:
+            return
+        if not np.all(np.isfinite(block)):
+            raise AllanError("the series holds values that are not finite numbers")
+        if self._offset is None:
+            self._offset = block.mean(axis=0)
+        need = self.n_samples + n + 1
+        if need > len(self._phase):
+            grown = np.empty((max(need, 2 * len(self._phase)), self.n_channels))
+            grown[:self.n_samples + 1] = self._phase[:self.n_samples + 1]
+            self._phase = grown
+        out = self._phase[self.n_samples + 1:need]
+        np.subtract(block, self._offset, out=out)
+        out[0] += self._phase[self.n_samples]
+        np.cumsum(out, axis=0, out=out)
+        self.n_samples += n
+
+    @property
+    def phase(self) -> np.ndarray:
+        """(n + 1, k) running sums (sample units: x / rate is allantools' phase), 0 first."""
+        return self._phase[:self.n_samples + 1]
+
+    def curves(self, *, points_per_octave: int = 1, m: np.ndarray | None = None,
+               threads: int = 2) -> list["AllanCurve"]:
+        """The overlapping Allan deviation of each channel with +-1 sigma intervals."""
+        sizes = cluster_sizes(self.n_samples, points_per_octave) if m is None else np.asarray(m, dtype=np.int64)
+        sums = second_difference_sums(self.phase, sizes, threads=threads)
+        n_terms = (self.n_samples + 1 - 2 * sizes).astype(float)
+        adev = np.sqrt(sums / (2.0 * n_terms)[:, None]) / sizes[:, None]
+        return [_curve(adev[:, k], self.n_samples + 1, self.rate_hz, sizes, self.n_samples)
+                for k in range(self.n_channels)]
+
+
+def _sums_rows(x: np.ndarray, sizes: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    """Sum over k in [lo, hi) of (x[k+2m] - 2 x[k+m] + x[k])^2, per size m and column, the sizes inner."""
+    n_x, width = x.shape
+    out = np.zeros((len(sizes), width))
+    rows = max(64, _BLOCK // width)
+    buffer = np.empty((rows, width))
+    stops = [min(hi, n_x - 2 * int(m)) for m in sizes]
+    last = max(stops, default=lo)
+    for start in range(lo, last, rows):
+        for j, m in enumerate(sizes):
+            stop = min(start + rows, stops[j])
+            if stop <= start:
+                continue
+            m = int(m)
+            d = buffer[:stop - start]
+            np.multiply(x[start + m:stop + m], -2.0, out=d)
+            d += x[start + 2 * m:stop + 2 * m]
+            d += x[start:stop]
+            out[j] += np.einsum("ij,ij->j", d, d)
+    return out
+
+
+def second_difference_sums(x: np.ndarray, sizes: np.ndarray, *, threads: int = 2) -> np.ndarray:
+    """(len(sizes), k) sums of squared second differences of the phase `x` (n, k), k split over `threads`."""
+    x = np.ascontiguousarray(x) if x.ndim == 2 else np.ascontiguousarray(x)[:, None]
+    n_x = len(x)
+    if len(sizes) == 0:
+        return np.zeros((0, x.shape[1]))
+    end = n_x - 2 * int(np.min(sizes))
+    parts = max(1, min(int(threads), end // (4 * _BLOCK) or 1))
+    edges = np.linspace(0, end, parts + 1).astype(np.int64)
+    if parts == 1:
+        return _sums_rows(x, sizes, 0, end)
+    with ThreadPoolExecutor(max_workers=parts, thread_name_prefix="allan") as pool:
+        return sum(pool.map(lambda r: _sums_rows(x, sizes, int(r[0]), int(r[1])), zip(edges[:-1], edges[1:])))
 
 
 def oadev_of_phase(x: np.ndarray, rate_hz: float, m: np.ndarray) -> np.ndarray:
-    """Overlapping ADEV of phase `x` at cluster sizes `m` (allantools' `calc_adev_phase`, stride 1)."""
-    out = np.empty(len(m))
-    for i, mj in enumerate(m):
-        n = len(x) - 2 * int(mj)
-        out[i] = math.sqrt(_sum_second_differences(x, int(mj)) / (2.0 * n)) / int(mj) * rate_hz
-    return out
+    """Overlapping ADEV of phase `x` (1-D, allantools' units) at cluster sizes `m` (`calc_adev_phase`, stride 1)."""
+    sizes = np.asarray(m, dtype=np.int64)
+    sums = second_difference_sums(np.asarray(x, dtype=np.float64), sizes, threads=1)[:, 0]
+    return np.sqrt(sums / (2.0 * (len(x) - 2 * sizes))) / sizes * rate_hz
 
 
 def _edf(n_phase: int, m: int, slope: float) -> float:
@@ -138,20 +222,13 @@ def confidence(adev: np.ndarray, edf: np.ndarray, coverage: float = CI_COVERAGE)
 def allan_curve(y: np.ndarray, rate_hz: float, *, points_per_octave: int = 1,
                 m: np.ndarray | None = None) -> AllanCurve:
     """Overlapping ADEV of one rate series at octave-spaced (or denser) cluster times, with +-1 sigma intervals."""
-    if not (math.isfinite(rate_hz) and rate_hz > 0):
-        raise AllanError(f"sample rate must be a positive number of Hz, got {rate_hz!r}")
     y = np.asarray(y, dtype=np.float64)
     if y.ndim != 1:
         raise AllanError(f"one channel at a time: got an array of shape {y.shape}")
-    if not np.all(np.isfinite(y)):
-        raise AllanError("the series holds values that are not finite numbers")
-    sizes = cluster_sizes(len(y), points_per_octave) if m is None else np.asarray(m, dtype=np.int64)
-    x = integrate(y, rate_hz)
-    return _curve(x, rate_hz, sizes, len(y))
+    return allan_curves(y[:, None], rate_hz, points_per_octave=points_per_octave, m=m, threads=1)[0]
 
 
-def _curve(x: np.ndarray, rate_hz: float, sizes: np.ndarray, n_samples: int) -> AllanCurve:
-    adev = oadev_of_phase(x, rate_hz, sizes)
+def _curve(adev: np.ndarray, n_phase: int, rate_hz: float, sizes: np.ndarray, n_samples: int) -> AllanCurve:
     tau_s = sizes / rate_hz
     slopes = local_slopes(tau_s, adev)
     snapped = np.array([min(SLOPES, key=lambda s: abs(s - v)) if np.isfinite(v) else -0.5 for v in slopes])
@@ -159,21 +236,24 @@ def _curve(x: np.ndarray, rate_hz: float, sizes: np.ndarray, n_samples: int) -> 
     # long-tau point whose few clusters happen to fall steeply.
     leading = int(np.argmax(snapped != -1.0)) if np.any(snapped != -1.0) else len(snapped)
     snapped[leading:] = np.maximum(snapped[leading:], -0.5)
-    edf = np.array([_edf(len(x), int(mj), s) for mj, s in zip(sizes, snapped)])
+    edf = np.array([_edf(n_phase, int(mj), s) for mj, s in zip(sizes, snapped)])
     low, high = confidence(adev, edf)
     return AllanCurve(tau_s, adev, sizes, edf, low, high, snapped, float(rate_hz), n_samples)
 
 
-def allan_curves(channels: np.ndarray, rate_hz: float, *, points_per_octave: int = 1,
+def allan_curves(channels: np.ndarray, rate_hz: float, *, points_per_octave: int = 1, m: np.ndarray | None = None,
                  threads: int = 2) -> list[AllanCurve]:
-    """`allan_curve` of each column of `channels` (n, k), the columns on `threads` threads."""
-    data = np.asarray(channels)
+    """`allan_curve` of each column of `channels` (n, k), the whole record's mean taken off as allantools does."""
+    data = np.asarray(channels, dtype=np.float64)
     if data.ndim != 2:
         raise AllanError(f"channels must be an (n, k) array, got shape {data.shape}")
-    with ThreadPoolExecutor(max_workers=max(1, threads), thread_name_prefix="allan-channel") as pool:
-        return list(pool.map(lambda k: allan_curve(data[:, k], rate_hz, points_per_octave=points_per_octave),
-                             range(data.shape[1])))
+    if not np.all(np.isfinite(data)):
+        raise AllanError("the series holds values that are not finite numbers")
+    acc = PhaseAccumulator(rate_hz, data.shape[1], offset=data.mean(axis=0), capacity=len(data))
+    acc.add(data)
+    return acc.curves(points_per_octave=points_per_octave, m=m, threads=threads)
 
 
-__all__ = ["CI_COVERAGE", "MIN_CLUSTERS", "SLOPES", "AllanCurve", "AllanError", "allan_curve", "allan_curves",
-           "cluster_sizes", "confidence", "integrate", "local_slopes", "oadev_of_phase"]
+__all__ = ["CI_COVERAGE", "MIN_CLUSTERS", "SLOPES", "AllanCurve", "AllanError", "PhaseAccumulator", "allan_curve",
+           "allan_curves", "cluster_sizes", "confidence", "integrate", "local_slopes", "oadev_of_phase",
+           "second_difference_sums"]
