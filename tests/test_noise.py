@@ -13,11 +13,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.signal import lfilter
 
 from bench.config.load import ConfigError, parse_config
 from bench.model.imu import NoiseModel, default_sim_imu
 from bench.noise.allan import (AllanError, PhaseAccumulator, allan_curve, allan_curves, cluster_sizes, integrate,
                                second_difference_sums)
+from bench.noise.covariance import avar_covariance, basis, cross_terms
 from bench.noise.fit import FLICKER_FACTOR, fit_curve
 from bench.noise.result import FORMAT, VERSION, NoiseResult, NoiseResultError, analyse
 from bench.noise.simulate import sim_truth, simulate_static
@@ -160,6 +162,66 @@ def test_new_noise_streams_leave_the_existing_ones_unchanged():
     a = SimImu(default_sim_imu(), base, rate_hz=50.0, seed=4).generate(table, 20.0)
     b = SimImu(default_sim_imu(), with_rrw, rate_hz=50.0, seed=4).generate(table, 20.0)
     assert np.array_equal(a.gyro_counts, b.gyro_counts) and np.array_equal(a.acc_counts, b.acc_counts)
+
+
+def test_the_model_covariance_of_the_allan_points_matches_monte_carlo():
+    # neighbouring overlapping estimates correlate by ~0.5: the fit's uncertainties rest on this covariance
+    rate, n, reps = 10.0, 1 << 12, 300
+    white, rrw, gm_sigma, gm_time = 1.0, 0.05, 0.5, 30.0
+    rng = np.random.default_rng(0)
+    phi = math.exp(-1.0 / rate / gm_time)
+    estimates = []
+    for _ in range(reps):
+        y = white * math.sqrt(rate) * rng.standard_normal(n) + np.cumsum(rrw / math.sqrt(rate) * rng.standard_normal(n))
+        y += lfilter([gm_sigma * math.sqrt(1 - phi * phi)], [1.0, -phi], rng.standard_normal(n))
+        estimates.append(allan_curve(y, rate).adev ** 2)
+    estimates = np.array(estimates)
+    sizes = cluster_sizes(n)
+    coefficients = np.array([0.0, white ** 2, 0.0, rrw ** 2 / 3.0, gm_sigma ** 2])
+    model = avar_covariance(cross_terms(sizes, n + 1, 1.0 / rate, gm_time), coefficients)
+    assert np.allclose(estimates.mean(axis=0), basis(sizes / rate, gm_time) @ coefficients, rtol=0.1)
+    measured = np.cov(estimates.T)
+    sd_ratio = np.sqrt(np.diag(measured) / np.diag(model))
+    assert np.all(np.abs(sd_ratio - 1.0) < 0.2), sd_ratio
+    corr = lambda c: np.diag(c / np.sqrt(np.outer(np.diag(c), np.diag(c))), 1)
+    assert np.all(np.abs(corr(measured) - corr(model)) < 0.15) and np.all(corr(model)[2:] > 0.3)
+
+
+def test_terms_over_seeds_are_within_their_stated_uncertainty():
+    # regression: the bias instability was the lowest noisy point / 0.664 with one point's chi-square sigma, and
+    # missed by up to 4.6 sigma on these records; ARW and bias instability must respect their sigmas
+    noise = NoiseModel(gyro_arw_deg_rt_h=0.01, gyro_bias_instability_dph=0.02, acc_vrw_ug_rt_hz=30.0,
+                       acc_bias_instability_ug=5.0, correlation_time_s=60.0, quantise=False,
+                       gyro_rrw_dph_rt_h=0.3, acc_rrw_ug_rt_h=30.0)
+    rate = 20.0
+    z: dict[str, list[float]] = {"random_walk": [], "bias_instability": []}
+    for seed in range(8):
+        data = simulate_static(noise, duration_s=3600.0, rate_hz=rate, seed=seed)
+        truth = sim_truth(noise, default_sim_imu(), len(data), rate)["channels"]
+        for channel in analyse(data, rate):
+            for term in ("arw", "vrw", "bias_instability"):
+                if term in channel.terms:
+                    got = channel.terms[term]
+                    key = "bias_instability" if term == "bias_instability" else "random_walk"
+                    z[key].append((got["value"] - truth[channel.name][term]) / got["sigma"])
+    for key, values in z.items():
+        values = np.abs(values)
+        assert len(values) == 48, key
+        assert values.max() < 3.2 and np.mean(values <= 2.0) >= 0.85, (key, values.max(), np.mean(values <= 2.0))
+
+
+def test_a_rate_random_walk_the_record_cannot_resolve_is_an_upper_bound():
+    noise = NoiseModel(gyro_arw_deg_rt_h=0.01, gyro_bias_instability_dph=0.0, acc_vrw_ug_rt_hz=30.0,
+                       acc_bias_instability_ug=0.0, correlation_time_s=60.0, quantise=False)   # no RRW at all
+    data = simulate_static(noise, duration_s=1800.0, rate_hz=20.0, seed=1)
+    for channel in analyse(data, 20.0):
+        rrw = channel.terms.get("rrw")
+        assert rrw is not None and rrw["upper_bound"] is True and "not resolved" in rrw["upper_bound_means"]
+        assert rrw["value"] > 0.0
+        white = channel.terms["arw" if channel.name.startswith("gyro") else "vrw"]
+        assert "upper_bound" not in white
+        doc = channel.to_json()["model"]
+        assert doc["fit_tau_s"][0] < doc["fit_tau_s"][1] and len(doc["adev"]) == len(channel.curve.tau_s)
 
 
 @pytest.mark.parametrize("seed", [0, 1])

@@ -1,24 +1,41 @@
-"""Noise terms read off an Allan deviation curve (IEEE Std 952-1997 Annex C), fit regions chosen automatically.
+"""Noise terms read off an Allan deviation curve (IEEE Std 952-1997 Annex C) by fitting the whole curve.
 
-Each term is a straight line of known slope in log-log (ADEV in the channel's unit,
-tau in s); the points where the curve has that slope form its region:
+The Allan variance is the sum of the variances of independent processes, each a known
+function of tau (`bench.noise.covariance`):
 
-- quantisation, slope -1: ADEV = sqrt(3) Q / tau, and random walk (ARW for a gyro, VRW
-  for an accelerometer), slope -1/2: ADEV = N / sqrt(tau), N the line's value at tau =
-  1 s: fitted together as AVAR = 3 Q^2 / tau^2 + N^2 / tau on the points up to the end
-  of the -1/2 region (local slope in [-0.6, -0.4]); Q's region is where its line is the
-  larger;
-- bias instability, slope 0: B = min ADEV / 0.664 (sqrt(2 ln 2 / pi)), at the minimum; the
-  flat region is the run of points around it whose neighbour slopes stay within +-1/4.
-  When the curve still falls at its last point the minimum is not reached and B is an
-  upper bound (`upper_bound`);
-- rate random walk, slope +1/2: ADEV = K sqrt(tau / 3) (the points after the flat region
-  rising faster than +1/4).
+    AVAR = 3 Q^2 / tau^2 + N^2 / tau + A + K^2 tau / 3 + s^2 GM(tau / T)
 
-Uncertainty (1 sigma) of a term, relative: the larger of the chi-square spread of the
-region's best-determined point, 1 / sqrt(2 edf) (neighbouring overlapping points are
-strongly correlated, so averaging them does not reduce it), and the scatter of the
-region's points about the line.
+quantisation Q (white PM), random walk N (ARW for a gyro, VRW for an accelerometer:
+the -1/2 line's value at tau = 1 s), flicker A (flat), rate random walk K (+1/2) and a
+first-order Gauss-Markov bias (sigma s, correlation time T: a bump peaking at 1.89 T;
+the simulated IMU's bias is one, and a real sensor's correlated bias often looks like
+one). `model_fit` fits the coefficients, non-negative, by generalised least squares with
+the full covariance of the points: overlapping estimates at neighbouring taus correlate
+by 0.5-0.8, so weighting them as independent (or by their own noisy values) gives
+uncertainties several times too small and a low bias. T is tried at every tau two
+octaves inside the fitted ones (a bump is only told apart from white noise and from a
+random walk when the curve shows both its sides) and the fits are averaged with weights
+exp(-chi2 / 2), their spread added to the covariance. The fit starts at the longest run
+of -1/2 slopes with m >= MIN_WHITE_M and moves on while the chi-square says the model
+does not describe the points (the shortest clusters carry the sampling: a quantiser's
+pattern, filters).
+
+The terms, each with the 1 sigma of the fit's covariance (scaled by chi2/dof when the
+points scatter more than the model says):
+
+- N = sqrt(c_white), Q = sqrt(c_pm / 3) when above 2 sigma (else read from the leading
+  -1 slope, as before);
+- bias instability B = the minimum of the fitted curve over the measured taus / 0.664
+  (IEEE's flat-region reading; 0.664 = sqrt(2 ln 2 / pi)); the fitted curve averages
+  the neighbouring points, so B is not biased low as the lowest noisy point is. When the
+  fitted curve still falls at the longest tau, B is flagged `upper_bound` (the floor may
+  lie beyond the record);
+- rate random walk K = sqrt(3 c_rrw); when c_rrw is below 2 sigma the record cannot tell
+  it from zero and K is given as a 2-sigma upper bound (`upper_bound`; its sigma is
+  sqrt(3 sigma_c)).
+
+A curve too short for the model (fewer than 3 usable points) has its terms read off the
+slopes (`_region_fit`: -1/2 points, the minimum, the +1/2 points).
 """
 
 from __future__ import annotations
@@ -67,6 +84,7 @@ class ChannelFit:
     random_walk: TermFit | None    # N: ADEV = N / sqrt(tau)    (unit x sqrt(s))
     bias_instability: TermFit | None  # B: min ADEV / 0.664      (unit)
     rate_random_walk: TermFit | None  # K: ADEV = K sqrt(tau/3) (unit / sqrt(s))
+    model: dict | None = None      # the model fit (`ModelFit.summary`), None when the terms were read off slopes
 
     def line(self, term: str, tau_s: np.ndarray) -> np.ndarray | None:
         """The fitted line of `term` at `tau_s` (None if the term was not found)."""
@@ -219,6 +237,18 @@ class ModelFit:
         return np.sqrt(np.maximum(var, 0.0))
 
 
+    def summary(self, curve: AllanCurve) -> dict:
+        """JSON: the fitted taus, chi-square, the Gauss-Markov correlation times tried with their weights, the
+        fitted ADEV at every tau of the curve and its 1 sigma."""
+        tau = curve.tau_s
+        return {"fit_tau_s": [float(tau[self.points[0]]), float(tau[self.points[-1]])], "points": [int(i) for i in self.points],
+                "chi2": self.chi2, "dof": self.dof,
+                "gauss_markov": [{"weight": w, "correlation_time_s": t, "sigma": math.sqrt(c[4])}
+                                 for w, c, _, t in self.candidates if t is not None and w >= 0.01],
+                "adev": np.sqrt(self.avar(tau)).tolist(),
+                "adev_sigma": (0.5 * self.avar_sigma(tau) / np.sqrt(self.avar(tau))).tolist()}
+
+
 def _gls(x: np.ndarray, avar: np.ndarray, cross: np.ndarray, start: np.ndarray, columns: list[int],
          iterations: int = 6) -> tuple[np.ndarray, np.ndarray, float]:
     """Non-negative generalised least squares of `avar` on `x`'s `columns`, the covariance re-made from each fit:
@@ -256,17 +286,20 @@ def _fit_points(curve: AllanCurve, idx: list[int], all_idx: list[int]) -> ModelF
     if not np.any(start > 0):
         return None
     fits = []
-    # A Gauss-Markov bias is told apart from white noise (far below its peak at 1.89 T it is white) and from a
-    # random-walk bias (far above) only when its peak is inside the fitted taus, two octaves from the first.
-    peaks = [float(t) for t in tau[:-1] if t >= 4.0 * tau[0] * (1 - 1e-9)]
+    # A Gauss-Markov bias is told apart from white noise (far above its peak at 1.89 T it falls as -1/2) and from
+    # a random-walk bias (far below it rises as +1/2) only when the curve shows both sides of its peak: two
+    # octaves of fitted taus on either side.
+    peaks = [float(t) for t in tau if 4.0 * tau[0] * (1 - 1e-9) <= t <= tau[-1] / 4.0 * (1 + 1e-9)]
     for correlation_time_s in [None] + [t / GM_PEAK_TAU for t in peaks]:
         columns = [0, 1, 2, 3] + ([4] if correlation_time_s is not None else [])
         cross = _cross_cached(m, n_phase, tau0, correlation_time_s)[np.ix_(sub, sub)]
         coef, design, chi2 = _gls(basis(tau, correlation_time_s), avar, cross, start, columns)
         if math.isfinite(chi2):
+            # every coefficient of the model free (also those NNLS holds at 0: the record does not rule them out,
+            # and holding them there claimed RRW and bias-instability sigmas far too small in trials)
             cov = np.zeros((5, 5))
             cov[np.ix_(columns, columns)] = np.linalg.pinv(design.T @ design)
-            fits.append((chi2, coef, cov, correlation_time_s, sum(coef[columns] > 0)))
+            fits.append((chi2, coef, cov, correlation_time_s, int(np.sum(coef[columns] > 0))))
     if not fits:
         return None
     chi2_min, *_, n_active = min(fits, key=lambda f: f[0])
@@ -366,7 +399,7 @@ def fit_curve(curve: AllanCurve) -> ChannelFit:
         quant_idx = _leading_quantisation(curve)
         if quant_idx:
             quantisation = _term(curve, quant_idx, -1.0, 1.0 / math.sqrt(3.0))
-    return ChannelFit(quantisation, random_walk, bias, rate_random_walk)
+    return ChannelFit(quantisation, random_walk, bias, rate_random_walk, model.summary(curve))
 
 
 def _leading_quantisation(curve: AllanCurve) -> list[int]:

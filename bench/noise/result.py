@@ -64,9 +64,12 @@ class ChannelNoise:
 
     def to_json(self) -> dict:
         c = self.curve
-        return {"unit": self.unit, "tau_s": c.tau_s.tolist(), "adev": c.adev.tolist(),
-                "adev_low": c.adev_low.tolist(), "adev_high": c.adev_high.tolist(), "edf": c.edf.tolist(),
-                "terms": self.terms}
+        out = {"unit": self.unit, "tau_s": c.tau_s.tolist(), "adev": c.adev.tolist(),
+               "adev_low": c.adev_low.tolist(), "adev_high": c.adev_high.tolist(), "edf": c.edf.tolist(),
+               "terms": self.terms}
+        if self.fit.model is not None:
+            out["model"] = self.fit.model
+        return out
 
 
 def _term_json(fit: TermFit, factor: float, unit: str) -> dict[str, Any]:
@@ -75,6 +78,14 @@ def _term_json(fit: TermFit, factor: float, unit: str) -> dict[str, Any]:
     if fit.upper_bound:
         out["upper_bound"] = True
     return out
+
+
+#: What an upper bound means, per term (in the term's JSON as "upper_bound_means").
+UPPER_BOUND_MEANS = {
+    "rate_random_walk": "not resolved: the record cannot tell it from zero (below 2 sigma); value is a 2-sigma upper "
+                        "bound",
+    "bias_instability": "the fitted curve still falls at the longest tau: the floor may be lower than this minimum "
+                        "over the record's taus"}
 
 
 def channel_noise(name: str, curve: AllanCurve) -> ChannelNoise:
@@ -86,6 +97,8 @@ def channel_noise(name: str, curve: AllanCurve) -> ChannelNoise:
         found = getattr(fit, attr)
         if found is not None:
             terms[key] = _term_json(found, factor, unit)
+            if found.upper_bound:
+                terms[key]["upper_bound_means"] = UPPER_BOUND_MEANS[attr]
     if not gyro and "vrw" in terms:
         terms["vrw"]["mps_rt_h"] = terms["vrw"]["value"] * MICRO_G * 60.0
     return ChannelNoise(name, "deg/h" if gyro else "ug", curve, fit, terms)

@@ -54,6 +54,8 @@ def _truth_cells(term: str, t: dict, truth: dict | None) -> tuple[str, str]:
     if truth is None or truth.get(term) is None or not truth.get(term):
         return "-", "-"
     true = float(truth[term])
+    if term == "rrw" and t.get("upper_bound"):       # not resolved: a bound, not an estimate
+        return _f(true), "below the bound" if true <= t["value"] else "ABOVE the bound"
     z = (t["value"] - true) / t["sigma"] if t.get("sigma") else None
     return _f(true), "-" if z is None else f"{z:+.2f}"
 
