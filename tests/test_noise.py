@@ -75,13 +75,13 @@ def test_phase_accumulated_block_by_block_agrees_with_allantools_to_1e_9():
 
 def test_the_threads_split_the_record_without_changing_the_sums():
     rng = np.random.default_rng(5)
-    x = np.cumsum(rng.standard_normal((300_001, 2)), axis=0)
+    x = np.cumsum(rng.standard_normal((2, 300_001)), axis=1)
     sizes = cluster_sizes(300_000)
-    one = second_difference_sums(x, sizes, threads=1)
-    two = second_difference_sums(x, sizes, threads=2)
-    direct = np.array([[np.sum((x[2 * m:, k] - 2 * x[m:len(x) - m, k] + x[:len(x) - 2 * m, k]) ** 2)
-                        for k in range(2)] for m in sizes])
-    assert np.allclose(one, direct, rtol=1e-12) and np.allclose(two, direct, rtol=1e-12)
+    direct = np.array([[np.sum((x[k, 2 * m:] - 2 * x[k, m:x.shape[1] - m] + x[k, :x.shape[1] - 2 * m]) ** 2)
+                        for m in sizes] for k in range(2)])
+    for threads in (1, 2, 3, 5):          # channels per thread, and parts of the record per thread
+        assert np.allclose(second_difference_sums(x, sizes, threads=threads), direct, rtol=1e-12), threads
+    assert np.allclose(second_difference_sums(x[1], sizes, threads=2)[0], direct[1], rtol=1e-12)
 
 
 def test_a_block_of_another_width_or_not_finite_is_refused():

@@ -7,14 +7,14 @@ and, for each cluster size `m` (tau = m / rate_hz),
 
     AVAR(tau) = sum_k (x[k+2m] - 2 x[k+m] + x[k])^2 / (2 tau^2 (N - 2m)),  N = len(x).
 
-The phase of all channels is one (N + 1, k) float64 array, accumulated block by block
-(`PhaseAccumulator`: a streaming reader hands it each decoded block; nothing else of the
-record is kept, 8 bytes per sample and channel). The sums of squared second differences
-run over blocks of rows with the cluster sizes inner: at octave sizes the rows x[k + 2m]
-one size reads are the rows x[k + m'] the next one (m' = 2m) reads, so each block's
-rows are fetched from memory about once per size instead of three times, every numpy
-call works on all channels at once, and the range of k is split over threads (numpy
-releases the GIL).
+The phase of the channels is one (k, N + 1) float64 array, one contiguous row per
+channel, accumulated block by block (`PhaseAccumulator`: a streaming reader hands it each
+decoded block; nothing else of the record is kept, 8 bytes per sample and channel). The
+sums of squared second differences run over cache-sized blocks of k with the cluster
+sizes inner: at octave sizes the stretch x[k + 2m] one size reads is the stretch
+x[k + m'] the next one (m' = 2m) reads, so each stretch is fetched from memory about
+once per size instead of up to three times. Channels (or, for fewer channels than
+threads, parts of the record) go to threads: numpy releases the GIL.
 
 Confidence intervals: chi-square with the equivalent degrees of freedom of SP 1065
 (section 5.2.3, "simple" formulas) for the noise type the local log-log slope shows
@@ -37,7 +37,7 @@ from bench.errors import InputError
 CI_COVERAGE = 0.682689492137
 #: A tau is computed only with at least this many independent clusters (N / m): beyond, the estimate is noise.
 MIN_CLUSTERS = 4
-_BLOCK = 1 << 13          # values (rows x channels) per block of the second-difference pass: 64 kB
+_BLOCK = 1 << 13          # samples per block of the second-difference pass: 64 kB per stretch, ~24 stretches in L2
 #: Local slopes of ADEV in log-log and the noise type each stands for.
 SLOPES = {-1.0: "white PM (quantisation)", -0.5: "white FM (random walk of angle/velocity)",
           0.0: "flicker FM (bias instability)", 0.5: "random walk FM (rate random walk)"}
@@ -101,7 +101,7 @@ class PhaseAccumulator:
             raise AllanError(f"sample rate must be a positive number of Hz, got {rate_hz!r}")
         self.rate_hz, self.n_channels = float(rate_hz), int(n_channels)
         self._offset = None if offset is None else np.asarray(offset, dtype=np.float64).reshape(self.n_channels)
-        self._phase = np.zeros((max(int(capacity), 0) + 1, self.n_channels))
+        self._phase = np.zeros((self.n_channels, max(int(capacity), 0) + 1))
         self.n_samples = 0
 
     def add(self, block: np.ndarray) -> None:
@@ -118,21 +118,22 @@ class PhaseAccumulator:
             raise AllanError("the series holds values that are not finite numbers")
         if self._offset is None:
             self._offset = block.mean(axis=0)
-        need = self.n_samples + n + 1
-        if need > len(self._phase):
-            grown = np.empty((max(need, 2 * len(self._phase)), self.n_channels))
-            grown[:self.n_samples + 1] = self._phase[:self.n_samples + 1]
+        start, need = self.n_samples + 1, self.n_samples + n + 1
+        if need > self._phase.shape[1]:
+            grown = np.empty((self.n_channels, max(need, 2 * self._phase.shape[1])))
+            grown[:, :start] = self._phase[:, :start]
             self._phase = grown
-        out = self._phase[self.n_samples + 1:need]
-        np.subtract(block, self._offset, out=out)
-        out[0] += self._phase[self.n_samples]
-        np.cumsum(out, axis=0, out=out)
+        for k in range(self.n_channels):
+            row = self._phase[k, start:need]
+            np.subtract(block[:, k], self._offset[k], out=row)
+            row[0] += self._phase[k, start - 1]
+            np.cumsum(row, out=row)
         self.n_samples += n
 
     @property
     def phase(self) -> np.ndarray:
-        """(n + 1, k) running sums (sample units: x / rate is allantools' phase), 0 first."""
-        return self._phase[:self.n_samples + 1]
+        """(k, n + 1) running sums (sample units: x / rate is allantools' phase), 0 first."""
+        return self._phase[:, :self.n_samples + 1]
 
     def curves(self, *, points_per_octave: int = 1, m: np.ndarray | None = None,
                threads: int = 2) -> list["AllanCurve"]:
@@ -140,52 +141,57 @@ class PhaseAccumulator:
         sizes = cluster_sizes(self.n_samples, points_per_octave) if m is None else np.asarray(m, dtype=np.int64)
         sums = second_difference_sums(self.phase, sizes, threads=threads)
         n_terms = (self.n_samples + 1 - 2 * sizes).astype(float)
-        adev = np.sqrt(sums / (2.0 * n_terms)[:, None]) / sizes[:, None]
-        return [_curve(adev[:, k], self.n_samples + 1, self.rate_hz, sizes, self.n_samples)
+        adev = np.sqrt(sums / (2.0 * n_terms)[None, :]) / sizes[None, :]
+        return [_curve(adev[k], self.n_samples + 1, self.rate_hz, sizes, self.n_samples)
                 for k in range(self.n_channels)]
 
 
-def _sums_rows(x: np.ndarray, sizes: np.ndarray, lo: int, hi: int) -> np.ndarray:
-    """Sum over k in [lo, hi) of (x[k+2m] - 2 x[k+m] + x[k])^2, per size m and column, the sizes inner."""
-    n_x, width = x.shape
-    out = np.zeros((len(sizes), width))
-    rows = max(64, _BLOCK // width)
-    buffer = np.empty((rows, width))
-    stops = [min(hi, n_x - 2 * int(m)) for m in sizes]
-    last = max(stops, default=lo)
-    for start in range(lo, last, rows):
+def _sums(x: np.ndarray, sizes: list[int], lo: int, hi: int) -> np.ndarray:
+    """Sum over k in [lo, hi) of (x[k+2m] - 2 x[k+m] + x[k])^2 for each size m of one channel, the sizes inner."""
+    out = np.zeros(len(sizes))
+    buffer = np.empty(_BLOCK)
+    stops = [min(hi, len(x) - 2 * m) for m in sizes]
+    for start in range(lo, max(stops, default=lo), _BLOCK):
         for j, m in enumerate(sizes):
-            stop = min(start + rows, stops[j])
+            stop = min(start + _BLOCK, stops[j])
             if stop <= start:
                 continue
-            m = int(m)
             d = buffer[:stop - start]
             np.multiply(x[start + m:stop + m], -2.0, out=d)
             d += x[start + 2 * m:stop + 2 * m]
             d += x[start:stop]
-            out[j] += np.einsum("ij,ij->j", d, d)
+            out[j] += float(np.dot(d, d))
     return out
 
 
 def second_difference_sums(x: np.ndarray, sizes: np.ndarray, *, threads: int = 2) -> np.ndarray:
-    """(len(sizes), k) sums of squared second differences of the phase `x` (n, k), k split over `threads`."""
-    x = np.ascontiguousarray(x) if x.ndim == 2 else np.ascontiguousarray(x)[:, None]
-    n_x = len(x)
-    if len(sizes) == 0:
-        return np.zeros((0, x.shape[1]))
-    end = n_x - 2 * int(np.min(sizes))
-    parts = max(1, min(int(threads), end // (4 * _BLOCK) or 1))
+    """(k, len(sizes)) sums of squared second differences of the phase `x` (k, n) (or (n,): then (1, len(sizes))),
+    the channels (with fewer channels than threads, parts of the record) on `threads` threads."""
+    x = np.asarray(x, dtype=np.float64)
+    x = x[None, :] if x.ndim == 1 else x
+    channels, n_x = x.shape
+    sizes_list = [int(m) for m in sizes]
+    out = np.zeros((channels, len(sizes_list)))
+    if not sizes_list:
+        return out
+    end = n_x - 2 * min(sizes_list)
+    parts = max(1, min(-(-max(1, int(threads)) // channels), end // (4 * _BLOCK)))
     edges = np.linspace(0, end, parts + 1).astype(np.int64)
-    if parts == 1:
-        return _sums_rows(x, sizes, 0, end)
-    with ThreadPoolExecutor(max_workers=parts, thread_name_prefix="allan") as pool:
-        return sum(pool.map(lambda r: _sums_rows(x, sizes, int(r[0]), int(r[1])), zip(edges[:-1], edges[1:])))
+    tasks = [(k, int(lo), int(hi)) for k in range(channels) for lo, hi in zip(edges[:-1], edges[1:])]
+    if threads <= 1 or len(tasks) == 1:
+        results = [_sums(x[k], sizes_list, lo, hi) for k, lo, hi in tasks]
+    else:
+        with ThreadPoolExecutor(max_workers=int(threads), thread_name_prefix="allan") as pool:
+            results = list(pool.map(lambda t: _sums(x[t[0]], sizes_list, t[1], t[2]), tasks))
+    for (k, _, _), part in zip(tasks, results):
+        out[k] += part
+    return out
 
 
 def oadev_of_phase(x: np.ndarray, rate_hz: float, m: np.ndarray) -> np.ndarray:
     """Overlapping ADEV of phase `x` (1-D, allantools' units) at cluster sizes `m` (`calc_adev_phase`, stride 1)."""
     sizes = np.asarray(m, dtype=np.int64)
-    sums = second_difference_sums(np.asarray(x, dtype=np.float64), sizes, threads=1)[:, 0]
+    sums = second_difference_sums(np.asarray(x, dtype=np.float64), sizes, threads=1)[0]
     return np.sqrt(sums / (2.0 * (len(x) - 2 * sizes))) / sizes * rate_hz
 
 
