@@ -17,8 +17,15 @@ from scipy.signal import lfilter
 
 from bench.config.load import ConfigError, parse_config
 from bench.model.imu import NoiseModel, default_sim_imu
-from bench.noise.allan import (AllanError, PhaseAccumulator, allan_curve, allan_curves, cluster_sizes, integrate,
-                               second_difference_sums)
+from bench.noise.allan import (
+    AllanError,
+    PhaseAccumulator,
+    allan_curve,
+    allan_curves,
+    cluster_sizes,
+    integrate,
+    second_difference_sums,
+)
 from bench.noise.covariance import avar_covariance, basis, cross_terms
 from bench.noise.fit import FLICKER_FACTOR, fit_curve
 from bench.noise.result import FORMAT, VERSION, NoiseResult, NoiseResultError, analyse
@@ -183,7 +190,9 @@ def test_the_model_covariance_of_the_allan_points_matches_monte_carlo():
     measured = np.cov(estimates.T)
     sd_ratio = np.sqrt(np.diag(measured) / np.diag(model))
     assert np.all(np.abs(sd_ratio - 1.0) < 0.2), sd_ratio
-    corr = lambda c: np.diag(c / np.sqrt(np.outer(np.diag(c), np.diag(c))), 1)
+
+    def corr(c):
+        return np.diag(c / np.sqrt(np.outer(np.diag(c), np.diag(c))), 1)
     assert np.all(np.abs(corr(measured) - corr(model)) < 0.15) and np.all(corr(model)[2:] > 0.3)
 
 

@@ -1,8 +1,9 @@
 """`bench solve`: re-solve recorded runs from their MCAP logs (logic in `bench.solve.resolve`).
 
 Exit codes: 0 solved (quality checks passed); 2 usage error, a file that cannot be read
-as a run log, a subset the logs lack, or a static noise recording (`bench noise` analyses those); 4 solved but a quality check failed (damage,
-steps left out, outliers; the report says which) or nothing left to solve.
+as a run log, a subset the logs lack, or a static noise recording (`bench noise` analyses
+those); 4 solved but a quality check failed (damage, steps left out, outliers; the report
+says which) or nothing left to solve.
 """
 
 from __future__ import annotations

@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-
 from functools import lru_cache
 
 import numpy as np
@@ -214,16 +213,16 @@ class ModelFit:
 
     @property
     def coefficients(self) -> np.ndarray:
-        return sum(w * c for w, c, _, _ in self.candidates)
+        return np.sum([w * c for w, c, _, _ in self.candidates], axis=0)
 
     @property
     def covariance(self) -> np.ndarray:
         mean = self.coefficients
-        return sum(w * (cov + np.outer(c - mean, c - mean)) for w, c, cov, _ in self.candidates)
+        return np.sum([w * (cov + np.outer(c - mean, c - mean)) for w, c, cov, _ in self.candidates], axis=0)
 
     def parts(self, tau_s: np.ndarray) -> np.ndarray:
         """(len(tau), 5) each term's AVAR at `tau_s` (weighted over the candidates)."""
-        return sum(w * basis(tau_s, t) * c for w, c, _, t in self.candidates)
+        return np.sum([w * basis(tau_s, t) * c for w, c, _, t in self.candidates], axis=0)
 
     def avar(self, tau_s: np.ndarray) -> np.ndarray:
         return self.parts(tau_s).sum(axis=1)
@@ -241,7 +240,8 @@ class ModelFit:
         """JSON: the fitted taus, chi-square, the Gauss-Markov correlation times tried with their weights, the
         fitted ADEV at every tau of the curve and its 1 sigma."""
         tau = curve.tau_s
-        return {"fit_tau_s": [float(tau[self.points[0]]), float(tau[self.points[-1]])], "points": [int(i) for i in self.points],
+        return {"fit_tau_s": [float(tau[self.points[0]]), float(tau[self.points[-1]])],
+                "points": [int(i) for i in self.points],
                 "chi2": self.chi2, "dof": self.dof,
                 "gauss_markov": [{"weight": w, "correlation_time_s": t, "sigma": math.sqrt(c[4])}
                                  for w, c, _, t in self.candidates if t is not None and w >= 0.01],

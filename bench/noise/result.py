@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,7 +31,7 @@ import numpy as np
 
 from bench.errors import InputError
 from bench.model.units import MICRO_G
-from bench.noise.allan import AllanCurve, allan_curves
+from bench.noise.allan import AllanCurve, PhaseAccumulator, allan_curves
 from bench.noise.fit import ChannelFit, TermFit, fit_curve
 
 FORMAT = "turntable-bench/noise"
@@ -107,6 +108,17 @@ def channel_noise(name: str, curve: AllanCurve) -> ChannelNoise:
 def analyse(data: np.ndarray, rate_hz: float, *, points_per_octave: int = 1, threads: int = 2) -> list[ChannelNoise]:
     """The six channels of `data` (n, 6): gyros x, y, z in deg/h, accelerometers x, y, z in ug."""
     curves = allan_curves(data, rate_hz, points_per_octave=points_per_octave, threads=threads)
+    return [channel_noise(name, curve) for name, curve in zip(CHANNELS, curves)]
+
+
+def analyse_blocks(blocks: Iterable[np.ndarray], rate_hz: float, *, capacity: int = 0, points_per_octave: int = 1,
+                   threads: int = 2) -> list[ChannelNoise]:
+    """`analyse` of a record handed as (n_i, 6) blocks in order (a streaming reader's): only the phase is kept,
+    8 bytes per sample and channel (`capacity`: the samples expected, to allocate it once)."""
+    acc = PhaseAccumulator(rate_hz, len(CHANNELS), capacity=capacity)
+    for block in blocks:
+        acc.add(block)
+    curves = acc.curves(points_per_octave=points_per_octave, threads=threads)
     return [channel_noise(name, curve) for name, curve in zip(CHANNELS, curves)]
 
 
@@ -207,4 +219,4 @@ class NoiseResult:
 
 
 __all__ = ["ACC_TERMS", "CHANNELS", "FORMAT", "GYRO_TERMS", "VERSION", "ChannelNoise", "NoiseResult",
-           "NoiseResultError", "analyse", "channel_noise"]
+           "NoiseResultError", "analyse", "analyse_blocks", "channel_noise"]

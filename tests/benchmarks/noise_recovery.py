@@ -63,7 +63,8 @@ def run_case(hours: float, rate_hz: float, seeds: int) -> None:
         zs = np.array([z for z, _ in rows])
         errs = np.abs([e for _, e in rows])
         print(f"  {sensor:6} {term:18} {len(rows):>4}/{3 * seeds:<3} {zs.mean():+7.2f} {zs.std():5.2f} "
-              f"{np.abs(zs).max():7.2f} {errs.max():9.1f} {np.mean(np.abs(zs) <= 1):9.2f} {np.mean(np.abs(zs) <= 2):9.2f}")
+              f"{np.abs(zs).max():7.2f} {errs.max():9.1f} {np.mean(np.abs(zs) <= 1):9.2f} "
+              f"{np.mean(np.abs(zs) <= 2):9.2f}")
     for sensor, ratios in sorted(bounds.items()):
         r = np.array(ratios)
         print(f"  {sensor:6} rrw not resolved: {len(r)}/{3 * seeds} upper bounds, configured value below the bound "
