@@ -10,11 +10,15 @@ and, for each cluster size `m` (tau = m / rate_hz),
 The phase of the channels is one (k, N + 1) float64 array, one contiguous row per
 channel, accumulated block by block (`PhaseAccumulator`: a streaming reader hands it each
 decoded block; nothing else of the record is kept, 8 bytes per sample and channel). The
-sums of squared second differences run over cache-sized blocks of k with the cluster
-sizes inner: at octave sizes the stretch x[k + 2m] one size reads is the stretch
-x[k + m'] the next one (m' = 2m) reads, so each stretch is fetched from memory about
-once per size instead of up to three times. Channels (or, for fewer channels than
-threads, parts of the record) go to threads: numpy releases the GIL.
+sum of squared second differences at size m comes from first differences e_m(k) =
+x[k+m] - x[k]: d_m(k)^2 = 2 e_m(k)^2 + 2 e_m(k+m)^2 - e_2m(k)^2, so each lag costs one
+subtraction and one dot product (segment sums of e_m^2), and octave sizes share their
+lags (2m is the next size): half the passes over the data of the direct form. Where
+that identity would cancel (a drift far above the noise: the first differences much
+larger than the second), the size is summed directly, so float64 keeps ~1e-10 or
+better. The passes run over cache-sized blocks of k with the lags inner (the stretch
+x[k + 2m] of one lag is the stretch x[k + m'] of the next), each channel's record split
+over threads (numpy releases the GIL).
 
 Confidence intervals: chi-square with the equivalent degrees of freedom of SP 1065
 (section 5.2.3, "simple" formulas) for the noise type the local log-log slope shows
@@ -38,6 +42,7 @@ CI_COVERAGE = 0.682689492137
 #: A tau is computed only with at least this many independent clusters (N / m): beyond, the estimate is noise.
 MIN_CLUSTERS = 4
 _BLOCK = 1 << 13          # samples per block of the sums: 64 kB per stretch (2k: call overhead; 16k+: 30x slower here)
+_CANCELLATION = 1e4       # largest (sum of the identity's terms) / result before a size is summed directly
 #: Local slopes of ADEV in log-log and the noise type each stands for.
 SLOPES = {-1.0: "white PM (quantisation)", -0.5: "white FM (random walk of angle/velocity)",
           0.0: "flicker FM (bias instability)", 0.5: "random walk FM (rate random walk)"}
@@ -146,7 +151,7 @@ class PhaseAccumulator:
                 for k in range(self.n_channels)]
 
 
-def _sums(x: np.ndarray, sizes: list[int], lo: int, hi: int) -> np.ndarray:
+def _direct_sums(x: np.ndarray, sizes: list[int], lo: int, hi: int) -> np.ndarray:
     """Sum over k in [lo, hi) of (x[k+2m] - 2 x[k+m] + x[k])^2 for each size m of one channel, the sizes inner."""
     out = np.zeros(len(sizes))
     buffer = np.empty(_BLOCK)
@@ -164,9 +169,67 @@ def _sums(x: np.ndarray, sizes: list[int], lo: int, hi: int) -> np.ndarray:
     return out
 
 
+def _difference_segments(x: np.ndarray, lags: list[int], lo: int, hi: int) -> np.ndarray:
+    """(len(lags), 3): for each lag L the sums of e_L(k)^2 = (x[k+L] - x[k])^2 over k in [0, L), [L, n-2L) and
+    [n-2L, n-L) (n = len(x); empty where they cross), restricted to k in [lo, hi); the lags inner."""
+    n_x = len(x)
+    out = np.zeros((len(lags), 3))
+    buffer = np.empty(_BLOCK)
+    bounds = []
+    for lag in lags:
+        end = n_x - lag
+        first = min(lag, end)
+        bounds.append((first, min(max(n_x - 2 * lag, first), end), end))
+    for start in range(lo, min(hi, max((b[2] for b in bounds), default=lo)), _BLOCK):
+        for j, lag in enumerate(lags):
+            first, second, end = bounds[j]
+            stop = min(start + _BLOCK, hi, end)
+            if stop <= start:
+                continue
+            e = buffer[:stop - start]
+            np.subtract(x[start + lag:stop + lag], x[start:stop], out=e)
+            if first <= start and stop <= second:          # almost every block: all in the middle segment
+                out[j, 1] += float(np.dot(e, e))
+                continue
+            for seg, (a, b) in enumerate(((0, first), (first, second), (second, end))):
+                a, b = max(a, start), min(b, stop)
+                if b > a:
+                    part = e[a - start:b - start]
+                    out[j, seg] += float(np.dot(part, part))
+    return out
+
+
+def _channel_sums(x: np.ndarray, sizes: list[int], ranges: list[tuple[int, int]], pool) -> np.ndarray:
+    """Sum of squared second differences of one channel at each size, from first differences (see below)."""
+    # With e_m(k) = x[k+m] - x[k]: d_m(k) = e_m(k+m) - e_m(k) and e_2m(k) = e_m(k+m) + e_m(k), so
+    # d_m(k)^2 = 2 e_m(k)^2 + 2 e_m(k+m)^2 - e_2m(k)^2 and the sum over k in [0, n-2m) is
+    # 2 (A + B) + 2 (B + C) - E_2m with A, B, C the sums of e_m^2 over [0, m), [m, n-2m), [n-2m, n-m) and E_2m
+    # the sum of e_2m^2 over its whole range: one difference and one dot product per lag instead of three
+    # operations and a dot product per size; octave sizes share their lags (2m is the next size).
+    lags = sorted(set(sizes) | {2 * m for m in sizes})
+    if pool is None:
+        parts = [_difference_segments(x, lags, lo, hi) for lo, hi in ranges]
+    else:
+        parts = list(pool.map(lambda r: _difference_segments(x, lags, r[0], r[1]), ranges))
+    seg = np.sum(parts, axis=0)
+    row = {lag: i for i, lag in enumerate(lags)}
+    out = np.empty(len(sizes))
+    for j, m in enumerate(sizes):
+        a, b, c = seg[row[m]]
+        e2 = float(seg[row[2 * m]].sum())
+        total = 2.0 * (a + b) + 2.0 * (b + c)
+        result = total - e2
+        # the identity cancels when the first differences are much larger than the second (a drift far above the
+        # noise): beyond 1e4 (float64 then keeps ~1e-11) this size is summed directly
+        if not result > 0 or (total + e2) > _CANCELLATION * result:
+            result = float(_direct_sums(x, [m], 0, len(x))[0])
+        out[j] = result
+    return out
+
+
 def second_difference_sums(x: np.ndarray, sizes: np.ndarray, *, threads: int = 2) -> np.ndarray:
     """(k, len(sizes)) sums of squared second differences of the phase `x` (k, n) (or (n,): then (1, len(sizes))),
-    the channels (with fewer channels than threads, parts of the record) on `threads` threads."""
+    each channel's record split over `threads` threads."""
     x = np.asarray(x, dtype=np.float64)
     x = x[None, :] if x.ndim == 1 else x
     channels, n_x = x.shape
@@ -174,17 +237,18 @@ def second_difference_sums(x: np.ndarray, sizes: np.ndarray, *, threads: int = 2
     out = np.zeros((channels, len(sizes_list)))
     if not sizes_list:
         return out
-    end = n_x - 2 * min(sizes_list)
-    parts = max(1, min(-(-max(1, int(threads)) // channels), end // (4 * _BLOCK)))
-    edges = np.linspace(0, end, parts + 1).astype(np.int64)
-    tasks = [(k, int(lo), int(hi)) for k in range(channels) for lo, hi in zip(edges[:-1], edges[1:])]
-    if threads <= 1 or len(tasks) == 1:
-        results = [_sums(x[k], sizes_list, lo, hi) for k, lo, hi in tasks]
-    else:
-        with ThreadPoolExecutor(max_workers=int(threads), thread_name_prefix="allan") as pool:
-            results = list(pool.map(lambda t: _sums(x[t[0]], sizes_list, t[1], t[2]), tasks))
-    for (k, _, _), part in zip(tasks, results):
-        out[k] += part
+    if 2 * max(sizes_list) >= n_x:
+        raise AllanError(f"cluster size {max(sizes_list)} too large for {n_x - 1} samples")
+    parts = max(1, min(int(threads), n_x // (4 * _BLOCK)))
+    edges = np.linspace(0, n_x, parts + 1).astype(np.int64)
+    ranges = [(int(lo), int(hi)) for lo, hi in zip(edges[:-1], edges[1:])]
+    if parts == 1:
+        for k in range(channels):
+            out[k] = _channel_sums(x[k], sizes_list, ranges, None)
+        return out
+    with ThreadPoolExecutor(max_workers=parts, thread_name_prefix="allan") as pool:
+        for k in range(channels):
+            out[k] = _channel_sums(x[k], sizes_list, ranges, pool)
     return out
 
 
