@@ -9,7 +9,7 @@ Run: python tests/benchmarks/noise_speed.py [--hours 8] [--rate-hz 1000] [--repe
 
 1. In memory: six channels of `--hours` at `--rate-hz` (white noise plus a random walk on a large
    offset, float64), octave-spaced taus. Timed side by side in one run, the repeats interleaved:
-   `bench.noise.allan.allan_curves` (both cores: channels spread over two threads) and `allantools.oadev`
+   `bench.noise.allan.allan_curves` (both cores: each channel's record split over two threads) and `allantools.oadev`
    (data_type "freq", the same taus, one channel after the other: it is single-threaded). Prints
    the medians, their ratio and the largest relative difference of the two at any tau.
 2. From a log: a static-noise log of `--log-hours` at `--rate-hz` (the simulated IMU, classic CAN
