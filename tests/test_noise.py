@@ -245,6 +245,17 @@ def test_a_rate_random_walk_the_record_cannot_resolve_is_an_upper_bound():
         assert doc["fit_tau_s"][0] < doc["fit_tau_s"][1] and len(doc["adev"]) == len(channel.curve.tau_s)
 
 
+def test_white_noise_hidden_under_quantisation_is_an_upper_bound_not_a_number():
+    # regression: acc_y of the default simulated IMU at 100 Hz for half an hour: its quantiser's pattern covers the
+    # white noise up to ~10 s and its bias rises beyond; the fit gave 1.1 +- 70 ug/sqrt(Hz) (configured 10)
+    noise = NoiseModel()
+    data = simulate_static(noise, duration_s=1800.0, rate_hz=100.0, seed=1)
+    acc_y = analyse(data, 100.0)[4]
+    vrw = acc_y.terms["vrw"]
+    assert vrw["upper_bound"] is True and "not resolved" in vrw["upper_bound_means"]
+    assert vrw["value"] >= noise.acc_vrw_ug_rt_hz
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_one_hour_recovers_the_configured_terms(seed):
     rate = 100.0

@@ -23,8 +23,9 @@ pattern, filters).
 The terms, each with the 1 sigma of the fit's covariance (scaled by chi2/dof when the
 points scatter more than the model says):
 
-- N = sqrt(c_white), Q = sqrt(c_pm / 3) when above 2 sigma (else read from the leading
-  -1 slope, as before);
+- N = sqrt(c_white) (a 2-sigma upper bound, flagged, when c_white is below 2 sigma: white
+  noise hidden under quantisation and a bias over all the fitted taus); Q = sqrt(c_pm / 3)
+  when above 2 sigma (else read from the leading -1 slope, as before);
 - bias instability B = the minimum of the fitted curve over the measured taus / 0.664
   (IEEE's flat-region reading; 0.664 = sqrt(2 ln 2 / pi)); the fitted curve averages
   the neighbouring points, so B is not biased low as the lowest noisy point is. When the
@@ -360,11 +361,7 @@ def fit_curve(curve: AllanCurve) -> ChannelFit:
     sig = np.sqrt(np.maximum(np.diag(cov), 0.0))
     idx = list(model.points)
 
-    random_walk = None
-    if c[1] > 0:
-        value = math.sqrt(c[1])
-        points = _dominant(model, tau, 1, model.points) or [idx[0]]
-        random_walk = TermFit(value, 0.5 * sig[1] / value, tuple(points), _region(curve, points))
+    random_walk = _resolved_or_bound(curve, model, 1, 1.0, idx[0])
 
     fitted = model.avar(tau[idx])
     k = int(np.argmin(fitted))
@@ -380,15 +377,7 @@ def fit_curve(curve: AllanCurve) -> ChannelFit:
     still_falling = k == len(idx) - 1 and len(idx) > 1 and fitted[-1] < fitted[-2]
     bias = TermFit(b, b_sigma, tuple(flat), _region(curve, flat), upper_bound=still_falling)
 
-    rate_random_walk = None
-    if c[3] > 0 or sig[3] > 0:
-        points = _dominant(model, tau, 3, model.points) or [idx[-1]]
-        if c[3] > 2.0 * sig[3]:
-            value = math.sqrt(3.0 * c[3])
-            rate_random_walk = TermFit(value, value * 0.5 * sig[3] / c[3], tuple(points), _region(curve, points))
-        else:       # not resolved: a 2-sigma upper bound; sigma is the K of one sigma of the coefficient
-            rate_random_walk = TermFit(math.sqrt(3.0 * (c[3] + 2.0 * sig[3])), math.sqrt(3.0 * sig[3]),
-                                       tuple(points), _region(curve, points), upper_bound=True)
+    rate_random_walk = _resolved_or_bound(curve, model, 3, 3.0, idx[-1])
 
     quantisation = None
     if c[0] > 2.0 * sig[0]:
@@ -400,6 +389,21 @@ def fit_curve(curve: AllanCurve) -> ChannelFit:
         if quant_idx:
             quantisation = _term(curve, quant_idx, -1.0, 1.0 / math.sqrt(3.0))
     return ChannelFit(quantisation, random_walk, bias, rate_random_walk, model.summary(curve))
+
+
+def _resolved_or_bound(curve: AllanCurve, model: ModelFit, column: int, scale: float, fallback: int) -> TermFit | None:
+    """sqrt(scale c) of coefficient `column` with its 1 sigma, or, when c is below 2 sigma (the record cannot tell
+    it from zero), a 2-sigma upper bound sqrt(scale (c + 2 sigma)) with sigma sqrt(scale sigma_c)."""
+    c = float(model.coefficients[column])
+    sig = math.sqrt(max(float(model.covariance[column, column]), 0.0))
+    if c <= 0 and sig <= 0:
+        return None
+    points = _dominant(model, curve.tau_s, column, model.points) or [fallback]
+    if c > 2.0 * sig:
+        value = math.sqrt(scale * c)
+        return TermFit(value, value * 0.5 * sig / c, tuple(points), _region(curve, points))
+    return TermFit(math.sqrt(scale * (c + 2.0 * sig)), math.sqrt(scale * sig), tuple(points), _region(curve, points),
+                   upper_bound=True)
 
 
 def _leading_quantisation(curve: AllanCurve) -> list[int]:

@@ -83,6 +83,8 @@ def _term_json(fit: TermFit, factor: float, unit: str) -> dict[str, Any]:
 
 #: What an upper bound means, per term (in the term's JSON as "upper_bound_means").
 UPPER_BOUND_MEANS = {
+    "random_walk": "not resolved: the white noise is hidden (under quantisation and a bias) over the fitted taus; "
+                   "value is a 2-sigma upper bound",
     "rate_random_walk": "not resolved: the record cannot tell it from zero (below 2 sigma); value is a 2-sigma upper "
                         "bound",
     "bias_instability": "the fitted curve still falls at the longest tau: the floor may be lower than this minimum "
