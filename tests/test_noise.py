@@ -109,6 +109,13 @@ def test_a_block_of_another_width_or_not_finite_is_refused():
         acc.add(np.zeros((10, 5)))
     with pytest.raises(AllanError, match="not finite"):
         acc.add(np.full((10, 6), np.inf))
+    block = np.ones((3000, 6))
+    block[1234, 2] = np.nan
+    with pytest.raises(AllanError, match="not finite"):
+        acc.add(block)
+    assert acc.n_samples == 0
+    with pytest.raises(AllanError, match="not finite"):
+        allan_curves(np.where(np.arange(600)[:, None] == 7, -np.inf, np.zeros((600, 2))), 10.0)
     with pytest.raises(AllanError, match="sample rate"):
         PhaseAccumulator(0.0, 6)
 

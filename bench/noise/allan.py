@@ -101,10 +101,11 @@ class PhaseAccumulator:
     (the 1 / rate is applied to the deviations). `capacity`, the number of samples expected (e.g. a dwell's
     counter window), avoids regrowing the array. Memory: 8 bytes per sample and channel."""
 
-    def __init__(self, rate_hz: float, n_channels: int, *, offset: np.ndarray | None = None, capacity: int = 0):
+    def __init__(self, rate_hz: float, n_channels: int, *, offset: np.ndarray | None = None, capacity: int = 0,
+                 threads: int = 2):
         if not (math.isfinite(rate_hz) and rate_hz > 0):
             raise AllanError(f"sample rate must be a positive number of Hz, got {rate_hz!r}")
-        self.rate_hz, self.n_channels = float(rate_hz), int(n_channels)
+        self.rate_hz, self.n_channels, self.threads = float(rate_hz), int(n_channels), int(threads)
         self._offset = None if offset is None else np.asarray(offset, dtype=np.float64).reshape(self.n_channels)
         self._phase = np.zeros((self.n_channels, max(int(capacity), 0) + 1))
         self.n_samples = 0
@@ -119,20 +120,31 @@ class PhaseAccumulator:
         n = len(block)
         if n == 0:
             return
-        if not np.all(np.isfinite(block)):
-            raise AllanError("the series holds values that are not finite numbers")
-        if self._offset is None:
-            self._offset = block.mean(axis=0)
+        offset = block.mean(axis=0) if self._offset is None else self._offset
         start, need = self.n_samples + 1, self.n_samples + n + 1
         if need > self._phase.shape[1]:
             grown = np.empty((self.n_channels, max(need, 2 * self._phase.shape[1])))
             grown[:, :start] = self._phase[:, :start]
             self._phase = grown
-        for k in range(self.n_channels):
+
+        def channel(k: int) -> None:
             row = self._phase[k, start:need]
-            np.subtract(block[:, k], self._offset[k], out=row)
-            row[0] += self._phase[k, start - 1]
-            np.cumsum(row, out=row)
+            with np.errstate(invalid="ignore", over="ignore"):     # not finite: refused below
+                np.subtract(block[:, k], offset[k], out=row)
+                row[0] += self._phase[k, start - 1]
+                np.cumsum(row, out=row)
+
+        if self.threads > 1 and n * self.n_channels >= 1 << 20:
+            with ThreadPoolExecutor(max_workers=self.threads, thread_name_prefix="allan-add") as pool:
+                list(pool.map(channel, range(self.n_channels)))
+        else:
+            for k in range(self.n_channels):
+                channel(k)
+        # a value that is not finite (or a sum that overflows) makes every later running sum inf or nan: the
+        # block's last one tells, without a pass of its own
+        if not np.all(np.isfinite(self._phase[:, need - 1])):
+            raise AllanError("the series holds values that are not finite numbers")
+        self._offset = offset
         self.n_samples += n
 
     @property
@@ -317,9 +329,10 @@ def allan_curves(channels: np.ndarray, rate_hz: float, *, points_per_octave: int
     data = np.asarray(channels, dtype=np.float64)
     if data.ndim != 2:
         raise AllanError(f"channels must be an (n, k) array, got shape {data.shape}")
-    if not np.all(np.isfinite(data)):
+    offset = data.mean(axis=0)
+    if not np.all(np.isfinite(offset)):
         raise AllanError("the series holds values that are not finite numbers")
-    acc = PhaseAccumulator(rate_hz, data.shape[1], offset=data.mean(axis=0), capacity=len(data))
+    acc = PhaseAccumulator(rate_hz, data.shape[1], offset=offset, capacity=len(data), threads=threads)
     acc.add(data)
     return acc.curves(points_per_octave=points_per_octave, m=m, threads=threads)
 
