@@ -135,7 +135,7 @@ class PhaseAccumulator:
                 np.cumsum(row, out=row)
 
         if self.threads > 1 and n * self.n_channels >= 1 << 20:
-            with ThreadPoolExecutor(max_workers=self.threads, thread_name_prefix="allan-add") as pool:
+            with ThreadPoolExecutor(max_workers=self.threads, thread_name_prefix="allan-channel") as pool:
                 list(pool.map(channel, range(self.n_channels)))
         else:
             for k in range(self.n_channels):
@@ -258,7 +258,7 @@ def second_difference_sums(x: np.ndarray, sizes: np.ndarray, *, threads: int = 2
         for k in range(channels):
             out[k] = _channel_sums(x[k], sizes_list, ranges, None)
         return out
-    with ThreadPoolExecutor(max_workers=parts, thread_name_prefix="allan") as pool:
+    with ThreadPoolExecutor(max_workers=parts, thread_name_prefix="allan-part") as pool:
         for k in range(channels):
             out[k] = _channel_sums(x[k], sizes_list, ranges, pool)
     return out
