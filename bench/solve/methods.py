@@ -47,6 +47,11 @@ class LinearFit:
     dof: int
     scaled: list[bool]        # per sensor: covariance scaled up by the residual scatter
     weighted: bool
+    #: (S, P, P) the covariance from the sample noise alone, never scaled (the budget's Type A part);
+    #: without weights, from the residual scatter (then it equals `cov`)
+    cov_noise: np.ndarray | None = None
+    #: (K, S) the 1-sigma each observation was weighted by (None: unweighted)
+    sigma: np.ndarray | None = None
 
 
 def fit_per_sensor(design: np.ndarray, y: np.ndarray, sigma: np.ndarray | None) -> LinearFit:
@@ -55,7 +60,7 @@ def fit_per_sensor(design: np.ndarray, y: np.ndarray, sigma: np.ndarray | None) 
     dof = k - p
     weights = sigma if sigma is not None and np.all(np.isfinite(sigma)) and np.all(sigma > 0) else None
     use_weights = weights is not None
-    params, covs, resid, normd, chi2n, scaled = [], [], [], [], [], []
+    params, covs, covs0, resid, normd, chi2n, scaled = [], [], [], [], [], [], []
     for s in range(y.shape[1]):
         w = 1.0 / weights[:, s] if weights is not None else np.ones(k)
         aw = design * w[:, None]
@@ -76,12 +81,14 @@ def fit_per_sensor(design: np.ndarray, y: np.ndarray, sigma: np.ndarray | None) 
             factor = red
         params.append(sol)
         covs.append(cov0 * factor)
+        covs0.append(cov0 if use_weights else cov0 * factor)
         resid.append(r)
         normd.append(r * w / math.sqrt(factor) if math.isfinite(factor) and factor > 0 else np.full(k, math.nan))
         chi2n.append(red)
         scaled.append(bool(scale_up))
     return LinearFit(np.array(params), np.array(covs), np.array(resid).T, np.array(normd).T,
-                     np.array(chi2n), dof, scaled, bool(use_weights))
+                     np.array(chi2n), dof, scaled, bool(use_weights), np.array(covs0),
+                     np.asarray(weights, dtype=float) if use_weights else None)
 
 
 def _require_rank(design: np.ndarray, what: str) -> None:
@@ -120,6 +127,12 @@ class SensorTriad:
     bias: np.ndarray
     cov: np.ndarray   # (3, 5, 5) over (scale, axes X Y Z, bias)
     fit: LinearFit
+
+    def cov_noise_sensor(self, s: int) -> np.ndarray:
+        """(5, 5) covariance of sensor s's (scale, axes, bias) from the sample noise alone (never scaled)."""
+        cov = self.fit.cov_noise if self.fit.cov_noise is not None else self.fit.cov
+        jac = _scale_axes_bias_jacobian(self.fit.params[s])
+        return jac @ cov[s] @ jac.T
 
     @classmethod
     def from_fit(cls, fit: LinearFit) -> "SensorTriad":
@@ -162,6 +175,10 @@ class GyroBias:
     normalized: np.ndarray  # (K, 3)
     chi2_per_dof: np.ndarray
     scaled: list[bool]
+    #: (3,) rad/s: the sample-noise part of sigma (positions and the rotation fit's M), never scaled
+    sigma_noise: np.ndarray | None = None
+    #: (3, 3): d(D0_s)/d(M_s), to carry other errors of the rotation fit into the bias
+    dd_dm: np.ndarray | None = None
 
 
 def gyro_bias_from_positions(obs: list[PositionObservation], site: Site, gyro: SensorTriad | ImuCoefficients,
@@ -182,13 +199,20 @@ def gyro_bias_from_positions(obs: list[PositionObservation], site: Site, gyro: S
     fit = fit_per_sensor(np.ones((len(obs), 1)), z, sigma)
     value = fit.params[:, 0]
     var = fit.cov[:, 0, 0].copy()
+    var_noise = (fit.cov_noise if fit.cov_noise is not None else fit.cov)[:, 0, 0].copy()
+    m_cov_noise = m_cov if isinstance(gyro, ImuCoefficients) or gyro.fit.cov_noise is None \
+        else gyro.fit.cov_noise[:, :3, :3]
     f_mean, w_mean = f_out.mean(axis=0), w_nominal.mean(axis=0)
+    jac = np.zeros((3, 3))
     for s in range(3):
         # D0 = mean(F)/|M| - (M/|M|).mean(w): propagate the covariance of M_s.
         m, g = scale[s], axes[s]
         dd_dm = -f_mean[s] * g / m ** 2 - (w_mean - g * (g @ w_mean)) / m
+        jac[s] = dd_dm
         var[s] += float(dd_dm @ m_cov[s] @ dd_dm)
-    return GyroBias(value, np.sqrt(var), fit.residuals, fit.normalized, fit.chi2_per_dof, fit.scaled)
+        var_noise[s] += float(dd_dm @ m_cov_noise[s] @ dd_dm)
+    return GyroBias(value, np.sqrt(var), fit.residuals, fit.normalized, fit.chi2_per_dof, fit.scaled,
+                    np.sqrt(var_noise) if have_sem else None, jac)
 
 
 def solve_accelerometers(obs: list[PositionObservation], site: Site, mounting=None) -> SensorTriad:
