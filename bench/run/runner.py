@@ -27,6 +27,8 @@ from bench.errors import BenchError
 from bench.log.reader import read_log
 from bench.log.recorder import CHUNK_RUN_INTERVAL_S, McapRecorder
 from bench.model.result import CalibrationResult
+from bench.model.table_prior import TablePrior, rms_arcsec
+from bench.model.units import DEG_PER_HOUR, MICRO_G
 from bench.noise.from_log import NoiseInputError, analyse_log
 from bench.plan.compiler import CompiledPlan, compile_plan
 from bench.plan.events import RunListener, RunState
@@ -36,6 +38,7 @@ from bench.report.noise import write_noise_outputs
 from bench.run.imu_check import check_imu_stream
 from bench.run.sequencer import ListenerError, Sequencer, SequencerOptions, describe_listener_error
 from bench.sim.world import SimWorld
+from bench.solve.budget import BudgetInputs
 from bench.solve.extract import Extraction
 from bench.solve.from_logs import extract_from_logs, solve_logs
 from drivers.clock import SYSTEM_CLOCK, Clock
@@ -287,9 +290,8 @@ class BenchRun:
             return self._finish_noise(seq.state, receiver, recorder)
         logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
         config, identity = self.config, self.config.imu.identity
-        gyro_stability, acc_stability = bias_stabilities(config, self.sim)
         solution = solve_logs(logs, config.site.site, config.imu.layout, config.imu.rate_hz,
-                              gyro_bias_stability_dph=gyro_stability, acc_bias_stability_ug=acc_stability,
+                              budget=budget_inputs(config, self.sim),
                               # A log being resumed was cut off: its missing summary is expected, not damage.
                               still_open=frozenset({str(self.log_path), *map(str, self.previous_logs)}))
         failures = quality_failures(solution, receiver.stats)
@@ -396,6 +398,29 @@ def bias_stabilities(config, sim: bool) -> tuple[float | None, float | None]:
         if acc_stability is None:
             acc_stability = config.sim.noise.acc_bias_instability_ug
     return gyro_stability, acc_stability
+
+
+def budget_inputs(config, sim: bool) -> BudgetInputs:
+    """What the uncertainty budget knows beyond the data (`bench.solve.budget`), from the configuration.
+
+    Bias instabilities as `bias_stabilities` (taken as the 1-sigma of a Gauss-Markov bias;
+    its correlation time is the simulated IMU's on the simulator, else 300 s). The table's
+    part from `[table]` (datasheet figure or table check); on the simulator without either,
+    the simulated black box's RMS (what its datasheet would say). The site's uncertainty from
+    `[site]`, zero on the simulator (its world is the configured site exactly).
+    """
+    gyro, acc = bias_stabilities(config, sim)
+    pointing = config.table.pointing
+    if pointing is None and sim and config.sim.black_box_rad is not None:
+        rms = rms_arcsec(config.sim.black_box_rad)
+        pointing = TablePrior.uniform(rms, f"the simulated table's black box RMS ({rms:.3g} arcsec per angle)")
+    site = config.site
+    return BudgetInputs(table=pointing, gyro_bias_instability=(gyro or 0.0) * DEG_PER_HOUR,
+                        acc_bias_instability=(acc or 0.0) * MICRO_G,
+                        correlation_time_s=config.sim.noise.correlation_time_s if sim else 300.0,
+                        gravity_sigma_mps2=0.0 if sim else site.gravity_sigma_mps2,
+                        latitude_sigma_deg=0.0 if sim else site.latitude_sigma_deg,
+                        turn_rate_dps=config.plan.turn_rate_dps)
 
 
 #: how `quality_failures` words the two failures an [acceptance] limit can take over

@@ -52,6 +52,7 @@ from bench.model.earth import Site
 from bench.model.families import BODY_AXES, RESULT_UNITS, SENSOR_AXES
 from bench.model.imu import ImuCoefficients
 from bench.model.observations import COUNT_RESOLUTION, PositionObservation, RotationObservation
+from bench.model.table_prior import TablePrior
 from bench.model.units import ARCSEC
 from bench.solve.methods import (
     CHI2_ALPHA,
@@ -81,27 +82,6 @@ SOURCES = {
 }
 _STEP_RAD = 1.0 * ARCSEC
 _QUANT_VAR = 1.0 / 6.0      # variance (counts^2) of the difference of two uniform remainders
-
-
-@dataclass(frozen=True)
-class TablePrior:
-    """1-sigma of each of the nine black-box angles (rad; rows o0, m0, i0; columns alpha, beta, gamma)."""
-
-    sigma_rad: np.ndarray
-    source: str
-
-    def __post_init__(self) -> None:
-        sigma = np.asarray(self.sigma_rad, dtype=float).reshape(3, 3)
-        if not np.all(np.isfinite(sigma)) or np.any(sigma < 0):
-            raise ValueError("the table's angle sigmas must be finite and >= 0")
-        object.__setattr__(self, "sigma_rad", sigma)
-
-    @classmethod
-    def uniform(cls, arcsec: float, source: str) -> "TablePrior":
-        return cls(np.full((3, 3), arcsec * ARCSEC), source)
-
-    def to_json(self) -> dict[str, Any]:
-        return {"source": self.source, "sigma_arcsec": (self.sigma_rad / ARCSEC).round(6).tolist()}
 
 
 @dataclass(frozen=True)
@@ -327,18 +307,20 @@ def _display(solved: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 def _table_part(pipe: _Pipeline, prior: TablePrior, draws: int, seed: int) -> dict[str, float]:
     """Per name: sqrt(first-order variance + mean square of the second-order rest)."""
-    sigma = prior.sigma_rad.ravel()
+    cov = prior.covariance_rad2
+    vals, vecs = np.linalg.eigh(cov)
+    root = vecs * np.sqrt(np.maximum(vals, 0.0))                 # cov = root root^T
     rng = np.random.default_rng(seed)
-    unit = rng.standard_normal((draws, 9))
-    boxes = np.concatenate([np.zeros((1, 3, 3)), probe_boxes(_STEP_RAD), (unit * sigma).reshape(-1, 3, 3)])
+    angles = rng.standard_normal((draws, 9)) @ root.T
+    boxes = np.concatenate([np.zeros((1, 3, 3)), probe_boxes(_STEP_RAD), angles.reshape(-1, 3, 3)])
     values = _display(pipe.run(boxes))
     out = {}
     for name, v in values.items():
         base = v[0]
         jac = (v[1:10] - v[10:19]) / (2.0 * _STEP_RAD)           # per rad
-        first = float(np.sum((jac * sigma) ** 2))
-        rest = v[19:] - base - (unit * sigma) @ jac
-        out[name] = math.sqrt(first + float(np.mean(rest ** 2)))
+        first = float(jac @ cov @ jac)
+        rest = v[19:] - base - angles @ jac
+        out[name] = math.sqrt(max(first, 0.0) + float(np.mean(rest ** 2)))
     return out
 
 
@@ -389,10 +371,10 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
     tau = inputs.correlation_time_s
     pos_angles = np.array([o.angles_deg for o in positions]) if positions else None
     # the table's first-order effect on the observations (for the residual prediction)
-    sig2 = (inputs.table.sigma_rad.ravel() ** 2) if inputs.table is not None else None
+    table_cov9 = inputs.table.covariance_rad2 if inputs.table is not None else None
     imu = _current_imu(acc, gyros, bias, gyro_prior)
     g_pos_gyro = g_pos_acc = g_rot = None
-    if sig2 is not None and imu is not None:
+    if table_cov9 is not None and imu is not None:
         probes = probe_boxes(_STEP_RAD)
         if positions:
             gyro_out, acc_out = position_outputs(pos_angles, imu, site, probes, mounting)
@@ -406,7 +388,7 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
         if g is None:
             return 0.0
         gs = g[:, :, s] / scale                                      # (9, K)
-        return gs.T @ (sig2[:, None] * gs)
+        return gs.T @ table_cov9 @ gs
 
     if acc is not None:
         design = position_design(pos_angles, site, mounting)

@@ -17,6 +17,7 @@ from bench import __version__
 from bench.log.names import run_id_of
 from bench.log.reader import LogError, read_log
 from bench.log.run_info import layout_and_config_from_log
+from bench.model.table_prior import CHECK_FORMAT
 from bench.model.units import ARCSEC
 from bench.solve.from_logs import extract_from_logs
 from bench.table_check.estimate import (
@@ -29,7 +30,7 @@ from bench.table_check.estimate import (
     true_combinations,
 )
 
-FORMAT = "turntable-bench/table-check"
+FORMAT = CHECK_FORMAT
 VERSION = 1
 
 
