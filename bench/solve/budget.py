@@ -369,7 +369,7 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
     consistency: list[Consistency] = []
     flags: list[str] = []
     tau = inputs.correlation_time_s
-    pos_angles = np.array([o.angles_deg for o in positions]) if positions else None
+    pos_angles = np.array([o.angles_deg for o in positions]) if positions else np.zeros((0, 3))
     # the table's first-order effect on the observations (for the residual prediction)
     table_cov9 = inputs.table.covariance_rad2 if inputs.table is not None else None
     imu = _current_imu(acc, gyros, bias, gyro_prior)
@@ -384,8 +384,8 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
             integral, _ = turn_integrals(rotations, imu, site, inputs.turn_rate_dps, probes, mounting)
             g_rot = (integral[:9] - integral[9:]) / (2 * _STEP_RAD)
 
-    def table_cov(g: np.ndarray | None, s: int, scale: float = 1.0) -> np.ndarray:
-        if g is None:
+    def table_cov(g: np.ndarray | None, s: int, scale: float = 1.0) -> np.ndarray | float:
+        if g is None or table_cov9 is None:
             return 0.0
         gs = g[:, :, s] / scale                                      # (9, K)
         return gs.T @ table_cov9 @ gs
@@ -400,10 +400,10 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
             add_triad("Ka", "Ea", "K0", s, NOISE, np.diag(noise))
             c_gm = (acc.scale[s] * inputs.acc_bias_instability) ** 2 * kernel
             add_triad("Ka", "Ea", "K0", s, BIAS_INSTABILITY, _triad_var(acc, design, s, c_gm))
-            c_noise = np.diag(acc.fit.sigma[:, s] ** 2) if acc.fit.sigma is not None else None
-            if c_noise is not None:
-                consistency.append(_consistency("accelerometers", s, design, acc.fit.sigma[:, s],
-                                                acc.fit.residuals[:, s], c_noise + c_gm + table_cov(g_pos_acc, s),
+            acc_sigma = acc.fit.sigma
+            if acc_sigma is not None:
+                consistency.append(_consistency("accelerometers", s, design, acc_sigma[:, s], acc.fit.residuals[:, s],
+                                                np.diag(acc_sigma[:, s] ** 2) + c_gm + table_cov(g_pos_acc, s),
                                                 labels))
     m_covs: dict[str, np.ndarray] = {}
     if gyros is not None:
@@ -411,22 +411,22 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
         starts, durations = _times(rotations)
         kernel = gm_mean_kernel(starts, durations, tau) * np.outer(durations, durations)
         labels = _labels(rotations, "R")
-        for comp in (NOISE, BIAS_INSTABILITY, RESOLUTION):
+        for comp in (BIAS_INSTABILITY, RESOLUTION):     # the noise part is in the bias's own sigma_noise
             m_covs[comp] = np.zeros((3, 3, 3))
         for s in range(3):
             noise = gyros.cov_noise_sensor(s)
             add_triad("Kg", "Eg", None, s, NOISE, np.diag(noise))
-            m_covs[NOISE][s] = gyros.fit.cov_noise[s][:3, :3]
             c_gm = (gyros.scale[s] * inputs.gyro_bias_instability) ** 2 * kernel
             c_q = np.eye(len(rotations)) * _QUANT_VAR * inputs.count_resolution ** 2
             for comp, c_y in ((BIAS_INSTABILITY, c_gm), (RESOLUTION, c_q)):
                 add_triad("Kg", "Eg", None, s, comp, _triad_var(gyros, design, s, c_y))
                 p = _operator(design, None if gyros.fit.sigma is None else gyros.fit.sigma[:, s])
                 m_covs[comp][s] = (p @ c_y @ p.T)[:3, :3]
-            if gyros.fit.sigma is not None:
-                c_noise = np.diag(gyros.fit.sigma[:, s] ** 2)
-                consistency.append(_consistency("gyros", s, design, gyros.fit.sigma[:, s], gyros.fit.residuals[:, s],
-                                                c_noise + c_gm + c_q + table_cov(g_rot, s), labels))
+            gyro_sigma = gyros.fit.sigma
+            if gyro_sigma is not None:
+                consistency.append(_consistency("gyros", s, design, gyro_sigma[:, s], gyros.fit.residuals[:, s],
+                                                np.diag(gyro_sigma[:, s] ** 2) + c_gm + c_q + table_cov(g_rot, s),
+                                                labels))
     w_bias = None
     if bias is not None:
         n = len(positions)
@@ -434,20 +434,21 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
         kernel = gm_mean_kernel(starts, durations, tau)
         labels = _labels(positions, "P")
         sem = np.array([o.standard_error("gyro") for o in positions]) if bias.sigma_noise is not None else None
-        scale, axes = (gyros.scale, gyros.axes) if gyros is not None else (gyro_prior.gyro_scale, gyro_prior.gyro_axes)
+        source = gyros if gyros is not None else gyro_prior
+        assert source is not None, "a gyro bias is solved only with rotations or a prior"
+        scale = source.scale if isinstance(source, SensorTriad) else source.gyro_scale
+        dd_dm = bias.dd_dm if bias.dd_dm is not None else np.zeros((3, 3))
         w_bias = np.zeros((3, n))
         for s in range(3):
             sigma = None if sem is None or not np.all(sem[:, s] > 0) else sem[:, s] / scale[s]
             w = _operator(np.ones((n, 1)), sigma)[0]
             w_bias[s] = w
-            add(f"D0_{SENSOR_AXES[s]}", NOISE, bias.sigma_noise[s] ** 2 / RESULT_UNITS["D0"][1] ** 2
-                if bias.sigma_noise is not None else 0.0)
+            if bias.sigma_noise is not None:
+                add(f"D0_{SENSOR_AXES[s]}", NOISE, bias.sigma_noise[s] ** 2 / RESULT_UNITS["D0"][1] ** 2)
             c_gm = inputs.gyro_bias_instability ** 2 * kernel
             add(f"D0_{SENSOR_AXES[s]}", BIAS_INSTABILITY, float(w @ c_gm @ w) / RESULT_UNITS["D0"][1] ** 2)
             for comp, m_cov in m_covs.items():
-                if comp == NOISE:
-                    continue    # already in bias.sigma_noise
-                dd = bias.dd_dm[s]
+                dd = dd_dm[s]
                 add(f"D0_{SENSOR_AXES[s]}", comp, float(dd @ m_cov[s] @ dd) / RESULT_UNITS["D0"][1] ** 2)
             if sigma is not None:
                 consistency.append(_consistency("gyro bias", s, np.ones((n, 1)), sigma, bias.residuals[:, s],
@@ -455,7 +456,7 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
                                                 labels))
     # -- Type B parts through the whole solve
     if imu is not None:
-        pipe = _Pipeline(imu, site, mounting, pos_angles,
+        pipe = _Pipeline(imu, site, mounting, pos_angles if positions else None,
                          None if acc is None else np.stack([_operator(position_design(pos_angles, site, mounting),
                                                                       None if acc.fit.sigma is None
                                                                       else acc.fit.sigma[:, s]) for s in range(3)]),

@@ -33,9 +33,10 @@ from bench.model.earth import Site
 from bench.model.observations import PositionObservation, RotationObservation
 from bench.model.result import CalibrationResult
 from bench.report.markdown import markdown_report, md_text, write_reports
-from bench.run.runner import budget_inputs, judged_failures, quality_failures
+from bench.run.runner import judged_failures, quality_failures
 from bench.solve.extract import Extraction, finished_observation_steps
 from bench.solve.from_logs import LogSolution, extract_from_logs, solve_extraction
+from bench.solve.inputs import budget_inputs
 from bench.solve.methods import SolverError
 from drivers.imu import ImuStats
 from schedules import ScheduleError, resolve_schedule
