@@ -62,7 +62,7 @@ def test_budget_components_combine_to_sigma_and_expand_by_k():
     inputs = BudgetInputs(table=TablePrior.uniform(20.0, "test"), gyro_bias_instability=1e-8,
                           acc_bias_instability=2e-5, turn_rate_dps=20.0)
     result = solve(obs_p, obs_r, SITE, budget_inputs=inputs).to_result()
-    for name, c in result.coefficients.items():
+    for c in result.coefficients.values():
         assert c.budget and c.sigma == pytest.approx(math.sqrt(sum(v * v for v in c.budget.values())), rel=1e-12)
         assert c.expanded == pytest.approx(2.0 * c.sigma) and c.k == 2.0
     assert {NOISE, TABLE} <= set(result.coefficients["K0_x"].budget)
