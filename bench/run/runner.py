@@ -388,6 +388,9 @@ def quality_failures(solution, live_stats) -> list[str]:
     outliers = solution.calibration.quality().get("outliers", [])
     if outliers:
         failures.append(f"{len(outliers)} {OUTLIERS_FAILURE}")
+    budget = solution.calibration.budget
+    if budget is not None and budget.table_included:    # without the table's part any real table fails the test
+        failures += [c.describe() for c in budget.inconsistent()]
     if live_stats.lost_samples:
         failures.append(f"{LOST_SAMPLES_FAILURE}: {live_stats.summary()}")
     return failures

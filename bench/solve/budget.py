@@ -32,7 +32,8 @@ integral runs rest to rest over whole revolutions confirmed by the table's readb
 
 **Consistency.** The same sources predict the covariance of the fit residuals
 `r = (I - A P) y`: `C_r = (I - A P) C_y (I - A P)^T`. The observed residuals are tested
-with `chi2 = r^T C_r^+ r` on K - 4 degrees of freedom (1 % level): only a real
+with `chi2 = r^T C_r^+ r` on K - 4 degrees of freedom (0.1 % level per sensor and fit,
+about 1 % for the nine tests of a calibration): only a real
 inconsistency (a wrong model, a moved IMU, a bad step) is flagged, naming the steps
 whose normalised residuals drive it, and only then is an extra "unexplained scatter"
 component added (a flagged fallback), `sqrt(chi2/dof - 1)` times the random part.
@@ -55,7 +56,6 @@ from bench.model.observations import COUNT_RESOLUTION, PositionObservation, Rota
 from bench.model.table_prior import TablePrior
 from bench.model.units import ARCSEC
 from bench.solve.methods import (
-    CHI2_ALPHA,
     GyroBias,
     SensorTriad,
     _scale_axes_bias_jacobian,
@@ -67,6 +67,9 @@ from bench.solve.methods import (
 
 #: coverage factor of the expanded uncertainty
 K_EXPANDED = 2.0
+#: level of each residual test: nine tests per calibration (three fits x three sensors) keep
+#: the chance of a false alarm on a consistent calibration near 1 %
+CONSISTENCY_ALPHA = 0.001
 NOISE, BIAS_INSTABILITY, TABLE, GRAVITY, LATITUDE, RESOLUTION, UNEXPLAINED = (
     "noise", "bias instability", "turntable pointing", "local gravity", "latitude", "count resolution",
     "unexplained scatter")
@@ -124,7 +127,13 @@ class Consistency:
 
     @property
     def consistent(self) -> bool:
-        return not (self.dof > 0 and self.p_value < CHI2_ALPHA)
+        return not (self.dof > 0 and self.p_value < CONSISTENCY_ALPHA)
+
+    def describe(self) -> str:
+        """One line: which fit and sensor, how far off, the steps driving it."""
+        return (f"{self.fit} {self.sensor}: residuals inconsistent with the uncertainty budget (chi2/dof "
+                f"{self.chi2 / self.dof:.3g} on {self.dof} dof, p = {self.p_value:.2g}), driven by "
+                f"{', '.join(self.drivers())}")
 
     def drivers(self, count: int = 3) -> list[str]:
         """The steps with the largest normalised residuals, e.g. 'P07 (+5.2)'."""
@@ -162,6 +171,9 @@ class Budget:
 
     def expanded(self, name: str) -> float:
         return self.inputs.k * self.combined(name)
+
+    def inconsistent(self) -> list[Consistency]:
+        return [c for c in self.consistency if not c.consistent]
 
     def normalized(self, fit: str) -> np.ndarray | None:
         """(K, 3) residuals of a fit normalised by their predicted scatter, or None."""
@@ -488,10 +500,8 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
             if fam in fams[c.fit] and axes[-1] == c.sensor:
                 random = var[name].get(NOISE, 0.0) + var[name].get(BIAS_INSTABILITY, 0.0)
                 add(name, UNEXPLAINED, extra * random)
-        flags.append(f"{c.fit} {c.sensor}: residuals inconsistent with the uncertainty budget (chi2/dof "
-                     f"{c.chi2 / c.dof:.3g} on {c.dof} dof, p = {c.p_value:.2g}), driven by "
-                     f"{', '.join(c.drivers())}: a wrong model, a moved IMU or a bad step? Uncertainties "
-                     f"widened by {c.scale:.3g} as a fallback")
+        flags.append(f"{c.describe()}: a wrong model, a moved IMU or a bad step? Uncertainties widened by "
+                     f"{c.scale:.3g} as a fallback")
     components = {name: {comp: math.sqrt(v) for comp, v in parts.items()} for name, parts in var.items()}
     return Budget(components, consistency, inputs, flags)
 
