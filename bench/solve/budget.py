@@ -317,15 +317,33 @@ def _display(solved: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return out
 
 
+def _table_draws(prior: TablePrior, draws: int, seed: int) -> np.ndarray:
+    """(draws, 9) angles drawn from the prior (the same draws for coefficients and residuals)."""
+    vals, vecs = np.linalg.eigh(prior.covariance_rad2)
+    root = vecs * np.sqrt(np.maximum(vals, 0.0))                 # cov = root root^T
+    return np.random.default_rng(seed).standard_normal((draws, 9)) @ root.T
+
+
+def _probe_and_draw_boxes(angles: np.ndarray) -> np.ndarray:
+    """Boxes: the ideal table, the 18 probes (+step, -step per angle), then the drawn tables."""
+    return np.concatenate([np.zeros((1, 3, 3)), probe_boxes(_STEP_RAD), angles.reshape(-1, 3, 3)])
+
+
+def _observation_table_part(outputs: np.ndarray, angles: np.ndarray, cov9: np.ndarray) -> np.ndarray:
+    """(S, K, K) second moment of the observations' table error: first order `G Sigma G^T` plus
+    the Monte-Carlo mean of the second-order rest's outer product; `outputs` (1 + 18 + R, K, S)
+    over `_probe_and_draw_boxes`."""
+    g = (outputs[1:10] - outputs[10:19]) / (2.0 * _STEP_RAD)              # (9, K, S)
+    first = np.einsum("jks,ji,ils->skl", g, cov9, g)
+    rest = outputs[19:] - outputs[0] - np.einsum("rj,jks->rks", angles, g)
+    return first + np.einsum("rks,rls->skl", rest, rest) / len(angles)
+
+
 def _table_part(pipe: _Pipeline, prior: TablePrior, draws: int, seed: int) -> dict[str, float]:
     """Per name: sqrt(first-order variance + mean square of the second-order rest)."""
     cov = prior.covariance_rad2
-    vals, vecs = np.linalg.eigh(cov)
-    root = vecs * np.sqrt(np.maximum(vals, 0.0))                 # cov = root root^T
-    rng = np.random.default_rng(seed)
-    angles = rng.standard_normal((draws, 9)) @ root.T
-    boxes = np.concatenate([np.zeros((1, 3, 3)), probe_boxes(_STEP_RAD), angles.reshape(-1, 3, 3)])
-    values = _display(pipe.run(boxes))
+    angles = _table_draws(prior, draws, seed)
+    values = _display(pipe.run(_probe_and_draw_boxes(angles)))
     out = {}
     for name, v in values.items():
         base = v[0]
@@ -385,22 +403,22 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
     # the table's first-order effect on the observations (for the residual prediction)
     table_cov9 = inputs.table.covariance_rad2 if inputs.table is not None else None
     imu = _current_imu(acc, gyros, bias, gyro_prior)
-    g_pos_gyro = g_pos_acc = g_rot = None
-    if table_cov9 is not None and imu is not None:
-        probes = probe_boxes(_STEP_RAD)
+    # the table's error of the observations (for the residual prediction): (S, K, K) per kind
+    obs_table: dict[str, np.ndarray] = {}
+    if inputs.table is not None and table_cov9 is not None and imu is not None:
+        angles = _table_draws(inputs.table, inputs.mc_draws, inputs.seed)
+        boxes = _probe_and_draw_boxes(angles)
         if positions:
-            gyro_out, acc_out = position_outputs(pos_angles, imu, site, probes, mounting)
-            g_pos_gyro = (gyro_out[:9] - gyro_out[9:]) / (2 * _STEP_RAD)     # (9, K, 3)
-            g_pos_acc = (acc_out[:9] - acc_out[9:]) / (2 * _STEP_RAD)
+            gyro_out, acc_out = position_outputs(pos_angles, imu, site, boxes, mounting)
+            obs_table["gyro bias"] = _observation_table_part(gyro_out, angles, table_cov9)
+            obs_table["accelerometers"] = _observation_table_part(acc_out, angles, table_cov9)
         if rotations and gyros is not None:
-            integral, _ = turn_integrals(rotations, imu, site, inputs.turn_rate_dps, probes, mounting)
-            g_rot = (integral[:9] - integral[9:]) / (2 * _STEP_RAD)
+            integral, _ = turn_integrals(rotations, imu, site, inputs.turn_rate_dps, boxes, mounting)
+            obs_table["gyros"] = _observation_table_part(integral, angles, table_cov9)
 
-    def table_cov(g: np.ndarray | None, s: int, scale: float = 1.0) -> np.ndarray | float:
-        if g is None or table_cov9 is None:
-            return 0.0
-        gs = g[:, :, s] / scale                                      # (9, K)
-        return gs.T @ table_cov9 @ gs
+    def table_cov(kind: str, s: int, scale: float = 1.0) -> np.ndarray | float:
+        part = obs_table.get(kind)
+        return 0.0 if part is None else part[s] / scale ** 2
 
     if acc is not None:
         design = position_design(pos_angles, site, mounting)
@@ -415,7 +433,7 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
             acc_sigma = acc.fit.sigma
             if acc_sigma is not None:
                 consistency.append(_consistency("accelerometers", s, design, acc_sigma[:, s], acc.fit.residuals[:, s],
-                                                np.diag(acc_sigma[:, s] ** 2) + c_gm + table_cov(g_pos_acc, s),
+                                                np.diag(acc_sigma[:, s] ** 2) + c_gm + table_cov("accelerometers", s),
                                                 labels))
     m_covs: dict[str, np.ndarray] = {}
     if gyros is not None:
@@ -437,7 +455,7 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
             gyro_sigma = gyros.fit.sigma
             if gyro_sigma is not None:
                 consistency.append(_consistency("gyros", s, design, gyro_sigma[:, s], gyros.fit.residuals[:, s],
-                                                np.diag(gyro_sigma[:, s] ** 2) + c_gm + c_q + table_cov(g_rot, s),
+                                                np.diag(gyro_sigma[:, s] ** 2) + c_gm + c_q + table_cov("gyros", s),
                                                 labels))
     w_bias = None
     if bias is not None:
@@ -464,7 +482,7 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
                 add(f"D0_{SENSOR_AXES[s]}", comp, float(dd @ m_cov[s] @ dd) / RESULT_UNITS["D0"][1] ** 2)
             if sigma is not None:
                 consistency.append(_consistency("gyro bias", s, np.ones((n, 1)), sigma, bias.residuals[:, s],
-                                                np.diag(sigma ** 2) + c_gm + table_cov(g_pos_gyro, s, scale[s]),
+                                                np.diag(sigma ** 2) + c_gm + table_cov("gyro bias", s, scale[s]),
                                                 labels))
     # -- Type B parts through the whole solve
     if imu is not None:
