@@ -60,6 +60,7 @@ from bench.solve.methods import (
     SensorTriad,
     _scale_axes_bias_jacobian,
     nominal_position_inputs,
+    pooled_sigma,
     position_design,
     rotation_design,
     scale_axes_bias,
@@ -463,7 +464,8 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
         starts, durations = _times(positions)
         kernel = gm_mean_kernel(starts, durations, tau)
         labels = _labels(positions, "P")
-        sem = np.array([o.standard_error("gyro") for o in positions]) if bias.sigma_noise is not None else None
+        sem = (pooled_sigma(np.array([o.standard_error("gyro") for o in positions]), durations)
+               if bias.sigma_noise is not None else None)
         source = gyros if gyros is not None else gyro_prior
         assert source is not None, "a gyro bias is solved only with rotations or a prior"
         scale = source.scale if isinstance(source, SensorTriad) else source.gyro_scale

@@ -7,7 +7,8 @@ the nominal specific force f_k; `Ka = |p|`, `Ea = p/Ka`, `K0 = q/Ka`. Gyro bias:
 Rotation method, per gyro s: `int F_s = M_s . (d 2 pi N u_k + E_k) + c_s T_k` over
 turns k; `Kg = |M_s|`, `Eg = M_s/Kg` (c_s = Kg D0 is a by-product).
 
-Uncertainties: weighted least squares with the per-step sample noise; when the
+Uncertainties: weighted least squares with the per-step sample noise (pooled over the
+dwells of a sensor, see `pooled_sigma`); when the
 residual scatter is significantly larger than that noise (chi-square test at 1%) the
 covariance is scaled by chi2/dof and a quality flag says so. Without sample noise,
 the residual scatter alone sets the scale.
@@ -167,6 +168,20 @@ def rotation_design(observations: list[RotationObservation], site: Site, mountin
     return np.array(rows)
 
 
+def pooled_sigma(sem: np.ndarray, durations_s) -> np.ndarray:
+    """(K, S) 1-sigma of each dwell mean from the noise density pooled over all dwells of a sensor,
+    `sqrt(mean_k(sem_k^2 T_k) / T_k)`: every dwell of one length gets the same weight.
+
+    Weights from each dwell's own standard error (a noisy estimate, and for quantised
+    outputs one that depends on the signal itself) make the weights differ at random and
+    break the symmetry by which an optimal schedule cancels the table's pointing error to
+    first order; the pooled density keeps it.
+    """
+    t = np.asarray(durations_s, dtype=float)[:, None]
+    density2 = np.mean(np.asarray(sem, dtype=float) ** 2 * t, axis=0)
+    return np.sqrt(density2 / t)
+
+
 @dataclass
 class GyroBias:
     value: np.ndarray   # (3,) rad/s
@@ -195,7 +210,7 @@ def gyro_bias_from_positions(obs: list[PositionObservation], site: Site, gyro: S
         # The rotation fit's first three parameters are M_s = Kg_s Eg_s itself.
         scale, axes, m_cov = gyro.scale, gyro.axes, gyro.fit.cov[:, :3, :3]
     z = f_out / scale - w_nominal @ axes.T
-    sigma = np.array(sem) / scale if have_sem else None
+    sigma = pooled_sigma(np.array(sem), [o.duration_s for o in obs]) / scale if have_sem else None
     fit = fit_per_sensor(np.ones((len(obs), 1)), z, sigma)
     value = fit.params[:, 0]
     var = fit.cov[:, 0, 0].copy()
@@ -222,7 +237,7 @@ def solve_accelerometers(obs: list[PositionObservation], site: Site, mounting=No
     design = position_design(np.array([o.angles_deg for o in obs]), site, mounting)
     _require_rank(design, "position schedule")
     sem = [o.standard_error("acc") for o in obs]
-    sigma = np.array(sem) if all(s is not None for s in sem) else None
+    sigma = pooled_sigma(np.array(sem), [o.duration_s for o in obs]) if all(s is not None for s in sem) else None
     return SensorTriad.from_fit(fit_per_sensor(design, np.array([o.acc_mean for o in obs]), sigma))
 
 
