@@ -172,3 +172,13 @@ def test_coverage_small_study_is_within_its_binomial_bounds():
     assert n == 40 * 24
     assert 0.55 <= within_1 <= 0.82, within_1
     assert 0.88 <= within_2 <= 0.99, within_2
+
+
+def test_noisy_dwells_keep_the_optimal_plans_cancellation():
+    """Weights from each dwell's own standard error differ at random and broke the optimal plan's
+    first-order cancellation (K0 table part about 4e-6 g at 20"); pooled weights keep it."""
+    obs_p, obs_r = _noisy()
+    cal = solve(obs_p, obs_r, SITE, budget_inputs=BudgetInputs(table=TablePrior.uniform(20.0, "t"), turn_rate_dps=20))
+    for s in "xyz":
+        assert cal.budget.components[f"K0_{s}"][TABLE] < 1e-7, cal.budget.components[f"K0_{s}"]
+        assert cal.budget.components[f"Ka_{s}"][TABLE] < 0.05 * cal.budget.components[f"Ka_{s}"][NOISE]
