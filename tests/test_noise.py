@@ -31,9 +31,9 @@ from bench.noise.fit import FLICKER_FACTOR, fit_curve
 from bench.noise.result import FORMAT, VERSION, NoiseResult, NoiseResultError, analyse
 from bench.noise.simulate import sim_truth, simulate_static
 from bench.noise.theory import GM_PEAK_ADEV, GM_PEAK_TAU, GM_TO_ALLAN_BI, gauss_markov_avar
-from bench.run.runner import bias_stabilities
 from bench.sim.imu import SimImu
 from bench.sim.table import SimTable
+from bench.solve.inputs import bias_stabilities
 from schedules import ScheduleError, parse_schedule
 from tests.helpers.run import api_run, cli, config_text
 

@@ -31,6 +31,14 @@ from bench.config.thermal import THERMAL_KEYS, sim_thermal
 from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
 from bench.model.families import BODY_AXES, SENSOR_AXES, canonical_names, family_of
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
+from bench.model.table_prior import (
+    FRAME_KEYS,
+    TablePrior,
+    TablePriorError,
+    from_datasheet,
+    load_check,
+    pointing_sigmas_arcsec,
+)
 from bench.model.thermal import ImuThermal
 from bench.model.units import ARCSEC
 from bench.noise.result import NoiseResult, NoiseResultError
@@ -79,6 +87,11 @@ class SiteConfig:
     height_m: float
     local_g_mps2: float | None
     site: Site
+    #: 1-sigma of the configured latitude and gravity (the budget's site parts); defaults:
+    #: 0.001 deg (about 100 m), gravity 1e-5 m/s^2 when measured (local_g_mps2), else 5e-4 m/s^2
+    #: (the normal gravity formula ignores anomalies of up to about 50 mGal)
+    latitude_sigma_deg: float = 0.001
+    gravity_sigma_mps2: float = 5e-4
 
 
 @dataclass(frozen=True)
@@ -93,6 +106,9 @@ class TableConfig:
     poll_s: float
     limits: TurntableLimits
     register_map: RegisterMap | None  # modbus only; None = the documented default map
+    #: what the lab knows of the table's pointing error (`pointing_accuracy_arcsec`,
+    #: `orthogonality_arcsec`, `check`): the budget's turntable part; None = not known
+    pointing: TablePrior | None = None
 
     @property
     def is_sim(self) -> bool:
@@ -207,7 +223,11 @@ def _site(t: Table) -> SiteConfig:
     latitude_deg = t.number("latitude_deg", ge=-90.0, le=90.0, unit="deg")
     height_m = t.number("height_m", 0.0, ge=-500.0, le=9000.0, unit="m")
     local_g = t.number("local_g_mps2", None, ge=9.7, le=9.9, unit="m/s^2")  # Site's plausibility range
-    return SiteConfig(latitude_deg, height_m, local_g, Site(latitude_deg, height_m, local_g))
+    latitude_sigma = t.number("latitude_sigma_deg", 0.001, ge=0, le=1.0, unit="deg")
+    gravity_sigma = t.number("gravity_sigma_mps2", 1e-5 if local_g is not None else 5e-4, ge=0, le=0.01,
+                             unit="m/s^2")
+    return SiteConfig(latitude_deg, height_m, local_g, Site(latitude_deg, height_m, local_g), latitude_sigma,
+                      gravity_sigma)
 
 
 def _axis_limits(t: Table) -> AxisLimits:
@@ -243,7 +263,32 @@ def _table(t: Table) -> TableConfig:
                             for frame in FRAMES)
     limits = TurntableLimits((outer, middle, inner))
     register_map = _register_map(t, dialect)
-    return TableConfig(url, dialect, timeout_s, retries, tolerance_deg, poll_s, limits, register_map)
+    return TableConfig(url, dialect, timeout_s, retries, tolerance_deg, poll_s, limits, register_map, _pointing(t))
+
+
+def _pointing(t: Table) -> TablePrior | None:
+    """[table] pointing_accuracy_arcsec (a number, or {outer, middle, inner}), orthogonality_arcsec, check."""
+    pointing: float | dict[str, float] | None = None
+    if t.has("pointing_accuracy_arcsec"):
+        if isinstance(t.get("pointing_accuracy_arcsec"), dict):
+            frames = t.table("pointing_accuracy_arcsec", FRAME_KEYS)
+            pointing = {f: frames.number(f, ge=0, le=MAX_BLACK_BOX_ARCSEC, unit="arcsec") for f in FRAME_KEYS}
+        else:
+            pointing = t.number("pointing_accuracy_arcsec", ge=0, le=MAX_BLACK_BOX_ARCSEC, unit="arcsec")
+    orthogonality = t.number("orthogonality_arcsec", None, ge=0, le=MAX_BLACK_BOX_ARCSEC, unit="arcsec")
+    if orthogonality is not None and pointing is None:
+        raise t.error("orthogonality_arcsec", "needs pointing_accuracy_arcsec too (the frames' zero offsets)")
+    if t.has("check"):
+        path = t.file("check")
+        if not t.is_file("check", path):
+            raise t.error("check", f"no such table-check result file {show(str(path))} (a *.table-check.json "
+                                   "from `bench check-table`)")
+        prior = None if pointing is None else pointing_sigmas_arcsec(pointing, orthogonality)
+        try:
+            return load_check(path, prior)
+        except TablePriorError as exc:
+            raise t.error("check", str(exc)) from None
+    return None if pointing is None else from_datasheet(pointing, orthogonality)
 
 
 def _register_map(t: Table, dialect: str) -> RegisterMap | None:
@@ -514,9 +559,11 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
     version = root.get("version")
     if isinstance(version, bool) or version != VERSION:
         raise root.error("version", f"unsupported version: must be {VERSION}, got {describe(version)}")
-    site = _site(root.table("site", ("latitude_deg", "height_m", "local_g_mps2"), required=True))
+    site = _site(root.table("site", ("latitude_deg", "height_m", "local_g_mps2", "latitude_sigma_deg",
+                                     "gravity_sigma_mps2"), required=True))
     table = _table(root.table("table", ("url", "dialect", "timeout_s", "retries", "settle_tolerance_deg", "poll_s",
-                                        "register_map", "modbus", "limits"), required=True))
+                                        "register_map", "modbus", "limits", "pointing_accuracy_arcsec",
+                                        "orthogonality_arcsec", "check"), required=True))
     imu = _imu(root.table("imu", ("interface", "channel", "bitrate", "fd", "layout", "dbc", "rate_hz", "signals",
                                   "slcan_client", "bus_options", "identity", "noise"), required=True))
     plan = _plan(root.table("plan", ("positions", "rotations", "dwell_s", "settle_s", "move_rate_dps",
