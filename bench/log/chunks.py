@@ -348,11 +348,15 @@ class Prefetch:
         self.chunks = self._scan(buf)
         self.index = {c[0]: k for k, c in enumerate(self.chunks)}
         deferred_channels = {ch for ch, topic in self.topics.items() if topic in defer_topics}
-        self.deferred: dict[int, tuple] = {}
+        # offset -> (channel, log times, offsets); None for a deferrable chunk past what the log may stream
+        # (`lazy`: counted at its declared size in file order, as the walk counts it): its index is not kept
+        # (a 1 GB file of 250 honest 256 MiB chunks held 1 GB of index entries here)
+        self.deferred: dict[int, tuple | None] = {}
+        stream_room = streamed_budget(len(buf))
         for pos, fields, index in self.chunks if deferred_channels else ():
             found = _deferrable(buf, fields, index, deferred_channels) if fields[2] <= MAX_CHUNK_BYTES else None
             if found is not None:
-                self.deferred[pos] = found
+                self.deferred[pos] = found if not lazy or stream_room.take(fields[2]) is None else None
         # the chunks within the limits, counted in file order as the walk counts them (a deferred one at its
         # compressed size: it is kept so; nothing when `lazy`: it is read again from the file when needed)
         room = InflateBudget(inflate_budget(len(buf)) if budget is None else budget)
