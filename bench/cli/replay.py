@@ -49,7 +49,10 @@ def _replay(args: argparse.Namespace, stop: threading.Event) -> ExitCode:
         log = read_log(args.log)
     except LogError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
-    for line in log.damage:
+    # what the walk found is said now; damage in the frames' chunks after the replay, which reads them (reading
+    # `log.damage` here would read every chunk once more first)
+    told = list(log.damage_found)
+    for line in told:
         print(f"bench replay: damaged log: {line}", file=sys.stderr)
     try:
         steps = steps_from_log(log)
@@ -62,6 +65,8 @@ def _replay(args: argparse.Namespace, stop: threading.Event) -> ExitCode:
     if not args.quiet:
         print(log.summary(), file=sys.stderr, flush=True)
     stats = replay(log, [progress], speed=args.speed, stop=stop)
+    for line in log.damage[len(told):]:
+        print(f"bench replay: damaged log: {line}", file=sys.stderr)
     for note in stats.notes:
         print(f"bench replay: {note}", file=sys.stderr)
     print(stats.summary())

@@ -179,6 +179,12 @@ class RunLog:
         return self._damage
 
     @property
+    def damage_found(self) -> list[str]:
+        """`damage` as far as found so far, without reading the frames' chunks for it (the first pass over them,
+        by whatever reads them, adds theirs)."""
+        return self._damage
+
+    @property
     def lost(self) -> list[Damage]:
         """The damage entries behind `damage`, with offsets and counts."""
         self._scan_can()
@@ -341,13 +347,23 @@ class RunLog:
         them). The decode is kept: solving and the report both ask for it (treat the arrays as
         read-only).
         """
+        block, stats, _ = self.imu_samples_visiting(layout, rate_hz, None, reorder_window)
+        return block, stats
+
+    def imu_samples_visiting(self, layout: ImuLayout | None, rate_hz: float, visit,
+                             reorder_window: int = 8) -> tuple[ImuSampleBlock, ImuStats, bool]:
+        """`imu_samples`, calling `visit(frame times)` with every piece of frames when the decode reads them
+        now (one pass over the chunks serves both); the last item says whether it did (not when the decode
+        was kept from before)."""
         for cached_layout, cached_rate, cached_window, decoded in self._decoded:
             if (cached_layout is layout or cached_layout == layout) and cached_rate == rate_hz \
                     and cached_window == reorder_window:
-                return decoded
+                return (*decoded, False)
         decoder = StreamDecoder(layout, rate_hz, reorder_window)
         try:
             for t, ids, data, lengths, flags in self.can_pieces():
+                if visit is not None:
+                    visit(t)
                 keep = (flags & (FLAG_REMOTE | FLAG_ERROR)) == 0
                 if not keep.all():
                     t, ids, data, lengths = t[keep], ids[keep], data[keep], lengths[keep]
@@ -359,7 +375,7 @@ class RunLog:
         except MemoryError as exc:
             raise LogError(f"{self.path}: not enough memory to decode its CAN frames") from exc
         self._decoded.append((layout, rate_hz, reorder_window, decoded))
-        return decoded
+        return (*decoded, visit is not None)
 
     @property
     def unchecked_chunks(self) -> int:

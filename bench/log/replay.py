@@ -111,7 +111,6 @@ def _close(listeners) -> Exception | None:
 
 
 def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s, stop) -> None:
-    samples = _decode(log, layout, rate_hz, stats)
     states, bad_states = _table_states(log)
     if bad_states:
         stats.notes.append(f"{bad_states} table states with an unknown mode not replayed")
@@ -121,9 +120,15 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
     ev_t = _monotone(np.array([e.time_s for e in events], float))
     st_t = _monotone(np.array([s.time_s for s in states], float))
     # Frame batches: cut where the time grid or the count of earlier events/states changes; found chunk by
-    # chunk (the frames are never all held: only each batch's bounds and last time).
+    # chunk (the frames are never all held: only each batch's bounds and last time), in the same pass over
+    # the frames as the samples' decode when that runs now
     marks = np.sort(np.concatenate([ev_t, st_t]))
-    starts, ends, batch_end, t0 = _frame_batches(log, marks, ev_t, st_t, block_s)
+    batches = _FrameBatches(marks, ev_t, st_t, block_s)
+    samples, visited = _decode(log, layout, rate_hz, stats, batches.visit)
+    if not visited:
+        for t, *_ in log.can_pieces():
+            batches.visit(t)
+    starts, ends, batch_end, t0 = batches.result()
     n_frames = int(ends[-1]) if len(ends) else 0
     firsts = [t[0] for t in (ev_t, st_t) if len(t)] + ([t0] if n_frames else [])
     lasts = [t[-1] for t in (ev_t, st_t, batch_end) if len(t)]
@@ -187,44 +192,54 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
     stats.wall_s = float(clock.now() - wall0)
 
 
-def _frame_batches(log: RunLog, marks: np.ndarray, ev_t: np.ndarray, st_t: np.ndarray, block_s: float):
-    """(starts, ends, last frame time of each batch, the first frame's time) of the frame batches: a batch
-    ends where the count of events/states before a frame or its cell of the `block_s` grid changes. The
-    grid starts at the log's first time (the earliest of the first event, state and frame). Frame times
-    are made monotone as `_monotone` does, across the chunks."""
-    begin: list[np.ndarray] = []       # global index of each batch's first frame
-    before: list[np.ndarray] = []      # the time of the frame before it (the previous batch's last)
-    t0 = first_frame = None
-    prev_t, prev_key, total = -np.inf, None, 0
-    for t, *_ in log.can_pieces():
+class _FrameBatches:
+    """The frame batches, found piece by piece (`visit` each piece's frame times in order, then `result`): a
+    batch ends where the count of events/states before a frame or its cell of the `block_s` grid changes.
+    The grid starts at the log's first time (the earliest of the first event, state and frame). Frame times
+    are made monotone as `_monotone` does, across the pieces."""
+
+    def __init__(self, marks: np.ndarray, ev_t: np.ndarray, st_t: np.ndarray, block_s: float):
+        self.marks, self.ev_t, self.st_t, self.block_s = marks, ev_t, st_t, block_s
+        self.begin: list[np.ndarray] = []    # global index of each batch's first frame
+        self.before: list[np.ndarray] = []   # the time of the frame before it (the previous batch's last)
+        self.t0: float | None = None
+        self.first_frame: float | None = None
+        self.prev_t, self.total = -np.inf, 0
+        self.prev_key: tuple[int, float] | None = None
+
+    def visit(self, t: np.ndarray) -> None:
         if not len(t):
-            continue
+            return
+        ev_t, st_t = self.ev_t, self.st_t
         t = np.where(np.isfinite(t), np.asarray(t, float), -np.inf)
-        t = np.maximum.accumulate(np.maximum(t, prev_t))
+        t = np.maximum.accumulate(np.maximum(t, self.prev_t))
         if not np.isfinite(t[0]):   # no finite time yet: these take the first one found
             finite = np.isfinite(t)
             fill = t[finite][0] if finite.any() else min([x[0] for x in (ev_t, st_t) if len(x)], default=0.0)
             t = np.where(finite, t, fill)
-        if t0 is None:
-            first_frame = float(t[0])
-            t0 = min([first_frame] + [float(x[0]) for x in (ev_t, st_t) if len(x)])
-        key_marks = np.searchsorted(marks, t - _SAME_TIME_S, side="left")
-        key_grid = np.floor((t - t0) / block_s)
+        if self.t0 is None:
+            self.first_frame = float(t[0])
+            self.t0 = min([self.first_frame] + [float(x[0]) for x in (ev_t, st_t) if len(x)])
+        key_marks = np.searchsorted(self.marks, t - _SAME_TIME_S, side="left")
+        key_grid = np.floor((t - self.t0) / self.block_s)
         local = np.flatnonzero((np.diff(key_marks) != 0) | (np.diff(key_grid) != 0)) + 1
-        if prev_key is None or prev_key != (int(key_marks[0]), float(key_grid[0])):
-            begin.append(np.array([total]))
-            before.append(np.array([prev_t]))
-        begin.append(local + total)
-        before.append(t[local - 1])
-        prev_t, prev_key = t[-1], (int(key_marks[-1]), float(key_grid[-1]))
-        total += len(t)
-    if not total or first_frame is None:
-        z = np.zeros(0, np.int64)
-        return z, z, np.zeros(0), 0.0
-    starts = np.concatenate(begin).astype(np.int64)
-    ends = np.append(starts[1:], total)
-    batch_end = np.append(np.concatenate(before)[1:], prev_t).astype(float)
-    return starts, ends, batch_end, float(first_frame)
+        if self.prev_key is None or self.prev_key != (int(key_marks[0]), float(key_grid[0])):
+            self.begin.append(np.array([self.total]))
+            self.before.append(np.array([self.prev_t]))
+        self.begin.append(local + self.total)
+        self.before.append(t[local - 1])
+        self.prev_t, self.prev_key = t[-1], (int(key_marks[-1]), float(key_grid[-1]))
+        self.total += len(t)
+
+    def result(self):
+        """(starts, ends, last frame time of each batch, the first frame's time)."""
+        if not self.total or self.first_frame is None:
+            z = np.zeros(0, np.int64)
+            return z, z, np.zeros(0), 0.0
+        starts = np.concatenate(self.begin).astype(np.int64)
+        ends = np.append(starts[1:], self.total)
+        batch_end = np.append(np.concatenate(self.before)[1:], self.prev_t).astype(float)
+        return starts, ends, batch_end, float(self.first_frame)
 
 
 class _FrameCursor:
@@ -282,21 +297,22 @@ def _overrides(listener, name: str) -> bool:
     return getattr(type(listener), name, None) is not getattr(RunListener, name)
 
 
-def _decode(log: RunLog, layout, rate_hz, stats: ReplayStats) -> ImuSampleBlock | None:
-    """Samples from the raw data frames (error and remote frames are logged but never decoded, as live)."""
+def _decode(log: RunLog, layout, rate_hz, stats: ReplayStats, visit) -> tuple[ImuSampleBlock | None, bool]:
+    """Samples from the raw data frames (error and remote frames are logged but never decoded, as live), and
+    whether `visit` saw every piece's frame times on the way (the decode read the frames now)."""
     if layout is None or rate_hz is None:
 
         try:
             setup = layout_and_config_from_log(log)
         except LogError as exc:
             stats.notes.append(f"IMU samples not replayed: {exc}")
-            return None
+            return None, False
         stats.notes += list(setup.notes)
         layout = setup.layout if layout is None else layout
         rate_hz = setup.rate_hz if rate_hz is None else rate_hz
-    block, imu_stats = log.imu_samples(layout, rate_hz)
+    block, imu_stats, visited = log.imu_samples_visiting(layout, rate_hz, visit)
     stats.imu_stats = imu_stats
-    return block
+    return block, visited
 
 
 def _slice(block: ImuSampleBlock, lo: int, hi: int) -> ImuSampleBlock:
