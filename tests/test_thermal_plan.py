@@ -212,7 +212,7 @@ def test_a_soak_past_its_maximum_is_a_fault_and_the_chamber_is_made_safe(world_w
 
 def _with_a_dwell(steps):
     dwell = DwellStep(index=2, unit="T1-P01", schedule="t", schedule_index=0, angles_deg=(0.0, 0.0, 0.0),
-                      target_deg=(0.0, 0.0, 0.0), dwell_s=600.0, estimated_s=600.0)
+                      target_deg=(0.0, 0.0, 0.0), dwell_s=60.0, estimated_s=60.0)
     return steps + (dwell,)
 
 
@@ -276,3 +276,20 @@ def test_a_thermal_plan_value_checks():
     plan = compile_thermal_plan(None, parse_config(SIM_CONFIG_TOML).plan.rotations, parse_config(SIM_CONFIG_TOML).plan,
                                 ThermalPlan((10.0, 30.0)))
     assert [s.kind for s in plan.steps[:2]] == ["set_temperature", "soak"]
+
+
+def test_resume_skips_the_chamber_steps_of_a_temperature_whose_units_are_all_done(world_with_chamber):
+    world, table, imu, chamber = world_with_chamber(30.0)
+    listener = Listener()
+    steps = _with_a_dwell(_soak_steps())
+    seq = Sequencer(steps, table, imu, world.clock, [listener], OPTIONS, completed_units={"T1-P01"}, chamber=chamber)
+    assert seq.run() is RunState.DONE
+    assert [e.step_unit for e in listener.events if e.kind == "step_skipped"] == ["T1", "T1", "T1-P01"]
+    assert not any(e.data.get("soak") for e in listener.events)
+    # a block with a unit left is soaked again (its chamber steps run)
+    world2, table2, imu2, chamber2 = world_with_chamber(30.0)
+    listener2 = Listener()
+    seq2 = Sequencer(steps, table2, imu2, world2.clock, [listener2], OPTIONS, completed_units={"T9-P01"},
+                     chamber=chamber2)
+    assert seq2.run() is RunState.DONE
+    assert any(e.data.get("soak") == "done" for e in listener2.events)
