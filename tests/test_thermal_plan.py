@@ -13,7 +13,7 @@ import dataclasses
 
 import pytest
 
-from bench.config.load import ConfigError, SIM_CONFIG_TOML, parse_config
+from bench.config.load import SIM_CONFIG_TOML, ConfigError, parse_config
 from bench.model.earth import Site
 from bench.model.imu import NoiseModel, default_sim_imu
 from bench.model.thermal import ImuThermal

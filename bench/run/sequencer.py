@@ -43,9 +43,9 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
+from typing import Iterable, Sequence
 
 import numpy as np
-from typing import Iterable, Sequence
 
 from bench.errors import BenchError
 from bench.plan.events import Event, RunListener, RunState
