@@ -10,6 +10,7 @@ clock.
 from __future__ import annotations
 
 import dataclasses
+import threading
 
 import pytest
 
@@ -293,3 +294,28 @@ def test_resume_skips_the_chamber_steps_of_a_temperature_whose_units_are_all_don
                      chamber=chamber2)
     assert seq2.run() is RunState.DONE
     assert any(e.data.get("soak") == "done" for e in listener2.events)
+
+
+def test_a_pause_holds_the_chamber_and_an_alarm_raised_meanwhile_ends_the_run_after_resume(world_with_chamber):
+    world, table, imu, chamber = world_with_chamber(30.0)
+    listener = Listener()
+    seq = Sequencer(_with_a_dwell(_soak_steps(stable_s=60.0)), table, imu, world.clock, [listener], OPTIONS,
+                    chamber=chamber)
+    paused = []
+
+    def on_transition():
+        state = listener.events[-1].state
+        if state == "paused" and not paused:
+            paused.append(world.chamber.state())
+            world.chamber.trip_alarm(ChamberAlarms.EQUIPMENT_FAULT)
+            threading.Timer(0.2, seq.resume).start()
+
+    listener.hooks[("step_finished", "T1")] = lambda: seq.pause() if listener.events[-1].data["step"]["kind"] == \
+        "soak" else None
+    listener.hooks[("transition", None)] = on_transition
+    assert seq.run() is RunState.FAILED and isinstance(seq.error, ChamberAlarm)
+    assert paused and paused[0].setpoint_c == 40.0 and paused[0].running      # the pause kept the chamber at it
+    assert [e.state for e in listener.events if e.kind == "transition"] == [
+        "running", "paused", "running", "aborting", "failed"]
+    assert "equipment fault" in str(seq.error)
+    assert not world.chamber.state().running and not any(a.enabled for a in table.read_state().axes)
