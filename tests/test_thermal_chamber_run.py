@@ -98,3 +98,10 @@ def test_the_log_records_the_chamber_state_and_every_soak_decision(thermal_run):
     decisions = [e.data["soak"] for e in events if e.kind == "info" and "soak" in e.data]
     assert decisions.count("done") == 4 and decisions.count("imu_settling") >= 4
     assert events[-2].data.get("chamber") == "made_safe" and "23 degC" in events[-2].message
+
+
+def test_bench_solve_refuses_to_solve_the_temperatures_of_a_thermal_log_together(thermal_run, tmp_path):
+    _, out, _ = thermal_run
+    rc, _, stderr = cli(["solve", str(only_file(out, "*.mcap")), "--out", str(tmp_path)])
+    assert rc == 2 and "is a calibration over temperature" in stderr and len(stderr.splitlines()) == 1
+    assert not list(tmp_path.iterdir())

@@ -46,6 +46,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=cmd_solve)
 
 
+def _is_thermal(log) -> bool:
+    """A log of a thermal plan: its steps belong to temperature blocks ("T2-P03")."""
+    # imported when the command runs, as the rest of the core
+    from bench.plan.steps import thermal_block
+
+    return any(e.step_unit is not None and thermal_block(e.step_unit) is not None for e in log.events)
+
+
 def cmd_solve(args: argparse.Namespace) -> ExitCode:
     # imported when the command runs: `bench` starts without the bench core
     from bench.log.reader import LogError
@@ -74,6 +82,11 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
         positions = load_subset_schedule(args.positions, "positions")
         rotations = load_subset_schedule(args.rotations, "rotations")
         recorded = load_recorded(args.logs, earlier=not args.no_earlier)
+        thermal = next((log.path for log in recorded.logs if _is_thermal(log)), None)
+        if thermal is not None:     # its blocks must not be solved together as one calibration
+            return fail(PROG, f"{thermal} is a calibration over temperature ([plan] temperatures_c): its run wrote a "
+                              "result per temperature (<run-id>.T<k>.result.json) and the thermal model "
+                              "(<run-id>.thermal.json); re-solving such a log is not supported yet", ExitCode.USAGE)
         if methods is not None:
             comparison = compare(recorded, methods)
         else:
