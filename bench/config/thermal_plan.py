@@ -37,7 +37,7 @@ def thermal_plan(t: Table) -> ThermalPlan | None:
     if not isinstance(value, list) or not 1 <= len(value) <= MAX_TEMPERATURES:
         raise t.error("temperatures_c", f"must be an array of 1 to {MAX_TEMPERATURES} temperatures in degC, "
                                         f"got {describe(value)}")
-    temperatures = []
+    temperatures: list[float] = []
     for k, c in enumerate(value):
         if not is_number(c) or not MIN_TEMPERATURE_C <= c <= MAX_TEMPERATURE_C:
             got = number_text(c) if is_number(c) else describe(c)

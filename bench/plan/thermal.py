@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 
 from bench.plan.compiler import CompiledPlan, PlanError, PlanTiming, compile_plan
-from bench.plan.steps import DwellStep, SetTemperatureStep, SoakStep, Step, TurnStep, thermal_prefix
+from bench.plan.steps import DwellStep, MoveStep, SetTemperatureStep, SoakStep, Step, TurnStep, thermal_prefix
 from drivers.turntable.base import TurntableLimits
 from schedules import Schedule
 
@@ -64,8 +64,8 @@ def _end_deg(steps: list[Step], start: tuple[float, float, float]) -> tuple[floa
     for step in reversed(steps):
         if isinstance(step, TurnStep):
             return step.end_deg
-        if hasattr(step, "target_deg"):
-            a, b, c = step.target_deg      # type: ignore[union-attr]
+        if isinstance(step, (MoveStep, DwellStep)):
+            a, b, c = step.target_deg
             return a, b, c
     return start
 
@@ -78,7 +78,8 @@ def compile_thermal_plan(positions: Schedule | None, rotations: Schedule | None,
     `start_c` is the temperature the chamber is assumed to start at (only the soak estimates use it).
     """
     steps: list[Step] = []
-    here = tuple(float(a) for a in start_deg)
+    x, y, z = (float(a) for a in start_deg)
+    here = (x, y, z)
     previous_c = start_c
     total = lower = listed = 0.0
     for k, setpoint_c in enumerate(thermal.temperatures_c, start=1):

@@ -61,7 +61,7 @@ from bench.plan.steps import (
 )
 from bench.plan.thermal import block_observation_units
 from bench.run.soak import SOAK_DECISIONS, SoakTracker
-from drivers.chamber import Chamber
+from drivers.chamber import Chamber, ChamberState
 from drivers.clock import Clock
 from drivers.errors import ImuTimeout, TurntableEStop, TurntableTimeout
 from drivers.turntable import Turntable
@@ -136,7 +136,7 @@ class Sequencer:
         if chamber is None and any(isinstance(s, (SetTemperatureStep, SoakStep)) for s in self.steps):
             raise SequencerError("the plan has thermal-chamber steps but the run has no chamber")
         self._last_chamber_poll = float("-inf")
-        self._chamber_state = None
+        self._chamber_state: ChamberState | None = None     # the last chamber reading
         self._soak: SoakTracker | None = None
         self.table, self.imu, self.clock = table, imu, clock
         self.listeners = list(listeners)
