@@ -528,6 +528,10 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
     chamber = chamber_config(root.table("chamber", CHAMBER_KEYS)) if root.has("chamber") else None
     if plan.thermal is not None:
         check_against_chamber(plan_table, plan.thermal, chamber.limits if chamber is not None else None)
+        if not imu.layout.has_column[6]:      # the soak is decided on the IMU's own temperature
+            raise plan_table.error("temperatures_c", "a calibration over temperature soaks on the IMU's temperature, "
+                                                     "but the IMU signal mapping has no temperature "
+                                                     "(imu.signals.temperature)")
     return BenchConfig(site, table, imu, plan, output, sim, source_text=text, acceptance=acceptance, chamber=chamber)
 
 
