@@ -38,7 +38,8 @@ from bench.noise.result import NoiseResult, NoiseResultError
 from bench.plan.compiler import ORDERS, PlanTiming
 from bench.plan.thermal import ThermalPlan
 from drivers.errors import ImuConfigError, TurntableConfigError
-from drivers.imu import DEFAULT_DBC, DEFAULT_FD_DBC, DEFAULT_FD_SPEC, DEFAULT_SPEC, ImuFrameSpec, ImuLayout
+from drivers.imu import SHIPPED_LAYOUTS, ImuFrameSpec, ImuLayout
+from drivers.imu.slcan_bus import SLCAN_CLIENTS
 from drivers.turntable import DIALECTS, FRAMES, AxisLimits, TurntableLimits, check_url_dialect
 from drivers.turntable.modbus_map import RegisterMap
 from schedules import Schedule, ScheduleError, builtin_names, resolve_schedule
@@ -135,12 +136,19 @@ class ImuConfig:
     bus_options: dict = field(default_factory=dict)
     identity: ImuIdentity = ImuIdentity()
     noise: ImuNoise | None = None     # [imu] noise = "FILE"; its stabilities replace the identity's
+    #: [imu] layout: the shipped layout's name ("classic", "packed", "fd"); None: the IMU's own `dbc`
+    layout_name: str | None = "classic"
+    #: [imu] slcan_client: who reads an SLCAN adapter: "bench" (the bulk reader) or "python-can"
+    slcan_client: str = "bench"
 
     def bus_kwargs(self) -> dict:
-        """Keyword arguments for `can.Bus(**kwargs)`."""
-        kwargs = {"interface": self.interface, "channel": self.channel, "fd": self.fd}
+        """Keyword arguments for `drivers.imu.receiver.open_bus` (python-can's `can.Bus(**kwargs)`, with
+        `slcan_client` for an SLCAN adapter)."""
+        kwargs: dict = {"interface": self.interface, "channel": self.channel, "fd": self.fd}
         if self.bitrate is not None:
             kwargs["bitrate"] = self.bitrate
+        if self.interface == "slcan":
+            kwargs["slcan_client"] = self.slcan_client
         return {**kwargs, **self.bus_options}
 
 
@@ -260,14 +268,18 @@ def _imu(t: Table) -> ImuConfig:
     bitrate = t.integer("bitrate", None, ge=1000, le=10_000_000)
     fd = t.boolean("fd", False)
     rate_hz = t.number("rate_hz", gt=0, ge=1.0, le=100000.0, unit="Hz")
+    layout_name = t.string("layout", choices=list(SHIPPED_LAYOUTS)) if t.has("layout") else None
+    if layout_name is not None and t.has("dbc"):
+        raise t.error("layout", "names a shipped layout; an IMU's own DBC file goes in `dbc` instead: give one")
     if t.has("dbc"):
         dbc = t.file("dbc")
         _check_dbc(t, dbc)
     else:
-        dbc = DEFAULT_FD_DBC if fd else DEFAULT_DBC
+        layout_name = layout_name or ("fd" if fd else "classic")
+        dbc = SHIPPED_LAYOUTS[layout_name][0]
     signals = t.get("signals", None)
     if signals is None:
-        spec = DEFAULT_FD_SPEC if fd else DEFAULT_SPEC
+        spec = SHIPPED_LAYOUTS[layout_name or ("fd" if fd else "classic")][1]
     else:
         if not isinstance(signals, dict):
             raise t.error("signals", f"must be a table ([imu.signals]), got {describe(signals)}")
@@ -275,7 +287,7 @@ def _imu(t: Table) -> ImuConfig:
             spec = ImuFrameSpec.from_dict(signals)
         except ImuConfigError as exc:
             raise t.error("signals", str(exc)) from exc
-    blame = "dbc" if t.has("dbc") else ("signals" if t.has("signals") else None)
+    blame = "dbc" if t.has("dbc") else ("signals" if t.has("signals") else ("layout" if t.has("layout") else None))
     try:
         layout = ImuLayout.from_dbc(dbc, spec)
     except ImuConfigError as exc:
@@ -297,7 +309,9 @@ def _imu(t: Table) -> ImuConfig:
                            ident.number("gyro_bias_stability_dph", None, gt=0, le=3600.0, unit="deg/h"),
                            ident.number("acc_bias_stability_ug", None, gt=0, le=100000.0, unit="ug"))
     noise = _imu_noise(t) if t.has("noise") else None
-    return ImuConfig(interface, channel, bitrate, fd, Path(dbc), rate_hz, spec, layout, bus_options, identity, noise)
+    slcan_client = t.string("slcan_client", "bench", choices=SLCAN_CLIENTS)
+    return ImuConfig(interface, channel, bitrate, fd, Path(dbc), rate_hz, spec, layout, bus_options, identity, noise,
+                     layout_name, slcan_client)
 
 
 def _imu_noise(t: Table) -> ImuNoise:
@@ -514,8 +528,8 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
     site = _site(root.table("site", ("latitude_deg", "height_m", "local_g_mps2"), required=True))
     table = _table(root.table("table", ("url", "dialect", "timeout_s", "retries", "settle_tolerance_deg", "poll_s",
                                         "register_map", "modbus", "limits"), required=True))
-    imu = _imu(root.table("imu", ("interface", "channel", "bitrate", "fd", "dbc", "rate_hz", "signals",
-                                  "bus_options", "identity", "noise"), required=True))
+    imu = _imu(root.table("imu", ("interface", "channel", "bitrate", "fd", "layout", "dbc", "rate_hz", "signals",
+                                  "slcan_client", "bus_options", "identity", "noise"), required=True))
     plan_table = root.table("plan", ("positions", "rotations", "dwell_s", "settle_s", "move_rate_dps",
                                      "move_accel_dps2", "turn_rate_dps", "turn_accel_dps2", "rest_s", "revolutions",
                                      "order", "verification") + PLAN_THERMAL_KEYS, required=True)

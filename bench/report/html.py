@@ -33,7 +33,7 @@ from bench.report.compare import (
 from bench.report.facts import run_facts
 from bench.solve.extract import finished_observation_steps
 from drivers.errors import ImuError
-from drivers.imu import DEFAULT_FD_SPEC, DEFAULT_SPEC, ImuFrameSpec, ImuLayout
+from drivers.imu import ImuLayout, spec_of
 
 CSS = """
 body { font-family: system-ui, -apple-system, 'Segoe UI', Roboto, sans-serif; margin: 1.5em auto; max-width: 72em;
@@ -87,8 +87,7 @@ def log_layout(log):
     if toml is None:
         raise ValueError("the log has no configuration metadata")
     imu = tomllib.loads(toml).get("imu", {})
-    signals = imu.get("signals")
-    spec = ImuFrameSpec.from_dict(signals) if signals else (DEFAULT_FD_SPEC if imu.get("fd") else DEFAULT_SPEC)
+    spec = spec_of(imu)
     dbc = log.attachments.get(imu_meta.get("dbc", ""))
     if dbc is None:
         raise ValueError(f"the log has no attachment with its DBC file {imu_meta.get('dbc')!r}")
