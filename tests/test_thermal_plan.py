@@ -71,7 +71,8 @@ def test_the_plan_takes_temperatures_and_a_soak_criterion():
      "must be at least stable_min"),
     (THERMAL_PLAN, "\n[plan.soak]\nrate_c_per_min = 0\n" + CHAMBER, "plan.soak.rate_c_per_min", "must be > 0"),
     (THERMAL_PLAN, "\n[imu.signals]\ngyro_x = \"IMU_GYRO_X.GyroX\"\ngyro_y = \"IMU_GYRO_Y.GyroY\"\n"
-     "gyro_z = \"IMU_GYRO_Z.GyroZ\"\nacc_x = \"IMU_ACC_X.AccX\"\nacc_y = \"IMU_ACC_Y.AccY\"\nacc_z = \"IMU_ACC_Z.AccZ\"\n"
+     "gyro_z = \"IMU_GYRO_Z.GyroZ\"\nacc_x = \"IMU_ACC_X.AccX\"\n"
+     "acc_y = \"IMU_ACC_Y.AccY\"\nacc_z = \"IMU_ACC_Z.AccZ\"\n"
      + CHAMBER, "plan.temperatures_c", "has no temperature (imu.signals.temperature)"),
 ])
 def test_a_bad_thermal_plan_is_one_line_with_file_line_and_key(plan_extra, tail, where, words):
