@@ -105,3 +105,50 @@ def test_bench_solve_refuses_to_solve_the_temperatures_of_a_thermal_log_together
     rc, _, stderr = cli(["solve", str(only_file(out, "*.mcap")), "--out", str(tmp_path)])
     assert rc == 2 and "is a calibration over temperature" in stderr and len(stderr.splitlines()) == 1
     assert not list(tmp_path.iterdir())
+
+
+def test_a_thermal_run_cut_off_resumes_without_soaking_the_finished_temperature_again(tmp_path):
+    """Aborted at the second temperature's first dwell; `--resume` skips the first temperature whole (its
+    set-temperature and soak too), soaks the second again and solves both temperatures from both logs."""
+    from bench.run.resume import resume_point
+    from bench.run.runner import BenchRun, compile_from_config
+    from tests.helpers.run import Trigger, api_run, config_text
+
+    text = config_text(positions="traditional-12", rotations="traditional-3s6r", dwell_s=2.0).replace(
+        "[plan]\n", "[plan]\ntemperatures_c = [20.0, 30.0]\n", 1) + """
+[plan.soak]
+rate_c_per_min = 0.1
+stable_min = 2.0
+
+[chamber]
+url = "sim"
+dialect = "ascii"
+safe_setpoint_c = 23.0
+
+[sim.imu.thermal]
+time_constant_s = 60.0
+Kg_x = [0.36]
+"""
+    config = parse_config(text, source=str(tmp_path / "bench.toml"), base_dir=tmp_path)
+    plan = compile_from_config(config)
+    second = next(s.index for s in plan.steps if s.kind == "dwell" and s.unit.startswith("T2-"))
+    trigger = Trigger(second, lambda run: run.abort("cut off"))
+    with api_run(text, tmp_path, trigger) as (_, outcome):
+        assert outcome.error is not None and str(outcome.error) == "cut off"
+    resumed = resume_point(outcome.log_path, config, plan, sim=True)
+    assert resumed.completed and all(u.startswith("T1-") for u in resumed.completed)
+    assert len(resumed.completed) == len([s for s in plan.steps if s.kind in ("dwell", "turn")]) // 2
+    out = tmp_path / "resumed"
+    with BenchRun(config, plan, sim=True, out_dir=out, completed=resumed.completed,
+                  previous_logs=resumed.previous_logs) as run:
+        run.open()
+        run.run()
+        done = run.finish()
+    assert done.error is None and done.thermal_model is not None
+    assert [round(p.temperature_c) for p in done.thermal_model.points] == [20, 30]
+    events = read_log(str(done.log_path)).events
+    skipped = {e.step_unit for e in events if e.kind == "step_skipped"}
+    assert "T1" in skipped and "T2" not in skipped
+    soaked = [e.data["step"]["setpoint_c"] for e in events if e.kind == "step_finished"
+              and e.data["step"]["kind"] == "soak"]
+    assert soaked == [30.0]
