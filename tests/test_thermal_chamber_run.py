@@ -6,7 +6,9 @@ constant 120 s), each temperature is soaked on the IMU's own temperature and cal
 the default schedules (short 20 s dwells, 100 Hz), all on the simulated clock in one log. The
 run then solves one calibration per temperature from the log and fits the thermal model; the
 fitted polynomials must recover the configured ones within their uncertainty, as
-tests/test_thermal_run.py checks for the in-memory `bench thermal sim`.
+tests/test_thermal_run.py checks for the in-memory `bench thermal sim`. One seed (0, the
+example's); on seeds 1 and 2 the short run misses small quadratic terms (README, "Calibrating
+over temperature"): that weakness is known, not hidden by this test.
 """
 
 from __future__ import annotations
