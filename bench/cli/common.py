@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator
 from bench.cli.progress import ProgressPrinter
 from bench.errors import BenchError
 from bench.model.imu import NoiseModel
-from drivers.errors import ImuError, TurntableError
+from drivers.errors import ChamberError, ImuError, TurntableError
 
 if TYPE_CHECKING:
     from bench.run.runner import BenchRun
@@ -161,7 +161,7 @@ def run_plan(run: BenchRun, prog: str, *, quiet: bool, simulated: bool) -> ExitC
     with stop_signals(lambda signum: run.abort(f"interrupted ({signal_name(signum)})")):
         try:
             run.open()
-        except (TurntableError, ImuError, BenchError, OSError) as exc:
+        except (TurntableError, ImuError, ChamberError, BenchError, OSError) as exc:
             return fail(prog, f"cannot start: {exc}; nothing moved", ExitCode.USAGE)
         progress = ProgressPrinter(run.plan.steps, quiet=quiet, simulated=simulated)
         run.extra_listeners.append(progress)

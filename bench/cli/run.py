@@ -116,6 +116,8 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
         add_verification(outcome, verified, config)
     # the summary, also with --quiet: the verdict, its worst check, where the result and reports are
     print(run_summary(outcome, verified))
+    if outcome.thermal_paths:       # a calibration over temperature: each temperature's result and the model
+        print("thermal: " + ", ".join(str(p) for p in outcome.thermal_paths))
     if outcome.verdict is not None and not outcome.verdict.passed:
         return fail(PROG, "quality check failed: " + "; ".join(c.describe() for c in outcome.verdict.failed),
                     ExitCode.QUALITY)

@@ -55,6 +55,14 @@ def static_noise_plan(recorded) -> str | None:
     return positions.name if positions is not None and positions.kind == "static" else None
 
 
+def _is_thermal(log) -> bool:
+    """A log of a thermal plan: its steps belong to temperature blocks ("T2-P03")."""
+    # imported when the command runs, as the rest of the core
+    from bench.plan.steps import thermal_block
+
+    return any(e.step_unit is not None and thermal_block(e.step_unit) is not None for e in log.events)
+
+
 def cmd_solve(args: argparse.Namespace) -> ExitCode:
     # imported when the command runs: `bench` starts without the bench core
     from bench.log.reader import LogError
@@ -88,6 +96,11 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
             return fail(PROG, f"{recorded.logs[-1].path} is a static noise recording (plan positions {static!r}: one "
                               f"dwell, nothing to calibrate): analyse it with `bench noise {recorded.logs[-1].path}`",
                         ExitCode.USAGE)
+        thermal = next((log.path for log in recorded.logs if _is_thermal(log)), None)
+        if thermal is not None:     # its blocks must not be solved together as one calibration
+            return fail(PROG, f"{thermal} is a calibration over temperature ([plan] temperatures_c): its run wrote a "
+                              "result per temperature (<run-id>.T<k>.result.json) and the thermal model "
+                              "(<run-id>.thermal.json); re-solving such a log is not supported yet", ExitCode.USAGE)
         if methods is not None:
             comparison = compare(recorded, methods)
         else:

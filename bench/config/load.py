@@ -28,6 +28,7 @@ from bench.config.chamber import CHAMBER_KEYS, ChamberConfig, chamber_config
 from bench.config.reader import ConfigError, Located, Table, describe, parse_toml, read_text, show, suggest
 from bench.config.register_map import TABLE_MAP, load_register_map, register_map_value
 from bench.config.thermal import THERMAL_KEYS, sim_thermal
+from bench.config.thermal_plan import PLAN_THERMAL_KEYS, check_against_chamber, thermal_plan
 from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
 from bench.model.families import BODY_AXES, SENSOR_AXES, canonical_names, family_of
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
@@ -43,6 +44,7 @@ from bench.model.thermal import ImuThermal
 from bench.model.units import ARCSEC
 from bench.noise.result import NoiseResult, NoiseResultError
 from bench.plan.compiler import ORDERS, PlanTiming
+from bench.plan.thermal import ThermalPlan
 from drivers.errors import ImuConfigError, TurntableConfigError
 from drivers.imu import SHIPPED_LAYOUTS, ImuFrameSpec, ImuLayout
 from drivers.imu.slcan_bus import SLCAN_CLIENTS
@@ -176,6 +178,8 @@ class PlanConfig(PlanTiming):
     order: str = field(default="optimal", kw_only=True)
     #: the verification schedule (`[plan] verification`): run after the calibration, None: none
     verification: Schedule | None = field(default=None, kw_only=True)
+    #: `[plan] temperatures_c` and `[plan.soak]`: a calibration at each chamber temperature, None: one, no chamber
+    thermal: ThermalPlan | None = field(default=None, kw_only=True)
 
 
 @dataclass(frozen=True)
@@ -454,8 +458,15 @@ def _plan(t: Table, limits: TurntableLimits) -> PlanConfig:
                 raise t.error(key, f"{values[key]:g} {unit} exceeds the {FRAMES[frame]} axis limit {limit:g} "
                                    f"{unit} (table.limits.{FRAMES[frame]}.{attr})")
     verification = _schedule(t, "verification", "verification", None)
+    thermal = thermal_plan(t)
+    if thermal is not None and positions is not None and positions.kind == "static":
+        raise t.error("temperatures_c", f"plan.positions {positions.name!r} is a static noise recording: a "
+                                        "calibration over temperature needs calibration schedules")
+    if thermal is not None and verification is not None:
+        raise t.error("verification", "a verification run after a calibration over temperature is not supported "
+                                      "yet: leave plan.verification out with plan.temperatures_c")
     return PlanConfig(positions=positions, rotations=rotations, revolutions=revolutions, order=order,
-                      verification=verification, **values)
+                      verification=verification, thermal=thermal, **values)
 
 
 def _black_box(t: Table, seed: int) -> tuple[float | tuple, np.ndarray]:
@@ -566,15 +577,22 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
                                         "orthogonality_arcsec", "check"), required=True))
     imu = _imu(root.table("imu", ("interface", "channel", "bitrate", "fd", "layout", "dbc", "rate_hz", "signals",
                                   "slcan_client", "bus_options", "identity", "noise"), required=True))
-    plan = _plan(root.table("plan", ("positions", "rotations", "dwell_s", "settle_s", "move_rate_dps",
+    plan_table = root.table("plan", ("positions", "rotations", "dwell_s", "settle_s", "move_rate_dps",
                                      "move_accel_dps2", "turn_rate_dps", "turn_accel_dps2", "rest_s", "revolutions",
-                                     "order", "verification"), required=True), table.limits)
+                                     "order", "verification") + PLAN_THERMAL_KEYS, required=True)
+    plan = _plan(plan_table, table.limits)
     out = root.table("output", ("folder", "chunk_run_interval_s"))
     output = OutputConfig(out.path_value("folder", out.string("folder", "runs", nonempty=True)),
                           out.number("chunk_run_interval_s", None, gt=0, ge=0.01, le=3600.0, unit="s"))
     sim = _sim(root.table("sim", ("seed", "black_box_arcsec", "noise", "imu")))
     acceptance = acceptance_limits(root.table("acceptance", ACCEPTANCE_KEYS))
     chamber = chamber_config(root.table("chamber", CHAMBER_KEYS)) if root.has("chamber") else None
+    if plan.thermal is not None:
+        check_against_chamber(plan_table, plan.thermal, chamber.limits if chamber is not None else None)
+        if not imu.layout.has_column[6]:      # the soak is decided on the IMU's own temperature
+            raise plan_table.error("temperatures_c", "a calibration over temperature soaks on the IMU's temperature, "
+                                                     "but the IMU signal mapping has no temperature "
+                                                     "(imu.signals.temperature)")
     return BenchConfig(site, table, imu, plan, output, sim, source_text=text, acceptance=acceptance, chamber=chamber)
 
 

@@ -119,6 +119,25 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     },
 }
 
+#: a run with a thermal chamber has one more channel (the others' logs stay as they were)
+TOPIC_CHAMBER = "/chamber/state"
+CHAMBER_SCHEMA_NAME = "turntable_bench.ChamberState"
+CHAMBER_SCHEMA: dict[str, Any] = {
+    "title": CHAMBER_SCHEMA_NAME, "description": "One read of the thermal chamber's controller", "type": "object",
+    "properties": {
+        "time_s": {"type": "number", "description": "reading time on the run clock, s"},
+        "temperature_c": {"type": "number", "description": "chamber air temperature (process value), degC"},
+        "setpoint_c": {"type": "number", "description": "the controller's setpoint, degC"},
+        "ramp_c_per_min": {"type": ["number", "null"], "description": "ramp rate, degC/min (0 steps; null: the "
+                                                                      "dialect has none)"},
+        "running": {"type": "boolean", "description": "temperature control on"},
+        "alarms": {"type": "integer", "description": "alarm bits: 1 over-temperature, 2 under-temperature, "
+                                                     "4 door open, 8 sensor fault, 16 equipment fault"},
+        "alarm_text": {"type": "string"},
+    },
+}
+CHAMBER_CHANNELS: dict[str, tuple[str, str, str]] = {TOPIC_CHAMBER: (CHAMBER_SCHEMA_NAME, "jsonschema", "json")}
+
 CAN_SCHEMA_NAME = "turntable_bench.CanFrames"
 CAN_SCHEMA_TEXT = """turntable-bench/can-frames-v1: raw CAN frames, lossless, little-endian binary.
 A message is a batch of frames: records concatenated with no padding, each
@@ -309,7 +328,8 @@ def decode_can_frames(d: ChannelData | None, *, release: bool = False) -> tuple[
     return done if done is not None else _general_can(d.payloads())
 
 
-__all__ = ["CAN_ENCODING", "CAN_RECORD", "CAN_SCHEMA_NAME", "CAN_SCHEMA_TEXT", "CHANNELS", "CLASSIC_WIDTH",
+__all__ = ["CAN_ENCODING", "CAN_RECORD", "CAN_SCHEMA_NAME", "CAN_SCHEMA_TEXT", "CHAMBER_CHANNELS",
+           "CHAMBER_SCHEMA", "CHAMBER_SCHEMA_NAME", "CHANNELS", "TOPIC_CHAMBER", "CLASSIC_WIDTH",
            "EXTENDED_ID_FLAG", "FD_WIDTH", "MAX_DATA", "FLAGS_OFFSET", "FLAG_BRS", "FLAG_ERROR", "FLAG_ESI", "FLAG_FD",
            "FLAG_REMOTE", "HEADER_SIZE", "LENGTH_OFFSET", "LOG_ERROR", "LOG_INFO", "LOG_WARNING", "SCHEMAS",
            "TF_FRAMES", "TOPIC_CAN", "TOPIC_EVENTS", "TOPIC_LOG", "TOPIC_SAMPLES", "TOPIC_STATE", "TOPIC_TF",

@@ -7,6 +7,8 @@ Channels (message encoding "json" with a "jsonschema" Schema record, unless note
   `imu_samples_topic_decimation`-th counter); log time = the sample's receive time.
 - `/events` (`turntable_bench.Event`): `Event.to_dict()`; log time = `event.time_s`.
 - `/log` (`foxglove.Log`): one line per event (fault -> ERROR, warning -> WARNING, else INFO).
+- `/chamber/state` (`turntable_bench.ChamberState`, a run with a thermal chamber only: `chamber=True`):
+  every polled chamber state; log time = `state.time_s`.
 - `/tf` (`foxglove.FrameTransform`): per table state world->outer, outer->middle,
   middle->inner at the nominal frame angles (black-box errors are unknown to the bench).
 - `/can/raw` (`turntable_bench.CanFrames`, message encoding `turntable-bench/can-frames-v1`):
@@ -62,6 +64,9 @@ from bench.errors import BenchError
 from bench.log.format import (
     CAN_SCHEMA_NAME,
     CAN_SCHEMA_TEXT,
+    CHAMBER_CHANNELS,
+    CHAMBER_SCHEMA,
+    CHAMBER_SCHEMA_NAME,
     CHANNELS,
     LOG_ERROR,
     LOG_INFO,
@@ -69,6 +74,7 @@ from bench.log.format import (
     SCHEMAS,
     TF_FRAMES,
     TOPIC_CAN,
+    TOPIC_CHAMBER,
     TOPIC_EVENTS,
     TOPIC_LOG,
     TOPIC_SAMPLES,
@@ -176,7 +182,7 @@ class McapRecorder(RunListener):
                  chunk_interval_s: float = 1.0, clock: Callable[[], float] = time.monotonic,
                  chunk_run_interval_s: float | None = CHUNK_RUN_INTERVAL_S,
                  imu_samples_topic_decimation: int = 1, chunk_size: int = 4 * 1024 * 1024,
-                 compression: str = "zstd"):
+                 compression: str = "zstd", chamber: bool = False):
         if not (isinstance(imu_samples_topic_decimation, int) and imu_samples_topic_decimation >= 1):
             raise RecorderError(f"imu_samples_topic_decimation must be a positive integer, "
                                 f"got {imu_samples_topic_decimation!r}")
@@ -188,6 +194,7 @@ class McapRecorder(RunListener):
         if compression not in _COMPRESSION:
             raise RecorderError(f"compression must be one of {sorted(_COMPRESSION)}, got {compression!r}")
         self.path = str(path)
+        self._channels = {**CHANNELS, **(CHAMBER_CHANNELS if chamber else {})}
         self.chunk_interval_s = float(chunk_interval_s)
         self.chunk_run_interval_s = None if chunk_run_interval_s is None else float(chunk_run_interval_s)
         # run-clock rule: the next chunk close is due at log time `_run_due` (ns); -1 until the
@@ -229,15 +236,16 @@ class McapRecorder(RunListener):
         records = RecordBuilder()
         # The /can/raw schema's encoding names the binary layout its text describes (as "protobuf" does for
         # a protobuf schema): an empty encoding with data breaks the MCAP spec (`mcap doctor`: an error).
-        encodings = {schema: schema_encoding for schema, schema_encoding, _ in CHANNELS.values()}
-        bodies = {**{name: json.dumps(body, indent=1).encode() for name, body in SCHEMAS.items()},
+        encodings = {schema: schema_encoding for schema, schema_encoding, _ in self._channels.values()}
+        schemas = {**SCHEMAS, **({CHAMBER_SCHEMA_NAME: CHAMBER_SCHEMA} if TOPIC_CHAMBER in self._channels else {})}
+        bodies = {**{name: json.dumps(body, indent=1).encode() for name, body in schemas.items()},
                   CAN_SCHEMA_NAME: CAN_SCHEMA_TEXT.encode()}
         for name, data in bodies.items():
             encoding = encodings.get(name, "jsonschema")
             schema_ids[name] = self._writer.register_schema(name, encoding, data)
             Schema(id=schema_ids[name], name=name, encoding=encoding, data=data).write(records)
         channel_ids = {}
-        for topic, (schema, _, encoding) in CHANNELS.items():
+        for topic, (schema, _, encoding) in self._channels.items():
             channel_ids[topic] = self._writer.register_channel(topic, encoding, schema_ids[schema])
             Channel(id=channel_ids[topic], topic=topic, message_encoding=encoding, metadata={},
                     schema_id=schema_ids[schema]).write(records)
@@ -303,6 +311,18 @@ class McapRecorder(RunListener):
             tf = (f'{{"timestamp":{stamp},"parent_frame_id":"{TF_FRAMES[k]}","child_frame_id":"{TF_FRAMES[k + 1]}",'
                   f'"translation":{{"x":0.0,"y":0.0,"z":0.0}},"rotation":{{"x":{x!r},"y":{y!r},"z":{z!r},"w":{w!r}}}}}')
             self._io(self._put, TOPIC_TF, t, tf.encode())
+        self._tick()
+
+    def on_chamber_state(self, state) -> None:
+        if TOPIC_CHAMBER not in self._channel:
+            raise RecorderError(f"MCAP log {self.path} has no {TOPIC_CHAMBER} channel (open it with chamber=True)")
+        self._check_open()
+        t = time_ns(state.time_s)
+        body = to_json({"time_s": state.time_s, "temperature_c": state.temperature_c, "setpoint_c": state.setpoint_c,
+                        "ramp_c_per_min": state.ramp_c_per_min, "running": bool(state.running),
+                        "alarms": int(state.alarms), "alarm_text": state.alarm_text})
+        self._run_clock(t)
+        self._io(self._put, TOPIC_CHAMBER, t, body)
         self._tick()
 
     def on_imu(self, block) -> None:

@@ -26,7 +26,7 @@ from bench.model.kinematics import FRAMES
 from bench.model.motion import trapezoid_timing
 from bench.model.units import format_hms
 from bench.plan.order import order_units
-from bench.plan.steps import DwellStep, MoveStep, SettleStep, Step, TurnStep
+from bench.plan.steps import DwellStep, MoveStep, SetTemperatureStep, SettleStep, SoakStep, Step, TurnStep
 from drivers.turntable.base import TurntableLimits
 from schedules import RotationStep, Schedule
 
@@ -145,6 +145,12 @@ def _describe(step: Step) -> str:
         return f"move to {_fmt_angles(step.target_deg)} deg at {step.rate_dps:g} deg/s"
     if isinstance(step, SettleStep):
         return f"settle {step.duration_s:g} s"
+    if isinstance(step, SetTemperatureStep):
+        ramp = "controller's ramp" if step.ramp_c_per_min is None else f"ramp {step.ramp_c_per_min:g} degC/min"
+        return f"chamber to {step.setpoint_c:g} degC ({ramp})"
+    if isinstance(step, SoakStep):
+        return (f"soak: IMU rate < {step.rate_c_per_min:g} degC/min for {step.stable_s / 60.0:g} min "
+                f"(at most {step.max_soak_s / 60.0:g} min)")
     if isinstance(step, DwellStep):
         return (f"dwell {step.dwell_s:g} s at {_fmt_angles(step.angles_deg)} "
                 f"[{step.schedule} #{step.schedule_index + 1}]")

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 if TYPE_CHECKING:   # types only: the plan layer does not import the drivers or python-can at run time
     import can
 
+    from drivers.chamber import ChamberState
     from drivers.imu import ImuSampleBlock
     from drivers.turntable import TableState
 
@@ -66,7 +67,8 @@ class RunListener:
 
     `on_can_frames` gets every raw CAN frame (python-can `Message`s) before decoding;
     `on_imu` the decoded samples (`drivers.imu.ImuSampleBlock`); `on_table_state` each
-    polled `drivers.turntable.TableState`. `close()` is called once at the end of a run.
+    polled `drivers.turntable.TableState`; `on_chamber_state` each polled
+    `drivers.chamber.ChamberState` (a thermal plan's runs). `close()` is called once at the end of a run.
     """
 
     def on_event(self, event: Event) -> None:
@@ -77,6 +79,9 @@ class RunListener:
 
     def on_imu(self, block: ImuSampleBlock) -> None:
         pass
+
+    def on_chamber_state(self, state: ChamberState) -> None:
+        """Each polled thermal-chamber state (runs with a chamber only)."""
 
     def on_can_frames(self, frames: Sequence[can.Message]) -> None:
         pass

@@ -91,8 +91,59 @@ class TurnStep:
         return end[0], end[1], end[2]
 
 
-Step = Union[MoveStep, SettleStep, DwellStep, TurnStep]
+@dataclass(frozen=True, kw_only=True)
+class SetTemperatureStep:
+    """Send the chamber to `setpoint_c` (at `ramp_c_per_min`; None: the controller's ramp) and run it.
+
+    `temperature_index` is the 1-based block of a thermal plan: the calibration units of the
+    block are labelled with its prefix (`thermal_prefix`), e.g. "T2-P03".
+    """
+
+    index: int
+    unit: str                                # "T2": the block's own unit
+    temperature_index: int
+    setpoint_c: float
+    ramp_c_per_min: float | None
+    estimated_s: float
+    kind: str = "set_temperature"
+
+
+@dataclass(frozen=True, kw_only=True)
+class SoakStep:
+    """Wait until the IMU's temperature is steady: the chamber air within `chamber_tolerance_c` of the
+    setpoint, then the IMU's temperature rate below `rate_c_per_min` for `stable_s`; at most `max_soak_s`
+    (then `SoakTimeout`, a fault). The decision is on the IMU's own temperature, never the chamber's."""
+
+    index: int
+    unit: str
+    temperature_index: int
+    setpoint_c: float
+    rate_c_per_min: float
+    stable_s: float
+    max_soak_s: float
+    chamber_tolerance_c: float
+    rate_window_s: float
+    estimated_s: float
+    kind: str = "soak"
+
+
+Step = Union[MoveStep, SettleStep, DwellStep, TurnStep, SetTemperatureStep, SoakStep]
 OBSERVATION_KINDS = ("dwell", "turn")
+#: step kinds that drive the thermal chamber
+CHAMBER_KINDS = ("set_temperature", "soak")
+
+
+def thermal_prefix(temperature_index: int) -> str:
+    """The unit label of block k of a thermal plan ("T2"); its calibration units are "T2-P03", "T2-R01"."""
+    return f"T{temperature_index}"
+
+
+def thermal_block(unit: str) -> int | None:
+    """The 1-based temperature block of a unit label ("T2-P03" and "T2" -> 2), None outside a thermal plan."""
+    head = unit.split("-", 1)[0]
+    if len(head) >= 2 and head[0] == "T" and head[1:].isdigit():
+        return int(head[1:])
+    return None
 
 
 def step_to_dict(step: Step) -> dict:
@@ -103,7 +154,8 @@ def step_to_dict(step: Step) -> dict:
     return out
 
 
-_STEP_TYPES = {cls.__dataclass_fields__["kind"].default: cls for cls in (MoveStep, SettleStep, DwellStep, TurnStep)}
+_STEP_TYPES = {cls.__dataclass_fields__["kind"].default: cls
+               for cls in (MoveStep, SettleStep, DwellStep, TurnStep, SetTemperatureStep, SoakStep)}
 
 
 def step_from_dict(d: dict) -> Step:

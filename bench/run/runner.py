@@ -33,6 +33,7 @@ from bench.noise.from_log import NoiseInputError, analyse_log
 from bench.plan.compiler import CompiledPlan, compile_plan
 from bench.plan.events import RunListener, RunState
 from bench.plan.steps import step_to_dict
+from bench.plan.thermal import compile_thermal_plan
 from bench.report.markdown import write_reports
 from bench.report.noise import write_noise_outputs
 from bench.run.imu_check import check_imu_stream
@@ -40,12 +41,18 @@ from bench.run.sequencer import ListenerError, Sequencer, SequencerOptions, desc
 from bench.sim.world import SimWorld
 from bench.solve.extract import Extraction
 from bench.solve.from_logs import extract_from_logs, solve_logs
-from bench.solve.inputs import budget_inputs
+from bench.solve.inputs import bias_stabilities, budget_inputs
+from bench.solve.methods import SolverError
+from bench.thermal.from_log import fit_blocks, nearest_block, solve_blocks
+from bench.thermal.model import ThermalModel
+from drivers.chamber import Chamber, open_chamber
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.imu.receiver import ImuReceiver
 from drivers.turntable import Turntable, open_turntable
 from schedules import builtin_path
 
+#: the reference temperature of a thermal model fitted to a hardware run, degC
+THERMAL_REFERENCE_C = 25.0
 #: The sequencer's loop periods on the simulator: coarse, because the simulated clock jumps.
 SIM_OPTIONS = dict(move_poll_s=0.1, imu_poll_s=0.5, state_period_s=1.0)
 
@@ -62,6 +69,10 @@ class RunOutcome:
     html_report_path: Path | None = None
     verdict: Verdict | None = None        # the acceptance verdict of the result (None: no result)
     problems: list[str] = field(default_factory=list)   # steps left out or degraded (the extraction's lines)
+    #: a thermal run's per-temperature results and thermal model file; and the model (None: not thermal, or
+    #: fewer than two temperatures)
+    thermal_paths: list[Path] = field(default_factory=list)
+    thermal_model: ThermalModel | None = None
 
 
 def _new_run_id() -> str:
@@ -70,8 +81,12 @@ def _new_run_id() -> str:
 
 
 def compile_from_config(config: BenchConfig) -> CompiledPlan:
-    """The compiled plan of a configuration (PlanError on a plan that cannot run)."""
+    """The compiled plan of a configuration (PlanError on a plan that cannot run); with `temperatures_c`,
+    a calibration at each chamber temperature (`bench.plan.thermal`)."""
     plan = config.plan
+    if plan.thermal is not None:
+        return compile_thermal_plan(plan.positions, plan.rotations, plan, plan.thermal, limits=config.table.limits,
+                                    order=plan.order)
     return compile_plan(plan.positions, plan.rotations, plan, limits=config.table.limits, order=plan.order)
 
 
@@ -115,6 +130,7 @@ class BenchRun:
         self.receiver: ImuReceiver | None = None
         self.imu_check = ""                      # what the check of a hardware IMU found before the run
         self.recorder: McapRecorder | None = None
+        self.chamber: Chamber | None = None      # a thermal plan's chamber (opened by open())
         self.sequencer: Sequencer | None = None
         self.clock: Clock | None = None
         self._abort_reason: str | None = None      # an abort asked for before the sequencer existed
@@ -156,11 +172,39 @@ class BenchRun:
                 # runs on the run clock and always is)
                 self.imu_check = check_imu_stream(
                     receiver, config.imu.rate_hz, f"interface {config.imu.interface} channel {config.imu.channel}")
+            if self.is_thermal:
+                self._open_chamber()
             if record:
                 self._open_recorder()
         except BaseException:
             self.close()
             raise
+
+    @property
+    def is_thermal(self) -> bool:
+        """A calibration at each chamber temperature (`[plan] temperatures_c`)."""
+        return self.config.plan.thermal is not None
+
+    def _open_chamber(self) -> None:
+        """The thermal plan's chamber: the configured one, or on the simulator a simulated chamber on the run
+        clock whose air is the thermal IMU's ambient."""
+        chamber_config = self.config.chamber
+        if chamber_config is None:
+            raise BenchError("a thermal plan needs a [chamber]")
+        assert self.clock is not None
+        if self.sim:
+            assert self.world is not None
+            url = self.world.add_chamber(chamber_config.dialect, chamber_config.register_map)
+            if self.world.imu.case is not None:
+                self.world.drive_imu_from_chamber()
+        elif chamber_config.is_sim:
+            raise BenchError('chamber url "sim" is the simulated chamber: run with --sim (or a simulated table)')
+        else:
+            url = chamber_config.url
+        self.chamber = chamber = open_chamber(url, chamber_config.dialect, clock=self.clock,
+                                              **chamber_config.driver_options())
+        chamber.connect()
+        self._stack.callback(chamber.close)
 
     def start_log(self) -> None:
         """Open the log of a run opened with `record=False` (nothing if it is open): the output folder is
@@ -217,7 +261,8 @@ class BenchRun:
         config = self.config
         interval = config.output.chunk_run_interval_s
         recorder = McapRecorder(str(path), metadata=metadata,
-                                chunk_run_interval_s=CHUNK_RUN_INTERVAL_S if interval is None else interval)
+                                chunk_run_interval_s=CHUNK_RUN_INTERVAL_S if interval is None else interval,
+                                chamber=self.chamber is not None)
         try:
             self._attach_files(recorder)
         except BaseException:
@@ -269,8 +314,12 @@ class BenchRun:
 
     # -- the run -------------------------------------------------------------------------
     def options(self) -> SequencerOptions:
+        chamber = self.config.chamber
+        thermal = {"chamber_poll_s": chamber.poll_s, "chamber_safe_setpoint_c": chamber.safe_setpoint_c} \
+            if chamber is not None and self.is_thermal else {}
         return SequencerOptions(**{"settle_tolerance_deg": self.config.table.settle_tolerance_deg,
-                                   "move_poll_s": self.config.table.poll_s, **(SIM_OPTIONS if self.sim else {})})
+                                   "move_poll_s": self.config.table.poll_s, **thermal,
+                                   **(SIM_OPTIONS if self.sim else {})})
 
     def _opened(self) -> tuple[Turntable, ImuReceiver, McapRecorder, Clock]:
         if self.table is None or self.receiver is None or self.recorder is None or self.clock is None:
@@ -282,7 +331,8 @@ class BenchRun:
         table, receiver, recorder, clock = self._opened()
         imu = self.world.imu_source(receiver) if self.world is not None else receiver
         self.sequencer = sequencer = Sequencer(self.plan.steps, table, imu, clock,
-                                               [recorder, *self.extra_listeners], self.options(), self.completed)
+                                               [recorder, *self.extra_listeners], self.options(), self.completed,
+                                               chamber=self.chamber)
         if self._abort_reason is not None:      # asked for while the devices opened: the run ends at once
             sequencer.abort(self._abort_reason)
         table.reset_faults()
@@ -319,6 +369,8 @@ class BenchRun:
         recorder.flush()
         if self.is_static_noise:
             return self._finish_noise(seq.state, receiver, recorder)
+        if self.is_thermal:
+            return self._finish_thermal(seq.state, receiver, recorder)
         logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
         config, identity = self.config, self.config.imu.identity
         solution = solve_logs(logs, config.site.site, config.imu.layout, config.imu.rate_hz,
@@ -352,6 +404,84 @@ class BenchRun:
         return RunOutcome(seq.state, self.log_path, result_path, report_path, result, failures,
                           html_report_path=html_report_path, verdict=verdict,
                           problems=list(solution.extraction.problems))
+
+    def _run_info(self, state: RunState, receiver: ImuReceiver, failures: list[str]) -> dict:
+        config, identity = self.config, self.config.imu.identity
+        return {"run_id": self.run_id, "mode": "simulator" if self.sim else "hardware", "operator": self.operator,
+                "software_version": __version__, "state": state.value, "log": self.log_path.name,
+                "logs": [Path(p).name for p in self.previous_logs] + [self.log_path.name],
+                "positions": _name(config.plan.positions), "rotations": _name(config.plan.rotations),
+                "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                "imu": {"model": identity.model, "serial": identity.serial},
+                "site": config.site.site.to_dict(), "quality_failures": failures,
+                "imu_link": {**receiver.stats.as_dict(),
+                             **(receiver.time_base.as_dict() if receiver.time_base is not None else {})}}
+
+    def _finish_thermal(self, state: RunState, receiver: ImuReceiver, recorder: McapRecorder) -> RunOutcome:
+        """A thermal run: one calibration per temperature (`<run-id>.T<k>.result.json`), the thermal model
+        (`<run-id>.thermal.json/.md/.html`), and as the run's own result (verdict, reports) the calibration
+        nearest the model's reference temperature."""
+        # local: matplotlib (the thermal report's figures) is heavy and needed only here
+        from bench.report.thermal import write_thermal_reports
+
+        config = self.config
+        logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
+        gyro_stability, acc_stability = bias_stabilities(config, self.sim)
+        budget = budget_inputs(config, self.sim)
+        truth_imu = config.sim.imu if self.sim else None
+        truth_thermal = config.sim.thermal if self.sim else None
+        link_failures = [f"{LOST_SAMPLES_FAILURE}: {receiver.stats.summary()}"] if receiver.stats.lost_samples else []
+        run_info = self._run_info(state, receiver, link_failures)
+        blocks, damage = solve_blocks(logs, config.site.site, config.imu.layout, config.imu.rate_hz, run=run_info,
+                                      gyro_bias_stability_dph=gyro_stability, acc_bias_stability_ug=acc_stability,
+                                      sim_imu=truth_imu, sim_thermal=truth_thermal,
+                                      still_open=frozenset({str(self.log_path), *map(str, self.previous_logs)}),
+                                      budget=budget)
+        if not blocks:
+            raise SolverError("the thermal run has no finished observation at any temperature")
+        reference_c = truth_thermal.reference_c if truth_thermal is not None else THERMAL_REFERENCE_C
+        written = []
+        for block in blocks:
+            path = self.out_dir / f"{self.run_id}.T{block.temperature_index}.result.json"
+            block.point.result.save(path)
+            written.append(path)
+        model = None
+        if len({round(b.point.temperature_c, 3) for b in blocks}) >= 2:
+            model = fit_blocks(blocks, reference_c, sim_imu=truth_imu, sim_thermal=truth_thermal)
+            model.run = {"mode": run_info["mode"], "run_id": self.run_id, "log": self.log_path.name,
+                         "results": [p.name for p in written]}
+            model_path = self.out_dir / f"{self.run_id}.thermal.json"
+            model.save(model_path)
+            write_thermal_reports(model, self.out_dir, f"{self.run_id}.thermal",
+                                  title=f"Thermal model {self.run_id}")
+            written.append(model_path)
+        head = nearest_block(blocks, reference_c)
+        result = head.point.result
+        problems = list(head.extraction.problems)
+        failures = problems + damage + link_failures
+        outliers = result.quality.get("outliers", []) if isinstance(result.quality, dict) else []
+        if outliers:
+            failures.append(f"{len(outliers)} {OUTLIERS_FAILURE}")
+        result.run["quality_failures"] = failures
+        result.run["thermal"] = {"model": f"{self.run_id}.thermal.json" if model is not None else None,
+                                 "results": [p.name for p in written if p.name.endswith(".result.json")],
+                                 "this_block": head.temperature_index}
+        verdict = judge(result, config.acceptance, lost_samples=receiver.stats.lost_samples,
+                        quality_failures=judged_failures(failures, config.acceptance))
+        result.verdict = verdict.to_json()
+        result_path = self.out_dir / f"{self.run_id}.result.json"
+        result.save(result_path)
+        report_path, html_report_path = write_reports(
+            result, self.out_dir, self.run_id, log=logs[-1], layout=config.imu.layout, log_still_open=True,
+            problems=problems, failures=failures, imu_link=receiver.stats.as_dict(),
+            title=f"Calibration report {self.run_id} (temperature block T{head.temperature_index})")
+        now_s = self.clock.now() if self.clock is not None else 0.0
+        for path in [result_path, *written]:
+            recorder.add_attachment(path.name, "application/json", path.read_bytes(), now_s)
+        recorder.close()
+        return RunOutcome(state, self.log_path, result_path, report_path, result, failures,
+                          html_report_path=html_report_path, verdict=verdict, problems=problems,
+                          thermal_paths=written, thermal_model=model)
 
     def finish_observations(self) -> tuple[Extraction | None, BaseException | None]:
         """For a run that is not solved (a verification): close the log and extract its observations.

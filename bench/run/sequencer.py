@@ -29,6 +29,14 @@ receiver (every frame goes to the listeners: nothing is lost while the table mov
 and polls the table state. An observation step (dwell, turn) records the IMU sample
 counters of its window in its `step_finished` event; the solver's observations are
 extracted from the log with those windows (bench.solve.extract).
+
+With a thermal chamber (a thermal plan, `bench.plan.thermal`) the sequencer also runs the
+set-temperature and soak steps, polls the chamber every `chamber_poll_s` whatever the step
+(each state to the listeners; an alarm or a lost link is a fault like the table's), decides
+the soak on the IMU's own temperature (`bench.run.soak`; every decision an `info` event
+with `data["soak"]`), and its safe stop makes the chamber safe after stopping the table
+(`Chamber.make_safe`: the configured safe setpoint, else stopped). A run that ends well
+also leaves the chamber that way.
 """
 
 from __future__ import annotations
@@ -37,9 +45,23 @@ import threading
 from dataclasses import dataclass
 from typing import Iterable, Sequence
 
+import numpy as np
+
 from bench.errors import BenchError
 from bench.plan.events import Event, RunListener, RunState
-from bench.plan.steps import DwellStep, MoveStep, SettleStep, Step, TurnStep, step_to_dict
+from bench.plan.steps import (
+    DwellStep,
+    MoveStep,
+    SetTemperatureStep,
+    SettleStep,
+    SoakStep,
+    Step,
+    TurnStep,
+    step_to_dict,
+)
+from bench.plan.thermal import block_observation_units
+from bench.run.soak import SOAK_DECISIONS, SoakTracker
+from drivers.chamber import Chamber, ChamberState
 from drivers.clock import Clock
 from drivers.errors import ImuTimeout, TurntableEStop, TurntableTimeout
 from drivers.turntable import Turntable
@@ -62,6 +84,10 @@ class SequencerError(BenchError):
 
 class RunAborted(SequencerError):
     """The run was aborted on request (operator, Ctrl-C, a signal, API)."""
+
+
+class SoakTimeout(SequencerError):
+    """The IMU did not soak within the step's maximum soak time (a fault: the chamber is made safe)."""
 
 
 class ListenerError(SequencerError):
@@ -87,6 +113,9 @@ class SequencerOptions:
     move_timeout_s: float = 900.0   # a move or turn not complete after this -> TurntableTimeout
     imu_timeout_s: float = 2.0      # no IMU sample for this long while recording -> ImuTimeout
     stop_timeout_s: float = 60.0    # waiting for the table to come to rest after a stop
+    chamber_poll_s: float = 1.0     # chamber state poll period (runs with a chamber)
+    #: where the chamber goes on abort, fault or the end of the run (None: temperature control stopped)
+    chamber_safe_setpoint_c: float | None = None
 
 
 class Sequencer:
@@ -101,8 +130,14 @@ class Sequencer:
 
     def __init__(self, steps: Sequence[Step], table: Turntable, imu, clock: Clock,
                  listeners: Iterable[RunListener] = (), options: SequencerOptions = SequencerOptions(),
-                 completed_units: Iterable[str] = ()):
+                 completed_units: Iterable[str] = (), chamber: Chamber | None = None):
         self.steps = tuple(steps)
+        self.chamber = chamber
+        if chamber is None and any(isinstance(s, (SetTemperatureStep, SoakStep)) for s in self.steps):
+            raise SequencerError("the plan has thermal-chamber steps but the run has no chamber")
+        self._last_chamber_poll = float("-inf")
+        self._chamber_state: ChamberState | None = None     # the last chamber reading
+        self._soak: SoakTracker | None = None
         self.table, self.imu, self.clock = table, imu, clock
         self.listeners = list(listeners)
         self.listener_errors: list[tuple[RunListener, Exception]] = []
@@ -207,13 +242,16 @@ class Sequencer:
                 self._check_abort()
                 if self._pause_requested.is_set():
                     self._pause()
-                if step.unit in self.completed_units:
+                if step.unit in self.completed_units or self._block_complete(step):
                     self._emit("step_skipped", f"{step.unit} {step.kind}: complete in an earlier run", step,
                                step=step_to_dict(step))
                     continue
                 self._execute(step)
             self._drain_imu()
             self._check_listeners()
+            if self.chamber is not None:
+                self._emit("info", f"chamber: {self.chamber.make_safe(self.options.chamber_safe_setpoint_c)}",
+                           chamber="made_safe")
             self._transition(RunState.DONE, "run complete")
         except BaseException as exc:  # noqa: BLE001 - every way out must stop the table; re-raised if not ours
             self.error = exc
@@ -222,10 +260,18 @@ class Sequencer:
                 raise
         return self.state
 
+    def _block_complete(self, step: Step) -> bool:
+        """A chamber step of a temperature block whose every observation is complete (resume): skipped."""
+        if not isinstance(step, (SetTemperatureStep, SoakStep)) or not self.completed_units:
+            return False
+        units = block_observation_units(self.steps, step.temperature_index)
+        return bool(units) and units <= self.completed_units
+
     def _pause(self) -> None:
         self._transition(RunState.PAUSED, "paused at a step boundary; the table holds its position")
         while not self._resume.wait(0.05):
             self._drain_imu()
+            self._poll_chamber_when_due()
             self._check_listeners()
         self._check_abort()
         self._transition(RunState.RUNNING, "resumed")
@@ -241,7 +287,12 @@ class Sequencer:
                 self._emit("fault", message, self.current_step, error=type(exc).__name__)
             if (self.state, RunState.ABORTING) in _TRANSITIONS:    # not from done (a KeyboardInterrupt after it)
                 self._transition(RunState.ABORTING, message)
-            self._safe_stop(estop=isinstance(exc, TurntableEStop))
+            try:
+                self._safe_stop(estop=isinstance(exc, TurntableEStop))
+            finally:
+                if self.chamber is not None:      # after the table: never skipped, never raises
+                    self._emit("info", f"chamber: {self.chamber.make_safe(self.options.chamber_safe_setpoint_c)}",
+                               chamber="made_safe")
         finally:
             held, self._held = self._held, None
             for method, payload in held:
@@ -296,9 +347,13 @@ class Sequencer:
             data = self._record(lambda: self._rest(step.dwell_s))
         elif isinstance(step, TurnStep):
             data = self._record(lambda: self._turn(step))
+        elif isinstance(step, SetTemperatureStep):
+            self._set_temperature(step)
+        elif isinstance(step, SoakStep):
+            data = self._soak_until_steady(step)
         else:
             raise SequencerError(f"unknown step {step!r}")
-        if data:
+        if isinstance(step, (DwellStep, TurnStep)):
             self.windows[step.unit] = data
         self._emit("step_finished", f"{step.unit} {step.kind} done in {self.clock.now() - started:.1f} s", step,
                    step=step_to_dict(step), **data)
@@ -333,6 +388,7 @@ class Sequencer:
             state = self.table.read_state()
             self._publish_state(state)
             self.table.check_state(state)
+            self._poll_chamber_when_due()
             if all(axis.in_position and abs(axis.angle_deg - target) <= tolerance
                    for axis, target in zip(state.axes, target_deg)):
                 return
@@ -351,10 +407,62 @@ class Sequencer:
                 state = self.table.read_state()
                 self._publish_state(state)
                 self.table.check_state(state)
+            self._poll_chamber_when_due()
             if now >= end - 1e-9:
                 return
             self.clock.sleep(min(self.options.imu_poll_s, end - now))
             self._drain_imu_when_due()
+
+    # -- the chamber -----------------------------------------------------------------
+    def _set_temperature(self, step: SetTemperatureStep) -> None:
+        assert self.chamber is not None
+        self.chamber.clear_alarms()
+        self.chamber.set_setpoint(step.setpoint_c, step.ramp_c_per_min)
+        self.chamber.run()
+        self._poll_chamber(force=True)
+
+    def _soak_until_steady(self, step: SoakStep) -> dict:
+        """Rest until the IMU is soaked (`bench.run.soak`); its decisions are events. `SoakTimeout` past the
+        step's maximum."""
+        tracker = self._soak = SoakTracker(step, self.clock.now())
+        try:
+            while True:
+                self._check_abort()
+                now = self.clock.now()
+                if now - self._last_state_poll >= self.options.state_period_s:
+                    state = self.table.read_state()
+                    self._publish_state(state)
+                    self.table.check_state(state)
+                self._poll_chamber_when_due()
+                self._drain_imu()
+                status = tracker.status(self.clock.now())
+                if status.decision:
+                    self._emit("info", f"soak {step.setpoint_c:g} degC: {SOAK_DECISIONS[status.decision]}", step,
+                               soak=status.decision, **status.as_dict())
+                if status.done:
+                    return {"soak_s": self.clock.now() - tracker.start_s, **status.as_dict()}
+                if tracker.timed_out(self.clock.now()):
+                    raise SoakTimeout(f"the IMU did not soak at {step.setpoint_c:g} degC within "
+                                      f"{step.max_soak_s / 60.0:g} min (IMU {status.imu_temperature_c} degC, rate "
+                                      f"{status.rate_c_per_min} degC/min, chamber {status.chamber_c} degC)")
+                self.clock.sleep(self.options.imu_poll_s)
+        finally:
+            self._soak = None
+
+    def _poll_chamber_when_due(self) -> None:
+        if self.chamber is not None and self.clock.now() - self._last_chamber_poll >= self.options.chamber_poll_s:
+            self._poll_chamber()
+
+    def _poll_chamber(self, force: bool = False) -> None:
+        """Read the chamber, hand the state to the listeners and the soak; `ChamberAlarm` on an alarm (a fault)."""
+        assert self.chamber is not None
+        state = self.chamber.read_state()
+        self._last_chamber_poll = self.clock.now()
+        self._chamber_state = state
+        self._dispatch("on_chamber_state", state)
+        if self._soak is not None:
+            self._soak.add_chamber(state.temperature_c)
+        self.chamber.check_state(state)
 
     # -- data ----------------------------------------------------------------------------
     def _publish_state(self, state) -> None:
@@ -370,6 +478,13 @@ class Sequencer:
         now = self._last_drain = self.clock.now()
         if len(block):
             self._last_sample_at = now
+            if self._soak is not None:
+                temps = block.temperature_c[np.isfinite(block.temperature_c)]
+                if len(temps):
+                    self._soak.add_imu(float(block.receive_time_s.mean()), float(temps.mean()))
+                else:
+                    raise SequencerError("the IMU reports no temperature (its layout has no temperature signal): "
+                                         "a soak cannot be decided")
             if self._window is not None:
                 first, last = int(block.counter[0]), int(block.counter[-1])
                 if self._window:

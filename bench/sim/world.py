@@ -12,6 +12,7 @@ than real time and the log carries simulated timestamps.
 
 from __future__ import annotations
 
+import collections
 import copy
 import queue
 import time
@@ -205,6 +206,31 @@ class SimWorld:
         close, url = serve_chamber(self.chamber, dialect, "tcp", register_map=register_map)
         self._closers.append(close)
         return url
+
+    def drive_imu_from_chamber(self, history_s: float = 60.0) -> None:
+        """The thermal IMU's ambient becomes the simulated chamber's air: after every advance of the clock
+        the air is sampled, and the case follows the piecewise-linear air through those samples (the IMU
+        is stepped at most `history_s` behind the clock). Needs `add_chamber` and an IMU with a case."""
+        chamber, case = getattr(self, "chamber", None), self.imu.case
+        if chamber is None or case is None:
+            raise ValueError("driving the IMU from the chamber needs a chamber (add_chamber) and a thermal IMU")
+        times: collections.deque[float] = collections.deque([self.clock.now()])
+        air: collections.deque[float] = collections.deque([chamber.temperature_c])
+
+        def sample() -> None:
+            now = self.clock.now()
+            if now > times[-1]:
+                times.append(now)
+                air.append(chamber.temperature_c)
+                while len(times) > 2 and times[1] < now - history_s:
+                    times.popleft()
+                    air.popleft()
+
+        def ambient(at_s: np.ndarray) -> np.ndarray:
+            return np.interp(at_s, times, air)
+
+        self.clock.add_hook(sample)
+        case.set_ambient(ambient)
 
     def close(self) -> None:
         for close in reversed(self._closers):

@@ -13,10 +13,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Sequence
 
-import numpy as np
-
 from bench.config.load import BenchConfig
-from bench.model.thermal import MAX_THERMAL_DEGREE, THERMAL_NAMES, ImuThermal
+from bench.model.thermal import ImuThermal
 from bench.model.units import DEG_PER_HOUR, MICRO_G
 from bench.sim.acquire import AcquisitionTiming, acquire
 from bench.sim.imu import SimImu
@@ -24,6 +22,7 @@ from bench.sim.table import SimTable
 from bench.solve.calibrate import solve
 from bench.solve.inputs import bias_stabilities, budget_inputs
 from bench.thermal.model import ThermalModel, ThermalPoint, fit_thermal_model
+from bench.thermal.truth import attach_sim_truth
 
 #: the thermal behaviour `bench thermal sim` gives the simulated IMU when the configuration has no
 #: [sim.imu.thermal]: of the size a navigation-grade FOG IMU shows (bias some 0.002 deg/h and 5 ug per degC,
@@ -86,25 +85,10 @@ def simulate_thermal(config: BenchConfig, temperatures_c: Sequence[float], *, th
         if progress is not None:
             progress(k, points[-1])
     model = fit_thermal_model(points, truth.reference_c if reference_c is None else reference_c)
-    model.sim_truth = {name: truth.polynomial(name, config.sim.imu) if name in THERMAL_NAMES
-                       else _diagonal_truth(truth, config, name, model.range_c) for name in model.fits}
-    model.sim_truth_reference_c = truth.reference_c
+    attach_sim_truth(model, truth, config.sim.imu)
     model.run = {"mode": "simulator (in memory, soaked at each temperature)", "seed": config.sim.seed,
                  "seed_stride": SEED_STRIDE, "temperatures_c": [float(t) for t in temperatures_c]}
     return model
-
-
-def _diagonal_truth(truth: ImuThermal, config: BenchConfig, name: str, range_c: tuple[float, float]) -> list[float]:
-    """A direction-cosine diagonal follows its row (unit length), a smooth function of temperature
-    that is not a polynomial: its truth is the cubic through it over the calibrated range
-    (least squares on a fine grid; the quartic remainder is far below any calibration's sigma)."""
-    grid = np.linspace(range_c[0], range_c[1], 64)
-    exact = [truth.canonical_at(config.sim.imu, t)[name] for t in grid]
-    reference = config.sim.imu.to_canonical()[name]
-    x = grid - truth.reference_c
-    terms = np.linalg.lstsq(x[:, None] ** np.arange(1, MAX_THERMAL_DEGREE + 1), np.asarray(exact) - reference,
-                            rcond=None)[0]
-    return [reference] + terms.tolist()
 
 
 __all__ = ["DEMO_THERMAL", "SEED_STRIDE", "simulate_point", "simulate_thermal", "timing_of"]

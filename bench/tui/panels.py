@@ -199,6 +199,10 @@ def describe_step(step) -> str:
         return f"{step.dwell_s:g} s at " + ", ".join(f"{a:g}" for a in step.angles_deg)
     if step.kind == "turn":
         return f"{step.frame} {step.direction} x{step.revolutions} @ {step.rate_dps:g}/s"
+    if step.kind == "set_temperature":
+        return f"chamber to {step.setpoint_c:g} degC"
+    if step.kind == "soak":
+        return f"IMU < {step.rate_c_per_min:g} degC/min for {step.stable_s / 60.0:g} min"
     return ""
 
 
