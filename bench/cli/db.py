@@ -36,7 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = sub.add_parser("import", help="record result files (*.result.json, *.table-check.json) and logs (*.mcap)",
                        description="Record result files and run logs on disk; folders are searched recursively. "
                                    "Idempotent: a file already recorded is skipped.")
-    p.add_argument("paths", nargs="+", metavar="PATH")
+    p.add_argument("paths", nargs="+", metavar="PATH", help="result files, logs, or folders to search")
     p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
     p.add_argument("--quiet", action="store_true", help="print only the counts and failures")
     p.set_defaults(func=cmd_import)
@@ -49,7 +49,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        description="The unit's latest result of every calibration run, oldest first: each coefficient "
                                    "with its 1-sigma, its change from the calibration before in combined sigma, and "
                                    "its drift per year (weighted straight-line fit). --out writes JSON, CSV, a plot.")
-    p.add_argument("serial", metavar="SERIAL")
+    p.add_argument("serial", metavar="SERIAL", help="the unit's serial number (as its logs record it)")
     p.add_argument("--coefficient", metavar="NAME", nargs="+", action="extend",
                    help="only these coefficients (e.g. Kg_x bg_z)")
     p.add_argument("--model", metavar="MODEL", help="the model, when the serial is recorded for several")
@@ -59,12 +59,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _open(args: argparse.Namespace):
+    # imported when the command runs: `bench` starts without SQLAlchemy
     from bench.records.store import open_records
 
     return open_records(getattr(args, "db", None))
 
 
 def cmd_import(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without SQLAlchemy
     from bench.records.ingest import import_paths
     from bench.records.store import RecordsError
 
@@ -86,6 +88,7 @@ def cmd_import(args: argparse.Namespace) -> ExitCode:
 
 
 def cmd_list(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without SQLAlchemy
     from bench.records.store import RecordsError
 
     since = None
@@ -112,6 +115,7 @@ def cmd_list(args: argparse.Namespace) -> ExitCode:
 
 
 def cmd_history(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without SQLAlchemy
     from bench.records.history import format_history, unit_history, write_history
     from bench.records.store import RecordsError
 
@@ -145,6 +149,7 @@ def record_outputs(args: argparse.Namespace, prog: str, paths: list[Path | str |
     """Record the written result files (and logs) unless --no-db; a failure is one warning line, never an error."""
     if getattr(args, "no_db", False):
         return
+    # imported when the command runs: `bench` starts without SQLAlchemy
     from bench.records.ingest import import_file
     from bench.records.store import RecordsError, open_records
 

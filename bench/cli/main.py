@@ -14,8 +14,8 @@ import sys
 from bench import __version__
 from bench.cli import apply as apply_cli
 from bench.cli import chamber as chamber_cli
-from bench.cli import db as db_cli
 from bench.cli import check_table, evaluate, export_can, replay, run, schedules, sim_rig, solve, table, thermal, tui
+from bench.cli import db as db_cli
 from bench.cli import export as export_cli
 from bench.cli import noise as noise_command
 from bench.cli import verify as verify_cli

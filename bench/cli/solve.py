@@ -12,6 +12,7 @@ import json
 from pathlib import Path
 
 from bench.cli.common import ExitCode, fail
+from bench.cli.db import add_db_options, record_outputs
 
 PROG = "bench solve"
 
@@ -43,6 +44,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--no-earlier", action="store_true",
                         help="do not add the earlier logs a resumed log names")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    add_db_options(parser)
     parser.set_defaults(func=cmd_solve)
 
 
@@ -110,6 +112,7 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
             for note in recorded.notes:
                 print(f"note: {note}")
             print(f"result: {result_path}\nreport: {report_path}" + (f"\n        {html_path}" if html_path else ""))
+        record_outputs(args, PROG, [result_path, *(log.path for log in recorded.logs)])   # after the files are written
         failures = resolved.failures
         if resolved.verdict is not None:
             if not args.quiet:

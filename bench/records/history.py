@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.log.names import output_path, safe_name
+from bench.model.families import canonical_names
 from bench.records.store import Records, RecordsError
 
 SECONDS_PER_YEAR = 365.25 * 86400.0
@@ -137,8 +139,6 @@ def unit_history(records: Records, serial: str, names: list[str] | None = None,
 
 
 def _canonical_order(names: list[str]) -> list[str]:
-    from bench.model.families import canonical_names
-
     canonical = [n for n in canonical_names() if n in names]
     return canonical + sorted(set(names) - set(canonical))
 
@@ -178,8 +178,6 @@ def history_csv(history: UnitHistory) -> str:
 
 def write_history(history: UnitHistory, out_dir: str | Path) -> list[Path]:
     """`<serial>.history.json`, `.history.csv` and `.history.png` (value +- 1 sigma over time) in `out_dir`."""
-    from bench.log.names import output_path, safe_name
-
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = safe_name(history.serial) or "unit"
@@ -193,7 +191,7 @@ def write_history(history: UnitHistory, out_dir: str | Path) -> list[Path]:
 
 
 def _plot(history: UnitHistory, path: Path) -> None:
-    from bench.report.plots import plt
+    from bench.report.plots import plt  # matplotlib, heavy: only when a plot is written
 
     n = max(1, len(history.coefficients))
     cols = min(3, n)
