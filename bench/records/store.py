@@ -153,6 +153,14 @@ class Records:
         with self._connect() as conn:
             return conn.execute(query).first() is not None
 
+    def logs_solved_by(self, software_version: str) -> set[str]:
+        """The log paths of the runs that have a result of `software_version` (what an archive re-solve skips)."""
+        r, s = schema.runs, schema.results
+        query = (sa.select(r.c.log_path).join(s, s.c.run_pk == r.c.id)
+                 .where(s.c.software_version == software_version, r.c.log_path.is_not(None)).distinct())
+        with self._connect() as conn:
+            return {path for (path,) in conn.execute(query)}
+
     # -- reading ---------------------------------------------------------------------------------
 
     def list_runs(self, serial: str | None = None, since: dt.datetime | None = None) -> list[RunRow]:
