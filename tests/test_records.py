@@ -167,25 +167,26 @@ def test_history_finds_the_drift_and_the_changes(archive, tmp_path, capsys):
 
 
 def test_a_resolve_adds_a_result_and_history_takes_the_latest(archive, tmp_path):
-    db = str(tmp_path / "r.sqlite")
-    with open_records(db) as records:
-        from bench.records.ingest import import_paths
+    from bench.records.ingest import import_paths
 
+    path = sorted((archive / "b").glob("*.result.json"))[0]
+    data = json.loads(path.read_text())
+    data["run"]["software_version"] = "9.0"
+    data["run"]["solved_utc"] = "2030-01-01T00:00:00Z"      # re-solved long after the run
+    data["coefficients"]["Kg_x"]["value"] += 1.0
+    data["coefficients"]["Kg_x"]["budget"] = {"noise": 0.1, "table": 0.05}    # what a result with a budget adds
+    resolved = tmp_path / "resolved" / path.name
+    resolved.parent.mkdir()
+    resolved.write_text(json.dumps(data))
+    with open_records(str(tmp_path / "r.sqlite")) as records:
+        import_paths(records, [resolved])                   # the newer result imported first: newest by solve time
         import_paths(records, [archive / "b"])
-        path = sorted((archive / "b").glob("*.result.json"))[0]
-        data = json.loads(path.read_text())
-        data["run"]["software_version"] = "9.0"
-        data["coefficients"]["Kg_x"]["value"] += 1.0
-        data["coefficients"]["Kg_x"]["budget"] = {"noise": 0.1, "table": 0.05}    # what a result with a budget adds
-        resolved = tmp_path / "resolved" / path.name
-        resolved.parent.mkdir()
-        resolved.write_text(json.dumps(data))
-        import_paths(records, [resolved])
         rows = records.list_runs(serial="B-2")
         assert sorted(r.results for r in rows) == [1, 2]
         assert records.has_result(data["run"]["run_id"], "9.0")
         assert not records.has_result(data["run"]["run_id"], "8.0")
         kg = next(c for c in unit_history(records, "B-2").coefficients if c.name == "Kg_x")
+        assert len(kg.points) == 2
         newest = next(p for p in kg.points if p.run_id == data["run"]["run_id"])
         assert newest.value == data["coefficients"]["Kg_x"]["value"] and newest.software_version == "9.0"
         assert newest.budget == {"budget": {"noise": 0.1, "table": 0.05}}

@@ -133,7 +133,8 @@ class Records:
             mean_c = (_dict_or_none(data.get("temperature")) or {}).get("mean_c")
             result_id = _insert(conn, sa.insert(table).values(
                 run_pk=run_pk, path=path, sha256=sha256,
-                software_version=run.software_version, solved_utc=run.finished_utc, imported_utc=_now(),
+                software_version=run.software_version, imported_utc=_now(),
+                solved_utc=utc((_dict_or_none(data.get("run")) or {}).get("solved_utc")) or run.finished_utc,
                 verdict=None if verdict is None else ("pass" if verdict.get("passed") else "fail"),
                 verdict_json=verdict, quality=_dict_or_none(data.get("quality")),
                 temperature_c=float(mean_c) if isinstance(mean_c, (int, float)) and math.isfinite(mean_c) else None,
@@ -166,15 +167,16 @@ class Records:
     def list_runs(self, serial: str | None = None, since: dt.datetime | None = None) -> list[RunRow]:
         """Runs (newest first), of one serial and/or started (else finished) at or after `since`."""
         u, r, s = schema.units, schema.runs, schema.results
-        latest = (sa.select(s.c.run_pk, sa.func.count(s.c.id).label("n"), sa.func.max(s.c.id).label("last"))
-                  .group_by(s.c.run_pk).subquery())
+        counts = sa.select(s.c.run_pk, sa.func.count(s.c.id).label("n")).group_by(s.c.run_pk).subquery()
+        newest = _newest_results().subquery()
         when = sa.func.coalesce(r.c.started_utc, r.c.finished_utc)
         query = (sa.select(r.c.run_id, u.c.model, u.c.serial, r.c.kind, r.c.started_utc, r.c.finished_utc,
-                           r.c.outcome, r.c.operator, r.c.plan, sa.func.coalesce(latest.c.n, 0), s.c.verdict,
+                           r.c.outcome, r.c.operator, r.c.plan, sa.func.coalesce(counts.c.n, 0), s.c.verdict,
                            r.c.log_path)
                  .join(u, u.c.id == r.c.unit_id)
-                 .outerjoin(latest, latest.c.run_pk == r.c.id)
-                 .outerjoin(s, s.c.id == latest.c.last)
+                 .outerjoin(counts, counts.c.run_pk == r.c.id)
+                 .outerjoin(newest, newest.c.run_pk == r.c.id)
+                 .outerjoin(s, s.c.id == newest.c.id)
                  .order_by(when.desc(), r.c.run_id.desc()))
         if serial is not None:
             query = query.where(u.c.serial == serial)
@@ -198,8 +200,7 @@ class Records:
         if model is not None:
             unit_ids = unit_ids.where(u.c.model == model)
         run_ids = sa.select(r.c.id).where(r.c.unit_id.in_(unit_ids.scalar_subquery()))
-        latest = (sa.select(sa.func.max(s.c.id)).where(s.c.run_pk.in_(run_ids.scalar_subquery()))
-                  .group_by(s.c.run_pk))
+        latest = sa.select(_newest_results(s.c.run_pk.in_(run_ids.scalar_subquery())).subquery().c.id)
         when = sa.func.coalesce(r.c.started_utc, r.c.finished_utc)
         query = (sa.select(r.c.run_id, when, s.c.software_version, s.c.verdict, c.c.name, c.c.value, c.c.sigma,
                            c.c.unit, c.c.budget)
@@ -235,6 +236,16 @@ def _insert(conn: sa.Connection, statement: sa.Insert) -> int:
     key = conn.execute(statement).inserted_primary_key
     assert key is not None
     return int(key[0])
+
+
+def _newest_results(*where: sa.ColumnElement[bool]) -> sa.Select:
+    """(run_pk, id) of each run's newest result: solved last (a re-solve's solved_utc, else the run's end), then
+    imported last."""
+    s = schema.results
+    rank = sa.func.row_number().over(partition_by=s.c.run_pk, order_by=(
+        sa.func.coalesce(s.c.solved_utc, s.c.imported_utc).desc(), s.c.id.desc())).label("rank")
+    ranked = sa.select(s.c.run_pk, s.c.id, rank).where(*where).subquery()
+    return sa.select(ranked.c.run_pk, ranked.c.id).where(ranked.c.rank == 1)
 
 
 def _dict_or_none(value: Any) -> dict | None:
