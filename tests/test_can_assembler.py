@@ -136,6 +136,23 @@ def test_joining_a_stream_mid_sample_is_not_a_lost_sample():
     assert stats.joined_mid_sample == 0 and "joined" not in stats.summary()
 
 
+def test_a_stream_that_ends_mid_sample_is_not_a_lost_sample():
+    """The bench stops listening while a sample is being sent (the end of a run: a 2 kHz run over SLCAN
+    failed its quality check with "1 lost (1 incomplete)", the last sample's first frame alone in the log).
+    That last sample is dropped and counted as left mid-sample, not as lost; a frame genuinely lost before
+    the end still is."""
+    frames = frames_of(range(40))[:-4]           # stopped after 3 of sample 39's 7 frames
+    del frames[20 * M + 2]                        # and a frame of sample 20 genuinely lost
+    block, stats = check_both(frames)
+    assert_intact(block, [c for c in range(39) if c != 20])
+    assert (stats.left_mid_sample, stats.incomplete_samples, stats.lost_samples) == (1, 1, 1)
+    assert "left mid-sample" in stats.summary()
+    block, stats = check_both(frames_of(range(40))[3:-4])     # joined and left mid-sample: neither is a loss
+    assert (stats.joined_mid_sample, stats.left_mid_sample, stats.lost_samples) == (1, 1, 0)
+    block, stats = check_both(frames_of([5])[:3])             # one counter only: it is the joined one
+    assert (stats.joined_mid_sample, stats.left_mid_sample, stats.lost_samples) == (1, 0, 0)
+
+
 def test_lost_frames_of_whole_samples_are_counter_gaps():
     frames = frames_of(range(60))
     del frames[10 * M:13 * M]     # samples 10, 11, 12 never arrive
@@ -261,12 +278,16 @@ def test_frames_after_a_flush_continue_the_stream():
     for f in frames[:10 * M + 3]:
         asm.feed(*f)
     first = asm.flush()
-    assert first.counter.tolist() == list(range(10)) and asm.stats.incomplete_samples == 1
+    # the stream ended (for all the flush knows) inside sample 10: cut by the end, not lost
+    assert first.counter.tolist() == list(range(10))
+    assert (asm.stats.left_mid_sample, asm.stats.incomplete_samples, asm.stats.lost_samples) == (1, 0, 0)
     for f in frames[10 * M + 3:]:
         asm.feed(*f)
     rest = asm.flush()
     assert rest.counter.tolist() == list(range(11, 20))
     assert asm.stats.late == 4 and asm.stats.frames == len(frames)
+    # it went on: sample 10 was lost after all; the new end is at a sample boundary
+    assert (asm.stats.left_mid_sample, asm.stats.incomplete_samples) == (0, 1)
 
 
 def test_bad_construction():
@@ -332,7 +353,7 @@ def test_live_and_bulk_agree_on_random_faults(case):
     if stats.samples:
         span = int(block.counter.max() - block.counter.min()) + 1
         assert stats.samples + stats.lost_samples >= span
-    assert stats.joined_mid_sample in (0, 1)
+    assert stats.joined_mid_sample in (0, 1) and stats.left_mid_sample in (0, 1)
 
 
 @settings(max_examples=250, deadline=None)

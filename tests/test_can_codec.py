@@ -12,6 +12,7 @@ from drivers.errors import ImuConfigError, ImuFrameError
 from drivers.imu import (
     DEFAULT_DBC,
     DEFAULT_FD_DBC,
+    DEFAULT_PACKED_DBC,
     DEFAULT_SPEC,
     EXTENDED_ID_FLAG,
     ImuEncoder,
@@ -21,9 +22,11 @@ from drivers.imu import (
     decode_frames,
     default_fd_layout,
     default_layout,
+    default_packed_layout,
     encode_block,
 )
 from drivers.imu.crc import LinearCrc, crc8, frame_crc
+from drivers.imu.encoder import OVER_RANGE_BIT
 
 
 def crc8_bitwise(data: bytes) -> int:
@@ -335,3 +338,32 @@ def test_signal_extraction_of_random_bytes_matches_cantools(data, frame_id):
 
 _DB = cantools.database.load_file(DEFAULT_DBC)
 _FD_DB = cantools.database.load_file(DEFAULT_FD_DBC)
+
+
+def test_packed_layout_round_trip_and_cantools_agree():
+    """The shipped packed layout: 3 frames per sample, whole counts, sums exact to one count."""
+    layout = default_packed_layout()
+    db = cantools.database.load_file(str(DEFAULT_PACKED_DBC))
+    rng = np.random.default_rng(3)
+    gyro, acc = rng.normal(0, 3000, (500, 3)), rng.normal(0, 30, (500, 3))
+    frames = ImuEncoder(layout).encode(np.arange(65530, 66030), gyro, acc, 36.25, 0x11)
+    assert len(frames) == 1500 and set(frames.ids.tolist()) == {0x120, 0x121, 0x122}
+    block, stats = decode_frames(frames.ids, frames.data, frames.lengths, layout=layout, rate_hz=2000.0)
+    assert stats.samples == 500 and stats.lost_samples == 0 and block.counter[0] == 65530
+    assert np.abs(np.cumsum(block.gyro_counts, 0) - np.cumsum(gyro, 0)).max() <= 0.5
+    assert np.abs(np.cumsum(block.acc_counts, 0) - np.cumsum(acc, 0)).max() <= 0.5
+    assert np.all(block.temperature_c == 36.0) and np.all(block.status == 0x11)    # 0.5 degC steps
+    decoded = db.decode_message(0x121, bytes(frames.data[1, :8]))
+    assert decoded["GyroZ"] == block.gyro_counts[0, 2] and decoded["Temperature"] == 36.0
+
+
+def test_a_saturating_encoder_clips_and_flags_over_range():
+    layout = default_packed_layout()
+    gyro = np.array([[100.0, 0, 0], [40000.0, -50000.0, 0], [100.0, 0, 0]])
+    with pytest.raises(ImuFrameError, match="GyroX"):
+        ImuEncoder(layout).encode(np.arange(3), gyro, np.zeros((3, 3)))
+    encoder = ImuEncoder(layout, saturate=True)
+    frames = encoder.encode(np.arange(3), gyro, np.zeros((3, 3)), status=0)
+    block, _ = decode_frames(frames.ids, frames.data, frames.lengths, layout=layout)
+    assert block.gyro_counts[:, :2].tolist() == [[100, 0], [32767, -32768], [100, 0]]
+    assert block.status.tolist() == [0, OVER_RANGE_BIT, 0] and encoder.saturated_samples == 1

@@ -26,6 +26,10 @@ from tests.test_bounded_errors import SHORT, WAIT_S, GarbagePeer
 
 TRANSPORTS = ["ascii-tcp", "ascii-pty", "modbus-tcp", "modbus-rtu"]
 WIDE = ChamberLimits(-100.0, 200.0, 30.0)    # wider than the simulated controller's own range
+#: How long a client waits for a reply where one is due: long, so that a loaded machine never turns a slow
+#: simulator into a timeout, a retry and a late reply read as the next answer (RTU has no transaction id;
+#: seen once at load 13 with 0.3 s: a setpoint write's reply read as the state).
+REPLY_WAIT_S = 3.0
 
 
 @contextlib.contextmanager
@@ -55,7 +59,7 @@ def rig(request):
     clock = ManualClock()
     sim = SimChamber(ChamberPhysics(), clock)
     with served(request.param, sim) as (url, dialect, server):
-        chamber = open_chamber(url, dialect, limits=WIDE, timeout_s=0.3, retries=2)
+        chamber = open_chamber(url, dialect, limits=WIDE, timeout_s=REPLY_WAIT_S, retries=2)
         chamber.connect()
         try:
             yield chamber, sim, clock, server, request.param
@@ -153,7 +157,7 @@ def test_a_lost_link_is_a_connection_error_and_make_safe_does_not_raise(rig):
 def test_the_modbus_simulator_refuses_writes_as_the_page_says():
     sim = SimChamber(ChamberPhysics(), ManualClock())
     with served("modbus-tcp", sim) as (url, _, _):
-        with open_chamber(url, "modbus", timeout_s=0.3) as chamber:
+        with open_chamber(url, "modbus", timeout_s=REPLY_WAIT_S) as chamber:
             for address, value, code in ((100, 5, 2), (101, 5, 2), (103, 1, 2), (200, 9, 3), (301, 0x8000, 3)):
                 with pytest.raises(ChamberCommandError) as info:
                     chamber._write_single(address, value, f"write {value} at {address}")

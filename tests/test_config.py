@@ -20,7 +20,7 @@ from bench.config.load import SIM_CONFIG_TOML, BenchConfig, ConfigError, default
 from bench.model.imu import NoiseModel, default_sim_imu
 from bench.model.units import ARCSEC, format_hms
 from bench.run.runner import compile_from_config
-from drivers.imu import DEFAULT_FD_DBC, DEFAULT_FD_SPEC, default_fd_layout, default_layout
+from drivers.imu import DEFAULT_FD_DBC, DEFAULT_FD_SPEC, default_fd_layout, default_layout, default_packed_layout
 from drivers.turntable import AxisLimits
 from drivers.turntable.modbus_map import RegisterMap
 from schedules import builtin_path
@@ -102,8 +102,9 @@ def test_example_loads_and_applies_every_section():
 
 EXAMPLE_KEYS = """format version latitude_deg height_m local_g_mps2 url dialect timeout_s retries
 settle_tolerance_deg poll_s register_map unit encoding angle_scale_deg rate_scale_dps word_order watchdog_s
-max_rate_dps max_accel_dps2 min_deg max_deg interface channel bitrate fd dbc rate_hz gyro_x gyro_y gyro_z acc_x
-acc_y acc_z temperature status counter crc model serial gyro_bias_stability_dph acc_bias_stability_ug
+max_rate_dps max_accel_dps2 min_deg max_deg interface channel bitrate fd layout dbc slcan_client rate_hz gyro_x
+gyro_y gyro_z acc_x acc_y acc_z temperature status counter crc model serial gyro_bias_stability_dph
+acc_bias_stability_ug
 positions rotations dwell_s settle_s move_rate_dps move_accel_dps2 turn_rate_dps turn_accel_dps2 rest_s
 revolutions order folder seed black_box_arcsec noise enabled gyro_arw_deg_rt_h gyro_bias_instability_dph
 acc_vrw_ug_rt_hz acc_bias_instability_ug correlation_time_s quantise chunk_run_interval_s reference_c
@@ -159,6 +160,28 @@ def test_fd_bus_defaults_to_the_fd_layout_and_a_classic_bus_refuses_fd_frames():
     err = error_of(edit("rate_hz = 200.0", f'rate_hz = 200.0\ndbc = "{DEFAULT_FD_DBC}"\n[imu.signals]\n{signals}'))
     assert (err.line, err.key) == (18, "imu.dbc")
     assert "message IMU_SAMPLE_FD of sim_imu_fd.dbc is a CAN FD frame (64 bytes); set imu.fd = true" in err.message
+
+
+def test_a_shipped_layout_by_name_and_the_slcan_reader():
+    config = parse(edit("rate_hz = 200.0", 'rate_hz = 200.0\nlayout = "packed"'))
+    assert config.imu.layout.messages == default_packed_layout().messages and config.imu.layout_name == "packed"
+    assert config.imu.dbc.name == "sim_imu_packed.dbc" and len(config.imu.layout.messages) == 3
+    assert parse(BASE).imu.layout_name == "classic"
+    slcan = parse(edit('interface = "virtual"\nchannel = "test"', 'interface = "slcan"\nchannel = "/dev/ttyACM0"'))
+    assert slcan.imu.bus_kwargs() == {"interface": "slcan", "channel": "/dev/ttyACM0", "fd": False,
+                                      "slcan_client": "bench"}
+    slcan = parse(edit('interface = "virtual"\nchannel = "test"',
+                       'interface = "slcan"\nchannel = "/dev/ttyACM0"\nslcan_client = "python-can"'))
+    assert slcan.imu.bus_kwargs()["slcan_client"] == "python-can"
+    assert "slcan_client" not in parse(BASE).imu.bus_kwargs()     # not a python-can option: only for slcan
+    err = error_of(edit("rate_hz = 200.0", 'rate_hz = 200.0\nlayout = "packed"\ndbc = "x.dbc"'))
+    assert (err.line, err.key) == (18, "imu.layout") and "give one" in err.message
+    err = error_of(edit("rate_hz = 200.0", 'rate_hz = 200.0\nlayout = "compact"'))
+    assert (err.line, err.key) == (18, "imu.layout") and "expected one of classic, packed, fd" in err.message
+    err = error_of(edit("rate_hz = 200.0", 'rate_hz = 200.0\nlayout = "fd"'))
+    assert (err.line, err.key) == (18, "imu.layout") and "set imu.fd = true" in err.message
+    err = error_of(edit("rate_hz = 200.0", 'rate_hz = 200.0\nslcan_client = "fast"'))
+    assert (err.line, err.key) == (18, "imu.slcan_client") and "expected one of bench, python-can" in err.message
 
 
 # --- errors ---------------------------------------------------------------------------

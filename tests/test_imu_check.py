@@ -13,6 +13,7 @@ import uuid
 import can
 import pytest
 
+from bench.config.load import parse_config
 from bench.model.imu import default_sim_imu
 from bench.run.imu_check import ImuCheckError, check_imu_stream
 from bench.sim.can_imu import SimCanImu
@@ -21,6 +22,7 @@ from bench.sim.imu import SimImu
 from bench.sim.scpi_server import ScpiSimHandler
 from bench.sim.serve import LineServer
 from bench.sim.world import SimVirtualBus
+from drivers.imu import default_packed_layout
 from drivers.imu.receiver import ImuReceiver
 from tests.helpers.run import RATE_HZ, cli, config_text
 
@@ -46,12 +48,12 @@ def _config(tmp_path, url: str, channel: str):
     return path
 
 
-def _sender(controller, channel: str, rate_hz: float):
+def _sender(controller, channel: str, rate_hz: float, layout=None):
     """The simulated IMU on the table, sending in wall-clock time on `channel` from a thread. Its frames
     keep the times the IMU stamped them with, so the measured rate does not depend on how promptly the
     thread runs on a loaded machine."""
     bus = SimVirtualBus(channel=channel, preserve_timestamps=True)
-    imu = SimCanImu(controller, SimImu(default_sim_imu(), rate_hz=rate_hz), bus)
+    imu = SimCanImu(controller, SimImu(default_sim_imu(), rate_hz=rate_hz), bus, layout)
     imu.start()
     return imu, bus
 
@@ -89,7 +91,8 @@ def test_frames_that_do_not_decode_stop_the_run_before_anything_moves(tmp_path, 
         thread = threading.Thread(target=chatter, daemon=True)
         thread.start()
         try:
-            _run_refused(tmp_path, controller, url, channel, "but no IMU sample decodes with the configured DBC")
+            _run_refused(tmp_path, controller, url, channel, "but no IMU sample decodes with the configured layout "
+                         "(classic: 7 frames per sample, ids 0x100..0x106): ")
         finally:
             stop.set()
             thread.join(timeout=10)
@@ -115,6 +118,34 @@ def test_an_imu_at_its_rate_passes_the_check(channel):
         assert finding.startswith("IMU on the test bus: ") and "samples/s" in finding
         with pytest.raises(ImuCheckError, match="the configuration says imu.rate_hz = 200"):
             check_imu_stream(receiver, 200.0, "the test bus")
+    finally:
+        receiver.close()
+        imu.stop()
+        bus.shutdown()
+
+
+def test_an_imu_sending_another_shipped_layout_is_named_before_anything_moves(tmp_path, served_table, channel):
+    # the rig (or a real IMU) sends the packed layout, the configuration says classic: the one line says which
+    # layout the frames are and what to set
+    controller, url = served_table
+    imu, bus = _sender(controller, channel, rate_hz=RATE_HZ, layout=default_packed_layout())
+    try:
+        _run_refused(tmp_path, controller, url, channel,
+                     "the frames on the bus are those of the shipped layout 'packed' (packed: 3 frames per sample, "
+                     'ids 0x120..0x122): set imu.layout = "packed"')
+    finally:
+        imu.stop()
+        bus.shutdown()
+
+
+def test_the_packed_layout_configured_passes_the_check(channel):
+    controller = SimController()
+    imu, bus = _sender(controller, channel, rate_hz=RATE_HZ, layout=default_packed_layout())
+    config = parse_config(config_text().replace("rate_hz =", 'layout = "packed"\nrate_hz ='))
+    receiver = ImuReceiver({"interface": "virtual", "channel": channel}, config.imu.layout, rate_hz=RATE_HZ)
+    try:
+        assert check_imu_stream(receiver, RATE_HZ, "the test bus").startswith("IMU on the test bus: ")
+        assert receiver.stats.unknown_id == 0 and receiver.on_frames is None   # the check's id probe is gone
     finally:
         receiver.close()
         imu.stop()

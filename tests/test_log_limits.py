@@ -361,10 +361,10 @@ def test_a_turn_window_holding_many_or_repeated_table_states_is_integrated_in_bo
 def test_the_can_frames_are_decoded_chunk_by_chunk_and_never_held(run_log, monkeypatch):
     """1 GiB of a log's frames made the reader hold 2-3.8 GB (every frame as arrays); now each chunk is read
     from the file, decoded and let go, and the samples are those of decoding every frame at once."""
-    from drivers.imu import decode_frames
-    from drivers.imu.stream import StreamDecoder
     from bench.log.chunks import DeferredChunk
     from bench.log.run_info import layout_and_config_from_log
+    from drivers.imu import decode_frames
+    from drivers.imu.stream import StreamDecoder
 
     fed: list[int] = []
     feed = StreamDecoder.feed
@@ -408,8 +408,11 @@ def test_the_streamed_frames_have_a_budget_of_their_own(run_log, monkeypatch):
     sizes = [p.size for p in good._can.parts]
     monkeypatch.setattr(chunks_module, "MAX_STREAMED_INFLATED", sum(sizes) // 2)
     log = read_log(run_log)
+    # the chunks left in the file (frames and samples) are counted as the walk meets them: the later ones are
+    # refused, their index not kept
     refused = [d for d in log.damage if "past what this log's chunks may inflate to in all" in d]
-    assert refused and all(f"on {TOPIC_CAN}" in d and f"at most {sum(sizes) // 2})" in d for d in refused)
+    assert refused and all(f"at most {sum(sizes) // 2})" in d for d in refused)
+    assert any(f"on {TOPIC_CAN}" in d for d in refused)
     assert 0 < log.can_frame_count < good.can_frame_count
     lost = sum(d.lost.get(TOPIC_CAN, 0) for d in log.lost)
     assert lost == good.message_counts[TOPIC_CAN] - sum(len(p.offsets) for p in log._can.parts if p is not None)

@@ -25,7 +25,7 @@ from bench.plan.events import RunListener
 from bench.plan.steps import step_from_dict, step_to_dict
 from bench.run.runner import BenchRun, compile_from_config
 from drivers.clock import ManualClock
-from drivers.imu import DEFAULT_DBC, ImuSampleBlock
+from drivers.imu import DEFAULT_DBC, DEFAULT_PACKED_DBC, ImuSampleBlock, default_packed_layout
 from tests.helpers.run import REPO, Trigger, api_run, cli, config_text, start_cli, step_index, stop_process
 
 
@@ -295,6 +295,18 @@ def test_without_a_usable_config_the_layout_comes_from_the_attachment(recorded, 
     # ...and replay still decodes every sample
     stats = replay(log, [])
     assert stats.samples == len(recorded.live.samples())
+
+
+def test_without_a_usable_config_a_recorded_shipped_layout_name_picks_its_mapping(log):
+    # a log of a packed-layout run whose configuration cannot be rebuilt here: `layout = "packed"` in the
+    # recorded [imu] chooses the packed mapping for the attached DBC (it used to fall back to the classic one)
+    text = config_text().replace('[table]\n', '[table]\nregister_map = "/nonexistent/map.toml"\n')
+    text = text.replace("rate_hz =", 'layout = "packed"\nrate_hz =', 1)
+    log = _with_config(log, text, {"sim_imu_packed.dbc": ("text/plain", DEFAULT_PACKED_DBC.read_bytes())})
+    log = dataclasses.replace(log, metadata={**log.metadata, "imu": {**log.metadata["imu"],
+                                                                       "dbc": "sim_imu_packed.dbc"}})
+    setup = layout_and_config_from_log(log)
+    assert setup.config is None and setup.layout.messages == default_packed_layout().messages
 
 
 def test_the_attached_dbc_wins_over_a_changed_file_here(recorded, log):

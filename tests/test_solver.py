@@ -94,7 +94,7 @@ def test_result_json_round_trip(tmp_path):
     path = tmp_path / "r.result.json"
     result.save(path)
     data = json.loads(path.read_text())
-    assert data["format"] == "turntable-bench/result" and data["version"] == 1
+    assert data["format"] == "turntable-bench/result" and data["version"] == 2
     assert data["coefficients"]["Kg_x"]["unit"] == "counts/s per deg/s"
     assert data["coefficients"]["D0_x"]["unit"] == "deg/h"
     assert data["coefficients"]["K0_x"]["unit"] == "g"

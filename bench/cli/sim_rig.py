@@ -19,10 +19,18 @@ from pathlib import Path
 from bench.cli.chamber import CHAMBER_LISTEN_HELP, apply_chamber_command, listen_chamber
 from bench.cli.common import ExitCode, fail, raise_interrupted, stop_signals
 from bench.cli.table import FAULT_HELP, _apply_fault_command, _host_port, _listen, _remote_hosts
-from bench.config.load import BenchConfig, ConfigError, default_sim_config, load_config, parse_config
+from bench.config.load import (
+    BenchConfig,
+    ConfigError,
+    default_sim_config,
+    load_config,
+    load_register_map,
+    parse_config,
+)
 from bench.errors import InputError
 from bench.model.imu import NoiseModel
 from drivers.chamber import DIALECTS as CHAMBER_DIALECTS
+from drivers.imu import SHIPPED_LAYOUTS
 from drivers.turntable import DIALECTS
 
 PROG = "bench sim rig"
@@ -76,6 +84,14 @@ def register(kinds: argparse._SubParsersAction) -> None:
     rig.add_argument("--noise", choices=("on", "off"), help="[sim] noise on (default levels) or off")
     rig.add_argument("--imu-rate-hz", type=float, help="the IMU's sample rate, Hz")
     rig.add_argument("--latitude", type=float, help="site latitude, deg")
+    rig.add_argument("--imu-layout", choices=sorted(SHIPPED_LAYOUTS),
+                     help="the IMU's frame layout: classic (7 frames per sample), packed (3 frames per sample, "
+                          "for rates up to 2 kHz on a 1 Mbit/s bus) or fd (one CAN FD frame, socketcan only); "
+                          "default: --config's")
+    rig.add_argument("--register-map", metavar="FILE",
+                     help="modbus: the register map the simulated controller serves (a [modbus] table as in a "
+                          "bench configuration; default: --config's [table], else the map of drivers/MODBUS.md); "
+                          "the written configuration carries it")
     rig.set_defaults(func=cmd_sim_rig)
 
 
@@ -96,7 +112,17 @@ def _truth_config(args: argparse.Namespace) -> BenchConfig:
         site = dataclasses.replace(site, latitude_deg=args.latitude, local_g_mps2=None)
     if args.imu_rate_hz is not None:
         imu = dataclasses.replace(imu, rate_hz=args.imu_rate_hz)
-    base = dataclasses.replace(base, sim=sim, site=site, imu=imu)
+    if args.imu_layout is not None:     # a shipped layout with its own mapping (the text below compiles it)
+        imu = dataclasses.replace(imu, layout_name=args.imu_layout, fd=args.imu_layout == "fd",
+                                  spec=SHIPPED_LAYOUTS[args.imu_layout][1])
+    table = dataclasses.replace(base.table, dialect=args.dialect or base.table.dialect)
+    if args.register_map is not None:
+        if table.dialect != "modbus":
+            raise InputError(f"--register-map is for the modbus dialect only (the table speaks {table.dialect})")
+        table = dataclasses.replace(table, register_map=load_register_map(args.register_map))
+    elif table.dialect != "modbus":
+        table = dataclasses.replace(table, register_map=None)   # --dialect overrides a modbus --config
+    base = dataclasses.replace(base, sim=sim, site=site, imu=imu, table=table)
     placeholder = RigPeer("virtual", "", "virtual", "turntable-bench-rig", {})
     text = rig_config_text(base, "sim", base.table.dialect, placeholder)
     # the chamber's limits, safe setpoint and register map come from --config as they are
@@ -140,7 +166,7 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
         with stop_signals(raise_interrupted):
             rig = SimRig(config)
             closers.append(rig.close)
-            table_url = _listen(rig.controller, dialect, table_listen, closers)
+            table_url = _listen(rig.controller, dialect, table_listen, closers, config.table.register_map)
             print(f"simulated table ({dialect}) listening on {table_url}", flush=True)
             peers = [_serve_imu(rig, where) for where in imu_listen]
             for peer in peers:

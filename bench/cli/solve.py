@@ -1,8 +1,9 @@
 """`bench solve`: re-solve recorded runs from their MCAP logs (logic in `bench.solve.resolve`).
 
 Exit codes: 0 solved (quality checks passed); 2 usage error, a file that cannot be read
-as a run log, or a subset the logs lack; 4 solved but a quality check failed (damage,
-steps left out, outliers; the report says which) or nothing left to solve.
+as a run log, a subset the logs lack, or a static noise recording (`bench noise` analyses
+those); 4 solved but a quality check failed (damage, steps left out, outliers; the report
+says which) or nothing left to solve.
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "logs of one IMU (a resumed run's earlier logs are read too) and solve; write result JSON and "
                     "report as `bench run` does. Damaged logs are read around the damage and the report lists "
                     "what was lost. Exit codes: 0 solved, 2 usage error or unreadable log or a subset the log "
-                    "lacks, 4 solved but a quality check failed.")
+                    "lacks or a static noise recording (`bench noise LOG` analyses it), 4 solved but a quality "
+                    "check failed.")
     parser.add_argument("logs", nargs="*", metavar="LOG", help="run log(s) (.mcap)")
     parser.add_argument("--positions", metavar="NAME|FILE",
                         help="solve only these recorded positions (a schedule: optimal-24, traditional-12, all-64, "
@@ -48,6 +50,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_db_options(parser)
     add_archive_options(parser)
     parser.set_defaults(func=cmd_solve)
+
+
+def static_noise_plan(recorded) -> str | None:
+    """The name of the recorded plan's positions when they are a static noise recording ("static" kind), else None."""
+    config = recorded.setup.config
+    positions = config.plan.positions if config is not None else None
+    return positions.name if positions is not None and positions.kind == "static" else None
 
 
 def cmd_solve(args: argparse.Namespace) -> ExitCode:
@@ -82,6 +91,11 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
         positions = load_subset_schedule(args.positions, "positions")
         rotations = load_subset_schedule(args.rotations, "rotations")
         recorded = load_recorded(args.logs, earlier=not args.no_earlier)
+        static = static_noise_plan(recorded)
+        if static is not None:
+            return fail(PROG, f"{recorded.logs[-1].path} is a static noise recording (plan positions {static!r}: one "
+                              f"dwell, nothing to calibrate): analyse it with `bench noise {recorded.logs[-1].path}`",
+                        ExitCode.USAGE)
         if methods is not None:
             comparison = compare(recorded, methods)
         else:

@@ -295,12 +295,13 @@ def _host_port(where: str, scheme: str, expected: str) -> tuple[str, int]:
     return host, port
 
 
-def _listen(controller, dialect: str, where: str, closers: list) -> str:
-    """Start one listener; returns the address a client uses."""
+def _listen(controller, dialect: str, where: str, closers: list, register_map=None) -> str:
+    """Start one listener; returns the address a client uses. `register_map`: the Modbus simulator's
+    (None: the default map)."""
     if dialect == "modbus":
         from bench.sim.modbus_server import ModbusSimServer  # pymodbus: only for the Modbus simulator
 
-        modbus = ModbusSimServer(controller)
+        modbus = ModbusSimServer(controller, register_map)
         closers.append(modbus.close)
         if where == "pty":
             return f"modbus+rtu://{modbus.start_rtu_pty()}"

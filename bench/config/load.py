@@ -31,12 +31,21 @@ from bench.config.thermal import THERMAL_KEYS, sim_thermal
 from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
 from bench.model.families import BODY_AXES, SENSOR_AXES, canonical_names, family_of
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
+from bench.model.table_prior import (
+    FRAME_KEYS,
+    TablePrior,
+    TablePriorError,
+    from_datasheet,
+    load_check,
+    pointing_sigmas_arcsec,
+)
 from bench.model.thermal import ImuThermal
 from bench.model.units import ARCSEC
 from bench.noise.result import NoiseResult, NoiseResultError
 from bench.plan.compiler import ORDERS, PlanTiming
 from drivers.errors import ImuConfigError, TurntableConfigError
-from drivers.imu import DEFAULT_DBC, DEFAULT_FD_DBC, DEFAULT_FD_SPEC, DEFAULT_SPEC, ImuFrameSpec, ImuLayout
+from drivers.imu import SHIPPED_LAYOUTS, ImuFrameSpec, ImuLayout
+from drivers.imu.slcan_bus import SLCAN_CLIENTS
 from drivers.turntable import DIALECTS, FRAMES, AxisLimits, TurntableLimits, check_url_dialect
 from drivers.turntable.modbus_map import RegisterMap
 from schedules import Schedule, ScheduleError, builtin_names, resolve_schedule
@@ -78,6 +87,11 @@ class SiteConfig:
     height_m: float
     local_g_mps2: float | None
     site: Site
+    #: 1-sigma of the configured latitude and gravity (the budget's site parts); defaults:
+    #: 0.001 deg (about 100 m), gravity 1e-5 m/s^2 when measured (local_g_mps2), else 5e-4 m/s^2
+    #: (the normal gravity formula ignores anomalies of up to about 50 mGal)
+    latitude_sigma_deg: float = 0.001
+    gravity_sigma_mps2: float = 5e-4
 
 
 @dataclass(frozen=True)
@@ -92,6 +106,9 @@ class TableConfig:
     poll_s: float
     limits: TurntableLimits
     register_map: RegisterMap | None  # modbus only; None = the documented default map
+    #: what the lab knows of the table's pointing error (`pointing_accuracy_arcsec`,
+    #: `orthogonality_arcsec`, `check`): the budget's turntable part; None = not known
+    pointing: TablePrior | None = None
 
     @property
     def is_sim(self) -> bool:
@@ -133,12 +150,19 @@ class ImuConfig:
     bus_options: dict = field(default_factory=dict)
     identity: ImuIdentity = ImuIdentity()
     noise: ImuNoise | None = None     # [imu] noise = "FILE"; its stabilities replace the identity's
+    #: [imu] layout: the shipped layout's name ("classic", "packed", "fd"); None: the IMU's own `dbc`
+    layout_name: str | None = "classic"
+    #: [imu] slcan_client: who reads an SLCAN adapter: "bench" (the bulk reader) or "python-can"
+    slcan_client: str = "bench"
 
     def bus_kwargs(self) -> dict:
-        """Keyword arguments for `can.Bus(**kwargs)`."""
-        kwargs = {"interface": self.interface, "channel": self.channel, "fd": self.fd}
+        """Keyword arguments for `drivers.imu.receiver.open_bus` (python-can's `can.Bus(**kwargs)`, with
+        `slcan_client` for an SLCAN adapter)."""
+        kwargs: dict = {"interface": self.interface, "channel": self.channel, "fd": self.fd}
         if self.bitrate is not None:
             kwargs["bitrate"] = self.bitrate
+        if self.interface == "slcan":
+            kwargs["slcan_client"] = self.slcan_client
         return {**kwargs, **self.bus_options}
 
 
@@ -199,7 +223,11 @@ def _site(t: Table) -> SiteConfig:
     latitude_deg = t.number("latitude_deg", ge=-90.0, le=90.0, unit="deg")
     height_m = t.number("height_m", 0.0, ge=-500.0, le=9000.0, unit="m")
     local_g = t.number("local_g_mps2", None, ge=9.7, le=9.9, unit="m/s^2")  # Site's plausibility range
-    return SiteConfig(latitude_deg, height_m, local_g, Site(latitude_deg, height_m, local_g))
+    latitude_sigma = t.number("latitude_sigma_deg", 0.001, ge=0, le=1.0, unit="deg")
+    gravity_sigma = t.number("gravity_sigma_mps2", 1e-5 if local_g is not None else 5e-4, ge=0, le=0.01,
+                             unit="m/s^2")
+    return SiteConfig(latitude_deg, height_m, local_g, Site(latitude_deg, height_m, local_g), latitude_sigma,
+                      gravity_sigma)
 
 
 def _axis_limits(t: Table) -> AxisLimits:
@@ -235,7 +263,32 @@ def _table(t: Table) -> TableConfig:
                             for frame in FRAMES)
     limits = TurntableLimits((outer, middle, inner))
     register_map = _register_map(t, dialect)
-    return TableConfig(url, dialect, timeout_s, retries, tolerance_deg, poll_s, limits, register_map)
+    return TableConfig(url, dialect, timeout_s, retries, tolerance_deg, poll_s, limits, register_map, _pointing(t))
+
+
+def _pointing(t: Table) -> TablePrior | None:
+    """[table] pointing_accuracy_arcsec (a number, or {outer, middle, inner}), orthogonality_arcsec, check."""
+    pointing: float | dict[str, float] | None = None
+    if t.has("pointing_accuracy_arcsec"):
+        if isinstance(t.get("pointing_accuracy_arcsec"), dict):
+            frames = t.table("pointing_accuracy_arcsec", FRAME_KEYS)
+            pointing = {f: frames.number(f, ge=0, le=MAX_BLACK_BOX_ARCSEC, unit="arcsec") for f in FRAME_KEYS}
+        else:
+            pointing = t.number("pointing_accuracy_arcsec", ge=0, le=MAX_BLACK_BOX_ARCSEC, unit="arcsec")
+    orthogonality = t.number("orthogonality_arcsec", None, ge=0, le=MAX_BLACK_BOX_ARCSEC, unit="arcsec")
+    if orthogonality is not None and pointing is None:
+        raise t.error("orthogonality_arcsec", "needs pointing_accuracy_arcsec too (the frames' zero offsets)")
+    if t.has("check"):
+        path = t.file("check")
+        if not t.is_file("check", path):
+            raise t.error("check", f"no such table-check result file {show(str(path))} (a *.table-check.json "
+                                   "from `bench check-table`)")
+        prior = None if pointing is None else pointing_sigmas_arcsec(pointing, orthogonality)
+        try:
+            return load_check(path, prior)
+        except TablePriorError as exc:
+            raise t.error("check", str(exc)) from None
+    return None if pointing is None else from_datasheet(pointing, orthogonality)
 
 
 def _register_map(t: Table, dialect: str) -> RegisterMap | None:
@@ -256,14 +309,18 @@ def _imu(t: Table) -> ImuConfig:
     bitrate = t.integer("bitrate", None, ge=1000, le=10_000_000)
     fd = t.boolean("fd", False)
     rate_hz = t.number("rate_hz", gt=0, ge=1.0, le=100000.0, unit="Hz")
+    layout_name = t.string("layout", choices=list(SHIPPED_LAYOUTS)) if t.has("layout") else None
+    if layout_name is not None and t.has("dbc"):
+        raise t.error("layout", "names a shipped layout; an IMU's own DBC file goes in `dbc` instead: give one")
     if t.has("dbc"):
         dbc = t.file("dbc")
         _check_dbc(t, dbc)
     else:
-        dbc = DEFAULT_FD_DBC if fd else DEFAULT_DBC
+        layout_name = layout_name or ("fd" if fd else "classic")
+        dbc = SHIPPED_LAYOUTS[layout_name][0]
     signals = t.get("signals", None)
     if signals is None:
-        spec = DEFAULT_FD_SPEC if fd else DEFAULT_SPEC
+        spec = SHIPPED_LAYOUTS[layout_name or ("fd" if fd else "classic")][1]
     else:
         if not isinstance(signals, dict):
             raise t.error("signals", f"must be a table ([imu.signals]), got {describe(signals)}")
@@ -271,7 +328,7 @@ def _imu(t: Table) -> ImuConfig:
             spec = ImuFrameSpec.from_dict(signals)
         except ImuConfigError as exc:
             raise t.error("signals", str(exc)) from exc
-    blame = "dbc" if t.has("dbc") else ("signals" if t.has("signals") else None)
+    blame = "dbc" if t.has("dbc") else ("signals" if t.has("signals") else ("layout" if t.has("layout") else None))
     try:
         layout = ImuLayout.from_dbc(dbc, spec)
     except ImuConfigError as exc:
@@ -293,7 +350,9 @@ def _imu(t: Table) -> ImuConfig:
                            ident.number("gyro_bias_stability_dph", None, gt=0, le=3600.0, unit="deg/h"),
                            ident.number("acc_bias_stability_ug", None, gt=0, le=100000.0, unit="ug"))
     noise = _imu_noise(t) if t.has("noise") else None
-    return ImuConfig(interface, channel, bitrate, fd, Path(dbc), rate_hz, spec, layout, bus_options, identity, noise)
+    slcan_client = t.string("slcan_client", "bench", choices=SLCAN_CLIENTS)
+    return ImuConfig(interface, channel, bitrate, fd, Path(dbc), rate_hz, spec, layout, bus_options, identity, noise,
+                     layout_name, slcan_client)
 
 
 def _imu_noise(t: Table) -> ImuNoise:
@@ -500,11 +559,13 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
     version = root.get("version")
     if isinstance(version, bool) or version != VERSION:
         raise root.error("version", f"unsupported version: must be {VERSION}, got {describe(version)}")
-    site = _site(root.table("site", ("latitude_deg", "height_m", "local_g_mps2"), required=True))
+    site = _site(root.table("site", ("latitude_deg", "height_m", "local_g_mps2", "latitude_sigma_deg",
+                                     "gravity_sigma_mps2"), required=True))
     table = _table(root.table("table", ("url", "dialect", "timeout_s", "retries", "settle_tolerance_deg", "poll_s",
-                                        "register_map", "modbus", "limits"), required=True))
-    imu = _imu(root.table("imu", ("interface", "channel", "bitrate", "fd", "dbc", "rate_hz", "signals",
-                                  "bus_options", "identity", "noise"), required=True))
+                                        "register_map", "modbus", "limits", "pointing_accuracy_arcsec",
+                                        "orthogonality_arcsec", "check"), required=True))
+    imu = _imu(root.table("imu", ("interface", "channel", "bitrate", "fd", "layout", "dbc", "rate_hz", "signals",
+                                  "slcan_client", "bus_options", "identity", "noise"), required=True))
     plan = _plan(root.table("plan", ("positions", "rotations", "dwell_s", "settle_s", "move_rate_dps",
                                      "move_accel_dps2", "turn_rate_dps", "turn_accel_dps2", "rest_s", "revolutions",
                                      "order", "verification"), required=True), table.limits)

@@ -75,8 +75,8 @@ MAX_LOG_INFLATED = 1 << 30
 #: What a log's streamed chunks (the raw CAN frames, read one chunk at a time and let go: memory does not
 #: grow with them) may inflate to in all, on top: `INFLATE_ALLOWANCE` plus `STREAMED_INFLATE_RATIO` times
 #: the file's size, at most `MAX_STREAMED_INFLATED`. It bounds time, not memory: a recorded log's frames
-#: inflate about 3 times (0.6 GiB per hour of a 1 kHz IMU's frames), a decompression bomb thousands.
-STREAMED_INFLATE_RATIO = 8
+#: inflate about 4 times (a 1 h, 1 kHz static log: 555 MB of frames in a 142 MB file), a bomb thousands.
+STREAMED_INFLATE_RATIO = 6
 MAX_STREAMED_INFLATED = 64 << 30
 #: Records a log may hold outside chunks (a recorded log holds a few per chunk); the walk reads no further.
 MAX_RECORDS = 1_000_000
@@ -253,6 +253,18 @@ class DeferredChunk:
     span: tuple[int, int] = (0, 0)                                 # (file offset, length) of the compressed data
     source: Callable[[int, int], bytes] | None = field(default=None, repr=False)
 
+    def read_again(self) -> bytes | str:
+        """The compressed data read from `source` again, or the reason it cannot be."""
+        if self.source is None:
+            return "chunk data not available"
+        try:
+            payload = self.source(*self.span)
+        except OSError as err:
+            return f"cannot read the chunk's data again: {err.strerror or err}"
+        if len(payload) != self.span[1]:
+            return "the file is shorter than when it was walked"
+        return payload
+
     @property
     def lengths(self) -> np.ndarray:
         """Payload lengths implied by the offsets (the records tile the chunk; checked by `inflate`)."""
@@ -262,16 +274,9 @@ class DeferredChunk:
     def inflate(self):
         """(chunk data, payload starts) when the chunk decompresses, passes its CRC and is framed
         exactly by its index; else a reason string."""
-        payload = self.payload
-        if payload is None:
-            if self.source is None:
-                return "chunk data not available"
-            try:
-                payload = self.source(*self.span)
-            except OSError as exc:
-                return f"cannot read the chunk's data again: {exc.strerror or exc}"
-            if len(payload) != self.span[1]:
-                return "the file is shorter than when it was walked"
+        payload = self.payload if self.payload is not None else self.read_again()
+        if isinstance(payload, str):
+            return payload
         data, computed, exc = inflate_chunk(self.compression, payload, self.size, self.crc)
         if exc is not None:
             return chunk_failure(self.compression, exc)
@@ -297,14 +302,9 @@ class ChunkSlice(DeferredChunk):
 
     def inflate(self):
         """(chunk data, payload starts), or the reason the chunk cannot be used again."""
-        if self.source is None:
-            return "chunk data not available"
-        try:
-            payload = self.source(*self.span)
-        except OSError as exc:
-            return f"cannot read the chunk's data again: {exc.strerror or exc}"
-        if len(payload) != self.span[1]:
-            return "the file is shorter than when it was walked"
+        payload = self.read_again()
+        if isinstance(payload, str):
+            return payload
         data, computed, exc = inflate_chunk(self.compression, payload, self.size, self.crc)
         if exc is not None:
             return chunk_failure(self.compression, exc)

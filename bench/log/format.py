@@ -181,7 +181,7 @@ def _uniform_can_parts(d: ChannelData, release: bool = False):
     first = next((k for k, size in enumerate(sizes) if size), None)
     if first is None or sizes[first] < HEADER_SIZE:
         return None
-    length = d.part_bytes(first)[LENGTH_OFFSET]
+    length = d.first_byte(first, LENGTH_OFFSET)
     if length > MAX_DATA:
         return None
     rec = HEADER_SIZE + length

@@ -46,7 +46,7 @@ from functools import cached_property
 import numpy as np
 
 from bench.errors import BenchError
-from bench.log.chunks import DeferredChunk, InflateBudget, streamed_budget
+from bench.log.chunks import DeferredChunk, InflateBudget
 from bench.log.format import (
     CAN_ENCODING,
     FLAG_ERROR,
@@ -60,8 +60,8 @@ from bench.log.format import (
 from bench.log.walk import MAX_DBC_BYTES, ChannelData, Damage, WalkError, walk
 from bench.plan.events import Event
 from drivers.imu import ImuSampleBlock, ImuStats
-from drivers.imu.stream import StreamDecoder
 from drivers.imu.layout import ImuLayout
+from drivers.imu.stream import StreamDecoder
 
 
 class LogError(BenchError):
@@ -166,7 +166,6 @@ class RunLog:
     _states: ChannelData | None = field(default=None, repr=False)
     _decoded: list = field(default_factory=list, repr=False)   # (layout, rate, window, (block, stats))
     _budget: InflateBudget | None = field(default=None, repr=False)   # what is left for the deferred chunks
-    _stream_budget: InflateBudget | None = field(default=None, repr=False)   # for the streamed CAN chunks
     _can_scanned: bool = field(default=False, repr=False)   # every `/can/raw` chunk looked at (damage known)
     _scan_pos: int = field(default=0, repr=False)   # the `/can/raw` parts before this one are counted
     _frame_count: int = field(default=0, repr=False)
@@ -246,7 +245,7 @@ class RunLog:
         if d is None:
             self._can_scanned = True
             return
-        for k, answer in _inflated_parts(d, self._stream_budget, self._scan_pos):
+        for k, answer in _inflated_parts(d):
             fresh = k >= self._scan_pos
             if fresh:
                 self._scan_pos = k + 1
@@ -255,13 +254,15 @@ class RunLog:
                     self._add(answer)
                     d.parts[k], d.lengths[k], d.log_times[k] = None, d.lengths[k][:0], d.log_times[k][:0]
                 continue
-            (t, ids, data, lengths, flags), bad = answer
+            piece, bad = answer
+            answer = None
             if fresh:
-                self._frame_count += len(ids)
-                self._non_data += int(np.count_nonzero(flags & (FLAG_REMOTE | FLAG_ERROR)))
+                self._frame_count += len(piece[1])
+                self._non_data += int(np.count_nonzero(piece[4] & (FLAG_REMOTE | FLAG_ERROR)))
                 if bad:
                     self._add(_malformed(TOPIC_CAN, bad))
-            yield t, ids, data, lengths, flags
+            yield piece
+            piece = None   # (the caller's reference is the last: nothing here keeps a chunk's frames)
         self._can_scanned = True
 
     def _scan_can(self) -> None:
@@ -344,7 +345,10 @@ class RunLog:
                 keep = (flags & (FLAG_REMOTE | FLAG_ERROR)) == 0
                 if not keep.all():
                     t, ids, data, lengths = t[keep], ids[keep], data[keep], lengths[keep]
-                decoder.feed(ids, data, lengths, t)
+                for a in range(0, len(ids), _FEED_FRAMES):   # a chunk of 256 MiB holds ~11 M frames
+                    b = a + _FEED_FRAMES
+                    decoder.feed(ids[a:b], data[a:b], lengths[a:b], t[a:b])
+                t = ids = data = lengths = flags = keep = None   # let the piece go before the next is read
             decoded = decoder.finish()
         except MemoryError as exc:
             raise LogError(f"{self.path}: not enough memory to decode its CAN frames") from exc
@@ -380,6 +384,8 @@ class RunLog:
                 f"{len(self.events)} events, {self.chunks} chunks{unchecked}; {state}")
 
 
+#: Frames handed to the stream decoder at once (its working arrays are about 100 bytes a frame).
+_FEED_FRAMES = 1 << 20
 #: Declared bytes of `/can/raw` chunks decompressed ahead of the one being decoded (at least one chunk).
 _STREAM_AHEAD_BYTES = 96 << 20
 
@@ -395,13 +401,13 @@ def _can_part(part, lengths: np.ndarray, log_times: np.ndarray):
     return decode_can_frames(ChannelData([part], [lengths], [log_times]), release=True)
 
 
-def _inflated_parts(d: ChannelData, budget: InflateBudget | None, fresh_from: int):
+def _inflated_parts(d: ChannelData):
     """(part index, (frames, malformed) or `Damage`) for every part of `d` still there, in order; the next
     parts are read and decompressed on a worker thread while the caller decodes (zstd releases the GIL).
-    A deferred chunk from `fresh_from` on counts against `budget` first, in file order."""
+    (What they may inflate to was counted by the walk.)"""
     todo = [k for k, p in enumerate(d.parts) if p is not None]
     pool = ThreadPoolExecutor(2, thread_name_prefix="can-stream") if len(todo) > 1 else None
-    ahead: deque = deque()   # (k, future or Damage, declared bytes)
+    ahead: deque = deque()   # (k, future or answer, declared bytes)
     in_flight, nxt = 0, 0
     try:
         while ahead or nxt < len(todo):
@@ -410,12 +416,6 @@ def _inflated_parts(d: ChannelData, budget: InflateBudget | None, fresh_from: in
                 nxt += 1
                 part = d.parts[k]
                 size = part.size if isinstance(part, DeferredChunk) else int(d.lengths[k].sum())
-                if isinstance(part, DeferredChunk) and k >= fresh_from and budget is not None:
-                    refused = budget.take(part.size)
-                    if refused is not None:
-                        ahead.append((k, Damage("chunk", part.offset, refused, part.start_ns, part.end_ns,
-                                                {TOPIC_CAN: len(part.offsets)}), 0))
-                        continue
                 job = (pool.submit(_can_part, part, d.lengths[k], d.log_times[k]) if pool is not None
                        else _can_part(part, d.lengths[k], d.log_times[k]))
                 ahead.append((k, job, size))
@@ -423,11 +423,13 @@ def _inflated_parts(d: ChannelData, budget: InflateBudget | None, fresh_from: in
             k, job, size = ahead.popleft()
             in_flight -= size
             answer = job.result() if isinstance(job, Future) else job
+            del job   # (a finished future holds its result: the caller's piece must be the only reference)
             if isinstance(answer, str):
                 part = d.parts[k]
                 answer = Damage("chunk", part.offset, answer, part.start_ns, part.end_ns,
                                 {TOPIC_CAN: len(part.offsets)})
             yield k, answer
+            answer = None
     finally:
         if pool is not None:
             for _, job, _ in ahead:
@@ -646,8 +648,7 @@ def _read_log(path: str, defer_samples: bool) -> RunLog:
                   summary_present=w.footer is not None and w.statistics is not None,
                   message_counts=counts, chunks=w.chunks, library=library,
                   _damage=[d.describe() for d in damage], _lost=damage, _can=by_topic.get(TOPIC_CAN),
-                  _samples=by_topic.get(TOPIC_SAMPLES), _states=by_topic.get(TOPIC_STATE), _budget=w.budget,
-                  _stream_budget=streamed_budget(w.size))
+                  _samples=by_topic.get(TOPIC_SAMPLES), _states=by_topic.get(TOPIC_STATE), _budget=w.budget)
 
 
 __all__ = ["ImuRecords", "LogError", "RunLog", "TableStates", "read_log"]

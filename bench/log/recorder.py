@@ -37,8 +37,9 @@ boundaries); on hardware the run clock is the monotonic clock, so it adds one cl
 interval. `/can/raw` and `/imu/samples` messages are held back and written at each close in
 chunks of their own (the frames first): they are the bulk of a log, so a reader that needs
 the events and states skips them without decompressing, and `bench.log.reader` streams the
-frames chunk by chunk (and defers the samples, derived from the frames, until asked for). Schema and Channel records are also written outside the first chunk,
-so a reader can decode every later chunk even if the first one is damaged.
+frames chunk by chunk (and defers the samples, derived from the frames, until asked for).
+Schema and Channel records are also written outside the first chunk, so a reader can
+decode every later chunk even if the first one is damaged.
 The recorder is single-threaded: call it from the sequencer's thread only.
 """
 

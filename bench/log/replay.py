@@ -218,7 +218,7 @@ def _frame_batches(log: RunLog, marks: np.ndarray, ev_t: np.ndarray, st_t: np.nd
         before.append(t[local - 1])
         prev_t, prev_key = t[-1], (int(key_marks[-1]), float(key_grid[-1]))
         total += len(t)
-    if not total:
+    if not total or first_frame is None:
         z = np.zeros(0, np.int64)
         return z, z, np.zeros(0), 0.0
     starts = np.concatenate(begin).astype(np.int64)

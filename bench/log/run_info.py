@@ -33,7 +33,7 @@ from bench.log.reader import LogError, RunLog
 from bench.model.earth import Site
 from bench.plan.steps import Step, step_from_dict
 from drivers.errors import ImuConfigError
-from drivers.imu import DEFAULT_DBC, DEFAULT_FD_DBC, DEFAULT_FD_SPEC, DEFAULT_SPEC, ImuFrameSpec, ImuLayout
+from drivers.imu import SHIPPED_LAYOUTS, ImuFrameSpec, ImuLayout, shipped_layout_name, spec_of
 from schedules import builtin_names
 from schedules.tomllines import locate_lines
 
@@ -74,8 +74,8 @@ def layout_and_config_from_log(log: RunLog) -> LogSetup:
         return LogSetup(layout, float(config.imu.rate_hz), config, config.site.site, tuple(notes))
 
     # No configuration here: the layout from the attached DBC and the recorded signal mapping.
-    spec, fd, dbc_name = _recorded_spec(text, imu_meta, notes)
-    layout = _layout_from_attachment(log, dbc_name, spec, fd)
+    spec, shipped_name, dbc_name = _recorded_spec(text, imu_meta, notes)
+    layout = _layout_from_attachment(log, dbc_name, spec, shipped_name)
     try:
         rate_hz = float(imu_meta["rate_hz"])
     except (KeyError, ValueError) as exc:
@@ -209,25 +209,26 @@ def _prefer_attached_dbc(log: RunLog, config: BenchConfig, notes: list[str]) -> 
     return layout
 
 
-def _recorded_spec(text: str | None, imu_meta: dict, notes: list[str]) -> tuple[ImuFrameSpec, bool, str]:
-    """Signal mapping, CAN FD flag and DBC file name from the recorded TOML (defaults where absent)."""
+def _recorded_spec(text: str | None, imu_meta: dict, notes: list[str]) -> tuple[ImuFrameSpec, str | None, str]:
+    """Signal mapping, shipped layout name (None: the IMU's own DBC) and DBC file name from the recorded TOML
+    (the classic layout's where absent)."""
     imu = _toml_value(text, ("imu",)) if text is not None else None
     imu = imu if isinstance(imu, dict) else {}
-    fd = imu.get("fd") is True
+    shipped = shipped_layout_name(imu)
     dbc_value = imu.get("dbc")
     dbc_name = (Path(dbc_value).name if isinstance(dbc_value, str) and dbc_value
-                else imu_meta.get("dbc") or (DEFAULT_FD_DBC if fd else DEFAULT_DBC).name)
-    signals = imu.get("signals")
-    if signals is None:
-        return (DEFAULT_FD_SPEC if fd else DEFAULT_SPEC), fd, dbc_name
+                else imu_meta.get("dbc") or SHIPPED_LAYOUTS[shipped or "classic"][0].name)
+    fallback = SHIPPED_LAYOUTS[shipped or ("fd" if imu.get("fd") is True else "classic")][1]
+    if imu.get("signals") is None:
+        return fallback, shipped, dbc_name
     try:
-        return ImuFrameSpec.from_dict(signals), fd, dbc_name
+        return spec_of(imu), shipped, dbc_name
     except ImuConfigError as exc:
         notes.append(f"the recorded [imu.signals] is unusable ({exc}): using the default mapping")
-        return (DEFAULT_FD_SPEC if fd else DEFAULT_SPEC), fd, dbc_name
+        return fallback, shipped, dbc_name
 
 
-def _layout_from_attachment(log: RunLog, dbc_name: str, spec: ImuFrameSpec, fd: bool) -> ImuLayout:
+def _layout_from_attachment(log: RunLog, dbc_name: str, spec: ImuFrameSpec, shipped_name: str | None) -> ImuLayout:
     attached = log.attachments.get(dbc_name)
     if attached is not None:
         try:
@@ -235,7 +236,7 @@ def _layout_from_attachment(log: RunLog, dbc_name: str, spec: ImuFrameSpec, fd: 
                                              source=f"{log.path}:{dbc_name}")
         except ImuConfigError as exc:
             raise LogError(f"{log.path}: the attached DBC {dbc_name} cannot be used: {exc}") from exc
-    shipped = DEFAULT_FD_DBC if fd else DEFAULT_DBC
+    shipped = SHIPPED_LAYOUTS[shipped_name or "classic"][0]
     if dbc_name == shipped.name:
         try:
             return ImuLayout.from_dbc(shipped, spec)

@@ -33,7 +33,6 @@ import numpy as np
 from mcap.records import Attachment, Channel, Footer, Header, Metadata, Schema, Statistics
 
 from bench.log.chunks import (
-    ChunkSlice,
     MAGIC,
     MAX_DEFINITIONS,
     MAX_RECORDS,
@@ -51,6 +50,7 @@ from bench.log.chunks import (
     OP_SCHEMA,
     OP_STATISTICS,
     RECORD_HEAD,
+    ChunkSlice,
     DeferredChunk,
     InflateBudget,
     Prefetch,
@@ -63,6 +63,7 @@ from bench.log.chunks import (
     inflate_chunk,
     plausible_record_at,
     resync,
+    streamed_budget,
 )
 
 
@@ -176,9 +177,7 @@ class ChannelData:
         for k, part in enumerate(self.parts):
             if isinstance(part, tuple):
                 data, starts = part
-                view = memoryview(data)
-                self.parts[k] = b"".join([view[a:b] for a, b in zip(starts.tolist(),
-                                                                    (starts + self.lengths[k]).tolist())])
+                self.parts[k] = _gather(data, starts, self.lengths[k])
         return self.parts
 
     def payloads(self, limit: int | None = None) -> list[bytes]:
@@ -221,8 +220,18 @@ class ChannelData:
         if not isinstance(part, tuple):
             return part
         data, starts = part
-        view = memoryview(data)
-        return b"".join([view[a:b] for a, b in zip(starts.tolist(), (starts + self.lengths[k]).tolist())])
+        return _gather(data, starts, self.lengths[k])
+
+    def first_byte(self, k: int, offset: int) -> int:
+        """Byte `offset` of part `k`'s payloads back to back (without joining them)."""
+        part = self.parts[k]
+        if isinstance(part, tuple):
+            data, starts = part
+            lengths = self.lengths[k]
+            i = int(np.searchsorted(np.cumsum(lengths), offset, side="right"))
+            before = int(lengths[:i].sum())
+            return data[int(starts[i]) + offset - before]
+        return self.part_bytes(k)[offset]
 
     def part_payloads(self, k: int) -> list[bytes]:
         """Part `k`'s payloads, one bytes per message."""
@@ -261,6 +270,7 @@ class Walk:
     damage: list[Damage] = field(default_factory=list)
     size: int = 0
     budget: InflateBudget = field(default_factory=lambda: InflateBudget(0))   # what the chunks may inflate to
+    stream_budget: InflateBudget = field(default_factory=lambda: InflateBudget(0))   # deferred ones read again
 
     def topic(self, channel_id: int) -> str:
         ch = self.channels.get(channel_id)
@@ -309,7 +319,8 @@ class _Walker:
         self.keep_limits = keep_limits or {}
         self.current: tuple | None = None   # (offset, start, end, compression, span, size, crc) of the chunk gathered
         self.pending_where: tuple | None = None   # the same of the pending chunk
-        self.w = Walk(size=len(buf), budget=InflateBudget(inflate_budget(len(buf))))
+        self.w = Walk(size=len(buf), budget=InflateBudget(inflate_budget(len(buf))),
+                      stream_budget=streamed_budget(len(buf)))
         self.lost_chunk: Damage | None = None   # message index records after a lost chunk count its messages
         self.last_refused: Damage | None = None   # the refusal the next refused chunk joins, if nothing came between
         # a good chunk waiting for its message index records: (offset, start, end, data or still compressed)
@@ -537,8 +548,10 @@ class _Walker:
         deferred = prefetch.deferred.get(pos) if prefetch is not None else None
         if deferred is not None and prefetch is not None and prefetch.chunks[prefetch.index[pos]][1] == f:
             # kept compressed: counted against the budget at that size now, at its own when it is inflated
-            # (`ChannelData.inflate_deferred`); with a `source`, nothing is kept: it is read again when needed
-            refused = w.budget.take(0 if self.source is not None else dlen)
+            # (`ChannelData.inflate_deferred`); with a `source`, nothing is kept (it is read again when needed)
+            # but its index is: counted at its own size against what the log may stream, so a file of a
+            # million small bomb chunks keeps the index of a few
+            refused = (w.stream_budget.take(usize) if self.source is not None else w.budget.take(dlen))
             if refused is not None:
                 self.refuse(pos, refused, start, end, joinable)
                 return True
@@ -709,8 +722,21 @@ class _Walker:
                 starts, lengths, times = starts[:room], lengths[:room], times[:room]
             if not len(lengths):
                 return
-        view = memoryview(data)
-        d.add(b"".join([view[a:a + n] for a, n in zip(starts.tolist(), lengths.tolist())]), lengths, times)
+        d.add(_gather(data, starts, lengths), lengths, times)
+
+
+def _gather(data: bytes, starts: np.ndarray, lengths: np.ndarray) -> bytes:
+    """The payloads at `starts` (of `lengths`) in `data`, back to back. Payloads of one length at one stride
+    (a chunk of equal messages: what bulk frames and bombs look like) are copied as one strided array; the
+    others one slice each."""
+    n = len(starts)
+    if n > 1:
+        length, stride = int(lengths[0]), int(starts[1] - starts[0])
+        if (stride >= length > 0 and (lengths == length).all()
+                and (np.diff(starts) == stride).all() and int(starts[-1]) + length <= len(data)):
+            return np.ndarray((n, length), np.uint8, data, int(starts[0]), (stride, 1)).tobytes()
+    whole = memoryview(data)
+    return b"".join([whole[a:b] for a, b in zip(starts.tolist(), (starts + lengths).tolist())])
 
 
 def _one_stride(data: bytes, q: int, stride: int) -> bool:

@@ -46,6 +46,9 @@ class PositionObservation:
     gyro_sem: np.ndarray | None = None
     acc_sem: np.ndarray | None = None
     label: str = ""
+    #: when the dwell's window began (s, on the IMU's time base): the bias-instability part of
+    #: the uncertainty budget correlates steps by their distance in time (None: unknown)
+    start_s: float | None = None
 
     def __post_init__(self) -> None:
         self.angles_deg = triple(_vec3(self.angles_deg, "angles_deg"))
@@ -118,6 +121,7 @@ class RotationObservation:
     earth_integral_rad: np.ndarray | None = None
     gyro_integral_sigma: np.ndarray | None = None
     label: str = ""
+    start_s: float | None = None    # when the window began, as `PositionObservation.start_s`
 
     def __post_init__(self) -> None:
         self.start_deg = triple(_vec3(self.start_deg, "start_deg"))

@@ -13,7 +13,9 @@ from bench.model.families import RESULT_UNITS, canonical_names, family_of
 from bench.model.imu import ImuCoefficients
 
 RESULT_FORMAT = "turntable-bench/result"
-RESULT_VERSION = 1
+RESULT_VERSION = 2
+#: versions this software reads: 1 had no uncertainty budget (its sigma covered sample noise only)
+READABLE_VERSIONS = (1, 2)
 
 
 class ResultFormatError(InputError):
@@ -22,14 +24,30 @@ class ResultFormatError(InputError):
 
 @dataclass(frozen=True)
 class Coefficient:
-    """One solved coefficient in display units with its 1-sigma uncertainty."""
+    """One solved coefficient in display units with its 1-sigma uncertainty.
+
+    From version 2, `sigma` is the combined standard uncertainty of `budget` (component
+    -> standard uncertainty, display units) and `expanded` is k times it.
+    """
 
     value: float
     sigma: float
     unit: str
+    budget: dict[str, float] | None = None
+    k: float | None = None
+
+    @property
+    def expanded(self) -> float:
+        return self.k * self.sigma if self.k is not None else math.nan
 
     def to_json(self) -> dict[str, Any]:
-        return {"value": self.value, "sigma": _json_float(self.sigma), "unit": self.unit}
+        out: dict[str, Any] = {"value": self.value, "sigma": _json_float(self.sigma), "unit": self.unit}
+        if self.k is not None:
+            out["expanded"] = _json_float(self.expanded)
+            out["k"] = self.k
+        if self.budget is not None:
+            out["budget"] = {name: _json_float(v) for name, v in self.budget.items()}
+        return out
 
 
 def _json_float(x: float) -> float | None:
@@ -37,11 +55,14 @@ def _json_float(x: float) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
 
-def coefficient_table(values: dict[str, float], sigmas: dict[str, float] | None = None) -> dict[str, Coefficient]:
-    """Canonical-ordered coefficient table from display-unit values (and sigmas)."""
+def coefficient_table(values: dict[str, float], sigmas: dict[str, float] | None = None,
+                      budgets: dict[str, dict[str, float]] | None = None,
+                      k: float | None = None) -> dict[str, Coefficient]:
+    """Canonical-ordered coefficient table from display-unit values (and sigmas, budgets, k)."""
     sigmas = sigmas or {}
     return {name: Coefficient(float(values[name]), float(sigmas.get(name, math.nan)),
-                              RESULT_UNITS[family_of(name)][0])
+                              RESULT_UNITS[family_of(name)][0],
+                              None if budgets is None else dict(budgets.get(name, {})), k)
             for name in canonical_names() if name in values}
 
 
@@ -94,9 +115,10 @@ class CalibrationResult:
     def from_json(cls, data: dict[str, Any], origin: str = "<result>") -> "CalibrationResult":
         if not isinstance(data, dict) or data.get("format") != RESULT_FORMAT:
             raise ResultFormatError(f"{origin}: not a {RESULT_FORMAT} file")
-        if data.get("version") != RESULT_VERSION:
-            raise ResultFormatError(f"{origin}: result version {data.get('version')!r} is not supported "
-                                    f"(this software reads version {RESULT_VERSION})")
+        version = data.get("version")
+        if isinstance(version, bool) or version not in READABLE_VERSIONS:
+            raise ResultFormatError(f"{origin}: result version {version!r} is not supported "
+                                    f"(this software reads versions {', '.join(map(str, READABLE_VERSIONS))})")
         truth = data.get("sim_truth")
         verdict = data.get("verdict")
         return cls(
@@ -149,10 +171,14 @@ def _read_table(table: Any, origin: str, where: str) -> dict[str, Coefficient]:
             raise ResultFormatError(f"{origin}: {where}.{name}: unknown coefficient name")
         try:
             sigma = entry.get("sigma")
+            budget, k = entry.get("budget"), entry.get("k")
+            if budget is not None:
+                budget = {str(c): math.nan if v is None else float(v) for c, v in budget.items()}
             out[name] = Coefficient(float(entry["value"]), math.nan if sigma is None else float(sigma),
-                                    str(entry["unit"]))
+                                    str(entry["unit"]), budget, None if k is None else float(k))
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
-            raise ResultFormatError(f"{origin}: {where}.{name}: needs value, sigma and unit") from exc
+            raise ResultFormatError(f"{origin}: {where}.{name}: needs value, sigma and unit (and a budget of "
+                                    "numbers, when given)") from exc
         expected = RESULT_UNITS[family_of(name)][0]
         if out[name].unit != expected:
             raise ResultFormatError(f"{origin}: {where}.{name}: unit {out[name].unit!r}, expected {expected!r}")

@@ -7,9 +7,18 @@ and, for each cluster size `m` (tau = m / rate_hz),
 
     AVAR(tau) = sum_k (x[k+2m] - 2 x[k+m] + x[k])^2 / (2 tau^2 (N - 2m)),  N = len(x).
 
-Each tau is one pass over `x` in cache-sized blocks (no full-length temporaries), and
-the channels are spread over threads (numpy releases the GIL), so 6 channels of
-28.8 M samples take seconds.
+The phase of the channels is one (k, N + 1) float64 array, one contiguous row per
+channel, accumulated block by block (`PhaseAccumulator`: a streaming reader hands it each
+decoded block; nothing else of the record is kept, 8 bytes per sample and channel). The
+sum of squared second differences at size m comes from first differences e_m(k) =
+x[k+m] - x[k]: d_m(k)^2 = 2 e_m(k)^2 + 2 e_m(k+m)^2 - e_2m(k)^2, so each lag costs one
+subtraction and one dot product (segment sums of e_m^2), and octave sizes share their
+lags (2m is the next size): half the passes over the data of the direct form. Where
+that identity would cancel (a drift far above the noise: the first differences much
+larger than the second), the size is summed directly, so float64 keeps ~1e-10 or
+better. The passes run over cache-sized blocks of k with the lags inner (the stretch
+x[k + 2m] of one lag is the stretch x[k + m'] of the next), each channel's record split
+over threads (numpy releases the GIL).
 
 Confidence intervals: chi-square with the equivalent degrees of freedom of SP 1065
 (section 5.2.3, "simple" formulas) for the noise type the local log-log slope shows
@@ -32,7 +41,8 @@ from bench.errors import InputError
 CI_COVERAGE = 0.682689492137
 #: A tau is computed only with at least this many independent clusters (N / m): beyond, the estimate is noise.
 MIN_CLUSTERS = 4
-_BLOCK = 1 << 13          # samples per block of the second-difference pass: 4 x 64 kB, in L2 (best of 2k..256k)
+_BLOCK = 1 << 13          # samples per block of the sums: 64 kB per stretch (2k: call overhead; 16k+: 30x slower here)
+_CANCELLATION = 1e4       # largest (sum of the identity's terms) / result before a size is summed directly
 #: Local slopes of ADEV in log-log and the noise type each stands for.
 SLOPES = {-1.0: "white PM (quantisation)", -0.5: "white FM (random walk of angle/velocity)",
           0.0: "flicker FM (bias instability)", 0.5: "random walk FM (rate random walk)"}
@@ -81,28 +91,184 @@ def integrate(y: np.ndarray, rate_hz: float) -> np.ndarray:
     return x
 
 
-def _sum_second_differences(x: np.ndarray, m: int) -> float:
-    """sum_k (x[k+2m] - 2 x[k+m] + x[k])^2 over k in [0, len(x) - 2m), block by block."""
-    n = len(x) - 2 * m
-    total = 0.0
-    d = np.empty(min(_BLOCK, n))
-    for start in range(0, n, _BLOCK):
-        stop = min(start + _BLOCK, n)
-        block = d[:stop - start]
-        np.multiply(x[start + m:stop + m], -2.0, out=block)
-        block += x[start + 2 * m:stop + 2 * m]
-        block += x[start:stop]
-        total += float(np.dot(block, block))
-    return total
+class PhaseAccumulator:
+    """The phase of k channels, built from blocks of rate samples handed in order (a streaming log reader's).
+
+    `add(block)` takes an (n, k) block (1-D for one channel) and appends its running sum; the first
+    block's mean is taken off every sample (allantools takes off the whole record's mean, which it knows
+    in advance: a constant offset cancels in every second difference, and any offset near the mean keeps
+    the running sum small enough for float64), unless `offset` is given. The sum is kept in sample units
+    (the 1 / rate is applied to the deviations). `capacity`, the number of samples expected (e.g. a dwell's
+    counter window), avoids regrowing the array. Memory: 8 bytes per sample and channel."""
+
+    def __init__(self, rate_hz: float, n_channels: int, *, offset: np.ndarray | None = None, capacity: int = 0,
+                 threads: int = 2):
+        if not (math.isfinite(rate_hz) and rate_hz > 0):
+            raise AllanError(f"sample rate must be a positive number of Hz, got {rate_hz!r}")
+        self.rate_hz, self.n_channels, self.threads = float(rate_hz), int(n_channels), int(threads)
+        self._offset = None if offset is None else np.asarray(offset, dtype=np.float64).reshape(self.n_channels)
+        self._phase = np.zeros((self.n_channels, max(int(capacity), 0) + 1))
+        self.n_samples = 0
+
+    def add(self, block: np.ndarray) -> None:
+        """Append an (n, k) block of rate samples (AllanError if not finite or of another width)."""
+        block = np.asarray(block, dtype=np.float64)
+        if block.ndim == 1 and self.n_channels == 1:
+            block = block[:, None]
+        if block.ndim != 2 or block.shape[1] != self.n_channels:
+            raise AllanError(f"a block of {self.n_channels} channel(s) expected, got an array of shape {block.shape}")
+        n = len(block)
+        if n == 0:
+            return
+        offset = block.mean(axis=0) if self._offset is None else self._offset
+        start, need = self.n_samples + 1, self.n_samples + n + 1
+        if need > self._phase.shape[1]:
+            grown = np.empty((self.n_channels, max(need, 2 * self._phase.shape[1])))
+            grown[:, :start] = self._phase[:, :start]
+            self._phase = grown
+
+        def channel(k: int) -> None:
+            row = self._phase[k, start:need]
+            with np.errstate(invalid="ignore", over="ignore"):     # not finite: refused below
+                np.subtract(block[:, k], offset[k], out=row)
+                row[0] += self._phase[k, start - 1]
+                np.cumsum(row, out=row)
+
+        if self.threads > 1 and n * self.n_channels >= 1 << 20:
+            with ThreadPoolExecutor(max_workers=self.threads, thread_name_prefix="allan-channel") as pool:
+                list(pool.map(channel, range(self.n_channels)))
+        else:
+            for k in range(self.n_channels):
+                channel(k)
+        # a value that is not finite (or a sum that overflows) makes every later running sum inf or nan: the
+        # block's last one tells, without a pass of its own
+        if not np.all(np.isfinite(self._phase[:, need - 1])):
+            raise AllanError("the series holds values that are not finite numbers")
+        self._offset = offset
+        self.n_samples += n
+
+    @property
+    def phase(self) -> np.ndarray:
+        """(k, n + 1) running sums (sample units: x / rate is allantools' phase), 0 first."""
+        return self._phase[:, :self.n_samples + 1]
+
+    def curves(self, *, points_per_octave: int = 1, m: np.ndarray | None = None,
+               threads: int = 2) -> list["AllanCurve"]:
+        """The overlapping Allan deviation of each channel with +-1 sigma intervals."""
+        sizes = cluster_sizes(self.n_samples, points_per_octave) if m is None else np.asarray(m, dtype=np.int64)
+        sums = second_difference_sums(self.phase, sizes, threads=threads)
+        n_terms = (self.n_samples + 1 - 2 * sizes).astype(float)
+        adev = np.sqrt(sums / (2.0 * n_terms)[None, :]) / sizes[None, :]
+        return [_curve(adev[k], self.n_samples + 1, self.rate_hz, sizes, self.n_samples)
+                for k in range(self.n_channels)]
+
+
+def _direct_sums(x: np.ndarray, sizes: list[int], lo: int, hi: int) -> np.ndarray:
+    """Sum over k in [lo, hi) of (x[k+2m] - 2 x[k+m] + x[k])^2 for each size m of one channel, the sizes inner."""
+    out = np.zeros(len(sizes))
+    buffer = np.empty(_BLOCK)
+    stops = [min(hi, len(x) - 2 * m) for m in sizes]
+    for start in range(lo, max(stops, default=lo), _BLOCK):
+        for j, m in enumerate(sizes):
+            stop = min(start + _BLOCK, stops[j])
+            if stop <= start:
+                continue
+            d = buffer[:stop - start]
+            np.multiply(x[start + m:stop + m], -2.0, out=d)
+            d += x[start + 2 * m:stop + 2 * m]
+            d += x[start:stop]
+            out[j] += float(np.dot(d, d))
+    return out
+
+
+def _difference_segments(x: np.ndarray, lags: list[int], lo: int, hi: int) -> np.ndarray:
+    """(len(lags), 3): for each lag L the sums of e_L(k)^2 = (x[k+L] - x[k])^2 over k in [0, L), [L, n-2L) and
+    [n-2L, n-L) (n = len(x); empty where they cross), restricted to k in [lo, hi); the lags inner."""
+    n_x = len(x)
+    out = np.zeros((len(lags), 3))
+    buffer = np.empty(_BLOCK)
+    bounds = []
+    for lag in lags:
+        end = n_x - lag
+        first = min(lag, end)
+        bounds.append((first, min(max(n_x - 2 * lag, first), end), end))
+    for start in range(lo, min(hi, max((b[2] for b in bounds), default=lo)), _BLOCK):
+        for j, lag in enumerate(lags):
+            first, second, end = bounds[j]
+            stop = min(start + _BLOCK, hi, end)
+            if stop <= start:
+                continue
+            e = buffer[:stop - start]
+            np.subtract(x[start + lag:stop + lag], x[start:stop], out=e)
+            if first <= start and stop <= second:          # almost every block: all in the middle segment
+                out[j, 1] += float(np.dot(e, e))
+                continue
+            for seg, (a, b) in enumerate(((0, first), (first, second), (second, end))):
+                a, b = max(a, start), min(b, stop)
+                if b > a:
+                    part = e[a - start:b - start]
+                    out[j, seg] += float(np.dot(part, part))
+    return out
+
+
+def _channel_sums(x: np.ndarray, sizes: list[int], ranges: list[tuple[int, int]], pool) -> np.ndarray:
+    """Sum of squared second differences of one channel at each size, from first differences (see below)."""
+    # With e_m(k) = x[k+m] - x[k]: d_m(k) = e_m(k+m) - e_m(k) and e_2m(k) = e_m(k+m) + e_m(k), so
+    # d_m(k)^2 = 2 e_m(k)^2 + 2 e_m(k+m)^2 - e_2m(k)^2 and the sum over k in [0, n-2m) is
+    # 2 (A + B) + 2 (B + C) - E_2m with A, B, C the sums of e_m^2 over [0, m), [m, n-2m), [n-2m, n-m) and E_2m
+    # the sum of e_2m^2 over its whole range: one difference and one dot product per lag instead of three
+    # operations and a dot product per size; octave sizes share their lags (2m is the next size).
+    lags = sorted(set(sizes) | {2 * m for m in sizes})
+    if pool is None:
+        parts = [_difference_segments(x, lags, lo, hi) for lo, hi in ranges]
+    else:
+        parts = list(pool.map(lambda r: _difference_segments(x, lags, r[0], r[1]), ranges))
+    seg = np.sum(parts, axis=0)
+    row = {lag: i for i, lag in enumerate(lags)}
+    out = np.empty(len(sizes))
+    for j, m in enumerate(sizes):
+        a, b, c = seg[row[m]]
+        e2 = float(seg[row[2 * m]].sum())
+        total = 2.0 * (a + b) + 2.0 * (b + c)
+        result = total - e2
+        # the identity cancels when the first differences are much larger than the second (a drift far above the
+        # noise): beyond 1e4 (float64 then keeps ~1e-11) this size is summed directly
+        if not result > 0 or (total + e2) > _CANCELLATION * result:
+            result = float(_direct_sums(x, [m], 0, len(x))[0])
+        out[j] = result
+    return out
+
+
+def second_difference_sums(x: np.ndarray, sizes: np.ndarray, *, threads: int = 2) -> np.ndarray:
+    """(k, len(sizes)) sums of squared second differences of the phase `x` (k, n) (or (n,): then (1, len(sizes))),
+    each channel's record split over `threads` threads."""
+    x = np.asarray(x, dtype=np.float64)
+    x = x[None, :] if x.ndim == 1 else x
+    channels, n_x = x.shape
+    sizes_list = [int(m) for m in sizes]
+    out = np.zeros((channels, len(sizes_list)))
+    if not sizes_list:
+        return out
+    if 2 * max(sizes_list) >= n_x:
+        raise AllanError(f"cluster size {max(sizes_list)} too large for {n_x - 1} samples")
+    parts = max(1, min(int(threads), n_x // (4 * _BLOCK)))
+    edges = np.linspace(0, n_x, parts + 1).astype(np.int64)
+    ranges = [(int(lo), int(hi)) for lo, hi in zip(edges[:-1], edges[1:])]
+    if parts == 1:
+        for k in range(channels):
+            out[k] = _channel_sums(x[k], sizes_list, ranges, None)
+        return out
+    with ThreadPoolExecutor(max_workers=parts, thread_name_prefix="allan-part") as pool:
+        for k in range(channels):
+            out[k] = _channel_sums(x[k], sizes_list, ranges, pool)
+    return out
 
 
 def oadev_of_phase(x: np.ndarray, rate_hz: float, m: np.ndarray) -> np.ndarray:
-    """Overlapping ADEV of phase `x` at cluster sizes `m` (allantools' `calc_adev_phase`, stride 1)."""
-    out = np.empty(len(m))
-    for i, mj in enumerate(m):
-        n = len(x) - 2 * int(mj)
-        out[i] = math.sqrt(_sum_second_differences(x, int(mj)) / (2.0 * n)) / int(mj) * rate_hz
-    return out
+    """Overlapping ADEV of phase `x` (1-D, allantools' units) at cluster sizes `m` (`calc_adev_phase`, stride 1)."""
+    sizes = np.asarray(m, dtype=np.int64)
+    sums = second_difference_sums(np.asarray(x, dtype=np.float64), sizes, threads=1)[0]
+    return np.sqrt(sums / (2.0 * (len(x) - 2 * sizes))) / sizes * rate_hz
 
 
 def _edf(n_phase: int, m: int, slope: float) -> float:
@@ -138,20 +304,13 @@ def confidence(adev: np.ndarray, edf: np.ndarray, coverage: float = CI_COVERAGE)
 def allan_curve(y: np.ndarray, rate_hz: float, *, points_per_octave: int = 1,
                 m: np.ndarray | None = None) -> AllanCurve:
     """Overlapping ADEV of one rate series at octave-spaced (or denser) cluster times, with +-1 sigma intervals."""
-    if not (math.isfinite(rate_hz) and rate_hz > 0):
-        raise AllanError(f"sample rate must be a positive number of Hz, got {rate_hz!r}")
     y = np.asarray(y, dtype=np.float64)
     if y.ndim != 1:
         raise AllanError(f"one channel at a time: got an array of shape {y.shape}")
-    if not np.all(np.isfinite(y)):
-        raise AllanError("the series holds values that are not finite numbers")
-    sizes = cluster_sizes(len(y), points_per_octave) if m is None else np.asarray(m, dtype=np.int64)
-    x = integrate(y, rate_hz)
-    return _curve(x, rate_hz, sizes, len(y))
+    return allan_curves(y[:, None], rate_hz, points_per_octave=points_per_octave, m=m, threads=1)[0]
 
 
-def _curve(x: np.ndarray, rate_hz: float, sizes: np.ndarray, n_samples: int) -> AllanCurve:
-    adev = oadev_of_phase(x, rate_hz, sizes)
+def _curve(adev: np.ndarray, n_phase: int, rate_hz: float, sizes: np.ndarray, n_samples: int) -> AllanCurve:
     tau_s = sizes / rate_hz
     slopes = local_slopes(tau_s, adev)
     snapped = np.array([min(SLOPES, key=lambda s: abs(s - v)) if np.isfinite(v) else -0.5 for v in slopes])
@@ -159,21 +318,25 @@ def _curve(x: np.ndarray, rate_hz: float, sizes: np.ndarray, n_samples: int) -> 
     # long-tau point whose few clusters happen to fall steeply.
     leading = int(np.argmax(snapped != -1.0)) if np.any(snapped != -1.0) else len(snapped)
     snapped[leading:] = np.maximum(snapped[leading:], -0.5)
-    edf = np.array([_edf(len(x), int(mj), s) for mj, s in zip(sizes, snapped)])
+    edf = np.array([_edf(n_phase, int(mj), s) for mj, s in zip(sizes, snapped)])
     low, high = confidence(adev, edf)
     return AllanCurve(tau_s, adev, sizes, edf, low, high, snapped, float(rate_hz), n_samples)
 
 
-def allan_curves(channels: np.ndarray, rate_hz: float, *, points_per_octave: int = 1,
+def allan_curves(channels: np.ndarray, rate_hz: float, *, points_per_octave: int = 1, m: np.ndarray | None = None,
                  threads: int = 2) -> list[AllanCurve]:
-    """`allan_curve` of each column of `channels` (n, k), the columns on `threads` threads."""
-    data = np.asarray(channels)
+    """`allan_curve` of each column of `channels` (n, k), the whole record's mean taken off as allantools does."""
+    data = np.asarray(channels, dtype=np.float64)
     if data.ndim != 2:
         raise AllanError(f"channels must be an (n, k) array, got shape {data.shape}")
-    with ThreadPoolExecutor(max_workers=max(1, threads), thread_name_prefix="allan-channel") as pool:
-        return list(pool.map(lambda k: allan_curve(data[:, k], rate_hz, points_per_octave=points_per_octave),
-                             range(data.shape[1])))
+    offset = data.mean(axis=0)
+    if not np.all(np.isfinite(offset)):
+        raise AllanError("the series holds values that are not finite numbers")
+    acc = PhaseAccumulator(rate_hz, data.shape[1], offset=offset, capacity=len(data), threads=threads)
+    acc.add(data)
+    return acc.curves(points_per_octave=points_per_octave, m=m, threads=threads)
 
 
-__all__ = ["CI_COVERAGE", "MIN_CLUSTERS", "SLOPES", "AllanCurve", "AllanError", "allan_curve", "allan_curves",
-           "cluster_sizes", "confidence", "integrate", "local_slopes", "oadev_of_phase"]
+__all__ = ["CI_COVERAGE", "MIN_CLUSTERS", "SLOPES", "AllanCurve", "AllanError", "PhaseAccumulator", "allan_curve",
+           "allan_curves", "cluster_sizes", "confidence", "integrate", "local_slopes", "oadev_of_phase",
+           "second_difference_sums"]

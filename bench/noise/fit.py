@@ -1,40 +1,66 @@
-"""Noise terms read off an Allan deviation curve (IEEE Std 952-1997 Annex C), fit regions chosen automatically.
+"""Noise terms read off an Allan deviation curve (IEEE Std 952-1997 Annex C) by fitting the whole curve.
 
-Each term is a straight line of known slope in log-log (ADEV in the channel's unit,
-tau in s); the points where the curve has that slope form its region:
+The Allan variance is the sum of the variances of independent processes, each a known
+function of tau (`bench.noise.covariance`):
 
-- quantisation, slope -1: ADEV = sqrt(3) Q / tau, and random walk (ARW for a gyro, VRW
-  for an accelerometer), slope -1/2: ADEV = N / sqrt(tau), N the line's value at tau =
-  1 s: fitted together as AVAR = 3 Q^2 / tau^2 + N^2 / tau on the points up to the end
-  of the -1/2 region (local slope in [-0.6, -0.4]); Q's region is where its line is the
-  larger;
-- bias instability, slope 0: B = min ADEV / 0.664 (sqrt(2 ln 2 / pi)), at the minimum; the
-  flat region is the run of points around it whose neighbour slopes stay within +-1/4.
-  When the curve still falls at its last point the minimum is not reached and B is an
-  upper bound (`upper_bound`);
-- rate random walk, slope +1/2: ADEV = K sqrt(tau / 3) (the points after the flat region
-  rising faster than +1/4).
+    AVAR = 3 Q^2 / tau^2 + N^2 / tau + A + K^2 tau / 3 + s^2 GM(tau / T)
 
-Uncertainty (1 sigma) of a term, relative: the larger of the chi-square spread of the
-region's best-determined point, 1 / sqrt(2 edf) (neighbouring overlapping points are
-strongly correlated, so averaging them does not reduce it), and the scatter of the
-region's points about the line.
+quantisation Q (white PM), random walk N (ARW for a gyro, VRW for an accelerometer:
+the -1/2 line's value at tau = 1 s), flicker A (flat), rate random walk K (+1/2) and a
+first-order Gauss-Markov bias (sigma s, correlation time T: a bump peaking at 1.89 T;
+the simulated IMU's bias is one, and a real sensor's correlated bias often looks like
+one). `model_fit` fits the coefficients, non-negative, by generalised least squares with
+the full covariance of the points: overlapping estimates at neighbouring taus correlate
+by 0.5-0.8, so weighting them as independent (or by their own noisy values) gives
+uncertainties several times too small and a low bias. T is tried at every tau two
+octaves inside the fitted ones (a bump is only told apart from white noise and from a
+random walk when the curve shows both its sides) and the fits are averaged with weights
+exp(-chi2 / 2), their spread added to the covariance. The fit starts at the longest run
+of -1/2 slopes with m >= MIN_WHITE_M and moves on while the chi-square says the model
+does not describe the points (the shortest clusters carry the sampling: a quantiser's
+pattern, filters).
+
+The terms, each with the 1 sigma of the fit's covariance (scaled by chi2/dof when the
+points scatter more than the model says):
+
+- N = sqrt(c_white) (a 2-sigma upper bound, flagged, when c_white is below 2 sigma: white
+  noise hidden under quantisation and a bias over all the fitted taus); Q = sqrt(c_pm / 3)
+  when above 2 sigma (else read from the leading -1 slope, as before);
+- bias instability B = the minimum of the fitted curve over the measured taus / 0.664
+  (IEEE's flat-region reading; 0.664 = sqrt(2 ln 2 / pi)); the fitted curve averages
+  the neighbouring points, so B is not biased low as the lowest noisy point is. When the
+  fitted curve still falls at the longest tau, B is flagged `upper_bound` (the floor may
+  lie beyond the record);
+- rate random walk K = sqrt(3 c_rrw); when c_rrw is below 2 sigma the record cannot tell
+  it from zero and K is given as a 2-sigma upper bound (`upper_bound`; its sigma is
+  sqrt(3 sigma_c)).
+
+A curve too short for the model (fewer than 3 usable points) has its terms read off the
+slopes (`_region_fit`: -1/2 points, the minimum, the +1/2 points).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
+from scipy.optimize import nnls
+from scipy.special import gammaincc
 
 from bench.noise.allan import AllanCurve, local_slopes
+from bench.noise.covariance import avar_covariance, basis, cross_terms
 
 #: ADEV of flicker FM (bias instability B) is B * sqrt(2 ln 2 / pi) = 0.664 B (IEEE 952 Table C.2).
 FLICKER_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)
+#: Peak ADEV of a first-order Gauss-Markov process per unit sigma, and where it peaks (tau / T).
+GM_PEAK_ADEV, GM_PEAK_TAU = 0.6173642831, 1.8926176809
 _WHITE_SLOPES = (-0.6, -0.4)
 _QUANT_SLOPE = -0.75
 MIN_WHITE_M = 8
+#: The model fit starts at the first point from which its chi-square probability exceeds this.
+CONSISTENT = 1e-3
 _FLAT = 0.25
 _RISE = 0.25
 
@@ -58,6 +84,7 @@ class ChannelFit:
     random_walk: TermFit | None    # N: ADEV = N / sqrt(tau)    (unit x sqrt(s))
     bias_instability: TermFit | None  # B: min ADEV / 0.664      (unit)
     rate_random_walk: TermFit | None  # K: ADEV = K sqrt(tau/3) (unit / sqrt(s))
+    model: dict | None = None      # the model fit (`ModelFit.summary`), None when the terms were read off slopes
 
     def line(self, term: str, tau_s: np.ndarray) -> np.ndarray | None:
         """The fitted line of `term` at `tau_s` (None if the term was not found)."""
@@ -157,8 +184,242 @@ def _contiguous(idx: list[int], anchor: int | None = None) -> list[int]:
     return max(runs, key=len)
 
 
+def _model_points(curve: AllanCurve) -> list[int]:
+    """The points the noise model may be fitted on: from the longest run of slope -1/2 with m >= MIN_WHITE_M on
+    (the curve's points from m >= MIN_WHITE_M if it has none; all of them for a very short curve)."""
+    central = local_slopes(curve.tau_s, curve.adev)
+    usable = [i for i in range(len(curve.m)) if curve.m[i] >= MIN_WHITE_M]
+    white = _contiguous([i for i in usable if _WHITE_SLOPES[0] <= central[i] <= _WHITE_SLOPES[1]])
+    idx = [i for i in usable if i >= white[0]] if white else usable
+    return idx if len(idx) >= 4 else list(range(len(curve.m)))
+
+
+@lru_cache(maxsize=256)
+def _cross_cached(m: tuple[int, ...], n_phase: int, tau0: float, correlation_time_s: float | None) -> np.ndarray:
+    return cross_terms(np.array(m), n_phase, tau0, correlation_time_s)
+
+
+@dataclass(frozen=True)
+class ModelFit:
+    """The curve's AVAR fitted as sum c_p basis_p(tau) (`bench.noise.covariance.TERMS`) by generalised least squares.
+
+    One fit per Gauss-Markov correlation time tried (`candidates`: (weight, coefficients, covariance, T)); the
+    estimates are their average weighted by exp(-chi2 / 2), and their covariance adds the spread between the
+    candidates to each one's own, so that the correlation time's own uncertainty is carried."""
+
+    candidates: tuple[tuple[float, np.ndarray, np.ndarray, float | None], ...]
+    points: tuple[int, ...]
+    chi2: float
+    dof: int
+
+    @property
+    def coefficients(self) -> np.ndarray:
+        return np.sum([w * c for w, c, _, _ in self.candidates], axis=0)
+
+    @property
+    def covariance(self) -> np.ndarray:
+        mean = self.coefficients
+        return np.sum([w * (cov + np.outer(c - mean, c - mean)) for w, c, cov, _ in self.candidates], axis=0)
+
+    def parts(self, tau_s: np.ndarray) -> np.ndarray:
+        """(len(tau), 5) each term's AVAR at `tau_s` (weighted over the candidates)."""
+        return np.sum([w * basis(tau_s, t) * c for w, c, _, t in self.candidates], axis=0)
+
+    def avar(self, tau_s: np.ndarray) -> np.ndarray:
+        return self.parts(tau_s).sum(axis=1)
+
+    def avar_sigma(self, tau_s: np.ndarray) -> np.ndarray:
+        mean = self.avar(tau_s)
+        var = np.zeros(len(mean))
+        for w, c, cov, t in self.candidates:
+            x = basis(tau_s, t)
+            var += w * (np.einsum("ip,pq,iq->i", x, cov, x) + (x @ c - mean) ** 2)
+        return np.sqrt(np.maximum(var, 0.0))
+
+
+    def summary(self, curve: AllanCurve) -> dict:
+        """JSON: the fitted taus, chi-square, the Gauss-Markov correlation times tried with their weights, the
+        fitted ADEV at every tau of the curve and its 1 sigma."""
+        tau = curve.tau_s
+        return {"fit_tau_s": [float(tau[self.points[0]]), float(tau[self.points[-1]])],
+                "points": [int(i) for i in self.points],
+                "chi2": self.chi2, "dof": self.dof,
+                "gauss_markov": [{"weight": w, "correlation_time_s": t, "sigma": math.sqrt(c[4])}
+                                 for w, c, _, t in self.candidates if t is not None and w >= 0.01],
+                "adev": np.sqrt(self.avar(tau)).tolist(),
+                "adev_sigma": (0.5 * self.avar_sigma(tau) / np.sqrt(self.avar(tau))).tolist()}
+
+
+def _gls(x: np.ndarray, avar: np.ndarray, cross: np.ndarray, start: np.ndarray, columns: list[int],
+         iterations: int = 6) -> tuple[np.ndarray, np.ndarray, float]:
+    """Non-negative generalised least squares of `avar` on `x`'s `columns`, the covariance re-made from each fit:
+    (coefficients, whitened design of `columns`, chi2)."""
+    coef = start.copy()
+    chi2, design = math.inf, x[:, columns]
+    for _ in range(iterations):
+        cov = avar_covariance(cross, coef)
+        cov += np.diag(np.full(len(avar), 1e-12) * avar ** 2)      # never singular
+        try:
+            whiten = np.linalg.inv(np.linalg.cholesky(cov))
+        except np.linalg.LinAlgError:
+            break
+        a, b = whiten @ x[:, columns], whiten @ avar
+        found, _ = nnls(a, b, maxiter=50 * len(columns))
+        new = np.zeros(len(coef))
+        new[columns] = found
+        if not np.any(new > 0):
+            break
+        done = np.allclose(new, coef, rtol=1e-4, atol=0.0)
+        coef, design, chi2 = new, a, float(np.sum((b - a @ found) ** 2))
+        if done:
+            break
+    return coef, design, chi2
+
+
+def _fit_points(curve: AllanCurve, idx: list[int], all_idx: list[int]) -> ModelFit | None:
+    tau, avar = curve.tau_s[idx], curve.adev[idx] ** 2
+    m = tuple(int(v) for v in curve.m[all_idx])
+    sub = [all_idx.index(i) for i in idx]
+    n_phase, tau0 = curve.n_samples + 1, 1.0 / curve.rate_hz
+    w = np.sqrt(curve.edf[idx] / 2.0) / avar         # a start from independent points (var = 2 AVAR^2 / edf)
+    start = np.zeros(5)
+    start[:4], _ = nnls(basis(tau, None)[:, :4] * w[:, None], avar * w)
+    if not np.any(start > 0):
+        return None
+    fits = []
+    # A Gauss-Markov bias is told apart from white noise (far above its peak at 1.89 T it falls as -1/2) and from
+    # a random-walk bias (far below it rises as +1/2) only when the curve shows both sides of its peak: two
+    # octaves of fitted taus on either side.
+    peaks = [float(t) for t in tau if 4.0 * tau[0] * (1 - 1e-9) <= t <= tau[-1] / 4.0 * (1 + 1e-9)]
+    for correlation_time_s in [None] + [t / GM_PEAK_TAU for t in peaks]:
+        columns = [0, 1, 2, 3] + ([4] if correlation_time_s is not None else [])
+        cross = _cross_cached(m, n_phase, tau0, correlation_time_s)[np.ix_(sub, sub)]
+        coef, design, chi2 = _gls(basis(tau, correlation_time_s), avar, cross, start, columns)
+        if math.isfinite(chi2):
+            # every coefficient of the model free (also those NNLS holds at 0: the record does not rule them out,
+            # and holding them there claimed RRW and bias-instability sigmas far too small in trials)
+            cov = np.zeros((5, 5))
+            cov[np.ix_(columns, columns)] = np.linalg.pinv(design.T @ design)
+            fits.append((chi2, coef, cov, correlation_time_s, int(np.sum(coef[columns] > 0))))
+    if not fits:
+        return None
+    chi2_min, *_, n_active = min(fits, key=lambda f: f[0])
+    dof = max(len(idx) - n_active, 1)
+    birge = max(1.0, chi2_min / dof)                     # points scattering more than the model says
+    weights = np.array([math.exp(-(f[0] - chi2_min) / (2.0 * birge)) for f in fits])
+    weights /= weights.sum()
+    candidates = tuple((float(wk), f[1], f[2] * birge, f[3]) for wk, f in zip(weights, fits) if wk > 1e-6)
+    total = sum(c[0] for c in candidates)
+    candidates = tuple((wk / total, c, cov, t) for wk, c, cov, t in candidates)
+    return ModelFit(candidates, tuple(idx), chi2_min, dof)
+
+
+def model_fit(curve: AllanCurve) -> ModelFit | None:
+    """Fit quantisation, white, flicker, random-walk and (correlation times tried over the taus) Gauss-Markov terms
+    to the curve, the points weighted with their full covariance (`bench.noise.covariance`).
+
+    The shortest clusters carry the sampling itself (the integrator's smoothing, a quantiser's pattern when the
+    increments are near whole counts, an anti-alias filter) that no noise term describes: the fit starts at the
+    first point from which the model is consistent with the points (chi-square probability above 0.001)."""
+    all_idx = _model_points(curve)
+    if len(all_idx) < 3:
+        return None
+    fit = None
+    for first in range(len(all_idx) - 3):
+        fit = _fit_points(curve, all_idx[first:], all_idx)
+        if fit is not None and gammaincc(fit.dof / 2.0, fit.chi2 / 2.0) > CONSISTENT:
+            break
+    return fit
+
+
+def _dominant(model: ModelFit, tau: np.ndarray, column: int, idx: tuple[int, ...]) -> list[int]:
+    """The points of `idx` where term `column` is the model's largest."""
+    parts = model.parts(tau)
+    return [i for i in idx if np.argmax(parts[i]) == column]
+
+
+def _region(curve: AllanCurve, points: list[int]) -> tuple[float, float]:
+    return float(curve.tau_s[points[0]]), float(curve.tau_s[points[-1]])
+
+
 def fit_curve(curve: AllanCurve) -> ChannelFit:
-    """Quantisation, random walk, bias instability and rate random walk of one Allan curve."""
+    """Quantisation, random walk, bias instability and rate random walk of one Allan curve.
+
+    The curve's AVAR is fitted as the sum of the IEEE 952 terms plus a Gauss-Markov bias (`model_fit`), with the
+    points' full covariance; each term's 1 sigma comes from the fit's covariance. The bias instability is the
+    minimum of the fitted curve over the measured taus / 0.664 (the IEEE reading, without the low bias of the
+    lowest noisy point); a rate random walk the record cannot tell from zero (below 2 sigma) is given as a 2-sigma
+    upper bound (`upper_bound`)."""
+    tau, adev = curve.tau_s, curve.adev
+    n = len(tau)
+    if n == 0 or not np.all(adev > 0):
+        return ChannelFit(None, None, None, None)
+    model = model_fit(curve)
+    if model is None:
+        return _region_fit(curve)
+    c, cov = model.coefficients, model.covariance
+    sig = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    idx = list(model.points)
+
+    random_walk = _resolved_or_bound(curve, model, 1, 1.0, idx[0])
+
+    fitted = model.avar(tau[idx])
+    k = int(np.argmin(fitted))
+    floor = fitted[k]
+    b = math.sqrt(floor) / FLICKER_FACTOR
+    b_sigma = 0.5 * b * float(model.avar_sigma(tau[[idx[k]]])[0]) / floor
+    lo = hi = k
+    while lo > 0 and fitted[lo - 1] <= 1.5 * floor:
+        lo -= 1
+    while hi < len(idx) - 1 and fitted[hi + 1] <= 1.5 * floor:
+        hi += 1
+    flat = idx[lo:hi + 1]
+    still_falling = k == len(idx) - 1 and len(idx) > 1 and fitted[-1] < fitted[-2]
+    bias = TermFit(b, b_sigma, tuple(flat), _region(curve, flat), upper_bound=still_falling)
+
+    rate_random_walk = _resolved_or_bound(curve, model, 3, 3.0, idx[-1])
+
+    quantisation = None
+    if c[0] > 2.0 * sig[0]:
+        value = math.sqrt(c[0] / 3.0)
+        points = _dominant(model, tau, 0, model.points) or [idx[0]]
+        quantisation = TermFit(value, value * 0.5 * sig[0] / c[0], tuple(points), _region(curve, points))
+    else:
+        quant_idx = _leading_quantisation(curve)
+        if quant_idx:
+            quantisation = _term(curve, quant_idx, -1.0, 1.0 / math.sqrt(3.0))
+    return ChannelFit(quantisation, random_walk, bias, rate_random_walk, model.summary(curve))
+
+
+def _resolved_or_bound(curve: AllanCurve, model: ModelFit, column: int, scale: float, fallback: int) -> TermFit | None:
+    """sqrt(scale c) of coefficient `column` with its 1 sigma, or, when c is below 2 sigma (the record cannot tell
+    it from zero), a 2-sigma upper bound sqrt(scale (c + 2 sigma)) with sigma sqrt(scale sigma_c)."""
+    c = float(model.coefficients[column])
+    sig = math.sqrt(max(float(model.covariance[column, column]), 0.0))
+    if c <= 0 and sig <= 0:
+        return None
+    points = _dominant(model, curve.tau_s, column, model.points) or [fallback]
+    if c > 2.0 * sig:
+        value = math.sqrt(scale * c)
+        return TermFit(value, value * 0.5 * sig / c, tuple(points), _region(curve, points))
+    return TermFit(math.sqrt(scale * (c + 2.0 * sig)), math.sqrt(scale * sig), tuple(points), _region(curve, points),
+                   upper_bound=True)
+
+
+def _leading_quantisation(curve: AllanCurve) -> list[int]:
+    """The leading run of points steeper than -3/4."""
+    central = local_slopes(curve.tau_s, curve.adev)
+    out = []
+    for i in range(len(central)):
+        if central[i] < _QUANT_SLOPE:
+            out.append(i)
+        else:
+            break
+    return out
+
+
+def _region_fit(curve: AllanCurve) -> ChannelFit:
+    """Terms read from the slopes alone (a curve too short for the model fit: fewer than 3 points)."""
     tau, adev = curve.tau_s, curve.adev
     n = len(tau)
     if n == 0 or not np.all(adev > 0):

@@ -13,6 +13,7 @@ for a sensor's own noise).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,7 +24,7 @@ from bench.log.names import run_id_of
 from bench.log.reader import LogError, read_log
 from bench.log.run_info import layout_and_config_from_log
 from bench.model.imu import ImuCoefficients
-from bench.noise.result import NoiseResult, analyse
+from bench.noise.result import NoiseResult, analyse_blocks
 from bench.noise.simulate import counts_to_allan_units
 from bench.solve.extract import finished_observation_steps
 
@@ -35,15 +36,40 @@ class NoiseInputError(InputError):
     """A log the noise characterisation cannot use (no dwell, too short, no scale factors)."""
 
 
+#: Samples per block handed to the Allan accumulator (6 channels x 8 bytes: 12 MB of float64 at a time).
+BLOCK_SAMPLES = 1 << 18
+
+
 @dataclass(frozen=True)
 class StaticRecord:
-    """The six channels of a static stretch in deg/h and ug, and where they came from."""
+    """The six channels of a static stretch as counts per sample and the scales that make them deg/h and ug.
 
-    data: np.ndarray          # (n, 6)
+    `blocks()` gives the record as (n, 6) deg/h and ug blocks in order, what `bench.noise.result.analyse_blocks`
+    consumes; `data` the whole (n, 6) array at once."""
+
+    gyro_counts: np.ndarray   # (n, 3) counts per sample
+    acc_counts: np.ndarray    # (n, 3)
+    gyro_scale: np.ndarray    # counts/s per rad/s
+    acc_scale: np.ndarray     # counts/s per m/s^2
     rate_hz: float
     run_id: str
     source: dict
     notes: tuple[str, ...]
+
+    def __len__(self) -> int:
+        return len(self.gyro_counts)
+
+    def blocks(self, samples: int = BLOCK_SAMPLES) -> Iterator[np.ndarray]:
+        for lo in range(0, len(self), samples):
+            sel = slice(lo, lo + samples)
+            yield counts_to_allan_units(self.gyro_counts[sel] * self.rate_hz, self.acc_counts[sel] * self.rate_hz,
+                                        self.gyro_scale, self.acc_scale)
+
+    @property
+    def data(self) -> np.ndarray:
+        """(n, 6) deg/h and ug."""
+        return counts_to_allan_units(self.gyro_counts * self.rate_hz, self.acc_counts * self.rate_hz,
+                                     self.gyro_scale, self.acc_scale)
 
 
 def _longest_run(counter: np.ndarray) -> tuple[int, int]:
@@ -89,14 +115,13 @@ def static_record(path: str | Path, *, calibration: ImuCoefficients | None = Non
                               "(--calibration RESULT.json) to turn counts into deg/h and ug")
     sel = slice(lo + start, lo + stop)
     rate_hz = float(setup.rate_hz)
-    data = counts_to_allan_units(block.gyro_counts[sel] * rate_hz, block.acc_counts[sel] * rate_hz,
-                                 scales.gyro_scale, scales.acc_scale)
     run_id, renamed = run_id_of(log.path, log.metadata)
     if renamed:
         notes.append(renamed)
     source = {"kind": "log", "log": Path(log.path).name, "run_id": run_id, "dwell": unit, "scales": scales_from,
               "damage": [d.describe() for d in log.lost if not (still_open and d.kind == "no_summary")]}
-    return StaticRecord(data, rate_hz, run_id, source, tuple(notes))
+    return StaticRecord(block.gyro_counts[sel], block.acc_counts[sel], np.asarray(scales.gyro_scale, dtype=float),
+                        np.asarray(scales.acc_scale, dtype=float), rate_hz, run_id, source, tuple(notes))
 
 
 def analyse_log(path: str | Path, *, calibration: ImuCoefficients | None = None, calibration_label: str = "",
@@ -104,10 +129,12 @@ def analyse_log(path: str | Path, *, calibration: ImuCoefficients | None = None,
     """(the noise result of a log's longest dwell, the run id to name its outputs by)."""
     record = static_record(path, calibration=calibration, calibration_label=calibration_label,
                            still_open=still_open)
-    channels = analyse(record.data, record.rate_hz, points_per_octave=points_per_octave, threads=threads)
-    result = NoiseResult.from_channels(channels, record.rate_hz, len(record.data), points_per_octave=points_per_octave,
+    channels = analyse_blocks(record.blocks(), record.rate_hz, capacity=len(record),
+                              points_per_octave=points_per_octave, threads=threads)
+    result = NoiseResult.from_channels(channels, record.rate_hz, len(record), points_per_octave=points_per_octave,
                                        source=record.source, notes=list(record.notes))
     return result, record.run_id
 
 
-__all__ = ["MIN_SAMPLES", "LogError", "NoiseInputError", "StaticRecord", "analyse_log", "static_record"]
+__all__ = ["BLOCK_SAMPLES", "MIN_SAMPLES", "LogError", "NoiseInputError", "StaticRecord", "analyse_log",
+           "static_record"]

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,7 +31,7 @@ import numpy as np
 
 from bench.errors import InputError
 from bench.model.units import MICRO_G
-from bench.noise.allan import AllanCurve, allan_curves
+from bench.noise.allan import AllanCurve, PhaseAccumulator, allan_curves
 from bench.noise.fit import ChannelFit, TermFit, fit_curve
 
 FORMAT = "turntable-bench/noise"
@@ -64,9 +65,12 @@ class ChannelNoise:
 
     def to_json(self) -> dict:
         c = self.curve
-        return {"unit": self.unit, "tau_s": c.tau_s.tolist(), "adev": c.adev.tolist(),
-                "adev_low": c.adev_low.tolist(), "adev_high": c.adev_high.tolist(), "edf": c.edf.tolist(),
-                "terms": self.terms}
+        out = {"unit": self.unit, "tau_s": c.tau_s.tolist(), "adev": c.adev.tolist(),
+               "adev_low": c.adev_low.tolist(), "adev_high": c.adev_high.tolist(), "edf": c.edf.tolist(),
+               "terms": self.terms}
+        if self.fit.model is not None:
+            out["model"] = self.fit.model
+        return out
 
 
 def _term_json(fit: TermFit, factor: float, unit: str) -> dict[str, Any]:
@@ -75,6 +79,16 @@ def _term_json(fit: TermFit, factor: float, unit: str) -> dict[str, Any]:
     if fit.upper_bound:
         out["upper_bound"] = True
     return out
+
+
+#: What an upper bound means, per term (in the term's JSON as "upper_bound_means").
+UPPER_BOUND_MEANS = {
+    "random_walk": "not resolved: the white noise is hidden (under quantisation and a bias) over the fitted taus; "
+                   "value is a 2-sigma upper bound",
+    "rate_random_walk": "not resolved: the record cannot tell it from zero (below 2 sigma); value is a 2-sigma upper "
+                        "bound",
+    "bias_instability": "the fitted curve still falls at the longest tau: the floor may be lower than this minimum "
+                        "over the record's taus"}
 
 
 def channel_noise(name: str, curve: AllanCurve) -> ChannelNoise:
@@ -86,6 +100,8 @@ def channel_noise(name: str, curve: AllanCurve) -> ChannelNoise:
         found = getattr(fit, attr)
         if found is not None:
             terms[key] = _term_json(found, factor, unit)
+            if found.upper_bound:
+                terms[key]["upper_bound_means"] = UPPER_BOUND_MEANS[attr]
     if not gyro and "vrw" in terms:
         terms["vrw"]["mps_rt_h"] = terms["vrw"]["value"] * MICRO_G * 60.0
     return ChannelNoise(name, "deg/h" if gyro else "ug", curve, fit, terms)
@@ -94,6 +110,17 @@ def channel_noise(name: str, curve: AllanCurve) -> ChannelNoise:
 def analyse(data: np.ndarray, rate_hz: float, *, points_per_octave: int = 1, threads: int = 2) -> list[ChannelNoise]:
     """The six channels of `data` (n, 6): gyros x, y, z in deg/h, accelerometers x, y, z in ug."""
     curves = allan_curves(data, rate_hz, points_per_octave=points_per_octave, threads=threads)
+    return [channel_noise(name, curve) for name, curve in zip(CHANNELS, curves)]
+
+
+def analyse_blocks(blocks: Iterable[np.ndarray], rate_hz: float, *, capacity: int = 0, points_per_octave: int = 1,
+                   threads: int = 2) -> list[ChannelNoise]:
+    """`analyse` of a record handed as (n_i, 6) blocks in order (a streaming reader's): only the phase is kept,
+    8 bytes per sample and channel (`capacity`: the samples expected, to allocate it once)."""
+    acc = PhaseAccumulator(rate_hz, len(CHANNELS), capacity=capacity)
+    for block in blocks:
+        acc.add(block)
+    curves = acc.curves(points_per_octave=points_per_octave, threads=threads)
     return [channel_noise(name, curve) for name, curve in zip(CHANNELS, curves)]
 
 
@@ -194,4 +221,4 @@ class NoiseResult:
 
 
 __all__ = ["ACC_TERMS", "CHANNELS", "FORMAT", "GYRO_TERMS", "VERSION", "ChannelNoise", "NoiseResult",
-           "NoiseResultError", "analyse", "channel_noise"]
+           "NoiseResultError", "analyse", "analyse_blocks", "channel_noise"]

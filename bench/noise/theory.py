@@ -27,22 +27,11 @@ import numpy as np
 
 from bench.model.imu import ImuCoefficients, NoiseModel
 from bench.model.units import DEG, HOUR, MICRO_G
-from bench.noise.fit import FLICKER_FACTOR
+from bench.noise.covariance import gauss_markov_avar
+from bench.noise.fit import FLICKER_FACTOR, GM_PEAK_ADEV, GM_PEAK_TAU
 
-#: Peak ADEV of a first-order Gauss-Markov process per unit sigma, and where it peaks (tau / T).
-GM_PEAK_ADEV, GM_PEAK_TAU = 0.6173642831, 1.8926176809
 #: What B = min ADEV / 0.664 reads from a Gauss-Markov bias alone, per unit sigma.
 GM_TO_ALLAN_BI = GM_PEAK_ADEV / FLICKER_FACTOR
-
-
-def gauss_markov_avar(tau_s: np.ndarray, sigma: float, correlation_time_s: float) -> np.ndarray:
-    """Allan variance of a first-order Gauss-Markov process (same unit^2 as sigma^2)."""
-    x = np.asarray(tau_s, dtype=float) / correlation_time_s
-    # Series for small x avoids cancellation: 2x - 3 + 4e^-x - e^-2x = 2/3 x^3 - 1/2 x^4 + 7/30 x^5 - ...
-    small = x < 1e-3
-    bracket = np.where(small, (2.0 / 3.0) * x ** 3 - 0.5 * x ** 4 + (7.0 / 30.0) * x ** 5,
-                       2.0 * x - 3.0 + 4.0 * np.exp(-x) - np.exp(-2.0 * x))
-    return sigma ** 2 * bracket / np.maximum(x, 1e-300) ** 2
 
 
 def channel_avar(tau_s: np.ndarray, *, white: float, gm_sigma: float, correlation_time_s: float, rrw: float,

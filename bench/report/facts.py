@@ -36,3 +36,64 @@ def describe_site(site: dict[str, Any]) -> str:
         parts.append(f"{label} {value:g} {unit}".rstrip() if isinstance(value, (int, float))
                      and not isinstance(value, bool) else f"{label} {value} {unit}".rstrip())
     return ", ".join(parts)
+
+
+#: budget components in report order, with their short column titles
+BUDGET_COLUMNS = (("noise", "noise (A)"), ("bias instability", "bias instab. (B)"),
+                  ("turntable pointing", "turntable (B)"), ("local gravity", "gravity (B)"),
+                  ("latitude", "latitude (B)"), ("count resolution", "resolution (B)"),
+                  ("unexplained scatter", "unexplained (fallback)"))
+
+
+def budget_notes(result) -> list[str]:
+    """Plain-text lines above the budget table: k, the table's part (or that it is missing), inconsistencies."""
+    u = result.quality.get("uncertainty")
+    if not isinstance(u, dict):
+        return ["This result has no uncertainty budget (written before result version 2): its sigma covers the "
+                "sample noise only."]
+    k = u.get("k", 2)
+    lines = [f"sigma is the combined standard uncertainty (root-sum-square of the components); U = {k:g} sigma is "
+             f"the expanded uncertainty (k = {k:g}). Type A: from the data; Type B: from what is known of the "
+             "equipment."]
+    table = (u.get("inputs") or {}).get("table")
+    if u.get("table_included") and isinstance(table, dict):
+        lines.append(f"Turntable part from {table.get('source', '?')}.")
+    else:
+        lines.append("WARNING: the turntable's pointing error is NOT included: the uncertainties cover the IMU "
+                     "alone (configure [table] pointing_accuracy_arcsec or [table] check).")
+    for c in u.get("consistency", []):
+        if isinstance(c, dict) and not c.get("consistent", True):
+            lines.append(f"Residuals of the {c.get('fit')} {c.get('sensor')} fit are inconsistent with the budget "
+                         f"(chi2 {c.get('chi2')} on {c.get('dof')} dof), driven by {', '.join(c.get('drivers', []))}: "
+                         f"widened by {c.get('scale')} as a fallback.")
+    return lines
+
+
+def budget_table(result) -> tuple[list[str], list[list[float | None]], list[str]]:
+    """(column titles, per coefficient the component sigmas then sigma and U, names); empty without budgets."""
+    coefs = {n: c for n, c in result.coefficients.items() if c.budget is not None}
+    if not coefs:
+        return [], [], []
+    used = [key for key, _ in BUDGET_COLUMNS if any(key in c.budget for c in coefs.values())]
+    titles = [title for key, title in BUDGET_COLUMNS if key in used] + ["sigma", "U"]
+    rows = [[c.budget.get(key) for key in used] + [c.sigma, c.expanded] for c in coefs.values()]
+    return titles, rows, list(coefs)
+
+
+def consistency_lines(result) -> list[str] | None:
+    """Per fit, the residual test against the budget's predicted scatter (None: no budget in the result)."""
+    u = result.quality.get("uncertainty")
+    if not isinstance(u, dict) or not u.get("consistency"):
+        return None
+    fits: dict[str, list[dict]] = {}
+    for c in u["consistency"]:
+        if isinstance(c, dict):
+            fits.setdefault(str(c.get("fit")), []).append(c)
+    out = []
+    for fit, rows in fits.items():
+        ratios = ", ".join(f"{c['chi2'] / c['dof']:.3g}" if c.get("chi2") is not None and c.get("dof") else "-"
+                           for c in rows)
+        verdict = "consistent" if all(c.get("consistent", True) for c in rows) else "INCONSISTENT"
+        out.append(f"{fit}: residuals against the budget's predicted scatter, chi2/dof per axis {ratios} "
+                   f"(dof {rows[0].get('dof')}): {verdict}")
+    return out

@@ -30,10 +30,10 @@ from bench.report.compare import (
     row_outliers,
     truth_z,
 )
-from bench.report.facts import run_facts
+from bench.report.facts import budget_notes, budget_table, consistency_lines, run_facts
 from bench.solve.extract import finished_observation_steps
 from drivers.errors import ImuError
-from drivers.imu import DEFAULT_FD_SPEC, DEFAULT_SPEC, ImuFrameSpec, ImuLayout
+from drivers.imu import ImuLayout, spec_of
 
 CSS = """
 body { font-family: system-ui, -apple-system, 'Segoe UI', Roboto, sans-serif; margin: 1.5em auto; max-width: 72em;
@@ -87,8 +87,7 @@ def log_layout(log):
     if toml is None:
         raise ValueError("the log has no configuration metadata")
     imu = tomllib.loads(toml).get("imu", {})
-    signals = imu.get("signals")
-    spec = ImuFrameSpec.from_dict(signals) if signals else (DEFAULT_FD_SPEC if imu.get("fd") else DEFAULT_SPEC)
+    spec = spec_of(imu)
     dbc = log.attachments.get(imu_meta.get("dbc", ""))
     if dbc is None:
         raise ValueError(f"the log has no attachment with its DBC file {imu_meta.get('dbc')!r}")
@@ -267,14 +266,29 @@ def _coefficients(result: CalibrationResult) -> str:
     return "\n".join(html)
 
 
+def _budget(result: CalibrationResult) -> str:
+    html = ["<h2>Uncertainty budget</h2>"]
+    for note in budget_notes(result):
+        css = "flag" if note.startswith(("WARNING", "Residuals")) else "note"
+        html.append(f'<p class="{css}">{_e(note)}</p>')
+    titles, rows, names = budget_table(result)
+    if titles:
+        html.append(_table(["name"] + titles, [([_e(n)] + [_e(fmt(v, 3)) for v in row], "")
+                                               for n, row in zip(names, rows)], set(range(1, len(titles) + 1))))
+    return "\n".join(html)
+
+
 def _quality(result: CalibrationResult) -> str:
     q = result.quality
     items = [_e(f) for f in q.get("flags", [])] or ["no solver flags"]
+    budget_lines = consistency_lines(result)
     for key in ("accelerometers", "gyros", "gyro_bias"):
         if q.get(key):
             chi2 = ", ".join(fmt(v, 3) for v in q[key].get("chi2_per_dof", []))
             extra = f", dof {q[key]['dof']}" if "dof" in q[key] else ""
-            items.append(f"{_e(key)}: chi2/dof per axis {_e(chi2)}{_e(extra)}")
+            versus = " against the sample noise alone" if budget_lines is not None else ""
+            items.append(f"{_e(key)}: chi2/dof per axis{versus} {_e(chi2)}{_e(extra)}")
+    items += [_e(line) for line in budget_lines or []]
     outliers = q.get("outliers", [])
     items.append(f"outliers beyond {_e(q.get('outlier_sigma', 4))} sigma: {len(outliers)}")
     items += [f'<span class="flag">{_e(o.get("step"))} {_e(o.get("index"))} {_e(o.get("sensor"))}: '
@@ -404,7 +418,7 @@ def html_report(result: CalibrationResult, *, log=None, layout=None, problems=()
     """
     parts = [_acceptance(result.verdict), _metadata(result, log, imu_link, log_still_open),
              _verdict(list(failures), list(problems)),
-             _coefficients(result), _quality(result), _residuals(result)]
+             _coefficients(result), _budget(result), _quality(result), _residuals(result)]
     if log is not None:
         parts.append(_log_plots(log_series(log, layout)))
     if against is not None:

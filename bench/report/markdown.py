@@ -30,7 +30,7 @@ from bench.report.compare import (
     row_outliers,
     truth_z,
 )
-from bench.report.facts import run_facts
+from bench.report.facts import budget_notes, budget_table, consistency_lines, run_facts
 from bench.report.html import html_report
 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]+")
@@ -83,14 +83,18 @@ def markdown_report(result: CalibrationResult, *, problems: Sequence[str] = (), 
             row += f" {fmt(t.value if t else None, 10)} | {fmt(truth_z(c, t), 3)} |"
         lines.append(row)
     lines.append("")
+    lines += _markdown_budget(result)
     lines.append("## Quality")
     lines.append("")
     flags = result.quality.get("flags", [])
     lines += [f"- {f}" for f in flags] or ["- no solver flags"]
+    budget_lines = consistency_lines(result)
     for key in ("accelerometers", "gyros", "gyro_bias"):
         q = result.quality.get(key)
         if q:
-            lines.append(f"- {key}: chi2/dof per axis {fmt_list(q.get('chi2_per_dof', []))}")
+            versus = " against the sample noise alone" if budget_lines is not None else ""
+            lines.append(f"- {key}: chi2/dof per axis{versus} {fmt_list(q.get('chi2_per_dof', []))}")
+    lines += [f"- {md_text(line)}" for line in budget_lines or []]
     outliers = result.quality.get("outliers", [])
     lines.append(f"- outliers beyond {result.quality.get('outlier_sigma', 4)} sigma: {len(outliers)}")
     for o in outliers:
@@ -108,6 +112,17 @@ def markdown_report(result: CalibrationResult, *, problems: Sequence[str] = (), 
     if against is not None:
         lines += _markdown_comparison(compare_results(result, against, label=against_label))
     return "\n".join(lines) + "\n"
+
+
+def _markdown_budget(result: CalibrationResult) -> list[str]:
+    lines = ["## Uncertainty budget", ""]
+    lines += [md_text(n) for n in budget_notes(result)]
+    titles, rows, names = budget_table(result)
+    if titles:
+        lines += ["", "| name | " + " | ".join(titles) + " |", "|---" * (len(titles) + 1) + "|"]
+        lines += [f"| {name} | " + " | ".join(fmt(v, 3) for v in row) + " |" for name, row in zip(names, rows)]
+    lines.append("")
+    return lines
 
 
 def _markdown_verdict(verdict: dict[str, Any] | None) -> list[str]:

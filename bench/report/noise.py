@@ -29,7 +29,10 @@ READING = ("How to read the plot: the Allan deviation is the scatter of the chan
            "velocity random walk for an accelerometer; its value at tau = 1 s is the ARW/VRW), 0 the bias "
            "instability floor (its minimum / 0.664), +1/2 rate random walk (a bias that wanders without bound). "
            "Error bars are the +-1 sigma chi-square intervals from the equivalent degrees of freedom; each dashed "
-           "line is a fitted term, drawn thick over the taus it was fitted on.")
+           "line is a fitted term, drawn thick over the taus where it is the largest part of the fitted curve (all "
+           "terms are fitted together to the whole curve, with the points' covariance). A term marked upper bound: "
+           "a rate random walk the record cannot tell from zero (its 2-sigma bound), or a bias instability whose "
+           "fitted curve still falls at the longest tau.")
 _ORDER = ("quantisation", "arw", "vrw", "bias_instability", "rrw")
 _LABELS = {"quantisation": "quantisation", "arw": "angle random walk", "vrw": "velocity random walk",
            "bias_instability": "bias instability", "rrw": "rate random walk"}
@@ -54,6 +57,8 @@ def _truth_cells(term: str, t: dict, truth: dict | None) -> tuple[str, str]:
     if truth is None or truth.get(term) is None or not truth.get(term):
         return "-", "-"
     true = float(truth[term])
+    if term == "rrw" and t.get("upper_bound"):       # not resolved: a bound, not an estimate
+        return _f(true), "below the bound" if true <= t["value"] else "ABOVE the bound"
     z = (t["value"] - true) / t["sigma"] if t.get("sigma") else None
     return _f(true), "-" if z is None else f"{z:+.2f}"
 

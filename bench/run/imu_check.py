@@ -15,6 +15,7 @@ from typing import Callable
 import numpy as np
 
 from bench.errors import BenchError
+from drivers.imu.layout import EXTENDED_ID_FLAG, SHIPPED_LAYOUTS, ImuLayout, shipped_layout
 
 #: how long to listen at most, s (wall clock)
 CHECK_TIMEOUT_S = 3.0
@@ -23,6 +24,8 @@ CHECK_SPAN_S = 0.5
 MIN_SAMPLES = 10
 #: measured rate / configured rate must be within this factor of 1
 RATE_TOLERANCE = 0.2
+#: distinct frame ids noted while listening (enough for any layout; bounded on a busy bus)
+MAX_IDS = 256
 
 
 class ImuCheckError(BenchError):
@@ -34,6 +37,25 @@ def check_imu_stream(receiver, rate_hz: float, where: str, *, timeout_s: float =
     """Listen on `receiver` (an `ImuReceiver`) until enough samples came or `timeout_s` passed; the
     one-line finding when the stream is fine, `ImuCheckError` otherwise. `where` names the bus."""
     wanted = max(MIN_SAMPLES, int(round(CHECK_SPAN_S * rate_hz)))
+    seen: set[int] = set()            # the ids on the bus, to name the layout they belong to
+    forward = receiver.on_frames
+
+    def note_ids(messages) -> None:
+        if len(seen) < MAX_IDS:
+            seen.update(m.arbitration_id | EXTENDED_ID_FLAG if m.is_extended_id else m.arbitration_id
+                        for m in messages)
+        if forward is not None:
+            forward(messages)
+
+    receiver.on_frames = note_ids
+    try:
+        return _check(receiver, rate_hz, where, timeout_s, monotonic, wanted, seen)
+    finally:
+        receiver.on_frames = forward
+
+
+def _check(receiver, rate_hz: float, where: str, timeout_s: float, monotonic: Callable[[], float], wanted: int,
+           seen: set[int]) -> str:
     counters: list[np.ndarray] = []
     times: list[np.ndarray] = []
     got = 0
@@ -51,8 +73,9 @@ def check_imu_stream(receiver, rate_hz: float, where: str, *, timeout_s: float =
         if stats.frames == 0:
             raise ImuCheckError(f"no IMU frames on {where} in {timeout_s:g} s: is the IMU powered and on this bus?")
         raise ImuCheckError(f"{stats.frames} CAN frames on {where} in {timeout_s:g} s but no IMU sample decodes with "
-                            f"the configured DBC and signals ({stats.unknown_id} unknown ids, {stats.wrong_length} "
-                            f"of the wrong length, {stats.crc_errors} CRC errors)")
+                            f"the configured layout ({describe_layout(receiver.layout)}): {stats.unknown_id} unknown "
+                            f"ids, {stats.wrong_length} of the wrong length, {stats.crc_errors} CRC errors"
+                            + _other_layout(receiver.layout, seen))
     counter, received = np.concatenate(counters), np.concatenate(times)
     span_s = float(received[-1] - received[0])
     if len(counter) >= MIN_SAMPLES and span_s > 0:
@@ -64,4 +87,23 @@ def check_imu_stream(receiver, rate_hz: float, where: str, *, timeout_s: float =
     return f"IMU on {where}: {got} samples"
 
 
-__all__ = ["ImuCheckError", "check_imu_stream"]
+def describe_layout(layout: ImuLayout) -> str:
+    """'packed: 3 frames per sample, ids 0x120..0x122' (the shipped name when it is one)."""
+    name = next((n for n in SHIPPED_LAYOUTS if shipped_layout(n).messages == layout.messages), None)
+    ids = sorted(m.frame_id for m in layout.messages)
+    span = f"id {ids[0]:#x}" if len(ids) == 1 else f"ids {ids[0]:#x}..{ids[-1]:#x}"
+    frames = f"{len(ids)} frame{'s' if len(ids) > 1 else ''} per sample, {span}"
+    return f"{name}: {frames}" if name else f"{layout.source or 'own DBC'}: {frames}"
+
+
+def _other_layout(layout: ImuLayout, seen: set[int]) -> str:
+    """'; the frames are those of the shipped layout "packed": set imu.layout = "packed"', or nothing."""
+    for name in SHIPPED_LAYOUTS:
+        shipped = shipped_layout(name)
+        if shipped.messages != layout.messages and set(shipped.keys) <= seen:
+            return (f"; the frames on the bus are those of the shipped layout {name!r} ({describe_layout(shipped)}): "
+                    f"set imu.layout = \"{name}\"")
+    return ""
+
+
+__all__ = ["ImuCheckError", "check_imu_stream", "describe_layout"]

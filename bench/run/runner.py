@@ -40,6 +40,7 @@ from bench.run.sequencer import ListenerError, Sequencer, SequencerOptions, desc
 from bench.sim.world import SimWorld
 from bench.solve.extract import Extraction
 from bench.solve.from_logs import extract_from_logs, solve_logs
+from bench.solve.inputs import budget_inputs
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.imu.receiver import ImuReceiver
 from drivers.turntable import Turntable, open_turntable
@@ -320,9 +321,8 @@ class BenchRun:
             return self._finish_noise(seq.state, receiver, recorder)
         logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
         config, identity = self.config, self.config.imu.identity
-        gyro_stability, acc_stability = bias_stabilities(config, self.sim)
         solution = solve_logs(logs, config.site.site, config.imu.layout, config.imu.rate_hz,
-                              gyro_bias_stability_dph=gyro_stability, acc_bias_stability_ug=acc_stability,
+                              budget=budget_inputs(config, self.sim),
                               # A log being resumed was cut off: its missing summary is expected, not damage.
                               still_open=frozenset({str(self.log_path), *map(str, self.previous_logs)}))
         failures = quality_failures(solution, receiver.stats)
@@ -412,26 +412,6 @@ class BenchRun:
         self.close()
 
 
-def bias_stabilities(config, sim: bool) -> tuple[float | None, float | None]:
-    """(gyro deg/h, accelerometer ug) bias instabilities the solver adds to the bias sigmas.
-
-    A measured noise result (`[imu] noise = "FILE"`, from `bench noise`: the largest of
-    the three axes' Allan bias instability) first; else the IMU identity's datasheet
-    values; on the simulator with noise on, the simulated IMU's own where neither gives
-    one (it is what its datasheet would say).
-    """
-    identity, noise = config.imu.identity, config.imu.noise
-    if noise is not None:
-        return noise.gyro_bias_stability_dph, noise.acc_bias_stability_ug
-    gyro_stability, acc_stability = identity.gyro_bias_stability_dph, identity.acc_bias_stability_ug
-    if sim and config.sim.noise.enabled:
-        if gyro_stability is None:
-            gyro_stability = config.sim.noise.gyro_bias_instability_dph
-        if acc_stability is None:
-            acc_stability = config.sim.noise.acc_bias_instability_ug
-    return gyro_stability, acc_stability
-
-
 #: how `quality_failures` words the two failures an [acceptance] limit can take over
 LOST_SAMPLES_FAILURE, OUTLIERS_FAILURE = "IMU link lost samples", "residual outliers beyond the outlier threshold"
 
@@ -442,6 +422,9 @@ def quality_failures(solution, live_stats) -> list[str]:
     outliers = solution.calibration.quality().get("outliers", [])
     if outliers:
         failures.append(f"{len(outliers)} {OUTLIERS_FAILURE}")
+    budget = solution.calibration.budget
+    if budget is not None and budget.table_included:    # without the table's part any real table fails the test
+        failures += [c.describe() for c in budget.inconsistent()]
     if live_stats.lost_samples:
         failures.append(f"{LOST_SAMPLES_FAILURE}: {live_stats.summary()}")
     return failures

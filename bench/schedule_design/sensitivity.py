@@ -19,12 +19,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.model.closed_form import position_outputs, turn_closed_form, turn_integrals
+from bench.model.closed_form import position_outputs, turn_integrals
 from bench.model.earth import EARTH_RATE, Site
 from bench.model.families import BODY_AXES, DESIGN_UNITS, POSITION_FAMILIES, ROTATION_FAMILIES, SENSOR_AXES, family_of
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
 from bench.model.kinematics import FRAMES
 from bench.model.units import ARCSEC, DEG, DEG_PER_HOUR, G0, MICRO_G
+from bench.solve.budget import probe_boxes, rotation_design_nominal
 from bench.solve.methods import (
     SolverError,
     _scale_axes_bias_jacobian,
@@ -109,15 +110,6 @@ class Sensitivity:
         return out
 
 
-def probe_boxes(step_rad: float) -> np.ndarray:
-    """(18, 3, 3): +step then -step on each of the nine angles."""
-    boxes = np.zeros((18, 3, 3))
-    for j in range(9):
-        boxes[j].flat[j] = step_rad
-        boxes[9 + j].flat[j] = -step_rad
-    return boxes
-
-
 def solve_positions_batch(angles_deg, black_box_rad: np.ndarray, imu: ImuCoefficients,
                           site: Site) -> dict[str, np.ndarray]:
     """Position method on noise-free outputs for black boxes (R, 3, 3): SI coefficients per run.
@@ -136,12 +128,6 @@ def solve_positions_batch(angles_deg, black_box_rad: np.ndarray, imu: ImuCoeffic
     _, w_nominal = nominal_position_inputs(angles, site)
     gyro_bias = (gyro_out / imu.gyro_scale - w_nominal @ imu.gyro_axes.T).mean(axis=1)
     return {"Ka": scale, "Ea": axes, "K0": bias, "D0": gyro_bias}
-
-
-def rotation_design_nominal(turns, site: Site, rate_dps: float) -> np.ndarray:
-    """`[d 2 pi N u + E, T]` (K, 4) on an ideal table, as the solver builds it."""
-    rot, earth, durations = turn_closed_form(turns, site, rate_dps)
-    return np.column_stack([rot + earth, durations])
 
 
 def solve_rotations_batch(turns, black_box_rad: np.ndarray, imu: ImuCoefficients, site: Site,

@@ -55,7 +55,7 @@ def acquire(table: SimTable, imu: SimImu, position_angles_deg, turns,
         acc_mean, acc_std, acc_sem = mean_and_standard_error(block.acc_rate[mask], duration_s=n / block.rate_hz)
         positions.append(PositionObservation(
             triple(angles), n / block.rate_hz, n, gyro_mean, acc_mean, gyro_std, acc_std,
-            gyro_sem, acc_sem, label=f"P{k + 1:02d}"))
+            gyro_sem, acc_sem, label=f"P{k + 1:02d}", start_s=start))
         t = end
     rotations: list[RotationObservation] = []
     for k, turn in enumerate(turns):
@@ -74,6 +74,6 @@ def acquire(table: SimTable, imu: SimImu, position_angles_deg, turns,
         rotations.append(RotationObservation(
             triple(turn.start_deg), turn.frame, turn.direction, turn.revolutions,
             n / block.rate_hz, n, block.gyro_counts[mask].sum(axis=0), earth_integral_rad=earth,
-            label=f"R{k + 1:02d}"))
+            label=f"R{k + 1:02d}", start_s=float(first)))
         t = window_end
     return positions, rotations

@@ -54,7 +54,7 @@ class SimCanImu:
             raise TypeError(f"source must be a SimController or a SimTable, got {type(source).__name__}")
         self.imu, self.bus = imu, bus
         self.layout = layout if layout is not None else default_layout()
-        self.encoder = ImuEncoder(self.layout)
+        self.encoder = ImuEncoder(self.layout, saturate=True)   # a real IMU's output saturates, flagged over-range
         self.temperature_c, self.status = temperature_c, status
         self.frames_sent = 0
         self.samples_sent = 0

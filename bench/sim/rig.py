@@ -22,10 +22,12 @@ from dataclasses import dataclass, fields
 from typing import Any, Protocol
 
 import can
+import numpy as np
 
 from bench.config.chamber import ChamberConfig
 from bench.config.load import BenchConfig, SimConfig
 from bench.model.imu import NoiseModel
+from bench.model.units import DEG
 from bench.sim.can_imu import SimCanImu
 from bench.sim.controller import SimController
 from bench.sim.imu import SimImu
@@ -33,7 +35,8 @@ from bench.sim.slcan_server import SlcanPtyServer
 from bench.sim.socketcand_server import SocketcandServer
 from bench.sim.table import SimTable, TableLimits
 from drivers.chamber import ChamberLimits
-from drivers.imu import DEFAULT_DBC
+from drivers.imu import SHIPPED_LAYOUTS, ImuFrameSpec
+from drivers.imu.layout import CHANNELS
 
 #: how often the IMU thread catches up with the wall clock, s
 IMU_PERIOD_S = 0.005
@@ -102,6 +105,25 @@ class RigPeer:
     bitrate: int | None = None
 
 
+def _check_gyro_range(config: BenchConfig) -> None:
+    """ValueError when one axis turning at its fastest ([table.limits]) drives a gyro beyond its signal's range
+    at this sample rate (the packed layout's 16-bit increments at a low rate): every turn would saturate."""
+    layout, rate_hz = config.imu.layout, config.imu.rate_hz
+    fastest_dps = max(axis.max_rate_dps for axis in config.table.limits.axes)
+    scale = float(np.max(config.sim.imu.gyro_scale)) * DEG      # counts/s per deg/s
+    need = fastest_dps * scale / rate_hz
+    for message in layout.messages:
+        for column, sig in message.values:
+            if column < 3:
+                top = ((1 << (sig.length - 1)) - 1 if sig.signed else sig.mask) * sig.scale
+                if need > top:
+                    raise ValueError(
+                        f"at {rate_hz:g} Hz a gyro turning at {fastest_dps:g} deg/s ([table.limits]) sends "
+                        f"{need:,.0f} counts per sample, beyond the {top:,.0f} that signal {sig.name} of the IMU "
+                        f"layout holds: raise imu.rate_hz to at least {fastest_dps * scale / top:,.0f} Hz, lower "
+                        "the limits, or use a layout with wider signals")
+
+
 class SimRig:
     """The simulated controller and IMU of `config` (its site, [sim] truth, IMU rate and layout), in wall-clock time."""
 
@@ -115,6 +137,7 @@ class SimRig:
                                    (outer.max_accel_dps2, middle.max_accel_dps2, inner.max_accel_dps2))
         self.controller = SimController(SimTable(config.site.site, black_box_rad=sim.black_box_rad,
                                                  limits=table_limits), limits=axes)
+        _check_gyro_range(config)
         self.imu = SimImu(sim.imu, sim.noise, rate_hz=config.imu.rate_hz, seed=sim.seed, thermal=sim.thermal)
         self.bus = RigBus()
         self.can_imu = SimCanImu(self.controller, self.imu, self.bus, config.imu.layout)
@@ -221,6 +244,8 @@ def imu_status(rig: SimRig) -> str:
 # -- the configuration the rig writes ----------------------------------------------
 
 def _toml(value: Any) -> str:
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{_key(k)} = {_toml(v)}" for k, v in value.items()) + "}"
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, (int, float)):
@@ -230,6 +255,45 @@ def _toml(value: Any) -> str:
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_toml(v) for v in value) + "]"
     raise TypeError(f"no TOML for {type(value).__name__}")
+
+
+def _key(key: str) -> str:
+    """A TOML key: bare when it may be, quoted otherwise."""
+    return key if key and all(c.isalnum() or c in "_-" for c in key) and key.isascii() else json.dumps(key)
+
+
+def _tables(prefix: str, table: dict) -> list[str]:
+    """`table` as TOML lines under `[prefix]`: its plain values, then its sub-tables as `[prefix.key]`."""
+    lines = ["", f"[{prefix}]"] + [f"{_key(k)} = {_toml(v)}" for k, v in table.items() if not isinstance(v, dict)]
+    for k, v in table.items():
+        if isinstance(v, dict):
+            lines += _tables(f"{prefix}.{_key(k)}", v)
+    return lines
+
+
+def imu_layout_lines(imu) -> list[str]:
+    """The `[imu]` keys that rebuild `imu`'s frame layout: the shipped layout's name or the DBC file, and
+    `signals` (an inline table) when the mapping is not that layout's own."""
+    if imu.layout_name is not None:
+        lines = [f"layout = {_toml(imu.layout_name)}"]
+        shipped_spec = SHIPPED_LAYOUTS[imu.layout_name][1]
+    else:
+        lines = [f"dbc = {_toml(str(imu.dbc.resolve()))}"]
+        shipped_spec = None
+    if imu.spec != shipped_spec:
+        lines.append(f"signals = {_toml(_spec_table(imu.spec))}")
+    return lines
+
+
+def _spec_table(spec: ImuFrameSpec) -> dict:
+    """An `[imu.signals]` table that `ImuFrameSpec.from_dict` reads back as `spec`."""
+    table: dict = {c: spec.channels[c] for c in CHANNELS}
+    table["counter"] = spec.counter if isinstance(spec.counter, str) else dict(spec.counter)
+    table["crc"] = "" if spec.crc is None else (spec.crc if isinstance(spec.crc, str) else dict(spec.crc))
+    for key in ("temperature", "status"):
+        if getattr(spec, key) is not None:
+            table[key] = getattr(spec, key)
+    return table
 
 
 def sim_section(sim: SimConfig) -> str:
@@ -280,17 +344,19 @@ def rig_config_text(config: BenchConfig, table_url: str, dialect: str, peer: Rig
     if site.local_g_mps2 is not None:
         site_lines.append(f"local_g_mps2 = {site.local_g_mps2!r}")
     imu_lines = [f"interface = {_toml(peer.interface)}", f"channel = {_toml(peer.channel)}",
-                 f"fd = {_toml(imu.fd)}", f"rate_hz = {imu.rate_hz!r}"]
+                 f"fd = {_toml(imu.fd)}", f"rate_hz = {imu.rate_hz!r}", *imu_layout_lines(imu)]
     if peer.bitrate is not None:
         imu_lines.insert(2, f"bitrate = {peer.bitrate}")
-    if imu.dbc != DEFAULT_DBC:
-        imu_lines.append(f"dbc = {_toml(str(imu.dbc.resolve()))}   # signals: the shipped mapping unless set")
+    if peer.interface == "slcan" and imu.slcan_client != "bench":
+        imu_lines.append(f"slcan_client = {_toml(imu.slcan_client)}")
     limit_lines = []
     for frame, axis in zip(("outer", "middle", "inner"), config.table.limits.axes):
         limit_lines += ["", f"[table.limits.{frame}]", f"max_rate_dps = {axis.max_rate_dps!r}",
                         f"max_accel_dps2 = {axis.max_accel_dps2!r}"]
         limit_lines += [f"{key} = {value!r}" for key, value in (("min_deg", axis.min_deg), ("max_deg", axis.max_deg))
                         if value is not None]
+    if config.table.register_map is not None:      # the map the simulated controller serves, for the client
+        limit_lines += _tables("table.modbus", config.table.register_map.to_dict())
     options = "".join(f"{k} = {_toml(v)}\n" for k, v in peer.bus_options.items())
     if options:
         options = "\n[imu.bus_options]\n" + options
@@ -331,5 +397,6 @@ folder = "runs"
 {sim_section(config.sim)}""" + ("" if chamber is None else "\n" + chamber_section(*chamber, config.chamber))
 
 
-__all__ = ["RigBus", "RigPeer", "SimRig", "SocketcanPeer", "apply_imu_command", "chamber_section", "imu_status",
+__all__ = ["RigBus", "RigPeer", "SimRig", "SocketcanPeer", "apply_imu_command", "chamber_section", "imu_layout_lines",
+           "imu_status",
            "rig_config_text", "sim_section"]

@@ -66,6 +66,11 @@ def solve_log(log: str, out_dir: str, html: bool = False) -> ArchiveItem:
     log."""
     try:
         recorded = load_recorded([log])
+        config = recorded.setup.config
+        positions = config.plan.positions if config is not None else None
+        if positions is not None and positions.kind == "static":     # as `bench solve LOG` refuses it
+            return ArchiveItem(log, False, error=f"a static noise recording (plan positions {positions.name!r}), "
+                                                 f"nothing to calibrate: analyse it with `bench noise {log}`")
         resolved = solve_recorded(recorded)
         result_path, _, _ = write_outputs(recorded, resolved, out_dir, html=html)
     except SolverError as exc:

@@ -14,6 +14,7 @@ from bench.model.imu import ImuCoefficients
 from bench.model.observations import PositionObservation, RotationObservation
 from bench.model.result import CalibrationResult, coefficient_table
 from bench.model.units import ARCSEC, DEG_PER_HOUR
+from bench.solve.budget import Budget, BudgetInputs, compute_budget
 from bench.solve.methods import (
     GyroBias,
     SensorTriad,
@@ -37,6 +38,8 @@ class Calibration:
     positions: list[PositionObservation]
     rotations: list[RotationObservation]
     flags: list[str] = field(default_factory=list)
+    #: the per-coefficient uncertainty budget; its combined uncertainty is each coefficient's sigma
+    budget: Budget | None = None
 
     def values_and_sigmas(self) -> tuple[dict[str, float], dict[str, float]]:
         """Solved coefficients in display units keyed by canonical name."""
@@ -61,7 +64,17 @@ class Calibration:
         if self.gyro_bias is not None:
             for i, s in enumerate(SENSOR_AXES):
                 put(f"D0_{s}", "D0", self.gyro_bias.value[i], self.gyro_bias.sigma[i])
+        if self.budget is not None:
+            for name in values:
+                combined = self.budget.combined(name)
+                if math.isfinite(combined):
+                    sigmas[name] = combined
         return values, sigmas
+
+    def _normalized(self, fit: str, fallback: np.ndarray) -> np.ndarray:
+        """Residuals over the scatter the budget predicts (else over the fit's own noise)."""
+        own = self.budget.normalized(fit) if self.budget is not None else None
+        return fallback if own is None else own
 
     def residual_tables(self) -> dict[str, Any]:
         pos_rows = []
@@ -69,10 +82,11 @@ class Calibration:
             row: dict[str, Any] = {"index": k, "label": obs.label, "angles_deg": list(obs.angles_deg)}
             if self.accelerometers is not None:
                 row["acc_counts_per_s"] = _floats(self.accelerometers.fit.residuals[k])
-                row["acc_normalized"] = _floats(self.accelerometers.fit.normalized[k])
+                row["acc_normalized"] = _floats(self._normalized("accelerometers",
+                                                                 self.accelerometers.fit.normalized)[k])
             if self.gyro_bias is not None:
                 row["gyro_dph"] = _floats(self.gyro_bias.residuals[k] / DEG_PER_HOUR)
-                row["gyro_normalized"] = _floats(self.gyro_bias.normalized[k])
+                row["gyro_normalized"] = _floats(self._normalized("gyro bias", self.gyro_bias.normalized)[k])
             pos_rows.append(row)
         rot_rows = []
         for k, turn in enumerate(self.rotations):
@@ -82,7 +96,7 @@ class Calibration:
                 r = self.gyros.fit.residuals[k]
                 row["gyro_counts"] = _floats(r)
                 row["gyro_arcsec"] = _floats(r / self.gyros.scale / ARCSEC)
-                row["gyro_normalized"] = _floats(self.gyros.fit.normalized[k])
+                row["gyro_normalized"] = _floats(self._normalized("gyros", self.gyros.fit.normalized)[k])
             rot_rows.append(row)
         return {"positions": pos_rows, "rotations": rot_rows}
 
@@ -107,13 +121,19 @@ class Calibration:
                             outliers.append({"step": kind, "index": row["index"], "sensor": f"{sensor}_{axis}",
                                              "normalized": v})
         q["outliers"] = outliers
+        if self.budget is not None:
+            q["uncertainty"] = self.budget.summary_json()
         return q
 
     def to_result(self, run: dict[str, Any] | None = None,
                   sim_truth: ImuCoefficients | None = None) -> CalibrationResult:
         values, sigmas = self.values_and_sigmas()
         truth = None if sim_truth is None else coefficient_table(sim_truth.to_canonical())
-        return CalibrationResult(coefficient_table(values, sigmas), self.residual_tables(), self.quality(),
+        budgets = None
+        if self.budget is not None:
+            budgets = {name: self.budget.components.get(name, {}) for name in values}
+        k = self.budget.inputs.k if self.budget is not None else None
+        return CalibrationResult(coefficient_table(values, sigmas, budgets, k), self.residual_tables(), self.quality(),
                                  dict(run or {}), truth)
 
 
@@ -123,14 +143,15 @@ def _floats(a) -> list[float | None]:
 
 def solve(positions: list[PositionObservation], rotations: list[RotationObservation], site: Site,
           mounting=None, gyro_prior: ImuCoefficients | None = None,
-          gyro_bias_stability: float = 0.0, acc_bias_stability: float = 0.0) -> Calibration:
+          gyro_bias_stability: float = 0.0, acc_bias_stability: float = 0.0,
+          budget_inputs: BudgetInputs | None = None) -> Calibration:
     """Accelerometers and gyro bias from positions, gyro scale/axes from rotations.
 
     Without rotations, `gyro_prior` (e.g. an earlier result) supplies Kg and Eg for the
     gyro bias; without either, the gyro bias is not solved and a flag says so.
-    `*_bias_stability` (rad/s, m/s^2; the datasheet's bias instability) is added in
-    quadrature to the bias uncertainties: a drift common to the whole run looks like
-    bias to any schedule, so no residual can reveal it.
+    `*_bias_stability` (rad/s, m/s^2; the datasheet's bias instability) feed the budget's
+    bias-instability part when `budget_inputs` (`bench.solve.budget`) is not given; every
+    coefficient's sigma is the budget's combined standard uncertainty.
     """
     if not positions and not rotations:
         raise SolverError("nothing to solve: no position and no rotation observations")
@@ -149,15 +170,12 @@ def solve(positions: list[PositionObservation], rotations: list[RotationObservat
             flags.append("gyro bias not solved: no rotations and no prior gyro scale factors/axes")
         else:
             bias = gyro_bias_from_positions(positions, site, source, mounting)
-    for name, scaled in (("accelerometer", acc and acc.fit.scaled), ("gyro", gyros and gyros.fit.scaled),
-                         ("gyro bias", bias and bias.scaled)):
-        if scaled and any(scaled):
-            flags.append(f"{name} residual scatter exceeds sample noise: uncertainties scaled by it")
-    if acc is not None and acc_bias_stability > 0:
-        acc.cov[:, 4, 4] += acc_bias_stability ** 2
-    if bias is not None and gyro_bias_stability > 0:
-        bias.sigma = np.hypot(bias.sigma, gyro_bias_stability)
-    return Calibration(acc, gyros, bias, list(positions), list(rotations), flags)
+    if budget_inputs is None:
+        budget_inputs = BudgetInputs(gyro_bias_instability=gyro_bias_stability,
+                                     acc_bias_instability=acc_bias_stability)
+    budget = compute_budget(acc, gyros, bias, positions, rotations, site, budget_inputs, mounting, gyro_prior)
+    flags += budget.flags
+    return Calibration(acc, gyros, bias, list(positions), list(rotations), flags, budget)
 
 
 def pooled_gyro_noise(positions: list[PositionObservation]) -> np.ndarray | None:

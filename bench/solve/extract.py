@@ -177,7 +177,8 @@ def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: 
                                                                     duration_s=n / rate_hz)
             acc_mean, acc_std, acc_sem = mean_and_standard_error(acc_counts[window] * rate_hz, duration_s=n / rate_hz)
             out.positions.append(PositionObservation(tuple(step["angles_deg"]), n / rate_hz, n, gyro_mean, acc_mean,
-                                                     gyro_std, acc_std, gyro_sem, acc_sem, label=unit))
+                                                     gyro_std, acc_std, gyro_sem, acc_sem, label=unit,
+                                                     start_s=first / rate_hz))
         else:
             if n < expected:
                 out.problems.append(f"{unit}: {expected - n} of {expected} samples missing during the turn: "
@@ -188,5 +189,6 @@ def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: 
                                          state_angles_deg, mounting)
             out.rotations.append(RotationObservation(
                 tuple(step["start_deg"]), step["frame"], step["direction"], int(step["revolutions"]), n / rate_hz, n,
-                gyro_counts[window].sum(axis=0), earth_integral_rad=earth, label=unit))
+                gyro_counts[window].sum(axis=0), earth_integral_rad=earth, label=unit,
+                start_s=first / rate_hz))
     return out

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from bench.log.reader import RunLog
 from bench.model.earth import Site
 from bench.model.units import DEG_PER_HOUR, MICRO_G
+from bench.solve.budget import BudgetInputs
 from bench.solve.calibrate import Calibration, solve
 from bench.solve.extract import Extraction, extract_observations
 from drivers.imu.layout import ImuLayout
@@ -54,17 +55,19 @@ def extract_from_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz
 
 def solve_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: float, *, mounting=None,
                gyro_bias_stability_dph: float | None = None, acc_bias_stability_ug: float | None = None,
-               still_open: frozenset[str] = frozenset()) -> LogSolution:
+               budget: BudgetInputs | None = None, still_open: frozenset[str] = frozenset()) -> LogSolution:
     """Extract every log's observations, merge them and solve (SolverError if there is nothing to solve)."""
     extraction, stats, damage = extract_from_logs(logs, site, layout, rate_hz, mounting, still_open)
     calibration = solve_extraction(extraction, site, mounting=mounting, gyro_bias_stability_dph=gyro_bias_stability_dph,
-                                   acc_bias_stability_ug=acc_bias_stability_ug)
+                                   acc_bias_stability_ug=acc_bias_stability_ug, budget=budget)
     return LogSolution(calibration, extraction, stats, damage)
 
 
 def solve_extraction(extraction: Extraction, site: Site, *, mounting=None, gyro_bias_stability_dph: float | None = None,
-                     acc_bias_stability_ug: float | None = None) -> Calibration:
-    """Solve merged observations (all of a log's or a subset); SolverError if there is nothing to solve."""
+                     acc_bias_stability_ug: float | None = None, budget: BudgetInputs | None = None) -> Calibration:
+    """Solve merged observations (all of a log's or a subset); SolverError if there is nothing to solve.
+
+    `budget` (what is known beyond the data) replaces the two bias stabilities when given."""
     return solve(extraction.positions, extraction.rotations, site, mounting,
                  gyro_bias_stability=(gyro_bias_stability_dph or 0.0) * DEG_PER_HOUR,
-                 acc_bias_stability=(acc_bias_stability_ug or 0.0) * MICRO_G)
+                 acc_bias_stability=(acc_bias_stability_ug or 0.0) * MICRO_G, budget_inputs=budget)

@@ -7,7 +7,8 @@ the nominal specific force f_k; `Ka = |p|`, `Ea = p/Ka`, `K0 = q/Ka`. Gyro bias:
 Rotation method, per gyro s: `int F_s = M_s . (d 2 pi N u_k + E_k) + c_s T_k` over
 turns k; `Kg = |M_s|`, `Eg = M_s/Kg` (c_s = Kg D0 is a by-product).
 
-Uncertainties: weighted least squares with the per-step sample noise; when the
+Uncertainties: weighted least squares with the per-step sample noise (pooled over the
+dwells of a sensor, see `pooled_sigma`); when the
 residual scatter is significantly larger than that noise (chi-square test at 1%) the
 covariance is scaled by chi2/dof and a quality flag says so. Without sample noise,
 the residual scatter alone sets the scale.
@@ -47,6 +48,11 @@ class LinearFit:
     dof: int
     scaled: list[bool]        # per sensor: covariance scaled up by the residual scatter
     weighted: bool
+    #: (S, P, P) the covariance from the sample noise alone, never scaled (the budget's Type A part);
+    #: without weights, from the residual scatter (then it equals `cov`)
+    cov_noise: np.ndarray | None = None
+    #: (K, S) the 1-sigma each observation was weighted by (None: unweighted)
+    sigma: np.ndarray | None = None
 
 
 def fit_per_sensor(design: np.ndarray, y: np.ndarray, sigma: np.ndarray | None) -> LinearFit:
@@ -55,7 +61,7 @@ def fit_per_sensor(design: np.ndarray, y: np.ndarray, sigma: np.ndarray | None) 
     dof = k - p
     weights = sigma if sigma is not None and np.all(np.isfinite(sigma)) and np.all(sigma > 0) else None
     use_weights = weights is not None
-    params, covs, resid, normd, chi2n, scaled = [], [], [], [], [], []
+    params, covs, covs0, resid, normd, chi2n, scaled = [], [], [], [], [], [], []
     for s in range(y.shape[1]):
         w = 1.0 / weights[:, s] if weights is not None else np.ones(k)
         aw = design * w[:, None]
@@ -76,12 +82,14 @@ def fit_per_sensor(design: np.ndarray, y: np.ndarray, sigma: np.ndarray | None) 
             factor = red
         params.append(sol)
         covs.append(cov0 * factor)
+        covs0.append(cov0 if use_weights else cov0 * factor)
         resid.append(r)
         normd.append(r * w / math.sqrt(factor) if math.isfinite(factor) and factor > 0 else np.full(k, math.nan))
         chi2n.append(red)
         scaled.append(bool(scale_up))
     return LinearFit(np.array(params), np.array(covs), np.array(resid).T, np.array(normd).T,
-                     np.array(chi2n), dof, scaled, bool(use_weights))
+                     np.array(chi2n), dof, scaled, bool(use_weights), np.array(covs0),
+                     np.asarray(weights, dtype=float) if use_weights else None)
 
 
 def _require_rank(design: np.ndarray, what: str) -> None:
@@ -121,6 +129,12 @@ class SensorTriad:
     cov: np.ndarray   # (3, 5, 5) over (scale, axes X Y Z, bias)
     fit: LinearFit
 
+    def cov_noise_sensor(self, s: int) -> np.ndarray:
+        """(5, 5) covariance of sensor s's (scale, axes, bias) from the sample noise alone (never scaled)."""
+        cov = self.fit.cov_noise if self.fit.cov_noise is not None else self.fit.cov
+        jac = _scale_axes_bias_jacobian(self.fit.params[s])
+        return jac @ cov[s] @ jac.T
+
     @classmethod
     def from_fit(cls, fit: LinearFit) -> "SensorTriad":
         scale, axes, bias = scale_axes_bias(fit.params)
@@ -154,6 +168,20 @@ def rotation_design(observations: list[RotationObservation], site: Site, mountin
     return np.array(rows)
 
 
+def pooled_sigma(sem: np.ndarray, durations_s) -> np.ndarray:
+    """(K, S) 1-sigma of each dwell mean from the noise density pooled over all dwells of a sensor,
+    `sqrt(mean_k(sem_k^2 T_k) / T_k)`: every dwell of one length gets the same weight.
+
+    Weights from each dwell's own standard error (a noisy estimate, and for quantised
+    outputs one that depends on the signal itself) make the weights differ at random and
+    break the symmetry by which an optimal schedule cancels the table's pointing error to
+    first order; the pooled density keeps it.
+    """
+    t = np.asarray(durations_s, dtype=float)[:, None]
+    density2 = np.mean(np.asarray(sem, dtype=float) ** 2 * t, axis=0)
+    return np.sqrt(density2 / t)
+
+
 @dataclass
 class GyroBias:
     value: np.ndarray   # (3,) rad/s
@@ -162,6 +190,10 @@ class GyroBias:
     normalized: np.ndarray  # (K, 3)
     chi2_per_dof: np.ndarray
     scaled: list[bool]
+    #: (3,) rad/s: the sample-noise part of sigma (positions and the rotation fit's M), never scaled
+    sigma_noise: np.ndarray | None = None
+    #: (3, 3): d(D0_s)/d(M_s), to carry other errors of the rotation fit into the bias
+    dd_dm: np.ndarray | None = None
 
 
 def gyro_bias_from_positions(obs: list[PositionObservation], site: Site, gyro: SensorTriad | ImuCoefficients,
@@ -178,17 +210,24 @@ def gyro_bias_from_positions(obs: list[PositionObservation], site: Site, gyro: S
         # The rotation fit's first three parameters are M_s = Kg_s Eg_s itself.
         scale, axes, m_cov = gyro.scale, gyro.axes, gyro.fit.cov[:, :3, :3]
     z = f_out / scale - w_nominal @ axes.T
-    sigma = np.array(sem) / scale if have_sem else None
+    sigma = pooled_sigma(np.array(sem), [o.duration_s for o in obs]) / scale if have_sem else None
     fit = fit_per_sensor(np.ones((len(obs), 1)), z, sigma)
     value = fit.params[:, 0]
     var = fit.cov[:, 0, 0].copy()
+    var_noise = (fit.cov_noise if fit.cov_noise is not None else fit.cov)[:, 0, 0].copy()
+    m_cov_noise = m_cov if isinstance(gyro, ImuCoefficients) or gyro.fit.cov_noise is None \
+        else gyro.fit.cov_noise[:, :3, :3]
     f_mean, w_mean = f_out.mean(axis=0), w_nominal.mean(axis=0)
+    jac = np.zeros((3, 3))
     for s in range(3):
         # D0 = mean(F)/|M| - (M/|M|).mean(w): propagate the covariance of M_s.
         m, g = scale[s], axes[s]
         dd_dm = -f_mean[s] * g / m ** 2 - (w_mean - g * (g @ w_mean)) / m
+        jac[s] = dd_dm
         var[s] += float(dd_dm @ m_cov[s] @ dd_dm)
-    return GyroBias(value, np.sqrt(var), fit.residuals, fit.normalized, fit.chi2_per_dof, fit.scaled)
+        var_noise[s] += float(dd_dm @ m_cov_noise[s] @ dd_dm)
+    return GyroBias(value, np.sqrt(var), fit.residuals, fit.normalized, fit.chi2_per_dof, fit.scaled,
+                    np.sqrt(var_noise) if have_sem else None, jac)
 
 
 def solve_accelerometers(obs: list[PositionObservation], site: Site, mounting=None) -> SensorTriad:
@@ -198,7 +237,7 @@ def solve_accelerometers(obs: list[PositionObservation], site: Site, mounting=No
     design = position_design(np.array([o.angles_deg for o in obs]), site, mounting)
     _require_rank(design, "position schedule")
     sem = [o.standard_error("acc") for o in obs]
-    sigma = np.array(sem) if all(s is not None for s in sem) else None
+    sigma = pooled_sigma(np.array(sem), [o.duration_s for o in obs]) if all(s is not None for s in sem) else None
     return SensorTriad.from_fit(fit_per_sensor(design, np.array([o.acc_mean for o in obs]), sigma))
 
 

@@ -40,9 +40,10 @@ from bench.model.earth import Site
 from bench.model.observations import PositionObservation, RotationObservation
 from bench.model.result import CalibrationResult
 from bench.report.markdown import markdown_report, md_text, write_reports
-from bench.run.runner import bias_stabilities, judged_failures, quality_failures
+from bench.run.runner import judged_failures, quality_failures
 from bench.solve.extract import Extraction, finished_observation_steps
 from bench.solve.from_logs import LogSolution, extract_from_logs, solve_extraction
+from bench.solve.inputs import budget_inputs
 from bench.solve.methods import SolverError
 from drivers.imu import ImuStats
 from schedules import ScheduleError, resolve_schedule
@@ -384,10 +385,10 @@ class Resolved:
 def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolved:
     """Solve every recorded step, or the subset the schedules choose (SolverError: nothing to solve)."""
     config, setup = recorded.setup.config, recorded.setup
-    gyro_stability, acc_stability = bias_stabilities(config, recorded.sim) if config is not None else (None, None)
+    inputs = budget_inputs(config, recorded.sim) if config is not None else None
     chosen = select(recorded.extraction, positions, rotations)
     chosen.problems = recorded.problems()
-    calibration, chosen, dropped = _solve_what_can_be(chosen, setup.site, gyro_stability, acc_stability)
+    calibration, chosen, dropped = _solve_what_can_be(chosen, setup.site, inputs)
     solution = LogSolution(calibration, chosen, list(recorded.imu_stats), list(recorded.damage))
     link = recorded.imu_link()
     failures = quality_failures(solution, link)
@@ -414,14 +415,13 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolv
                     verdict)
 
 
-def _solve_what_can_be(chosen: Extraction, site, gyro_stability, acc_stability):
+def _solve_what_can_be(chosen: Extraction, site, inputs):
     """Solve all of `chosen`; when that fails (too few turns or positions left by damage),
     the positions or the rotations alone, the others left out with the reason.
     Returns (calibration, the extraction solved, units left out); SolverError if neither solves."""
 
     def attempt(extraction):
-        return solve_extraction(extraction, site, gyro_bias_stability_dph=gyro_stability,
-                                acc_bias_stability_ug=acc_stability)
+        return solve_extraction(extraction, site, budget=inputs)
 
     try:
         return attempt(chosen), chosen, []

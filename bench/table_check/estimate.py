@@ -33,10 +33,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg import solve_triangular
 
 from bench.errors import InputError
 from bench.model.kinematics import attitude, black_box_matrix, rot_z
 from bench.model.units import ARCSEC, DEG
+from bench.solve.budget import gm_mean_kernel
 
 ANGLE_NAMES = ("alpha_o", "beta_o", "gamma_o", "alpha_m", "beta_m", "gamma_m", "alpha_i", "beta_i", "gamma_i")
 
@@ -333,8 +335,27 @@ def _design(p: np.ndarray, angles_deg: np.ndarray, step_rad: float = 1e-6) -> np
     return np.concatenate([np.stack(cols, axis=1), offset_columns(len(angles_deg))], axis=1)
 
 
+def _whitener(sigma: np.ndarray, drift_g: float, start_s, duration_s, correlation_time_s: float):
+    """A function M -> C^(-1/2) M for the stacked (x0, y0, x1, ...) means: C = diag(sigma^2) plus
+    the accelerometer bias drift, a Gauss-Markov bias of 1-sigma `drift_g` per axis that two
+    dwells share by their distance in time (`bench.solve.budget.gm_mean_kernel`)."""
+    w = 1.0 / sigma.ravel()
+    if not drift_g > 0:
+        return lambda m: m * (w[:, None] if m.ndim == 2 else w)
+    k = len(sigma)
+    starts = np.asarray(start_s if start_s is not None else np.zeros(k), dtype=float)
+    durations = np.asarray(duration_s if duration_s is not None else np.ones(k), dtype=float)
+    if start_s is None:     # unknown: end to end in order
+        starts = np.concatenate([[0.0], np.cumsum(durations)[:-1]])
+    kernel = gm_mean_kernel(starts, durations, correlation_time_s)
+    cov = np.diag(sigma.ravel() ** 2) + drift_g ** 2 * np.kron(kernel, np.eye(2))
+    chol = np.linalg.cholesky(cov)
+    return lambda m: solve_triangular(chol, m, lower=True)
+
+
 def estimate(angles_deg, horizontal_g, sigma_g=None, *, relative_scale_uncertainty: float = 0.0,
-             max_iterations: int = 20, with_observability: bool = True) -> TableCheckEstimate:
+             max_iterations: int = 20, with_observability: bool = True, drift_g: float = 0.0,
+             start_s=None, duration_s=None, correlation_time_s: float = 300.0) -> TableCheckEstimate:
     """Fit the four combinations and the x, y offsets to horizontal accelerometer means (units of local g).
 
     `sigma_g` (K, 2) are the 1-sigma of the means (None: equal weights, the residual
@@ -345,6 +366,12 @@ def estimate(angles_deg, horizontal_g, sigma_g=None, *, relative_scale_uncertain
     common scale error of x and y scales both tilt vectors and an in-plane misalignment
     turns them (a scale mismatch between x and y only adds residuals). Each component of
     a tilt vector t gets eps * |t| added in quadrature to its noise sigma.
+
+    `drift_g` (units of g, 1-sigma) models the accelerometers' bias drift over the check
+    as a Gauss-Markov bias with `correlation_time_s`, correlating dwells by their
+    `start_s` and `duration_s` (end to end in order when not given): generalised least
+    squares with that covariance, so that short dwells, where the drift is not small
+    against the sample noise, get right sigmas too. Ignored without `sigma_g`.
     """
     a = check_positions(angles_deg)
     y = np.asarray(horizontal_g, dtype=float)
@@ -358,20 +385,20 @@ def estimate(angles_deg, horizontal_g, sigma_g=None, *, relative_scale_uncertain
     if dof < 1:
         raise TableCheckError(f"{len(a)} positions cannot determine 4 combinations and 2 offsets "
                               "(at least 4 positions with several outer and inner angles are needed)")
-    w = 1.0 / sigma.ravel()
+    whiten = _whitener(sigma, drift_g if weighted else 0.0, start_s, duration_s, correlation_time_s)
     p = np.zeros(4)
     offsets = np.zeros(2)
     iterations = 0
     for iterations in range(1, max_iterations + 1):
         design = _design(p, a)
         resid = y.ravel() - model_horizontal(p, a).ravel() - np.tile(offsets, len(a))
-        dw = design * w[:, None]
+        dw = whiten(design)
         if iterations == 1:
             s = np.linalg.svd(dw, compute_uv=False)
             if s[-1] < 1e-9 * s[0]:
                 raise TableCheckError("the positions cannot separate the table's tilts from the accelerometer "
                                       "offsets: use several outer and several inner angles (e.g. table-check-324)")
-        step = np.linalg.lstsq(dw, resid * w, rcond=None)[0]
+        step = np.linalg.lstsq(dw, whiten(resid), rcond=None)[0]
         p += step[:4]
         offsets += step[4:]
         if np.max(np.abs(step[:4])) < 1e-14:
@@ -379,8 +406,8 @@ def estimate(angles_deg, horizontal_g, sigma_g=None, *, relative_scale_uncertain
     design = _design(p, a)
     fitted = model_horizontal(p, a) + offsets
     residual = y - fitted
-    chi2 = float(np.sum((residual / sigma) ** 2))
-    dw = design * w[:, None]
+    chi2 = float(np.sum(whiten(residual.ravel()) ** 2))
+    dw = whiten(design)
     cov = np.linalg.inv(dw.T @ dw)
     scale = max(1.0, chi2 / dof) if weighted else chi2 / dof
     cov = cov * scale

@@ -17,8 +17,10 @@ from bench import __version__
 from bench.log.names import run_id_of
 from bench.log.reader import LogError, read_log
 from bench.log.run_info import layout_and_config_from_log
-from bench.model.units import ARCSEC
+from bench.model.table_prior import CHECK_FORMAT
+from bench.model.units import ARCSEC, MICRO_G
 from bench.solve.from_logs import extract_from_logs
+from bench.solve.inputs import DEFAULT_CORRELATION_TIME_S, bias_stabilities, correlation_time_s
 from bench.table_check.estimate import (
     COMBINATIONS,
     Conversion,
@@ -29,7 +31,7 @@ from bench.table_check.estimate import (
     true_combinations,
 )
 
-FORMAT = "turntable-bench/table-check"
+FORMAT = CHECK_FORMAT
 VERSION = 1
 
 
@@ -103,16 +105,39 @@ def table_check_observations(extraction, log_path: str) -> list:
     return positions
 
 
-def analyse_observations(observations, local_g_mps2: float, *, calibration=None) -> tuple[TableCheckEstimate,
-                                                                                         Conversion]:
-    """Estimate from position observations (counts/s means with standard errors)."""
+def analyse_observations(observations, local_g_mps2: float, *, calibration=None, acc_drift_ug: float = 0.0,
+                         correlation_time_s: float = DEFAULT_CORRELATION_TIME_S) -> tuple[TableCheckEstimate,
+                                                                                           Conversion]:
+    """Estimate from position observations (counts/s means with standard errors).
+
+    The dwells are weighted by the pooled residual scatter of each axis (scaled by
+    sqrt(median dwell / dwell)), not by their own standard errors: the block-mean scatter
+    of a quantised output depends on the signal itself (its fractional counts), so weights
+    from it correlate with the errors and bias the estimate (at 2 s dwells by about 1.4
+    sigma RMS). `acc_drift_ug`: the accelerometers' bias instability (1-sigma of a
+    Gauss-Markov bias of `correlation_time_s`), which correlates the dwells by their times
+    (`estimate`'s drift).
+    """
     angles = np.array([o.angles_deg for o in observations], dtype=float)
     acc = np.array([o.acc_mean for o in observations], dtype=float)
     sem = np.array([_sem(o) for o in observations], dtype=float)
     horizontal, sem_g, conversion = horizontal_from_counts(acc, sem, local_g_mps2, calibration=calibration)
-    # without usable standard errors (None) the residual scatter sets the uncertainty
-    sigma = sem_g if np.all(sem_g > 0) else None
-    return estimate(angles, horizontal, sigma, relative_scale_uncertainty=conversion.relative_uncertainty), conversion
+    durations = np.array([o.duration_s for o in observations], dtype=float)
+    first = estimate(angles, horizontal, None, with_observability=False)
+    dof_per_axis = max(len(angles) - 3, 1)
+    pooled = np.sqrt(np.sum(first.residual_g ** 2, axis=0) / dof_per_axis)        # (2,) at the median dwell
+    sigma = pooled[None, :] * np.sqrt(np.median(durations) / durations)[:, None]
+    if not np.all(sigma > 0):
+        sigma = None        # an exact fit (noise-free outputs): the residual scatter sets the uncertainty
+    starts = [o.start_s for o in observations]
+    est = estimate(angles, horizontal, sigma, relative_scale_uncertainty=conversion.relative_uncertainty,
+                   drift_g=acc_drift_ug * MICRO_G / local_g_mps2,
+                   start_s=None if any(t is None for t in starts) else starts, duration_s=durations,
+                   correlation_time_s=correlation_time_s)
+    est.notes.append("dwells weighted by the pooled residual scatter of each axis"
+                     + (f"; accelerometer bias drift {acc_drift_ug:g} ug (correlation time {correlation_time_s:g} s) "
+                        "modelled" if acc_drift_ug > 0 and sigma is not None else ""))
+    return est, conversion
 
 
 def _sem(o) -> np.ndarray:
@@ -134,9 +159,15 @@ def analyse_log(path: str | Path, *, calibration=None, still_open: bool = False)
     extraction, stats, damage = extract_from_logs([log], setup.site, setup.layout, setup.rate_hz,
                                                   still_open=frozenset({log.path}) if still_open else frozenset())
     observations = table_check_observations(extraction, log.path)
-    est, conversion = analyse_observations(observations, setup.site.gravity, calibration=calibration)
     run_meta = log.metadata.get("run", {})
     mode = run_meta.get("mode", "")
+    drift_ug, tau = 0.0, DEFAULT_CORRELATION_TIME_S
+    if setup.config is not None:
+        sim = mode == "simulator"
+        drift_ug = bias_stabilities(setup.config, sim)[1] or 0.0
+        tau = correlation_time_s(setup.config, sim)
+    est, conversion = analyse_observations(observations, setup.site.gravity, calibration=calibration,
+                                           acc_drift_ug=drift_ug, correlation_time_s=tau)
     black_box = None
     if mode == "simulator" and setup.config is not None:
         black_box = np.asarray(setup.config.sim.black_box_rad, dtype=float)

@@ -18,11 +18,11 @@ import numpy as np
 from bench.config.load import BenchConfig
 from bench.model.thermal import MAX_THERMAL_DEGREE, THERMAL_NAMES, ImuThermal
 from bench.model.units import DEG_PER_HOUR, MICRO_G
-from bench.run.runner import bias_stabilities
 from bench.sim.acquire import AcquisitionTiming, acquire
 from bench.sim.imu import SimImu
 from bench.sim.table import SimTable
 from bench.solve.calibrate import solve
+from bench.solve.inputs import bias_stabilities
 from bench.thermal.model import ThermalModel, ThermalPoint, fit_thermal_model
 
 #: the thermal behaviour `bench thermal sim` gives the simulated IMU when the configuration has no

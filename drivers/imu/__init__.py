@@ -13,16 +13,23 @@ from drivers.imu.layout import (
     DEFAULT_DBC,
     DEFAULT_FD_DBC,
     DEFAULT_FD_SPEC,
+    DEFAULT_PACKED_DBC,
+    DEFAULT_PACKED_SPEC,
     DEFAULT_SPEC,
     EXTENDED_ID_FLAG,
+    SHIPPED_LAYOUTS,
     ImuFrameSpec,
     ImuLayout,
     default_fd_layout,
     default_layout,
+    default_packed_layout,
+    shipped_layout_name,
+    spec_of,
 )
 from drivers.imu.samples import ImuSampleBlock, ImuStats
 
-__all__ = ["CHANNELS", "COLUMNS", "DEFAULT_DBC", "DEFAULT_FD_DBC", "DEFAULT_FD_SPEC", "DEFAULT_SPEC",
-           "EXTENDED_ID_FLAG", "EncodedFrames", "ImuEncoder", "ImuFrameSpec", "ImuLayout", "ImuSampleBlock",
-           "ImuStats", "SampleAssembler", "decode_frames", "default_fd_layout", "default_layout", "encode_block",
-           "frames_from_messages"]
+__all__ = ["CHANNELS", "COLUMNS", "DEFAULT_DBC", "DEFAULT_FD_DBC", "DEFAULT_FD_SPEC", "DEFAULT_PACKED_DBC",
+           "DEFAULT_PACKED_SPEC", "DEFAULT_SPEC", "EXTENDED_ID_FLAG", "SHIPPED_LAYOUTS", "EncodedFrames",
+           "ImuEncoder", "ImuFrameSpec", "ImuLayout", "ImuSampleBlock", "ImuStats", "SampleAssembler",
+           "decode_frames", "default_fd_layout", "default_layout", "default_packed_layout", "encode_block",
+           "frames_from_messages", "shipped_layout_name", "spec_of"]

@@ -18,7 +18,9 @@ Rules (the bulk decoder in `drivers.imu.bulk` implements exactly the same ones):
    (dropped, counted), with none it is a counter gap (counted per missing sample). The
    first counter's sample, incomplete, is counted as joined mid-sample instead: its first
    frames went out before the bench started listening, which loses nothing it could have had.
-   `flush()` resolves everything still pending at the end of a stream.
+   `flush()` resolves everything still pending at the end of a stream; there the newest
+   counter's sample, incomplete, is counted as left mid-sample (its last frames went out
+   after the bench stopped listening), not as lost.
 """
 
 from __future__ import annotations
@@ -76,6 +78,8 @@ class SampleAssembler:
         self._prev: int | None = None   # unwrapped counter of the previous valid frame
         self._first: int | None = None  # counter of the first valid frame: its sample may have begun before we joined
         self._start = self._head = self._lowest = 0
+        self._ending = False            # flush(): the newest counter's incomplete sample was cut by the end
+        self._left = False              # a flush counted one as left mid-sample: frames after it make it lost
 
     # -- feeding ------------------------------------------------------------------
     def feed(self, arbitration_id: int, data: bytes, timestamp: float = 0.0, is_extended_id: bool = False) -> None:
@@ -161,6 +165,10 @@ class SampleAssembler:
             raise ImuFrameError(f"not a CAN frame (arbitration id, data bytes, timestamp): {exc}") from exc
         finally:
             self._prev, self._start, self._head, self._lowest = prev, start, head, lowest
+            if total and self._left:    # the stream went on after a flush: the sample it cut was lost after all
+                self._left = False
+                s.left_mid_sample -= 1
+                s.incomplete_samples += 1
             s.frames += total
             s.frames_ok += ok
             s.unknown_id += unknown
@@ -194,6 +202,9 @@ class SampleAssembler:
                 del pending[lowest]
                 if lowest == self._first:   # its first frames went out before the stream was joined
                     s.joined_mid_sample += 1
+                elif self._ending and lowest == self._head:   # its last ones after the stream ended
+                    s.left_mid_sample += 1
+                    self._left = True
                 else:
                     s.incomplete_samples += 1
                 lowest += 1
@@ -203,7 +214,11 @@ class SampleAssembler:
     def flush(self) -> ImuSampleBlock:
         """End of stream: resolve every pending counter, return what is left to take."""
         if self._prev is not None:
-            self._advance(self._head)
+            self._ending = True
+            try:
+                self._advance(self._head)
+            finally:
+                self._ending = False
             self._start = self._head + 1   # later frames of resolved counters are late
         return self.take_block()
 

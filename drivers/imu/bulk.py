@@ -313,7 +313,8 @@ def _group_in_order(layout, data, timestamps, vi, ka, d, c0, rate_hz, stats) -> 
     stats.frames_ok = m
     stats.samples = len(first)
     stats.joined_mid_sample = int(not complete[0])      # the first counter's sample began before the stream
-    stats.incomplete_samples = len(starts) - len(first) - stats.joined_mid_sample
+    stats.left_mid_sample = int(len(starts) > 1 and not complete[-1])   # the last one ended after it
+    stats.incomplete_samples = len(starts) - len(first) - stats.joined_mid_sample - stats.left_mid_sample
     stats.counter_gaps = span - len(starts)
     if len(first) == 0:
         return ImuSampleBlock.empty(rate_hz)
@@ -365,7 +366,10 @@ def _group_general(layout, data, timestamps, vi, ka, u, reorder_window, rate_hz,
     stats.samples = int(complete.sum())
     # counters[0] is the first valid frame's: its sample, incomplete, began before the stream was joined
     stats.joined_mid_sample = int(present[0] > 0 and not complete[0])
-    stats.incomplete_samples = int(((present > 0) & ~complete).sum()) - stats.joined_mid_sample
+    # the newest counter's sample, incomplete, was still being sent when the stream ended
+    stats.left_mid_sample = int(len(counters) > 1 and present[-1] > 0 and not complete[-1])
+    stats.incomplete_samples = (int(((present > 0) & ~complete).sum()) - stats.joined_mid_sample
+                                - stats.left_mid_sample)
     stats.counter_gaps = int(span - (present > 0).sum())
 
     raw = np.zeros((len(counters), 8), np.int64)

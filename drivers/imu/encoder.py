@@ -54,11 +54,22 @@ def _check_range(sig: SignalLayout, raw: np.ndarray, what: str) -> None:
                             f"{sig.name}'s range {lo}..{hi}")
 
 
-class ImuEncoder:
-    """Samples -> frames for one layout; carries the quantisation remainders between calls."""
+#: the status bit a saturating encoder sets in a sample whose output it clipped (drivers/CAN.md: over-range)
+OVER_RANGE_BIT = 1 << 3
 
-    def __init__(self, layout: ImuLayout | None = None):
+
+class ImuEncoder:
+    """Samples -> frames for one layout; carries the quantisation remainders between calls.
+
+    `saturate`: an increment beyond its signal's range is clipped to the range and the sample's status gets
+    `OVER_RANGE_BIT`, as an IMU whose output saturates reports it (the clipped excess is lost, the carried
+    remainder is not disturbed); without it such an increment raises `ImuFrameError`.
+    """
+
+    def __init__(self, layout: ImuLayout | None = None, saturate: bool = False):
         self.layout = layout if layout is not None else default_layout()
+        self.saturate = saturate
+        self.saturated_samples = 0
         self._remainder = np.zeros(6)   # per channel, in units of the signal resolution
         self._width = max(m.length for m in self.layout.messages)
 
@@ -100,6 +111,8 @@ class ImuEncoder:
         n, n_msgs = len(counter), len(lay.messages)
         raw, remainder = self._raw_columns(counter, gyro_counts, acc_counts, temperature_c, status)
         counter_raw = counter & ((1 << lay.counter_bits) - 1)
+        if self.saturate:
+            self._clip(raw)
         for m in lay.messages:
             for column, sig in m.values:
                 _check_range(sig, raw[:, column], COLUMNS[column])
@@ -118,6 +131,23 @@ class ImuEncoder:
         lengths = np.tile(np.array([m.length for m in lay.messages], np.int64), n)
         return EncodedFrames(ids, data.reshape(n * n_msgs, self._width), lengths,
                              np.repeat(np.arange(n, dtype=np.int64), n_msgs))
+
+    def _clip(self, raw: np.ndarray) -> None:
+        """Clip the six channels to their signals' ranges; flag the clipped samples as over-range."""
+        clipped = np.zeros(len(raw), bool)
+        for m in self.layout.messages:
+            for column, sig in m.values:
+                if column >= 6:
+                    continue
+                lo, hi = (-(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1) if sig.signed else (0, sig.mask)
+                out = (raw[:, column] < lo) | (raw[:, column] > hi)
+                if out.any():
+                    raw[:, column] = np.clip(raw[:, column], lo, hi)
+                    clipped |= out
+        if clipped.any():
+            self.saturated_samples += int(clipped.sum())
+            if self.layout.has_column[STATUS_COLUMN]:
+                raw[clipped, STATUS_COLUMN] |= OVER_RANGE_BIT
 
     def encode_sample(self, counter: int, gyro_counts, acc_counts, temperature_c: float | None = None,
                       status: int | None = None) -> list[tuple[int, bytes]]:

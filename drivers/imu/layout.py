@@ -33,6 +33,7 @@ EXTENDED_ID_FLAG = 1 << 31
 DBC_DIR = Path(__file__).resolve().parent
 DEFAULT_DBC = DBC_DIR / "sim_imu.dbc"
 DEFAULT_FD_DBC = DBC_DIR / "sim_imu_fd.dbc"
+DEFAULT_PACKED_DBC = DBC_DIR / "sim_imu_packed.dbc"
 
 
 @dataclass(frozen=True)
@@ -83,6 +84,37 @@ DEFAULT_SPEC = ImuFrameSpec(
 DEFAULT_FD_SPEC = ImuFrameSpec(
     channels={c: f"IMU_SAMPLE_FD.{n}" for c, n in zip(CHANNELS, ("GyroX", "GyroY", "GyroZ", "AccX", "AccY", "AccZ"))},
     temperature="IMU_SAMPLE_FD.Temperature", status="IMU_SAMPLE_FD.Status")
+#: The mapping of the shipped packed classic layout (drivers/imu/sim_imu_packed.dbc): 3 frames per sample.
+DEFAULT_PACKED_SPEC = ImuFrameSpec(
+    channels={"gyro_x": "IMU_PACK_A.GyroX", "gyro_y": "IMU_PACK_A.GyroY", "gyro_z": "IMU_PACK_B.GyroZ",
+              "acc_x": "IMU_PACK_B.AccX", "acc_y": "IMU_PACK_C.AccY", "acc_z": "IMU_PACK_C.AccZ"},
+    temperature="IMU_PACK_B.Temperature", status="IMU_PACK_A.Status")
+
+#: The shipped layouts by the name `[imu] layout` gives them: (DBC file, signal mapping, what it is).
+SHIPPED_LAYOUTS: dict[str, tuple[Path, ImuFrameSpec, str]] = {
+    "classic": (DEFAULT_DBC, DEFAULT_SPEC, "7 classic frames per sample, 1/256-count resolution"),
+    "packed": (DEFAULT_PACKED_DBC, DEFAULT_PACKED_SPEC,
+               "3 classic frames per sample, whole counts (for rates up to 2 kHz on a 1 Mbit/s bus)"),
+    "fd": (DEFAULT_FD_DBC, DEFAULT_FD_SPEC, "one 64-byte CAN FD frame per sample"),
+}
+
+
+def shipped_layout_name(imu: Mapping) -> str | None:
+    """The shipped layout an `[imu]` table (as TOML reads it) names: its `layout`, else "fd" or "classic"
+    by its `fd` flag; None when it names its own `dbc` (and no `layout`) or an unknown layout."""
+    name = imu.get("layout")
+    if name is None:
+        return None if imu.get("dbc") else ("fd" if imu.get("fd") is True else "classic")
+    return name if name in SHIPPED_LAYOUTS else None
+
+
+def spec_of(imu: Mapping) -> ImuFrameSpec:
+    """The signal mapping of an `[imu]` table: its `[imu.signals]`, else its shipped layout's (classic when it
+    names none). Raises `ImuConfigError` for a malformed `[imu.signals]`."""
+    signals = imu.get("signals")
+    if signals:
+        return ImuFrameSpec.from_dict(signals)
+    return SHIPPED_LAYOUTS[shipped_layout_name(imu) or ("fd" if imu.get("fd") is True else "classic")][1]
 
 
 @dataclass(frozen=True)
@@ -318,6 +350,17 @@ def _compile(db, spec: ImuFrameSpec, source: str, text: str) -> ImuLayout:
 def default_layout() -> ImuLayout:
     """The shipped classic layout of the simulated IMU (7 frames per sample)."""
     return ImuLayout.from_dbc(DEFAULT_DBC, DEFAULT_SPEC)
+
+
+@functools.lru_cache(maxsize=None)
+def default_packed_layout() -> ImuLayout:
+    """The shipped packed classic layout of the simulated IMU (3 frames per sample)."""
+    return ImuLayout.from_dbc(DEFAULT_PACKED_DBC, DEFAULT_PACKED_SPEC)
+
+
+def shipped_layout(name: str) -> ImuLayout:
+    """The compiled shipped layout `name` (a key of `SHIPPED_LAYOUTS`)."""
+    return {"classic": default_layout, "packed": default_packed_layout, "fd": default_fd_layout}[name]()
 
 
 @functools.lru_cache(maxsize=None)

@@ -8,6 +8,7 @@ callback before decoding, so a recorder can log all of them losslessly.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -18,15 +19,54 @@ from drivers.errors import ImuConfigError, ImuConnectionError
 from drivers.imu.assembler import SampleAssembler
 from drivers.imu.layout import ImuLayout
 from drivers.imu.samples import ImuSampleBlock, ImuStats
+from drivers.imu.slcan_bus import SLCAN_CLIENTS, BulkSlcanBus
+
+#: python-can's socketcand client logs here
+SOCKETCAND_LOGGER = "can.interfaces.socketcand.socketcand"
+
+
+class IncompleteReadFilter(logging.Filter):
+    """Drops python-can's socketcand warning "Got incomplete message => waiting for more data" (and counts it).
+
+    Its client reads the TCP stream 1024 bytes at a time and warns whenever a read ends inside a `< frame >`
+    element, which on a byte stream happens as soon as the server wrote more than one read takes (a real
+    socketcand, one element per write, causes it as much as the simulated one): the next read completes the
+    element and nothing is lost. Its warnings about data it does discard still pass."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.dropped = 0
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if isinstance(record.msg, str) and record.msg.startswith("Got incomplete message"):
+            self.dropped += 1
+            return False
+        return True
+
+
+#: installed on `SOCKETCAND_LOGGER` by `open_bus` when it opens a socketcand bus
+INCOMPLETE_READ_FILTER = IncompleteReadFilter()
 
 
 def open_bus(config: Mapping) -> can.BusABC:
-    """`can.Bus(**config)`; any failure -> `ImuConnectionError` naming interface and channel."""
+    """`can.Bus(**config)`, except that an SLCAN adapter (`interface = "slcan"`) is read by the bulk reader
+    `BulkSlcanBus` unless `slcan_client = "python-can"` asks for python-can's own; any failure ->
+    `ImuConnectionError` naming interface and channel."""
     if not isinstance(config, Mapping):
         raise ImuConfigError(f"a CAN bus configuration must be a table, got {type(config).__name__}")
+    kwargs = dict(config)
+    client = kwargs.pop("slcan_client", "bench")
+    if client not in SLCAN_CLIENTS:
+        raise ImuConfigError(f"slcan_client must be one of {', '.join(SLCAN_CLIENTS)}, got {client!r}")
     where = f"interface {config.get('interface')!r}, channel {config.get('channel')!r}"
     try:
-        return can.Bus(**config)
+        if kwargs.get("interface") == "slcan" and client == "bench":
+            kwargs.pop("interface")
+            kwargs.pop("fd", None)           # python-can's Bus takes it for every interface; the adapter decides
+            return BulkSlcanBus(**kwargs)
+        if kwargs.get("interface") == "socketcand":
+            logging.getLogger(SOCKETCAND_LOGGER).addFilter(INCOMPLETE_READ_FILTER)   # idempotent
+        return can.Bus(**kwargs)
     except Exception as exc:   # backends raise CanError, OSError, ImportError, ValueError, TypeError...
         raise ImuConnectionError(f"cannot open the CAN bus ({where}): {exc}") from exc
 

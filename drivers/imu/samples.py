@@ -85,7 +85,9 @@ class ImuStats:
     counter from the first to the newest resolved is exactly one of: samples (emitted),
     incomplete_samples (some but not all frames: dropped), counter_gaps (no frame at all),
     joined_mid_sample (the first counter's sample when it came incomplete: the bench began
-    listening while it was being sent; not a loss, 0 or 1).
+    listening while it was being sent; not a loss, 0 or 1), left_mid_sample (the newest
+    counter's sample when the stream ended incomplete: the bench stopped listening while it
+    was being sent; not a loss, 0 or 1).
     """
 
     frames: int = 0
@@ -100,6 +102,7 @@ class ImuStats:
     incomplete_samples: int = 0
     counter_gaps: int = 0
     joined_mid_sample: int = 0
+    left_mid_sample: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return asdict(self)
@@ -120,4 +123,5 @@ class ImuStats:
                 f"{self.incomplete_samples} incomplete); {self.frames} frames: {self.crc_errors} CRC errors, "
                 f"{self.wrong_length} wrong length, {self.unknown_id} unknown id, {self.late} late, "
                 f"{self.duplicates} duplicates, {self.out_of_order} out of order"
-                + ("; joined mid-sample (its first sample dropped, not a loss)" if self.joined_mid_sample else ""))
+                + ("; joined mid-sample (its first sample dropped, not a loss)" if self.joined_mid_sample else "")
+                + ("; left mid-sample (its last sample dropped, not a loss)" if self.left_mid_sample else ""))

@@ -36,6 +36,7 @@ class StreamDecoder:
         # accepted frames of counters not resolved yet: data rows, times, counters, messages, heads at arrival
         self._pending: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self._finished = False
+        self._counters_seen = 0   # counters with a frame, resolved so far
 
     def feed(self, ids, data, lengths=None, timestamps=None) -> None:
         """The next frames, in arrival order (arrays as `decode_frames` takes them)."""
@@ -67,10 +68,14 @@ class StreamDecoder:
         self._c_last = np.asarray(c[-1:]).copy()
         self._u_last, self._head = int(u[-1]), int(head[-1])
         accepted = (u > head - self.window) & (u >= self._u0)
-        stats.late += n_valid - int(np.count_nonzero(accepted))
-        rows = np.flatnonzero(accepted) if vi is None else vi[accepted]
-        ka = msg_index[rows].astype(np.int64)
-        new = (np.ascontiguousarray(data[rows]), timestamps[rows], u[accepted], ka, head[accepted])
+        n_accepted = int(np.count_nonzero(accepted))
+        stats.late += n_valid - n_accepted
+        if vi is None and n_accepted == n:   # every frame good and in time (the usual piece): no gathers
+            new = (data, timestamps, u, msg_index.astype(np.int64), head)
+        else:
+            rows = np.flatnonzero(accepted) if vi is None else vi[accepted]
+            new = (np.ascontiguousarray(data[rows]), timestamps[rows], u[accepted],
+                   msg_index[rows].astype(np.int64), head[accepted])
         if self._pending is not None:
             new = tuple(np.concatenate([p, q]) for p, q in zip(self._pending, new))   # type: ignore[assignment]
         self._pending = new
@@ -81,7 +86,7 @@ class StreamDecoder:
         if not self._finished:
             self._finished = True
             if self._c_last is not None:
-                self._resolve(self._head)
+                self._resolve(self._head, final=True)
         return self.samples(), self.stats
 
     def samples(self) -> ImuSampleBlock:
@@ -90,7 +95,7 @@ class StreamDecoder:
             self._blocks = [ImuSampleBlock.concatenate(self._blocks)]
         return self._blocks[0] if self._blocks else ImuSampleBlock.empty(self.rate_hz)
 
-    def _resolve(self, cutoff: int) -> None:
+    def _resolve(self, cutoff: int, final: bool = False) -> None:
         """Emit the samples of the counters from `_next` up to `cutoff` (inclusive); keep the rest pending."""
         if self._pending is None:
             return
@@ -115,7 +120,8 @@ class StreamDecoder:
             stats.counter_gaps += cutoff - lo + 1
             return
         if in_order:
-            starts = np.flatnonzero(np.diff(u, prepend=u[0] - 1) != 0)
+            starts = np.flatnonzero(du != 0) + 1
+            starts = np.concatenate([[0], starts]) if len(u) else starts
             counters = u[starts]
             present = np.diff(starts, append=len(u))
             complete = present == n_msgs
@@ -140,9 +146,15 @@ class StreamDecoder:
             block = ImuSampleBlock.from_raw(self.layout, counters[complete], t[last_frame[complete]], raw[complete],
                                             self.rate_hz)
         joined = int(lo == self._u0 and counters[0] == self._u0 and not complete[0])
+        # the newest counter's sample, incomplete at the end of the stream, was cut off by its end (not the
+        # first counter: that one is `joined`)
+        left = int(final and int(counters[-1]) == self._head and not complete[-1]
+                   and self._counters_seen + len(counters) > 1)
+        self._counters_seen += len(counters)
         stats.joined_mid_sample += joined
+        stats.left_mid_sample += left
         stats.samples += int(np.count_nonzero(complete))
-        stats.incomplete_samples += int(np.count_nonzero(~complete)) - joined
+        stats.incomplete_samples += int(np.count_nonzero(~complete)) - joined - left
         stats.counter_gaps += (cutoff - lo + 1) - len(counters)
         if len(block):
             self._blocks.append(block)

@@ -9,7 +9,7 @@ Run: python tests/benchmarks/noise_speed.py [--hours 8] [--rate-hz 1000] [--repe
 
 1. In memory: six channels of `--hours` at `--rate-hz` (white noise plus a random walk on a large
    offset, float64), octave-spaced taus. Timed side by side in one run, the repeats interleaved:
-   `bench.noise.allan.allan_curves` (both cores: one channel per thread) and `allantools.oadev`
+   `bench.noise.allan.allan_curves` (both cores: each channel's record split over two threads) and `allantools.oadev`
    (data_type "freq", the same taus, one channel after the other: it is single-threaded). Prints
    the medians, their ratio and the largest relative difference of the two at any tau.
 2. From a log: a static-noise log of `--log-hours` at `--rate-hz` (the simulated IMU, classic CAN
@@ -17,8 +17,9 @@ Run: python tests/benchmarks/noise_speed.py [--hours 8] [--rate-hz 1000] [--repe
    which a read for the noise leaves compressed, is not written), built once into the cache
    (default <system temp>/turntable-bench-noise, `--rebuild` writes it again). Timed: what
    `bench noise LOG` does short of writing the reports: `bench.noise.from_log.static_record` (read
-   the log, decode every frame, cut the dwell, scale to deg/h and ug) and `bench.noise.result.analyse`
-   (Allan deviation and fits). Median of the repeats; scaled linearly to 8 h.
+   the log, decode every frame, cut the dwell) and `bench.noise.result.analyse_blocks` (scale to deg/h
+   and ug block by block into the phase accumulator, Allan deviation and fits). Median of the repeats;
+   scaled linearly to 8 h.
 """
 
 from __future__ import annotations
@@ -162,7 +163,7 @@ seed = 0
 
 def from_log(args, cache: Path) -> tuple[float, float]:
     from bench.noise.from_log import static_record
-    from bench.noise.result import analyse
+    from bench.noise.result import analyse_blocks
 
     path = log_path(cache, args)
     if args.rebuild or not path.exists():
@@ -178,10 +179,10 @@ def from_log(args, cache: Path) -> tuple[float, float]:
         t0 = time.perf_counter()
         record = static_record(path)
         t1 = time.perf_counter()
-        analyse(record.data, record.rate_hz)
+        analyse_blocks(record.blocks(), record.rate_hz, capacity=len(record))
         totals.append(time.perf_counter() - t0)
         reads.append(t1 - t0)
-        n = len(record.data)
+        n = len(record)
         del record
     total, read = statistics.median(totals), statistics.median(reads)
     scale = 8.0 / args.log_hours
@@ -204,11 +205,13 @@ def main() -> None:
     parser.add_argument("--rebuild", action="store_true")
     parser.add_argument("--skip-memory", action="store_true", help="only the log part")
     args = parser.parse_args()
-    print(f"machine: {os.cpu_count()} cores")
+    print(f"machine: {os.cpu_count()} cores, load average {' '.join(f'{v:.2f}' for v in os.getloadavg())} "
+          "(other work on the machine slows both sides)")
     if not args.skip_memory:
         in_memory(args)
     if args.log_hours > 0:
         from_log(args, args.cache)
+    print(f"load average at the end: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
 
 
 if __name__ == "__main__":

@@ -16,7 +16,8 @@ and each name falls under one of `PROJECT_THREAD_PREFIXES`:
 - `mcap-inflate`, `can-frames`, `imu-screen`: `ThreadPoolExecutor` workers of the log reader
   (bench/log/chunks.py, bench/log/walk.py, bench/log/reader.py) and of the bulk IMU decoder
   (drivers/imu/bulk.py); an executor names its threads `<prefix>_<n>`
-- `allan-channel`: `ThreadPoolExecutor` workers of the Allan deviation, one channel each (bench/noise/allan.py)
+- `allan-channel`, `allan-part`: `ThreadPoolExecutor` workers of the Allan deviation (bench/noise/allan.py):
+  the phase accumulated one channel each, the sums over one part of a channel's record each
 
 Threads of pytest, Textual (thread workers run in asyncio's default executor, `asyncio_<n>`),
 asyncio and third-party libraries are not project threads and are not checked.
@@ -38,6 +39,7 @@ PROJECT_THREAD_PREFIXES: tuple[str, ...] = (
     "can-frames",
     "imu-screen",
     "allan-channel",
+    "allan-part",
 )
 
 #: How long a test's project threads get to finish after it (its fixtures torn down) before it fails.

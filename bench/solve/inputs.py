@@ -1,0 +1,62 @@
+"""What the solve knows beyond the data, from a bench configuration: bias stabilities, the budget's inputs."""
+
+from __future__ import annotations
+
+from bench.model.table_prior import TablePrior, rms_arcsec
+from bench.model.units import DEG_PER_HOUR, MICRO_G
+from bench.solve.budget import BudgetInputs
+
+
+def bias_stabilities(config, sim: bool) -> tuple[float | None, float | None]:
+    """(gyro deg/h, accelerometer ug) bias instabilities the solver adds to the bias sigmas.
+
+    A measured noise result (`[imu] noise = "FILE"`, from `bench noise`: the largest of
+    the three axes' Allan bias instability) first; else the IMU identity's datasheet
+    values; on the simulator with noise on, the simulated IMU's own where neither gives
+    one (it is what its datasheet would say).
+    """
+    identity, noise = config.imu.identity, config.imu.noise
+    if noise is not None:
+        return noise.gyro_bias_stability_dph, noise.acc_bias_stability_ug
+    gyro_stability, acc_stability = identity.gyro_bias_stability_dph, identity.acc_bias_stability_ug
+    if sim and config.sim.noise.enabled:
+        if gyro_stability is None:
+            gyro_stability = config.sim.noise.gyro_bias_instability_dph
+        if acc_stability is None:
+            acc_stability = config.sim.noise.acc_bias_instability_ug
+    return gyro_stability, acc_stability
+
+
+def budget_inputs(config, sim: bool) -> BudgetInputs:
+    """What the uncertainty budget knows beyond the data (`bench.solve.budget`), from the configuration.
+
+    Bias instabilities as `bias_stabilities` (taken as the 1-sigma of a Gauss-Markov bias;
+    its correlation time is the simulated IMU's on the simulator, else 300 s). The table's
+    part from `[table]` (datasheet figure or table check); on the simulator without either,
+    the simulated black box's RMS (what its datasheet would say). The site's uncertainty from
+    `[site]`, zero on the simulator (its world is the configured site exactly).
+    """
+    gyro, acc = bias_stabilities(config, sim)
+    pointing = config.table.pointing
+    if pointing is None and sim:
+        written = config.sim.black_box_arcsec      # the RMS it was drawn with, or the nine angles as written
+        rms = float(written) if isinstance(written, (int, float)) else rms_arcsec(config.sim.black_box_rad)
+        pointing = TablePrior.uniform(rms, f"the simulated table's black-box RMS ({rms:.3g} arcsec per angle)")
+    site = config.site
+    return BudgetInputs(table=pointing, gyro_bias_instability=(gyro or 0.0) * DEG_PER_HOUR,
+                        acc_bias_instability=(acc or 0.0) * MICRO_G,
+                        correlation_time_s=correlation_time_s(config, sim),
+                        gravity_sigma_mps2=0.0 if sim else site.gravity_sigma_mps2,
+                        latitude_sigma_deg=0.0 if sim else site.latitude_sigma_deg,
+                        turn_rate_dps=config.plan.turn_rate_dps)
+
+
+def correlation_time_s(config, sim: bool) -> float:
+    """The bias instability's correlation time: the simulated IMU's on the simulator, else 300 s."""
+    return config.sim.noise.correlation_time_s if sim else DEFAULT_CORRELATION_TIME_S
+
+
+#: correlation time of the bias instability when nothing better is known (s)
+DEFAULT_CORRELATION_TIME_S = 300.0
+
+__all__ = ["DEFAULT_CORRELATION_TIME_S", "bias_stabilities", "budget_inputs", "correlation_time_s"]
