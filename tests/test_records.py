@@ -189,7 +189,9 @@ def test_a_resolve_adds_a_result_and_history_takes_the_latest(archive, tmp_path)
         assert len(kg.points) == 2
         newest = next(p for p in kg.points if p.run_id == data["run"]["run_id"])
         assert newest.value == data["coefficients"]["Kg_x"]["value"] and newest.software_version == "9.0"
-        assert newest.budget == {"budget": {"noise": 0.1, "table": 0.05}}
+        # everything the result file says of the coefficient beyond value, sigma and unit (the budget, its k)
+        assert newest.budget is not None and newest.budget["budget"] == {"noise": 0.1, "table": 0.05}
+        assert set(newest.budget) == set(data["coefficients"]["Kg_x"]) - {"value", "sigma", "unit"}
 
 
 def test_unreadable_files_are_reported_and_the_rest_recorded(archive, tmp_path, capsys):
