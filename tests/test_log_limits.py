@@ -422,3 +422,31 @@ def _setup(log):
     from bench.log.run_info import layout_and_config_from_log
     setup = layout_and_config_from_log(log)
     return setup.layout, setup.rate_hz
+
+
+def test_chunks_left_in_the_file_past_what_may_stream_keep_no_index(can_chunk, tmp_path, monkeypatch):
+    """A 1 GB file of 250 honest 256 MiB chunks, each with a 4 MB message index, held 1 GB of index entries
+    before the walk began (2.2 GB peak): a chunk left in the file past what the log may stream keeps none."""
+    from bench.log.chunks import Prefetch
+    buf, _, can = can_chunk
+    msg = message_record(can, can_frames(40))
+    n = (1 << 20) // len(msg)
+    honest = chunk_record(zstd_bomb(msg, n * len(msg)), "zstd", n * len(msg))
+    index = message_index(can, [(1_000_000_000, k * len(msg)) for k in range(n)])
+    data = buf
+    for p in reversed(chunks(buf)[-4:]):
+        data = replace_chunk(data, p, honest + index)
+    honest_at = chunks(data)[-4:]
+    topics = frozenset({TOPIC_CAN, "/imu/samples"})   # what read_log leaves in the file
+    everything = Prefetch(data, defer_topics=topics, lazy=True)
+    sizes = {pos: fields[2] for pos, fields, _ in everything.chunks if pos in everything.deferred}
+    assert set(honest_at) <= set(sizes) and None not in everything.deferred.values()
+    # room for everything but the last two and a half honest chunks: the first honest one fits, the others not
+    monkeypatch.setattr(chunks_module, "MAX_STREAMED_INFLATED", sum(sizes.values()) - 5 * n * len(msg) // 2)
+    lazy = Prefetch(data, defer_topics=topics, lazy=True)
+    refused = {pos for pos, entries in lazy.deferred.items() if entries is None}
+    assert refused == set(honest_at[1:])
+    log = read_log(_crafted(tmp_path, data))
+    damage = [d for d in log.lost if "past what this log's chunks may inflate to in all" in d.reason]
+    assert sum(d.chunks for d in damage) == len(refused)
+    assert sum(d.lost.get(TOPIC_CAN, 0) for d in damage) >= 2 * n   # their index still counts what was lost

@@ -231,14 +231,16 @@ def test_bench_run_and_bench_solve_record_the_imu_temperature_and_thermal_fit_ta
     config.write_text(config_text() + "\n[sim.imu.thermal]\nambient_c = 40.0\ninitial_c = 30.0\n"
                                       "time_constant_s = 60.0\nKg_x = [0.36]\n", encoding="utf-8")
     rc, _, stderr = cli(["run", "--config", str(config), "--out", str(tmp_path / "run"), "--quiet"])
-    assert rc == 0, stderr
+    # its gyro x scale factor drifts with the case temperature during the run: the uncertainty budget cannot
+    # explain the rotations' residuals, which is a quality failure (exit 4; the result is written all the same)
+    assert rc == 4 and "gyros x: residuals inconsistent with the uncertainty budget" in stderr, stderr
     result = CalibrationResult.load(only_file(tmp_path / "run", "*.result.json"))
     t = result.temperature
     assert t is not None and t["source"] == "IMU frames"
     assert 30.0 <= t["min_c"] < 30.1 and 39.0 < t["max_c"] <= 40.0 and 30.0 < t["mean_c"] < 40.0
     rc, _, stderr = cli(["solve", str(only_file(tmp_path / "run", "*.mcap")), "--out", str(tmp_path / "solve"),
                          "--no-html"])
-    assert rc == 0, stderr
+    assert rc == 4 and "residuals inconsistent with the uncertainty budget" in stderr, stderr
     resolved = CalibrationResult.load(only_file(tmp_path / "solve", "*.result.json"))
     assert resolved.temperature == t
     # a result of a run is a thermal point like any other

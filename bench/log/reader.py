@@ -247,22 +247,28 @@ class RunLog:
             return
         for k, answer in _inflated_parts(d):
             fresh = k >= self._scan_pos
-            if fresh:
-                self._scan_pos = k + 1
             if isinstance(answer, Damage):
                 if fresh:
+                    self._scan_pos = k + 1
                     self._add(answer)
                     d.parts[k], d.lengths[k], d.log_times[k] = None, d.lengths[k][:0], d.log_times[k][:0]
                 continue
-            piece, bad = answer
+            # a part's payloads are decoded a slice at a time (a 256 MiB chunk of frames is ~11 M frames: its
+            # arrays, and the general route's for mixed lengths, would be several times that at once)
+            frames = non_data = bad = 0
+            for piece, malformed in _decoded_slices(answer, d.lengths[k], d.log_times[k]):
+                frames += len(piece[1])
+                non_data += int(np.count_nonzero(piece[4] & (FLAG_REMOTE | FLAG_ERROR)))
+                bad += malformed
+                yield piece
+                piece = None   # (the caller's reference is the last: nothing here keeps a chunk's frames)
             answer = None
-            if fresh:
-                self._frame_count += len(piece[1])
-                self._non_data += int(np.count_nonzero(piece[4] & (FLAG_REMOTE | FLAG_ERROR)))
+            if fresh:   # counted once the whole part is through (a pass left half way counts nothing of it)
+                self._scan_pos = k + 1
+                self._frame_count += frames
+                self._non_data += non_data
                 if bad:
                     self._add(_malformed(TOPIC_CAN, bad))
-            yield piece
-            piece = None   # (the caller's reference is the last: nothing here keeps a chunk's frames)
         self._can_scanned = True
 
     def _scan_can(self) -> None:
@@ -384,6 +390,8 @@ class RunLog:
                 f"{len(self.events)} events, {self.chunks} chunks{unchecked}; {state}")
 
 
+#: Payload bytes of a `/can/raw` part decoded into frame arrays at once.
+_SLICE_BYTES = 32 << 20
 #: Frames handed to the stream decoder at once (its working arrays are about 100 bytes a frame).
 _FEED_FRAMES = 1 << 20
 #: Declared bytes of `/can/raw` chunks decompressed ahead of the one being decoded (at least one chunk).
@@ -391,14 +399,25 @@ _STREAM_AHEAD_BYTES = 96 << 20
 
 
 def _can_part(part, lengths: np.ndarray, log_times: np.ndarray):
-    """(frames, malformed count) of one `/can/raw` part (a deferred chunk is read and decompressed first),
-    or the reason a deferred chunk cannot be used."""
+    """One `/can/raw` part as (chunk data, payload starts) or its payloads back to back (a deferred chunk is
+    read and decompressed first, on a worker thread), or the reason a deferred chunk cannot be used."""
     if isinstance(part, DeferredChunk):
-        answer = part.inflate()
-        if isinstance(answer, str):
-            return answer
-        part = answer
-    return decode_can_frames(ChannelData([part], [lengths], [log_times]), release=True)
+        return part.inflate()
+    return part
+
+
+def _decoded_slices(part, lengths: np.ndarray, log_times: np.ndarray):
+    """(frames, malformed count) of a part's payloads, at most `_SLICE_BYTES` of payloads at a time."""
+    if isinstance(part, tuple):
+        data, starts = part
+    else:   # payloads back to back
+        data, starts = part, np.cumsum(lengths) - lengths
+    ends = np.cumsum(lengths)
+    a = 0
+    while a < len(lengths):
+        b = max(a + 1, int(np.searchsorted(ends, ends[a] - lengths[a] + _SLICE_BYTES, side="right")))
+        yield decode_can_frames(ChannelData([(data, starts[a:b])], [lengths[a:b]], [log_times[a:b]]), release=True)
+        a = b
 
 
 def _inflated_parts(d: ChannelData):

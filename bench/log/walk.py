@@ -546,6 +546,12 @@ class _Walker:
         self.flush_loose()
         prefetch = self.prefetch
         deferred = prefetch.deferred.get(pos) if prefetch is not None else None
+        if (deferred is None and prefetch is not None and pos in prefetch.deferred and self.source is not None
+                and prefetch.chunks[prefetch.index[pos]][1] == f):
+            # left in the file, past what the log may stream (the prefetch kept no index for it)
+            self.refuse(pos, w.stream_budget.take(usize) or "past what this log's chunks may stream", start, end,
+                        joinable)
+            return True
         if deferred is not None and prefetch is not None and prefetch.chunks[prefetch.index[pos]][1] == f:
             # kept compressed: counted against the budget at that size now, at its own when it is inflated
             # (`ChannelData.inflate_deferred`); with a `source`, nothing is kept (it is read again when needed)

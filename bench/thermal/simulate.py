@@ -22,7 +22,7 @@ from bench.sim.acquire import AcquisitionTiming, acquire
 from bench.sim.imu import SimImu
 from bench.sim.table import SimTable
 from bench.solve.calibrate import solve
-from bench.solve.inputs import bias_stabilities
+from bench.solve.inputs import bias_stabilities, budget_inputs
 from bench.thermal.model import ThermalModel, ThermalPoint, fit_thermal_model
 
 #: the thermal behaviour `bench thermal sim` gives the simulated IMU when the configuration has no
@@ -55,9 +55,11 @@ def simulate_point(config: BenchConfig, thermal: ImuThermal, temperature_c: floa
     positions, rotations = acquire(table, imu, [s.angles_deg for s in plan.positions.positions] if plan.positions
                                    else [], list(plan.rotations.rotations) if plan.rotations else [], timing_of(config))
     gyro_dph, acc_ug = bias_stabilities(config, True)
+    # the budget's inputs as `bench run --sim` gives them (the table's part: the simulated black box's RMS):
+    # without them the table's pointing error in the residuals went unexplained and widened every sigma
     calibration = solve(positions, rotations, config.site.site,
                         gyro_bias_stability=(gyro_dph or 0.0) * DEG_PER_HOUR,
-                        acc_bias_stability=(acc_ug or 0.0) * MICRO_G)
+                        acc_bias_stability=(acc_ug or 0.0) * MICRO_G, budget_inputs=budget_inputs(config, True))
     assert imu.case is not None
     summary = imu.case.summary() or {"mean_c": float(temperature_c)}
     temperature: dict[str, Any] = {**summary, "source": "simulated IMU case", "ambient_c": float(temperature_c)}
