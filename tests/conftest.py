@@ -31,3 +31,10 @@ def no_leftover_project_threads():
 def no_leftover_tui_threads(no_leftover_project_threads):
     """Former opt-in name of the check, kept as an alias: every test is checked anyway."""
     yield
+
+
+@pytest.fixture(autouse=True)
+def records_database_in_tmp(tmp_path_factory, monkeypatch):
+    """Every test's `bench run` / `bench solve` / `bench check-table` records into a database of its own in a
+    temporary folder, never into the user's default one (`bench.records.store.default_url`)."""
+    monkeypatch.setenv("BENCH_DB", str(tmp_path_factory.mktemp("records") / "records.sqlite"))

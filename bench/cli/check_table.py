@@ -22,6 +22,7 @@ import re
 from pathlib import Path
 
 from bench.cli.common import ExitCode, fail, raise_interrupted, run_plan, stop_signals
+from bench.cli.db import add_db_options, record_outputs
 from bench.errors import BenchError
 from bench.model.units import format_hms
 
@@ -58,6 +59,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="output folder (default: the config's [output] folder; with --log next to the log)")
     parser.add_argument("--operator", default="", help="who runs it (recorded in the log)")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    add_db_options(parser)
     parser.set_defaults(func=cmd_check_table)
 
 
@@ -282,6 +284,7 @@ def _report(args, analysis, out_dir: Path, paths: dict | None = None) -> ExitCod
         for note in analysis.problems + analysis.notes:
             print(f"note: {note}")
         print(f"log:    {analysis.log_path}\nresult: {paths['json']}\nreport: {paths['markdown']}, {paths['html']}")
+    record_outputs(args, PROG, [paths["json"], analysis.log_path])     # after the files: a failure only warns
     if analysis.problems:
         return fail(PROG, "quality check failed: " + "; ".join(analysis.problems), ExitCode.QUALITY)
     if analysis.sim_within_3_sigma is False:

@@ -15,6 +15,7 @@ from bench import __version__
 from bench.cli import apply as apply_cli
 from bench.cli import chamber as chamber_cli
 from bench.cli import check_table, evaluate, export_can, replay, run, schedules, sim_rig, solve, table, thermal, tui
+from bench.cli import db as db_cli
 from bench.cli import export as export_cli
 from bench.cli import noise as noise_command
 from bench.cli import verify as verify_cli
@@ -51,6 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     apply_cli.register(sub)
     verify_cli.register(sub)
     thermal.register(sub)
+    db_cli.register(sub)
     return parser
 
 

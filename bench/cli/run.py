@@ -12,6 +12,7 @@ import argparse
 from pathlib import Path
 
 from bench.cli.common import ExitCode, fail, raise_interrupted, run_plan, stop_signals
+from bench.cli.db import add_db_options, record_outputs
 from bench.cli.verify import run_verification
 
 
@@ -33,6 +34,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--quiet", action="store_true",
                         help="no progress output (the three-line summary, verdict, worst check and the result and "
                              "report paths, is always printed)")
+    add_db_options(parser)
     parser.set_defaults(func=cmd_run)
 
 
@@ -99,6 +101,7 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
             return fail(PROG, f"the run finished but its result cannot be written: "
                               f"{exc.strerror or exc} ({exc.filename}). Log: {run.log_path}", ExitCode.FAULT)
     if outcome.error is not None:
+        record_outputs(args, PROG, [outcome.log_path])      # the table is stopped and the log closed: now record
         return fail(PROG, f"{outcome.state.value}: {outcome.error}; table stopped. Log: {outcome.log_path} "
                      f"(continue with --resume {outcome.log_path})", ExitCode.FAULT)
     if not args.quiet:
@@ -118,6 +121,7 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
     print(run_summary(outcome, verified))
     if outcome.thermal_paths:       # a calibration over temperature: each temperature's result and the model
         print("thermal: " + ", ".join(str(p) for p in outcome.thermal_paths))
+    record_outputs(args, PROG, [outcome.result_path, outcome.log_path])   # after the files: a failure only warns
     if outcome.verdict is not None and not outcome.verdict.passed:
         return fail(PROG, "quality check failed: " + "; ".join(c.describe() for c in outcome.verdict.failed),
                     ExitCode.QUALITY)

@@ -13,6 +13,8 @@ import json
 from pathlib import Path
 
 from bench.cli.common import ExitCode, fail
+from bench.cli.db import add_db_options, record_outputs
+from bench.cli.solve_archive import add_archive_options, cmd_archive
 
 PROG = "bench solve"
 
@@ -26,7 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "what was lost. Exit codes: 0 solved, 2 usage error or unreadable log or a subset the log "
                     "lacks or a static noise recording (`bench noise LOG` analyses it), 4 solved but a quality "
                     "check failed.")
-    parser.add_argument("logs", nargs="+", metavar="LOG", help="run log(s) (.mcap)")
+    parser.add_argument("logs", nargs="*", metavar="LOG", help="run log(s) (.mcap)")
     parser.add_argument("--positions", metavar="NAME|FILE",
                         help="solve only these recorded positions (a schedule: optimal-24, traditional-12, all-64, "
                              "a file; 'none' for none)")
@@ -45,6 +47,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--no-earlier", action="store_true",
                         help="do not add the earlier logs a resumed log names")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    add_db_options(parser)
+    add_archive_options(parser)
     parser.set_defaults(func=cmd_solve)
 
 
@@ -70,6 +74,10 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
     from bench.solve.methods import SolverError
     from bench.solve.resolve import SolveInputError, load_recorded, load_subset_schedule, solve_recorded, write_outputs
 
+    if args.archive:
+        return cmd_archive(args)
+    if not args.logs:
+        return fail(PROG, "give run log(s), or --archive DIR...", ExitCode.USAGE)
     if args.compare and (args.positions or args.rotations):
         return fail(PROG, "--compare chooses the subsets itself: drop --positions/--rotations", ExitCode.USAGE)
     if args.json and not args.compare:
@@ -137,6 +145,7 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
             for note in recorded.notes:
                 print(f"note: {note}")
             print(f"result: {result_path}\nreport: {report_path}" + (f"\n        {html_path}" if html_path else ""))
+        record_outputs(args, PROG, [result_path, *(log.path for log in recorded.logs)])   # after the files are written
         failures = resolved.failures
         if resolved.verdict is not None:
             if not args.quiet:

@@ -1,0 +1,163 @@
+"""`bench db`: the calibration records (logic in `bench.records`).
+
+`bench db import PATH...` records result files and logs already on disk (idempotent),
+`bench db list` lists runs, `bench db history SERIAL` shows a unit's coefficients over
+time. `add_db_options` and `record_outputs` are the hooks `bench run`, `bench solve` and
+`bench check-table` use to record what they wrote: after the files are written, and a
+database that fails only warns (the files are the record; `bench db import` adds them later).
+
+Exit codes: 0 done; 2 usage error, or the database cannot be opened; 4 `import` found
+files it could not read (the others are recorded).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import sys
+from pathlib import Path
+
+from bench.cli.common import ExitCode, fail
+
+PROG = "bench db"
+DB_HELP = ("records database: a SQLAlchemy URL (postgresql://user@host/db) or a SQLite file path (default: $BENCH_DB, "
+           "else $XDG_DATA_HOME/turntable-bench/records.sqlite, i.e. ~/.local/share/turntable-bench/records.sqlite)")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "db", help="calibration records: import results and logs, list runs, a unit's history",
+        description="The records database (SQLite file by default; PostgreSQL with --db postgresql://...). "
+                    "Exit codes: 0 done, 2 usage error or the database cannot be opened, 4 import found unreadable "
+                    "files (the others are recorded).")
+    parser.add_argument("--db", metavar="URL", help=DB_HELP)
+    sub = parser.add_subparsers(dest="db_command", metavar="ACTION")
+    sub.required = True
+    p = sub.add_parser("import", help="record result files (*.result.json, *.table-check.json) and logs (*.mcap)",
+                       description="Record result files and run logs on disk; folders are searched recursively. "
+                                   "Idempotent: a file already recorded is skipped.")
+    p.add_argument("paths", nargs="+", metavar="PATH", help="result files, logs, or folders to search")
+    p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
+    p.add_argument("--quiet", action="store_true", help="print only the counts and failures")
+    p.set_defaults(func=cmd_import)
+    p = sub.add_parser("list", help="list recorded runs, newest first")
+    p.add_argument("--serial", metavar="S", help="only this unit's runs")
+    p.add_argument("--since", metavar="DATE", help="only runs started (else finished) on or after DATE (YYYY-MM-DD)")
+    p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
+    p.set_defaults(func=cmd_list)
+    p = sub.add_parser("history", help="a unit's coefficients over time: changes in sigma, drift per year",
+                       description="The unit's latest result of every calibration run, oldest first: each coefficient "
+                                   "with its 1-sigma, its change from the calibration before in combined sigma, and "
+                                   "its drift per year (weighted straight-line fit). --out writes JSON, CSV, a plot.")
+    p.add_argument("serial", metavar="SERIAL", help="the unit's serial number (as its logs record it)")
+    p.add_argument("--coefficient", metavar="NAME", nargs="+", action="extend",
+                   help="only these coefficients (e.g. Kg_x bg_z)")
+    p.add_argument("--model", metavar="MODEL", help="the model, when the serial is recorded for several")
+    p.add_argument("--out", metavar="DIR", help="write <serial>.history.json, .csv and .png here")
+    p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
+    p.set_defaults(func=cmd_history)
+
+
+def _open(args: argparse.Namespace):
+    # imported when the command runs: `bench` starts without SQLAlchemy
+    from bench.records.store import open_records
+
+    return open_records(getattr(args, "db", None))
+
+
+def cmd_import(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without SQLAlchemy
+    from bench.records.ingest import import_paths
+    from bench.records.store import RecordsError
+
+    missing = [p for p in args.paths if not Path(p).exists()]
+    if missing:
+        return fail(PROG, f"{missing[0]}: no such file or folder", ExitCode.USAGE)
+    try:
+        with _open(args) as records:
+            report = import_paths(records, args.paths)
+    except RecordsError as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
+    if not args.quiet:
+        for path in report.added:
+            print(f"recorded {path}")
+    print(f"{len(report.added)} recorded, {len(report.known)} already known, {len(report.failed)} failed")
+    for path, reason in report.failed:
+        print(f"{PROG}: {path}: {reason}", file=sys.stderr)
+    return ExitCode.QUALITY if report.failed else ExitCode.OK
+
+
+def cmd_list(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without SQLAlchemy
+    from bench.records.store import RecordsError
+
+    since = None
+    if args.since:
+        try:
+            since = dt.datetime.fromisoformat(args.since)
+        except ValueError:
+            return fail(PROG, f"--since {args.since!r}: not a date (YYYY-MM-DD or YYYY-MM-DDTHH:MM)", ExitCode.USAGE)
+        if since.tzinfo is not None:
+            since = since.astimezone(dt.UTC).replace(tzinfo=None)
+    try:
+        with _open(args) as records:
+            rows = records.list_runs(serial=args.serial, since=since)
+    except RecordsError as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
+    print(f"{'started (UTC)':20} {'run':28} {'kind':11} {'model':20} {'serial':14} {'outcome':9} {'results':>7} "
+          f"verdict")
+    for r in rows:
+        when = r.started_utc or r.finished_utc
+        print(f"{(when.isoformat(timespec='seconds') if when else '-'):20} {r.run_id[:28]:28} {r.kind:11} "
+              f"{r.model[:20]:20} {r.serial[:14]:14} {(r.outcome or '-'):9} {r.results:>7} {r.verdict or '-'}")
+    print(f"{len(rows)} run(s)")
+    return ExitCode.OK
+
+
+def cmd_history(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without SQLAlchemy
+    from bench.records.history import format_history, unit_history, write_history
+    from bench.records.store import RecordsError
+
+    try:
+        with _open(args) as records:
+            history = unit_history(records, args.serial, names=args.coefficient, model=args.model)
+    except RecordsError as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
+    if args.coefficient and not history.coefficients:
+        return fail(PROG, f"unit {args.serial!r} has no recorded coefficient named {', '.join(args.coefficient)}",
+                    ExitCode.USAGE)
+    print(format_history(history), end="")
+    if args.out:
+        try:
+            paths = write_history(history, args.out)
+        except OSError as exc:
+            return fail(PROG, f"cannot write the history: {exc.strerror or exc} ({exc.filename})", ExitCode.USAGE)
+        print("wrote " + ", ".join(str(p) for p in paths))
+    return ExitCode.OK
+
+
+# -- the hooks of bench run / solve / check-table ------------------------------------------------
+
+def add_db_options(parser: argparse.ArgumentParser) -> None:
+    """`--db URL` and `--no-db` on a command that records what it writes."""
+    parser.add_argument("--db", metavar="URL", help=DB_HELP)
+    parser.add_argument("--no-db", action="store_true", help="do not record the result in the records database")
+
+
+def record_outputs(args: argparse.Namespace, prog: str, paths: list[Path | str | None]) -> None:
+    """Record the written result files (and logs) unless --no-db; a failure is one warning line, never an error."""
+    if getattr(args, "no_db", False):
+        return
+    # imported when the command runs: `bench` starts without SQLAlchemy
+    from bench.records.ingest import import_file
+    from bench.records.store import RecordsError, open_records
+
+    files = [Path(p) for p in paths if p is not None]
+    try:
+        with open_records(getattr(args, "db", None)) as records:
+            for path in files:
+                import_file(records, path)
+    except (RecordsError, OSError, ValueError) as exc:
+        print(f"{prog}: warning: not recorded in the records database ({exc}); the files are kept: "
+              f"`bench db import` records them later", file=sys.stderr)

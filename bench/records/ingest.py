@@ -1,0 +1,182 @@
+"""Files on disk into the records database: result files (`*.result.json`), table-check results
+(`*.table-check.json`) and run logs (`*.mcap`), found in folders or named one by one.
+
+Idempotent: a result file already recorded (same SHA-256) is skipped, a run is keyed by its
+run id. A result's run is described from the result and, when its log lies next to it,
+from the log's metadata (start time, table, the log's hash). A file that cannot be read
+is reported with its reason and the rest go on.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bench.errors import BenchError, InputError
+from bench.records.errors import RecordsError
+from bench.records.store import Records, RunInfo, utc
+
+RESULT_FORMAT = "turntable-bench/result"
+TABLE_CHECK_FORMAT = "turntable-bench/table-check"
+#: the files `import_paths` takes from a folder
+PATTERNS = ("*.result.json", "*.table-check.json", "*.mcap")
+_HASH_CHUNK = 1 << 20
+
+
+class IngestError(InputError):
+    """A file that is not a result, a table-check result or a run log this software reads."""
+
+
+@dataclass
+class ImportReport:
+    """What `import_paths` did: files newly recorded, already known, and failed (path, reason)."""
+
+    added: list[str] = field(default_factory=list)
+    known: list[str] = field(default_factory=list)
+    failed: list[tuple[str, str]] = field(default_factory=list)
+
+
+def sha256_of(path: str | Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(_HASH_CHUNK):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def find_files(paths: list[str | Path]) -> list[Path]:
+    """The files named, and in each folder named every file matching `PATTERNS` (recursively), sorted."""
+    found: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            found += sorted({f for pattern in PATTERNS for f in p.rglob(pattern) if f.is_file()})
+        else:
+            found.append(p)
+    return found
+
+
+def import_paths(records: Records, paths: list[str | Path]) -> ImportReport:
+    """Record every result file and log under `paths`: results first, so that a log adds to its run."""
+    report = ImportReport()
+    files = find_files(paths)
+    for path in sorted(files, key=lambda p: p.suffix == ".mcap"):
+        try:
+            new = import_file(records, path)
+        except RecordsError:
+            raise                               # the database failed: not this file's fault, stop
+        except (OSError, BenchError) as exc:    # the file is unreadable, damaged or not ours: the rest go on
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            report.failed.append((str(path), reason))
+            continue
+        (report.added if new else report.known).append(str(path))
+    return report
+
+
+def import_file(records: Records, path: str | Path) -> bool:
+    """Record one file; True if the database learnt something from it."""
+    path = Path(path)
+    if path.suffix == ".mcap":
+        return records.add_run(log_run_info(path))
+    data, sha = _read_json(path)
+    fmt = data.get("format")
+    if fmt == RESULT_FORMAT:
+        return records.add_result(data, sha, str(path.absolute()), result_run_info(data, path))
+    if fmt == TABLE_CHECK_FORMAT:
+        return records.add_result(table_check_as_result(data), sha, str(path.absolute()),
+                                  result_run_info(data, path, kind="table-check"))
+    raise IngestError(f"{path}: not a {RESULT_FORMAT} or {TABLE_CHECK_FORMAT} file")
+
+
+def _read_json(path: Path) -> tuple[dict[str, Any], str]:
+    raw = path.read_bytes()
+    try:
+        data = json.loads(raw)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise IngestError(f"{path}: not JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise IngestError(f"{path}: not a result file (a JSON object)")
+    return data, hashlib.sha256(raw).hexdigest()
+
+
+def result_run_info(data: dict[str, Any], path: Path, kind: str = "calibration") -> RunInfo:
+    """The run a result file belongs to, completed from its log when the log lies next to it."""
+    run: dict[str, Any] = data["run"] if isinstance(data.get("run"), dict) else {}
+    run_id = str(run.get("run_id") or "").strip()
+    if not run_id:
+        raise IngestError(f"{path}: the result names no run (run.run_id)")
+    imu: dict[str, Any] = run["imu"] if isinstance(run.get("imu"), dict) else {}
+    site = run.get("site") if isinstance(run.get("site"), dict) else None
+    software = str(run.get("software_version") or data.get("software_version") or "")
+    info = RunInfo(run_id=run_id, model=str(imu.get("model", "")), serial=str(imu.get("serial", "")), kind=kind,
+                   mode=str(run.get("mode", "")), operator=str(run.get("operator", "")), site=site,
+                   plan=_plan(run.get("positions"), run.get("rotations")), software_version=software,
+                   finished_utc=utc(run.get("finished_utc")), outcome=str(run.get("state", "")))
+    log_name = run.get("log")
+    if isinstance(log_name, str) and log_name:
+        log_path = path.parent / Path(log_name).name      # a name from a file never leaves the result's folder
+        if log_path.is_file():
+            try:
+                from_log = log_run_info(log_path)
+            except (OSError, BenchError):
+                return info                                # the log is damaged beyond its metadata: the result stands
+            if from_log.run_id == run_id:
+                return _merged(info, from_log)
+    return info
+
+
+def _plan(positions: Any, rotations: Any) -> str:
+    if not isinstance(positions, str) and not isinstance(rotations, str):
+        return ""
+    return f"{positions or 'none'} + {rotations or 'none'}"
+
+
+def _merged(result: RunInfo, log: RunInfo) -> RunInfo:
+    """The result's fields, with what only the log knows (start, table, the log file and its hash)."""
+    return RunInfo(**{**log.__dict__, **{k: v for k, v in result.__dict__.items() if v not in (None, "", {})}})
+
+
+def log_run_info(path: Path) -> RunInfo:
+    """A run as its log's metadata records it (the log's content hashed); InputError if it is no run log."""
+    # the log reader reads the metadata and summary, not the data chunks (those are read when asked for)
+    from bench.log.reader import read_log
+
+    log = read_log(str(path))
+    meta = log.metadata
+    run, imu, plan = meta.get("run") or {}, meta.get("imu") or {}, meta.get("plan") or {}
+    run_id = str(run.get("run_id", "")).strip()
+    if not run_id:
+        raise IngestError(f"{path}: the log records no run id")
+    table_url = ""
+    toml_text = (meta.get("config") or {}).get("toml")
+    if isinstance(toml_text, str):
+        try:
+            table = tomllib.loads(toml_text).get("table")
+            table_url = str(table.get("url", "")) if isinstance(table, dict) else ""
+        except tomllib.TOMLDecodeError:
+            pass
+    site = meta.get("site") or None
+    return RunInfo(run_id=run_id, model=str(imu.get("model", "")), serial=str(imu.get("serial", "")),
+                   kind="table-check" if run.get("kind") == "table-check" else "calibration",
+                   mode=str(run.get("mode", "")), log_path=str(path.absolute()), log_sha256=sha256_of(path),
+                   operator=str(run.get("operator", "")), site=dict(site) if site else None, table_url=table_url,
+                   plan=_plan(plan.get("positions"), plan.get("rotations")),
+                   software_version=str(run.get("software_version", "")), started_utc=utc(run.get("started_utc")))
+
+
+def table_check_as_result(data: dict[str, Any]) -> dict[str, Any]:
+    """A table-check result in the shape `Records.add_result` takes: its combinations as coefficients (arcsec)."""
+    coefficients = {}
+    for combination in data.get("combinations") or []:
+        if isinstance(combination, dict) and isinstance(combination.get("key"), str):
+            coefficients[combination["key"]] = {"value": combination.get("value_arcsec"),
+                                                "sigma": combination.get("sigma_arcsec"), "unit": "arcsec"}
+    return {"coefficients": coefficients,
+            "quality": {k: data.get(k) for k in ("reduced_chi2", "dof", "residual_rms_arcsec") if k in data}}
+
+
+__all__ = ["ImportReport", "IngestError", "PATTERNS", "find_files", "import_file", "import_paths", "log_run_info",
+           "result_run_info", "sha256_of", "table_check_as_result"]

@@ -1,0 +1,338 @@
+"""The records database: open it (SQLite by default, any SQLAlchemy URL), record runs and results, query them.
+
+`open_records(url)` opens (and creates or migrates) the database; `Records.add_result`
+records one result file's content, `Records.add_log` one run log's metadata; both are
+idempotent (a result by the SHA-256 of its file, a run by its run id). The default
+database is a SQLite file, `default_url()`: `$BENCH_DB` when set, else
+`$XDG_DATA_HOME/turntable-bench/records.sqlite` (`~/.local/share/...` without XDG_DATA_HOME).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterator
+
+import sqlalchemy as sa
+
+from bench import __version__
+from bench.records import schema
+from bench.records.errors import RecordsError
+from bench.records.migrate import migrate
+
+#: environment variable naming the records database (a URL or a file path)
+DB_ENV = "BENCH_DB"
+
+
+def default_url() -> str:
+    """`$BENCH_DB`, else the SQLite file under `$XDG_DATA_HOME` (`~/.local/share`)."""
+    named = os.environ.get(DB_ENV, "").strip()
+    if named:
+        return named
+    base = os.environ.get("XDG_DATA_HOME", "").strip() or str(Path.home() / ".local" / "share")
+    return str(Path(base) / "turntable-bench" / "records.sqlite")
+
+
+def database_url(name: str | None) -> str:
+    """A SQLAlchemy URL from `--db` (a URL or a file path; None: `default_url()`)."""
+    name = (name or "").strip() or default_url()
+    if "://" in name:
+        return name
+    return f"sqlite:///{Path(name).expanduser().absolute()}"
+
+
+def utc(text: Any) -> dt.datetime | None:
+    """A naive UTC datetime from an ISO 8601 text (`2026-11-24T02:49:01Z`), or None."""
+    if not isinstance(text, str) or not text.strip():
+        return None
+    try:
+        when = dt.datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+    except ValueError:
+        return None
+    return when.astimezone(dt.UTC).replace(tzinfo=None) if when.tzinfo is not None else when
+
+
+def _now() -> dt.datetime:
+    return dt.datetime.now(dt.UTC).replace(tzinfo=None)
+
+
+@dataclass(frozen=True)
+class RunInfo:
+    """What the database holds of one run (the fields of `schema.runs`)."""
+
+    run_id: str
+    model: str
+    serial: str
+    kind: str = "calibration"
+    mode: str = ""
+    log_path: str | None = None
+    log_sha256: str | None = None
+    operator: str = ""
+    site: dict | None = None
+    table_url: str = ""
+    plan: str = ""
+    software_version: str = ""
+    started_utc: dt.datetime | None = None
+    finished_utc: dt.datetime | None = None
+    outcome: str = ""
+
+
+@dataclass(frozen=True)
+class RunRow:
+    """One line of `bench db list`."""
+
+    run_id: str
+    model: str
+    serial: str
+    kind: str
+    started_utc: dt.datetime | None
+    finished_utc: dt.datetime | None
+    outcome: str
+    operator: str
+    plan: str
+    results: int
+    verdict: str | None
+    log_path: str | None
+
+
+class Records:
+    """An open records database (`open_records`). Use as a context manager, or `close()`."""
+
+    def __init__(self, engine: sa.Engine) -> None:
+        self.engine = engine
+
+    def close(self) -> None:
+        self.engine.dispose()
+
+    def __enter__(self) -> "Records":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- writing ---------------------------------------------------------------------------------
+
+    def add_run(self, info: RunInfo) -> bool:
+        """Record a run (or fill in what an earlier record of it lacked); True if anything was new."""
+        with self._begin() as conn:
+            return _upsert_run(conn, info)[1]
+
+    def add_result(self, data: dict[str, Any], sha256: str, path: str | None, run: RunInfo) -> bool:
+        """Record one result file's content (`CalibrationResult.to_json` form) of `run`; False if already held."""
+        table = schema.results
+        with self._begin() as conn:
+            if conn.execute(sa.select(table.c.id).where(table.c.sha256 == sha256)).first() is not None:
+                _upsert_run(conn, run)
+                return False
+            run_pk, _ = _upsert_run(conn, run)
+            verdict = _dict_or_none(data.get("verdict"))
+            mean_c = (_dict_or_none(data.get("temperature")) or {}).get("mean_c")
+            result_id = _insert(conn, sa.insert(table).values(
+                run_pk=run_pk, path=path, sha256=sha256,
+                software_version=run.software_version, imported_utc=_now(),
+                solved_utc=utc((_dict_or_none(data.get("run")) or {}).get("solved_utc")) or run.finished_utc,
+                verdict=None if verdict is None else ("pass" if verdict.get("passed") else "fail"),
+                verdict_json=verdict, quality=_dict_or_none(data.get("quality")),
+                temperature_c=float(mean_c) if isinstance(mean_c, (int, float)) and math.isfinite(mean_c) else None,
+            ))
+            table_in = _dict_or_none(data.get("coefficients")) or {}
+            rows = [row for name, entry in table_in.items()
+                    if (row := _coefficient_row(result_id, name, entry)) is not None]
+            if rows:
+                conn.execute(sa.insert(schema.coefficients), rows)
+            return True
+
+    def has_result(self, run_id: str, software_version: str) -> bool:
+        """A result of `run_id` solved by `software_version` is recorded (what a resumed archive re-solve skips)."""
+        r, s = schema.runs, schema.results
+        query = (sa.select(s.c.id).join(r, r.c.id == s.c.run_pk)
+                 .where(r.c.run_id == run_id, s.c.software_version == software_version).limit(1))
+        with self._connect() as conn:
+            return conn.execute(query).first() is not None
+
+    def logs_solved_by(self, software_version: str) -> set[str]:
+        """The log paths of the runs that have a result of `software_version` (what an archive re-solve skips)."""
+        r, s = schema.runs, schema.results
+        query = (sa.select(r.c.log_path).join(s, s.c.run_pk == r.c.id)
+                 .where(s.c.software_version == software_version, r.c.log_path.is_not(None)).distinct())
+        with self._connect() as conn:
+            return {path for (path,) in conn.execute(query)}
+
+    # -- reading ---------------------------------------------------------------------------------
+
+    def list_runs(self, serial: str | None = None, since: dt.datetime | None = None) -> list[RunRow]:
+        """Runs (newest first), of one serial and/or started (else finished) at or after `since`."""
+        u, r, s = schema.units, schema.runs, schema.results
+        counts = sa.select(s.c.run_pk, sa.func.count(s.c.id).label("n")).group_by(s.c.run_pk).subquery()
+        newest = _newest_results().subquery()
+        when = sa.func.coalesce(r.c.started_utc, r.c.finished_utc)
+        query = (sa.select(r.c.run_id, u.c.model, u.c.serial, r.c.kind, r.c.started_utc, r.c.finished_utc,
+                           r.c.outcome, r.c.operator, r.c.plan, sa.func.coalesce(counts.c.n, 0), s.c.verdict,
+                           r.c.log_path)
+                 .join(u, u.c.id == r.c.unit_id)
+                 .outerjoin(counts, counts.c.run_pk == r.c.id)
+                 .outerjoin(newest, newest.c.run_pk == r.c.id)
+                 .outerjoin(s, s.c.id == newest.c.id)
+                 .order_by(when.desc(), r.c.run_id.desc()))
+        if serial is not None:
+            query = query.where(u.c.serial == serial)
+        if since is not None:
+            query = query.where(when >= since)
+        with self._connect() as conn:
+            return [RunRow(*row) for row in conn.execute(query)]    # type: ignore[call-arg]  # the columns in order
+
+    def unit_models(self, serial: str) -> list[str]:
+        """The models recorded with this serial."""
+        u = schema.units
+        with self._connect() as conn:
+            return [m for (m,) in conn.execute(sa.select(u.c.model).where(u.c.serial == serial).order_by(u.c.model))]
+
+    def history_rows(self, serial: str, model: str | None = None,
+                     names: list[str] | None = None) -> list[tuple]:
+        """(run_id, when, software_version, verdict, name, value, sigma, unit, budget) of the unit's latest result
+        per run, oldest first; `when` is the run's start, else its end."""
+        u, r, s, c = schema.units, schema.runs, schema.results, schema.coefficients
+        unit_ids = sa.select(u.c.id).where(u.c.serial == serial)
+        if model is not None:
+            unit_ids = unit_ids.where(u.c.model == model)
+        run_ids = sa.select(r.c.id).where(r.c.unit_id.in_(unit_ids.scalar_subquery()))
+        latest = sa.select(_newest_results(s.c.run_pk.in_(run_ids.scalar_subquery())).subquery().c.id)
+        when = sa.func.coalesce(r.c.started_utc, r.c.finished_utc)
+        query = (sa.select(r.c.run_id, when, s.c.software_version, s.c.verdict, c.c.name, c.c.value, c.c.sigma,
+                           c.c.unit, c.c.budget)
+                 .select_from(c).join(s, s.c.id == c.c.result_id).join(r, r.c.id == s.c.run_pk)
+                 .where(c.c.result_id.in_(latest.scalar_subquery()), r.c.kind == "calibration")
+                 .order_by(when, r.c.run_id))
+        if names:
+            query = query.where(c.c.name.in_(names))
+        with self._connect() as conn:
+            return [tuple(row) for row in conn.execute(query)]
+
+    # -- plumbing --------------------------------------------------------------------------------
+
+    @contextlib.contextmanager
+    def _begin(self) -> Iterator[sa.Connection]:
+        try:
+            with self.engine.begin() as conn:
+                yield conn
+        except sa.exc.SQLAlchemyError as exc:
+            raise RecordsError(f"{_shown(self.engine)}: {_reason(exc)}") from exc
+
+    @contextlib.contextmanager
+    def _connect(self) -> Iterator[sa.Connection]:
+        try:
+            with self.engine.connect() as conn:
+                yield conn
+        except sa.exc.SQLAlchemyError as exc:
+            raise RecordsError(f"{_shown(self.engine)}: {_reason(exc)}") from exc
+
+
+def _insert(conn: sa.Connection, statement: sa.Insert) -> int:
+    """Execute an INSERT of one row; its new primary key."""
+    key = conn.execute(statement).inserted_primary_key
+    assert key is not None
+    return int(key[0])
+
+
+def _newest_results(*where: sa.ColumnElement[bool]) -> sa.Select:
+    """(run_pk, id) of each run's newest result: solved last (a re-solve's solved_utc, else the run's end), then
+    imported last."""
+    s = schema.results
+    rank = sa.func.row_number().over(partition_by=s.c.run_pk, order_by=(
+        sa.func.coalesce(s.c.solved_utc, s.c.imported_utc).desc(), s.c.id.desc())).label("rank")
+    ranked = sa.select(s.c.run_pk, s.c.id, rank).where(*where).subquery()
+    return sa.select(ranked.c.run_pk, ranked.c.id).where(ranked.c.rank == 1)
+
+
+def _dict_or_none(value: Any) -> dict | None:
+    return value if isinstance(value, dict) else None
+
+
+def _coefficient_row(result_id: int, name: str, entry: Any) -> dict[str, Any] | None:
+    """A `coefficients` row; None for an entry without a finite value (nothing to record)."""
+    entry = entry if isinstance(entry, dict) else {}
+    value, sigma = entry.get("value"), entry.get("sigma")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return None
+    extra = {k: v for k, v in entry.items() if k not in ("value", "sigma", "unit")}
+    return {"result_id": result_id, "name": str(name), "value": float(value),
+            "sigma": float(sigma) if isinstance(sigma, (int, float)) and math.isfinite(sigma) else None,
+            "unit": str(entry.get("unit", "")), "budget": extra or None}
+
+
+def _unit_id(conn: sa.Connection, model: str, serial: str) -> int:
+    u = schema.units
+    found = conn.execute(sa.select(u.c.id).where(u.c.model == model, u.c.serial == serial)).first()
+    if found is not None:
+        return int(found[0])
+    return _insert(conn, sa.insert(u).values(model=model, serial=serial))
+
+
+_RUN_FIELDS = ("kind", "mode", "log_path", "log_sha256", "operator", "site", "table_url", "plan", "software_version",
+               "started_utc", "finished_utc", "outcome")
+
+
+def _upsert_run(conn: sa.Connection, info: RunInfo) -> tuple[int, bool]:
+    """The run's primary key; a known run gets the fields it lacked (a log's start time, a result's outcome)."""
+    r = schema.runs
+    found = conn.execute(sa.select(r).where(r.c.run_id == info.run_id)).mappings().first()
+    values = {f: getattr(info, f) for f in _RUN_FIELDS}
+    if found is None:
+        unit_id = _unit_id(conn, info.model, info.serial)
+        return _insert(conn, sa.insert(r).values(run_id=info.run_id, unit_id=unit_id, **values)), True
+    missing = {f: v for f, v in values.items() if v not in (None, "", {}) and found[f] in (None, "", {})}
+    if missing:
+        conn.execute(sa.update(r).where(r.c.id == found["id"]).values(**missing))
+    return int(found["id"]), bool(missing)
+
+
+def _shown(engine: sa.Engine) -> str:
+    return engine.url.render_as_string(hide_password=True)
+
+
+def _reason(exc: BaseException) -> str:
+    orig = getattr(exc, "orig", None)
+    return str(orig or exc).strip().splitlines()[0] if str(orig or exc).strip() else type(exc).__name__
+
+
+def open_records(url: str | None = None) -> Records:
+    """Open the records database at `url` (`database_url` form: a URL or a file path; None: the default),
+    creating a SQLite file's folder and bringing the schema up to date."""
+    url = database_url(url)
+    try:
+        parsed = sa.make_url(url)
+    except sa.exc.ArgumentError as exc:
+        raise RecordsError(f"--db {url!r}: not a database URL or file path") from exc
+    if parsed.get_backend_name() == "sqlite" and parsed.database not in (None, "", ":memory:"):
+        try:
+            Path(parsed.database).parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise RecordsError(f"{parsed.database}: cannot create its folder: {exc.strerror or exc}") from exc
+    if parsed.get_backend_name() == "postgresql" and parsed.get_driver_name() in ("", "psycopg2"):
+        parsed = parsed.set(drivername="postgresql+psycopg")     # psycopg 3: the driver the `postgres` extra installs
+    try:
+        engine = sa.create_engine(parsed)
+        if engine.dialect.name == "sqlite":
+            sa.event.listen(engine, "connect", _sqlite_pragmas)
+        migrate(engine)
+    except (sa.exc.SQLAlchemyError, ImportError) as exc:
+        raise RecordsError(f"{parsed.render_as_string(hide_password=True)}: {_reason(exc)}") from exc
+    return Records(engine)
+
+
+def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
+    # foreign keys are off by default in SQLite; a writer waits for another instead of failing at once
+    cursor = dbapi_connection.cursor()
+    cursor.execute("PRAGMA foreign_keys=ON")
+    cursor.execute("PRAGMA busy_timeout=10000")
+    cursor.close()
+
+
+SOFTWARE_VERSION = __version__
+
+__all__ = ["DB_ENV", "RecordsError", "Records", "RunInfo", "RunRow", "SOFTWARE_VERSION", "database_url",
+           "default_url", "open_records", "utc"]

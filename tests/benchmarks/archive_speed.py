@@ -1,0 +1,166 @@
+"""Benchmark and must-show check: re-solving an archive of 50 simulated logs on Dask (issue 20).
+
+Run: python tests/benchmarks/archive_speed.py [--logs 50] [--units 5] [--repeats 1] [--dir DIR]
+
+Builds once (cached in DIR, default <system temp>/turntable-bench-archive) an archive of
+`--logs` real run logs recorded with `bench run --config` on the simulator (`--units` IMUs
+by serial, noise on, each run its own seed; 2 s dwells at 50 Hz), plus damaged logs (two
+more runs, one cut at 60 % of its bytes, one with 4 KiB of garbage in its middle) and a file
+that is not MCAP.
+Then, side by side in one run:
+1. `bench solve --archive DIR --scheduler loop` (the plain loop in one process),
+   `--scheduler local --workers 1` and `--workers 2`, each into a fresh --out, without
+   the database; wall time of the whole command (cluster start-up included), and without
+   the cluster's start-up and close (timed alone right after: a cluster started for no task);
+2. equivalence: every result file of the Dask run equals (but its solved_utc) the one `bench solve LOG
+   --no-html` writes for that log one by one, and the damaged logs are reported;
+3. the database: the archive solved with --db into a fresh SQLite file holds every unit's
+   history (`bench db history` of each serial lists its runs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+from bench.cli.main import main  # noqa: E402
+from bench.solve.archive import solve_archive  # noqa: E402
+from tests.helpers.run import config_text  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _record(folder: Path, serial: str, seed: int) -> None:
+    if any(folder.glob("*.mcap")):
+        return
+    folder.mkdir(parents=True, exist_ok=True)
+    config = folder / "bench.toml"
+    config.write_text(config_text(noise="true", seed=seed, dwell_s=2.0, rate_hz=50.0, black_box_arcsec=10.0)
+                      .replace('serial = "T-0001"', f'serial = "{serial}"'), encoding="utf-8")
+    subprocess.run([sys.executable, "-m", "bench.cli", "run", "--config", str(config), "--out", str(folder / "run"),
+                    "--quiet", "--no-db"], check=True, cwd=REPO, capture_output=True,
+                   env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"})
+    log = next((folder / "run").glob("*.mcap"))
+    shutil.move(str(log), folder / log.name)
+    shutil.rmtree(folder / "run")
+
+
+def build(root: Path, logs: int, units: int) -> None:
+    jobs = [(root / f"unit-{k % units}" / f"run-{k:03d}", f"SN-{k % units:03d}", 100 + k) for k in range(logs)]
+    with ThreadPoolExecutor(2) as pool:
+        list(pool.map(lambda j: _record(*j), jobs))
+    damaged = root / "damaged"
+    if not damaged.exists():
+        # two runs of their own (a damaged log is the only copy of its run), then damaged in place
+        source = root.parent / "damaged-source"
+        for k, name in enumerate(("cut", "garbage")):
+            _record(source / name, f"SN-D{k}", 900 + k)
+        damaged.mkdir()
+        cut = next((source / "cut").glob("*.mcap"))
+        data = cut.read_bytes()
+        (damaged / cut.name).write_bytes(data[: int(len(data) * 0.6)])
+        garbage = next((source / "garbage").glob("*.mcap"))
+        data = garbage.read_bytes()
+        middle = len(data) // 2
+        (damaged / garbage.name).write_bytes(data[:middle] + b"\xff" * 4096 + data[middle + 4096:])
+        (damaged / "not-mcap.mcap").write_bytes(b"this is not a log\n" * 100)
+
+
+def cli(argv: list[str]) -> tuple[int, str, str, float]:
+    out, err = io.StringIO(), io.StringIO()
+    start = time.perf_counter()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = main(argv)
+    return rc, out.getvalue(), err.getvalue(), time.perf_counter() - start
+
+
+def results_of(folder: Path) -> dict[str, dict]:
+    """Every result file below `folder`, parsed, without `run.solved_utc` (when it was solved: differs by design)."""
+    out = {}
+    for p in sorted(folder.rglob("*.result.json")):
+        data = json.loads(p.read_bytes())
+        data["run"].pop("solved_utc")
+        out[str(p.relative_to(folder))] = data
+    return out
+
+
+def run(args: argparse.Namespace) -> None:
+    root = Path(args.dir or Path(tempfile.gettempdir()) / "turntable-bench-archive")
+    archive = root / "archive"
+    t = time.perf_counter()
+    build(archive, args.logs, args.units)
+    print(f"archive {archive}: {args.logs} logs of {args.units} IMUs + 3 damaged (built in "
+          f"{time.perf_counter() - t:.0f} s, cached)")
+    work = Path(tempfile.mkdtemp(prefix="archive-bench-"))
+    try:
+        # one by one, as a user would: bench solve LOG --no-html, each into its own folder
+        one = work / "one-by-one"
+        failed_one = []
+        for log in sorted(archive.rglob("*.mcap")):
+            out = one / log.parent.relative_to(archive)
+            rc, _, err, _ = cli(["solve", str(log), "--out", str(out), "--no-html", "--no-db", "--quiet"])
+            if rc not in (0, 4):
+                failed_one.append(log.name)
+        reference = results_of(one)
+        timings: dict[str, list[float]] = {}
+        for repeat in range(args.repeats):
+            for label, extra in (("loop", ["--scheduler", "loop"]),
+                                 ("dask 1 worker", ["--scheduler", "local", "--workers", "1"]),
+                                 ("dask 2 workers", ["--scheduler", "local", "--workers", "2"])):
+                out = work / f"{label.replace(' ', '-')}-{repeat}"
+                rc, stdout, stderr, wall = cli(["solve", "--archive", str(archive), "--out", str(out), "--no-db",
+                                                "--quiet", *extra])
+                timings.setdefault(label, []).append(wall)
+                got = results_of(out)
+                same = got == reference
+                reported = sorted(line.split(" FAILED ")[1].split(":")[0].rsplit("/", 1)[-1]
+                                  for line in stderr.splitlines() if " FAILED " in line)
+                print(f"{label:15} {wall:6.1f} s  exit {rc}  {len(got)} results, identical to one-by-one: {same}; "
+                      f"failed: {', '.join(reported)}")
+            for label, n in (("dask 1 worker", 1), ("dask 2 workers", 2)):
+                start = time.perf_counter()
+                solve_archive([], scheduler="local", workers=n)       # the cluster started and closed, no task
+                timings.setdefault(f"{label} start-up", []).append(time.perf_counter() - start)
+        med = {k: sorted(v)[len(v) // 2] for k, v in timings.items()}
+        for label in ("dask 1 worker", "dask 2 workers"):
+            med[f"{label} solving"] = med[label] - med[f"{label} start-up"]
+            print(f"{label}: cluster start-up and close {med[f'{label} start-up']:.1f} s, "
+                  f"the rest {med[f'{label} solving']:.1f} s")
+        print(f"one-by-one bench solve failed on: {', '.join(sorted(failed_one))}")
+        print(f"speed-up 2 workers vs 1: {med['dask 1 worker'] / med['dask 2 workers']:.2f}x whole command, "
+              f"{med['dask 1 worker solving'] / med['dask 2 workers solving']:.2f}x without the cluster start-up "
+              f"(target >= 1.7); Dask 1 worker vs the plain loop: "
+              f"{100 * (med['dask 1 worker'] / med['loop'] - 1):+.1f} % whole command, "
+              f"{100 * (med['dask 1 worker solving'] / med['loop'] - 1):+.1f} % without the start-up "
+              f"(target < 10 %)")
+        db = work / "records.sqlite"
+        rc, stdout, stderr, wall = cli(["solve", "--archive", str(archive), "--db", str(db), "--quiet",
+                                        "--out", str(work / "with-db"), "--workers", "2"])
+        rc2, stdout2, _, _ = cli(["solve", "--archive", str(archive), "--db", str(db), "--quiet",
+                                  "--out", str(work / "with-db"), "--workers", "2"])
+        print(f"with the database: {wall:.1f} s; again: {stdout2.strip().splitlines()[-1]}")
+        for unit in range(args.units):
+            rc, stdout, _, _ = cli(["db", "history", "--db", str(db), f"SN-{unit:03d}", "--coefficient", "Kg_x"])
+            print(f"  {stdout.splitlines()[0]}")
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--logs", type=int, default=50)
+    parser.add_argument("--units", type=int, default=5)
+    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--dir", metavar="DIR")
+    run(parser.parse_args())

@@ -1,0 +1,117 @@
+"""`bench solve --archive` (issue 20): an archive of real simulated logs re-solved on a local Dask cluster gives
+the very result files one-by-one `bench solve` writes, damaged logs are reported and not fatal, the database
+holds every unit's history, and a second pass skips what this software version already solved."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+
+from bench.records.store import open_records
+from tests.helpers.run import REPO, cli, config_text
+
+SERIALS = ("ARC-A", "ARC-B", "ARC-C")
+
+
+def _record(folder: Path, serial: str, seed: int) -> Path:
+    folder.mkdir(parents=True)
+    config = folder / "bench.toml"
+    config.write_text(config_text(noise="true", seed=seed, dwell_s=1.0, rate_hz=20.0)
+                      .replace('serial = "T-0001"', f'serial = "{serial}"'), encoding="utf-8")
+    done = subprocess.run([sys.executable, "-m", "bench.cli", "run", "--config", str(config), "--out",
+                           str(folder / "run"), "--quiet", "--no-db"], cwd=REPO, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    log = next((folder / "run").glob("*.mcap"))
+    moved = folder / log.name
+    shutil.move(str(log), moved)
+    shutil.rmtree(folder / "run")
+    (folder / "bench.toml").unlink()
+    return moved
+
+
+@pytest.fixture(scope="module")
+def archive(tmp_path_factory) -> Path:
+    """Three IMUs' runs (one of them twice), and a run whose only log is cut, and a file that is not MCAP."""
+    root = tmp_path_factory.mktemp("archive")
+    jobs = [(root / "a" / "1", "ARC-A", 1), (root / "a" / "2", "ARC-A", 2), (root / "b", "ARC-B", 3),
+            (root / "c", "ARC-C", 4), (root / "damaged", "ARC-D", 5)]
+    with ThreadPoolExecutor(2) as pool:
+        logs = list(pool.map(lambda job: _record(*job), jobs))
+    cut = logs[-1]
+    data = cut.read_bytes()
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    (root / "damaged" / "not-a-log.mcap").write_bytes(b"not an MCAP file\n" * 64)
+    return root
+
+
+def _results(folder: Path) -> dict[str, dict]:
+    """Every result file below `folder`, parsed, without `run.solved_utc` (when it was solved: differs by design)."""
+    out = {}
+    for p in sorted(folder.rglob("*.result.json")):
+        data = json.loads(p.read_bytes())
+        data["run"].pop("solved_utc")
+        out[str(p.relative_to(folder))] = data
+    return out
+
+
+def test_archive_on_dask_equals_one_by_one_and_records_every_unit(archive, tmp_path):
+    one = tmp_path / "one"
+    codes = {}
+    for log in sorted(archive.rglob("*.mcap")):
+        rc, _, _ = cli(["solve", str(log), "--out", str(one / log.parent.relative_to(archive)), "--no-html",
+                        "--no-db", "--quiet"])
+        codes[log.name] = rc
+    assert codes["not-a-log.mcap"] == 2 and sorted(codes.values()).count(2) == 1
+    db = tmp_path / "r.sqlite"
+    rc, stdout, stderr = cli(["solve", "--archive", str(archive), "--out", str(tmp_path / "dask"), "--workers", "2",
+                              "--db", str(db)])
+    assert rc == 4, stderr
+    assert "6 log(s), 0 already solved" in stdout and "to solve on local (2 workers)" in stdout
+    assert "solved 5 of 6 log(s)" in stdout
+    failed = [line for line in stderr.splitlines() if " FAILED " in line]
+    assert len(failed) == 1 and "not-a-log.mcap" in failed[0]
+    assert _results(tmp_path / "dask") == _results(one) and len(_results(one)) == 5
+    with open_records(str(db)) as records:
+        assert {r.serial for r in records.list_runs()} == {*SERIALS, "ARC-D"}
+        assert len(records.list_runs(serial="ARC-A")) == 2
+        assert all(r.results == 1 and r.log_path and r.started_utc for r in records.list_runs())
+    rc, stdout, _ = cli(["db", "history", "--db", str(db), "ARC-A", "--coefficient", "Kg_x"])
+    assert rc == 0 and "ARC-A: 2 calibration(s)" in stdout
+
+    # resumable: what this version solved is skipped, the broken file is tried again
+    rc, stdout, stderr = cli(["solve", "--archive", str(archive), "--out", str(tmp_path / "dask"),
+                              "--scheduler", "loop", "--db", str(db)])
+    assert rc == 4
+    assert "6 log(s), 5 already solved" in stdout and "1 to solve on loop" in stdout
+    assert "not-a-log.mcap" in stderr
+
+
+def test_the_plain_loop_writes_the_same_next_to_each_log(archive, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(archive / "a", copy)
+    rc, stdout, stderr = cli(["solve", "--archive", str(copy), "--scheduler", "loop", "--no-db", "--quiet"])
+    assert rc == 0, stderr
+    for log in copy.rglob("*.mcap"):
+        rc, _, _ = cli(["solve", str(log), "--out", str(tmp_path / "ref" / log.parent.relative_to(copy)), "--no-html",
+                        "--no-db", "--quiet"])
+    assert _results(copy) == _results(tmp_path / "ref") and len(_results(copy)) == 2
+
+
+def test_archive_usage_errors(archive, tmp_path):
+    log = next(archive.rglob("*.mcap"))
+    for argv, message in (([str(log), "--archive", str(archive)], "not both"),
+                          (["--archive", str(tmp_path / "none")], "no such folder"),
+                          (["--archive", str(tmp_path)], "no run log"),
+                          (["--archive", str(archive), "--compare", "optimal,all"], "drop --compare"),
+                          (["--archive", str(archive), "--workers", "0"], "needs at least 1"),
+                          (["--archive", str(archive), "--scheduler", "udp://x", "--no-db"], "say local, loop or"),
+                          ([], "give run log(s), or --archive")):
+        rc, _, stderr = cli(["solve", *argv])
+        assert rc == 2 and message in stderr, (argv, stderr)
