@@ -145,7 +145,11 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
             for note in recorded.notes:
                 print(f"note: {note}")
             print(f"result: {result_path}\nreport: {report_path}" + (f"\n        {html_path}" if html_path else ""))
-        record_outputs(args, PROG, [result_path, *(log.path for log in recorded.logs)])   # after the files are written
+        logs_solved = [log.path for log in recorded.logs]
+        # the logs' decoded samples and states go before the records database reads the logs' metadata again
+        # (a 1 GB log solved and then read for its records peaked at 2.1 GB)
+        del recorded
+        record_outputs(args, PROG, [result_path, *logs_solved])   # after the files are written
         failures = resolved.failures
         if resolved.verdict is not None:
             if not args.quiet:
