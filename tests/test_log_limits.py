@@ -450,3 +450,14 @@ def test_chunks_left_in_the_file_past_what_may_stream_keep_no_index(can_chunk, t
     damage = [d for d in log.lost if "past what this log's chunks may inflate to in all" in d.reason]
     assert sum(d.chunks for d in damage) == len(refused)
     assert sum(d.lost.get(TOPIC_CAN, 0) for d in damage) >= 2 * n   # their index still counts what was lost
+
+
+def test_a_metadata_read_keeps_no_messages(run_log):
+    """The records database read a whole log (states, events) to catalogue it, after the solve had read it:
+    a hostile 1 GB log then peaked at 1.75 GB in `bench solve`. `messages=False` keeps the records only."""
+    full, full_peak = _peak_while(lambda: read_log(run_log))
+    meta, meta_peak = _peak_while(lambda: read_log(run_log, messages=False))
+    assert meta.metadata == full.metadata and meta.attachments.keys() == full.attachments.keys()
+    assert meta.message_counts == full.message_counts          # still counted
+    assert not meta.events and len(meta.table_states) == 0 and full.events and len(full.table_states)
+    assert meta_peak < full_peak

@@ -588,16 +588,18 @@ def _map_file(path: str):
         raise LogError(f"{path}: cannot read: {exc.strerror or exc}") from exc
 
 
-def read_log(path, *, defer_samples: bool = True) -> RunLog:
-    """Read a run log; see the module docstring for how damage is handled and what `defer_samples` does."""
+def read_log(path, *, defer_samples: bool = True, messages: bool = True) -> RunLog:
+    """Read a run log; see the module docstring for how damage is handled and what `defer_samples` does.
+    `messages=False`: the records and metadata only (no table states, events, frames or samples are kept:
+    what a catalogue of logs needs, at a fraction of the memory)."""
     path = str(path)
     try:
-        return _read_log(path, defer_samples)
+        return _read_log(path, defer_samples, messages)
     except MemoryError as exc:   # within the reader's limits, but more than this machine has
         raise LogError(f"{path}: not enough memory to read it") from exc
 
 
-def _read_log(path: str, defer_samples: bool) -> RunLog:
+def _read_log(path: str, defer_samples: bool, messages: bool = True) -> RunLog:
     buf = _map_file(path)
     try:
         # /can/raw chunks are streamed (`RunLog.can_pieces`), /imu/samples ones inflated when first asked
@@ -605,7 +607,8 @@ def _read_log(path: str, defer_samples: bool) -> RunLog:
         # (with a source, no decompressed chunk outlives its gathering: the topics not read are only counted,
         # the table states and events copied out up to what is parsed, the frames and samples left in the file)
         w = walk(buf, defer_topics=frozenset({TOPIC_CAN, TOPIC_SAMPLES} if defer_samples else {TOPIC_CAN}),
-                 source=_FileSource(path), keep_topics=frozenset({TOPIC_CAN, TOPIC_SAMPLES, TOPIC_STATE, TOPIC_EVENTS}),
+                 source=_FileSource(path),
+                 keep_topics=frozenset({TOPIC_CAN, TOPIC_SAMPLES, TOPIC_STATE, TOPIC_EVENTS} if messages else ()),
                  keep_limits={TOPIC_STATE: MAX_JSON_MESSAGES, TOPIC_EVENTS: MAX_EVENTS})
     except WalkError as exc:
         raise LogError(f"{path}: {exc}") from exc

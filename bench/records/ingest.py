@@ -144,7 +144,7 @@ def log_run_info(path: Path) -> RunInfo:
     # the log reader reads the metadata and summary, not the data chunks (those are read when asked for)
     from bench.log.reader import read_log
 
-    log = read_log(str(path))
+    log = read_log(str(path), messages=False)   # the metadata is all it needs (a 1 GB log: no states, events)
     meta = log.metadata
     run, imu, plan = meta.get("run") or {}, meta.get("imu") or {}, meta.get("plan") or {}
     run_id = str(run.get("run_id", "")).strip()
