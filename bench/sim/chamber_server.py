@@ -24,7 +24,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from bench.sim.chamber import ERR_ALARM, ERR_RANGE, SimChamber, SimChamberError
 from bench.sim.modbus_serving import ModbusServing
-from bench.sim.serve import LineServer
+from bench.sim.serve import LineServer, serve_lines
 from drivers.chamber import ascii_codec as codec
 from drivers.chamber.modbus_map import READ_ONLY, ChamberRegisterMap
 from drivers.errors import ChamberError
@@ -175,18 +175,7 @@ def serve_chamber_ascii(chamber: SimChamber, tcp: bool = True, pty: bool = False
                         port: int = 0) -> tuple[LineServer, dict[str, str]]:
     """Serve `chamber` in the ASCII dialect; returns the server (close it) and its URLs
     ({'tcp': 'tcp://127.0.0.1:port', 'pty': '/dev/pts/N'} as requested)."""
-    server = LineServer(ChamberAsciiHandler(chamber))
-    urls = {}
-    try:
-        if tcp:
-            host, bound = server.listen_tcp("127.0.0.1", port)
-            urls["tcp"] = f"tcp://{host}:{bound}"
-        if pty:
-            urls["pty"] = server.open_pty()
-    except OSError:
-        server.close()
-        raise
-    return server, urls
+    return serve_lines(ChamberAsciiHandler(chamber), tcp, pty, port)
 
 
 

@@ -34,7 +34,7 @@ from bench.sim.controller import (
     SimCommandError,
     SimController,
 )
-from bench.sim.serve import LineServer
+from bench.sim.serve import LineServer, serve_lines
 from drivers.turntable import scpi_codec as sc
 from drivers.turntable.base import AxisMode
 
@@ -195,15 +195,4 @@ def serve_scpi(controller: SimController, tcp: bool = True, pty: bool = False,
                port: int = 0) -> tuple[LineServer, dict[str, str]]:
     """Serve `controller` in the SCPI dialect; returns the server (close it) and its URLs
     ({'tcp': 'tcp://127.0.0.1:port', 'pty': '/dev/pts/N'} as requested)."""
-    server = LineServer(ScpiSimHandler(controller))
-    urls = {}
-    try:
-        if tcp:
-            host, bound = server.listen_tcp("127.0.0.1", port)
-            urls["tcp"] = f"tcp://{host}:{bound}"
-        if pty:
-            urls["pty"] = server.open_pty()
-    except OSError:
-        server.close()
-        raise
-    return server, urls
+    return serve_lines(ScpiSimHandler(controller), tcp, pty, port)

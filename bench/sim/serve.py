@@ -221,3 +221,20 @@ class LineServer:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def serve_lines(handler, tcp: bool = True, pty: bool = False, port: int = 0) -> tuple[LineServer, dict[str, str]]:
+    """Serve a line dialect's `handler` on loopback TCP and/or a pty; returns the server (close it) and its
+    URLs ({'tcp': 'tcp://127.0.0.1:port', 'pty': '/dev/pts/N'} as requested)."""
+    server = LineServer(handler)
+    urls = {}
+    try:
+        if tcp:
+            host, bound = server.listen_tcp("127.0.0.1", port)
+            urls["tcp"] = f"tcp://{host}:{bound}"
+        if pty:
+            urls["pty"] = server.open_pty()
+    except OSError:
+        server.close()
+        raise
+    return server, urls

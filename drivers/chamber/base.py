@@ -11,11 +11,12 @@ from __future__ import annotations
 import enum
 import math
 import threading
-from abc import ABC, abstractmethod
+from abc import abstractmethod
 from dataclasses import dataclass
 
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import ChamberAlarm, ChamberConfigError, ChamberLimitError
+from drivers.session import DeviceSession
 
 #: hard bounds of any configured limit: what a chamber controller could mean at all
 ABSOLUTE_MIN_C = -273.15
@@ -107,7 +108,7 @@ class ChamberLimits:
                                     f"{self.max_ramp_c_per_min:g}] degC/min")
 
 
-class Chamber(ABC):
+class Chamber(DeviceSession):
     """A thermal chamber's temperature controller, whatever its dialect and transport.
 
     Public methods check limits before sending and serialise access (a poller thread and
@@ -151,25 +152,6 @@ class Chamber(ABC):
     def _read_state(self) -> ChamberState: ...
 
     # -- the interface -----------------------------------------------------------
-    def connect(self) -> "Chamber":
-        with self._lock:
-            self._open()
-        return self
-
-    def close(self) -> None:
-        with self._lock:
-            self._close()
-
-    def __enter__(self) -> "Chamber":
-        return self.connect()
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        try:
-            if exc_type is not None:
-                self.safe_stop()
-        finally:
-            self.close()
-
     def set_setpoint(self, setpoint_c: float, ramp_c_per_min: float | None = None) -> None:
         """Demand a setpoint (degC), with a ramp rate (degC/min; None leaves the controller's, 0 steps).
 

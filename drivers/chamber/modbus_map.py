@@ -19,6 +19,7 @@ from drivers.errors import ChamberConfigError, ChamberLimitError, ChamberProtoco
 from drivers.turntable.modbus_map import (
     MAX_READ_REGISTERS,
     RegisterMapError,
+    check_code_tables,
     check_registers,
     map_int,
     map_no_unknown,
@@ -151,17 +152,8 @@ class ChamberRegisterMap:
             if address in owner:
                 raise RegisterMapError(f"{src}: registers.{name} at {address} overlaps registers.{owner[address]}")
             owner[address] = name
-        for key, names, hi in (("status_bits", STATUS_BITS, 15), ("alarm_bits", ALARM_BITS, 15),
-                               ("command_codes", COMMANDS, 65535)):
-            values = getattr(self, key)
-            if not isinstance(values, tuple) or len(values) != len(names):
-                raise RegisterMapError(f"{src}: {key} needs {len(names)} entries ({', '.join(names)})")
-            for name, value in zip(names, values):
-                map_int(value, src, f"{key}.{name}", 0, hi)
-            if len(set(values)) != len(values):
-                raise RegisterMapError(f"{src}: {key} must be distinct, got {dict(zip(names, values))}")
-        if 0 in self.command_codes:
-            raise RegisterMapError(f"{src}: command_codes: 0 means 'no command' and cannot be a command code")
+        check_code_tables(self, src, (("status_bits", STATUS_BITS, 15), ("alarm_bits", ALARM_BITS, 15),
+                                      ("command_codes", COMMANDS, 65535)))
 
     # -- layout -----------------------------------------------------------------------
     def register_names(self) -> dict[int, str]:

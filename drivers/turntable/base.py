@@ -16,7 +16,7 @@ import contextlib
 import enum
 import math
 import threading
-from abc import ABC, abstractmethod
+from abc import abstractmethod
 from dataclasses import dataclass, field
 from typing import Callable, Iterable, Sequence
 
@@ -30,6 +30,7 @@ from drivers.errors import (
     TurntableLimitError,
     TurntableTimeout,
 )
+from drivers.session import DeviceSession
 
 FRAMES = ("outer", "middle", "inner")
 ALL_FRAMES = (0, 1, 2)
@@ -197,7 +198,7 @@ class TurntableLimits:
                                       f"{lim.max_rate_dps} deg/s")
 
 
-class Turntable(ABC):
+class Turntable(DeviceSession):
     """A three-axis turntable controller, whatever its dialect and transport.
 
     Public methods check limits before sending, serialise access (one request at a
@@ -252,25 +253,6 @@ class Turntable(ABC):
     def _read_state(self) -> TableState: ...
 
     # -- the interface -----------------------------------------------------------
-    def connect(self) -> "Turntable":
-        with self._lock:
-            self._open()
-        return self
-
-    def close(self) -> None:
-        with self._lock:
-            self._close()
-
-    def __enter__(self) -> "Turntable":
-        return self.connect()
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        try:
-            if exc_type is not None:
-                self.safe_stop()
-        finally:
-            self.close()
-
     def enable(self, frames: Iterable[int | str] = ALL_FRAMES) -> None:
         with self._lock:
             self._enable([frame_index(f) for f in frames])

@@ -223,17 +223,8 @@ class RegisterMap:
             raise RegisterMapError(
                 f"{src}: the state registers ({', '.join(STATE_REGISTERS)}) span {count} registers from {start}; "
                 f"one Modbus read covers at most {MAX_READ_REGISTERS}")
-        for key, names, hi in (("status_bits", STATUS_FLAGS, 15), ("command_codes", COMMANDS, 65535),
-                               ("mode_codes", MODES, 65535)):
-            values = getattr(self, key)
-            if not isinstance(values, tuple) or len(values) != len(names):
-                raise RegisterMapError(f"{src}: {key} needs {len(names)} entries ({', '.join(names)})")
-            for name, value in zip(names, values):
-                map_int(value, src, f"{key}.{name}", 0, hi)
-            if len(set(values)) != len(values):
-                raise RegisterMapError(f"{src}: {key} must be distinct, got {dict(zip(names, values))}")
-        if 0 in self.command_codes:
-            raise RegisterMapError(f"{src}: command_codes: 0 means 'no command' and cannot be a command code")
+        check_code_tables(self, src, (("status_bits", STATUS_FLAGS, 15), ("command_codes", COMMANDS, 65535),
+                                      ("mode_codes", MODES, 65535)))
 
     # -- layout -------------------------------------------------------------------
     def addresses(self, name: str) -> tuple[int, ...]:
@@ -498,6 +489,21 @@ def map_int(value: Any, source: str, key: str, lo: int, hi: int) -> int:
     return value
 
 
+def check_code_tables(codes: Any, source: str, tables: Sequence[tuple[str, Sequence[str], int]]) -> None:
+    """Each `(key, names, highest)` table of `codes` (a register map's status bits, command codes, ...): one
+    integer 0..highest per name, all distinct; command codes never 0 (a command register reads 0 when idle)."""
+    for key, names, hi in tables:
+        values = getattr(codes, key)
+        if not isinstance(values, tuple) or len(values) != len(names):
+            raise RegisterMapError(f"{source}: {key} needs {len(names)} entries ({', '.join(names)})")
+        for name, value in zip(names, values):
+            map_int(value, source, f"{key}.{name}", 0, hi)
+        if len(set(values)) != len(values):
+            raise RegisterMapError(f"{source}: {key} must be distinct, got {dict(zip(names, values))}")
+    if 0 in getattr(codes, "command_codes", ()):
+        raise RegisterMapError(f"{source}: command_codes: 0 means 'no command' and cannot be a command code")
+
+
 def map_number(value: Any, source: str, key: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise RegisterMapError(f"{source}: {key} must be a finite number, got {value!r}")
@@ -512,6 +518,6 @@ def _axis_addresses(value: Any, source: str, key: str) -> tuple[int, int, int]:
 
 
 __all__ = ["RegisterMap", "RegisterMapError", "EXCEPTION_NAMES", "exception_name", "axis_mask", "mask_axes",
-           "contiguous_runs", "crc16", "explain_bad_reply", "MAX_READ_REGISTERS", "check_registers", "map_int",
-           "map_number", "map_table", "map_no_unknown"]
+           "contiguous_runs", "crc16", "explain_bad_reply", "MAX_READ_REGISTERS", "check_code_tables",
+           "check_registers", "map_int", "map_number", "map_table", "map_no_unknown"]
 
