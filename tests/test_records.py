@@ -249,3 +249,12 @@ def test_import_and_history_on_postgresql(postgres, archive, capsys):
         drift, sigma = d0.drift_per_year()
         assert abs(drift - DRIFT_DPH_PER_YEAR) < 4 * sigma
         assert len(records.list_runs(serial="B-2")) == 2
+
+
+def test_a_query_on_a_database_that_is_not_there_says_so_and_creates_nothing(tmp_path, capsys):
+    """`bench db list --db /mistyped/path.sqlite` made the folder and an empty database and listed 0 runs."""
+    missing = tmp_path / "nowhere" / "records.sqlite"
+    assert main(["db", "list", "--db", str(missing)]) == 2
+    assert main(["db", "history", "--db", str(missing), "A-1"]) == 2
+    assert "no records database there" in capsys.readouterr().err
+    assert not (tmp_path / "nowhere").exists()

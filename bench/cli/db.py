@@ -58,11 +58,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_history)
 
 
-def _open(args: argparse.Namespace):
+def _open(args: argparse.Namespace, create: bool = True):
     # imported when the command runs: `bench` starts without SQLAlchemy
     from bench.records.store import open_records
 
-    return open_records(getattr(args, "db", None))
+    return open_records(getattr(args, "db", None), create=create)
 
 
 def cmd_import(args: argparse.Namespace) -> ExitCode:
@@ -100,7 +100,7 @@ def cmd_list(args: argparse.Namespace) -> ExitCode:
         if since.tzinfo is not None:
             since = since.astimezone(dt.UTC).replace(tzinfo=None)
     try:
-        with _open(args) as records:
+        with _open(args, create=False) as records:
             rows = records.list_runs(serial=args.serial, since=since)
     except RecordsError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
@@ -120,7 +120,7 @@ def cmd_history(args: argparse.Namespace) -> ExitCode:
     from bench.records.store import RecordsError
 
     try:
-        with _open(args) as records:
+        with _open(args, create=False) as records:
             history = unit_history(records, args.serial, names=args.coefficient, model=args.model)
     except RecordsError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)

@@ -299,14 +299,19 @@ def _reason(exc: BaseException) -> str:
     return str(orig or exc).strip().splitlines()[0] if str(orig or exc).strip() else type(exc).__name__
 
 
-def open_records(url: str | None = None) -> Records:
+def open_records(url: str | None = None, *, create: bool = True) -> Records:
     """Open the records database at `url` (`database_url` form: a URL or a file path; None: the default),
-    creating a SQLite file's folder and bringing the schema up to date."""
+    creating a SQLite file's folder and bringing the schema up to date. `create=False` (a query): a SQLite
+    file that is not there is a RecordsError, not a new empty database (a mistyped --db made one)."""
     url = database_url(url)
     try:
         parsed = sa.make_url(url)
     except sa.exc.ArgumentError as exc:
         raise RecordsError(f"--db {url!r}: not a database URL or file path") from exc
+    if (not create and parsed.get_backend_name() == "sqlite" and parsed.database not in (None, "", ":memory:")
+            and not Path(parsed.database).is_file()):
+        raise RecordsError(f"{parsed.database}: no records database there (bench run, solve and check-table "
+                           "create it; bench db import fills it)")
     if parsed.get_backend_name() == "sqlite" and parsed.database not in (None, "", ":memory:"):
         try:
             Path(parsed.database).parent.mkdir(parents=True, exist_ok=True)
