@@ -461,3 +461,33 @@ def test_a_metadata_read_keeps_no_messages(run_log):
     assert meta.message_counts == full.message_counts          # still counted
     assert not meta.events and len(meta.table_states) == 0 and full.events and len(full.table_states)
     assert meta_peak < full_peak
+
+
+def _mapped_kib(path: Path) -> int:
+    """KiB of `path`'s memory mapping resident in this process (Linux: /proc/self/smaps)."""
+    lines = Path("/proc/self/smaps").read_text().splitlines()
+    for k, line in enumerate(lines):
+        if line.endswith(str(path)):
+            return next(int(x.split()[1]) for x in lines[k + 1:] if x.startswith("Rss:"))
+    raise AssertionError(f"{path} is not mapped")
+
+
+@pytest.mark.skipif(not Path("/proc/self/smaps").exists(), reason="needs Linux /proc/self/smaps")
+def test_the_chunk_scan_lets_the_pages_it_passed_go(run_log, monkeypatch):
+    """A 1 GB log of 15 kB chunks: the scan for chunks touched every page (each chunk's header and message
+    indexes), so `bench solve` counted the whole file as its memory (1.3 GB to read its metadata alone)."""
+    import mmap
+
+    monkeypatch.setattr(chunks_module, "SCAN_DROP_BYTES", 8192)
+    with open(run_log, "rb") as f:
+        buf = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+    try:
+        buf.madvise(mmap.MADV_WILLNEED)
+        touched = sum(buf[k] for k in range(0, len(buf), mmap.PAGESIZE))   # every page resident: the worst case
+        assert touched >= 0 and _mapped_kib(run_log) > len(buf) // 2048
+        prefetch = chunks_module.Prefetch(buf, defer_topics=frozenset({TOPIC_CAN}), lazy=True)
+        prefetch.close()
+        assert len(prefetch.chunks) > 10
+        assert _mapped_kib(run_log) <= 64, "the scanned pages are still mapped"
+    finally:
+        buf.close()

@@ -331,6 +331,11 @@ def _deferrable(buf, fields: tuple, index: list[tuple[int, int]], deferred_chann
     return ch, t, o
 
 
+# bytes of a memory-mapped file the chunk scan leaves mapped behind it (1 GB of 15 kB chunks, each with
+# its message indexes, touched every page: 1 GB of the file counted as the reader's memory)
+SCAN_DROP_BYTES = 64 << 20
+
+
 def _drop_pages(buf, start: int, end: int) -> None:
     """Unmap the whole pages of a memory-mapped file between `start` and `end` (read again from the page cache
     if needed): what was read once does not count towards the process' memory."""
@@ -340,6 +345,18 @@ def _drop_pages(buf, start: int, end: int) -> None:
     last = end - end % mmap.PAGESIZE
     if last > first:
         buf.madvise(mmap.MADV_DONTNEED, first, last - first)
+
+
+class _DropBehind:
+    """Lets the pages of a mapped file go every `SCAN_DROP_BYTES` as a pass over it moves on."""
+
+    def __init__(self, buf):
+        self.buf, self.dropped = buf, 0
+
+    def passed(self, pos: int, last: bool = False) -> None:
+        if last or pos - self.dropped > SCAN_DROP_BYTES:
+            _drop_pages(self.buf, self.dropped, len(self.buf) if last else pos)
+            self.dropped = pos - pos % mmap.PAGESIZE   # the page `pos` is in goes next time
 
 
 class Prefetch:
@@ -365,12 +382,15 @@ class Prefetch:
         # (a 1 GB file of 250 honest 256 MiB chunks held 1 GB of index entries here)
         self.deferred: dict[int, tuple | None] = {}
         stream_room = streamed_budget(len(buf))
+        behind = _DropBehind(buf)
         for pos, fields, index in self.chunks if deferred_channels else ():
             found = _deferrable(buf, fields, index, deferred_channels) if fields[2] <= MAX_CHUNK_BYTES else None
             if index:   # the index records were read: let their pages go (a file of 4 MB indexes is all index)
                 _drop_pages(buf, index[0][0], index[-1][1])
+                behind.passed(index[-1][1])
             if found is not None:
                 self.deferred[pos] = found if not lazy or stream_room.take(fields[2]) is None else None
+        behind.passed(len(buf), last=True)
         # the chunks within the limits, counted in file order as the walk counts them (a deferred one at its
         # compressed size: it is kept so; nothing when `lazy`: it is read again from the file when needed)
         room = InflateBudget(inflate_budget(len(buf)) if budget is None else budget)
@@ -388,6 +408,7 @@ class Prefetch:
         """(offset, `chunk_fields`, the message index records right after it) of every chunk; the
         channel topics of the channel records outside chunks into `self.topics`."""
         size, pos = len(buf), 8
+        behind = _DropBehind(buf)   # the pages scanned go as the scan passes them: small chunks are all headers
         found: list[tuple[int, ChunkFields, list[tuple[int, int]]]] = []
         # the index records of the last chunk, while only such records follow it
         current: list[tuple[int, int]] | None = None
@@ -416,6 +437,8 @@ class Prefetch:
                     except Exception:   # the walk reports a damaged record; here it only defers nothing
                         pass
             pos = end
+            behind.passed(pos)
+        behind.passed(pos, last=True)
         return found
 
     def take(self, pos: int, fields: tuple):
