@@ -5,7 +5,12 @@ URLs: `modbus+tcp://host[:port][?unit=N]` (port 502 by default) and
 
 Failures map onto the device family's errors (`link_errors`, a `drivers.errors.LinkErrors`):
 no reply -> retry, then `timeout`; a reply that does not decode (garbage, bad CRC,
-malformed MBAP) -> retry, then `protocol`/`checksum`; a Modbus exception reply ->
+malformed MBAP) -> retry, then `protocol`/`checksum`; on RTU, a controller that was only
+slow answers the attempts that timed out as well: after the reply, the replies still owed
+are read and dropped (each the length of the one received, waited for at most about
+`timeout_s`), or the next request would read one of them as its answer: nothing on RTU
+tells them apart, a state one poll old (on TCP pymodbus skips a reply whose transaction
+id is not the request's); a Modbus exception reply ->
 `command(code)` at once (the controller refused); a lost link -> reconnect and resend
 once, then `connection`. A reply that grows past `MAX_REPLY_BYTES` (64 KiB; a Modbus
 reply is at most 260 bytes) without decoding -> the link is closed (the next request
@@ -99,6 +104,7 @@ class ModbusRequests:
         self.timeout_s = float(timeout_s)
         self.retries = retries
         self.reconnects = 0
+        self.late_replies = 0     # replies to timed-out attempts, read and dropped
         self._client: ModbusTcpClient | ModbusSerialClient | None = None
         self._rx = b""
         self._tx = b""
@@ -156,6 +162,7 @@ class ModbusRequests:
         failure: tuple[Exception, Exception] | None = None
         reconnected = False
         attempt = 0
+        unanswered = 0      # attempts that timed out in silence: a slow controller still owes their replies
         while attempt <= self.retries:
             self._rx = self._tx = b""
             try:
@@ -167,6 +174,7 @@ class ModbusRequests:
                 self._reconnect(what, exc)
                 continue
             except ModbusIOException as exc:
+                unanswered += not self._rx
                 failure = (self._no_reply(what, function_code), exc)
                 attempt += 1
                 continue
@@ -183,6 +191,8 @@ class ModbusRequests:
                 code = getattr(response, "exception_code", None)
                 raise errors.command(
                     f"{what}: Modbus exception {code} ({exception_name(code)}) from {self.url}", code)
+            if unanswered and self.framing == "rtu":
+                self._drop_late_replies(unanswered, response)
             if response.function_code != function_code:
                 raise errors.protocol(
                     f"{what}: reply has function code {response.function_code}, expected {function_code}",
@@ -192,6 +202,27 @@ class ModbusRequests:
         assert failure is not None
         error, cause = failure
         raise error from cause
+
+    def _drop_late_replies(self, owed: int, response) -> None:
+        """Read and drop up to `owed` replies of the received one's length, each waited for at most
+        about `timeout_s` (a request lost on the way is never answered: its wait ends the drain)."""
+        assert self._client is not None
+        frame = len(self._client.framer.buildFrame(response))
+        # bytes read with the reply beyond its frame were dropped with it (pymodbus keeps no rest)
+        ahead = max(0, len(self._rx) - frame)
+        for _ in range(owed):
+            if ahead >= frame:
+                ahead -= frame
+                self.late_replies += 1
+                continue
+            try:
+                got = len(self._client.recv(frame - ahead))
+            except (ConnectionException, OSError):
+                return              # the next request finds the link gone and reconnects
+            if got < frame - ahead:
+                return
+            ahead = 0
+            self.late_replies += 1
 
     def _no_reply(self, what: str, function_code: int) -> Exception:
         errors = self.link_errors

@@ -269,6 +269,21 @@ def test_rtu_read_state_and_unit_from_the_url():
             table.set_rate(1, 0.1)
 
 
+def test_rtu_replies_owed_to_timed_out_attempts_are_dropped_not_read_as_the_next_answer():
+    """A slow RTU controller answers the attempt that timed out after the retry went out: the first reply
+    answers the read (the same request), the one still owed is dropped. Before, the next read took it as
+    its own answer: a state one poll old, with nothing on RTU to tell the two apart."""
+    request = "01 03 0000 0014 45c5"
+    first, owed, second = (rtu("01 03 28 " + STATE_REGS.replace("006d dd01", angle)) for angle in
+                           ("0000 0001", "0000 0002", "0000 0003"))
+    with ModbusExchange([(request, None), (request, first, owed), (request, second)], step_timeout_s=8.0) as ex:
+        # a long timeout: the owed reply comes LATE_AFTER_S after the first, well inside it on a loaded machine
+        with client(ex.start_pty(), timeout_s=2.0, retries=1) as table:
+            assert table.read_state().angles_deg[2] == pytest.approx(1e-4)
+            assert table.read_state().angles_deg[2] == pytest.approx(3e-4)
+    assert table.late_replies == 1
+
+
 def test_rtu_crc_error_is_a_checksum_error():
     good = bytes.fromhex(rtu("01 03 28 " + STATE_REGS))
     bad = good[:-1] + bytes([good[-1] ^ 0xFF])

@@ -2,7 +2,9 @@
 
 `ModbusExchange(script)` listens on 127.0.0.1 (`start_tcp()` -> url) or a pty
 (`start_pty()` -> url). Each script step `(request_hex, reply_hex_or_None)` must be the
-next bytes the client sends, exactly; the reply (None = silence) goes back. `DROP`
+next bytes the client sends, exactly; the reply (None = silence) goes back; a third item
+is a late reply, sent `LATE_AFTER_S` after the reply (a slow controller answering a retry's
+timed-out attempt as well). `DROP`
 closes the connection (the next step is served on a new one); `GONE` closes the
 connection and the listener. `assert_done()` (also on leaving the `with` block)
 fails on a mismatch, on leftover steps and on any byte the script did not expect.
@@ -20,6 +22,7 @@ import tty
 
 DROP = "drop"
 GONE = "gone"
+LATE_AFTER_S = 0.1
 
 
 def hexbytes(text: str | bytes | None) -> bytes | None:
@@ -30,7 +33,7 @@ def hexbytes(text: str | bytes | None) -> bytes | None:
 
 class ModbusExchange:
     def __init__(self, script: list, step_timeout_s: float = 2.0):
-        self.script = [s if s in (DROP, GONE) else (hexbytes(s[0]), hexbytes(s[1])) for s in script]
+        self.script = [s if s in (DROP, GONE) else tuple(hexbytes(x) for x in s) for s in script]
         self.step_timeout_s = step_timeout_s
         self.received: list[bytes] = []
         self.errors: list[str] = []
@@ -128,7 +131,7 @@ class ModbusExchange:
 
     # -- shared ---------------------------------------------------------------------------
     def _exchange(self, step, read, write) -> bool:
-        expected, reply = step
+        expected, reply, *late = step
         got = bytearray()
         deadline = time.monotonic() + self.step_timeout_s
         while len(got) < len(expected) and not self._stop.is_set():
@@ -143,6 +146,9 @@ class ModbusExchange:
             return False
         if reply:
             write(reply)
+        for extra in late:
+            self._stop.wait(LATE_AFTER_S)
+            write(extra)
         return True
 
     def _drain(self, read) -> None:
