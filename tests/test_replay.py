@@ -407,3 +407,26 @@ def test_cli_a_stop_signal_stops_a_paced_replay_even_with_sigint_ignored(recorde
         stop_process(proc)
     assert proc.returncode == 130, err
     assert out.startswith("replayed ") and "stopped early" in out
+
+
+def test_cli_reads_the_frames_once_with_or_without_quiet(recorded, monkeypatch):
+    """Without --quiet the log's summary came first and read every frame chunk once more (a 1 GB log: a
+    whole extra pass) before the replay read them again."""
+    from bench.log.chunks import DeferredChunk
+
+    inflated = [0]
+    inflate = DeferredChunk.inflate
+
+    def counting(self, *args, **kwargs):
+        inflated[0] += 1
+        return inflate(self, *args, **kwargs)
+
+    monkeypatch.setattr(DeferredChunk, "inflate", counting)
+    reads, said = {}, {}
+    for quiet in (False, True):
+        inflated[0] = 0
+        rc, out, err = cli(["replay", str(recorded.log_path), *(["--quiet"] if quiet else [])])
+        assert rc == 0, err
+        reads[quiet], said[quiet] = inflated[0], err
+    assert reads[False] == reads[True] > 0
+    assert "CAN frames recorded" in said[False] and recorded.log_path.name in said[False].splitlines()[0]

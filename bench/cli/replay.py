@@ -62,8 +62,8 @@ def _replay(args: argparse.Namespace, stop: threading.Event) -> ExitCode:
         steps = ()
     progress = TolerantProgress(steps, quiet=args.quiet,
                                 simulated=log.metadata.get("run", {}).get("mode") == "simulator")
-    if not args.quiet:
-        print(log.summary(), file=sys.stderr, flush=True)
+    if not args.quiet:   # the frames as recorded: the replay reads them (once), then says what it found
+        print(log.summary(read_frames=False), file=sys.stderr, flush=True)
     stats = replay(log, [progress], speed=args.speed, stop=stop)
     for line in log.damage[len(told):]:
         print(f"bench replay: damaged log: {line}", file=sys.stderr)

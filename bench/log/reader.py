@@ -397,12 +397,19 @@ class RunLog:
         self._lost.append(damage)
         self._damage.append(damage.describe())
 
-    def summary(self) -> str:
-        """One line: what the log holds and whether anything was lost."""
-        state = "complete" if self.complete else f"DAMAGED ({len(self.damage)} problems)"
+    def summary(self, read_frames: bool = True) -> str:
+        """One line: what the log holds and whether anything was lost. `read_frames=False`: without reading the
+        frames' chunks for it (the frames as recorded, the damage found so far), for a caller about to read them."""
+        if read_frames:
+            frames = f"{self.can_frame_count} CAN frames"
+            state = "complete" if self.complete else f"DAMAGED ({len(self.damage)} problems)"
+        else:
+            frames = f"{self.message_counts.get(TOPIC_CAN, 0)} CAN frames recorded"
+            found = self.damage_found
+            state = f"DAMAGED ({len(found)} problems so far)" if found else "no damage found so far"
         unchecked = (f" ({self.unchecked_chunks} {TOPIC_SAMPLES} chunks, derived from {TOPIC_CAN}, not read)"
                      if self.unchecked_chunks else "")
-        return (f"{self.path}: {self.can_frame_count} CAN frames, {len(self.table_states)} table states, "
+        return (f"{self.path}: {frames}, {len(self.table_states)} table states, "
                 f"{len(self.events)} events, {self.chunks} chunks{unchecked}; {state}")
 
 
