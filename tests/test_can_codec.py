@@ -367,3 +367,17 @@ def test_a_saturating_encoder_clips_and_flags_over_range():
     block, _ = decode_frames(frames.ids, frames.data, frames.lengths, layout=layout)
     assert block.gyro_counts[:, :2].tolist() == [[100, 0], [32767, -32768], [100, 0]]
     assert block.status.tolist() == [0, OVER_RANGE_BIT, 0] and encoder.saturated_samples == 1
+
+
+def test_the_status_bits_that_make_a_sample_unusable_come_with_the_layout():
+    from drivers.imu.layout import STATUS_INVALID, ImuStatus, describe_status
+
+    assert default_packed_layout().status_invalid == STATUS_INVALID == 0b11011    # faults, over-range, initialising
+    assert not STATUS_INVALID & ImuStatus.TEMPERATURE_RANGE                         # a warning, not unusable data
+    assert describe_status(OVER_RANGE_BIT | ImuStatus.GYRO_FAULT) == "gyro-fault, over-range"
+    own = ImuLayout.from_dbc_string(USER_DBC, _spec(status_invalid=0x80))
+    assert own.status_invalid == 0 and _spec(status_invalid=0x80).status_invalid == 0x80   # no status signal mapped
+    assert describe_status(0x80, 0x80) == "status bits 0x0080"
+    for bad in (-1, 1.5, "8", True, 1 << 40):
+        with pytest.raises(ImuConfigError, match="status_invalid"):
+            _spec(status_invalid=bad)

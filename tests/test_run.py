@@ -443,6 +443,20 @@ def test_reply_timeouts_end_failed_and_the_table_stops(tmp_path):
     assert log.complete, log.damage
 
 
+def test_turns_whose_samples_the_imu_flags_over_range_are_left_out_and_named(tmp_path):
+    """The packed layout's 16-bit increments at 50 Hz hold 45 deg/s: turns at 60 deg/s saturate, and the IMU flags
+    those samples over-range. Their integrals were solved as if whole (only the residual test hinted at it)."""
+    text = config_text(rate_hz=50.0, dwell_s=1.0).replace("rate_hz = 50.0", 'rate_hz = 50.0\nlayout = "packed"')
+    text = text.replace("turn_rate_dps = 30.0", "turn_rate_dps = 60.0")
+    config_path = tmp_path / "bench.toml"
+    config_path.write_text(text, encoding="utf-8")
+    rc, _, stderr = cli(["run", "--config", str(config_path), "--out", str(tmp_path / "out"), "--quiet", "--no-db"])
+    assert rc == 4, stderr
+    flagged = [line for line in stderr.split("; quality: ") if "flagged unusable by the IMU (over-range)" in line]
+    assert sorted(line.split(": ")[-2] for line in flagged) == [f"R0{k}" for k in range(1, 7)], stderr
+    assert "P0" not in " ".join(flagged)          # the dwells at rest are not flagged, and are used
+
+
 def test_can_frame_loss_is_counted_logged_and_fails_the_quality_check(tmp_path, monkeypatch):
     """Through the CLI (exit code 4): three frames dropped at the start of a dwell."""
     text = config_text()

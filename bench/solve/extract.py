@@ -36,6 +36,7 @@ from bench.model.observations import (
 )
 from bench.model.units import DEG
 from bench.plan.events import Event
+from drivers.imu.layout import describe_status
 
 
 @dataclass
@@ -156,10 +157,16 @@ def _turn_earth_integral(site: Site, step: dict, samples_duration_s: float, t0: 
 
 def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: np.ndarray, acc_counts: np.ndarray,
                          rate_hz: float, site: Site, state_time_s: np.ndarray, state_angles_deg: np.ndarray,
-                         mounting=None) -> Extraction:
-    """Observations of every finished dwell and turn, in the order the units were listed (P.., R..)."""
+                         mounting=None, status: np.ndarray | None = None,
+                         status_invalid: int = 0) -> Extraction:
+    """Observations of every finished dwell and turn, in the order the units were listed (P.., R..).
+
+    A dwell or turn holding a sample whose `status` has any of the `status_invalid` bits (a fault, a saturated
+    output, outputs not yet valid) is left out, saying so: its mean or integral would be silently wrong."""
     out = Extraction(problems=malformed_observation_steps(events))
     counter = np.asarray(counter, dtype=np.int64)
+    flagged = (None if status is None or not status_invalid
+               else (np.asarray(status, dtype=np.int64) & status_invalid))
     for unit, (started, finished) in sorted(finished_observation_steps(events).items()):
         step, data = finished.data["step"], finished.data
         first, last = int(data["counter_first"]), int(data["counter_last"])
@@ -168,6 +175,11 @@ def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: 
         expected = last - first + 1
         if n == 0:
             out.problems.append(f"{unit}: no IMU samples in its window (counters {first}..{last}); left out")
+            continue
+        if flagged is not None and flagged[window].any():
+            bits = int(np.bitwise_or.reduce(flagged[window]))
+            out.problems.append(f"{unit}: {int(np.count_nonzero(flagged[window]))} of {n} samples flagged unusable "
+                                f"by the IMU ({describe_status(bits, status_invalid)}); left out")
             continue
         if step["kind"] == "dwell":
             if n < expected:

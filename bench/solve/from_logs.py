@@ -44,7 +44,8 @@ def extract_from_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz
                    if not (d.kind == "no_summary" and log.path in still_open)]
         states = log.table_states
         part = extract_observations(log.events, samples.counter, samples.gyro_counts, samples.acc_counts, rate_hz,
-                                    site, states.time_s, states.angles_deg, mounting)
+                                    site, states.time_s, states.angles_deg, mounting, samples.status,
+                                    layout.status_invalid)
         merged_positions.update({o.label: o for o in part.positions})
         merged_rotations.update({o.label: o for o in part.rotations})
         problems += [f"{log.path}: {p}" for p in part.problems]

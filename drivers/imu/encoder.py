@@ -14,7 +14,15 @@ import numpy as np
 
 from drivers.errors import ImuFrameError
 from drivers.imu.crc import crc8_columns, crc8_raw, id_bytes
-from drivers.imu.layout import COLUMNS, STATUS_COLUMN, TEMPERATURE_COLUMN, ImuLayout, SignalLayout, default_layout
+from drivers.imu.layout import (
+    COLUMNS,
+    STATUS_COLUMN,
+    TEMPERATURE_COLUMN,
+    ImuLayout,
+    ImuStatus,
+    SignalLayout,
+    default_layout,
+)
 
 
 @dataclass
@@ -55,7 +63,7 @@ def _check_range(sig: SignalLayout, raw: np.ndarray, what: str) -> None:
 
 
 #: the status bit a saturating encoder sets in a sample whose output it clipped (drivers/CAN.md: over-range)
-OVER_RANGE_BIT = 1 << 3
+OVER_RANGE_BIT = int(ImuStatus.OVER_RANGE)
 
 
 class ImuEncoder:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from enum import IntFlag
 from pathlib import Path
 from typing import Literal
 
@@ -30,6 +31,31 @@ TEMPERATURE_COLUMN, STATUS_COLUMN = 6, 7
 #: Added to the arbitration id of a 29-bit frame wherever ids are keys (live feed, bulk arrays).
 EXTENDED_ID_FLAG = 1 << 31
 
+
+
+class ImuStatus(IntFlag):
+    """The shipped layouts' status bits (drivers/CAN.md); 0 = healthy."""
+
+    GYRO_FAULT = 1 << 0
+    ACC_FAULT = 1 << 1
+    TEMPERATURE_RANGE = 1 << 2
+    OVER_RANGE = 1 << 3           # an output saturated in this sample
+    INITIALISING = 1 << 4         # outputs not yet valid
+
+
+#: The status bits that make a sample unusable for a calibration (a fault, a saturated output, outputs not yet
+#: valid); an IMU whose status means otherwise says which of its bits do in `[imu.signals] status_invalid`.
+STATUS_INVALID = ImuStatus.GYRO_FAULT | ImuStatus.ACC_FAULT | ImuStatus.OVER_RANGE | ImuStatus.INITIALISING
+
+
+def describe_status(bits: int, invalid: int = STATUS_INVALID) -> str:
+    """Status bits in words: the shipped names where the invalid bits are the shipped ones, else in hex."""
+    if invalid == STATUS_INVALID:
+        names = [str(flag.name).lower().replace("_", "-") for flag in ImuStatus if bits & flag]
+        return ", ".join(names)
+    return f"status bits {bits:#06x}"
+
+
 DBC_DIR = Path(__file__).resolve().parent
 DEFAULT_DBC = DBC_DIR / "sim_imu.dbc"
 DEFAULT_FD_DBC = DBC_DIR / "sim_imu_fd.dbc"
@@ -43,8 +69,9 @@ class ImuFrameSpec:
     `channels`: gyro_x..acc_z -> "MESSAGE.Signal". `counter` / `crc`: the signal name in
     every mapped message, or a per-message {message: signal} table (`crc` None or a
     message missing from the table: that message has no CRC). `temperature` (degC) and
-    `status` are optional "MESSAGE.Signal" strings. Every message named here is part of
-    every sample.
+    `status` are optional "MESSAGE.Signal" strings; `status_invalid`: the status bits that
+    make a sample unusable (the shipped layouts' `STATUS_INVALID` unless told). Every message
+    named here is part of every sample.
     """
 
     channels: Mapping[str, str]
@@ -52,16 +79,17 @@ class ImuFrameSpec:
     crc: str | Mapping[str, str] | None = "CRC"
     temperature: str | None = None
     status: str | None = None
+    status_invalid: int = STATUS_INVALID
 
     @classmethod
     def from_dict(cls, config: Mapping) -> "ImuFrameSpec":
-        """From a TOML-shaped table: gyro_x..acc_z, temperature, status, counter, crc keys.
+        """From a TOML-shaped table: gyro_x..acc_z, temperature, status, status_invalid, counter, crc keys.
 
         `crc = ""` means no CRC; anything else malformed raises `ImuConfigError`.
         """
         if not isinstance(config, Mapping):
             raise ImuConfigError(f"the IMU signal mapping must be a table, got {type(config).__name__}")
-        known = set(CHANNELS) | {"temperature", "status", "counter", "crc"}
+        known = set(CHANNELS) | {"temperature", "status", "status_invalid", "counter", "crc"}
         unknown = sorted(str(k) for k in config if k not in known)
         if unknown:
             raise ImuConfigError(f"unknown key(s) in the IMU signal mapping: {', '.join(unknown)} "
@@ -70,9 +98,13 @@ class ImuFrameSpec:
         if missing:
             raise ImuConfigError(f"the IMU signal mapping lacks {', '.join(missing)}")
         crc = config.get("crc", "CRC")
+        invalid = config.get("status_invalid", int(STATUS_INVALID))
+        if type(invalid) is not int or not 0 <= invalid <= 0xFFFF_FFFF:
+            raise ImuConfigError(f"status_invalid must be a whole number of status bits (0 to 0xFFFFFFFF; 0: no "
+                                 f"status bit makes a sample unusable), got {invalid!r}")
         return cls(channels={c: config[c] for c in CHANNELS}, counter=config.get("counter", "Counter"),
                    crc=crc if crc != "" else None, temperature=config.get("temperature"),
-                   status=config.get("status"))
+                   status=config.get("status"), status_invalid=invalid)
 
 
 #: The mapping of the shipped classic layout (drivers/imu/sim_imu.dbc).
@@ -221,6 +253,8 @@ class ImuLayout:
     has_column: tuple[bool, ...]
     source: str = ""
     dbc_text: str = field(default="", repr=False)
+    #: the status bits that make a sample unusable (`ImuFrameSpec.status_invalid`; 0 without a status signal)
+    status_invalid: int = 0
 
     @property
     def keys(self) -> tuple[int, ...]:
@@ -343,7 +377,8 @@ def _compile(db, spec: ImuFrameSpec, source: str, text: str) -> ImuLayout:
     if len(set(keys)) != len(keys):
         raise ImuConfigError("two mapped messages share one arbitration id")
     assert counter_bits is not None  # the six channels are required, so at least one message was compiled
-    return ImuLayout(tuple(messages), int(counter_bits), tuple(scale), tuple(offset), tuple(has), source, text)
+    return ImuLayout(tuple(messages), int(counter_bits), tuple(scale), tuple(offset), tuple(has), source, text,
+                     status_invalid=int(spec.status_invalid) if spec.status else 0)
 
 
 @functools.lru_cache(maxsize=None)
