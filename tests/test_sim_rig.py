@@ -278,14 +278,14 @@ latitude_deg = 30.27
 url = "sim"
 dialect = "{dialect}"
 [table.limits.outer]
-max_rate_dps = 300.0
-max_accel_dps2 = 600.0
+max_rate_dps = 600.0
+max_accel_dps2 = 2400.0
 [table.limits.middle]
-max_rate_dps = 300.0
-max_accel_dps2 = 600.0
+max_rate_dps = 600.0
+max_accel_dps2 = 2400.0
 [table.limits.inner]
-max_rate_dps = 300.0
-max_accel_dps2 = 600.0
+max_rate_dps = 600.0
+max_accel_dps2 = 2400.0
 [imu]
 interface = "virtual"
 channel = "unused"
@@ -298,18 +298,19 @@ black_box_arcsec = 0.0
 noise = true
 """
 
-#: the short plan written into the rig's configuration: traditional-12 + traditional-3s6r, 1 s dwells, fast turns
+#: the short plan written into the rig's configuration: traditional-12 + traditional-3s6r, 0.5 s dwells, fast
+#: moves and turns (the plan runs in wall-clock time: its length is the test's)
 SHORT_PLAN = """\
 [plan]
 positions = "traditional-12"
 rotations = "traditional-3s6r"
-dwell_s = 1.0
-settle_s = 0.2
-rest_s = 0.5
-move_rate_dps = 200.0
-move_accel_dps2 = 600.0
-turn_rate_dps = 200.0
-turn_accel_dps2 = 600.0
+dwell_s = 0.5
+settle_s = 0.1
+rest_s = 0.2
+move_rate_dps = 500.0
+move_accel_dps2 = 2000.0
+turn_rate_dps = 500.0
+turn_accel_dps2 = 2000.0
 
 """
 #: a coefficient may miss the truth by this many of its reported sigmas
