@@ -421,7 +421,7 @@ def test_limit_trip_mid_move_ends_failed_with_the_table_stopped(tmp_path):
 def test_reply_timeouts_end_failed_and_the_table_stops(tmp_path):
     """The SCPI simulator executes a request whose reply it swallows: the stop and the
     controller abort the sequencer sends after the timeout do reach the table."""
-    text = config_text()
+    text = config_text().replace("timeout_s = 1.0", "timeout_s = 0.3", 1)   # every swallowed reply costs it
 
     def swallow_replies(run):
         run.world.controller.faults.timeout = 50

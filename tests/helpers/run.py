@@ -53,7 +53,7 @@ latitude_deg = 30.27
 [table]
 url = "{url}"
 dialect = "{dialect}"
-timeout_s = 0.2
+timeout_s = 1.0   # long: a loaded machine must not turn a slow simulator into a timeout (0.2 s failed at load 12-15)
 [imu]
 interface = "virtual"
 channel = "turntable-bench-test"
