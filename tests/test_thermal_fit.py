@@ -205,3 +205,17 @@ def test_the_budgets_common_part_goes_to_c0_and_leaves_the_terms_their_independe
     unsplit = fit_thermal_model([_with_temperature(_result(t, {"D0_x": v}, {"D0_x": sigma}, False), t)
                                  for t, v in values.items()]).fits["D0_x"]
     assert unsplit.degree < 2 and unsplit.sigma[1] > 10 * fit.sigma[1]
+
+
+def test_a_direction_cosine_diagonal_is_not_split():
+    """A diagonal is second order in its row's off-diagonals: the table's error in it changes with their
+    temperature terms, so its budget's table part is not taken as common (the old bound on c0 stays)."""
+    from bench.solve.budget import NOISE, TABLE
+
+    budget = {NOISE: 1e-9, TABLE: 4e-8}
+    sigma = float(np.hypot(1e-9, 4e-8))
+    points = [_with_temperature(CalibrationResult(coefficient_table({"Eg_Xx": 1.0 - 1e-8 * k}, {"Eg_Xx": sigma},
+                                                                    {"Eg_Xx": budget})), t)
+              for k, t in enumerate(TEMPS)]
+    fit = fit_thermal_model(points).fits["Eg_Xx"]
+    assert fit.common_sigma == pytest.approx(sigma) and fit.sigmas == pytest.approx(np.full(4, sigma))

@@ -116,7 +116,7 @@ def test_a_plan_without_temperatures_compiles_as_before():
 
 class Listener(RunListener):
     def __init__(self):
-        self.events, self.chamber_states, self.hooks = [], [], {}
+        self.events, self.chamber_states, self.soak_statuses, self.hooks = [], [], [], {}
 
     def on_event(self, event):
         self.events.append(event)
@@ -126,6 +126,9 @@ class Listener(RunListener):
 
     def on_chamber_state(self, state):
         self.chamber_states.append(state)
+
+    def on_soak_status(self, status):
+        self.soak_statuses.append(status)
 
 
 RATE_HZ = 20.0
@@ -192,6 +195,10 @@ def test_the_soak_waits_for_the_imu_not_the_chamber(world_with_chamber):
     assert 40.0 - imu_at_arrival > 3.0
     assert slow.data["imu_temperature_c"] == pytest.approx(40.0, abs=0.6)
     assert abs(slow.data["rate_c_per_min"]) < 0.05 and slow.data["steady_for_s"] >= 120.0
+    # every check of the soak reached the listeners (the TUI's chamber panel), the last one the decision's
+    statuses = listener.soak_statuses
+    assert len(statuses) > 100 and [s.time_s for s in statuses] == sorted(s.time_s for s in statuses)
+    assert statuses[-1].done and statuses[-1].as_dict() == {k: slow.data[k] for k in statuses[-1].as_dict()}
     slow_after_air = slow.time_s - air_at
     assert slow_after_air > 3 * 600.0 * 0.5        # the IMU's lag, not the air's, set the soak's length
     # the chamber was logged as it went, and made safe at the end of the run

@@ -436,6 +436,7 @@ class Sequencer:
                 self._poll_chamber_when_due()
                 self._drain_imu()
                 status = tracker.status(self.clock.now())
+                self._dispatch("on_soak_status", status)
                 if status.decision:
                     self._emit("info", f"soak {step.setpoint_c:g} degC: {SOAK_DECISIONS[status.decision]}", step,
                                soak=status.decision, **status.as_dict())
