@@ -90,11 +90,15 @@ def _block_temperature(logs: list[RunLog], layout: ImuLayout, rate_hz: float, k:
 def solve_blocks(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: float, *, run: dict[str, Any],
                  gyro_bias_stability_dph: float | None = None, acc_bias_stability_ug: float | None = None,
                  sim_imu: ImuCoefficients | None = None, sim_thermal: ImuThermal | None = None,
-                 still_open: frozenset[str] = frozenset(),
-                 budget: BudgetInputs | None = None) -> tuple[list[BlockSolution], list[str]]:
+                 still_open: frozenset[str] = frozenset(), budget: BudgetInputs | None = None,
+                 extracted: tuple[Extraction, list[str]] | None = None) -> tuple[list[BlockSolution], list[str]]:
     """A calibration per temperature block of the logs (ThermalRunError when a block cannot be placed in
-    temperature) and the logs' damage lines. `run` goes into every result, with the block's own entries."""
-    extraction, _, damage = extract_from_logs(logs, site, layout, rate_hz, still_open=still_open)
+    temperature) and the logs' damage lines. `run` goes into every result, with the block's own entries.
+    `extracted`: the logs' extraction and damage lines when the caller has them (`extract_from_logs`)."""
+    if extracted is None:
+        extraction, _, damage = extract_from_logs(logs, site, layout, rate_hz, still_open=still_open)
+    else:
+        extraction, damage = extracted
     setpoints = _setpoints(logs)
     blocks = sorted({b for b in (thermal_block(o.label) for o in extraction.positions + extraction.rotations)
                      if b is not None})
@@ -146,15 +150,17 @@ class ThermalSolution:
 
 
 def solve_thermal(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: float, config, sim: bool, *,
-                  run: dict[str, Any], still_open: frozenset[str] = frozenset()) -> ThermalSolution:
+                  run: dict[str, Any], still_open: frozenset[str] = frozenset(),
+                  extracted: tuple[Extraction, list[str]] | None = None) -> ThermalSolution:
     """Every temperature block of the logs solved with what `config` (None: nothing) says beyond the data, as
-    a plain run's solve is, and the thermal model fitted (SolverError when no block has an observation)."""
+    a plain run's solve is, and the thermal model fitted (SolverError when no block has an observation).
+    `extracted` as for `solve_blocks`."""
     stability = bias_stabilities(config, sim) if config is not None else (None, None)
     truth_imu = config.sim.imu if sim and config is not None else None
     truth_thermal = config.sim.thermal if sim and config is not None else None
     blocks, damage = solve_blocks(logs, site, layout, rate_hz, run=run, gyro_bias_stability_dph=stability[0],
                                   acc_bias_stability_ug=stability[1], sim_imu=truth_imu, sim_thermal=truth_thermal,
-                                  still_open=still_open,
+                                  still_open=still_open, extracted=extracted,
                                   budget=budget_inputs(config, sim) if config is not None else None)
     if not blocks:
         raise SolverError("the thermal run has no finished observation at any temperature")
@@ -166,9 +172,10 @@ def solve_thermal(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: fl
 
 
 def write_thermal_files(solution: ThermalSolution, out_dir: Path, stem: str, run: dict[str, Any],
-                        title: str) -> tuple[list[Path], Path | None]:
-    """`<stem>.T<k>.result.json` per temperature and `<stem>.thermal.json` (`.md`, `.html`) with `run` in the
-    model (`stem` is ours, never a name from a file). Returns (the result files, the model file or None)."""
+                        title: str, *, html: bool = True) -> tuple[list[Path], Path | None]:
+    """`<stem>.T<k>.result.json` per temperature and `<stem>.thermal.json` (`.md`, and with `html` `.html`) with
+    `run` in the model (`stem` is ours, never a name from a file). Returns (the result files, the model file or
+    None)."""
     # local: matplotlib (the thermal report's figures) is heavy and needed only here
     from bench.report.thermal import write_thermal_reports
 
@@ -183,7 +190,7 @@ def write_thermal_files(solution: ThermalSolution, out_dir: Path, stem: str, run
     model.run = {**run, "results": [p.name for p in results]}
     model_path = out_dir / f"{stem}.thermal.json"
     model.save(model_path)
-    write_thermal_reports(model, out_dir, f"{stem}.thermal", title=title)
+    write_thermal_reports(model, out_dir, f"{stem}.thermal", title=title, html=html)
     return results, model_path
 
 

@@ -5,7 +5,7 @@ recorded configuration's bias stabilities and budget inputs) and the thermal mod
 the outputs are the run's, under the stem `<run-id>.solved` (nothing the run wrote is
 overwritten): `<run-id>.solved.T<k>.result.json`, `<run-id>.solved.thermal.json` (`.md`,
 `.html`), and the block nearest the model's reference as `<run-id>.solved.result.json` with
-its verdict and reports.
+its verdict and reports (`--no-html`: the Markdown reports only).
 """
 
 from __future__ import annotations
@@ -59,15 +59,15 @@ def resolve_thermal(recorded: Recorded, out_dir: str | Path, *, html: bool = Tru
                 "imu": {"model": imu.get("model", ""), "serial": imu.get("serial", "")},
                 "site": recorded.site.to_dict(), "quality_failures": link_failures, "imu_link": link.as_dict(),
                 "notes": list(recorded.notes)}
-    # as in `bench run`: a log its run resumed was cut off, its missing summary is expected
-    still_open = frozenset(log.path for log in recorded.logs[:-1])
+    # the observations `load_recorded` extracted (merged by unit, the damage of every log): not read twice
     solution = solve_thermal(recorded.logs, recorded.site, setup.layout, setup.rate_hz, config, recorded.sim,
-                             run=run_info, still_open=still_open)
+                             run=run_info, extracted=(recorded.extraction, list(recorded.damage)))
     stem = f"{recorded.run_id}.solved"
     output_path(out, f"{stem}.thermal.json")        # a name from the log never leaves `out` (InputError)
     results, model_path = write_thermal_files(
         solution, out, stem, {"mode": run_info["mode"], "run_id": recorded.run_id, "log": names[-1],
-                              "solved_by": "bench solve"}, title=f"Thermal model {stem} (re-solved from the log)")
+                              "solved_by": "bench solve"}, title=f"Thermal model {stem} (re-solved from the log)",
+        html=html)
     head = solution.head
     result = head.point.result
     problems = list(head.extraction.problems)
