@@ -70,6 +70,7 @@ def _is_thermal(log) -> bool:
 
 def _solve_thermal(args: argparse.Namespace, recorded) -> ExitCode:
     """A thermal log: every temperature solved again and the model refitted (`bench.thermal.resolve`)."""
+    # imported when the command runs: `bench` starts without the bench core
     from bench.errors import InputError
     from bench.solve.methods import SolverError
     from bench.thermal.resolve import resolve_thermal

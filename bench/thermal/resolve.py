@@ -13,6 +13,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from bench import __version__
 from bench.acceptance.verdict import Verdict, judge
@@ -79,8 +80,9 @@ def resolve_thermal(recorded: Recorded, out_dir: str | Path, *, html: bool = Tru
     result.verdict = verdict.to_json()
     result_path = out / f"{stem}.result.json"
     result.save(result_path)
-    report = dict(problems=problems, failures=failures, imu_link=link.as_dict(),
-                  title=f"Calibration report {stem} (temperature block T{head.temperature_index}, re-solved)")
+    report: dict[str, Any] = dict(
+        problems=problems, failures=failures, imu_link=link.as_dict(),
+        title=f"Calibration report {stem} (temperature block T{head.temperature_index}, re-solved)")
     if html:
         report_path, html_path = write_reports(result, out, stem, log=recorded.logs[-1], layout=setup.layout,
                                                **report)
