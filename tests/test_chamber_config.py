@@ -54,6 +54,16 @@ def test_no_section_is_no_chamber_and_a_section_builds_one():
     assert modbus.limits == ChamberLimits()
 
 
+@pytest.mark.parametrize("url, dialect, link", [
+    ("modbus+tcp://127.0.0.1:5021", "modbus", "tcp"), ("modbus+rtu:///dev/ttyUSB0?baud=19200", "modbus", "pty"),
+    ("tcp://127.0.0.1:5030", "ascii", "tcp"), ("/dev/ttyUSB1", "ascii", "pty"), ("sim", "ascii", "tcp")])
+def test_the_url_chooses_the_dialect_and_the_simulators_link(url, dialect, link):
+    """Without a dialect the url's is taken (modbus+... is Modbus, anything else the ASCII lines), and the
+    simulator serves the chamber over the kind of link the url names (a pty for RTU and serial devices)."""
+    chamber = parse(BASE + f'\n[chamber]\nurl = "{url}"\n').chamber
+    assert (chamber.dialect, chamber.sim_link) == (dialect, link)
+
+
 @pytest.mark.parametrize("old, new, line, key, fragment", [
     ('dialect = "ascii"', 'dialect = "espec"', 25, "chamber.dialect", "unknown chamber dialect 'espec'"),
     ('url = "sim"', 'url = "modbus+tcp://h:502"', 24, "chamber.url", "is a Modbus url but chamber.dialect"),

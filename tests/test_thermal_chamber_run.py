@@ -7,8 +7,9 @@ the default schedules (short 20 s dwells, 100 Hz), all on the simulated clock in
 run then solves one calibration per temperature from the log and fits the thermal model; the
 fitted polynomials must recover the configured ones within their uncertainty, as
 tests/test_thermal_run.py checks for the in-memory `bench thermal sim`. One seed (0, the
-example's); on seeds 1 and 2 the short run misses small quadratic terms (README, "Calibrating
-over temperature"): that weakness is known, not hidden by this test.
+example's); on seed 2 the short run misses D0_x's small quadratic term, a 3.4-sigma effect the
+1 % degree test finds in 82 % of runs (README, "Calibrating over temperature";
+tests/studies/thermal_degree_power.py): that limit is known, not hidden by this test.
 """
 
 from __future__ import annotations
@@ -102,11 +103,35 @@ def test_the_log_records_the_chamber_state_and_every_soak_decision(thermal_run):
     assert events[-2].data.get("chamber") == "made_safe" and "23 degC" in events[-2].message
 
 
-def test_bench_solve_refuses_to_solve_the_temperatures_of_a_thermal_log_together(thermal_run, tmp_path):
+def test_bench_solve_re_solves_every_temperature_and_refits_the_model_as_the_run_did(thermal_run, tmp_path):
+    """`bench solve THERMAL_LOG`: the run's outputs again under `<run-id>.solved` (nothing overwritten), every
+    temperature's calibration and the thermal model exactly the run's."""
     _, out, _ = thermal_run
-    rc, _, stderr = cli(["solve", str(only_file(out, "*.mcap")), "--out", str(tmp_path)])
-    assert rc == 2 and "is a calibration over temperature" in stderr and len(stderr.splitlines()) == 1
-    assert not list(tmp_path.iterdir())
+    rc, stdout, stderr = cli(["solve", str(only_file(out, "*.mcap")), "--out", str(tmp_path), "--no-html"])
+    assert rc == 0, stderr
+    assert "4 temperatures, one calibration each" in stdout and "thermal: " in stdout
+    assert_same_thermal_outputs(out, tmp_path)
+
+
+def assert_same_thermal_outputs(run_out: Path, solved_out: Path) -> None:
+    """The re-solve's per-temperature results, model and headline result are the run's, number for number."""
+    run_results = sorted(run_out.glob("*Z-??????.T?.result.json"))
+    solved_results = sorted(solved_out.glob("*.solved.T?.result.json"))
+    assert len(solved_results) == len(run_results) >= 1
+    for ran, solved in zip(run_results, solved_results):
+        a, b = CalibrationResult.load(ran), CalibrationResult.load(solved)
+        assert a.coefficients == b.coefficients and a.temperature == b.temperature, ran.name
+    models = [list(d.glob(pattern)) for d, pattern in ((run_out, "*Z-??????.thermal.json"),
+                                                       (solved_out, "*.solved.thermal.json"))]
+    assert len(models[0]) == len(models[1]) == (len(run_results) > 1)      # a model from two temperatures on
+    if models[0]:
+        run_model, solved_model = ThermalModel.load(models[0][0]), ThermalModel.load(models[1][0])
+        assert run_model.model_json() == solved_model.model_json()
+        assert solved_model.run["solved_by"] == "bench solve"
+    head, solved_head = (CalibrationResult.load(only_file(d, pattern))
+                         for d, pattern in ((run_out, "*Z-??????.result.json"), (solved_out, "*.solved.result.json")))
+    assert head.coefficients == solved_head.coefficients
+    assert head.run["thermal"]["this_block"] == solved_head.run["thermal"]["this_block"]
 
 
 def test_a_thermal_run_cut_off_resumes_without_soaking_the_finished_temperature_again(tmp_path):
@@ -154,3 +179,46 @@ Kg_x = [0.36]
     soaked = [e.data["step"]["setpoint_c"] for e in events if e.kind == "step_finished"
               and e.data["step"]["kind"] == "soak"]
     assert soaked == [30.0]
+
+
+def test_a_thermal_run_over_the_modbus_rtu_chamber_and_its_re_solve(tmp_path):
+    """The chamber url chooses the dialect and link: `modbus+rtu://...` with `--sim` is the simulated chamber
+    speaking Modbus RTU on a pty (no dialect key). The smallest thermal plan (one temperature near the room's,
+    the shortest schedules) runs through it: set, soak, polls, the chamber made safe at the end; `bench solve`
+    on its log then gives the run's results again."""
+    from bench.run.runner import BenchRun, compile_from_config
+    from tests.helpers.run import config_text
+
+    text = config_text(positions="traditional-12", rotations="traditional-3s6r", dwell_s=1.0).replace(
+        "[plan]\n", "[plan]\ntemperatures_c = [24.0]\n", 1) + """
+[plan.soak]
+rate_c_per_min = 0.1
+stable_min = 1.0
+
+[chamber]
+url = "modbus+rtu:///dev/ttyUSB0?baud=115200"
+poll_s = 5.0
+safe_setpoint_c = 23.0
+
+[sim.imu.thermal]
+time_constant_s = 60.0
+Kg_x = [0.36]
+"""
+    config = parse_config(text, source=str(tmp_path / "bench.toml"), base_dir=tmp_path)
+    assert config.chamber.dialect == "modbus"
+    out = tmp_path / "run"
+    with BenchRun(config, compile_from_config(config), sim=True, out_dir=out) as run:
+        run.open()
+        assert run.chamber.dialect == "modbus" and run.chamber.url.startswith("modbus+rtu:///dev/pts/")
+        assert run.run().value == "done", run.sequencer.error
+        outcome = run.finish()
+        assert run.world.chamber.state().setpoint_c == 23.0            # made safe at the end, over RTU
+    assert outcome.error is None and len(outcome.thermal_paths) == 1 and outcome.thermal_model is None
+    events = read_log(str(outcome.log_path)).events
+    assert [e.data["soak"] for e in events if e.kind == "info" and "soak" in e.data][-1] == "done"
+    assert events[-2].data.get("chamber") == "made_safe"
+    rc, stdout, stderr = cli(["solve", str(outcome.log_path), "--out", str(tmp_path / "solved"), "--no-html"])
+    assert rc == 0, stderr
+    assert "1 temperature, one calibration each" in stdout and "thermal: " not in stdout
+    assert_same_thermal_outputs(out, tmp_path / "solved")
+

@@ -162,3 +162,60 @@ def test_calibrations_of_different_imus_are_refused():
     with pytest.raises(ThermalFitError, match="different IMUs.*'B-7'"):
         fit_thermal_model(points)
     fit_thermal_model(points[:2])
+
+
+# -- the budget's common part (the table's, the site's) -----------------------------------------
+
+def _budgeted_points(values_by_t, table_sigma, noise_sigma):
+    """Results whose D0_x sigma is a budget of a table part (common) and a noise part (independent)."""
+    from bench.solve.budget import NOISE, TABLE
+
+    budget = {NOISE: noise_sigma, TABLE: table_sigma}
+    sigma = float(np.hypot(noise_sigma, table_sigma))
+    return [_with_temperature(CalibrationResult(coefficient_table({"D0_x": v}, {"D0_x": sigma}, {"D0_x": budget})), t)
+            for t, v in values_by_t.items()]
+
+
+def _with_temperature(result, t):
+    result.temperature = {"mean_c": t}
+    return point_from_result(result, f"r{t:g}")
+
+
+def test_the_budgets_common_part_goes_to_c0_and_leaves_the_terms_their_independent_sigma():
+    """The table's part of each calibration's sigma (common to every temperature) dominates: c0's sigma is
+    about that common part, the temperature terms are as sure as the independent (noise) parts make them,
+    and a quadratic term the noise resolves is found; without the split (results with no budget) the
+    common part was counted as independent, hiding the term and widening the slope by ~10x."""
+    truth = [0.05, 0.002, 2e-5]
+    table, noise = 0.02, 0.001
+    rng = np.random.default_rng(5)
+    offset = table * rng.standard_normal()              # one table, one error at every temperature
+    values = {float(t): float(_poly(truth, t)) + offset + noise * rng.standard_normal() for t in TEMPS}
+    fit = fit_thermal_model(_budgeted_points(values, table, noise)).fits["D0_x"]
+    independent = fit_coefficient("D0_x", "deg/h", TEMPS, list(values.values()), np.full(4, noise),
+                                  common_sigmas=np.zeros(4))
+    assert fit.degree == 2 == independent.degree
+    assert fit.common_sigma == pytest.approx(table)
+    assert fit.sigma[0] == pytest.approx(np.hypot(table, independent.sigma[0]), rel=1e-6)
+    assert fit.sigma[0] == pytest.approx(table, rel=0.05)
+    assert fit.sigma[1:] == pytest.approx(independent.sigma[1:], rel=1e-6)     # not inflated by the table
+    assert all(abs(fit.polynomial[k] - truth[k]) < 3 * fit.sigma[k] for k in range(3))
+    # the old rule (no budget to split): every sigma taken as independent, the quadratic term lost in it
+    sigma = float(np.hypot(table, noise))
+    unsplit = fit_thermal_model([_with_temperature(_result(t, {"D0_x": v}, {"D0_x": sigma}, False), t)
+                                 for t, v in values.items()]).fits["D0_x"]
+    assert unsplit.degree < 2 and unsplit.sigma[1] > 10 * fit.sigma[1]
+
+
+def test_a_direction_cosine_diagonal_is_not_split():
+    """A diagonal is second order in its row's off-diagonals: the table's error in it changes with their
+    temperature terms, so its budget's table part is not taken as common (the old bound on c0 stays)."""
+    from bench.solve.budget import NOISE, TABLE
+
+    budget = {NOISE: 1e-9, TABLE: 4e-8}
+    sigma = float(np.hypot(1e-9, 4e-8))
+    points = [_with_temperature(CalibrationResult(coefficient_table({"Eg_Xx": 1.0 - 1e-8 * k}, {"Eg_Xx": sigma},
+                                                                    {"Eg_Xx": budget})), t)
+              for k, t in enumerate(TEMPS)]
+    fit = fit_thermal_model(points).fits["Eg_Xx"]
+    assert fit.common_sigma == pytest.approx(sigma) and fit.sigmas == pytest.approx(np.full(4, sigma))

@@ -116,7 +116,7 @@ def test_a_plan_without_temperatures_compiles_as_before():
 
 class Listener(RunListener):
     def __init__(self):
-        self.events, self.chamber_states, self.hooks = [], [], {}
+        self.events, self.chamber_states, self.soak_statuses, self.hooks = [], [], [], {}
 
     def on_event(self, event):
         self.events.append(event)
@@ -126,6 +126,9 @@ class Listener(RunListener):
 
     def on_chamber_state(self, state):
         self.chamber_states.append(state)
+
+    def on_soak_status(self, status):
+        self.soak_statuses.append(status)
 
 
 RATE_HZ = 20.0
@@ -192,6 +195,10 @@ def test_the_soak_waits_for_the_imu_not_the_chamber(world_with_chamber):
     assert 40.0 - imu_at_arrival > 3.0
     assert slow.data["imu_temperature_c"] == pytest.approx(40.0, abs=0.6)
     assert abs(slow.data["rate_c_per_min"]) < 0.05 and slow.data["steady_for_s"] >= 120.0
+    # every check of the soak reached the listeners (the TUI's chamber panel), the last one the decision's
+    statuses = listener.soak_statuses
+    assert len(statuses) > 100 and [s.time_s for s in statuses] == sorted(s.time_s for s in statuses)
+    assert statuses[-1].done and statuses[-1].as_dict() == {k: slow.data[k] for k in statuses[-1].as_dict()}
     slow_after_air = slow.time_s - air_at
     assert slow_after_air > 3 * 600.0 * 0.5        # the IMU's lag, not the air's, set the soak's length
     # the chamber was logged as it went, and made safe at the end of the run
@@ -300,26 +307,31 @@ def test_resume_skips_the_chamber_steps_of_a_temperature_whose_units_are_all_don
     assert any(e.data.get("soak") == "done" for e in listener2.events)
 
 
-def test_a_pause_holds_the_chamber_and_an_alarm_raised_meanwhile_ends_the_run_after_resume(world_with_chamber):
+def test_a_pause_holds_the_chamber_and_an_alarm_raised_meanwhile_ends_the_run_while_paused(world_with_chamber):
+    """The simulated clock stands still while paused, yet the chamber is still polled (on the wall clock too):
+    an alarm raised during the pause ends the run then, without waiting for a resume (before, only after it)."""
     world, table, imu, chamber = world_with_chamber(30.0)
     listener = Listener()
-    seq = Sequencer(_with_a_dwell(_soak_steps(stable_s=60.0)), table, imu, world.clock, [listener], OPTIONS,
-                    chamber=chamber)
+    seq = Sequencer(_with_a_dwell(_soak_steps(stable_s=60.0)), table, imu, world.clock, [listener],
+                    dataclasses.replace(OPTIONS, chamber_poll_s=0.5), chamber=chamber)
     paused = []
+    guard = threading.Timer(20.0, seq.abort, ("the alarm was not seen while paused",))   # bounds a failing test
 
     def on_transition():
         state = listener.events[-1].state
         if state == "paused" and not paused:
             paused.append(world.chamber.state())
             world.chamber.trip_alarm(ChamberAlarms.EQUIPMENT_FAULT)
-            threading.Timer(0.2, seq.resume).start()
+            guard.start()
 
     listener.hooks[("step_finished", "T1")] = lambda: seq.pause() if listener.events[-1].data["step"]["kind"] == \
         "soak" else None
     listener.hooks[("transition", None)] = on_transition
-    assert seq.run() is RunState.FAILED and isinstance(seq.error, ChamberAlarm)
+    try:
+        assert seq.run() is RunState.FAILED and isinstance(seq.error, ChamberAlarm), seq.error
+    finally:
+        guard.cancel()
     assert paused and paused[0].setpoint_c == 40.0 and paused[0].running      # the pause kept the chamber at it
-    assert [e.state for e in listener.events if e.kind == "transition"] == [
-        "running", "paused", "running", "aborting", "failed"]
+    assert [e.state for e in listener.events if e.kind == "transition"] == ["running", "paused", "aborting", "failed"]
     assert "equipment fault" in str(seq.error)
     assert not world.chamber.state().running and not any(a.enabled for a in table.read_state().axes)

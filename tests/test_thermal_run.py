@@ -120,12 +120,11 @@ def test_the_in_memory_function_gives_the_commands_model(model):
 
 
 def _refit(model: ThermalModel, name: str, count: int):
-    """`name` refitted to the model's first `count` points (as `simulate_thermal` would have)."""
-    from bench.thermal.fit import fit_coefficient
+    """`name` refitted to the model's first `count` points (as `simulate_thermal` would have; their budgets
+    split the sigmas as the model's own fit did)."""
+    from bench.thermal.model import fit_thermal_model
 
-    fit = model.fits[name]
-    return fit_coefficient(name, fit.unit, fit.temperatures_c[:count], fit.values[:count], fit.sigmas[:count],
-                           model.reference_c)
+    return fit_thermal_model(model.points[:count], model.reference_c).fits[name]
 
 
 def test_the_cli_fits_from_files_and_exports_every_format(sim_out, model, tmp_path):

@@ -27,7 +27,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "report as `bench run` does. Damaged logs are read around the damage and the report lists "
                     "what was lost. Exit codes: 0 solved, 2 usage error or unreadable log or a subset the log "
                     "lacks or a static noise recording (`bench noise LOG` analyses it), 4 solved but a quality "
-                    "check failed.")
+                    "check failed. A thermal run's log ([plan] temperatures_c) is solved one calibration per "
+                    "temperature and its thermal model refitted, as the run did.")
     parser.add_argument("logs", nargs="*", metavar="LOG", help="run log(s) (.mcap)")
     parser.add_argument("--positions", metavar="NAME|FILE",
                         help="solve only these recorded positions (a schedule: optimal-24, traditional-12, all-64, "
@@ -65,6 +66,45 @@ def _is_thermal(log) -> bool:
     from bench.plan.steps import thermal_block
 
     return any(e.step_unit is not None and thermal_block(e.step_unit) is not None for e in log.events)
+
+
+def _solve_thermal(args: argparse.Namespace, recorded) -> ExitCode:
+    """A thermal log: every temperature solved again and the model refitted (`bench.thermal.resolve`)."""
+    # imported when the command runs: `bench` starts without the bench core
+    from bench.errors import InputError
+    from bench.solve.methods import SolverError
+    from bench.thermal.resolve import resolve_thermal
+
+    out_dir = Path(args.out) if args.out else Path(recorded.logs[0].path).parent
+    try:
+        resolved = resolve_thermal(recorded, out_dir, html=not args.no_html)
+    except SolverError as exc:
+        return fail(PROG, f"cannot be solved: {exc}", ExitCode.QUALITY)
+    except InputError as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
+    except OSError as exc:
+        return fail(PROG, f"cannot write the result: {exc}", ExitCode.USAGE)
+    if not args.quiet:
+        blocks = resolved.solution.blocks
+        print(f"solved {recorded.run_id} from {len(recorded.logs)} log(s): {len(blocks)} "
+              f"temperature{'s' if len(blocks) != 1 else ''}, one calibration each")
+        for note in recorded.notes:
+            print(f"note: {note}")
+        for path in resolved.results:
+            print(f"result: {path}")
+        if resolved.model_path is not None:
+            print(f"thermal: {resolved.model_path}")
+        print(f"report: {resolved.report_path} (T{resolved.solution.head.temperature_index}, nearest "
+              f"{resolved.solution.reference_c:g} degC)" + (f"\n        {resolved.html_report_path}"
+                                                             if resolved.html_report_path else ""))
+        print(f"verdict: {resolved.verdict.headline()}")
+    logs_solved = [log.path for log in recorded.logs]
+    del recorded
+    record_outputs(args, PROG, [resolved.result_path, *logs_solved])
+    failures = [c.describe() for c in resolved.verdict.failed]
+    if failures:
+        return fail(PROG, "quality check failed: " + "; ".join(failures), ExitCode.QUALITY)
+    return ExitCode.OK
 
 
 def cmd_solve(args: argparse.Namespace) -> ExitCode:
@@ -105,10 +145,12 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
                               f"dwell, nothing to calibrate): analyse it with `bench noise {recorded.logs[-1].path}`",
                         ExitCode.USAGE)
         thermal = next((log.path for log in recorded.logs if _is_thermal(log)), None)
-        if thermal is not None:     # its blocks must not be solved together as one calibration
-            return fail(PROG, f"{thermal} is a calibration over temperature ([plan] temperatures_c): its run wrote a "
-                              "result per temperature (<run-id>.T<k>.result.json) and the thermal model "
-                              "(<run-id>.thermal.json); re-solving such a log is not supported yet", ExitCode.USAGE)
+        if thermal is not None:     # its blocks are solved one temperature each, never together
+            if methods is not None or positions is not None or rotations is not None:
+                return fail(PROG, f"{thermal} is a calibration over temperature ([plan] temperatures_c): it is "
+                                  "re-solved whole, one calibration per temperature (no --compare, --positions or "
+                                  "--rotations)", ExitCode.USAGE)
+            return _solve_thermal(args, recorded)
         if methods is not None:
             comparison = compare(recorded, methods)
         else:

@@ -2,7 +2,8 @@
 
     [chamber]
     url = "sim"                  # or tcp://..., a serial device, modbus+tcp://..., modbus+rtu://...
-    dialect = "ascii"            # ascii | modbus (drivers/CHAMBER.md)
+    dialect = "ascii"            # ascii | modbus (drivers/CHAMBER.md); default: the url's (modbus+... -> modbus,
+                                 # any other -> ascii)
     timeout_s = 1.0
     retries = 2
     poll_s = 1.0
@@ -15,6 +16,10 @@
 
 The section is optional (a configuration without it has no chamber; `BenchConfig.chamber` is None). Every problem is one
 `ConfigError` ``file:line: key: message``, as for the rest of the file.
+
+On the simulator (`url = "sim"`, or any url with `bench run --sim`) the simulated chamber is served in the dialect
+and over the kind of link the url names: Modbus RTU on a pty for `modbus+rtu://...`, Modbus TCP for
+`modbus+tcp://...`, ASCII lines on a pty for a serial device, ASCII over TCP for `tcp://...` and `sim`.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from drivers.chamber import DIALECTS, ChamberLimits, check_url_dialect
 from drivers.chamber.base import ABSOLUTE_MAX_C, ABSOLUTE_MIN_C
 from drivers.chamber.modbus_map import ChamberRegisterMap
 from drivers.errors import ChamberConfigError
+from drivers.transport import MODBUS_SCHEMES
 
 #: chamber url: the simulated chamber, served over loopback in the configured dialect
 SIM_URL = "sim"
@@ -53,6 +59,14 @@ class ChamberConfig:
     def is_sim(self) -> bool:
         return self.url == SIM_URL
 
+    @property
+    def sim_link(self) -> str:
+        """Where the simulator serves this chamber: 'pty' for a serial url (Modbus RTU or an ASCII serial
+        device), 'tcp' for a TCP url and for `sim` (`bench.sim.chamber_server.serve_chamber`'s `where`)."""
+        if self.url == SIM_URL or self.url.startswith(("tcp://", "modbus+tcp://")):
+            return "tcp"
+        return "pty"
+
     def driver_options(self) -> dict:
         """Keyword arguments of `drivers.chamber.open_chamber` (besides url and dialect)."""
         options: dict = {"limits": self.limits, "timeout_s": self.timeout_s, "retries": self.retries}
@@ -74,7 +88,8 @@ def _limits(t: Table) -> ChamberLimits:
 def chamber_config(t: Table) -> ChamberConfig:
     """The checked [chamber] section (its url and dialect are required)."""
     url = t.string("url", nonempty=True).strip()
-    dialect = t.string("dialect", nonempty=True).strip().lower()
+    implied = "modbus" if url.startswith(MODBUS_SCHEMES) else "ascii"      # the url's dialect
+    dialect = t.string("dialect", implied, nonempty=True).strip().lower()
     if dialect not in DIALECTS:
         raise t.error("dialect", f"unknown chamber dialect {show(dialect)}" + suggest(dialect, DIALECTS))
     if url != SIM_URL:

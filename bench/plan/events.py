@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 if TYPE_CHECKING:   # types only: the plan layer does not import the drivers or python-can at run time
     import can
 
+    from bench.run.soak import SoakStatus
     from drivers.chamber import ChamberState
     from drivers.imu import ImuSampleBlock
     from drivers.turntable import TableState
@@ -68,7 +69,8 @@ class RunListener:
     `on_can_frames` gets every raw CAN frame (python-can `Message`s) before decoding;
     `on_imu` the decoded samples (`drivers.imu.ImuSampleBlock`); `on_table_state` each
     polled `drivers.turntable.TableState`; `on_chamber_state` each polled
-    `drivers.chamber.ChamberState` (a thermal plan's runs). `close()` is called once at the end of a run.
+    `drivers.chamber.ChamberState` (a thermal plan's runs); `on_soak_status` the soak's state
+    (`bench.run.soak.SoakStatus`) at every check of a soak step. `close()` is called once at the end of a run.
     """
 
     def on_event(self, event: Event) -> None:
@@ -82,6 +84,9 @@ class RunListener:
 
     def on_chamber_state(self, state: ChamberState) -> None:
         """Each polled thermal-chamber state (runs with a chamber only)."""
+
+    def on_soak_status(self, status: SoakStatus) -> None:
+        """The soak's state at each check while a soak step runs (its decisions are `info` events too)."""
 
     def on_can_frames(self, frames: Sequence[can.Message]) -> None:
         pass

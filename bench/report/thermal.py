@@ -153,12 +153,14 @@ def html_thermal(model: ThermalModel, title: str) -> str:
 
 
 def write_thermal_reports(model: ThermalModel, out_dir: str | Path, stem: str = "thermal",
-                          title: str = "") -> list[Path]:
-    """`<stem>.md` and `<stem>.html` in `out_dir` (`stem` is ours, never a name from a file)."""
+                          title: str = "", *, html: bool = True) -> list[Path]:
+    """`<stem>.md` and (with `html`: its figures take seconds) `<stem>.html` in `out_dir` (`stem` is ours,
+    never a name from a file)."""
     out = Path(out_dir)
     written = []
     title = title or stem
-    for suffix, text in ((".md", markdown_thermal(model, title)), (".html", html_thermal(model, title))):
+    for suffix in (".md", ".html") if html else (".md",):
+        text = markdown_thermal(model, title) if suffix == ".md" else html_thermal(model, title)
         path = out / f"{stem}{suffix}"
         path.write_text(text, encoding="utf-8")
         written.append(path)

@@ -41,9 +41,8 @@ from bench.run.sequencer import ListenerError, Sequencer, SequencerOptions, desc
 from bench.sim.world import SimWorld
 from bench.solve.extract import Extraction
 from bench.solve.from_logs import extract_from_logs, solve_logs
-from bench.solve.inputs import bias_stabilities, budget_inputs
-from bench.solve.methods import SolverError
-from bench.thermal.from_log import fit_blocks, nearest_block, solve_blocks
+from bench.solve.inputs import budget_inputs
+from bench.thermal.from_log import solve_thermal, write_thermal_files
 from bench.thermal.model import ThermalModel
 from drivers.chamber import Chamber, open_chamber
 from drivers.clock import SYSTEM_CLOCK, Clock
@@ -51,8 +50,6 @@ from drivers.imu.receiver import ImuReceiver
 from drivers.turntable import Turntable, open_turntable
 from schedules import builtin_path
 
-#: the reference temperature of a thermal model fitted to a hardware run, degC
-THERMAL_REFERENCE_C = 25.0
 #: The sequencer's loop periods on the simulator: coarse, because the simulated clock jumps.
 SIM_OPTIONS = dict(move_poll_s=0.1, imu_poll_s=0.5, state_period_s=1.0)
 
@@ -194,7 +191,9 @@ class BenchRun:
         assert self.clock is not None
         if self.sim:
             assert self.world is not None
-            url = self.world.add_chamber(chamber_config.dialect, chamber_config.register_map)
+            # served in the configured dialect over the kind of link its url names (TCP, or a pty: RTU, serial)
+            url = self.world.add_chamber(chamber_config.dialect, chamber_config.register_map,
+                                         where=chamber_config.sim_link)
             if self.world.imu.case is not None:
                 self.world.drive_imu_from_chamber()
         elif chamber_config.is_sim:
@@ -420,52 +419,25 @@ class BenchRun:
     def _finish_thermal(self, state: RunState, receiver: ImuReceiver, recorder: McapRecorder) -> RunOutcome:
         """A thermal run: one calibration per temperature (`<run-id>.T<k>.result.json`), the thermal model
         (`<run-id>.thermal.json/.md/.html`), and as the run's own result (verdict, reports) the calibration
-        nearest the model's reference temperature."""
-        # local: matplotlib (the thermal report's figures) is heavy and needed only here
-        from bench.report.thermal import write_thermal_reports
-
+        nearest the model's reference temperature (`bench.thermal.from_log.solve_thermal`)."""
         config = self.config
         logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
-        gyro_stability, acc_stability = bias_stabilities(config, self.sim)
-        budget = budget_inputs(config, self.sim)
-        truth_imu = config.sim.imu if self.sim else None
-        truth_thermal = config.sim.thermal if self.sim else None
         link_failures = [f"{LOST_SAMPLES_FAILURE}: {receiver.stats.summary()}"] if receiver.stats.lost_samples else []
         run_info = self._run_info(state, receiver, link_failures)
-        blocks, damage = solve_blocks(logs, config.site.site, config.imu.layout, config.imu.rate_hz, run=run_info,
-                                      gyro_bias_stability_dph=gyro_stability, acc_bias_stability_ug=acc_stability,
-                                      sim_imu=truth_imu, sim_thermal=truth_thermal,
-                                      still_open=frozenset({str(self.log_path), *map(str, self.previous_logs)}),
-                                      budget=budget)
-        if not blocks:
-            raise SolverError("the thermal run has no finished observation at any temperature")
-        reference_c = truth_thermal.reference_c if truth_thermal is not None else THERMAL_REFERENCE_C
-        written = []
-        for block in blocks:
-            path = self.out_dir / f"{self.run_id}.T{block.temperature_index}.result.json"
-            block.point.result.save(path)
-            written.append(path)
-        model = None
-        if len({round(b.point.temperature_c, 3) for b in blocks}) >= 2:
-            model = fit_blocks(blocks, reference_c, sim_imu=truth_imu, sim_thermal=truth_thermal)
-            model.run = {"mode": run_info["mode"], "run_id": self.run_id, "log": self.log_path.name,
-                         "results": [p.name for p in written]}
-            model_path = self.out_dir / f"{self.run_id}.thermal.json"
-            model.save(model_path)
-            write_thermal_reports(model, self.out_dir, f"{self.run_id}.thermal",
-                                  title=f"Thermal model {self.run_id}")
-            written.append(model_path)
-        head = nearest_block(blocks, reference_c)
+        still_open = frozenset({str(self.log_path), *map(str, self.previous_logs)})
+        solution = solve_thermal(logs, config.site.site, config.imu.layout, config.imu.rate_hz, config, self.sim,
+                                 run=run_info, still_open=still_open)
+        results, model_path = write_thermal_files(
+            solution, self.out_dir, self.run_id, {"mode": run_info["mode"], "run_id": self.run_id,
+                                                  "log": self.log_path.name},
+            title=f"Thermal model {self.run_id}")
+        written = results + ([model_path] if model_path is not None else [])
+        head = solution.head
         result = head.point.result
         problems = list(head.extraction.problems)
-        failures = problems + damage + link_failures
-        outliers = result.quality.get("outliers", []) if isinstance(result.quality, dict) else []
-        if outliers:
-            failures.append(f"{len(outliers)} {OUTLIERS_FAILURE}")
-        result.run["quality_failures"] = failures
-        result.run["thermal"] = {"model": f"{self.run_id}.thermal.json" if model is not None else None,
-                                 "results": [p.name for p in written if p.name.endswith(".result.json")],
-                                 "this_block": head.temperature_index}
+        failures = thermal_failures(result, problems, solution.damage, link_failures)
+        result.run["thermal"] = {"model": model_path.name if model_path is not None else None,
+                                 "results": [p.name for p in results], "this_block": head.temperature_index}
         verdict = judge(result, config.acceptance, lost_samples=receiver.stats.lost_samples,
                         quality_failures=judged_failures(failures, config.acceptance))
         result.verdict = verdict.to_json()
@@ -481,7 +453,7 @@ class BenchRun:
         recorder.close()
         return RunOutcome(state, self.log_path, result_path, report_path, result, failures,
                           html_report_path=html_report_path, verdict=verdict, problems=problems,
-                          thermal_paths=written, thermal_model=model)
+                          thermal_paths=written, thermal_model=solution.model)
 
     def finish_observations(self) -> tuple[Extraction | None, BaseException | None]:
         """For a run that is not solved (a verification): close the log and extract its observations.
@@ -557,6 +529,18 @@ def quality_failures(solution, live_stats) -> list[str]:
         failures += [c.describe() for c in budget.inconsistent()]
     if live_stats.lost_samples:
         failures.append(f"{LOST_SAMPLES_FAILURE}: {live_stats.summary()}")
+    return failures
+
+
+def thermal_failures(result: CalibrationResult, problems: list[str], damage: list[str],
+                     link_failures: list[str]) -> list[str]:
+    """A thermal run's quality failures, as its headline result records them (`run.quality_failures`): the
+    block's problems, the logs' damage, the IMU link's, its residual outliers."""
+    failures = problems + damage + link_failures
+    outliers = result.quality.get("outliers", []) if isinstance(result.quality, dict) else []
+    if outliers:
+        failures.append(f"{len(outliers)} {OUTLIERS_FAILURE}")
+    result.run["quality_failures"] = failures
     return failures
 
 

@@ -42,6 +42,7 @@ also leaves the chamber that way.
 from __future__ import annotations
 
 import threading
+import time
 from dataclasses import dataclass
 from typing import Iterable, Sequence
 
@@ -136,6 +137,7 @@ class Sequencer:
         if chamber is None and any(isinstance(s, (SetTemperatureStep, SoakStep)) for s in self.steps):
             raise SequencerError("the plan has thermal-chamber steps but the run has no chamber")
         self._last_chamber_poll = float("-inf")
+        self._last_chamber_poll_wall = float("-inf")     # time.monotonic() of the last poll (see `_pause`)
         self._chamber_state: ChamberState | None = None     # the last chamber reading
         self._soak: SoakTracker | None = None
         self.table, self.imu, self.clock = table, imu, clock
@@ -271,6 +273,11 @@ class Sequencer:
         self._transition(RunState.PAUSED, "paused at a step boundary; the table holds its position")
         while not self._resume.wait(0.05):
             self._drain_imu()
+            # the run's clock may stand still while paused (the simulator's does): the chamber is polled when
+            # either clock says it is due, so an alarm raised during a pause ends the run then
+            if self.chamber is not None and time.monotonic() - self._last_chamber_poll_wall >= \
+                    self.options.chamber_poll_s:
+                self._poll_chamber()
             self._poll_chamber_when_due()
             self._check_listeners()
         self._check_abort()
@@ -436,6 +443,7 @@ class Sequencer:
                 self._poll_chamber_when_due()
                 self._drain_imu()
                 status = tracker.status(self.clock.now())
+                self._dispatch("on_soak_status", status)
                 if status.decision:
                     self._emit("info", f"soak {step.setpoint_c:g} degC: {SOAK_DECISIONS[status.decision]}", step,
                                soak=status.decision, **status.as_dict())
@@ -457,7 +465,7 @@ class Sequencer:
         """Read the chamber, hand the state to the listeners and the soak; `ChamberAlarm` on an alarm (a fault)."""
         assert self.chamber is not None
         state = self.chamber.read_state()
-        self._last_chamber_poll = self.clock.now()
+        self._last_chamber_poll, self._last_chamber_poll_wall = self.clock.now(), time.monotonic()
         self._chamber_state = state
         self._dispatch("on_chamber_state", state)
         if self._soak is not None:

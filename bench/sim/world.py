@@ -195,15 +195,16 @@ class SimWorld:
         host, port = server.listen_tcp("127.0.0.1", 0)
         return f"tcp://{host}:{port}"
 
-    def add_chamber(self, dialect: str = "ascii", register_map=None, physics=None) -> str:
-        """A simulated thermal chamber on this world's clock (`self.chamber`), served over loopback in `dialect`
-        (ascii, or Modbus TCP for modbus) like the table; returns the URL its driver opens (closed with the world)."""
+    def add_chamber(self, dialect: str = "ascii", register_map=None, physics=None, where: str = "tcp") -> str:
+        """A simulated thermal chamber on this world's clock (`self.chamber`), served in `dialect` over loopback
+        TCP (`where` 'tcp': ascii lines, Modbus TCP) or a new pty ('pty': ascii lines, Modbus RTU); returns the
+        URL its driver opens (closed with the world)."""
         # local: the chamber's Modbus server imports pymodbus, needed only for a world with a chamber
         from bench.sim.chamber import SimChamber
         from bench.sim.chamber_server import serve_chamber
 
         self.chamber = SimChamber(physics, self.clock)
-        close, url = serve_chamber(self.chamber, dialect, "tcp", register_map=register_map)
+        close, url = serve_chamber(self.chamber, dialect, where, register_map=register_map)
         self._closers.append(close)
         return url
 

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 from scipy import stats
@@ -84,6 +84,18 @@ SOURCES = {
     RESOLUTION: ("B", "IMU counter resolution of the turn integrals"),
     UNEXPLAINED: ("A", "residual scatter the budget does not explain (fallback scaling)"),
 }
+#: The components every calibration on one bench shares (the same table and its black box, the same site): a
+#: calibration of one IMU at several temperatures (`bench.thermal`) has the same error from them at each. The
+#: others (noise, bias instability, count resolution, unexplained scatter) are each run's own.
+COMMON_SOURCES = (TABLE, GRAVITY, LATITUDE)
+
+
+def common_sigma(components: Mapping[str, float]) -> float:
+    """The part of a coefficient's combined uncertainty (its budget `components`, display units) that every
+    calibration on the same bench shares (`COMMON_SOURCES`, root-sum-square); the rest is independent."""
+    return math.sqrt(sum(v * v for c, v in components.items() if c in COMMON_SOURCES and math.isfinite(v)))
+
+
 _STEP_RAD = 1.0 * ARCSEC
 _QUANT_VAR = 1.0 / 6.0      # variance (counts^2) of the difference of two uniform remainders
 
@@ -545,5 +557,6 @@ def _current_imu(acc, gyros, bias, gyro_prior) -> ImuCoefficients | None:
     return ImuCoefficients(g_scale, g_bias, g_axes, a_scale, a_bias, a_axes)
 
 
-__all__ = ["BIAS_INSTABILITY", "GRAVITY", "K_EXPANDED", "LATITUDE", "NOISE", "RESOLUTION", "SOURCES", "TABLE",
-           "UNEXPLAINED", "Budget", "BudgetInputs", "Consistency", "TablePrior", "compute_budget", "gm_mean_kernel"]
+__all__ = ["BIAS_INSTABILITY", "COMMON_SOURCES", "GRAVITY", "K_EXPANDED", "LATITUDE", "NOISE", "RESOLUTION",
+           "SOURCES", "TABLE", "UNEXPLAINED", "Budget", "BudgetInputs", "Consistency", "TablePrior", "common_sigma",
+           "compute_budget", "gm_mean_kernel"]

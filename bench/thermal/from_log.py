@@ -6,11 +6,16 @@ observations of the whole log are extracted once and told apart by their block, 
 block is solved on its own (`solve_extraction`) into a result whose `temperature` section
 is the IMU's temperature over that block's observation windows (from the decoded
 samples), and `fit_thermal_model` fits every coefficient against those temperatures.
+
+`solve_thermal` is that whole computation for a configuration (its bias stabilities, budget
+inputs and, on the simulator, truth), shared by `bench run` and `bench solve`; `write_thermal_files`
+writes its per-temperature results and the model with its reports.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -24,9 +29,14 @@ from bench.plan.steps import thermal_block
 from bench.solve.budget import BudgetInputs
 from bench.solve.extract import Extraction, finished_observation_steps
 from bench.solve.from_logs import extract_from_logs, solve_extraction
+from bench.solve.inputs import bias_stabilities, budget_inputs
+from bench.solve.methods import SolverError
 from bench.thermal.model import ThermalModel, ThermalPoint, fit_thermal_model
 from bench.thermal.truth import attach_sim_truth
 from drivers.imu.layout import ImuLayout
+
+#: the reference temperature of a thermal model fitted to a hardware run, degC
+THERMAL_REFERENCE_C = 25.0
 
 
 class ThermalRunError(InputError):
@@ -80,11 +90,15 @@ def _block_temperature(logs: list[RunLog], layout: ImuLayout, rate_hz: float, k:
 def solve_blocks(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: float, *, run: dict[str, Any],
                  gyro_bias_stability_dph: float | None = None, acc_bias_stability_ug: float | None = None,
                  sim_imu: ImuCoefficients | None = None, sim_thermal: ImuThermal | None = None,
-                 still_open: frozenset[str] = frozenset(),
-                 budget: BudgetInputs | None = None) -> tuple[list[BlockSolution], list[str]]:
+                 still_open: frozenset[str] = frozenset(), budget: BudgetInputs | None = None,
+                 extracted: tuple[Extraction, list[str]] | None = None) -> tuple[list[BlockSolution], list[str]]:
     """A calibration per temperature block of the logs (ThermalRunError when a block cannot be placed in
-    temperature) and the logs' damage lines. `run` goes into every result, with the block's own entries."""
-    extraction, _, damage = extract_from_logs(logs, site, layout, rate_hz, still_open=still_open)
+    temperature) and the logs' damage lines. `run` goes into every result, with the block's own entries.
+    `extracted`: the logs' extraction and damage lines when the caller has them (`extract_from_logs`)."""
+    if extracted is None:
+        extraction, _, damage = extract_from_logs(logs, site, layout, rate_hz, still_open=still_open)
+    else:
+        extraction, damage = extracted
     setpoints = _setpoints(logs)
     blocks = sorted({b for b in (thermal_block(o.label) for o in extraction.positions + extraction.rotations)
                      if b is not None})
@@ -123,4 +137,62 @@ def nearest_block(blocks: list[BlockSolution], temperature_c: float) -> BlockSol
     return min(blocks, key=lambda b: abs(b.point.temperature_c - temperature_c))
 
 
-__all__ = ["BlockSolution", "ThermalRunError", "fit_blocks", "nearest_block", "solve_blocks"]
+@dataclass
+class ThermalSolution:
+    """A thermal run solved: a calibration per temperature, the model (None below two temperatures), the block
+    nearest the reference (the run's own result) and the logs' damage lines."""
+
+    blocks: list[BlockSolution]
+    damage: list[str]
+    model: ThermalModel | None
+    head: BlockSolution
+    reference_c: float
+
+
+def solve_thermal(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: float, config, sim: bool, *,
+                  run: dict[str, Any], still_open: frozenset[str] = frozenset(),
+                  extracted: tuple[Extraction, list[str]] | None = None) -> ThermalSolution:
+    """Every temperature block of the logs solved with what `config` (None: nothing) says beyond the data, as
+    a plain run's solve is, and the thermal model fitted (SolverError when no block has an observation).
+    `extracted` as for `solve_blocks`."""
+    stability = bias_stabilities(config, sim) if config is not None else (None, None)
+    truth_imu = config.sim.imu if sim and config is not None else None
+    truth_thermal = config.sim.thermal if sim and config is not None else None
+    blocks, damage = solve_blocks(logs, site, layout, rate_hz, run=run, gyro_bias_stability_dph=stability[0],
+                                  acc_bias_stability_ug=stability[1], sim_imu=truth_imu, sim_thermal=truth_thermal,
+                                  still_open=still_open, extracted=extracted,
+                                  budget=budget_inputs(config, sim) if config is not None else None)
+    if not blocks:
+        raise SolverError("the thermal run has no finished observation at any temperature")
+    reference_c = truth_thermal.reference_c if truth_thermal is not None else THERMAL_REFERENCE_C
+    model = None
+    if len({round(b.point.temperature_c, 3) for b in blocks}) >= 2:
+        model = fit_blocks(blocks, reference_c, sim_imu=truth_imu, sim_thermal=truth_thermal)
+    return ThermalSolution(blocks, damage, model, nearest_block(blocks, reference_c), reference_c)
+
+
+def write_thermal_files(solution: ThermalSolution, out_dir: Path, stem: str, run: dict[str, Any],
+                        title: str, *, html: bool = True) -> tuple[list[Path], Path | None]:
+    """`<stem>.T<k>.result.json` per temperature and `<stem>.thermal.json` (`.md`, and with `html` `.html`) with
+    `run` in the model (`stem` is ours, never a name from a file). Returns (the result files, the model file or
+    None)."""
+    # local: matplotlib (the thermal report's figures) is heavy and needed only here
+    from bench.report.thermal import write_thermal_reports
+
+    results = []
+    for block in solution.blocks:
+        path = out_dir / f"{stem}.T{block.temperature_index}.result.json"
+        block.point.result.save(path)
+        results.append(path)
+    model = solution.model
+    if model is None:
+        return results, None
+    model.run = {**run, "results": [p.name for p in results]}
+    model_path = out_dir / f"{stem}.thermal.json"
+    model.save(model_path)
+    write_thermal_reports(model, out_dir, f"{stem}.thermal", title=title, html=html)
+    return results, model_path
+
+
+__all__ = ["THERMAL_REFERENCE_C", "BlockSolution", "ThermalRunError", "ThermalSolution", "fit_blocks",
+           "nearest_block", "solve_blocks", "solve_thermal", "write_thermal_files"]

@@ -30,6 +30,8 @@ from bench.calibration.compensation import MAX_RESULT_BYTES
 from bench.errors import InputError
 from bench.model.families import RESULT_UNITS, canonical_names, family_of
 from bench.model.result import CalibrationResult
+from bench.model.thermal import DIAGONAL_NAMES
+from bench.solve.budget import common_sigma
 from bench.thermal.fit import ALPHA, DEGREE_RULE, UNCERTAINTY_RULE, CoefficientFit, ThermalFitError, fit_coefficient
 
 THERMAL_FORMAT = "turntable-bench/thermal"
@@ -218,6 +220,16 @@ def _serial(point: ThermalPoint) -> str:
     return str(imu.get("serial") or "") if isinstance(imu, dict) else ""
 
 
+def _common_parts(name: str, entries: list, sigmas: np.ndarray) -> np.ndarray | None:
+    """Each point's common part of its sigma (`bench.solve.budget.common_sigma`: the table's, the site's), from
+    the points' budgets; None when a point has no budget (the fit then bounds the common part itself), and for
+    a direction-cosine diagonal: it is second order in its row's off-diagonals, so the table's error in it
+    changes with their temperature terms (not common: split, its terms came out 20 sigma off)."""
+    if name in DIAGONAL_NAMES or any(e.budget is None for e in entries):
+        return None
+    return np.minimum([common_sigma(e.budget) for e in entries], sigmas)
+
+
 def fit_thermal_model(points: list[ThermalPoint], reference_c: float = 25.0) -> ThermalModel:
     """Fit every coefficient the points share (module `bench.thermal.fit`: degree rule, uncertainty).
 
@@ -251,7 +263,8 @@ def fit_thermal_model(points: list[ThermalPoint], reference_c: float = 25.0) -> 
             notes.append(f"{name}: not modelled, no uncertainty in {', '.join(bad)}")
             continue
         fits[name] = fit_coefficient(name, RESULT_UNITS[family_of(name)][0], temps,
-                                     [e.value for e in present], sigmas, reference_c)
+                                     [e.value for e in present], sigmas, reference_c,
+                                     common_sigmas=_common_parts(name, present, sigmas))
     if not fits:
         raise ThermalFitError("no coefficient is present with an uncertainty in every calibration")
     return ThermalModel(float(reference_c), fits, points, notes)

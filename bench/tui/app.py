@@ -25,9 +25,10 @@ from textual.widgets import Footer, Header, TabbedContent, TabPane
 
 from bench.config.load import default_sim_config
 from bench.model.result import CalibrationResult
+from bench.plan.steps import CHAMBER_KINDS
 from bench.run.runner import compile_from_config
 from bench.tui.buffer import ImuScales, UiBuffer
-from bench.tui.panels import EventLog, ImuPanel, PlanPanel, ResultsPanel, TablePanel
+from bench.tui.panels import ChamberPanel, EventLog, ImuPanel, PlanPanel, ResultsPanel, TablePanel
 from bench.tui.replay_session import ReplaySession, open_log
 from bench.tui.screens import ConfirmScreen, GotoScreen, HelpScreen, RateScreen
 from bench.tui.session import OPERATOR_ERRORS, BenchSession, SessionError
@@ -85,6 +86,7 @@ class BenchApp(App):
     #events { width: 1fr; min-width: 34; }
     #left-tabs { border: round $primary; }
     #events { border: round $primary; }
+    #chamber-panel { border-bottom: hkey $primary; }
     """
     BINDINGS = [
         Binding(ESTOP_KEY, "estop", "E-STOP", priority=True),
@@ -115,6 +117,8 @@ class BenchApp(App):
         self.session, self.buffer = session, buffer
         self.steps, self.limits, self.scales = tuple(steps), limits, scales
         self.simulated = simulated
+        #: a thermal plan: the chamber and soak panel sits above the event log
+        self.thermal = any(s.kind in CHAMBER_KINDS for s in self.steps)
         self.auto_connect = auto_connect
         self.refresh_hz = float(refresh_hz)
         self.sub_title = subtitle
@@ -138,6 +142,8 @@ class BenchApp(App):
                 with TabPane("Results", id="results-tab"):
                     yield ResultsPanel(id="results-panel")
             with Vertical(id="events"):
+                if self.thermal:
+                    yield ChamberPanel(self.steps, id="chamber-panel")
                 yield EventLog(id="event-log")
         yield Footer()
 
@@ -180,6 +186,8 @@ class BenchApp(App):
         self.query_one(TablePanel).show(snap, self.session.link, self.session.link_detail, jog)
         self.query_one(ImuPanel).show(snap)
         self.query_one(PlanPanel).show(snap)
+        if self.thermal:
+            self.query_one(ChamberPanel).show(snap)
         log = self.query_one(EventLog)
         if snap.event_count > log.seen:
             # the events and their count in one call: an event added since the snapshot is shown once

@@ -20,6 +20,7 @@ from bench.model.kinematics import triple
 from bench.model.result import CalibrationResult
 from bench.model.units import DEG, G0
 from bench.plan.events import Event, RunListener, RunState
+from drivers.chamber import ChamberState
 from drivers.imu import ImuStats
 from drivers.turntable import TableState
 
@@ -71,6 +72,10 @@ class UiSnapshot:
     result: CalibrationResult | None = None
     outcome_text: str = ""
     aborted: bool = False                  # the run went to `aborting` on request, with no fault before it
+    chamber_state: ChamberState | None = None   # the last polled chamber state (a thermal plan's runs)
+    #: the current (or last) soak's state: `bench.run.soak.SoakStatus.as_dict()` with `time_s`, `done` and the
+    #: soak step's `step_index`; from the sequencer's checks, else (a replay) its decision events
+    soak: dict | None = None
 
     @property
     def run_state_text(self) -> str:
@@ -112,6 +117,7 @@ class UiBuffer(RunListener):
         self._run_time_s: float | None = None
         self._result: CalibrationResult | None = None
         self._outcome_text = ""
+        self._chamber_state: ChamberState | None = None
         self.begin_run(steps)
 
     # -- set-up (any thread) ---------------------------------------------------------------
@@ -128,6 +134,7 @@ class UiBuffer(RunListener):
             self._aborted = False
             self._result = None
             self._outcome_text = ""
+            self._soak: dict | None = None
 
     @property
     def total_estimated_s(self) -> float:
@@ -174,6 +181,28 @@ class UiBuffer(RunListener):
                     self._current = None
             elif event.kind == "fault" and k is not None:
                 self._step_states[k] = STEP_FAILED
+            if event.kind == "step_started" and k is not None and self.steps[k].kind == "soak":
+                self._soak = None                # a new soak: nothing known of it yet
+            elif event.kind == "info" and "soak" in event.data and k is not None:
+                self._set_soak(event.time_s, k, event.data)
+
+    def _set_soak(self, time_s: float, step_index: int | None, data: dict) -> None:
+        """Keep a soak state (lock held); a decision event older than the last check changes nothing."""
+        if self._soak is not None and self._soak["time_s"] > time_s:
+            return
+        keys = ("imu_temperature_c", "rate_c_per_min", "chamber_c", "chamber_at_setpoint", "steady_for_s")
+        self._soak = {**{key: data.get(key) for key in keys}, "time_s": time_s,
+                      "done": bool(data.get("done", data.get("soak") == "done")),
+                      "step_index": step_index if step_index is not None else self._current}
+
+    def on_chamber_state(self, state: ChamberState) -> None:
+        with self._lock:
+            self._chamber_state = state
+            self._run_time_s = state.time_s
+
+    def on_soak_status(self, status) -> None:
+        with self._lock:
+            self._set_soak(status.time_s, self._current, {**status.as_dict(), "done": status.done})
 
     def on_table_state(self, state: TableState) -> None:
         with self._lock:
@@ -229,7 +258,8 @@ class UiBuffer(RunListener):
             return UiSnapshot(self._run_state, self._run_time_s, self._table_state, self._table_states, imu,
                               tuple(self._step_states), self._current, self._current_started,
                               self._done_estimated, self._event_count, self._result, self._outcome_text,
-                              self._aborted)
+                              self._aborted, self._chamber_state,
+                              dict(self._soak) if self._soak is not None else None)
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ from bench.model.families import family_of
 from bench.model.kinematics import FRAMES
 from bench.model.units import format_hms
 from bench.plan.events import Event, RunState
+from bench.plan.steps import thermal_block
 from bench.tui.buffer import (
     CHANNELS,
     STEP_ABORTED,
@@ -282,6 +283,79 @@ class PlanPanel(Vertical):
             table.move_cursor(row=k)
         counts = {s: snapshot.step_states.count(s) for s in set(snapshot.step_states)}
         self.plain = status + "\n" + ", ".join(f"{n} {s}" for s, n in sorted(counts.items()))
+
+
+def _c(value, decimals: int = 1) -> str:
+    """A temperature (or rate) to `decimals`, '-' when unknown."""
+    return "-" if value is None or not math.isfinite(value) else f"{value:.{decimals}f}"
+
+
+class ChamberPanel(Static):
+    """A thermal plan's chamber and soak: which temperature of how many, the chamber air against its
+    setpoint (mode, alarms), the IMU's temperature, its rate against the soak criterion and the time it
+    has been steady against the time required (the sequencer's own soak checks)."""
+
+    DEFAULT_CSS = "ChamberPanel { height: auto; padding: 0 1; }"
+
+    def __init__(self, steps: Sequence, **kwargs):
+        super().__init__(**kwargs)
+        self.steps = tuple(steps)
+        self.blocks = sorted({s.temperature_index for s in self.steps if s.kind == "set_temperature"})
+        self.plain = ""
+        self._drawn_with: Palette | None = None
+        self.border_title = "Chamber"
+
+    def _block(self, snapshot: UiSnapshot):
+        """(the current temperature block, its soak step) by the running step (else the last one started)."""
+        k = snapshot.current_step
+        if k is None:
+            started = [i for i, state in enumerate(snapshot.step_states) if state != "pending"]
+            k = started[-1] if started else None
+        block = thermal_block(self.steps[k].unit) if k is not None and k < len(self.steps) else None
+        soak = next((s for s in self.steps if s.kind == "soak" and s.temperature_index == block), None)
+        return block, soak
+
+    def show(self, snapshot: UiSnapshot) -> None:
+        pal = palette(self.app)
+        block, soak_step = self._block(snapshot)
+        setpoint = f" {soak_step.setpoint_c:g} degC" if soak_step is not None else ""
+        head = (f"temperature {self.blocks.index(block) + 1}/{len(self.blocks)}{setpoint}" if block in self.blocks
+                else f"temperatures: {len(self.blocks)}")
+        chamber = snapshot.chamber_state
+        lines = [Text(head, style="bold")]
+        if chamber is None:
+            lines.append(Text("chamber: no reading yet"))
+        else:
+            lines.append(Text(f"air {_c(chamber.temperature_c)}  set {_c(chamber.setpoint_c)} degC"))
+            alarms = chamber.describe_alarms()
+            lines.append(Text(f"{'running' if chamber.running else 'stopped'}, "
+                              + (f"ALARM: {alarms}" if alarms else "alarms: none"),
+                              style=f"bold {pal.error}" if alarms else ""))
+        lines.append(Text(f"IMU {_c(snapshot.imu.temperature_c, 2)} degC"))
+        soak = snapshot.soak
+        if soak_step is not None and soak is not None and soak.get("step_index") == soak_step.index:
+            rate, steady = soak.get("rate_c_per_min"), float(soak.get("steady_for_s") or 0.0)
+            below = rate is not None and abs(rate) < soak_step.rate_c_per_min
+            lines.append(Text(f"rate {_c(rate, 3)} degC/min (< {soak_step.rate_c_per_min:g})",
+                              style=pal.ok if below else pal.warn))
+            if soak.get("done"):
+                lines.append(Text(f"soaked: steady {format_hms(steady)}", style=pal.ok))
+            elif not soak.get("chamber_at_setpoint"):
+                lines.append(Text("soak: air not at setpoint yet"))
+            else:
+                lines.append(Text(f"steady {format_hms(steady)} / {format_hms(soak_step.stable_s)}"))
+            if snapshot.current_step == soak_step.index and snapshot.current_started_s is not None \
+                    and snapshot.run_time_s is not None:
+                lines.append(Text(f"soaking {format_hms(snapshot.run_time_s - snapshot.current_started_s)} "
+                                  f"(max {format_hms(soak_step.max_soak_s)})"))
+        elif soak_step is not None:
+            lines.append(Text(f"soak: < {soak_step.rate_c_per_min:g} degC/min for "
+                              f"{format_hms(soak_step.stable_s)}"))
+        plain = "\n".join(line.plain for line in lines)
+        if plain != self.plain or pal is not self._drawn_with:
+            self._drawn_with = pal
+            self.update(Text("\n").join(lines))
+        self.plain = plain
 
 
 def event_style(kind: str, pal: Palette) -> str:
