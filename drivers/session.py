@@ -1,6 +1,6 @@
 """What every device driver's session shares: the clock and the lock, connect and close under that lock,
-the stop and the state read every dialect implements, and a `with` block that makes the device safe
-(`safe_stop`) when it ends in an error, then closes it."""
+the stop and the state read every dialect implements, the check of a state, and a `with` block that makes
+the device safe (`safe_stop`) when it ends in an error, then closes it."""
 
 from __future__ import annotations
 
@@ -39,6 +39,10 @@ class DeviceSession(ABC, Generic[StateT]):
     def _read_state(self) -> StateT: ...
 
     @abstractmethod
+    def _state_error(self, state: StateT) -> Exception | None:
+        """The error a state shows (a fault, an alarm, an e-stop), for `check_state` to raise; None if none."""
+
+    @abstractmethod
     def safe_stop(self) -> Any:
         """Make the device safe, never raising (the `with` block's error is the one that propagates)."""
 
@@ -51,6 +55,14 @@ class DeviceSession(ABC, Generic[StateT]):
     def read_state(self) -> StateT:
         with self._lock:
             return self._read_state()
+
+    def check_state(self, state: StateT | None = None) -> StateT:
+        """Read (or take) a state and raise the error it shows (`_state_error`), if any."""
+        state = self.read_state() if state is None else state
+        error = self._state_error(state)
+        if error is not None:
+            raise error
+        return state
 
     def connect(self) -> Self:
         with self._lock:

@@ -18,13 +18,12 @@ DIALECTS = {
 
 
 _DIALECTS: Dialects[Chamber] = Dialects("chamber", DIALECTS, ChamberConfigError)
-#: the client class of a dialect (`ChamberConfigError` naming the known ones for another)
-dialect_class = _DIALECTS.dialect_class
-#: `ChamberConfigError` when a URL cannot carry a dialect: Modbus URLs are for the modbus dialect only
-check_url_dialect = _DIALECTS.check_url_dialect
-#: `open_chamber(url, dialect=None, **options)`: an unconnected driver (`modbus+...` URLs imply 'modbus');
-#: `options` go to the dialect's constructor (limits, clock, timeout_s, retries, register_map for modbus)
-open_chamber = _DIALECTS.open
+#: dialect_class(dialect): the client class (ChamberConfigError naming the known ones for another);
+#: check_url_dialect(url, dialect): ChamberConfigError when the URL cannot carry the dialect (Modbus URLs:
+#: modbus only);
+#: open_chamber(url, dialect=None, **options): an unconnected driver (`modbus+...` URLs imply 'modbus'), `options`
+#: going to the dialect's constructor (limits, clock, timeout_s, retries, register_map for modbus)
+dialect_class, check_url_dialect, open_chamber = _DIALECTS.dialect_class, _DIALECTS.check_url_dialect, _DIALECTS.open
 
 
 __all__ = ["ALARM_NAMES", "DIALECTS", "Chamber", "ChamberAlarms", "ChamberLimits", "ChamberState",

@@ -170,12 +170,9 @@ class Chamber(DeviceSession[ChamberState]):
         with self._lock:
             self._clear_alarms()
 
-    def check_state(self, state: ChamberState | None = None) -> ChamberState:
-        """Read (or take) a state and raise `ChamberAlarm` if it shows an alarm."""
-        state = self.read_state() if state is None else state
-        if state.alarm:
-            raise ChamberAlarm(f"{self.dialect} chamber alarm: {state.describe_alarms()}", state)
-        return state
+    def _state_error(self, state: ChamberState) -> ChamberAlarm | None:
+        """`check_state` raises `ChamberAlarm` for a state that shows an alarm."""
+        return ChamberAlarm(f"{self.dialect} chamber alarm: {state.describe_alarms()}", state) if state.alarm else None
 
     def safe_stop(self) -> bool:
         """Best effort to stop temperature control; True if the stop was acknowledged. Never raises:

@@ -31,13 +31,12 @@ DIALECTS = {
 
 
 _DIALECTS: Dialects[Turntable] = Dialects("turntable", DIALECTS, TurntableConfigError)
-#: the client class of a dialect (`TurntableConfigError` naming the known ones for another)
-dialect_class = _DIALECTS.dialect_class
-#: `TurntableConfigError` when a URL cannot carry a dialect: Modbus URLs are for the modbus dialect only
-check_url_dialect = _DIALECTS.check_url_dialect
-#: `open_turntable(url, dialect=None, **options)`: an unconnected driver (`modbus+...` URLs imply 'modbus');
-#: `options` go to the dialect's constructor (limits, clock, timeout_s, retries, ...)
-open_turntable = _DIALECTS.open
+#: dialect_class(dialect): the client class (TurntableConfigError naming the known ones for another);
+#: check_url_dialect(url, dialect): TurntableConfigError when the URL cannot carry the dialect (Modbus URLs:
+#: modbus only);
+#: open_turntable(url, dialect=None, **options): an unconnected driver (`modbus+...` URLs imply 'modbus'), `options`
+#: going to the dialect's constructor (limits, clock, timeout_s, retries, ...)
+dialect_class, check_url_dialect, open_turntable = _DIALECTS.dialect_class, _DIALECTS.check_url_dialect, _DIALECTS.open
 
 
 __all__ = ["ALL_FRAMES", "DIALECTS", "FRAMES", "AxisLimits", "AxisMode", "AxisState", "AxisStatus", "TableState",

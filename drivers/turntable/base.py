@@ -308,14 +308,13 @@ class Turntable(DeviceSession[TableState]):
         with self._lock:
             self._abort()
 
-    def check_state(self, state: TableState | None = None) -> TableState:
-        """Read (or take) a state and raise `TurntableEStop`/`TurntableFault` if it shows one."""
-        state = self.read_state() if state is None else state
+    def _state_error(self, state: TableState) -> TurntableError | None:
+        """`check_state` raises `TurntableEStop`/`TurntableFault` for a state that shows one."""
         if state.estop:
-            raise TurntableEStop(f"{self.dialect} controller: {state.describe_fault()}", state)
+            return TurntableEStop(f"{self.dialect} controller: {state.describe_fault()}", state)
         if state.fault:
-            raise TurntableFault(f"{self.dialect} controller: {state.describe_fault()}", state)
-        return state
+            return TurntableFault(f"{self.dialect} controller: {state.describe_fault()}", state)
+        return None
 
     def wait_in_position(self, targets_deg: Sequence[float | None], tolerance_deg: float = 0.001,
                          settle_s: float = 0.0, timeout_s: float = 60.0, poll_s: float = 0.05,
