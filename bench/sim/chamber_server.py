@@ -117,9 +117,6 @@ class ChamberModbusServer(ModbusServing):
         except SimChamberError as exc:
             raise Refused(EXCEPTION_FOR_ERROR.get(exc.code, ExcCodes.ILLEGAL_VALUE), str(exc)) from exc
 
-    def __enter__(self) -> "ChamberModbusServer":
-        return self
-
 
 def serve_chamber_ascii(chamber: SimChamber, tcp: bool = True, pty: bool = False,
                         port: int = 0) -> tuple[LineServer, dict[str, str]]:

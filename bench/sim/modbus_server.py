@@ -198,6 +198,3 @@ class ModbusSimServer(ModbusServing):
 
     async def _start_watchdog(self) -> None:
         self._watchdog_task = asyncio.get_running_loop().create_task(self._watchdog_loop())
-
-    def __enter__(self) -> "ModbusSimServer":
-        return self

@@ -35,7 +35,7 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from bench.sim.controller import WireFaults
-from bench.sim.serve import MAX_CONNECTIONS
+from bench.sim.serve import MAX_CONNECTIONS, ClosedOnExit
 
 # pymodbus logs refused requests at ERROR; keep them out of stderr unless logging is configured.
 logging.getLogger("pymodbus").addHandler(logging.NullHandler())
@@ -74,7 +74,7 @@ class Refused(Exception):
         self.code = code
 
 
-class ModbusServing:
+class ModbusServing(ClosedOnExit):
     """A simulated Modbus device on any number of TCP listeners and RTU ptys (see the module docstring).
 
     A subclass sets `self._device` (`_register_device`) and `wire_faults` in its constructor, and says what
@@ -327,9 +327,3 @@ class ModbusServing:
             except OSError:
                 pass
         self._fds.clear()
-
-    def __enter__(self) -> "ModbusServing":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()

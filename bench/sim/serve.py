@@ -20,7 +20,7 @@ import select
 import socket
 import threading
 import tty
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Callable, Self
 
 if TYPE_CHECKING:
     from bench.sim.controller import WireFaults
@@ -29,6 +29,19 @@ Handler = Callable[[bytes], "bytes | None"]
 MAX_LINE = 4096
 #: connections served at once per server (over all its TCP listeners); one more is accepted and closed at once
 MAX_CONNECTIONS = 32
+
+
+class ClosedOnExit:
+    """A server (or a world of them) that a `with` block closes (`close()`) when it ends."""
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 def held_first(faults: WireFaults, respond: Callable[[], bytes | None]) -> bytes | None:
@@ -101,7 +114,7 @@ def tcp_listener(host: str, port: int, backlog: int) -> socket.socket:
     return sock
 
 
-class LineServer:
+class LineServer(ClosedOnExit):
     """Serves one handler on any number of TCP listeners and ptys until `close()`.
 
     At most `max_connections` TCP connections are served at once; the excess is accepted
@@ -254,12 +267,6 @@ class LineServer:
             except OSError:
                 pass
         self._closers.clear()
-
-    def __enter__(self) -> "LineServer":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def serve_lines(handler, tcp: bool = True, pty: bool = False, port: int = 0) -> tuple[LineServer, dict[str, str]]:
