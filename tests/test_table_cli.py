@@ -174,11 +174,11 @@ def test_sim_table_refuses_a_non_loopback_address_without_allow_remote(dialect, 
 
 
 def test_loopback_addresses_need_no_flag():
-    from bench.cli.table import _remote_hosts
+    from bench.cli.sim_serving import remote_hosts
 
-    assert _remote_hosts(["tcp://127.0.0.1:0", "tcp://localhost:1", "tcp://[::1]:2", "modbus+tcp://127.0.0.2:3",
+    assert remote_hosts(["tcp://127.0.0.1:0", "tcp://localhost:1", "tcp://[::1]:2", "modbus+tcp://127.0.0.2:3",
                           "pty"]) == []
-    assert _remote_hosts(["tcp://127.0.0.1:0", "tcp://10.0.0.5:1"]) == ["tcp://10.0.0.5:1"]
+    assert remote_hosts(["tcp://127.0.0.1:0", "tcp://10.0.0.5:1"]) == ["tcp://10.0.0.5:1"]
 
 
 def test_sim_table_with_allow_remote_warns_loudly(capsys, monkeypatch):

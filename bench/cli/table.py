@@ -17,7 +17,6 @@ from bench.cli.common import ExitCode, drive_device, fail
 from bench.cli.sim_serving import (
     apply_console_line,
     host_port,
-    is_loopback,
     refuse_remote,
     remote_hosts,
     serve_until_stopped,
@@ -234,10 +233,6 @@ def _apply_fault_command(controller, line: str) -> str:
                               lambda: format_state(controller.state()))
 
 
-#: the --listen checks every `bench sim` command shares (also under their former names here)
-_is_loopback, _remote_hosts, _host_port = is_loopback, remote_hosts, host_port
-
-
 def _listen(controller, dialect: str, where: str, closers: list, register_map=None) -> str:
     """Start one listener; returns the address a client uses. `register_map`: the Modbus simulator's
     (None: the default map)."""
@@ -248,7 +243,7 @@ def _listen(controller, dialect: str, where: str, closers: list, register_map=No
         closers.append(modbus.close)
         if where == "pty":
             return f"modbus+rtu://{modbus.start_rtu_pty()}"
-        host, port = _host_port(where, "modbus+tcp", "the modbus simulator listens on modbus+tcp://HOST:PORT or pty")
+        host, port = host_port(where, "modbus+tcp", "the modbus simulator listens on modbus+tcp://HOST:PORT or pty")
         host, port = modbus.start_tcp(host, port)
         return f"modbus+tcp://{host}:{port}"
     # the simulators load only for `bench sim` (the Modbus one imports pymodbus)
@@ -267,7 +262,7 @@ def _listen(controller, dialect: str, where: str, closers: list, register_map=No
     closers.append(server.close)
     if where == "pty":
         return server.open_pty()
-    host, port = _host_port(where, "tcp", f"the {dialect} simulator listens on tcp://HOST:PORT or pty")
+    host, port = host_port(where, "tcp", f"the {dialect} simulator listens on tcp://HOST:PORT or pty")
     host, port = server.listen_tcp(host, port)
     return f"tcp://{host}:{port}"
 
@@ -285,7 +280,7 @@ def cmd_sim_table(args: argparse.Namespace) -> ExitCode:
         site = Site(args.latitude)
     except InputError as exc:
         return fail("bench sim table", f"{exc}", ExitCode.USAGE)
-    remote = _remote_hosts(args.listen)
+    remote = remote_hosts(args.listen)
     if remote and not args.allow_remote:       # checked before anything binds or stdin is read
         return refuse_remote("bench sim table", remote)
     black_box = np.random.default_rng(args.seed).normal(0.0, args.black_box_arcsec * ARCSEC, (3, 3))
