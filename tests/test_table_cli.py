@@ -173,6 +173,26 @@ def test_sim_table_refuses_a_non_loopback_address_without_allow_remote(dialect, 
     assert captured.out == ""                     # nothing was served, not even the pty
 
 
+def test_a_simulator_that_fails_to_close_is_one_line_and_the_rest_still_close(capsys):
+    # bench sim table/chamber once let a failing closer raise a traceback and skip the closers after it
+    from bench.cli.sim_serving import run_until_stopped
+
+    closed = []
+
+    def serve():
+        closers.extend([lambda: closed.append("first"), broken, lambda: closed.append("last")])
+        raise KeyboardInterrupt          # Ctrl-C
+
+    def broken():
+        raise OSError("the pty is gone")
+
+    closers: list = []
+    assert run_until_stopped("bench sim table", serve, closers, usage_errors=(OSError,)) == 0
+    assert closed == ["last", "first"]                       # in reverse, past the broken one
+    assert capsys.readouterr().err.splitlines() == ["bench sim table: stopped",
+                                                    "bench sim table: while closing: OSError: the pty is gone"]
+
+
 def test_loopback_addresses_need_no_flag():
     from bench.cli.sim_serving import remote_hosts
 
