@@ -34,6 +34,32 @@ def quote_bytes(raw: bytes | bytearray | memoryview | str, limit: int = QUOTE_LI
     return f"{text} ... ({total:,} bytes)" if hex_dump else f"{text}... ({total:,} bytes)"
 
 
+# What some errors carry besides their message, the same in every device family's tree (mixins, not roots:
+# each tree's base is its family's error).
+class _CarriesRaw(Exception):
+    """`raw`: the offending bytes (or None when not applicable)."""
+
+    def __init__(self, message: str, raw: bytes | None = None):
+        super().__init__(message)
+        self.raw = raw
+
+
+class _CarriesCode(Exception):
+    """`code`: the controller's error or exception code (or None when it gives none)."""
+
+    def __init__(self, message: str, code: int | None = None):
+        super().__init__(message)
+        self.code = code
+
+
+class _CarriesState(Exception):
+    """`state`: the last state read (or None)."""
+
+    def __init__(self, message: str, state=None):
+        super().__init__(message)
+        self.state = state
+
+
 class TurntableError(Exception):
     """Base of every turntable driver error."""
 
@@ -46,38 +72,26 @@ class TurntableConnectionError(TurntableError, ConnectionError):
     """The link to the controller could not be opened or was lost and not regained."""
 
 
-class TurntableProtocolError(TurntableError):
+class TurntableProtocolError(TurntableError, _CarriesRaw):
     """A reply that does not follow the dialect: garbage, wrong echo, malformed fields.
 
     `raw` holds the offending bytes (or None when not applicable).
     """
-
-    def __init__(self, message: str, raw: bytes | None = None):
-        super().__init__(message)
-        self.raw = raw
 
 
 class TurntableChecksumError(TurntableProtocolError):
     """A framed reply whose checksum/CRC does not match its content."""
 
 
-class TurntableCommandError(TurntableError):
+class TurntableCommandError(TurntableError, _CarriesCode):
     """The controller understood the request and refused it (error reply, Modbus exception).
 
     `code` is the controller's error or exception code when it gives one.
     """
 
-    def __init__(self, message: str, code: int | None = None):
-        super().__init__(message)
-        self.code = code
 
-
-class TurntableFault(TurntableError):
+class TurntableFault(TurntableError, _CarriesState):
     """The controller reports a fault (servo fault, limit trip); `state` is the last TableState read."""
-
-    def __init__(self, message: str, state=None):
-        super().__init__(message)
-        self.state = state
 
 
 class TurntableEStop(TurntableFault):
@@ -104,33 +118,21 @@ class ChamberConnectionError(ChamberError, ConnectionError):
     """The link to the chamber controller could not be opened or was lost and not regained."""
 
 
-class ChamberProtocolError(ChamberError):
+class ChamberProtocolError(ChamberError, _CarriesRaw):
     """A reply that does not follow the dialect; `raw` holds the offending bytes (or None)."""
-
-    def __init__(self, message: str, raw: bytes | None = None):
-        super().__init__(message)
-        self.raw = raw
 
 
 class ChamberChecksumError(ChamberProtocolError):
     """A framed reply (Modbus RTU) whose CRC does not match its content."""
 
 
-class ChamberCommandError(ChamberError):
+class ChamberCommandError(ChamberError, _CarriesCode):
     """The controller understood the request and refused it (an `NA:` reply, a Modbus exception); `code`
     is the controller's code when it gives one."""
 
-    def __init__(self, message: str, code: int | None = None):
-        super().__init__(message)
-        self.code = code
 
-
-class ChamberAlarm(ChamberError):
+class ChamberAlarm(ChamberError, _CarriesState):
     """The controller reports an alarm (over-temperature, door open, ...); `state` is the last ChamberState read."""
-
-    def __init__(self, message: str, state=None):
-        super().__init__(message)
-        self.state = state
 
 
 class ChamberLimitError(ChamberError, ValueError):

@@ -81,6 +81,9 @@ class LineRequests:
     def _open(self) -> None:
         self._open_link()
 
+    def _close(self) -> None:
+        self.transport.close()
+
     def _transact(self, request: bytes, parse: Callable[[bytes], T]) -> T:
         """Send `request` (without terminator) and return `parse(reply line)`, retrying as above."""
         errors = self.link_errors

@@ -4,7 +4,6 @@ holds every unit's history, and a second pass skips what this software version a
 
 from __future__ import annotations
 
-import json
 import shutil
 import subprocess
 import sys
@@ -14,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from bench.records.store import open_records
-from tests.helpers.run import REPO, cli, config_text
+from tests.helpers.run import REPO, cli, config_text, results_below
 
 SERIALS = ("ARC-A", "ARC-B", "ARC-C")
 
@@ -51,16 +50,6 @@ def archive(tmp_path_factory) -> Path:
     return root
 
 
-def _results(folder: Path) -> dict[str, dict]:
-    """Every result file below `folder`, parsed, without `run.solved_utc` (when it was solved: differs by design)."""
-    out = {}
-    for p in sorted(folder.rglob("*.result.json")):
-        data = json.loads(p.read_bytes())
-        data["run"].pop("solved_utc")
-        out[str(p.relative_to(folder))] = data
-    return out
-
-
 def test_archive_on_dask_equals_one_by_one_and_records_every_unit(archive, tmp_path):
     one = tmp_path / "one"
     codes = {}
@@ -77,7 +66,7 @@ def test_archive_on_dask_equals_one_by_one_and_records_every_unit(archive, tmp_p
     assert "solved 5 of 6 log(s)" in stdout
     failed = [line for line in stderr.splitlines() if " FAILED " in line]
     assert len(failed) == 1 and "not-a-log.mcap" in failed[0]
-    assert _results(tmp_path / "dask") == _results(one) and len(_results(one)) == 5
+    assert results_below(tmp_path / "dask") == results_below(one) and len(results_below(one)) == 5
     with open_records(str(db)) as records:
         assert {r.serial for r in records.list_runs()} == {*SERIALS, "ARC-D"}
         assert len(records.list_runs(serial="ARC-A")) == 2
@@ -101,7 +90,7 @@ def test_the_plain_loop_writes_the_same_next_to_each_log(archive, tmp_path):
     for log in copy.rglob("*.mcap"):
         rc, _, _ = cli(["solve", str(log), "--out", str(tmp_path / "ref" / log.parent.relative_to(copy)), "--no-html",
                         "--no-db", "--quiet"])
-    assert _results(copy) == _results(tmp_path / "ref") and len(_results(copy)) == 2
+    assert results_below(copy) == results_below(tmp_path / "ref") and len(results_below(copy)) == 2
 
 
 def test_archive_usage_errors(archive, tmp_path):

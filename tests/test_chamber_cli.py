@@ -11,31 +11,13 @@ import pytest
 
 from bench.config.load import load_config
 from tests.helpers.run import REPO, cli, config_text, stop_process
-
-
-def _start(*args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "bench.cli", "sim", *args], cwd=REPO, stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-def _read_until(proc: subprocess.Popen, marker: str, lines: int = 20) -> list[str]:
-    """The process's lines up to the one holding `marker` (bounded)."""
-    seen = []
-    for _ in range(lines):
-        line = proc.stdout.readline()
-        if not line:
-            break
-        seen.append(line)
-        if marker in line:
-            return seen
-    stderr = proc.stderr.read() if proc.poll() is not None else ""
-    raise AssertionError(f"no {marker!r} in the output: {seen}; stderr: {stderr}")
+from tests.helpers.sim_process import read_until, start_sim
 
 
 def _console(proc: subprocess.Popen, line: str, marker: str) -> str:
     proc.stdin.write(line + "\n")
     proc.stdin.flush()
-    return _read_until(proc, marker)[-1]
+    return read_until(proc, marker)[-1]
 
 
 @pytest.mark.parametrize("dialect, listen, prefix", [
@@ -45,12 +27,12 @@ def _console(proc: subprocess.Popen, line: str, marker: str) -> str:
     ("modbus", "pty", "modbus+rtu:///dev/pts/"),
 ])
 def test_bench_chamber_drives_the_served_simulator(dialect, listen, prefix):
-    proc = _start("chamber", "--dialect", dialect, "--listen", listen)
+    proc = start_sim("chamber", "--dialect", dialect, "--listen", listen)
     try:
-        line = _read_until(proc, "listening on")[-1]
+        line = read_until(proc, "listening on")[-1]
         url = line.split("listening on ")[1].strip()
         assert url.startswith(prefix), url
-        _read_until(proc, "Ctrl-C stops")
+        read_until(proc, "Ctrl-C stops")
         base = ["chamber", "--url", url, "--dialect", dialect, "--timeout-s", "0.5"]
         code, out, err = cli([*base, "set", "-20", "--ramp-c-per-min", "2", "--run"])
         assert code == 0, err
@@ -78,10 +60,10 @@ def test_bench_chamber_drives_the_served_simulator(dialect, listen, prefix):
 @pytest.mark.timeout(60)
 def test_the_rig_serves_a_chamber_and_writes_its_section(tmp_path):
     written = tmp_path / "bench.toml"
-    rig = _start("rig", "--imu-listen", "socketcand://127.0.0.1:0", "--chamber-dialect", "modbus",
+    rig = start_sim("rig", "--imu-listen", "socketcand://127.0.0.1:0", "--chamber-dialect", "modbus",
                  "--write-config", str(written))
     try:
-        startup = _read_until(rig, "Ctrl-C stops")
+        startup = read_until(rig, "Ctrl-C stops")
         assert any("simulated chamber (modbus) listening on modbus+tcp://127.0.0.1:" in line for line in startup)
         chamber = load_config(written).chamber
         assert chamber is not None and chamber.dialect == "modbus" and chamber.safe_setpoint_c == 23.0

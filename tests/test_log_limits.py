@@ -140,9 +140,9 @@ def test_a_chunk_over_the_cap_is_refused_even_when_its_index_frames_it(can_chunk
     assert peak < 3 * len(index)             # the index itself is read; the chunk is not
 
 
-def test_the_chunks_of_one_log_inflate_to_a_bounded_total(can_chunk, monkeypatch):
-    # Four chunks of 1 MiB each, declared honestly and framed by their index, in a log whose budget
-    # (made small here, so the test stays small) leaves room for two of them: the others are refused.
+def _four_honest_chunks(can_chunk) -> tuple[bytes, int, int]:
+    """The log with its last four chunks replaced by honest 1 MiB ones, each framed by its message index:
+    (log bytes, messages per chunk, bytes per chunk inflated)."""
     buf, _, can = can_chunk
     msg = message_record(can, can_frames(40))
     n = (1 << 20) // len(msg)
@@ -151,15 +151,22 @@ def test_the_chunks_of_one_log_inflate_to_a_bounded_total(can_chunk, monkeypatch
     data = buf
     for p in reversed(chunks(buf)[-4:]):
         data = replace_chunk(data, p, honest + index)
+    return data, n, n * len(msg)
+
+
+def test_the_chunks_of_one_log_inflate_to_a_bounded_total(can_chunk, monkeypatch):
+    # Four chunks of 1 MiB each, declared honestly and framed by their index, in a log whose budget
+    # (made small here, so the test stays small) leaves room for two of them: the others are refused.
+    data, n, size = _four_honest_chunks(can_chunk)
     used = walk(data).budget.used
-    monkeypatch.setattr(chunks_module, "MAX_LOG_INFLATED", used - 2 * n * len(msg) + n * len(msg) // 2)
+    monkeypatch.setattr(chunks_module, "MAX_LOG_INFLATED", used - 2 * size + size // 2)
     w = walk(data)
     refused = [d for d in w.damage if "past what this log's chunks may inflate to in all" in d.reason]
     # the two refused chunks follow each other: told as one damage line (a file of a million bomb chunks held
     # a million lines, 1 GB of memory)
     assert len(refused) == 1 and f"({w.budget.total} bytes:" in refused[0].reason and refused[0].chunks == 2
     assert refused[0].describe().startswith(f"2 chunks at bytes {refused[0].offset}..{refused[0].last_offset} ")
-    assert w.budget.used <= w.budget.total < w.budget.used + n * len(msg)
+    assert w.budget.used <= w.budget.total < w.budget.used + size
     assert refused[0].lost == {TOPIC_CAN: 2 * n}   # their index still counts what was lost
 
 
@@ -428,21 +435,14 @@ def test_chunks_left_in_the_file_past_what_may_stream_keep_no_index(can_chunk, t
     """A 1 GB file of 250 honest 256 MiB chunks, each with a 4 MB message index, held 1 GB of index entries
     before the walk began (2.2 GB peak): a chunk left in the file past what the log may stream keeps none."""
     from bench.log.chunks import Prefetch
-    buf, _, can = can_chunk
-    msg = message_record(can, can_frames(40))
-    n = (1 << 20) // len(msg)
-    honest = chunk_record(zstd_bomb(msg, n * len(msg)), "zstd", n * len(msg))
-    index = message_index(can, [(1_000_000_000, k * len(msg)) for k in range(n)])
-    data = buf
-    for p in reversed(chunks(buf)[-4:]):
-        data = replace_chunk(data, p, honest + index)
+    data, n, size = _four_honest_chunks(can_chunk)
     honest_at = chunks(data)[-4:]
     topics = frozenset({TOPIC_CAN, "/imu/samples"})   # what read_log leaves in the file
     everything = Prefetch(data, defer_topics=topics, lazy=True)
     sizes = {pos: fields[2] for pos, fields, _ in everything.chunks if pos in everything.deferred}
     assert set(honest_at) <= set(sizes) and None not in everything.deferred.values()
     # room for everything but the last two and a half honest chunks: the first honest one fits, the others not
-    monkeypatch.setattr(chunks_module, "MAX_STREAMED_INFLATED", sum(sizes.values()) - 5 * n * len(msg) // 2)
+    monkeypatch.setattr(chunks_module, "MAX_STREAMED_INFLATED", sum(sizes.values()) - 5 * size // 2)
     lazy = Prefetch(data, defer_topics=topics, lazy=True)
     refused = {pos for pos, entries in lazy.deferred.items() if entries is None}
     assert refused == set(honest_at[1:])

@@ -32,6 +32,7 @@ from drivers.imu import DEFAULT_DBC, default_fd_layout
 from drivers.imu.receiver import INCOMPLETE_READ_FILTER, SOCKETCAND_LOGGER, ImuReceiver, open_bus
 from drivers.turntable import open_turntable
 from tests.helpers.run import REPO, cli, config_text, only_file, stop_process, wait_for
+from tests.helpers.sim_process import read_until, start_sim
 
 RATE_HZ = 200.0
 
@@ -318,22 +319,7 @@ K_SIGMA = 4.0
 
 
 def _start_rig(*args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "bench.cli", "sim", "rig", *args], cwd=REPO,
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-def _read_until(proc: subprocess.Popen, marker: str, lines: int = 20) -> list[str]:
-    """The rig's start-up lines up to the one holding `marker` (bounded: it prints a handful)."""
-    seen = []
-    for _ in range(lines):
-        line = proc.stdout.readline()
-        if not line:
-            break
-        seen.append(line)
-        if marker in line:
-            return seen
-    stderr = proc.stderr.read() if proc.poll() is not None else ""
-    raise AssertionError(f"no {marker!r} in the rig's output: {seen}; stderr: {stderr}")
+    return start_sim("rig", *args)
 
 
 def _with_plan(text: str, plan: str) -> str:
@@ -354,7 +340,7 @@ def test_bench_run_against_the_rig_in_another_process_recovers_its_truth(tmp_pat
     rig = _start_rig("--config", str(rig_config), "--table-listen", table_listen, "--imu-listen", imu_listen,
                      "--write-config", str(written))
     try:
-        startup = _read_until(rig, "Ctrl-C stops")
+        startup = read_until(rig, "Ctrl-C stops")
         kind = imu_listen.split(":")[0]
         assert any(f"simulated IMU (100 Hz) on {kind} " in line for line in startup), startup
         written.write_text(_with_plan(written.read_text(), SHORT_PLAN))
@@ -390,7 +376,7 @@ def test_bench_run_against_the_rig_in_another_process_recovers_its_truth(tmp_pat
         assert "can_time_offset_s" in log.metadata["imu"] and "can_lag_max_s" in link
         rig.stdin.write("imu status\n")
         rig.stdin.flush()
-        status = _read_until(rig, "IMU on")[-1]
+        status = read_until(rig, "IMU on")[-1]
         assert " 0 dropped" in status, status          # every frame reached bench run
         print(f"e2e: bench run took {wall_s:.1f} s; {link['samples']} samples, {link['frames']} frames; worst "
               f"coefficient {worst:.2f} sigma from the truth; {status}")
@@ -406,7 +392,7 @@ def test_the_rig_serves_the_packed_layout_and_writes_it(tmp_path):
     rig = _start_rig("--imu-layout", "packed", "--imu-rate-hz", "2000", "--imu-listen", "socketcand://127.0.0.1:0",
                      "--write-config", str(written))
     try:
-        startup = _read_until(rig, "Ctrl-C stops")
+        startup = read_until(rig, "Ctrl-C stops")
         assert any("simulated IMU (2000 Hz) on socketcand" in line for line in startup), startup
         config = load_config(written)
         assert config.imu.layout_name == "packed" and config.imu.rate_hz == 2000.0
@@ -427,7 +413,7 @@ def test_the_rig_stops_on_sigint_even_when_ignored_and_on_sighup(signum):
                             stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     try:
-        _read_until(proc, "Ctrl-C stops")
+        read_until(proc, "Ctrl-C stops")
         proc.send_signal(signum)
         assert proc.wait(timeout=10) == 0
         assert "stopped" in proc.stderr.read()

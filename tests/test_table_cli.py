@@ -173,12 +173,32 @@ def test_sim_table_refuses_a_non_loopback_address_without_allow_remote(dialect, 
     assert captured.out == ""                     # nothing was served, not even the pty
 
 
-def test_loopback_addresses_need_no_flag():
-    from bench.cli.table import _remote_hosts
+def test_a_simulator_that_fails_to_close_is_one_line_and_the_rest_still_close(capsys):
+    # bench sim table/chamber once let a failing closer raise a traceback and skip the closers after it
+    from bench.cli.sim_serving import run_until_stopped
 
-    assert _remote_hosts(["tcp://127.0.0.1:0", "tcp://localhost:1", "tcp://[::1]:2", "modbus+tcp://127.0.0.2:3",
+    closed = []
+
+    def serve():
+        closers.extend([lambda: closed.append("first"), broken, lambda: closed.append("last")])
+        raise KeyboardInterrupt          # Ctrl-C
+
+    def broken():
+        raise OSError("the pty is gone")
+
+    closers: list = []
+    assert run_until_stopped("bench sim table", serve, closers, usage_errors=(OSError,)) == 0
+    assert closed == ["last", "first"]                       # in reverse, past the broken one
+    assert capsys.readouterr().err.splitlines() == ["bench sim table: stopped",
+                                                    "bench sim table: while closing: OSError: the pty is gone"]
+
+
+def test_loopback_addresses_need_no_flag():
+    from bench.cli.sim_serving import remote_hosts
+
+    assert remote_hosts(["tcp://127.0.0.1:0", "tcp://localhost:1", "tcp://[::1]:2", "modbus+tcp://127.0.0.2:3",
                           "pty"]) == []
-    assert _remote_hosts(["tcp://127.0.0.1:0", "tcp://10.0.0.5:1"]) == ["tcp://10.0.0.5:1"]
+    assert remote_hosts(["tcp://127.0.0.1:0", "tcp://10.0.0.5:1"]) == ["tcp://10.0.0.5:1"]
 
 
 def test_sim_table_with_allow_remote_warns_loudly(capsys, monkeypatch):

@@ -9,12 +9,9 @@ configuration's safe setpoint, else stopped).
 from __future__ import annotations
 
 import argparse
-import signal
-import sys
-import threading
 
-from bench.cli.common import ExitCode, fail, raise_interrupted, stop_signals
-from bench.cli.table import _host_port, _remote_hosts
+from bench.cli.common import ExitCode, drive_device, fail
+from bench.cli.sim_serving import apply_console_line, host_port, refuse_remote, remote_hosts, serve_until_stopped
 from bench.config.chamber import ChamberConfig
 from bench.config.load import ConfigError, load_config
 from bench.config.register_map import load_chamber_register_map
@@ -120,31 +117,9 @@ def cmd_chamber(args: argparse.Namespace) -> ExitCode:
         chamber = open_chamber(config.url, config.dialect, **config.driver_options())
     except (ChamberConfigError, ConfigError, InputError) as exc:
         return fail(prog, f"{exc}", ExitCode.USAGE)
-    try:
-        chamber.connect()
-    except ChamberError as exc:
-        return fail(prog, f"cannot reach the chamber: {exc}", ExitCode.FAULT)
-    try:
-        # SIGTERM and SIGHUP end the command like Ctrl-C (an `Interrupted`, a KeyboardInterrupt)
-        with stop_signals(raise_interrupted):
-            return _run_chamber_command(chamber, args)
-    except (ChamberLimitError, ChamberConfigError) as exc:
-        return fail(prog, f"refused, nothing sent: {exc}", ExitCode.USAGE)
-    except ChamberError as exc:
-        done = _make_safe(chamber, config)
-        return fail(prog, f"{type(exc).__name__}: {exc}; chamber: {done}", ExitCode.FAULT)
-    except KeyboardInterrupt as exc:
-        done = _make_safe(chamber, config)
-        return fail(prog, f"interrupted ({exc or 'Ctrl-C'}); chamber: {done}", ExitCode.FAULT)
-    finally:
-        chamber.close()
-
-
-def _make_safe(chamber: Chamber, config: ChamberConfig) -> str:
-    """The chamber to its safe setpoint (else stopped); a second stop signal cannot cut it short (it is bounded
-    by the driver's timeouts and retries)."""
-    with stop_signals(lambda _signum: None):
-        return chamber.make_safe(config.safe_setpoint_c)
+    return drive_device(prog, chamber, lambda: _run_chamber_command(chamber, args), errors=ChamberError,
+                        refused=(ChamberLimitError, ChamberConfigError), unreachable="cannot reach the chamber",
+                        make_safe=lambda: f"chamber: {chamber.make_safe(config.safe_setpoint_c)}")
 
 
 # -- bench sim chamber --------------------------------------------------------------
@@ -190,7 +165,7 @@ def listen_chamber(sim, dialect: str, where: str, closers: list, register_map=No
         close, url = serve_chamber(sim, dialect, "pty", register_map=register_map)
     else:
         scheme = "modbus+tcp" if dialect == "modbus" else "tcp"
-        host, port = _host_port(where, scheme, f"the {dialect} chamber simulator listens on {scheme}://HOST:PORT "
+        host, port = host_port(where, scheme, f"the {dialect} chamber simulator listens on {scheme}://HOST:PORT "
                                                "or pty")
         close, url = serve_chamber(sim, dialect, "tcp", host, port, register_map)
     closers.append(close)
@@ -199,11 +174,7 @@ def listen_chamber(sim, dialect: str, where: str, closers: list, register_map=No
 
 def apply_chamber_command(sim, line: str) -> str:
     """One chamber fault-console line on the simulated chamber; returns what to print."""
-    words = line.split()
-    if not words:
-        return ""
-    cmd, rest = words[0].lower(), words[1:]
-    try:
+    def chamber_command(cmd: str, rest: list[str]) -> str | None:
         if cmd == "alarm":
             name = rest[0].lower() if rest else ""
             if name not in ALARM_NAMES:
@@ -211,20 +182,11 @@ def apply_chamber_command(sim, line: str) -> str:
             sim.trip_alarm(ALARM_NAMES[name])
         elif cmd == "clear":
             sim.clear_alarms()
-        elif cmd in ("timeout", "garbage", "checksum", "exception", "late"):
-            count = int(rest[0]) if rest else 1
-            if cmd == "exception" and len(rest) > 1:
-                sim.faults.exception_code = int(rest[1])
-            setattr(sim.faults, cmd, count)
-        elif cmd == "state":
-            return sim.state().describe()
-        elif cmd == "help":
-            return CHAMBER_FAULT_HELP
         else:
-            return f"unknown command {cmd!r}; type help"
-    except Exception as exc:  # noqa: BLE001 - a console typo must not stop the simulator
-        return f"error: {exc}"
-    return "ok"
+            return None
+        return ""
+
+    return apply_console_line(line, sim.faults, chamber_command, CHAMBER_FAULT_HELP, lambda: sim.state().describe())
 
 
 def cmd_sim_chamber(args: argparse.Namespace) -> ExitCode:
@@ -232,10 +194,9 @@ def cmd_sim_chamber(args: argparse.Namespace) -> ExitCode:
     from bench.sim.chamber import ChamberPhysics, SimChamber
 
     prog = "bench sim chamber"
-    remote = _remote_hosts(args.listen)
+    remote = remote_hosts(args.listen)
     if remote and not args.allow_remote:       # checked before anything binds or stdin is read
-        return fail(prog, f"{remote[0]} is reachable from the network, not only from this machine; add "
-                          "--allow-remote to serve it there, or listen on 127.0.0.1", ExitCode.USAGE)
+        return refuse_remote(prog, remote)
     try:
         physics = ChamberPhysics(ambient_c=args.ambient_c, time_constant_s=args.time_constant_s,
                                  max_heat_c_per_min=args.max_heat_c_per_min,
@@ -244,32 +205,10 @@ def cmd_sim_chamber(args: argparse.Namespace) -> ExitCode:
         return fail(prog, f"{exc}", ExitCode.USAGE)
     sim = SimChamber(physics)
     closers: list = []
-    # Ctrl-C (SIGINT) stops the server even when it was started with SIGINT ignored (`... &` in a script)
-    previous_handler = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        with stop_signals(raise_interrupted):
-            for where in args.listen:
-                url = listen_chamber(sim, args.dialect, where, closers)
-                print(f"simulated chamber ({args.dialect}) listening on {url}", flush=True)
-                if where in remote:
-                    print(f"WARNING: {prog}: {url} is reachable from the NETWORK (--allow-remote): anyone who can "
-                          "reach this machine can command the simulated chamber; there is no authentication",
-                          file=sys.stderr, flush=True)
-            print("Ctrl-C stops; type 'help' for the fault console", flush=True)
-            for line in sys.stdin:               # the fault console; on EOF keep serving until a stop signal
-                reply = apply_chamber_command(sim, line)
-                if reply:
-                    print(reply, flush=True)
-            threading.Event().wait()
-    except (InputError, OSError, ValueError) as exc:
-        return fail(prog, f"{exc}", ExitCode.USAGE)
-    except KeyboardInterrupt:
-        return fail(prog, "stopped", ExitCode.OK)
-    finally:
-        signal.signal(signal.SIGINT, previous_handler)
-        for close in reversed(closers):
-            close()
-    return ExitCode.OK
+    return serve_until_stopped(prog, "chamber", args.dialect,
+                               lambda where: listen_chamber(sim, args.dialect, where, closers), args.listen, remote,
+                               lambda line: apply_chamber_command(sim, line), closers,
+                               usage_errors=(InputError, OSError, ValueError))
 
 
 __all__ = ["CHAMBER_FAULT_HELP", "apply_chamber_command", "cmd_chamber", "cmd_sim_chamber", "format_chamber_state",

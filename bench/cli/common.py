@@ -24,6 +24,7 @@ from drivers.errors import ChamberError, ImuError, TurntableError
 
 if TYPE_CHECKING:
     from bench.run.runner import BenchRun
+    from drivers.session import DeviceSession
 
 
 class ExitCode(IntEnum):
@@ -150,6 +151,40 @@ def stop_signals(on_signal: Callable[[int], None]) -> Iterator[None]:
             signal.signal(installed, handler)
 
 
+def drive_device(prog: str, device: DeviceSession[Any], command: Callable[[], ExitCode], *, errors: type[Exception],
+                 refused: tuple[type[Exception], ...], unreachable: str, make_safe: Callable[[], str],
+                 note_faults: bool = True) -> ExitCode:
+    """Connect `device` (an `errors` error: "`unreachable`: why", exit 3), run `command` with SIGTERM and SIGHUP
+    ending it like Ctrl-C, and close the device however it ends. A `refused` error (a demand beyond the limits)
+    is exit 2, nothing sent; another `errors` error or a stop signal makes the device safe (`make_safe`, which
+    says what it did: the line ends with it; after an error only with `note_faults`) and is exit 3."""
+    try:
+        device.connect()
+    except errors as exc:
+        return fail(prog, f"{unreachable}: {exc}", ExitCode.FAULT)
+    try:
+        # SIGTERM and SIGHUP end the command like Ctrl-C (an `Interrupted`, a KeyboardInterrupt)
+        with stop_signals(raise_interrupted):
+            return command()
+    except refused as exc:
+        return fail(prog, f"refused, nothing sent: {exc}", ExitCode.USAGE)
+    except errors as exc:
+        done = _safely(make_safe)
+        return fail(prog, f"{type(exc).__name__}: {exc}" + (f"; {done}" if note_faults else ""), ExitCode.FAULT)
+    except KeyboardInterrupt as exc:
+        done = _safely(make_safe)
+        return fail(prog, f"interrupted ({exc or 'Ctrl-C'}); {done}", ExitCode.FAULT)
+    finally:
+        device.close()
+
+
+def _safely(make_safe: Callable[[], str]) -> str:
+    """`make_safe()`, which a second stop signal cannot cut short (it is bounded by the driver's timeouts and
+    retries)."""
+    with stop_signals(lambda _signum: None):
+        return make_safe()
+
+
 def run_plan(run: BenchRun, prog: str, *, quiet: bool, simulated: bool) -> ExitCode | None:
     """Open `run`'s devices and execute its plan with terminal progress; a stop signal aborts it.
 
@@ -174,5 +209,5 @@ def run_plan(run: BenchRun, prog: str, *, quiet: bool, simulated: bool) -> ExitC
     return None
 
 
-__all__ = ["KNOWN_ERRORS", "STOP_SIGNALS", "ExitCode", "Interrupted", "add_noise_arguments", "fail", "noise_from_args",
-           "raise_interrupted", "run_plan", "signal_name", "speed_factor", "stop_signals"]
+__all__ = ["KNOWN_ERRORS", "STOP_SIGNALS", "ExitCode", "Interrupted", "add_noise_arguments", "drive_device", "fail",
+           "noise_from_args", "raise_interrupted", "run_plan", "signal_name", "speed_factor", "stop_signals"]

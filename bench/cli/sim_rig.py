@@ -11,14 +11,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import signal
-import sys
-import threading
 from pathlib import Path
 
 from bench.cli.chamber import CHAMBER_LISTEN_HELP, apply_chamber_command, listen_chamber
-from bench.cli.common import ExitCode, fail, raise_interrupted, stop_signals
-from bench.cli.table import FAULT_HELP, _apply_fault_command, _host_port, _listen, _remote_hosts
+from bench.cli.common import ExitCode, fail
+from bench.cli.sim_serving import host_port, refuse_remote, remote_hosts, run_console, run_until_stopped
+from bench.cli.table import FAULT_HELP, _apply_fault_command, _listen
 from bench.config.load import (
     BenchConfig,
     ConfigError,
@@ -134,7 +132,7 @@ def _serve_imu(rig, where: str):
         return rig.serve_slcan()
     if where.startswith("socketcan:"):
         return rig.serve_socketcan(where.split(":", 1)[1])
-    host, port = _host_port(where, "socketcand", "the IMU listens on slcan, socketcand://HOST:PORT or "
+    host, port = host_port(where, "socketcand", "the IMU listens on slcan, socketcand://HOST:PORT or "
                                                   "socketcan:CHANNEL")
     return rig.serve_socketcand(host, port)
 
@@ -151,61 +149,43 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
     imu_listen = args.imu_listen or ["slcan"]
     socket_addresses = [w.replace("socketcand://", "tcp://", 1) for w in imu_listen if w.startswith("socketcand://")]
     chamber_dialect, chamber_listen = _chamber_options(args, config)
-    remote = _remote_hosts([table_listen, *socket_addresses, *([chamber_listen] if chamber_listen else [])])
+    remote = remote_hosts([table_listen, *socket_addresses, *([chamber_listen] if chamber_listen else [])])
     if remote and not args.allow_remote:
-        return fail(PROG, f"{remote[0]} is reachable from the network, not only from this machine; add "
-                          "--allow-remote to serve it there, or listen on 127.0.0.1", ExitCode.USAGE)
+        return refuse_remote(PROG, remote)
     for where in imu_listen:
         if not (where == "slcan" or where.startswith(("socketcand://", "socketcan:"))):
             return fail(PROG, f"the IMU listens on slcan, socketcand://HOST:PORT or socketcan:CHANNEL, not "
                               f"{where!r}", ExitCode.USAGE)
     closers: list = []
-    # SIGINT stops the rig even when it was started with SIGINT ignored (`bench sim rig ... &` in a script)
-    previous_handler = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        with stop_signals(raise_interrupted):
-            rig = SimRig(config)
-            closers.append(rig.close)
-            table_url = _listen(rig.controller, dialect, table_listen, closers, config.table.register_map)
-            print(f"simulated table ({dialect}) listening on {table_url}", flush=True)
-            peers = [_serve_imu(rig, where) for where in imu_listen]
-            for peer in peers:
-                print(f"simulated IMU ({config.imu.rate_hz:g} Hz) on {peer.kind} {peer.where}: python-can "
-                      f"interface {peer.interface!r}, channel {peer.channel!r}"
-                      + "".join(f", {k} {v!r}" for k, v in peer.bus_options.items()), flush=True)
-            chamber, chamber_url = None, ""
-            if chamber_listen:
-                from bench.sim.chamber import SimChamber  # the simulators: only for `bench sim`
 
-                chamber = SimChamber()
-                register_map = config.chamber.register_map if config.chamber is not None else None
-                chamber_url = listen_chamber(chamber, chamber_dialect, chamber_listen, closers, register_map)
-                print(f"simulated chamber ({chamber_dialect}) listening on {chamber_url}", flush=True)
-            rig.start()
-            if args.write_config:
-                text = rig_config_text(config, table_url, dialect, peers[0],
-                                       (chamber_url, chamber_dialect) if chamber is not None else None)
-                parse_config(text, source=args.write_config, base_dir=Path(args.write_config).resolve().parent)
-                Path(args.write_config).write_text(text, encoding="utf-8")
-                print(f"bench configuration written to {args.write_config}", flush=True)
-            print("Ctrl-C stops; type 'help' for the fault console", flush=True)
-            for line in sys.stdin:           # the fault console; on EOF keep serving until a stop signal
-                reply = _console(rig, line, apply_imu_command, chamber)
-                if reply:
-                    print(reply, flush=True)
-            threading.Event().wait()
-    except (InputError, ConfigError, ValueError, OSError) as exc:
-        return fail(PROG, f"{exc}", ExitCode.USAGE)
-    except KeyboardInterrupt:
-        return fail(PROG, "stopped", ExitCode.OK)
-    finally:
-        signal.signal(signal.SIGINT, previous_handler)
-        for close in reversed(closers):
-            try:
-                close()
-            except Exception as exc:  # noqa: BLE001 - report what stopped the IMU, close the rest
-                print(f"{PROG}: while closing: {type(exc).__name__}: {exc}", file=sys.stderr)
-    return ExitCode.OK
+    def serve() -> None:
+        rig = SimRig(config)
+        closers.append(rig.close)
+        table_url = _listen(rig.controller, dialect, table_listen, closers, config.table.register_map)
+        print(f"simulated table ({dialect}) listening on {table_url}", flush=True)
+        peers = [_serve_imu(rig, where) for where in imu_listen]
+        for peer in peers:
+            print(f"simulated IMU ({config.imu.rate_hz:g} Hz) on {peer.kind} {peer.where}: python-can "
+                  f"interface {peer.interface!r}, channel {peer.channel!r}"
+                  + "".join(f", {k} {v!r}" for k, v in peer.bus_options.items()), flush=True)
+        chamber, chamber_url = None, ""
+        if chamber_listen:
+            from bench.sim.chamber import SimChamber  # the simulators: only for `bench sim`
+
+            chamber = SimChamber()
+            register_map = config.chamber.register_map if config.chamber is not None else None
+            chamber_url = listen_chamber(chamber, chamber_dialect, chamber_listen, closers, register_map)
+            print(f"simulated chamber ({chamber_dialect}) listening on {chamber_url}", flush=True)
+        rig.start()
+        if args.write_config:
+            text = rig_config_text(config, table_url, dialect, peers[0],
+                                   (chamber_url, chamber_dialect) if chamber is not None else None)
+            parse_config(text, source=args.write_config, base_dir=Path(args.write_config).resolve().parent)
+            Path(args.write_config).write_text(text, encoding="utf-8")
+            print(f"bench configuration written to {args.write_config}", flush=True)
+        run_console(lambda line: _console(rig, line, apply_imu_command, chamber))
+
+    return run_until_stopped(PROG, serve, closers, usage_errors=(InputError, ConfigError, ValueError, OSError))
 
 
 def _chamber_options(args: argparse.Namespace, config: BenchConfig) -> tuple[str, str | None]:

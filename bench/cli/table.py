@@ -8,16 +8,19 @@ link fails, or the command was interrupted (the table is then commanded to stop)
 from __future__ import annotations
 
 import argparse
-import ipaddress
-import signal
 import sys
-import threading
 import time
 from dataclasses import replace
 from typing import TextIO
-from urllib.parse import urlsplit
 
-from bench.cli.common import ExitCode, fail, raise_interrupted, stop_signals
+from bench.cli.common import ExitCode, drive_device, fail
+from bench.cli.sim_serving import (
+    apply_console_line,
+    host_port,
+    refuse_remote,
+    remote_hosts,
+    serve_until_stopped,
+)
 from bench.config.load import ConfigError, load_register_map
 from bench.errors import InputError
 from drivers.errors import TurntableConfigError, TurntableError, TurntableLimitError
@@ -163,31 +166,15 @@ def cmd_table(args: argparse.Namespace) -> ExitCode:
                                retries=args.retries, **options)
     except (TurntableConfigError, ConfigError) as exc:
         return fail(prog, f"{exc}", ExitCode.USAGE)
-    try:
-        table.connect()
-    except TurntableError as exc:
-        return fail(prog, f"cannot reach the controller: {exc}", ExitCode.FAULT)
-    try:
-        # SIGTERM and SIGHUP end the command like Ctrl-C (an `Interrupted`, a KeyboardInterrupt)
-        with stop_signals(raise_interrupted):
-            return _run_table_command(table, args)
-    except TurntableLimitError as exc:
-        return fail(prog, f"refused, nothing sent: {exc}", ExitCode.USAGE)
-    except TurntableError as exc:
-        _stop_table(table)
-        return fail(prog, f"{type(exc).__name__}: {exc}", ExitCode.FAULT)
-    except KeyboardInterrupt as exc:
-        _stop_table(table)
-        return fail(prog, f"interrupted ({exc or 'Ctrl-C'}); table commanded to stop", ExitCode.FAULT)
-    finally:
-        table.close()
+    return drive_device(prog, table, lambda: _run_table_command(table, args), errors=TurntableError,
+                        refused=(TurntableLimitError,), unreachable="cannot reach the controller",
+                        make_safe=lambda: _stop_table(table), note_faults=False)
 
 
-def _stop_table(table: Turntable) -> None:
-    """The table's controlled stop (abort if that fails); a second stop signal cannot cut it short
-    (it is bounded by the driver's timeouts and retries)."""
-    with stop_signals(lambda _signum: None):
-        table.safe_stop()
+def _stop_table(table: Turntable) -> str:
+    """The table's controlled stop (abort if that fails); says what was done."""
+    table.safe_stop()
+    return "table commanded to stop"
 
 
 # -- bench sim table --------------------------------------------------------------
@@ -227,11 +214,7 @@ def register_sim(subparsers: argparse._SubParsersAction) -> argparse._SubParsers
 
 def _apply_fault_command(controller, line: str) -> str:
     """Execute one fault-console line on the simulated controller; returns what to print."""
-    words = line.split()
-    if not words:
-        return ""
-    cmd, rest = words[0].lower(), words[1:]
-    try:
+    def table_command(cmd: str, rest: list[str]) -> str | None:
         if cmd == "estop":
             controller.trip_estop()
         elif cmd == "release":
@@ -242,57 +225,12 @@ def _apply_fault_command(controller, line: str) -> str:
         elif cmd == "reset":
             for k in range(3):
                 controller.reset(k)
-        elif cmd in ("timeout", "garbage", "checksum", "exception", "late"):
-            count = int(rest[0]) if rest else 1
-            if cmd == "exception" and len(rest) > 1:
-                controller.faults.exception_code = int(rest[1])
-            setattr(controller.faults, cmd, count)
-        elif cmd == "state":
-            return format_state(controller.state())
-        elif cmd == "help":
-            return FAULT_HELP
         else:
-            return f"unknown command {cmd!r}; type help"
-    except Exception as exc:  # noqa: BLE001 - a console typo must not stop the simulator
-        return f"error: {exc}"
-    return "ok"
+            return None
+        return ""
 
-
-def _is_loopback(host: str) -> bool:
-    """True for a loopback address literal (127.0.0.0/8, ::1) or `localhost`; any other name counts as remote."""
-    if host.lower() == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
-
-
-def _remote_hosts(listen: list[str]) -> list[str]:
-    """The --listen addresses that bind beyond loopback (`pty` and malformed ones are left to `_listen`)."""
-    remote = []
-    for where in listen:
-        if where == "pty":
-            continue
-        try:
-            host = urlsplit(where).hostname
-        except ValueError:
-            continue
-        if host and not _is_loopback(host):
-            remote.append(where)
-    return remote
-
-
-def _host_port(where: str, scheme: str, expected: str) -> tuple[str, int]:
-    """(host, port) of a --listen address of `scheme`; InputError saying what is `expected` otherwise."""
-    try:
-        parts = urlsplit(where)
-        host, port = parts.hostname, parts.port
-    except ValueError as exc:                   # a port out of range or not a number, a broken [IPv6]
-        raise InputError(f"{expected}, not {where!r} ({exc})") from exc
-    if parts.scheme != scheme or port is None or not host:
-        raise InputError(f"{expected}, not {where!r}")
-    return host, port
+    return apply_console_line(line, controller.faults, table_command, FAULT_HELP,
+                              lambda: format_state(controller.state()))
 
 
 def _listen(controller, dialect: str, where: str, closers: list, register_map=None) -> str:
@@ -305,7 +243,7 @@ def _listen(controller, dialect: str, where: str, closers: list, register_map=No
         closers.append(modbus.close)
         if where == "pty":
             return f"modbus+rtu://{modbus.start_rtu_pty()}"
-        host, port = _host_port(where, "modbus+tcp", "the modbus simulator listens on modbus+tcp://HOST:PORT or pty")
+        host, port = host_port(where, "modbus+tcp", "the modbus simulator listens on modbus+tcp://HOST:PORT or pty")
         host, port = modbus.start_tcp(host, port)
         return f"modbus+tcp://{host}:{port}"
     # the simulators load only for `bench sim` (the Modbus one imports pymodbus)
@@ -324,7 +262,7 @@ def _listen(controller, dialect: str, where: str, closers: list, register_map=No
     closers.append(server.close)
     if where == "pty":
         return server.open_pty()
-    host, port = _host_port(where, "tcp", f"the {dialect} simulator listens on tcp://HOST:PORT or pty")
+    host, port = host_port(where, "tcp", f"the {dialect} simulator listens on tcp://HOST:PORT or pty")
     host, port = server.listen_tcp(host, port)
     return f"tcp://{host}:{port}"
 
@@ -342,37 +280,13 @@ def cmd_sim_table(args: argparse.Namespace) -> ExitCode:
         site = Site(args.latitude)
     except InputError as exc:
         return fail("bench sim table", f"{exc}", ExitCode.USAGE)
-    remote = _remote_hosts(args.listen)
+    remote = remote_hosts(args.listen)
     if remote and not args.allow_remote:       # checked before anything binds or stdin is read
-        return fail("bench sim table", f"{remote[0]} is reachable from the network, not only from this machine; "
-                    "add --allow-remote to serve it there, or listen on 127.0.0.1", ExitCode.USAGE)
+        return refuse_remote("bench sim table", remote)
     black_box = np.random.default_rng(args.seed).normal(0.0, args.black_box_arcsec * ARCSEC, (3, 3))
     controller = SimController(SimTable(site, black_box_rad=black_box))
     closers: list = []
-    # Ctrl-C (SIGINT) stops the server even when it was started with SIGINT ignored, as a
-    # shell does for `bench sim table ... &` in a script.
-    previous_handler = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        for where in args.listen:
-            address = _listen(controller, args.dialect, where, closers)
-            print(f"simulated table ({args.dialect}) listening on {address}", flush=True)
-            if where in remote:
-                print(f"WARNING: bench sim table: {address} is reachable from the NETWORK (--allow-remote): anyone "
-                      "who can reach this machine can command the simulated table; there is no authentication",
-                      file=sys.stderr, flush=True)
-        print("Ctrl-C stops; type 'help' for the fault console", flush=True)
-        done = threading.Event()
-        for line in sys.stdin:               # the fault console; on EOF keep serving until Ctrl-C
-            reply = _apply_fault_command(controller, line)
-            if reply:
-                print(reply, flush=True)
-        done.wait()
-    except (InputError, OSError) as exc:
-        return fail("bench sim table", f"{exc}", ExitCode.USAGE)
-    except KeyboardInterrupt:
-        return fail("bench sim table", "stopped", ExitCode.OK)
-    finally:
-        signal.signal(signal.SIGINT, previous_handler)
-        for close in reversed(closers):
-            close()
-    return ExitCode.OK
+    # `bench sim table` ends on Ctrl-C only (SIGTERM and SIGHUP end the process as they always did)
+    return serve_until_stopped("bench sim table", "table", args.dialect,
+                               lambda where: _listen(controller, args.dialect, where, closers), args.listen, remote,
+                               lambda line: _apply_fault_command(controller, line), closers, stop_on_signals=False)

@@ -26,16 +26,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from bench.config.device import SIM_URL, url_and_dialect
 from bench.config.reader import Table, show, suggest
 from bench.config.register_map import CHAMBER_MAP, register_map_value
 from drivers.chamber import DIALECTS, ChamberLimits, check_url_dialect
 from drivers.chamber.base import ABSOLUTE_MAX_C, ABSOLUTE_MIN_C
 from drivers.chamber.modbus_map import ChamberRegisterMap
-from drivers.errors import ChamberConfigError
 from drivers.transport import MODBUS_SCHEMES
 
-#: chamber url: the simulated chamber, served over loopback in the configured dialect
-SIM_URL = "sim"
 CHAMBER_KEYS = ("url", "dialect", "timeout_s", "retries", "poll_s", "safe_setpoint_c", "limits", "register_map",
                 "modbus")
 LIMIT_KEYS = ("min_setpoint_c", "max_setpoint_c", "max_ramp_c_per_min")
@@ -87,16 +85,9 @@ def _limits(t: Table) -> ChamberLimits:
 
 def chamber_config(t: Table) -> ChamberConfig:
     """The checked [chamber] section (its url and dialect are required)."""
-    url = t.string("url", nonempty=True).strip()
-    implied = "modbus" if url.startswith(MODBUS_SCHEMES) else "ascii"      # the url's dialect
-    dialect = t.string("dialect", implied, nonempty=True).strip().lower()
-    if dialect not in DIALECTS:
-        raise t.error("dialect", f"unknown chamber dialect {show(dialect)}" + suggest(dialect, DIALECTS))
-    if url != SIM_URL:
-        try:
-            check_url_dialect(url, dialect, dialect_label="chamber.dialect")
-        except ChamberConfigError as exc:
-            raise t.error("url", str(exc)) from exc
+    url, dialect = url_and_dialect(t, "chamber", DIALECTS, check_url_dialect,
+                                   lambda name: f"unknown chamber dialect {show(name)}" + suggest(name, DIALECTS),
+                                   implied=lambda url: "modbus" if url.startswith(MODBUS_SCHEMES) else "ascii")
     timeout_s = t.number("timeout_s", 1.0, ge=0.001, le=60.0, unit="s")
     retries = t.integer("retries", 2, ge=0, le=10)
     poll_s = t.number("poll_s", 1.0, ge=0.01, le=600.0, unit="s")

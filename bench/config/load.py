@@ -25,6 +25,7 @@ import numpy as np
 from bench.acceptance.limits import AcceptanceLimits
 from bench.config.acceptance import ACCEPTANCE_KEYS, acceptance_limits
 from bench.config.chamber import CHAMBER_KEYS, ChamberConfig, chamber_config
+from bench.config.device import SIM_URL, url_and_dialect
 from bench.config.reader import ConfigError, Located, Table, describe, parse_toml, read_text, show, suggest
 from bench.config.register_map import TABLE_MAP, load_register_map, register_map_value
 from bench.config.thermal import THERMAL_KEYS, sim_thermal
@@ -45,7 +46,7 @@ from bench.model.units import ARCSEC
 from bench.noise.result import NoiseResult, NoiseResultError
 from bench.plan.compiler import ORDERS, PlanTiming
 from bench.plan.thermal import ThermalPlan
-from drivers.errors import ImuConfigError, TurntableConfigError
+from drivers.errors import ImuConfigError
 from drivers.imu import SHIPPED_LAYOUTS, ImuFrameSpec, ImuLayout
 from drivers.imu.slcan_bus import SLCAN_CLIENTS
 from drivers.turntable import DIALECTS, FRAMES, AxisLimits, TurntableLimits, check_url_dialect
@@ -56,7 +57,6 @@ from schedules.tomllines import locate_lines
 
 FORMAT = "turntable-bench/config"
 VERSION = 1
-SIM_URL = "sim"  # table url: serve the simulated table over loopback in the configured dialect
 _BLACK_BOX_RMS_ARCSEC = 20.0  # [sim] default: a good but real table
 _NOISE_FIELDS = tuple(f.name for f in dataclasses.fields(NoiseModel))
 # Ranges shared by several keys (bench.example.toml documents each key's range).
@@ -247,16 +247,9 @@ def _axis_limits(t: Table) -> AxisLimits:
 
 
 def _table(t: Table) -> TableConfig:
-    url = t.string("url", nonempty=True).strip()
-    dialect = t.string("dialect", nonempty=True).strip().lower()
-    if dialect not in DIALECTS:
-        raise t.error("dialect", f"unknown dialect {show(dialect)}" + suggest(dialect, DIALECTS).replace(
-            " (known:", " (known dialects:"))
-    if url != SIM_URL:
-        try:
-            check_url_dialect(url, dialect, dialect_label="table.dialect")
-        except TurntableConfigError as exc:
-            raise t.error("url", str(exc)) from exc
+    url, dialect = url_and_dialect(t, "table", DIALECTS, check_url_dialect,
+                                   lambda name: f"unknown dialect {show(name)}" + suggest(name, DIALECTS).replace(
+                                       " (known:", " (known dialects:"))
     timeout_s = t.number("timeout_s", 0.5, ge=0.001, le=60.0, unit="s")
     retries = t.integer("retries", 2, ge=0, le=10)
     tolerance_deg = t.number("settle_tolerance_deg", 0.001, ge=1e-6, le=1.0, unit="deg")

@@ -272,10 +272,9 @@ class DeferredChunk:
         ends = np.append(self.offsets[1:], self.size).astype(np.int64)
         return ends - self.offsets.astype(np.int64) - MESSAGE_DATA_OFFSET
 
-    def inflate(self):
-        """(chunk data, payload starts) when the chunk decompresses, passes its CRC and is framed
-        exactly by its index; else a reason string."""
-        payload = self.payload if self.payload is not None else self.read_again()
+    def _inflate_checked(self, payload: bytes | str):
+        """The chunk's data from its compressed `payload` when it decompresses and passes its CRC; else a
+        reason string (also when `payload` is one: the chunk could not be read again)."""
         if isinstance(payload, str):
             return payload
         data, computed, exc = inflate_chunk(self.compression, payload, self.size, self.crc)
@@ -283,6 +282,14 @@ class DeferredChunk:
             return chunk_failure(self.compression, exc)
         if self.crc != 0 and computed != self.crc:
             return "CRC mismatch"
+        return data
+
+    def inflate(self):
+        """(chunk data, payload starts) when the chunk decompresses, passes its CRC and is framed
+        exactly by its index; else a reason string."""
+        data = self._inflate_checked(self.payload if self.payload is not None else self.read_again())
+        if isinstance(data, str):
+            return data
         framed = _frame_by_entries(data, [(self.channel, self.log_times, self.offsets)])
         if framed is False or framed[0] != 0:
             return "malformed chunk content (its message index does not frame it)"
@@ -303,14 +310,9 @@ class ChunkSlice(DeferredChunk):
 
     def inflate(self):
         """(chunk data, payload starts), or the reason the chunk cannot be used again."""
-        payload = self.read_again()
-        if isinstance(payload, str):
-            return payload
-        data, computed, exc = inflate_chunk(self.compression, payload, self.size, self.crc)
-        if exc is not None:
-            return chunk_failure(self.compression, exc)
-        if self.crc != 0 and computed != self.crc:
-            return "CRC mismatch"
+        data = self._inflate_checked(self.read_again())
+        if isinstance(data, str):
+            return data
         return data, self.offsets
 
 

@@ -216,17 +216,20 @@ class Records:
 
     @contextlib.contextmanager
     def _begin(self) -> Iterator[sa.Connection]:
-        try:
-            with self.engine.begin() as conn:
-                yield conn
-        except sa.exc.SQLAlchemyError as exc:
-            raise RecordsError(f"{_shown(self.engine)}: {_reason(exc)}") from exc
+        """A connection in a transaction (committed when the block ends well); database errors as RecordsError."""
+        with self._records_errors(), self.engine.begin() as conn:
+            yield conn
 
     @contextlib.contextmanager
     def _connect(self) -> Iterator[sa.Connection]:
+        """A connection; database errors as RecordsError."""
+        with self._records_errors(), self.engine.connect() as conn:
+            yield conn
+
+    @contextlib.contextmanager
+    def _records_errors(self) -> Iterator[None]:
         try:
-            with self.engine.connect() as conn:
-                yield conn
+            yield
         except sa.exc.SQLAlchemyError as exc:
             raise RecordsError(f"{_shown(self.engine)}: {_reason(exc)}") from exc
 

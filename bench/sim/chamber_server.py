@@ -16,15 +16,13 @@ exception (not executed; `NA:INJECTED <code>` or Modbus exception `exception_cod
 
 from __future__ import annotations
 
-import threading
 from typing import Callable
 
 from pymodbus.constants import ExcCodes
-from pymodbus.simulator import DataType, SimData, SimDevice
 
 from bench.sim.chamber import ERR_ALARM, ERR_RANGE, SimChamber, SimChamberError
-from bench.sim.modbus_serving import ModbusServing
-from bench.sim.serve import LineServer, serve_lines
+from bench.sim.modbus_serving import ModbusServing, Refused
+from bench.sim.serve import LineServer, flip_parity, held_first, reply_with_fault, serve_lines
 from drivers.chamber import ascii_codec as codec
 from drivers.chamber.modbus_map import READ_ONLY, ChamberRegisterMap
 from drivers.errors import ChamberError
@@ -41,27 +39,10 @@ class ChamberAsciiHandler:
         self.chamber = chamber
 
     def __call__(self, line: bytes) -> bytes | None:
-        held = self.chamber.faults.release()     # replies a `late` fault held back go first
-        return (held + (self._faulty_reply(line) or b"")) or None
-
-    def _faulty_reply(self, line: bytes) -> bytes | None:
-        faults = self.chamber.faults
-        fault = faults.take()
-        if fault == "exception":
-            return codec.format_na(f"INJECTED {faults.exception_code}")
-        reply = self.reply(line)
-        if fault == "timeout":
-            return None
-        if fault == "late":
-            faults.hold(reply)
-            return None
-        if fault == "garbage":
-            return GARBAGE + codec.TERMINATOR
-        if fault == "checksum":
-            body = bytearray(reply[:-2])
-            body[len(body) // 2] ^= 0x80
-            return bytes(body) + codec.TERMINATOR
-        return reply
+        return held_first(self.chamber.faults, lambda: reply_with_fault(
+            self.chamber.faults, lambda: self.reply(line),
+            exception_reply=lambda code: codec.format_na(f"INJECTED {code}"),
+            garbage=GARBAGE + codec.TERMINATOR, corrupt=lambda reply: flip_parity(reply, codec.TERMINATOR)))
 
     def reply(self, line: bytes) -> bytes:
         """The reply to one request line, with its terminator (no faults)."""
@@ -98,61 +79,30 @@ class ChamberAsciiHandler:
         return codec.format_ok(line)
 
 
-class _Refused(Exception):
-    def __init__(self, code: ExcCodes, message: str):
-        super().__init__(message)
-        self.code = code
-
-
 class ChamberModbusServer(ModbusServing):
     """The simulated chamber as a Modbus server (TCP listeners and RTU ptys, `ModbusServing`)."""
+
+    device_errors = (ChamberError,)
+    device_error_code = ExcCodes.ILLEGAL_VALUE
 
     def __init__(self, chamber: SimChamber, register_map: ChamberRegisterMap | None = None, **kwargs):
         super().__init__(**kwargs)
         self.chamber = chamber
         self.wire_faults = chamber.faults
         self.map = register_map if register_map is not None else ChamberRegisterMap.default()
-        self.last_refusal = ""
         self._names = self.map.register_names()
-        self._lock = threading.RLock()
-        self._device = self._build_device()
+        unwritable = (None, *READ_ONLY)       # unused and read-only registers refuse writes
+        self._device = self._register_device(self.map.unit, self._names,
+                                             lambda address: self._names.get(address) in unwritable)
 
-    def _build_device(self) -> SimDevice:
-        # one register space from the lowest address to the highest, so a read may span the unused registers
-        # between two (they read 0); unused and read-only registers refuse writes (02 illegal data address)
-        def read_only(address: int) -> bool:
-            name = self._names.get(address)
-            return name is None or name in READ_ONLY
+    def _read_image(self) -> dict[int, int]:
+        return self.map.encode_state(self.chamber.state())
 
-        lo, hi = min(self._names), max(self._names)
-        blocks: list[SimData] = []
-        start = lo
-        for address in range(lo, hi + 2):
-            if address == hi + 1 or (address > start and read_only(address) != read_only(start)):
-                blocks.append(SimData(start, count=address - start, values=0, datatype=DataType.REGISTERS,
-                                      readonly=read_only(start)))
-                start = address
-        return SimDevice(self.map.unit, simdata=blocks, action=self._action)
+    def _write(self, address: int, values: list[int]) -> None:
+        for i, value in enumerate(values):
+            self._write_one(address + i, value)
 
-    async def _action(self, function_code, start_address, address, count, registers, set_values):
-        try:
-            with self._lock:
-                if set_values is not None:
-                    for i, value in enumerate(set_values):
-                        self._write(address + i, int(value))
-                    return None
-                image = self.map.encode_state(self.chamber.state())
-                for i in range(count):
-                    registers[address - start_address + i] = image.get(address + i, 0)
-                return None
-        except _Refused as exc:
-            self.last_refusal = str(exc)
-            return exc.code
-        except (ChamberError, ValueError) as exc:
-            self.last_refusal = str(exc)
-            return ExcCodes.ILLEGAL_VALUE
-
-    def _write(self, address: int, value: int) -> None:
+    def _write_one(self, address: int, value: int) -> None:
         name, m, c = self._names.get(address), self.map, self.chamber
         actions: dict[str, Callable[[], None]] = {
             "setpoint": lambda: c.set_setpoint(m.decode_temperature(value)),
@@ -161,14 +111,11 @@ class ChamberModbusServer(ModbusServing):
                 m.decode_command(value)](),
         }
         if name not in actions:
-            raise _Refused(ExcCodes.ILLEGAL_ADDRESS, f"register {address} ({name or 'unused'}) is not writable")
+            raise Refused(ExcCodes.ILLEGAL_ADDRESS, f"register {address} ({name or 'unused'}) is not writable")
         try:
             actions[name]()
         except SimChamberError as exc:
-            raise _Refused(EXCEPTION_FOR_ERROR.get(exc.code, ExcCodes.ILLEGAL_VALUE), str(exc)) from exc
-
-    def __enter__(self) -> "ChamberModbusServer":
-        return self
+            raise Refused(EXCEPTION_FOR_ERROR.get(exc.code, ExcCodes.ILLEGAL_VALUE), str(exc)) from exc
 
 
 def serve_chamber_ascii(chamber: SimChamber, tcp: bool = True, pty: bool = False,
@@ -176,8 +123,6 @@ def serve_chamber_ascii(chamber: SimChamber, tcp: bool = True, pty: bool = False
     """Serve `chamber` in the ASCII dialect; returns the server (close it) and its URLs
     ({'tcp': 'tcp://127.0.0.1:port', 'pty': '/dev/pts/N'} as requested)."""
     return serve_lines(ChamberAsciiHandler(chamber), tcp, pty, port)
-
-
 
 
 def serve_chamber(chamber: SimChamber, dialect: str, where: str = "tcp", host: str = "127.0.0.1", port: int = 0,

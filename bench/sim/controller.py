@@ -53,6 +53,10 @@ class _Axis:
     limit: bool = False
 
 
+#: the wire faults a `WireFaults` counts, in the order `take` applies them (also the fault consoles' commands)
+WIRE_FAULTS = ("timeout", "garbage", "checksum", "exception", "late")
+
+
 @dataclass
 class WireFaults:
     """Faults the wire servers inject into their next replies (each counter counts replies).
@@ -76,7 +80,7 @@ class WireFaults:
     def take(self) -> str | None:
         """The fault to apply to the reply being built (and count it), or None."""
         with self._lock:
-            for name in ("timeout", "garbage", "checksum", "exception", "late"):
+            for name in WIRE_FAULTS:
                 if getattr(self, name) > 0:
                     setattr(self, name, getattr(self, name) - 1)
                     return name

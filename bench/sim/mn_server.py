@@ -20,13 +20,20 @@ from __future__ import annotations
 import re
 
 from bench.sim.controller import ERR_FAULT, ERR_NOT_ENABLED, ERR_WRONG_MODE, SimCommandError, SimController
-from bench.sim.serve import LineServer
+from bench.sim.serve import LineServer, held_first, reply_with_fault
 from drivers.errors import TurntableProtocolError
 from drivers.turntable import mn_codec as codec
 from drivers.turntable.base import FRAMES, AxisMode, AxisStatus
 
 GARBAGE = b"\x00\xff#%&garbage\x1b[0m?"
 _CMD_HINT = re.compile(rb"\$MN([A-Z]{3})[,*]")
+
+
+def _wrong_checksum(reply: bytes) -> bytes:
+    """A reply frame (with its terminator) with wrong checksum digits."""
+    frame = reply[:-len(codec.TERMINATOR)]
+    wrong = (int(frame[-2:], 16) + 0x5A) & 0xFF
+    return frame[:-2] + f"{wrong:02X}".encode("ascii") + codec.TERMINATOR
 
 
 class MnSimHandler:
@@ -36,27 +43,14 @@ class MnSimHandler:
         self.controller = controller
 
     def __call__(self, line: bytes) -> bytes | None:
-        held = self.controller.faults.release()     # replies a `late` fault held back go first
-        return (held + (self._faulty_reply(line) or b"")) or None
+        return held_first(self.controller.faults, lambda: self._faulty_reply(line))
 
     def _faulty_reply(self, line: bytes) -> bytes | None:
-        fault = self.controller.faults.take()
         hint = _CMD_HINT.match(line)
         cmd = hint.group(1).decode("ascii") if hint else codec.UNREADABLE_CMD
-        if fault == "exception":
-            return codec.encode_error(cmd, self.controller.faults.exception_code) + codec.TERMINATOR
-        reply = self.reply(line)
-        if fault == "timeout":
-            return None
-        if fault == "late":
-            self.controller.faults.hold(reply + codec.TERMINATOR)
-            return None
-        if fault == "garbage":
-            return GARBAGE + codec.TERMINATOR
-        if fault == "checksum":
-            wrong = (int(reply[-2:], 16) + 0x5A) & 0xFF
-            reply = reply[:-2] + f"{wrong:02X}".encode("ascii")
-        return reply + codec.TERMINATOR
+        return reply_with_fault(self.controller.faults, lambda: self.reply(line) + codec.TERMINATOR,
+                                exception_reply=lambda code: codec.encode_error(cmd, code) + codec.TERMINATOR,
+                                garbage=GARBAGE + codec.TERMINATOR, corrupt=_wrong_checksum)
 
     def reply(self, line: bytes) -> bytes:
         """Decode and execute one request; its reply frame (no terminator, no injected fault)."""

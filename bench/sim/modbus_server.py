@@ -23,10 +23,9 @@ is `bench.sim.modbus_serving.ModbusServing`'s, shared with the simulated chamber
 from __future__ import annotations
 
 import asyncio
-import threading
 
 from pymodbus.constants import ExcCodes
-from pymodbus.simulator import DataType, SimData, SimDevice
+from pymodbus.simulator import SimDevice
 
 from bench.sim.controller import (
     ERR_ARGUMENT,
@@ -38,7 +37,7 @@ from bench.sim.controller import (
     SimCommandError,
     SimController,
 )
-from bench.sim.modbus_serving import GARBAGE, ModbusServing
+from bench.sim.modbus_serving import GARBAGE, ModbusServing, Refused
 from bench.sim.serve import MAX_CONNECTIONS
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import TurntableError
@@ -61,12 +60,6 @@ __all__ = ["EXCEPTION_FOR_ERROR", "FAULT_ESTOP", "FAULT_LIMIT", "FAULT_NONE", "F
            "GARBAGE", "ModbusSimServer"]
 
 
-class _Refused(Exception):
-    def __init__(self, code: ExcCodes, message: str):
-        super().__init__(message)
-        self.code = code
-
-
 class ModbusSimServer(ModbusServing):
     """The simulated controller as a Modbus server (any number of TCP listeners and RTU ptys).
 
@@ -74,6 +67,8 @@ class ModbusSimServer(ModbusServing):
     when the controller runs on a simulated clock. `max_connections` caps the TCP
     connections each listener serves at once (the excess is accepted and closed at once).
     """
+
+    device_errors = (TurntableError,)
 
     def __init__(self, controller: SimController, register_map: RegisterMap | None = None,
                  wall_clock: Clock = SYSTEM_CLOCK, watchdog_poll_s: float = 0.02,
@@ -84,11 +79,9 @@ class ModbusSimServer(ModbusServing):
         self.map = register_map if register_map is not None else RegisterMap.default()
         self.wall_clock = wall_clock
         self.watchdog_poll_s = watchdog_poll_s
-        self.last_refusal = ""
         self.watchdog_tripped = False
         self._names = self.map.register_names()
         self._image = {address: 0 for address in self._names}
-        self._lock = threading.RLock()
         self._watchdog_armed = False
         self._watchdog_at = 0.0
         self._device = self._build_device()
@@ -96,32 +89,11 @@ class ModbusSimServer(ModbusServing):
     # -- the register space -----------------------------------------------------------
     def _build_device(self) -> SimDevice:
         read_only = {a for a, (name, _, _) in self._names.items() if name in READ_ONLY_REGISTERS}
-        lo, hi = min(self._names), max(self._names)
-        blocks: list[SimData] = []
-        start = lo
-        for address in range(lo, hi + 2):
-            if address == hi + 1 or (address > start and (address in read_only) != (start in read_only)):
-                blocks.append(SimData(start, count=address - start, values=0, datatype=DataType.REGISTERS,
-                                      readonly=start in read_only))
-                start = address
-        return SimDevice(self.map.unit, simdata=blocks, action=self._action)
+        return self._register_device(self.map.unit, self._names, lambda address: address in read_only)
 
-    async def _action(self, function_code, start_address, address, count, registers, set_values):
-        try:
-            with self._lock:
-                if set_values is not None:
-                    self._write(address, [int(v) for v in set_values])
-                    return None
-                self._refresh_state()
-                for i in range(count):
-                    registers[address - start_address + i] = self._image.get(address + i, 0)
-                return None
-        except _Refused as exc:
-            self.last_refusal = str(exc)
-            return exc.code
-        except (TurntableError, ValueError) as exc:
-            self.last_refusal = str(exc)
-            return ExcCodes.DEVICE_FAILURE
+    def _read_image(self) -> dict[int, int]:
+        self._refresh_state()
+        return self._image
 
     def _fault_code(self, state: TableState) -> int:
         if self.controller.estop:
@@ -149,7 +121,7 @@ class ModbusSimServer(ModbusServing):
                 touched.setdefault((name, k), set()).add(word)
         for (name, _k), words in touched.items():
             if len(words) != m.width(name):
-                raise _Refused(ExcCodes.ILLEGAL_ADDRESS, f"write covers one word of 32-bit {name}")
+                raise Refused(ExcCodes.ILLEGAL_ADDRESS, f"write covers one word of 32-bit {name}")
         image = dict(self._image)
         image.update(written)
 
@@ -158,7 +130,7 @@ class ModbusSimServer(ModbusServing):
             try:
                 return m.decode_value([image[a], image[a + 1]], kind)
             except TurntableError as exc:
-                raise _Refused(ExcCodes.ILLEGAL_VALUE, str(exc)) from exc
+                raise Refused(ExcCodes.ILLEGAL_VALUE, str(exc)) from exc
 
         try:
             if ("watchdog", -1) in touched:
@@ -170,14 +142,14 @@ class ModbusSimServer(ModbusServing):
                     command = m.decode_command(image[m.command])
                     axes = mask_axes(image[m.command_axes])
                 except ValueError as exc:
-                    raise _Refused(ExcCodes.ILLEGAL_VALUE, str(exc)) from exc
+                    raise Refused(ExcCodes.ILLEGAL_VALUE, str(exc)) from exc
                 self._execute(command, axes)
             for k in range(3):
                 if ("mode", k) in touched:
                     try:
                         mode = m.decode_mode(image[m.mode[k]])
                     except TurntableError as exc:
-                        raise _Refused(ExcCodes.ILLEGAL_VALUE, str(exc)) from exc
+                        raise Refused(ExcCodes.ILLEGAL_VALUE, str(exc)) from exc
                     self.controller.set_mode(k, mode)
             for k in range(3):
                 if ("demand_position", k) in touched:
@@ -187,7 +159,7 @@ class ModbusSimServer(ModbusServing):
                 if ("demand_rate", k) in touched:
                     self.controller.demand_rate(k, value("demand_rate", k, "rate"))
         except SimCommandError as exc:
-            raise _Refused(EXCEPTION_FOR_ERROR.get(exc.code, ExcCodes.DEVICE_FAILURE), str(exc)) from exc
+            raise Refused(EXCEPTION_FOR_ERROR.get(exc.code, ExcCodes.DEVICE_FAILURE), str(exc)) from exc
         self._image.update(written)
 
     def _execute(self, command: str, axes: list[int]) -> None:
@@ -226,6 +198,3 @@ class ModbusSimServer(ModbusServing):
 
     async def _start_watchdog(self) -> None:
         self._watchdog_task = asyncio.get_running_loop().create_task(self._watchdog_loop())
-
-    def __enter__(self) -> "ModbusSimServer":
-        return self

@@ -26,14 +26,16 @@ import os
 import select
 import threading
 import tty
+from typing import Callable, Iterable, Mapping
 
+from pymodbus.constants import ExcCodes
 from pymodbus.framer import FramerType
 from pymodbus.pdu import ExceptionResponse
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
-from pymodbus.simulator import SimDevice
+from pymodbus.simulator import DataType, SimData, SimDevice
 
 from bench.sim.controller import WireFaults
-from bench.sim.serve import MAX_CONNECTIONS
+from bench.sim.serve import MAX_CONNECTIONS, ClosedOnExit
 
 # pymodbus logs refused requests at ERROR; keep them out of stderr unless logging is configured.
 logging.getLogger("pymodbus").addHandler(logging.NullHandler())
@@ -64,19 +66,35 @@ class _BoundedTcpServer(ModbusTcpServer):
         return super().handle_new_connection()
 
 
-class ModbusServing:
+class Refused(Exception):
+    """A request the simulated device refuses; `code` is the Modbus exception it answers with."""
+
+    def __init__(self, code: ExcCodes, message: str):
+        super().__init__(message)
+        self.code = code
+
+
+class ModbusServing(ClosedOnExit):
     """A simulated Modbus device on any number of TCP listeners and RTU ptys (see the module docstring).
 
-    A subclass sets `self._device` (a pymodbus `SimDevice`) and `wire_faults` in its constructor.
+    A subclass sets `self._device` (`_register_device`) and `wire_faults` in its constructor, and says what
+    reads return (`_read_image`) and what writes do (`_write`, under `_lock`; `Refused` to refuse one).
     """
 
     wire_faults: WireFaults
+    #: the device's own errors that a request may raise (besides `Refused` and ValueError) ...
+    device_errors: tuple[type[Exception], ...] = ()
+    #: ... and the exception a request that raises one of them (or a ValueError) answers with
+    device_error_code = ExcCodes.DEVICE_FAILURE
 
     def __init__(self, max_connections: int = MAX_CONNECTIONS):
         if max_connections < 1:
             raise ValueError(f"max_connections must be at least 1, got {max_connections}")
         self.max_connections = max_connections
         self.requests = 0
+        #: why the last refused request was refused (for tests and the console)
+        self.last_refusal = ""
+        self._lock = threading.RLock()
         self._device: SimDevice | None = None
         self._pending_wire_fault: str | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -86,6 +104,48 @@ class ModbusServing:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._fds: list[int] = []
+
+    # -- the register space ----------------------------------------------------------------
+    def _register_device(self, unit: int, addresses: Iterable[int], read_only: Callable[[int], bool]) -> SimDevice:
+        """One register space from the lowest of `addresses` to the highest, so a read may span the unused
+        registers between two (they read 0); a run of `read_only` registers refuses writes (02 illegal data
+        address)."""
+        used = sorted(addresses)
+        lo, hi = used[0], used[-1]
+        blocks: list[SimData] = []
+        start = lo
+        for address in range(lo, hi + 2):
+            if address == hi + 1 or (address > start and read_only(address) != read_only(start)):
+                blocks.append(SimData(start, count=address - start, values=0, datatype=DataType.REGISTERS,
+                                      readonly=read_only(start)))
+                start = address
+        return SimDevice(unit, simdata=blocks, action=self._action)
+
+    def _read_image(self) -> Mapping[int, int]:
+        """address -> register value of the device now (under `_lock`); an address not in it reads 0."""
+        raise NotImplementedError
+
+    def _write(self, address: int, values: list[int]) -> None:
+        """Execute a write of `values` from `address` (under `_lock`); `Refused` to refuse it."""
+        raise NotImplementedError
+
+    async def _action(self, function_code, start_address, address, count, registers, set_values):
+        # pymodbus's hook for every request: a write executes, a read is filled from the live image
+        try:
+            with self._lock:
+                if set_values is not None:
+                    self._write(address, [int(v) for v in set_values])
+                    return None
+                image = self._read_image()
+                for i in range(count):
+                    registers[address - start_address + i] = image.get(address + i, 0)
+                return None
+        except Refused as exc:
+            self.last_refusal = str(exc)
+            return exc.code
+        except (*self.device_errors, ValueError) as exc:
+            self.last_refusal = str(exc)
+            return self.device_error_code
 
     # -- faults on demand -------------------------------------------------------------------
     def _trace_pdu(self, sending: bool, pdu):
@@ -267,9 +327,3 @@ class ModbusServing:
             except OSError:
                 pass
         self._fds.clear()
-
-    def __enter__(self) -> "ModbusServing":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()

@@ -34,7 +34,7 @@ from bench.sim.controller import (
     SimCommandError,
     SimController,
 )
-from bench.sim.serve import LineServer, serve_lines
+from bench.sim.serve import LineServer, flip_parity, held_first, reply_with_fault, serve_lines
 from drivers.turntable import scpi_codec as sc
 from drivers.turntable.base import AxisMode
 
@@ -80,8 +80,7 @@ class ScpiSimHandler:
         self.errors.append(sc.format_error(code, detail))
 
     def __call__(self, line: bytes) -> bytes | None:
-        held = self.controller.faults.release()     # replies a `late` fault held back go first
-        return (held + (self._reply(line) or b"")) or None
+        return held_first(self.controller.faults, lambda: self._reply(line))
 
     def _reply(self, line: bytes) -> bytes | None:
         units = sc.parse_program(line)
@@ -89,24 +88,13 @@ class ScpiSimHandler:
             with self._lock:
                 self._run(units)
             return None
-        fault = self.controller.faults.take()
-        if fault == "exception":
-            code = scpi_error_code(self.controller.faults.exception_code)
-            return sc.format_reply([sc.format_error(code, "injected")])
-        with self._lock:
-            reply = sc.format_reply(self._run(units))
-        if fault == "timeout":
-            return None
-        if fault == "late":
-            self.controller.faults.hold(reply)
-            return None
-        if fault == "garbage":
-            return GARBAGE + b"\r\n"
-        if fault == "checksum":
-            body = bytearray(reply[:-2])
-            body[len(body) // 2] ^= 0x80
-            return bytes(body) + b"\r\n"
-        return reply
+        def run() -> bytes:
+            with self._lock:
+                return sc.format_reply(self._run(units))
+
+        return reply_with_fault(
+            self.controller.faults, run, garbage=GARBAGE + b"\r\n", corrupt=flip_parity,
+            exception_reply=lambda code: sc.format_reply([sc.format_error(scpi_error_code(code), "injected")]))
 
     def _run(self, units: list[sc.ScpiRequest | sc.ScpiRequestError]) -> list[str]:
         responses = []

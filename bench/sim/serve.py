@@ -20,12 +20,64 @@ import select
 import socket
 import threading
 import tty
-from typing import Callable
+from typing import TYPE_CHECKING, Callable, Self
+
+if TYPE_CHECKING:
+    from bench.sim.controller import WireFaults
 
 Handler = Callable[[bytes], "bytes | None"]
 MAX_LINE = 4096
 #: connections served at once per server (over all its TCP listeners); one more is accepted and closed at once
 MAX_CONNECTIONS = 32
+
+
+class ClosedOnExit:
+    """A server (or a world of them) that a `with` block closes (`close()`) when it ends."""
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def held_first(faults: WireFaults, respond: Callable[[], bytes | None]) -> bytes | None:
+    """What a line handler sends: the replies a `late` fault held back, then `respond()`'s (None: nothing)."""
+    held = faults.release()     # released before the reply is built: a `late` fault on it holds it back
+    return (held + (respond() or b"")) or None
+
+
+def reply_with_fault(faults: WireFaults, respond: Callable[[], bytes], *, exception_reply: Callable[[int], bytes],
+                     garbage: bytes, corrupt: Callable[[bytes], bytes]) -> bytes | None:
+    """One reply line (with its terminator) with the next wire fault of `faults` applied: exception ->
+    `exception_reply(code)` and `respond` is not called (nothing executes); otherwise the request executes
+    (`respond()`) and timeout -> nothing sent, late -> held for the next reply, garbage -> `garbage`,
+    checksum -> `corrupt(reply)`."""
+    fault = faults.take()
+    if fault == "exception":
+        return exception_reply(faults.exception_code)
+    reply = respond()
+    if fault == "timeout":
+        return None
+    if fault == "late":
+        faults.hold(reply)
+        return None
+    if fault == "garbage":
+        return garbage
+    if fault == "checksum":
+        return corrupt(reply)
+    return reply
+
+
+def flip_parity(reply: bytes, terminator: bytes = b"\r\n") -> bytes:
+    """A `checksum` fault in a dialect without a checksum: one character's top bit flipped, as a parity error
+    would (`reply` ends with `terminator`)."""
+    body = bytearray(reply[:-len(terminator)])
+    body[len(body) // 2] ^= 0x80
+    return bytes(body) + terminator
 
 
 def _split_lines(buffer: bytearray) -> list[bytes]:
@@ -62,7 +114,7 @@ def tcp_listener(host: str, port: int, backlog: int) -> socket.socket:
     return sock
 
 
-class LineServer:
+class LineServer(ClosedOnExit):
     """Serves one handler on any number of TCP listeners and ptys until `close()`.
 
     At most `max_connections` TCP connections are served at once; the excess is accepted
@@ -215,12 +267,6 @@ class LineServer:
             except OSError:
                 pass
         self._closers.clear()
-
-    def __enter__(self) -> "LineServer":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def serve_lines(handler, tcp: bool = True, pty: bool = False, port: int = 0) -> tuple[LineServer, dict[str, str]]:

@@ -30,7 +30,7 @@ from collections.abc import Iterable
 
 import can
 
-from bench.sim.serve import tcp_listener
+from bench.sim.serve import ClosedOnExit, tcp_listener
 
 BUS = "can0"
 HI = b"< hi >"
@@ -136,7 +136,7 @@ class _Connection:
         self.raw_from: float | None = None      # monotonic time frames start flowing
 
 
-class SocketcandServer:
+class SocketcandServer(ClosedOnExit):
     """socketcand on TCP until `close()`; `send(messages)` hands bus frames to every client in raw mode."""
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0, max_connections: int = MAX_CONNECTIONS):
@@ -269,12 +269,6 @@ class SocketcandServer:
         for thread in threads:
             thread.join(timeout=2.0)
         self._listener.close()
-
-    def __enter__(self) -> "SocketcandServer":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 __all__ = ["SocketcandError", "SocketcandServer", "SocketcandSession", "encode_frame", "split_elements"]

@@ -30,7 +30,7 @@ from bench.sim.controller import SimController
 from bench.sim.imu import SimImu
 from bench.sim.mn_server import MnSimHandler
 from bench.sim.scpi_server import ScpiSimHandler
-from bench.sim.serve import Handler, LineServer
+from bench.sim.serve import ClosedOnExit, Handler, LineServer
 from bench.sim.table import SimTable, TableLimits
 from drivers.clock import ManualClock
 from drivers.imu.layout import ImuLayout
@@ -133,7 +133,7 @@ class PumpedReceiver:
 _DEFAULT_TABLE_LIMITS = TableLimits()
 
 
-class SimWorld:
+class SimWorld(ClosedOnExit):
     """A simulated table (served in `dialect`) and IMU (on a virtual CAN bus) on one `SimClock`."""
 
     def __init__(self, site: Site, coefficients: ImuCoefficients, noise: NoiseModel, *,
@@ -240,9 +240,3 @@ class SimWorld:
             except Exception:  # noqa: BLE001 - closing everything matters more than the first failure
                 pass
         self._closers.clear()
-
-    def __enter__(self) -> "SimWorld":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()

@@ -27,9 +27,6 @@ class AsciiChamber(LineRequests, Chamber):
         Chamber.__init__(self, limits, clock)
         self._setup_link(transport, timeout_s, retries)
 
-    def _close(self) -> None:
-        self.transport.close()
-
     def _command(self, request: bytes) -> None:
         self._transact(request, lambda line: codec.decode_ack(line, request))
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import enum
 import math
-import threading
 from abc import abstractmethod
 from dataclasses import dataclass
 
@@ -108,7 +107,7 @@ class ChamberLimits:
                                     f"{self.max_ramp_c_per_min:g}] degC/min")
 
 
-class Chamber(DeviceSession):
+class Chamber(DeviceSession[ChamberState]):
     """A thermal chamber's temperature controller, whatever its dialect and transport.
 
     Public methods check limits before sending and serialise access (a poller thread and
@@ -116,22 +115,14 @@ class Chamber(DeviceSession):
     exception stops the chamber (best effort).
     """
 
-    dialect: str = ""
     #: whether the dialect (or its register map) can set a ramp rate
     supports_ramp: bool = True
 
     def __init__(self, limits: ChamberLimits | None = None, clock: Clock = SYSTEM_CLOCK):
+        super().__init__(clock)
         self.limits = limits if limits is not None else ChamberLimits()
-        self.clock = clock
-        self._lock = threading.RLock()
 
-    # -- what a dialect implements -----------------------------------------------
-    @abstractmethod
-    def _open(self) -> None: ...
-
-    @abstractmethod
-    def _close(self) -> None: ...
-
+    # -- what a dialect implements (and DeviceSession's _open, _close, _read_state) --
     @abstractmethod
     def _set_setpoint(self, setpoint_c: float) -> None: ...
 
@@ -143,13 +134,11 @@ class Chamber(DeviceSession):
     def _run(self) -> None: ...
 
     @abstractmethod
-    def _stop(self) -> None: ...
+    def _stop(self) -> None:
+        """Stop temperature control (heating and cooling off; the air drifts toward ambient)."""
 
     @abstractmethod
     def _clear_alarms(self) -> None: ...
-
-    @abstractmethod
-    def _read_state(self) -> ChamberState: ...
 
     # -- the interface -----------------------------------------------------------
     def set_setpoint(self, setpoint_c: float, ramp_c_per_min: float | None = None) -> None:
@@ -176,26 +165,14 @@ class Chamber(DeviceSession):
         with self._lock:
             self._run()
 
-    def stop(self) -> None:
-        """Stop temperature control (heating and cooling off; the air drifts toward ambient)."""
-        with self._lock:
-            self._stop()
-
     def clear_alarms(self) -> None:
         """Acknowledge latched alarms (an alarm whose cause remains comes back)."""
         with self._lock:
             self._clear_alarms()
 
-    def read_state(self) -> ChamberState:
-        with self._lock:
-            return self._read_state()
-
-    def check_state(self, state: ChamberState | None = None) -> ChamberState:
-        """Read (or take) a state and raise `ChamberAlarm` if it shows an alarm."""
-        state = self.read_state() if state is None else state
-        if state.alarm:
-            raise ChamberAlarm(f"{self.dialect} chamber alarm: {state.describe_alarms()}", state)
-        return state
+    def _state_error(self, state: ChamberState) -> ChamberAlarm | None:
+        """`check_state` raises `ChamberAlarm` for a state that shows an alarm."""
+        return ChamberAlarm(f"{self.dialect} chamber alarm: {state.describe_alarms()}", state) if state.alarm else None
 
     def safe_stop(self) -> bool:
         """Best effort to stop temperature control; True if the stop was acknowledged. Never raises:

@@ -21,6 +21,9 @@ from drivers.turntable.modbus_map import (
     RegisterMapError,
     check_code_tables,
     check_registers,
+    command_code,
+    decode_command,
+    map_code_tables,
     map_int,
     map_no_unknown,
     map_number,
@@ -34,6 +37,8 @@ STATE_REGISTERS = ("process_value", "setpoint", "ramp_rate", "status", "alarms")
 STATUS_BITS = ("running",)
 ALARM_BITS = ("over_temperature", "under_temperature", "door_open", "sensor_fault", "equipment_fault")
 COMMANDS = ("run", "stop", "clear_alarms")
+#: the code tables of a map (field, entry names, highest value), as `check_code_tables` takes them
+CODE_TABLES = (("status_bits", STATUS_BITS, 15), ("alarm_bits", ALARM_BITS, 15), ("command_codes", COMMANDS, 65535))
 _ALARM_FLAGS = (ChamberAlarms.OVER_TEMPERATURE, ChamberAlarms.UNDER_TEMPERATURE, ChamberAlarms.DOOR_OPEN,
                 ChamberAlarms.SENSOR_FAULT, ChamberAlarms.EQUIPMENT_FAULT)
 #: registers closer than this are read in one request (the few unused ones between them are read too)
@@ -116,16 +121,7 @@ class ChamberRegisterMap:
             for name, value in regs.items():
                 kw[name] = map_int(value, source, f"registers.{name}", NO_REGISTER if name == "ramp_rate" else 0,
                                    65535)
-        for key, names, hi in (("status_bits", STATUS_BITS, 15), ("alarm_bits", ALARM_BITS, 15),
-                               ("command_codes", COMMANDS, 65535)):
-            if key in d:
-                table = map_table(d[key], source, key)
-                map_no_unknown(table, set(names), source, f"{key}.")
-                current = list(getattr(cls, key))
-                for i, name in enumerate(names):
-                    if name in table:
-                        current[i] = map_int(table[name], source, f"{key}.{name}", 0, hi)
-                kw[key] = tuple(current)
+        kw.update(map_code_tables(d, cls, source, CODE_TABLES))
         return cls(**kw)
 
     def to_dict(self) -> dict[str, Any]:
@@ -152,8 +148,7 @@ class ChamberRegisterMap:
             if address in owner:
                 raise RegisterMapError(f"{src}: registers.{name} at {address} overlaps registers.{owner[address]}")
             owner[address] = name
-        check_code_tables(self, src, (("status_bits", STATUS_BITS, 15), ("alarm_bits", ALARM_BITS, 15),
-                                      ("command_codes", COMMANDS, 65535)))
+        check_code_tables(self, src, CODE_TABLES)
 
     # -- layout -----------------------------------------------------------------------
     def register_names(self) -> dict[int, str]:
@@ -220,15 +215,11 @@ class ChamberRegisterMap:
         return bool(word >> self.status_bits[0] & 1)
 
     def command_code(self, command: str) -> int:
-        if command not in COMMANDS:
-            raise ValueError(f"command must be one of {COMMANDS}, got {command!r}")
-        return self.command_codes[COMMANDS.index(command)]
+        return command_code(COMMANDS, self.command_codes, command)
 
     def decode_command(self, code: int) -> str:
         """Command register value -> 'run', 'stop' or 'clear_alarms' (ValueError for an unknown code)."""
-        if code not in self.command_codes:
-            raise ValueError(f"command code {code} is not one of {dict(zip(COMMANDS, self.command_codes))}")
-        return COMMANDS[self.command_codes.index(code)]
+        return decode_command(COMMANDS, self.command_codes, code)
 
     # -- the whole state -------------------------------------------------------------------
     def decode_state(self, blocks: Sequence[Sequence[int]], time_s: float = 0.0) -> ChamberState:

@@ -15,7 +15,6 @@ from __future__ import annotations
 import contextlib
 import enum
 import math
-import threading
 from abc import abstractmethod
 from dataclasses import dataclass, field
 from typing import Callable, Iterable, Sequence
@@ -198,7 +197,7 @@ class TurntableLimits:
                                       f"{lim.max_rate_dps} deg/s")
 
 
-class Turntable(DeviceSession):
+class Turntable(DeviceSession[TableState]):
     """A three-axis turntable controller, whatever its dialect and transport.
 
     Public methods check limits before sending, serialise access (one request at a
@@ -207,20 +206,11 @@ class Turntable(DeviceSession):
     leaving the block on an exception commands a stop (and an abort if that fails).
     """
 
-    dialect: str = ""
-
     def __init__(self, limits: TurntableLimits | None = None, clock: Clock = SYSTEM_CLOCK):
+        super().__init__(clock)
         self.limits = limits if limits is not None else TurntableLimits()
-        self.clock = clock
-        self._lock = threading.RLock()
 
-    # -- what a dialect implements -----------------------------------------------
-    @abstractmethod
-    def _open(self) -> None: ...
-
-    @abstractmethod
-    def _close(self) -> None: ...
-
+    # -- what a dialect implements (and DeviceSession's _open, _close, _read_state) --
     @abstractmethod
     def _enable(self, frames: Sequence[int]) -> None: ...
 
@@ -248,9 +238,6 @@ class Turntable(DeviceSession):
     @abstractmethod
     def _abort(self) -> None:
         """Servo off on every axis now (the controller's emergency-stop command)."""
-
-    @abstractmethod
-    def _read_state(self) -> TableState: ...
 
     # -- the interface -----------------------------------------------------------
     def enable(self, frames: Iterable[int | str] = ALL_FRAMES) -> None:
@@ -317,26 +304,17 @@ class Turntable(DeviceSession):
                 raise
             raise TurntableCommandError(f"refused: {reason} (controller: {exc})", exc.code) from exc
 
-    def stop(self) -> None:
-        with self._lock:
-            self._stop()
-
     def abort(self) -> None:
         with self._lock:
             self._abort()
 
-    def read_state(self) -> TableState:
-        with self._lock:
-            return self._read_state()
-
-    def check_state(self, state: TableState | None = None) -> TableState:
-        """Read (or take) a state and raise `TurntableEStop`/`TurntableFault` if it shows one."""
-        state = self.read_state() if state is None else state
+    def _state_error(self, state: TableState) -> TurntableError | None:
+        """`check_state` raises `TurntableEStop`/`TurntableFault` for a state that shows one."""
         if state.estop:
-            raise TurntableEStop(f"{self.dialect} controller: {state.describe_fault()}", state)
+            return TurntableEStop(f"{self.dialect} controller: {state.describe_fault()}", state)
         if state.fault:
-            raise TurntableFault(f"{self.dialect} controller: {state.describe_fault()}", state)
-        return state
+            return TurntableFault(f"{self.dialect} controller: {state.describe_fault()}", state)
+        return None
 
     def wait_in_position(self, targets_deg: Sequence[float | None], tolerance_deg: float = 0.001,
                          settle_s: float = 0.0, timeout_s: float = 60.0, poll_s: float = 0.05,

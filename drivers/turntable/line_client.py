@@ -24,6 +24,3 @@ class LineTurntable(LineRequests, Turntable):
                  clock: Clock = SYSTEM_CLOCK, timeout_s: float = 0.5, retries: int = 2):
         Turntable.__init__(self, limits, clock)
         self._setup_link(transport, timeout_s, retries)
-
-    def _close(self) -> None:
-        self.transport.close()

@@ -30,6 +30,8 @@ WORD_ORDERS = ("big", "little")
 STATUS_FLAGS = ("enabled", "moving", "in_position", "fault", "estop", "limit")
 COMMANDS = ("enable", "disable", "reset", "stop", "abort")
 MODES = ("off", "position", "rate")
+#: the code tables of a map: (field, the names of its entries, the highest value an entry may have)
+CODE_TABLES = (("status_bits", STATUS_FLAGS, 15), ("command_codes", COMMANDS, 65535), ("mode_codes", MODES, 65535))
 # Per-axis registers (three addresses each) and single registers; width in 16-bit words.
 AXIS_REGISTERS = {"status": 1, "mode": 1, "actual_position": 2, "actual_rate": 2, "move_rate": 2,
                   "demand_position": 2, "demand_rate": 2}
@@ -142,16 +144,7 @@ class RegisterMap:
                     kw[name] = _axis_addresses(value, source, f"registers.{name}")
                 else:
                     kw[name] = map_int(value, source, f"registers.{name}", 0, 65535)
-        for key, names in (("status_bits", STATUS_FLAGS), ("command_codes", COMMANDS), ("mode_codes", MODES)):
-            if key in d:
-                table = map_table(d[key], source, key)
-                map_no_unknown(table, set(names), source, f"{key}.")
-                current = list(getattr(cls, key))
-                for i, name in enumerate(names):
-                    if name in table:
-                        hi = 15 if key == "status_bits" else 65535
-                        current[i] = map_int(table[name], source, f"{key}.{name}", 0, hi)
-                kw[key] = tuple(current)
+        kw.update(map_code_tables(d, cls, source, CODE_TABLES))
         if "fault_codes" in d:
             table = map_table(d["fault_codes"], source, "fault_codes")
             texts = []
@@ -223,8 +216,7 @@ class RegisterMap:
             raise RegisterMapError(
                 f"{src}: the state registers ({', '.join(STATE_REGISTERS)}) span {count} registers from {start}; "
                 f"one Modbus read covers at most {MAX_READ_REGISTERS}")
-        check_code_tables(self, src, (("status_bits", STATUS_FLAGS, 15), ("command_codes", COMMANDS, 65535),
-                                      ("mode_codes", MODES, 65535)))
+        check_code_tables(self, src, CODE_TABLES)
 
     # -- layout -------------------------------------------------------------------
     def addresses(self, name: str) -> tuple[int, ...]:
@@ -329,15 +321,11 @@ class RegisterMap:
         return AxisMode(MODES[self.mode_codes.index(code)])
 
     def command_code(self, command: str) -> int:
-        if command not in COMMANDS:
-            raise ValueError(f"command must be one of {COMMANDS}, got {command!r}")
-        return self.command_codes[COMMANDS.index(command)]
+        return command_code(COMMANDS, self.command_codes, command)
 
     def decode_command(self, code: int) -> str:
         """Command register value -> 'enable' ... 'abort' (ValueError for an unknown code)."""
-        if code not in self.command_codes:
-            raise ValueError(f"command code {code} is not one of {dict(zip(COMMANDS, self.command_codes))}")
-        return COMMANDS[self.command_codes.index(code)]
+        return decode_command(COMMANDS, self.command_codes, code)
 
     def fault_text(self, code: int) -> str:
         if code == 0:
@@ -504,6 +492,37 @@ def check_code_tables(codes: Any, source: str, tables: Sequence[tuple[str, Seque
         raise RegisterMapError(f"{source}: command_codes: 0 means 'no command' and cannot be a command code")
 
 
+def map_code_tables(d: Mapping[str, Any], defaults: Any, source: str,
+                    tables: Sequence[tuple[str, Sequence[str], int]]) -> dict[str, tuple[int, ...]]:
+    """The code tables (`check_code_tables`'s `tables`) that configuration `d` gives, as field -> tuple, each
+    entry it leaves out kept from `defaults` (the map class: its defaults)."""
+    out = {}
+    for key, names, hi in tables:
+        if key in d:
+            table = map_table(d[key], source, key)
+            map_no_unknown(table, set(names), source, f"{key}.")
+            current = list(getattr(defaults, key))
+            for i, name in enumerate(names):
+                if name in table:
+                    current[i] = map_int(table[name], source, f"{key}.{name}", 0, hi)
+            out[key] = tuple(current)
+    return out
+
+
+def command_code(commands: Sequence[str], codes: Sequence[int], command: str) -> int:
+    """The code of `command` (one of `commands`) in the register map's `codes`; ValueError for another."""
+    if command not in commands:
+        raise ValueError(f"command must be one of {tuple(commands)}, got {command!r}")
+    return codes[list(commands).index(command)]
+
+
+def decode_command(commands: Sequence[str], codes: Sequence[int], code: int) -> str:
+    """Command register value -> its name in `commands` (ValueError for a code not in `codes`)."""
+    if code not in codes:
+        raise ValueError(f"command code {code} is not one of {dict(zip(commands, codes))}")
+    return commands[list(codes).index(code)]
+
+
 def map_number(value: Any, source: str, key: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise RegisterMapError(f"{source}: {key} must be a finite number, got {value!r}")
@@ -519,5 +538,6 @@ def _axis_addresses(value: Any, source: str, key: str) -> tuple[int, int, int]:
 
 __all__ = ["RegisterMap", "RegisterMapError", "EXCEPTION_NAMES", "exception_name", "axis_mask", "mask_axes",
            "contiguous_runs", "crc16", "explain_bad_reply", "MAX_READ_REGISTERS", "check_code_tables",
-           "check_registers", "map_int", "map_number", "map_table", "map_no_unknown"]
+           "check_registers", "map_int", "map_number", "map_table", "map_no_unknown", "CODE_TABLES", "command_code",
+           "decode_command", "map_code_tables"]
 

@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
-import json
 import shutil
 import subprocess
 import sys
@@ -36,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from bench.cli.main import main  # noqa: E402
 from bench.solve.archive import solve_archive  # noqa: E402
-from tests.helpers.run import config_text  # noqa: E402
+from tests.helpers.run import config_text, results_below  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -85,16 +84,6 @@ def cli(argv: list[str]) -> tuple[int, str, str, float]:
     return rc, out.getvalue(), err.getvalue(), time.perf_counter() - start
 
 
-def results_of(folder: Path) -> dict[str, dict]:
-    """Every result file below `folder`, parsed, without `run.solved_utc` (when it was solved: differs by design)."""
-    out = {}
-    for p in sorted(folder.rglob("*.result.json")):
-        data = json.loads(p.read_bytes())
-        data["run"].pop("solved_utc")
-        out[str(p.relative_to(folder))] = data
-    return out
-
-
 def run(args: argparse.Namespace) -> None:
     root = Path(args.dir or Path(tempfile.gettempdir()) / "turntable-bench-archive")
     archive = root / "archive"
@@ -112,7 +101,7 @@ def run(args: argparse.Namespace) -> None:
             rc, _, err, _ = cli(["solve", str(log), "--out", str(out), "--no-html", "--no-db", "--quiet"])
             if rc not in (0, 4):
                 failed_one.append(log.name)
-        reference = results_of(one)
+        reference = results_below(one)
         timings: dict[str, list[float]] = {}
         for repeat in range(args.repeats):
             for label, extra in (("loop", ["--scheduler", "loop"]),
@@ -122,7 +111,7 @@ def run(args: argparse.Namespace) -> None:
                 rc, stdout, stderr, wall = cli(["solve", "--archive", str(archive), "--out", str(out), "--no-db",
                                                 "--quiet", *extra])
                 timings.setdefault(label, []).append(wall)
-                got = results_of(out)
+                got = results_below(out)
                 same = got == reference
                 reported = sorted(line.split(" FAILED ")[1].split(":")[0].rsplit("/", 1)[-1]
                                   for line in stderr.splitlines() if " FAILED " in line)

@@ -15,12 +15,17 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
+from pathlib import Path
 
-from bench.sim.chamber import SimChamber
-from bench.sim.chamber_server import serve_chamber
-from drivers.chamber import open_chamber
-from drivers.clock import ManualClock
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+from bench.sim.chamber import SimChamber  # noqa: E402
+from bench.sim.chamber_server import serve_chamber  # noqa: E402
+from drivers.chamber import open_chamber  # noqa: E402
+from drivers.clock import ManualClock  # noqa: E402
+from tests.helpers.timing import poll_ms  # noqa: E402
 
 
 def measure_poll(dialect: str, link: str, polls: int) -> tuple[float, float]:
@@ -28,17 +33,9 @@ def measure_poll(dialect: str, link: str, polls: int) -> tuple[float, float]:
     close, url = serve_chamber(SimChamber(), dialect, link)
     try:
         with open_chamber(url, dialect, timeout_s=1.0) as chamber:
-            for _ in range(20):                     # warm up connection and caches
-                chamber.read_state()
-            times = []
-            for _ in range(polls):
-                t0 = time.perf_counter()
-                chamber.read_state()
-                times.append(time.perf_counter() - t0)
+            return poll_ms(chamber.read_state, polls)
     finally:
         close()
-    times.sort()
-    return statistics.median(times) * 1e3, times[int(0.9 * len(times))] * 1e3
 
 
 def measure_physics(hours: float = 8.0) -> float:

@@ -28,7 +28,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
-from tests.test_sim_rig import RIG_CONFIG, SHORT_PLAN, _read_until, _start_rig, _with_plan  # noqa: E402
+from tests.helpers.sim_process import read_until  # noqa: E402
+from tests.test_sim_rig import RIG_CONFIG, SHORT_PLAN, _start_rig, _with_plan  # noqa: E402
 
 
 def _proc_cpu_s(pid: int) -> float:
@@ -46,7 +47,7 @@ def one_run(rate_hz: float, imu_listen: str, layout: str, slcan_client: str) -> 
     rig = _start_rig("--config", str(rig_config), "--table-listen", "tcp://127.0.0.1:0", "--imu-listen",
                      imu_listen, "--imu-layout", layout, "--write-config", str(written))
     try:
-        _read_until(rig, "Ctrl-C stops")
+        read_until(rig, "Ctrl-C stops")
         text = _with_plan(written.read_text(), SHORT_PLAN)
         if slcan_client != "bench":
             text = text.replace("[imu]\n", f'[imu]\nslcan_client = "{slcan_client}"\n', 1)

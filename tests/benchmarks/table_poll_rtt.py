@@ -14,11 +14,15 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import time
+import sys
+from pathlib import Path
 
-from bench.sim.controller import SimController
-from bench.sim.serve import LineServer
-from drivers.turntable import open_turntable
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+from bench.sim.controller import SimController  # noqa: E402
+from bench.sim.serve import LineServer  # noqa: E402
+from drivers.turntable import open_turntable  # noqa: E402
+from tests.helpers.timing import poll_ms  # noqa: E402
 
 
 def _serve(dialect: str, controller: SimController, link: str):
@@ -50,17 +54,9 @@ def measure(dialect: str, polls: int, link: str = "tcp") -> tuple[float, float]:
     try:
         with open_turntable(url, dialect, timeout_s=1.0, **options) as table:
             table.enable()
-            for _ in range(20):                     # warm up connection and caches
-                table.read_state()
-            times = []
-            for _ in range(polls):
-                t0 = time.perf_counter()
-                table.read_state()
-                times.append(time.perf_counter() - t0)
+            return poll_ms(table.read_state, polls)
     finally:
         close()
-    times.sort()
-    return statistics.median(times) * 1e3, times[int(0.9 * len(times))] * 1e3
 
 
 def main() -> int:

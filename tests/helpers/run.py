@@ -284,6 +284,17 @@ def in_memory_result(config) -> dict:
     return solve(unweighted, rotations, site).to_result(sim_truth=config.sim.imu).to_json()
 
 
+def results_below(folder: Path) -> dict[str, dict]:
+    """Every result file below `folder` (by path relative to it), parsed, without `run.solved_utc` (when it was
+    solved: differs by design)."""
+    out = {}
+    for p in sorted(folder.rglob("*.result.json")):
+        data = json.loads(p.read_bytes())
+        data["run"].pop("solved_utc")
+        out[str(p.relative_to(folder))] = data
+    return out
+
+
 def load_json(path: Path) -> dict:
     return json.loads(path.read_text(encoding="utf-8"))
 
