@@ -19,6 +19,7 @@ from drivers.clock import ManualClock
 from drivers.errors import ImuConfigError, ImuConnectionError
 from drivers.imu import ImuSampleBlock, decode_frames, default_fd_layout, default_layout, frames_from_messages
 from drivers.imu.receiver import ImuReceiver
+from tests.helpers.run import wait_for
 
 _channels = itertools.count()
 M = len(default_layout().messages)
@@ -165,7 +166,8 @@ def test_thread_in_real_time(buses):
         sim = SimCanImu(SimTable(), make_imu(), tx)
         with sim:
             sim.start(period_s=0.005)
-            time.sleep(0.15)
+            # however slow the machine: wait for the thread to have sent 100 samples (it never runs ahead of time)
+            wait_for(lambda: sim.samples_sent >= 100, 30.0, "100 samples sent")
         elapsed = time.monotonic() - t0
         block = receive_all(receiver)
     assert 100 <= len(block) <= elapsed * 1000.0 + 1
