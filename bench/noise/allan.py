@@ -152,6 +152,15 @@ class PhaseAccumulator:
         """(k, n + 1) running sums (sample units: x / rate is allantools' phase), 0 first."""
         return self._phase[:, :self.n_samples + 1]
 
+    def stretch(self, start: int, stop: int) -> "PhaseAccumulator":
+        """Samples [start, stop) as an accumulator of their own, sharing this one's phase (no copy): every
+        sum is of differences of the phase, so what was summed before `start` does not matter."""
+        if not 0 <= start <= stop <= self.n_samples:
+            raise AllanError(f"samples {start}..{stop} are not within the {self.n_samples} held")
+        part = PhaseAccumulator(self.rate_hz, self.n_channels, offset=self._offset, threads=self.threads)
+        part._phase, part.n_samples = self._phase[:, start:stop + 1], stop - start
+        return part
+
     def curves(self, *, points_per_octave: int = 1, m: np.ndarray | None = None,
                threads: int = 2) -> list["AllanCurve"]:
         """The overlapping Allan deviation of each channel with +-1 sigma intervals."""

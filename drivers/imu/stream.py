@@ -89,8 +89,15 @@ class StreamDecoder:
                 self._resolve(self._head, final=True)
         return self.samples(), self.stats
 
+    def take(self) -> list[ImuSampleBlock]:
+        """The blocks of samples resolved since the last `take`, in counter order, handed over and forgotten
+        (a consumer that takes after every `feed` holds the samples one piece at a time; `samples()` and
+        `finish()` then give only what was resolved since)."""
+        blocks, self._blocks = self._blocks, []
+        return blocks
+
     def samples(self) -> ImuSampleBlock:
-        """The samples resolved so far, in counter order."""
+        """The samples resolved so far (since the last `take`), in counter order."""
         if len(self._blocks) > 1:
             self._blocks = [ImuSampleBlock.concatenate(self._blocks)]
         return self._blocks[0] if self._blocks else ImuSampleBlock.empty(self.rate_hz)
