@@ -111,9 +111,15 @@ class StreamDecoder:
             return
         data, t, u, k, h = self._pending
         now = u <= cutoff
-        later = ~now
-        self._pending = self._dedupe(*(a[later] for a in self._pending)) if later.any() else None
-        data, t, u, k, h = data[now], t[now], u[now], k[now], h[now]
+        n_now = int(np.count_nonzero(now))
+        if now[:n_now].all():   # the usual case, the final counters first: slices, not gathers
+            rest = tuple(a[n_now:].copy() for a in self._pending)   # (small: copied, the piece may go)
+            data, t, u, k, h = (a[:n_now] for a in self._pending)
+        else:
+            later = ~now
+            rest = tuple(a[later] for a in self._pending)
+            data, t, u, k, h = data[now], t[now], u[now], k[now], h[now]
+        self._pending = self._dedupe(*rest) if len(rest[2]) else None
         du = np.diff(u)
         # in order: a counter's frames are consecutive and in message order, so nothing repeats
         in_order = bool(((du > 0) | ((du == 0) & (np.diff(k) > 0))).all())
