@@ -9,6 +9,12 @@ become input units with scale factors from, in this order: a calibration result
 simulated run, or nothing (`NoiseInputError`: a hardware log needs a calibration for
 its gyro scale; the noise is added on the input side, so dividing by the scale is exact
 for a sensor's own noise).
+
+`analyse_log` (what `bench noise LOG` and a static-noise `bench run` use) streams: the
+frames are decoded chunk by chunk on the calling thread while a worker turns the samples
+into the Allan phase, so only the phase of the dwell is held, never the log's decoded
+samples. `static_record` decodes the whole log first: the reference the stream is tested
+against (bit for bit without counter gaps).
 """
 
 from __future__ import annotations
