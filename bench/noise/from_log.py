@@ -32,6 +32,7 @@ from bench.log.names import run_id_of
 from bench.log.reader import LogError, RunLog, read_log
 from bench.log.run_info import layout_and_config_from_log
 from bench.model.imu import ImuCoefficients
+from bench.model.units import DEG_PER_HOUR, MICRO_G
 from bench.noise.allan import PhaseAccumulator
 from bench.noise.result import CHANNELS, NoiseResult, analyse_phase
 from bench.noise.simulate import counts_to_allan_units
@@ -179,6 +180,8 @@ class _DwellPhase:
 
     def __init__(self, dwell: _Dwell):
         self.dwell = dwell
+        units = np.concatenate([dwell.gyro_scale * DEG_PER_HOUR, dwell.acc_scale * MICRO_G])
+        self._factors = np.vstack([np.full(len(CHANNELS), dwell.rate_hz), units])
         self.acc: PhaseAccumulator | None = None
         self._batch: list[tuple[np.ndarray, np.ndarray]] = []   # (gyro, acc) counts not handed on yet
         self._batch_n = 0
@@ -216,13 +219,18 @@ class _DwellPhase:
         if not self._batch:
             return
         d = self.dwell
-        gyro, acc = (np.concatenate([b[i] for b in self._batch]) for i in (0, 1))
-        self._batch, self._batch_n = [], 0
-        data = counts_to_allan_units(gyro * d.rate_hz, acc * d.rate_hz, d.gyro_scale, d.acc_scale)
-        if self.acc is None:
+        batch, self._batch, self._batch_n = self._batch, [], 0
+        if self.acc is None:   # the first batch as the whole-log route has it, for the same mean
+            gyro, acc = (np.concatenate([b[i] for b in batch]) for i in (0, 1))
+            data = counts_to_allan_units(gyro * d.rate_hz, acc * d.rate_hz, d.gyro_scale, d.acc_scale)
             self.acc = PhaseAccumulator(d.rate_hz, len(CHANNELS), offset=data[:BLOCK_SAMPLES].mean(axis=0),
                                         capacity=d.last - d.first + 1, threads=1)
-        self.acc.add(data)
+            self.acc.add(data)
+            return
+        # the others a channel at a time, counts x rate / (scale x unit) straight into the phase: the same
+        # operations as `counts_to_allan_units` and `add`, so the same bits, without the (n, 6) block
+        columns = [np.concatenate([b[i][:, k] for b in batch]) for i in (0, 1) for k in range(3)]
+        self.acc.add_scaled(columns, self._factors)
 
     def finish(self) -> PhaseAccumulator:
         """The accumulator of the longest gap-free stretch (NoiseInputError when it is too short)."""
