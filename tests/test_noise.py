@@ -312,6 +312,32 @@ def test_bench_noise_sim_writes_json_markdown_and_html(tmp_path):
     assert loaded.gyro_bias_stability_dph == doc["summary"]["gyro_bias_stability_dph"]
 
 
+def test_the_plot_draws_each_channels_fitted_curve_beside_its_term_lines(tmp_path):
+    # the fitted total curve (the JSON `model`) was in the result but not in the figure
+    import matplotlib.pyplot as plt
+
+    from bench.report.noise import _lines
+    from bench.report.plots import ALLAN_MODEL_LABEL, allan_axes_figure
+
+    result = NoiseResult.load(_small_result(tmp_path))
+    fig = allan_axes_figure(_lines(result))
+    try:
+        axes = {ax.get_title(): ax for ax in fig.axes if ax.get_visible()}
+        assert set(axes) == set(result.channels)
+        for name, ch in result.channels.items():
+            by_label = {line.get_label(): line for line in axes[name].get_lines()}
+            curve = by_label[ALLAN_MODEL_LABEL]
+            fitted_on = ch["model"]["points"]
+            assert len(fitted_on) >= 3
+            np.testing.assert_allclose(curve.get_xdata(), np.asarray(ch["tau_s"])[fitted_on])
+            np.testing.assert_allclose(curve.get_ydata(), np.asarray(ch["model"]["adev"])[fitted_on])
+            assert len(axes[name].collections) >= 1        # its +-1 sigma band
+            legend = [t.get_text() for t in axes[name].get_legend().get_texts()]
+            assert ALLAN_MODEL_LABEL in legend and any(t.startswith("-1/2") for t in legend)
+    finally:
+        plt.close(fig)
+
+
 @pytest.mark.parametrize("argv, message", [
     (["noise"], "give a LOG or --sim"),
     (["noise", "x.mcap", "--sim"], "give a LOG or --sim"),

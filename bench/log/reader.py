@@ -39,6 +39,7 @@ import dataclasses
 import json
 import mmap
 from collections import deque
+from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -349,6 +350,34 @@ class RunLog:
         """
         block, stats, _ = self.imu_samples_visiting(layout, rate_hz, None, reorder_window)
         return block, stats
+
+    def imu_sample_blocks(self, layout: ImuLayout | None = None, rate_hz: float = 1000.0,
+                          reorder_window: int = 8) -> Iterator[ImuSampleBlock]:
+        """`imu_samples`' samples as blocks in counter order, handed over as the decoder resolves them, chunk
+        by chunk (memory: a few chunks, not the samples of the log; nothing is kept: a second call decodes
+        again, unless `imu_samples` kept a decode, which is given whole). The blocks joined are exactly
+        `imu_samples`' block."""
+        for cached_layout, cached_rate, cached_window, decoded in self._decoded:
+            if (cached_layout is layout or cached_layout == layout) and cached_rate == rate_hz \
+                    and cached_window == reorder_window:
+                yield decoded[0]
+                return
+        decoder = StreamDecoder(layout, rate_hz, reorder_window)
+        try:
+            for t, ids, data, lengths, flags in self.can_pieces():
+                keep = (flags & (FLAG_REMOTE | FLAG_ERROR)) == 0
+                if not keep.all():
+                    t, ids, data, lengths = t[keep], ids[keep], data[keep], lengths[keep]
+                for a in range(0, len(ids), _FEED_FRAMES):
+                    b = a + _FEED_FRAMES
+                    decoder.feed(ids[a:b], data[a:b], lengths[a:b], t[a:b])
+                    yield from decoder.take()
+                t = ids = data = lengths = flags = keep = None
+            block, _ = decoder.finish()
+        except MemoryError as exc:
+            raise LogError(f"{self.path}: not enough memory to decode its CAN frames") from exc
+        if len(block):
+            yield block
 
     def imu_samples_visiting(self, layout: ImuLayout | None, rate_hz: float, visit,
                              reorder_window: int = 8) -> tuple[ImuSampleBlock, ImuStats, bool]:

@@ -147,10 +147,48 @@ class PhaseAccumulator:
         self._offset = offset
         self.n_samples += n
 
+    def add_scaled(self, columns: list[np.ndarray], factors: np.ndarray) -> None:
+        """Append k columns of n samples given as `columns[j] * factors[0, j] / factors[1, j]` (e.g. counts per
+        sample x rate / (scale x unit)), each computed straight into its phase row: what `add` of the (n, k)
+        block of those values does, bit for bit, without the block. Needs the offset (given, or from an
+        earlier `add`)."""
+        if self._offset is None:
+            raise AllanError("add_scaled needs the offset: give it, or add() a first block")
+        if len(columns) != self.n_channels:
+            raise AllanError(f"{self.n_channels} column(s) expected, got {len(columns)}")
+        n = len(columns[0])
+        if n == 0:
+            return
+        start, need = self.n_samples + 1, self.n_samples + n + 1
+        if need > self._phase.shape[1]:
+            grown = np.empty((self.n_channels, max(need, 2 * self._phase.shape[1])))
+            grown[:, :start] = self._phase[:, :start]
+            self._phase = grown
+        with np.errstate(invalid="ignore", over="ignore"):     # not finite: refused below
+            for k, column in enumerate(columns):
+                row = self._phase[k, start:need]
+                np.multiply(column, factors[0, k], out=row)
+                row /= factors[1, k]
+                row -= self._offset[k]
+                row[0] += self._phase[k, start - 1]
+                np.cumsum(row, out=row)
+        if not np.all(np.isfinite(self._phase[:, need - 1])):
+            raise AllanError("the series holds values that are not finite numbers")
+        self.n_samples += n
+
     @property
     def phase(self) -> np.ndarray:
         """(k, n + 1) running sums (sample units: x / rate is allantools' phase), 0 first."""
         return self._phase[:, :self.n_samples + 1]
+
+    def stretch(self, start: int, stop: int) -> "PhaseAccumulator":
+        """Samples [start, stop) as an accumulator of their own, sharing this one's phase (no copy): every
+        sum is of differences of the phase, so what was summed before `start` does not matter."""
+        if not 0 <= start <= stop <= self.n_samples:
+            raise AllanError(f"samples {start}..{stop} are not within the {self.n_samples} held")
+        part = PhaseAccumulator(self.rate_hz, self.n_channels, offset=self._offset, threads=self.threads)
+        part._phase, part.n_samples = self._phase[:, start:stop + 1], stop - start
+        return part
 
     def curves(self, *, points_per_octave: int = 1, m: np.ndarray | None = None,
                threads: int = 2) -> list["AllanCurve"]:

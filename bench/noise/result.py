@@ -120,6 +120,11 @@ def analyse_blocks(blocks: Iterable[np.ndarray], rate_hz: float, *, capacity: in
     acc = PhaseAccumulator(rate_hz, len(CHANNELS), capacity=capacity)
     for block in blocks:
         acc.add(block)
+    return analyse_phase(acc, points_per_octave=points_per_octave, threads=threads)
+
+
+def analyse_phase(acc: PhaseAccumulator, *, points_per_octave: int = 1, threads: int = 2) -> list[ChannelNoise]:
+    """`analyse` of the six channels an accumulator holds."""
     curves = acc.curves(points_per_octave=points_per_octave, threads=threads)
     return [channel_noise(name, curve) for name, curve in zip(CHANNELS, curves)]
 
@@ -221,4 +226,4 @@ class NoiseResult:
 
 
 __all__ = ["ACC_TERMS", "CHANNELS", "FORMAT", "GYRO_TERMS", "VERSION", "ChannelNoise", "NoiseResult",
-           "NoiseResultError", "analyse", "analyse_blocks", "channel_noise"]
+           "NoiseResultError", "analyse", "analyse_blocks", "analyse_phase", "channel_noise"]

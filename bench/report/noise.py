@@ -28,9 +28,11 @@ READING = ("How to read the plot: the Allan deviation is the scatter of the chan
            "tau. A slope of -1 is quantisation, -1/2 white noise on the rate (angle random walk for a gyro, "
            "velocity random walk for an accelerometer; its value at tau = 1 s is the ARW/VRW), 0 the bias "
            "instability floor (its minimum / 0.664), +1/2 rate random walk (a bias that wanders without bound). "
-           "Error bars are the +-1 sigma chi-square intervals from the equivalent degrees of freedom; each dashed "
-           "line is a fitted term, drawn thick over the taus where it is the largest part of the fitted curve (all "
-           "terms are fitted together to the whole curve, with the points' covariance). A term marked upper bound: "
+           "Error bars are the +-1 sigma chi-square intervals from the equivalent degrees of freedom; the solid "
+           "line is the fitted curve (all terms, the correlated bias included, fitted together with the points' "
+           "covariance) with its +-1 sigma band over the taus it was fitted on, dotted beyond them; each dashed "
+           "line is one fitted term, drawn thick over the taus where it is the largest part of the fitted curve. "
+           "A term marked upper bound: "
            "a rate random walk the record cannot tell from zero (its 2-sigma bound), or a bias instability whose "
            "fitted curve still falls at the longest tau.")
 _ORDER = ("quantisation", "arw", "vrw", "bias_instability", "rrw")

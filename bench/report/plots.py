@@ -247,14 +247,27 @@ ALLAN_TERMS = {"quantisation": ("-1: quantisation", "#9467bd"), "arw": ("-1/2: A
 
 
 def allan_figure(channels: Sequence[tuple[str, dict, dict[str, np.ndarray]]]) -> str:
-    """Log-log Allan deviation of each channel (points with +-1 sigma bars) and its fitted term lines.
+    """Log-log Allan deviation of each channel (points with +-1 sigma bars), its fitted curve and term lines,
+    as an inline SVG (`allan_axes_figure` draws it)."""
+    return to_svg(allan_axes_figure(channels))
+
+
+#: Label of the fitted total curve in the Allan plots (the sum of every fitted term, the result's `model`).
+ALLAN_MODEL_LABEL = "fitted curve, +-1 sigma (dotted: not fitted there)"
+
+
+def allan_axes_figure(channels: Sequence[tuple[str, dict, dict[str, np.ndarray]]]):
+    """The matplotlib figure of `allan_figure` (the caller closes it).
 
     `channels`: (name, the result's channel dict, {term: line values at the channel's taus}); a line is
-    drawn thin over all taus and thick over the region it was fitted on.
+    drawn thin over all taus and thick over the region it was fitted on. The fitted total curve (the channel's
+    `model`: all terms, the Gauss-Markov bias included, fitted together) is drawn solid with its 1-sigma band
+    over the taus it was fitted on, dotted beyond them.
     """
     for name, ch, lines in channels:
+        model = ch.get("model") or {}
         check_drawable(f"the Allan deviation of {name}", ch["tau_s"], ch["adev"], ch["adev_low"], ch["adev_high"],
-                       *lines.values())
+                       *lines.values(), *(np.asarray(model[k], float) for k in ("adev", "adev_sigma") if k in model))
     rows = -(-len(channels) // 2)
     with plt.rc_context(_RC):
         fig, axes = _figure(rows, 2, 10.0, 3.0 * rows + 0.2, hgap_in=0.75, wgap_in=0.8, bottom_in=0.55)
@@ -265,6 +278,15 @@ def allan_figure(channels: Sequence[tuple[str, dict, dict[str, np.ndarray]]]) ->
             adev = np.asarray(ch["adev"], float)
             err = np.vstack([adev - np.asarray(ch["adev_low"], float), np.asarray(ch["adev_high"], float) - adev])
             ax.errorbar(tau, adev, yerr=err, fmt="o", ms=3, color="#333333", capsize=2, lw=0.8, label="ADEV")
+            model = ch.get("model") or {}
+            if len(model.get("adev", ())) == len(tau):
+                fitted = np.asarray(model["adev"], float)
+                sigma = np.asarray(model.get("adev_sigma", np.zeros(len(tau))), float)
+                on = np.asarray(model.get("points", range(len(tau))), int)    # the taus it was fitted on
+                ax.plot(tau, fitted, ls=":", lw=0.9, color="#ff7f0e")        # beyond them: an extrapolation
+                ax.fill_between(tau[on], np.maximum(fitted[on] - sigma[on], fitted[on] * 1e-3),
+                                fitted[on] + sigma[on], color="#ff7f0e", alpha=0.2, lw=0)
+                ax.plot(tau[on], fitted[on], lw=1.4, color="#ff7f0e", label=ALLAN_MODEL_LABEL)
             for term, line in lines.items():
                 label, color = ALLAN_TERMS[term]
                 ax.plot(tau, line, ls="--", lw=0.8, color=color)
@@ -279,4 +301,4 @@ def allan_figure(channels: Sequence[tuple[str, dict, dict[str, np.ndarray]]]) ->
             ax.set_ylabel(f"Allan deviation, {ch['unit']}")
             ax.set_title(name)
             ax.legend(loc="lower left", fontsize=6.5, frameon=False)
-    return to_svg(fig)
+    return fig

@@ -89,8 +89,15 @@ class StreamDecoder:
                 self._resolve(self._head, final=True)
         return self.samples(), self.stats
 
+    def take(self) -> list[ImuSampleBlock]:
+        """The blocks of samples resolved since the last `take`, in counter order, handed over and forgotten
+        (a consumer that takes after every `feed` holds the samples one piece at a time; `samples()` and
+        `finish()` then give only what was resolved since)."""
+        blocks, self._blocks = self._blocks, []
+        return blocks
+
     def samples(self) -> ImuSampleBlock:
-        """The samples resolved so far, in counter order."""
+        """The samples resolved so far (since the last `take`), in counter order."""
         if len(self._blocks) > 1:
             self._blocks = [ImuSampleBlock.concatenate(self._blocks)]
         return self._blocks[0] if self._blocks else ImuSampleBlock.empty(self.rate_hz)
@@ -104,9 +111,15 @@ class StreamDecoder:
             return
         data, t, u, k, h = self._pending
         now = u <= cutoff
-        later = ~now
-        self._pending = self._dedupe(*(a[later] for a in self._pending)) if later.any() else None
-        data, t, u, k, h = data[now], t[now], u[now], k[now], h[now]
+        n_now = int(np.count_nonzero(now))
+        if now[:n_now].all():   # the usual case, the final counters first: slices, not gathers
+            rest = tuple(a[n_now:].copy() for a in self._pending)   # (small: copied, the piece may go)
+            data, t, u, k, h = (a[:n_now] for a in self._pending)
+        else:
+            later = ~now
+            rest = tuple(a[later] for a in self._pending)
+            data, t, u, k, h = data[now], t[now], u[now], k[now], h[now]
+        self._pending = self._dedupe(*rest) if len(rest[2]) else None
         du = np.diff(u)
         # in order: a counter's frames are consecutive and in message order, so nothing repeats
         in_order = bool(((du > 0) | ((du == 0) & (np.diff(k) > 0))).all())

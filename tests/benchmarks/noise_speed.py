@@ -5,21 +5,24 @@ per channel), the log read included, in under 10 s on this machine (allan_varian
 for an 8 h bag).
 
 Run: python tests/benchmarks/noise_speed.py [--hours 8] [--rate-hz 1000] [--repeats 3]
-                                            [--log-hours 1] [--cache DIR] [--rebuild]
+                                            [--log-hours 1] [--layout packed|classic] [--cache DIR]
+                                            [--rebuild] [--whole] [--skip-memory] [--allantools-on-log]
 
 1. In memory: six channels of `--hours` at `--rate-hz` (white noise plus a random walk on a large
    offset, float64), octave-spaced taus. Timed side by side in one run, the repeats interleaved:
-   `bench.noise.allan.allan_curves` (both cores: each channel's record split over two threads) and `allantools.oadev`
-   (data_type "freq", the same taus, one channel after the other: it is single-threaded). Prints
-   the medians, their ratio and the largest relative difference of the two at any tau.
-2. From a log: a static-noise log of `--log-hours` at `--rate-hz` (the simulated IMU, classic CAN
-   layout, 7 frames per sample, in batches of 100 samples as a run records them; /imu/samples,
-   which a read for the noise leaves compressed, is not written), built once into the cache
-   (default <system temp>/turntable-bench-noise, `--rebuild` writes it again). Timed: what
-   `bench noise LOG` does short of writing the reports: `bench.noise.from_log.static_record` (read
-   the log, decode every frame, cut the dwell) and `bench.noise.result.analyse_blocks` (scale to deg/h
-   and ug block by block into the phase accumulator, Allan deviation and fits). Median of the repeats;
-   scaled linearly to 8 h.
+   `bench.noise.allan.allan_curves` (both cores: each channel's record split over two threads) and
+   `allantools.oadev` (data_type "freq", the same taus, one channel after the other: it is
+   single-threaded). Prints the medians, their ratio and the largest relative difference at any tau.
+2. From a log: a static-noise log of `--log-hours` at `--rate-hz` (the simulated IMU, quantised counts,
+   `--layout`: packed, 3 frames per sample, the default, or classic, 7; in batches of 100 samples as a
+   run records them; `tests/helpers/static_log.py`), built once into the cache (default <system
+   temp>/turntable-bench-noise, `--rebuild` writes it again). Timed, each repeat in a fresh process
+   (its peak resident memory is that route's): what `bench noise LOG` does short of writing the
+   reports, `bench.noise.from_log.analyse_log` (frames decoded chunk by chunk into the Allan phase on
+   a second thread, then the sums and fits); `--whole` also times the whole-log route it replaced
+   (`static_record`: every sample decoded first, then `analyse_blocks`), the repeats interleaved.
+   `--allantools-on-log`: the same log's samples (deg/h and ug) through `allantools.oadev` and through
+   `allan_curves` in memory, side by side (the "same data" ratio).
 """
 
 from __future__ import annotations
@@ -89,110 +92,106 @@ def in_memory(args) -> float:
 
 # -- the static-noise log --------------------------------------------------------------------------------------
 def log_path(cache: Path, args) -> Path:
-    return cache / f"static-{args.log_hours:g}h-{args.rate_hz:g}hz-v{LOG_VERSION}.mcap"
+    return cache / f"static-{args.log_hours:g}h-{args.rate_hz:g}hz-{args.layout}-v{LOG_VERSION}.mcap"
 
 
-def write_log(path: Path, hours: float, rate_hz: float) -> None:
+def write_log(path: Path, hours: float, rate_hz: float, layout_name: str = "packed") -> None:
     """A simulated static-noise recording written as a run writes it (metadata, events, raw CAN batches)."""
-    from bench.config.load import parse_config
-    from bench.log.format import record_dtype
-    from bench.log.recorder import McapRecorder
-    from bench.model.earth import Site
-    from bench.plan.events import Event
-    from bench.plan.steps import DwellStep, step_to_dict
-    from bench.run.runner import compile_from_config
-    from bench.sim.imu import SimImu
-    from bench.sim.table import SimTable
-    from drivers.imu import ImuEncoder, default_layout
+    from tests.helpers.static_log import write_static_log
 
-    text = f"""format = "turntable-bench/config"
-version = 1
-[site]
-latitude_deg = 30.27
-[table]
-url = "sim"
-dialect = "scpi"
-[imu]
-interface = "virtual"
-channel = "noise-speed"
-rate_hz = {rate_hz}
-[plan]
-positions = "static-noise"
-dwell_s = {hours * 3600.0}
-[sim]
-seed = 0
-"""
-    config = parse_config(text, source=str(path.with_suffix(".toml")))
-    dwell = next(s for s in compile_from_config(config).steps if isinstance(s, DwellStep))
-    layout = default_layout()
-    encoder = ImuEncoder(layout)
-    imu = SimImu(config.sim.imu, config.sim.noise, rate_hz=rate_hz, seed=0)
-    table = SimTable(Site(latitude_deg=30.27))
-    n_total = int(round(hours * 3600.0 * rate_hz))
-    tmp = path.with_suffix(".partial")
-    metadata = {"run": {"run_id": "noise-speed", "mode": "simulator"},
-                "config": {"toml": text, "path": "<noise-speed benchmark>"},
-                "imu": {"model": "simulated FOG IMU", "serial": "SIM-0001", "rate_hz": str(rate_hz),
-                        "interface": "virtual", "channel": "noise-speed", "dbc": config.imu.dbc.name}}
-    dtype = record_dtype(("data", "u1", (8,)))
-    per_batch = 100                              # samples per /can/raw message (700 frames)
-    with McapRecorder(str(tmp), metadata=metadata) as rec:
-        rec.on_event(Event(0.0, "step_started", "P01 dwell", step_index=dwell.index, step_unit="P01",
-                           data={"step": step_to_dict(dwell)}))
-        done, t_end = 0, 0.0
-        while done < n_total:
-            t_end = min(t_end + 600.0, n_total / rate_hz)
-            block = imu.generate(table, t_end)
-            frames = encoder.encode(block.counter, block.gyro_counts, block.acc_counts)
-            records = np.zeros(len(frames), dtype=dtype)
-            per = len(layout.messages)
-            records["t"] = block.time_s[frames.sample] + (np.arange(len(frames)) % per) * 1e-6
-            records["id"] = frames.ids
-            records["len"] = frames.lengths
-            records["data"] = frames.data
-            step = per_batch * per
-            for lo in range(0, len(records), step):
-                batch = records[lo:lo + step]
-                rec.on_encoded_can_frames(batch.tobytes(), len(batch), float(batch["t"][-1]))
-            done += len(block)
-        rec.on_event(Event(t_end, "step_finished", "P01 dwell done", step_index=dwell.index, step_unit="P01",
-                           data={"step": step_to_dict(dwell), "counter_first": 0, "counter_last": n_total - 1,
-                                 "samples": n_total}))
-    os.replace(tmp, path)
+    write_static_log(path, hours * 3600.0, rate_hz, layout_name)
 
 
-def from_log(args, cache: Path) -> tuple[float, float]:
-    from bench.noise.from_log import static_record
+def _one(route: str, path: str) -> dict:
+    """One timed route in this (fresh) process: wall and CPU seconds, peak resident MB."""
+    import resource
+
+    from bench.noise.from_log import analyse_log, static_record
     from bench.noise.result import analyse_blocks
 
+    t0, c0, m0 = time.perf_counter(), time.process_time(), time.thread_time()
+    if route == "stream":
+        result, _ = analyse_log(path)
+        n = result.n_samples
+    else:
+        record = static_record(path)
+        analyse_blocks(record.blocks(), record.rate_hz, capacity=len(record))
+        n = len(record)
+    return {"wall": time.perf_counter() - t0, "cpu": time.process_time() - c0, "main_cpu": time.thread_time() - m0,
+            "n": n,
+            "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+
+
+def _in_process(route: str, path: Path) -> dict:
+    import json
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, __file__, "--one", route, str(path)], capture_output=True, text=True,
+                          check=True, env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def from_log(args, cache: Path) -> None:
     path = log_path(cache, args)
     if args.rebuild or not path.exists():
         t0 = time.perf_counter()
         cache.mkdir(parents=True, exist_ok=True)
-        write_log(path, args.log_hours, args.rate_hz)
+        write_log(path, args.log_hours, args.rate_hz, args.layout)
         print(f"wrote {path} in {time.perf_counter() - t0:.1f} s")
     else:
         print(f"reusing {path}")
-    totals, reads = [], []
-    n = 0
+    routes = ["stream"] + (["whole"] if args.whole else [])
+    runs: dict[str, list[dict]] = {r: [] for r in routes}
+    for _ in range(args.repeats):
+        for route in routes:
+            runs[route].append(_in_process(route, path))
+            last = runs[route][-1]
+            print(f"  {route}: {last['wall']:.2f} s wall, {last['cpu']:.2f} s CPU ({last['main_cpu']:.2f} s of it on "
+                  f"the main thread), peak {last['peak_mb']:,.0f} MB, "
+                  f"load {os.getloadavg()[0]:.2f}", flush=True)
+    n = runs["stream"][0]["n"]
+    frames = {"packed": 3, "classic": 7}[args.layout] * n
+    print(f"log: {n:,} samples per channel = {frames:,} CAN frames ({args.layout} layout), "
+          f"{path.stat().st_size / 1e6:.0f} MB")
+    for route, label in (("stream", "bench noise LOG (streamed)"), ("whole", "whole-log route")):
+        if route not in runs:
+            continue
+        walls = [r["wall"] for r in runs[route]]
+        wall, peak = statistics.median(walls), max(r["peak_mb"] for r in runs[route])
+        print(f"{label}: median {wall:.2f} s (min {min(walls):.2f}, max {max(walls):.2f}), CPU median "
+              f"{statistics.median(r['cpu'] for r in runs[route]):.2f} s, peak {peak:,.0f} MB; "
+              f"scaled to 8 h at this rate: {wall * 8.0 / args.log_hours:.1f} s (target {TARGET_S:g} s: "
+              f"{'met' if wall * 8.0 / args.log_hours < TARGET_S else 'MISSED'})")
+    if args.allantools_on_log:
+        on_log(path, args)
+
+
+def on_log(path: Path, args) -> None:
+    """allantools and `allan_curves` side by side on the log's own samples (deg/h, ug)."""
+    from bench.noise.from_log import static_record
+
+    record = static_record(path)
+    data = record.data
+    del record
+    taus = cluster_sizes(len(data)) / args.rate_hz
+    import allantools
+
+    ours, theirs, worst = [], [], 0.0
     for _ in range(args.repeats):
         t0 = time.perf_counter()
-        record = static_record(path)
-        t1 = time.perf_counter()
-        analyse_blocks(record.blocks(), record.rate_hz, capacity=len(record))
-        totals.append(time.perf_counter() - t0)
-        reads.append(t1 - t0)
-        n = len(record)
-        del record
-    total, read = statistics.median(totals), statistics.median(reads)
-    scale = 8.0 / args.log_hours
-    print(f"log: {n:,} samples per channel = {7 * n:,} CAN frames, {path.stat().st_size / 1e6:.0f} MB")
-    print(f"static_record + analyse (bench noise LOG without the reports): median {total:.2f} s (min "
-          f"{min(totals):.2f}, max {max(totals):.2f}), of which reading and decoding the log {read:.2f} s "
-          f"({n / read:,.0f} samples/s) and the Allan deviation and fits {total - read:.2f} s")
-    print(f"scaled to 8 h at this rate ({scale:g}x): {total * scale:.1f} s (read {read * scale:.1f} s); "
-          f"target {TARGET_S:g} s: {'met' if total * scale < TARGET_S else 'MISSED'}")
-    return total, read
+        curves = allan_curves(data, args.rate_hz, threads=2)
+        ours.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        reference = [allantools.oadev(data[:, k], rate=args.rate_hz, data_type="freq", taus=taus)[1]
+                     for k in range(6)]
+        theirs.append(time.perf_counter() - t0)
+        worst = max(worst, max(float(np.max(np.abs(r / c.adev - 1))) for r, c in zip(reference, curves)))
+        print(f"  on the log's samples: allan_curves {ours[-1]:.2f} s, allantools {theirs[-1]:.2f} s, load "
+              f"{os.getloadavg()[0]:.2f}", flush=True)
+    mine, ref = statistics.median(ours), statistics.median(theirs)
+    print(f"the log's {len(data):,} samples x 6 in memory: allan_curves median {mine:.2f} s, allantools.oadev "
+          f"median {ref:.2f} s ({ref / mine:.2f} x); largest relative difference at any tau {worst:.2e}")
 
 
 def main() -> None:
@@ -203,8 +202,19 @@ def main() -> None:
     parser.add_argument("--log-hours", type=float, default=1.0, help="length of the log to read (0: skip)")
     parser.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "turntable-bench-noise")
     parser.add_argument("--rebuild", action="store_true")
+    parser.add_argument("--layout", choices=("packed", "classic"), default="packed",
+                        help="CAN layout of the log (default packed: 3 frames per sample)")
     parser.add_argument("--skip-memory", action="store_true", help="only the log part")
+    parser.add_argument("--whole", action="store_true", help="also time the whole-log route, interleaved")
+    parser.add_argument("--allantools-on-log", action="store_true",
+                        help="allantools and allan_curves on the log's samples, side by side")
+    parser.add_argument("--one", nargs=2, metavar=("ROUTE", "LOG"), help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.one:
+        import json
+
+        print(json.dumps(_one(*args.one)))
+        return
     print(f"machine: {os.cpu_count()} cores, load average {' '.join(f'{v:.2f}' for v in os.getloadavg())} "
           "(other work on the machine slows both sides)")
     if not args.skip_memory:

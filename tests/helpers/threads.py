@@ -18,7 +18,9 @@ and each name falls under one of `PROJECT_THREAD_PREFIXES`:
   next `/can/raw` chunks while one is decoded) and of the bulk IMU decoder
   (drivers/imu/bulk.py); an executor names its threads `<prefix>_<n>`
 - `allan-channel`, `allan-part`: `ThreadPoolExecutor` workers of the Allan deviation (bench/noise/allan.py):
-  the phase accumulated one channel each, the sums over one part of a channel's record each
+  the phase accumulated one channel each, the sums over one part of a channel's record each;
+  `allan-phase`: the worker that turns a log's decoded samples into the phase while the frames are read
+  (bench/noise/from_log.py)
 
 Threads of pytest, Textual (thread workers run in asyncio's default executor, `asyncio_<n>`),
 asyncio and third-party libraries are not project threads and are not checked.
@@ -42,6 +44,7 @@ PROJECT_THREAD_PREFIXES: tuple[str, ...] = (
     "imu-screen",
     "allan-channel",
     "allan-part",
+    "allan-phase",
 )
 
 #: How long a test's project threads get to finish after it (its fixtures torn down) before it fails.
