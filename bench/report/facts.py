@@ -69,6 +69,27 @@ def budget_notes(result) -> list[str]:
     return lines
 
 
+def budget_flags(result) -> list[str]:
+    """Short lines for a narrow screen (the TUI's Results): where the table's part came from or that it is
+    NOT included, and every fit whose residuals the budget does not explain (unexplained scatter)."""
+    u = result.quality.get("uncertainty") if isinstance(result.quality, dict) else None
+    if not isinstance(u, dict):
+        return ["no uncertainty budget (a result before version 2): sigma covers the sample noise only"]
+    table = (u.get("inputs") or {}).get("table")
+    if u.get("table_included") and isinstance(table, dict):
+        lines = [f"turntable part: {table.get('source', '?')}"]
+    else:
+        lines = ["WARNING: turntable pointing NOT included: sigma and U cover the IMU alone "
+                 "([table] pointing_accuracy_arcsec or check)"]
+    for c in u.get("consistency", []):
+        if isinstance(c, dict) and not c.get("consistent", True):
+            ratio = (f"chi2/dof {c['chi2'] / c['dof']:.3g}, " if isinstance(c.get("chi2"), (int, float))
+                     and c.get("dof") else "")
+            lines.append(f"UNEXPLAINED SCATTER: {c.get('fit')} {c.get('sensor')} residuals ({ratio}driven by "
+                         f"{', '.join(map(str, c.get('drivers', [])))}): widened x{c.get('scale', 1):.3g}")
+    return lines
+
+
 def budget_table(result) -> tuple[list[str], list[list[float | None]], list[str]]:
     """(column titles, per coefficient the component sigmas then sigma and U, names); empty without budgets."""
     coefs = {n: c for n, c in result.coefficients.items() if c.budget is not None}

@@ -27,6 +27,7 @@ from bench.config.load import default_sim_config
 from bench.model.result import CalibrationResult
 from bench.run.runner import compile_from_config
 from bench.tui.buffer import ImuScales, UiBuffer
+from bench.tui.budget_panel import BudgetPanel
 from bench.tui.panels import EventLog, ImuPanel, PlanPanel, ResultsPanel, TablePanel
 from bench.tui.replay_session import ReplaySession, open_log
 from bench.tui.screens import ConfirmScreen, GotoScreen, HelpScreen, RateScreen
@@ -137,6 +138,8 @@ class BenchApp(App):
                     yield PlanPanel(self.steps, simulated=self.simulated, id="plan-panel")
                 with TabPane("Results", id="results-tab"):
                     yield ResultsPanel(id="results-panel")
+                with TabPane("Budget", id="budget-tab"):
+                    yield BudgetPanel(id="budget-panel")
             with Vertical(id="events"):
                 yield EventLog(id="event-log")
         yield Footer()
@@ -188,6 +191,7 @@ class BenchApp(App):
                                                      and self._result_shown is None):
             self._result_shown = snap.result
             self.query_one(ResultsPanel).show_result(snap.result, snap.outcome_text)
+            self.query_one(BudgetPanel).show_result(snap.result)
             if snap.result is not None:
                 self.query_one(TabbedContent).active = "results-tab"
 
