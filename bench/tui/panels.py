@@ -21,6 +21,7 @@ from bench.model.families import family_of
 from bench.model.kinematics import FRAMES
 from bench.model.units import format_hms
 from bench.plan.events import Event, RunState
+from bench.report.facts import turn_angle_missing
 from bench.tui.buffer import (
     CHANNELS,
     STEP_ABORTED,
@@ -398,6 +399,8 @@ def budget_warnings(result) -> list[str]:
     if not isinstance(u, dict):
         return []
     out = [] if u.get("table_included") else ["WARNING: turntable pointing NOT in sigma"]
+    if turn_angle_missing(u):
+        out.append("turn angle NOT in sigma")
     bad = [f"{c.get('fit')} {c.get('sensor')}" for c in u.get("consistency", [])
            if isinstance(c, dict) and not c.get("consistent", True)]
     if bad:
