@@ -15,7 +15,9 @@ from scipy import integrate
 from bench.config.load import ConfigError, parse_config
 from bench.model.closed_form import exact_observations
 from bench.model.earth import Site
+from bench.model.families import RESULT_UNITS
 from bench.model.imu import NoiseModel, default_sim_imu
+from bench.model.observations import turn_axis_in_body
 from bench.model.result import CalibrationResult
 from bench.model.table_prior import TablePrior, from_check, from_datasheet
 from bench.model.units import ARCSEC
@@ -23,12 +25,10 @@ from bench.report.markdown import markdown_report
 from bench.sim.acquire import AcquisitionTiming, acquire
 from bench.sim.imu import SimImu
 from bench.sim.table import SimTable
-from bench.model.observations import turn_axis_in_body
 from bench.solve.budget import BIAS_INSTABILITY, NOISE, TABLE, TURN_ANGLE, UNEXPLAINED, BudgetInputs, gm_mean_kernel
+from bench.solve.calibrate import solve
 from bench.solve.inputs import budget_inputs
 from bench.solve.methods import gyro_bias_from_positions, solve_gyros
-from bench.model.families import RESULT_UNITS
-from bench.solve.calibrate import solve
 from schedules import load_builtin
 from tests.studies.coverage import calibration_coverage
 
@@ -244,24 +244,3 @@ def test_config_keys_feed_the_correlation_time_and_the_turn_angle(tmp_path):
     parts = {tau: solve(obs_p, obs_r, SITE, budget_inputs=dataclasses.replace(
         inputs, correlation_time_s=tau)).budget.components["D0_x"][BIAS_INSTABILITY] for tau in (40.0, 3000.0)}
     assert parts[40.0] < 0.5 * parts[3000.0], parts     # a short correlation time averages down over the run
-
-
-def test_a_noise_result_with_a_gauss_markov_fit_feeds_the_correlation_time(tmp_path):
-    def noise_file(gm) -> str:
-        channel = {"terms": {"bias_instability": {"value": 0.004}}, "model": {"gauss_markov": gm}}
-        doc = {"format": "turntable-bench/noise", "version": 1, "rate_hz": 100.0, "n_samples": 1000,
-               "channels": {name: channel for name in ("gyro_x", "acc_x")}}
-        (tmp_path / "n.noise.json").write_text(json.dumps(doc))
-        return ('format = "turntable-bench/config"\nversion = 1\n[site]\nlatitude_deg = 30.27\n[table]\n'
-                'url = "tcp://127.0.0.1:5000"\ndialect = "scpi"\n[imu]\ninterface = "virtual"\nchannel = "t"\n'
-                'rate_hz = 200.0\nnoise = "n.noise.json"\n[imu.identity]\nbias_correlation_time_s = 40\n'
-                '[plan]\npositions = "optimal-24"\n')
-    # two candidates 100 s and 400 s of equal weight: their geometric mean; it replaces the identity's 40 s
-    config = parse_config(noise_file([{"weight": 0.5, "correlation_time_s": 100.0},
-                                      {"weight": 0.5, "correlation_time_s": 400.0}]), base_dir=tmp_path)
-    assert budget_inputs(config, sim=False).correlation_time_s == pytest.approx(200.0)
-    config = parse_config(noise_file([]), base_dir=tmp_path)        # no Gauss-Markov term: the identity's
-    assert budget_inputs(config, sim=False).correlation_time_s == 40.0
-    with pytest.raises(ConfigError, match=r"^bench.toml:12: imu.noise: .*bias correlation time 2e\+06 s is outside"):
-        parse_config(noise_file([{"weight": 1.0, "correlation_time_s": 2e6}]), source="bench.toml",
-                     base_dir=tmp_path)

@@ -66,7 +66,7 @@ MAX_ACCEL_DPS2 = 10000.0
 MIN_ACCEL_DPS2 = 1e-3
 MAX_TRAVEL_DEG = 3600.0        # |min_deg|, |max_deg|: ten turns
 MAX_BLACK_BOX_ARCSEC = 3600.0  # RMS or each angle: one degree
-MAX_CORRELATION_TIME_S = 1e6   # a bias instability's correlation time ([sim.noise], [imu.identity], noise file)
+MAX_CORRELATION_TIME_S = 1e6   # a bias instability's correlation time ([sim.noise], [imu.identity])
 #: [sim.noise] level -> (upper bound, unit); the lower bound is 0 (correlation_time_s: > 0)
 _NOISE_RANGES = {"gyro_arw_deg_rt_h": (10.0, "deg/sqrt(h)"), "gyro_bias_instability_dph": (3600.0, "deg/h"),
                  "acc_vrw_ug_rt_hz": (10000.0, "ug/sqrt(Hz)"), "acc_bias_instability_ug": (100000.0, "ug"),
@@ -144,8 +144,6 @@ class ImuNoise:
     path: Path
     gyro_bias_stability_dph: float    # the largest of the three gyros'
     acc_bias_stability_ug: float      # the largest of the three accelerometers'
-    #: the Gauss-Markov correlation time its Allan fits found (`NoiseResult.correlation_time_s`), None: none
-    correlation_time_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -398,11 +396,7 @@ def _imu_noise(t: Table) -> ImuNoise:
             raise t.error("noise", f"{show(str(path))}: {what} bias instability {value:g} is outside the range of "
                                    f"imu.identity.{key} (> 0 and <= {high:g})")
         values.append(value)
-    tau = result.correlation_time_s
-    if tau is not None and not 0 < tau <= MAX_CORRELATION_TIME_S:
-        raise t.error("noise", f"{show(str(path))}: bias correlation time {tau:g} s is outside the range of "
-                               f"imu.identity.bias_correlation_time_s (> 0 and <= {MAX_CORRELATION_TIME_S:g} s)")
-    return ImuNoise(path, values[0], values[1], tau)
+    return ImuNoise(path, values[0], values[1])
 
 
 def _check_dbc(t: Table, dbc: Path) -> None:

@@ -159,26 +159,6 @@ class NoiseResult:
         """The largest accelerometer bias instability (ug), None if none has one."""
         return self._worst("acc")
 
-    @property
-    def correlation_time_s(self) -> float | None:
-        """The bias instability's Gauss-Markov correlation time the Allan fits found (s): per channel the
-        weighted geometric mean of its fit's candidate times, then the median over the channels that have
-        one; None when no channel's fit holds a Gauss-Markov term."""
-        times = []
-        for c in self.channels.values():
-            model = c.get("model") if isinstance(c, dict) else None
-            candidates = model.get("gauss_markov") if isinstance(model, dict) else None
-            if not isinstance(candidates, list):
-                continue
-            found = [(float(g["weight"]), float(g["correlation_time_s"])) for g in candidates
-                     if isinstance(g, dict) and all(isinstance(g.get(k), (int, float)) and not isinstance(g[k], bool)
-                                                    and math.isfinite(g[k]) and g[k] > 0
-                                                    for k in ("weight", "correlation_time_s"))]
-            if found:
-                total = sum(w for w, _ in found)
-                times.append(math.exp(sum(w * math.log(t) for w, t in found) / total))
-        return float(np.median(times)) if times else None
-
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {
             "format": FORMAT, "version": VERSION, "source": self.source, "rate_hz": self.rate_hz,

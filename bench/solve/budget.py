@@ -564,4 +564,5 @@ def _current_imu(acc, gyros, bias, gyro_prior) -> ImuCoefficients | None:
 
 
 __all__ = ["BIAS_INSTABILITY", "GRAVITY", "K_EXPANDED", "LATITUDE", "NOISE", "RESOLUTION", "SOURCES", "TABLE",
-           "TURN_ANGLE", "UNEXPLAINED", "Budget", "BudgetInputs", "Consistency", "TablePrior", "compute_budget", "gm_mean_kernel"]
+           "TURN_ANGLE", "UNEXPLAINED", "Budget", "BudgetInputs", "Consistency", "TablePrior", "compute_budget",
+           "gm_mean_kernel"]

@@ -26,8 +26,8 @@ from textual.widgets import Footer, Header, TabbedContent, TabPane
 from bench.config.load import default_sim_config
 from bench.model.result import CalibrationResult
 from bench.run.runner import compile_from_config
-from bench.tui.buffer import ImuScales, UiBuffer
 from bench.tui.budget_panel import BudgetPanel
+from bench.tui.buffer import ImuScales, UiBuffer
 from bench.tui.panels import EventLog, ImuPanel, PlanPanel, ResultsPanel, TablePanel
 from bench.tui.replay_session import ReplaySession, open_log
 from bench.tui.screens import ConfirmScreen, GotoScreen, HelpScreen, RateScreen

@@ -81,7 +81,8 @@ def budget_inputs(noise: NoiseModel, table_arcsec: float, rate_dps: float) -> Bu
     return BudgetInputs(table=TablePrior.uniform(table_arcsec, f"{table_arcsec:g} arcsec"),
                         gyro_bias_instability=noise.gyro_bias_instability_dph * DEG_PER_HOUR,
                         acc_bias_instability=noise.acc_bias_instability_ug * MICRO_G,
-                        correlation_time_s=noise.correlation_time_s, turn_rate_dps=rate_dps)
+                        correlation_time_s=noise.correlation_time_s, turn_rate_dps=rate_dps,
+                        turn_angle_sigma_rad=0.0)      # the simulated table stops exactly
 
 
 def calibration_coverage(plan: str, level_arcsec: float, draws: int, seed: int = 0,
