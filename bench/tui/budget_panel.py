@@ -9,6 +9,7 @@ the budget does not explain); below it the highlighted coefficient's whole budge
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from rich.text import Text
 from textual.app import ComposeResult
@@ -51,9 +52,9 @@ class BudgetPanel(Vertical):
     BudgetPanel DataTable { height: 1fr; }
     """
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        self.result = None
+        self.result: Any = None
         self.plain = NO_BUDGET
         self.detail = ""            # the highlighted coefficient's whole budget, as shown
         self._names: list[str] = []
@@ -64,7 +65,7 @@ class BudgetPanel(Vertical):
         yield DataTable(id="budget-table", zebra_stripes=True, cursor_type="row")
         yield Label("", id="budget-detail")
 
-    def show_result(self, result) -> None:
+    def show_result(self, result: Any) -> None:
         if result is self.result:
             return
         self.result = result
