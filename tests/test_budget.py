@@ -4,6 +4,7 @@ seed-fixed coverage study that fails when the stated uncertainties are wrong."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -14,7 +15,9 @@ from scipy import integrate
 from bench.config.load import ConfigError, parse_config
 from bench.model.closed_form import exact_observations
 from bench.model.earth import Site
+from bench.model.families import RESULT_UNITS
 from bench.model.imu import NoiseModel, default_sim_imu
+from bench.model.observations import turn_axis_in_body
 from bench.model.result import CalibrationResult
 from bench.model.table_prior import TablePrior, from_check, from_datasheet
 from bench.model.units import ARCSEC
@@ -22,8 +25,10 @@ from bench.report.markdown import markdown_report
 from bench.sim.acquire import AcquisitionTiming, acquire
 from bench.sim.imu import SimImu
 from bench.sim.table import SimTable
-from bench.solve.budget import NOISE, TABLE, UNEXPLAINED, BudgetInputs, gm_mean_kernel
+from bench.solve.budget import BIAS_INSTABILITY, NOISE, TABLE, TURN_ANGLE, UNEXPLAINED, BudgetInputs, gm_mean_kernel
 from bench.solve.calibrate import solve
+from bench.solve.inputs import budget_inputs
+from bench.solve.methods import gyro_bias_from_positions, solve_gyros
 from schedules import load_builtin
 from tests.studies.coverage import calibration_coverage
 
@@ -182,3 +187,60 @@ def test_noisy_dwells_keep_the_optimal_plans_cancellation():
     for s in "xyz":
         assert cal.budget.components[f"K0_{s}"][TABLE] < 1e-7, cal.budget.components[f"K0_{s}"]
         assert cal.budget.components[f"Ka_{s}"][TABLE] < 0.05 * cal.budget.components[f"Ka_{s}"][NOISE]
+
+
+def test_the_turn_angle_part_matches_a_monte_carlo_of_turn_angle_errors():
+    """Each turn's angle off by delta_k (1-sigma 50 arcsec, independent): the budget's turn-angle part of every
+    gyro scale factor, axis and bias is the scatter of the re-solved coefficients over 200 draws (5 % binomial)."""
+    imu = default_sim_imu()
+    positions, turns = _plan("optimal-24", "optimal-5s6r")
+    obs_p, obs_r = exact_observations(positions, turns, imu, SITE)
+    sigma_rad = 50.0 * ARCSEC
+    cal = solve(obs_p, obs_r, SITE, budget_inputs=BudgetInputs(turn_angle_sigma_rad=sigma_rad))
+    assert not any("angle error" in f for f in cal.flags)
+    turned = np.array([o.sign * turn_axis_in_body(o.start_deg, o.frame_index) for o in obs_r]) @ imu.gyro_matrix.T
+    rng = np.random.default_rng(5)
+    draws = []
+    for _ in range(200):        # the solve's own gyro fits, without a budget each time (SI)
+        delta = rng.standard_normal(len(obs_r)) * sigma_rad
+        moved = [dataclasses.replace(o, gyro_integral=o.gyro_integral + d * t) for o, d, t in zip(obs_r, delta, turned)]
+        gyros = solve_gyros(moved, SITE)
+        bias = gyro_bias_from_positions(obs_p, SITE, gyros)
+        draws.append((gyros.scale[0], gyros.scale[2], gyros.axes[0, 1], gyros.axes[2, 0], bias.value[1]))
+    for name, spread in zip(("Kg_x", "Kg_z", "Eg_Yx", "Eg_Xz", "D0_y"), np.std(draws, axis=0)):
+        part = cal.budget.components[name][TURN_ANGLE] * RESULT_UNITS[name[:2]][1]
+        assert part == pytest.approx(spread, rel=0.15), (name, part / spread)
+    # without the figure: flagged, and not in sigma
+    plain = solve(obs_p, obs_r, SITE, budget_inputs=BudgetInputs())
+    assert any("turns' angle error" in f and "NOT included" in f for f in plain.flags)
+    assert TURN_ANGLE not in plain.budget.components["Kg_x"]
+    assert "turn_angle_error_arcsec" in markdown_report(plain.to_result())
+
+
+def test_config_keys_feed_the_correlation_time_and_the_turn_angle(tmp_path):
+    base = ('format = "turntable-bench/config"\nversion = 1\n[site]\nlatitude_deg = 30.27\n[table]\n'
+            'url = "tcp://127.0.0.1:5000"\ndialect = "scpi"\n{table}\n[imu]\ninterface = "virtual"\nchannel = "t"\n'
+            'rate_hz = 200.0\n[imu.identity]\n{identity}\n[plan]\npositions = "optimal-24"\n')
+    default = parse_config(base.format(table="", identity=""))
+    assert budget_inputs(default, sim=False).correlation_time_s == 300.0
+    assert budget_inputs(default, sim=False).turn_angle_sigma_rad is None
+    assert budget_inputs(default, sim=True).turn_angle_sigma_rad == 0.0      # the simulated table stops exactly
+    config = parse_config(base.format(table="turn_angle_error_arcsec = 1.5",
+                                      identity="gyro_bias_stability_dph = 0.01\nbias_correlation_time_s = 40"))
+    inputs = budget_inputs(config, sim=False)
+    assert inputs.correlation_time_s == 40.0 and inputs.turn_angle_sigma_rad == pytest.approx(1.5 * ARCSEC)
+    for table, identity, line, key, message in (
+            ("", "bias_correlation_time_s = 0", 14, "imu.identity.bias_correlation_time_s", "must be > 0"),
+            ("", "bias_correlation_time_s = 1e7", 14, "imu.identity.bias_correlation_time_s", "must be <= 1e+06 s"),
+            ("turn_angle_error_arcsec = -1", "", 8, "table.turn_angle_error_arcsec", "must be >= 0"),
+            ("turn_angle_error_arcsec = 'one'", "", 8, "table.turn_angle_error_arcsec", "must be a finite number")):
+        with pytest.raises(ConfigError) as caught:
+            parse_config(base.format(table=table, identity=identity), source="bench.toml")
+        assert str(caught.value).startswith(f"bench.toml:{line}: {key}: {message}"), str(caught.value)
+    # the correlation time changes the bias-instability part (noise-free data: the part is the budget's alone)
+    imu = default_sim_imu()
+    positions, turns = _plan("traditional-12", "traditional-3s6r")
+    obs_p, obs_r = exact_observations(positions, turns, imu, SITE)
+    parts = {tau: solve(obs_p, obs_r, SITE, budget_inputs=dataclasses.replace(
+        inputs, correlation_time_s=tau)).budget.components["D0_x"][BIAS_INSTABILITY] for tau in (40.0, 3000.0)}
+    assert parts[40.0] < 0.5 * parts[3000.0], parts     # a short correlation time averages down over the run

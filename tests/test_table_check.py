@@ -19,6 +19,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bench.config.load import ConfigError, parse_config
 from bench.log.reader import read_log
 from bench.model.closed_form import position_outputs
 from bench.model.earth import Site
@@ -30,16 +31,18 @@ from bench.sim.table import SimTable
 from bench.table_check.estimate import (
     ANGLE_NAMES,
     COMBINATION_KEYS,
+    NOMINAL_RELATIVE_UNCERTAINTY,
     TableCheckError,
     black_box_jacobian,
     combination_matrix,
+    conversion_error,
     estimate,
     horizontal_force,
     horizontal_from_counts,
     observability,
     true_combinations,
 )
-from bench.table_check.from_log import analyse_observations
+from bench.table_check.from_log import analyse_observations, conversion_uncertainty
 from schedules import load_builtin
 from tests.helpers.run import AT_REST_DPS, cli, config_text, only_file, start_cli, stop_process, transitions, wait_for
 
@@ -118,6 +121,38 @@ def test_exact_outputs_recover_the_true_combinations(level_arcsec, seed):
     # The offsets hold the biases and the vertical misalignments (Ea_Zx, Ea_Zy) in g.
     expected = imu.acc_bias[:2] / SITE.gravity + imu.acc_axes[:2, 2]
     assert np.allclose(est.offsets_g, expected, rtol=2e-3)
+
+
+def test_conversion_error_is_what_the_uncalibrated_check_gets_wrong():
+    """The nominal conversion's error of each tilt pair is the IMU's common x/y scale error s against z and
+    in-plane rotation a: |error| = sqrt(s^2 + a^2) |tilt| (exact outputs, no noise); eps is their RMS."""
+    imu = default_sim_imu()
+    s, a, eps = conversion_error(imu, SITE.gravity)
+    assert eps == pytest.approx(np.sqrt((s * s + a * a) / 2)) and 3e-4 < eps < 6e-4     # the default 1e-3 is ~2x it
+    for seed in (1, 2, 3):
+        bb = _black_box(85.0, seed)
+        y, sem, conversion = horizontal_from_counts(_counts(bb), np.full((len(CHECK_324), 3), 0.1), SITE.gravity)
+        assert conversion.relative_uncertainty == NOMINAL_RELATIVE_UNCERTAINTY
+        err = estimate(CHECK_324, y, sem[:, :2]).values_rad - true_combinations(bb)
+        tilts = true_combinations(bb).reshape(2, 2)
+        for pair, tilt in zip(err.reshape(2, 2), tilts):
+            assert np.linalg.norm(pair) == pytest.approx(np.hypot(s, a) * np.linalg.norm(tilt), rel=0.05)
+    _, _, stated = horizontal_from_counts(_counts(None), np.ones((len(CHECK_324), 3)), SITE.gravity,
+                                          relative_uncertainty=2.5e-4)
+    assert stated.relative_uncertainty == 2.5e-4
+
+
+def test_the_conversion_uncertainty_comes_from_the_configuration():
+    text = config_text()
+    sim = parse_config(text)
+    assert conversion_uncertainty(sim, False, SITE.gravity) == NOMINAL_RELATIVE_UNCERTAINTY
+    assert conversion_uncertainty(sim, True, SITE.gravity) == conversion_error(sim.sim.imu, SITE.gravity)[2]
+    line = text.splitlines().index("[imu.identity]") + 2
+    configured = parse_config(text.replace("[imu.identity]\n", "[imu.identity]\nacc_xy_to_z_uncertainty = 3e-4\n"))
+    assert conversion_uncertainty(configured, True, SITE.gravity) == 3e-4
+    with pytest.raises(ConfigError, match=rf"^bench.toml:{line}: imu.identity.acc_xy_to_z_uncertainty: must be <= 0.1"):
+        parse_config(text.replace("[imu.identity]\n", "[imu.identity]\nacc_xy_to_z_uncertainty = 0.5\n"),
+                     source="bench.toml")
 
 
 def test_an_ideal_table_reads_zero():

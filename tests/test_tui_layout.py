@@ -119,3 +119,50 @@ def test_snapshot_help_at(tmp_path, snap_compare, size):
         pilot.app.action_help()
         await pilot.pause(0.2)
     assert snap_compare(_app(tmp_path), terminal_size=size, run_before=before)
+
+
+# -- the uncertainty budget (issue 15): the Results status warns, the Budget tab has every coefficient's budget --
+
+def test_budget_tab_shows_sigma_u_largest_parts_flags_and_the_highlighted_budget(tmp_path):
+    from tests.helpers.tui import feed_budget_result
+
+    async def body():
+        app = _app(tmp_path)
+        async with app.run_test(size=(100, 30)) as pilot:
+            await _fed(pilot, result=True)          # no budget (a version 1 result): the tab says so
+            assert app.query_one("#budget-panel").plain.startswith("no uncertainty budget")
+            feed_budget_result(app, table_included=False)
+            app.refresh_panels()
+            await pilot.pause(0.2)
+            status = app.query_one("#results-panel").plain.splitlines()[1]
+            assert status == "WARNING: turntable pointing NOT in sigma; UNEXPLAINED SCATTER: gyros x (Budget tab)"
+            app.query_one("#left-tabs").active = "budget-tab"
+            await pilot.pause(0.2)
+            panel, table = app.query_one("#budget-panel"), app.query_one("#budget-table")
+            assert [str(c.label) for c in table.columns.values()] == ["name", "sigma", "U", "largest part", "next"]
+            assert _fits(table), (table.virtual_size, table.scrollable_content_region)
+            lines = panel.plain.splitlines()
+            assert lines[0].startswith("WARNING: turntable pointing NOT included: sigma and U cover the IMU alone")
+            assert lines[1] == ("UNEXPLAINED SCATTER: gyros x residuals (chi2/dof 5, driven by R03 (+5.2), "
+                                "R07 (-3.1)): widened x2.5")
+            kg_x = app.buffer.snapshot().result.coefficients["Kg_x"]      # noise n and bias instability n/2
+            assert f"Kg_x {kg_x.sigma:.3g} {2 * kg_x.sigma:.3g} noise 80% bias instab. 20%" in lines
+            assert panel.detail == (f"Kg_x: sigma {kg_x.sigma:.3g} = noise (A) {kg_x.budget['noise']:.2g} (80%) + "
+                                    f"bias instab. (B) {kg_x.budget['bias instability']:.2g} (20%) "
+                                    f"(root-sum-square); U {2 * kg_x.sigma:.3g} (k = 2)")
+            table.focus()
+            await pilot.press("down")
+            await pilot.pause(0.1)
+            assert panel.detail.startswith("Kg_y: sigma ")
+
+            feed_budget_result(app, table_included=True)     # a new result: the table's part in, 3x the noise
+            app.refresh_panels()
+            await pilot.pause(0.2)
+            assert app.query_one("#results-panel").plain.splitlines()[1] == \
+                "UNEXPLAINED SCATTER: gyros x (Budget tab)"
+            lines = panel.plain.splitlines()
+            assert lines[0] == "turntable part: datasheet: pointing accuracy 5 arcsec (1-sigma)"
+            kg_x = app.buffer.snapshot().result.coefficients["Kg_x"]
+            assert f"Kg_x {kg_x.sigma:.3g} {2 * kg_x.sigma:.3g} turntable 88% noise 10%" in lines
+            assert panel.detail.startswith("Kg_x: sigma ")
+    run(body)

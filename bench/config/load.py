@@ -66,10 +66,11 @@ MAX_ACCEL_DPS2 = 10000.0
 MIN_ACCEL_DPS2 = 1e-3
 MAX_TRAVEL_DEG = 3600.0        # |min_deg|, |max_deg|: ten turns
 MAX_BLACK_BOX_ARCSEC = 3600.0  # RMS or each angle: one degree
+MAX_CORRELATION_TIME_S = 1e6   # a bias instability's correlation time ([sim.noise], [imu.identity])
 #: [sim.noise] level -> (upper bound, unit); the lower bound is 0 (correlation_time_s: > 0)
 _NOISE_RANGES = {"gyro_arw_deg_rt_h": (10.0, "deg/sqrt(h)"), "gyro_bias_instability_dph": (3600.0, "deg/h"),
                  "acc_vrw_ug_rt_hz": (10000.0, "ug/sqrt(Hz)"), "acc_bias_instability_ug": (100000.0, "ug"),
-                 "correlation_time_s": (1e6, "s"), "gyro_rrw_dph_rt_h": (1000.0, "deg/h/sqrt(h)"),
+                 "correlation_time_s": (MAX_CORRELATION_TIME_S, "s"), "gyro_rrw_dph_rt_h": (1000.0, "deg/h/sqrt(h)"),
                  "acc_rrw_ug_rt_h": (100000.0, "ug/sqrt(h)")}
 #: [sim.imu] coefficient family -> (lower or None for -upper, upper, unit)
 _SIM_IMU_RANGES = {"Kg": (0.0, 1e6, "counts/s per deg/s"), "Ka": (0.0, 1e6, "counts/s per g"),
@@ -111,6 +112,9 @@ class TableConfig:
     #: what the lab knows of the table's pointing error (`pointing_accuracy_arcsec`,
     #: `orthogonality_arcsec`, `check`): the budget's turntable part; None = not known
     pointing: TablePrior | None = None
+    #: 1-sigma error of each turn's angle (end minus start: the table's position repeatability at both
+    #: ends, the readback's resolution), arcsec: the budget's turn-angle part; None = not known
+    turn_angle_error_arcsec: float | None = None
 
     @property
     def is_sim(self) -> bool:
@@ -126,6 +130,11 @@ class ImuIdentity:
     serial: str = ""
     gyro_bias_stability_dph: float | None = None
     acc_bias_stability_ug: float | None = None
+    #: correlation time of the bias instability (a first-order Gauss-Markov bias), s
+    bias_correlation_time_s: float | None = None
+    #: 1-sigma relative error of the uncalibrated x/y accelerometers against z (their common scale error and
+    #: their axes' rotation about z): the table check's conversion part; None: its default 1e-3
+    acc_xy_to_z_uncertainty: float | None = None
 
 
 @dataclass(frozen=True)
@@ -260,7 +269,10 @@ def _table(t: Table) -> TableConfig:
                             for frame in FRAMES)
     limits = TurntableLimits((outer, middle, inner))
     register_map = _register_map(t, dialect)
-    return TableConfig(url, dialect, timeout_s, retries, tolerance_deg, poll_s, limits, register_map, _pointing(t))
+    pointing = _pointing(t)
+    turn_angle = t.number("turn_angle_error_arcsec", None, ge=0, le=MAX_BLACK_BOX_ARCSEC, unit="arcsec")
+    return TableConfig(url, dialect, timeout_s, retries, tolerance_deg, poll_s, limits, register_map, pointing,
+                       turn_angle)
 
 
 def _pointing(t: Table) -> TablePrior | None:
@@ -342,10 +354,13 @@ def _imu(t: Table) -> ImuConfig:
         if key in ("interface", "channel", "bitrate", "fd", "bustype"):
             raise t.doc.error(t.path + ("bus_options", key), f"set imu.{key.replace('bustype', 'interface')} "
                               "instead of passing it in bus_options")
-    ident = t.table("identity", ("model", "serial", "gyro_bias_stability_dph", "acc_bias_stability_ug"))
+    ident = t.table("identity", ("model", "serial", "gyro_bias_stability_dph", "acc_bias_stability_ug",
+                                 "bias_correlation_time_s", "acc_xy_to_z_uncertainty"))
     identity = ImuIdentity(ident.string("model", ""), ident.string("serial", ""),
                            ident.number("gyro_bias_stability_dph", None, gt=0, le=3600.0, unit="deg/h"),
-                           ident.number("acc_bias_stability_ug", None, gt=0, le=100000.0, unit="ug"))
+                           ident.number("acc_bias_stability_ug", None, gt=0, le=100000.0, unit="ug"),
+                           ident.number("bias_correlation_time_s", None, gt=0, le=MAX_CORRELATION_TIME_S, unit="s"),
+                           ident.number("acc_xy_to_z_uncertainty", None, ge=0, le=0.1))
     noise = _imu_noise(t) if t.has("noise") else None
     slcan_client = t.string("slcan_client", "bench", choices=SLCAN_CLIENTS)
     return ImuConfig(interface, channel, bitrate, fd, Path(dbc), rate_hz, spec, layout, bus_options, identity, noise,
@@ -567,7 +582,7 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
                                      "gravity_sigma_mps2"), required=True))
     table = _table(root.table("table", ("url", "dialect", "timeout_s", "retries", "settle_tolerance_deg", "poll_s",
                                         "register_map", "modbus", "limits", "pointing_accuracy_arcsec",
-                                        "orthogonality_arcsec", "check"), required=True))
+                                        "orthogonality_arcsec", "check", "turn_angle_error_arcsec"), required=True))
     imu = _imu(root.table("imu", ("interface", "channel", "bitrate", "fd", "layout", "dbc", "rate_hz", "signals",
                                   "slcan_client", "bus_options", "identity", "noise"), required=True))
     plan_table = root.table("plan", ("positions", "rotations", "dwell_s", "settle_s", "move_rate_dps",

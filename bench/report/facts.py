@@ -42,7 +42,11 @@ def describe_site(site: dict[str, Any]) -> str:
 BUDGET_COLUMNS = (("noise", "noise (A)"), ("bias instability", "bias instab. (B)"),
                   ("turntable pointing", "turntable (B)"), ("local gravity", "gravity (B)"),
                   ("latitude", "latitude (B)"), ("count resolution", "resolution (B)"),
-                  ("unexplained scatter", "unexplained (fallback)"))
+                  ("turn angle", "turn angle (B)"), ("unexplained scatter", "unexplained (fallback)"))
+#: the budget's warning when the solve has turns and their angle error is not known
+TURN_ANGLE_MISSING = ("the turns' angle error (the table's position repeatability at their ends) is NOT included: "
+                      "the gyro scale factors' and axes' uncertainties leave it out (configure [table] "
+                      "turn_angle_error_arcsec)")
 
 
 def budget_notes(result) -> list[str]:
@@ -61,12 +65,43 @@ def budget_notes(result) -> list[str]:
     else:
         lines.append("WARNING: the turntable's pointing error is NOT included: the uncertainties cover the IMU "
                      "alone (configure [table] pointing_accuracy_arcsec or [table] check).")
+    if turn_angle_missing(u):
+        lines.append(f"WARNING: {TURN_ANGLE_MISSING}.")
     for c in u.get("consistency", []):
         if isinstance(c, dict) and not c.get("consistent", True):
             lines.append(f"Residuals of the {c.get('fit')} {c.get('sensor')} fit are inconsistent with the budget "
                          f"(chi2 {c.get('chi2')} on {c.get('dof')} dof), driven by {', '.join(c.get('drivers', []))}: "
                          f"widened by {c.get('scale')} as a fallback.")
     return lines
+
+
+def budget_flags(result) -> list[str]:
+    """Short lines for a narrow screen (the TUI's Results): where the table's part came from or that it is
+    NOT included, and every fit whose residuals the budget does not explain (unexplained scatter)."""
+    u = result.quality.get("uncertainty") if isinstance(result.quality, dict) else None
+    if not isinstance(u, dict):
+        return ["no uncertainty budget (a result before version 2): sigma covers the sample noise only"]
+    table = (u.get("inputs") or {}).get("table")
+    if u.get("table_included") and isinstance(table, dict):
+        lines = [f"turntable part: {table.get('source', '?')}"]
+    else:
+        lines = ["WARNING: turntable pointing NOT included: sigma and U cover the IMU alone "
+                 "([table] pointing_accuracy_arcsec or check)"]
+    if turn_angle_missing(u):
+        lines.append("WARNING: turn angle error NOT included ([table] turn_angle_error_arcsec)")
+    for c in u.get("consistency", []):
+        if isinstance(c, dict) and not c.get("consistent", True):
+            ratio = (f"chi2/dof {c['chi2'] / c['dof']:.3g}, " if isinstance(c.get("chi2"), (int, float))
+                     and c.get("dof") else "")
+            lines.append(f"UNEXPLAINED SCATTER: {c.get('fit')} {c.get('sensor')} residuals ({ratio}driven by "
+                         f"{', '.join(map(str, c.get('drivers', [])))}): widened x{c.get('scale', 1):.3g}")
+    return lines
+
+
+def turn_angle_missing(u: dict[str, Any]) -> bool:
+    """The solve had turns (a gyro fit) and no turn-angle figure (results before it say nothing)."""
+    has_turns = any(isinstance(c, dict) and c.get("fit") == "gyros" for c in u.get("consistency", []))
+    return has_turns and u.get("turn_angle_included") is False
 
 
 def budget_table(result) -> tuple[list[str], list[list[float | None]], list[str]]:

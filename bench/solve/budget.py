@@ -25,10 +25,16 @@ turntable, propagated through the whole solve) and contributes `J P C_y P^T J^T`
 - **count resolution** (Type B): a turn's integral is a difference of two counter
   readings, each known to one count (1/sqrt(6) counts for the difference of two
   uniform remainders). A dwell's mean has its resolution floor in its standard error.
+- **turn angle** (Type B, `[table] turn_angle_error_arcsec`): the solve takes each turn
+  as exactly N revolutions; the table stops at each end only to its position
+  repeatability (servo in-position band, readback resolution), so a turn's angle is off
+  by delta_k, independent between turns, and its integral by `M (d u_k) delta_k`: the
+  observation covariance `diag((M_s . d u_k)^2 sigma^2)` per gyro s. An encoder error that
+  depends on the angle alone cancels (a turn starts and ends at the same angle mod 360).
 
 The combined standard uncertainty is the root-sum-square (the sources are independent);
 the expanded uncertainty is k = 2 times it. The turn's rate error does not enter: the
-integral runs rest to rest over whole revolutions confirmed by the table's readback.
+integral runs rest to rest, so only the angle turned matters (above).
 
 **Consistency.** The same sources predict the covariance of the fit residuals
 `r = (I - A P) y`: `C_r = (I - A P) C_y (I - A P)^T`. The observed residuals are tested
@@ -52,7 +58,7 @@ from bench.model.closed_form import position_outputs, turn_closed_form, turn_int
 from bench.model.earth import Site
 from bench.model.families import BODY_AXES, RESULT_UNITS, SENSOR_AXES
 from bench.model.imu import ImuCoefficients
-from bench.model.observations import COUNT_RESOLUTION, PositionObservation, RotationObservation
+from bench.model.observations import COUNT_RESOLUTION, PositionObservation, RotationObservation, turn_axis_in_body
 from bench.model.table_prior import TablePrior
 from bench.model.units import ARCSEC
 from bench.solve.methods import (
@@ -71,9 +77,9 @@ K_EXPANDED = 2.0
 #: level of each residual test: nine tests per calibration (three fits x three sensors) keep
 #: the chance of a false alarm on a consistent calibration near 1 %
 CONSISTENCY_ALPHA = 0.001
-NOISE, BIAS_INSTABILITY, TABLE, GRAVITY, LATITUDE, RESOLUTION, UNEXPLAINED = (
+NOISE, BIAS_INSTABILITY, TABLE, GRAVITY, LATITUDE, RESOLUTION, TURN_ANGLE, UNEXPLAINED = (
     "noise", "bias instability", "turntable pointing", "local gravity", "latitude", "count resolution",
-    "unexplained scatter")
+    "turn angle", "unexplained scatter")
 #: component -> (GUM type, what it comes from)
 SOURCES = {
     NOISE: ("A", "sample noise of the dwells and turns"),
@@ -82,6 +88,7 @@ SOURCES = {
     GRAVITY: ("B", "local gravity"),
     LATITUDE: ("B", "site latitude"),
     RESOLUTION: ("B", "IMU counter resolution of the turn integrals"),
+    TURN_ANGLE: ("B", "each turn's angle error (the table's position repeatability at its ends)"),
     UNEXPLAINED: ("A", "residual scatter the budget does not explain (fallback scaling)"),
 }
 #: The components every calibration on one bench shares (the same table and its black box, the same site): a
@@ -112,6 +119,7 @@ class BudgetInputs:
     latitude_sigma_deg: float = 0.0
     count_resolution: float = COUNT_RESOLUTION
     turn_rate_dps: float = 10.0             # the closed-form turns of the table part
+    turn_angle_sigma_rad: float | None = None   # 1-sigma of each turn's angle error; None: not known
     mc_draws: int = 200
     seed: int = 0
     k: float = K_EXPANDED
@@ -122,6 +130,8 @@ class BudgetInputs:
                 "acc_bias_instability_g": self.acc_bias_instability / RESULT_UNITS["K0"][1],
                 "correlation_time_s": self.correlation_time_s, "gravity_sigma_mps2": self.gravity_sigma_mps2,
                 "latitude_sigma_deg": self.latitude_sigma_deg, "count_resolution": self.count_resolution,
+                "turn_angle_error_arcsec": (None if self.turn_angle_sigma_rad is None
+                                            else self.turn_angle_sigma_rad / ARCSEC),
                 "mc_draws": self.mc_draws, "k": self.k}
 
 
@@ -196,7 +206,8 @@ class Budget:
         return np.stack([c.normalized for c in rows], axis=1)
 
     def summary_json(self) -> dict[str, Any]:
-        return {"k": self.inputs.k, "table_included": self.table_included, "inputs": self.inputs.to_json(),
+        return {"k": self.inputs.k, "table_included": self.table_included,
+                "turn_angle_included": self.inputs.turn_angle_sigma_rad is not None, "inputs": self.inputs.to_json(),
                 "components": {name: {"type": SOURCES[name][0], "source": SOURCES[name][1]}
                                for name in SOURCES},
                 "consistency": [c.to_json() for c in self.consistency], "flags": list(self.flags)}
@@ -454,22 +465,29 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
         starts, durations = _times(rotations)
         kernel = gm_mean_kernel(starts, durations, tau) * np.outer(durations, durations)
         labels = _labels(rotations, "R")
-        for comp in (BIAS_INSTABILITY, RESOLUTION):     # the noise part is in the bias's own sigma_noise
+        turned = np.array([o.sign * turn_axis_in_body(o.start_deg, o.frame_index, mounting=mounting)
+                           for o in rotations])                 # (K, 3) d u_k: what an angle error turns
+        angle_sigma = inputs.turn_angle_sigma_rad or 0.0
+        for comp in (BIAS_INSTABILITY, RESOLUTION, TURN_ANGLE):     # the noise part is in the bias's own sigma_noise
             m_covs[comp] = np.zeros((3, 3, 3))
         for s in range(3):
             noise = gyros.cov_noise_sensor(s)
             add_triad("Kg", "Eg", None, s, NOISE, np.diag(noise))
             c_gm = (gyros.scale[s] * inputs.gyro_bias_instability) ** 2 * kernel
             c_q = np.eye(len(rotations)) * _QUANT_VAR * inputs.count_resolution ** 2
-            for comp, c_y in ((BIAS_INSTABILITY, c_gm), (RESOLUTION, c_q)):
+            c_turn = np.diag((turned @ gyros.fit.params[s][:3] * angle_sigma) ** 2)
+            for comp, c_y in ((BIAS_INSTABILITY, c_gm), (RESOLUTION, c_q), (TURN_ANGLE, c_turn)):
                 add_triad("Kg", "Eg", None, s, comp, _triad_var(gyros, design, s, c_y))
                 p = _operator(design, None if gyros.fit.sigma is None else gyros.fit.sigma[:, s])
                 m_covs[comp][s] = (p @ c_y @ p.T)[:3, :3]
             gyro_sigma = gyros.fit.sigma
             if gyro_sigma is not None:
                 consistency.append(_consistency("gyros", s, design, gyro_sigma[:, s], gyros.fit.residuals[:, s],
-                                                np.diag(gyro_sigma[:, s] ** 2) + c_gm + c_q + table_cov("gyros", s),
-                                                labels))
+                                                np.diag(gyro_sigma[:, s] ** 2) + c_gm + c_q + c_turn
+                                                + table_cov("gyros", s), labels))
+        if inputs.turn_angle_sigma_rad is None:
+            flags.append("uncertainty budget: the turns' angle error (the table's position repeatability at their "
+                         "ends) is NOT included (set [table] turn_angle_error_arcsec)")
     w_bias = None
     if bias is not None:
         n = len(positions)
@@ -558,5 +576,5 @@ def _current_imu(acc, gyros, bias, gyro_prior) -> ImuCoefficients | None:
 
 
 __all__ = ["BIAS_INSTABILITY", "COMMON_SOURCES", "GRAVITY", "K_EXPANDED", "LATITUDE", "NOISE", "RESOLUTION",
-           "SOURCES", "TABLE", "UNEXPLAINED", "Budget", "BudgetInputs", "Consistency", "TablePrior", "common_sigma",
-           "compute_budget", "gm_mean_kernel"]
+           "SOURCES", "TABLE", "TURN_ANGLE", "UNEXPLAINED", "Budget", "BudgetInputs", "Consistency", "TablePrior",
+           "common_sigma", "compute_budget", "gm_mean_kernel"]

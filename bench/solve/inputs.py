@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from bench.model.table_prior import TablePrior, rms_arcsec
-from bench.model.units import DEG_PER_HOUR, MICRO_G
+from bench.model.units import ARCSEC, DEG_PER_HOUR, MICRO_G
 from bench.solve.budget import BudgetInputs
 
 
@@ -31,9 +31,10 @@ def budget_inputs(config, sim: bool) -> BudgetInputs:
     """What the uncertainty budget knows beyond the data (`bench.solve.budget`), from the configuration.
 
     Bias instabilities as `bias_stabilities` (taken as the 1-sigma of a Gauss-Markov bias;
-    its correlation time is the simulated IMU's on the simulator, else 300 s). The table's
+    its correlation time as `correlation_time_s`). The table's
     part from `[table]` (datasheet figure or table check); on the simulator without either,
-    the simulated black box's RMS (what its datasheet would say). The site's uncertainty from
+    the simulated black box's RMS (what its datasheet would say). The turns' angle error as
+    `turn_angle_sigma_rad`. The site's uncertainty from
     `[site]`, zero on the simulator (its world is the configured site exactly).
     """
     gyro, acc = bias_stabilities(config, sim)
@@ -48,15 +49,35 @@ def budget_inputs(config, sim: bool) -> BudgetInputs:
                         correlation_time_s=correlation_time_s(config, sim),
                         gravity_sigma_mps2=0.0 if sim else site.gravity_sigma_mps2,
                         latitude_sigma_deg=0.0 if sim else site.latitude_sigma_deg,
-                        turn_rate_dps=config.plan.turn_rate_dps)
+                        turn_rate_dps=config.plan.turn_rate_dps,
+                        turn_angle_sigma_rad=turn_angle_sigma_rad(config, sim))
+
+
+def turn_angle_sigma_rad(config, sim: bool) -> float | None:
+    """1-sigma of each turn's angle error (rad): `[table] turn_angle_error_arcsec`; on the simulator without it
+    zero (its table stops exactly where it is told: what its datasheet would say); else None (not known: the
+    budget flags that its part is not included)."""
+    configured = config.table.turn_angle_error_arcsec
+    if configured is not None:
+        return configured * ARCSEC
+    return 0.0 if sim else None
 
 
 def correlation_time_s(config, sim: bool) -> float:
-    """The bias instability's correlation time: the simulated IMU's on the simulator, else 300 s."""
+    """The bias instability's correlation time: `[imu.identity] bias_correlation_time_s`, else the simulated
+    IMU's on the simulator, else `DEFAULT_CORRELATION_TIME_S`.
+
+    A noise result (`[imu] noise = FILE`) does not set it: its Allan fit averages over candidate
+    Gauss-Markov times without pinning one down (a simulated 1 h record of a 300 s bias gave a weighted
+    geometric mean of 30 s, its candidates 3-87 s), too far off to feed the budget."""
+    configured = config.imu.identity.bias_correlation_time_s
+    if configured is not None:
+        return configured
     return config.sim.noise.correlation_time_s if sim else DEFAULT_CORRELATION_TIME_S
 
 
 #: correlation time of the bias instability when nothing better is known (s)
 DEFAULT_CORRELATION_TIME_S = 300.0
 
-__all__ = ["DEFAULT_CORRELATION_TIME_S", "bias_stabilities", "budget_inputs", "correlation_time_s"]
+__all__ = ["DEFAULT_CORRELATION_TIME_S", "bias_stabilities", "budget_inputs", "correlation_time_s",
+           "turn_angle_sigma_rad"]

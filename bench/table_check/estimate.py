@@ -440,12 +440,33 @@ class Conversion:
     relative_uncertainty: float         # eps of `estimate`: common x/y scale and in-plane axis error
 
 
-#: x/y scale taken from z, IMU axes uncorrected: the x/y-to-z scale mismatch and the in-plane
-#: misalignment of a navigation-grade triad, each typically below 1e-3.
+#: x/y scale taken from z, IMU axes uncorrected: the 1-sigma of the x/y pair's common scale error against z
+#: (the z bias included) and of their axes' rotation about z when nothing better is known: a navigation-grade
+#: triad's scale mismatch and misalignment are each typically below 1e-3 (a Type B bound, used as the 1-sigma)
 NOMINAL_RELATIVE_UNCERTAINTY = 1e-3
 
 
+def conversion_error(imu, local_g_mps2: float) -> tuple[float, float, float]:
+    """(s, a, eps) of an IMU read the uncalibrated way (`horizontal_from_counts` without a calibration).
+
+    The x/y outputs divided by the z output's scale per g act on the horizontal specific
+    force as a 2x2 matrix M (x/y scales, in-plane axes, and the z bias in the divisor);
+    the fit sees only its part that commutes with the inner frame's rotation, `(1 + s) I
+    + a J`: a common scale error s and a rotation a of the tilt vectors (the rest, an x/y
+    mismatch and shear, turns into residuals at twice the inner angle). `eps =
+    sqrt((s^2 + a^2)/2)` is the per-component RMS relative error it causes over tilt
+    directions: the `relative_uncertainty` this IMU would need to be stated with.
+    """
+    m = np.asarray(imu.acc_matrix, dtype=float)
+    kz = float(m[2, 2] + imu.acc_scale[2] * imu.acc_bias[2] / local_g_mps2)      # z output / g with z up
+    mh = m[:2, :2] / kz
+    s = 0.5 * (mh[0, 0] + mh[1, 1]) - 1.0
+    a = 0.5 * (mh[0, 1] - mh[1, 0])
+    return float(s), float(a), math.sqrt(0.5 * (s * s + a * a))
+
+
 def horizontal_from_counts(acc_mean, acc_sem, local_g_mps2: float, *, calibration=None,
+                           relative_uncertainty: float = NOMINAL_RELATIVE_UNCERTAINTY,
                            ) -> tuple[np.ndarray, np.ndarray, Conversion]:
     """(K, 2) x/y specific force in units of local g, their 1-sigma, and how they were converted.
 
@@ -454,8 +475,11 @@ def horizontal_from_counts(acc_mean, acc_sem, local_g_mps2: float, *, calibratio
     the z accelerometer's scale measured here (mean z output / g: the z axis is up at
     every table-check position), i.e. a triad of alike accelerometers; that is good to
     the x/y/z scale mismatch and the in-plane misalignment (about 1e-3 each), a relative
-    error of the tilts of that size (`Conversion.relative_uncertainty`, to pass to
-    `estimate`). A calibration's own uncertainty is not propagated (eps 0).
+    error of the tilts of that size (`relative_uncertainty`, the 1-sigma of that common
+    scale error and of that rotation: `[imu.identity] acc_xy_to_z_uncertainty`, default
+    `NOMINAL_RELATIVE_UNCERTAINTY`; `conversion_error` computes an IMU's own; passed on to
+    `estimate` in `Conversion.relative_uncertainty`). A calibration's own uncertainty is
+    not propagated (eps 0).
     """
     j = np.asarray(acc_mean, dtype=float)
     sem = np.asarray(acc_sem, dtype=float)
@@ -471,12 +495,14 @@ def horizontal_from_counts(acc_mean, acc_sem, local_g_mps2: float, *, calibratio
         raise TableCheckError(f"the z accelerometer reads {kz:g} counts/s on average, not a positive value near "
                               "its scale: is the IMU mounted Z up (DESIGN section 2)?")
     scale = np.full(3, kz)
+    if not 0 <= relative_uncertainty < 1:
+        raise TableCheckError(f"the x/y-to-z relative uncertainty must be in [0, 1), got {relative_uncertainty!r}")
     return j[:, :2] / kz, sem[:, :2] / kz, Conversion(scale, "z accelerometer's mean output / g (x, y assumed alike)",
-                                                       False, NOMINAL_RELATIVE_UNCERTAINTY)
+                                                       False, float(relative_uncertainty))
 
 
 __all__ = ["ANGLE_NAMES", "COMBINATIONS", "COMBINATION_KEYS", "Combination", "Conversion",
-           "NOMINAL_RELATIVE_UNCERTAINTY", "Observability",
+           "NOMINAL_RELATIVE_UNCERTAINTY", "Observability", "conversion_error",
            "TableCheckError", "TableCheckEstimate", "black_box_jacobian", "check_positions", "combination_matrix",
            "estimate", "horizontal_force", "horizontal_from_counts", "model_horizontal", "observability",
            "offset_columns", "true_combinations"]

@@ -23,9 +23,11 @@ from bench.solve.from_logs import extract_from_logs
 from bench.solve.inputs import DEFAULT_CORRELATION_TIME_S, bias_stabilities, correlation_time_s
 from bench.table_check.estimate import (
     COMBINATIONS,
+    NOMINAL_RELATIVE_UNCERTAINTY,
     Conversion,
     TableCheckError,
     TableCheckEstimate,
+    conversion_error,
     estimate,
     horizontal_from_counts,
     true_combinations,
@@ -106,8 +108,9 @@ def table_check_observations(extraction, log_path: str) -> list:
 
 
 def analyse_observations(observations, local_g_mps2: float, *, calibration=None, acc_drift_ug: float = 0.0,
-                         correlation_time_s: float = DEFAULT_CORRELATION_TIME_S) -> tuple[TableCheckEstimate,
-                                                                                           Conversion]:
+                         correlation_time_s: float = DEFAULT_CORRELATION_TIME_S,
+                         relative_uncertainty: float = NOMINAL_RELATIVE_UNCERTAINTY,
+                         ) -> tuple[TableCheckEstimate, Conversion]:
     """Estimate from position observations (counts/s means with standard errors).
 
     The dwells are weighted by the pooled residual scatter of each axis (scaled by
@@ -116,12 +119,14 @@ def analyse_observations(observations, local_g_mps2: float, *, calibration=None,
     from it correlate with the errors and bias the estimate (at 2 s dwells by about 1.4
     sigma RMS). `acc_drift_ug`: the accelerometers' bias instability (1-sigma of a
     Gauss-Markov bias of `correlation_time_s`), which correlates the dwells by their times
-    (`estimate`'s drift).
+    (`estimate`'s drift). `relative_uncertainty`: the uncalibrated x/y accelerometers' error
+    against z (`horizontal_from_counts`).
     """
     angles = np.array([o.angles_deg for o in observations], dtype=float)
     acc = np.array([o.acc_mean for o in observations], dtype=float)
     sem = np.array([_sem(o) for o in observations], dtype=float)
-    horizontal, sem_g, conversion = horizontal_from_counts(acc, sem, local_g_mps2, calibration=calibration)
+    horizontal, sem_g, conversion = horizontal_from_counts(acc, sem, local_g_mps2, calibration=calibration,
+                                                           relative_uncertainty=relative_uncertainty)
     durations = np.array([o.duration_s for o in observations], dtype=float)
     first = estimate(angles, horizontal, None, with_observability=False)
     dof_per_axis = max(len(angles) - 3, 1)
@@ -138,6 +143,16 @@ def analyse_observations(observations, local_g_mps2: float, *, calibration=None,
                      + (f"; accelerometer bias drift {acc_drift_ug:g} ug (correlation time {correlation_time_s:g} s) "
                         "modelled" if acc_drift_ug > 0 and sigma is not None else ""))
     return est, conversion
+
+
+def conversion_uncertainty(config, sim: bool, local_g_mps2: float) -> float:
+    """The uncalibrated x/y accelerometers' relative error against z (`horizontal_from_counts`):
+    `[imu.identity] acc_xy_to_z_uncertainty`; on the simulator without it the simulated IMU's own
+    (`conversion_error`: what its datasheet would say); else `NOMINAL_RELATIVE_UNCERTAINTY`."""
+    configured = config.imu.identity.acc_xy_to_z_uncertainty
+    if configured is not None:
+        return configured
+    return conversion_error(config.sim.imu, local_g_mps2)[2] if sim else NOMINAL_RELATIVE_UNCERTAINTY
 
 
 def _sem(o) -> np.ndarray:
@@ -161,13 +176,14 @@ def analyse_log(path: str | Path, *, calibration=None, still_open: bool = False)
     observations = table_check_observations(extraction, log.path)
     run_meta = log.metadata.get("run", {})
     mode = run_meta.get("mode", "")
-    drift_ug, tau = 0.0, DEFAULT_CORRELATION_TIME_S
+    drift_ug, tau, eps = 0.0, DEFAULT_CORRELATION_TIME_S, NOMINAL_RELATIVE_UNCERTAINTY
     if setup.config is not None:
         sim = mode == "simulator"
         drift_ug = bias_stabilities(setup.config, sim)[1] or 0.0
         tau = correlation_time_s(setup.config, sim)
+        eps = conversion_uncertainty(setup.config, sim, setup.site.gravity)
     est, conversion = analyse_observations(observations, setup.site.gravity, calibration=calibration,
-                                           acc_drift_ug=drift_ug, correlation_time_s=tau)
+                                           acc_drift_ug=drift_ug, correlation_time_s=tau, relative_uncertainty=eps)
     black_box = None
     if mode == "simulator" and setup.config is not None:
         black_box = np.asarray(setup.config.sim.black_box_rad, dtype=float)
@@ -186,5 +202,5 @@ def analyse_log(path: str | Path, *, calibration=None, still_open: bool = False)
         operator=str(run_meta.get("operator", "")))
 
 
-__all__ = ["FORMAT", "VERSION", "TableCheckAnalysis", "analyse_log", "analyse_observations",
+__all__ = ["FORMAT", "VERSION", "TableCheckAnalysis", "analyse_log", "analyse_observations", "conversion_uncertainty",
            "table_check_observations"]

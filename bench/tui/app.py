@@ -27,6 +27,7 @@ from bench.config.load import default_sim_config
 from bench.model.result import CalibrationResult
 from bench.plan.steps import CHAMBER_KINDS
 from bench.run.runner import compile_from_config
+from bench.tui.budget_panel import BudgetPanel
 from bench.tui.buffer import ImuScales, UiBuffer
 from bench.tui.panels import ChamberPanel, EventLog, ImuPanel, PlanPanel, ResultsPanel, TablePanel
 from bench.tui.replay_session import ReplaySession, open_log
@@ -141,6 +142,8 @@ class BenchApp(App):
                     yield PlanPanel(self.steps, simulated=self.simulated, id="plan-panel")
                 with TabPane("Results", id="results-tab"):
                     yield ResultsPanel(id="results-panel")
+                with TabPane("Budget", id="budget-tab"):
+                    yield BudgetPanel(id="budget-panel")
             with Vertical(id="events"):
                 if self.thermal:
                     yield ChamberPanel(self.steps, id="chamber-panel")
@@ -196,6 +199,7 @@ class BenchApp(App):
                                                      and self._result_shown is None):
             self._result_shown = snap.result
             self.query_one(ResultsPanel).show_result(snap.result, snap.outcome_text)
+            self.query_one(BudgetPanel).show_result(snap.result)
             if snap.result is not None:
                 self.query_one(TabbedContent).active = "results-tab"
 

@@ -22,6 +22,7 @@ from bench.model.kinematics import FRAMES
 from bench.model.units import format_hms
 from bench.plan.events import Event, RunState
 from bench.plan.steps import thermal_block
+from bench.report.facts import turn_angle_missing
 from bench.tui.buffer import (
     CHANNELS,
     STEP_ABORTED,
@@ -403,7 +404,8 @@ class EventLog(RichLog):
 
 class ResultsPanel(Vertical):
     """The solved coefficients with 1-sigma uncertainties (and the simulator's truth and the error in sigmas,
-    (value - truth) / sigma, when known); their units on a line below."""
+    (value - truth) / sigma, when known); their units on a line below; the budget's warnings in the status
+    line (the Budget tab, `bench.tui.budget_panel`, has the whole budget)."""
 
     DEFAULT_CSS = """
     ResultsPanel { height: 1fr; }
@@ -456,10 +458,28 @@ class ResultsPanel(Vertical):
         if verdict is not None:     # the verdict first: what an operator looks for
             worst = f"; worst: {verdict['worst']}" if verdict.get("worst") else ""
             head = f"VERDICT {verdict.get('headline', '?')}{worst}\n{head}"
+        warnings = budget_warnings(result)
+        if warnings:
+            head += "\n" + "; ".join(warnings) + " (Budget tab)"
         status.update(head)
         units = units_line(result.coefficients)
         self.query_one("#results-units", Label).update(Text(units, style="dim"))
         self.plain = "\n".join([head, *lines, units])
+
+
+def budget_warnings(result) -> list[str]:
+    """The budget's warnings in a few words each: the table's part missing, fits with unexplained scatter."""
+    u = result.quality.get("uncertainty") if isinstance(result.quality, dict) else None
+    if not isinstance(u, dict):
+        return []
+    out = [] if u.get("table_included") else ["WARNING: turntable pointing NOT in sigma"]
+    if turn_angle_missing(u):
+        out.append("turn angle NOT in sigma")
+    bad = [f"{c.get('fit')} {c.get('sensor')}" for c in u.get("consistency", [])
+           if isinstance(c, dict) and not c.get("consistent", True)]
+    if bad:
+        out.append(f"UNEXPLAINED SCATTER: {', '.join(bad)}")
+    return out
 
 
 def _sigmas(z: float) -> str:

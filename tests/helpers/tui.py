@@ -7,6 +7,7 @@ wait is bounded in time and count.
 from __future__ import annotations
 
 import asyncio
+import math
 import time
 from pathlib import Path
 
@@ -135,5 +136,27 @@ def feed_result(app) -> None:
     offsets = (0.4, -1.3, 2.6, 0.0, -0.7)
     values = {name: v + offsets[k % len(offsets)] * sigmas[name] for k, (name, v) in enumerate(truth.items())}
     result = CalibrationResult(coefficient_table(values, sigmas), sim_truth=coefficient_table(truth))
+    app.buffer.on_event(Event(300.0, "transition", "run complete", state="done", data={"from": "running"}))
+    app.buffer.set_outcome(result, "done; result run.result.json")
+
+
+def feed_budget_result(app, table_included: bool = False) -> None:
+    """A finished run's result with an uncertainty budget per coefficient (noise and bias instability; with
+    `table_included` a turntable part 3x the noise), the table's part not included unless asked, and the gyro x
+    fit's residuals inconsistent with the budget (widened by 2.5 as a fallback)."""
+    truth = app.session.config.sim.imu.to_canonical()
+    noise = {name: (abs(v) * 1e-6 if abs(v) > 1 else 1e-6) for name, v in truth.items()}
+    budgets = {name: {"noise": n, "bias instability": 0.5 * n, **({"turntable pointing": 3 * n} if table_included
+                                                                    else {})} for name, n in noise.items()}
+    sigmas = {name: math.sqrt(sum(v * v for v in b.values())) for name, b in budgets.items()}
+    values = {name: v + 0.5 * sigmas[name] for name, v in truth.items()}
+    table = {"source": "datasheet: pointing accuracy 5 arcsec (1-sigma)", "sigma_arcsec": [[5.0] * 3] * 3}
+    quality = {"uncertainty": {"k": 2.0, "table_included": table_included,
+                               "inputs": {"table": table if table_included else None},
+                               "consistency": [{"fit": "gyros", "sensor": "x", "chi2": 40.0, "dof": 8, "p_value": 1e-5,
+                                                "consistent": False, "scale": 2.5,
+                                                "drivers": ["R03 (+5.2)", "R07 (-3.1)"]}]}}
+    result = CalibrationResult(coefficient_table(values, sigmas, budgets, 2.0), quality=quality,
+                               sim_truth=coefficient_table(truth))
     app.buffer.on_event(Event(300.0, "transition", "run complete", state="done", data={"from": "running"}))
     app.buffer.set_outcome(result, "done; result run.result.json")
