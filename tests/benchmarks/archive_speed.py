@@ -1,12 +1,16 @@
 """Benchmark and must-show check: re-solving an archive of 50 simulated logs on Dask (issue 20).
 
 Run: python tests/benchmarks/archive_speed.py [--logs 50] [--units 5] [--repeats 1] [--dir DIR]
+         [--rate-hz 50] [--dwell-s 2] [--distinct N]
 
 Builds once (cached in DIR, default <system temp>/turntable-bench-archive) an archive of
 `--logs` real run logs recorded with `bench run --config` on the simulator (`--units` IMUs
-by serial, noise on, each run its own seed; 2 s dwells at 50 Hz), plus damaged logs (two
-more runs, one cut at 60 % of its bytes, one with 4 KiB of garbage in its middle) and a file
-that is not MCAP.
+by serial, noise on, each run its own seed; by default 2 s dwells at 50 Hz), plus damaged logs
+(two more runs, one cut at 60 % of its bytes, one with 4 KiB of garbage in its middle) and a
+file that is not MCAP. Logs that take seconds to solve (a real archive's 1 kHz runs, e.g.
+`--rate-hz 1000 --dwell-s 30`) take a minute each to record: `--distinct N` records N runs
+and fills the archive with hard links to them in folders of their own (every log is still
+read and solved on its own; the results are identical per source run).
 Then, side by side in one run:
 1. `bench solve --archive DIR --scheduler loop` (the plain loop in one process),
    `--scheduler local --workers 1` and `--workers 2`, each into a fresh --out, without
@@ -41,12 +45,12 @@ from tests.helpers.run import config_text  # noqa: E402
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _record(folder: Path, serial: str, seed: int) -> None:
+def _record(folder: Path, serial: str, seed: int, dwell_s: float = 2.0, rate_hz: float = 50.0) -> None:
     if any(folder.glob("*.mcap")):
         return
     folder.mkdir(parents=True, exist_ok=True)
     config = folder / "bench.toml"
-    config.write_text(config_text(noise="true", seed=seed, dwell_s=2.0, rate_hz=50.0, black_box_arcsec=10.0)
+    config.write_text(config_text(noise="true", seed=seed, dwell_s=dwell_s, rate_hz=rate_hz, black_box_arcsec=10.0)
                       .replace('serial = "T-0001"', f'serial = "{serial}"'), encoding="utf-8")
     subprocess.run([sys.executable, "-m", "bench.cli", "run", "--config", str(config), "--out", str(folder / "run"),
                     "--quiet", "--no-db"], check=True, cwd=REPO, capture_output=True,
@@ -56,10 +60,20 @@ def _record(folder: Path, serial: str, seed: int) -> None:
     shutil.rmtree(folder / "run")
 
 
-def build(root: Path, logs: int, units: int) -> None:
-    jobs = [(root / f"unit-{k % units}" / f"run-{k:03d}", f"SN-{k % units:03d}", 100 + k) for k in range(logs)]
+def build(root: Path, logs: int, units: int, dwell_s: float = 2.0, rate_hz: float = 50.0,
+          distinct: int | None = None) -> None:
+    distinct = min(distinct or logs, logs)
+    jobs = [(root / f"unit-{k % units}" / f"run-{k:03d}", f"SN-{k % units:03d}", 100 + k, dwell_s, rate_hz)
+            for k in range(distinct)]
     with ThreadPoolExecutor(2) as pool:
         list(pool.map(lambda j: _record(*j), jobs))
+    for k in range(distinct, logs):     # hard links to the recorded runs, each in a folder of its own
+        source_folder = jobs[k % distinct][0]
+        folder = source_folder.parent / f"run-{k:03d}"
+        if not any(folder.glob("*.mcap")):
+            folder.mkdir(parents=True, exist_ok=True)
+            source = next(source_folder.glob("*.mcap"))
+            (folder / source.name).hardlink_to(source)
     damaged = root / "damaged"
     if not damaged.exists():
         # two runs of their own (a damaged log is the only copy of its run), then damaged in place
@@ -99,8 +113,10 @@ def run(args: argparse.Namespace) -> None:
     root = Path(args.dir or Path(tempfile.gettempdir()) / "turntable-bench-archive")
     archive = root / "archive"
     t = time.perf_counter()
-    build(archive, args.logs, args.units)
-    print(f"archive {archive}: {args.logs} logs of {args.units} IMUs + 3 damaged (built in "
+    build(archive, args.logs, args.units, args.dwell_s, args.rate_hz, args.distinct)
+    size_mb = sum(p.stat().st_size for p in archive.rglob("*.mcap")) / 1e6
+    print(f"archive {archive}: {args.logs} logs of {args.units} IMUs ({args.distinct or args.logs} distinct runs, "
+          f"{args.dwell_s:g} s dwells at {args.rate_hz:g} Hz) + 3 damaged, {size_mb:.0f} MB (built in "
           f"{time.perf_counter() - t:.0f} s, cached)")
     work = Path(tempfile.mkdtemp(prefix="archive-bench-"))
     try:
@@ -163,4 +179,7 @@ if __name__ == "__main__":
     parser.add_argument("--units", type=int, default=5)
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--dir", metavar="DIR")
+    parser.add_argument("--rate-hz", type=float, default=50.0, help="IMU sample rate of the recorded runs")
+    parser.add_argument("--dwell-s", type=float, default=2.0, help="dwell time of the recorded runs")
+    parser.add_argument("--distinct", type=int, help="record this many runs, hard-link the rest (default: all)")
     run(parser.parse_args())
