@@ -172,10 +172,10 @@ def unit_history(records: Records, serial: str, names: list[str] | None = None,
         # columns, grouped by coefficient and in calibration order with one sort (300,000 values, not a loop each)
         result_ids, value_names, numbers, sigmas, units, budget_list = zip(*values)
         where = np.array([position[r] for r in result_ids], dtype=np.intp)
-        known, code = np.unique(np.array(value_names, dtype=object), return_inverse=True)
-        order = np.lexsort((where, code))
-        bounds = np.flatnonzero(np.diff(code[order])) + 1
-        groups = {known[code[g[0]]]: g for g in np.split(order, bounds)}
+        # the rows come by name: a group starts where the name changes; within it, calibration order
+        starts = [0, *(k for k in range(1, len(value_names)) if value_names[k] != value_names[k - 1])]
+        groups = {value_names[a]: a + np.argsort(where[a:b], kind="stable")
+                  for a, b in zip(starts, [*starts[1:], len(value_names)])}
         numbers_array = np.array(numbers, dtype=float)
         sigmas_array = np.array([math.nan if x is None else x for x in sigmas], dtype=float)
         for n in names or _canonical_order(list(groups)):
@@ -209,10 +209,16 @@ def format_history(history: UnitHistory) -> str:
         lines.append(f"\n{c.name} [{c.unit}]  {drift_text}")
         lines.append(f"  {'when (UTC)':20} {'run':28} {'value':>14} {'sigma':>11} {'change':>9}")
         z, unknown = c._changes()
-        changes = [" " * 9, *(" " * 9 if u else f"{x:+.2f} sig".rjust(9) for x, u in zip(z.tolist(), unknown.tolist()))]
-        sigmas = [f"{s:>11.6g}" if s == s else f"{'-':>11}" for s in c.sigmas.tolist()]     # NaN: unknown
-        lines += [f"{heads[k]}{v:>14.6g} {s} {ch}"
-                  for k, v, s, ch in zip(c.index.tolist(), c.values.tolist(), sigmas, changes)]
+        rows = [heads[k] for k in c.index.tolist()]
+        values, sigmas = c.values.tolist(), c.sigmas.tolist()
+        # "%14.6g" is f"{v:>14.6g}"; "%+5.2f sig" is f"{z:+.2f} sig" right-aligned in 9
+        if not unknown.any() and not np.isnan(c.sigmas).any():      # the usual case: one format per line
+            lines.append("%s%14.6g %11.6g          " % (rows[0], values[0], sigmas[0]))
+            lines += ["%s%14.6g %11.6g %+5.2f sig" % row for row in zip(rows[1:], values[1:], sigmas[1:], z.tolist())]
+            continue
+        changes = [" " * 9, *(" " * 9 if u else "%+5.2f sig" % x for x, u in zip(z.tolist(), unknown.tolist()))]
+        sigma_text = ["%11.6g" % s if s == s else "          -" for s in sigmas]     # NaN: unknown
+        lines += ["%s%14.6g %s %s" % row for row in zip(rows, values, sigma_text, changes)]
     return "\n".join(lines) + "\n"
 
 

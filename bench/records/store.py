@@ -195,7 +195,7 @@ class Records:
                      budgets: bool = True) -> tuple[list[tuple], list[tuple]]:
         """The unit's latest result of every calibration run, oldest first, as (result id, run_id, when,
         software_version, verdict), `when` being the run's start, else its end; and those results' coefficients
-        (`names` only, if given) as (result id, name, value, sigma, unit, budget) in no order (budget None
+        (`names` only, if given) as (result id, name, value, sigma, unit, budget) by name (budget None
         unless `budgets`). Two queries: the run columns once per run, not once per coefficient."""
         u, r, s, c = schema.units, schema.runs, schema.results, schema.coefficients
         unit_ids = sa.select(u.c.id).where(u.c.serial == serial)
@@ -209,13 +209,13 @@ class Records:
                       .order_by(when, r.c.run_id))
         budget = c.c.budget if budgets else sa.null()
         values_query = (sa.select(c.c.result_id, c.c.name, c.c.value, c.c.sigma, c.c.unit, budget)
-                        .where(c.c.result_id.in_(sa.select(latest.c.id).scalar_subquery())))
+                        .where(c.c.result_id.in_(sa.select(latest.c.id).scalar_subquery()))
+                        .order_by(c.c.name))     # each coefficient's rows together (the name index has that order)
         if names:
             values_query = values_query.where(c.c.name.in_(names))
         with self._connect() as conn:
             # fetchall: one call into the driver for 300,000 rows, not one per row
-            return ([tuple(row) for row in conn.execute(runs_query)],
-                    [tuple(row) for row in conn.execute(values_query).fetchall()])
+            return [tuple(row) for row in conn.execute(runs_query)], list(conn.execute(values_query).fetchall())
 
     # -- plumbing --------------------------------------------------------------------------------
 
