@@ -11,7 +11,8 @@ file that is not MCAP. Logs that take seconds to solve (a real archive's 1 kHz r
 `--rate-hz 1000 --dwell-s 30`) take a minute each to record: `--distinct N` records N runs
 and fills the archive with hard links to them in folders of their own (every log is still
 read and solved on its own; the results are identical per source run).
-Then, side by side in one run:
+Then, side by side in one run (`--scaling-only`: step 1 alone, the three commands' results
+checked against each other; with `--repeats` every other repeat runs them in reverse order):
 1. `bench solve --archive DIR --scheduler loop` (the plain loop in one process),
    `--scheduler local --workers 1` and `--workers 2`, each into a fresh --out, without
    the database; wall time of the whole command (cluster start-up included), and without
@@ -28,6 +29,7 @@ import argparse
 import contextlib
 import io
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -123,27 +125,32 @@ def run(args: argparse.Namespace) -> None:
         # one by one, as a user would: bench solve LOG --no-html, each into its own folder
         one = work / "one-by-one"
         failed_one = []
-        for log in sorted(archive.rglob("*.mcap")):
+        for log in ([] if args.scaling_only else sorted(archive.rglob("*.mcap"))):
             out = one / log.parent.relative_to(archive)
             rc, _, err, _ = cli(["solve", str(log), "--out", str(out), "--no-html", "--no-db", "--quiet"])
             if rc not in (0, 4):
                 failed_one.append(log.name)
-        reference = results_of(one)
+        reference = results_of(one) if not args.scaling_only else None
         timings: dict[str, list[float]] = {}
+        commands = (("loop", ["--scheduler", "loop"]),
+                    ("dask 1 worker", ["--scheduler", "local", "--workers", "1"]),
+                    ("dask 2 workers", ["--scheduler", "local", "--workers", "2"]))
         for repeat in range(args.repeats):
-            for label, extra in (("loop", ["--scheduler", "loop"]),
-                                 ("dask 1 worker", ["--scheduler", "local", "--workers", "1"]),
-                                 ("dask 2 workers", ["--scheduler", "local", "--workers", "2"])):
+            # every other repeat in reverse order: a load that changes during the run hits all three alike
+            for label, extra in (commands if repeat % 2 == 0 else commands[::-1]):
                 out = work / f"{label.replace(' ', '-')}-{repeat}"
                 rc, stdout, stderr, wall = cli(["solve", "--archive", str(archive), "--out", str(out), "--no-db",
                                                 "--quiet", *extra])
                 timings.setdefault(label, []).append(wall)
                 got = results_of(out)
+                if reference is None:       # --scaling-only: the first command's results are the reference
+                    reference = got
                 same = got == reference
                 reported = sorted(line.split(" FAILED ")[1].split(":")[0].rsplit("/", 1)[-1]
                                   for line in stderr.splitlines() if " FAILED " in line)
-                print(f"{label:15} {wall:6.1f} s  exit {rc}  {len(got)} results, identical to one-by-one: {same}; "
-                      f"failed: {', '.join(reported)}")
+                against = "the first command" if args.scaling_only else "one-by-one"
+                print(f"{label:15} {wall:6.1f} s  (load {os.getloadavg()[0]:.1f})  exit {rc}  {len(got)} results, "
+                      f"identical to {against}: {same}; failed: {', '.join(reported)}")
             for label, n in (("dask 1 worker", 1), ("dask 2 workers", 2)):
                 start = time.perf_counter()
                 solve_archive([], scheduler="local", workers=n)       # the cluster started and closed, no task
@@ -160,6 +167,8 @@ def run(args: argparse.Namespace) -> None:
               f"{100 * (med['dask 1 worker'] / med['loop'] - 1):+.1f} % whole command, "
               f"{100 * (med['dask 1 worker solving'] / med['loop'] - 1):+.1f} % without the start-up "
               f"(target < 10 %)")
+        if args.scaling_only:
+            return
         db = work / "records.sqlite"
         rc, stdout, stderr, wall = cli(["solve", "--archive", str(archive), "--db", str(db), "--quiet",
                                         "--out", str(work / "with-db"), "--workers", "2"])
@@ -181,5 +190,8 @@ if __name__ == "__main__":
     parser.add_argument("--dir", metavar="DIR")
     parser.add_argument("--rate-hz", type=float, default=50.0, help="IMU sample rate of the recorded runs")
     parser.add_argument("--dwell-s", type=float, default=2.0, help="dwell time of the recorded runs")
+    parser.add_argument("--scaling-only", action="store_true",
+                        help="only the timed commands (their results checked against each other), no one-by-one "
+                             "reference and no database pass")
     parser.add_argument("--distinct", type=int, help="record this many runs, hard-link the rest (default: all)")
     run(parser.parse_args())
