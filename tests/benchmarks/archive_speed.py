@@ -31,6 +31,7 @@ import io
 import json
 import os
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -155,7 +156,11 @@ def run(args: argparse.Namespace) -> None:
                 start = time.perf_counter()
                 solve_archive([], scheduler="local", workers=n)       # the cluster started and closed, no task
                 timings.setdefault(f"{label} start-up", []).append(time.perf_counter() - start)
-        med = {k: sorted(v)[len(v) // 2] for k, v in timings.items()}
+        for k in range(args.repeats):       # each repeat's three commands ran back to back: their ratios
+            t = {label: v[k] for label, v in timings.items()}
+            print(f"repeat {k + 1}: 2 workers vs 1 {t['dask 1 worker'] / t['dask 2 workers']:.2f}x, Dask 1 worker vs "
+                  f"the loop {100 * (t['dask 1 worker'] / t['loop'] - 1):+.1f} %")
+        med = {k: statistics.median(v) for k, v in timings.items()}
         for label in ("dask 1 worker", "dask 2 workers"):
             med[f"{label} solving"] = med[label] - med[f"{label} start-up"]
             print(f"{label}: cluster start-up and close {med[f'{label} start-up']:.1f} s, "
