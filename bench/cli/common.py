@@ -101,6 +101,31 @@ def noise_from_args(args: argparse.Namespace) -> NoiseModel:
                       _DEFAULT_NOISE.correlation_time_s, not args.no_quantise)
 
 
+def add_scheduler_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, *, default: str,
+                            what: str, note: str = "", after: str = "") -> None:
+    """`--scheduler` and `--workers`: where `bench.parallel.run_tasks` runs `what` (checked there)."""
+    parser.add_argument("--scheduler", default=default, metavar="local|loop|tcp://HOST:PORT",
+                        help=f"{note}where {what}: 'loop' one by one in "
+                             "this process without Dask, 'local' on a Dask cluster started on this machine, "
+                             "tcp://HOST:PORT on a running Dask scheduler (pip install -e '.[archive]'); "
+                             f"default %(default)s{after}")
+    parser.add_argument("--workers", type=int, metavar="N",
+                        help=f"{note}with --scheduler local: worker processes (default: the machine's cores)")
+
+
+def task_progress(what: str, stream: Any = None) -> Callable[[int, int], None] | None:
+    """A `progress(done, total)` for `bench.parallel` tasks: a line redrawn in place on a terminal, None elsewhere
+    (logs and pipes get the result only)."""
+    out = stream if stream is not None else sys.stderr
+    if not out.isatty():
+        return None
+
+    def progress(done: int, total: int) -> None:
+        out.write(f"\r{what}: {done}/{total}" + ("\n" if done == total else ""))
+        out.flush()
+    return progress
+
+
 #: The signals that end a command the way Ctrl-C does: SIGINT (Ctrl-C), SIGTERM (kill, systemd, a CI job
 #: cancelled) and SIGHUP (the terminal or SSH session went away).
 STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(

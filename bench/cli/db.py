@@ -121,7 +121,8 @@ def cmd_history(args: argparse.Namespace) -> ExitCode:
 
     try:
         with _open(args, create=False) as records:
-            history = unit_history(records, args.serial, names=args.coefficient, model=args.model)
+            history = unit_history(records, args.serial, names=args.coefficient, model=args.model,
+                                   budgets=bool(args.out))     # only the written JSON shows the budgets
     except RecordsError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     if args.coefficient and not history.coefficients:

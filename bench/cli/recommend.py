@@ -6,7 +6,14 @@ import argparse
 import math
 from pathlib import Path
 
-from bench.cli.common import ExitCode, add_noise_arguments, fail, noise_from_args
+from bench.cli.common import (
+    ExitCode,
+    add_noise_arguments,
+    add_scheduler_arguments,
+    fail,
+    noise_from_args,
+    task_progress,
+)
 from bench.errors import InputError
 
 PROG = "bench schedules recommend"
@@ -31,6 +38,8 @@ def register_recommend(commands: argparse._SubParsersAction) -> None:
     rc.add_argument("--runs", type=int, default=64, help="Monte-Carlo draws for the second-order part (default 64)")
     rc.add_argument("--top", type=int, default=9, help="rows of the candidate table (default 9)")
     rc.add_argument("--write-config", metavar="FILE", help="write the recommended plan as a [plan] table here")
+    add_scheduler_arguments(rc, default="loop", what="the predictions (a task per schedule, with its Monte Carlo) run",
+                            after="; the result is the same on any")
     rc.set_defaults(func=cmd_recommend)
 
 
@@ -84,6 +93,7 @@ def format_recommendation(rec, top: int = 9) -> list[str]:
 def cmd_recommend(args: argparse.Namespace) -> ExitCode:
     # imported when the command runs: `bench` starts without the bench core
     from bench.model.earth import Site
+    from bench.parallel import SchedulerError, check_scheduler
     from bench.schedule_design.recommend import (
         PointingLevel,
         RecommendError,
@@ -101,6 +111,7 @@ def cmd_recommend(args: argparse.Namespace) -> ExitCode:
         return fail(PROG, "--runs and --top must be >= 1", ExitCode.USAGE)
     try:
         site = Site(args.latitude)
+        check_scheduler(args.scheduler, args.workers)
     except InputError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     try:
@@ -108,10 +119,11 @@ def cmd_recommend(args: argparse.Namespace) -> ExitCode:
                  else PointingLevel.uniform(args.pointing_arcsec))
         positions, rotations = resolve_candidates(args.candidates)
         rec = recommend(args.budget_s, level, noise_from_args(args), positions=positions, rotations=rotations,
-                        site=site, runs=args.runs)
+                        site=site, runs=args.runs, scheduler=args.scheduler, workers=args.workers,
+                        progress=task_progress("schedule predictions"))
     except ScheduleError as exc:
         return fail(PROG, str(exc), ExitCode.INVALID_SCHEDULE)
-    except RecommendError as exc:
+    except (RecommendError, SchedulerError) as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     for line in format_recommendation(rec, args.top):
         print(line)

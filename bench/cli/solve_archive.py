@@ -15,7 +15,7 @@ import sys
 import time
 from pathlib import Path
 
-from bench.cli.common import ExitCode, fail
+from bench.cli.common import ExitCode, add_scheduler_arguments, fail
 
 PROG = "bench solve"
 
@@ -24,11 +24,7 @@ def add_archive_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("re-solving an archive (Dask distributed; pip install -e '.[archive]')")
     group.add_argument("--archive", metavar="DIR", nargs="+", action="extend",
                        help="re-solve every *.mcap below these folders, each log on its own, in parallel")
-    group.add_argument("--scheduler", default="local", metavar="local|loop|tcp://HOST:PORT",
-                       help="with --archive: 'local' starts a Dask cluster on this machine (default), "
-                            "tcp://HOST:PORT uses a running Dask scheduler, 'loop' solves one by one without Dask")
-    group.add_argument("--workers", type=int, metavar="N",
-                       help="with --archive --scheduler local: worker processes (default: the machine's cores)")
+    add_scheduler_arguments(group, default="local", what="the logs are solved", note="with --archive: ")
     group.add_argument("--html", action="store_true",
                        help="with --archive: also write each HTML report (default: Markdown only, as --no-html)")
     group.add_argument("--redo", action="store_true",
@@ -38,9 +34,10 @@ def add_archive_options(parser: argparse.ArgumentParser) -> None:
 def cmd_archive(args: argparse.Namespace) -> ExitCode:
     # imported when the command runs: `bench` starts without the bench core or SQLAlchemy
     from bench import __version__
+    from bench.parallel import SchedulerError, check_scheduler, describe
     from bench.records.ingest import import_file
     from bench.records.store import RecordsError, open_records
-    from bench.solve.archive import ArchiveError, ArchiveItem, find_logs, output_folder, solve_archive
+    from bench.solve.archive import ArchiveItem, find_logs, output_folder, solve_archive
 
     if args.logs:
         return fail(PROG, "give logs or --archive DIR..., not both", ExitCode.USAGE)
@@ -49,8 +46,10 @@ def cmd_archive(args: argparse.Namespace) -> ExitCode:
               if on]
     if others:
         return fail(PROG, f"--archive re-solves whole logs: drop {', '.join(others)}", ExitCode.USAGE)
-    if args.workers is not None and args.workers < 1:
-        return fail(PROG, f"--workers {args.workers}: needs at least 1", ExitCode.USAGE)
+    try:
+        check_scheduler(args.scheduler, args.workers)
+    except SchedulerError as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
     missing = [d for d in args.archive if not Path(d).exists()]
     if missing:
         return fail(PROG, f"{missing[0]}: no such folder", ExitCode.USAGE)
@@ -73,7 +72,7 @@ def cmd_archive(args: argparse.Namespace) -> ExitCode:
     tasks = [(log, output_folder(log, roots, out)) for log in todo]
     if not args.quiet:
         print(f"{len(logs)} log(s), {len(logs) - len(todo)} already solved by {__version__} (skipped), "
-              f"{len(todo)} to solve on {args.scheduler}" + (f" ({args.workers} workers)" if args.workers else ""))
+              f"{len(todo)} to solve on {describe(args.scheduler, args.workers)}")
     done_count = 0
     recording = records
     failed: list[ArchiveItem] = []
@@ -105,7 +104,7 @@ def cmd_archive(args: argparse.Namespace) -> ExitCode:
 
     try:
         solve_archive(tasks, scheduler=args.scheduler, workers=args.workers, html=args.html, on_done=on_done)
-    except ArchiveError as exc:
+    except SchedulerError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     finally:
         if records is not None:

@@ -191,26 +191,31 @@ class Records:
         with self._connect() as conn:
             return [m for (m,) in conn.execute(sa.select(u.c.model).where(u.c.serial == serial).order_by(u.c.model))]
 
-    def history_rows(self, serial: str, model: str | None = None,
-                     names: list[str] | None = None) -> list[tuple]:
-        """(run_id, when, software_version, verdict, name, value, sigma, unit, budget) of the unit's latest result
-        per run, oldest first; `when` is the run's start, else its end."""
+    def history_rows(self, serial: str, model: str | None = None, names: list[str] | None = None,
+                     budgets: bool = True) -> tuple[list[tuple], list[tuple]]:
+        """The unit's latest result of every calibration run, oldest first, as (result id, run_id, when,
+        software_version, verdict), `when` being the run's start, else its end; and those results' coefficients
+        (`names` only, if given) as (result id, name, value, sigma, unit, budget) by name (budget None
+        unless `budgets`). Two queries: the run columns once per run, not once per coefficient."""
         u, r, s, c = schema.units, schema.runs, schema.results, schema.coefficients
         unit_ids = sa.select(u.c.id).where(u.c.serial == serial)
         if model is not None:
             unit_ids = unit_ids.where(u.c.model == model)
-        run_ids = sa.select(r.c.id).where(r.c.unit_id.in_(unit_ids.scalar_subquery()))
-        latest = sa.select(_newest_results(s.c.run_pk.in_(run_ids.scalar_subquery())).subquery().c.id)
+        run_ids = sa.select(r.c.id).where(r.c.unit_id.in_(unit_ids.scalar_subquery()), r.c.kind == "calibration")
+        latest = _newest_results(s.c.run_pk.in_(run_ids.scalar_subquery())).subquery()
         when = sa.func.coalesce(r.c.started_utc, r.c.finished_utc)
-        query = (sa.select(r.c.run_id, when, s.c.software_version, s.c.verdict, c.c.name, c.c.value, c.c.sigma,
-                           c.c.unit, c.c.budget)
-                 .select_from(c).join(s, s.c.id == c.c.result_id).join(r, r.c.id == s.c.run_pk)
-                 .where(c.c.result_id.in_(latest.scalar_subquery()), r.c.kind == "calibration")
-                 .order_by(when, r.c.run_id))
+        runs_query = (sa.select(s.c.id, r.c.run_id, when, s.c.software_version, s.c.verdict)
+                      .select_from(latest).join(s, s.c.id == latest.c.id).join(r, r.c.id == s.c.run_pk)
+                      .order_by(when, r.c.run_id))
+        budget = c.c.budget if budgets else sa.null()
+        values_query = (sa.select(c.c.result_id, c.c.name, c.c.value, c.c.sigma, c.c.unit, budget)
+                        .where(c.c.result_id.in_(sa.select(latest.c.id).scalar_subquery()))
+                        .order_by(c.c.name))     # each coefficient's rows together (the name index has that order)
         if names:
-            query = query.where(c.c.name.in_(names))
+            values_query = values_query.where(c.c.name.in_(names))
         with self._connect() as conn:
-            return [tuple(row) for row in conn.execute(query)]
+            # fetchall: one call into the driver for 300,000 rows, not one per row
+            return [tuple(row) for row in conn.execute(runs_query)], list(conn.execute(values_query).fetchall())
 
     # -- plumbing --------------------------------------------------------------------------------
 

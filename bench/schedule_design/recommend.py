@@ -39,6 +39,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,28 +48,21 @@ import numpy as np
 from bench.errors import InputError
 from bench.model.earth import Site
 from bench.model.families import (
-    BODY_AXES,
     DESIGN_UNITS,
     POSITION_FAMILIES,
     ROTATION_FAMILIES,
-    SENSOR_AXES,
     TITLES,
     family_of,
 )
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
-from bench.model.units import ARCSEC
+from bench.parallel import run_tasks
 from bench.plan.compiler import PlanError, PlanTiming, compile_plan
 from bench.plan.steps import DwellStep, TurnStep
 from bench.schedule_design.sensitivity import (
     ANGLE_NAMES,
-    INNER_ZERO_OFFSET,
-    Sensitivity,
     position_noise_sigma,
-    position_sensitivity,
+    predict_black_box,
     rotation_noise_sigma,
-    rotation_sensitivity,
-    solve_positions_batch,
-    solve_rotations_batch,
 )
 from bench.solve.methods import SolverError
 from bench.table_check.estimate import ANGLE_NAMES as CHECK_ANGLES  # same flat order as the black box
@@ -229,53 +223,6 @@ class Recommendation:
         return explain(self)
 
 
-def _family_rows(names: tuple[str, ...], fam: str) -> list[int]:
-    return [i for i, n in enumerate(names) if family_of(n) == fam]
-
-
-def _first_order(sens: Sensitivity, level_arcsec: np.ndarray) -> tuple[dict[str, float], dict[str, float]]:
-    """Per family: RSS of sensitivity x level without the inner zero offset, and that offset's part alone."""
-    contrib = sens.matrix * level_arcsec.ravel()[None, :]
-    reducible, irreducible = {}, {}
-    for fam in dict.fromkeys(family_of(n) for n in sens.names):
-        rows = contrib[_family_rows(sens.names, fam)]
-        irreducible[fam] = float(np.sqrt(np.sum(rows[:, INNER_ZERO_OFFSET] ** 2)))
-        reducible[fam] = float(np.sqrt(np.sum(np.delete(rows, INNER_ZERO_OFFSET, axis=1) ** 2)))
-    return reducible, irreducible
-
-
-def _display_rows(solved: dict[str, np.ndarray], names: tuple[str, ...], imu: ImuCoefficients) -> np.ndarray:
-    """(R, C) solved coefficients in display units, in `names` order (scale factors as ppm of truth)."""
-    cols = []
-    for name in names:
-        fam, suffix = name.split("_", 1)
-        factor = DESIGN_UNITS[fam][1]
-        if fam in ("Ea", "Eg"):
-            cols.append(solved[fam][:, SENSOR_AXES.index(suffix[1]), BODY_AXES.index(suffix[0])] * factor)
-        elif fam in ("Ka", "Kg"):
-            truth = imu.acc_scale if fam == "Ka" else imu.gyro_scale
-            s = SENSOR_AXES.index(suffix)
-            cols.append((solved[fam][:, s] / truth[s] - 1.0) * factor)
-        else:
-            cols.append(solved[fam][:, SENSOR_AXES.index(suffix)] * factor)
-    return np.stack(cols, axis=1)
-
-
-def _second_order(solve, sens: Sensitivity, unit_draws: np.ndarray, level_arcsec: np.ndarray,
-                  imu: ImuCoefficients) -> dict[str, float]:
-    """RMS over draws of (exact solve - zero-box solve - first-order prediction), RSS per family."""
-    angles_arcsec = unit_draws * level_arcsec[None]                             # (R, 3, 3)
-    boxes = np.concatenate([np.zeros((1, 3, 3)), angles_arcsec * ARCSEC])
-    rows = _display_rows(solve(boxes), sens.names, imu)
-    linear = angles_arcsec.reshape(len(unit_draws), 9) @ sens.matrix.T
-    residual = rows[1:] - rows[:1] - linear
-    out = {}
-    for fam in dict.fromkeys(family_of(n) for n in sens.names):
-        per_run = np.sum(residual[:, _family_rows(sens.names, fam)] ** 2, axis=1)
-        out[fam] = float(np.sqrt(np.mean(per_run))) if len(per_run) else 0.0
-    return out
-
-
 def _family_rss(sigmas: dict[str, float], fam: str) -> float:
     return math.sqrt(sum(v * v for n, v in sigmas.items() if family_of(n) == fam))
 
@@ -328,8 +275,12 @@ def resolve_candidates(extra=()) -> tuple[list[Schedule], list[Schedule]]:
 def recommend(budget_s: float, level: PointingLevel, noise: NoiseModel, *, positions=None, rotations=None,
               site: Site | None = None, timing: PlanTiming | None = None, dwell_grid_s=DWELL_GRID_S,
               revolutions_grid=REVOLUTIONS_GRID, runs: int = 64, seed: int = 0,
-              imu: ImuCoefficients | None = None) -> Recommendation:
+              imu: ImuCoefficients | None = None, scheduler: str = "loop", workers: int | None = None,
+              progress: Callable[[int, int], None] | None = None) -> Recommendation:
     """Score every (position, rotation, dwell, revolutions) plan that fits `budget_s` and rank them.
+
+    The black-box predictions (one per schedule, with its Monte Carlo) are tasks of
+    `bench.parallel.run_tasks` on `scheduler`; `progress(done, total)` after each.
 
     `positions` / `rotations` default to the shipped candidates. `timing` supplies the
     move, settle and turn profiles (its dwell and revolutions are the grid's to choose).
@@ -370,32 +321,41 @@ def recommend(budget_s: float, level: PointingLevel, noise: NoiseModel, *, posit
                              f"{positions[p].name} + {rotations[r].name} at {dwell:g} s dwell, {revs} rev "
                              f"({plans[shortest]:.0f} s)")
 
-    # Predictions only for what some fitting plan uses (the Monte Carlo is the costly part).
+    # Predictions only for what some fitting plan uses (the Monte Carlo is the costly part): one task per
+    # position schedule and per (rotation schedule, revolutions), a pure function of its arguments, so the same
+    # on any scheduler
+    pos_keys = sorted({k[0] for k in fitting})
+    rot_keys = sorted({(k[1], k[3]) for k in fitting})
+    calls: list[tuple] = [(np.array([x.angles_deg for x in positions[p].positions]), None, imu, site, unit_draws,
+                           level_arcsec) for p in pos_keys]
+    calls += [(None, list(_with_revolutions(rotations[r], revs).rotations), imu, site, unit_draws, level_arcsec,
+               timing.turn_rate_dps) for r, revs in rot_keys]
+    black_box: list = [None] * len(calls)
+    for done, (index, result, error) in enumerate(run_tasks(predict_black_box, calls, scheduler=scheduler,
+                                                            workers=workers), 1):
+        if isinstance(error, SolverError):
+            source = positions[pos_keys[index]].source if index < len(pos_keys) else \
+                rotations[rot_keys[index - len(pos_keys)][0]].source
+            raise RecommendError(f"{source}: {error}") from error
+        if error is not None:
+            raise error
+        black_box[index] = result
+        if progress is not None:
+            progress(done, len(calls))
     pos_err, rot_err = {}, {}
-    for p in sorted({k[0] for k in fitting}):
-        angles = np.array([x.angles_deg for x in positions[p].positions])
-        try:
-            sens = position_sensitivity(angles, imu, site)
-            second = _second_order(lambda b, angles=angles: solve_positions_batch(angles, b, imu, site), sens,
-                                   unit_draws, level_arcsec, imu)
-        except SolverError as exc:
-            raise RecommendError(f"{positions[p].source}: {exc}") from exc
-        first, irreducible = _first_order(sens, level_arcsec)
+    for k, p in enumerate(pos_keys):
+        first, second, irreducible = black_box[k]
+        angles = calls[k][0]
         for dwell in sorted({k[2] for k in fitting if k[0] == p}):
             sigma = position_noise_sigma(angles, noise, dwell, imu, site)
             pos_err[(p, dwell)] = {f: FamilyError(first[f], second[f], _family_rss(sigma, f), irreducible[f])
                                    for f in POSITION_FAMILIES}
-    for r, revs in sorted({(k[1], k[3]) for k in fitting}):
-        turns = list(_with_revolutions(rotations[r], revs).rotations)
+    for k, (r, revs) in enumerate(rot_keys):
+        first, second, irreducible = black_box[len(pos_keys) + k]
         try:
-            sens = rotation_sensitivity(turns, imu, site, timing.turn_rate_dps)
-            second = _second_order(
-                lambda b, turns=turns: solve_rotations_batch(turns, b, imu, site, timing.turn_rate_dps),
-                sens, unit_draws, level_arcsec, imu)
-            sigma = rotation_noise_sigma(turns, noise, timing.turn_rate_dps, imu, site)
+            sigma = rotation_noise_sigma(calls[len(pos_keys) + k][1], noise, timing.turn_rate_dps, imu, site)
         except SolverError as exc:
             raise RecommendError(f"{rotations[r].source}: {exc}") from exc
-        first, irreducible = _first_order(sens, level_arcsec)
         rot_err[(r, revs)] = {f: FamilyError(first[f], second[f], _family_rss(sigma, f), irreducible[f])
                               for f in ROTATION_FAMILIES}
 

@@ -289,6 +289,73 @@ def rotation_noise_sigma(turns, noise: NoiseModel, rate_dps: float = 10.0, imu: 
     return {n: out[n] for n in coefficient_names(ROTATION_FAMILIES)}
 
 
+# --- black-box prediction of a schedule (a task of `bench schedules recommend`) -----------------
+
+def _family_rows(names: tuple[str, ...], fam: str) -> list[int]:
+    return [i for i, n in enumerate(names) if family_of(n) == fam]
+
+
+def first_order(sens: Sensitivity, level_arcsec: np.ndarray) -> tuple[dict[str, float], dict[str, float]]:
+    """Per family: RSS of sensitivity x level without the inner zero offset, and that offset's part alone."""
+    contrib = sens.matrix * level_arcsec.ravel()[None, :]
+    reducible, irreducible = {}, {}
+    for fam in dict.fromkeys(family_of(n) for n in sens.names):
+        rows = contrib[_family_rows(sens.names, fam)]
+        irreducible[fam] = float(np.sqrt(np.sum(rows[:, INNER_ZERO_OFFSET] ** 2)))
+        reducible[fam] = float(np.sqrt(np.sum(np.delete(rows, INNER_ZERO_OFFSET, axis=1) ** 2)))
+    return reducible, irreducible
+
+
+def _display_rows(solved: dict[str, np.ndarray], names: tuple[str, ...], imu: ImuCoefficients) -> np.ndarray:
+    """(R, C) solved coefficients in display units, in `names` order (scale factors as ppm of truth)."""
+    cols = []
+    for name in names:
+        fam, suffix = name.split("_", 1)
+        factor = DESIGN_UNITS[fam][1]
+        if fam in ("Ea", "Eg"):
+            cols.append(solved[fam][:, SENSOR_AXES.index(suffix[1]), BODY_AXES.index(suffix[0])] * factor)
+        elif fam in ("Ka", "Kg"):
+            truth = imu.acc_scale if fam == "Ka" else imu.gyro_scale
+            s = SENSOR_AXES.index(suffix)
+            cols.append((solved[fam][:, s] / truth[s] - 1.0) * factor)
+        else:
+            cols.append(solved[fam][:, SENSOR_AXES.index(suffix)] * factor)
+    return np.stack(cols, axis=1)
+
+
+def second_order(solve, sens: Sensitivity, unit_draws: np.ndarray, level_arcsec: np.ndarray,
+                  imu: ImuCoefficients) -> dict[str, float]:
+    """RMS over draws of (exact solve - zero-box solve - first-order prediction), RSS per family."""
+    angles_arcsec = unit_draws * level_arcsec[None]                             # (R, 3, 3)
+    boxes = np.concatenate([np.zeros((1, 3, 3)), angles_arcsec * ARCSEC])
+    rows = _display_rows(solve(boxes), sens.names, imu)
+    linear = angles_arcsec.reshape(len(unit_draws), 9) @ sens.matrix.T
+    residual = rows[1:] - rows[:1] - linear
+    out = {}
+    for fam in dict.fromkeys(family_of(n) for n in sens.names):
+        per_run = np.sum(residual[:, _family_rows(sens.names, fam)] ** 2, axis=1)
+        out[fam] = float(np.sqrt(np.mean(per_run))) if len(per_run) else 0.0
+    return out
+
+
+def predict_black_box(angles_deg: np.ndarray | None, turns: list | None, imu: ImuCoefficients, site: Site,
+                      unit_draws: np.ndarray, level_arcsec: np.ndarray, turn_rate_dps: float = 0.0
+                      ) -> tuple[dict[str, float], dict[str, float], dict[str, float]]:
+    """One task: a position schedule's (`angles_deg`) or a rotation schedule's (`turns`) black-box error per family:
+    first order, second order (the Monte Carlo over `unit_draws`) and the irreducible part. Raises SolverError."""
+    if angles_deg is not None:
+        sens = position_sensitivity(angles_deg, imu, site)
+        second = second_order(lambda b: solve_positions_batch(angles_deg, b, imu, site), sens, unit_draws,
+                               level_arcsec, imu)
+    else:
+        sens = rotation_sensitivity(turns, imu, site, turn_rate_dps)
+        second = second_order(lambda b: solve_rotations_batch(turns, b, imu, site, turn_rate_dps), sens,
+                               unit_draws, level_arcsec, imu)
+    first, irreducible = first_order(sens, level_arcsec)
+    return first, second, irreducible
+
+
 __all__ = ["ANGLE_NAMES", "INNER_ZERO_OFFSET", "STEP_RAD", "ZERO_REL", "Sensitivity", "coefficient_names",
-           "position_noise_sigma", "position_sensitivity", "rotation_design_nominal", "rotation_noise_sigma",
-           "rotation_sensitivity", "solve_positions_batch", "solve_rotations_batch"]
+           "first_order", "position_noise_sigma", "position_sensitivity", "predict_black_box",
+           "rotation_design_nominal", "rotation_noise_sigma", "rotation_sensitivity", "second_order",
+           "solve_positions_batch", "solve_rotations_batch"]

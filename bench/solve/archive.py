@@ -4,28 +4,25 @@
 one task: read, solve, write `<stem>.result.json` and the report exactly as `bench solve`
 does (`bench.solve.resolve`), and return an `ArchiveItem` (a log that cannot be solved
 is an item with its reason, never an exception: one bad log does not stop the archive).
-`solve_archive` runs the tasks on a Dask cluster (a `LocalCluster` of `workers` processes,
-or a running scheduler by address) or, with `scheduler="loop"`, one by one in this
-process (the reference the Dask overhead is measured against), and hands each item to
-`on_done` as it completes, in completion order.
-
-Dask is optional (the `archive` extra): it is imported only when an archive is solved on it.
+`solve_archive` runs the tasks with `bench.parallel.run_tasks` on a Dask cluster (a
+`LocalCluster` of `workers` processes, or a running scheduler by address) or, with
+`scheduler="loop"`, one by one in this process (the reference the Dask overhead is measured
+against), and hands each item to `on_done` as it completes, in completion order.
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable
 
-from bench.errors import BenchError, InputError
+from bench.errors import BenchError
+from bench.parallel import SchedulerError, run_tasks
 from bench.solve.methods import SolverError
 from bench.solve.resolve import load_recorded, solve_recorded, write_outputs
 
-
-class ArchiveError(InputError):
-    """The archive cannot be solved at all: Dask missing, a scheduler that cannot be reached."""
+#: The archive cannot be solved at all: a bad scheduler, Dask missing, a scheduler that cannot be reached.
+ArchiveError = SchedulerError
 
 
 @dataclass(frozen=True)
@@ -87,53 +84,16 @@ def solve_log(log: str, out_dir: str, html: bool = False) -> ArchiveItem:
 
 def solve_archive(tasks: list[tuple[Path, Path]], *, scheduler: str = "local", workers: int | None = None,
                   html: bool = False, on_done: Callable[[ArchiveItem], None] | None = None) -> list[ArchiveItem]:
-    """Solve every (log, out_dir); `scheduler`: "local" (a LocalCluster of `workers` processes, default the
-    machine's cores), "tcp://HOST:PORT" (a running Dask scheduler) or "loop" (one by one here, no Dask)."""
+    """Solve every (log, out_dir) on `scheduler` (`bench.parallel.run_tasks`: "local", "tcp://HOST:PORT" or
+    "loop"); a task that fails (a worker that died, a bug) fails its log only."""
     items: list[ArchiveItem] = []
-
-    def done(item: ArchiveItem) -> None:
+    calls = [(str(log), str(out_dir), html) for log, out_dir in tasks]
+    for index, item, error in run_tasks(solve_log, calls, scheduler=scheduler, workers=workers):
+        if error is not None:
+            item = ArchiveItem(str(tasks[index][0]), False, error=f"{type(error).__name__}: {error}")
         items.append(item)
         if on_done is not None:
             on_done(item)
-
-    if scheduler == "loop":
-        for log, out_dir in tasks:
-            done(solve_log(str(log), str(out_dir), html))
-        return items
-    try:
-        # Dask is heavy and optional (the `archive` extra): imported only to solve an archive on it
-        from distributed import Client, LocalCluster, as_completed
-    except ImportError as exc:
-        raise ArchiveError("solving an archive on Dask needs dask[distributed]: pip install -e '.[archive]' "
-                           "(or --scheduler loop)") from exc
-    cluster = None
-    try:
-        if scheduler == "local":
-            # one single-threaded worker process per core: the solve is numpy/Python, a process each scales best
-            cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, host="127.0.0.1", silence_logs=40)
-            client = Client(cluster)
-        elif scheduler.startswith("tcp://"):
-            client = Client(scheduler, timeout="10s")
-        else:
-            raise ArchiveError(f"--scheduler {scheduler!r}: say local, loop or tcp://HOST:PORT")
-    except (OSError, TimeoutError) as exc:
-        if cluster is not None:
-            cluster.close()
-        raise ArchiveError(f"cannot reach the Dask scheduler {scheduler}: {exc}") from exc
-    try:
-        futures = [client.submit(solve_log, str(log), str(out_dir), html, pure=False, key=f"solve-{k}")
-                   for k, (log, out_dir) in enumerate(tasks)]
-        by_key = {f.key: tasks[k][0] for k, f in enumerate(futures)}
-        for future in as_completed(futures):
-            try:
-                done(future.result())
-            except Exception as exc:    # noqa: BLE001  a worker that died or a bug in one task: that log fails, not all
-                done(ArchiveItem(str(by_key[future.key]), False, error=f"{type(exc).__name__}: {exc}"))
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
     return items
 
 

@@ -1,15 +1,19 @@
 """Benchmark: `bench db history` on a records database of 10,000 results (issue 20, "Must show": under 1 s).
 
 Run: python tests/benchmarks/db_history_speed.py [--results 10000] [--units 100] [--repeats 5] [--db-dir DIR]
+         [--baseline TREE]
 
 Builds (once, cached in DIR, default <system temp>/turntable-bench-db-history) two SQLite
 databases of `--results` results of 30 coefficients each, made from one real result file
 (the in-memory simulated acquisition + the solver) with the values varied per result:
 - "fleet": the results spread over `--units` units (100 calibrations each by default);
 - "one unit": every result on one unit (the worst case for one history).
-Timed (median of the repeats, after one warm-up): the whole command as a user runs it,
-`bench db history SERIAL` (open + migrate check + query + analysis + the printed table,
-stdout to /dev/null), and the same with `--coefficient Kg_x D0_x`.
+Timed (median of the repeats, after one warm-up; wall and CPU time of the process): the whole
+command as a user runs it, `bench db history SERIAL` (open + migrate check + query + analysis
++ the printed table, stdout to /dev/null), and the same with `--coefficient Kg_x D0_x`.
+With `--baseline TREE` (another checkout, e.g. `git worktree add /tmp/before COMMIT`) each
+case is timed in this tree and in TREE alternately, each in a fresh process (imports not
+timed), side by side, and the printed tables are checked to be identical.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import hashlib
 import json
 import os
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -72,18 +77,51 @@ def build(db: Path, template: dict, results: int, units: int) -> None:
     tmp.rename(db)
 
 
-def timed(argv: list[str], repeats: int) -> float:
-    times = []
+def timed(argv: list[str], repeats: int) -> tuple[float, float]:
+    """Median (wall s, CPU s) of `bench` run in this process with `argv`, after one warm-up."""
+    walls, cpus = [], []
     with open(os.devnull, "w") as devnull:
         for k in range(repeats + 1):
-            start = time.perf_counter()
+            start, cpu = time.perf_counter(), time.process_time()
             with contextlib.redirect_stdout(devnull):
                 code = main(argv)
-            elapsed = time.perf_counter() - start
+            elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
             assert code == 0, code
             if k:                       # the first is the warm-up
-                times.append(elapsed)
-    return statistics.median(times)
+                walls.append(elapsed)
+                cpus.append(cpu)
+    return statistics.median(walls), statistics.median(cpus)
+
+
+#: `timed` in a child process on another tree's `bench` (self-contained: the other tree's benchmark may differ)
+_CHILD = """
+import contextlib, json, os, statistics, sys, time
+from bench.cli.main import main
+argv, repeats = json.loads(sys.argv[1]), int(sys.argv[2])
+walls, cpus = [], []
+with open(os.devnull, "w") as devnull:
+    for k in range(repeats + 1):
+        start, cpu = time.perf_counter(), time.process_time()
+        with contextlib.redirect_stdout(devnull):
+            assert main(argv) == 0
+        if k:
+            walls.append(time.perf_counter() - start)
+            cpus.append(time.process_time() - cpu)
+print(json.dumps([statistics.median(walls), statistics.median(cpus)]))
+"""
+
+
+def timed_in(tree: Path, argv: list[str], repeats: int) -> tuple[float, float]:
+    """`timed` in a fresh process on the code of `tree` (PYTHONPATH=tree)."""
+    done = subprocess.run([sys.executable, "-c", _CHILD, json.dumps(argv), str(repeats)], capture_output=True,
+                          text=True, check=True, cwd=tree, env={**os.environ, "PYTHONPATH": str(tree)})
+    wall, cpu = json.loads(done.stdout.strip().splitlines()[-1])
+    return wall, cpu
+
+
+def printed(tree: Path, argv: list[str]) -> str:
+    return subprocess.run([sys.executable, "-m", "bench.cli", *argv], capture_output=True, text=True, check=True,
+                          cwd=tree, env={**os.environ, "PYTHONPATH": str(tree)}).stdout
 
 
 def run(args: argparse.Namespace) -> None:
@@ -99,11 +137,27 @@ def run(args: argparse.Namespace) -> None:
         db = folder / f"{label.replace(' ', '-')}-{args.results}-{units}.sqlite"
         build(db, template, args.results, units)
         per = args.results // units
-        full = timed(["db", "history", "--db", str(db), serial], args.repeats)
-        two = timed(["db", "history", "--db", str(db), serial, "--coefficient", "Kg_x", "D0_x"], args.repeats)
-        print(f"{label:9}: {args.results} results, {units} unit(s), history of {per} calibrations: "
-              f"all 30 coefficients {full * 1e3:.0f} ms, 2 coefficients {two * 1e3:.0f} ms "
-              f"(median of {args.repeats}; target < 1000 ms)")
+        cases = (("all 30 coefficients", ["db", "history", "--db", str(db), serial]),
+                 ("2 coefficients", ["db", "history", "--db", str(db), serial, "--coefficient", "Kg_x", "D0_x"]))
+        for what, argv in cases:
+            load = os.getloadavg()[0]
+            if args.baseline is None:
+                wall, cpu = timed(argv, args.repeats)
+                print(f"{label:9}: {args.results} results, {units} unit(s), history of {per} calibrations, {what}: "
+                      f"{wall * 1e3:.0f} ms wall, {cpu * 1e3:.0f} ms CPU (median of {args.repeats}; load {load:.1f}; "
+                      f"target < 1000 ms)")
+                continue
+            here = Path(__file__).resolve().parents[2]
+            base, new = [], []
+            for _ in range(args.rounds):        # alternately, so that a change of load hits both alike
+                base.append(timed_in(Path(args.baseline), argv, args.repeats))
+                new.append(timed_in(here, argv, args.repeats))
+            (bw, bc), (nw, nc) = [tuple(statistics.median(x[i] for x in runs) for i in (0, 1)) for runs in (base, new)]
+            same = printed(Path(args.baseline), argv) == printed(here, argv)
+            print(f"{label:9}: history of {per} calibrations, {what}: baseline {bw * 1e3:.0f} ms wall / {bc * 1e3:.0f} "
+                  f"ms CPU, this tree {nw * 1e3:.0f} ms wall / {nc * 1e3:.0f} ms CPU ({bc / nc:.1f}x less CPU; "
+                  f"medians of {args.rounds} alternating processes x {args.repeats}; load {load:.1f} at the start; "
+                  f"identical output: {same})")
 
 
 if __name__ == "__main__":
@@ -112,4 +166,6 @@ if __name__ == "__main__":
     parser.add_argument("--units", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--db-dir", metavar="DIR")
+    parser.add_argument("--baseline", metavar="TREE", help="also time this checkout, alternately, side by side")
+    parser.add_argument("--rounds", type=int, default=3, help="with --baseline: alternating processes per tree")
     run(parser.parse_args())
