@@ -42,7 +42,7 @@ from bench.sim.world import SimWorld
 from bench.solve.extract import Extraction
 from bench.solve.from_logs import extract_from_logs, solve_logs
 from bench.solve.inputs import budget_inputs
-from bench.thermal.from_log import solve_thermal, write_thermal_files
+from bench.thermal.from_log import ThermalSolution, solve_thermal, write_thermal_files
 from bench.thermal.model import ThermalModel
 from drivers.chamber import Chamber, open_chamber
 from drivers.clock import SYSTEM_CLOCK, Clock
@@ -433,14 +433,8 @@ class BenchRun:
             title=f"Thermal model {self.run_id}")
         written = results + ([model_path] if model_path is not None else [])
         head = solution.head
-        result = head.point.result
-        problems = list(head.extraction.problems)
-        failures = thermal_failures(result, problems, solution.damage, link_failures)
-        result.run["thermal"] = {"model": model_path.name if model_path is not None else None,
-                                 "results": [p.name for p in results], "this_block": head.temperature_index}
-        verdict = judge(result, config.acceptance, lost_samples=receiver.stats.lost_samples,
-                        quality_failures=judged_failures(failures, config.acceptance))
-        result.verdict = verdict.to_json()
+        result, problems, failures, verdict = judge_thermal_head(solution, results, model_path, link_failures,
+                                                                 config.acceptance, receiver.stats.lost_samples)
         result_path = self.out_dir / f"{self.run_id}.result.json"
         result.save(result_path)
         report_path, html_report_path = write_reports(
@@ -542,6 +536,22 @@ def thermal_failures(result: CalibrationResult, problems: list[str], damage: lis
         failures.append(f"{len(outliers)} {OUTLIERS_FAILURE}")
     result.run["quality_failures"] = failures
     return failures
+
+
+def judge_thermal_head(solution: ThermalSolution, results: list[Path], model_path: Path | None,
+                       link_failures: list[str], limits: AcceptanceLimits,
+                       lost_samples: int) -> tuple[CalibrationResult, list[str], list[str], Verdict]:
+    """A thermal run's headline result (the block nearest the model's reference temperature) with its quality
+    failures, the names of the files written and its verdict: (result, problems, failures, verdict)."""
+    head = solution.head
+    result = head.point.result
+    problems = list(head.extraction.problems)
+    failures = thermal_failures(result, problems, solution.damage, link_failures)
+    result.run["thermal"] = {"model": model_path.name if model_path is not None else None,
+                             "results": [p.name for p in results], "this_block": head.temperature_index}
+    verdict = judge(result, limits, lost_samples=lost_samples, quality_failures=judged_failures(failures, limits))
+    result.verdict = verdict.to_json()
+    return result, problems, failures, verdict
 
 
 def judged_failures(failures: list[str], limits: AcceptanceLimits) -> list[str]:

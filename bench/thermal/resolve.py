@@ -16,10 +16,10 @@ from pathlib import Path
 from typing import Any
 
 from bench import __version__
-from bench.acceptance.verdict import Verdict, judge
+from bench.acceptance.verdict import Verdict
 from bench.log.names import output_path
 from bench.report.markdown import markdown_report, write_reports
-from bench.run.runner import LOST_SAMPLES_FAILURE, judged_failures, thermal_failures
+from bench.run.runner import LOST_SAMPLES_FAILURE, judge_thermal_head
 from bench.solve.resolve import Recorded, SolveInputError
 from bench.thermal.from_log import ThermalSolution, solve_thermal, write_thermal_files
 
@@ -70,14 +70,8 @@ def resolve_thermal(recorded: Recorded, out_dir: str | Path, *, html: bool = Tru
                               "solved_by": "bench solve"}, title=f"Thermal model {stem} (re-solved from the log)",
         html=html)
     head = solution.head
-    result = head.point.result
-    problems = list(head.extraction.problems)
-    failures = thermal_failures(result, problems, solution.damage, link_failures)
-    result.run["thermal"] = {"model": model_path.name if model_path is not None else None,
-                             "results": [p.name for p in results], "this_block": head.temperature_index}
-    limits = config.acceptance
-    verdict = judge(result, limits, lost_samples=link.lost_samples, quality_failures=judged_failures(failures, limits))
-    result.verdict = verdict.to_json()
+    result, problems, failures, verdict = judge_thermal_head(solution, results, model_path, link_failures,
+                                                             config.acceptance, link.lost_samples)
     result_path = out / f"{stem}.result.json"
     result.save(result_path)
     report: dict[str, Any] = dict(
