@@ -306,6 +306,11 @@ def test_import_and_history_on_postgresql(postgres, archive, capsys):
         drift, sigma = d0.drift_per_year()
         assert abs(drift - DRIFT_DPH_PER_YEAR) < 4 * sigma
         assert len(records.list_runs(serial="B-2")) == 2
+        # without budgets (the printed table) the driver's own rows are read: the same values, types and units
+        plain, full = (unit_history(records, "A-1", budgets=budgets) for budgets in (False, True))
+        assert [(c.name, c.unit, c.values.tolist(), c.sigmas.tolist()) for c in plain.coefficients] == \
+            [(c.name, c.unit, c.values.tolist(), c.sigmas.tolist()) for c in full.coefficients]
+    assert main(["db", "history", "--db", url, "A-1"]) == 0 and "D0_x" in capsys.readouterr().out
 
 
 def test_a_query_on_a_database_that_is_not_there_says_so_and_creates_nothing(tmp_path, capsys):
