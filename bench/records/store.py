@@ -220,7 +220,7 @@ class Records:
                 return runs, list(result.fetchall())
             # numbers, text and NULLs need no processing: the driver's own tuples, in one call (300,000 rows: a
             # fifth of `bench db history`'s time went to building SQLAlchemy row objects)
-            return runs, result.cursor.fetchall()
+            return runs, list(result.cursor.fetchall())
 
     # -- plumbing --------------------------------------------------------------------------------
 
