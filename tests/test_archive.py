@@ -104,3 +104,37 @@ def test_archive_usage_errors(archive, tmp_path):
                           ([], "give run log(s), or --archive")):
         rc, _, stderr = cli(["solve", *argv])
         assert rc == 2 and message in stderr, (argv, stderr)
+
+
+def test_a_resumed_runs_logs_are_one_calibration_in_the_archive(tmp_path):
+    """A run killed and resumed leaves two logs next to each other, the later naming the earlier: the archive
+    solves them together, as `bench solve LATER` does, and not the earlier alone (an extra, partial calibration
+    in the unit's history)."""
+    from bench.solve.archive import find_logs, resumed_parts
+    from tests.helpers.run import kill_run_after_units, load_json
+
+    run = tmp_path / "archive" / "resumed"
+    run.mkdir(parents=True)
+    config = tmp_path / "bench.toml"
+    config.write_text(config_text(dwell_s=1.0, rate_hz=20.0), encoding="utf-8")
+    killed, _ = kill_run_after_units(config, run)
+    rc, _, stderr = cli(["run", "--config", str(config), "--out", str(run), "--quiet", "--no-db", "--resume",
+                         str(killed)])
+    assert rc == 0, stderr
+    resumed = next(p for p in run.glob("*.mcap") if p != killed)
+    for stray in run.glob("*.result.json"):     # the archive writes its own results
+        stray.unlink()
+    assert resumed_parts(find_logs([tmp_path / "archive"])) == {killed.absolute(): resumed.absolute()}
+
+    rc, out, err = cli(["solve", "--archive", str(tmp_path / "archive"), "--scheduler", "loop", "--no-db",
+                        "--out", str(tmp_path / "solved")])
+    assert rc == 0, err
+    assert f"{killed.absolute()}: an earlier log of a resumed run, solved with {resumed.name}" in out
+    results = results_below(tmp_path / "solved")
+    assert len(results) == 1, sorted(results)
+    rc, _, err = cli(["solve", str(resumed), "--out", str(tmp_path / "one"), "--no-html", "--no-db"])
+    assert rc == 0, err
+    alone = load_json(next((tmp_path / "one").glob("*.solved.result.json")))
+    archived = load_json(next((tmp_path / "solved").rglob("*.solved.result.json")))
+    assert archived["coefficients"] == alone["coefficients"]
+    assert archived["run"]["logs"] == alone["run"]["logs"] == [killed.name, resumed.name]

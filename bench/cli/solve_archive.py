@@ -2,7 +2,8 @@
 
 Each log is solved as `bench solve LOG` solves it, its result written next to it (or under
 `--out` at the same relative place) and recorded in the records database; a log that
-cannot be solved is reported and the others go on. Resumable: a log whose run already has
+cannot be solved is reported and the others go on. A resumed run's earlier logs are solved
+with its last log, which names them, not on their own. Resumable: a log whose run already has
 a result of this software version in the database is skipped (`--redo` solves it again).
 Exit codes: 0 every log solved; 2 usage error, no log found, Dask missing or the
 scheduler unreachable; 4 some logs failed or failed a quality check (listed).
@@ -37,7 +38,7 @@ def cmd_archive(args: argparse.Namespace) -> ExitCode:
     from bench.parallel import SchedulerError, check_scheduler, describe
     from bench.records.ingest import import_file
     from bench.records.store import RecordsError, open_records
-    from bench.solve.archive import ArchiveItem, find_logs, output_folder, solve_archive
+    from bench.solve.archive import ArchiveItem, find_logs, output_folder, resumed_parts, solve_archive
 
     if args.logs:
         return fail(PROG, "give logs or --archive DIR..., not both", ExitCode.USAGE)
@@ -66,13 +67,19 @@ def cmd_archive(args: argparse.Namespace) -> ExitCode:
             print(f"{PROG}: warning: records database not used ({exc}): nothing is recorded and no log is skipped",
                   file=sys.stderr)
             records = None
-    todo = [log for log in logs if str(log) not in skip]
+    # a resumed run's earlier logs are solved with its last log, which names them, not on their own
+    parts = resumed_parts(logs)
+    todo = [log for log in logs if str(log) not in skip and log not in parts]
     out = Path(args.out) if args.out else None
     roots = [Path(d) for d in args.archive]
     tasks = [(log, output_folder(log, roots, out)) for log in todo]
     if not args.quiet:
-        print(f"{len(logs)} log(s), {len(logs) - len(todo)} already solved by {__version__} (skipped), "
-              f"{len(todo)} to solve on {describe(args.scheduler, args.workers)}")
+        for earlier, later in sorted(parts.items()):
+            print(f"{earlier}: an earlier log of a resumed run, solved with {later.name}")
+        already = sum(1 for log in logs if str(log) in skip and log not in parts)
+        print(f"{len(logs)} log(s), {already} already solved by {__version__} (skipped), "
+              f"{len(parts)} earlier log(s) of resumed runs, {len(todo)} to solve on "
+              f"{describe(args.scheduler, args.workers)}")
     done_count = 0
     recording = records
     failed: list[ArchiveItem] = []
@@ -112,7 +119,7 @@ def cmd_archive(args: argparse.Namespace) -> ExitCode:
     solved = len(tasks) - sum(1 for i in failed if not i.ok)
     print(f"solved {solved} of {len(tasks)} log(s) in {time.monotonic() - start:.1f} s; "
           f"{sum(1 for i in failed if not i.ok)} failed, {sum(1 for i in failed if i.ok)} with a failed quality "
-          f"check; {len(logs) - len(todo)} skipped")
+          f"check; {len(logs) - len(todo) - len(parts)} skipped, {len(parts)} solved with their resumed run")
     if failed:
         return fail(PROG, f"{len(failed)} log(s) failed or failed a quality check (listed above)", ExitCode.QUALITY)
     return ExitCode.OK

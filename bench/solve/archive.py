@@ -1,6 +1,8 @@
 """Re-solve an archive of run logs, each log as `bench solve LOG` would, in parallel on Dask distributed.
 
-`find_logs(folders)` lists every `*.mcap` below the folders; `solve_log(log, out_dir)` is
+`find_logs(folders)` lists every `*.mcap` below the folders; `resumed_parts(logs)` finds the
+logs a resumed run's later log names as its earlier ones (solved with it, not on their own:
+an interrupted run is one calibration); `solve_log(log, out_dir)` is
 one task: read, solve, write `<stem>.result.json` and the report exactly as `bench solve`
 does (`bench.solve.resolve`), and return an `ArchiveItem` (a log that cannot be solved
 is an item with its reason, never an exception: one bad log does not stop the archive).
@@ -17,6 +19,8 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 from bench.errors import BenchError
+from bench.log.names import logs_before, sibling_log
+from bench.log.reader import read_log
 from bench.parallel import SchedulerError, run_tasks
 from bench.solve.methods import SolverError
 from bench.solve.resolve import load_recorded, solve_recorded, write_outputs
@@ -45,6 +49,28 @@ def find_logs(folders: Iterable[str | Path]) -> list[Path]:
         for p in paths:
             found.setdefault(p.absolute(), None)
     return list(found)
+
+
+def resumed_parts(logs: list[Path]) -> dict[Path, Path]:
+    """{earlier log: the later log naming it in `run.logs_before`} among `logs`: a resumed run's logs, which
+    `bench solve LATER` solves together (each alone would be an extra, partial calibration in the unit's history).
+    A log's earlier logs lie next to it (`sibling_log`), so only the logs of folders holding more than one are
+    read (their metadata only); a log that cannot be read names nothing (its own solve reports it)."""
+    folders: dict[Path, set[Path]] = {}
+    for log in logs:
+        folders.setdefault(log.parent, set()).add(log)
+    parts: dict[Path, Path] = {}
+    for group in folders.values():
+        for log in sorted(group) if len(group) > 1 else ():
+            try:
+                entries, _ = logs_before(read_log(str(log), messages=False).metadata)
+            except (BenchError, OSError):
+                continue
+            for entry in entries:
+                earlier, _ = sibling_log(log, entry)
+                if earlier is not None and earlier in group:
+                    parts.setdefault(earlier, log)
+    return parts
 
 
 def output_folder(log: Path, roots: list[Path], out: Path | None) -> Path:
@@ -97,4 +123,4 @@ def solve_archive(tasks: list[tuple[Path, Path]], *, scheduler: str = "local", w
     return items
 
 
-__all__ = ["ArchiveError", "ArchiveItem", "find_logs", "output_folder", "solve_archive", "solve_log"]
+__all__ = ["ArchiveError", "ArchiveItem", "find_logs", "output_folder", "resumed_parts", "solve_archive", "solve_log"]
