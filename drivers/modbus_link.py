@@ -187,12 +187,12 @@ class ModbusRequests:
                 raise errors.protocol(f"{what}: {exc}", self._rx or None) from exc
             if response is None:        # pragma: no cover - only with no_response_expected
                 raise errors.protocol(f"{what}: no response object from pymodbus", None)
+            if unanswered and self.framing == "rtu":     # an exception reply is owed as often as any other
+                self._drop_late_replies(unanswered, response)
             if response.isError():
                 code = getattr(response, "exception_code", None)
                 raise errors.command(
                     f"{what}: Modbus exception {code} ({exception_name(code)}) from {self.url}", code)
-            if unanswered and self.framing == "rtu":
-                self._drop_late_replies(unanswered, response)
             if response.function_code != function_code:
                 raise errors.protocol(
                     f"{what}: reply has function code {response.function_code}, expected {function_code}",

@@ -284,6 +284,19 @@ def test_rtu_replies_owed_to_timed_out_attempts_are_dropped_not_read_as_the_next
     assert table.late_replies == 1
 
 
+def test_rtu_a_refusal_owed_to_a_timed_out_attempt_is_dropped_too():
+    """The same slow controller refusing the request: its owed refusal must not answer the next read."""
+    request = "01 03 0000 0014 45c5"
+    refusal = rtu("01 83 02")
+    with ModbusExchange([(request, None), (request, refusal, refusal), (request, rtu("01 03 28 " + STATE_REGS))],
+                        step_timeout_s=8.0) as ex:
+        with client(ex.start_pty(), timeout_s=2.0, retries=1) as table:
+            with pytest.raises(TurntableCommandError, match="illegal data address"):
+                table.read_state()
+            assert table.read_state().angles_deg[2] == pytest.approx(720.0001)
+    assert table.late_replies == 1
+
+
 def test_rtu_crc_error_is_a_checksum_error():
     good = bytes.fromhex(rtu("01 03 28 " + STATE_REGS))
     bad = good[:-1] + bytes([good[-1] ^ 0xFF])
