@@ -371,21 +371,13 @@ class BenchRun:
         if self.is_thermal:
             return self._finish_thermal(seq.state, receiver, recorder)
         logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
-        config, identity = self.config, self.config.imu.identity
+        config = self.config
         solution = solve_logs(logs, config.site.site, config.imu.layout, config.imu.rate_hz,
                               budget=budget_inputs(config, self.sim),
                               # A log being resumed was cut off: its missing summary is expected, not damage.
                               still_open=frozenset({str(self.log_path), *map(str, self.previous_logs)}))
         failures = quality_failures(solution, receiver.stats)
-        run_info = {"run_id": self.run_id, "mode": "simulator" if self.sim else "hardware", "operator": self.operator,
-                    "software_version": __version__, "state": seq.state.value, "log": self.log_path.name,
-                    "logs": [Path(p).name for p in self.previous_logs] + [self.log_path.name],
-                    "positions": _name(config.plan.positions), "rotations": _name(config.plan.rotations),
-                    "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                    "imu": {"model": identity.model, "serial": identity.serial},
-                    "site": config.site.site.to_dict(), "quality_failures": failures,
-                    "imu_link": {**receiver.stats.as_dict(),
-                                 **(receiver.time_base.as_dict() if receiver.time_base is not None else {})}}
+        run_info = self._run_info(seq.state, receiver, failures)
         result = solution.calibration.to_result(run=run_info, sim_truth=config.sim.imu if self.sim else None)
         result.temperature = imu_temperature(logs, config.imu.layout, config.imu.rate_hz)
         verdict = judge(result, config.acceptance, lost_samples=receiver.stats.lost_samples,

@@ -405,15 +405,19 @@ class Sequencer:
             self.clock.sleep(self.options.move_poll_s)
             self._drain_imu_when_due()
 
+    def _poll_state_when_due(self, now: float) -> None:
+        """Read, publish and check the table's state once `state_period_s` has passed since the last one."""
+        if now - self._last_state_poll >= self.options.state_period_s:
+            state = self.table.read_state()
+            self._publish_state(state)
+            self.table.check_state(state)
+
     def _rest(self, duration_s: float) -> None:
         end = self.clock.now() + duration_s
         while True:
             self._check_abort()
             now = self.clock.now()
-            if now - self._last_state_poll >= self.options.state_period_s:
-                state = self.table.read_state()
-                self._publish_state(state)
-                self.table.check_state(state)
+            self._poll_state_when_due(now)
             self._poll_chamber_when_due()
             if now >= end - 1e-9:
                 return
@@ -435,11 +439,7 @@ class Sequencer:
         try:
             while True:
                 self._check_abort()
-                now = self.clock.now()
-                if now - self._last_state_poll >= self.options.state_period_s:
-                    state = self.table.read_state()
-                    self._publish_state(state)
-                    self.table.check_state(state)
+                self._poll_state_when_due(self.clock.now())
                 self._poll_chamber_when_due()
                 self._drain_imu()
                 status = tracker.status(self.clock.now())
