@@ -138,3 +138,35 @@ def test_a_resumed_runs_logs_are_one_calibration_in_the_archive(tmp_path):
     archived = load_json(next((tmp_path / "solved").rglob("*.solved.result.json")))
     assert archived["coefficients"] == alone["coefficients"]
     assert archived["run"]["logs"] == alone["run"]["logs"] == [killed.name, resumed.name]
+
+
+READER_POOLS = ("mcap-inflate", "can-stream", "can-frames")
+
+
+def test_an_archive_task_is_one_cores_work(archive, tmp_path, monkeypatch):
+    """An archive task's log reader starts no thread pool: the cores are the workers', one task each (with pools
+    of its own each solve took 1.2 cores and two workers on two cores competed for them). The same log solved as
+    `bench solve LOG` does uses the reader's pools (on a machine of 4 cores: so this check can fail)."""
+    from concurrent.futures import ThreadPoolExecutor as Pool
+
+    from bench.log import threads
+    from bench.solve.archive import solve_log
+
+    monkeypatch.setattr(threads, "usable_cores", lambda: 4)
+    made: list[str] = []
+    original = Pool.__init__
+
+    def spy(self, max_workers=None, thread_name_prefix="", *args, **kwargs):
+        made.append(thread_name_prefix)
+        original(self, max_workers, thread_name_prefix, *args, **kwargs)
+
+    monkeypatch.setattr(Pool, "__init__", spy)
+    log = next((archive / "a" / "1").glob("*.mcap"))
+    rc, _, stderr = cli(["solve", str(log), "--out", str(tmp_path / "one"), "--no-html", "--no-db", "--quiet"])
+    assert rc == 0, stderr
+    assert {name for name in made if name in READER_POOLS}, made
+    made.clear()
+    item = solve_log(str(log), str(tmp_path / "task"))
+    assert item.ok, item.error
+    assert not [name for name in made if name in READER_POOLS], made
+    assert results_below(tmp_path / "task") == results_below(tmp_path / "one")

@@ -21,7 +21,6 @@ decompression bomb thousands of times.
 from __future__ import annotations
 
 import mmap
-import os
 import struct
 import zlib
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -35,6 +34,7 @@ from mcap.data_stream import ReadDataStream
 from mcap.records import Channel
 
 from bench.errors import BenchError
+from bench.log.threads import reader_threads
 
 zstandard: ModuleType | None   # None when it is not installed
 try:
@@ -401,7 +401,7 @@ class Prefetch:
         self.futures: dict[int, Future] = {}
         self.in_flight = 0   # declared bytes of the chunks submitted and not taken yet
         self.submitted = 0
-        workers = workers or min(4, os.cpu_count() or 1)
+        workers = workers or reader_threads()
         self.pool = (ThreadPoolExecutor(workers, thread_name_prefix="mcap-inflate")
                      if len(self.chunks) >= self.MIN_CHUNKS and workers > 1 else None)
         self.ahead = workers * self.AHEAD_PER_WORKER

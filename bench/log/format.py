@@ -10,7 +10,6 @@ and `decode_can_frames` are its two directions, side by side.
 from __future__ import annotations
 
 import math
-import os
 import struct
 from array import array
 from concurrent.futures import ThreadPoolExecutor
@@ -18,6 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from bench.log.threads import reader_threads
 from bench.log.walk import ChannelData
 
 CAN_ENCODING = "turntable-bench/can-frames-v1"
@@ -238,7 +238,7 @@ def _uniform_can_parts(d: ChannelData, release: bool = False):
             if release:
                 d.parts[k] = b""
 
-    workers = min(len(sizes) // 4, os.cpu_count() or 1, 4)
+    workers = min(len(sizes) // 4, reader_threads())
     if workers > 1:
         step = -(-len(sizes) // workers)
         with ThreadPoolExecutor(workers, thread_name_prefix="can-frames") as pool:

@@ -58,6 +58,7 @@ from bench.log.format import (
     TOPIC_STATE,
     decode_can_frames,
 )
+from bench.log.threads import reader_threads
 from bench.log.walk import MAX_DBC_BYTES, ChannelData, Damage, WalkError, walk
 from bench.plan.events import Event
 from drivers.imu import ImuSampleBlock, ImuStats
@@ -477,7 +478,8 @@ def _inflated_parts(d: ChannelData):
     parts are read and decompressed on a worker thread while the caller decodes (zstd releases the GIL).
     (What they may inflate to was counted by the walk.)"""
     todo = [k for k, p in enumerate(d.parts) if p is not None]
-    pool = ThreadPoolExecutor(2, thread_name_prefix="can-stream") if len(todo) > 1 else None
+    threads = reader_threads(2)
+    pool = ThreadPoolExecutor(threads, thread_name_prefix="can-stream") if len(todo) > 1 and threads > 1 else None
     ahead: deque = deque()   # (k, future or answer, declared bytes)
     in_flight, nxt = 0, 0
     try:

@@ -21,7 +21,6 @@ would inline. The record layout and chunk decoding live in `bench.log.chunks`.
 from __future__ import annotations
 
 import mmap
-import os
 import struct
 import zlib
 from array import array
@@ -65,6 +64,7 @@ from bench.log.chunks import (
     resync,
     streamed_budget,
 )
+from bench.log.threads import reader_threads
 
 
 def _fmt_range(start_ns: int, end_ns: int) -> str:
@@ -151,8 +151,9 @@ class ChannelData:
         chunks = [self.parts[k] for k in todo]
         refused = {k: budget.take(c.size) for k, c in zip(todo, chunks)} if budget is not None else {}
         inflate = [c for k, c in zip(todo, chunks) if refused.get(k) is None]
-        if len(inflate) >= 3:
-            with ThreadPoolExecutor(min(4, os.cpu_count() or 1), thread_name_prefix="mcap-inflate") as pool:
+        threads = reader_threads()
+        if len(inflate) >= 3 and threads > 1:
+            with ThreadPoolExecutor(threads, thread_name_prefix="mcap-inflate") as pool:
                 answers = iter(list(pool.map(lambda c: c.inflate(), inflate)))
         else:
             answers = iter([c.inflate() for c in inflate])

@@ -21,6 +21,7 @@ from typing import Callable, Iterable
 from bench.errors import BenchError
 from bench.log.names import logs_before, sibling_log
 from bench.log.reader import read_log
+from bench.log.threads import reader_threads_limited
 from bench.parallel import SchedulerError, run_tasks
 from bench.solve.methods import SolverError
 from bench.solve.resolve import load_recorded, solve_recorded, write_outputs
@@ -86,7 +87,13 @@ def output_folder(log: Path, roots: list[Path], out: Path | None) -> Path:
 
 def solve_log(log: str, out_dir: str, html: bool = False) -> ArchiveItem:
     """One log, as `bench solve LOG --out OUT_DIR` (without `--no-html` when `html`) does; never raises for a bad
-    log."""
+    log. One core's work: the reader spawns no threads (the archive's parallelism is its workers', one task
+    each; threads of its own would take cores from the other workers for a few per cent of this task's time)."""
+    with reader_threads_limited(1):
+        return _solve_log(log, out_dir, html)
+
+
+def _solve_log(log: str, out_dir: str, html: bool) -> ArchiveItem:
     try:
         recorded = load_recorded([log])
         config = recorded.setup.config

@@ -11,12 +11,14 @@ file that is not MCAP. Logs that take seconds to solve (a real archive's 1 kHz r
 `--rate-hz 1000 --dwell-s 30`) take a minute each to record: `--distinct N` records N runs
 and fills the archive with hard links to them in folders of their own (every log is still
 read and solved on its own; the results are identical per source run).
-Then, side by side in one run (`--scaling-only`: step 1 alone, the three commands' results
+Then, side by side in one run (`--scaling-only`: step 1 alone, the four commands' results
 checked against each other; with `--repeats` every other repeat runs them in reverse order):
 1. `bench solve --archive DIR --scheduler loop` (the plain loop in one process),
    `--scheduler local --workers 1` and `--workers 2`, each into a fresh --out, without
-   the database; wall time of the whole command (cluster start-up included), and without
-   the cluster's start-up and close (timed alone right after: a cluster started for no task);
+   the database, and the plain loop once more with the reader's own threads (as `bench
+   solve LOG` reads; an archive task reads without them, one core's work); wall time of
+   the whole command (cluster start-up included), and without the cluster's start-up and
+   close (timed alone right after: a cluster started for no task);
 2. equivalence: every result file of the Dask run equals (but its solved_utc) the one `bench solve LOG
    --no-html` writes for that log one by one, and the damaged logs are reported;
 3. the database: the archive solved with --db into a fresh SQLite file holds every unit's
@@ -40,6 +42,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
+import bench.solve.archive as archive_module  # noqa: E402
 from bench.cli.main import main  # noqa: E402
 from bench.solve.archive import solve_archive  # noqa: E402
 from tests.helpers.run import config_text, results_below  # noqa: E402
@@ -93,6 +96,21 @@ def build(root: Path, logs: int, units: int, dwell_s: float = 2.0, rate_hz: floa
         (damaged / "not-mcap.mcap").write_bytes(b"this is not a log\n" * 100)
 
 
+THREADED_LOOP = "loop, reader threads"
+
+
+@contextlib.contextmanager
+def threaded_reader():
+    """The archive's tasks read as `bench solve LOG` does, with the reader's own threads (an archive task reads
+    without: `bench.solve.archive.solve_log`): what a shell loop of `bench solve` would take."""
+    original = archive_module.reader_threads_limited
+    archive_module.reader_threads_limited = lambda threads: contextlib.nullcontext()
+    try:
+        yield
+    finally:
+        archive_module.reader_threads_limited = original
+
+
 def cli(argv: list[str]) -> tuple[int, str, str, float]:
     out, err = io.StringIO(), io.StringIO()
     start = time.perf_counter()
@@ -124,13 +142,15 @@ def run(args: argparse.Namespace) -> None:
         timings: dict[str, list[float]] = {}
         commands = (("loop", ["--scheduler", "loop"]),
                     ("dask 1 worker", ["--scheduler", "local", "--workers", "1"]),
-                    ("dask 2 workers", ["--scheduler", "local", "--workers", "2"]))
+                    ("dask 2 workers", ["--scheduler", "local", "--workers", "2"]),
+                    (THREADED_LOOP, ["--scheduler", "loop"]))
         for repeat in range(args.repeats):
-            # every other repeat in reverse order: a load that changes during the run hits all three alike
+            # every other repeat in reverse order: a load that changes during the run hits all four alike
             for label, extra in (commands if repeat % 2 == 0 else commands[::-1]):
-                out = work / f"{label.replace(' ', '-')}-{repeat}"
-                rc, stdout, stderr, wall = cli(["solve", "--archive", str(archive), "--out", str(out), "--no-db",
-                                                "--quiet", *extra])
+                out = work / f"{label.replace(' ', '-').replace(',', '')}-{repeat}"
+                with (threaded_reader() if label == THREADED_LOOP else contextlib.nullcontext()):
+                    rc, stdout, stderr, wall = cli(["solve", "--archive", str(archive), "--out", str(out),
+                                                    "--no-db", "--quiet", *extra])
                 timings.setdefault(label, []).append(wall)
                 got = results_below(out)
                 if reference is None:       # --scaling-only: the first command's results are the reference
@@ -154,6 +174,9 @@ def run(args: argparse.Namespace) -> None:
             med[f"{label} solving"] = med[label] - med[f"{label} start-up"]
             print(f"{label}: cluster start-up and close {med[f'{label} start-up']:.1f} s, "
                   f"the rest {med[f'{label} solving']:.1f} s")
+        print(f"2 workers vs the plain loop with the reader's threads (as `bench solve LOG` reads): "
+              f"{med[THREADED_LOOP] / med['dask 2 workers']:.2f}x; the loop without them vs with: "
+              f"{100 * (med['loop'] / med[THREADED_LOOP] - 1):+.1f} %")
         print(f"one-by-one bench solve failed on: {', '.join(sorted(failed_one))}")
         print(f"speed-up 2 workers vs 1: {med['dask 1 worker'] / med['dask 2 workers']:.2f}x whole command, "
               f"{med['dask 1 worker solving'] / med['dask 2 workers solving']:.2f}x without the cluster start-up "
