@@ -53,21 +53,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=cmd_solve)
 
 
-def static_noise_plan(recorded) -> str | None:
-    """The name of the recorded plan's positions when they are a static noise recording ("static" kind), else None."""
-    config = recorded.setup.config
-    positions = config.plan.positions if config is not None else None
-    return positions.name if positions is not None and positions.kind == "static" else None
-
-
-def _is_thermal(log) -> bool:
-    """A log of a thermal plan: its steps belong to temperature blocks ("T2-P03")."""
-    # imported when the command runs, as the rest of the core
-    from bench.plan.steps import thermal_block
-
-    return any(e.step_unit is not None and thermal_block(e.step_unit) is not None for e in log.events)
-
-
 def _solve_thermal(args: argparse.Namespace, recorded) -> ExitCode:
     """A thermal log: every temperature solved again and the model refitted (`bench.thermal.resolve`)."""
     # imported when the command runs: `bench` starts without the bench core
@@ -112,7 +97,15 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
     from bench.log.reader import LogError
     from bench.solve.compare import compare, format_comparison, parse_methods
     from bench.solve.methods import SolverError
-    from bench.solve.resolve import SolveInputError, load_recorded, load_subset_schedule, solve_recorded, write_outputs
+    from bench.solve.resolve import (
+        SolveInputError,
+        load_recorded,
+        load_subset_schedule,
+        solve_recorded,
+        static_noise_plan,
+        write_outputs,
+    )
+    from bench.thermal.resolve import is_thermal_log
 
     if args.archive:
         return cmd_archive(args)
@@ -144,7 +137,7 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
             return fail(PROG, f"{recorded.logs[-1].path} is a static noise recording (plan positions {static!r}: one "
                               f"dwell, nothing to calibrate): analyse it with `bench noise {recorded.logs[-1].path}`",
                         ExitCode.USAGE)
-        thermal = next((log.path for log in recorded.logs if _is_thermal(log)), None)
+        thermal = next((log.path for log in recorded.logs if is_thermal_log(log)), None)
         if thermal is not None:     # its blocks are solved one temperature each, never together
             if methods is not None or positions is not None or rotations is not None:
                 return fail(PROG, f"{thermal} is a calibration over temperature ([plan] temperatures_c): it is "

@@ -24,7 +24,8 @@ from bench.log.reader import read_log
 from bench.log.threads import reader_threads_limited
 from bench.parallel import SchedulerError, run_tasks
 from bench.solve.methods import SolverError
-from bench.solve.resolve import load_recorded, solve_recorded, write_outputs
+from bench.solve.resolve import load_recorded, solve_recorded, static_noise_plan, write_outputs
+from bench.thermal.resolve import is_thermal_log, resolve_thermal
 
 #: The archive cannot be solved at all: a bad scheduler, Dask missing, a scheduler that cannot be reached.
 ArchiveError = SchedulerError
@@ -96,11 +97,14 @@ def solve_log(log: str, out_dir: str, html: bool = False) -> ArchiveItem:
 def _solve_log(log: str, out_dir: str, html: bool) -> ArchiveItem:
     try:
         recorded = load_recorded([log])
-        config = recorded.setup.config
-        positions = config.plan.positions if config is not None else None
-        if positions is not None and positions.kind == "static":     # as `bench solve LOG` refuses it
-            return ArchiveItem(log, False, error=f"a static noise recording (plan positions {positions.name!r}), "
+        static = static_noise_plan(recorded)
+        if static is not None:     # as `bench solve LOG` refuses it
+            return ArchiveItem(log, False, error=f"a static noise recording (plan positions {static!r}), "
                                                  f"nothing to calibrate: analyse it with `bench noise {log}`")
+        if any(is_thermal_log(part) for part in recorded.logs):   # one calibration per temperature, as
+            thermal = resolve_thermal(recorded, out_dir, html=html)   # `bench solve LOG` solves it
+            return ArchiveItem(log, True, result=str(thermal.result_path), run_id=recorded.run_id,
+                               failures=tuple(c.describe() for c in thermal.verdict.failed))
         resolved = solve_recorded(recorded)
         result_path, _, _ = write_outputs(recorded, resolved, out_dir, html=html)
     except SolverError as exc:

@@ -261,6 +261,13 @@ def _left_out(logs: list[RunLog], planned: list[str], extraction: Extraction) ->
     return out
 
 
+def static_noise_plan(recorded: Recorded) -> str | None:
+    """The name of the recorded plan's positions when they are a static noise recording ("static" kind), else None."""
+    config = recorded.setup.config
+    positions = config.plan.positions if config is not None else None
+    return positions.name if positions is not None and positions.kind == "static" else None
+
+
 def load_recorded(paths: list[str], *, earlier: bool = True) -> Recorded:
     """Read and extract logs of one IMU (LogError: unreadable; SolveInputError: logs that do not go together)."""
     if not paths:

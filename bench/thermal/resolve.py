@@ -18,10 +18,17 @@ from typing import Any
 from bench import __version__
 from bench.acceptance.verdict import Verdict
 from bench.log.names import output_path
+from bench.log.reader import RunLog
+from bench.plan.steps import thermal_block
 from bench.report.markdown import markdown_report, write_reports
 from bench.run.runner import LOST_SAMPLES_FAILURE, judge_thermal_head
 from bench.solve.resolve import Recorded, SolveInputError
 from bench.thermal.from_log import ThermalSolution, solve_thermal, write_thermal_files
+
+
+def is_thermal_log(log: RunLog) -> bool:
+    """A log of a thermal plan: its steps belong to temperature blocks ("T2-P03")."""
+    return any(e.step_unit is not None and thermal_block(e.step_unit) is not None for e in log.events)
 
 
 @dataclass
