@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import io
 
-from bench.cli.progress import ERASE_TO_END, ProgressPrinter
+from bench.cli.progress import ERASE_TO_END, CountProgress, ProgressPrinter
 from bench.plan.events import Event
 from bench.plan.steps import DwellStep, MoveStep, SettleStep, TurnStep, step_to_dict
 
@@ -135,3 +135,49 @@ def test_times_are_from_the_runs_start_not_the_machines_uptime():
     lines = out.getvalue().splitlines()
     assert lines[:2] == ["[0:00:00] transition: run started", "[0:00:00] P01 (1/3 units, 0%)"]
     assert lines[-1] == "6 of 6 steps done in 0:00:10"
+
+
+class _Clock:
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_count_progress_lines_carry_the_count_and_the_eta():
+    """`bench solve --archive`'s progress: one line per log with its count, share and ETA (the mean time per
+    log so far times the logs left); a failed log goes to stderr, also when quiet; no bar off a terminal."""
+    out, err, clock = io.StringIO(), io.StringIO(), _Clock()
+    progress = CountProgress(4, out, err, live=False, clock=clock)
+    clock.now += 10.0
+    progress.item("a.result.json")
+    clock.now += 30.0
+    progress.item("FAILED b.mcap: not an MCAP file", problem=True)
+    progress.note("bench solve: warning: c.mcap: not recorded (disk full)")
+    clock.now += 20.0
+    progress.item("c.result.json")
+    progress.item("d.result.json")
+    progress.close()
+    assert out.getvalue().splitlines() == ["[1/4 25%, ETA 0:00:30] a.result.json",
+                                           "[3/4 75%, ETA 0:00:20] c.result.json",
+                                           "[4/4 100%] d.result.json"]
+    assert err.getvalue().splitlines() == ["[2/4 50%, ETA 0:00:40] FAILED b.mcap: not an MCAP file",
+                                           "bench solve: warning: c.mcap: not recorded (disk full)"]
+    quiet_out, quiet_err = io.StringIO(), io.StringIO()
+    quiet = CountProgress(2, quiet_out, quiet_err, quiet=True, clock=clock)
+    quiet.item("a.result.json")
+    quiet.item("FAILED b.mcap: cut", problem=True)
+    assert quiet_out.getvalue() == "" and quiet_err.getvalue() == "[2/2 100%] FAILED b.mcap: cut\n"
+
+
+def test_count_progress_on_a_terminal_redraws_a_bar_below_the_lines():
+    out, clock = io.StringIO(), _Clock()
+    progress = CountProgress(2, out, out, live=True, bar_width=4, clock=clock)
+    clock.now += 5.0
+    progress.item("a.result.json")
+    progress.close()
+    # the bar from the start (a cluster starting), erased before each line and redrawn after it, gone at the end
+    assert out.getvalue() == (f"\r[----] 0/2 0%{ERASE_TO_END}" + f"\r{ERASE_TO_END}"
+                              + "[1/2 50%, ETA 0:00:05] a.result.json\n"
+                              + f"\r[##--] 1/2 50%, ETA 0:00:05{ERASE_TO_END}" + f"\r{ERASE_TO_END}")

@@ -152,3 +152,62 @@ class ProgressPrinter(RunListener):
             skipped = f", {self._skipped} skipped" if self._skipped else ""
             self.stream.write(f"{self._finished} of {len(self.steps)} steps done{skipped} in {clock}\n")
         self.stream.flush()
+
+
+class CountProgress:
+    """Progress of `total` independent items (the logs of `bench solve --archive`): `item(text)` prints one line
+    per item as it completes, tagged `[12/50 24%, ETA 0:00:41]` (the ETA from the mean time per item so far);
+    `problem(text)` prints a line to `err` (shown even when quiet). On a terminal (`live`) a bar is redrawn in
+    place below the lines, from the start (a cluster starting up) to `close()`, which erases it."""
+
+    def __init__(self, total: int, stream: TextIO | None = None, err: TextIO | None = None, *, quiet: bool = False,
+                 live: bool | None = None, bar_width: int = 24, clock: Callable[[], float] = time.monotonic):
+        self.stream = stream if stream is not None else sys.stdout
+        self.err = err if err is not None else sys.stderr
+        self.total, self.quiet, self.bar_width, self.clock = total, quiet, bar_width, clock
+        self.live = (not quiet and self.stream.isatty()) if live is None else live
+        self.done = 0
+        self.start = clock()
+        self._bar_shown = False
+        self._draw()
+
+    def _tag(self) -> str:
+        fraction = self.done / self.total if self.total else 1.0
+        eta = ""
+        if 0 < self.done < self.total:
+            eta = f", ETA {format_hms((self.clock() - self.start) / self.done * (self.total - self.done))}"
+        return f"{self.done}/{self.total} {fraction:.0%}{eta}"
+
+    def _erase(self) -> None:
+        if self._bar_shown:
+            self.stream.write("\r" + ERASE_TO_END)
+            self.stream.flush()
+            self._bar_shown = False
+
+    def _draw(self) -> None:
+        if not self.live:
+            return
+        filled = int(round(self.bar_width * (self.done / self.total if self.total else 1.0)))
+        self.stream.write(f"\r[{'#' * filled}{'-' * (self.bar_width - filled)}] {self._tag()}{ERASE_TO_END}")
+        self.stream.flush()
+        self._bar_shown = True
+
+    def item(self, text: str, *, problem: bool = False) -> None:
+        """One item completed: its line (to `err` when `problem`, and then even when quiet)."""
+        self.done += 1
+        self._erase()
+        if problem or not self.quiet:
+            out = self.err if problem else self.stream
+            out.write(f"[{self._tag()}] {text}\n")
+            out.flush()
+        self._draw()
+
+    def note(self, text: str) -> None:
+        """A line to `err` that is not an item (a warning), the bar kept below it."""
+        self._erase()
+        self.err.write(text + "\n")
+        self.err.flush()
+        self._draw()
+
+    def close(self) -> None:
+        self._erase()

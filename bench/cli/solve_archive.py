@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 from bench.cli.common import ExitCode, add_scheduler_arguments, fail
+from bench.cli.progress import CountProgress
 
 PROG = "bench solve"
 
@@ -80,40 +81,37 @@ def cmd_archive(args: argparse.Namespace) -> ExitCode:
         print(f"{len(logs)} log(s), {already} already solved by {__version__} (skipped), "
               f"{len(parts)} earlier log(s) of resumed runs, {len(todo)} to solve on "
               f"{describe(args.scheduler, args.workers)}")
-    done_count = 0
     recording = records
     failed: list[ArchiveItem] = []
     start = time.monotonic()
+    progress = CountProgress(len(tasks), quiet=args.quiet)
 
     def on_done(item: ArchiveItem) -> None:
-        nonlocal done_count, recording
-        done_count += 1
-        tag = f"[{done_count}/{len(tasks)}]"
+        nonlocal recording
         if not item.ok:
             failed.append(item)
-            print(f"{tag} FAILED {item.log}: {item.error}", file=sys.stderr)
+            progress.item(f"FAILED {item.log}: {item.error}", problem=True)
             return
         if item.failures:
             failed.append(item)
-        if not args.quiet:
-            print(f"{tag} {item.result}" + (f"  (quality: {'; '.join(item.failures)})" if item.failures else ""),
-                  flush=True)
+        progress.item(f"{item.result}" + (f"  (failed checks: {'; '.join(item.failures)})" if item.failures else ""))
         if recording is not None and item.result is not None:
             try:
                 import_file(recording, item.result)
                 import_file(recording, item.log)
             except RecordsError as exc:
-                print(f"{PROG}: warning: not recorded ({exc}); the results are kept: `bench db import` them later",
-                      file=sys.stderr)
+                progress.note(f"{PROG}: warning: not recorded ({exc}); the results are kept: `bench db import` them "
+                              "later")
                 recording = None
             except (OSError, ValueError) as exc:
-                print(f"{PROG}: warning: {item.log}: not recorded ({exc})", file=sys.stderr)
+                progress.note(f"{PROG}: warning: {item.log}: not recorded ({exc})")
 
     try:
         solve_archive(tasks, scheduler=args.scheduler, workers=args.workers, html=args.html, on_done=on_done)
     except SchedulerError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     finally:
+        progress.close()
         if records is not None:
             records.close()
     solved = len(tasks) - sum(1 for i in failed if not i.ok)
