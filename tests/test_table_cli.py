@@ -125,8 +125,11 @@ def test_unreachable_controller_and_usage_errors(capsys):
     assert exit_info.value.code == 2
 
 
-def test_sim_table_stops_on_sigint_even_when_started_with_sigint_ignored():
-    # A shell starts `bench sim table ... &` in a script with SIGINT ignored; Ctrl-C/SIGINT must still stop it.
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+def test_sim_table_stops_on_a_stop_signal_even_when_started_with_sigint_ignored(signum):
+    # A shell starts `bench sim table ... &` in a script with SIGINT ignored; Ctrl-C/SIGINT must still stop it,
+    # and SIGTERM (kill, systemd) and SIGHUP stop it as they stop the chamber and rig simulators: its
+    # listeners closed, exit 0.
     proc = subprocess.Popen([sys.executable, "-m", "bench.cli", "sim", "table", "--dialect", "scpi", "--listen",
                              "tcp://127.0.0.1:0"], cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True,
@@ -135,7 +138,7 @@ def test_sim_table_stops_on_sigint_even_when_started_with_sigint_ignored():
         assert "listening on" in proc.stdout.readline()
         # the signal while it serves (reading the fault console), not while it still prints its start-up lines
         assert "Ctrl-C stops" in proc.stdout.readline()
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signum)
         assert proc.wait(timeout=10) == 0
         assert "stopped" in proc.stderr.read()
     finally:

@@ -3,12 +3,11 @@ one without --allow-remote, the fault console's common commands, and serving unt
 
 from __future__ import annotations
 
-import contextlib
 import ipaddress
 import signal
 import sys
 import threading
-from typing import Any, Callable, ContextManager
+from typing import Any, Callable
 from urllib.parse import urlsplit
 
 from bench.cli.common import ExitCode, fail, raise_interrupted, stop_signals
@@ -102,8 +101,7 @@ def run_console(console: Callable[[str], str]) -> None:
 
 def serve_until_stopped(prog: str, device: str, dialect: str, listen: Callable[[str], str], wheres: list[str],
                         remote: list[str], console: Callable[[str], str], closers: list[Callable[[], None]], *,
-                        usage_errors: tuple[type[Exception], ...] = (InputError, OSError),
-                        stop_on_signals: bool = True) -> ExitCode:
+                        usage_errors: tuple[type[Exception], ...] = (InputError, OSError)) -> ExitCode:
     """Start a listener per --listen address (`listen(where)` returns its URL) and announce it ("simulated
     `device` (`dialect`) listening on URL", a loud warning for the `remote` ones), then run the fault console
     (`console`) until a stop, as `run_until_stopped` says."""
@@ -117,20 +115,19 @@ def serve_until_stopped(prog: str, device: str, dialect: str, listen: Callable[[
                       file=sys.stderr, flush=True)
         run_console(console)
 
-    return run_until_stopped(prog, serve, closers, usage_errors=usage_errors, stop_on_signals=stop_on_signals)
+    return run_until_stopped(prog, serve, closers, usage_errors=usage_errors)
 
 
 def run_until_stopped(prog: str, serve: Callable[[], None], closers: list[Callable[[], None]], *,
-                      usage_errors: tuple[type[Exception], ...], stop_on_signals: bool = True) -> ExitCode:
-    """Run `serve` (which starts the simulators, filling `closers`, and serves) until Ctrl-C (with
-    `stop_on_signals`, SIGTERM and SIGHUP too): exit 0, "stopped". A `usage_errors` error is one line and exit
+                      usage_errors: tuple[type[Exception], ...]) -> ExitCode:
+    """Run `serve` (which starts the simulators, filling `closers`, and serves) until Ctrl-C, SIGTERM or SIGHUP:
+    exit 0, "stopped". A `usage_errors` error is one line and exit
     2. `closers` run in reverse however it ends; one that fails is reported and the rest still run."""
     # Ctrl-C (SIGINT) stops the server even when it was started with SIGINT ignored, as a
     # shell does for `bench sim ... &` in a script.
     previous_handler = signal.signal(signal.SIGINT, signal.default_int_handler)
-    signals: ContextManager[None] = stop_signals(raise_interrupted) if stop_on_signals else contextlib.nullcontext()
     try:
-        with signals:
+        with stop_signals(raise_interrupted):
             serve()
     except usage_errors as exc:
         return fail(prog, f"{exc}", ExitCode.USAGE)

@@ -190,9 +190,9 @@ def register_sim(subparsers: argparse._SubParsersAction) -> argparse._SubParsers
     sim = subparsers.add_parser("sim", help="serve simulated devices for manual or external testing")
     kinds = sim.add_subparsers(dest="sim_command", metavar="DEVICE", required=True)
     table = kinds.add_parser(
-        "table", help="serve the simulated turntable in a controller dialect until Ctrl-C",
+        "table", help="serve the simulated turntable in a controller dialect until Ctrl-C, SIGTERM or SIGHUP",
         description="Serve the simulated turntable (with black-box pointing errors) in a controller dialect. "
-                    "Prints where it listens, then runs until Ctrl-C. Faults are injected by typing "
+                    "Prints where it listens, then runs until Ctrl-C, SIGTERM or SIGHUP. Faults are injected by typing "
                     "commands on stdin.\n\n" + FAULT_HELP,
         formatter_class=argparse.RawDescriptionHelpFormatter)
     table.add_argument("--dialect", required=True, choices=sorted(DIALECTS),
@@ -286,7 +286,6 @@ def cmd_sim_table(args: argparse.Namespace) -> ExitCode:
     black_box = np.random.default_rng(args.seed).normal(0.0, args.black_box_arcsec * ARCSEC, (3, 3))
     controller = SimController(SimTable(site, black_box_rad=black_box))
     closers: list = []
-    # `bench sim table` ends on Ctrl-C only (SIGTERM and SIGHUP end the process as they always did)
     return serve_until_stopped("bench sim table", "table", args.dialect,
                                lambda where: _listen(controller, args.dialect, where, closers), args.listen, remote,
-                               lambda line: _apply_fault_command(controller, line), closers, stop_on_signals=False)
+                               lambda line: _apply_fault_command(controller, line), closers)
