@@ -38,3 +38,12 @@ def records_database_in_tmp(tmp_path_factory, monkeypatch):
     """Every test's `bench run` / `bench solve` / `bench check-table` records into a database of its own in a
     temporary folder, never into the user's default one (`bench.records.store.default_url`)."""
     monkeypatch.setenv("BENCH_DB", str(tmp_path_factory.mktemp("records") / "records.sqlite"))
+
+
+@pytest.fixture(scope="session")
+def thermal_run_log(tmp_path_factory):
+    """The log of `bench run --sim` of the shortest thermal plan (`tests.helpers.run.record_thermal_run`, serial
+    "THERMAL-1"), shared by the tests that read, replay or re-solve one (copy it to change it)."""
+    from tests.helpers.run import record_thermal_run
+
+    return record_thermal_run(tmp_path_factory.mktemp("thermal-run") / "run", serial="THERMAL-1")

@@ -172,23 +172,7 @@ def test_an_archive_task_is_one_cores_work(archive, tmp_path, monkeypatch):
     assert results_below(tmp_path / "task") == results_below(tmp_path / "one")
 
 
-THERMAL_TOML = """
-[plan.soak]
-rate_c_per_min = 0.5
-stable_min = 1.0
-
-[chamber]
-url = "modbus+rtu:///dev/ttyUSB0?baud=115200"
-poll_s = 5.0
-safe_setpoint_c = 23.0
-
-[sim.imu.thermal]
-time_constant_s = 60.0
-Kg_x = [0.36]
-"""
-
-
-def test_a_thermal_runs_log_is_re_solved_one_calibration_per_temperature(tmp_path):
+def test_a_thermal_runs_log_is_re_solved_one_calibration_per_temperature(thermal_run_log, tmp_path):
     """A thermal run's log in the archive is solved as `bench solve LOG` solves it: one calibration per
     temperature and the thermal model refitted (solved whole, its two temperatures made one calibration that
     failed the residual test)."""
@@ -196,15 +180,8 @@ def test_a_thermal_runs_log_is_re_solved_one_calibration_per_temperature(tmp_pat
     from bench.thermal.model import ThermalModel
     from tests.helpers.run import only_file
 
-    config = tmp_path / "bench.toml"
-    config.write_text(config_text(positions="traditional-12", rotations="traditional-3s6r", dwell_s=1.0)
-                      .replace('serial = "T-0001"', 'serial = "ARC-T"')
-                      .replace("[plan]\n", "[plan]\ntemperatures_c = [24.0, 26.0]\n", 1) + THERMAL_TOML,
-                      encoding="utf-8")
-    run = tmp_path / "archive" / "thermal"
-    rc, _, stderr = cli(["run", "--config", str(config), "--sim", "--out", str(run), "--quiet", "--no-db"])
-    assert rc == 0, stderr
-    log = only_file(run, "*.mcap")
+    (tmp_path / "archive" / "thermal").mkdir(parents=True)
+    log = Path(shutil.copy(thermal_run_log, tmp_path / "archive" / "thermal"))
     rc, _, stderr = cli(["solve", str(log), "--out", str(tmp_path / "one"), "--no-html", "--no-db", "--quiet"])
     assert rc == 0, stderr
     db = tmp_path / "r.sqlite"
@@ -218,4 +195,4 @@ def test_a_thermal_runs_log_is_re_solved_one_calibration_per_temperature(tmp_pat
     assert len(model.points) == 2 and model.model_json() == alone.model_json()
     assert CalibrationResult.load(only_file(solved, "*.solved.result.json")).run["thermal"]["this_block"]
     with open_records(str(db)) as records:
-        assert [r.serial for r in records.list_runs()] == ["ARC-T"]
+        assert [r.serial for r in records.list_runs()] == ["THERMAL-1"]

@@ -430,3 +430,50 @@ def test_cli_reads_the_frames_once_with_or_without_quiet(recorded, monkeypatch):
         reads[quiet], said[quiet] = inflated[0], err
     assert reads[False] == reads[True] > 0
     assert "CAN frames recorded" in said[False] and recorded.log_path.name in said[False].splitlines()[0]
+
+
+def test_a_thermal_runs_chamber_states_are_read_and_replayed_in_log_time_order(thermal_run_log):
+    """A thermal run's `/chamber/state` messages come back as `ChamberState`s (every one recorded) and are
+    replayed to `on_chamber_state` in log-time order among the table states (they were not read at all)."""
+    from bench.log.format import TOPIC_CHAMBER
+    from bench.log.reader import read_log
+    from bench.log.replay import replay
+    from bench.plan.events import RunListener
+
+    log = read_log(str(thermal_run_log))
+    states = log.chamber_states
+    assert len(states) == log.message_counts[TOPIC_CHAMBER] >= 10 and log.complete
+    assert [round(s.setpoint_c) for s in states] == sorted(round(s.setpoint_c) for s in states)
+    assert {round(s.setpoint_c) for s in states} == {24, 26} and all(s.running and not s.alarm for s in states)
+
+    class Order(RunListener):
+        def __init__(self) -> None:
+            self.seen: list[tuple[str, float]] = []
+
+        def on_table_state(self, state) -> None:
+            self.seen.append(("table", state.time_s))
+
+        def on_chamber_state(self, state) -> None:
+            self.seen.append(("chamber", state.time_s))
+
+    order = Order()
+    stats = replay(log, [order])
+    assert [t for kind, t in order.seen if kind == "chamber"] == [s.time_s for s in states]
+    times = [t for _, t in order.seen]
+    assert times == sorted(times) and stats.chamber_states == len(states)
+    assert f"{len(states)} chamber states" in stats.summary()
+
+
+def test_malformed_chamber_states_are_counted_not_read():
+    from bench.log.reader import MAX_ALARM_TEXT, _chamber_state
+
+    good = {"time_s": 5.0, "temperature_c": 23.5, "setpoint_c": 24.0, "ramp_c_per_min": None, "running": True,
+            "alarms": 4, "alarm_text": "x" * 2000}
+    state = _chamber_state(good)
+    assert state is not None and state.ramp_c_per_min is None and state.describe_alarms().startswith("door open")
+    assert len(state.alarm_text) == MAX_ALARM_TEXT
+    assert np.isnan(_chamber_state({**good, "temperature_c": None}).temperature_c)    # a null reading: NaN
+    for bad in ({**good, "time_s": None}, {**good, "time_s": "5"}, {**good, "setpoint_c": [1]},
+                {**good, "running": 1}, {**good, "alarms": -1}, {**good, "alarms": 1 << 40}, {**good, "alarms": 1.5},
+                {**good, "alarm_text": 7}, {**good, "ramp_c_per_min": "fast"}, {**good, "time_s": float("inf")}):
+        assert _chamber_state(bad) is None, bad

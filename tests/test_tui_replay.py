@@ -153,3 +153,25 @@ def test_live_footer_keeps_the_hardware_keys(tmp_path):
             shown = {b.action for _, b, enabled, _ in app.active_bindings.values() if b.show}
             assert {"estop", "start", "abort", "goto", "rate", "halt", "pause", "quit_app"} <= shown, shown
     run(body)
+
+
+def test_replay_of_a_thermal_run_shows_the_chamber(thermal_run_log):
+    """The Chamber panel of a thermal run's replay shows the recorded chamber states (it said "no reading yet"):
+    at the end, the last one polled, at the second temperature's setpoint."""
+    from bench.log.reader import read_log
+
+    last = read_log(str(thermal_run_log)).chamber_states[-1]
+
+    async def body():
+        from bench.tui import create_app
+
+        app = create_app(replay=thermal_run_log, speed=None, refresh_hz=20.0)
+        async with app.run_test(size=SIZE) as pilot:
+            await wait_until(pilot, lambda: snap(app).result is not None, "the replay to end with its result")
+            await pilot.pause(0.2)
+            panel = app.query_one("#chamber-panel").plain
+            assert f"air {last.temperature_c:.1f}  set 26.0 degC" in panel and last.setpoint_c == 26.0, panel
+            assert "no reading yet" not in panel and snap(app).chamber_state == last
+            await press(pilot, "q")
+            await wait_until(pilot, lambda: not app.is_running, "the app to exit")
+    run(body)

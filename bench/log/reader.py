@@ -28,8 +28,9 @@ budget; at most `MAX_RECORDS` records outside chunks). Records and attachments: 
 `bench.log.walk` (`MAX_RECORD_BYTES`, `MAX_ATTACHMENT_BYTES`, `MAX_DBC_BYTES`; the DBC
 file the run's metadata names counts as one whatever its name). A CAN record claiming more
 than 64 data bytes makes its message malformed. At most `MAX_JSON_MESSAGES` table states
-and samples and `MAX_EVENTS` events are parsed; an event whose fields have the wrong types
-is malformed. What is refused is damage, with its reason; a machine that still runs out of
+and samples, `MAX_EVENTS` events and `MAX_CHAMBER_STATES` thermal-chamber states
+(`RunLog.chamber_states`, parsed with the events); an event or a chamber state whose
+fields have the wrong types is malformed. What is refused is damage, with its reason; a machine that still runs out of
 memory gives a `LogError`, never a traceback.
 """
 
@@ -37,6 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import mmap
 from collections import deque
 from collections.abc import Iterator
@@ -53,6 +55,7 @@ from bench.log.format import (
     FLAG_ERROR,
     FLAG_REMOTE,
     TOPIC_CAN,
+    TOPIC_CHAMBER,
     TOPIC_EVENTS,
     TOPIC_SAMPLES,
     TOPIC_STATE,
@@ -61,6 +64,7 @@ from bench.log.format import (
 from bench.log.threads import reader_threads
 from bench.log.walk import MAX_DBC_BYTES, ChannelData, Damage, WalkError, walk
 from bench.plan.events import Event
+from drivers.chamber import ChamberAlarms, ChamberState
 from drivers.imu import ImuSampleBlock, ImuStats
 from drivers.imu.layout import ImuLayout
 from drivers.imu.stream import StreamDecoder
@@ -75,6 +79,12 @@ class LogError(BenchError):
 #: messages are not read (damage, counted as lost): parsing costs time and memory per message.
 MAX_JSON_MESSAGES = 1_000_000
 MAX_EVENTS = 100_000
+#: the thermal chamber's polled states parsed at most (55 h at one a second; each held as an object)
+MAX_CHAMBER_STATES = 200_000
+#: an alarm text from the log is cut to this many characters
+MAX_ALARM_TEXT = 500
+#: the topics a read keeps (the others are only counted)
+KEPT_TOPICS = frozenset({TOPIC_CAN, TOPIC_SAMPLES, TOPIC_STATE, TOPIC_EVENTS, TOPIC_CHAMBER})
 _JSON_BATCH = 1 << 16
 
 
@@ -161,6 +171,7 @@ class RunLog:
     message_counts: dict[str, int]
     chunks: int
     library: str
+    chamber_states: list[ChamberState] = field(default_factory=list)   # `/chamber/state`, a thermal run's
     _damage: list[str] = field(default_factory=list, repr=False)
     _lost: list[Damage] = field(default_factory=list, repr=False)   # the entries behind `damage`, with offsets
     _can: ChannelData | None = field(default=None, repr=False)       # `/can/raw`, chunks mostly deferred
@@ -583,6 +594,32 @@ def _event_ok(e: Event) -> bool:
             and (e.step_index is None or _is_int(e.step_index)))
 
 
+def _chamber_state(r: dict) -> ChamberState | None:
+    """A `/chamber/state` message as the recorder writes it (`ChamberRecorder.on_chamber_state`), or None when a
+    field is missing or of the wrong type (a non-finite temperature is recorded as null: NaN here)."""
+    def number(key: str) -> float:
+        """The field as a float, NaN for null (TypeError for anything but a number or null)."""
+        value = r.get(key)
+        if value is None:
+            return math.nan
+        if type(value) not in (int, float):
+            raise TypeError(key)
+        return float(value)
+
+    try:
+        time_s = number("time_s")
+        ramp = None if r.get("ramp_c_per_min") is None else number("ramp_c_per_min")   # None: no ramp
+        alarms, text, running = r.get("alarms", 0), r.get("alarm_text", ""), r.get("running")
+        if (not math.isfinite(time_s) or type(alarms) is not int or not 0 <= alarms < 1 << 32
+                or type(text) is not str or type(running) is not bool):
+            return None
+        return ChamberState(time_s=time_s, temperature_c=number("temperature_c"), setpoint_c=number("setpoint_c"),
+                            ramp_c_per_min=ramp, running=running, alarms=ChamberAlarms(alarms),
+                            alarm_text=text[:MAX_ALARM_TEXT])
+    except (TypeError, ValueError, OverflowError):
+        return None
+
+
 def _not_read(topic: str, count: int, limit: int) -> Damage:
     """`count` messages on `topic` past the `limit` the reader parses: not read, counted as lost."""
     return Damage("message", 0, f"{count} {topic} messages past the first {limit} not read", lost={topic: count})
@@ -646,8 +683,9 @@ def _read_log(path: str, defer_samples: bool, messages: bool = True) -> RunLog:
         # the table states and events copied out up to what is parsed, the frames and samples left in the file)
         w = walk(buf, defer_topics=frozenset({TOPIC_CAN, TOPIC_SAMPLES} if defer_samples else {TOPIC_CAN}),
                  source=_FileSource(path),
-                 keep_topics=frozenset({TOPIC_CAN, TOPIC_SAMPLES, TOPIC_STATE, TOPIC_EVENTS} if messages else ()),
-                 keep_limits={TOPIC_STATE: MAX_JSON_MESSAGES, TOPIC_EVENTS: MAX_EVENTS})
+                 keep_topics=frozenset(KEPT_TOPICS if messages else ()),
+                 keep_limits={TOPIC_STATE: MAX_JSON_MESSAGES, TOPIC_EVENTS: MAX_EVENTS,
+                              TOPIC_CHAMBER: MAX_CHAMBER_STATES})
     except WalkError as exc:
         raise LogError(f"{path}: {exc}") from exc
     finally:
@@ -691,7 +729,7 @@ def _read_log(path: str, defer_samples: bool, messages: bool = True) -> RunLog:
 
     # Only what is kept may keep the decompressed chunks alive: the other topics go, the table states are
     # joined (small); the CAN frames are read chunk by chunk when asked for (`RunLog.can_pieces`).
-    by_topic = {t: d for t, d in by_topic.items() if t in (TOPIC_CAN, TOPIC_SAMPLES, TOPIC_STATE, TOPIC_EVENTS)}
+    by_topic = {t: d for t, d in by_topic.items() if t in KEPT_TOPICS}
     w.data.clear()
     if TOPIC_STATE in by_topic:
         skipped = by_topic[TOPIC_STATE].keep_first(MAX_JSON_MESSAGES) + by_topic[TOPIC_STATE].over_limit
@@ -719,8 +757,25 @@ def _read_log(path: str, defer_samples: bool, messages: bool = True) -> RunLog:
         if bad:
             damage.append(_malformed(TOPIC_EVENTS, bad))
 
+    chamber_states: list[ChamberState] = []
+    if TOPIC_CHAMBER in by_topic:
+        d = by_topic.pop(TOPIC_CHAMBER)
+        skipped = d.keep_first(MAX_CHAMBER_STATES) + d.over_limit
+        if skipped:
+            damage.append(_not_read(TOPIC_CHAMBER, skipped, MAX_CHAMBER_STATES))
+        rows, bad = _parse_json_rows(d.payloads())
+        for r in filter(None, rows):
+            state = _chamber_state(r)
+            if state is None:
+                bad += 1
+            else:
+                chamber_states.append(state)
+        if bad:
+            damage.append(_malformed(TOPIC_CHAMBER, bad))
+
     library = w.header.library if w.header is not None else ""
     return RunLog(path=path, metadata=w.metadata, attachments=w.attachments, events=events,
+                  chamber_states=chamber_states,
                   summary_present=w.footer is not None and w.statistics is not None,
                   message_counts=counts, chunks=w.chunks, library=library,
                   _damage=[d.describe() for d in damage], _lost=damage, _can=by_topic.get(TOPIC_CAN),

@@ -1,18 +1,19 @@
 """Replay a run log through the listener interface the live run uses (DESIGN section 4: MCAP log -> replay).
 
-`replay(log, listeners)` merges the log's events, table states, raw CAN frames and the
-IMU samples decoded from those frames (the source of truth, with the layout recorded
-in the log) into one log-time order and calls each listener's `on_event`,
-`on_table_state`, `on_can_frames` and `on_imu` as the sequencer did, then `close()`.
+`replay(log, listeners)` merges the log's events, table states, thermal-chamber states
+(a thermal run's), raw CAN frames and the IMU samples decoded from those frames (the
+source of truth, with the layout recorded in the log) into one log-time order and calls
+each listener's `on_event`, `on_table_state`, `on_chamber_state`, `on_can_frames` and
+`on_imu` as the sequencer did, then `close()`.
 No hardware, no bus: the frames come back as python-can `Message`s rebuilt from the
 lossless `/can/raw` records, the table states as `drivers.turntable.TableState`s.
 
 Order: each stream keeps its recorded order; across streams, items go by log time,
 frames and samples stamped at or before an event's time before that event (the
 sequencer drains the IMU before it reports a step finished), events before table
-states of the same time. Frames are handed over in batches of at most `block_s` of
-log time that never straddle an event or a table state, each batch followed by the
-samples its frames completed.
+states and table states before chamber states of the same time. Frames are handed over
+in batches of at most `block_s` of log time that never straddle an event or a state,
+each batch followed by the samples its frames completed.
 
 Pacing: `speed=None` delivers as fast as the listeners take it; `speed=X` sleeps on
 the injected clock so that log time advances X times faster than clock time, in steps
@@ -37,7 +38,7 @@ from drivers.imu import ImuSampleBlock, ImuStats
 from drivers.imu.layout import ImuLayout
 from drivers.turntable import AxisMode, AxisState, AxisStatus, TableState
 
-_DATA, _EVENT, _STATE = 0, 1, 2   # tie order at equal log time
+_DATA, _EVENT, _STATE, _CHAMBER = 0, 1, 2, 3   # tie order at equal log time
 _SAME_TIME_S = 1e-6
 
 
@@ -47,6 +48,7 @@ class ReplayStats:
 
     events: int = 0
     table_states: int = 0
+    chamber_states: int = 0
     samples: int = 0
     imu_blocks: int = 0
     frames: int = 0
@@ -69,8 +71,9 @@ class ReplayStats:
         if self.run_state and self.run_state != "done":
             span += f" (the recorded run ended early: {self.run_state})" if self.run_state == "failed" \
                 else f" (the recorded run's last state: {self.run_state})"
-        return (f"replayed {self.events} events, {self.table_states} table states, {self.samples} IMU samples, "
-                f"{self.frames} CAN frames; {span} in {self.wall_s:.2f} s")
+        chamber = f"{self.chamber_states} chamber states, " if self.chamber_states else ""
+        return (f"replayed {self.events} events, {self.table_states} table states, {chamber}{self.samples} IMU "
+                f"samples, {self.frames} CAN frames; {span} in {self.wall_s:.2f} s")
 
 
 def replay(log: RunLog, listeners: Iterable[RunListener], *, speed: float | None = None, clock: Clock = SYSTEM_CLOCK,
@@ -117,21 +120,23 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
     events = log.events
     stats.run_state = next((str(e.state) for e in reversed(events) if e.kind == "transition" and e.state), "")
 
+    chamber = log.chamber_states
     ev_t = _monotone(np.array([e.time_s for e in events], float))
     st_t = _monotone(np.array([s.time_s for s in states], float))
+    ch_t = _monotone(np.array([c.time_s for c in chamber], float))
     # Frame batches: cut where the time grid or the count of earlier events/states changes; found chunk by
     # chunk (the frames are never all held: only each batch's bounds and last time), in the same pass over
     # the frames as the samples' decode when that runs now
-    marks = np.sort(np.concatenate([ev_t, st_t]))
-    batches = _FrameBatches(marks, ev_t, st_t, block_s)
+    marks = np.sort(np.concatenate([ev_t, st_t, ch_t]))
+    batches = _FrameBatches(marks, ev_t, np.sort(np.concatenate([st_t, ch_t])), block_s)
     samples, visited = _decode(log, layout, rate_hz, stats, batches.visit)
     if not visited:
         for t, *_ in log.can_pieces():
             batches.visit(t)
     starts, ends, batch_end, t0 = batches.result()
     n_frames = int(ends[-1]) if len(ends) else 0
-    firsts = [t[0] for t in (ev_t, st_t) if len(t)] + ([t0] if n_frames else [])
-    lasts = [t[-1] for t in (ev_t, st_t, batch_end) if len(t)]
+    firsts = [t[0] for t in (ev_t, st_t, ch_t) if len(t)] + ([t0] if n_frames else [])
+    lasts = [t[-1] for t in (ev_t, st_t, ch_t, batch_end) if len(t)]
     t0 = min(firsts) if firsts else 0.0
     stats.log_start_s, stats.log_duration_s = float(t0), float(max(lasts) - t0) if lasts else 0.0
     batch_t = batch_end
@@ -148,9 +153,11 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
     else:
         sample_bounds = np.zeros(len(batch_t) + 1, np.int64)
 
-    times = np.concatenate([batch_t, ev_t, st_t])
-    kinds = np.concatenate([np.full(len(batch_t), _DATA), np.full(len(ev_t), _EVENT), np.full(len(st_t), _STATE)])
-    index = np.concatenate([np.arange(len(batch_t)), np.arange(len(ev_t)), np.arange(len(st_t))])
+    times = np.concatenate([batch_t, ev_t, st_t, ch_t])
+    kinds = np.concatenate([np.full(len(batch_t), _DATA), np.full(len(ev_t), _EVENT), np.full(len(st_t), _STATE),
+                            np.full(len(ch_t), _CHAMBER)])
+    index = np.concatenate([np.arange(len(batch_t)), np.arange(len(ev_t)), np.arange(len(st_t)),
+                            np.arange(len(ch_t))])
     order = np.lexsort((index, kinds, times))
 
     want_frames = any(_overrides(listener, "on_can_frames") for listener in listeners)
@@ -173,6 +180,10 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
             for listener in listeners:
                 listener.on_table_state(states[k])
             stats.table_states += 1
+        elif kind == _CHAMBER:
+            for listener in listeners:
+                listener.on_chamber_state(chamber[k])
+            stats.chamber_states += 1
         else:
             lo, hi = int(starts[k]), int(ends[k])
             frames = cursor.messages(lo, hi) if cursor is not None else ()

@@ -181,6 +181,38 @@ def record_short_run(out_dir: Path) -> tuple[Path, float]:
     return outcome.log_path, finished_s
 
 
+#: a thermal plan's sections for `config_text`: the simulated chamber speaking Modbus RTU on a pty, a short soak,
+#: an IMU whose gyro x scale factor depends on its temperature
+THERMAL_SECTIONS = """
+[plan.soak]
+rate_c_per_min = 0.5
+stable_min = 1.0
+
+[chamber]
+url = "modbus+rtu:///dev/ttyUSB0?baud=115200"
+poll_s = 5.0
+safe_setpoint_c = 23.0
+
+[sim.imu.thermal]
+time_constant_s = 60.0
+Kg_x = [0.36]
+"""
+
+
+def record_thermal_run(out_dir: Path, serial: str = "T-0001") -> Path:
+    """`bench run --sim` of the shortest thermal plan (24 and 26 degC, traditional-12 + traditional-3s6r, 1 s
+    dwells; about 7 s) into `out_dir`: its log."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    config = out_dir / "bench.toml"
+    config.write_text(config_text(positions="traditional-12", rotations="traditional-3s6r", dwell_s=1.0)
+                      .replace('serial = "T-0001"', f'serial = "{serial}"')
+                      .replace("[plan]\n", "[plan]\ntemperatures_c = [24.0, 26.0]\n", 1) + THERMAL_SECTIONS,
+                      encoding="utf-8")
+    rc, _, stderr = cli(["run", "--config", str(config), "--sim", "--out", str(out_dir), "--quiet", "--no-db"])
+    assert rc == 0, stderr
+    return only_file(out_dir, "*.mcap")
+
+
 def cli(argv: list[str]) -> tuple[int, str, str]:
     """`bench ...` in-process: (exit code, stdout, stderr)."""
     from bench.cli.main import main
