@@ -187,23 +187,9 @@ def test_a_thermal_run_over_the_modbus_rtu_chamber_and_its_re_solve(tmp_path):
     the shortest schedules) runs through it: set, soak, polls, the chamber made safe at the end; `bench solve`
     on its log then gives the run's results again."""
     from bench.run.runner import BenchRun, compile_from_config
-    from tests.helpers.run import config_text
+    from tests.helpers.run import thermal_config_text
 
-    text = config_text(positions="traditional-12", rotations="traditional-3s6r", dwell_s=1.0).replace(
-        "[plan]\n", "[plan]\ntemperatures_c = [24.0]\n", 1) + """
-[plan.soak]
-rate_c_per_min = 0.1
-stable_min = 1.0
-
-[chamber]
-url = "modbus+rtu:///dev/ttyUSB0?baud=115200"
-poll_s = 5.0
-safe_setpoint_c = 23.0
-
-[sim.imu.thermal]
-time_constant_s = 60.0
-Kg_x = [0.36]
-"""
+    text = thermal_config_text("[24.0]", rate_c_per_min=0.1)
     config = parse_config(text, source=str(tmp_path / "bench.toml"), base_dir=tmp_path)
     assert config.chamber.dialect == "modbus"
     out = tmp_path / "run"

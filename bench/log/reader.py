@@ -41,10 +41,11 @@ import json
 import math
 import mmap
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import TypeVar
 
 import numpy as np
 
@@ -83,6 +84,8 @@ MAX_EVENTS = 100_000
 MAX_CHAMBER_STATES = 200_000
 #: an alarm text from the log is cut to this many characters
 MAX_ALARM_TEXT = 500
+_T = TypeVar("_T")
+
 #: the topics a read keeps (the others are only counted)
 KEPT_TOPICS = frozenset({TOPIC_CAN, TOPIC_SAMPLES, TOPIC_STATE, TOPIC_EVENTS, TOPIC_CHAMBER})
 _JSON_BATCH = 1 << 16
@@ -594,6 +597,35 @@ def _event_ok(e: Event) -> bool:
             and (e.step_index is None or _is_int(e.step_index)))
 
 
+def _parsed(d: ChannelData, topic: str, limit: int, convert: Callable[[dict], _T | None],
+            damage: list[Damage]) -> list[_T]:
+    """The first `limit` messages of a JSON topic, each `convert`ed (None: malformed); those past the limit and
+    the malformed ones are said in `damage` (counted as lost)."""
+    skipped = d.keep_first(limit) + d.over_limit
+    if skipped:
+        damage.append(_not_read(topic, skipped, limit))
+    rows, bad = _parse_json_rows(d.payloads())
+    items = []
+    for r in filter(None, rows):
+        item = convert(r)
+        if item is None:
+            bad += 1
+        else:
+            items.append(item)
+    if bad:
+        damage.append(_malformed(topic, bad))
+    return items
+
+
+def _event(r: dict) -> Event | None:
+    """An `/events` message, or None when it cannot be one or its fields have the wrong types."""
+    try:
+        event = Event.from_dict(r)
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError):
+        return None
+    return event if _event_ok(event) else None
+
+
 def _chamber_state(r: dict) -> ChamberState | None:
     """A `/chamber/state` message as the recorder writes it (`ChamberRecorder.on_chamber_state`), or None when a
     field is missing or of the wrong type (a non-finite temperature is recorded as null: NaN here)."""
@@ -737,41 +769,10 @@ def _read_log(path: str, defer_samples: bool, messages: bool = True) -> RunLog:
             damage.append(_not_read(TOPIC_STATE, skipped, MAX_JSON_MESSAGES))
         by_topic[TOPIC_STATE].compact()
 
-    events: list[Event] = []
-    if TOPIC_EVENTS in by_topic:
-        d = by_topic.pop(TOPIC_EVENTS)
-        skipped = d.keep_first(MAX_EVENTS) + d.over_limit
-        if skipped:
-            damage.append(_not_read(TOPIC_EVENTS, skipped, MAX_EVENTS))
-        rows, bad = _parse_json_rows(d.payloads())
-        for r in filter(None, rows):
-            try:
-                event = Event.from_dict(r)
-            except (KeyError, TypeError, ValueError, AttributeError, OverflowError):
-                bad += 1
-                continue
-            if _event_ok(event):
-                events.append(event)
-            else:
-                bad += 1
-        if bad:
-            damage.append(_malformed(TOPIC_EVENTS, bad))
-
-    chamber_states: list[ChamberState] = []
-    if TOPIC_CHAMBER in by_topic:
-        d = by_topic.pop(TOPIC_CHAMBER)
-        skipped = d.keep_first(MAX_CHAMBER_STATES) + d.over_limit
-        if skipped:
-            damage.append(_not_read(TOPIC_CHAMBER, skipped, MAX_CHAMBER_STATES))
-        rows, bad = _parse_json_rows(d.payloads())
-        for r in filter(None, rows):
-            state = _chamber_state(r)
-            if state is None:
-                bad += 1
-            else:
-                chamber_states.append(state)
-        if bad:
-            damage.append(_malformed(TOPIC_CHAMBER, bad))
+    events = _parsed(by_topic.pop(TOPIC_EVENTS), TOPIC_EVENTS, MAX_EVENTS, _event, damage) \
+        if TOPIC_EVENTS in by_topic else []
+    chamber_states = _parsed(by_topic.pop(TOPIC_CHAMBER), TOPIC_CHAMBER, MAX_CHAMBER_STATES, _chamber_state, damage) \
+        if TOPIC_CHAMBER in by_topic else []
 
     library = w.header.library if w.header is not None else ""
     return RunLog(path=path, metadata=w.metadata, attachments=w.attachments, events=events,

@@ -181,11 +181,16 @@ def record_short_run(out_dir: Path) -> tuple[Path, float]:
     return outcome.log_path, finished_s
 
 
-#: a thermal plan's sections for `config_text`: the simulated chamber speaking Modbus RTU on a pty, a short soak,
-#: an IMU whose gyro x scale factor depends on its temperature
-THERMAL_SECTIONS = """
+def thermal_config_text(temperatures_c: str = "[24.0, 26.0]", rate_c_per_min: float = 0.5,
+                        serial: str = "T-0001") -> str:
+    """The shortest thermal plan (traditional-12 + traditional-3s6r, 1 s dwells) at `temperatures_c` (a TOML
+    list): the simulated chamber speaking Modbus RTU on a pty with `--sim`, a short soak, an IMU whose gyro x
+    scale factor depends on its temperature."""
+    return config_text(positions="traditional-12", rotations="traditional-3s6r", dwell_s=1.0).replace(
+        'serial = "T-0001"', f'serial = "{serial}"').replace(
+        "[plan]\n", f"[plan]\ntemperatures_c = {temperatures_c}\n", 1) + f"""
 [plan.soak]
-rate_c_per_min = 0.5
+rate_c_per_min = {rate_c_per_min}
 stable_min = 1.0
 
 [chamber]
@@ -200,14 +205,10 @@ Kg_x = [0.36]
 
 
 def record_thermal_run(out_dir: Path, serial: str = "T-0001") -> Path:
-    """`bench run --sim` of the shortest thermal plan (24 and 26 degC, traditional-12 + traditional-3s6r, 1 s
-    dwells; about 7 s) into `out_dir`: its log."""
+    """`bench run --sim` of `thermal_config_text()` (24 and 26 degC; about 7 s) into `out_dir`: its log."""
     out_dir.mkdir(parents=True, exist_ok=True)
     config = out_dir / "bench.toml"
-    config.write_text(config_text(positions="traditional-12", rotations="traditional-3s6r", dwell_s=1.0)
-                      .replace('serial = "T-0001"', f'serial = "{serial}"')
-                      .replace("[plan]\n", "[plan]\ntemperatures_c = [24.0, 26.0]\n", 1) + THERMAL_SECTIONS,
-                      encoding="utf-8")
+    config.write_text(thermal_config_text(serial=serial), encoding="utf-8")
     rc, _, stderr = cli(["run", "--config", str(config), "--sim", "--out", str(out_dir), "--quiet", "--no-db"])
     assert rc == 0, stderr
     return only_file(out_dir, "*.mcap")
