@@ -78,8 +78,11 @@ def run_tasks(func: Callable[..., Any], calls: Iterable[tuple], *, scheduler: st
             # dynamic mmap threshold: every array over 128 KiB is then mmapped and page-faulted afresh, and a
             # log's solve takes 1.6x the CPU (7x the page faults; measured, see README). Not for our workers.
             with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+                # no dashboard; the scheduler's HTTP endpoints (health, metrics) on a free loopback port, not on
+                # 8787, which another cluster (or a second archive solved at once) may hold: Dask then warns
                 cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                                       processes=True, dashboard_address=None, host="127.0.0.1", silence_logs=40)
+                                       processes=True, dashboard_address=None, host="127.0.0.1", silence_logs=40,
+                                       scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
             client = Client(cluster)
         else:
             client = Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S}s")

@@ -129,3 +129,25 @@ def test_local_workers_keep_the_dynamic_mmap_threshold(monkeypatch):
     monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)     # what the workers inherit from us
     [(index, value, error)] = list(run_tasks(_malloc_trim_threshold, [()], scheduler="local", workers=1))
     assert error is None and value is None
+
+
+def test_a_local_cluster_does_not_need_the_dashboard_port():
+    """With 127.0.0.1:8787 (Dask's default HTTP port) held, by another cluster or a second archive solved at once,
+    the local cluster runs its tasks without Dask's multi-line "Port 8787 is already in use" warning (its HTTP
+    endpoints listen on a free loopback port)."""
+    import socket
+    import warnings
+
+    holder = socket.socket()
+    try:
+        holder.bind(("127.0.0.1", 8787))
+        holder.listen()
+    except OSError:     # held already: the case this test makes
+        pass
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            assert list(run_tasks(abs, [(-1,)], scheduler="local", workers=1)) == [(0, 1, None)]
+    finally:
+        holder.close()
+    assert not [w for w in caught if "already in use" in str(w.message)], [str(w.message) for w in caught]
