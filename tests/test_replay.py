@@ -465,15 +465,15 @@ def test_a_thermal_runs_chamber_states_are_read_and_replayed_in_log_time_order(t
 
 
 def test_malformed_chamber_states_are_counted_not_read():
-    from bench.log.reader import MAX_ALARM_TEXT, _chamber_state
+    from bench.log.json_topics import MAX_ALARM_TEXT, chamber_state_row
 
     good = {"time_s": 5.0, "temperature_c": 23.5, "setpoint_c": 24.0, "ramp_c_per_min": None, "running": True,
             "alarms": 4, "alarm_text": "x" * 2000}
-    state = _chamber_state(good)
+    state = chamber_state_row(good)
     assert state is not None and state.ramp_c_per_min is None and state.describe_alarms().startswith("door open")
     assert len(state.alarm_text) == MAX_ALARM_TEXT
-    assert np.isnan(_chamber_state({**good, "temperature_c": None}).temperature_c)    # a null reading: NaN
+    assert np.isnan(chamber_state_row({**good, "temperature_c": None}).temperature_c)    # a null reading: NaN
     for bad in ({**good, "time_s": None}, {**good, "time_s": "5"}, {**good, "setpoint_c": [1]},
                 {**good, "running": 1}, {**good, "alarms": -1}, {**good, "alarms": 1 << 40}, {**good, "alarms": 1.5},
                 {**good, "alarm_text": 7}, {**good, "ramp_c_per_min": "fast"}, {**good, "time_s": float("inf")}):
-        assert _chamber_state(bad) is None, bad
+        assert chamber_state_row(bad) is None, bad

@@ -30,22 +30,20 @@ file the run's metadata names counts as one whatever its name). A CAN record cla
 than 64 data bytes makes its message malformed. At most `MAX_JSON_MESSAGES` table states
 and samples, `MAX_EVENTS` events and `MAX_CHAMBER_STATES` thermal-chamber states
 (`RunLog.chamber_states`, parsed with the events); an event or a chamber state whose
-fields have the wrong types is malformed. What is refused is damage, with its reason; a machine that still runs out of
-memory gives a `LogError`, never a traceback.
+fields have the wrong types is malformed (`bench.log.json_topics`). What is refused is
+damage, with its reason; a machine that still runs out of memory gives a `LogError`,
+never a traceback.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
-import math
 import mmap
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TypeVar
 
 import numpy as np
 
@@ -62,10 +60,20 @@ from bench.log.format import (
     TOPIC_STATE,
     decode_can_frames,
 )
+from bench.log.json_topics import (
+    chamber_state_row,
+    event_row,
+    malformed_damage,
+    not_read_damage,
+    parse_json_rows,
+    parse_topic,
+    sample_row_ok,
+    state_row_ok,
+)
 from bench.log.threads import reader_threads
 from bench.log.walk import MAX_DBC_BYTES, ChannelData, Damage, WalkError, walk
 from bench.plan.events import Event
-from drivers.chamber import ChamberAlarms, ChamberState
+from drivers.chamber import ChamberState
 from drivers.imu import ImuSampleBlock, ImuStats
 from drivers.imu.layout import ImuLayout
 from drivers.imu.stream import StreamDecoder
@@ -82,10 +90,6 @@ MAX_JSON_MESSAGES = 1_000_000
 MAX_EVENTS = 100_000
 #: the thermal chamber's polled states parsed at most (55 h at one a second; each held as an object)
 MAX_CHAMBER_STATES = 200_000
-#: an alarm text from the log is cut to this many characters
-MAX_ALARM_TEXT = 500
-_T = TypeVar("_T")
-
 #: the topics a read keeps (the others are only counted)
 KEPT_TOPICS = frozenset({TOPIC_CAN, TOPIC_SAMPLES, TOPIC_STATE, TOPIC_EVENTS, TOPIC_CHAMBER})
 _JSON_BATCH = 1 << 16
@@ -290,7 +294,7 @@ class RunLog:
                 self._frame_count += frames
                 self._non_data += non_data
                 if bad:
-                    self._add(_malformed(TOPIC_CAN, bad))
+                    self._add(malformed_damage(TOPIC_CAN, bad))
         self._can_scanned = True
 
     def _scan_can(self) -> None:
@@ -312,11 +316,11 @@ class RunLog:
             try:
                 parts.append(TableStates.from_dicts(rows))
             except (KeyError, TypeError, ValueError, OverflowError):   # keep the rows that check out
-                good = [r for r in rows if _state_row(r)]
+                good = [r for r in rows if state_row_ok(r)]
                 bad += len(rows) - len(good)
                 parts.append(TableStates.from_dicts(good))
         if bad:
-            self._add(_malformed(TOPIC_STATE, bad))
+            self._add(malformed_damage(TOPIC_STATE, bad))
         return TableStates.concatenate(parts)
 
     @cached_property
@@ -334,11 +338,11 @@ class RunLog:
             try:
                 parts.append(_imu_records(rows, times))
             except (KeyError, TypeError, ValueError, OverflowError):   # some rows lack fields: keep the others
-                good = [k for k, r in enumerate(rows) if _sample_row(r)]
+                good = [k for k, r in enumerate(rows) if sample_row_ok(r)]
                 bad += len(rows) - len(good)
                 parts.append(_imu_records([rows[k] for k in good], times[good]))
         if bad:
-            self._add(_malformed(TOPIC_SAMPLES, bad))
+            self._add(malformed_damage(TOPIC_SAMPLES, bad))
         return ImuRecords(*(np.concatenate([getattr(p, f.name) for p in parts])
                             for f in dataclasses.fields(ImuRecords)))
 
@@ -348,10 +352,10 @@ class RunLog:
         `MAX_JSON_MESSAGES` are not parsed: said in `damage`, counted as lost."""
         skipped = d.keep_first(MAX_JSON_MESSAGES)
         if skipped:
-            self._add(_not_read(topic, skipped, MAX_JSON_MESSAGES))
+            self._add(not_read_damage(topic, skipped, MAX_JSON_MESSAGES))
         payloads, times = d.payloads(), d.log_time_ns
         for a in range(0, len(payloads), _JSON_BATCH):
-            rows, bad = _parse_json_rows(payloads[a:a + _JSON_BATCH])
+            rows, bad = parse_json_rows(payloads[a:a + _JSON_BATCH])
             yield rows, times[a:a + _JSON_BATCH], bad
 
     def imu_samples(self, layout: ImuLayout | None = None, rate_hz: float = 1000.0,
@@ -554,135 +558,6 @@ def _imu_records(rows: list[dict], times: np.ndarray) -> ImuRecords:
     return records
 
 
-_INT64 = (-(1 << 63), 1 << 63)
-
-
-def _is_int(x) -> bool:
-    """A JSON integer (or boolean) that fits an int64."""
-    return type(x) in (int, bool) and _INT64[0] <= x < _INT64[1]
-
-
-def _is_number(x) -> bool:
-    """A JSON number numpy reads as a float64, or null (NaN)."""
-    return x is None or type(x) is float or _is_int(x)
-
-
-def _is_vec3(v, item=_is_number) -> bool:
-    return type(v) is list and len(v) == 3 and all(map(item, v))
-
-
-def _state_row(r: dict) -> bool:
-    """Whether a `/table/state` row converts (`TableStates.from_dicts`): every field of the right shape."""
-    try:
-        return (_is_number(r["time_s"]) and _is_vec3(r["angles_deg"]) and _is_vec3(r["rates_dps"])
-                and _is_vec3(r["status"], _is_int) and type(r["modes"]) is list and len(r["modes"]) == 3)
-    except KeyError:
-        return False
-
-
-def _sample_row(r: dict) -> bool:
-    """Whether an `/imu/samples` row converts (`_imu_records`)."""
-    try:
-        return (_is_int(r["counter"]) and _is_number(r["time_s"]) and _is_number(r.get("imu_time_s", 0.0))
-                and _is_vec3(r["gyro_counts"])
-                and _is_vec3(r["acc_counts"]) and _is_number(r["temperature_c"]) and _is_int(r["status"]))
-    except KeyError:
-        return False
-
-
-def _event_ok(e: Event) -> bool:
-    """Whether an event's fields have the types the readers of events rely on (`Event.from_dict` keeps
-    whatever the log holds)."""
-    return ((e.state is None or type(e.state) is str) and (e.step_unit is None or type(e.step_unit) is str)
-            and (e.step_index is None or _is_int(e.step_index)))
-
-
-def _parsed(d: ChannelData, topic: str, limit: int, convert: Callable[[dict], _T | None],
-            damage: list[Damage]) -> list[_T]:
-    """The first `limit` messages of a JSON topic, each `convert`ed (None: malformed); those past the limit and
-    the malformed ones are said in `damage` (counted as lost)."""
-    skipped = d.keep_first(limit) + d.over_limit
-    if skipped:
-        damage.append(_not_read(topic, skipped, limit))
-    rows, bad = _parse_json_rows(d.payloads())
-    items = []
-    for r in filter(None, rows):
-        item = convert(r)
-        if item is None:
-            bad += 1
-        else:
-            items.append(item)
-    if bad:
-        damage.append(_malformed(topic, bad))
-    return items
-
-
-def _event(r: dict) -> Event | None:
-    """An `/events` message, or None when it cannot be one or its fields have the wrong types."""
-    try:
-        event = Event.from_dict(r)
-    except (KeyError, TypeError, ValueError, AttributeError, OverflowError):
-        return None
-    return event if _event_ok(event) else None
-
-
-def _chamber_state(r: dict) -> ChamberState | None:
-    """A `/chamber/state` message as the recorder writes it (`ChamberRecorder.on_chamber_state`), or None when a
-    field is missing or of the wrong type (a non-finite temperature is recorded as null: NaN here)."""
-    def number(key: str) -> float:
-        """The field as a float, NaN for null (TypeError for anything but a number or null)."""
-        value = r.get(key)
-        if value is None:
-            return math.nan
-        if type(value) not in (int, float):
-            raise TypeError(key)
-        return float(value)
-
-    try:
-        time_s = number("time_s")
-        ramp = None if r.get("ramp_c_per_min") is None else number("ramp_c_per_min")   # None: no ramp
-        alarms, text, running = r.get("alarms", 0), r.get("alarm_text", ""), r.get("running")
-        if (not math.isfinite(time_s) or type(alarms) is not int or not 0 <= alarms < 1 << 32
-                or type(text) is not str or type(running) is not bool):
-            return None
-        return ChamberState(time_s=time_s, temperature_c=number("temperature_c"), setpoint_c=number("setpoint_c"),
-                            ramp_c_per_min=ramp, running=running, alarms=ChamberAlarms(alarms),
-                            alarm_text=text[:MAX_ALARM_TEXT])
-    except (TypeError, ValueError, OverflowError):
-        return None
-
-
-def _not_read(topic: str, count: int, limit: int) -> Damage:
-    """`count` messages on `topic` past the `limit` the reader parses: not read, counted as lost."""
-    return Damage("message", 0, f"{count} {topic} messages past the first {limit} not read", lost={topic: count})
-
-
-def _malformed(topic: str, count: int) -> Damage:
-    """`count` messages on `topic` that could not be parsed: skipped, and counted as lost."""
-    return Damage("message", 0, f"{count} malformed {topic} messages skipped", lost={topic: count})
-
-
-def _parse_json_rows(payloads: list[bytes]) -> tuple[list, int]:
-    """Each message of a JSON channel as a dict (None where malformed) and the malformed count."""
-    try:
-        rows = json.loads(b"[" + b",".join(payloads) + b"]")
-        if len(rows) == len(payloads) and all(isinstance(r, dict) for r in rows):
-            return rows, 0
-    except (ValueError, RecursionError):   # RecursionError: arrays nested too deep
-        pass
-    rows, bad = [], 0
-    for p in payloads:
-        try:
-            r = json.loads(p)
-            if not isinstance(r, dict):
-                raise ValueError("not an object")
-            rows.append(r)
-        except (ValueError, RecursionError):
-            rows.append(None)
-            bad += 1
-    return rows, bad
-
-
 def _map_file(path: str):
     """The file's bytes, memory-mapped (no copy; the walk reads each byte about once)."""
     try:
@@ -766,13 +641,13 @@ def _read_log(path: str, defer_samples: bool, messages: bool = True) -> RunLog:
     if TOPIC_STATE in by_topic:
         skipped = by_topic[TOPIC_STATE].keep_first(MAX_JSON_MESSAGES) + by_topic[TOPIC_STATE].over_limit
         if skipped:
-            damage.append(_not_read(TOPIC_STATE, skipped, MAX_JSON_MESSAGES))
+            damage.append(not_read_damage(TOPIC_STATE, skipped, MAX_JSON_MESSAGES))
         by_topic[TOPIC_STATE].compact()
 
-    events = _parsed(by_topic.pop(TOPIC_EVENTS), TOPIC_EVENTS, MAX_EVENTS, _event, damage) \
-        if TOPIC_EVENTS in by_topic else []
-    chamber_states = _parsed(by_topic.pop(TOPIC_CHAMBER), TOPIC_CHAMBER, MAX_CHAMBER_STATES, _chamber_state, damage) \
-        if TOPIC_CHAMBER in by_topic else []
+    events = (parse_topic(by_topic.pop(TOPIC_EVENTS), TOPIC_EVENTS, MAX_EVENTS, event_row, damage)
+              if TOPIC_EVENTS in by_topic else [])
+    chamber_states = (parse_topic(by_topic.pop(TOPIC_CHAMBER), TOPIC_CHAMBER, MAX_CHAMBER_STATES, chamber_state_row,
+                                  damage) if TOPIC_CHAMBER in by_topic else [])
 
     library = w.header.library if w.header is not None else ""
     return RunLog(path=path, metadata=w.metadata, attachments=w.attachments, events=events,

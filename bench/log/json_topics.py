@@ -1,0 +1,151 @@
+"""The JSON topics of a run log, message by message (a log from outside is hostile): each parsed
+(`parse_json_rows`: one `json.loads` for a batch, message by message only when that fails), each row checked
+for the fields and types its reader relies on, and what is malformed or past a reader's limit said as
+`Damage` (counted as lost). Used by `bench.log.reader`."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from typing import TypeVar
+
+from bench.log.walk import ChannelData, Damage
+from bench.plan.events import Event
+from drivers.chamber import ChamberAlarms, ChamberState
+
+#: an alarm text from the log is cut to this many characters
+MAX_ALARM_TEXT = 500
+_T = TypeVar("_T")
+
+_INT64 = (-(1 << 63), 1 << 63)
+
+
+def is_int(x) -> bool:
+    """A JSON integer (or boolean) that fits an int64."""
+    return type(x) in (int, bool) and _INT64[0] <= x < _INT64[1]
+
+
+def is_number(x) -> bool:
+    """A JSON number numpy reads as a float64, or null (NaN)."""
+    return x is None or type(x) is float or is_int(x)
+
+
+def is_vec3(v, item=is_number) -> bool:
+    return type(v) is list and len(v) == 3 and all(map(item, v))
+
+
+def state_row_ok(r: dict) -> bool:
+    """Whether a `/table/state` row converts (`TableStates.from_dicts`): every field of the right shape."""
+    try:
+        return (is_number(r["time_s"]) and is_vec3(r["angles_deg"]) and is_vec3(r["rates_dps"])
+                and is_vec3(r["status"], is_int) and type(r["modes"]) is list and len(r["modes"]) == 3)
+    except KeyError:
+        return False
+
+
+def sample_row_ok(r: dict) -> bool:
+    """Whether an `/imu/samples` row converts (`bench.log.reader._imu_records`)."""
+    try:
+        return (is_int(r["counter"]) and is_number(r["time_s"]) and is_number(r.get("imu_time_s", 0.0))
+                and is_vec3(r["gyro_counts"])
+                and is_vec3(r["acc_counts"]) and is_number(r["temperature_c"]) and is_int(r["status"]))
+    except KeyError:
+        return False
+
+
+def event_ok(e: Event) -> bool:
+    """Whether an event's fields have the types the readers of events rely on (`Event.from_dict` keeps
+    whatever the log holds)."""
+    return ((e.state is None or type(e.state) is str) and (e.step_unit is None or type(e.step_unit) is str)
+            and (e.step_index is None or is_int(e.step_index)))
+
+
+def parse_topic(d: ChannelData, topic: str, limit: int, convert: Callable[[dict], _T | None],
+            damage: list[Damage]) -> list[_T]:
+    """The first `limit` messages of a JSON topic, each `convert`ed (None: malformed); those past the limit and
+    the malformed ones are said in `damage` (counted as lost)."""
+    skipped = d.keep_first(limit) + d.over_limit
+    if skipped:
+        damage.append(not_read_damage(topic, skipped, limit))
+    rows, bad = parse_json_rows(d.payloads())
+    items = []
+    for r in filter(None, rows):
+        item = convert(r)
+        if item is None:
+            bad += 1
+        else:
+            items.append(item)
+    if bad:
+        damage.append(malformed_damage(topic, bad))
+    return items
+
+
+def event_row(r: dict) -> Event | None:
+    """An `/events` message, or None when it cannot be one or its fields have the wrong types."""
+    try:
+        event = Event.from_dict(r)
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError):
+        return None
+    return event if event_ok(event) else None
+
+
+def chamber_state_row(r: dict) -> ChamberState | None:
+    """A `/chamber/state` message as the recorder writes it (`ChamberRecorder.on_chamber_state`), or None when a
+    field is missing or of the wrong type (a non-finite temperature is recorded as null: NaN here)."""
+    def number(key: str) -> float:
+        """The field as a float, NaN for null (TypeError for anything but a number or null)."""
+        value = r.get(key)
+        if value is None:
+            return math.nan
+        if type(value) not in (int, float):
+            raise TypeError(key)
+        return float(value)
+
+    try:
+        time_s = number("time_s")
+        ramp = None if r.get("ramp_c_per_min") is None else number("ramp_c_per_min")   # None: no ramp
+        alarms, text, running = r.get("alarms", 0), r.get("alarm_text", ""), r.get("running")
+        if (not math.isfinite(time_s) or type(alarms) is not int or not 0 <= alarms < 1 << 32
+                or type(text) is not str or type(running) is not bool):
+            return None
+        return ChamberState(time_s=time_s, temperature_c=number("temperature_c"), setpoint_c=number("setpoint_c"),
+                            ramp_c_per_min=ramp, running=running, alarms=ChamberAlarms(alarms),
+                            alarm_text=text[:MAX_ALARM_TEXT])
+    except (TypeError, ValueError, OverflowError):
+        return None
+
+
+def not_read_damage(topic: str, count: int, limit: int) -> Damage:
+    """`count` messages on `topic` past the `limit` the reader parses: not read, counted as lost."""
+    return Damage("message", 0, f"{count} {topic} messages past the first {limit} not read", lost={topic: count})
+
+
+def malformed_damage(topic: str, count: int) -> Damage:
+    """`count` messages on `topic` that could not be parsed: skipped, and counted as lost."""
+    return Damage("message", 0, f"{count} malformed {topic} messages skipped", lost={topic: count})
+
+
+def parse_json_rows(payloads: list[bytes]) -> tuple[list, int]:
+    """Each message of a JSON channel as a dict (None where malformed) and the malformed count."""
+    try:
+        rows = json.loads(b"[" + b",".join(payloads) + b"]")
+        if len(rows) == len(payloads) and all(isinstance(r, dict) for r in rows):
+            return rows, 0
+    except (ValueError, RecursionError):   # RecursionError: arrays nested too deep
+        pass
+    rows, bad = [], 0
+    for p in payloads:
+        try:
+            r = json.loads(p)
+            if not isinstance(r, dict):
+                raise ValueError("not an object")
+            rows.append(r)
+        except (ValueError, RecursionError):
+            rows.append(None)
+            bad += 1
+    return rows, bad
+
+
+__all__ = ["MAX_ALARM_TEXT", "chamber_state_row", "event_ok", "event_row", "is_int", "is_number", "is_vec3",
+           "malformed_damage", "not_read_damage", "parse_json_rows", "parse_topic", "sample_row_ok", "state_row_ok"]
