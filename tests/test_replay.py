@@ -477,3 +477,14 @@ def test_malformed_chamber_states_are_counted_not_read():
                 {**good, "running": 1}, {**good, "alarms": -1}, {**good, "alarms": 1 << 40}, {**good, "alarms": 1.5},
                 {**good, "alarm_text": 7}, {**good, "ramp_c_per_min": "fast"}, {**good, "time_s": float("inf")}):
         assert chamber_state_row(bad) is None, bad
+
+
+def test_chamber_states_past_the_readers_limit_are_said_not_read(thermal_run_log, monkeypatch):
+    from bench.log import reader
+    from bench.log.format import TOPIC_CHAMBER
+
+    monkeypatch.setattr(reader, "MAX_CHAMBER_STATES", 10)
+    log = reader.read_log(str(thermal_run_log))
+    recorded = log.message_counts[TOPIC_CHAMBER]
+    assert len(log.chamber_states) == 10 < recorded and not log.complete
+    assert log.damage == [f"byte 0: {recorded - 10} {TOPIC_CHAMBER} messages past the first 10 not read"]
