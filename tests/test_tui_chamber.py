@@ -16,7 +16,7 @@ from bench.plan.events import Event, RunState
 from bench.run.soak import SoakStatus
 from drivers.chamber import ChamberAlarms, ChamberState
 from drivers.imu import ImuSampleBlock
-from tests.helpers.run import config_text
+from tests.helpers.run import thermal_plan_text
 from tests.helpers.tui import SIZE, press, run, snap, start_plan, wait_ended, wait_until
 
 THERMAL = """
@@ -40,8 +40,7 @@ Kg_x = [0.36]
 def _app(tmp_path, temperatures="[30.0, 40.0]"):
     from bench.tui import create_app
 
-    text = config_text(positions="traditional-12", rotations="traditional-3s6r", dwell_s=1.0).replace(
-        "[plan]\n", f"[plan]\ntemperatures_c = {temperatures}\n", 1) + THERMAL
+    text = thermal_plan_text(temperatures, THERMAL)
     config = parse_config(text, source=str(tmp_path / "bench.toml"), base_dir=tmp_path)
     return create_app(config=config, sim=True, out_dir=tmp_path, refresh_hz=20.0, poll_s=0.05,
                       auto_connect=False)

@@ -26,6 +26,12 @@ _MIN_FRACTION_FOR_WALL_ETA = 0.01
 _ENDING = {RunState.ABORTING.value, RunState.DONE.value, RunState.FAILED.value}
 
 
+def text_bar(fraction: float, width: int) -> str:
+    """`fraction` (0..1) of `width` as `#`, the rest as `-`."""
+    filled = int(round(fraction * width))
+    return "#" * filled + "-" * (width - filled)
+
+
 class ProgressPrinter(RunListener):
     """Prints progress of a run of `steps` to `stream` (default stderr); `wall_clock` (seconds,
     default `time.monotonic`) measures the wall time for the simulator's wall ETA and the summary."""
@@ -69,8 +75,7 @@ class ProgressPrinter(RunListener):
         step = self._current
         elapsed_in_step = now - self._started_at
         fraction = self._fraction(now)
-        filled = int(round(fraction * self.bar_width))
-        bar = "#" * filled + "-" * (self.bar_width - filled)
+        bar = text_bar(fraction, self.bar_width)
         what = f"step {step.index + 1}/{len(self.steps)} {step.unit} {step.kind}" if step else ""
         left = (f" {format_hms(step.estimated_s - elapsed_in_step)} left" if step and step.kind in ("dwell", "settle")
                 else "")
@@ -187,8 +192,8 @@ class CountProgress:
     def _draw(self) -> None:
         if not self.live:
             return
-        filled = int(round(self.bar_width * (self.done / self.total if self.total else 1.0)))
-        self.stream.write(f"\r[{'#' * filled}{'-' * (self.bar_width - filled)}] {self._tag()}{ERASE_TO_END}")
+        bar = text_bar(self.done / self.total if self.total else 1.0, self.bar_width)
+        self.stream.write(f"\r[{bar}] {self._tag()}{ERASE_TO_END}")
         self.stream.flush()
         self._bar_shown = True
 

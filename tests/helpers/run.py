@@ -181,14 +181,19 @@ def record_short_run(out_dir: Path) -> tuple[Path, float]:
     return outcome.log_path, finished_s
 
 
-def thermal_config_text(temperatures_c: str = "[24.0, 26.0]", rate_c_per_min: float = 0.5,
-                        serial: str = "T-0001") -> str:
-    """The shortest thermal plan (traditional-12 + traditional-3s6r, 1 s dwells) at `temperatures_c` (a TOML
-    list): the simulated chamber speaking Modbus RTU on a pty with `--sim`, a short soak, an IMU whose gyro x
-    scale factor depends on its temperature."""
+def thermal_plan_text(temperatures_c: str, sections: str, serial: str = "T-0001") -> str:
+    """The shortest plan (traditional-12 + traditional-3s6r, 1 s dwells) at `temperatures_c` (a TOML list), with
+    `sections` (the soak, the chamber, the thermal IMU) after it."""
     return config_text(positions="traditional-12", rotations="traditional-3s6r", dwell_s=1.0).replace(
         'serial = "T-0001"', f'serial = "{serial}"').replace(
-        "[plan]\n", f"[plan]\ntemperatures_c = {temperatures_c}\n", 1) + f"""
+        "[plan]\n", f"[plan]\ntemperatures_c = {temperatures_c}\n", 1) + sections
+
+
+def thermal_config_text(temperatures_c: str = "[24.0, 26.0]", rate_c_per_min: float = 0.5,
+                        serial: str = "T-0001") -> str:
+    """`thermal_plan_text` with the simulated chamber speaking Modbus RTU on a pty with `--sim`, a short soak, an
+    IMU whose gyro x scale factor depends on its temperature."""
+    return thermal_plan_text(temperatures_c, serial=serial, sections=f"""
 [plan.soak]
 rate_c_per_min = {rate_c_per_min}
 stable_min = 1.0
@@ -201,7 +206,7 @@ safe_setpoint_c = 23.0
 [sim.imu.thermal]
 time_constant_s = 60.0
 Kg_x = [0.36]
-"""
+""")
 
 
 def record_thermal_run(out_dir: Path, serial: str = "T-0001") -> Path:
