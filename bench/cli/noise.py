@@ -142,6 +142,8 @@ def _summary(result) -> str:
             if true:
                 text += f" [sim {true:.4g}]"
             cells.append(text)
+        cells += [f"{term} not given ({why})" for term, why in (ch.get("terms_not_resolved") or {}).items()
+                  if term != "quantisation"]
         lines.append(f"{name}: " + "; ".join(cells))
     return "\n".join(lines)
 

@@ -37,12 +37,17 @@ points scatter more than the model says):
 
 A curve too short for the model (fewer than 3 usable points) has its terms read off the
 slopes (`_region_fit`: -1/2 points, the minimum, the +1/2 points).
+
+No term is read off a single Allan point: one point cannot tell its term from the
+others (at the shortest tau it also carries the sampling's own pattern). Such a term is
+left out and `ChannelFit.not_resolved` says why. A record shorter than
+`MIN_RECORD_SAMPLES` is refused before any fit (`bench.noise.result.check_record_length`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
@@ -63,6 +68,11 @@ MIN_WHITE_M = 8
 CONSISTENT = 1e-3
 _FLAT = 0.25
 _RISE = 0.25
+#: The model has five coefficients (quantisation, white, flicker, random walk, Gauss-Markov): fitting them with a
+#: degree of freedom to spare takes six octave points from the white-noise start (m = MIN_WHITE_M ... 32
+#: MIN_WHITE_M), each with MIN_CLUSTERS (4) clusters: 4 x 8 x 32 = 1024 samples.
+MODEL_COEFFICIENTS = 5
+MIN_RECORD_SAMPLES = 4 * MIN_WHITE_M * 2 ** MODEL_COEFFICIENTS
 
 
 @dataclass(frozen=True)
@@ -85,6 +95,8 @@ class ChannelFit:
     bias_instability: TermFit | None  # B: min ADEV / 0.664      (unit)
     rate_random_walk: TermFit | None  # K: ADEV = K sqrt(tau/3) (unit / sqrt(s))
     model: dict | None = None      # the model fit (`ModelFit.summary`), None when the terms were read off slopes
+    #: term attribute -> why it is not given (a term the record cannot resolve is not reported as a number)
+    not_resolved: dict[str, str] = field(default_factory=dict)
 
     def line(self, term: str, tau_s: np.ndarray) -> np.ndarray | None:
         """The fitted line of `term` at `tau_s` (None if the term was not found)."""
@@ -111,7 +123,16 @@ def _line_fit(curve: AllanCurve, idx: list[int], slope: float) -> tuple[float, f
     return mean, max(statistical, scatter)
 
 
+def _single_point(curve: AllanCurve, idx: list[int], what: str) -> str:
+    """Why a term seen at one Allan point only is not given."""
+    return (f"{what} at one Allan point only (tau {float(curve.tau_s[idx[0]]):g} s): one point cannot tell it from "
+            "the other terms")
+
+
 def _term(curve: AllanCurve, idx: list[int], slope: float, scale: float) -> TermFit:
+    """The term of an ADEV line of `slope` fitted over `idx` (at least two points: see `_single_point`)."""
+    if len(idx) < 2:
+        raise ValueError("a term is never read off a single Allan point")
     ln_c, sigma_ln = _line_fit(curve, idx, slope)
     value = scale * math.exp(ln_c)
     return TermFit(value, value * sigma_ln, tuple(idx), (float(curve.tau_s[idx[0]]), float(curve.tau_s[idx[-1]])))
@@ -380,15 +401,18 @@ def fit_curve(curve: AllanCurve) -> ChannelFit:
     rate_random_walk = _resolved_or_bound(curve, model, 3, 3.0, idx[-1])
 
     quantisation = None
+    not_resolved: dict[str, str] = {}
     if c[0] > 2.0 * sig[0]:
         value = math.sqrt(c[0] / 3.0)
         points = _dominant(model, tau, 0, model.points) or [idx[0]]
         quantisation = TermFit(value, value * 0.5 * sig[0] / c[0], tuple(points), _region(curve, points))
     else:
         quant_idx = _leading_quantisation(curve)
-        if quant_idx:
+        if len(quant_idx) > 1:
             quantisation = _term(curve, quant_idx, -1.0, 1.0 / math.sqrt(3.0))
-    return ChannelFit(quantisation, random_walk, bias, rate_random_walk, model.summary(curve))
+        elif quant_idx:
+            not_resolved["quantisation"] = _single_point(curve, quant_idx, "a slope steeper than -3/4")
+    return ChannelFit(quantisation, random_walk, bias, rate_random_walk, model.summary(curve), not_resolved)
 
 
 def _resolved_or_bound(curve: AllanCurve, model: ModelFit, column: int, scale: float, fallback: int) -> TermFit | None:
@@ -436,11 +460,16 @@ def _region_fit(curve: AllanCurve) -> ChannelFit:
     while hi < n - 1 and adjacent[hi] < _FLAT:
         hi += 1
     still_falling = i_min == n - 1 and n > 1 and adjacent[-1] <= -_FLAT
-    b = adev[i_min] / FLICKER_FACTOR
-    b_sigma = b / math.sqrt(2.0 * float(curve.edf[i_min]))
-    flat = list(range(lo, hi + 1)) if not still_falling else [i_min]
-    bias = TermFit(float(b), float(b_sigma), tuple(flat), (float(tau[flat[0]]), float(tau[flat[-1]])),
-                   upper_bound=still_falling)
+    not_resolved: dict[str, str] = {}
+    bias: TermFit | None = None
+    if still_falling:
+        not_resolved["bias_instability"] = (f"the curve still falls at the record's longest tau "
+                                            f"({float(tau[-1]):g} s): the record is too short to reach its floor")
+    else:
+        b = adev[i_min] / FLICKER_FACTOR
+        b_sigma = b / math.sqrt(2.0 * float(curve.edf[i_min]))
+        flat = list(range(lo, hi + 1))
+        bias = TermFit(float(b), float(b_sigma), tuple(flat), (float(tau[flat[0]]), float(tau[flat[-1]])))
 
     before = range(0, lo if not still_falling else n)
     quant_idx = []
@@ -458,15 +487,22 @@ def _region_fit(curve: AllanCurve) -> ChannelFit:
         rrw_idx = []
 
     quantisation = random_walk = None
-    if white_idx:
-        # the -1/2 points and those after them up to the flat region
-        quantisation, random_walk = _short_tau_fit(curve, list(range(white_idx[0], max(lo, white_idx[-1] + 1))))
-        if quantisation is None and quant_idx:
-            quantisation = _term(curve, quant_idx, -1.0, 1.0 / math.sqrt(3.0))
-    elif quant_idx:
+    # the -1/2 points and those after them up to the flat region
+    white_region = list(range(white_idx[0], max(lo, white_idx[-1] + 1))) if white_idx else []
+    if len(white_region) > 1:
+        quantisation, random_walk = _short_tau_fit(curve, white_region)
+    elif white_region:
+        not_resolved["random_walk"] = _single_point(curve, white_region, "a -1/2 slope")
+    if quantisation is None and len(quant_idx) > 1:
         quantisation = _term(curve, quant_idx, -1.0, 1.0 / math.sqrt(3.0))
-    rate_random_walk = _term(curve, rrw_idx, 0.5, math.sqrt(3.0)) if rrw_idx else None
-    return ChannelFit(quantisation, random_walk, bias, rate_random_walk)
+    elif quantisation is None and quant_idx:
+        not_resolved["quantisation"] = _single_point(curve, quant_idx, "a slope steeper than -3/4")
+    rate_random_walk = None
+    if len(rrw_idx) > 1:
+        rate_random_walk = _term(curve, rrw_idx, 0.5, math.sqrt(3.0))
+    elif rrw_idx:
+        not_resolved["rate_random_walk"] = _single_point(curve, rrw_idx, "a +1/2 rise")
+    return ChannelFit(quantisation, random_walk, bias, rate_random_walk, None, not_resolved)
 
 
-__all__ = ["FLICKER_FACTOR", "ChannelFit", "TermFit", "fit_curve"]
+__all__ = ["FLICKER_FACTOR", "MIN_RECORD_SAMPLES", "ChannelFit", "TermFit", "fit_curve"]

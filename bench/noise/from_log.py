@@ -34,14 +34,15 @@ from bench.log.run_info import layout_and_config_from_log
 from bench.model.imu import ImuCoefficients
 from bench.model.units import DEG_PER_HOUR, MICRO_G
 from bench.noise.allan import PhaseAccumulator
+from bench.noise.fit import MIN_RECORD_SAMPLES
 from bench.noise.result import CHANNELS, NoiseResult, analyse_phase
 from bench.noise.simulate import counts_to_allan_units
 from bench.solve.extract import finished_observation_steps
 from drivers.imu import ImuSampleBlock
 from drivers.imu.layout import ImuLayout
 
-#: A dwell shorter than this many samples has no Allan deviation worth the name.
-MIN_SAMPLES = 64
+#: A dwell shorter than this many samples is too short for the noise analysis (`bench.noise.fit`).
+MIN_SAMPLES = MIN_RECORD_SAMPLES
 
 
 class NoiseInputError(InputError):
@@ -129,7 +130,8 @@ class _Dwell:
                               f"gap-free stretch, {stop - start} samples, is analysed")
         if stop - start < MIN_SAMPLES:
             raise NoiseInputError(f"{self.log.path}: the dwell {self.unit} holds {stop - start} consecutive samples, "
-                                  f"too few for an Allan deviation (at least {MIN_SAMPLES})")
+                                  f"too few for the noise analysis (at least {MIN_SAMPLES}, "
+                                  f"{MIN_SAMPLES / self.rate_hz:.3g} s at {self.rate_hz:g} Hz)")
 
 
 def _dwell(path: str | Path, calibration: ImuCoefficients | None, calibration_label: str) -> _Dwell:

@@ -3,7 +3,7 @@
     {"format": "turntable-bench/noise", "version": 1,
      "source": {...}, "rate_hz": 200.0, "n_samples": N, "duration_s": T, "points_per_octave": 1,
      "channels": {"gyro_x": {"unit": "deg/h", "tau_s": [...], "adev": [...], "adev_low": [...],
-                             "adev_high": [...], "edf": [...],
+                             "adev_high": [...], "edf": [...], "terms_not_resolved": {"quantisation": "why"},
                              "terms": {"arw": {"value", "sigma", "unit", "region_tau_s": [lo, hi],
                                                "points": [...]}, "bias_instability": {..., "upper_bound"},
                                        "rrw": {...}, "quantisation": {...}}}, ...},
@@ -31,8 +31,8 @@ import numpy as np
 
 from bench.errors import InputError
 from bench.model.units import MICRO_G
-from bench.noise.allan import AllanCurve, PhaseAccumulator, allan_curves
-from bench.noise.fit import ChannelFit, TermFit, fit_curve
+from bench.noise.allan import AllanCurve, AllanError, PhaseAccumulator, allan_curves
+from bench.noise.fit import MIN_RECORD_SAMPLES, ChannelFit, TermFit, fit_curve
 
 FORMAT = "turntable-bench/noise"
 VERSION = 1
@@ -62,12 +62,15 @@ class ChannelNoise:
     curve: AllanCurve
     fit: ChannelFit
     terms: dict[str, dict[str, Any]]
+    not_resolved: dict[str, str] = field(default_factory=dict)   # result term name -> why it is not given
 
     def to_json(self) -> dict:
         c = self.curve
         out = {"unit": self.unit, "tau_s": c.tau_s.tolist(), "adev": c.adev.tolist(),
                "adev_low": c.adev_low.tolist(), "adev_high": c.adev_high.tolist(), "edf": c.edf.tolist(),
                "terms": self.terms}
+        if self.not_resolved:
+            out["terms_not_resolved"] = self.not_resolved
         if self.fit.model is not None:
             out["model"] = self.fit.model
         return out
@@ -91,24 +94,38 @@ UPPER_BOUND_MEANS = {
                         "over the record's taus"}
 
 
+def check_record_length(n_samples: int, rate_hz: float, what: str = "the record") -> None:
+    """AllanError when `n_samples` are too few for the noise analysis (`MIN_RECORD_SAMPLES`), naming the minimum."""
+    if n_samples < MIN_RECORD_SAMPLES:
+        raise AllanError(f"{what} holds {n_samples} samples ({n_samples / rate_hz:.3g} s at {rate_hz:g} Hz): the noise "
+                         f"analysis needs at least {MIN_RECORD_SAMPLES} ({MIN_RECORD_SAMPLES / rate_hz:.3g} s at this "
+                         "rate; its model's five terms need six Allan points from the white-noise start)")
+
+
 def channel_noise(name: str, curve: AllanCurve) -> ChannelNoise:
-    """Fit one channel's curve and express its terms in display units."""
+    """Fit one channel's curve and express its terms in display units; a term the record does not resolve is in
+    the channel's `terms_not_resolved` with the reason, not in `terms`."""
     fit = fit_curve(curve)
     gyro = name.startswith("gyro")
-    terms = {}
+    terms: dict[str, dict[str, Any]] = {}
+    not_resolved: dict[str, str] = {}
     for key, (attr, factor, unit) in (GYRO_TERMS if gyro else ACC_TERMS).items():
         found = getattr(fit, attr)
         if found is not None:
             terms[key] = _term_json(found, factor, unit)
             if found.upper_bound:
                 terms[key]["upper_bound_means"] = UPPER_BOUND_MEANS[attr]
+        elif attr in fit.not_resolved:
+            not_resolved[key] = fit.not_resolved[attr]
     if not gyro and "vrw" in terms:
         terms["vrw"]["mps_rt_h"] = terms["vrw"]["value"] * MICRO_G * 60.0
-    return ChannelNoise(name, "deg/h" if gyro else "ug", curve, fit, terms)
+    return ChannelNoise(name, "deg/h" if gyro else "ug", curve, fit, terms, not_resolved)
 
 
 def analyse(data: np.ndarray, rate_hz: float, *, points_per_octave: int = 1, threads: int = 2) -> list[ChannelNoise]:
-    """The six channels of `data` (n, 6): gyros x, y, z in deg/h, accelerometers x, y, z in ug."""
+    """The six channels of `data` (n, 6): gyros x, y, z in deg/h, accelerometers x, y, z in ug (AllanError when
+    the record is too short: `check_record_length`)."""
+    check_record_length(len(data), rate_hz)
     curves = allan_curves(data, rate_hz, points_per_octave=points_per_octave, threads=threads)
     return [channel_noise(name, curve) for name, curve in zip(CHANNELS, curves)]
 
@@ -125,6 +142,7 @@ def analyse_blocks(blocks: Iterable[np.ndarray], rate_hz: float, *, capacity: in
 
 def analyse_phase(acc: PhaseAccumulator, *, points_per_octave: int = 1, threads: int = 2) -> list[ChannelNoise]:
     """`analyse` of the six channels an accumulator holds."""
+    check_record_length(acc.n_samples, acc.rate_hz)
     curves = acc.curves(points_per_octave=points_per_octave, threads=threads)
     return [channel_noise(name, curve) for name, curve in zip(CHANNELS, curves)]
 
@@ -226,4 +244,4 @@ class NoiseResult:
 
 
 __all__ = ["ACC_TERMS", "CHANNELS", "FORMAT", "GYRO_TERMS", "VERSION", "ChannelNoise", "NoiseResult",
-           "NoiseResultError", "analyse", "analyse_blocks", "analyse_phase", "channel_noise"]
+           "NoiseResultError", "analyse", "analyse_blocks", "analyse_phase", "channel_noise", "check_record_length"]

@@ -55,6 +55,12 @@ def _rows(result: NoiseResult) -> list[tuple[str, str, dict, dict | None]]:
     return rows
 
 
+def not_resolved_lines(result: NoiseResult) -> list[str]:
+    """One line per term the record does not resolve: "gyro_x quantisation: not given: why"."""
+    return [f"{name} {_LABELS.get(term, term)}: not given: {why}" for name, ch in result.channels.items()
+            for term, why in (ch.get("terms_not_resolved") or {}).items()]
+
+
 def _truth_cells(term: str, t: dict, truth: dict | None) -> tuple[str, str]:
     if truth is None or truth.get(term) is None or not truth.get(term):
         return "-", "-"
@@ -99,6 +105,10 @@ def markdown_noise_report(result: NoiseResult, title: str) -> str:
         if sim:
             cells += list(_truth_cells(term, t, truth))
         lines.append("| " + " | ".join(cells) + " |")
+    unresolved = not_resolved_lines(result)
+    if unresolved:
+        lines += ["", "Terms the record does not resolve (not reported as numbers):", ""]
+        lines += [f"- {md_text(line)}" for line in unresolved]
     lines += ["", "## Summary", ""] + [f"- {line}" for line in _summary_lines(result)] + [""]
     if result.sim_truth is not None:
         lines += [f"Configured bias instability is what the flat-region rule should read from the simulated IMU's "
@@ -157,6 +167,7 @@ def html_noise_report(result: NoiseResult, title: str) -> str:
     except (ValueError, OverflowError, FloatingPointError) as exc:
         figure = f'<p class="fail">The Allan deviation figure is not drawn: {_e(exc)}.</p>'
     notes = "".join(f"<li>{_e(n)}</li>" for n in result.notes)
+    unresolved = "".join(f"<li>{_e(line)}</li>" for line in not_resolved_lines(result))
     return "\n".join([
         "<!DOCTYPE html>", '<html lang="en">', "<head>", '<meta charset="utf-8">',
         f'<meta name="generator" content="turntable-bench {_e(__version__)}">', f"<title>{_e(title)}</title>",
@@ -165,6 +176,8 @@ def html_noise_report(result: NoiseResult, title: str) -> str:
         f"{result.rate_hz:g} Hz), {result.points_per_octave} point(s) per octave</p>",
         "<h2>Noise terms (1 sigma)</h2>", "<table>", "<thead><tr>" + "".join(f"<th>{_e(h)}</th>" for h in head)
         + "</tr></thead>", "<tbody>", *rows, "</tbody>", "</table>",
+        f"<p>Terms the record does not resolve (not reported as numbers):</p><ul>{unresolved}</ul>" if unresolved
+        else "",
         "<ul>" + "".join(f"<li>{_e(line)}</li>" for line in _summary_lines(result)) + "</ul>",
         "<h2>Allan deviation</h2>", figure,
         f"<h2>Notes</h2><ul>{notes}</ul>" if notes else "", "</body>", "</html>", ""])
@@ -181,4 +194,4 @@ def write_noise_outputs(result: NoiseResult, out_dir: str | Path, name: str) -> 
     return json_path, md_path, html_path
 
 
-__all__ = ["READING", "html_noise_report", "markdown_noise_report", "write_noise_outputs"]
+__all__ = ["READING", "html_noise_report", "markdown_noise_report", "not_resolved_lines", "write_noise_outputs"]
