@@ -186,3 +186,58 @@ def test_receives_the_rigs_imu_at_2_khz_without_loss_across_reconnects(layout, r
                 assert stats.lost_samples == 0 and stats.frame_faults == 0, stats
                 assert getattr(receiver.bus, "malformed_lines", 0) == 0
         assert rig.server(0).frames_dropped == 0
+
+
+def _adapter_left_open(master: int, stale: bytes, fresh: bytes) -> None:
+    """The adapter side, left open by another client: frames it sent before the bus's `C` took effect (`stale`)
+    reach the port after the bus opened it, then the answer to `C`; it answers each command with CR and sends
+    `fresh` once the bus has opened the channel again (`O`)."""
+    seen = b""
+    deadline = time.monotonic() + 5.0
+    while b"O\r" not in seen and time.monotonic() < deadline:
+        ready, _, _ = select.select([master], [], [], 0.1)
+        if ready:
+            got = os.read(master, 4096)
+            if b"C\r" in got and b"C\r" not in seen:
+                os.write(master, stale)
+            seen += got
+            os.write(master, b"\r" * got.count(b"\r"))
+    os.write(master, fresh)
+
+
+def test_frames_sent_before_the_bus_opened_the_channel_are_dropped(pty):
+    """Issue 27: a healthy IMU on SLCAN was refused ("sends about 7.3e+04 samples/s") when another client had left
+    the adapter open: the reader kept the frames queued before its own open, all stamped with one time."""
+    import threading
+    import tty
+
+    master, path = pty
+    tty.setraw(os.open(path, os.O_RDWR | os.O_NOCTTY))     # raw: no line discipline between the two ends
+    stale = b"".join(b"t1001%02X\r" % (k % 256) for k in range(150))
+    fresh = b"".join(b"t2001%02X\r" % k for k in range(5))
+    adapter = threading.Thread(target=_adapter_left_open, args=(master, stale, fresh))
+    adapter.start()
+    bus = BulkSlcanBus(path, sleep_after_open=0)
+    adapter.join(5.0)
+    got = _recv_all(bus, 5)
+    assert [m.arbitration_id for m in got] == [0x200] * 5
+    assert bus.stale_frames == 150 and bus.recv(0.1) is None
+    bus.shutdown()
+
+
+def test_each_frame_of_one_read_gets_its_own_receive_time(pty):
+    """The frames of one read are spread between the previous read and this one by where each line ends."""
+    master, path = pty
+    bus = BulkSlcanBus(path, sleep_after_open=0, close_ack_timeout_s=0)
+    _read_master(master)
+    data = b"".join(b"t1001%02X\r" % k for k in range(4))     # 4 lines of 8 bytes each
+    bus._parse(data, 100.0, 101.0)
+    assert [m.timestamp for m in bus.drain_messages()] == [100.25, 100.5, 100.75, 101.0]
+    bus._parse(data[:5], 101.0, 102.0)                         # a line begun in one read ends in the next
+    bus._parse(data[5:16], 102.0, 103.0)
+    assert [m.timestamp for m in bus.drain_messages()] == [102.0 + 3 / 11, 103.0]   # line ends: 3 and 11 of 11
+    os.write(master, b"".join(b"t1001%02X\r" % k for k in range(200)))
+    time.sleep(0.05)
+    stamps = [m.timestamp for m in bus.drain_messages()]
+    assert len(stamps) == 200 and stamps == sorted(stamps) and len(set(stamps)) > 1
+    bus.shutdown()

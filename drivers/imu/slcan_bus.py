@@ -13,6 +13,14 @@ a 4-hex-digit adapter timestamp after the data (`Z1`) is ignored, as python-can 
 frames carry the host's receive time. Lines that are no frame and no reply are counted in
 `malformed_lines` and skipped.
 
+An adapter another client left open keeps sending, and the port holds what it sent (seconds
+of frames): after its `C` the bus reads and drops everything until the adapter answers that
+`C` (CR, or BEL when it was closed; at most `close_ack_timeout_s`), then empties the port,
+so only frames sent after its own `O` are read. Each frame of a read gets its own receive
+time: a read takes what arrived since the previous one, so its frames are spread evenly, by
+their place in the read, between the previous read and this one (a read that had to wait
+for its first byte spans from the end of the wait only).
+
 `open_bus` (drivers.imu.receiver) builds one for `interface = "slcan"` unless
 `slcan_client = "python-can"`; `can.Bus(interface="bench_slcan", ...)` also finds it
 through the `can.interface` entry point of an installed turntable-bench.
@@ -55,7 +63,7 @@ class BulkSlcanBus(can.BusABC):
 
     def __init__(self, channel: str, tty_baudrate: int = 115200, bitrate: int | None = None,
                  sleep_after_open: float = 2.0, rtscts: bool = False, listen_only: bool = False,
-                 timeout: float = 0.001, **kwargs: Any) -> None:
+                 timeout: float = 0.001, close_ack_timeout_s: float = 0.5, **kwargs: Any) -> None:
         if serial is None:  # pragma: no cover
             raise can.CanInterfaceNotImplementedError("the serial module (pyserial) is not installed")
         if not channel:
@@ -72,6 +80,9 @@ class BulkSlcanBus(can.BusABC):
         self._buffer = bytearray()
         self.malformed_lines = 0     # lines that were neither a frame nor a reply (wire garbage), skipped
         self.error_replies = 0       # BEL: the adapter refused a command
+        self.acks = 0                # CR (ok) or BEL (error): the adapter answered a command
+        self.stale_frames = 0        # frames sent before this bus opened the channel, dropped
+        self._last_read_s = time.time()
         try:
             self._port = serial.serial_for_url(port_name, baudrate=tty_baudrate, rtscts=rtscts, timeout=timeout)
         except (serial.SerialException, OSError, ValueError) as exc:
@@ -83,6 +94,7 @@ class BulkSlcanBus(can.BusABC):
         try:
             time.sleep(sleep_after_open)
             self._write("C")
+            self._drop_until_answered(close_ack_timeout_s)
             if bitrate is not None:
                 self._write(BITRATES[bitrate])
             self.open()
@@ -116,6 +128,24 @@ class BulkSlcanBus(can.BusABC):
         self._write(BITRATES[bitrate])
         self.open()
 
+    def _drop_until_answered(self, timeout_s: float) -> None:
+        """Read and drop what the port holds until the adapter answers the command just sent (bounded), then
+        empty the port: frames an adapter left open by another client sent before this bus opened it."""
+        answered = self.acks
+        deadline = time.monotonic() + timeout_s
+        while self.acks == answered:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            self._read(min(left, 0.05))
+        self.stale_frames += len(self._frames)
+        self._frames.clear()
+        self._buffer.clear()
+        try:
+            self._port.reset_input_buffer()
+        except (serial.SerialException, OSError) as exc:
+            raise can.CanOperationError(f"cannot read from the SLCAN port: {exc}") from exc
+
     def flush(self) -> None:
         """Discard what was read and not taken, and what the port holds."""
         self._buffer.clear()
@@ -125,9 +155,13 @@ class BulkSlcanBus(can.BusABC):
     # -- reading --------------------------------------------------------------------
     def _read(self, timeout: float | None) -> bool:
         """Read what the port has (waiting up to `timeout` for a first byte) and parse it; whether anything came."""
+        since = self._last_read_s
         try:
             if self._fd is not None:
-                ready, _, _ = select.select([self._fd], [], [], timeout)
+                ready, _, _ = select.select([self._fd], [], [], 0.0)
+                if not ready and timeout != 0.0:
+                    ready, _, _ = select.select([self._fd], [], [], timeout)
+                    since = time.time()          # it came during the wait: after its start
                 if not ready:
                     return False
                 data = os.read(self._fd, READ_SIZE)
@@ -141,12 +175,16 @@ class BulkSlcanBus(can.BusABC):
                     data += self._port.read(self._port.in_waiting)
         except (serial.SerialException, OSError) as exc:
             raise can.CanOperationError(f"cannot read from the SLCAN port: {exc}") from exc
-        self._parse(data, time.time())
+        now = time.time()
+        self._parse(data, max(min(since, now), self._last_read_s), now)
+        self._last_read_s = now
         return True
 
-    def _parse(self, data: bytes, now: float) -> None:
-        """Split `data` (after what was left over) into lines; frames to the queue, replies aside."""
+    def _parse(self, data: bytes, since: float, now: float) -> None:
+        """Split `data` (after what was left over) into lines; frames to the queue, replies aside. Frames get
+        receive times from `since` to `now` by the place where their line ends in `data`."""
         buffer = self._buffer
+        held = len(buffer)                       # bytes of a line begun in an earlier read
         buffer += data
         if b"\a" in buffer:
             self.error_replies += buffer.count(b"\a")
@@ -160,15 +198,21 @@ class BulkSlcanBus(can.BusABC):
         lines = bytes(buffer[:end]).split(b"\r")
         del buffer[:end + 1]
         frames, message, unhex, heads = self._frames, can.Message, binascii.unhexlify, _FRAME_HEADS
+        span, size = now - since, max(len(data), 1)
+        line_end = -held                          # where the current line ends in `data`
         for line in lines:
+            line_end += len(line) + 1
             if not line:
+                self.acks += 1                       # a bare CR (or BEL): a command answered
                 continue
             head = line[0]
             if head == 0x0A:                         # an adapter that ends lines with CR LF
                 line = line.lstrip(b"\n")
                 if not line:
+                    self.acks += 1
                     continue
                 head = line[0]
+            now = since + span * min(max(line_end, 0), size) / size
             if head not in heads:
                 if head in b"VvNFzZ":
                     self._replies.append(line)
