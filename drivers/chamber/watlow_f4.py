@@ -62,6 +62,8 @@ ALARM_OFF, ALARM_HIGH, ALARM_LOW = 0, 1, 2
 RAMP_OFF, RAMP_ON_CHANGE = 0, 2
 PER_MINUTE, PER_HOUR = 0, 1
 RAMP_COUNTS = (1, 999)
+#: the largest relative error a ramp rate may take from its rounding to counts (else it is refused)
+RAMP_TOLERANCE = 0.05
 UNITS_F, UNITS_C = 0, 1
 #: Input 1 Error's enumeration (0 is none)
 INPUT_ERRORS = {1: "A/D underflow", 2: "sensor under range", 3: "sensor over range", 4: "A/D overflow",
@@ -205,13 +207,20 @@ class WatlowF4Map:
         return (value - 32.0) * 5.0 / 9.0 if self.fahrenheit else value
 
     def ramp_words(self, ramp_c_per_min: float) -> tuple[int, int]:
-        """degC/min (> 0) -> (rate counts, time base): per minute when 1-999 counts carry it, else per hour."""
-        per_minute = ramp_c_per_min * (9.0 / 5.0 if self.fahrenheit else 1.0) * 10 ** self._decimals()
-        for scale, counts in ((PER_MINUTE, round(per_minute)), (PER_HOUR, round(per_minute * 60.0))):
-            if RAMP_COUNTS[0] <= counts <= RAMP_COUNTS[1]:
-                return counts, scale
-        raise ChamberLimitError(f"ramp rate {ramp_c_per_min:g} degC/min does not fit the F4P's 1-999 counts per "
-                                f"minute or per hour at {self._decimals()} decimals")
+        """degC/min (> 0) -> (rate counts, time base): of per minute and per hour, the one whose 1-999 counts
+        carry the rate most closely (per minute on a tie); ChamberLimitError if neither comes within
+        RAMP_TOLERANCE of it."""
+        exact = ramp_c_per_min * (9.0 / 5.0 if self.fahrenheit else 1.0) * 10 ** self._decimals()
+        fits = [(abs(round(counts) - counts) / counts, scale, round(counts))
+                for scale, counts in ((PER_MINUTE, exact), (PER_HOUR, exact * 60.0))
+                if RAMP_COUNTS[0] <= round(counts) <= RAMP_COUNTS[1]
+                and abs(round(counts) - counts) <= RAMP_TOLERANCE * counts]
+        if not fits:
+            raise ChamberLimitError(f"ramp rate {ramp_c_per_min:g} degC/min does not fit the F4P's 1-999 counts "
+                                    f"per minute or per hour at {self._decimals()} decimals (within "
+                                    f"{RAMP_TOLERANCE:.0%})")
+        _, scale, counts = min(fits)
+        return counts, scale
 
     def decode_ramp(self, mode: int, counts: int, scale: int) -> float:
         """The ramp registers -> degC/min (0: ramping off)."""
