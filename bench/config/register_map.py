@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from bench.config.reader import ConfigError, Located, Table, describe, parse_toml, read_text, show
+from bench.errors import InputError
 from drivers.chamber.presets import PRESETS, ChamberMap, chamber_map_from_dict, preset_map
 from drivers.turntable.modbus_map import RegisterMap
 from schedules.tomllines import LineMap, locate_lines
@@ -87,6 +88,9 @@ def load_chamber_register_map(path: str | Path) -> ChamberMap:
     `bench sim chamber --register-map`, `[chamber] register_map`)."""
     if CHAMBER_MAP.preset is not None and str(path) in CHAMBER_MAP.presets:
         return CHAMBER_MAP.preset(str(path))
+    if not Path(path).exists() and not Path(path).suffix:
+        raise InputError(f"no register map preset or file {show(str(path))} (presets: "
+                         f"{', '.join(CHAMBER_MAP.presets)})")
     return load_map_file(path, CHAMBER_MAP)
 
 

@@ -325,9 +325,9 @@ def check_f4p_register(number: Any, source: str, key: str) -> int:
     if not is_f4p_register(number):
         hint = ""
         if ABSOLUTE_OFFSET <= number and is_f4p_register(number - ABSOLUTE_OFFSET):
-            hint = f" ({number} looks 40001-based: give the relative number {number - ABSOLUTE_OFFSET})"
+            hint = f"; {number} looks 40001-based: give the relative number {number - ABSOLUTE_OFFSET}"
         raise RegisterMapError(f"{source}: {key}: the Watlow F4P has no register {number} "
-                               f"(its manual's chapter 9 lists them){hint}")
+                               f"(its manual's chapter 9 lists them{hint})")
     return number
 
 
