@@ -201,3 +201,31 @@ def test_rtu_frames_carry_the_same_register_numbers():
 def test_open_chamber_defaults_to_the_f4p_map():
     chamber = open_chamber("modbus+tcp://127.0.0.1:1502")
     assert isinstance(chamber, ModbusChamber) and chamber.map == WatlowF4Map()
+
+
+@pytest.mark.parametrize("decimals, fahrenheit", [(0, False), (2, False), (1, True)])
+def test_the_simulated_f4p_with_other_settings_is_read_the_same(decimals, fahrenheit):
+    """The simulator serves the decimal and degF/degC settings it is given; the client reads them at connect and
+    every value comes back in degC within the wire's resolution."""
+    from bench.sim.chamber import ChamberPhysics, SimChamber
+    from bench.sim.chamber_server import ChamberModbusServer
+    from drivers.clock import ManualClock
+
+    clock = ManualClock()
+    sim = SimChamber(ChamberPhysics(), clock)
+    server = ChamberModbusServer(sim, WatlowF4Map(decimals=decimals, fahrenheit=fahrenheit))
+    try:
+        host, port = server.start_tcp()
+        with client(f"modbus+tcp://{host}:{port}", timeout_s=3.0) as chamber:
+            assert (chamber.map.decimals, chamber.map.fahrenheit) == (decimals, fahrenheit)
+            chamber.set_setpoint(-20.0, ramp_c_per_min=2.0)
+            chamber.run()
+            clock.advance(600.0)
+            state, truth = chamber.check_state(), sim.state()
+    finally:
+        server.close()
+    resolution_c = 10.0 ** -decimals * (5.0 / 9.0 if fahrenheit else 1.0)
+    assert truth.setpoint_c == pytest.approx(-20.0, abs=resolution_c / 2 + 1e-9)
+    assert truth.ramp_c_per_min == pytest.approx(2.0, rel=0.05) and state.running
+    assert state.temperature_c == pytest.approx(truth.temperature_c, abs=resolution_c / 2 + 1e-9)
+    assert state.ramp_c_per_min == pytest.approx(truth.ramp_c_per_min)
