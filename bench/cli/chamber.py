@@ -104,6 +104,8 @@ def _run_chamber_command(chamber: Chamber, args: argparse.Namespace) -> ExitCode
         chamber.run()
     elif command == "stop":
         chamber.stop()
+        if chamber.stop_caveat():
+            print(f"note: {chamber.stop_caveat()}")
     elif command == "clear":
         chamber.clear_alarms()
     print(format_chamber_state(chamber.read_state()))

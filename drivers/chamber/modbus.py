@@ -59,6 +59,9 @@ class ModbusChamber(ModbusRequests, Chamber):
         self.map.check_demand(float(setpoint_c), None if ramp_c_per_min is None else float(ramp_c_per_min))
         super().set_setpoint(setpoint_c, ramp_c_per_min)
 
+    def stop_caveat(self) -> str:
+        return self.map.stop_caveat
+
     def _send(self, writes: list[tuple[int, int, str]]) -> None:
         for address, word, what in writes:
             self._write_single(address, word, what)

@@ -170,6 +170,8 @@ class ChamberRegisterMap:
 
     #: the generic map has no settings to read at connect (`WatlowF4Map` has)
     settings_reads: ClassVar[tuple[tuple[int, int], ...]] = ()
+    #: what stopping may leave on (nothing the generic map knows of)
+    stop_caveat: ClassVar[str] = ""
 
     def configure(self, blocks: Sequence[Sequence[int]]) -> "ChamberRegisterMap":
         return self

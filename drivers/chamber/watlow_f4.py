@@ -9,7 +9,8 @@ manual's 40001-based absolute number minus 40001). drivers/CHAMBER.md tabulates 
   (0 to 3) says how many, so 234 reads 23.4 at one decimal and 2.34 at two. Temperatures
   are in the unit register 901 selects (0 degF, 1 degC); the bench converts to degC.
 - Run/stop: the F4P is a set-point controller without profiles; its closed-loop switch is
-  the auto/manual mode (200: 1 auto, 2 manual). The bench runs = auto, stops = manual.
+  the auto/manual mode (200: 1 auto, 2 manual). The bench runs = auto, stops = manual;
+  the power manual mode may hold is bounded by 452/453 (read at connect, `stop_caveat`).
 - The ramp is the controller's ramp to set point: 1100 mode (0 off, 1 at startup, 2 at
   startup or a set point change), 1101 rate (1 to 999 counts, input 1's decimals),
   1102 its time base (0 per minute, 1 per hour).
@@ -43,6 +44,8 @@ REGISTERS: dict[str, int] = {
     "clear_input_error": 311,   # Clear Error Input 1 (key press simulation): write any value
     "clear_alarm_1": 312,       # Clear Alarm 1 (key press simulation): write any value
     "clear_alarm_2": 331,       # Clear Alarm 2 (key press simulation): write any value
+    "max_transfer_heat": 452,   # Maximum Transfer Heat (System): 0-1000 tenths of % held on the switch to manual
+    "max_transfer_cool": 453,   # Maximum Transfer Cool (System): -1000-0 tenths of %
     "setpoint_low_limit": 602,  # Set Point Low Limit, Analog Input 1
     "setpoint_high_limit": 603,  # Set Point High Limit, Analog Input 1
     "decimal": 606,             # Decimal, Analog Input 1: 0-3 decimal places
@@ -55,7 +58,8 @@ READ_ONLY = ("process_value", "input_error", "alarm_1", "alarm_2", "open_loop")
 #: what one state poll reads, and what the connection reads once (the settings that scale the values)
 STATE = ("process_value", "input_error", "alarm_1", "alarm_2", "mode", "open_loop", "setpoint", "ramp_mode",
          "ramp_rate", "ramp_scale")
-SETTINGS = ("setpoint_low_limit", "setpoint_high_limit", "decimal", "units")
+SETTINGS = ("max_transfer_heat", "max_transfer_cool", "setpoint_low_limit", "setpoint_high_limit", "decimal",
+            "units")
 
 MODE_AUTO, MODE_MANUAL = 1, 2
 ALARM_OFF, ALARM_HIGH, ALARM_LOW = 0, 1, 2
@@ -106,6 +110,8 @@ class WatlowF4Map:
     decimals: int | None = None             # None: not read yet (the client reads it at connect)
     fahrenheit: bool = False
     setpoint_limits_c: tuple[float, float] | None = None
+    #: the most heat and cool power (%) manual mode may hold (Maximum Transfer Heat / Cool); None: not read
+    transfer_power_pct: tuple[float, float] | None = None
     source: str = field(default="<watlow-f4>", compare=False)
 
     preset = PRESET
@@ -174,12 +180,24 @@ class WatlowF4Map:
         scaled = replace(self, decimals=decimals, fahrenheit=units == UNITS_F)
         low, high = (scaled.decode_temperature(words[self.registers[name]])
                      for name in ("setpoint_low_limit", "setpoint_high_limit"))
-        return replace(scaled, setpoint_limits_c=(low, high))
+        heat, cool = (signed_word(words[self.registers[name]]) / 10.0
+                      for name in ("max_transfer_heat", "max_transfer_cool"))
+        return replace(scaled, setpoint_limits_c=(low, high), transfer_power_pct=(heat, cool))
+
+    @property
+    def stop_caveat(self) -> str:
+        """What stopping (manual mode) may leave on: '' when the controller transfers 0 % heat and cool."""
+        if not self.transfer_power_pct or self.transfer_power_pct == (0.0, 0.0):
+            return ""
+        heat, cool = self.transfer_power_pct
+        return (f"manual mode may hold up to {heat:g} % heat and {cool:g} % cool power: the F4P's Maximum Transfer "
+                f"Heat/Cool, registers {self.registers['max_transfer_heat']}/{self.registers['max_transfer_cool']}")
 
     def settings_image(self, limits: ChamberLimits) -> dict[int, int]:
         """What a controller with these settings serves in the settings registers (the simulator)."""
         r = self.registers
-        return {r["decimal"]: self._decimals(), r["units"]: UNITS_F if self.fahrenheit else UNITS_C,
+        return {r["max_transfer_heat"]: 0, r["max_transfer_cool"]: 0,      # manual mode: outputs off
+                r["decimal"]: self._decimals(), r["units"]: UNITS_F if self.fahrenheit else UNITS_C,
                 r["setpoint_low_limit"]: self.encode_temperature(limits.min_setpoint_c),
                 r["setpoint_high_limit"]: self.encode_temperature(limits.max_setpoint_c)}
 
