@@ -40,16 +40,20 @@ def test_bench_chamber_drives_the_served_simulator(dialect, listen, prefix):
         assert "setpoint -20.0 degC, ramp 2 degC/min, running" in _console(proc, "state", "setpoint")
         code, out, err = cli([*base, "set", "99"])                      # beyond the default limits: nothing sent
         assert code == 2 and "refused, nothing sent" in err and len(err.strip().splitlines()) == 1
-        assert _console(proc, "alarm door_open", "ok").strip() == "ok"
+        # an alarm every dialect names (the F4P's map: the input 1 error register; it has none for a door)
+        assert _console(proc, "alarm sensor_fault", "ok").strip() == "ok"
         code, out, err = cli([*base, "status"])
-        assert code == 3 and "door open" in out and "mode         stopped" in out
+        assert code == 3 and "sensor fault" in out and "mode         stopped" in out
         code, _, err = cli([*base, "run"])
         assert code == 3 and "ChamberAlarm" in err and "chamber: stopped" in err
         code, out, _ = cli([*base, "clear"])
         assert code == 0 and "alarms       none" in out
         _console(proc, "garbage 3", "ok")
         code, _, err = cli([*base, "--retries", "2", "status"])
-        assert code == 3 and "ChamberProtocolError" in err and "chamber: stopped" in err, err
+        if dialect == "modbus":     # the F4P's map reads its settings at connect: the garbage meets that read
+            assert code == 3 and "cannot reach the chamber: read settings" in err and "garbage" in err, err
+        else:
+            assert code == 3 and "ChamberProtocolError" in err and "chamber: stopped" in err, err
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(timeout=10) == 0
         assert "stopped" in proc.stderr.read()
@@ -87,7 +91,15 @@ def test_usage_errors_are_one_line_exit_2(tmp_path):
     sim_chamber.write_text(config_text() + '\n[chamber]\nurl = "sim"\ndialect = "ascii"\n')
     bad = tmp_path / "bad.toml"
     bad.write_text(config_text() + '\n[chamber]\nurl = "sim"\ndialect = "espec"\n')
+    f4_map = tmp_path / "f4.toml"            # set point 1 by its 40001-based number: not a relative one
+    f4_map.write_text("[modbus]\nunit = 1\n[modbus.registers]\nsetpoint = 40301\n")
     for argv, words in (
+            (["chamber", "--url", "modbus+tcp://127.0.0.1:9", "--register-map", str(f4_map), "status"],
+             f"{f4_map}:4: modbus.registers.setpoint: the Watlow F4P has no register 40301"),
+            (["sim", "chamber", "--dialect", "modbus", "--register-map", "watlow-f5", "--listen", "pty"],
+             "no register map preset or file 'watlow-f5' (presets: watlow-f4, generic)"),
+            (["sim", "chamber", "--dialect", "ascii", "--register-map", "generic", "--listen", "pty"],
+             "modbus dialect only"),
             (["chamber", "--url", "tcp://127.0.0.1:9", "status"], "say which dialect"),
             (["chamber", "--url", "tcp://127.0.0.1:9", "--dialect", "ascii", "--register-map", "m.toml", "status"],
              "modbus dialect only"),
@@ -103,6 +115,21 @@ def test_usage_errors_are_one_line_exit_2(tmp_path):
              "time_constant_s")):
         code, _, err = cli(argv)
         assert code == 2 and words in err and len(err.strip().splitlines()) == 1, (argv, err)
+
+
+def test_the_simulator_serves_the_generic_map_on_request():
+    proc = start_sim("chamber", "--dialect", "modbus", "--register-map", "generic", "--listen",
+                     "modbus+tcp://127.0.0.1:0")
+    try:
+        url = read_until(proc, "listening on")[-1].split("listening on ")[1].strip()
+        read_until(proc, "Ctrl-C stops")
+        code, out, err = cli(["chamber", "--url", url, "--register-map", "generic", "--timeout-s", "0.5", "status"])
+        assert code == 0 and "temperature  23.0 degC" in out, err
+        # the default map is the F4P's: its settings registers (602-606) are not served by the generic map
+        code, _, err = cli(["chamber", "--url", url, "--timeout-s", "0.5", "status"])
+        assert code == 3 and "cannot reach the chamber: read settings" in err and "illegal data address" in err, err
+    finally:
+        stop_process(proc)
 
 
 def test_an_unreachable_chamber_is_exit_3():

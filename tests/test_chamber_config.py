@@ -9,8 +9,9 @@ import pytest
 
 from bench.config.load import ConfigError, parse_config
 from bench.config.register_map import load_chamber_register_map
-from drivers.chamber import ChamberLimits
+from drivers.chamber import ChamberLimits, open_chamber
 from drivers.chamber.modbus_map import ChamberRegisterMap
+from drivers.chamber.watlow_f4 import REGISTERS, WatlowF4Map
 from tests.test_config import BASE
 
 # Line numbers below are asserted exactly: the [chamber] section starts on line 23.
@@ -82,26 +83,62 @@ def test_bad_values_name_file_line_and_key(old, new, line, key, fragment):
 
 
 def test_inline_register_map_and_its_errors():
-    text = MODBUS + "\n[chamber.modbus]\nunit = 4\n[chamber.modbus.registers]\nramp_rate = -1\n"
+    text = MODBUS + "\n[chamber.modbus]\npreset = 'generic'\nunit = 4\n[chamber.modbus.registers]\nramp_rate = -1\n"
     assert parse(text).chamber.register_map == ChamberRegisterMap(unit=4, ramp_rate=-1)
-    err = error_of(MODBUS + "\n[chamber.modbus]\nunit = 4\ntemperature_scale_c = 50.0\n")
-    assert (err.line, err.key) == (30, "chamber.modbus.temperature_scale_c") and "must be <= 10 degC" in err.message
-    err = error_of(MODBUS + "\n[chamber.modbus.registers]\nsetpont = 5\n")
-    assert (err.line, err.key) == (29, "chamber.modbus.registers.setpont") and "unknown key" in err.message
+    err = error_of(MODBUS + "\n[chamber.modbus]\npreset = 'generic'\nunit = 4\ntemperature_scale_c = 50.0\n")
+    assert (err.line, err.key) == (31, "chamber.modbus.temperature_scale_c") and "must be <= 10 degC" in err.message
+    err = error_of(MODBUS + "\n[chamber.modbus]\npreset = 'generic'\n[chamber.modbus.registers]\nsetpont = 5\n")
+    assert (err.line, err.key) == (31, "chamber.modbus.registers.setpont") and "unknown key" in err.message
+
+
+def test_the_modbus_default_is_the_f4p_map_and_presets_are_named():
+    assert parse(MODBUS).chamber.register_map is None       # the client's default: watlow-f4
+    assert open_chamber("modbus+tcp://127.0.0.1:1502").map == WatlowF4Map()
+    for name, expected in (("watlow-f4", WatlowF4Map()), ("generic", ChamberRegisterMap())):
+        text = MODBUS.replace('timeout_s = 0.5', f'register_map = "{name}"')
+        assert parse(text).chamber.register_map == expected
+    # a table without a preset is the F4P's: the unit and register overrides it takes
+    text = MODBUS + "\n[chamber.modbus]\nunit = 4\n[chamber.modbus.registers]\nsetpoint = 308\n"
+    assert parse(text).chamber.register_map == WatlowF4Map(unit=4, registers={**REGISTERS, "setpoint": 308})
+
+
+@pytest.mark.parametrize("table, line, key, fragment", [
+    # 4000 is in no list of the manual's chapter 9; 40101 is input 1 value's absolute (40001-based) number
+    ("[chamber.modbus.registers]\nprocess_value = 4000", 29, "chamber.modbus.registers.process_value",
+     "the Watlow F4P has no register 4000"),
+    ("[chamber.modbus.registers]\nprocess_value = 40101", 29, "chamber.modbus.registers.process_value",
+     "give the relative number 100"),
+    ("[chamber.modbus]\npreset = 'watlow-f4'\n[chamber.modbus.registers]\nsetpoint = 100", 31,
+     "chamber.modbus.registers.setpoint", "overlaps registers.process_value"),
+    ("[chamber.modbus]\ntemperature_scale_c = 0.1", 29, "chamber.modbus.temperature_scale_c", "unknown key"),
+    ("[chamber.modbus]\npreset = 'watlow-f5'", 29, "chamber.modbus.preset", "no register map preset 'watlow-f5'"),
+])
+def test_a_map_naming_a_register_the_f4p_lacks_is_file_line_key(table, line, key, fragment):
+    err = error_of(MODBUS + "\n" + table + "\n")
+    assert (err.path, err.line, err.key) == ("bench.toml", line, key), str(err)
+    assert fragment in err.message, str(err)
+    assert str(err).startswith(f"bench.toml:{line}: {key}: ")
 
 
 def test_register_map_file(tmp_path):
-    (tmp_path / "chamber-map.toml").write_text("[modbus]\nunit = 9\n[modbus.alarm_bits]\ndoor_open = 9\n",
-                                               encoding="utf-8")
+    (tmp_path / "chamber-map.toml").write_text("[modbus]\npreset = 'generic'\nunit = 9\n[modbus.alarm_bits]\n"
+                                               "door_open = 9\n", encoding="utf-8")
     text = MODBUS.replace('timeout_s = 0.5', 'register_map = "chamber-map.toml"')
     assert parse(text, base_dir=tmp_path).chamber.register_map == ChamberRegisterMap(
         unit=9, alarm_bits=(0, 1, 9, 3, 4))
     assert load_chamber_register_map(tmp_path / "chamber-map.toml").unit == 9
-    (tmp_path / "chamber-map.toml").write_text("[modbus]\nunit = 9\n[modbus.alarm_bits]\ndoor_open = 99\n",
-                                               encoding="utf-8")
+    (tmp_path / "chamber-map.toml").write_text("[modbus]\npreset = 'generic'\nunit = 9\n[modbus.alarm_bits]\n"
+                                               "door_open = 99\n", encoding="utf-8")
     err = error_of(text, base_dir=tmp_path)
-    assert (err.path, err.line, err.key) == (str(tmp_path / "chamber-map.toml"), 4, "modbus.alarm_bits.door_open")
+    assert (err.path, err.line, err.key) == (str(tmp_path / "chamber-map.toml"), 5, "modbus.alarm_bits.door_open")
     assert "must be 0-15" in err.message
+    # a file claiming to be the F4P's map, naming a register its manual does not list
+    (tmp_path / "chamber-map.toml").write_text("# our F4P\n[modbus]\npreset = 'watlow-f4'\nunit = 2\n\n"
+                                               "[modbus.registers]\nramp_rate = 1103\n", encoding="utf-8")
+    err = error_of(text, base_dir=tmp_path)
+    assert (err.path, err.line, err.key) == (str(tmp_path / "chamber-map.toml"), 7, "modbus.registers.ramp_rate")
+    assert "the Watlow F4P has no register 1103" in err.message
+    assert load_chamber_register_map("watlow-f4") == WatlowF4Map()
 
 
 def test_the_examples_commented_chamber_section_loads_when_uncommented():

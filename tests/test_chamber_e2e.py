@@ -13,12 +13,14 @@ from bench.sim.chamber import ChamberPhysics, SimChamber
 from bench.sim.chamber_server import ChamberModbusServer, serve_chamber_ascii
 from drivers.chamber import open_chamber
 from drivers.chamber.base import ChamberAlarms, ChamberLimits
+from drivers.chamber.modbus_map import ChamberRegisterMap
 from drivers.clock import ManualClock
 from drivers.errors import (
     ChamberAlarm,
     ChamberCommandError,
     ChamberConnectionError,
     ChamberError,
+    ChamberLimitError,
     ChamberProtocolError,
     ChamberTimeout,
 )
@@ -51,8 +53,8 @@ def impatient(chamber):
 
 
 @contextlib.contextmanager
-def served(kind: str, sim: SimChamber):
-    """(url, dialect, server) of `sim` served over `kind`."""
+def served(kind: str, sim: SimChamber, register_map=None):
+    """(url, dialect, server) of `sim` served over `kind` (modbus: `register_map`, default the F4P's)."""
     if kind.startswith("ascii"):
         server, urls = serve_chamber_ascii(sim, tcp=kind == "ascii-tcp", pty=kind == "ascii-pty")
         try:
@@ -60,7 +62,7 @@ def served(kind: str, sim: SimChamber):
         finally:
             server.close()
         return
-    modbus = ChamberModbusServer(sim)
+    modbus = ChamberModbusServer(sim, register_map)
     try:
         if kind == "modbus-tcp":
             host, port = modbus.start_tcp()
@@ -109,8 +111,8 @@ def test_an_alarm_is_reported_and_run_is_refused_until_cleared(rig):
     chamber.set_setpoint(40.0)
     chamber.run()
     clock.advance(60.0)
-    sim.trip_alarm(ChamberAlarms.DOOR_OPEN)
-    with pytest.raises(ChamberAlarm, match="door open") as info:
+    sim.trip_alarm(ChamberAlarms.SENSOR_FAULT)     # one every dialect names (the F4P: its input 1 error register)
+    with pytest.raises(ChamberAlarm, match="sensor fault") as info:
         chamber.check_state()
     assert not info.value.state.running
     with pytest.raises(ChamberCommandError):
@@ -122,12 +124,16 @@ def test_an_alarm_is_reported_and_run_is_refused_until_cleared(rig):
 
 def test_a_setpoint_beyond_the_controllers_range_is_refused_by_the_controller(rig):
     chamber, sim, _, _, kind = rig
-    with pytest.raises(ChamberCommandError) as info:
-        chamber.set_setpoint(-75.0)       # within the bench's (wide) limits, beyond the controller's -70
     if kind.startswith("modbus"):
+        # the F4P's map reads the controller's set point limits (602, 603) at connect: refused before sending
+        with pytest.raises(ChamberLimitError, match=r"set point limits \[-70, 180\] degC"):
+            chamber.set_setpoint(-75.0)   # within the bench's (wide) limits, beyond the controller's -70
+        with pytest.raises(ChamberCommandError) as info:     # and the controller refuses it too (03)
+            chamber._write_single(300, (-750) & 0xFFFF, "set point 1 -75.0 degC")
         assert info.value.code == 3
     else:
-        assert "OUT OF RANGE" in str(info.value)
+        with pytest.raises(ChamberCommandError, match="OUT OF RANGE"):
+            chamber.set_setpoint(-75.0)
     assert sim.state().setpoint_c == 23.0
 
 
@@ -135,8 +141,8 @@ def test_one_garbled_reply_is_retried_three_are_a_protocol_error(rig):
     chamber, sim, _, _, _ = rig
     sim.faults.garbage = 1
     assert chamber.read_state().temperature_c == pytest.approx(23.0)
-    sim.faults.garbage = 3
     with impatient(chamber) as other, pytest.raises(ChamberProtocolError):
+        sim.faults.garbage = 3          # once connected (the F4P's map reads its settings at connect)
         other.read_state()
     assert chamber.read_state().temperature_c == pytest.approx(23.0)     # the link recovers
 
@@ -149,8 +155,8 @@ def test_a_corrupted_reply_is_retried(rig):
 
 def test_silence_is_a_timeout(rig):
     chamber, sim, _, _, _ = rig
-    sim.faults.timeout = 3
     with impatient(chamber) as other, pytest.raises(ChamberTimeout):
+        sim.faults.timeout = 3
         other.read_state()
     assert chamber.read_state().temperature_c == pytest.approx(23.0)
 
@@ -172,11 +178,18 @@ def test_a_lost_link_is_a_connection_error_and_make_safe_does_not_raise(rig):
     assert chamber.make_safe(23.0).endswith("stop failed: the chamber may still be controlling")
 
 
-def test_the_modbus_simulator_refuses_writes_as_the_page_says():
+@pytest.mark.parametrize("register_map, refusals", [
+    # the F4P's numbers (drivers/CHAMBER.md): input 1 value and error, alarm 1 status and the decimal setting are
+    # read only, 500 is not served; auto/manual 9, ramp rate 0 counts and ramp mode 7 are out of range
+    (None, ((100, 5, 2), (101, 5, 2), (102, 0, 2), (606, 2, 2), (500, 1, 2), (200, 9, 3), (1101, 0, 3),
+            (1100, 7, 3))),
+    (ChamberRegisterMap(), ((100, 5, 2), (101, 5, 2), (103, 1, 2), (200, 9, 3), (301, 0x8000, 3))),
+])
+def test_the_modbus_simulator_refuses_writes_as_the_page_says(register_map, refusals):
     sim = SimChamber(ChamberPhysics(), ManualClock())
-    with served("modbus-tcp", sim) as (url, _, _):
-        with open_chamber(url, "modbus", timeout_s=REPLY_WAIT_S) as chamber:
-            for address, value, code in ((100, 5, 2), (101, 5, 2), (103, 1, 2), (200, 9, 3), (301, 0x8000, 3)):
+    with served("modbus-tcp", sim, register_map) as (url, _, _):
+        with open_chamber(url, "modbus", timeout_s=REPLY_WAIT_S, register_map=register_map) as chamber:
+            for address, value, code in refusals:
                 with pytest.raises(ChamberCommandError) as info:
                     chamber._write_single(address, value, f"write {value} at {address}")
                 assert info.value.code == code, (address, info.value)

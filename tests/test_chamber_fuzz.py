@@ -9,6 +9,8 @@ from hypothesis import strategies as st
 from drivers.chamber import ascii_codec as codec
 from drivers.chamber.base import ChamberState
 from drivers.chamber.modbus_map import ChamberMapError, ChamberRegisterMap
+from drivers.chamber.presets import chamber_map_from_dict
+from drivers.chamber.watlow_f4 import WatlowF4Map, is_f4p_register
 from drivers.errors import ChamberCommandError, ChamberProtocolError
 
 FIELDS = st.one_of(st.sampled_from(["23.4", "-40.0", "RUN", "STOP", "0", "1", "3", "42", "", "1e999", "NA:X"]),
@@ -59,3 +61,25 @@ def test_random_configuration_builds_a_map_or_raises_chamber_map_error(d):
     covered = {start + i for start, count in reads for i in range(count)}
     names = [n for n in ("process_value", "setpoint", "ramp_rate", "status", "alarms") if getattr(m, n) >= 0]
     assert {getattr(m, n) for n in names} <= covered
+
+
+F4_KEYS = st.sampled_from(["preset", "unit", "registers", "temperature_scale_c", "other"])
+F4_SUBKEYS = st.sampled_from(["process_value", "setpoint", "ramp_rate", "mode", "decimal", "alarm_1", "status", "x"])
+F4_LEAVES = st.one_of(st.sampled_from(["watlow-f4", "generic", "watlow-f5"]), st.sampled_from([100, 300, 1103, 40101]),
+                      LEAVES)
+F4_VALUES = st.one_of(F4_LEAVES, st.dictionaries(F4_SUBKEYS, F4_LEAVES, max_size=4))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.dictionaries(F4_KEYS, F4_VALUES, max_size=4))
+def test_random_preset_tables_build_a_map_or_raise_chamber_map_error(d):
+    """Through the preset dispatcher (the F4P's map by default): a map whose registers are all the F4P's, or one
+    ChamberMapError naming the source."""
+    try:
+        m = chamber_map_from_dict(d, source="random.toml")
+    except ChamberMapError as exc:
+        assert str(exc).startswith("random.toml: ")
+        return
+    if isinstance(m, WatlowF4Map):
+        assert all(is_f4p_register(n) for n in m.registers.values())
+        assert len(set(m.registers.values())) == len(m.registers)

@@ -1,5 +1,6 @@
-"""The chamber's Modbus dialect: the register map and scaling (pure), and the client over exact expected
-exchanges on Modbus TCP (loopback) and RTU (a pty): requests, scaling, refusals, garbage, silence, a lost link."""
+"""The chamber's Modbus dialect with the generic map (preset "generic"; the F4P's: tests/test_chamber_watlow_f4.py):
+the register map and scaling (pure), and the client over exact expected exchanges on Modbus TCP (loopback) and RTU
+(a pty): requests, scaling, refusals, garbage, silence, a lost link."""
 
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ from drivers.errors import (
 from drivers.turntable.modbus_map import crc16
 from tests.helpers.modbus_exchange import GONE, ModbusExchange
 
-# The default map's state as drivers/CHAMBER.md lays it out: 100 process value 23.4 degC (234 = 00ea), 101 unused,
+# The generic map's state as drivers/CHAMBER.md lays it out: 100 process value 23.4 degC (234 = 00ea), 101 unused,
 # 102 alarms (door open: bit 2), 103 status (running: bit 0); 300 setpoint -20.0 degC (-200 = ff38), 301 ramp 2.0
 # degC/min (20 = 0014).
 BLOCK_100 = "00ea 0000 0004 0001"
@@ -47,6 +48,7 @@ def rtu(hex_text: str) -> str:
 
 def client(url: str, **kw) -> ModbusChamber:
     kw.setdefault("timeout_s", 0.2)
+    kw.setdefault("register_map", ChamberRegisterMap())
     return ModbusChamber(url, **kw)
 
 

@@ -38,9 +38,9 @@ def register_chamber(subparsers: argparse._SubParsersAction) -> None:
                                                                      "(default 1 s)")
     parser.add_argument("--retries", type=int, default=2, help="with --url: retries after a timeout or bad reply "
                                                                "(default 2)")
-    parser.add_argument("--register-map", metavar="FILE",
-                        help="with --url, modbus: the controller's register map (a [modbus] table; default: the "
-                             "map of drivers/CHAMBER.md)")
+    parser.add_argument("--register-map", metavar="NAME|FILE",
+                        help="with --url, modbus: the controller's register map: a preset (watlow-f4, generic) or a "
+                             "file holding a [modbus] table (default: watlow-f4, drivers/CHAMBER.md)")
     default = ChamberLimits()
     parser.add_argument("--min-setpoint-c", type=float, default=default.min_setpoint_c,
                         help=f"with --url: lowest setpoint this command may send (default {default.min_setpoint_c:g})")
@@ -104,6 +104,8 @@ def _run_chamber_command(chamber: Chamber, args: argparse.Namespace) -> ExitCode
         chamber.run()
     elif command == "stop":
         chamber.stop()
+        if chamber.stop_caveat():
+            print(f"note: {chamber.stop_caveat()}")
     elif command == "clear":
         chamber.clear_alarms()
     print(format_chamber_state(chamber.read_state()))
@@ -145,6 +147,9 @@ def register_sim_chamber(kinds: argparse._SubParsersAction) -> None:
     sim.add_argument("--allow-remote", action="store_true",
                      help="allow a --listen address beyond loopback: anyone who can reach this machine can then "
                           "command the simulated chamber")
+    sim.add_argument("--register-map", metavar="NAME|FILE",
+                     help="modbus: the register map to serve: a preset (watlow-f4, generic) or a file holding a "
+                          "[modbus] table (default: watlow-f4, drivers/CHAMBER.md)")
     sim.add_argument("--ambient-c", type=float, default=23.0, help="room (and starting) temperature (default 23)")
     sim.add_argument("--time-constant-s", type=float, default=240.0,
                      help="the air's time constant toward the working setpoint (default 240 s)")
@@ -201,12 +206,16 @@ def cmd_sim_chamber(args: argparse.Namespace) -> ExitCode:
         physics = ChamberPhysics(ambient_c=args.ambient_c, time_constant_s=args.time_constant_s,
                                  max_heat_c_per_min=args.max_heat_c_per_min,
                                  max_cool_c_per_min=args.max_cool_c_per_min)
-    except ValueError as exc:
+        if args.register_map is not None and args.dialect != "modbus":
+            raise ChamberConfigError("--register-map is for the modbus dialect only")
+        register_map = load_chamber_register_map(args.register_map) if args.register_map is not None else None
+    except (ValueError, ConfigError) as exc:      # ChamberConfigError is a ValueError
         return fail(prog, f"{exc}", ExitCode.USAGE)
     sim = SimChamber(physics)
     closers: list = []
     return serve_until_stopped(prog, "chamber", args.dialect,
-                               lambda where: listen_chamber(sim, args.dialect, where, closers), args.listen, remote,
+                               lambda where: listen_chamber(sim, args.dialect, where, closers, register_map),
+                               args.listen, remote,
                                lambda line: apply_chamber_command(sim, line), closers,
                                usage_errors=(InputError, OSError, ValueError))
 

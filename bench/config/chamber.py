@@ -12,7 +12,8 @@
     min_setpoint_c = -40.0
     max_setpoint_c = 85.0
     max_ramp_c_per_min = 5.0
-    # modbus: register_map = "file.toml" or an inline [chamber.modbus] table (drivers/CHAMBER.md)
+    # modbus: register_map = "watlow-f4" (the default), "generic", "file.toml", or an inline
+    # [chamber.modbus] table (drivers/CHAMBER.md)
 
 The section is optional (a configuration without it has no chamber; `BenchConfig.chamber` is None). Every problem is one
 `ConfigError` ``file:line: key: message``, as for the rest of the file.
@@ -31,7 +32,7 @@ from bench.config.reader import Table, show, suggest
 from bench.config.register_map import CHAMBER_MAP, register_map_value
 from drivers.chamber import DIALECTS, ChamberLimits, check_url_dialect
 from drivers.chamber.base import ABSOLUTE_MAX_C, ABSOLUTE_MIN_C
-from drivers.chamber.modbus_map import ChamberRegisterMap
+from drivers.chamber.presets import ChamberMap
 from drivers.transport import MODBUS_SCHEMES
 
 CHAMBER_KEYS = ("url", "dialect", "timeout_s", "retries", "poll_s", "safe_setpoint_c", "limits", "register_map",
@@ -51,7 +52,7 @@ class ChamberConfig:
     poll_s: float
     limits: ChamberLimits
     safe_setpoint_c: float | None            # None: on abort or fault the chamber is stopped
-    register_map: ChamberRegisterMap | None  # modbus only; None = the documented default map
+    register_map: ChamberMap | None  # modbus only; None = the default map (watlow-f4)
 
     @property
     def is_sim(self) -> bool:

@@ -1,5 +1,8 @@
 """Modbus register maps in a configuration: `register_map = "file.toml"` or an inline `[SECTION.modbus]` table.
 
+The chamber's `register_map` may also name a shipped preset ("watlow-f4", "generic";
+`drivers.chamber.presets`), and its tables say `preset = "..."` (default watlow-f4).
+
 One loader for every device with a register map (the turntable's `[table]`, the chamber's
 `[chamber]`): the numbers with a documented range are checked here, the rest by the
 driver's own map (`RegisterMap.from_dict`, `ChamberRegisterMap.from_dict`), whose error is
@@ -14,7 +17,8 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from bench.config.reader import ConfigError, Located, Table, describe, parse_toml, read_text, show
-from drivers.chamber.modbus_map import ChamberRegisterMap
+from bench.errors import InputError
+from drivers.chamber.presets import PRESETS, ChamberMap, chamber_map_from_dict, preset_map
 from drivers.turntable.modbus_map import RegisterMap
 from schedules.tomllines import LineMap, locate_lines
 
@@ -26,12 +30,15 @@ class MapKind:
     build: Callable[[Mapping[str, Any], str], Any]
     #: number key -> (lower, upper, unit): what the driver accepts, within a sane range
     ranges: dict[str, tuple[float, float, str]]
+    #: names `register_map` may give instead of a file (shipped maps)
+    presets: tuple[str, ...] = ()
+    preset: Callable[[str], Any] | None = None
 
 
 TABLE_MAP = MapKind(RegisterMap.from_dict, {"angle_scale_deg": (1e-9, 1.0, "deg"),
                                             "rate_scale_dps": (1e-9, 1.0, "deg/s"), "watchdog_s": (0.0, 3600.0, "s")})
-CHAMBER_MAP = MapKind(ChamberRegisterMap.from_dict, {"temperature_scale_c": (1e-4, 10.0, "degC"),
-                                                     "ramp_scale_c_per_min": (1e-4, 10.0, "degC/min")})
+CHAMBER_MAP = MapKind(chamber_map_from_dict, {"temperature_scale_c": (1e-4, 10.0, "degC"),
+                                              "ramp_scale_c_per_min": (1e-4, 10.0, "degC/min")}, PRESETS, preset_map)
 
 _MAP_KEY = re.compile(r"(?:unknown key )?([A-Za-z_][\w]*(?:\.\w+)*)(?=[: ])")
 
@@ -76,8 +83,14 @@ def load_register_map(path: str | Path) -> RegisterMap:
     return load_map_file(path, TABLE_MAP)
 
 
-def load_chamber_register_map(path: str | Path) -> ChamberRegisterMap:
-    """The chamber's register map file (`bench chamber --register-map`, `[chamber] register_map`)."""
+def load_chamber_register_map(path: str | Path) -> ChamberMap:
+    """The chamber's register map: a preset's name or a file (`bench chamber --register-map`,
+    `bench sim chamber --register-map`, `[chamber] register_map`)."""
+    if CHAMBER_MAP.preset is not None and str(path) in CHAMBER_MAP.presets:
+        return CHAMBER_MAP.preset(str(path))
+    if not Path(path).exists() and not Path(path).suffix:
+        raise InputError(f"no register map preset or file {show(str(path))} (presets: "
+                         f"{', '.join(CHAMBER_MAP.presets)})")
     return load_map_file(path, CHAMBER_MAP)
 
 
@@ -96,11 +109,15 @@ def register_map_value(t: Table, dialect: str, section: str, kind: MapKind) -> A
         if not isinstance(data, dict):
             raise t.error("modbus", f"must be a table ([{section}.modbus]), got {describe(data)}")
         return build_map(data, t.doc.source, t.doc.lines, t.path + ("modbus",), kind)
+    name = t.get("register_map")
+    if kind.preset is not None and name in kind.presets:
+        return kind.preset(name)
     path = t.file("register_map")
     if not t.is_file("register_map", path):
         if path.exists():  # a directory, a device such as /dev/zero, a FIFO
             raise t.error("register_map", f"{show(str(path))} is not a regular file")
-        raise t.error("register_map", f"no such register map file {show(str(path))}")
+        presets = f" (or a preset: {', '.join(kind.presets)})" if kind.presets else ""
+        raise t.error("register_map", f"no such register map file {show(str(path))}{presets}")
     return load_map_file(path, kind)
 
 

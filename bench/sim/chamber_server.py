@@ -2,10 +2,12 @@
 
 `ChamberAsciiHandler(chamber)` is a `LineServer` handler: one request line in, one reply
 line out, parsed with the client's own codec. `ChamberModbusServer(chamber, map)` serves
-the register map (reads computed from the live state, writes executed as commands).
+a register map (reads computed from the live state, writes executed as commands): the
+Watlow F4P's by default (`bench.sim.chamber_f4`), or the generic map (`GenericFace`).
 Refusals: `SimChamberError` ERR_RANGE -> `NA:OUT OF RANGE` / exception 03 illegal data
-value; ERR_ALARM -> `NA:ALARM ACTIVE` / exception 04 server device failure; an unknown
-command -> `NA:COMMAND ERR` / 03; a write to a read-only register -> 02.
+value; ERR_ALARM -> `NA:ALARM ACTIVE` / exception 04 server device failure (03 on the F4P's map,
+whose manual lists 01-03 only); an unknown command -> `NA:COMMAND ERR` / 03; a write to a
+read-only register -> 02.
 
 Wire faults (`chamber.faults`, one per reply) as the table simulator's: timeout (the
 command executes, no reply), garbage (junk instead of the reply), checksum (ASCII: one
@@ -21,10 +23,13 @@ from typing import Callable
 from pymodbus.constants import ExcCodes
 
 from bench.sim.chamber import ERR_ALARM, ERR_RANGE, SimChamber, SimChamberError
+from bench.sim.chamber_f4 import WatlowF4Face
 from bench.sim.modbus_serving import ModbusServing, Refused
 from bench.sim.serve import LineServer, flip_parity, held_first, reply_with_fault, serve_lines
 from drivers.chamber import ascii_codec as codec
 from drivers.chamber.modbus_map import READ_ONLY, ChamberRegisterMap
+from drivers.chamber.presets import ChamberMap, default_map
+from drivers.chamber.watlow_f4 import WatlowF4Map
 from drivers.errors import ChamberError
 
 GARBAGE = b"\x00\xfe#?%garbage\x1b"
@@ -79,30 +84,20 @@ class ChamberAsciiHandler:
         return codec.format_ok(line)
 
 
-class ChamberModbusServer(ModbusServing):
-    """The simulated chamber as a Modbus server (TCP listeners and RTU ptys, `ModbusServing`)."""
+class GenericFace:
+    """The generic map's registers over a SimChamber: `image()` for reads, `write(address, value)` for writes."""
 
-    device_errors = (ChamberError,)
-    device_error_code = ExcCodes.ILLEGAL_VALUE
+    def __init__(self, chamber: SimChamber, register_map: ChamberRegisterMap):
+        self.chamber, self.map = chamber, register_map
+        self._names = register_map.register_names()
 
-    def __init__(self, chamber: SimChamber, register_map: ChamberRegisterMap | None = None, **kwargs):
-        super().__init__(**kwargs)
-        self.chamber = chamber
-        self.wire_faults = chamber.faults
-        self.map = register_map if register_map is not None else ChamberRegisterMap.default()
-        self._names = self.map.register_names()
-        unwritable = (None, *READ_ONLY)       # unused and read-only registers refuse writes
-        self._device = self._register_device(self.map.unit, self._names,
-                                             lambda address: self._names.get(address) in unwritable)
+    def read_only(self, address: int) -> bool:
+        return self._names.get(address) in (None, *READ_ONLY)      # unused and read-only registers refuse writes
 
-    def _read_image(self) -> dict[int, int]:
+    def image(self) -> dict[int, int]:
         return self.map.encode_state(self.chamber.state())
 
-    def _write(self, address: int, values: list[int]) -> None:
-        for i, value in enumerate(values):
-            self._write_one(address + i, value)
-
-    def _write_one(self, address: int, value: int) -> None:
+    def write(self, address: int, value: int) -> None:
         name, m, c = self._names.get(address), self.map, self.chamber
         actions: dict[str, Callable[[], None]] = {
             "setpoint": lambda: c.set_setpoint(m.decode_temperature(value)),
@@ -112,10 +107,39 @@ class ChamberModbusServer(ModbusServing):
         }
         if name not in actions:
             raise Refused(ExcCodes.ILLEGAL_ADDRESS, f"register {address} ({name or 'unused'}) is not writable")
-        try:
-            actions[name]()
-        except SimChamberError as exc:
-            raise Refused(EXCEPTION_FOR_ERROR.get(exc.code, ExcCodes.ILLEGAL_VALUE), str(exc)) from exc
+        actions[name]()
+
+
+class ChamberModbusServer(ModbusServing):
+    """The simulated chamber as a Modbus server (TCP listeners and RTU ptys, `ModbusServing`) serving a register
+    map (default: the Watlow F4P's, `bench.sim.chamber_f4`)."""
+
+    device_errors = (ChamberError,)
+    device_error_code = ExcCodes.ILLEGAL_VALUE
+
+    def __init__(self, chamber: SimChamber, register_map: ChamberMap | None = None, **kwargs):
+        super().__init__(**kwargs)
+        self.chamber = chamber
+        self.wire_faults = chamber.faults
+        register_map = register_map if register_map is not None else default_map()
+        self.face: WatlowF4Face | GenericFace = (WatlowF4Face(chamber, register_map)
+                                                 if isinstance(register_map, WatlowF4Map)
+                                                 else GenericFace(chamber, register_map))
+        #: the map as served (the F4P's with the simulated controller's settings)
+        self.map: ChamberMap = self.face.map
+        # the F4P's manual lists exception codes 01-03 only: its run-while-alarmed refusal is 03
+        self._exceptions = EXCEPTION_FOR_ERROR if isinstance(self.face, GenericFace) else {}
+        self._device = self._register_device(self.map.unit, self.map.register_names(), self.face.read_only)
+
+    def _read_image(self) -> dict[int, int]:
+        return self.face.image()
+
+    def _write(self, address: int, values: list[int]) -> None:
+        for i, value in enumerate(values):
+            try:
+                self.face.write(address + i, value)
+            except SimChamberError as exc:
+                raise Refused(self._exceptions.get(exc.code, ExcCodes.ILLEGAL_VALUE), str(exc)) from exc
 
 
 def serve_chamber_ascii(chamber: SimChamber, tcp: bool = True, pty: bool = False,
@@ -126,7 +150,7 @@ def serve_chamber_ascii(chamber: SimChamber, tcp: bool = True, pty: bool = False
 
 
 def serve_chamber(chamber: SimChamber, dialect: str, where: str = "tcp", host: str = "127.0.0.1", port: int = 0,
-                  register_map: ChamberRegisterMap | None = None) -> tuple[Callable[[], None], str]:
+                  register_map: ChamberMap | None = None) -> tuple[Callable[[], None], str]:
     """Serve `chamber` in `dialect` ('ascii' or 'modbus') on TCP (`where` 'tcp', at host:port) or a new pty
     (`where` 'pty'; Modbus RTU for modbus); returns (close, the URL a client opens)."""
     if dialect == "modbus":
@@ -152,5 +176,5 @@ def serve_chamber(chamber: SimChamber, dialect: str, where: str = "tcp", host: s
     return server.close, f"tcp://{bound_host}:{bound_port}"
 
 
-__all__ = ["ChamberAsciiHandler", "ChamberModbusServer", "EXCEPTION_FOR_ERROR", "GARBAGE", "NA_FOR_ERROR",
-           "serve_chamber", "serve_chamber_ascii"]
+__all__ = ["ChamberAsciiHandler", "ChamberModbusServer", "EXCEPTION_FOR_ERROR", "GARBAGE", "GenericFace",
+           "NA_FOR_ERROR", "serve_chamber", "serve_chamber_ascii"]

@@ -174,6 +174,10 @@ class Chamber(DeviceSession[ChamberState]):
         """`check_state` raises `ChamberAlarm` for a state that shows an alarm."""
         return ChamberAlarm(f"{self.dialect} chamber alarm: {state.describe_alarms()}", state) if state.alarm else None
 
+    def stop_caveat(self) -> str:
+        """What `stop` may leave on, as the controller reports it ('' for nothing known)."""
+        return ""
+
     def safe_stop(self) -> bool:
         """Best effort to stop temperature control; True if the stop was acknowledged. Never raises:
         it runs on error paths where the first error must survive."""
@@ -200,5 +204,6 @@ class Chamber(DeviceSession[ChamberState]):
         else:
             reason = ""
         if self.safe_stop():
-            return reason + "stopped"
+            caveat = self.stop_caveat()
+            return reason + "stopped" + (f" ({caveat})" if caveat else "")
         return reason + "stop failed: the chamber may still be controlling"

@@ -1,18 +1,21 @@
-"""The chamber's Modbus dialect: a pure codec (no I/O): register map, scaled int16 values, state decoding.
+"""The chamber's generic Modbus map: a pure codec (no I/O): register map, scaled int16 values, state decoding.
 
-`ChamberRegisterMap` says where the controller keeps its quantities (0-based holding
-registers as they go on the wire), their scale (signed int16 counts of tenths of a degree
-by default, as on Watlow F4-style controllers) and what the status bits, alarm bits and
-command codes mean. The client (`drivers.chamber.modbus`) and the simulator serve the
-same map. drivers/CHAMBER.md documents the default map. Configuration is read with the
-turntable map's checks (`drivers.turntable.modbus_map`), in the chamber's error tree.
+`ChamberRegisterMap` (preset "generic") says where a controller keeps its quantities
+(0-based holding registers as they go on the wire), their scale (signed int16 counts of
+`temperature_scale_c`, default 0.1 degC) and what the status bits, alarm bits and command
+codes mean. Its default numbers are this project's own and match no controller: they
+are for a controller described register by register in a configuration. The shipped
+map of a real controller is `drivers.chamber.watlow_f4` (the default). The client
+(`drivers.chamber.modbus`) and the simulator serve the same map; drivers/CHAMBER.md
+documents both. Configuration is read with the turntable map's checks
+(`drivers.turntable.modbus_map`), in the chamber's error tree.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any, ClassVar, Iterable, Mapping, Sequence
 
 from drivers.chamber.base import ChamberAlarms, ChamberState
 from drivers.errors import ChamberConfigError, ChamberLimitError, ChamberProtocolError, TurntableProtocolError
@@ -44,6 +47,7 @@ _ALARM_FLAGS = (ChamberAlarms.OVER_TEMPERATURE, ChamberAlarms.UNDER_TEMPERATURE,
 #: registers closer than this are read in one request (the few unused ones between them are read too)
 MAX_GAP = 8
 NO_REGISTER = -1
+GENERIC = "generic"
 
 
 class ChamberMapError(ChamberConfigError):
@@ -74,7 +78,9 @@ class ChamberRegisterMap:
     alarm_bits: tuple[int, int, int, int, int] = (0, 1, 2, 3, 4)
     # command register codes for run, stop, clear_alarms
     command_codes: tuple[int, int, int] = (1, 2, 3)
-    source: str = field(default="<default>", compare=False)
+    source: str = field(default="<generic>", compare=False)
+
+    preset: ClassVar[str] = "generic"
 
     def __post_init__(self) -> None:
         try:
@@ -84,7 +90,7 @@ class ChamberRegisterMap:
 
     @classmethod
     def default(cls) -> "ChamberRegisterMap":
-        """The documented default map (drivers/CHAMBER.md)."""
+        """The generic map's documented numbers (drivers/CHAMBER.md; the dialect's default is the F4P's map)."""
         return cls()
 
     @property
@@ -107,8 +113,10 @@ class ChamberRegisterMap:
     def _from_dict(cls, d: Mapping[str, Any], source: str) -> "ChamberRegisterMap":
         if not isinstance(d, Mapping):
             raise RegisterMapError(f"{source}: a register map must be a table, got {type(d).__name__}")
-        map_no_unknown(d, {"unit", "temperature_scale_c", "ramp_scale_c_per_min", "registers", "status_bits",
+        map_no_unknown(d, {"preset", "unit", "temperature_scale_c", "ramp_scale_c_per_min", "registers", "status_bits",
                            "alarm_bits", "command_codes"}, source, "")
+        if d.get("preset", GENERIC) != GENERIC:
+            raise RegisterMapError(f"{source}: preset: this is the {GENERIC!r} map, got {d['preset']!r}")
         kw: dict[str, Any] = {"source": source}
         if "unit" in d:
             kw["unit"] = map_int(d["unit"], source, "unit", 0, 255)
@@ -126,7 +134,7 @@ class ChamberRegisterMap:
 
     def to_dict(self) -> dict[str, Any]:
         """The map as a TOML-shaped table that `from_dict` reads back."""
-        return {"unit": self.unit, "temperature_scale_c": self.temperature_scale_c,
+        return {"preset": GENERIC, "unit": self.unit, "temperature_scale_c": self.temperature_scale_c,
                 "ramp_scale_c_per_min": self.ramp_scale_c_per_min,
                 "registers": {name: getattr(self, name) for name in REGISTERS},
                 "status_bits": dict(zip(STATUS_BITS, self.status_bits)),
@@ -157,18 +165,16 @@ class ChamberRegisterMap:
 
     @property
     def state_reads(self) -> list[tuple[int, int]]:
-        """(first address, count) of the reads that cover the state registers: registers at most
-        MAX_GAP apart share a read, and no read covers more than one Modbus read may."""
-        addresses = sorted(getattr(self, n) for n in STATE_REGISTERS if getattr(self, n) != NO_REGISTER)
-        reads: list[tuple[int, int]] = []
-        for address in addresses:
-            if reads:
-                start, count = reads[-1]
-                if address - (start + count - 1) <= MAX_GAP and address - start < MAX_READ_REGISTERS:
-                    reads[-1] = (start, address - start + 1)
-                    continue
-            reads.append((address, 1))
-        return reads
+        """(first address, count) of the reads that cover the state registers (`grouped_reads`)."""
+        return grouped_reads(getattr(self, n) for n in STATE_REGISTERS if getattr(self, n) != NO_REGISTER)
+
+    #: the generic map has no settings to read at connect (`WatlowF4Map` has)
+    settings_reads: ClassVar[tuple[tuple[int, int], ...]] = ()
+    #: what stopping may leave on (nothing the generic map knows of)
+    stop_caveat: ClassVar[str] = ""
+
+    def configure(self, blocks: Sequence[Sequence[int]]) -> "ChamberRegisterMap":
+        return self
 
     # -- values -------------------------------------------------------------------------
     def _encode(self, value: float, scale: float, what: str, unit: str, low: int = -0x8000) -> int:
@@ -185,13 +191,13 @@ class ChamberRegisterMap:
         return self._encode(value_c, self.temperature_scale_c, "temperature", "degC")
 
     def decode_temperature(self, word: int) -> float:
-        return _signed(word) * self.temperature_scale_c
+        return signed_word(word) * self.temperature_scale_c
 
     def encode_ramp(self, ramp_c_per_min: float) -> int:
         return self._encode(ramp_c_per_min, self.ramp_scale_c_per_min, "ramp rate", "degC/min", low=0)
 
     def decode_ramp(self, word: int) -> float:
-        counts = _signed(word)
+        counts = signed_word(word)
         if counts < 0:
             raise ChamberProtocolError(f"ramp rate register holds {counts} (negative)")
         return counts * self.ramp_scale_c_per_min
@@ -214,6 +220,23 @@ class ChamberRegisterMap:
     def decode_status(self, word: int) -> bool:
         return bool(word >> self.status_bits[0] & 1)
 
+    # -- what the client sends ---------------------------------------------------------------
+    def check_demand(self, setpoint_c: float, ramp_c_per_min: float | None) -> None:
+        """ChamberLimitError, before anything is sent, for a value the int16 registers cannot carry."""
+        self.encode_temperature(setpoint_c)
+        if ramp_c_per_min is not None and self.has_ramp:
+            self.encode_ramp(ramp_c_per_min)
+
+    def setpoint_writes(self, setpoint_c: float) -> list[tuple[int, int, str]]:
+        return [(self.setpoint, self.encode_temperature(setpoint_c), f"setpoint {setpoint_c:g} degC")]
+
+    def ramp_writes(self, ramp_c_per_min: float) -> list[tuple[int, int, str]]:
+        return [(self.ramp_rate, self.encode_ramp(ramp_c_per_min), f"ramp rate {ramp_c_per_min:g} degC/min")]
+
+    def command_writes(self, command: str) -> list[tuple[int, int, str]]:
+        code = self.command_code(command)
+        return [(self.command, code, f"{command} (command {code})")]
+
     def command_code(self, command: str) -> int:
         return command_code(COMMANDS, self.command_codes, command)
 
@@ -225,16 +248,7 @@ class ChamberRegisterMap:
     def decode_state(self, blocks: Sequence[Sequence[int]], time_s: float = 0.0) -> ChamberState:
         """The registers of `state_reads` (one list per read, in order) -> ChamberState;
         ChamberProtocolError if malformed."""
-        reads = self.state_reads
-        if len(blocks) != len(reads):
-            raise ChamberProtocolError(f"the state needs {len(reads)} register blocks, got {len(blocks)}")
-        words: dict[int, int] = {}
-        for (start, count), block in zip(reads, blocks):
-            try:
-                checked = check_registers(block, count, f"the state block at {start}")
-            except TurntableProtocolError as exc:       # the shared check's wording, in the chamber's tree
-                raise ChamberProtocolError(str(exc)) from exc
-            words.update({start + i: w for i, w in enumerate(checked)})
+        words = read_words(self.state_reads, blocks, "state")
         alarms, unknown = self.decode_alarms(words[self.alarms])
         ramp = self.decode_ramp(words[self.ramp_rate]) if self.has_ramp else None
         return ChamberState(time_s, self.decode_temperature(words[self.process_value]),
@@ -251,11 +265,40 @@ class ChamberRegisterMap:
         return out
 
 
-def _signed(word: int) -> int:
+def grouped_reads(addresses: Iterable[int]) -> list[tuple[int, int]]:
+    """(first address, count) of the reads that cover `addresses`: registers at most MAX_GAP apart share a
+    read, and no read covers more than one Modbus read may."""
+    reads: list[tuple[int, int]] = []
+    for address in sorted(set(addresses)):
+        if reads:
+            start, count = reads[-1]
+            if address - (start + count - 1) <= MAX_GAP and address - start < MAX_READ_REGISTERS:
+                reads[-1] = (start, address - start + 1)
+                continue
+        reads.append((address, 1))
+    return reads
+
+
+def read_words(reads: Sequence[tuple[int, int]], blocks: Sequence[Sequence[int]], what: str) -> dict[int, int]:
+    """address -> register of the blocks read by `reads` (one list per read, in order); ChamberProtocolError
+    if malformed."""
+    if len(blocks) != len(reads):
+        raise ChamberProtocolError(f"the {what} needs {len(reads)} register blocks, got {len(blocks)}")
+    words: dict[int, int] = {}
+    for (start, count), block in zip(reads, blocks):
+        try:
+            checked = check_registers(block, count, f"the {what} block at {start}")
+        except TurntableProtocolError as exc:       # the shared check's wording, in the chamber's tree
+            raise ChamberProtocolError(str(exc)) from exc
+        words.update({start + i: w for i, w in enumerate(checked)})
+    return words
+
+
+def signed_word(word: int) -> int:
     if isinstance(word, bool) or not isinstance(word, int) or not 0 <= word <= 0xFFFF:
         raise ChamberProtocolError(f"{word!r} is not a 16-bit register value")
     return word - 0x10000 if word & 0x8000 else word
 
 
-__all__ = ["ALARM_BITS", "COMMANDS", "ChamberMapError", "ChamberRegisterMap", "MAX_GAP", "NO_REGISTER", "READ_ONLY",
-           "REGISTERS", "STATE_REGISTERS", "STATUS_BITS"]
+__all__ = ["ALARM_BITS", "COMMANDS", "ChamberMapError", "ChamberRegisterMap", "GENERIC", "MAX_GAP", "NO_REGISTER",
+           "READ_ONLY", "REGISTERS", "STATE_REGISTERS", "STATUS_BITS", "grouped_reads", "read_words", "signed_word"]
