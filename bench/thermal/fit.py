@@ -49,7 +49,8 @@ from bench.errors import InputError
 MAX_DEGREE = 3
 #: significance level of the degree test
 ALPHA = 0.01
-DEGREE_RULE = (f"lowest degree d in 0..min({MAX_DEGREE}, n-2) (n distinct temperatures) that no higher degree d' beats: "
+DEGREE_RULE = (f"lowest degree d in 0..min({MAX_DEGREE}, n-2) (n distinct temperatures) that no higher degree "
+               f"d' beats: "
                f"chi2_d - chi2_d' < chi2.ppf(1 - {ALPHA:g}, d' - d) (weighted least squares, sigmas known); "
                "covariance scaled by chi2/dof when that exceeds 1")
 
