@@ -50,11 +50,10 @@ Steps are numbered from 1 in field names, e.g. ``position[3].angles_deg``.
 from __future__ import annotations
 
 import pathlib
-import re
 import tomllib
 from dataclasses import dataclass, replace
 
-from schedules.tomlinput import InputLimitError, loads, read_text_file
+from schedules.tomlinput import InputLimitError, loads, read_text_file, syntax_error_location
 from schedules.tomllines import LineMap, locate_lines
 
 FORMAT = "turntable-bench/schedule"
@@ -379,7 +378,6 @@ class _Validator:
 
 # --- public entry points ----------------------------------------------------------
 
-_TOML_LOCATION = re.compile(r"\s*\(at line (\d+), column (\d+)\)")
 _BUILTIN_DIR = pathlib.Path(__file__).resolve().parent
 
 
@@ -391,15 +389,8 @@ def parse_schedule(text: str, path: str = "<string>") -> Schedule:
     except InputLimitError as exc:
         raise ScheduleError(path, exc.line, None, exc.message) from None
     except tomllib.TOMLDecodeError as exc:
-        message = str(exc)
-        location = _TOML_LOCATION.search(message)
-        if location is None:
-            # e.g. "(at end of document)": point at the last line.
-            last_line = max(len(text.splitlines()), 1)
-            raise ScheduleError(path, last_line, None, f"invalid TOML: {message}") from None
-        message = _TOML_LOCATION.sub("", message)
-        raise ScheduleError(path, int(location.group(1)), None,
-                            f"invalid TOML: {message} (column {location.group(2)})") from None
+        line, message = syntax_error_location(text, exc)
+        raise ScheduleError(path, line, None, message) from None
     return _Validator(doc, locate_lines(text), path).run()
 
 

@@ -73,17 +73,17 @@ _MAX_DIGITS = sys.get_int_max_str_digits() or 4300
 _LONG_INTEGER = re.compile(r"[0-9][0-9_]{%d,}" % _MAX_DIGITS)
 
 
-def nesting_error_line(text: str, max_depth: int = MAX_NESTING) -> int | None:
-    """The line where arrays/inline tables first nest deeper than `max_depth`, else None.
+def _brackets(text: str):
+    """(bracket, line) of every `[ ] { }` outside strings and comments, in order.
 
-    A light scan that skips strings and comments; on text it cannot follow (an unterminated
-    string) it stops and reports nothing: `tomllib` then reports the syntax error.
+    A light scan; on text it cannot follow (an unterminated string) it stops: `tomllib` then
+    reports the syntax error.
     """
-    depth, line, i, n = 0, 1, 0, len(text)
+    line, i, n = 1, 0, len(text)
     while i < n:
         match = _TOKEN.search(text, i)
         if match is None:
-            return None
+            return
         token, i = match.group(), match.end()
         if token == "\n":
             line += 1
@@ -98,26 +98,65 @@ def nesting_error_line(text: str, max_depth: int = MAX_NESTING) -> int | None:
                 end = text.find("'''", i)
                 end = end + 3 if end >= 0 else -1
             if end < 0:
-                return None
+                return
             line += text.count("\n", i, end)
             i = end
         elif token == '"':
             found = _BASIC_END.match(text, i)
             if found is None:
-                return None
+                return
             i = found.end()
         elif token == "'":
             end = text.find("'", i)
             if end < 0 or "\n" in text[i:end]:
-                return None
+                return
             i = end + 1
-        elif token in "[{":
+        else:
+            yield token, line
+
+
+def nesting_error_line(text: str, max_depth: int = MAX_NESTING) -> int | None:
+    """The line where arrays/inline tables first nest deeper than `max_depth`, else None."""
+    depth = 0
+    for token, line in _brackets(text):
+        if token in "[{":
             depth += 1
             if depth > max_depth:
                 return line
         else:  # "]" or "}"
             depth = max(depth - 1, 0)
     return None
+
+
+_TOML_LOCATION = re.compile(r"\s*\(at line (\d+), column (\d+)\)")
+_UNCLOSED = {"Unclosed array": "[", "Unclosed inline table": "{"}
+
+
+def syntax_error_location(text: str, exc: tomllib.TOMLDecodeError) -> tuple[int, str]:
+    """(line, message) of a TOML syntax error for a one-line report.
+
+    tomllib reports an unclosed array or inline table where it noticed it (often the next
+    line); the line of the bracket left open is the one to fix, so that one is given."""
+    message = str(exc)
+    found = _TOML_LOCATION.search(message)
+    if found is None:  # "(at end of document)"
+        return max(len(text.splitlines()), 1), f"invalid TOML: {message}"
+    line, column = int(found.group(1)), found.group(2)
+    message = _TOML_LOCATION.sub("", message)
+    opener = _UNCLOSED.get(message)
+    if opener is not None:
+        stack = []
+        for token, at in _brackets(text):
+            if at >= line:
+                break
+            if token in "[{":
+                stack.append((token, at))
+            elif stack:
+                stack.pop()
+        opened = [at for token, at in stack if token == opener]
+        if opened:
+            return opened[-1], f"invalid TOML: {message}: the {opener} opened here is not closed"
+    return line, f"invalid TOML: {message} (column {column})"
 
 
 def loads(text: str, max_depth: int = MAX_NESTING) -> dict:

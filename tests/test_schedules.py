@@ -223,6 +223,8 @@ def test_bad_file_names_file_line_and_field(tmp_path, case):
 @pytest.mark.parametrize("text, line", [
     (_positions_file("[[position]\nangles_deg = [0, 0, 0]\n"), 7),   # unclosed header bracket
     (_positions_file("[[position]]\nangles_deg = [0, 0, 0\n"), 8),  # unclosed array at end of file
+    # issue 33: an array left open is reported on its own line (tomllib notices it two lines on)
+    (_positions_file("[[position]]\nangles_deg = [0, 0, 0  # E N U\n\n[[position]]\nangles_deg = [0, 0, 180]\n"), 8),
 ])
 def test_bad_toml_reports_tomllib_line(tmp_path, text, line):
     path = tmp_path / "broken.toml"
@@ -335,6 +337,9 @@ def test_cli_validate(tmp_path, capsys):
     bad.write_text(BAD_FILES["angle-45"][0], encoding="utf-8")
     assert run_cli(["schedules", "validate", str(good)]) == 0
     assert capsys.readouterr().out == f"OK {good}: optimal-24 (positions, 24 steps)\n"
+
+    assert run_cli(["schedules", "validate", "optimal-24"]) == 0          # a built-in by name, as `show` takes it
+    assert capsys.readouterr().out == "OK optimal-24: optimal-24 (positions, 24 steps)\n"
 
     assert run_cli(["schedules", "validate", str(good), str(bad), str(tmp_path / "missing.toml")]) == 1
     captured = capsys.readouterr()

@@ -18,14 +18,26 @@ def _poly(coeffs, t, ref=25.0):
     return sum(c * (np.asarray(t) - ref) ** k for k, c in enumerate(coeffs))
 
 
+FIVE_TEMPS = np.array([-20.0, 0.0, 25.0, 50.0, 70.0])
+
+
 @pytest.mark.parametrize("truth, degree", [([3.0], 0), ([3.0, 0.05], 1), ([3.0, 0.05, 0.002], 2),
                                            ([3.0, 0.0, 0.0, 1e-4], 3)])
 def test_noise_free_points_give_the_true_degree_and_polynomial(truth, degree):
-    sigma = np.full(4, 0.01)
-    fit = fit_coefficient("D0_x", "deg/h", TEMPS, _poly(truth, TEMPS), sigma)
+    sigma = np.full(5, 0.01)
+    fit = fit_coefficient("D0_x", "deg/h", FIVE_TEMPS, _poly(truth, FIVE_TEMPS), sigma)
     assert fit.degree == degree
     assert fit.polynomial == pytest.approx(truth, rel=1e-9, abs=1e-12)
     assert fit.value(10.0) == pytest.approx(_poly(truth, 10.0), rel=1e-12)
+
+
+def test_the_degree_leaves_at_least_one_degree_of_freedom():
+    """Issue 33: a cubic was put through 4 temperatures (it fits any 4 values exactly, nothing checks it)."""
+    cubic = _poly([3.0, 0.0, 0.0, 1e-4], TEMPS)
+    fit = fit_coefficient("D0_x", "deg/h", TEMPS, cubic, np.full(4, 0.01))
+    assert fit.degree == 2 and fit.dof == 1 and fit.sigma_scale > 1.0     # the misfit shows, scaled into sigma
+    assert fit_coefficient("D0_x", "deg/h", TEMPS[:2], cubic[:2], np.full(2, 0.01)).degree == 0
+    assert fit_coefficient("D0_x", "deg/h", TEMPS[:1], cubic[:1], np.full(1, 0.01)).degree == 0
 
 
 def test_over_many_seeds_terms_and_interpolated_values_scatter_as_their_sigmas_say():

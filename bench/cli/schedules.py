@@ -18,7 +18,6 @@ from schedules import (
     ScheduleError,
     builtin_names,
     load_builtin,
-    load_schedule,
     resolve_schedule,
 )
 
@@ -41,8 +40,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     show.add_argument("schedule", metavar="NAME|FILE", help="built-in schedule name or schedule file")
     show.set_defaults(func=cmd_show)
 
-    validate = commands.add_parser("validate", help="check schedule files")
-    validate.add_argument("files", metavar="FILE", nargs="+", help="schedule TOML file(s)")
+    validate = commands.add_parser("validate", help="check schedule files (or built-in schedules by name)")
+    validate.add_argument("files", metavar="NAME|FILE", nargs="+",
+                          help="schedule TOML file(s) or built-in schedule name(s)")
     validate.set_defaults(func=cmd_validate)
     register_tools(commands)
     register_recommend(commands)
@@ -82,7 +82,7 @@ def cmd_validate(args: argparse.Namespace) -> ExitCode:
     exit_code = ExitCode.OK
     for path in args.files:
         try:
-            schedule = load_schedule(path)
+            schedule = resolve_schedule(path)
         except ScheduleError as exc:
             for line in exc.lines():
                 print(line, file=sys.stderr)

@@ -127,14 +127,18 @@ def cmd_thermal_sim(args: argparse.Namespace) -> ExitCode:
     if not args.quiet and config.sim.thermal is None:
         print("the configuration has no [sim.imu.thermal]: using the built-in demonstration model "
               "(bench.thermal.simulate.DEMO_THERMAL)")
-    started = time.perf_counter()
+    started = last = time.perf_counter()
 
     def progress(k: int, point) -> None:
+        nonlocal last
         name = f"sim_{point.result.run['temperature_setpoint_c']:g}C.result.json"
         point.result.save(out / name)
+        now = time.perf_counter()
         if not args.quiet:
             print(f"{point.result.run['temperature_setpoint_c']:g} degC: IMU mean {point.temperature_c:.3f} degC, "
-                  f"solved, wrote {out / name} ({time.perf_counter() - started:.1f} s)", flush=True)
+                  f"solved, wrote {out / name} (this temperature {now - last:.1f} s, {now - started:.1f} s in all)",
+                  flush=True)
+        last = now
 
     try:
         model = simulate_thermal(config, temperatures_c, thermal=config.sim.thermal or DEMO_THERMAL,

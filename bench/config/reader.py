@@ -13,17 +13,15 @@ import datetime
 import difflib
 import enum
 import math
-import re
 import tomllib
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, overload
 
 from bench.errors import InputError
-from schedules.tomlinput import InputLimitError, loads, read_text_file
+from schedules.tomlinput import InputLimitError, loads, read_text_file, syntax_error_location
 from schedules.tomllines import LineMap
 
-_TOML_LOCATION = re.compile(r"\s*\(at line (\d+), column (\d+)\)")
 _MAX_MESSAGE = 1000  # characters of a message; a 100 kB value quoted back is no help
 
 
@@ -65,12 +63,8 @@ def parse_toml(text: str, source: str) -> dict:
     except InputLimitError as exc:  # nested too deep, an integer of thousands of digits
         raise ConfigError(source, exc.line, None, exc.message) from None
     except tomllib.TOMLDecodeError as exc:
-        message = str(exc)
-        found = _TOML_LOCATION.search(message)
-        if found is None:  # "(at end of document)"
-            raise ConfigError(source, max(len(text.splitlines()), 1), None, f"invalid TOML: {message}") from exc
-        raise ConfigError(source, int(found.group(1)), None,
-                          f"invalid TOML: {_TOML_LOCATION.sub('', message)} (column {found.group(2)})") from exc
+        line, message = syntax_error_location(text, exc)
+        raise ConfigError(source, line, None, message) from exc
 
 
 def read_text(path: Path, what: str) -> str:

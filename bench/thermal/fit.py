@@ -5,7 +5,9 @@ the model of degree d is  y(T) = c0 + c1 x + ... + cd x^d,  x = T - T_ref  (c_k 
 coefficient's unit per degC^k), fitted by weighted least squares (weights 1/sigma_i^2).
 
 **Degree rule** (a likelihood-ratio test of nested models, the sigmas taken as known):
-the candidates are d = 0 .. min(3, n - 1) for n temperatures; the chosen degree is the
+the candidates are d = 0 .. min(3, n - 2) for n distinct temperatures (a fit keeps at least
+one degree of freedom: a cubic through 4 points fits any 4 values; one temperature gives
+d = 0); the chosen degree is the
 lowest d that no higher candidate d' beats significantly, i.e. for every d' > d
     chi2_d - chi2_d'  <  chi2.ppf(1 - alpha, d' - d)        (alpha = 0.01).
 A term that is really there moves chi2 by (term / its sigma)^2, far above the
@@ -47,7 +49,8 @@ from bench.errors import InputError
 MAX_DEGREE = 3
 #: significance level of the degree test
 ALPHA = 0.01
-DEGREE_RULE = (f"lowest degree d in 0..min({MAX_DEGREE}, n-1) that no higher degree d' beats: "
+DEGREE_RULE = (f"lowest degree d in 0..min({MAX_DEGREE}, n-2) (n distinct temperatures) that no higher degree "
+               f"d' beats: "
                f"chi2_d - chi2_d' < chi2.ppf(1 - {ALPHA:g}, d' - d) (weighted least squares, sigmas known); "
                "covariance scaled by chi2/dof when that exceeds 1")
 
@@ -173,7 +176,7 @@ def fit_coefficient(name: str, unit: str, temperatures_c, values, sigmas, refere
         common_var = float(np.max(common)) ** 2
     dt = t - reference_c
     distinct = len(np.unique(np.round(t, 6)))
-    top = min(MAX_DEGREE, distinct - 1)
+    top = max(0, min(MAX_DEGREE, distinct - 2))     # at least one degree of freedom left
     fits = [_weighted_fit(dt, y, independent, d) for d in range(top + 1)]
     chi2s = [f[2] for f in fits]
     degree = next(d for d in range(top + 1)
