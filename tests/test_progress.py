@@ -181,3 +181,20 @@ def test_count_progress_on_a_terminal_redraws_a_bar_below_the_lines():
     assert out.getvalue() == (f"\r[----] 0/2 0%{ERASE_TO_END}" + f"\r{ERASE_TO_END}"
                               + "[1/2 50%, ETA 0:00:05] a.result.json\n"
                               + f"\r[##--] 1/2 50%, ETA 0:00:05{ERASE_TO_END}" + f"\r{ERASE_TO_END}")
+
+
+def test_advance_to_redraws_the_bar_without_a_line_per_part():
+    """Work counted in parts (the schedule search's percent): the bar grows, never shrinks, and no item lines."""
+    clock = iter(range(100)).__next__
+    out = io.StringIO()
+    progress = CountProgress(100, out, out, live=True, bar_width=4, clock=clock)
+    progress.advance_to(50)
+    progress.advance_to(40)                    # never backwards
+    progress.advance_to(150)                   # capped at the total
+    progress.close()
+    text = out.getvalue()
+    assert "[##--] 50/100 50%" in text and "40/100" not in text and "[####] 100/100 100%" in text
+    assert "\n" not in text and text.endswith("\r" + ERASE_TO_END)
+    plain = io.StringIO()
+    CountProgress(100, plain, plain, live=False).advance_to(50)
+    assert plain.getvalue() == ""

@@ -429,7 +429,8 @@ def test_cli_reads_the_frames_once_with_or_without_quiet(recorded, monkeypatch):
         assert rc == 0, err
         reads[quiet], said[quiet] = inflated[0], err
     assert reads[False] == reads[True] > 0
-    assert "CAN frames recorded" in said[False] and recorded.log_path.name in said[False].splitlines()[0]
+    # issue 33: the count before the replay is of recorded batches (it read "1853 CAN frames" for 149,457)
+    assert "batches of CAN frames recorded" in said[False] and recorded.log_path.name in said[False].splitlines()[0]
 
 
 def test_a_thermal_runs_chamber_states_are_read_and_replayed_in_log_time_order(thermal_run_log):
@@ -488,3 +489,30 @@ def test_chamber_states_past_the_readers_limit_are_said_not_read(thermal_run_log
     recorded = log.message_counts[TOPIC_CHAMBER]
     assert len(log.chamber_states) == 10 < recorded and not log.complete
     assert log.damage == [f"byte 0: {recorded - 10} {TOPIC_CHAMBER} messages past the first 10 not read"]
+
+
+def test_the_summary_counts_frames_and_batches_and_its_time_includes_the_read():
+    """Issue 33: stdout said "in 0.19 s" where the progress said "0:00:02 wall": the replay's time left out the
+    reading and decoding of the log, which is most of it when played as fast as possible."""
+    from bench.log.replay import ReplayStats
+
+    stats = ReplayStats(frames=149_457, frame_batches=1_853, wall_s=2.0, read_s=1.81)
+    line = stats.summary()
+    assert "149457 CAN frames (1853 recorded batches)" in line
+    assert "in 2.00 s (1.81 s of it reading and decoding the log)" in line
+
+
+def test_the_replay_time_counts_from_the_start_of_the_read(log, monkeypatch):
+    """The injected clock moves while the log is read: that time is in `wall_s` and in `read_s`."""
+    from bench.log import replay as replay_module
+
+    clock = ManualClock(100.0)
+    decode = replay_module._decode
+
+    def slow_decode(*args, **kwargs):
+        clock.advance(3.0)
+        return decode(*args, **kwargs)
+
+    monkeypatch.setattr(replay_module, "_decode", slow_decode)
+    stats = replay(log, [], clock=clock)
+    assert stats.read_s == pytest.approx(3.0) and stats.wall_s == pytest.approx(3.0)

@@ -113,3 +113,12 @@ def test_cli_search_without_out_says_that_nothing_was_written(tmp_path, capsys, 
     out = capsys.readouterr().out
     assert out.splitlines()[-1] == "no schedule files written: give --out DIR to write the best 2 of each kind as TOML"
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_position_search_reports_its_progress_up_to_the_whole():
+    """Issue 33: `bench schedules search` was silent for about 30 s; the search now says how far it is."""
+    seen = []
+    result = search_positions(POSITION_GROUPS[:8], 4, reference_groups=POSITION_GROUPS,
+                              progress=lambda searched, total: seen.append((searched, total)))
+    assert seen and all(total == result.total for _, total in seen)
+    assert [s for s, _ in seen] == sorted(s for s, _ in seen) and seen[-1][0] == result.total

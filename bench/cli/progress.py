@@ -207,6 +207,14 @@ class CountProgress:
             out.flush()
         self._draw()
 
+    def advance_to(self, done: int) -> None:
+        """`done` items completed so far, no line of their own (work counted in parts, e.g. percent of a search):
+        the bar is redrawn when the count grows."""
+        done = min(max(done, 0), self.total)
+        if done > self.done:
+            self.done = done
+            self._draw()
+
     def note(self, text: str) -> None:
         """A line to `err` that is not an item (a warning), the bar kept below it."""
         self._erase()

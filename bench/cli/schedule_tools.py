@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.cli.common import ExitCode, add_noise_arguments, fail, noise_from_args
+from bench.cli.progress import CountProgress
 from bench.errors import InputError
 from bench.model.earth import Site
 from bench.model.units import format_hms
@@ -165,8 +166,14 @@ def cmd_search(args: argparse.Namespace) -> ExitCode:
             return fail("bench schedules search", f"cannot write to --out {args.out}: {reason}", ExitCode.USAGE)
     started = time.perf_counter()
     groups = POSITION_GROUPS[:args.groups]
-    pos = search_positions(groups, args.choose, reference_groups=POSITION_GROUPS)
-    rot = search_rotations(site=site)
+    # the position search takes tens of seconds: a bar on a terminal (stderr), in percent of the subsets
+    bar = CountProgress(100, stream=sys.stderr)
+    try:
+        pos = search_positions(groups, args.choose, reference_groups=POSITION_GROUPS,
+                               progress=lambda searched, total: bar.advance_to(100 * searched // max(total, 1)))
+        rot = search_rotations(site=site)
+    finally:
+        bar.close()
     paper_pos = combo_of_angles([p.angles_deg for p in load_builtin("optimal-24").positions], groups)
     paper_rot = combo_of_turns(load_builtin("optimal-5s6r").rotations, rot.items)
     for result, label, paper, paper_name in ((pos, f"{2 * args.choose}-position schedules from "

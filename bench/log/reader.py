@@ -452,7 +452,7 @@ class RunLog:
             frames = f"{self.can_frame_count} CAN frames"
             state = "complete" if self.complete else f"DAMAGED ({len(self.damage)} problems)"
         else:
-            frames = f"{self.message_counts.get(TOPIC_CAN, 0)} CAN frames recorded"
+            frames = f"{self.message_counts.get(TOPIC_CAN, 0)} batches of CAN frames recorded"
             found = self.damage_found
             state = f"DAMAGED ({len(found)} problems so far)" if found else "no damage found so far"
         unchecked = (f" ({self.unchecked_chunks} {TOPIC_SAMPLES} chunks, derived from {TOPIC_CAN}, not read)"

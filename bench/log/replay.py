@@ -57,7 +57,8 @@ class ReplayStats:
     log_duration_s: float = 0.0
     log_reached_s: float = 0.0                 # log time of the last item delivered, from the start
     run_state: str = ""                        # the recorded run's last transition ("done", "failed", ...)
-    wall_s: float = 0.0
+    wall_s: float = 0.0                        # clock time of the whole replay, the log's reading included
+    read_s: float = 0.0                        # of it, reading and decoding the log before the first item
     stopped: bool = False                      # `stop` was set before the end
     imu_stats: ImuStats | None = None          # from decoding the raw frames (None: not decoded)
     notes: list[str] = field(default_factory=list)   # e.g. why samples were not decoded, unusable states
@@ -73,7 +74,8 @@ class ReplayStats:
                 else f" (the recorded run's last state: {self.run_state})"
         chamber = f"{self.chamber_states} chamber states, " if self.chamber_states else ""
         return (f"replayed {self.events} events, {self.table_states} table states, {chamber}{self.samples} IMU "
-                f"samples, {self.frames} CAN frames; {span} in {self.wall_s:.2f} s")
+                f"samples, {self.frames} CAN frames ({self.frame_batches} recorded batches); {span} in "
+                f"{self.wall_s:.2f} s ({self.read_s:.2f} s of it reading and decoding the log)")
 
 
 def replay(log: RunLog, listeners: Iterable[RunListener], *, speed: float | None = None, clock: Clock = SYSTEM_CLOCK,
@@ -114,6 +116,7 @@ def _close(listeners) -> Exception | None:
 
 
 def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s, stop) -> None:
+    started = clock.now()
     states, bad_states = _table_states(log)
     if bad_states:
         stats.notes.append(f"{bad_states} table states with an unknown mode not replayed")
@@ -163,6 +166,7 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
     want_frames = any(_overrides(listener, "on_can_frames") for listener in listeners)
     cursor = _FrameCursor(log) if want_frames else None
     wall0 = clock.now()
+    stats.read_s = float(wall0 - started)
     for i in order.tolist():
         if stop is not None and stop.is_set():
             stats.stopped = True
@@ -200,7 +204,7 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
                     listener.on_imu(block)
                 stats.samples += s_hi - s_lo
                 stats.imu_blocks += 1
-    stats.wall_s = float(clock.now() - wall0)
+    stats.wall_s = float(clock.now() - started)
 
 
 class _FrameBatches:

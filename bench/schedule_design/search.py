@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from itertools import combinations
 from pathlib import Path
@@ -225,11 +226,13 @@ def _zero_sum_key(lin: np.ndarray, comp: np.ndarray, s: np.ndarray, w: np.ndarra
     return np.concatenate([proj.reshape(len(members), -1), w[members].reshape(len(members), -1)], axis=1)
 
 
-def search_positions(groups=POSITION_GROUPS, choose: int = GROUP_SIZE, reference_groups=None) -> SearchResult:
+def search_positions(groups=POSITION_GROUPS, choose: int = GROUP_SIZE, reference_groups=None,
+                     progress: Callable[[int, int], None] | None = None) -> SearchResult:
     """Exhaustive search over all `choose`-subsets of `groups` (see module docstring).
 
     `reference_groups` (default: all of `groups`) is the "use them all" schedule whose
     first-order sensitivities (c) compares against; all 32 groups = all 64 positions.
+    `progress(searched, total)` is called as the subsets are searched (the last call has searched == total).
     """
     started = time.perf_counter()
     tables = position_tables(groups)
@@ -240,6 +243,7 @@ def search_positions(groups=POSITION_GROUPS, choose: int = GROUP_SIZE, reference
     rows_a, rows_b = np.arange(half), np.arange(half, n)
     counts = {"total": math.comb(n, choose), "a": 0, "b": 0, "c": 0, "d": 0}
     equivalent, var_cost = [], []
+    searched = 0
     for k in range(max(0, choose - (n - half)), min(choose, half) + 1):
         sub_a, sub_b = _subsets(half, k), _subsets(n - half, choose - k)
         if len(sub_a) == 0 or len(sub_b) == 0:
@@ -255,6 +259,9 @@ def search_positions(groups=POSITION_GROUPS, choose: int = GROUP_SIZE, reference
         members_b = [np.flatnonzero(inv_b == i) for i in range(len(cls_b))]
         for ia_cls, ma in enumerate(members_a):
             for ib_cls, mb in enumerate(members_b):
+                searched += len(ma) * len(mb)
+                if progress is not None:
+                    progress(searched, counts["total"])
                 normal = (cls_a[ia_cls] + cls_b[ib_cls]).reshape(4, 4)
                 adj, det = _adjugate(normal)
                 if det == 0:
@@ -280,6 +287,8 @@ def search_positions(groups=POSITION_GROUPS, choose: int = GROUP_SIZE, reference
                 combos = np.concatenate([rows_a[sub_a[ma[pa[ok]]]], rows_b[sub_b[mb[pb[ok]]]]], axis=1)
                 equivalent.append(combos)
                 var_cost.append(np.full(len(combos), float(np.max(np.diag(np.linalg.inv(normal.astype(float)))))))
+    if progress is not None:
+        progress(counts["total"], counts["total"])
     eq = np.concatenate(equivalent) if equivalent else np.zeros((0, choose), dtype=np.int64)
     cost = np.concatenate(var_cost) if var_cost else np.zeros(0)
     opt = eq[np.isclose(cost, cost.min())] if len(eq) else eq
