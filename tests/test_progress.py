@@ -133,7 +133,7 @@ def test_times_are_from_the_runs_start_not_the_machines_uptime():
                for e in _whole_run()]
     _feed(ProgressPrinter(STEPS, out, live=False), shifted)
     lines = out.getvalue().splitlines()
-    assert lines[:2] == ["[0:00:00] transition: run started", "[0:00:00] P01 (1/3 units, 0%)"]
+    assert lines[:2] == ["[0:00:00] transition: run started", "[0:00:00] P01 (unit 1 of 3, 0% done)"]
     assert lines[-1] == "6 of 6 steps done in 0:00:10"
 
 
