@@ -59,9 +59,9 @@ def test_plain_mode_prints_one_line_per_unit_and_a_summary():
     _feed(printer, _whole_run())
     assert out.getvalue().splitlines() == [
         "[0:00:00] transition: run started",
-        "[0:00:00] P01 (1/3 units, 0%)",
-        "[0:00:05] P02 (2/3 units, 50%)",
-        "[0:00:08] R01 (3/3 units, 80%)",
+        "[0:00:00] P01 (unit 1 of 3, 0% done)",
+        "[0:00:05] P02 (unit 2 of 3, 50% done)",
+        "[0:00:08] R01 (unit 3 of 3, 80% done)",
         "[0:00:10] transition: run done",
         "6 of 6 steps done in 0:00:10 simulated, 0:00:03 wall",
     ]
@@ -133,7 +133,7 @@ def test_times_are_from_the_runs_start_not_the_machines_uptime():
                for e in _whole_run()]
     _feed(ProgressPrinter(STEPS, out, live=False), shifted)
     lines = out.getvalue().splitlines()
-    assert lines[:2] == ["[0:00:00] transition: run started", "[0:00:00] P01 (1/3 units, 0%)"]
+    assert lines[:2] == ["[0:00:00] transition: run started", "[0:00:00] P01 (unit 1 of 3, 0% done)"]
     assert lines[-1] == "6 of 6 steps done in 0:00:10"
 
 

@@ -115,8 +115,10 @@ class ProgressPrinter(RunListener):
             if not self.live and self._current is not None and self._current.unit != self._last_unit:
                 self._last_unit = self._current.unit
                 number = self.units.index(self._current.unit) + 1
-                self._print(f"{self._stamp(event.time_s)} {self._current.unit} ({number}/{len(self.units)} units, "
-                            f"{self._fraction(event.time_s):.0%})")
+                # "unit 30 of 30, 97% done": the unit starting and the run done so far ("30/30 units" read as
+                # all of them done)
+                self._print(f"{self._stamp(event.time_s)} {self._current.unit} (unit {number} of {len(self.units)}, "
+                            f"{self._fraction(event.time_s):.0%} done)")
         elif event.kind in ("step_finished", "step_skipped"):
             if event.step_index is not None:
                 self._done_s += self.steps[event.step_index].estimated_s
