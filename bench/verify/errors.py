@@ -96,13 +96,22 @@ class Verification:
 
     errors: list[VerificationError] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    #: where U's turntable part came from (the pointing prior's source); None: U leaves the table out
+    table_source: str | None = None
 
     def of(self, quantity: str) -> list[VerificationError]:
         return [e for e in self.errors if e.quantity == quantity]
 
+    def table_line(self) -> str:
+        """What U says of the turntable, one line: included (from where), or left out and what that means."""
+        if self.table_source is not None:
+            return f"U includes the turntable's pointing error ({self.table_source})"
+        return ("U leaves out the turntable's pointing error (not known: set [table] pointing_accuracy_arcsec or "
+                "[table] check), so an error may exceed U by the table's part")
+
     def to_json(self) -> dict[str, Any]:
         return {"errors": [e.to_json() for e in self.errors], "notes": list(self.notes),
-                "coverage_k": COVERAGE_K}
+                "coverage_k": COVERAGE_K, "table_in_uncertainty": self.table_source, "table": self.table_line()}
 
 
 def _sigma_of(result: CalibrationResult, name: str) -> float:
@@ -267,8 +276,6 @@ def verify_extraction(extraction: Extraction, rates_dps: dict[str, float], compe
                             mounting)
     out = Verification(notes=list(extraction.problems) + notes)
     if table is None:
-        out.notes.append("U leaves out the turntable's pointing error (not known: set [table] "
-                         "pointing_accuracy_arcsec or [table] check), so an error may exceed U by the table's part")
         out.errors = errors
         return out
 
@@ -279,7 +286,7 @@ def verify_extraction(extraction: Extraction, rates_dps: dict[str, float], compe
     sigmas = table_sigmas(extraction, rates_dps, calibration, site, table, errors_of, mounting)
     out.errors = [dataclasses.replace(e, uncertainty=math.hypot(e.uncertainty, COVERAGE_K * sigmas.get(e.name, 0.0)),
                                       table_part=COVERAGE_K * sigmas.get(e.name, 0.0)) for e in errors]
-    out.notes.append(f"U includes the turntable's pointing error ({table.source})")
+    out.table_source = table.source
     return out
 
 

@@ -120,7 +120,7 @@ def verification_markdown(verification: Verification, checks: list[Check], *, ru
              f"- **calibration**: {md_text(calibration)}", f"- **schedule**: {md_text(schedule)}", "",
              "Errors after compensation with the calibration, on data the calibration did not use; U is the "
              "expanded uncertainty (k = 2: the verification data's noise, the calibration's own uncertainty and "
-             "the turntable's pointing error, when known: see the notes).",
+             f"the turntable's pointing error when known). {md_text(verification.table_line())}.",
              "", "| error | value | U (k = 2) | unit | within U |", "|---|---|---|---|---|"]
     for e in verification.errors:
         lines.append(f"| {md_text(e.name)} | {e.value:.4g} | {e.uncertainty:.3g} | {e.unit} | "
@@ -151,7 +151,7 @@ def format_errors(verification: Verification) -> str:
     width = max((len(e.name) for e in verification.errors), default=10)
     lines = [f"{e.name:<{width}}  {e.value:>+11.4g} +- {e.uncertainty:<9.3g} {e.unit}"
              + ("" if e.within_uncertainty else "  (beyond U)") for e in verification.errors]
-    return "\n".join(lines + [f"note: {n}" for n in verification.notes])
+    return "\n".join(lines + [f"note: {n}" for n in verification.notes] + [f"note: {verification.table_line()}"])
 
 
 __all__ = ["DEFAULT_SCHEDULE", "VERIFICATION_FORMAT", "format_errors", "recorded_sim_table", "sim_table_record",
