@@ -452,11 +452,15 @@ class BenchSession:
             elif outcome.error is not None:
                 reason = f"{outcome.error}"
                 text = f"{outcome.state.value}: {outcome.error}; table stopped. Log: {outcome.log_path.name}"
-            elif outcome.failures:
+            elif outcome.verdict is not None and outcome.verdict.failed:    # the verdict, as bench run says it
+                text = "verdict FAIL: " + "; ".join(c.labelled() for c in outcome.verdict.failed)
+                kind, reason = END_QUALITY, text
+            elif outcome.verdict is None and outcome.failures:      # not judged (a noise recording)
                 text = "quality check failed: " + "; ".join(outcome.failures)
                 kind, reason = END_QUALITY, text
             elif outcome.result_path is not None:
-                text = f"done; result {outcome.result_path.name}"
+                verdict = f"verdict {outcome.verdict.outcome}; " if outcome.verdict is not None else ""
+                text = f"done; {verdict}result {outcome.result_path.name}"
                 kind = END_DONE
             else:                               # finish() writes a result whenever the run ended without error
                 text = f"{outcome.state.value}: no result written"
