@@ -126,6 +126,8 @@ def test_an_older_result_files_pass_without_checks_reads_as_not_checked(tmp_path
     failed = {**old, "passed": False, "headline": "FAIL (1 of 1 checks: quality)",
               "checks": [{"name": "quality", "passed": False, "text": "quality: P07 left out"}]}
     assert stored_outcome(failed) == FAIL and stored_headline(failed) == failed["headline"]
+    result.verdict = failed
+    assert "| quality | quality: P07 left out | **FAIL** |" in markdown_report(result)
 
 
 # -- the configuration ------------------------------------------------------------------------------

@@ -155,8 +155,15 @@ def verdict_view(verdict: Any) -> VerdictView | None:
     checks = [c for c in verdict.get("checks", []) if isinstance(c, dict)]
     worst = verdict.get("worst")
     return VerdictView(stored_outcome(verdict), stored_headline(verdict), worst if isinstance(worst, str) else None,
-                       [(str(c.get("kind") or "acceptance"), str(c.get("text", c.get("name", ""))),
-                         c.get("passed") is True) for c in checks])
+                       [(_kind(c), str(c.get("text", c.get("name", ""))), c.get("passed") is True) for c in checks])
+
+
+def _kind(check: dict[str, Any]) -> str:
+    """A stored check's kind; an older file's checks have none: told by their names."""
+    kind, name = check.get("kind"), str(check.get("name", ""))
+    if isinstance(kind, str) and kind:
+        return kind
+    return "quality" if name == "quality" else "verification" if name.startswith("verify ") else "acceptance"
 
 
 def quality_findings(verdict: Any, failures: list[str]) -> list[str]:
