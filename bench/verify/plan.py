@@ -121,9 +121,10 @@ def verification_markdown(verification: Verification, checks: list[Check], *, ru
              "Errors after compensation with the calibration, on data the calibration did not use; U is the "
              "expanded uncertainty (k = 2: the verification data's noise, the calibration's own uncertainty and "
              f"the turntable's pointing error when known). {md_text(verification.table_line())}.",
-             "", "| error | value | U (k = 2) | unit | within U |", "|---|---|---|---|---|"]
+             "", "| error | value | U (k = 2) | table part of U (k = 2) | unit | within U |",
+             "|---|---|---|---|---|---|"]
     for e in verification.errors:
-        lines.append(f"| {md_text(e.name)} | {e.value:.4g} | {e.uncertainty:.3g} | {e.unit} | "
+        lines.append(f"| {md_text(e.name)} | {e.value:.4g} | {e.uncertainty:.3g} | {e.table_part:.3g} | {e.unit} | "
                      f"{'yes' if e.within_uncertainty else '**no**'} |")
     if verification.notes:
         lines += ["", "Notes:"] + [f"- {md_text(n)}" for n in verification.notes]
