@@ -3,7 +3,8 @@
 Each kind of limit is checked on its own (`bench.acceptance.verdict.judge`), a bad limit is
 refused by the configuration reader with one `file:line: key: message` line, and `bench run`
 on the simulator carries the verdict into the result, the reports and its exit code (4 on
-fail), with a three-line summary even with `--quiet`.
+fail), with a four-line summary even with `--quiet`. Issue 27: three outcomes (PASS only when
+a check ran), each check named with its kind, and the reports say the same as the summary.
 """
 
 from __future__ import annotations
@@ -15,10 +16,12 @@ from pathlib import Path
 import pytest
 
 from bench.acceptance.limits import AcceptanceLimits, CoefficientLimits
-from bench.acceptance.verdict import judge
+from bench.acceptance.verdict import FAIL, NOT_CHECKED, PASS, judge, stored_headline, stored_outcome
 from bench.config.load import ConfigError, load_config, parse_config
 from bench.model.imu import default_sim_imu
 from bench.model.result import CalibrationResult, coefficient_table
+from bench.report.html import html_report
+from bench.report.markdown import markdown_report
 from tests.helpers.run import cli, config_text, load_json, only_file
 
 TRUTH = default_sim_imu().to_canonical()       # Kg_x 36012.5, D0_x 0.052 deg/h, K0_x 1.2e-4 g, ...
@@ -82,12 +85,49 @@ def test_lost_samples_residuals_and_the_runs_quality_failures():
     assert "P07: left out" in verdict.checks[2].describe()
 
 
-def test_a_limited_coefficient_missing_from_the_result_fails_and_no_limits_pass():
+def test_a_limited_coefficient_missing_from_the_result_fails():
     result = _result()
     del result.coefficients["Eg_Yx"]
     verdict = judge(result, AcceptanceLimits(coefficients={"Eg_Yx": CoefficientLimits(min=-1e-3, max=1e-3)}))
     assert not verdict.passed and verdict.checks[0].describe() == "Eg_Yx: not in the result"
-    assert judge(result, AcceptanceLimits()).headline() == "PASS (no acceptance limits configured)"
+
+
+def test_no_check_is_not_checked_and_a_quality_failure_alone_fails_as_quality():
+    """Issue 27: PASS only when a check ran; the quality checks can fail a result but never pass it."""
+    unchecked = judge(_result(), AcceptanceLimits())
+    assert unchecked.outcome == NOT_CHECKED and not unchecked.passed and not unchecked.failed
+    assert unchecked.headline().startswith("NOT CHECKED (no check ran")
+    assert unchecked.to_json()["verdict"] == "not checked" and unchecked.to_json()["passed"] is False
+    quality = judge(_result(), AcceptanceLimits(), quality_failures=["P07: left out: not run"])
+    assert quality.outcome == FAIL and quality.headline() == "FAIL (quality: 1 failed)"
+    assert quality.worst is not None and quality.worst.labelled() == "quality check failed: P07: left out: not run"
+    both = judge(_result(), AcceptanceLimits(max_lost_samples=0), lost_samples=2, quality_failures=["P07: left out"])
+    assert both.headline() == "FAIL (acceptance: 1 of 1 failed: lost samples; quality: 1 failed)"
+    passed = judge(_result(), AcceptanceLimits(max_lost_samples=0), lost_samples=0)
+    assert passed.outcome == PASS and passed.headline() == "PASS (1 check: 1 acceptance)"
+    assert passed.to_json()["verdict"] == "pass" and passed.to_json()["checks"][0]["kind"] == "acceptance"
+
+
+def test_an_older_result_files_pass_without_checks_reads_as_not_checked(tmp_path):
+    """A result written before issue 27 (`PASS (no acceptance limits configured)`, no check) still loads, and the
+    reports and the TUI tell it by today's rule."""
+    old = {"passed": True, "verdict": "pass", "headline": "PASS (no acceptance limits configured)", "worst": None,
+           "checks": []}
+    result = _result()
+    result.verdict, result.residuals = old, {}
+    path = tmp_path / "old.result.json"
+    result.save(path)
+    loaded = CalibrationResult.load(path)
+    assert loaded.verdict == old                                    # kept as stored
+    assert stored_outcome(old) == NOT_CHECKED and stored_headline(old) == "NOT CHECKED (no check ran)"
+    assert "**Verdict: NOT CHECKED (no check ran)**" in markdown_report(loaded)
+    html = html_report(loaded)
+    assert '<span class="notchecked">NOT CHECKED</span>' in html and 'class="pass"' not in html
+    failed = {**old, "passed": False, "headline": "FAIL (1 of 1 checks: quality)",
+              "checks": [{"name": "quality", "passed": False, "text": "quality: P07 left out"}]}
+    assert stored_outcome(failed) == FAIL and stored_headline(failed) == failed["headline"]
+    result.verdict = failed
+    assert "| quality | quality: P07 left out | **FAIL** |" in markdown_report(result)
 
 
 # -- the configuration ------------------------------------------------------------------------------
@@ -186,36 +226,45 @@ FAILING = PASSING.replace("max_sigma = 0.1", "max_sigma = 1e-6")
 
 
 @pytest.mark.parametrize("limits, code", [(PASSING, 0), (FAILING, 4)], ids=["pass", "fail"])
-def test_bench_run_judges_the_result_and_says_so_in_three_lines(tmp_path, limits, code):
-    out = tmp_path / "out"
-    rc, stdout, stderr = cli(["run", "--config", str(_config(tmp_path, limits)), "--out", str(out), "--quiet"])
+def test_bench_run_judges_the_result_and_says_so_in_its_closing_lines(tmp_path, limits, code):
+    out, db = tmp_path / "out", tmp_path / "records.sqlite"
+    rc, stdout, stderr = cli(["run", "--config", str(_config(tmp_path, limits)), "--out", str(out), "--quiet",
+                              "--db", str(db)])
     assert rc == code, stderr
     result_path, report_path = only_file(out, "*.result.json"), only_file(out, "*.report.md")
     lines = stdout.splitlines()
-    assert len(lines) == 3, stdout
+    assert len(lines) == 4, stdout
     result = load_json(result_path)
     verdict = result["verdict"]
     assert list(result)[:3] == ["format", "version", "verdict"]
     checks = {c["name"]: c for c in verdict["checks"]}
     assert set(checks) == {"Kg_x value", "Kg_y value", "Kg_z value", "Kg_x sigma", "Kg_y sigma", "Kg_z sigma",
                            "K0_x change", "K0_y change", "K0_z change", "lost samples", "residual"}
+    assert {c["kind"] for c in verdict["checks"]} == {"acceptance"}
+    html = only_file(out, "*.report.html").read_text(encoding="utf-8")
     if code == 0:
-        assert verdict["passed"] is True and stderr == ""
-        assert lines[0] == "verdict: PASS (11 checks)"
+        assert verdict["passed"] is True and verdict["verdict"] == "pass" and stderr == ""
+        assert lines[0] == "verdict: PASS (11 checks: 11 acceptance)"
+        assert html.count('class="pass"') == 1 and '<span class="pass">PASS</span>' in html
     else:
-        assert verdict["passed"] is False
-        assert lines[0] == "verdict: FAIL (3 of 11 checks: Kg_x sigma, Kg_y sigma, Kg_z sigma)"
+        assert verdict["passed"] is False and verdict["verdict"] == "fail"
+        assert lines[0] == "verdict: FAIL (acceptance: 3 of 11 failed: Kg_x sigma, Kg_y sigma, Kg_z sigma)"
         assert [c["name"] for c in verdict["checks"] if not c["passed"]] == ["Kg_x sigma", "Kg_y sigma", "Kg_z sigma"]
-        assert stderr.startswith("bench run: quality check failed: Kg_x sigma ") and len(stderr.splitlines()) == 1
+        assert stderr.startswith("bench run: verdict FAIL: acceptance limit: Kg_x sigma ")
+        assert len(stderr.splitlines()) == 1
         assert checks["Kg_x sigma"]["limit"] == 1e-6 and checks["Kg_x sigma"]["value"] > 1e-6
+        # issue 27: one verdict, one colour: no green "quality checks passed" under the red FAIL
+        assert '<span class="fail">FAIL</span>' in html and 'class="pass"' not in html
+        assert "passed" not in html.split("<h2>Quality checks</h2>", 1)[1].split("<h2>", 1)[0]
     worst = max(verdict["checks"], key=lambda c: (not c["passed"], c["ratio"]))
-    assert lines[1] == f"worst:   {worst['text']}"
+    assert lines[1] == f"worst:   acceptance limit: {worst['text']}" and verdict["worst"] == lines[1][9:]
     assert lines[2].startswith(f"result:  {result_path}  report: {report_path}, ")
+    assert lines[3] == f"records: {db.absolute()}" and db.is_file()
     report = report_path.read_text(encoding="utf-8")
     first_section = report.split("\n## ", 1)[0]
-    assert f"**Acceptance verdict: {'PASS' if code == 0 else 'FAIL'} " in first_section
-    html = only_file(out, "*.report.html").read_text(encoding="utf-8")
-    assert html.index("Acceptance verdict") < html.index("<h2>Run</h2>")
+    assert f"**Verdict: {lines[0].removeprefix('verdict: ')}**" in first_section
+    assert html.index("<h2>Verdict: ") < html.index("<h2>Run</h2>")
+    assert "Quality checks passed" not in report + html
     assert CalibrationResult.load(result_path).verdict == verdict      # read back
     assert json.loads(result_path.read_text())["coefficients"]["Kg_x"]["unit"] == "counts/s per deg/s"
 
@@ -227,8 +276,8 @@ def test_bench_solve_judges_a_log_by_its_recorded_acceptance_limits(tmp_path):
     run_verdict = load_json(only_file(out, "*.result.json"))["verdict"]
     rc, stdout, stderr = cli(["solve", str(only_file(out, "*.mcap")), "--out", str(tmp_path / "solved"),
                               "--no-html"])
-    assert rc == 4 and "verdict: FAIL (3 of 11 checks: Kg_x sigma, Kg_y sigma, Kg_z sigma)" in stdout
-    assert stderr.startswith("bench solve: quality check failed: Kg_x sigma ")
+    assert rc == 4 and "verdict: FAIL (acceptance: 3 of 11 failed: Kg_x sigma, Kg_y sigma, Kg_z sigma)" in stdout
+    assert stderr.startswith("bench solve: verdict FAIL: acceptance limit: Kg_x sigma ")
     solved = load_json(only_file(tmp_path / "solved", "*.result.json"))["verdict"]
     assert [(c["name"], c["passed"]) for c in solved["checks"]] == [(c["name"], c["passed"])
                                                                    for c in run_verdict["checks"]]

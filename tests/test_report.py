@@ -165,7 +165,7 @@ def test_run_writes_a_self_contained_html_report_with_every_coefficient(run):
     # truth z, residuals, mean per dwell, time series, table angles
     assert w.counts.get("svg") == 5 == html.count("<svg ")
     assert all(len(svg) > 2000 for svg in re.findall(r"<svg .*?</svg>", html, re.S))
-    for heading in ("Run", "Verdict", "Coefficients", "Quality", "Residuals", "IMU outputs and table angles"):
+    for heading in ("Run", "Quality checks", "Coefficients", "Quality", "Residuals", "IMU outputs and table angles"):
         assert f"<h2>{heading}</h2>" in html
     assert run.result.run["run_id"] in html
     assert "The log is damaged" not in html          # the live run read its own log before closing it

@@ -8,6 +8,7 @@ reference of the resume test.
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import shutil
@@ -20,6 +21,7 @@ import numpy as np
 import pytest
 
 import bench
+from bench.cli.run import records_line
 from bench.config.load import parse_config
 from bench.log.reader import read_log
 from bench.model.families import canonical_names, family_of
@@ -73,13 +75,35 @@ def ideal(tmp_path_factory):
         shutil.copy(builtin_path(name), folder / f"{name}.toml")
     config = folder / "bench.toml"
     config.write_text(config_text(positions="optimal-24.toml", rotations="optimal-5s6r.toml"), encoding="utf-8")
-    out = folder / "out"
-    rc, stdout, stderr = cli(["run", "--config", str(config), "--out", str(out), "--quiet", "--operator", OPERATOR])
+    out, db = folder / "out", folder / "records.sqlite"
+    rc, stdout, stderr = cli(["run", "--config", str(config), "--out", str(out), "--quiet", "--operator", OPERATOR,
+                              "--db", str(db)])
     assert rc == 0, stderr
     log = only_file(out, "*.mcap")
     result_path = only_file(out, "*.result.json")
     return SimpleNamespace(config=config, out=out, stdout=stdout, stderr=stderr, log=log, result_path=result_path,
-                           report_path=only_file(out, "*.report.md"), result=load_json(result_path))
+                           report_path=only_file(out, "*.report.md"), result=load_json(result_path), db=db)
+
+
+def test_a_run_without_limits_is_not_checked_everywhere_and_names_its_records_database(ideal):
+    """Issue 27: no acceptance limit, no verification: the verdict is NOT CHECKED, never a (green) PASS, in the
+    closing lines, the result, the Markdown and the HTML report; exit 0; the last line names the database."""
+    lines = ideal.stdout.splitlines()
+    assert lines[0].startswith("verdict: NOT CHECKED (no check ran") and lines[1] == "worst:   no check ran"
+    assert lines[-1] == f"records: {ideal.db.absolute()}" and ideal.db.is_file() and len(lines) == 4
+    verdict = ideal.result["verdict"]
+    assert verdict["verdict"] == "not checked" and verdict["passed"] is False and verdict["checks"] == []
+    markdown = ideal.report_path.read_text(encoding="utf-8")
+    assert f"**Verdict: {lines[0].removeprefix('verdict: ')}**" in markdown and "PASS" not in markdown
+    html = only_file(ideal.out, "*.report.html").read_text(encoding="utf-8")
+    assert '<h2>Verdict: <span class="notchecked">NOT CHECKED</span></h2>' in html
+    assert 'class="pass"' not in html and ">PASS<" not in html
+
+
+def test_the_closing_lines_say_when_a_run_is_not_recorded():
+    assert records_line(argparse.Namespace(no_db=True, db=None)) == "records: not recorded (--no-db)"
+    assert records_line(argparse.Namespace(no_db=False, db="postgresql://u:secret@host/db")) == \
+        "records: postgresql://u:***@host/db"
 
 
 # -- 1. noise off recovers the truth ----------------------------------------------------
@@ -452,7 +476,8 @@ def test_turns_whose_samples_the_imu_flags_over_range_are_left_out_and_named(tmp
     config_path.write_text(text, encoding="utf-8")
     rc, _, stderr = cli(["run", "--config", str(config_path), "--out", str(tmp_path / "out"), "--quiet", "--no-db"])
     assert rc == 4, stderr
-    flagged = [line for line in stderr.split("; quality: ") if "flagged unusable by the IMU (over-range)" in line]
+    flagged = [line for line in stderr.split("; quality check failed: ")
+               if "flagged unusable by the IMU (over-range)" in line]
     assert sorted(line.split(": ")[-2] for line in flagged) == [f"R0{k}" for k in range(1, 7)], stderr
     assert "P0" not in " ".join(flagged)          # the dwells at rest are not flagged, and are used
 

@@ -10,9 +10,14 @@ from types import SimpleNamespace
 
 import pytest
 
+from bench.acceptance.limits import AcceptanceLimits
+from bench.acceptance.verdict import judge
 from bench.cli.common import ExitCode
 from bench.cli.tui import NO_TERMINAL, exit_status
-from bench.tui.session import RunEnd
+from bench.model.result import CalibrationResult
+from bench.plan.events import RunState
+from bench.run.runner import RunOutcome, judged_failures
+from bench.tui.session import RunEnd, run_end_of
 from tests.helpers.run import REPO, config_text
 from tests.helpers.tui import connected, dialog_open, make_app, press, run, start_plan, wait_until
 
@@ -98,3 +103,23 @@ def test_abort_and_quit_exits_3_and_names_the_log(tmp_path, capsys):
     assert log is not None and log.parent == tmp_path and log.suffix == ".mcap" and log.is_file()
     assert capsys.readouterr().err.strip() == (f"bench tui: last run aborted (the operator quit); the table was "
                                                f"stopped. Log: {log}")
+
+
+def test_a_finished_run_ends_by_its_verdict_as_bench_run_says_it():
+    """Issue 27: the TUI ended a run by its raw quality failures: "done" beside a failed acceptance limit, and
+    "quality check failed" for lost samples a limit had judged acceptable."""
+    limits = AcceptanceLimits(max_lost_samples=10)
+    lost = ["IMU link lost samples: 3 lost"]
+
+    def outcome(verdict, failures=()):
+        return RunOutcome(RunState.DONE, Path("/o/r.mcap"), result_path=Path("/o/r.result.json"),
+                          failures=list(failures), verdict=verdict)
+
+    judged = judge(CalibrationResult({}), limits, lost_samples=3, quality_failures=judged_failures(lost, limits))
+    assert run_end_of(outcome(judged, lost)) == ("done", "", "done; verdict PASS; result r.result.json")
+    failing = judge(CalibrationResult({}), AcceptanceLimits(max_lost_samples=0), lost_samples=3)
+    kind, reason, text = run_end_of(outcome(failing))
+    assert kind == "quality" and text == reason == "verdict FAIL: acceptance limit: lost samples 3 > 0 samples"
+    unchecked = judge(CalibrationResult({}), AcceptanceLimits())
+    assert run_end_of(outcome(unchecked))[2] == "done; verdict NOT CHECKED; result r.result.json"
+    assert run_end_of(outcome(None, ["x"]))[:2] == ("quality", "quality check failed: x")

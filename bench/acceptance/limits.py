@@ -7,7 +7,9 @@ overrides its family key by key), in the result's units (`bench.model.families`)
 coefficient in `[acceptance] reference`, the IMU's previous or nominal result file).
 Run-wide: `max_lost_samples` (IMU samples lost on the link), `max_residual_sigma` (largest
 |residual| / sigma of a position or rotation). `[acceptance.verification]`: the largest
-|error| after compensation on the verification plan, per quantity (`VERIFICATION_LIMITS`).
+|error| after compensation on the verification plan, per quantity (`VERIFICATION_LIMITS`), and
+`beyond_uncertainty`: an error beyond its expanded uncertainty U fails the verdict ("fail", the
+default) or is only marked ("warn").
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ from dataclasses import dataclass, field, fields
 VERIFICATION_LIMITS = {"gyro_bias_dph": ("deg/h", 3600.0), "gyro_scale_ppm": ("ppm", 1e6),
                        "gyro_misalignment_arcsec": ("arcsec", 3600.0), "acc_bias_ug": ("ug", 1e6),
                        "acc_scale_ppm": ("ppm", 1e6), "acc_misalignment_arcsec": ("arcsec", 3600.0)}
+#: `[acceptance.verification] beyond_uncertainty`: an error beyond its U fails, or is only marked
+BEYOND_FAIL, BEYOND_WARN = "fail", "warn"
 #: the keys of one family's or coefficient's limits, in the order checks are listed
 COEFFICIENT_KEYS = ("min", "max", "max_sigma", "max_change", "nominal")
 
@@ -56,10 +60,12 @@ class AcceptanceLimits:
     reference_path: str = ""      # the file, attached to the run log (a re-solve elsewhere finds it there)
     #: `[acceptance.verification]`: verification quantity (`gyro_bias_dph`, ...) -> largest |error|
     verification: dict[str, float] = field(default_factory=dict)
+    verification_beyond_uncertainty: str = BEYOND_FAIL
 
     def for_coefficient(self, name: str, family: str) -> CoefficientLimits:
         own = self.coefficients.get(name, CoefficientLimits())
         return own.over(self.families.get(family, CoefficientLimits()))
 
 
-__all__ = ["COEFFICIENT_KEYS", "VERIFICATION_LIMITS", "AcceptanceLimits", "CoefficientLimits"]
+__all__ = ["BEYOND_FAIL", "BEYOND_WARN", "COEFFICIENT_KEYS", "VERIFICATION_LIMITS", "AcceptanceLimits",
+           "CoefficientLimits"]

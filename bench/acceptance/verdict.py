@@ -1,10 +1,16 @@
-"""The verdict of a calibration: every acceptance check with its value and limit, and pass/fail.
+"""The verdict of a calibration: every check with its value and limit, and one of three outcomes.
 
 `judge(result, limits, ...)` checks the result's coefficients against `AcceptanceLimits`,
 the run's lost samples and residuals, and adds the run's quality failures (steps left out,
-damage, outliers: each a failed check). A check's `ratio` says how close it came to its
-limit (|value| / limit; for a range, the distance from its middle over half its width):
-at most 1 passes, and the worst check is the one with the largest ratio (a failed one first).
+damage, outliers, an inconsistent budget: each a failed check of kind "quality") and the
+verification's checks. A check's `ratio` says how close it came to its limit (|value| /
+limit; for a range, the distance from its middle over half its width): at most 1 passes,
+and the worst check is the one with the largest ratio (a failed one first).
+
+The outcome is FAIL when any check failed, PASS when at least one check ran and all passed,
+and NOT CHECKED when none ran (no acceptance limits, no verification, and no quality check
+failed): the quality checks can only fail a result, never pass it, since a run with sound
+data says nothing about whether the IMU meets a specification.
 """
 
 from __future__ import annotations
@@ -16,6 +22,12 @@ from typing import Any, Sequence
 from bench.acceptance.limits import AcceptanceLimits
 from bench.model.families import RESULT_UNITS, canonical_names, family_of
 from bench.model.result import CalibrationResult
+
+#: the three outcomes of a verdict (as the result file stores them: lower case)
+PASS, FAIL, NOT_CHECKED = "PASS", "FAIL", "NOT CHECKED"
+#: the kinds of check: a configured acceptance limit, a quality check of the run, a verification check
+ACCEPTANCE, QUALITY, VERIFICATION = "acceptance", "quality", "verification"
+_KIND_TITLE = {ACCEPTANCE: "acceptance", QUALITY: "quality", VERIFICATION: "verification"}
 
 
 @dataclass(frozen=True)
@@ -30,6 +42,7 @@ class Check:
     ratio: float                    # how close to the limit: <= 1 passes (inf when unknown)
     note: str = ""
     signed: bool = False            # a difference, limited in magnitude: "within/beyond +-limit"
+    kind: str = ACCEPTANCE          # ACCEPTANCE (a configured limit), QUALITY or VERIFICATION
 
     def describe(self) -> str:
         """`Kg_x sigma 0.02 > 0.01 counts/s per deg/s` (one line)."""
@@ -48,10 +61,19 @@ class Check:
             relation = f"{'<=' if self.passed else '>'} {self.limit:.6g}"
         return f"{self.name} {self.value:.6g} {relation}{unit}" + (f" ({self.note})" if self.note else "")
 
+    def labelled(self) -> str:
+        """`describe()` saying what kind of check it is: `acceptance limit: Kg_x sigma ...`, `quality check failed:
+        P07 ...`, `verify gyro scale x ...` (a verification check's name says it)."""
+        if self.kind == ACCEPTANCE:
+            return f"acceptance limit: {self.describe()}"
+        if self.kind == QUALITY:
+            return f"quality check failed: {self.note}"
+        return self.describe()
+
     def to_json(self) -> dict[str, Any]:
         limit: Any = list(self.limit) if isinstance(self.limit, tuple) else self.limit
-        return {"name": self.name, "value": _finite_or_none(self.value), "limit": limit, "unit": self.unit,
-                "passed": self.passed, "ratio": _finite_or_none(self.ratio), "text": self.describe()}
+        return {"name": self.name, "kind": self.kind, "value": _finite_or_none(self.value), "limit": limit,
+                "unit": self.unit, "passed": self.passed, "ratio": _finite_or_none(self.ratio), "text": self.describe()}
 
 
 def _finite_or_none(x: float | None) -> float | None:
@@ -60,13 +82,21 @@ def _finite_or_none(x: float | None) -> float | None:
 
 @dataclass(frozen=True)
 class Verdict:
-    """Pass or fail, with every check."""
+    """PASS, FAIL or NOT CHECKED, with every check."""
 
     checks: list[Check] = field(default_factory=list)
 
     @property
+    def outcome(self) -> str:
+        """FAIL when a check failed, PASS when at least one ran and all passed, else NOT CHECKED."""
+        if self.failed:
+            return FAIL
+        return PASS if self.checks else NOT_CHECKED
+
+    @property
     def passed(self) -> bool:
-        return all(c.passed for c in self.checks)
+        """PASS: at least one check ran and every one passed (NOT CHECKED is not passed)."""
+        return self.outcome == PASS
 
     @property
     def failed(self) -> list[Check]:
@@ -80,26 +110,62 @@ class Verdict:
         return max(self.checks, key=lambda c: (not c.passed, c.ratio if math.isfinite(c.ratio) else math.inf))
 
     def headline(self) -> str:
-        """`PASS (31 checks)` / `FAIL (2 of 31 checks: Kg_x sigma, lost samples)`."""
-        n = len(self.checks)
-        if self.passed:
-            return f"PASS ({n} check{'s' if n != 1 else ''})" if n else "PASS (no acceptance limits configured)"
-        names = [c.name for c in self.failed]
-        shown = ", ".join(names[:6]) + (f", ... ({len(names) - 6} more)" if len(names) > 6 else "")
-        return f"FAIL ({len(names)} of {n} checks: {shown})"
+        """`PASS (31 checks: 30 acceptance, 1 verification)` / `FAIL (acceptance: 2 of 30 failed: Kg_x sigma,
+        lost samples; quality: 1 failed)` / `NOT CHECKED (no acceptance limits configured, no verification)`."""
+        if self.outcome == NOT_CHECKED:
+            return f"{NOT_CHECKED} (no check ran: no acceptance limits configured, no verification)"
+        kinds = [k for k in _KIND_TITLE if any(c.kind == k for c in self.checks)]
+        if self.outcome == PASS:
+            n = len(self.checks)
+            counts = ", ".join(f"{sum(c.kind == k for c in self.checks)} {_KIND_TITLE[k]}" for k in kinds)
+            return f"{PASS} ({n} check{'s' if n != 1 else ''}: {counts})"
+        parts = []
+        for kind in kinds:
+            failed = [c for c in self.failed if c.kind == kind]
+            if not failed:
+                continue
+            total = sum(c.kind == kind for c in self.checks)
+            head = f"{_KIND_TITLE[kind]}: {len(failed)}" + (f" of {total}" if kind != QUALITY else "") + " failed"
+            if kind != QUALITY:         # a quality failure's text is long: the worst line and the report give it
+                names = [c.name for c in failed]
+                head += ": " + ", ".join(names[:6]) + (f", ... ({len(names) - 6} more)" if len(names) > 6 else "")
+            parts.append(head)
+        return f"{FAIL} ({'; '.join(parts)})"
 
     def to_json(self) -> dict[str, Any]:
         worst = self.worst
-        return {"passed": self.passed, "verdict": "pass" if self.passed else "fail", "headline": self.headline(),
-                "worst": worst.describe() if worst else None, "checks": [c.to_json() for c in self.checks]}
+        return {"verdict": self.outcome.lower(), "passed": self.passed, "failed": bool(self.failed),
+                "headline": self.headline(), "worst": worst.labelled() if worst else None,
+                "checks": [c.to_json() for c in self.checks]}
 
 
-def _max_check(name: str, value: float | None, limit: float, unit: str, note: str = "",
-               signed: bool = False) -> Check:
+def stored_outcome(verdict: dict[str, Any]) -> str:
+    """The outcome of a verdict as a result file stores it (`Verdict.to_json`), by the rule above whatever the
+    file says: an older file's `PASS (no acceptance limits configured)` with no check is NOT CHECKED."""
+    checks = [c for c in verdict.get("checks", []) if isinstance(c, dict)]
+    if any(c.get("passed") is not True for c in checks):
+        return FAIL
+    return PASS if checks else NOT_CHECKED
+
+
+def stored_headline(verdict: dict[str, Any]) -> str:
+    """The headline of a stored verdict; one whose words disagree with `stored_outcome` (an older file's)
+    is told by the rule (`NOT CHECKED (no check ran)`)."""
+    outcome = stored_outcome(verdict)
+    headline = verdict.get("headline")
+    if isinstance(headline, str) and headline.split(" (")[0] == outcome:
+        return headline
+    n = len([c for c in verdict.get("checks", []) if isinstance(c, dict)])
+    return f"{outcome} ({n} check{'s' if n != 1 else ''})" if n else f"{NOT_CHECKED} (no check ran)"
+
+
+def max_check(name: str, value: float | None, limit: float, unit: str, note: str = "", signed: bool = False,
+              kind: str = ACCEPTANCE) -> Check:
+    """|value| <= limit (an unknown or not finite value fails)."""
     if value is None or not math.isfinite(value):
-        return Check(name, None, limit, unit, False, math.inf, note or "unknown", signed)
+        return Check(name, None, limit, unit, False, math.inf, note or "unknown", signed, kind)
     ratio = abs(value) / limit if limit > 0 else (0.0 if value == 0 else math.inf)
-    return Check(name, value, limit, unit, abs(value) <= limit, ratio, note, signed)
+    return Check(name, value, limit, unit, abs(value) <= limit, ratio, note, signed, kind)
 
 
 def _range_check(name: str, value: float, low: float, high: float, unit: str) -> Check:
@@ -124,7 +190,7 @@ def coefficient_checks(result: CalibrationResult, limits: AcceptanceLimits) -> l
         if lim.min is not None and lim.max is not None:     # the configuration gives both or neither
             checks.append(_range_check(f"{name} value", c.value, lim.min, lim.max, unit))
         if lim.max_sigma is not None:
-            checks.append(_max_check(f"{name} sigma", c.sigma, lim.max_sigma, unit))
+            checks.append(max_check(f"{name} sigma", c.sigma, lim.max_sigma, unit))
         if lim.max_change is not None:
             reference = lim.nominal if lim.nominal is not None else limits.reference.get(name)
             if reference is None:
@@ -132,7 +198,7 @@ def coefficient_checks(result: CalibrationResult, limits: AcceptanceLimits) -> l
                                     f"not in the reference {limits.reference_name}".rstrip()))
             else:
                 source = "nominal" if lim.nominal is not None else f"reference {limits.reference_name}"
-                checks.append(_max_check(f"{name} change", c.value - reference, lim.max_change, unit,
+                checks.append(max_check(f"{name} change", c.value - reference, lim.max_change, unit,
                                          f"from {source} {reference:.10g}", signed=True))
     return checks
 
@@ -158,15 +224,16 @@ def judge(result: CalibrationResult, limits: AcceptanceLimits, *, lost_samples: 
     and `extra` checks (the verification's)."""
     checks = coefficient_checks(result, limits)
     if limits.max_lost_samples is not None:
-        checks.append(_max_check("lost samples", None if lost_samples is None else float(lost_samples),
+        checks.append(max_check("lost samples", None if lost_samples is None else float(lost_samples),
                                  float(limits.max_lost_samples), "samples",
                                  "" if lost_samples is not None else "not known"))
     if limits.max_residual_sigma is not None:
-        checks.append(_max_check("residual", max_residual_sigma(result), limits.max_residual_sigma, "sigma",
+        checks.append(max_check("residual", max_residual_sigma(result), limits.max_residual_sigma, "sigma",
                                  "largest |residual| / sigma"))
     checks += list(extra)
-    checks += [Check("quality", None, None, "", False, math.inf, text) for text in quality_failures]
+    checks += [Check("quality", None, None, "", False, math.inf, text, kind=QUALITY) for text in quality_failures]
     return Verdict(checks)
 
 
-__all__ = ["Check", "Verdict", "coefficient_checks", "judge", "max_residual_sigma"]
+__all__ = ["ACCEPTANCE", "FAIL", "NOT_CHECKED", "PASS", "QUALITY", "VERIFICATION", "Check", "Verdict",
+           "coefficient_checks", "judge", "max_check", "max_residual_sigma", "stored_headline", "stored_outcome"]

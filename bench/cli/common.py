@@ -37,7 +37,8 @@ class ExitCode(IntEnum):
     USAGE = 2
     #: hardware fault, lost link or aborted (Ctrl-C, e-stop): the table was commanded to stop
     FAULT = 3
-    #: finished, but a quality check failed or the acceptance verdict is fail (the report says which)
+    #: finished, but the verdict is FAIL: a quality check, an acceptance limit or a verification check failed (the
+    #: report says which); a verdict NOT CHECKED (no check ran) is OK, not this
     QUALITY = 4
     #: `bench check-table` on the simulator: the estimate misses the simulated truth by more than 3 sigma
     SIM_TRUTH_MISSED = 5

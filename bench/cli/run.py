@@ -1,9 +1,11 @@
 """`bench run`: an unattended calibration run, on hardware or on the simulator.
 
-Exit codes: 0 done (quality checks passed); 2 usage or configuration error, or the
+Exit codes: 0 done, the verdict PASS or NOT CHECKED (no check ran: no acceptance limits, no
+verification; not a pass, but no error either); 2 usage or configuration error, or the
 table/IMU cannot be reached (nothing moved); 3 hardware fault or aborted (Ctrl-C, e-stop,
 timeout; the table is stopped and the log kept: `--resume LOG` continues it); 4 the run
-finished but a quality check failed (the report says which).
+finished but its verdict is FAIL: a quality check, an acceptance limit or a verification
+check failed (the report says which).
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Run a calibration plan unattended: move through the schedules, record everything to "
                     "MCAP, solve from the log, write result JSON and a report. Exit codes: 0 done, 2 usage or "
                     "configuration error (nothing moved), 3 hardware fault or aborted (table stopped; "
-                    "--resume the log), 4 finished but a quality check failed.")
+                    "--resume the log), 4 finished but the verdict is FAIL (a quality check, an acceptance limit or "
+                    "a verification check failed). A verdict NOT CHECKED (no limits, no verification) exits 0.")
     parser.add_argument("--config", metavar="FILE", help="bench configuration (see bench.example.toml)")
     parser.add_argument("--sim", action="store_true",
                         help="run on the simulator: the built-in simulated bench, or --config's plan and [sim]")
@@ -32,8 +35,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--resume", metavar="LOG", help="continue an interrupted run from its log")
     parser.add_argument("--operator", default="", help="who runs it (recorded in the log)")
     parser.add_argument("--quiet", action="store_true",
-                        help="no progress output (the three-line summary, verdict, worst check and the result and "
-                             "report paths, is always printed)")
+                        help="no progress output (the summary, verdict, worst check, the result and report paths "
+                             "and the records database, is always printed)")
     add_db_options(parser)
     parser.set_defaults(func=cmd_run)
 
@@ -121,21 +124,44 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
     print(run_summary(outcome, verified))
     if outcome.thermal_paths:       # a calibration over temperature: each temperature's result and the model
         print("thermal: " + ", ".join(str(p) for p in outcome.thermal_paths))
-    record_outputs(args, PROG, [outcome.result_path, outcome.log_path])   # after the files: a failure only warns
-    if outcome.verdict is not None and not outcome.verdict.passed:
-        return fail(PROG, "quality check failed: " + "; ".join(c.describe() for c in outcome.verdict.failed),
+    record_outputs(args, PROG, [outcome.result_path, outcome.log_path])   # after the files: a failure warns above
+    print(records_line(args))
+    if outcome.verdict is not None and outcome.verdict.failed:
+        return fail(PROG, "verdict FAIL: " + "; ".join(c.labelled() for c in outcome.verdict.failed),
                     ExitCode.QUALITY)
     return ExitCode.OK
 
 
+def records_line(args: argparse.Namespace) -> str:
+    """`records: FILE-OR-URL`, the records database the run's files went to (`--db`, else the default; a failure
+    to record is the warning line above it), or `records: not recorded (--no-db)`."""
+    if getattr(args, "no_db", False):
+        return "records: not recorded (--no-db)"
+    # imported when the command runs: `bench` starts without SQLAlchemy
+    from sqlalchemy import make_url
+    from sqlalchemy.exc import ArgumentError
+
+    from bench.records.store import database_url
+
+    url = database_url(getattr(args, "db", None))
+    try:
+        parsed = make_url(url)
+        shown = (parsed.database if parsed.get_backend_name() == "sqlite" and parsed.database
+                 else parsed.render_as_string(hide_password=True))
+    except ArgumentError:
+        shown = url
+    return f"records: {shown}"
+
+
 def run_summary(outcome, verified=None) -> str:
-    """Three lines: `verdict: PASS (...)`, `worst:   ...`, `result:  FILE  report: FILE, FILE[  verification: FILE]`."""
+    """Three lines: `verdict: PASS|FAIL|NOT CHECKED (...)`, `worst:   ...`, `result:  FILE  report: FILE, FILE[
+    verification: FILE]` (the fourth, `records: ...`, is printed after recording)."""
     verdict = outcome.verdict
     worst = verdict.worst if verdict is not None else None
     reports = ", ".join(str(p) for p in (outcome.report_path, outcome.html_report_path) if p is not None)
     verification = f"  verification: {verified.md_path}" if verified is not None else ""
     return (f"verdict: {verdict.headline() if verdict is not None else 'none'}\n"
-            f"worst:   {worst.describe() if worst is not None else 'no checks'}\n"
+            f"worst:   {worst.labelled() if worst is not None else 'no check ran'}\n"
             f"result:  {outcome.result_path}  report: {reports}{verification}")
 
 

@@ -1,9 +1,9 @@
 """`bench solve`: re-solve recorded runs from their MCAP logs (logic in `bench.solve.resolve`).
 
-Exit codes: 0 solved (quality checks passed); 2 usage error, a file that cannot be read
-as a run log, a subset the logs lack, or a static noise recording (`bench noise` analyses
-those); 4 solved but a quality check failed (damage, steps left out, outliers; the report
-says which) or nothing left to solve.
+Exit codes: 0 solved, the verdict PASS or NOT CHECKED; 2 usage error, a file that cannot be
+read as a run log, a subset the logs lack, or a static noise recording (`bench noise`
+analyses those); 4 solved but the verdict is FAIL (a quality check: damage, steps left out,
+outliers; or an acceptance limit; the report says which) or nothing left to solve.
 """
 
 from __future__ import annotations
@@ -86,9 +86,9 @@ def _solve_thermal(args: argparse.Namespace, recorded) -> ExitCode:
     logs_solved = [log.path for log in recorded.logs]
     del recorded
     record_outputs(args, PROG, [resolved.result_path, *logs_solved])
-    failures = [c.describe() for c in resolved.verdict.failed]
+    failures = [c.labelled() for c in resolved.verdict.failed]
     if failures:
-        return fail(PROG, "quality check failed: " + "; ".join(failures), ExitCode.QUALITY)
+        return fail(PROG, "verdict FAIL: " + "; ".join(failures), ExitCode.QUALITY)
     return ExitCode.OK
 
 
@@ -190,7 +190,7 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
             if not args.quiet:
                 print(f"verdict: {resolved.verdict.headline()}")
             # the recorded [acceptance] limits judge (they include the quality checks)
-            failures = [c.describe() for c in resolved.verdict.failed]
+            failures = [c.labelled() for c in resolved.verdict.failed]
     if failures:
-        return fail(PROG, "quality check failed: " + "; ".join(failures), ExitCode.QUALITY)
+        return fail(PROG, "verdict FAIL: " + "; ".join(failures), ExitCode.QUALITY)
     return ExitCode.OK

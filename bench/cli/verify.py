@@ -3,10 +3,11 @@
 Runs the verification plan (`[plan] verification`, default the shipped `verify-default`)
 on the configured bench or the simulator, compensates its dwells and turns with the
 calibration and reports the errors in physical units with their expanded uncertainties;
-`[acceptance.verification]` limits make the verdict. `bench run` calls the same
+`[acceptance.verification]` limits and, unless `beyond_uncertainty = "warn"`, each error
+against its U make the verdict (PASS, FAIL, or NOT CHECKED when no check ran). `bench run` calls the same
 `run_verification` after a calibration when `[plan] verification` is set.
 
-Exit codes: 0 done (every verification check passed); 2 usage or configuration error, a
+Exit codes: 0 done (no verification check failed); 2 usage or configuration error, a
 calibration that cannot be used (nothing moved); 3 hardware fault or aborted (table
 stopped); 4 a verification check failed.
 """
@@ -35,8 +36,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Run the verification plan ([plan] verification, default verify-default: positions at 45 deg "
                     "tilts, turns at three rates both ways), compensate it with the calibration and report the "
                     "errors (gyro bias deg/h, scale factor ppm per rate, misalignment arcsec, accelerometer bias ug, "
-                    "scale factor ppm) with expanded uncertainties; [acceptance.verification] limits make the "
-                    "verdict. Exit codes: 0 passed, 2 usage or configuration error (nothing moved), 3 hardware "
+                    "scale factor ppm) with expanded uncertainties; [acceptance.verification] limits and each error "
+                    "against its U (unless beyond_uncertainty = \"warn\") make the verdict. Exit codes: 0 no check "
+                    "failed, 2 usage or configuration error (nothing moved), 3 hardware "
                     "fault or aborted (table stopped), 4 a verification check failed.")
     parser.add_argument("--config", metavar="FILE", help="bench configuration (see bench.example.toml)")
     parser.add_argument("--sim", action="store_true", help="on the simulator (the built-in bench, or --config's)")
@@ -62,9 +64,11 @@ def run_verification(config: BenchConfig, calibration: CalibrationResult, *, cal
     """Run the verification plan and check `calibration` on it: (an exit code after one line when it could not
     be done, None) or (None, the outcome)."""
     # imported when the command runs: `bench` starts without the bench core
+    from bench.acceptance.limits import BEYOND_FAIL
     from bench.calibration.compensation import compensation_of
     from bench.errors import InputError
     from bench.run.runner import BenchRun
+    from bench.solve.inputs import budget_inputs
     from bench.verify.errors import verify_extraction
     from bench.verify.plan import (
         turn_rates,
@@ -77,7 +81,7 @@ def run_verification(config: BenchConfig, calibration: CalibrationResult, *, cal
 
     try:
         compensation = compensation_of(calibration)
-        vconfig = verification_config(config)
+        vconfig = verification_config(config, calibration)
         plan = verification_plan(vconfig)
     except InputError as exc:
         return fail(prog, f"cannot verify: {exc}; the verification did not start", ExitCode.USAGE), None
@@ -94,8 +98,15 @@ def run_verification(config: BenchConfig, calibration: CalibrationResult, *, cal
     if extraction is None:
         state = run.sequencer.state.value if run.sequencer is not None else "failed"
         return fail(prog, f"verification {state}: {error}; table stopped. Log: {run.log_path}", ExitCode.FAULT), None
-    verification = verify_extraction(extraction, turn_rates(plan), compensation, calibration, config.site.site)
-    checks = verification_checks(verification, config.acceptance.verification)
+    # U includes the table's part: the pointing prior the calibration's uncertainty budget uses
+    verification = verify_extraction(extraction, turn_rates(plan), compensation, calibration, config.site.site,
+                                     table=budget_inputs(config, sim).table)
+    limits = config.acceptance
+    checks = verification_checks(verification, limits.verification, limits.verification_beyond_uncertainty)
+    if limits.verification_beyond_uncertainty != BEYOND_FAIL and not all(e.within_uncertainty
+                                                                         for e in verification.errors):
+        verification.notes.append('errors beyond U are marked, not failed ([acceptance.verification] '
+                                  'beyond_uncertainty = "warn")')
     json_path, md_path = write_verification(out_dir, run.run_id, verification, checks, calibration=calibration_label,
                                             schedule=verification_schedule(config).name, log=run.log_path.name)
     return None, VerifyOutcome(verification, checks, json_path, md_path, run.log_path)
@@ -128,8 +139,8 @@ def cmd_verify(args: argparse.Namespace) -> ExitCode:
         print(format_errors(outcome.verification))
     verdict = Verdict(outcome.checks)
     worst = verdict.worst
-    print(f"verdict: {verdict.headline()}\nworst:   {worst.describe() if worst is not None else 'no checks'}\n"
+    print(f"verdict: {verdict.headline()}\nworst:   {worst.describe() if worst is not None else 'no check ran'}\n"
           f"verification: {outcome.json_path}  report: {outcome.md_path}")
-    if not verdict.passed:
+    if verdict.failed:
         return fail(PROG, "verification failed: " + "; ".join(c.describe() for c in verdict.failed), ExitCode.QUALITY)
     return ExitCode.OK

@@ -5,13 +5,21 @@ and `nominal` within the family's value range (`VALUE_RANGES`, result units), `m
 `max` and both or neither; `max_sigma` and `max_change` > 0 and at most the width of that
 range; `max_change` needs a `nominal` or `[acceptance] reference`. `max_lost_samples`
 0..1e9, `max_residual_sigma` > 0 and <= 1e6. `[acceptance.verification]`: the largest |error|
-per verification quantity, > 0 and at most 3600 deg/h, 1e6 ppm, 3600 arcsec or 1e6 ug.
+per verification quantity, > 0 and at most 3600 deg/h, 1e6 ppm, 3600 arcsec or 1e6 ug;
+`beyond_uncertainty` "fail" (default: an error beyond its expanded uncertainty fails) or "warn".
 `reference` is a result file of at most 1 MiB, read and checked here (so a bad one is refused before anything moves).
 """
 
 from __future__ import annotations
 
-from bench.acceptance.limits import COEFFICIENT_KEYS, VERIFICATION_LIMITS, AcceptanceLimits, CoefficientLimits
+from bench.acceptance.limits import (
+    BEYOND_FAIL,
+    BEYOND_WARN,
+    COEFFICIENT_KEYS,
+    VERIFICATION_LIMITS,
+    AcceptanceLimits,
+    CoefficientLimits,
+)
 from bench.config.reader import ConfigError, Table, read_text, show
 from bench.model.families import FAMILY_INFO, canonical_names, family_of
 from bench.model.result import CalibrationResult, ResultFormatError
@@ -40,14 +48,15 @@ def _limits(t: Table, family: str) -> CoefficientLimits:
     return CoefficientLimits(**values)
 
 
-def _verification(t: Table) -> dict[str, float]:
-    v = t.table("verification", VERIFICATION_LIMITS)
+def _verification(t: Table) -> tuple[dict[str, float], str]:
+    """`[acceptance.verification]`: the limits per quantity, and what an error beyond its U does."""
+    v = t.table("verification", (*VERIFICATION_LIMITS, "beyond_uncertainty"))
     out = {}
     for key, (unit, high) in VERIFICATION_LIMITS.items():
         value = v.number(key, None, gt=0, le=high, unit=unit)
         if value is not None:
             out[key] = value
-    return out
+    return out, v.string("beyond_uncertainty", BEYOND_FAIL, choices=(BEYOND_FAIL, BEYOND_WARN))
 
 
 def acceptance_limits(t: Table) -> AcceptanceLimits:
@@ -75,7 +84,7 @@ def acceptance_limits(t: Table) -> AcceptanceLimits:
     limits = AcceptanceLimits(families, coefficients,
                               t.integer("max_lost_samples", None, ge=0, le=MAX_LOST_SAMPLES),
                               t.number("max_residual_sigma", None, gt=0, le=MAX_RESIDUAL_SIGMA, unit="sigma"),
-                              reference, reference_name, reference_path, _verification(t))
+                              reference, reference_name, reference_path, *_verification(t))
     if not reference:
         for name in canonical_names():
             merged = limits.for_coefficient(name, family_of(name))

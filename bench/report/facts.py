@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
+
+from bench.acceptance.verdict import stored_headline, stored_outcome
 
 _RUN_KEYS = ("run_id", "mode", "operator", "started_utc", "finished_utc", "state", "software_version",
              "positions", "rotations", "log")
@@ -132,3 +135,42 @@ def consistency_lines(result) -> list[str] | None:
         out.append(f"{fit}: residuals against the budget's predicted scatter, chi2/dof per axis {ratios} "
                    f"(dof {rows[0].get('dof')}): {verdict}")
     return out
+
+
+@dataclass(frozen=True)
+class VerdictView:
+    """A result's verdict as both reports show it: the outcome word, the headline, the worst check and every
+    check as (kind, text, passed)."""
+
+    outcome: str                    # PASS | FAIL | NOT CHECKED (`stored_outcome`: an older file's by the rule)
+    headline: str
+    worst: str | None
+    checks: list[tuple[str, str, bool]]
+
+
+def verdict_view(verdict: Any) -> VerdictView | None:
+    """The view of a result's `verdict` (None: the result was not judged)."""
+    if not isinstance(verdict, dict):
+        return None
+    checks = [c for c in verdict.get("checks", []) if isinstance(c, dict)]
+    worst = verdict.get("worst")
+    return VerdictView(stored_outcome(verdict), stored_headline(verdict), worst if isinstance(worst, str) else None,
+                       [(_kind(c), str(c.get("text", c.get("name", ""))), c.get("passed") is True) for c in checks])
+
+
+def _kind(check: dict[str, Any]) -> str:
+    """A stored check's kind; an older file's checks have none: told by their names."""
+    kind, name = check.get("kind"), str(check.get("name", ""))
+    if isinstance(kind, str) and kind:
+        return kind
+    return "quality" if name == "quality" else "verification" if name.startswith("verify ") else "acceptance"
+
+
+def quality_findings(verdict: Any, failures: list[str]) -> list[str]:
+    """The run's quality failures as a report lists them: each one the verdict does not count (an [acceptance]
+    limit, `max_lost_samples` or `max_residual_sigma`, judges it instead) says so."""
+    counted = {str(c.get("text")) for c in (verdict.get("checks", []) if isinstance(verdict, dict) else [])
+               if isinstance(c, dict)}
+    judged = isinstance(verdict, dict)
+    return [f if not judged or f"quality: {f}" in counted else f"{f} (judged by its [acceptance] limit instead)"
+            for f in failures]

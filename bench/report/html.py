@@ -19,6 +19,7 @@ from typing import Any, Collection
 import numpy as np
 
 from bench import __version__
+from bench.acceptance.verdict import FAIL, NOT_CHECKED, PASS
 from bench.model.result import CalibrationResult
 from bench.report.compare import (
     Comparison,
@@ -30,7 +31,14 @@ from bench.report.compare import (
     row_outliers,
     truth_z,
 )
-from bench.report.facts import budget_notes, budget_table, consistency_lines, run_facts
+from bench.report.facts import (
+    budget_notes,
+    budget_table,
+    consistency_lines,
+    quality_findings,
+    run_facts,
+    verdict_view,
+)
 from bench.solve.extract import finished_observation_steps
 from drivers.errors import ImuError
 from drivers.imu import ImuLayout, spec_of
@@ -48,6 +56,7 @@ tr.outlier td, tr.changed td { background: #fde2e2; }
 .flag { color: #b00000; font-weight: bold; }
 .pass { color: #17692b; font-weight: bold; }
 .fail { color: #b00000; font-weight: bold; }
+.notchecked { color: #6b5200; font-weight: bold; }
 figure { margin: 1em 0; }
 figure svg { max-width: 100%; height: auto; }
 figcaption { font-size: .85em; color: #555; }
@@ -208,30 +217,35 @@ def _metadata(result: CalibrationResult, log, imu_link, log_still_open: bool) ->
     return "\n".join(html)
 
 
+#: the CSS class of each outcome: green only for a PASS
+_OUTCOME_CLASS = {PASS: "pass", FAIL: "fail", NOT_CHECKED: "notchecked"}
+
+
 def _acceptance(verdict) -> str:
-    """The acceptance verdict, first in the report: headline, worst check, every check."""
-    if not isinstance(verdict, dict):
+    """The verdict, first in the report: PASS, FAIL or NOT CHECKED, headline, worst check, every check."""
+    view = verdict_view(verdict)
+    if view is None:
         return ""
-    passed = verdict.get("passed") is True
-    html = [f'<h2>Acceptance verdict: <span class="{"pass" if passed else "fail"}">{"PASS" if passed else "FAIL"}'
-            "</span></h2>", f"<p>{_e(verdict.get('headline', ''))}</p>"]
-    if verdict.get("worst"):
-        html.append(f"<p>Worst check: {_e(verdict['worst'])}</p>")
-    checks = [c for c in verdict.get("checks", []) if isinstance(c, dict)]
-    if checks:
-        html.append(_table(["check", "result"], [
-            ([_e(str(c.get("text", c.get("name", "")))), "pass" if c.get("passed") is True else "FAIL"],
-             "" if c.get("passed") is True else "fail") for c in checks]))
+    html = [f'<h2>Verdict: <span class="{_OUTCOME_CLASS[view.outcome]}">{_e(view.outcome)}</span></h2>',
+            f"<p>{_e(view.headline)}</p>"]
+    if view.worst:
+        html.append(f"<p>Worst check: {_e(view.worst)}</p>")
+    if view.checks:
+        html.append(_table(["kind", "check", "result"], [
+            ([_e(kind), _e(text), "pass" if passed else "FAIL"], "" if passed else "fail")
+            for kind, text, passed in view.checks]))
     return "\n".join(html)
 
 
-def _verdict(failures, problems) -> str:
-    html = ["<h2>Verdict</h2>"]
+def _verdict(verdict, failures, problems) -> str:
+    """The run's quality checks (each failure is a failed check of the verdict, unless a limit judges it)."""
+    html = ["<h2>Quality checks</h2>"]
     if failures:
-        html.append('<p class="fail">Quality check failed:</p><ul>' + "".join(f"<li>{_e(f)}</li>" for f in failures)
-                    + "</ul>")
+        html.append('<p class="fail">Quality check failed:</p><ul>'
+                    + "".join(f"<li>{_e(f)}</li>" for f in quality_findings(verdict, failures)) + "</ul>")
     else:
-        html.append('<p class="pass">Quality checks passed.</p>')
+        html.append("<p>No quality check failed (they can fail a result, not pass it: the verdict above says whether "
+                    "it was checked).</p>" if isinstance(verdict, dict) else "<p>No quality check failed.</p>")
     if problems:
         html.append("<p>Steps left out or degraded:</p><ul>" + "".join(f"<li>{_e(p)}</li>" for p in problems)
                     + "</ul>")
@@ -417,7 +431,7 @@ def html_report(result: CalibrationResult, *, log=None, layout=None, problems=()
     the log is the live run's, read before it was closed (its missing summary is not damage).
     """
     parts = [_acceptance(result.verdict), _metadata(result, log, imu_link, log_still_open),
-             _verdict(list(failures), list(problems)),
+             _verdict(result.verdict, list(failures), list(problems)),
              _coefficients(result), _budget(result), _quality(result), _residuals(result)]
     if log is not None:
         parts.append(_log_plots(log_series(log, layout)))

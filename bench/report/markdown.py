@@ -30,7 +30,14 @@ from bench.report.compare import (
     row_outliers,
     truth_z,
 )
-from bench.report.facts import budget_notes, budget_table, consistency_lines, run_facts
+from bench.report.facts import (
+    budget_notes,
+    budget_table,
+    consistency_lines,
+    quality_findings,
+    run_facts,
+    verdict_view,
+)
 from bench.report.html import html_report
 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]+")
@@ -59,13 +66,14 @@ def markdown_report(result: CalibrationResult, *, problems: Sequence[str] = (), 
     lines += _markdown_verdict(result.verdict)
     lines += [f"- **{label}**: {md_text(text)}" for label, text in run_facts(run)]
     lines.append("")
-    lines.append("## Verdict")
+    lines.append("## Quality checks")
     lines.append("")
     if failures:
         lines.append("Quality check **failed**:")
-        lines += [f"- {md_text(f)}" for f in failures]
+        lines += [f"- {md_text(f)}" for f in quality_findings(result.verdict, list(failures))]
     else:
-        lines.append("Quality checks passed.")
+        lines.append("No quality check failed (they can fail a result, not pass it: the verdict above says "
+                     "whether it was checked)." if result.verdict is not None else "No quality check failed.")
     lines.append("")
     truth = result.sim_truth
     lines.append("## Coefficients")
@@ -126,17 +134,17 @@ def _markdown_budget(result: CalibrationResult) -> list[str]:
 
 
 def _markdown_verdict(verdict: dict[str, Any] | None) -> list[str]:
-    """The acceptance verdict, first in the report: headline, worst check, every check."""
-    if not isinstance(verdict, dict):
+    """The verdict, first in the report: headline, worst check, every check with its kind."""
+    view = verdict_view(verdict)
+    if view is None:
         return []
-    lines = [f"**Acceptance verdict: {md_text(verdict.get('headline', ''))}**", ""]
-    if verdict.get("worst"):
-        lines += [f"Worst check: {md_text(verdict['worst'])}", ""]
-    checks = [c for c in verdict.get("checks", []) if isinstance(c, dict)]
-    if checks:
-        lines += ["| check | result |", "|---|---|"]
-        lines += [f"| {md_text(c.get('text', c.get('name', '')))} | "
-                  f"{'pass' if c.get('passed') is True else '**FAIL**'} |" for c in checks]
+    lines = [f"**Verdict: {md_text(view.headline)}**", ""]
+    if view.worst:
+        lines += [f"Worst check: {md_text(view.worst)}", ""]
+    if view.checks:
+        lines += ["| kind | check | result |", "|---|---|---|"]
+        lines += [f"| {kind} | {md_text(text)} | {'pass' if passed else '**FAIL**'} |"
+                  for kind, text, passed in view.checks]
         lines.append("")
     return lines
 

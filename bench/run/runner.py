@@ -44,6 +44,7 @@ from bench.solve.from_logs import extract_from_logs, solve_logs
 from bench.solve.inputs import budget_inputs
 from bench.thermal.from_log import ThermalSolution, solve_thermal, write_thermal_files
 from bench.thermal.model import ThermalModel
+from bench.verify.plan import sim_table_record
 from drivers.chamber import Chamber, open_chamber
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.imu.receiver import ImuReceiver
@@ -405,6 +406,7 @@ class BenchRun:
                 "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                 "imu": {"model": identity.model, "serial": identity.serial},
                 "site": config.site.site.to_dict(), "quality_failures": failures,
+                **({"sim": sim_table_record(config)} if self.sim else {}),      # (its verification's table)
                 "imu_link": {**receiver.stats.as_dict(),
                              **(receiver.time_base.as_dict() if receiver.time_base is not None else {})}}
 

@@ -17,6 +17,7 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widgets import DataTable, Label, ProgressBar, RichLog, Sparkline, Static
 
+from bench.acceptance.verdict import stored_headline
 from bench.model.families import family_of
 from bench.model.kinematics import FRAMES
 from bench.model.units import format_hms
@@ -457,7 +458,7 @@ class ResultsPanel(Vertical):
         verdict = result.verdict if isinstance(result.verdict, dict) else None
         if verdict is not None:     # the verdict first: what an operator looks for
             worst = f"; worst: {verdict['worst']}" if verdict.get("worst") else ""
-            head = f"VERDICT {verdict.get('headline', '?')}{worst}\n{head}"
+            head = f"VERDICT {stored_headline(verdict)}{worst}\n{head}"
         warnings = budget_warnings(result)
         if warnings:
             head += "\n" + "; ".join(warnings) + " (Budget tab)"

@@ -42,6 +42,27 @@ from drivers.turntable import FRAMES, AxisMode, Turntable, frame_index
 LINK_DISCONNECTED, LINK_CONNECTING, LINK_CONNECTED, LINK_ERROR = "disconnected", "connecting", "connected", "error"
 
 
+def run_end_of(outcome: RunOutcome) -> tuple[str, str, str]:
+    """How a finished run ends, from what `BenchRun.finish()` returned: (END_* kind, the reason a non-zero exit
+    gives, the line the event log shows). A judged run ends by its verdict, as `bench run` does."""
+    if isinstance(outcome.error, RunAborted):
+        return END_ABORTED, str(outcome.error), f"aborted: {outcome.error}; table stopped. Log: {outcome.log_path.name}"
+    if outcome.error is not None:
+        return (END_FAILED, f"{outcome.error}",
+                f"{outcome.state.value}: {outcome.error}; table stopped. Log: {outcome.log_path.name}")
+    if outcome.verdict is not None and outcome.verdict.failed:
+        text = "verdict FAIL: " + "; ".join(c.labelled() for c in outcome.verdict.failed)
+        return END_QUALITY, text, text
+    if outcome.verdict is None and outcome.failures:         # not judged (a noise recording)
+        text = "quality check failed: " + "; ".join(outcome.failures)
+        return END_QUALITY, text, text
+    if outcome.result_path is not None:
+        verdict = f"verdict {outcome.verdict.outcome}; " if outcome.verdict is not None else ""
+        return END_DONE, "", f"done; {verdict}result {outcome.result_path.name}"
+    text = f"{outcome.state.value}: no result written"       # finish() writes a result whenever the run ended well
+    return END_UNSOLVED, text, text
+
+
 class SessionError(BenchError):
     """An operator command that cannot be done now (says why)."""
 
@@ -446,21 +467,7 @@ class BenchSession:
                 return
             outcome = self.outcome
             result = outcome.result
-            if isinstance(outcome.error, RunAborted):
-                kind, reason = END_ABORTED, str(outcome.error)
-                text = f"aborted: {outcome.error}; table stopped. Log: {outcome.log_path.name}"
-            elif outcome.error is not None:
-                reason = f"{outcome.error}"
-                text = f"{outcome.state.value}: {outcome.error}; table stopped. Log: {outcome.log_path.name}"
-            elif outcome.failures:
-                text = "quality check failed: " + "; ".join(outcome.failures)
-                kind, reason = END_QUALITY, text
-            elif outcome.result_path is not None:
-                text = f"done; result {outcome.result_path.name}"
-                kind = END_DONE
-            else:                               # finish() writes a result whenever the run ended without error
-                text = f"{outcome.state.value}: no result written"
-                kind, reason = END_UNSOLVED, text
+            kind, reason, text = run_end_of(outcome)
             self.buffer.note("info", text)
         except Exception as exc:  # noqa: BLE001 - the operator must see it; the sequencer already stopped the table
             text = f"run error: {type(exc).__name__}: {exc}"

@@ -16,14 +16,17 @@ an ideal table:
   is the **gyro scale-factor error** along the axis (ppm) and the **misalignment** towards
   the two other axes (arcsec, the error of `Eg_Kv`), the bias cancelling between the two.
 
-Every error comes with its expanded uncertainty `U = 2 sqrt(s_meas^2 + s_cal^2)`: the
-verification data's own 1-sigma (dwell standard errors, turn integral sigmas; scaled up by
-the residual scatter) and the calibration's 1-sigma of the coefficient the error measures.
-The turntable's pointing error is not in U (zero on an ideal simulated table).
+Every error comes with its expanded uncertainty `U = 2 sqrt(s_meas^2 + s_cal^2 + s_table^2)`:
+the verification data's own 1-sigma (dwell standard errors, turn integral sigmas; scaled up
+by the residual scatter), the calibration's 1-sigma of the coefficient the error measures,
+and the turntable's part (`bench.verify.table_part`: the pointing prior of the calibration's
+budget pushed through the verification). Without a known prior a note says U leaves the
+table out.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -36,10 +39,12 @@ from bench.model.families import BODY_AXES, SENSOR_AXES
 from bench.model.kinematics import attitude
 from bench.model.observations import PositionObservation, RotationObservation, turn_axis_in_body
 from bench.model.result import CalibrationResult
+from bench.model.table_prior import TablePrior
 from bench.model.units import ARCSEC, DEG, DEG_PER_HOUR, G0, MICRO_G
 from bench.solve.calibrate import pooled_gyro_noise
 from bench.solve.extract import Extraction
 from bench.solve.methods import SolverError, fit_per_sensor, nominal_position_inputs
+from bench.verify.table_part import table_sigmas
 
 #: verification quantity -> (unit, what it is); the keys of `[acceptance.verification]` limits
 QUANTITIES = {
@@ -63,10 +68,12 @@ class VerificationError:
     value: float
     uncertainty: float     # expanded, k = 2
     unit: str
+    table_part: float = 0.0     # the turntable's part of `uncertainty` (expanded, k = 2; 0: not included)
 
     def __post_init__(self) -> None:        # plain floats (numpy scalars in, JSON out)
         object.__setattr__(self, "value", float(self.value))
         object.__setattr__(self, "uncertainty", float(self.uncertainty))
+        object.__setattr__(self, "table_part", float(self.table_part))
 
     @property
     def within_uncertainty(self) -> bool:
@@ -74,7 +81,8 @@ class VerificationError:
 
     def to_json(self) -> dict[str, Any]:
         return {"quantity": self.quantity, "name": self.name, "value": _finite(self.value),
-                "uncertainty": _finite(self.uncertainty), "k": COVERAGE_K, "unit": self.unit,
+                "uncertainty": _finite(self.uncertainty),
+                "table_part": _finite(self.table_part), "k": COVERAGE_K, "unit": self.unit,
                 "within_uncertainty": self.within_uncertainty}
 
 
@@ -88,13 +96,22 @@ class Verification:
 
     errors: list[VerificationError] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    #: where U's turntable part came from (the pointing prior's source); None: U leaves the table out
+    table_source: str | None = None
 
     def of(self, quantity: str) -> list[VerificationError]:
         return [e for e in self.errors if e.quantity == quantity]
 
+    def table_line(self) -> str:
+        """What U says of the turntable, one line: included (from where), or left out and what that means."""
+        if self.table_source is not None:
+            return f"U includes the turntable's pointing error ({self.table_source})"
+        return ("U leaves out the turntable's pointing error (not known: set [table] pointing_accuracy_arcsec or "
+                "[table] check), so an error may exceed U by the table's part")
+
     def to_json(self) -> dict[str, Any]:
         return {"errors": [e.to_json() for e in self.errors], "notes": list(self.notes),
-                "coverage_k": COVERAGE_K}
+                "coverage_k": COVERAGE_K, "table_in_uncertainty": self.table_source, "table": self.table_line()}
 
 
 def _sigma_of(result: CalibrationResult, name: str) -> float:
@@ -225,26 +242,51 @@ def rotation_errors(obs: list[RotationObservation], rates_dps: dict[str, float],
     return errors, notes
 
 
-def verify_extraction(extraction: Extraction, rates_dps: dict[str, float], compensation: Compensation,
-                      calibration: CalibrationResult, site: Site, mounting=None) -> Verification:
-    """All the errors the verification's observations determine (a note for what they cannot)."""
-    out = Verification(notes=list(extraction.problems))
-    if len(extraction.positions) >= 4:
+def _errors(positions: list[PositionObservation], rotations: list[RotationObservation], rates_dps: dict[str, float],
+            compensation: Compensation, calibration: CalibrationResult, site: Site,
+            mounting=None) -> tuple[list[VerificationError], list[str]]:
+    """The errors these dwells and turns determine, and notes on what they cannot."""
+    errors: list[VerificationError] = []
+    notes = []
+    if len(positions) >= 4:
         try:
-            out.errors += position_errors(extraction.positions, compensation, calibration, site, mounting)
+            errors += position_errors(positions, compensation, calibration, site, mounting)
         except SolverError as exc:
-            out.notes.append(f"positions: {exc}: no accelerometer or gyro bias errors")
+            notes.append(f"positions: {exc}: no accelerometer or gyro bias errors")
     else:
-        out.notes.append(f"{len(extraction.positions)} positions: at least 4 are needed for the accelerometer "
-                         "and gyro bias errors")
-    if extraction.rotations:
-        density = pooled_gyro_noise(extraction.positions)
-        errors, notes = rotation_errors(extraction.rotations, rates_dps, compensation, calibration, site, mounting,
-                                        density)
-        out.errors += errors
-        out.notes += notes
+        notes.append(f"{len(positions)} positions: at least 4 are needed for the accelerometer and gyro bias errors")
+    if rotations:
+        density = pooled_gyro_noise(positions)
+        turn_errors, turn_notes = rotation_errors(rotations, rates_dps, compensation, calibration, site, mounting,
+                                                  density)
+        errors += turn_errors
+        notes += turn_notes
     else:
-        out.notes.append("no turns: no gyro scale-factor or misalignment errors")
+        notes.append("no turns: no gyro scale-factor or misalignment errors")
+    return errors, notes
+
+
+def verify_extraction(extraction: Extraction, rates_dps: dict[str, float], compensation: Compensation,
+                      calibration: CalibrationResult, site: Site, mounting=None,
+                      table: TablePrior | None = None) -> Verification:
+    """All the errors the verification's observations determine (a note for what they cannot); with `table`
+    (the turntable's pointing prior, as the calibration's budget has it) each U includes the table's part
+    (`bench.verify.table_part`), without it a note says that U leaves the table out."""
+    errors, notes = _errors(extraction.positions, extraction.rotations, rates_dps, compensation, calibration, site,
+                            mounting)
+    out = Verification(notes=list(extraction.problems) + notes)
+    if table is None:
+        out.errors = errors
+        return out
+
+    def errors_of(positions: list[PositionObservation], rotations: list[RotationObservation]) -> dict[str, float]:
+        found, _ = _errors(positions, rotations, rates_dps, compensation, calibration, site, mounting)
+        return {e.name: e.value for e in found}
+
+    sigmas = table_sigmas(extraction, rates_dps, calibration, site, table, errors_of, mounting)
+    out.errors = [dataclasses.replace(e, uncertainty=math.hypot(e.uncertainty, COVERAGE_K * sigmas.get(e.name, 0.0)),
+                                      table_part=COVERAGE_K * sigmas.get(e.name, 0.0)) for e in errors]
+    out.table_source = table.source
     return out
 
 
