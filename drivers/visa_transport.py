@@ -60,7 +60,7 @@ class VisaTransport:
     def open(self) -> None:
         self.close()
         try:
-            import pyvisa
+            import pyvisa  # optional extra: only a visa:// URL needs it
         except ImportError as exc:
             raise TurntableConfigError("visa:// URLs need pyvisa (pip install 'turntable-bench[visa]')") from exc
         try:
@@ -88,7 +88,7 @@ class VisaTransport:
         return self._inst
 
     def write(self, data: bytes) -> None:
-        import pyvisa
+        import pyvisa  # optional extra: imported by open() already
 
         inst = self._require()
         try:
@@ -98,13 +98,15 @@ class VisaTransport:
             raise ConnectionError(f"write to {self.url} failed: {exc}") from exc
 
     def read(self, max_bytes: int, timeout_s: float) -> bytes:
+        # optional extra: imported by open() already
         import pyvisa
         from pyvisa import constants
 
         inst = self._require()
         try:
             inst.timeout = max(1, round(timeout_s * 1000))
-            data, _status = inst.visalib.read(inst.session, max_bytes)
+            with inst.ignore_warning(constants.StatusCode.success_max_count_read):   # a whole frame asked for
+                data, _status = inst.visalib.read(inst.session, max_bytes)
         except pyvisa.VisaIOError as exc:
             if exc.error_code == constants.StatusCode.error_timeout:
                 return b""

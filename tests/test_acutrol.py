@@ -27,6 +27,7 @@ from tests.helpers.exchange import Exchange
 ABS = b":LIM:ABS? 1;:LIM:ABS? 2;:LIM:ABS? 3\n"
 FACTORY = "200.0,50.0,5000.0,-170.0,170.0,240.0,10.0"
 OK = b"\x00\x00\x00\x00\x00\x00\x00\x00\x00"       # error code 0, no text, NUL
+CLOSED = b"\x00\x00\x00\x00\x05\x00\x00\x00Close\x00"
 
 
 def frame(text: str = "", code: int = 0) -> bytes:
@@ -50,10 +51,10 @@ STATE_QUERY = (b":READ:POS? 1;:READ:POS? 2;:READ:POS? 3;:READ:RATE? 1;:READ:RATE
 def test_every_command_is_one_message_confirmed_by_its_framed_response():
     table, ex = client([
         (b":MODE:OFF 1;:MODE:OFF 2;:MODE:OFF 3;:INT:CLOS 1;:INT:CLOS 2;:INT:CLOS 3\n", OK),
-        (b":MODE:POS 1\n", OK),
-        (b":MODE:POS 3\n", OK),
+        (b":MODE:POS 1;:INT? 1\n", CLOSED),
+        (b":MODE:POS 3;:INT? 3\n", CLOSED),
         (b":LIM:RATE P,1,20.000000;:DEM:POS 1,90.000000;:LIM:RATE P,3,20.000000;:DEM:POS 3,-10.500000\n", OK),
-        (b":DEM:RATE 2,0.000000;:MODE:RATE 2\n", OK),
+        (b":DEM:RATE 2,0.000000;:MODE:RATE 2;:INT? 2\n", CLOSED),
         (b":DEM:RATE 2,-10.500000\n", OK),
         (b":MODE:OFF 1;:MODE:OFF 2;:MODE:OFF 3\n", OK),
         (b":INT:RES\n", OK),
@@ -69,8 +70,8 @@ def test_every_command_is_one_message_confirmed_by_its_framed_response():
 
 
 def test_long_mnemonics_on_request():
-    table, ex = client([(b":DEMAND:RATE 1,0.000000;:MODE:RATE 1\n", OK), (b":DEMAND:RATE 1,5.000000\n", OK)],
-                       long_form=True)
+    table, ex = client([(b":DEMAND:RATE 1,0.000000;:MODE:RATE 1;:INTERLOCK? 1\n", CLOSED),
+                        (b":DEMAND:RATE 1,5.000000\n", OK)], long_form=True)
     with ex:
         table.set_rate(0, 5.0)
 
@@ -126,6 +127,14 @@ def test_garbage_instead_of_a_frame_is_retried_then_refused():
     with ex, pytest.raises(TurntableProtocolError):
         table.read_state()
     assert table.stats.protocol_errors == 3
+
+
+def test_no_demand_goes_to_an_axis_that_is_not_servoed():
+    table, ex = client([(b":MODE:POS 2;:INT? 2\n", frame("Open")),
+                        (STATE_QUERY, frame("0;0;0;0;0;0;Off;Position;Off;Close;Open;Close;0;0;0;0;0;0"))])
+    with ex, pytest.raises(TurntableCommandError, match="refused: middle axis not enabled") as info:
+        table.move_to([None, 10.0, None])
+    assert info.value.code == ac.NOT_SERVOED
 
 
 def test_silence_is_a_timeout():

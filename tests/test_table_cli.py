@@ -64,7 +64,8 @@ def _fault(proc: subprocess.Popen, command: str) -> str:
 
 
 @pytest.mark.parametrize("simulator", [("scpi", "tcp://127.0.0.1:0"), ("mn", "pty"),
-                                       ("modbus", "modbus+tcp://127.0.0.1:0")], indirect=True)
+                                       ("modbus", "modbus+tcp://127.0.0.1:0"), ("acutrol", "tcp://127.0.0.1:0"),
+                                       ("acutrol", "pty")], indirect=True)
 def test_operator_session_against_the_served_simulator(simulator, capsys, monkeypatch):
     proc, dialect, url = simulator
     base = ["table", "--url", url, "--dialect", dialect, "--timeout-s", "0.5"]

@@ -62,7 +62,7 @@ DYN_HIGH_LIMIT = 1 << 6         # A(n)DYN
 DYN_LOW_LIMIT = 1 << 7
 DYN_POSITION_COMPLETE = 1 << 8
 DYN_RATE_COMPLETE = 1 << 9
-STB_SI, STB_ACP, STB_MSS, STB_EQ = 1 << 0, 1 << 1, 1 << 6, 1 << 7
+STB_SI, STB_MSS, STB_EQ = 1 << 0, 1 << 6, 1 << 7
 
 
 def acl_error_code(sim_code: int) -> int:
@@ -220,15 +220,13 @@ class AcutrolSimHandler:
             for k in range(3):
                 bits |= (1 << (2 + 2 * k)) if self._interlock_bits(k, frame) else 0
             return bits
-        if name == "ACP":
-            return sum(1 << (k + 1) for k in range(3) if self._interlock_bits(k, frame))
-        if name in ("SUP", "RI", "G2INTLK"):
+        if name in ("ACP", "SUP", "RI", "G2INTLK"):    # no ACP procedure errors, supervisor or interface faults
             return 0
         raise ac.AclError(ac.OUT_OF_RANGE, f"no status register {name}")
 
     def _status_byte(self, frame: list[_Frame]) -> int:
-        stb = (STB_SI if self._register("SI", frame) else 0) | (STB_ACP if self._register("ACP", frame) else 0)
-        stb |= STB_EQ if self.errors else 0
+        # an interlock fault alone reads 65 (summary and SI), the manual's example and what a real client tests for
+        stb = (STB_SI if self._register("SI", frame) else 0) | (STB_EQ if self.errors else 0)
         return stb | (STB_MSS if stb else 0)
 
     # -- queries -----------------------------------------------------------------------------------------------

@@ -147,9 +147,16 @@ class AcutrolTurntable(LineTurntable):
         return TurntableCommandError(f"acutrol controller refused {command!r}: {why} (error {code})", code)
 
     def _raise_queued(self, sent: bytes) -> None:
-        """GPIB framing: the oldest error-queue entry, raised as the refusal of `sent` ('' = none)."""
-        entry = self._transact(self._unit("STATUS:MSG", "QERROR", query=True).encode("ascii"),
-                               lambda line: line.decode("ascii", "replace").strip())
+        """GPIB framing: the oldest error-queue entry, raised as the refusal of `sent`. The status byte is asked in
+        the same message so that the answer is never an empty line (an empty queue answers an empty string)."""
+        ask = ac.message(self._unit("STATUS:MSG", "QERROR", query=True), self._unit("STATUS:STB", query=True))
+
+        def parse(line: bytes) -> str:
+            entry, _, stb = line.decode("ascii", "replace").rpartition(";")
+            ac.decode_register(stb, "status byte", line)
+            return entry.strip()
+
+        entry = self._transact(ask, parse)
         if entry:
             code_text, _, text = entry.partition(",")
             code = int(code_text) if code_text.strip().lstrip("-").isdigit() else None
@@ -195,10 +202,19 @@ class AcutrolTurntable(LineTurntable):
 
     def _set_mode(self, frame: int, mode: AxisMode) -> None:
         k = frame + 1
-        if mode is AxisMode.RATE:      # entered at zero rate: a rate demand left from before must not apply
-            self._exchange([self._unit("DEMAND:RATE", k, 0.0), self._unit("MODE:RATE", k)])
-        else:
-            self._exchange([self._unit("MODE:POSITION" if mode is AxisMode.POSITION else "MODE:OFF", k)])
+        if mode is AxisMode.OFF:
+            self._exchange([self._unit("MODE:OFF", k)])
+            return
+        # rate mode is entered at zero rate: a rate demand left from before must not apply
+        units = ([self._unit("DEMAND:RATE", k, 0.0), self._unit("MODE:RATE", k)] if mode is AxisMode.RATE
+                 else [self._unit("MODE:POSITION", k)])
+        # ACL takes modes and demands on an axis that is not servoed (they apply when it is): the interlock state,
+        # asked in the same message, stops a demand that would not move the table (or move it later, unasked)
+        interlock = self._exchange(units + [self._unit("INTERLOCK", k, query=True)],
+                                   lambda text, raw: ac.decode_interlock(text, raw))
+        if interlock != "Close":
+            raise TurntableCommandError(f"acutrol controller: {FRAMES[frame]} axis not servoed (interlock "
+                                        f"{interlock}), nothing demanded", ac.NOT_SERVOED)
 
     def _demand_positions(self, targets: dict[int, float], rate_dps: dict[int, float]) -> None:
         units = []
