@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+from pathlib import Path
 
 import pytest
 
@@ -325,3 +326,20 @@ def test_serve_acutrol_gives_urls_and_closes():
             assert driver.read_state().modes == (AxisMode.OFF,) * 3
     finally:
         server.close()
+
+
+def test_the_pages_example_session_is_what_the_simulator_sends(sim):
+    """drivers/ACUTROL.md, "Example session": each response's code, length and text as the simulator frames them."""
+    controller, _, _ = sim
+    handler = AcutrolSimHandler(controller)
+    page = (Path(__file__).parent.parent / "drivers" / "ACUTROL.md").read_text()
+    block = page.split("## Example session")[1].split("```")[1].strip().splitlines()
+    assert len(block) == 8
+    for request, response in zip(block[0::2], block[1::2]):
+        sent = request.removeprefix("host -> ").removesuffix("\\n").encode("ascii") + b"\n"
+        code, length, *rest = [part.strip() for part in response.removeprefix("ctl  -> ").split(" | ")]
+        got = handler(sent) or b""
+        assert got[:4].hex(" ") == code and got[4:8].hex(" ") == length, request
+        text = rest[0] if len(rest) == 2 else ""
+        body = got[8:-1].decode("ascii")
+        assert body.startswith(text.removesuffix("...")) and got.endswith(b"\0")
