@@ -168,7 +168,8 @@ def cmd_table(args: argparse.Namespace) -> ExitCode:
     except (TurntableConfigError, ConfigError) as exc:
         return fail(prog, f"{exc}", ExitCode.USAGE)
     return drive_device(prog, table, lambda: _run_table_command(table, args), errors=TurntableError,
-                        refused=(TurntableLimitError,), unreachable="cannot reach the controller",
+                        refused=(TurntableLimitError,), refused_at_connect=(TurntableLimitError,),
+                        unreachable="cannot reach the controller",
                         make_safe=lambda: _stop_table(table), note_faults=False)
 
 
