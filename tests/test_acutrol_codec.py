@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from drivers.errors import TurntableProtocolError
 from drivers.turntable import acutrol_codec as ac
@@ -214,3 +216,21 @@ def test_the_client_encodes_short_and_long_forms():
         assert len(parsed(text.encode())) == 1          # what the client sends, the controller side takes
     with pytest.raises(ValueError):
         ac.unit("DEMAND:SPEED", 1, 2.0)
+
+
+def _spellings(word: str, node: tuple[str, ...]) -> st.SearchStrategy[str]:
+    """Any spelling the codec must take for `word` under `node`: a leading part fitting only it, in any case."""
+    shortest = next(n for n in range(1, len(word) + 1) if ac.resolve(node, word[:n]) == word)
+    return st.integers(shortest, len(word)).flatmap(
+        lambda n: st.lists(st.booleans(), min_size=n, max_size=n).map(
+            lambda upper: "".join(c if u else c.lower() for c, u in zip(word[:n], upper))))
+
+
+@given(st.sampled_from([("DEMAND", "POSITION"), ("DEMAND", "RATE"), ("DEMAND", "DELTAPOSITION")]).flatmap(
+           lambda path: st.tuples(st.just(path), _spellings(path[0], ()), _spellings(path[1], path[:1]))),
+       st.integers(1, 3), st.floats(-1e6, 1e6, allow_nan=False), st.booleans())
+def test_any_spelling_of_a_demand_parses_to_the_value_sent(spelled, axis, value, colon):
+    path, first, second = spelled
+    text = f"{':' if colon else ''}{first}:{second} {axis},{ac.format_number(value)}"
+    [unit] = parsed(text.encode())
+    assert unit.path == path and unit.args[0] == axis and abs(unit.args[1] - value) <= 5e-7

@@ -2,7 +2,7 @@
 
 Both ways, no I/O. The controller side parses a program message into units (`parse_message`)
 and formats responses (`frame_response`, `format_number`); the client side encodes units
-(`unit`) and decodes responses (`read_framed`/`parse_framed`, `split_responses`, `decode_*`).
+(`unit`) and decodes responses (`frame_size`, `parse_framed`, `split_responses`, `decode_*`).
 
 Syntax (TM-8004 ch. 2): a unit is a header of colon-separated mnemonics, optionally a `?`,
 then white space and comma-separated arguments. A header that starts with `:` starts at the
@@ -24,7 +24,6 @@ import math
 import re
 import struct
 from dataclasses import dataclass
-from typing import Callable
 
 from drivers.errors import TurntableProtocolError, quote_bytes
 from drivers.turntable.base import AxisMode
@@ -397,19 +396,6 @@ def parse_framed(frame: bytes) -> Response:
     return Response(code, text_bytes.decode("ascii").rstrip("\r\n"))
 
 
-def read_framed(read_exactly: Callable[[int], bytes | None]) -> bytes | None:
-    """Read one framed response with `read_exactly(n)` (None: nothing came in time); a header that cannot
-    start a frame is returned as it is for `parse_framed` to refuse (so garbage never grows a buffer)."""
-    head = read_exactly(HEADER.size)
-    if head is None:
-        return None
-    size = frame_size(head)
-    if size is None:
-        return head
-    rest = read_exactly(size - HEADER.size)
-    return head if rest is None else head + rest
-
-
 def split_responses(text: str, count: int, what: str, raw: bytes | None = None) -> list[str]:
     """The `count` query responses of one message (joined by ';') -> their texts."""
     fields = text.split(";") if text or count != 1 else [text]     # one empty response is a response
@@ -503,4 +489,4 @@ def message(*units: str) -> bytes:
 
 __all__ = ["AbsoluteLimits", "AclError", "Response", "Spec", "Unit", "decode_absolute_limits", "decode_interlock",
            "decode_mode", "decode_number", "decode_register", "format_number", "frame_response", "message",
-           "parse_framed", "parse_message", "read_framed", "resolve", "resolve_mode", "split_responses", "unit"]
+           "frame_size", "parse_framed", "parse_message", "resolve", "resolve_mode", "split_responses", "unit"]
