@@ -343,3 +343,28 @@ def test_the_pages_example_session_is_what_the_simulator_sends(sim):
         text = rest[0] if len(rest) == 2 else ""
         body = got[8:-1].decode("ascii")
         assert body.startswith(text.removesuffix("...")) and got.endswith(b"\0")
+
+
+def test_gpib_framing_answers_queries_only_and_errors_come_from_the_queue():
+    """IEEE-488 framing (`--acl-framing gpib`): commands are answered by nothing, queries by text and LF; the client
+    confirms a command with the error queue and the status byte."""
+    clock = ManualClock()
+    controller = SimController(clock=clock)
+    handler = AcutrolSimHandler(controller, framing="gpib")
+    assert handler(b"*CLS\n") is None and handler(b":M? 1;:M? 2\n") == b"Off;Off\n"
+    assert handler(b":Demand:Posn 3,10.5\n") is None                    # refused: queued, not answered
+    assert handler(b":STAT:MSG? QERROR;:STAT:STB?\n") == (
+        b"1,\"Command not recognized: 'Posn' is not a command under DEMAND\";0\n")
+    server = LineServer(handler)
+    try:
+        host, port = server.listen_tcp()
+        with open_turntable(f"tcp://{host}:{port}", "acutrol", framing="gpib", clock=clock, timeout_s=0.3) as driver:
+            driver.enable()
+            driver.move_to([10.0, None, None], rate_dps=50.0)
+            assert driver.wait_in_position([10.0, None, None], timeout_s=30.0).angles_deg[0] == pytest.approx(10.0)
+            controller.trip_estop()
+            with pytest.raises(TurntableCommandError, match="':INT:RES': Interlock fault latched"):
+                driver.reset_faults()
+            assert driver.read_errors() == []                           # the client read the entry it raised
+    finally:
+        server.close()

@@ -15,7 +15,7 @@ string, amplifier acknowledge, master interlock: the fault console's `limit`, `f
 opens the servo, freezes the interlock state at `Fault` and refuses Interlock:Close until
 Interlock:Reset (TM-9385A 3.2, 5.1).
 
-Wire faults (`controller.faults`), once per response: timeout (executed, nothing sent), garbage
+Wire faults (`controller.faults`, tcp framing), once per response: timeout (executed, nothing sent), garbage
 (junk instead of the frame), checksum (ACL has none: the error code's top byte is corrupted, so
 the frame cannot be read), exception (not executed, answered with `exception_code` mapped below),
 late (sent just before the next response).

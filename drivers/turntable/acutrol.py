@@ -23,6 +23,7 @@ from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import (
     TurntableCommandError,
     TurntableConfigError,
+    TurntableConnectionError,
     TurntableLimitError,
     TurntableProtocolError,
     TurntableTimeout,
@@ -132,7 +133,7 @@ class AcutrolTurntable(LineTurntable):
                 return parse(response.text, frame) if parse is not None else None
             return self._transact(sent, parse_frame)
         if parse is None:
-            self.channel.write_line(sent, self.terminator)
+            self._write_command(sent)
             self._raise_queued(sent)
             return None
         try:
@@ -140,6 +141,31 @@ class AcutrolTurntable(LineTurntable):
         except TurntableTimeout:
             self._raise_queued(sent)        # a refused query is not answered: the error queue says why
             raise
+
+    def _write_command(self, sent: bytes) -> None:
+        """GPIB framing: a message that gets no answer, sent on a link reopened once if it was lost."""
+        for attempt in range(2):
+            try:
+                if not self.transport.is_open:
+                    self.stats.reconnects += 1
+                    self._open()
+                self.channel.write_line(sent, self.terminator)
+                return
+            except TurntableConnectionError:
+                raise
+            except ConnectionError as exc:
+                self.transport.close()
+                if attempt:
+                    raise TurntableConnectionError(f"acutrol link {self.url} lost: {exc}") from exc
+
+    def _open(self) -> None:
+        super()._open()
+        if self.framing == "gpib":      # errors left on the queue by another host must not be taken for ours
+            try:
+                self.channel.write_line(b"*CLS", self.terminator)
+            except ConnectionError as exc:
+                self.transport.close()
+                raise TurntableConnectionError(f"acutrol: {exc}") from exc
 
     def _refusal(self, sent: bytes, code: int, text: str) -> TurntableCommandError:
         why = text or ac.ERROR_TEXT.get(code, f"error {code}")
@@ -274,9 +300,20 @@ class AcutrolTurntable(LineTurntable):
         return ac.decode_register(self._query("STATUS:STB", what="status byte"), "status byte")
 
     def read_errors(self) -> list[str]:
-        """Every entry of the controller's error queue (`:STAT:MSG? QERROR,ALL`), oldest first; the queue empties."""
-        text = self._query("STATUS:MSG", "QERROR", "ALL", what="error queue")
-        return [entry for entry in text.split(";") if entry] if text else []
+        """Every entry of the controller's error queue (`:STAT:MSG? QERROR,ALL;:STAT:STB?`), oldest first; the queue
+        empties."""
+        # the status byte comes along so that an empty queue is never an empty answer (an empty line on GPIB)
+        units = [self._unit("STATUS:MSG", "QERROR", "ALL", query=True), self._unit("STATUS:STB", query=True)]
+
+        def parse(text: str, raw: bytes) -> list[str]:
+            entries, _, stb = text.rpartition(";")
+            ac.decode_register(stb, "status byte", raw)
+            return [entry for entry in entries.split(";") if entry]
+
+        with self._lock:
+            found = self._exchange(units, parse)
+        assert found is not None
+        return found
 
 
 def merge_limits(configured: TurntableLimits, absolute: Sequence[ac.AbsoluteLimits]) -> TurntableLimits:
