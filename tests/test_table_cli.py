@@ -312,6 +312,9 @@ def test_acutrol_refusals_are_one_line_naming_the_command_and_the_controllers_te
                                     "absolute limit 200.0 deg/s" in err, err
     with open_turntable(url, dialect, timeout_s=1.0) as table:
         assert not any(axis.enabled for axis in table.read_state().axes)
+        assert main(base + ["enable", "outer"]) == 0
+        assert main(base + ["disable", "outer"]) == 0
+        assert "outer" in capsys.readouterr().out and not table.read_state().axes[0].enabled
         assert main(base + ["enable"]) == 0
         capsys.readouterr()
         table.set_rate("inner", 20.0)
