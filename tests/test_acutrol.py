@@ -6,6 +6,8 @@ import threading
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bench.sim.acutrol_server import AcutrolSimHandler, serve_acutrol
 from bench.sim.controller import SimController
@@ -368,3 +370,15 @@ def test_gpib_framing_answers_queries_only_and_errors_come_from_the_queue():
             assert driver.read_errors() == []                           # the client read the entry it raised
     finally:
         server.close()
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.one_of(st.binary(max_size=120),
+                 st.lists(st.sampled_from([":", ";", ",", "?", " ", "*", "D", "dem", "POS", "1", "3", "-2.5e3",
+                                           "MODE", "int", "ALL", "R", "#14", '"', "STAT:CSR", "A1INTLK", "P"]),
+                          max_size=14).map(lambda parts: "".join(parts).encode())))
+def test_the_simulator_answers_any_message_with_one_well_formed_frame(message):
+    handler = AcutrolSimHandler(SimController(clock=ManualClock()))
+    response = ac.parse_framed(handler(message) or b"")
+    assert response.code in ac.ERROR_TEXT
+    assert (response.code == ac.NO_ERROR) == (not handler.errors)
