@@ -382,3 +382,19 @@ def test_the_simulator_answers_any_message_with_one_well_formed_frame(message):
     response = ac.parse_framed(handler(message) or b"")
     assert response.code in ac.ERROR_TEXT
     assert (response.code == ac.NO_ERROR) == (not handler.errors)
+
+
+def test_moves_and_rate_changes_follow_the_modes_acceleration_limits(sim):
+    controller, clock, _ = sim
+    handler = AcutrolSimHandler(controller)
+    assert handler(b":LIM:ACC P,1,10;ACC R,1,20;ACC O,1,5;:INT:CLOS 1;:MODE:POS 1;:DEM:POS 1,90\n") == OK
+    clock.advance(0.5)
+    assert ac.parse_framed(handler(b":READ:ACC? 1\n") or b"").text == "10.000000"
+    clock.advance(60.0)
+    assert handler(b":MODE:RATE 1;:DEM:RATE 1,30\n") == OK
+    clock.advance(0.5)
+    assert ac.parse_framed(handler(b":READ:ACC? 1\n") or b"").text == "20.000000"
+    clock.advance(5.0)
+    assert handler(b":MODE:OFF 1\n") == OK                         # Off: to zero rate at the Off mode's limit
+    clock.advance(0.5)
+    assert ac.parse_framed(handler(b":R:A? 1;R? 1\n") or b"").text == "-5.000000;27.500000"

@@ -338,9 +338,11 @@ class AcutrolSimHandler:
                 self._apply_rate_mode(k)
 
     def _apply_rate_mode(self, k: int) -> None:
+        """Rate mode at its demand, or Off: zero rate, reached at the mode's acceleration limit (4.6.8)."""
         ctl, acl = self.controller, self.axes[k]
         ctl.set_mode(k, AxisMode.RATE)
-        ctl.demand_rate(k, acl.rate_demand_dps if acl.mode == "Rate" else 0.0)
+        mode = "Rate" if acl.mode == "Rate" else "Off"
+        ctl.demand_rate(k, acl.rate_demand_dps if mode == "Rate" else 0.0, self.accel_limit[(mode, k)])
 
     def _set_mode(self, k: int, mode: str) -> None:
         acl = self.axes[k]
@@ -367,7 +369,7 @@ class AcutrolSimHandler:
                 raise ac.AclError(ac.OUT_OF_RANGE, f"rate {value} beyond the rate limit {limit}")
             acl.rate_demand_dps = value
             if acl.mode == "Rate" and self._servoed(k):
-                self.controller.demand_rate(k, value)
+                self.controller.demand_rate(k, value, self.accel_limit[("Rate", k)])
             return
         target = value if name == "POSITION" else acl.position_demand_deg + value
         low, high = self.low_limit[("Position", k)], self.high_limit[("Position", k)]
@@ -383,7 +385,9 @@ class AcutrolSimHandler:
             acl.position_pending = True
 
     def _move(self, k: int, target_deg: float) -> None:
-        self.controller.demand_position(k, target_deg, self.rate_limit[("Position", k)])
+        """A profiled move at the position mode's rate and acceleration limits (4.7.4)."""
+        self.controller.demand_position(k, target_deg, self.rate_limit[("Position", k)],
+                                        self.accel_limit[("Position", k)])
 
     def _set_limit(self, name: str, mode: str, k: int, value: float) -> None:
         absolute = self.absolute[k]
