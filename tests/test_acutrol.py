@@ -57,8 +57,11 @@ def test_every_command_is_one_message_confirmed_by_its_framed_response():
         (b":MODE:POS 1;:INT? 1\n", CLOSED),
         (b":MODE:POS 3;:INT? 3\n", CLOSED),
         (b":LIM:RATE P,1,20.000000;:DEM:POS 1,90.000000;:LIM:RATE P,3,20.000000;:DEM:POS 3,-10.500000\n", OK),
-        (b":DEM:RATE 2,0.000000;:MODE:RATE 2;:INT? 2\n", CLOSED),
+        (b":MODE? 2;:INT? 2\n", frame("Off;Close")),
+        (b":DEM:RATE 2,0.000000;:MODE:RATE 2\n", OK),
         (b":DEM:RATE 2,-10.500000\n", OK),
+        (b":MODE? 2;:INT? 2\n", frame("Rate;Close")),        # already turning: no stop on the way to 5 deg/s
+        (b":DEM:RATE 2,5.000000\n", OK),
         (b":MODE:OFF 1;:MODE:OFF 2;:MODE:OFF 3\n", OK),
         (b":INT:RES\n", OK),
         (b":INT:OPEN 1;:INT:OPEN 2;:INT:OPEN 3\n", OK),
@@ -67,13 +70,15 @@ def test_every_command_is_one_message_confirmed_by_its_framed_response():
         table.enable()
         table.move_to([90.0, None, -10.5], rate_dps=20.0)
         table.set_rate("middle", -10.5)
+        table.set_rate("middle", 5.0)
         table.stop()
         table.reset_faults()
         table.abort()
 
 
 def test_long_mnemonics_on_request():
-    table, ex = client([(b":DEMAND:RATE 1,0.000000;:MODE:RATE 1;:INTERLOCK? 1\n", CLOSED),
+    table, ex = client([(b":MODE? 1;:INTERLOCK? 1\n", frame("P;Close")),
+                        (b":DEMAND:RATE 1,0.000000;:MODE:RATE 1\n", OK),
                         (b":DEMAND:RATE 1,5.000000\n", OK)], long_form=True)
     with ex:
         table.set_rate(0, 5.0)

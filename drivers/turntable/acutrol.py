@@ -142,6 +142,12 @@ class AcutrolTurntable(LineTurntable):
             self._raise_queued(sent)        # a refused query is not answered: the error queue says why
             raise
 
+    def _ask(self, units: Sequence[str], parse: Callable[[str, bytes], T]) -> T:
+        """`_exchange` of a message with queries: their parsed responses."""
+        found = self._exchange(units, parse)
+        assert found is not None, "a parse function returned None"
+        return found
+
     def _write_command(self, sent: bytes) -> None:
         """GPIB framing: a message that gets no answer, sent on a link reopened once if it was lost."""
         for attempt in range(2):
@@ -205,8 +211,7 @@ class AcutrolTurntable(LineTurntable):
         def parse(text: str, raw: bytes) -> tuple[ac.AbsoluteLimits, ...]:
             return tuple(ac.decode_absolute_limits(f, raw) for f in ac.split_responses(text, 3, "absolute limits", raw))
 
-        found = self._exchange(units, parse)
-        assert found is not None
+        found = self._ask(units, parse)
         self.absolute_limits = found
         self.limits = merge_limits(self.configured_limits, found)
 
@@ -231,13 +236,21 @@ class AcutrolTurntable(LineTurntable):
         if mode is AxisMode.OFF:
             self._exchange([self._unit("MODE:OFF", k)])
             return
-        # rate mode is entered at zero rate: a rate demand left from before must not apply
-        units = ([self._unit("DEMAND:RATE", k, 0.0), self._unit("MODE:RATE", k)] if mode is AxisMode.RATE
-                 else [self._unit("MODE:POSITION", k)])
-        # ACL takes modes and demands on an axis that is not servoed (they apply when it is): the interlock state,
-        # asked in the same message, stops a demand that would not move the table (or move it later, unasked)
-        interlock = self._exchange(units + [self._unit("INTERLOCK", k, query=True)],
-                                   lambda text, raw: ac.decode_interlock(text, raw))
+        # ACL takes modes and demands on an axis that is not servoed (they apply when it is): the interlock state
+        # stops a demand that would not move the table (or would move it later, unasked)
+        if mode is AxisMode.POSITION:
+            interlock = self._ask([self._unit("MODE:POSITION", k), self._unit("INTERLOCK", k, query=True)],
+                                  lambda text, raw: ac.decode_interlock(text, raw))
+            self._require_servoed(frame, interlock)
+            return
+        mode_now, interlock = self._ask([self._unit("MODE", k, query=True), self._unit("INTERLOCK", k, query=True)],
+                                        _mode_and_interlock)
+        self._require_servoed(frame, interlock)
+        if mode_now != "Rate":      # entered at zero rate: a rate demand left from before must not apply
+            self._exchange([self._unit("DEMAND:RATE", k, 0.0), self._unit("MODE:RATE", k)])
+
+    @staticmethod
+    def _require_servoed(frame: int, interlock: str) -> None:
         if interlock != "Close":
             raise TurntableCommandError(f"acutrol controller: {FRAMES[frame]} axis not servoed (interlock "
                                         f"{interlock}), nothing demanded", ac.NOT_SERVOED)
@@ -265,17 +278,13 @@ class AcutrolTurntable(LineTurntable):
                  + [self._unit("INTERLOCK", k, query=True) for k in (1, 2, 3)]
                  + [self._unit("STATUS:CSR", f"A{k}INTLK", query=True) for k in (1, 2, 3)]
                  + [self._unit("STATUS:CSR", f"A{k}DYN", query=True) for k in (1, 2, 3)])
-        state = self._exchange(units, lambda text, raw: decode_state(text, raw, self.clock.now()))
-        assert state is not None
-        return state
+        return self._ask(units, lambda text, raw: decode_state(text, raw, self.clock.now()))
 
     # -- single reads (diagnostics and the public client's sequence) -----------------------------------------------
     def _query(self, path: str, *args: object, what: str) -> str:
         with self._lock:
-            text = self._exchange([self._unit(path, *args, query=True)],
-                                  lambda text, raw: ac.split_responses(text, 1, what, raw)[0])
-        assert text is not None
-        return text
+            return self._ask([self._unit(path, *args, query=True)],
+                             lambda text, raw: ac.split_responses(text, 1, what, raw)[0])
 
     def identify(self) -> str:
         """`*IDN?`: maker,model,serial,software level."""
@@ -311,9 +320,12 @@ class AcutrolTurntable(LineTurntable):
             return [entry for entry in entries.split(";") if entry]
 
         with self._lock:
-            found = self._exchange(units, parse)
-        assert found is not None
-        return found
+            return self._ask(units, parse)
+
+
+def _mode_and_interlock(text: str, raw: bytes) -> tuple[str, str]:
+    mode, interlock = ac.split_responses(text, 2, "mode and interlock", raw)
+    return ac.decode_mode(mode, raw), ac.decode_interlock(interlock, raw)
 
 
 def merge_limits(configured: TurntableLimits, absolute: Sequence[ac.AbsoluteLimits]) -> TurntableLimits:
