@@ -122,7 +122,9 @@ def test_a_modbus_peer_streaming_garbage_ends_in_a_short_error_after_a_bounded_r
     # a frame-like line whose "checksum" runs on for 500 characters
     ("mn", b"$ASSTA,1*" + b"Z" * 500 + b"\r\n", lambda table: table.read_state(),
      "checksum must be two upper-case hex digits"),
-], ids=["scpi", "mn"])
+    # an ACL frame header announcing the longest text a controller sends (32 768 bytes), then junk: one frame read
+    ("acutrol", b"\x00\x00\x00\x00\x00\x80\x00\x00", lambda table: table.read_state(), "not printable ASCII"),
+], ids=["scpi", "mn", "acutrol"])
 def test_a_line_peer_streaming_garbage_ends_in_a_short_error_with_a_bounded_buffer(dialect, chunk, ask, needle):
     with GarbagePeer(chunk) as peer:
         host, port = peer.address

@@ -201,7 +201,7 @@ ERRORS = [
     ("[site]", "[sitee]", 4, "sitee", "unknown key (did you mean 'site'?)"),
     ('dialect = "scpi"', 'dialect = "scpy"', 9, "table.dialect", "unknown dialect 'scpy' (did you mean 'scpi'?)"),
     ('dialect = "scpi"', 'dialect = "acme"', 9, "table.dialect",
-     "unknown dialect 'acme' (known dialects: scpi, mn, modbus)"),
+     "unknown dialect 'acme' (known dialects: scpi, mn, modbus, acutrol)"),
     ('positions = "optimal-24"', 'positions = "optimal-25"', 20, "plan.positions",
      "no builtin schedule 'optimal-25' and no such file"),
     ('positions = "optimal-24"', 'positions = "optimal-5s6r"', 20, "plan.positions",

@@ -238,9 +238,9 @@ def test_illegal_transitions_are_refused(bench):
         seq._transition(RunState.DONE, "no")
 
 
-@pytest.mark.parametrize("dialect", ["mn", "modbus"])
+@pytest.mark.parametrize("dialect", ["mn", "modbus", "acutrol"])
 def test_a_whole_run_works_in_the_other_dialects(tmp_path, dialect):
-    """`bench run` on the simulator served in $MN (TCP) and Modbus TCP: same plan, same precision."""
+    """`bench run` on the simulator served in $MN (TCP), Modbus TCP and ACL (TCP): same plan, same precision."""
     from tests.helpers.run import cli, config_text, load_json, only_file
 
     config = tmp_path / "bench.toml"

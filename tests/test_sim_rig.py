@@ -331,7 +331,9 @@ def _with_plan(text: str, plan: str) -> str:
 @pytest.mark.parametrize("dialect, table_listen, imu_listen, url_prefix", [
     ("scpi", "tcp://127.0.0.1:0", "slcan", "tcp://127.0.0.1:"),
     ("modbus", "pty", "socketcand://127.0.0.1:0", "modbus+rtu:///dev/pts/"),
-], ids=["scpi-tcp-slcan", "modbus-rtu-pty-socketcand"])
+    ("acutrol", "tcp://127.0.0.1:0", "slcan", "tcp://127.0.0.1:"),
+    ("acutrol", "pty", "slcan", "/dev/pts/"),
+], ids=["scpi-tcp-slcan", "modbus-rtu-pty-socketcand", "acutrol-tcp-slcan", "acutrol-pty-slcan"])
 def test_bench_run_against_the_rig_in_another_process_recovers_its_truth(tmp_path, dialect, table_listen, imu_listen,
                                                                          url_prefix):
     rig_config = tmp_path / "rig.toml"

@@ -64,7 +64,8 @@ def _fault(proc: subprocess.Popen, command: str) -> str:
 
 
 @pytest.mark.parametrize("simulator", [("scpi", "tcp://127.0.0.1:0"), ("mn", "pty"),
-                                       ("modbus", "modbus+tcp://127.0.0.1:0")], indirect=True)
+                                       ("modbus", "modbus+tcp://127.0.0.1:0"), ("acutrol", "tcp://127.0.0.1:0"),
+                                       ("acutrol", "pty")], indirect=True)
 def test_operator_session_against_the_served_simulator(simulator, capsys, monkeypatch):
     proc, dialect, url = simulator
     base = ["table", "--url", url, "--dialect", dialect, "--timeout-s", "0.5"]
@@ -212,7 +213,7 @@ def test_sim_table_with_allow_remote_warns_loudly(capsys, monkeypatch):
         def __iter__(self):
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(table_cli, "_listen", lambda controller, dialect, where, closers: "tcp://0.0.0.0:5025")
+    monkeypatch.setattr(table_cli, "_listen", lambda controller, dialect, where, closers, **options: "tcp://0.0.0.0:5025")
     monkeypatch.setattr(sys, "stdin", CtrlC())
     assert main(["sim", "table", "--dialect", "scpi", "--listen", "tcp://0.0.0.0:5025", "--allow-remote"]) == 0
     captured = capsys.readouterr()
@@ -298,3 +299,30 @@ def test_bench_table_register_map_options_are_checked_before_connecting(tmp_path
     assert main(["table", *args]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and fragment in err, err
+
+
+@pytest.mark.parametrize("simulator", [("acutrol", "tcp://127.0.0.1:0")], indirect=True)
+def test_acutrol_refusals_are_one_line_naming_the_command_and_the_controllers_text(simulator, capsys):
+    proc, dialect, url = simulator
+    base = ["table", "--url", url, "--dialect", dialect, "--timeout-s", "1.0"]
+    # a configured limit beyond the controller's absolute (factory) limits: refused at connect, nothing sent
+    assert main(base + ["--max-rate-dps", "500", "enable"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "refused, nothing sent: outer max_rate_dps 500.0 exceeds the controller's " \
+                                    "absolute limit 200.0 deg/s" in err, err
+    with open_turntable(url, dialect, timeout_s=1.0) as table:
+        assert not any(axis.enabled for axis in table.read_state().axes)
+        assert main(base + ["enable", "outer"]) == 0
+        assert main(base + ["disable", "outer"]) == 0
+        assert "outer" in capsys.readouterr().out and not table.read_state().axes[0].enabled
+        assert main(base + ["enable"]) == 0
+        capsys.readouterr()
+        table.set_rate("inner", 20.0)
+        assert table.read_state().modes[2].value == "rate"
+        assert _fault(proc, "estop") == "ok"
+        # an ACL error: one line with the message sent and the controller's text; the table is commanded to stop
+        assert main(base + ["reset"]) == 3
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1, err
+        assert "TurntableCommandError: acutrol controller refused ':INT:RES': Interlock fault latched" in err
+        assert [mode.value for mode in table.read_state().modes] == ["off"] * 3     # the inner was in rate mode

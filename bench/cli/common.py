@@ -179,13 +179,16 @@ def stop_signals(on_signal: Callable[[int], None]) -> Iterator[None]:
 
 def drive_device(prog: str, device: DeviceSession[Any], command: Callable[[], ExitCode], *, errors: type[Exception],
                  refused: tuple[type[Exception], ...], unreachable: str, make_safe: Callable[[], str],
-                 note_faults: bool = True) -> ExitCode:
-    """Connect `device` (an `errors` error: "`unreachable`: why", exit 3), run `command` with SIGTERM and SIGHUP
-    ending it like Ctrl-C, and close the device however it ends. A `refused` error (a demand beyond the limits)
-    is exit 2, nothing sent; another `errors` error or a stop signal makes the device safe (`make_safe`, which
-    says what it did: the line ends with it; after an error only with `note_faults`) and is exit 3."""
+                 note_faults: bool = True, refused_at_connect: tuple[type[Exception], ...] = ()) -> ExitCode:
+    """Connect `device` (an `errors` error: "`unreachable`: why", exit 3; a `refused_at_connect` one, limits the
+    device refuses: exit 2, nothing sent), run `command` with SIGTERM and SIGHUP ending it like Ctrl-C, and close
+    the device however it ends. A `refused` error (a demand beyond the limits) is exit 2, nothing sent; another
+    `errors` error or a stop signal makes the device safe (`make_safe`, which says what it did: the line ends with
+    it; after an error only with `note_faults`) and is exit 3."""
     try:
         device.connect()
+    except refused_at_connect as exc:      # a driver that checks the limits against the device's (acutrol)
+        return fail(prog, f"refused, nothing sent: {exc}", ExitCode.USAGE)
     except errors as exc:
         return fail(prog, f"{unreachable}: {exc}", ExitCode.FAULT)
     try:

@@ -63,8 +63,8 @@ def register(kinds: argparse._SubParsersAction) -> None:
     rig.add_argument("--dialect", choices=sorted(DIALECTS),
                      help="the table's controller dialect (default: --config's, else scpi)")
     rig.add_argument("--table-listen", metavar="WHERE",
-                     help="tcp://127.0.0.1:PORT (scpi, mn), modbus+tcp://127.0.0.1:PORT (modbus) or pty (RTU for "
-                          "modbus); port 0 picks a free port; default: TCP on a free loopback port")
+                     help="tcp://127.0.0.1:PORT (acutrol, scpi, mn), modbus+tcp://127.0.0.1:PORT (modbus) or pty "
+                          "(RTU for modbus); port 0 picks a free port; default: TCP on a free loopback port")
     rig.add_argument("--imu-listen", action="append", metavar="WHERE", help=IMU_LISTEN_HELP)
     rig.add_argument("--chamber-dialect", choices=sorted(CHAMBER_DIALECTS),
                      help="also serve the simulated thermal chamber in this dialect (default with --chamber-listen: "

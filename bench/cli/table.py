@@ -45,7 +45,8 @@ def register_table(subparsers: argparse._SubParsersAction) -> None:
         description="Talk to a turntable controller. Exit codes: 0 done, 2 usage error or demand beyond "
                     "the limits (nothing sent), 3 fault, e-stop, no reply, link failure or interrupted.")
     parser.add_argument("--url", required=True, help="tcp://HOST:PORT, a serial device or pyserial URL, "
-                                                      "modbus+tcp://HOST:PORT, modbus+rtu:///dev/ttyX?baud=N")
+                                                      "modbus+tcp://HOST:PORT, modbus+rtu:///dev/ttyX?baud=N, "
+                                                      "visa://RESOURCE (acutrol; tcp:// defaults to port 9878)")
     parser.add_argument("--dialect", choices=sorted(DIALECTS), help="controller dialect (implied by modbus+ URLs)")
     parser.add_argument("--timeout-s", type=float, default=1.0, help="reply timeout per attempt (default 1 s)")
     parser.add_argument("--retries", type=int, default=2, help="retries after a timeout or bad reply (default 2)")
@@ -167,7 +168,8 @@ def cmd_table(args: argparse.Namespace) -> ExitCode:
     except (TurntableConfigError, ConfigError) as exc:
         return fail(prog, f"{exc}", ExitCode.USAGE)
     return drive_device(prog, table, lambda: _run_table_command(table, args), errors=TurntableError,
-                        refused=(TurntableLimitError,), unreachable="cannot reach the controller",
+                        refused=(TurntableLimitError,), refused_at_connect=(TurntableLimitError,),
+                        unreachable="cannot reach the controller",
                         make_safe=lambda: _stop_table(table), note_faults=False)
 
 
@@ -196,9 +198,13 @@ def register_sim(subparsers: argparse._SubParsersAction) -> argparse._SubParsers
                     "commands on stdin.\n\n" + FAULT_HELP,
         formatter_class=argparse.RawDescriptionHelpFormatter)
     table.add_argument("--dialect", required=True, choices=sorted(DIALECTS),
-                       help="the controller dialect to serve (drivers/SCPI.md, MN.md, MODBUS.md)")
+                       help="the controller dialect to serve (drivers/ACUTROL.md, SCPI.md, MN.md, MODBUS.md)")
+    table.add_argument("--acl-framing", choices=("tcp", "gpib"), default="tcp",
+                       help="acutrol: 'tcp' answers every message with a framed response (error code, length; the "
+                            "controller's TCP port and RS-232), 'gpib' answers queries only, LF terminated, as on "
+                            "IEEE-488 (default tcp)")
     table.add_argument("--listen", action="append", required=True, metavar="WHERE",
-                       help="tcp://127.0.0.1:PORT (scpi, mn), modbus+tcp://127.0.0.1:PORT (modbus) or pty "
+                       help="tcp://127.0.0.1:PORT (acutrol, scpi, mn), modbus+tcp://127.0.0.1:PORT (modbus) or pty "
                             "(RTU for modbus); repeatable; port 0 picks a free port; a host other than "
                             "127.0.0.1, ::1 or localhost needs --allow-remote")
     table.add_argument("--allow-remote", action="store_true",
@@ -233,9 +239,9 @@ def _apply_fault_command(controller, line: str) -> str:
                               lambda: format_state(controller.state()))
 
 
-def _listen(controller, dialect: str, where: str, closers: list, register_map=None) -> str:
+def _listen(controller, dialect: str, where: str, closers: list, register_map=None, framing: str = "tcp") -> str:
     """Start one listener; returns the address a client uses. `register_map`: the Modbus simulator's
-    (None: the default map)."""
+    (None: the default map); `framing`: the acutrol simulator's ('tcp' framed responses, 'gpib' query answers)."""
     if dialect == "modbus":
         from bench.sim.modbus_server import ModbusSimServer  # pymodbus: only for the Modbus simulator
 
@@ -250,7 +256,11 @@ def _listen(controller, dialect: str, where: str, closers: list, register_map=No
     from bench.sim.serve import Handler, LineServer
 
     handler: Handler
-    if dialect == "scpi":
+    if dialect == "acutrol":
+        from bench.sim.acutrol_server import AcutrolSimHandler  # the simulators: only for `bench sim`
+
+        handler = AcutrolSimHandler(controller, framing)
+    elif dialect == "scpi":
         from bench.sim.scpi_server import ScpiSimHandler  # the simulators: only for `bench sim`
 
         handler = ScpiSimHandler(controller)
@@ -287,5 +297,6 @@ def cmd_sim_table(args: argparse.Namespace) -> ExitCode:
     controller = SimController(SimTable(site, black_box_rad=black_box))
     closers: list = []
     return serve_until_stopped("bench sim table", "table", args.dialect,
-                               lambda where: _listen(controller, args.dialect, where, closers), args.listen, remote,
+                               lambda where: _listen(controller, args.dialect, where, closers,
+                                                     framing=args.acl_framing), args.listen, remote,
                                lambda line: _apply_fault_command(controller, line), closers)

@@ -198,8 +198,14 @@ class SimController:
             else:
                 ax.rate_demand_dps = self.table.axis_at(t, k)[1] / DEG
 
-    def demand_position(self, axis: int, angle_deg: float, rate_dps: float | None = None) -> float:
-        """Move one axis to an absolute angle; returns the simulated time it arrives."""
+    def _accel_ok(self, k: int, accel_dps2: float | None) -> float | None:
+        """A commanded acceleration (None: the table's limit), at most the table's limit."""
+        return None if accel_dps2 is None else min(float(accel_dps2), self.table.limits.max_accel_dps2[k])
+
+    def demand_position(self, axis: int, angle_deg: float, rate_dps: float | None = None,
+                        accel_dps2: float | None = None) -> float:
+        """Move one axis to an absolute angle (at `accel_dps2`, None: the table's limit); returns the simulated time
+        it arrives."""
         with self._lock:
             k = self._axis_index(axis)
             ax = self._require_enabled(k)
@@ -214,17 +220,19 @@ class SimController:
             if rate <= 0:
                 raise SimCommandError(f"{FRAMES[k]} move rate must be positive", ERR_ARGUMENT)
             ax.demand_deg = angle_deg
-            return self.table.move_axis(self.now(), k, angle_deg, min(rate, self.table.limits.max_rate_dps[k]))
+            return self.table.move_axis(self.now(), k, angle_deg, min(rate, self.table.limits.max_rate_dps[k]),
+                                        self._accel_ok(k, accel_dps2))
 
-    def demand_rate(self, axis: int, rate_dps: float) -> float:
-        """Ramp one axis (rate mode) to a signed rate d(angle)/dt; returns when it is reached."""
+    def demand_rate(self, axis: int, rate_dps: float, accel_dps2: float | None = None) -> float:
+        """Ramp one axis (rate mode) to a signed rate d(angle)/dt (at `accel_dps2`, None: the table's limit);
+        returns when it is reached."""
         with self._lock:
             k = self._axis_index(axis)
             ax = self._require_enabled(k)
             if ax.mode is not AxisMode.RATE:
                 raise SimCommandError(f"{FRAMES[k]} axis is in {ax.mode.value} mode", ERR_WRONG_MODE)
             ax.rate_demand_dps = self._rate_ok(k, rate_dps)
-            return self.table.set_rate(self.now(), k, ax.rate_demand_dps)
+            return self.table.set_rate(self.now(), k, ax.rate_demand_dps, self._accel_ok(k, accel_dps2))
 
     def stop(self) -> float:
         """Controlled stop: every axis decelerates and holds in position mode (servo stays on)."""

@@ -25,6 +25,7 @@ from can.interfaces.virtual import VirtualBus
 from bench.model.earth import Site
 from bench.model.imu import ImuCoefficients, NoiseModel
 from bench.model.thermal import ImuThermal
+from bench.sim.acutrol_server import AcutrolSimHandler
 from bench.sim.can_imu import SimCanImu
 from bench.sim.controller import SimController
 from bench.sim.imu import SimImu
@@ -184,7 +185,9 @@ class SimWorld(ClosedOnExit):
             host, port = modbus_server.start_tcp("127.0.0.1", 0)
             return f"modbus+tcp://{host}:{port}"
         handler: Handler
-        if dialect == "scpi":
+        if dialect == "acutrol":
+            handler = AcutrolSimHandler(self.controller)
+        elif dialect == "scpi":
             handler = ScpiSimHandler(self.controller)
         elif dialect == "mn":
             handler = MnSimHandler(self.controller)

@@ -27,6 +27,7 @@ DIALECTS = {
     "scpi": "drivers.turntable.scpi:ScpiTurntable",
     "mn": "drivers.turntable.mn:MnTurntable",
     "modbus": "drivers.turntable.modbus:ModbusTurntable",
+    "acutrol": "drivers.turntable.acutrol:AcutrolTurntable",
 }
 
 

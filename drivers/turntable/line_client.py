@@ -1,4 +1,4 @@
-"""The turntable's line dialects (SCPI-like and $MN): a `Turntable` over `drivers.line_link.LineRequests`.
+"""The turntable's line dialects (SCPI-like, $MN, ACUTROL3000 ACL): a `Turntable` over `drivers.line_link.LineRequests`.
 
 The request/reply machinery (retries, late replies, reconnects, `stats`) is shared with
 the chamber's ASCII dialect and documented in `drivers.line_link`.

@@ -1,4 +1,4 @@
-"""Turntable client for the SCPI-like dialect (as on Acutronic ACUTROL controllers).
+"""Turntable client for the generic SCPI-like dialect (this project's own; it matches no controller).
 
 Every command goes out as `<command>[;<command>...];:SYST:ERR?` so that one reply
 confirms it (SCPI commands say nothing by themselves): `0,"No error"` or the error

@@ -1,4 +1,4 @@
-"""Pure codec of the SCPI-like turntable dialect (as on Acutronic ACUTROL controllers).
+"""Pure codec of the generic SCPI-like turntable dialect (this project's own; it matches no controller).
 
 Both ways, no I/O: the client builds request lines (`encode`, `confirmed`) and decodes
 replies (`decode_*`); the simulator parses request lines (`parse_program`) and formats
@@ -6,7 +6,7 @@ replies (`format_*`). drivers/SCPI.md is the dialect page: keywords, commands, r
 error numbers, status bits and an example session.
 
 Headers follow SCPI: keywords separated by ':', matched case-insensitively in their long
-form or their short form. ACUTROL-style short forms are single letters (`:M:P` for
+form or their short form. This dialect's short forms are single letters (`:M:P` for
 `:MODE:POSITION`), so the short form of each keyword is given by the `SHORT` table, not
 by the upper-case letters of a mixed-case name. Several program units share a line,
 separated by ';'; a unit whose header does not start with ':' continues from the

@@ -1,7 +1,7 @@
 """Benchmark: turntable state-poll round trip to the simulator, per dialect, over TCP loopback and a pty.
 
 Run: python tests/benchmarks/table_poll_rtt.py [--polls 2000] [--repeats 5]
-For each dialect (scpi, mn, modbus) it serves the simulated table in that dialect on
+For each dialect (scpi, mn, modbus, acutrol) it serves the simulated table in that dialect on
 127.0.0.1 (Modbus TCP for modbus) and on a pty (Modbus RTU for modbus, 115200 baud
 nominal), connects the real driver through the real transport, and times
 `read_state()` (one full state of the three axes); everything measured in one run,
@@ -38,13 +38,14 @@ def _serve(dialect: str, controller: SimController, link: str):
         else:
             url = "modbus+tcp://{}:{}".format(*server.start_tcp("127.0.0.1", 0))
         return url, {"register_map": register_map}, server.close
-    if dialect == "scpi":
-        from bench.sim.scpi_server import ScpiSimHandler as Handler
-    else:
-        from bench.sim.mn_server import MnSimHandler as Handler
-    server = LineServer(Handler(controller))
-    url = server.open_pty() if link == "pty" else "tcp://{}:{}".format(*server.listen_tcp("127.0.0.1", 0))
-    return url, {}, server.close
+    from bench.sim.acutrol_server import AcutrolSimHandler
+    from bench.sim.mn_server import MnSimHandler
+    from bench.sim.scpi_server import ScpiSimHandler
+
+    handlers = {"acutrol": AcutrolSimHandler, "scpi": ScpiSimHandler, "mn": MnSimHandler}
+    line_server = LineServer(handlers[dialect](controller))
+    url = line_server.open_pty() if link == "pty" else "tcp://{}:{}".format(*line_server.listen_tcp("127.0.0.1", 0))
+    return url, {}, line_server.close
 
 
 def measure(dialect: str, polls: int, link: str = "tcp") -> tuple[float, float]:
@@ -63,7 +64,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--polls", type=int, default=2000)
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--dialects", default="scpi,mn,modbus")
+    parser.add_argument("--dialects", default="scpi,mn,modbus,acutrol")
     args = parser.parse_args()
     print(f"state poll round trip, {args.polls} polls x {args.repeats} repeats")
     print(f"{'dialect':<8} {'link':<5} {'median ms':>10} {'p90 ms':>8} {'polls/s':>9}")
