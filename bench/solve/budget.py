@@ -25,6 +25,11 @@ turntable, propagated through the whole solve) and contributes `J P C_y P^T J^T`
 - **count resolution** (Type B): a turn's integral is a difference of two counter
   readings, each known to one count (1/sqrt(6) counts for the difference of two
   uniform remainders). A dwell's mean has its resolution floor in its standard error.
+  An IMU that sends each sample's value rounded on its own (sbg-ecan: 0.001 rad/s) has
+  no exact sum: the rounding that its own noise does not dither away stays in a turn's
+  integral (`RotationObservation.rounding_var`) and in a dwell's standard error
+  (`bench.model.observations.rounding_bias_variance`); the dithered rest is white noise,
+  in the samples' scatter.
 - **turn angle** (Type B, `[table] turn_angle_error_arcsec`): the solve takes each turn
   as exactly N revolutions; the table stops at each end only to its position
   repeatability (servo in-position band, readback resolution), so a turn's angle is off
@@ -87,7 +92,7 @@ SOURCES = {
     TABLE: ("B", "turntable pointing (black-box angles), first and second order"),
     GRAVITY: ("B", "local gravity"),
     LATITUDE: ("B", "site latitude"),
-    RESOLUTION: ("B", "IMU counter resolution of the turn integrals"),
+    RESOLUTION: ("B", "IMU output resolution of the turn integrals (counter, or each sample's rounding)"),
     TURN_ANGLE: ("B", "each turn's angle error (the table's position repeatability at its ends)"),
     UNEXPLAINED: ("A", "residual scatter the budget does not explain (fallback scaling)"),
 }
@@ -474,7 +479,7 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
             noise = gyros.cov_noise_sensor(s)
             add_triad("Kg", "Eg", None, s, NOISE, np.diag(noise))
             c_gm = (gyros.scale[s] * inputs.gyro_bias_instability) ** 2 * kernel
-            c_q = np.eye(len(rotations)) * _QUANT_VAR * inputs.count_resolution ** 2
+            c_q = _rounding_cov(rotations, s, inputs.count_resolution)
             c_turn = np.diag((turned @ gyros.fit.params[s][:3] * angle_sigma) ** 2)
             for comp, c_y in ((BIAS_INSTABILITY, c_gm), (RESOLUTION, c_q), (TURN_ANGLE, c_turn)):
                 add_triad("Kg", "Eg", None, s, comp, _triad_var(gyros, design, s, c_y))
@@ -554,6 +559,15 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
                      f"{c.scale:.3g} as a fallback")
     components = {name: {comp: math.sqrt(v) for comp, v in parts.items()} for name, parts in var.items()}
     return Budget(components, consistency, inputs, flags)
+
+
+def _rounding_cov(rotations: list[RotationObservation], s: int, count_resolution: float) -> np.ndarray:
+    """The turn integrals' output-resolution covariance for gyro `s` (counts^2): each turn's own rounding
+    variance where the IMU rounds every sample (sbg-ecan), else the counter's, the same for every turn."""
+    own = [o.rounding_var for o in rotations]
+    if all(v is not None for v in own):
+        return np.diag(np.array([float(v[s]) for v in own if v is not None]))
+    return np.eye(len(rotations)) * _QUANT_VAR * count_resolution ** 2
 
 
 def _current_imu(acc, gyros, bias, gyro_prior) -> ImuCoefficients | None:
