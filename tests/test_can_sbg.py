@@ -9,22 +9,38 @@ our decoders, our encoder and cantools reading our DBC. In-process virtual buses
 from __future__ import annotations
 
 import itertools
+import re
+import signal
 
 import can
 import cantools
 import numpy as np
 import pytest
 
-from bench.config.load import ConfigError, parse_config
+from bench.config.load import ConfigError, load_config, parse_config
 from bench.model.imu import NoiseModel, default_sim_si_imu
 from bench.model.observations import rounding_bias_variance
+from bench.run.runner import compile_from_config
 from bench.sim.can_imu import SimCanImu
 from bench.sim.imu import SimImu
+from bench.sim.rig import imu_layout_lines
 from bench.sim.table import SimTable
 from drivers.imu import SHIPPED_LAYOUTS, ImuEncoder, SampleAssembler, decode_frames, frames_from_messages
 from drivers.imu.layout import SBG_ECAN_DBC, describe_status, sbg_ecan_layout
+from drivers.imu.receiver import ImuReceiver
 from drivers.imu.stream import StreamDecoder
-from tests.helpers.run import cli, config_text, load_json, only_file, values
+from tests.helpers.run import (
+    Trigger,
+    api_run,
+    cli,
+    config_text,
+    load_json,
+    only_file,
+    step_index,
+    stop_process,
+    values,
+)
+from tests.helpers.sim_process import read_until, start_sim
 
 RATE_HZ = 200.0
 INFO, ACCEL, GYRO = 0x120, 0x121, 0x122
@@ -259,3 +275,76 @@ def test_bench_run_sim_with_the_sbg_layout_recovers_the_truth_within_its_budget(
     outside = sorted(name for name, v in z.items() if abs(v) > coefficients[name]["k"])
     print(f"sbg-ecan run: rms z {np.sqrt(np.mean(np.square(list(z.values())))):.2f}, "
           f"outside U (k = 2): {outside or 'none'}")
+
+
+def test_bench_sim_rig_serves_the_sbg_layout_and_writes_it(tmp_path):
+    """`bench sim rig --imu-layout sbg-ecan`: the written configuration selects the layout and the simulated MEMS
+    IMU, and python-can's socketcand client receives its frames, decoded with no loss."""
+    written = tmp_path / "bench.toml"
+    rig = start_sim("rig", "--imu-layout", "sbg-ecan", "--imu-listen", "socketcand://127.0.0.1:0", "--write-config",
+                    str(written))
+    try:
+        startup = read_until(rig, "Ctrl-C stops")
+        assert any("simulated IMU (200 Hz) on socketcand" in line for line in startup), startup
+        config = load_config(written)
+        assert config.imu.layout_name == "sbg-ecan" and config.sim.noise == NoiseModel.mems()
+        with ImuReceiver(config.imu.bus_kwargs(), config.imu.layout, config.imu.rate_hz) as receiver:
+            counters = []
+            for _ in range(2000):                  # bounded: 2000 polls of at most 20 ms
+                counters.append(receiver.poll(timeout_s=0.02).counter)
+                if sum(map(len, counters)) >= 400:
+                    break
+            stats = receiver.stats
+        got = np.concatenate(counters)
+        assert len(got) >= 400 and np.all(np.diff(got) == 1), "a gap in the samples"
+        assert stats.frame_faults == stats.incomplete_samples == stats.counter_gaps == 0, stats
+        rig.send_signal(signal.SIGTERM)
+        assert rig.wait(timeout=10) == 0
+    finally:
+        stop_process(rig)
+
+
+def test_an_sbg_imu_configured_with_other_ids_is_read_with_an_edited_copy_of_the_dbc(tmp_path):
+    """The device's ids are set per message: a copy of the DBC with them, mapped as the shipped layout is
+    (drivers/CAN.md), decodes at those ids, and the rig writes the mapping back as it read it."""
+    text = SBG_ECAN_DBC.read_text()
+    for old, new in ((288, 800), (289, 801), (290, 802)):
+        text = text.replace(f"BO_ {old} ", f"BO_ {new} ").replace(f"SG_ {old} ", f"SG_ {new} ")
+    dbc = tmp_path / "my-sbg.dbc"
+    dbc.write_text(text)
+    spec = SHIPPED_LAYOUTS["sbg-ecan"][1]
+    signals = "".join(f'{c} = "{ref}"\n' for c, ref in spec.channels.items())
+    signals += ('temperature = "IMU_INFO.Temperature"\nstatus = "IMU_INFO.ImuStatus"\nstatus_required = 0x3FF\n'
+                'time_stamp = "IMU_INFO.TimeStamp"\n')
+    config_toml = config_text(rate_hz=RATE_HZ).replace("[imu]\n", f'[imu]\ndbc = "{dbc}"\n').replace(
+        "[imu.identity]", f"[imu.signals]\n{signals}[imu.identity]")
+    config = parse_config(config_toml)
+    layout = config.imu.layout
+    assert [m.frame_id for m in layout.messages] == [0x320, 0x321, 0x322] and layout.status_required == 0x3FF
+    frames = ImuEncoder(layout, rate_hz=RATE_HZ).encode([25], np.array([GYRO_RADPS]) / RATE_HZ,
+                                                        np.array([ACCEL_MPS2]) / RATE_HZ, 23.45)
+    assert [frames.frame(i) for i in range(3)] == [(key + 0x200, payload) for key, payload in _sample(125000)]
+    block, stats = decode_frames(frames.ids, frames.data, frames.lengths, layout=layout, rate_hz=RATE_HZ)
+    assert stats.samples == 1 and block.gyro_rate[0] == pytest.approx(GYRO_RADPS)
+    rewritten = config_toml.replace(f'dbc = "{dbc}"\n', "\n".join(imu_layout_lines(config.imu)) + "\n")
+    rewritten = rewritten[:rewritten.index("[imu.signals]")] + rewritten[rewritten.index("[imu.identity]"):]
+    assert parse_config(rewritten).imu.layout == layout
+
+
+def test_a_dwell_whose_samples_lack_a_health_bit_is_left_out_and_named(tmp_path):
+    """sbg's status bits mean healthy when set: during the second dwell the simulated IMU reports its gyroscopes
+    out of range (bit 9 clear); the run names that dwell and leaves it out, and uses the others."""
+    text = config_text(noise="true", rate_hz=RATE_HZ, dwell_s=1.0).replace("[imu]\n", '[imu]\nlayout = "sbg-ecan"\n')
+
+    def status(word):
+        def action(run):
+            run.world.can_imu.status = word
+        return action
+
+    plan = compile_from_config(parse_config(text))
+    triggers = (Trigger(step_index(plan, "dwell", 1), status(0x03FF & ~(1 << 9))),
+                Trigger(step_index(plan, "dwell", 1) + 1, status(None)))
+    with api_run(text, tmp_path, *triggers) as (_, outcome):
+        named = [p for p in outcome.problems if "flagged unusable by the IMU (gyros-in-range clear)" in p]
+    assert len(named) == 1 and re.search(r": P\d\d: 200 of 200 samples flagged", named[0]), outcome.problems
+    assert named[0].endswith("; left out")

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import operator
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import IntFlag
@@ -64,6 +65,12 @@ class SbgImuStatus(IntFlag):
     GYROS_IN_RANGE = 1 << 9
 
 
+#: sbg-ecan's status word with every health bit set (0x03FF); a sample lacking any is unusable.
+SBG_STATUS_HEALTHY = int(functools.reduce(operator.or_, SbgImuStatus))
+#: sbg-ecan's "accelerometers / gyroscopes within range" bits: a sender whose output saturates clears them.
+SBG_ACCELS_IN_RANGE, SBG_GYROS_IN_RANGE = int(SbgImuStatus.ACCELS_IN_RANGE), int(SbgImuStatus.GYROS_IN_RANGE)
+
+
 def describe_status(bits: int, invalid: int = STATUS_INVALID, required: int = 0) -> str:
     """Unusable status bits (set invalid ones, cleared required ones) in words: the shipped names where the bits
     are the shipped layouts' or sbg-ecan's, else in hex."""
@@ -83,11 +90,6 @@ DEFAULT_DBC = DBC_DIR / "sim_imu.dbc"
 DEFAULT_FD_DBC = DBC_DIR / "sim_imu_fd.dbc"
 DEFAULT_PACKED_DBC = DBC_DIR / "sim_imu_packed.dbc"
 SBG_ECAN_DBC = DBC_DIR / "sbg_ecan.dbc"
-
-#: sbg-ecan's IMU status bits (drivers/CAN.md): each set = healthy; a sample lacking any is unusable.
-SBG_STATUS_HEALTHY = 0x03FF
-#: sbg-ecan's "accelerometers / gyroscopes within range" bits: a sender whose output saturates clears them.
-SBG_ACCELS_IN_RANGE, SBG_GYROS_IN_RANGE = 1 << 8, 1 << 9
 
 
 @dataclass(frozen=True)
