@@ -158,6 +158,14 @@ def test_consecutive_samples_number_by_their_time_stamps_across_the_32_bit_wrap(
     assert np.array_equal(np.diff(block.counter), [1, 1, 1])
 
 
+def test_time_stamps_that_jitter_around_any_phase_number_consecutively():
+    jitter = [0, 37, -41, 12, -3, 44, -44, 9]
+    frames = [f for n, j in enumerate(jitter) for f in _sample(2500 + 5000 * n + j)]   # half a period off the grid
+    block, stats = _all_decoders(frames)
+    assert stats.samples == len(jitter) and stats.counter_gaps == stats.duplicates == 0
+    assert list(block.counter) == list(range(len(jitter)))
+
+
 def test_a_time_stamp_gap_is_counted_as_missing_samples():
     frames = _sample(0) + _sample(5000) + _sample(20000)    # 10000 and 15000 us never came
     block, stats = _all_decoders(frames)

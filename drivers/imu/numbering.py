@@ -120,7 +120,7 @@ class FrameNumberer:
             self._ticks, self._last_raw, self._current = int(ticks[-1]), int(raw[-1]), int(numbers[info[-1]])
             opened[info] = info
             np.maximum.accumulate(opened, out=opened)
-        data_frames = right & (numbers < 0)
+        data_frames = right & (ids != self._info_key)
         after = data_frames & (opened >= 0)
         numbers[after] = numbers[opened[after]]
         before = data_frames & (opened < 0)
