@@ -280,6 +280,7 @@ def test_bench_run_sim_with_the_sbg_layout_recovers_the_truth_within_its_budget(
     assert 0.3 < float(np.sqrt(np.mean(np.square(list(z.values()))))) < 2.0, z
     assert all("count resolution" in coefficients[f"Kg_{s}"]["budget"] for s in "xyz")
     assert result["quality"]["uncertainty"]["inputs"]["count_resolution"] == 0.0
+    assert not any("dither" in flag for flag in result["quality"]["flags"]), result["quality"]["flags"]
     outside = sorted(name for name, v in z.items() if abs(v) > coefficients[name]["k"])
     print(f"sbg-ecan run: rms z {np.sqrt(np.mean(np.square(list(z.values())))):.2f}, "
           f"outside U (k = 2): {outside or 'none'}")
@@ -356,3 +357,16 @@ def test_a_dwell_whose_samples_lack_a_health_bit_is_left_out_and_named(tmp_path)
         named = [p for p in outcome.problems if "flagged unusable by the IMU (gyros-in-range clear)" in p]
     assert len(named) == 1 and re.search(r": P\d\d: 200 of 200 samples flagged", named[0]), outcome.problems
     assert named[0].endswith("; left out")
+
+
+def test_an_imu_too_quiet_to_dither_its_resolution_is_flagged(tmp_path):
+    """Noise off: every dwell's rounding follows its signal (a gyro bias below half a step reads 0); the budget,
+    which takes the dwells' rounding as independent, says it does not cover that."""
+    config = tmp_path / "bench.toml"
+    config.write_text(config_text(noise="false", rate_hz=RATE_HZ).replace("[imu]\n", '[imu]\nlayout = "sbg-ecan"\n'))
+    rc, _, stderr = cli(["run", "--sim", "--config", str(config), "--out", str(tmp_path / "out"), "--quiet",
+                         "--no-db"])
+    assert rc == 0, stderr
+    flags = load_json(only_file(tmp_path / "out", "*.result.json"))["quality"]["flags"]
+    assert [f for f in flags if "does not dither its output resolution (the rounding left after averaging: gyro x "
+            "100%, gyro y 100%, gyro z 100%, accelerometer x 100%" in f and "do NOT cover" in f], flags

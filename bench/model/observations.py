@@ -49,6 +49,9 @@ class PositionObservation:
     #: when the dwell's window began (s, on the IMU's time base): the bias-instability part of
     #: the uncertainty budget correlates steps by their distance in time (None: unknown)
     start_s: float | None = None
+    #: the six channels' output step (counts/s) of an IMU that rounds each sample on its own (sbg-ecan), whose
+    #: rounding the budget checks is dithered by the IMU's noise; None: a counter output
+    output_step: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         self.angles_deg = triple(_vec3(self.angles_deg, "angles_deg"))

@@ -63,7 +63,13 @@ from bench.model.closed_form import position_outputs, turn_closed_form, turn_int
 from bench.model.earth import Site
 from bench.model.families import BODY_AXES, RESULT_UNITS, SENSOR_AXES
 from bench.model.imu import ImuCoefficients
-from bench.model.observations import COUNT_RESOLUTION, PositionObservation, RotationObservation, turn_axis_in_body
+from bench.model.observations import (
+    COUNT_RESOLUTION,
+    PositionObservation,
+    RotationObservation,
+    rounding_bias_variance,
+    turn_axis_in_body,
+)
 from bench.model.table_prior import TablePrior
 from bench.model.units import ARCSEC
 from bench.solve.methods import (
@@ -540,6 +546,7 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
                 add(name, comp, sd * sd)
     else:
         flags.append("turntable and site parts of the budget not computed: too few coefficients solved")
+    flags += _undithered_rounding(positions)
     if inputs.table is None:
         flags.append("uncertainty budget: the turntable's pointing error is NOT included (set [table] "
                      "pointing_accuracy_arcsec or [table] check): the uncertainties cover the IMU alone")
@@ -559,6 +566,30 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
                      f"{c.scale:.3g} as a fallback")
     components = {name: {comp: math.sqrt(v) for comp, v in parts.items()} for name, parts in var.items()}
     return Budget(components, consistency, inputs, flags)
+
+
+#: the share of the rounding's step^2/12 left after averaging above which dwells round alike (sigma < ~0.3 step)
+_UNDITHERED_SHARE = 0.01
+_CHANNEL_NAMES = ("gyro x", "gyro y", "gyro z", "accelerometer x", "accelerometer y", "accelerometer z")
+
+
+def _undithered_rounding(positions: list[PositionObservation]) -> list[str]:
+    """A flag when an IMU that rounds each sample (sbg-ecan) has too little noise of its own to dither the
+    rounding: its dwells' rounding errors then follow their signals (alike wherever the signals are), which the
+    budget's per-dwell rounding part, taken as independent, does not cover."""
+    stepped = [o for o in positions if o.output_step is not None and o.gyro_std is not None
+               and o.acc_std is not None]
+    if not stepped:
+        return []
+    step = np.asarray(stepped[0].output_step, dtype=float)
+    std = np.sqrt(np.mean([np.concatenate([o.gyro_std, o.acc_std]) ** 2 for o in stepped], axis=0))
+    share = rounding_bias_variance(std, step) / (step ** 2 / 12.0)
+    undithered = [f"{name} {s:.0%}" for name, s in zip(_CHANNEL_NAMES, share) if s > _UNDITHERED_SHARE]
+    if not undithered:
+        return []
+    return [f"uncertainty budget: the IMU's own noise does not dither its output resolution (the rounding left "
+            f"after averaging: {', '.join(undithered)}): dwells with like signals round alike, which the "
+            f"uncertainties do NOT cover"]
 
 
 def _rounding_cov(rotations: list[RotationObservation], s: int, count_resolution: float) -> np.ndarray:

@@ -203,7 +203,7 @@ def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: 
                 output_step=None if resolution is None else resolution[3:])
             out.positions.append(PositionObservation(tuple(step["angles_deg"]), n / rate_hz, n, gyro_mean, acc_mean,
                                                      gyro_std, acc_std, gyro_sem, acc_sem, label=unit,
-                                                     start_s=first / rate_hz))
+                                                     start_s=first / rate_hz, output_step=output_step))
         else:
             if n < expected:
                 out.problems.append(f"{unit}: {expected - n} of {expected} samples missing during the turn: "
