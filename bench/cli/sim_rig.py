@@ -84,8 +84,8 @@ def register(kinds: argparse._SubParsersAction) -> None:
     rig.add_argument("--latitude", type=float, help="site latitude, deg")
     rig.add_argument("--imu-layout", choices=sorted(SHIPPED_LAYOUTS),
                      help="the IMU's frame layout: classic (7 frames per sample), packed (3 frames per sample, "
-                          "for rates up to 2 kHz on a 1 Mbit/s bus) or fd (one CAN FD frame, socketcan only); "
-                          "default: --config's")
+                          "for rates up to 2 kHz on a 1 Mbit/s bus), fd (one CAN FD frame, socketcan only) or sbg-ecan "
+                          "(SBG Systems' CAN IMU messages, a simulated MEMS IMU); default: --config's")
     rig.add_argument("--register-map", metavar="FILE",
                      help="modbus: the register map the simulated controller serves (a [modbus] table as in a "
                           "bench configuration; default: --config's [table], else the map of drivers/MODBUS.md); "

@@ -32,7 +32,7 @@ from bench.config.thermal import THERMAL_KEYS, sim_thermal
 from bench.config.thermal_plan import PLAN_THERMAL_KEYS, check_against_chamber, thermal_plan
 from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
 from bench.model.families import BODY_AXES, SENSOR_AXES, canonical_names, family_of
-from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
+from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu, default_sim_si_imu
 from bench.model.table_prior import (
     FRAME_KEYS,
     TablePrior,
@@ -498,13 +498,19 @@ def _black_box(t: Table, seed: int) -> tuple[float | tuple, np.ndarray]:
     return rms_arcsec, np.random.default_rng(seed).standard_normal((3, 3)) * rms_arcsec * ARCSEC
 
 
-def _noise(t: Table) -> NoiseModel:
+def _noise(t: Table, si_outputs: bool = False) -> NoiseModel:
+    """[sim] noise; `si_outputs`: the IMU sends physical units (sbg-ecan), whose default is the MEMS IMU's noise
+    and which its output format quantises (the integer-count `quantise` does not apply)."""
+    on = NoiseModel.mems() if si_outputs else NoiseModel()
     value = t.get("noise", True)
     if isinstance(value, bool):
-        return NoiseModel() if value else NoiseModel.off()
+        return on if value else NoiseModel.off()
     n = t.table("noise", ("enabled",) + _NOISE_FIELDS)
     enabled = n.boolean("enabled", True)
-    base = NoiseModel() if enabled else NoiseModel.off()
+    base = on if enabled else NoiseModel.off()
+    if si_outputs and n.get("quantise", False) is True:
+        raise n.error("quantise", "integer counts do not apply to an IMU sending physical units (imu.layout = "
+                                  "\"sbg-ecan\"): its output format's resolution quantises it")
     changes: dict[str, Any] = {}      # field -> value: a float level, or the bool `quantise`
     for name in _NOISE_FIELDS:
         if not n.has(name):
@@ -520,7 +526,7 @@ def _noise(t: Table) -> NoiseModel:
     return dataclasses.replace(base, **changes)
 
 
-def _sim_imu(t: Table) -> tuple[ImuCoefficients, dict, ImuThermal | None]:
+def _sim_imu(t: Table, si_outputs: bool = False) -> tuple[ImuCoefficients, dict, ImuThermal | None]:
     s = t.table("imu", canonical_names() + ["thermal"])
     thermal = None
     if s.has("thermal"):
@@ -532,7 +538,7 @@ def _sim_imu(t: Table) -> tuple[ImuCoefficients, dict, ImuThermal | None]:
             continue
         low, high, unit = _SIM_IMU_RANGES[family_of(name)]
         overrides[name] = s.number(name, gt=low, ge=None if low is not None else -high, le=high, unit=unit)
-    values = {**default_sim_imu().to_canonical(), **overrides}
+    values = {**(default_sim_si_imu() if si_outputs else default_sim_imu()).to_canonical(), **overrides}
     # Direction-cosine rows are unit vectors: a row with overrides gets its diagonal
     # from its off-diagonals, unless the diagonal is given too (then it must fit).
     for prefix in ("Eg", "Ea"):
@@ -556,11 +562,13 @@ def _sim_imu(t: Table) -> tuple[ImuCoefficients, dict, ImuThermal | None]:
     return ImuCoefficients.from_canonical(values), overrides, thermal
 
 
-def _sim(t: Table) -> SimConfig:
+def _sim(t: Table, si_outputs: bool = False) -> SimConfig:
+    """[sim]; `si_outputs`: the IMU's layout sends physical units per second (sbg-ecan), so the simulated IMU
+    defaults to the MEMS one (`default_sim_si_imu`, `NoiseModel.mems`)."""
     seed = t.integer("seed", 0, ge=0, le=2 ** 32 - 1)
     written, black_box_rad = _black_box(t, seed)
-    imu, overrides, thermal = _sim_imu(t)
-    return SimConfig(seed, written, black_box_rad, _noise(t), imu, overrides, thermal)
+    imu, overrides, thermal = _sim_imu(t, si_outputs)
+    return SimConfig(seed, written, black_box_rad, _noise(t, si_outputs), imu, overrides, thermal)
 
 
 # --- entry points -------------------------------------------------------------------
@@ -592,7 +600,7 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
     out = root.table("output", ("folder", "chunk_run_interval_s"))
     output = OutputConfig(out.path_value("folder", out.string("folder", "runs", nonempty=True)),
                           out.number("chunk_run_interval_s", None, gt=0, ge=0.01, le=3600.0, unit="s"))
-    sim = _sim(root.table("sim", ("seed", "black_box_arcsec", "noise", "imu")))
+    sim = _sim(root.table("sim", ("seed", "black_box_arcsec", "noise", "imu")), imu.layout.time_stamp is not None)
     acceptance = acceptance_limits(root.table("acceptance", ACCEPTANCE_KEYS))
     chamber = chamber_config(root.table("chamber", CHAMBER_KEYS)) if root.has("chamber") else None
     if plan.thermal is not None:

@@ -116,6 +116,32 @@ def default_sim_imu() -> ImuCoefficients:
     )
 
 
+def default_sim_si_imu() -> ImuCoefficients:
+    """The simulated MEMS IMU whose outputs are calibrated SI values (rad/s, m/s^2): what an IMU sending
+    physical units (the sbg-ecan layout) is, seen by the model: scale factors near 1 (rad/s per rad/s,
+    m/s^2 per m/s^2: display pi/180 counts/s per deg/s and g0 counts/s per g), the residual errors of a
+    factory calibration (scale 1e-4 to 4e-4, misalignments 5e-4 to 1.2e-3 rad, biases of tens of deg/h
+    and a few mg)."""
+    gyro_axes = _unit_rows(np.array([
+        [1.0, 8.0e-4, -6.0e-4],
+        [-9.0e-4, 1.0, 1.1e-3],
+        [7.0e-4, -1.2e-3, 1.0],
+    ]))
+    acc_axes = _unit_rows(np.array([
+        [1.0, -7.0e-4, 9.0e-4],
+        [5.0e-4, 1.0, -8.0e-4],
+        [-1.0e-3, 6.0e-4, 1.0],
+    ]))
+    return ImuCoefficients(
+        gyro_scale=np.array([1.00025, 0.99968, 1.00012]),
+        gyro_bias=np.array([25.0, -18.0, 32.0]) * DEG_PER_HOUR,
+        gyro_axes=gyro_axes,
+        acc_scale=np.array([1.00031, 0.99979, 1.00042]),
+        acc_bias=np.array([2.0e-3, -1.5e-3, 2.5e-3]) * G0,
+        acc_axes=acc_axes,
+    )
+
+
 @dataclass(frozen=True)
 class NoiseModel:
     """Sensor noise of the simulated IMU (display units; zero disables a term).
@@ -140,6 +166,13 @@ class NoiseModel:
     def off(cls) -> "NoiseModel":
         return cls(0.0, 0.0, 0.0, 0.0, 300.0, False)
 
+    @classmethod
+    def mems(cls) -> "NoiseModel":
+        """Noise of the simulated MEMS IMU (`default_sim_si_imu`): data-sheet levels of an industrial MEMS
+        unit; no integer quantisation (an IMU sending physical units is quantised by its output format)."""
+        return cls(gyro_arw_deg_rt_h=0.15, gyro_bias_instability_dph=7.0, acc_vrw_ug_rt_hz=60.0,
+                   acc_bias_instability_ug=15.0, correlation_time_s=300.0, quantise=False)
+
     @property
     def enabled(self) -> bool:
         return bool(self.gyro_arw_deg_rt_h or self.gyro_bias_instability_dph or self.acc_vrw_ug_rt_hz
@@ -147,4 +180,4 @@ class NoiseModel:
                     or self.acc_rrw_ug_rt_h)
 
 
-__all__ = ["ImuCoefficients", "NoiseModel", "default_sim_imu"]
+__all__ = ["ImuCoefficients", "NoiseModel", "default_sim_imu", "default_sim_si_imu"]

@@ -49,6 +49,9 @@ class PositionObservation:
     #: when the dwell's window began (s, on the IMU's time base): the bias-instability part of
     #: the uncertainty budget correlates steps by their distance in time (None: unknown)
     start_s: float | None = None
+    #: the six channels' output step (counts/s) of an IMU that rounds each sample on its own (sbg-ecan), whose
+    #: rounding the budget checks is dithered by the IMU's noise; None: a counter output
+    output_step: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         self.angles_deg = triple(_vec3(self.angles_deg, "angles_deg"))
@@ -74,8 +77,32 @@ class PositionObservation:
 COUNT_RESOLUTION = 1.0
 
 
+_TERMS = 32
+
+
+def rounding_bias_variance(std: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """Variance of the part of per-sample rounding to `step` that no averaging removes, per channel.
+
+    An IMU that sends each sample's value rounded on its own (sbg-ecan: 0.001 rad/s, 0.01 m/s^2) errs by up
+    to step/2 per sample. Noise of sigma >~ step/2 dithers the rounding: its error is then white (it is in
+    the samples' scatter, hence in the standard error) and its mean over a window is (with x the signal's
+    position within a step, uniform) sum_k step/(pi k) (-1)^k exp(-2 pi^2 k^2 sigma^2/step^2) sin(2 pi k x/step):
+    variance sum_k step^2/(2 pi^2 k^2) exp(-4 pi^2 k^2 sigma^2/step^2), step^2/12 without noise, negligible
+    from sigma = step/2 on. `std`: the per-sample scatter as sent (rounding included), so
+    sigma^2 = std^2 - step^2/12 (at least 0).
+    """
+    step = np.asarray(step, dtype=float)
+    ratio2 = np.maximum(np.asarray(std, dtype=float) ** 2 / step ** 2 - 1.0 / 12.0, 0.0)   # (sigma/step)^2
+    a = 4.0 * math.pi ** 2 * ratio2
+    k = np.arange(1, _TERMS + 1, dtype=float)[:, None]
+    series = np.sum(np.exp(-a * k ** 2) / k ** 2, axis=0)
+    series += np.exp(-a * (_TERMS + 1) ** 2) / (_TERMS + 0.5)   # the tail (sum of 1/k^2 beyond: ~1/(K + 1/2))
+    return step ** 2 * series / (2.0 * math.pi ** 2)
+
+
 def mean_and_standard_error(rates: np.ndarray, blocks: int = 20, duration_s: float | None = None,
-                            resolution_counts: float = COUNT_RESOLUTION) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                            resolution_counts: float = COUNT_RESOLUTION,
+                            output_step: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mean, per-sample std and 1-sigma of the mean of per-sample rates (n, 3).
 
     The standard error comes from the scatter of `blocks` block means rather than from
@@ -84,7 +111,9 @@ def mean_and_standard_error(rates: np.ndarray, blocks: int = 20, duration_s: flo
     With `duration_s` it is floored at the quantisation of the dwell's summed count,
     `resolution_counts / (duration_s * sqrt(12))`: block means can agree to the last
     bit (quantised outputs, a noise-free simulator) and a zero standard error would
-    give one dwell infinite weight.
+    give one dwell infinite weight. With `output_step` (counts/s per channel: an IMU sending each sample's
+    rate rounded on its own, sbg-ecan) the sum is not exact: the rounding's part that averaging does not
+    remove, `rounding_bias_variance`, is added to the standard error's variance instead.
     """
     rates = np.asarray(rates, dtype=float)
     n = len(rates)
@@ -97,7 +126,9 @@ def mean_and_standard_error(rates: np.ndarray, blocks: int = 20, duration_s: flo
         size = n // blocks
         block_means = rates[: size * blocks].reshape(blocks, size, -1).mean(axis=1)
         sem = block_means.std(axis=0, ddof=1) / math.sqrt(blocks)
-    if duration_s is not None and duration_s > 0:
+    if output_step is not None:
+        sem = np.sqrt(sem ** 2 + rounding_bias_variance(std, output_step))
+    elif duration_s is not None and duration_s > 0:
         sem = np.maximum(sem, resolution_counts / (duration_s * math.sqrt(12.0)))
     return mean, std, sem
 
@@ -122,6 +153,9 @@ class RotationObservation:
     gyro_integral_sigma: np.ndarray | None = None
     label: str = ""
     start_s: float | None = None    # when the window began, as `PositionObservation.start_s`
+    #: variance (counts^2) of the integral's output rounding, for an IMU that rounds each sample on its own
+    #: (sbg-ecan); None: a counter output, whose integral is exact to one count (the budget's counter model)
+    rounding_var: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.start_deg = triple(_vec3(self.start_deg, "start_deg"))
@@ -136,6 +170,8 @@ class RotationObservation:
             self.earth_integral_rad = _vec3(self.earth_integral_rad, "earth_integral_rad")
         if self.gyro_integral_sigma is not None:
             self.gyro_integral_sigma = _vec3(self.gyro_integral_sigma, "gyro_integral_sigma")
+        if self.rounding_var is not None:
+            self.rounding_var = _vec3(self.rounding_var, "rounding_var")
 
     @property
     def frame_index(self) -> int:

@@ -38,7 +38,7 @@ class SimCanImu:
 
     def __init__(self, source: SimController | SimTable, imu: SimImu, bus: can.BusABC,
                  layout: ImuLayout | None = None, clock: Clock | None = None,
-                 temperature_c: float = 25.0, status: int = 0):
+                 temperature_c: float = 25.0, status: int | None = None):
         if isinstance(source, SimController):
             self.table = source.table
             self._now = source.now
@@ -54,8 +54,10 @@ class SimCanImu:
             raise TypeError(f"source must be a SimController or a SimTable, got {type(source).__name__}")
         self.imu, self.bus = imu, bus
         self.layout = layout if layout is not None else default_layout()
-        self.encoder = ImuEncoder(self.layout, saturate=True)   # a real IMU's output saturates, flagged over-range
-        self.temperature_c, self.status = temperature_c, status
+        # a real IMU's output saturates, flagged over-range; a time-stamped layout (sbg-ecan) stamps at the IMU's rate
+        self.encoder = ImuEncoder(self.layout, saturate=True, rate_hz=imu.rate_hz)
+        self.temperature_c = temperature_c
+        self.status = status   # None: the layout's healthy status word
         self.frames_sent = 0
         self.samples_sent = 0
         self.error: BaseException | None = None

@@ -111,7 +111,8 @@ def _check_gyro_range(config: BenchConfig) -> None:
     layout, rate_hz = config.imu.layout, config.imu.rate_hz
     fastest_dps = max(axis.max_rate_dps for axis in config.table.limits.axes)
     scale = float(np.max(config.sim.imu.gyro_scale)) * DEG      # counts/s per deg/s
-    need = fastest_dps * scale / rate_hz
+    per_sample = 1.0 if layout.time_stamp is not None else rate_hz   # sbg-ecan sends rates, not increments
+    need = fastest_dps * scale / per_sample
     for message in layout.messages:
         for column, sig in message.values:
             if column < 3:
@@ -288,11 +289,18 @@ def imu_layout_lines(imu) -> list[str]:
 def _spec_table(spec: ImuFrameSpec) -> dict:
     """An `[imu.signals]` table that `ImuFrameSpec.from_dict` reads back as `spec`."""
     table: dict = {c: spec.channels[c] for c in CHANNELS}
-    table["counter"] = spec.counter if isinstance(spec.counter, str) else dict(spec.counter)
+    if spec.counter is not None:
+        table["counter"] = spec.counter if isinstance(spec.counter, str) else dict(spec.counter)
+    if spec.time_stamp is not None:
+        table["time_stamp"] = spec.time_stamp
     table["crc"] = "" if spec.crc is None else (spec.crc if isinstance(spec.crc, str) else dict(spec.crc))
     for key in ("temperature", "status"):
         if getattr(spec, key) is not None:
             table[key] = getattr(spec, key)
+    if spec.status_invalid != ImuFrameSpec.from_dict(table).status_invalid:   # only where not the default
+        table["status_invalid"] = spec.status_invalid
+    if spec.status_required:
+        table["status_required"] = spec.status_required
     return table
 
 

@@ -25,6 +25,11 @@ turntable, propagated through the whole solve) and contributes `J P C_y P^T J^T`
 - **count resolution** (Type B): a turn's integral is a difference of two counter
   readings, each known to one count (1/sqrt(6) counts for the difference of two
   uniform remainders). A dwell's mean has its resolution floor in its standard error.
+  An IMU that sends each sample's value rounded on its own (sbg-ecan: 0.001 rad/s) has
+  no exact sum: the rounding that its own noise does not dither away stays in a turn's
+  integral (`RotationObservation.rounding_var`) and in a dwell's standard error
+  (`bench.model.observations.rounding_bias_variance`); the dithered rest is white noise,
+  in the samples' scatter.
 - **turn angle** (Type B, `[table] turn_angle_error_arcsec`): the solve takes each turn
   as exactly N revolutions; the table stops at each end only to its position
   repeatability (servo in-position band, readback resolution), so a turn's angle is off
@@ -58,7 +63,13 @@ from bench.model.closed_form import position_outputs, turn_closed_form, turn_int
 from bench.model.earth import Site
 from bench.model.families import BODY_AXES, RESULT_UNITS, SENSOR_AXES
 from bench.model.imu import ImuCoefficients
-from bench.model.observations import COUNT_RESOLUTION, PositionObservation, RotationObservation, turn_axis_in_body
+from bench.model.observations import (
+    COUNT_RESOLUTION,
+    PositionObservation,
+    RotationObservation,
+    rounding_bias_variance,
+    turn_axis_in_body,
+)
 from bench.model.table_prior import TablePrior
 from bench.model.units import ARCSEC
 from bench.solve.methods import (
@@ -87,7 +98,7 @@ SOURCES = {
     TABLE: ("B", "turntable pointing (black-box angles), first and second order"),
     GRAVITY: ("B", "local gravity"),
     LATITUDE: ("B", "site latitude"),
-    RESOLUTION: ("B", "IMU counter resolution of the turn integrals"),
+    RESOLUTION: ("B", "IMU output resolution of the turn integrals (counter, or each sample's rounding)"),
     TURN_ANGLE: ("B", "each turn's angle error (the table's position repeatability at its ends)"),
     UNEXPLAINED: ("A", "residual scatter the budget does not explain (fallback scaling)"),
 }
@@ -474,7 +485,7 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
             noise = gyros.cov_noise_sensor(s)
             add_triad("Kg", "Eg", None, s, NOISE, np.diag(noise))
             c_gm = (gyros.scale[s] * inputs.gyro_bias_instability) ** 2 * kernel
-            c_q = np.eye(len(rotations)) * _QUANT_VAR * inputs.count_resolution ** 2
+            c_q = _rounding_cov(rotations, s, inputs.count_resolution)
             c_turn = np.diag((turned @ gyros.fit.params[s][:3] * angle_sigma) ** 2)
             for comp, c_y in ((BIAS_INSTABILITY, c_gm), (RESOLUTION, c_q), (TURN_ANGLE, c_turn)):
                 add_triad("Kg", "Eg", None, s, comp, _triad_var(gyros, design, s, c_y))
@@ -535,6 +546,7 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
                 add(name, comp, sd * sd)
     else:
         flags.append("turntable and site parts of the budget not computed: too few coefficients solved")
+    flags += _undithered_rounding(positions)
     if inputs.table is None:
         flags.append("uncertainty budget: the turntable's pointing error is NOT included (set [table] "
                      "pointing_accuracy_arcsec or [table] check): the uncertainties cover the IMU alone")
@@ -554,6 +566,39 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
                      f"{c.scale:.3g} as a fallback")
     components = {name: {comp: math.sqrt(v) for comp, v in parts.items()} for name, parts in var.items()}
     return Budget(components, consistency, inputs, flags)
+
+
+#: the share of the rounding's step^2/12 left after averaging above which dwells round alike (sigma < ~0.3 step)
+_UNDITHERED_SHARE = 0.01
+_CHANNEL_NAMES = ("gyro x", "gyro y", "gyro z", "accelerometer x", "accelerometer y", "accelerometer z")
+
+
+def _undithered_rounding(positions: list[PositionObservation]) -> list[str]:
+    """A flag when an IMU that rounds each sample (sbg-ecan) has too little noise of its own to dither the
+    rounding: its dwells' rounding errors then follow their signals (alike wherever the signals are), which the
+    budget's per-dwell rounding part, taken as independent, does not cover."""
+    stepped = [o for o in positions if o.output_step is not None and o.gyro_std is not None
+               and o.acc_std is not None]
+    if not stepped:
+        return []
+    step = np.asarray(stepped[0].output_step, dtype=float)
+    std = np.sqrt(np.mean([np.concatenate([o.gyro_std, o.acc_std]) ** 2 for o in stepped], axis=0))
+    share = rounding_bias_variance(std, step) / (step ** 2 / 12.0)
+    undithered = [f"{name} {s:.0%}" for name, s in zip(_CHANNEL_NAMES, share) if s > _UNDITHERED_SHARE]
+    if not undithered:
+        return []
+    return [f"uncertainty budget: the IMU's own noise does not dither its output resolution (the rounding left "
+            f"after averaging: {', '.join(undithered)}): dwells with like signals round alike, which the "
+            f"uncertainties do NOT cover"]
+
+
+def _rounding_cov(rotations: list[RotationObservation], s: int, count_resolution: float) -> np.ndarray:
+    """The turn integrals' output-resolution covariance for gyro `s` (counts^2): each turn's own rounding
+    variance where the IMU rounds every sample (sbg-ecan), else the counter's, the same for every turn."""
+    own = [o.rounding_var for o in rotations]
+    if all(v is not None for v in own):
+        return np.diag(np.array([float(v[s]) for v in own if v is not None]))
+    return np.eye(len(rotations)) * _QUANT_VAR * count_resolution ** 2
 
 
 def _current_imu(acc, gyros, bias, gyro_prior) -> ImuCoefficients | None:

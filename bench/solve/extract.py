@@ -32,6 +32,7 @@ from bench.model.observations import (
     PositionObservation,
     RotationObservation,
     mean_and_standard_error,
+    rounding_bias_variance,
     turn_earth_integral,
 )
 from bench.model.units import DEG
@@ -158,15 +159,24 @@ def _turn_earth_integral(site: Site, step: dict, samples_duration_s: float, t0: 
 def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: np.ndarray, acc_counts: np.ndarray,
                          rate_hz: float, site: Site, state_time_s: np.ndarray, state_angles_deg: np.ndarray,
                          mounting=None, status: np.ndarray | None = None,
-                         status_invalid: int = 0) -> Extraction:
+                         status_invalid: int = 0, status_required: int = 0,
+                         output_step: tuple[float, ...] | None = None) -> Extraction:
     """Observations of every finished dwell and turn, in the order the units were listed (P.., R..).
 
     A dwell or turn holding a sample whose `status` has any of the `status_invalid` bits (a fault, a saturated
-    output, outputs not yet valid) is left out, saying so: its mean or integral would be silently wrong."""
+    output, outputs not yet valid), or lacking any of the `status_required` bits (sbg-ecan's health bits), is
+    left out, saying so: its mean or integral would be silently wrong.
+
+    `output_step` (6 channels, counts/s): an IMU that sends each sample's value rounded on its own
+    (`ImuLayout.output_step`, sbg-ecan); its rounding enters the dwells' standard errors and each turn's
+    `rounding_var` (`bench.model.observations.rounding_bias_variance`); None: a counter output."""
     out = Extraction(problems=malformed_observation_steps(events))
     counter = np.asarray(counter, dtype=np.int64)
-    flagged = (None if status is None or not status_invalid
-               else (np.asarray(status, dtype=np.int64) & status_invalid))
+    resolution = None if output_step is None else np.asarray(output_step, dtype=float)
+    flagged = None
+    if status is not None and (status_invalid or status_required):
+        status = np.asarray(status, dtype=np.int64)
+        flagged = (status & status_invalid) | (~status & status_required)
     for unit, (started, finished) in sorted(finished_observation_steps(events).items()):
         step, data = finished.data["step"], finished.data
         first, last = int(data["counter_first"]), int(data["counter_last"])
@@ -179,18 +189,21 @@ def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: 
         if flagged is not None and flagged[window].any():
             bits = int(np.bitwise_or.reduce(flagged[window]))
             out.problems.append(f"{unit}: {int(np.count_nonzero(flagged[window]))} of {n} samples flagged unusable "
-                                f"by the IMU ({describe_status(bits, status_invalid)}); left out")
+                                f"by the IMU ({describe_status(bits, status_invalid, status_required)}); left out")
             continue
         if step["kind"] == "dwell":
             if n < expected:
                 out.problems.append(f"{unit}: {expected - n} of {expected} samples missing in the dwell; "
                                     f"mean over the {n} received")
-            gyro_mean, gyro_std, gyro_sem = mean_and_standard_error(gyro_counts[window] * rate_hz,
-                                                                    duration_s=n / rate_hz)
-            acc_mean, acc_std, acc_sem = mean_and_standard_error(acc_counts[window] * rate_hz, duration_s=n / rate_hz)
+            gyro_mean, gyro_std, gyro_sem = mean_and_standard_error(
+                gyro_counts[window] * rate_hz, duration_s=n / rate_hz,
+                output_step=None if resolution is None else resolution[:3])
+            acc_mean, acc_std, acc_sem = mean_and_standard_error(
+                acc_counts[window] * rate_hz, duration_s=n / rate_hz,
+                output_step=None if resolution is None else resolution[3:])
             out.positions.append(PositionObservation(tuple(step["angles_deg"]), n / rate_hz, n, gyro_mean, acc_mean,
                                                      gyro_std, acc_std, gyro_sem, acc_sem, label=unit,
-                                                     start_s=first / rate_hz))
+                                                     start_s=first / rate_hz, output_step=output_step))
         else:
             if n < expected:
                 out.problems.append(f"{unit}: {expected - n} of {expected} samples missing during the turn: "
@@ -203,4 +216,17 @@ def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: 
                 tuple(step["start_deg"]), step["frame"], step["direction"], int(step["revolutions"]), n / rate_hz, n,
                 gyro_counts[window].sum(axis=0), earth_integral_rad=earth, label=unit,
                 start_s=first / rate_hz))
+    if resolution is not None:
+        _turn_rounding(out, resolution[:3])
     return out
+
+
+def _turn_rounding(out: Extraction, gyro_step: np.ndarray) -> None:
+    """Each turn's rounding variance (counts^2): the part of the per-sample rounding (counts/s) that the gyros'
+    own noise does not dither away, constant over the turn's window T at worst, hence times T^2. The noise is
+    the dwells' pooled per-sample scatter (none without dwells: the undithered worst case, step^2/12)."""
+    stds = [o.gyro_std for o in out.positions if o.gyro_std is not None]
+    std = np.sqrt(np.mean(np.square(stds), axis=0)) if stds else np.zeros(3)
+    per_second = rounding_bias_variance(std, gyro_step)
+    for o in out.rotations:
+        o.rounding_var = per_second * o.duration_s ** 2

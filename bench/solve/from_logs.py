@@ -45,7 +45,7 @@ def extract_from_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz
         states = log.table_states
         part = extract_observations(log.events, samples.counter, samples.gyro_counts, samples.acc_counts, rate_hz,
                                     site, states.time_s, states.angles_deg, mounting, samples.status,
-                                    layout.status_invalid)
+                                    layout.status_invalid, layout.status_required, layout.output_step)
         merged_positions.update({o.label: o for o in part.positions})
         merged_rotations.update({o.label: o for o in part.rotations})
         problems += [f"{log.path}: {p}" for p in part.problems]

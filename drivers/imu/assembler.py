@@ -30,6 +30,7 @@ import numpy as np
 from drivers.errors import ImuConfigError, ImuFrameError
 from drivers.imu.crc import linear_crc
 from drivers.imu.layout import EXTENDED_ID_FLAG, ImuLayout, SignalLayout, default_layout
+from drivers.imu.numbering import FrameNumberer
 from drivers.imu.samples import ImuSampleBlock, ImuStats
 
 _REC_HEAD = 3   # record: [mask, time of last used frame, counter, 8 raw column values]
@@ -56,10 +57,13 @@ class SampleAssembler:
         if not (rate_hz > 0 and rate_hz != float("inf")):
             raise ImuConfigError(f"rate_hz must be positive, got {rate_hz!r}")
         self.rate_hz, self.window = float(rate_hz), reorder_window
-        self._full = (1 << len(self.layout.messages)) - 1
-        self._modulus = 1 << self.layout.counter_bits
+        # a time-stamped layout (sbg-ecan): frames numbered first, then assembled as a counter layout's
+        self._numberer = FrameNumberer(self.layout, rate_hz) if self.layout.time_stamp is not None else None
+        self._layout = self._numberer.numbered_layout if self._numberer is not None else self.layout
+        self._full = (1 << len(self._layout.messages)) - 1
+        self._modulus = 1 << self._layout.counter_bits
         self._handlers: dict[int, _Handler] = {}
-        for k, m in enumerate(self.layout.messages):
+        for k, m in enumerate(self._layout.messages):
             chunks: tuple[_Chunk, ...] = ()
             id_constant, crc_shift = 0, -1
             if m.crc_byte is not None:
@@ -97,6 +101,19 @@ class SampleAssembler:
                   for m in messages)
 
     def _run(self, frames) -> None:
+        numberer = self._numberer
+        if numberer is None:
+            self._assemble(frames)
+            return
+        before = numberer.before_start
+        try:
+            self._assemble(numberer.frames(frames))
+        finally:   # data frames before the first time stamp: late (their sample began before we listened)
+            late = numberer.before_start - before
+            self._stats.frames += late
+            self._stats.late += late
+
+    def _assemble(self, frames) -> None:
         # Hot loop: everything in locals, state written back once (also on an exception).
         handlers, pending, blank = self._handlers, self._pending, self._blank
         full, window, modulus = self._full, self.window, self._modulus
@@ -229,7 +246,7 @@ class SampleAssembler:
         ints = np.array(self._done, dtype=np.int64)
         times = np.array(self._done_t, dtype=np.float64)
         self._done, self._done_t = [], []
-        return ImuSampleBlock.from_raw(self.layout, ints[:, 2], times, ints[:, _REC_HEAD:], self.rate_hz)
+        return ImuSampleBlock.from_raw(self._layout, ints[:, 2], times, ints[:, _REC_HEAD:], self.rate_hz)
 
     @property
     def stats(self) -> ImuStats:

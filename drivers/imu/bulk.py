@@ -24,6 +24,7 @@ import numpy as np
 from drivers.errors import ImuFrameError
 from drivers.imu.crc import crc8_columns, crc8_raw, id_bytes, linear_crc
 from drivers.imu.layout import EXTENDED_ID_FLAG, ImuLayout, SignalLayout, default_layout
+from drivers.imu.numbering import FrameNumberer
 from drivers.imu.samples import ImuSampleBlock, ImuStats
 
 
@@ -225,6 +226,19 @@ def decode_frames(ids, data, lengths=None, timestamps=None, layout: ImuLayout | 
     if not (isinstance(reorder_window, int) and reorder_window >= 1):
         raise ImuFrameError(f"reorder_window must be a positive integer, got {reorder_window!r}")
     ids, data, lengths, timestamps = _as_arrays(ids, data, lengths, timestamps)
+    if layout.time_stamp is None:
+        return _decode(ids, data, lengths, timestamps, layout, rate_hz, reorder_window)
+    # a time-stamped layout (sbg-ecan): frames numbered first (drivers.imu.numbering)
+    numberer = FrameNumberer(layout, rate_hz)
+    ids, data, lengths, timestamps = numberer.arrays(ids, data, lengths, timestamps)
+    block, stats = _decode(ids, data, lengths, timestamps, numberer.numbered_layout, rate_hz, reorder_window)
+    stats.frames += numberer.before_start
+    stats.late += numberer.before_start
+    return block, stats
+
+
+def _decode(ids, data, lengths, timestamps, layout: ImuLayout, rate_hz: float,
+            reorder_window: int) -> tuple[ImuSampleBlock, ImuStats]:
     n = len(ids)
     stats = ImuStats(frames=n)
 

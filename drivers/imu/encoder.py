@@ -16,6 +16,8 @@ from drivers.errors import ImuFrameError
 from drivers.imu.crc import crc8_columns, crc8_raw, id_bytes
 from drivers.imu.layout import (
     COLUMNS,
+    SBG_ACCELS_IN_RANGE,
+    SBG_GYROS_IN_RANGE,
     STATUS_COLUMN,
     TEMPERATURE_COLUMN,
     ImuLayout,
@@ -74,9 +76,13 @@ class ImuEncoder:
     remainder is not disturbed); without it such an increment raises `ImuFrameError`.
     """
 
-    def __init__(self, layout: ImuLayout | None = None, saturate: bool = False):
+    def __init__(self, layout: ImuLayout | None = None, saturate: bool = False, rate_hz: float | None = None):
         self.layout = layout if layout is not None else default_layout()
         self.saturate = saturate
+        #: a time-stamped layout (sbg-ecan) sends rates and a time stamp: it needs the sample rate
+        self.rate_hz = rate_hz
+        if self.layout.time_stamp is not None and not (rate_hz is not None and rate_hz > 0):
+            raise ImuFrameError("a time-stamped layout is encoded at a sample rate: give rate_hz")
         self.saturated_samples = 0
         self._remainder = np.zeros(6)   # per channel, in units of the signal resolution
         self._width = max(m.length for m in self.layout.messages)
@@ -90,14 +96,23 @@ class ImuEncoder:
                                  np.asarray(acc_counts, float).reshape(n, 3)], axis=1)
         if not np.isfinite(values).all():
             raise ImuFrameError("IMU increments must be finite")
-        target = (values - np.asarray(lay.offset[:6])) / np.asarray(lay.scale[:6])
-        total = self._remainder + np.cumsum(target, axis=0)
-        rounded = np.round(total)
-        if np.abs(rounded).max(initial=0.0) >= 2.0 ** 62:
-            raise ImuFrameError("IMU increments too large for the layout's resolution")
-        cum = rounded.astype(np.int64)
-        raw[:, :6] = np.diff(cum, axis=0, prepend=np.zeros((1, 6), np.int64))
-        remainder = total[-1] - rounded[-1] if n else self._remainder
+        if lay.time_stamp is not None:
+            # rates and accelerations, each sample rounded on its own (the format sends values, not increments)
+            assert self.rate_hz is not None
+            rounded = np.round((values * self.rate_hz - np.asarray(lay.offset[:6])) / np.asarray(lay.scale[:6]))
+            if np.abs(rounded).max(initial=0.0) >= 2.0 ** 62:
+                raise ImuFrameError("IMU outputs too large for the layout's resolution")
+            raw[:, :6] = rounded.astype(np.int64)
+            remainder = self._remainder
+        else:
+            target = (values - np.asarray(lay.offset[:6])) / np.asarray(lay.scale[:6])
+            total = self._remainder + np.cumsum(target, axis=0)
+            rounded = np.round(total)
+            if np.abs(rounded).max(initial=0.0) >= 2.0 ** 62:
+                raise ImuFrameError("IMU increments too large for the layout's resolution")
+            cum = rounded.astype(np.int64)
+            raw[:, :6] = np.diff(cum, axis=0, prepend=np.zeros((1, 6), np.int64))
+            remainder = total[-1] - rounded[-1] if n else self._remainder
         if lay.has_column[TEMPERATURE_COLUMN]:
             temp = np.broadcast_to(np.asarray(25.0 if temperature_c is None else temperature_c, float), (n,))
             if not (np.isfinite(temp).all() and np.abs(temp).max(initial=0.0) < 1e6):
@@ -105,14 +120,17 @@ class ImuEncoder:
             scale, offset = lay.scale[TEMPERATURE_COLUMN], lay.offset[TEMPERATURE_COLUMN]
             raw[:, TEMPERATURE_COLUMN] = np.round((temp - offset) / scale)
         if lay.has_column[STATUS_COLUMN]:
-            raw[:, STATUS_COLUMN] = np.broadcast_to(np.asarray(0 if status is None else status, np.int64), (n,))
+            status = lay.healthy_status() if status is None else status
+            raw[:, STATUS_COLUMN] = np.broadcast_to(np.asarray(status, np.int64), (n,))
         return raw, remainder
 
     def encode(self, counter, gyro_counts, acc_counts, temperature_c=None, status=None) -> EncodedFrames:
         """Frames for n samples: `counter` (n,) the IMU's sample counter (its low bits are sent),
         `gyro_counts`/`acc_counts` (n, 3) increments in output counts, `temperature_c` and
-        `status` scalars or (n,) (default 25 degC, 0). Out-of-range values raise
-        `ImuFrameError` and leave the carried remainder unchanged.
+        `status` scalars or (n,) (default 25 degC, the layout's healthy status). Out-of-range values raise
+        `ImuFrameError` and leave the carried remainder unchanged. A time-stamped layout (sbg-ecan) sends
+        `counter` as its time stamp (counter / rate_hz, in the stamp's unit, wrapped to its width) and the
+        increments as values per second (increment x rate_hz), each rounded to the signal's resolution.
         """
         lay = self.layout
         counter = np.asarray(counter, dtype=np.int64).reshape(-1)
@@ -125,9 +143,15 @@ class ImuEncoder:
             for column, sig in m.values:
                 _check_range(sig, raw[:, column], COLUMNS[column])
         data = np.zeros((n, n_msgs, self._width), np.uint8)
+        stamp = lay.time_stamp
         for k, m in enumerate(lay.messages):
             block = np.zeros((n, m.length), np.uint8)
-            _insert(block, m.counter, counter_raw)
+            if stamp is None:
+                _insert(block, m.counter, counter_raw)
+            elif k == 0:   # the time-stamp message: the sample's time, wrapped to the stamp's width
+                assert self.rate_hz is not None   # (checked at construction)
+                ticks = np.round(counter / (self.rate_hz * stamp.unit_s)).astype(np.int64)
+                _insert(block, stamp.signal, ticks & np.int64(stamp.signal.mask))
             for column, sig in m.values:
                 _insert(block, sig, raw[:, column])
             if m.crc_byte is not None:
@@ -142,7 +166,7 @@ class ImuEncoder:
 
     def _clip(self, raw: np.ndarray) -> None:
         """Clip the six channels to their signals' ranges; flag the clipped samples as over-range."""
-        clipped = np.zeros(len(raw), bool)
+        clipped = np.zeros((len(raw), 2), bool)   # per sample: a gyro clipped, an accelerometer clipped
         for m in self.layout.messages:
             for column, sig in m.values:
                 if column >= 6:
@@ -151,11 +175,16 @@ class ImuEncoder:
                 out = (raw[:, column] < lo) | (raw[:, column] > hi)
                 if out.any():
                     raw[:, column] = np.clip(raw[:, column], lo, hi)
-                    clipped |= out
-        if clipped.any():
-            self.saturated_samples += int(clipped.sum())
-            if self.layout.has_column[STATUS_COLUMN]:
-                raw[clipped, STATUS_COLUMN] |= OVER_RANGE_BIT
+                    clipped[:, column // 3] |= out
+        any_clipped = clipped.any(axis=1)
+        if any_clipped.any():
+            self.saturated_samples += int(any_clipped.sum())
+            if self.layout.has_column[STATUS_COLUMN] and self.layout.status_required:
+                # sbg-ecan: the "within range" bit of the saturated sensor kind is cleared
+                raw[clipped[:, 0], STATUS_COLUMN] &= ~SBG_GYROS_IN_RANGE
+                raw[clipped[:, 1], STATUS_COLUMN] &= ~SBG_ACCELS_IN_RANGE
+            elif self.layout.has_column[STATUS_COLUMN]:
+                raw[any_clipped, STATUS_COLUMN] |= OVER_RANGE_BIT
 
     def encode_sample(self, counter: int, gyro_counts, acc_counts, temperature_c: float | None = None,
                       status: int | None = None) -> list[tuple[int, bytes]]:
@@ -169,4 +198,5 @@ def encode_block(block, layout: ImuLayout | None = None) -> EncodedFrames:
     """Frames for an `ImuSampleBlock` (its values already lie on the layout's resolution)."""
     status = block.status if (layout or default_layout()).has_column[STATUS_COLUMN] else None
     temperature = block.temperature_c if np.isfinite(block.temperature_c).all() else None
-    return ImuEncoder(layout).encode(block.counter, block.gyro_counts, block.acc_counts, temperature, status)
+    return ImuEncoder(layout, rate_hz=block.rate_hz).encode(block.counter, block.gyro_counts, block.acc_counts,
+                                                            temperature, status)

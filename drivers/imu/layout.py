@@ -13,7 +13,9 @@ Anything else raises `ImuConfigError` naming the signal.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import operator
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import IntFlag
@@ -48,8 +50,35 @@ class ImuStatus(IntFlag):
 STATUS_INVALID = ImuStatus.GYRO_FAULT | ImuStatus.ACC_FAULT | ImuStatus.OVER_RANGE | ImuStatus.INITIALISING
 
 
-def describe_status(bits: int, invalid: int = STATUS_INVALID) -> str:
-    """Status bits in words: the shipped names where the invalid bits are the shipped ones, else in hex."""
+class SbgImuStatus(IntFlag):
+    """sbg-ecan's IMU status bits (SBG's IMU_STATUS): each set = healthy."""
+
+    COM_OK = 1 << 0
+    BUILT_IN_TEST_OK = 1 << 1
+    ACCEL_X_OK = 1 << 2
+    ACCEL_Y_OK = 1 << 3
+    ACCEL_Z_OK = 1 << 4
+    GYRO_X_OK = 1 << 5
+    GYRO_Y_OK = 1 << 6
+    GYRO_Z_OK = 1 << 7
+    ACCELS_IN_RANGE = 1 << 8
+    GYROS_IN_RANGE = 1 << 9
+
+
+#: sbg-ecan's status word with every health bit set (0x03FF); a sample lacking any is unusable.
+SBG_STATUS_HEALTHY = int(functools.reduce(operator.or_, SbgImuStatus))
+#: sbg-ecan's "accelerometers / gyroscopes within range" bits: a sender whose output saturates clears them.
+SBG_ACCELS_IN_RANGE, SBG_GYROS_IN_RANGE = int(SbgImuStatus.ACCELS_IN_RANGE), int(SbgImuStatus.GYROS_IN_RANGE)
+
+
+def describe_status(bits: int, invalid: int = STATUS_INVALID, required: int = 0) -> str:
+    """Unusable status bits (set invalid ones, cleared required ones) in words: the shipped names where the bits
+    are the shipped layouts' or sbg-ecan's, else in hex."""
+    if required:
+        if required == SBG_STATUS_HEALTHY and not invalid:
+            return ", ".join(f"{str(flag.name).lower().replace('_', '-')} clear" for flag in SbgImuStatus
+                             if bits & flag)
+        return f"status bits {bits:#06x}"
     if invalid == STATUS_INVALID:
         names = [str(flag.name).lower().replace("_", "-") for flag in ImuStatus if bits & flag]
         return ", ".join(names)
@@ -60,6 +89,7 @@ DBC_DIR = Path(__file__).resolve().parent
 DEFAULT_DBC = DBC_DIR / "sim_imu.dbc"
 DEFAULT_FD_DBC = DBC_DIR / "sim_imu_fd.dbc"
 DEFAULT_PACKED_DBC = DBC_DIR / "sim_imu_packed.dbc"
+SBG_ECAN_DBC = DBC_DIR / "sbg_ecan.dbc"
 
 
 @dataclass(frozen=True)
@@ -70,16 +100,23 @@ class ImuFrameSpec:
     every mapped message, or a per-message {message: signal} table (`crc` None or a
     message missing from the table: that message has no CRC). `temperature` (degC) and
     `status` are optional "MESSAGE.Signal" strings; `status_invalid`: the status bits that
-    make a sample unusable (the shipped layouts' `STATUS_INVALID` unless told). Every message
-    named here is part of every sample.
+    make a sample unusable (the shipped layouts' `STATUS_INVALID` unless told); `status_required`:
+    the bits that must be set in a usable sample (an IMU whose status bits mean "healthy").
+    Every message named here is part of every sample.
+
+    `time_stamp` ("MESSAGE.Signal", unsigned, microseconds) instead of a counter: a layout
+    without a sample counter (sbg-ecan). That message opens a sample and the others follow
+    it; the channels are then rates and accelerations (per second), not increments.
     """
 
     channels: Mapping[str, str]
-    counter: str | Mapping[str, str] = "Counter"
+    counter: str | Mapping[str, str] | None = "Counter"
     crc: str | Mapping[str, str] | None = "CRC"
     temperature: str | None = None
     status: str | None = None
     status_invalid: int = STATUS_INVALID
+    time_stamp: str | None = None
+    status_required: int = 0
 
     @classmethod
     def from_dict(cls, config: Mapping) -> "ImuFrameSpec":
@@ -89,7 +126,8 @@ class ImuFrameSpec:
         """
         if not isinstance(config, Mapping):
             raise ImuConfigError(f"the IMU signal mapping must be a table, got {type(config).__name__}")
-        known = set(CHANNELS) | {"temperature", "status", "status_invalid", "counter", "crc"}
+        known = set(CHANNELS) | {"temperature", "status", "status_invalid", "status_required", "counter", "crc",
+                                 "time_stamp"}
         unknown = sorted(str(k) for k in config if k not in known)
         if unknown:
             raise ImuConfigError(f"unknown key(s) in the IMU signal mapping: {', '.join(unknown)} "
@@ -97,14 +135,21 @@ class ImuFrameSpec:
         missing = [c for c in CHANNELS if c not in config]
         if missing:
             raise ImuConfigError(f"the IMU signal mapping lacks {', '.join(missing)}")
-        crc = config.get("crc", "CRC")
-        invalid = config.get("status_invalid", int(STATUS_INVALID))
-        if type(invalid) is not int or not 0 <= invalid <= 0xFFFF_FFFF:
-            raise ImuConfigError(f"status_invalid must be a whole number of status bits (0 to 0xFFFFFFFF; 0: no "
-                                 f"status bit makes a sample unusable), got {invalid!r}")
-        return cls(channels={c: config[c] for c in CHANNELS}, counter=config.get("counter", "Counter"),
+        time_stamp = config.get("time_stamp")
+        crc = config.get("crc", None if time_stamp else "CRC")
+        counter = config.get("counter", None if time_stamp else "Counter")
+        if time_stamp is not None and counter is not None:
+            raise ImuConfigError("give a counter or a time_stamp signal, not both")
+        invalid = config.get("status_invalid", 0 if time_stamp else int(STATUS_INVALID))
+        required = config.get("status_required", 0)
+        for key, bits in (("status_invalid", invalid), ("status_required", required)):
+            if type(bits) is not int or not 0 <= bits <= 0xFFFF_FFFF:
+                raise ImuConfigError(f"{key} must be a whole number of status bits (0 to 0xFFFFFFFF; 0: none), "
+                                     f"got {bits!r}")
+        return cls(channels={c: config[c] for c in CHANNELS}, counter=counter,
                    crc=crc if crc != "" else None, temperature=config.get("temperature"),
-                   status=config.get("status"), status_invalid=invalid)
+                   status=config.get("status"), status_invalid=invalid, time_stamp=time_stamp,
+                   status_required=required)
 
 
 #: The mapping of the shipped classic layout (drivers/imu/sim_imu.dbc).
@@ -121,6 +166,12 @@ DEFAULT_PACKED_SPEC = ImuFrameSpec(
     channels={"gyro_x": "IMU_PACK_A.GyroX", "gyro_y": "IMU_PACK_A.GyroY", "gyro_z": "IMU_PACK_B.GyroZ",
               "acc_x": "IMU_PACK_B.AccX", "acc_y": "IMU_PACK_C.AccY", "acc_z": "IMU_PACK_C.AccZ"},
     temperature="IMU_PACK_B.Temperature", status="IMU_PACK_A.Status")
+#: The mapping of the sbg-ecan layout (drivers/imu/sbg_ecan.dbc): SBG Systems' published IMU messages.
+SBG_ECAN_SPEC = ImuFrameSpec(
+    channels={"gyro_x": "IMU_GYRO.GyroX", "gyro_y": "IMU_GYRO.GyroY", "gyro_z": "IMU_GYRO.GyroZ",
+              "acc_x": "IMU_ACCEL.AccelX", "acc_y": "IMU_ACCEL.AccelY", "acc_z": "IMU_ACCEL.AccelZ"},
+    counter=None, crc=None, temperature="IMU_INFO.Temperature", status="IMU_INFO.ImuStatus", status_invalid=0,
+    time_stamp="IMU_INFO.TimeStamp", status_required=SBG_STATUS_HEALTHY)
 
 #: The shipped layouts by the name `[imu] layout` gives them: (DBC file, signal mapping, what it is).
 SHIPPED_LAYOUTS: dict[str, tuple[Path, ImuFrameSpec, str]] = {
@@ -128,6 +179,8 @@ SHIPPED_LAYOUTS: dict[str, tuple[Path, ImuFrameSpec, str]] = {
     "packed": (DEFAULT_PACKED_DBC, DEFAULT_PACKED_SPEC,
                "3 classic frames per sample, whole counts (for rates up to 2 kHz on a 1 Mbit/s bus)"),
     "fd": (DEFAULT_FD_DBC, DEFAULT_FD_SPEC, "one 64-byte CAN FD frame per sample"),
+    "sbg-ecan": (SBG_ECAN_DBC, SBG_ECAN_SPEC, "SBG Systems' CAN IMU messages (IMU_INFO, IMU_ACCEL, IMU_GYRO): "
+                 "rates in 0.001 rad/s, accelerations in 0.01 m/s^2, a microsecond time stamp"),
 }
 
 
@@ -242,9 +295,32 @@ class MessageLayout:
         return self.frame_id | (EXTENDED_ID_FLAG if self.is_extended_id else 0)
 
 
+#: The width of the sample number a time-stamped layout's frames carry once numbered (`ImuLayout.numbered`).
+SAMPLE_NUMBER_BITS = 62
+
+
+def _sample_number_slot(length: int) -> SignalLayout:
+    """Where a numbered frame of a `length`-byte message carries its sample number: 8 bytes after its data."""
+    return SignalLayout("(sample number)", SAMPLE_NUMBER_BITS, False, False, 8 * length, length, length + 7, 0)
+
+
+@dataclass(frozen=True)
+class TimeStampRule:
+    """A layout without a sample counter: `signal` of the first message, a time stamp in `unit_s`, opens
+    each sample; the other messages belong to the sample whose time stamp came before them."""
+
+    signal: SignalLayout
+    unit_s: float = 1e-6
+
+
 @dataclass(frozen=True)
 class ImuLayout:
-    """A compiled IMU layout: the messages of one sample and the column scales."""
+    """A compiled IMU layout: the messages of one sample and the column scales.
+
+    A time-stamped layout (`time_stamp` set: no counter in the frames, channels in units per second) is
+    decoded through `drivers.imu.numbering`, which gives every frame its sample number; its messages'
+    `counter` is where a numbered frame carries it (after the frame's own bytes).
+    """
 
     messages: tuple[MessageLayout, ...]
     counter_bits: int
@@ -255,6 +331,31 @@ class ImuLayout:
     dbc_text: str = field(default="", repr=False)
     #: the status bits that make a sample unusable (`ImuFrameSpec.status_invalid`; 0 without a status signal)
     status_invalid: int = 0
+    #: the status bits a usable sample has set (`ImuFrameSpec.status_required`; 0 without a status signal)
+    status_required: int = 0
+    #: the time stamp that stands in for a counter; None: the frames carry a counter
+    time_stamp: TimeStampRule | None = None
+
+    @property
+    def output_step(self) -> tuple[float, ...] | None:
+        """The six channels' output resolution per second (rad/s, m/s^2 for sbg-ecan) of a time-stamped layout,
+        which rounds each sample on its own; None for a counter layout, whose increments sum exactly to one
+        step."""
+        return None if self.time_stamp is None else tuple(abs(v) for v in self.scale[:6])
+
+    def healthy_status(self) -> int:
+        """The status word of a sample with nothing to report (what a sender sends unless told)."""
+        return self.status_required
+
+    def numbered(self, rate_hz: float) -> "ImuLayout":
+        """The layout of this time-stamped layout's frames once numbered: each frame 8 bytes longer (its sample
+        number), the channels scaled to increments per sample (per-second values / `rate_hz`)."""
+        if self.time_stamp is None:
+            raise ImuConfigError("only a time-stamped layout is numbered")
+        messages = tuple(dataclasses.replace(m, length=m.length + 8) for m in self.messages)
+        scale = tuple(v / rate_hz if c < 6 else v for c, v in enumerate(self.scale))
+        offset = tuple(v / rate_hz if c < 6 else v for c, v in enumerate(self.offset))
+        return dataclasses.replace(self, messages=messages, scale=scale, offset=offset, time_stamp=None)
 
     @property
     def keys(self) -> tuple[int, ...]:
@@ -312,6 +413,8 @@ def _compile(db, spec: ImuFrameSpec, source: str, text: str) -> ImuLayout:
             raise ImuConfigError(f"{COLUMNS[column]} and {seen[(m, s)]} both map to {m}.{s}")
         seen[(m, s)] = COLUMNS[column]
     names = list(dict.fromkeys(m for _, m, _ in refs))   # message order: first use
+    if spec.time_stamp is not None:   # its message is part of every sample even if it carries no other signal
+        names = list(dict.fromkeys(names + [_split_ref(spec.time_stamp, "time_stamp")[0]]))
     by_name = {}
     for name in names:
         try:
@@ -333,7 +436,14 @@ def _compile(db, spec: ImuFrameSpec, source: str, text: str) -> ImuLayout:
             return {n: value.get(n) for n in names}
         raise ImuConfigError(f"{what} must be a signal name or a table of them, got {value!r}")
 
-    counters = per_message(spec.counter, "counter", True)
+    stamped = spec.time_stamp is not None
+    time_stamp = None
+    if stamped:
+        if spec.counter is not None:
+            raise ImuConfigError("give a counter or a time_stamp signal, not both")
+        ts_message, ts_signal = _split_ref(spec.time_stamp, "time_stamp")
+        names.sort(key=lambda n: (n != ts_message, by_name[n].frame_id))   # the time stamp opens a sample
+    counters = per_message(spec.counter, "counter", not stamped)
     crcs = per_message(spec.crc, "CRC", False)
 
     def signal(msg, sig_name: str | None, what: str):  # None (no name given) fails the lookup like a wrong name
@@ -348,7 +458,16 @@ def _compile(db, spec: ImuFrameSpec, source: str, text: str) -> ImuLayout:
         msg = by_name[name]
         if msg.length < 1 or msg.length > 64:
             raise ImuConfigError(f"message {name} has length {msg.length}")
-        counter = _compile_signal(msg, signal(msg, counters[name], "counter"), " (counter)")
+        if stamped:
+            counter = _sample_number_slot(int(msg.length))
+            if name == ts_message:
+                ts = _compile_signal(msg, signal(msg, ts_signal, "time_stamp"), " (time_stamp)")
+                if ts.signed or ts.scale != 1.0 or ts.offset != 0.0 or ts.length > 62:
+                    raise ImuConfigError(f"time_stamp signal {ts.name} of {name} must be unsigned, at most 62 "
+                                         f"bits, factor 1 (microseconds), offset 0")
+                time_stamp = TimeStampRule(ts)
+        else:
+            counter = _compile_signal(msg, signal(msg, counters[name], "counter"), " (counter)")
         if counter.signed or counter.scale != 1.0 or counter.offset != 0.0 or counter.length > 62:
             raise ImuConfigError(f"counter signal {counter.name} of {name} must be unsigned, at most 62 bits, "
                                  f"factor 1, offset 0")
@@ -378,7 +497,8 @@ def _compile(db, spec: ImuFrameSpec, source: str, text: str) -> ImuLayout:
         raise ImuConfigError("two mapped messages share one arbitration id")
     assert counter_bits is not None  # the six channels are required, so at least one message was compiled
     return ImuLayout(tuple(messages), int(counter_bits), tuple(scale), tuple(offset), tuple(has), source, text,
-                     status_invalid=int(spec.status_invalid) if spec.status else 0)
+                     status_invalid=int(spec.status_invalid) if spec.status else 0,
+                     status_required=int(spec.status_required) if spec.status else 0, time_stamp=time_stamp)
 
 
 @functools.lru_cache(maxsize=None)
@@ -395,7 +515,14 @@ def default_packed_layout() -> ImuLayout:
 
 def shipped_layout(name: str) -> ImuLayout:
     """The compiled shipped layout `name` (a key of `SHIPPED_LAYOUTS`)."""
-    return {"classic": default_layout, "packed": default_packed_layout, "fd": default_fd_layout}[name]()
+    return {"classic": default_layout, "packed": default_packed_layout, "fd": default_fd_layout,
+            "sbg-ecan": sbg_ecan_layout}[name]()
+
+
+@functools.lru_cache(maxsize=None)
+def sbg_ecan_layout() -> ImuLayout:
+    """The sbg-ecan layout: SBG Systems' IMU_INFO, IMU_ACCEL, IMU_GYRO messages at their default ids."""
+    return ImuLayout.from_dbc(SBG_ECAN_DBC, SBG_ECAN_SPEC)
 
 
 @functools.lru_cache(maxsize=None)

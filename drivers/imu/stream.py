@@ -17,6 +17,7 @@ import numpy as np
 from drivers.errors import ImuFrameError
 from drivers.imu.bulk import _as_arrays, _block, _counters, _screen, _unwrap_steps, extract
 from drivers.imu.layout import ImuLayout, default_layout
+from drivers.imu.numbering import FrameNumberer
 from drivers.imu.samples import ImuSampleBlock, ImuStats
 
 
@@ -27,6 +28,10 @@ class StreamDecoder:
         if not (isinstance(reorder_window, int) and reorder_window >= 1):
             raise ImuFrameError(f"reorder_window must be a positive integer, got {reorder_window!r}")
         self.layout = layout if layout is not None else default_layout()
+        # a time-stamped layout (sbg-ecan): frames numbered first, then decoded with the numbered layout
+        self._numberer = FrameNumberer(self.layout, rate_hz) if self.layout.time_stamp is not None else None
+        if self._numberer is not None:
+            self.layout = self._numberer.numbered_layout
         self.rate_hz = float(rate_hz)
         self.window = reorder_window
         self.stats = ImuStats()
@@ -43,6 +48,12 @@ class StreamDecoder:
         if self._finished:
             raise ImuFrameError("this stream is finished")
         ids, data, lengths, timestamps = _as_arrays(ids, data, lengths, timestamps)
+        if self._numberer is not None:
+            before = self._numberer.before_start
+            ids, data, lengths, timestamps = self._numberer.arrays(ids, data, lengths, timestamps)
+            late = self._numberer.before_start - before
+            self.stats.frames += late
+            self.stats.late += late
         n, stats, layout = len(ids), self.stats, self.layout
         stats.frames += n
         if not n:
