@@ -21,7 +21,7 @@ import dataclasses
 import re
 from pathlib import Path
 
-from bench.cli.common import ExitCode, fail, raise_interrupted, run_plan, stop_signals
+from bench.cli.common import ExitCode, ended_early, fail, raise_interrupted, run_plan, stop_signals
 from bench.cli.db import add_db_options, record_outputs
 from bench.errors import BenchError
 from bench.model.units import format_hms
@@ -221,8 +221,7 @@ def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
         try:
             if seq.error is not None:
                 recorder.close()
-                return fail(PROG, f"{seq.state.value}: {seq.error}; table stopped. Log: {run.log_path}",
-                            ExitCode.FAULT)
+                return ended_early(PROG, f"{seq.state.value}: {seq.error}", seq, f". Log: {run.log_path}")
             # Not BenchRun.finish(): that solves a calibration. The check reads the log it just wrote.
             recorder.flush()
             try:

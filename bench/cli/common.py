@@ -21,9 +21,11 @@ from bench.cli.progress import ProgressPrinter
 from bench.errors import BenchError
 from bench.model.imu import NoiseModel
 from drivers.errors import ChamberError, ImuError, TurntableError
+from drivers.turntable.base import TABLE_STATE_UNKNOWN
 
 if TYPE_CHECKING:
     from bench.run.runner import BenchRun
+    from bench.run.sequencer import Sequencer
     from drivers.session import DeviceSession
 
 
@@ -41,6 +43,9 @@ class ExitCode(IntEnum):
     QUALITY = 4
     #: `bench check-table` on the simulator: the estimate misses the simulated truth by more than 3 sigma
     SIM_TRUTH_MISSED = 5
+    #: no stop could be sent to the controller or confirmed (its link is gone): the table may still be moving;
+    #: the message says TABLE STATE UNKNOWN, the operator must stop it at the controller
+    TABLE_STATE_UNKNOWN = 6
     #: stopped by a signal (SIGINT, SIGTERM, SIGHUP) where nothing can move (`bench replay`)
     INTERRUPTED = 130
     #: stdout closed by its reader (`bench evaluate | head`): a quiet stop, 128 + SIGPIPE
@@ -58,6 +63,14 @@ def fail(prog: str, message: str, code: ExitCode) -> ExitCode:
     except OSError:
         pass
     return code
+
+
+def ended_early(prog: str, what: str, sequencer: Sequencer | None, after: str = "") -> ExitCode:
+    """The one line of a run that ended early: "`what`; table stopped`after`", exit 3, or, when its stop could
+    not be sent or confirmed, "`what`; TABLE STATE UNKNOWN: ...`after`", exit 6 (`ExitCode.TABLE_STATE_UNKNOWN`)."""
+    if sequencer is not None and sequencer.stop_result is not None and sequencer.stop_result.unknown:
+        return fail(prog, f"{what}; {sequencer.stop_words}{after}", ExitCode.TABLE_STATE_UNKNOWN)
+    return fail(prog, f"{what}; table stopped{after}", ExitCode.FAULT)
 
 
 def number_type(rule: str, accept: Callable[[float], bool]) -> Callable[[str], float]:
@@ -195,12 +208,22 @@ def drive_device(prog: str, device: DeviceSession[Any], command: Callable[[], Ex
         return fail(prog, f"refused, nothing sent: {exc}", ExitCode.USAGE)
     except errors as exc:
         done = _safely(make_safe)
-        return fail(prog, f"{type(exc).__name__}: {exc}" + (f"; {done}" if note_faults else ""), ExitCode.FAULT)
+        return fail(prog, f"{type(exc).__name__}: {exc}" + (f"; {done}" if note_faults or _unknown(done) else ""),
+                    _made_safe_code(done))
     except KeyboardInterrupt as exc:
         done = _safely(make_safe)
-        return fail(prog, f"interrupted ({exc or 'Ctrl-C'}); {done}", ExitCode.FAULT)
+        return fail(prog, f"interrupted ({exc or 'Ctrl-C'}); {done}", _made_safe_code(done))
     finally:
         device.close()
+
+
+def _unknown(done: str) -> bool:
+    return TABLE_STATE_UNKNOWN in done
+
+
+def _made_safe_code(done: str) -> ExitCode:
+    """Exit 3 after a stop that was sent; 6 when `make_safe` says the table state is unknown."""
+    return ExitCode.TABLE_STATE_UNKNOWN if _unknown(done) else ExitCode.FAULT
 
 
 def _safely(make_safe: Callable[[], str]) -> str:
@@ -234,5 +257,6 @@ def run_plan(run: BenchRun, prog: str, *, quiet: bool, simulated: bool) -> ExitC
     return None
 
 
-__all__ = ["KNOWN_ERRORS", "STOP_SIGNALS", "ExitCode", "Interrupted", "add_noise_arguments", "drive_device", "fail",
+__all__ = ["KNOWN_ERRORS", "STOP_SIGNALS", "ExitCode", "Interrupted", "add_noise_arguments", "drive_device",
+           "ended_early", "fail",
            "noise_from_args", "raise_interrupted", "run_plan", "signal_name", "speed_factor", "stop_signals"]

@@ -29,7 +29,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="bench", description="IMU calibration on a three-axis turntable. Exit codes (every command): 0 done, "
                                   "1 a schedule file failed validation, 2 usage, configuration or I/O error (nothing "
                                   "moved), 3 hardware fault or aborted (table stopped), 4 finished but a quality "
-                                  "check failed, 5 simulated truth missed (check-table), 130 interrupted (replay), "
+                                  "check failed, 5 simulated truth missed (check-table), 6 TABLE STATE UNKNOWN (no "
+                                  "stop could be sent or confirmed: stop it at the controller), 130 interrupted "
+                                  "(replay), "
                                   "141 stdout closed by its reader (e.g. | head).")
     parser.add_argument("--version", action="version", version=f"turntable-bench {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")

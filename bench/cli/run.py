@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bench.cli.common import ExitCode, fail, raise_interrupted, run_plan, stop_signals
+from bench.cli.common import ExitCode, ended_early, fail, raise_interrupted, run_plan, stop_signals
 from bench.cli.db import add_db_options, record_outputs
 from bench.cli.verify import run_verification
 
@@ -102,8 +102,8 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
                               f"{exc.strerror or exc} ({exc.filename}). Log: {run.log_path}", ExitCode.FAULT)
     if outcome.error is not None:
         record_outputs(args, PROG, [outcome.log_path])      # the table is stopped and the log closed: now record
-        return fail(PROG, f"{outcome.state.value}: {outcome.error}; table stopped. Log: {outcome.log_path} "
-                     f"(continue with --resume {outcome.log_path})", ExitCode.FAULT)
+        return ended_early(PROG, f"{outcome.state.value}: {outcome.error}", run.sequencer,
+                           f". Log: {outcome.log_path} (continue with --resume {outcome.log_path})")
     if not args.quiet:
         print(f"log:    {outcome.log_path}")
     verified = None

@@ -172,9 +172,8 @@ def cmd_table(args: argparse.Namespace) -> ExitCode:
 
 
 def _stop_table(table: Turntable) -> str:
-    """The table's controlled stop (abort if that fails); says what was done."""
-    table.safe_stop()
-    return "table commanded to stop"
+    """The table's controlled stop (abort if that fails); says what was done (TABLE STATE UNKNOWN if nothing)."""
+    return table.safe_stop().describe()
 
 
 # -- bench sim table --------------------------------------------------------------

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from bench.cli.common import ExitCode, fail, raise_interrupted, run_plan, stop_signals
+from bench.cli.common import ExitCode, ended_early, fail, raise_interrupted, run_plan, stop_signals
 
 if TYPE_CHECKING:
     from bench.acceptance.verdict import Check
@@ -93,7 +93,7 @@ def run_verification(config: BenchConfig, calibration: CalibrationResult, *, cal
                               f"rest. Log: {run.log_path}", ExitCode.FAULT), None
     if extraction is None:
         state = run.sequencer.state.value if run.sequencer is not None else "failed"
-        return fail(prog, f"verification {state}: {error}; table stopped. Log: {run.log_path}", ExitCode.FAULT), None
+        return ended_early(prog, f"verification {state}: {error}", run.sequencer, f". Log: {run.log_path}"), None
     verification = verify_extraction(extraction, turn_rates(plan), compensation, calibration, config.site.site)
     checks = verification_checks(verification, config.acceptance.verification)
     json_path, md_path = write_verification(out_dir, run.run_id, verification, checks, calibration=calibration_label,

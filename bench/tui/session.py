@@ -448,10 +448,10 @@ class BenchSession:
             result = outcome.result
             if isinstance(outcome.error, RunAborted):
                 kind, reason = END_ABORTED, str(outcome.error)
-                text = f"aborted: {outcome.error}; table stopped. Log: {outcome.log_path.name}"
+                text = f"aborted: {outcome.error}; {_stop_words(run)}. Log: {outcome.log_path.name}"
             elif outcome.error is not None:
                 reason = f"{outcome.error}"
-                text = f"{outcome.state.value}: {outcome.error}; table stopped. Log: {outcome.log_path.name}"
+                text = f"{outcome.state.value}: {outcome.error}; {_stop_words(run)}. Log: {outcome.log_path.name}"
             elif outcome.failures:
                 text = "quality check failed: " + "; ".join(outcome.failures)
                 kind, reason = END_QUALITY, text
@@ -512,8 +512,8 @@ class BenchSession:
             return None
 
         def body() -> None:
-            table.safe_abort()
-            self._note("info", "e-stop: controller abort sent (servos off)")
+            stopped = table.safe_abort()
+            self._note("fault" if stopped.unknown else "info", f"e-stop: {stopped.describe()}")
         return self._spawn("e-stop", body)
 
     # -- the end -----------------------------------------------------------------------------------
@@ -571,3 +571,8 @@ def _range(axis) -> str:
     if axis.min_deg is None or axis.max_deg is None:
         return f"continuous <= {axis.max_rate_dps:g} deg/s"
     return f"[{axis.min_deg:g}, {axis.max_deg:g}] deg"
+
+
+def _stop_words(run) -> str:
+    """"table stopped", or TABLE STATE UNKNOWN when the run's stop could not be sent or confirmed."""
+    return run.sequencer.stop_words if run.sequencer is not None else "table stopped"
