@@ -32,7 +32,7 @@ def test_safe_stop_and_abort_of_an_unreachable_controller_say_table_state_unknow
         assert result.outcome is StopOutcome.UNKNOWN and result.unknown
         assert isinstance(result.error, TurntableConnectionError)
         assert result.describe().startswith(TABLE_STATE_UNKNOWN)
-        assert "abort sent" not in result.describe() and "stop" not in result.describe().split(";")[-1]
+        assert "abort sent" not in result.describe()
 
 
 def test_a_failed_controlled_stop_with_the_abort_taken_says_abort_sent():
