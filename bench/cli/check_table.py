@@ -213,7 +213,12 @@ def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
     # the analysis (an Interrupted): either way the devices and the log are closed.
     with stop_signals(raise_interrupted), BenchRun(config, plan, sim=sim, out_dir=out_dir,
                                                    operator=args.operator) as run:
-        failed = run_plan(run, PROG, quiet=args.quiet, simulated=sim)
+        try:     # a signal after the plan's last check is raised here: the run ends as interrupted
+            failed = run_plan(run, PROG, quiet=args.quiet, simulated=sim)
+        except KeyboardInterrupt as exc:
+            return fail(PROG, f"interrupted ({exc or 'Ctrl-C'}) after the plan; the table is at rest. "
+                              f"Log: {run.log_path} (bench check-table --log {run.log_path} analyses it)",
+                        ExitCode.FAULT)
         if failed is not None:
             return failed
         seq, recorder = run.sequencer, run.recorder

@@ -83,7 +83,11 @@ def run_verification(config: BenchConfig, calibration: CalibrationResult, *, cal
         return fail(prog, f"cannot verify: {exc}; the verification did not start", ExitCode.USAGE), None
     with stop_signals(raise_interrupted), BenchRun(vconfig, plan, sim=sim, out_dir=out_dir, operator=operator,
                                                    run_id=run_id) as run:
-        failed = run_plan(run, prog, quiet=quiet, simulated=sim)
+        try:     # a signal after the plan's last check is raised here: the run ends as interrupted
+            failed = run_plan(run, prog, quiet=quiet, simulated=sim)
+        except KeyboardInterrupt as exc:
+            return fail(prog, f"interrupted ({exc or 'Ctrl-C'}) after the plan; the table is at rest. "
+                              f"Log: {run.log_path}", ExitCode.FAULT), None
         if failed is not None:
             return failed, None
         try:

@@ -251,7 +251,7 @@ class Sequencer:
                     continue
                 self._execute(step)
             self._drain_imu()
-            self._check_listeners()
+            self._check_abort()         # an abort asked for after the last step's checks ends the run as aborted
             if self.chamber is not None:
                 self._emit("info", f"chamber: {self.chamber.make_safe(self.options.chamber_safe_setpoint_c)}",
                            chamber="made_safe")
