@@ -200,3 +200,24 @@ def test_a_signal_while_the_reports_are_written_leaves_no_result_file(short_conf
     rc, _, stderr = cli(["run", "--config", str(short_config), "--out", str(out), "--quiet", "--no-db"])
     assert rc == 3 and "interrupted (SIGTERM) while solving" in stderr, stderr
     assert not list(out.glob("*.result.json")) and not list(out.glob(".*.partial")), sorted(out.iterdir())
+
+
+# -- 8. closed stdout or stderr ---------------------------------------------------------------------
+
+@pytest.mark.timeout(240)
+@pytest.mark.parametrize("closed", ["2>&-", ">&-"])
+def test_bench_run_with_stdout_or_stderr_closed_works_and_writes_nothing_there(short_config, tmp_path, closed):
+    """`bench run ... 2>&-` failed before enabling (AttributeError on a None sys.stderr, exit 1); `>&-` with a
+    traceback after a complete run. Now the closed stream is /dev/null: the run completes, exit 0."""
+    out = tmp_path / "out"
+    proc = subprocess.run(["sh", "-c", f'exec "$0" -m bench.cli run --config "$1" --out "$2" --no-db {closed}',
+                           sys.executable, str(short_config), str(out)], cwd=REPO, capture_output=True, text=True,
+                          timeout=200)
+    assert proc.returncode == 0, (proc.stdout, proc.stderr)
+    assert "Traceback" not in proc.stderr + proc.stdout
+    result = only_file(out, "*.result.json")
+    assert read_log(only_file(out, "*.mcap")).summary_present
+    if closed == "2>&-":
+        assert f"result:  {result}" in proc.stdout
+    else:
+        assert proc.stdout == "" and "step" in proc.stderr      # the progress still goes to stderr

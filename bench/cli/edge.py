@@ -6,6 +6,8 @@ failure, and the stop signals.
 from __future__ import annotations
 
 import contextlib
+import fcntl
+import os
 import signal
 import sys
 import threading
@@ -96,6 +98,32 @@ def stop_signals(on_signal: Callable[[int], None]) -> Iterator[None]:
             signal.signal(installed, handler)
 
 
+def ensure_standard_streams() -> None:
+    """A closed stdin, stdout or stderr (`bench run ... 2>&-`, `>&-`) is opened on /dev/null: the command writes
+    nothing there and keeps working (Python leaves `sys.stderr` None: `.isatty()`, `.flush()` on it were
+    AttributeErrors), and no file the command opens later (a run log) can take descriptor 1 or 2. A descriptor 1
+    or 2 open for reading only is a closed one too: a launcher's file leaked into the hole (a pyenv shim's script
+    is fd 2 under `2>&-`), where every write would fail."""
+    for fd, name in enumerate(("stdin", "stdout", "stderr")):
+        if not _usable(fd):         # /dev/null takes its number
+            devnull = os.open(os.devnull, os.O_RDONLY if fd == 0 else os.O_WRONLY)
+            if devnull != fd:
+                os.dup2(devnull, fd)
+                os.close(devnull)
+        if getattr(sys, name) is None:
+            setattr(sys, name, open(fd, "r" if fd == 0 else "w", closefd=False, encoding="utf-8",
+                                    errors="backslashreplace"))
+
+
+def _usable(fd: int) -> bool:
+    """Open, and for stdout and stderr open for writing."""
+    try:
+        access = fcntl.fcntl(fd, fcntl.F_GETFL) & os.O_ACCMODE
+    except OSError:
+        return False
+    return fd == 0 or access in (os.O_WRONLY, os.O_RDWR)
+
+
 class FirstSignal:
     """A stop-signal handler that raises `Interrupted` for the first signal only: the ones after it, while the
     command is already ending (printing its line, closing), change nothing and print no traceback."""
@@ -109,5 +137,5 @@ class FirstSignal:
             raise Interrupted(signum)
 
 
-__all__ = ["STOP_SIGNALS", "ExitCode", "FirstSignal", "Interrupted", "fail", "raise_interrupted", "signal_name",
-           "stop_signals"]
+__all__ = ["STOP_SIGNALS", "ExitCode", "FirstSignal", "Interrupted", "ensure_standard_streams", "fail",
+           "raise_interrupted", "signal_name", "stop_signals"]

@@ -14,7 +14,7 @@ import sys
 # Only what the edge needs is imported here: `main` installs the stop-signal policy before a command module,
 # numpy or a driver is imported (that takes a second, more on a loaded machine: a signal then must not be lost).
 from bench import __version__
-from bench.cli.edge import ExitCode, FirstSignal, fail, stop_signals
+from bench.cli.edge import ExitCode, FirstSignal, ensure_standard_streams, fail, stop_signals
 from bench.errors import BenchError
 from drivers.errors import ChamberConfigError, ChamberError, ImuError, TurntableConfigError, TurntableError
 
@@ -92,10 +92,12 @@ def main(argv: list[str] | None = None) -> int:
       so that interpreter shutdown prints no "Exception ignored", exit 141 (128 + SIGPIPE,
       as a shell reports a program SIGPIPE killed). A `BrokenPipeError` that is not on
       stdout (a socket, a FIFO) is an `OSError` like any other;
+    - a closed stdin, stdout or stderr (`2>&-`) is /dev/null: nothing is written there, the command works;
     - a stop signal (SIGINT, also when inherited as ignored, SIGTERM, SIGHUP) before the command installs its
       own policy (while the modules load, the configuration is read): nothing has moved; one line, exit 130;
     - anything else is a bug and raises with its traceback.
     """
+    ensure_standard_streams()       # a closed stdout or stderr becomes /dev/null: nothing written there, no error
     # first thing: from here on no stop signal is lost (a shell's `bench run ... &` inherits SIGINT ignored)
     first = FirstSignal()
     with stop_signals(first):
