@@ -15,11 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import bench.config.load as config_load
 import bench.run.runner as runner_module
 from bench.config.load import load_config
 from bench.log.reader import read_log
 from bench.plan.events import RunListener
 from bench.run.runner import BenchRun, compile_from_config
+from bench.solve.inputs import SolveInputError, check_solvable
 from drivers.errors import TurntableConnectionError
 from drivers.turntable import TABLE_STATE_UNKNOWN, StopOutcome, open_turntable
 from drivers.turntable.scpi import ScpiTurntable
@@ -221,3 +223,40 @@ def test_bench_run_with_stdout_or_stderr_closed_works_and_writes_nothing_there(s
         assert f"result:  {result}" in proc.stdout
     else:
         assert proc.stdout == "" and "step" in proc.stderr      # the progress still goes to stderr
+
+
+# -- 7. configuration ranges mean what the solve can take -----------------------------------------------
+
+def _with_identity_tau(text: str, tau: str) -> str:
+    return text.replace('serial = "T-0001"\n', f'serial = "T-0001"\nbias_correlation_time_s = {tau}\n')
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda text: _with_identity_tau(text, "5e-324"), "imu.identity.bias_correlation_time_s: must be >= 0.1 s"),
+    (lambda text: text.replace("noise = false", "noise = { enabled = true, correlation_time_s = 1e-9 }"),
+     "sim.noise.correlation_time_s: must be >= 0.1 s"),
+    (lambda text: text.replace("dwell_s = 1.0", "dwell_s = 0.01"), "plan.dwell_s: 0.01 s holds fewer than 2 IMU "
+                                                                  "samples at imu.rate_hz = 50 Hz"),
+], ids=["identity-tau", "sim-noise-tau", "dwell-below-two-samples"])
+def test_values_the_solve_cannot_take_are_refused_with_file_line_and_key(tmp_path, edit, message):
+    path = tmp_path / "bench.toml"
+    path.write_text(edit(config_text(dwell_s=1.0)), encoding="utf-8")
+    rc, stdout, stderr = cli(["run", "--config", str(path), "--dry-run"])
+    assert rc == 2 and len(stderr.strip().splitlines()) == 1, (stdout, stderr)
+    assert f"{path}:" in stderr and message in stderr, stderr
+
+
+def test_the_dry_run_builds_what_the_solve_will_need(tmp_path, monkeypatch):
+    """Past the ranges (here with the lower bound taken away), `--dry-run` still refuses what the solve cannot use:
+    the budget's bias kernel of a 5e-324 s correlation time is not finite (the solve died after the whole run)."""
+    monkeypatch.setattr(config_load, "MIN_CORRELATION_TIME_S", 0.0)
+    path = tmp_path / "bench.toml"
+    path.write_text(_with_identity_tau(config_text(dwell_s=1.0), "5e-324"), encoding="utf-8")
+    rc, stdout, stderr = cli(["run", "--config", str(path), "--dry-run"])
+    assert rc == 2 and len(stderr.strip().splitlines()) == 1, (stdout, stderr)
+    assert "bias-instability kernel of the dwells is not finite" in stderr, stderr
+    config = load_config(str(path))
+    with pytest.raises(SolveInputError):
+        check_solvable(config, compile_from_config(config).steps, sim=True)
+    path.write_text(_with_identity_tau(config_text(dwell_s=1.0), "600.0"), encoding="utf-8")
+    assert cli(["run", "--config", str(path), "--dry-run"])[0] == 0

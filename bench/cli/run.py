@@ -63,6 +63,7 @@ def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
     from bench.plan.compiler import PlanError
     from bench.run.resume import resume_point
     from bench.run.runner import BenchRun, compile_from_config
+    from bench.solve.inputs import SolveInputError, check_solvable
     from bench.solve.methods import SolverError
     from bench.verify.plan import verification_config, verification_plan
 
@@ -77,7 +78,9 @@ def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
         sim = args.sim or config.table.is_sim
         # a log of another plan, IMU, site or table is refused here, before anything moves
         resumed = resume_point(args.resume, config, plan, sim=sim)
-    except (ConfigError, LogError, PlanError, SetupMismatch, OSError) as exc:
+        # what the solve will need (the budget's kernel and priors) is built now, not after the whole run
+        check_solvable(config, plan.steps, sim)
+    except (ConfigError, LogError, PlanError, SetupMismatch, SolveInputError, OSError) as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     completed, previous_logs = resumed.completed, resumed.previous_logs
     if not args.quiet:
