@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import bench.config.load as config_load
+import bench.log.recorder as recorder_module
 import bench.run.runner as runner_module
 from bench.config.load import load_config
 from bench.log.reader import read_log
@@ -25,7 +26,19 @@ from bench.solve.inputs import SolveInputError, check_solvable
 from drivers.errors import TurntableConnectionError
 from drivers.turntable import TABLE_STATE_UNKNOWN, StopOutcome, open_turntable
 from drivers.turntable.scpi import ScpiTurntable
-from tests.helpers.run import AT_REST_DPS, REPO, cli, config_text, only_file, stop_process, transitions, wait_for
+from tests.helpers.disk import FillingDisk
+from tests.helpers.run import (
+    AT_REST_DPS,
+    REPO,
+    Trigger,
+    cli,
+    config_text,
+    only_file,
+    step_index,
+    stop_process,
+    transitions,
+    wait_for,
+)
 
 
 class _Refusing(ScpiTurntable):
@@ -260,3 +273,57 @@ def test_the_dry_run_builds_what_the_solve_will_need(tmp_path, monkeypatch):
         check_solvable(config, compile_from_config(config).steps, sim=True)
     path.write_text(_with_identity_tau(config_text(dwell_s=1.0), "600.0"), encoding="utf-8")
     assert cli(["run", "--config", str(path), "--dry-run"])[0] == 0
+
+
+# -- 9. resume --------------------------------------------------------------------------------------
+
+class _LastBytesDisk(FillingDisk):
+    """A disk that fills as a real one does: the write that meets the end of the space writes what fits (half of
+    it here) and says so; the ones after it fail with ENOSPC. The log then ends inside a record."""
+
+    def __init__(self, path: str):
+        super().__init__(path)
+        self._short_write_done = False
+
+    def write(self, data) -> int:
+        if FillingDisk.full and not self._short_write_done:
+            self._short_write_done = True
+            return self._file.write(bytes(data)[:max(1, len(data) // 2)])
+        return super().write(data)
+
+
+def test_resuming_the_log_a_full_disk_left_passes_and_a_finished_or_renamed_log_is_refused(tmp_path, monkeypatch):
+    """The documented recovery after a full disk (`--resume` its log) ended FAIL: the log's cut-off last record
+    counted as damage. A finished log (one measurement, two calibrations) or another run's log is refused."""
+    config = tmp_path / "bench.toml"
+    config.write_text(config_text(positions="traditional-12", rotations="traditional-3s6r", dwell_s=1.0))
+    plan = compile_from_config(load_config(str(config)))
+    monkeypatch.setattr(FillingDisk, "full", False)
+    monkeypatch.setattr(recorder_module, "open", _LastBytesDisk.open, raising=False)
+    original_open = BenchRun.open
+
+    def open_and_fill_at_a_dwell(self, **kwargs):
+        original_open(self, **kwargs)
+        trigger = Trigger(step_index(plan, "dwell", 4), lambda run: setattr(FillingDisk, "full", True))
+        trigger.run = self
+        self.extra_listeners.append(trigger)
+
+    monkeypatch.setattr(BenchRun, "open", open_and_fill_at_a_dwell)
+    full = tmp_path / "full"
+    rc, _, stderr = cli(["run", "--config", str(config), "--out", str(full), "--quiet", "--no-db"])
+    assert rc == 3 and "log disk full" in stderr, stderr
+    cut = only_file(full, "*.mcap")
+    assert any(d.kind == "truncated" for d in read_log(cut).lost), read_log(cut).lost   # it ends inside a record
+    monkeypatch.setattr(BenchRun, "open", original_open)
+    FillingDisk.full = False            # space freed: the documented recovery
+    rc, stdout, stderr = cli(["run", "--config", str(config), "--out", str(full), "--resume", str(cut), "--no-db"])
+    assert rc == 0, (stdout, stderr)
+    assert "verdict: PASS" in stdout
+    finished = next(p for p in full.glob("*.mcap") if p != cut)
+    rc, _, stderr = cli(["run", "--config", str(config), "--out", str(full), "--resume", str(finished), "--dry-run"])
+    assert rc == 2 and len(stderr.strip().splitlines()) == 1 and "is of a finished run" in stderr, stderr
+    renamed = tmp_path / "20000101T000000Z-000000.mcap"
+    renamed.write_bytes(cut.read_bytes())
+    rc, _, stderr = cli(["run", "--config", str(config), "--out", str(full), "--resume", str(renamed), "--dry-run"])
+    assert rc == 2 and len(stderr.strip().splitlines()) == 1 and "a log of another run is not resumed" in stderr, \
+        stderr
