@@ -215,7 +215,7 @@ def test_sim_table_with_allow_remote_warns_loudly(capsys, monkeypatch):
         def __iter__(self):
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(table_cli, "_listen", lambda controller, dialect, where, closers: "tcp://0.0.0.0:5025")
+    monkeypatch.setattr(table_cli, "_listen", lambda controller, dialect, where, closers, **_: "tcp://0.0.0.0:5025")
     monkeypatch.setattr(sys, "stdin", CtrlC())
     assert main(["sim", "table", "--dialect", "scpi", "--listen", "tcp://0.0.0.0:5025", "--allow-remote"]) == 0
     captured = capsys.readouterr()
