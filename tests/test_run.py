@@ -446,7 +446,10 @@ def test_reply_timeouts_end_failed_and_the_table_stops(tmp_path):
         assert_disabled(controller, at_rest=True)
     log = read_log(outcome.log_path)
     assert len(_fault_events(log, "TurntableTimeout")) == 1
-    assert any(e.kind == "warning" and "abort sent" in e.message for e in log.events)
+    # the stop and the abort were executed, but no reply confirmed either: the bench cannot know (issue 34)
+    assert run.sequencer.stop_result is not None and run.sequencer.stop_result.unknown
+    assert any(e.kind == "fault" and e.message.startswith("TABLE STATE UNKNOWN") for e in log.events)
+    assert not any("abort sent" in e.message for e in log.events)
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
     assert log.complete, log.damage
 
