@@ -168,7 +168,8 @@ class _SignalAt(RunListener):
 @pytest.fixture
 def short_config(tmp_path):
     path = tmp_path / "bench.toml"
-    path.write_text(config_text(dwell_s=1.0), encoding="utf-8")
+    path.write_text(config_text(positions="traditional-12", rotations="traditional-3s6r", dwell_s=1.0),
+                    encoding="utf-8")
     return path
 
 
