@@ -175,8 +175,8 @@ def test_a_stop_signal_while_solving_ends_bench_run_with_exit_3_and_the_log_clos
     assert rc == 3, stderr
     log_path = only_file(out, "*.mcap")
     name = "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
-    assert stderr.strip() == (f"bench run: interrupted ({name}) while solving; the table is at rest. Log: {log_path} "
-                              f"(bench solve {log_path} solves it)")
+    assert stderr.strip() == (f"bench run: interrupted ({name}) while solving; the table is at rest; no result "
+                              f"written. Log: {log_path} (bench solve {log_path} solves it)")
     assert read_log(log_path).summary_present
 
 

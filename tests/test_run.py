@@ -372,12 +372,20 @@ def test_resume_refuses_a_log_of_a_schedule_of_the_same_name_with_other_position
     assert not (tmp_path / "out").exists()
 
 
-def test_resume_skips_earlier_log_entries_that_are_not_logs_next_to_it(ideal, tmp_path):
-    """`logs_before` of a log from outside is hostile: only a .mcap next to the log is ever read."""
+def _interrupted_copy(log: Path, dst: Path, run: dict[str, str]) -> Path:
+    """`log` copied to `dst` as an interrupted run's log (its "done" transition left out; the run id of its name),
+    with `run` metadata set: what --resume takes."""
     from tests.helpers.crafted import rewrite_log
 
+    return rewrite_log(log, dst, metadata={"run": {"run_id": dst.stem, **run}},
+                       keep=lambda topic, data: not (topic == "/events" and b'"state":"done"' in data))
+
+
+def test_resume_skips_earlier_log_entries_that_are_not_logs_next_to_it(ideal, tmp_path):
+    """`logs_before` of a log from outside is hostile: only a .mcap next to the log is ever read."""
+
     entries = ["/etc/passwd", "../x", "sub/../../elsewhere.mcap"]
-    crafted = rewrite_log(ideal.log, tmp_path / "crafted.mcap", metadata={"run": {"logs_before": json.dumps(entries)}})
+    crafted = _interrupted_copy(ideal.log, tmp_path / "crafted.mcap", {"logs_before": json.dumps(entries)})
     rc, stdout, stderr = cli(["run", "--config", str(ideal.config), "--dry-run", "--resume", str(crafted)])
     assert rc == 0, stderr
     assert 'note: crafted.mcap names "/etc/passwd" as an earlier log, which is not a .mcap file next to it: ' \
@@ -387,7 +395,7 @@ def test_resume_skips_earlier_log_entries_that_are_not_logs_next_to_it(ideal, tm
     done = finished_observation_steps(read_log(ideal.log).events)
     assert f"resume: {len(done)} units complete in earlier logs would be skipped" in stdout
     for malformed in ("[", '{"a": 1}'):
-        crafted = rewrite_log(ideal.log, tmp_path / "m.mcap", metadata={"run": {"logs_before": malformed}})
+        crafted = _interrupted_copy(ideal.log, tmp_path / "m.mcap", {"logs_before": malformed})
         rc, stdout, stderr = cli(["run", "--config", str(ideal.config), "--dry-run", "--resume", str(crafted)])
         assert rc == 0 and "is not a JSON list: ignored" in stdout, (stdout, stderr)
 
@@ -462,7 +470,10 @@ def test_reply_timeouts_end_failed_and_the_table_stops(tmp_path):
         assert_disabled(controller, at_rest=True)
     log = read_log(outcome.log_path)
     assert len(_fault_events(log, "TurntableTimeout")) == 1
-    assert any(e.kind == "warning" and "abort sent" in e.message for e in log.events)
+    # the stop and the abort were executed, but no reply confirmed either: the bench cannot know (issue 34)
+    assert run.sequencer.stop_result is not None and run.sequencer.stop_result.unknown
+    assert any(e.kind == "fault" and e.message.startswith("TABLE STATE UNKNOWN") for e in log.events)
+    assert not any("abort sent" in e.message for e in log.events)
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
     assert log.complete, log.damage
 

@@ -407,6 +407,43 @@ def test_the_rig_serves_the_packed_layout_and_writes_it(tmp_path):
         stop_process(rig)
 
 
+@pytest.mark.timeout(240)     # the rig and the run in wall-clock time
+def test_a_controller_killed_mid_run_is_table_state_unknown_exit_6_never_table_stopped(tmp_path):
+    """Issue 34 item 1: the controller's process dies mid-run; no stop can reach it, and the bench says so."""
+    rig_config = tmp_path / "rig.toml"
+    rig_config.write_text(RIG_CONFIG.format(dialect="scpi"))
+    written = tmp_path / "bench.toml"
+    rig = _start_rig("--config", str(rig_config), "--table-listen", "tcp://127.0.0.1:0", "--imu-listen",
+                     "socketcand://127.0.0.1:0", "--write-config", str(written))
+    run = None
+    try:
+        read_until(rig, "Ctrl-C stops")
+        # long dwells: the run is still going when the rig is killed, however fast or slow the machine
+        written.write_text(_with_plan(written.read_text(), SHORT_PLAN.replace("dwell_s = 0.5", "dwell_s = 30.0")))
+        out = tmp_path / "runs"
+        run = subprocess.Popen([sys.executable, "-m", "bench.cli", "run", "--config", str(written), "--out",
+                                str(out), "--quiet"], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True)
+        wait_for(lambda: next((p for p in out.glob("*.mcap") if p.stat().st_size > 100_000), None), 120.0,
+                 "the log to pass 100 kB", proc=run)
+        rig.kill()                  # the controller's process is gone: its port refuses every connection
+        rig.wait(timeout=10)
+        _, stderr = run.communicate(timeout=120)
+    finally:
+        if run is not None:
+            stop_process(run)
+        stop_process(rig)
+    assert run.returncode == 6, stderr
+    lines = stderr.strip().splitlines()     # the progress output's FAULT lines (also --quiet), then the end
+    assert "Traceback" not in stderr and lines[-1].startswith("bench run: failed: "), stderr
+    assert "TABLE STATE UNKNOWN: the controller cannot be reached; stop it at the controller" in lines[-1], stderr
+    assert "table stopped" not in stderr and "abort sent" not in stderr, stderr
+    log = read_log(only_file(out, "*.mcap"))
+    messages = [e.message for e in log.events]
+    assert any("TABLE STATE UNKNOWN" in m for m in messages), messages
+    assert not any("abort sent" in m or "servos off" in m or m.endswith("table stopped") for m in messages), messages
+
+
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGHUP])
 def test_the_rig_stops_on_sigint_even_when_ignored_and_on_sighup(signum):
     # a shell starts `bench sim rig ... &` in a script with SIGINT ignored; SIGINT and SIGHUP must still stop it

@@ -101,14 +101,17 @@ def test_operator_session_against_the_served_simulator(simulator, capsys, monkey
 
 
 @pytest.mark.parametrize("simulator", [("scpi", "tcp://127.0.0.1:0")], indirect=True)
-def test_fault_console_timeouts_become_exit_3(simulator, capsys):
+def test_fault_console_timeouts_become_exit_6_table_state_unknown(simulator, capsys):
     proc, dialect, url = simulator
     assert _fault(proc, "timeout 10") == "ok"
     t0 = time.monotonic()
+    # the read times out, and so do the stop and the abort after it: nothing confirms the table's state
     assert main(["table", "--url", url, "--dialect", dialect, "--timeout-s", "0.2", "--retries", "1",
-                 "status"]) == 3
+                 "status"]) == 6
     assert time.monotonic() - t0 < 5
-    assert "TurntableTimeout" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "TurntableTimeout" in err and "TABLE STATE UNKNOWN: the controller cannot be reached" in err, err
+    assert len(err.strip().splitlines()) == 1
     assert _fault(proc, "bogus") == "unknown command 'bogus'; type help"
 
 

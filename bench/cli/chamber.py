@@ -11,7 +11,15 @@ from __future__ import annotations
 import argparse
 
 from bench.cli.common import ExitCode, drive_device, fail
-from bench.cli.sim_serving import apply_console_line, host_port, refuse_remote, remote_hosts, serve_until_stopped
+from bench.cli.sim_serving import (
+    IDLE_TIMEOUT_S,
+    add_idle_timeout_option,
+    apply_console_line,
+    host_port,
+    refuse_remote,
+    remote_hosts,
+    serve_until_stopped,
+)
 from bench.config.chamber import ChamberConfig
 from bench.config.load import ConfigError, load_config
 from bench.config.register_map import load_chamber_register_map
@@ -150,6 +158,7 @@ def register_sim_chamber(kinds: argparse._SubParsersAction) -> None:
     sim.add_argument("--register-map", metavar="NAME|FILE",
                      help="modbus: the register map to serve: a preset (watlow-f4, generic) or a file holding a "
                           "[modbus] table (default: watlow-f4, drivers/CHAMBER.md)")
+    add_idle_timeout_option(sim)
     sim.add_argument("--ambient-c", type=float, default=23.0, help="room (and starting) temperature (default 23)")
     sim.add_argument("--time-constant-s", type=float, default=240.0,
                      help="the air's time constant toward the working setpoint (default 240 s)")
@@ -162,17 +171,18 @@ CHAMBER_LISTEN_HELP = ("tcp://127.0.0.1:PORT (ascii), modbus+tcp://127.0.0.1:POR
                        "modbus); port 0 picks a free port; a host other than loopback needs --allow-remote")
 
 
-def listen_chamber(sim, dialect: str, where: str, closers: list, register_map=None) -> str:
+def listen_chamber(sim, dialect: str, where: str, closers: list, register_map=None,
+                   idle_timeout_s: float = IDLE_TIMEOUT_S) -> str:
     """Serve `sim` on one --listen address; returns the URL a client opens (InputError for a bad address)."""
     from bench.sim.chamber_server import serve_chamber  # the simulators: only for `bench sim`
 
     if where == "pty":
-        close, url = serve_chamber(sim, dialect, "pty", register_map=register_map)
+        close, url = serve_chamber(sim, dialect, "pty", register_map=register_map, idle_timeout_s=idle_timeout_s)
     else:
         scheme = "modbus+tcp" if dialect == "modbus" else "tcp"
         host, port = host_port(where, scheme, f"the {dialect} chamber simulator listens on {scheme}://HOST:PORT "
                                                "or pty")
-        close, url = serve_chamber(sim, dialect, "tcp", host, port, register_map)
+        close, url = serve_chamber(sim, dialect, "tcp", host, port, register_map, idle_timeout_s)
     closers.append(close)
     return url
 
@@ -214,7 +224,8 @@ def cmd_sim_chamber(args: argparse.Namespace) -> ExitCode:
     sim = SimChamber(physics)
     closers: list = []
     return serve_until_stopped(prog, "chamber", args.dialect,
-                               lambda where: listen_chamber(sim, args.dialect, where, closers, register_map),
+                               lambda where: listen_chamber(sim, args.dialect, where, closers, register_map,
+                                                            idle_timeout_s=args.idle_timeout_s),
                                args.listen, remote,
                                lambda line: apply_chamber_command(sim, line), closers,
                                usage_errors=(InputError, OSError, ValueError))

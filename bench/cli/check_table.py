@@ -21,7 +21,7 @@ import dataclasses
 import re
 from pathlib import Path
 
-from bench.cli.common import ExitCode, fail, raise_interrupted, run_plan, stop_signals
+from bench.cli.common import ExitCode, ended_early, fail, raise_interrupted, run_plan, stop_signals
 from bench.cli.db import add_db_options, record_outputs
 from bench.errors import BenchError
 from bench.model.units import format_hms
@@ -213,7 +213,12 @@ def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
     # the analysis (an Interrupted): either way the devices and the log are closed.
     with stop_signals(raise_interrupted), BenchRun(config, plan, sim=sim, out_dir=out_dir,
                                                    operator=args.operator) as run:
-        failed = run_plan(run, PROG, quiet=args.quiet, simulated=sim)
+        try:     # a signal after the plan's last check is raised here: the run ends as interrupted
+            failed = run_plan(run, PROG, quiet=args.quiet, simulated=sim)
+        except KeyboardInterrupt as exc:
+            return fail(PROG, f"interrupted ({exc or 'Ctrl-C'}) after the plan; the table is at rest. "
+                              f"Log: {run.log_path} (bench check-table --log {run.log_path} analyses it)",
+                        ExitCode.FAULT)
         if failed is not None:
             return failed
         seq, recorder = run.sequencer, run.recorder
@@ -221,8 +226,7 @@ def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
         try:
             if seq.error is not None:
                 recorder.close()
-                return fail(PROG, f"{seq.state.value}: {seq.error}; table stopped. Log: {run.log_path}",
-                            ExitCode.FAULT)
+                return ended_early(PROG, f"{seq.state.value}: {seq.error}", seq, f". Log: {run.log_path}")
             # Not BenchRun.finish(): that solves a calibration. The check reads the log it just wrote.
             recorder.flush()
             try:

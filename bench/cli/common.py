@@ -8,57 +8,33 @@ lets an exception that is not a `BenchError` or a driver error raise (a bug).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import math
-import signal
 import sys
-import threading
-from enum import IntEnum
-from types import FrameType
-from typing import TYPE_CHECKING, Any, Callable, Iterator
+from typing import TYPE_CHECKING, Any, Callable
 
+from bench.cli.edge import STOP_SIGNALS, ExitCode, Interrupted, fail, raise_interrupted, signal_name, stop_signals
 from bench.cli.progress import ProgressPrinter
 from bench.errors import BenchError
 from bench.model.imu import NoiseModel
 from drivers.errors import ChamberError, ImuError, TurntableError
+from drivers.turntable.base import TABLE_STATE_UNKNOWN
 
 if TYPE_CHECKING:
     from bench.run.runner import BenchRun
+    from bench.run.sequencer import Sequencer
     from drivers.session import DeviceSession
-
-
-class ExitCode(IntEnum):
-    """The exit codes of every `bench` command."""
-
-    OK = 0
-    #: a schedule file failed validation or cannot be loaded (`bench schedules ...`)
-    INVALID_SCHEDULE = 1
-    #: usage or configuration error, unreadable input, a demand refused by the limits: nothing moved
-    USAGE = 2
-    #: hardware fault, lost link or aborted (Ctrl-C, e-stop): the table was commanded to stop
-    FAULT = 3
-    #: finished, but the verdict is FAIL: a quality check, an acceptance limit or a verification check failed (the
-    #: report says which); a verdict NOT CHECKED (no check ran) is OK, not this
-    QUALITY = 4
-    #: `bench check-table` on the simulator: the estimate misses the simulated truth by more than 3 sigma
-    SIM_TRUTH_MISSED = 5
-    #: stopped by a signal (SIGINT, SIGTERM, SIGHUP) where nothing can move (`bench replay`)
-    INTERRUPTED = 130
-    #: stdout closed by its reader (`bench evaluate | head`): a quiet stop, 128 + SIGPIPE
-    BROKEN_PIPE = 141
 
 
 #: errors a command turns into one line and an exit code; anything else is a bug and raises
 KNOWN_ERRORS = (BenchError, TurntableError, ImuError)
 
 
-def fail(prog: str, message: str, code: ExitCode) -> ExitCode:
-    """Print `prog: message` on stderr (one line) and return `code` (also when stderr is gone: a closed pipe)."""
-    try:
-        print(f"{prog}: {message}", file=sys.stderr, flush=True)
-    except OSError:
-        pass
-    return code
+def ended_early(prog: str, what: str, sequencer: Sequencer | None, after: str = "") -> ExitCode:
+    """The one line of a run that ended early: "`what`; table stopped`after`", exit 3, or, when its stop could
+    not be sent or confirmed, "`what`; TABLE STATE UNKNOWN: ...`after`", exit 6 (`ExitCode.TABLE_STATE_UNKNOWN`)."""
+    if sequencer is not None and sequencer.stop_result is not None and sequencer.stop_result.unknown:
+        return fail(prog, f"{what}; {sequencer.stop_words}{after}", ExitCode.TABLE_STATE_UNKNOWN)
+    return fail(prog, f"{what}; table stopped{after}", ExitCode.FAULT)
 
 
 def number_type(rule: str, accept: Callable[[float], bool]) -> Callable[[str], float]:
@@ -127,56 +103,6 @@ def task_progress(what: str, stream: Any = None) -> Callable[[int, int], None] |
     return progress
 
 
-#: The signals that end a command the way Ctrl-C does: SIGINT (Ctrl-C), SIGTERM (kill, systemd, a CI job
-#: cancelled) and SIGHUP (the terminal or SSH session went away).
-STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(
-    getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
-
-
-def signal_name(signum: int) -> str:
-    """How a message names a stop signal: "Ctrl-C" for SIGINT, else the signal's name."""
-    return "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
-
-
-class Interrupted(KeyboardInterrupt):
-    """A stop signal (`STOP_SIGNALS`) raised where the command is (`raise_interrupted`), like Ctrl-C.
-
-    A KeyboardInterrupt, so that whatever handles Ctrl-C handles SIGTERM and SIGHUP alike."""
-
-    def __init__(self, signum: int):
-        super().__init__(signal_name(signum))
-        self.signum = signum
-
-
-def raise_interrupted(signum: int) -> None:
-    """A `stop_signals` handler: end the command where it is, as Ctrl-C does (see `Interrupted`)."""
-    raise Interrupted(signum)
-
-
-@contextlib.contextmanager
-def stop_signals(on_signal: Callable[[int], None]) -> Iterator[None]:
-    """While the block runs, SIGINT, SIGTERM and SIGHUP call `on_signal(signum)`; the previous handlers
-    come back when it ends. Only in the main thread (elsewhere Python cannot install handlers: nothing is).
-
-    SIGINT and SIGTERM are caught even when ignored (a shell starts `bench ... &` with SIGINT ignored);
-    an ignored SIGHUP stays ignored (`nohup bench run ...` asks for exactly that)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous: dict[int, Callable[[int, FrameType | None], Any] | int] = {}
-    try:
-        for signum in STOP_SIGNALS:
-            if signum == getattr(signal, "SIGHUP", None) and signal.getsignal(signum) is signal.SIG_IGN:
-                continue
-            handler = signal.signal(signum, lambda received, _frame: on_signal(received))
-            # (None: a handler not installed from Python; the default is the closest to put back)
-            previous[signum] = signal.SIG_DFL if handler is None else handler
-        yield
-    finally:
-        for installed, handler in previous.items():
-            signal.signal(installed, handler)
-
-
 def drive_device(prog: str, device: DeviceSession[Any], command: Callable[[], ExitCode], *, errors: type[Exception],
                  refused: tuple[type[Exception], ...], unreachable: str, make_safe: Callable[[], str],
                  note_faults: bool = True, refused_at_connect: tuple[type[Exception], ...] = ()) -> ExitCode:
@@ -199,12 +125,22 @@ def drive_device(prog: str, device: DeviceSession[Any], command: Callable[[], Ex
         return fail(prog, f"refused, nothing sent: {exc}", ExitCode.USAGE)
     except errors as exc:
         done = _safely(make_safe)
-        return fail(prog, f"{type(exc).__name__}: {exc}" + (f"; {done}" if note_faults else ""), ExitCode.FAULT)
+        return fail(prog, f"{type(exc).__name__}: {exc}" + (f"; {done}" if note_faults or _unknown(done) else ""),
+                    _made_safe_code(done))
     except KeyboardInterrupt as exc:
         done = _safely(make_safe)
-        return fail(prog, f"interrupted ({exc or 'Ctrl-C'}); {done}", ExitCode.FAULT)
+        return fail(prog, f"interrupted ({exc or 'Ctrl-C'}); {done}", _made_safe_code(done))
     finally:
         device.close()
+
+
+def _unknown(done: str) -> bool:
+    return TABLE_STATE_UNKNOWN in done
+
+
+def _made_safe_code(done: str) -> ExitCode:
+    """Exit 3 after a stop that was sent; 6 when `make_safe` says the table state is unknown."""
+    return ExitCode.TABLE_STATE_UNKNOWN if _unknown(done) else ExitCode.FAULT
 
 
 def _safely(make_safe: Callable[[], str]) -> str:
@@ -219,10 +155,18 @@ def run_plan(run: BenchRun, prog: str, *, quiet: bool, simulated: bool) -> ExitC
 
     SIGINT (Ctrl-C), SIGTERM and SIGHUP (`stop_signals`) abort the run from here on, also while the
     devices open (the run then ends at its start): the table is stopped, servos off, the log kept.
+    A signal that comes after the plan's last check (the run is complete) is not lost: it is raised here as
+    `Interrupted` once the plan has ended, for the caller to end as interrupted.
     Returns the exit code (after printing one line) when it could not start (USAGE,
     nothing moved) or enable the table (FAULT); None once the plan ran (see
     `run.sequencer` for how it ended)."""
-    with stop_signals(lambda signum: run.abort(f"interrupted ({signal_name(signum)})")):
+    received: list[int] = []
+
+    def abort(signum: int) -> None:
+        received.append(signum)
+        run.abort(f"interrupted ({signal_name(signum)})")
+
+    with stop_signals(abort):
         try:
             run.open()
         except (TurntableError, ImuError, ChamberError, BenchError, OSError) as exc:
@@ -235,8 +179,11 @@ def run_plan(run: BenchRun, prog: str, *, quiet: bool, simulated: bool) -> ExitC
             return fail(prog, f"cannot enable the table: {exc}; nothing moved", ExitCode.FAULT)
         finally:
             progress.close()
+    if received and run.sequencer is not None and run.sequencer.error is None:
+        raise Interrupted(received[0])      # the plan completed under the signal: the run ends as interrupted
     return None
 
 
-__all__ = ["KNOWN_ERRORS", "STOP_SIGNALS", "ExitCode", "Interrupted", "add_noise_arguments", "drive_device", "fail",
+__all__ = ["KNOWN_ERRORS", "STOP_SIGNALS", "ExitCode", "Interrupted", "add_noise_arguments", "drive_device",
+           "ended_early", "fail",
            "noise_from_args", "raise_interrupted", "run_plan", "signal_name", "speed_factor", "stop_signals"]

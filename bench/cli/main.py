@@ -11,25 +11,43 @@ import os
 import select
 import sys
 
+# Only what the edge needs is imported here: `main` installs the stop-signal policy before a command module,
+# numpy or a driver is imported (that takes a second, more on a loaded machine: a signal then must not be lost).
 from bench import __version__
-from bench.cli import apply as apply_cli
-from bench.cli import chamber as chamber_cli
-from bench.cli import check_table, evaluate, export_can, replay, run, schedules, sim_rig, solve, table, thermal, tui
-from bench.cli import db as db_cli
-from bench.cli import export as export_cli
-from bench.cli import noise as noise_command
-from bench.cli import verify as verify_cli
-from bench.cli.common import ExitCode
+from bench.cli.edge import ExitCode, FirstSignal, ensure_standard_streams, fail, stop_signals
 from bench.errors import BenchError
 from drivers.errors import ChamberConfigError, ChamberError, ImuError, TurntableConfigError, TurntableError
 
 
 def build_parser() -> argparse.ArgumentParser:
+    # the command modules, imported here (after `main` installed the signal policy)
+    from bench.cli import apply as apply_cli
+    from bench.cli import chamber as chamber_cli
+    from bench.cli import (
+        check_table,
+        evaluate,
+        export_can,
+        replay,
+        run,
+        schedules,
+        sim_rig,
+        solve,
+        table,
+        thermal,
+        tui,
+    )
+    from bench.cli import db as db_cli
+    from bench.cli import export as export_cli
+    from bench.cli import noise as noise_command
+    from bench.cli import verify as verify_cli
+
     parser = argparse.ArgumentParser(
         prog="bench", description="IMU calibration on a three-axis turntable. Exit codes (every command): 0 done, "
                                   "1 a schedule file failed validation, 2 usage, configuration or I/O error (nothing "
                                   "moved), 3 hardware fault or aborted (table stopped), 4 finished but a quality "
-                                  "check failed, 5 simulated truth missed (check-table), 130 interrupted (replay), "
+                                  "check failed, 5 simulated truth missed (check-table), 6 TABLE STATE UNKNOWN (no "
+                                  "stop could be sent or confirmed: stop it at the controller), 130 interrupted "
+                                  "(replay), "
                                   "141 stdout closed by its reader (e.g. | head).")
     parser.add_argument("--version", action="version", version=f"turntable-bench {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -74,8 +92,23 @@ def main(argv: list[str] | None = None) -> int:
       so that interpreter shutdown prints no "Exception ignored", exit 141 (128 + SIGPIPE,
       as a shell reports a program SIGPIPE killed). A `BrokenPipeError` that is not on
       stdout (a socket, a FIFO) is an `OSError` like any other;
+    - a closed stdin, stdout or stderr (`2>&-`) is /dev/null: nothing is written there, the command works;
+    - a stop signal (SIGINT, also when inherited as ignored, SIGTERM, SIGHUP) before the command installs its
+      own policy (while the modules load, the configuration is read): nothing has moved; one line, exit 130;
     - anything else is a bug and raises with its traceback.
     """
+    ensure_standard_streams()       # a closed stdout or stderr becomes /dev/null: nothing written there, no error
+    # first thing: from here on no stop signal is lost (a shell's `bench run ... &` inherits SIGINT ignored)
+    first = FirstSignal()
+    with stop_signals(first):
+        try:
+            return _main(argv)
+        except KeyboardInterrupt as exc:
+            return fail("bench", f"interrupted ({exc or 'Ctrl-C'}) before the command started; nothing moved",
+                        ExitCode.INTERRUPTED)
+
+
+def _main(argv: list[str] | None) -> int:
     command = ""
     try:
         args = build_parser().parse_args(argv)
@@ -99,9 +132,8 @@ def main(argv: list[str] | None = None) -> int:
 def _run(args: argparse.Namespace) -> int:
     try:
         return int(args.func(args))
-    except KeyboardInterrupt:
-        print("bench: interrupted", file=sys.stderr)
-        return ExitCode.INTERRUPTED
+    except KeyboardInterrupt as exc:
+        return fail(f"bench {args.command}", f"interrupted ({exc or 'Ctrl-C'})", ExitCode.INTERRUPTED)
     except (TurntableConfigError, ChamberConfigError) as exc:
         # a URL, dialect, option or limit the driver refused before sending anything: nothing moved
         print(f"bench {args.command}: {exc}", file=sys.stderr)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bench.cli.common import ExitCode, fail, raise_interrupted, run_plan, stop_signals
+from bench.cli.common import ExitCode, ended_early, fail, raise_interrupted, run_plan, stop_signals
 from bench.cli.db import add_db_options, record_outputs
 from bench.cli.verify import run_verification
 
@@ -45,6 +45,18 @@ PROG = "bench run"
 
 
 def cmd_run(args: argparse.Namespace) -> ExitCode:
+    # Every stop signal from the plan on is handled where it comes (run_plan, the solve, the result's tail); one
+    # that ends the command here came before the run began (while loading, compiling) or after it said its line.
+    started: list[bool] = []
+    try:
+        return _cmd_run(args, started)
+    except KeyboardInterrupt as exc:
+        where = "after the run ended; the table is at rest" if started else "before the run started; nothing moved"
+        return fail(PROG, f"interrupted ({exc or 'Ctrl-C'}) {where}", ExitCode.INTERRUPTED if not started
+                    else ExitCode.FAULT)
+
+
+def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
     # imported when the command runs, so that `bench --help` and the other commands start without them
     from bench.config.load import ConfigError, default_sim_config, load_config
     from bench.log.reader import LogError
@@ -54,8 +66,9 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
     from bench.plan.compiler import PlanError
     from bench.run.resume import resume_point
     from bench.run.runner import BenchRun, compile_from_config
+    from bench.solve.inputs import SolveInputError, check_solvable
     from bench.solve.methods import SolverError
-    from bench.verify.plan import format_errors, verification_config, verification_plan
+    from bench.verify.plan import verification_config, verification_plan
 
     if not args.config and not args.sim:
         return fail(PROG, "say --config FILE or --sim", ExitCode.USAGE)
@@ -68,7 +81,9 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
         sim = args.sim or config.table.is_sim
         # a log of another plan, IMU, site or table is refused here, before anything moves
         resumed = resume_point(args.resume, config, plan, sim=sim)
-    except (ConfigError, LogError, PlanError, SetupMismatch, OSError) as exc:
+        # what the solve will need (the budget's kernel and priors) is built now, not after the whole run
+        check_solvable(config, plan.steps, sim)
+    except (ConfigError, LogError, PlanError, SetupMismatch, SolveInputError, OSError) as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     completed, previous_logs = resumed.completed, resumed.previous_logs
     if not args.quiet:
@@ -88,14 +103,18 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
     # the solve (an Interrupted): either way the devices and the log are closed.
     with stop_signals(raise_interrupted), BenchRun(config, plan, sim=sim, out_dir=out_dir, operator=args.operator,
                                                    completed=completed, previous_logs=previous_logs) as run:
-        failed = run_plan(run, PROG, quiet=args.quiet, simulated=sim)
-        if failed is not None:
-            return failed
+        stage = "after the plan"
+        started.append(True)
         try:
-            outcome = run.finish()
+            # a signal after the plan's last check is raised here (Interrupted): the run ends as interrupted
+            failed = run_plan(run, PROG, quiet=args.quiet, simulated=sim)
+            if failed is not None:
+                return failed
+            stage = "while solving"
+            outcome = run.finish()      # the result file appears, renamed into place, only when all is written
         except KeyboardInterrupt as exc:        # a stop signal after the plan ended: the table is at rest
-            return fail(PROG, f"interrupted ({exc or 'Ctrl-C'}) while solving; the table is at rest. Log: "
-                              f"{run.log_path} (bench solve {run.log_path} solves it)", ExitCode.FAULT)
+            return fail(PROG, f"interrupted ({exc or 'Ctrl-C'}) {stage}; the table is at rest; no result written. "
+                              f"Log: {run.log_path} (bench solve {run.log_path} solves it)", ExitCode.FAULT)
         except SolverError as exc:
             return fail(PROG, f"the run finished but cannot be solved: {exc}. Log: {run.log_path}", ExitCode.QUALITY)
         except RecorderError as exc:            # the log's last records (result, summary) could not be written
@@ -104,9 +123,36 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
             return fail(PROG, f"the run finished but its result cannot be written: "
                               f"{exc.strerror or exc} ({exc.filename}). Log: {run.log_path}", ExitCode.FAULT)
     if outcome.error is not None:
-        record_outputs(args, PROG, [outcome.log_path])      # the table is stopped and the log closed: now record
-        return fail(PROG, f"{outcome.state.value}: {outcome.error}; table stopped. Log: {outcome.log_path} "
-                     f"(continue with --resume {outcome.log_path})", ExitCode.FAULT)
+        not_recorded = _record(args, [outcome.log_path])     # the table is stopped and the log closed: now record
+        return ended_early(PROG, f"{outcome.state.value}: {outcome.error}", run.sequencer,
+                           f". Log: {outcome.log_path} (continue with --resume {outcome.log_path})"
+                           + (f"; {not_recorded}" if not_recorded else ""))
+    # After the result is written a stop signal ends the command where it is: the result stays as written (it was
+    # renamed into place complete), what is not done yet (verification, summary, recording) is said in the line.
+    with stop_signals(raise_interrupted):
+        try:
+            return _after_the_result(args, config, outcome, run, sim, out_dir)
+        except KeyboardInterrupt as exc:
+            return fail(PROG, f"interrupted ({exc or 'Ctrl-C'}) after the result was written; the table is at rest; "
+                              f"not verified or recorded: {outcome.result_path} (bench db import records it)",
+                        ExitCode.FAULT)
+
+
+def _record(args: argparse.Namespace, paths: list) -> str:
+    """`record_outputs`; a stop signal ends it: returns the words saying the recording is not done ('' if done)."""
+    try:
+        with stop_signals(raise_interrupted):
+            record_outputs(args, PROG, paths)
+    except KeyboardInterrupt as exc:
+        return (f"interrupted ({exc or 'Ctrl-C'}) while recording: NOT recorded in the records database (the files "
+                "are kept: bench db import records them)")
+    return ""
+
+
+def _after_the_result(args: argparse.Namespace, config, outcome, run, sim: bool, out_dir: Path) -> ExitCode:
+    """The verification (if configured), the summary and the recording of a run that has its result."""
+    from bench.verify.plan import format_errors  # imported when the command runs: `bench` starts without it
+
     if not args.quiet:
         print(f"log:    {outcome.log_path}")
     verified = None
@@ -124,7 +170,9 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
     print(run_summary(outcome, verified))
     if outcome.thermal_paths:       # a calibration over temperature: each temperature's result and the model
         print("thermal: " + ", ".join(str(p) for p in outcome.thermal_paths))
-    record_outputs(args, PROG, [outcome.result_path, outcome.log_path])   # after the files: a failure warns above
+    not_recorded = _record(args, [outcome.result_path, outcome.log_path])   # after the files: a failure warns above
+    if not_recorded:
+        return fail(PROG, f"{not_recorded}; result: {outcome.result_path}", ExitCode.FAULT)
     print(records_line(args))
     if outcome.verdict is not None and outcome.verdict.failed:
         return fail(PROG, "verdict FAIL: " + "; ".join(c.labelled() for c in outcome.verdict.failed),
@@ -171,13 +219,14 @@ def add_verification(outcome, verified, config) -> None:
     from bench.acceptance.verdict import Verdict
     from bench.log.reader import read_log
     from bench.report.markdown import write_reports
+    from bench.run.runner import save_replacing
 
     outcome.verdict = Verdict([*outcome.verdict.checks, *verified.checks])
     result = outcome.result
     result.verdict = outcome.verdict.to_json()
     result.run["verification"] = {"file": verified.json_path.name, "log": verified.log_path.name,
                                   "errors": len(verified.verification.errors)}
-    result.save(outcome.result_path)
+    save_replacing(result, outcome.result_path)
     run_id = outcome.result_path.name.removesuffix(".result.json")
     write_reports(result, outcome.result_path.parent, run_id, log=read_log(str(outcome.log_path)),
                   layout=config.imu.layout, problems=outcome.problems, failures=outcome.failures,

@@ -15,7 +15,14 @@ from pathlib import Path
 
 from bench.cli.chamber import CHAMBER_LISTEN_HELP, apply_chamber_command, listen_chamber
 from bench.cli.common import ExitCode, fail
-from bench.cli.sim_serving import host_port, refuse_remote, remote_hosts, run_console, run_until_stopped
+from bench.cli.sim_serving import (
+    add_idle_timeout_option,
+    host_port,
+    refuse_remote,
+    remote_hosts,
+    run_console,
+    run_until_stopped,
+)
 from bench.cli.table import FAULT_HELP, _apply_fault_command, _listen
 from bench.config.load import (
     BenchConfig,
@@ -74,6 +81,7 @@ def register(kinds: argparse._SubParsersAction) -> None:
     rig.add_argument("--allow-remote", action="store_true",
                      help="allow a listen address beyond loopback: anyone who can reach this machine can then "
                           "command the simulated table")
+    add_idle_timeout_option(rig)
     rig.add_argument("--write-config", metavar="FILE", help="write the bench configuration pointing at the rig")
     rig.add_argument("--config", metavar="FILE",
                      help="a bench configuration whose [site], [sim], imu.rate_hz and IMU layout the rig uses")
@@ -127,14 +135,14 @@ def _truth_config(args: argparse.Namespace) -> BenchConfig:
     return dataclasses.replace(parse_config(text, source="<bench sim rig options>"), chamber=base.chamber)
 
 
-def _serve_imu(rig, where: str):
+def _serve_imu(rig, where: str, idle_timeout_s: float):
     if where == "slcan":
         return rig.serve_slcan()
     if where.startswith("socketcan:"):
         return rig.serve_socketcan(where.split(":", 1)[1])
     host, port = host_port(where, "socketcand", "the IMU listens on slcan, socketcand://HOST:PORT or "
                                                   "socketcan:CHANNEL")
-    return rig.serve_socketcand(host, port)
+    return rig.serve_socketcand(host, port, idle_timeout_s)
 
 
 def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
@@ -161,9 +169,10 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
     def serve() -> None:
         rig = SimRig(config)
         closers.append(rig.close)
-        table_url = _listen(rig.controller, dialect, table_listen, closers, config.table.register_map)
+        table_url = _listen(rig.controller, dialect, table_listen, closers, config.table.register_map,
+                            args.idle_timeout_s)
         print(f"simulated table ({dialect}) listening on {table_url}", flush=True)
-        peers = [_serve_imu(rig, where) for where in imu_listen]
+        peers = [_serve_imu(rig, where, args.idle_timeout_s) for where in imu_listen]
         for peer in peers:
             print(f"simulated IMU ({config.imu.rate_hz:g} Hz) on {peer.kind} {peer.where}: python-can "
                   f"interface {peer.interface!r}, channel {peer.channel!r}"
@@ -174,7 +183,8 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
 
             chamber = SimChamber()
             register_map = config.chamber.register_map if config.chamber is not None else None
-            chamber_url = listen_chamber(chamber, chamber_dialect, chamber_listen, closers, register_map)
+            chamber_url = listen_chamber(chamber, chamber_dialect, chamber_listen, closers, register_map,
+                                         args.idle_timeout_s)
             print(f"simulated chamber ({chamber_dialect}) listening on {chamber_url}", flush=True)
         rig.start()
         if args.write_config:

@@ -3,6 +3,7 @@ one without --allow-remote, the fault console's common commands, and serving unt
 
 from __future__ import annotations
 
+import argparse
 import ipaddress
 import signal
 import sys
@@ -10,8 +11,20 @@ import threading
 from typing import Any, Callable
 from urllib.parse import urlsplit
 
-from bench.cli.common import ExitCode, fail, raise_interrupted, stop_signals
+from bench.cli.common import ExitCode, fail, number_type, raise_interrupted, stop_signals
 from bench.errors import InputError
+
+#: the simulators' default idle timeout (`bench.sim.serve.IDLE_TIMEOUT_S`; not imported: `bench` starts without them)
+IDLE_TIMEOUT_S = 300.0
+
+
+def add_idle_timeout_option(parser: argparse.ArgumentParser) -> None:
+    """`--idle-timeout-s S`: a TCP connection silent for S seconds is closed (and when every connection slot is
+    taken, a new client closes the longest idle one)."""
+    parser.add_argument("--idle-timeout-s", type=number_type("a positive number of seconds", lambda v: v > 0),
+                        default=IDLE_TIMEOUT_S, metavar="S",
+                        help="close a TCP connection that sends nothing for S seconds (default %(default)g); when "
+                             "every connection slot is taken a new client closes the longest idle one")
 
 
 def is_loopback(host: str) -> bool:

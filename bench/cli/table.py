@@ -15,6 +15,8 @@ from typing import TextIO
 
 from bench.cli.common import ExitCode, drive_device, fail
 from bench.cli.sim_serving import (
+    IDLE_TIMEOUT_S,
+    add_idle_timeout_option,
     apply_console_line,
     host_port,
     refuse_remote,
@@ -174,9 +176,8 @@ def cmd_table(args: argparse.Namespace) -> ExitCode:
 
 
 def _stop_table(table: Turntable) -> str:
-    """The table's controlled stop (abort if that fails); says what was done."""
-    table.safe_stop()
-    return "table commanded to stop"
+    """The table's controlled stop (abort if that fails); says what was done (TABLE STATE UNKNOWN if nothing)."""
+    return table.safe_stop().describe()
 
 
 # -- bench sim table --------------------------------------------------------------
@@ -210,6 +211,7 @@ def register_sim(subparsers: argparse._SubParsersAction) -> argparse._SubParsers
     table.add_argument("--allow-remote", action="store_true",
                        help="allow a --listen address beyond loopback (e.g. 0.0.0.0): anyone who can reach this "
                             "machine can then command the simulated table")
+    add_idle_timeout_option(table)
     table.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg (default 30.27)")
     table.add_argument("--black-box-arcsec", type=float, default=0.0,
                        help="RMS of the nine black-box pointing-error angles (default 0: ideal table)")
@@ -239,13 +241,15 @@ def _apply_fault_command(controller, line: str) -> str:
                               lambda: format_state(controller.state()))
 
 
-def _listen(controller, dialect: str, where: str, closers: list, register_map=None, framing: str = "tcp") -> str:
+def _listen(controller, dialect: str, where: str, closers: list, register_map=None, framing: str = "tcp",
+            idle_timeout_s: float = IDLE_TIMEOUT_S) -> str:
     """Start one listener; returns the address a client uses. `register_map`: the Modbus simulator's
-    (None: the default map); `framing`: the acutrol simulator's ('tcp' framed responses, 'gpib' query answers)."""
+    (None: the default map); `framing`: the acutrol simulator's ('tcp' framed responses, 'gpib' query answers);
+    `idle_timeout_s`: a TCP connection silent that long is closed."""
     if dialect == "modbus":
         from bench.sim.modbus_server import ModbusSimServer  # pymodbus: only for the Modbus simulator
 
-        modbus = ModbusSimServer(controller, register_map)
+        modbus = ModbusSimServer(controller, register_map, idle_timeout_s=idle_timeout_s)
         closers.append(modbus.close)
         if where == "pty":
             return f"modbus+rtu://{modbus.start_rtu_pty()}"
@@ -268,7 +272,7 @@ def _listen(controller, dialect: str, where: str, closers: list, register_map=No
         from bench.sim.mn_server import MnSimHandler  # the simulators: only for `bench sim`
 
         handler = MnSimHandler(controller)
-    server = LineServer(handler)
+    server = LineServer(handler, idle_timeout_s=idle_timeout_s)
     closers.append(server.close)
     if where == "pty":
         return server.open_pty()
@@ -298,5 +302,6 @@ def cmd_sim_table(args: argparse.Namespace) -> ExitCode:
     closers: list = []
     return serve_until_stopped("bench sim table", "table", args.dialect,
                                lambda where: _listen(controller, args.dialect, where, closers,
-                                                     framing=args.acl_framing), args.listen, remote,
+                                                     framing=args.acl_framing,
+                                                     idle_timeout_s=args.idle_timeout_s), args.listen, remote,
                                lambda line: _apply_fault_command(controller, line), closers)

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from bench.cli.common import ExitCode, fail, raise_interrupted, run_plan, stop_signals
+from bench.cli.common import ExitCode, ended_early, fail, raise_interrupted, run_plan, stop_signals
 
 if TYPE_CHECKING:
     from bench.acceptance.verdict import Check
@@ -87,7 +87,11 @@ def run_verification(config: BenchConfig, calibration: CalibrationResult, *, cal
         return fail(prog, f"cannot verify: {exc}; the verification did not start", ExitCode.USAGE), None
     with stop_signals(raise_interrupted), BenchRun(vconfig, plan, sim=sim, out_dir=out_dir, operator=operator,
                                                    run_id=run_id) as run:
-        failed = run_plan(run, prog, quiet=quiet, simulated=sim)
+        try:     # a signal after the plan's last check is raised here: the run ends as interrupted
+            failed = run_plan(run, prog, quiet=quiet, simulated=sim)
+        except KeyboardInterrupt as exc:
+            return fail(prog, f"interrupted ({exc or 'Ctrl-C'}) after the plan; the table is at rest. "
+                              f"Log: {run.log_path}", ExitCode.FAULT), None
         if failed is not None:
             return failed, None
         try:
@@ -97,7 +101,7 @@ def run_verification(config: BenchConfig, calibration: CalibrationResult, *, cal
                               f"rest. Log: {run.log_path}", ExitCode.FAULT), None
     if extraction is None:
         state = run.sequencer.state.value if run.sequencer is not None else "failed"
-        return fail(prog, f"verification {state}: {error}; table stopped. Log: {run.log_path}", ExitCode.FAULT), None
+        return ended_early(prog, f"verification {state}: {error}", run.sequencer, f". Log: {run.log_path}"), None
     # U includes the table's part: the pointing prior the calibration's uncertainty budget uses
     verification = verify_extraction(extraction, turn_rates(plan), compensation, calibration, config.site.site,
                                      table=budget_inputs(config, sim).table)

@@ -67,7 +67,12 @@ MIN_ACCEL_DPS2 = 1e-3
 MAX_TRAVEL_DEG = 3600.0        # |min_deg|, |max_deg|: ten turns
 MAX_BLACK_BOX_ARCSEC = 3600.0  # RMS or each angle: one degree
 MAX_CORRELATION_TIME_S = 1e6   # a bias instability's correlation time ([sim.noise], [imu.identity])
-#: [sim.noise] level -> (upper bound, unit); the lower bound is 0 (correlation_time_s: > 0)
+#: its lower bound: a bias that decorrelates faster than this is white noise at any IMU rate the bench reads, not
+#: a bias instability (and a correlation time of 5e-324 s made the solve's kernel NaN after the whole run)
+MIN_CORRELATION_TIME_S = 0.1
+#: an observation (a dwell) holds at least this many IMU samples at `imu.rate_hz`
+MIN_SAMPLES_PER_DWELL = 2
+#: [sim.noise] level -> (upper bound, unit); the lower bound is 0 (correlation_time_s: MIN_CORRELATION_TIME_S)
 _NOISE_RANGES = {"gyro_arw_deg_rt_h": (10.0, "deg/sqrt(h)"), "gyro_bias_instability_dph": (3600.0, "deg/h"),
                  "acc_vrw_ug_rt_hz": (10000.0, "ug/sqrt(Hz)"), "acc_bias_instability_ug": (100000.0, "ug"),
                  "correlation_time_s": (MAX_CORRELATION_TIME_S, "s"), "gyro_rrw_dph_rt_h": (1000.0, "deg/h/sqrt(h)"),
@@ -359,7 +364,8 @@ def _imu(t: Table) -> ImuConfig:
     identity = ImuIdentity(ident.string("model", ""), ident.string("serial", ""),
                            ident.number("gyro_bias_stability_dph", None, gt=0, le=3600.0, unit="deg/h"),
                            ident.number("acc_bias_stability_ug", None, gt=0, le=100000.0, unit="ug"),
-                           ident.number("bias_correlation_time_s", None, gt=0, le=MAX_CORRELATION_TIME_S, unit="s"),
+                           ident.number("bias_correlation_time_s", None, gt=0, ge=MIN_CORRELATION_TIME_S,
+                                        le=MAX_CORRELATION_TIME_S, unit="s"),
                            ident.number("acc_xy_to_z_uncertainty", None, ge=0, le=0.1))
     noise = _imu_noise(t) if t.has("noise") else None
     slcan_client = t.string("slcan_client", "bench", choices=SLCAN_CLIENTS)
@@ -522,7 +528,8 @@ def _noise(t: Table, si_outputs: bool = False) -> NoiseModel:
         else:
             high, unit = _NOISE_RANGES[name]
             changes[name] = n.number(name, gt=0 if name == "correlation_time_s" else None,
-                                     ge=None if name == "correlation_time_s" else 0, le=high, unit=unit)
+                                     ge=MIN_CORRELATION_TIME_S if name == "correlation_time_s" else 0, le=high,
+                                     unit=unit)
     return dataclasses.replace(base, **changes)
 
 
@@ -597,6 +604,10 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
                                      "move_accel_dps2", "turn_rate_dps", "turn_accel_dps2", "rest_s", "revolutions",
                                      "order", "verification") + PLAN_THERMAL_KEYS, required=True)
     plan = _plan(plan_table, table.limits)
+    if plan.dwell_s * imu.rate_hz < MIN_SAMPLES_PER_DWELL:      # a dwell the solve could not average
+        raise plan_table.error("dwell_s", f"{plan.dwell_s:g} s holds fewer than {MIN_SAMPLES_PER_DWELL} IMU samples "
+                                          f"at imu.rate_hz = {imu.rate_hz:g} Hz: must be >= "
+                                          f"{MIN_SAMPLES_PER_DWELL / imu.rate_hz:g} s")
     out = root.table("output", ("folder", "chunk_run_interval_s"))
     output = OutputConfig(out.path_value("folder", out.string("folder", "runs", nonempty=True)),
                           out.number("chunk_run_interval_s", None, gt=0, ge=0.01, le=3600.0, unit="s"))

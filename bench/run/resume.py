@@ -4,7 +4,10 @@ The units of the log (and of the earlier logs it names, next to it) are skipped 
 so the log must be of this very run's setup: the same plan (schedules by name and
 content, timing, order), IMU, site and table (`bench.log.run_setup`). A log of anything
 else is refused with `SetupMismatch` naming the difference (exit code 2, nothing moved),
-as is a log whose finished units are not this plan's steps. An earlier log the log names
+as is a log whose finished units are not this plan's steps, a log of a run that ended done
+(nothing to resume) and a log whose recorded run id is not its name's (another run's, renamed).
+A log that ends inside a record, as a full disk or a crash leaves it, is resumed: its cut-off
+tail is not damage (`bench.solve.from_logs`). An earlier log the log names
 is only ever looked for next to it by base name (`bench.log.names.sibling_log`); an entry
 that is not such a file is skipped with a note.
 """
@@ -15,11 +18,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from bench.config.load import BenchConfig
-from bench.log.names import logs_before, shown, sibling_log
+from bench.log.names import LOG_SUFFIX, logs_before, shown, sibling_log
 from bench.log.reader import RunLog, read_log
 from bench.log.run_info import NO_PLAN_IN_MANUAL_LOG, is_manual_log
 from bench.log.run_setup import SetupMismatch, check_same_setup, nominal, setup_of_log, setup_of_run
 from bench.plan.compiler import CompiledPlan
+from bench.plan.events import RunState
 from bench.plan.steps import step_to_dict
 from bench.solve.extract import finished_observation_steps
 
@@ -68,8 +72,24 @@ def resume_point(resume_log: str | Path | None, config: BenchConfig, plan: Compi
     completed: set[str] = set()
     for each in [*earlier, log]:
         check_same_setup(setup_of_log(each), here, "the log", "this run", f"{each.path} is not a log of this run")
+        _check_resumable(each)
         completed |= _finished_units(each, planned)
     return ResumePoint(completed, [*previous, str(resume_log)], notes)
+
+
+def _check_resumable(log: RunLog) -> None:
+    """`SetupMismatch` for a log that is not an interrupted run's own: one whose run ended done (resuming it would
+    turn one measurement into two calibrations: `bench solve LOG` solves it) or whose recorded run id is not the
+    one its name says (`<run-id>.mcap`: a renamed or copied log of another run)."""
+    name = Path(log.path).name
+    run_id = (log.metadata.get("run") or {}).get("run_id")
+    if run_id != name.removesuffix(LOG_SUFFIX):
+        raise SetupMismatch(f"{log.path} records run id {shown(run_id)}, not the one its name says "
+                            f"({shown(name.removesuffix(LOG_SUFFIX))}): a log of another run is not resumed")
+    final = next((e.state for e in reversed(log.events) if e.kind == "transition" and e.state), None)
+    if final == RunState.DONE.value:
+        raise SetupMismatch(f"{log.path} is of a finished run (it ended done): there is nothing to resume "
+                            f"(bench solve {log.path} solves it)")
 
 
 def _finished_units(log: RunLog, planned: dict[str, tuple]) -> set[str]:

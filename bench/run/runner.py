@@ -9,13 +9,14 @@ resumes) and write `<run-id>.result.json`, `<run-id>.report.md` and `<run-id>.re
 from __future__ import annotations
 
 import json
+import os
 import secrets
 import tempfile
 import time
-from contextlib import ExitStack, suppress
+from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
+from typing import Iterable, Iterator
 
 import can
 
@@ -385,14 +386,15 @@ class BenchRun:
                         quality_failures=judged_failures(failures, config.acceptance))
         result.verdict = verdict.to_json()
         result_path = self.out_dir / f"{self.run_id}.result.json"
-        result.save(result_path)
-        report_path, html_report_path = write_reports(
-            result, self.out_dir, self.run_id, log=logs[-1], layout=config.imu.layout, log_still_open=True,
-            problems=solution.extraction.problems, failures=failures, imu_link=receiver.stats.as_dict(),
-            title=f"Calibration report {self.run_id}")
-        recorder.add_attachment(result_path.name, "application/json", result_path.read_bytes(),
-                                self.clock.now() if self.clock is not None else 0.0)
-        recorder.close()
+        with unfinished(result_path) as partial:
+            result.save(partial)
+            report_path, html_report_path = write_reports(
+                result, self.out_dir, self.run_id, log=logs[-1], layout=config.imu.layout, log_still_open=True,
+                problems=solution.extraction.problems, failures=failures, imu_link=receiver.stats.as_dict(),
+                title=f"Calibration report {self.run_id}")
+            recorder.add_attachment(result_path.name, "application/json", partial.read_bytes(),
+                                    self.clock.now() if self.clock is not None else 0.0)
+            recorder.close()
         return RunOutcome(seq.state, self.log_path, result_path, report_path, result, failures,
                           html_report_path=html_report_path, verdict=verdict,
                           problems=list(solution.extraction.problems))
@@ -430,15 +432,17 @@ class BenchRun:
         result, problems, failures, verdict = judge_thermal_head(solution, results, model_path, link_failures,
                                                                  config.acceptance, receiver.stats.lost_samples)
         result_path = self.out_dir / f"{self.run_id}.result.json"
-        result.save(result_path)
-        report_path, html_report_path = write_reports(
-            result, self.out_dir, self.run_id, log=logs[-1], layout=config.imu.layout, log_still_open=True,
-            problems=problems, failures=failures, imu_link=receiver.stats.as_dict(),
-            title=f"Calibration report {self.run_id} (temperature block T{head.temperature_index})")
-        now_s = self.clock.now() if self.clock is not None else 0.0
-        for path in [result_path, *written]:
-            recorder.add_attachment(path.name, "application/json", path.read_bytes(), now_s)
-        recorder.close()
+        with unfinished(result_path) as partial:
+            result.save(partial)
+            report_path, html_report_path = write_reports(
+                result, self.out_dir, self.run_id, log=logs[-1], layout=config.imu.layout, log_still_open=True,
+                problems=problems, failures=failures, imu_link=receiver.stats.as_dict(),
+                title=f"Calibration report {self.run_id} (temperature block T{head.temperature_index})")
+            now_s = self.clock.now() if self.clock is not None else 0.0
+            recorder.add_attachment(result_path.name, "application/json", partial.read_bytes(), now_s)
+            for path in written:
+                recorder.add_attachment(path.name, "application/json", path.read_bytes(), now_s)
+            recorder.close()
         return RunOutcome(state, self.log_path, result_path, report_path, result, failures,
                           html_report_path=html_report_path, verdict=verdict, problems=problems,
                           thermal_paths=written, thermal_model=solution.model)
@@ -500,6 +504,26 @@ class BenchRun:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+@contextmanager
+def unfinished(path: Path) -> Iterator[Path]:
+    """A temporary name next to `path` for a file the block writes: renamed to `path` when the block ends, removed
+    when it raises (a stop signal while solving leaves no complete-looking result)."""
+    partial = path.with_name(f".{path.name}.partial")
+    try:
+        yield partial
+    except BaseException:
+        with suppress(OSError):
+            partial.unlink()
+        raise
+    os.replace(partial, path)
+
+
+def save_replacing(result: CalibrationResult, path: Path) -> None:
+    """Write `result` over `path` in one step (a temporary file renamed): a reader never sees half of it."""
+    with unfinished(path) as partial:
+        result.save(partial)
 
 
 #: how `quality_failures` words the two failures an [acceptance] limit can take over

@@ -65,7 +65,7 @@ from bench.run.soak import SOAK_DECISIONS, SoakTracker
 from drivers.chamber import Chamber, ChamberState
 from drivers.clock import Clock
 from drivers.errors import ImuTimeout, TurntableEStop, TurntableTimeout
-from drivers.turntable import Turntable
+from drivers.turntable import TABLE_STATE_UNKNOWN, StopOutcome, StopResult, Turntable
 
 _TRANSITIONS = {
     (RunState.IDLE, RunState.RUNNING),
@@ -150,6 +150,7 @@ class Sequencer:
         self.completed_units = set(completed_units)
         self.state = RunState.IDLE
         self.error: BaseException | None = None
+        self.stop_result: StopResult | None = None      # what the safe stop of a run ended early achieved
         self.current_step: Step | None = None
         self.windows: dict[str, dict] = {}          # unit -> counter window of its observation
         self._abort_reason: str | None = None
@@ -250,7 +251,7 @@ class Sequencer:
                     continue
                 self._execute(step)
             self._drain_imu()
-            self._check_listeners()
+            self._check_abort()         # an abort asked for after the last step's checks ends the run as aborted
             if self.chamber is not None:
                 self._emit("info", f"chamber: {self.chamber.make_safe(self.options.chamber_safe_setpoint_c)}",
                            chamber="made_safe")
@@ -306,13 +307,17 @@ class Sequencer:
                 self._dispatch(method, payload)
         self._report_listener_errors()
         if self.state is RunState.ABORTING:
-            self._transition(RunState.FAILED, "run ended early; table stopped")
+            self._transition(RunState.FAILED, f"run ended early; {self.stop_words}")
 
     def _safe_stop(self, estop: bool) -> None:
-        """Stop the table, wait (bounded) for rest, switch servos off; abort if anything fails."""
+        """Stop the table, wait (bounded) for rest, switch servos off; abort if anything fails.
+
+        `stop_result` says what happened: `STOPPED` only when the table was seen at rest with its servos
+        commanded off, `ABORT_SENT` when the controller took the abort, `UNKNOWN` when nothing could be sent or
+        confirmed (the events say `TABLE_STATE_UNKNOWN`)."""
         if estop:
-            self.table.safe_abort()
-            self._emit("info", "e-stop: controller abort sent (servos off)")
+            self.stop_result = self.table.safe_abort()
+            self._emit_stop_result("e-stop: controller ")
             return
         try:
             self.table.stop()
@@ -325,14 +330,32 @@ class Sequencer:
                 self.clock.sleep(self.options.move_poll_s)
             self.table.disable()
             self._publish_state(self.table.read_state())
+            self.stop_result = StopResult(StopOutcome.STOPPED)
             self._emit("info", "table stopped and servos off")
         except Exception as exc:  # noqa: BLE001 - fall back to the controller's abort, report the first error
-            self.table.safe_abort()
-            self._emit("warning", f"controlled stop failed ({type(exc).__name__}: {exc}); abort sent")
+            aborted = self.table.safe_abort()
+            self.stop_result = StopResult(aborted.outcome, aborted.error, exc)
+            self._emit_stop_result("")
         try:
             self._drain_imu()
         except Exception:  # noqa: BLE001 - the IMU link may be what failed; the stop matters more
             pass
+
+    def _emit_stop_result(self, prefix: str) -> None:
+        """The stop's outcome as an event: info when the abort was taken (a warning after a failed controlled stop),
+        a fault when the table state is unknown."""
+        result = self.stop_result
+        assert result is not None
+        data: dict = {"table_state": "unknown"} if result.unknown else {}
+        kind = "fault" if result.unknown else "warning" if result.stop_error is not None else "info"
+        self._emit(kind, prefix + result.describe(), None, **data)
+
+    @property
+    def stop_words(self) -> str:
+        """How the end of an early-ended run describes the table: "table stopped", or `TABLE_STATE_UNKNOWN`."""
+        if self.stop_result is not None and self.stop_result.unknown:
+            return TABLE_STATE_UNKNOWN
+        return "table stopped"
 
     def _check_abort(self) -> None:
         """Raise when the run must end: a listener failed (`ListenerError`) or an abort was asked (`RunAborted`)."""

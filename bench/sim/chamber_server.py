@@ -25,7 +25,7 @@ from pymodbus.constants import ExcCodes
 from bench.sim.chamber import ERR_ALARM, ERR_RANGE, SimChamber, SimChamberError
 from bench.sim.chamber_f4 import WatlowF4Face
 from bench.sim.modbus_serving import ModbusServing, Refused
-from bench.sim.serve import LineServer, flip_parity, held_first, reply_with_fault, serve_lines
+from bench.sim.serve import IDLE_TIMEOUT_S, LineServer, flip_parity, held_first, reply_with_fault, serve_lines
 from drivers.chamber import ascii_codec as codec
 from drivers.chamber.modbus_map import READ_ONLY, ChamberRegisterMap
 from drivers.chamber.presets import ChamberMap, default_map
@@ -150,11 +150,12 @@ def serve_chamber_ascii(chamber: SimChamber, tcp: bool = True, pty: bool = False
 
 
 def serve_chamber(chamber: SimChamber, dialect: str, where: str = "tcp", host: str = "127.0.0.1", port: int = 0,
-                  register_map: ChamberMap | None = None) -> tuple[Callable[[], None], str]:
+                  register_map: ChamberMap | None = None,
+                  idle_timeout_s: float = IDLE_TIMEOUT_S) -> tuple[Callable[[], None], str]:
     """Serve `chamber` in `dialect` ('ascii' or 'modbus') on TCP (`where` 'tcp', at host:port) or a new pty
     (`where` 'pty'; Modbus RTU for modbus); returns (close, the URL a client opens)."""
     if dialect == "modbus":
-        modbus = ChamberModbusServer(chamber, register_map)
+        modbus = ChamberModbusServer(chamber, register_map, idle_timeout_s=idle_timeout_s)
         try:
             if where == "pty":
                 return modbus.close, f"modbus+rtu://{modbus.start_rtu_pty()}?baud=115200"
@@ -165,7 +166,7 @@ def serve_chamber(chamber: SimChamber, dialect: str, where: str = "tcp", host: s
         return modbus.close, f"modbus+tcp://{bound_host}:{bound_port}"
     if dialect != "ascii":
         raise ValueError(f"no simulated chamber for dialect {dialect!r} (ascii, modbus)")
-    server = LineServer(ChamberAsciiHandler(chamber))
+    server = LineServer(ChamberAsciiHandler(chamber), idle_timeout_s=idle_timeout_s)
     try:
         if where == "pty":
             return server.close, server.open_pty()

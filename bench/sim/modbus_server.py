@@ -38,7 +38,7 @@ from bench.sim.controller import (
     SimController,
 )
 from bench.sim.modbus_serving import GARBAGE, ModbusServing, Refused
-from bench.sim.serve import MAX_CONNECTIONS
+from bench.sim.serve import IDLE_TIMEOUT_S, MAX_CONNECTIONS
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import TurntableError
 from drivers.turntable.base import AxisStatus, TableState
@@ -72,8 +72,8 @@ class ModbusSimServer(ModbusServing):
 
     def __init__(self, controller: SimController, register_map: RegisterMap | None = None,
                  wall_clock: Clock = SYSTEM_CLOCK, watchdog_poll_s: float = 0.02,
-                 max_connections: int = MAX_CONNECTIONS):
-        super().__init__(max_connections)
+                 max_connections: int = MAX_CONNECTIONS, idle_timeout_s: float = IDLE_TIMEOUT_S):
+        super().__init__(max_connections, idle_timeout_s)
         self.controller = controller
         self.wire_faults = controller.faults
         self.map = register_map if register_map is not None else RegisterMap.default()

@@ -14,8 +14,9 @@ path clients open. `close()` stops everything and joins the threads.
 
 Connections cost no thread here and pymodbus forgets each one when it ends, but their
 number is capped like the line servers' (`bench.sim.serve.MAX_CONNECTIONS` per TCP
-listener): one more is accepted and closed at once, so idle clients cannot use up the
-process's file descriptors.
+listener) and idle ones are handled alike: a connection silent for `idle_timeout_s` is
+closed, and a new one beyond the cap closes the longest idle, so idle clients can neither
+use up the process's file descriptors nor lock a bench out.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import logging
 import os
 import select
 import threading
+import time
 import tty
 from typing import Callable, Iterable, Mapping
 
@@ -35,7 +37,7 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from bench.sim.controller import WireFaults
-from bench.sim.serve import MAX_CONNECTIONS, ClosedOnExit
+from bench.sim.serve import IDLE_TIMEOUT_S, MAX_CONNECTIONS, ClosedOnExit, check_idle_timeout, longest_idle
 
 # pymodbus logs refused requests at ERROR; keep them out of stderr unless logging is configured.
 logging.getLogger("pymodbus").addHandler(logging.NullHandler())
@@ -51,19 +53,63 @@ class _CloseAtOnce(asyncio.Protocol):
 
 
 class _BoundedTcpServer(ModbusTcpServer):
-    """pymodbus's TCP server serving at most `max_connections` connections at once."""
+    """pymodbus's TCP server serving at most `max_connections` connections at once; a new one beyond them closes
+    the longest idle, and one silent for `idle_timeout_s` is closed (checked every `_REAP_PERIOD_S`)."""
 
-    def __init__(self, *args, max_connections: int = MAX_CONNECTIONS, **kwargs):
+    def __init__(self, *args, max_connections: int = MAX_CONNECTIONS, idle_timeout_s: float = IDLE_TIMEOUT_S,
+                 **kwargs):
         super().__init__(*args, **kwargs)
         self.max_connections = max_connections
+        self.idle_timeout_s = check_idle_timeout(idle_timeout_s)
         self.refused = 0
+        self.evicted = 0
+        self.timed_out = 0
+        self._last_heard: dict[str, float] = {}     # connection id -> monotonic time of its last bytes
+        self._reaper: asyncio.TimerHandle | None = None
 
     def handle_new_connection(self):
-        # the listener's protocol factory; active_connections holds the live connections only
+        # the listener's protocol factory (on the loop's thread); active_connections holds the live ones only
         if len(self.active_connections) >= self.max_connections:
-            self.refused += 1
-            return _CloseAtOnce()
-        return super().handle_new_connection()
+            victim = longest_idle({uid: self._last_heard.get(uid, 0.0) for uid in self.active_connections})
+            if victim is None:
+                self.refused += 1
+                return _CloseAtOnce()
+            self.evicted += 1
+            self._drop(victim)
+        protocol = super().handle_new_connection()
+        uid, received = protocol.unique_id, protocol.data_received
+        self._last_heard[uid] = time.monotonic()
+
+        def heard(data: bytes) -> None:
+            self._last_heard[uid] = time.monotonic()
+            received(data)
+
+        protocol.data_received = heard
+        if self._reaper is None:
+            self._reaper = self.loop.call_later(min(_REAP_PERIOD_S, self.idle_timeout_s), self._reap)
+        return protocol
+
+    def _drop(self, uid: str) -> None:
+        self._last_heard.pop(uid, None)
+        connection = self.active_connections.get(uid)
+        if connection is not None:
+            connection.close()
+
+    def _reap(self) -> None:
+        """Close the connections silent for `idle_timeout_s`; again in a while while any is open."""
+        now = time.monotonic()
+        for uid in list(self._last_heard):
+            if uid not in self.active_connections:
+                self._last_heard.pop(uid, None)          # it ended on its own
+            elif now - self._last_heard[uid] > self.idle_timeout_s:
+                self.timed_out += 1
+                self._drop(uid)
+        self._reaper = (self.loop.call_later(min(_REAP_PERIOD_S, self.idle_timeout_s), self._reap)
+                        if self._last_heard else None)
+
+
+#: how often a Modbus TCP listener looks for idle connections (s)
+_REAP_PERIOD_S = 1.0
 
 
 class Refused(Exception):
@@ -87,10 +133,11 @@ class ModbusServing(ClosedOnExit):
     #: ... and the exception a request that raises one of them (or a ValueError) answers with
     device_error_code = ExcCodes.DEVICE_FAILURE
 
-    def __init__(self, max_connections: int = MAX_CONNECTIONS):
+    def __init__(self, max_connections: int = MAX_CONNECTIONS, idle_timeout_s: float = IDLE_TIMEOUT_S):
         if max_connections < 1:
             raise ValueError(f"max_connections must be at least 1, got {max_connections}")
         self.max_connections = max_connections
+        self.idle_timeout_s = check_idle_timeout(idle_timeout_s)
         self.requests = 0
         #: why the last refused request was refused (for tests and the console)
         self.last_refusal = ""
@@ -224,7 +271,8 @@ class ModbusServing(ClosedOnExit):
 
         async def start():
             server = _BoundedTcpServer(self._device, address=(host, port), trace_packet=self._trace_packet,
-                                       trace_pdu=self._trace_pdu, max_connections=self.max_connections)
+                                       trace_pdu=self._trace_pdu, max_connections=self.max_connections,
+                                       idle_timeout_s=self.idle_timeout_s)
             await server.serve_forever(background=True)
             return server
 
@@ -245,6 +293,11 @@ class ModbusServing(ClosedOnExit):
     def refused(self) -> int:
         """Connections closed at once because `max_connections` were being served."""
         return sum(server.refused for server in self._tcp_servers)
+
+    @property
+    def evicted(self) -> int:
+        """Connections closed to make room for a new one (the longest idle)."""
+        return sum(server.evicted for server in self._tcp_servers)
 
     def drop_connections(self) -> int:
         """Close every open TCP connection (a lost link, for tests); returns how many."""

@@ -31,6 +31,7 @@ from bench.model.units import DEG
 from bench.sim.can_imu import SimCanImu
 from bench.sim.controller import SimController
 from bench.sim.imu import SimImu
+from bench.sim.serve import IDLE_TIMEOUT_S
 from bench.sim.slcan_server import SlcanPtyServer
 from bench.sim.socketcand_server import SocketcandServer
 from bench.sim.table import SimTable, TableLimits
@@ -156,10 +157,11 @@ class SimRig:
         server = SlcanPtyServer()
         return self._add("slcan", server, RigPeer("slcan", server.path, "slcan", server.path, {}, 1_000_000))
 
-    def serve_socketcand(self, host: str = "127.0.0.1", port: int = 0) -> RigPeer:
-        """A simulated socketcand serving `can0` on TCP."""
+    def serve_socketcand(self, host: str = "127.0.0.1", port: int = 0,
+                         idle_timeout_s: float = IDLE_TIMEOUT_S) -> RigPeer:
+        """A simulated socketcand serving `can0` on TCP (a connection silent for `idle_timeout_s` is closed)."""
         self._classic_only("socketcand (as python-can reads it)")
-        server = SocketcandServer(host, port)
+        server = SocketcandServer(host, port, idle_timeout_s=idle_timeout_s)
         return self._add("socketcand", server, RigPeer(
             "socketcand", f"socketcand://{server.host}:{server.port}", "socketcand", "can0",
             {"host": server.host, "port": server.port}))

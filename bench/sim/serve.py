@@ -5,11 +5,14 @@ terminator; None = say nothing, e.g. an injected timeout). `LineServer` reads CR
 terminated lines from each connection and writes the replies. Threads are daemons and
 `close()` joins them, so tests leave nothing running.
 
-Connections are bounded: at most `MAX_CONNECTIONS` are served at once (one thread each);
-one more is accepted and closed at once (the client sees the connection closed), and
-a connection is forgotten when it ends, so the server's bookkeeping does not grow with
-the number of connections it has seen. The accept loop outlives any per-connection
-failure (a socket option, a thread that cannot start, an accept error such as too many
+Connections are bounded: at most `MAX_CONNECTIONS` are served at once (one thread each),
+and a connection is forgotten when it ends, so the server's bookkeeping does not grow with
+the number of connections it has seen. Idle ones cannot lock a client out: a connection
+that sends nothing for `idle_timeout_s` (`IDLE_TIMEOUT_S` unless told, `--idle-timeout-s`
+on the command line) is closed, and when every slot is taken a new client is served and
+the connection that has been silent the longest is closed to make room ("refuse the
+oldest idle": a bench polling its simulator is never the longest silent one). The accept
+loop outlives any per-connection failure (a socket option, a thread that cannot start, an accept error such as too many
 open files): only `close()` ends it.
 """
 
@@ -19,6 +22,7 @@ import os
 import select
 import socket
 import threading
+import time
 import tty
 from typing import TYPE_CHECKING, Callable, Self
 
@@ -27,8 +31,22 @@ if TYPE_CHECKING:
 
 Handler = Callable[[bytes], "bytes | None"]
 MAX_LINE = 4096
-#: connections served at once per server (over all its TCP listeners); one more is accepted and closed at once
+#: connections served at once per server (over all its TCP listeners); a new one beyond them closes the longest idle
 MAX_CONNECTIONS = 32
+#: a connection that sends nothing for this long is closed (s)
+IDLE_TIMEOUT_S = 300.0
+
+
+def longest_idle(last_heard: dict[int, float]) -> int | None:
+    """The key of the connection heard from the longest ago (None: none)."""
+    return min(last_heard, key=last_heard.__getitem__) if last_heard else None
+
+
+def check_idle_timeout(idle_timeout_s: float) -> float:
+    """`idle_timeout_s` if it is a positive finite number of seconds, else ValueError."""
+    if not (isinstance(idle_timeout_s, (int, float)) and 0 < idle_timeout_s < float("inf")):
+        raise ValueError(f"idle_timeout_s must be a positive number of seconds, got {idle_timeout_s!r}")
+    return float(idle_timeout_s)
 
 
 class ClosedOnExit:
@@ -117,17 +135,22 @@ def tcp_listener(host: str, port: int, backlog: int) -> socket.socket:
 class LineServer(ClosedOnExit):
     """Serves one handler on any number of TCP listeners and ptys until `close()`.
 
-    At most `max_connections` TCP connections are served at once; the excess is accepted
-    and closed at once. `connections` is how many are being served now.
+    At most `max_connections` TCP connections are served at once; a new one beyond them
+    closes the longest idle; one silent for `idle_timeout_s` is closed. `connections` is how
+    many are being served now.
     """
 
-    def __init__(self, handle: Handler, max_connections: int = MAX_CONNECTIONS):
+    def __init__(self, handle: Handler, max_connections: int = MAX_CONNECTIONS,
+                 idle_timeout_s: float = IDLE_TIMEOUT_S):
         if max_connections < 1:
             raise ValueError(f"max_connections must be at least 1, got {max_connections}")
         self.handle = handle
         self.max_connections = max_connections
-        #: connections closed at once because `max_connections` were being served (for tests and logs)
-        self.refused = 0
+        self.idle_timeout_s = check_idle_timeout(idle_timeout_s)
+        #: connections closed to make room for a new one (the longest idle), and for being idle too long
+        self.evicted = 0
+        self.timed_out = 0
+        self._last_heard: dict[int, float] = {}             # live connections -> monotonic time of their last bytes
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []          # listeners and ptys: a few, for the server's life
         self._closers: list[Callable[[], None]] = []        # their sockets and file descriptors
@@ -173,12 +196,15 @@ class LineServer(ClosedOnExit):
                 conn.close()
 
     def _serve_connection(self, conn: socket.socket) -> None:
-        """Start a thread for `conn`, or close it at once when `max_connections` are served."""
+        """Start a thread for `conn`; when `max_connections` are served, the longest idle one is closed first."""
         with self._lock:
             if len(self._connections) >= self.max_connections:
-                self.refused += 1
-                conn.close()
-                return
+                victim = longest_idle(self._last_heard)
+                if victim is not None:
+                    old, _ = self._connections.pop(victim)
+                    self._last_heard.pop(victim, None)
+                    self.evicted += 1
+                    _hang_up(old)           # its thread sees the end at its next receive
             key = self._next_id
             self._next_id += 1
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -186,32 +212,44 @@ class LineServer(ClosedOnExit):
             thread = self._thread_factory(target=self._tcp_loop, args=(key, conn), daemon=True,
                                           name=f"sim-connection-{key}")
             self._connections[key] = (conn, thread)
+            self._last_heard[key] = time.monotonic()
         try:
             thread.start()
         except BaseException:
             with self._lock:
                 self._connections.pop(key, None)
+                self._last_heard.pop(key, None)
             raise
 
     def _tcp_loop(self, key: int, conn: socket.socket) -> None:
         try:
-            self._converse(conn)
+            self._converse(key, conn)
         finally:
             with self._lock:
                 self._connections.pop(key, None)     # forgotten as soon as it ends
+                self._last_heard.pop(key, None)
             conn.close()
 
-    def _converse(self, conn: socket.socket) -> None:
+    def _converse(self, key: int, conn: socket.socket) -> None:
         buffer = bytearray()
+        heard = time.monotonic()
         while not self._stop.is_set():
             try:
                 data = conn.recv(4096)
             except (socket.timeout, TimeoutError):
+                if time.monotonic() - heard > self.idle_timeout_s:
+                    with self._lock:
+                        self.timed_out += 1
+                    return                   # silent too long: closed
                 continue
             except OSError:
                 return
             if not data:
                 return
+            heard = time.monotonic()
+            with self._lock:
+                if key in self._last_heard:
+                    self._last_heard[key] = heard
             buffer += data
             for line in _split_lines(buffer):
                 reply = self.handle(line)
@@ -269,10 +307,19 @@ class LineServer(ClosedOnExit):
         self._closers.clear()
 
 
-def serve_lines(handler, tcp: bool = True, pty: bool = False, port: int = 0) -> tuple[LineServer, dict[str, str]]:
+def _hang_up(conn: socket.socket) -> None:
+    """End a connection another thread serves: its receive returns at once (the thread closes the socket)."""
+    try:
+        conn.shutdown(socket.SHUT_RDWR)
+    except OSError:
+        pass
+
+
+def serve_lines(handler, tcp: bool = True, pty: bool = False, port: int = 0,
+                idle_timeout_s: float = IDLE_TIMEOUT_S) -> tuple[LineServer, dict[str, str]]:
     """Serve a line dialect's `handler` on loopback TCP and/or a pty; returns the server (close it) and its
     URLs ({'tcp': 'tcp://127.0.0.1:port', 'pty': '/dev/pts/N'} as requested)."""
-    server = LineServer(handler)
+    server = LineServer(handler, idle_timeout_s=idle_timeout_s)
     urls = {}
     try:
         if tcp:

@@ -30,7 +30,7 @@ from collections.abc import Iterable
 
 import can
 
-from bench.sim.serve import ClosedOnExit, tcp_listener
+from bench.sim.serve import IDLE_TIMEOUT_S, ClosedOnExit, check_idle_timeout, longest_idle, tcp_listener
 
 BUS = "can0"
 HI = b"< hi >"
@@ -133,13 +133,23 @@ class _Connection:
         self.sock = sock
         self.session = SocketcandSession()
         self.pending = bytearray()
+        self.evicted = False                    # closed to make room for a new client
         self.raw_from: float | None = None      # monotonic time frames start flowing
+        #: monotonic time of the last bytes from the client or taken by it (a raw-mode reader only reads)
+        self.last_active = time.monotonic()
 
 
 class SocketcandServer(ClosedOnExit):
-    """socketcand on TCP until `close()`; `send(messages)` hands bus frames to every client in raw mode."""
+    """socketcand on TCP until `close()`; `send(messages)` hands bus frames to every client in raw mode.
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 0, max_connections: int = MAX_CONNECTIONS):
+    Connections as `bench.sim.serve.LineServer`'s: a client that neither sends nor takes a byte for
+    `idle_timeout_s` is closed, and a new client beyond `max_connections` closes the longest idle one."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0, max_connections: int = MAX_CONNECTIONS,
+                 idle_timeout_s: float = IDLE_TIMEOUT_S):
+        self.idle_timeout_s = check_idle_timeout(idle_timeout_s)
+        self.evicted = 0              # connections closed to make room for a new one
+        self.timed_out = 0            # connections closed for being idle too long
         self.frames_sent = 0          # frames queued to clients (one per client in raw mode)
         self.frames_dropped = 0       # not queued: a client's output was full
         self.clients = 0              # connections accepted so far
@@ -195,10 +205,11 @@ class SocketcandServer(ClosedOnExit):
                 self._stop.wait(0.05)
                 continue
             with self._lock:
-                full = len(self._connections) >= self.max_connections
-            if full:
-                sock.close()
-                continue
+                if len(self._connections) >= self.max_connections:     # room for the new one: the longest idle goes
+                    victim = longest_idle({k: c.last_active for k, c in self._connections.items()})
+                    if victim is not None:
+                        self._connections.pop(victim).evicted = True
+                        self.evicted += 1
             try:
                 sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 sock.setblocking(False)
@@ -229,6 +240,11 @@ class SocketcandServer(ClosedOnExit):
         while not self._stop.is_set():
             with self._lock:
                 want_write = bool(conn.pending)
+                if conn.evicted:
+                    return
+                if time.monotonic() - conn.last_active > self.idle_timeout_s:
+                    self.timed_out += 1
+                    return
             readable, writable, _ = select.select([sock], [sock] if want_write else [], [], 0.01)
             if readable:
                 try:
@@ -240,6 +256,7 @@ class SocketcandServer(ClosedOnExit):
                 if data == b"":
                     return                       # the client went away
                 if data:
+                    conn.last_active = time.monotonic()
                     buffer += data
                     for command in split_elements(buffer):
                         reply = conn.session.handle(command)
@@ -261,6 +278,8 @@ class SocketcandServer(ClosedOnExit):
                     return
                 with self._lock:
                     del conn.pending[:written]
+                    if written:
+                        conn.last_active = time.monotonic()
 
     def close(self) -> None:
         self._stop.set()

@@ -32,8 +32,10 @@ def extract_from_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz
                       still_open: frozenset[str] = frozenset()) -> tuple[Extraction, list[ImuStats], list[str]]:
     """Observations of all logs merged by unit, the IMU link statistics and the damage of each log.
 
-    A log in `still_open` (the live run reading its own log before closing it) has no
-    summary yet by design: that is not reported as damage.
+    A log in `still_open` (the live run reading its own log before closing it, or an interrupted run's log it
+    resumes) has no summary yet by design, and a resumed one may end inside a record, as a full disk or a crash
+    leaves it: neither is reported as damage (the cut-off tail holds only what came after the last message that
+    reached the disk; a unit not finished there is run again).
     """
     merged_positions, merged_rotations, problems = {}, {}, []
     stats, damage = [], []
@@ -41,7 +43,7 @@ def extract_from_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz
         samples, link = log.imu_samples(layout, rate_hz)
         stats.append(link)
         damage += [f"{log.path}: {d.describe()}" for d in log.lost
-                   if not (d.kind == "no_summary" and log.path in still_open)]
+                   if not (d.kind in ("no_summary", "truncated") and log.path in still_open)]
         states = log.table_states
         part = extract_observations(log.events, samples.counter, samples.gyro_counts, samples.acc_counts, rate_hz,
                                     site, states.time_s, states.angles_deg, mounting, samples.status,

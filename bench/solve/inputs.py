@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import numpy as np
+
+from bench.errors import BenchError
 from bench.model.observations import COUNT_RESOLUTION
 from bench.model.table_prior import TablePrior, rms_arcsec
 from bench.model.units import ARCSEC, DEG_PER_HOUR, MICRO_G
-from bench.solve.budget import BudgetInputs
+from bench.solve.budget import BudgetInputs, gm_mean_kernel
 
 
 def bias_stabilities(config, sim: bool) -> tuple[float | None, float | None]:
@@ -79,8 +82,50 @@ def correlation_time_s(config, sim: bool) -> float:
     return config.sim.noise.correlation_time_s if sim else DEFAULT_CORRELATION_TIME_S
 
 
+class SolveInputError(BenchError):
+    """The configuration gives the solve something it cannot take (found before anything moves)."""
+
+
+def check_solvable(config, steps, sim: bool) -> BudgetInputs:
+    """What the solve will need from the configuration, built before anything moves (`bench run`, also
+    `--dry-run`): the budget's inputs, the bias-instability kernel over the plan's observation windows (its
+    dwells and turns, laid end to end at their estimated times) and the table prior's covariance, each finite
+    and decomposable as the solve will decompose them. Returns the inputs; `SolveInputError` names what fails."""
+    try:
+        inputs = budget_inputs(config, sim)
+    except (ValueError, ArithmeticError) as exc:
+        raise SolveInputError(f"the uncertainty budget's inputs cannot be built from the configuration: {exc}") \
+            from exc
+    tau = inputs.correlation_time_s
+    elapsed = 0.0
+    starts: dict[str, list[float]] = {"dwell": [], "turn": []}
+    durations: dict[str, list[float]] = {"dwell": [], "turn": []}
+    for step in steps:
+        if step.kind in starts:
+            starts[step.kind].append(elapsed)
+            durations[step.kind].append(step.estimated_s)
+        elapsed += step.estimated_s
+    with np.errstate(all="ignore"):     # a kernel that overflows is reported below, not warned about
+        matrices = [(f"the bias-instability kernel of the {kind}s",
+                     gm_mean_kernel(np.array(starts[kind]), np.array(durations[kind]), tau))
+                    for kind in starts if starts[kind]]
+    if inputs.table is not None:
+        matrices.append(("the table prior's covariance", np.asarray(inputs.table.covariance_rad2, dtype=float)))
+    for what, matrix in matrices:
+        with np.errstate(all="ignore"):
+            finite = bool(np.isfinite(matrix).all())
+        if not finite:
+            raise SolveInputError(f"{what} is not finite (bias correlation time {tau:g} s): the solve could not use "
+                                  "it")
+        try:
+            np.linalg.eigh(0.5 * (matrix + matrix.T))
+        except np.linalg.LinAlgError as exc:
+            raise SolveInputError(f"{what} cannot be decomposed ({exc}): the solve could not use it") from exc
+    return inputs
+
+
 #: correlation time of the bias instability when nothing better is known (s)
 DEFAULT_CORRELATION_TIME_S = 300.0
 
-__all__ = ["DEFAULT_CORRELATION_TIME_S", "bias_stabilities", "budget_inputs", "correlation_time_s",
-           "turn_angle_sigma_rad"]
+__all__ = ["DEFAULT_CORRELATION_TIME_S", "SolveInputError", "bias_stabilities", "budget_inputs", "check_solvable",
+           "correlation_time_s", "turn_angle_sigma_rad"]

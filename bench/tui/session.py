@@ -42,14 +42,15 @@ from drivers.turntable import FRAMES, AxisMode, Turntable, frame_index
 LINK_DISCONNECTED, LINK_CONNECTING, LINK_CONNECTED, LINK_ERROR = "disconnected", "connecting", "connected", "error"
 
 
-def run_end_of(outcome: RunOutcome) -> tuple[str, str, str]:
+def run_end_of(outcome: RunOutcome, stop_words: str = "table stopped") -> tuple[str, str, str]:
     """How a finished run ends, from what `BenchRun.finish()` returned: (END_* kind, the reason a non-zero exit
-    gives, the line the event log shows). A judged run ends by its verdict, as `bench run` does."""
+    gives, the line the event log shows). A judged run ends by its verdict, as `bench run` does. `stop_words`: what
+    the run's stop did ("table stopped", or TABLE STATE UNKNOWN when it could not be sent or confirmed)."""
     if isinstance(outcome.error, RunAborted):
-        return END_ABORTED, str(outcome.error), f"aborted: {outcome.error}; table stopped. Log: {outcome.log_path.name}"
+        return END_ABORTED, str(outcome.error), f"aborted: {outcome.error}; {stop_words}. Log: {outcome.log_path.name}"
     if outcome.error is not None:
         return (END_FAILED, f"{outcome.error}",
-                f"{outcome.state.value}: {outcome.error}; table stopped. Log: {outcome.log_path.name}")
+                f"{outcome.state.value}: {outcome.error}; {stop_words}. Log: {outcome.log_path.name}")
     if outcome.verdict is not None and outcome.verdict.failed:
         text = "verdict FAIL: " + "; ".join(c.labelled() for c in outcome.verdict.failed)
         return END_QUALITY, text, text
@@ -467,7 +468,7 @@ class BenchSession:
                 return
             outcome = self.outcome
             result = outcome.result
-            kind, reason, text = run_end_of(outcome)
+            kind, reason, text = run_end_of(outcome, _stop_words(run))
             self.buffer.note("info", text)
         except Exception as exc:  # noqa: BLE001 - the operator must see it; the sequencer already stopped the table
             text = f"run error: {type(exc).__name__}: {exc}"
@@ -519,8 +520,8 @@ class BenchSession:
             return None
 
         def body() -> None:
-            table.safe_abort()
-            self._note("info", "e-stop: controller abort sent (servos off)")
+            stopped = table.safe_abort()
+            self._note("fault" if stopped.unknown else "info", f"e-stop: {stopped.describe()}")
         return self._spawn("e-stop", body)
 
     # -- the end -----------------------------------------------------------------------------------
@@ -578,3 +579,8 @@ def _range(axis) -> str:
     if axis.min_deg is None or axis.max_deg is None:
         return f"continuous <= {axis.max_rate_dps:g} deg/s"
     return f"[{axis.min_deg:g}, {axis.max_deg:g}] deg"
+
+
+def _stop_words(run) -> str:
+    """"table stopped", or TABLE STATE UNKNOWN when the run's stop could not be sent or confirmed."""
+    return run.sequencer.stop_words if run.sequencer is not None else "table stopped"

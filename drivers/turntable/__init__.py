@@ -12,10 +12,13 @@ from drivers.transport import MODBUS_SCHEMES
 from drivers.turntable.base import (
     ALL_FRAMES,
     FRAMES,
+    TABLE_STATE_UNKNOWN,
     AxisLimits,
     AxisMode,
     AxisState,
     AxisStatus,
+    StopOutcome,
+    StopResult,
     TableState,
     Turntable,
     TurntableLimits,
@@ -40,6 +43,6 @@ _DIALECTS: Dialects[Turntable] = Dialects("turntable", DIALECTS, TurntableConfig
 dialect_class, check_url_dialect, open_turntable = _DIALECTS.dialect_class, _DIALECTS.check_url_dialect, _DIALECTS.open
 
 
-__all__ = ["ALL_FRAMES", "DIALECTS", "FRAMES", "AxisLimits", "AxisMode", "AxisState", "AxisStatus", "TableState",
-           "Turntable", "TurntableLimits", "MODBUS_SCHEMES", "check_url_dialect", "dialect_class", "frame_index",
-           "open_turntable"]
+__all__ = ["ALL_FRAMES", "DIALECTS", "FRAMES", "MODBUS_SCHEMES", "TABLE_STATE_UNKNOWN", "AxisLimits", "AxisMode",
+           "AxisState", "AxisStatus", "StopOutcome", "StopResult", "TableState", "Turntable", "TurntableLimits",
+           "check_url_dialect", "dialect_class", "frame_index", "open_turntable"]

@@ -158,6 +158,43 @@ class TableState:
         return "; ".join(parts)
 
 
+#: what every message says when no stop could be sent or confirmed: the operator must act at the controller
+TABLE_STATE_UNKNOWN = "TABLE STATE UNKNOWN: the controller cannot be reached; stop it at the controller"
+
+
+class StopOutcome(enum.Enum):
+    """What a safe stop achieved, as far as the bench can know."""
+
+    STOPPED = "stopped"          # the controller accepted the controlled stop
+    ABORT_SENT = "abort sent"    # the controlled stop failed; the controller accepted the abort (servos off)
+    UNKNOWN = "unknown"          # neither could be sent (or confirmed): the table may still be moving
+
+
+@dataclass(frozen=True)
+class StopResult:
+    """`Turntable.safe_stop`/`safe_abort`'s answer: the outcome, the error that made the abort fail (`UNKNOWN`)
+    and the one that made the controlled stop fail (if one was tried and failed)."""
+
+    outcome: StopOutcome
+    error: BaseException | None = None
+    stop_error: BaseException | None = None
+
+    @property
+    def unknown(self) -> bool:
+        return self.outcome is StopOutcome.UNKNOWN
+
+    def describe(self) -> str:
+        """In words an operator cannot misread: 'table commanded to stop', '... abort sent (servos off)', or
+        `TABLE_STATE_UNKNOWN` with the reason."""
+        stop_failed = (f"controlled stop failed ({type(self.stop_error).__name__}: {self.stop_error}); "
+                       if self.stop_error is not None else "")
+        if self.outcome is StopOutcome.STOPPED:
+            return "table commanded to stop"
+        if self.outcome is StopOutcome.ABORT_SENT:
+            return f"{stop_failed}abort sent (servos off)"
+        return f"{TABLE_STATE_UNKNOWN} ({stop_failed}abort failed: {type(self.error).__name__}: {self.error})"
+
+
 @dataclass(frozen=True)
 class AxisLimits:
     """What the bench may demand of one axis. `min_deg`/`max_deg` None = continuous axis."""
@@ -355,21 +392,26 @@ class Turntable(DeviceSession[TableState]):
                                        f"(at {[round(a, 4) for a in state.angles_deg]} deg)")
             self.clock.sleep(poll_s)
 
-    def safe_stop(self) -> None:
+    def safe_stop(self) -> StopResult:
         """Best effort to leave the table stopped: a controlled stop, an abort if that fails.
 
-        Never raises: it runs on error paths where the first error must survive.
+        Never raises (it runs on error paths where the first error must survive); returns what was sent:
+        `STOPPED` (the controlled stop was accepted), `ABORT_SENT`, or `UNKNOWN` (nothing could be sent).
         """
         try:
             self.stop()
-            return
-        except Exception:  # noqa: BLE001 - the abort below is the fallback for any failure
-            pass
-        self.safe_abort()
+            return StopResult(StopOutcome.STOPPED)
+        except Exception as exc:  # noqa: BLE001 - the abort below is the fallback for any failure
+            stop_error = exc
+        aborted = self.safe_abort()
+        return StopResult(aborted.outcome, aborted.error, stop_error)
 
-    def safe_abort(self) -> None:
-        """Best effort to switch every servo off (after an e-stop or a failed stop); never raises."""
+    def safe_abort(self) -> StopResult:
+        """Best effort to switch every servo off (after an e-stop or a failed stop); never raises.
+
+        Returns `ABORT_SENT` when the controller accepted the abort, `UNKNOWN` (with the error) when it did not."""
         try:
             self.abort()
-        except Exception:  # noqa: BLE001 - nothing more a driver can do; the caller reports the first error
-            pass
+            return StopResult(StopOutcome.ABORT_SENT)
+        except Exception as exc:  # noqa: BLE001 - nothing more a driver can do: the caller says the state is unknown
+            return StopResult(StopOutcome.UNKNOWN, exc)

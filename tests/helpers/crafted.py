@@ -8,14 +8,17 @@ record with the given keys replaced, every attachment, plus the given extra atta
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Callable
 
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
 
 def rewrite_log(src: Path, dst: Path, *, metadata: dict[str, dict[str, str]] | None = None,
-                attachments: dict[str, bytes] | None = None) -> Path:
-    """Copy `src` to `dst` with `metadata` (record name -> keys to set) and extra `attachments` (name -> data)."""
+                attachments: dict[str, bytes] | None = None,
+                keep: Callable[[str, bytes], bool] | None = None) -> Path:
+    """Copy `src` to `dst` with `metadata` (record name -> keys to set) and extra `attachments` (name -> data);
+    with `keep(topic, data)`, only the messages it keeps."""
     changes = metadata or {}
     with open(src, "rb") as f_in, open(dst, "wb") as f_out:
         reader = make_reader(f_in)
@@ -24,6 +27,8 @@ def rewrite_log(src: Path, dst: Path, *, metadata: dict[str, dict[str, str]] | N
         schemas: dict[int, int] = {}
         channels: dict[int, int] = {}
         for schema, channel, message in reader.iter_messages(log_time_order=False):
+            if keep is not None and not keep(channel.topic, message.data):
+                continue
             if channel.id not in channels:
                 schema_id = 0
                 if schema is not None:
