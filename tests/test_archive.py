@@ -196,3 +196,62 @@ def test_a_thermal_runs_log_is_re_solved_one_calibration_per_temperature(thermal
     assert CalibrationResult.load(only_file(solved, "*.solved.result.json")).run["thermal"]["this_block"]
     with open_records(str(db)) as records:
         assert [r.serial for r in records.list_runs()] == ["THERMAL-1"]
+
+
+# -- issue 27: the archive's skip follows the log's content, copies are named, nothing goes unrecorded silently ----
+
+def test_moved_logs_are_skipped_by_run_id_and_content_and_a_backup_copy_gets_its_own_outputs(archive, tmp_path):
+    """Keyed on the log's path, every call after the logs moved re-solved everything and added result rows (three
+    for one run after two calls); two logs of one run in one folder wrote one output file ("solved 4 of 5", three
+    result files)."""
+    first = tmp_path / "first"
+    shutil.copytree(archive / "b", first)
+    db = tmp_path / "r.sqlite"
+    rc, stdout, stderr = cli(["solve", "--archive", str(first), "--scheduler", "loop", "--db", str(db),
+                              "--out", str(tmp_path / "out1")])
+    assert rc == 0, stderr
+    moved = tmp_path / "moved" / "elsewhere"
+    shutil.move(str(first), moved)
+    rc, stdout, stderr = cli(["solve", "--archive", str(moved), "--scheduler", "loop", "--db", str(db),
+                              "--out", str(tmp_path / "out2")])
+    assert rc == 0, stderr
+    assert "1 log(s), 1 already solved" in stdout and "0 to solve" in stdout
+    with open_records(str(db)) as records:
+        (run,) = records.list_runs()
+        assert run.results == 1
+
+    (log,) = moved.glob("*.mcap")
+    backup = moved / f"{log.stem}.backup.mcap"
+    shutil.copy(log, backup)
+    rc, stdout, stderr = cli(["solve", "--archive", str(moved), "--scheduler", "loop", "--db", str(db), "--redo",
+                              "--out", str(tmp_path / "out3")])
+    assert rc == 0, stderr
+    assert f"{backup}, {log}: 2 logs of one run" in stdout or f"{log}, {backup}: 2 logs of one run" in stdout
+    assert "solved 2 of 2 log(s)" in stdout
+    results = results_below(tmp_path / "out3")
+    assert sorted(Path(p).parent.name for p in results) == sorted([log.stem, backup.stem]), sorted(results)
+
+
+def test_every_result_not_recorded_is_a_non_zero_exit_and_relative_out_is_resolved(archive, tmp_path, monkeypatch):
+    """`--out RELATIVE` on a Dask cluster wrote into the worker's folder and recorded nothing, exit 0."""
+    import bench.solve.archive as archive_module
+
+    folder = tmp_path / "c"
+    shutil.copytree(archive / "c", folder)
+    seen: list[tuple[Path, Path]] = []
+    real = archive_module.solve_archive
+
+    def spy(tasks, **kwargs):
+        seen.extend(tasks)
+        return real(tasks, **kwargs)
+
+    monkeypatch.setattr(archive_module, "solve_archive", spy)
+    monkeypatch.chdir(tmp_path)
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("")
+    rc, stdout, stderr = cli(["solve", "--archive", "c", "--scheduler", "loop", "--db", str(blocker / "r.sqlite"),
+                              "--out", "relative"])
+    assert rc == 4, stderr
+    assert "NOT recorded" in stderr and "1 result(s) not recorded" in stderr
+    assert seen and all(out.is_absolute() and log.is_absolute() for log, out in seen)
+    assert results_below(tmp_path / "relative")

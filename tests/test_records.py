@@ -223,12 +223,15 @@ def test_the_history_table_holds_every_value_unknown_sigmas_and_gaps_included(ar
     assert capsys.readouterr().out.splitlines() == _reference_table(two)
 
 
-def test_a_resolve_adds_a_result_and_history_takes_the_latest(archive, tmp_path):
+def test_a_resolve_is_a_derived_result_and_history_takes_it_once_promoted(archive, tmp_path):
+    """A re-solve by another version is recorded with the run but never replaces the run's own result (issue 27)
+    unless a user promotes it."""
     from bench.records.ingest import import_paths
 
     path = sorted((archive / "b").glob("*.result.json"))[0]
     data = json.loads(path.read_text())
     data["run"]["software_version"] = "9.0"
+    data["run"]["solved_by"] = "bench solve"
     data["run"]["solved_utc"] = "2030-01-01T00:00:00Z"      # re-solved long after the run
     data["coefficients"]["Kg_x"]["value"] += 1.0
     data["coefficients"]["Kg_x"]["budget"] = {"noise": 0.1, "table": 0.05}    # what a result with a budget adds
@@ -242,6 +245,10 @@ def test_a_resolve_adds_a_result_and_history_takes_the_latest(archive, tmp_path)
         assert sorted(r.results for r in rows) == [1, 2]
         assert records.has_result(data["run"]["run_id"], "9.0")
         assert not records.has_result(data["run"]["run_id"], "8.0")
+        kg = next(c for c in unit_history(records, "B-2").coefficients if c.name == "Kg_x")
+        own = next(p for p in kg.points if p.run_id == data["run"]["run_id"])
+        assert own.value == data["coefficients"]["Kg_x"]["value"] - 1.0 and own.software_version != "9.0"
+        records.promote(str(resolved))
         kg = next(c for c in unit_history(records, "B-2").coefficients if c.name == "Kg_x")
         assert len(kg.points) == 2
         newest = next(p for p in kg.points if p.run_id == data["run"]["run_id"])

@@ -45,12 +45,15 @@ class Point:
 
 @dataclass(frozen=True)
 class Calibration:
-    """One calibration run of the unit (its latest result)."""
+    """One calibration run of the unit (its record of truth: `Records.history_rows`)."""
 
     run_id: str
     when: dt.datetime | None
     software_version: str
     verdict: str | None
+    origin: str | None = "run"        # the record's origin: run, re-solve (its own result not recorded), ...
+    promoted: bool = False            # a user made this result the run's record (`bench db promote`)
+    simulated: bool = False           # a run on the simulators, not on the bench
 
 
 @dataclass(frozen=True, eq=False)
@@ -162,7 +165,8 @@ def unit_history(records: Records, serial: str, names: list[str] | None = None,
     if model is not None and model not in models:
         raise RecordsError(f"no unit {model!r} with serial {serial!r} in the records (models: {', '.join(models)})")
     runs, values = records.history_rows(serial, model, names, budgets=budgets)
-    calibrations = [Calibration(run_id, when, software, verdict) for _, run_id, when, software, verdict in runs]
+    calibrations = [Calibration(run_id, when, software, verdict, origin, bool(promoted), mode == "simulator")
+                    for _, run_id, when, software, verdict, origin, promoted, mode in runs]
     position = {row[0]: k for k, row in enumerate(runs)}
     first = next((cal.when for cal in calibrations if cal.when is not None), None)
     years = np.array([math.nan if cal.when is None or first is None else

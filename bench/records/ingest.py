@@ -18,13 +18,15 @@ from typing import Any
 
 from bench.errors import BenchError, InputError
 from bench.records.errors import RecordsError
-from bench.records.store import Records, RunInfo, utc
+from bench.records.store import Derivation, Records, RunInfo, utc
 
 RESULT_FORMAT = "turntable-bench/result"
 TABLE_CHECK_FORMAT = "turntable-bench/table-check"
 #: the files `import_paths` takes from a folder
 PATTERNS = ("*.result.json", "*.table-check.json", "*.mcap")
 _HASH_CHUNK = 1 << 20
+#: the magic an MCAP file ends with after its footer: a file without it is still being written or was cut off
+MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 class IngestError(InputError):
@@ -46,6 +48,17 @@ def sha256_of(path: str | Path) -> str:
         while chunk := f.read(_HASH_CHUNK):
             digest.update(chunk)
     return digest.hexdigest()
+
+
+def mcap_finished(path: str | Path) -> bool:
+    """The file ends with an MCAP footer's closing magic: its writer closed it (a run still recording, or killed,
+    or a copy cut short, has none)."""
+    with open(path, "rb") as f:
+        size = f.seek(0, 2)
+        if size < 2 * len(MCAP_MAGIC):
+            return False
+        f.seek(size - len(MCAP_MAGIC))
+        return f.read(len(MCAP_MAGIC)) == MCAP_MAGIC
 
 
 def find_files(paths: list[str | Path]) -> list[Path]:
@@ -76,15 +89,18 @@ def import_paths(records: Records, paths: list[str | Path]) -> ImportReport:
     return report
 
 
-def import_file(records: Records, path: str | Path) -> bool:
-    """Record one file; True if the database learnt something from it."""
+def import_file(records: Records, path: str | Path, log_sha256: str | None = None) -> bool:
+    """Record one file; True if the database learnt something from it. `log_sha256`: the SHA-256 of the log a
+    result was solved from (else the log next to it, when it is the run's)."""
     path = Path(path)
     if path.suffix == ".mcap":
         return records.add_run(log_run_info(path))
     data, sha = _read_json(path)
     fmt = data.get("format")
     if fmt == RESULT_FORMAT:
-        return records.add_result(data, sha, str(path.absolute()), result_run_info(data, path))
+        run = result_run_info(data, path)
+        return records.add_result(data, sha, str(path.absolute()), run,
+                                  derivation_of(data, log_sha256 or run.log_sha256))
     if fmt == TABLE_CHECK_FORMAT:
         return records.add_result(table_check_as_result(data), sha, str(path.absolute()),
                                   result_run_info(data, path, kind="table-check"))
@@ -128,6 +144,29 @@ def result_run_info(data: dict[str, Any], path: Path, kind: str = "calibration")
     return info
 
 
+def derivation_of(data: dict[str, Any], log_sha256: str | None = None) -> Derivation:
+    """How a result came to be, from what its file says: the run's own (`bench run` wrote it: no `solved_by`),
+    or derived by `bench solve` from the whole intact log ("re-solve"), from a subset ("subset"), or from a log
+    with damage or steps left out ("damaged")."""
+    run: dict[str, Any] = data["run"] if isinstance(data.get("run"), dict) else {}
+    solved_by = run.get("solved_by")
+    if not solved_by:
+        return Derivation("run", "", log_sha256)
+    by = f"{str(solved_by)[:40]} {str(run.get('software_version') or '?')[:40]}"
+    recorded_with = str(run.get("recorded_with") or "")[:40]
+    damage, left_out = run.get("damage"), run.get("left_out")
+    if run.get("subset"):
+        return Derivation("subset", f"{by}: subset {_plan(run.get('positions'), run.get('rotations'))[:200]}",
+                          log_sha256)
+    if (isinstance(damage, list) and damage) or (isinstance(left_out, list) and left_out):
+        n_damage = len(damage) if isinstance(damage, list) else 0
+        n_left = len(left_out) if isinstance(left_out, list) else 0
+        return Derivation("damaged", f"{by}: a damaged log ({n_damage} damage line(s), {n_left} step(s) left out)",
+                          log_sha256)
+    return Derivation("re-solve", f"{by}: the whole log re-solved" +
+                      (f" (recorded with {recorded_with})" if recorded_with else ""), log_sha256)
+
+
 def _plan(positions: Any, rotations: Any) -> str:
     if not isinstance(positions, str) and not isinstance(rotations, str):
         return ""
@@ -159,12 +198,14 @@ def log_run_info(path: Path) -> RunInfo:
         except tomllib.TOMLDecodeError:
             pass
     site = meta.get("site") or None
+    finished = mcap_finished(path)      # before the hash: a log growing meanwhile is at worst called unfinished
     return RunInfo(run_id=run_id, model=str(imu.get("model", "")), serial=str(imu.get("serial", "")),
                    kind="table-check" if run.get("kind") == "table-check" else "calibration",
                    mode=str(run.get("mode", "")), log_path=str(path.absolute()), log_sha256=sha256_of(path),
                    operator=str(run.get("operator", "")), site=dict(site) if site else None, table_url=table_url,
                    plan=_plan(plan.get("positions"), plan.get("rotations")),
-                   software_version=str(run.get("software_version", "")), started_utc=utc(run.get("started_utc")))
+                   software_version=str(run.get("software_version", "")), started_utc=utc(run.get("started_utc")),
+                   log_complete=finished)
 
 
 def table_check_as_result(data: dict[str, Any]) -> dict[str, Any]:
@@ -179,4 +220,4 @@ def table_check_as_result(data: dict[str, Any]) -> dict[str, Any]:
 
 
 __all__ = ["ImportReport", "IngestError", "PATTERNS", "find_files", "import_file", "import_paths", "log_run_info",
-           "result_run_info", "sha256_of", "table_check_as_result"]
+           "derivation_of", "result_run_info", "sha256_of", "table_check_as_result"]

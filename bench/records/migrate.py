@@ -37,8 +37,16 @@ def _v2(conn: sa.Connection) -> None:
     add_column(conn, "coefficients", sa.Column("budget", sa.JSON, nullable=True))
 
 
+def _v3(conn: sa.Connection) -> None:
+    """A run's record of truth apart from derived results: `results.origin`, `.derivation`, `.log_sha256`,
+    `.promoted_utc`; `runs.log_complete` (see `bench.records.schema`). Rows recorded before keep NULL origin."""
+    for table in ("runs", "results"):
+        for column in schema.version_columns(3, table):
+            add_column(conn, table, column)
+
+
 #: version -> the migration that brings the version before it to it
-MIGRATIONS: dict[int, Callable[[sa.Connection], None]] = {1: _v1, 2: _v2}
+MIGRATIONS: dict[int, Callable[[sa.Connection], None]] = {1: _v1, 2: _v2, 3: _v3}
 
 
 def add_column(conn: sa.Connection, table: str, column: sa.Column) -> None:

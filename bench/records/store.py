@@ -51,9 +51,10 @@ def utc(text: Any) -> dt.datetime | None:
         return None
     try:
         when = dt.datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
-    except ValueError:
+        # 0001-01-01T00:00:00+05:00 is before the first UTC datetime: OverflowError, an unusable time
+        return when.astimezone(dt.UTC).replace(tzinfo=None) if when.tzinfo is not None else when
+    except (ValueError, OverflowError):
         return None
-    return when.astimezone(dt.UTC).replace(tzinfo=None) if when.tzinfo is not None else when
 
 
 def _now() -> dt.datetime:
@@ -79,6 +80,37 @@ class RunInfo:
     started_utc: dt.datetime | None = None
     finished_utc: dt.datetime | None = None
     outcome: str = ""
+    log_complete: bool | None = None      # False: the log had no MCAP footer (still recording, or cut off)
+
+
+#: `results.origin`: the result `bench run` wrote; `bench solve` of the whole intact log; what-if solves of a
+#: subset; solves of a damaged log (steps lost or left out)
+ORIGINS = ("run", "re-solve", "subset", "damaged")
+
+
+@dataclass(frozen=True)
+class Derivation:
+    """How a result came to be (`results.origin`, `.derivation`, `.log_sha256`)."""
+
+    origin: str = "run"
+    text: str = ""
+    log_sha256: str | None = None
+
+
+@dataclass(frozen=True)
+class ResultRow:
+    """One result of a run (`bench db results`): `truth` marks the run's record of truth."""
+
+    result_id: int
+    run_id: str
+    origin: str | None
+    derivation: str | None
+    software_version: str
+    solved_utc: dt.datetime | None
+    verdict: str | None
+    promoted_utc: dt.datetime | None
+    path: str | None
+    truth: bool
 
 
 @dataclass(frozen=True)
@@ -97,6 +129,10 @@ class RunRow:
     results: int
     verdict: str | None
     log_path: str | None
+    truth_id: int | None = None           # the run's record of truth (None: no result, or only derived ones)
+    truth_origin: str | None = None       # the record of truth's origin ("run", "re-solve", None: none, or legacy)
+    promoted: bool = False                # the record of truth was promoted by a user
+    log_complete: bool | None = None
 
 
 class Records:
@@ -121,8 +157,11 @@ class Records:
         with self._begin() as conn:
             return _upsert_run(conn, info)[1]
 
-    def add_result(self, data: dict[str, Any], sha256: str, path: str | None, run: RunInfo) -> bool:
-        """Record one result file's content (`CalibrationResult.to_json` form) of `run`; False if already held."""
+    def add_result(self, data: dict[str, Any], sha256: str, path: str | None, run: RunInfo,
+                   derivation: Derivation | None = None) -> bool:
+        """Record one result file's content (`CalibrationResult.to_json` form) of `run`, as `derivation` says it
+        came to be (default: the run's own result); False if already held."""
+        derivation = derivation or Derivation()
         table = schema.results
         with self._begin() as conn:
             if conn.execute(sa.select(table.c.id).where(table.c.sha256 == sha256)).first() is not None:
@@ -137,7 +176,8 @@ class Records:
                 solved_utc=utc((_dict_or_none(data.get("run")) or {}).get("solved_utc")) or run.finished_utc,
                 verdict=None if verdict is None else ("pass" if verdict.get("passed") else "fail"),
                 verdict_json=verdict, quality=_dict_or_none(data.get("quality")),
-                temperature_c=float(mean_c) if isinstance(mean_c, (int, float)) and math.isfinite(mean_c) else None,
+                temperature_c=_finite(mean_c), origin=derivation.origin, derivation=derivation.text[:400] or None,
+                log_sha256=derivation.log_sha256,
             ))
             table_in = _dict_or_none(data.get("coefficients")) or {}
             rows = [row for name, entry in table_in.items()
@@ -154,13 +194,53 @@ class Records:
         with self._connect() as conn:
             return conn.execute(query).first() is not None
 
-    def logs_solved_by(self, software_version: str) -> set[str]:
-        """The log paths of the runs that have a result of `software_version` (what an archive re-solve skips)."""
+    def solved_keys(self, software_version: str) -> set[tuple[str, str]]:
+        """(run id, SHA-256 of the log solved) of every result `software_version` solved from a known log: what an
+        archive re-solve skips, wherever the log lies now. A run's own result counts with its run's log."""
         r, s = schema.runs, schema.results
-        query = (sa.select(r.c.log_path).join(s, s.c.run_pk == r.c.id)
-                 .where(s.c.software_version == software_version, r.c.log_path.is_not(None)).distinct())
+        log_sha = sa.func.coalesce(s.c.log_sha256, sa.case((s.c.origin == "run", r.c.log_sha256), else_=None))
+        query = (sa.select(r.c.run_id, log_sha).join(s, s.c.run_pk == r.c.id)
+                 .where(s.c.software_version == software_version, log_sha.is_not(None)).distinct())
         with self._connect() as conn:
-            return {path for (path,) in conn.execute(query)}
+            return {(run_id, sha) for run_id, sha in conn.execute(query)}
+
+    def promote(self, reference: str) -> ResultRow:
+        """Make a result its run's record of truth: `reference` is its id (`bench db results`), or the path or
+        SHA-256 of its file. RecordsError if no result matches."""
+        s = schema.results
+        if reference.isdigit() and len(reference) < 19:
+            where = s.c.id == int(reference)
+        elif len(reference) == 64 and all(c in "0123456789abcdef" for c in reference.lower()):
+            where = s.c.sha256 == reference.lower()
+        else:
+            where = s.c.path == str(Path(reference).absolute())
+        with self._begin() as conn:
+            found = conn.execute(sa.select(s.c.id, s.c.run_pk).where(where)).first()
+            if found is None:
+                raise RecordsError(f"no recorded result {reference!r} (a result id from `bench db results RUN_ID`, "
+                                   "or a recorded result file)")
+            conn.execute(sa.update(s).where(s.c.id == found[0]).values(promoted_utc=_now()))
+        rows = self.results_of_run_pk(found[1])
+        return next(row for row in rows if row.result_id == found[0])
+
+    def results_of(self, run_id: str) -> list[ResultRow]:
+        """Every result of the run, oldest first, the record of truth marked; RecordsError if no such run."""
+        r = schema.runs
+        with self._connect() as conn:
+            found = conn.execute(sa.select(r.c.id).where(r.c.run_id == run_id)).first()
+        if found is None:
+            raise RecordsError(f"no run {run_id!r} in the records")
+        return self.results_of_run_pk(found[0])
+
+    def results_of_run_pk(self, run_pk: int) -> list[ResultRow]:
+        r, s = schema.runs, schema.results
+        truth = _truth_results(s.c.run_pk == run_pk).subquery()
+        query = (sa.select(s.c.id, r.c.run_id, s.c.origin, s.c.derivation, s.c.software_version, s.c.solved_utc,
+                           s.c.verdict, s.c.promoted_utc, s.c.path, truth.c.id.is_not(None))
+                 .join(r, r.c.id == s.c.run_pk).outerjoin(truth, truth.c.id == s.c.id)
+                 .where(s.c.run_pk == run_pk).order_by(s.c.id))
+        with self._connect() as conn:
+            return [ResultRow(*row) for row in conn.execute(query)]
 
     # -- reading ---------------------------------------------------------------------------------
 
@@ -168,11 +248,11 @@ class Records:
         """Runs (newest first), of one serial and/or started (else finished) at or after `since`."""
         u, r, s = schema.units, schema.runs, schema.results
         counts = sa.select(s.c.run_pk, sa.func.count(s.c.id).label("n")).group_by(s.c.run_pk).subquery()
-        newest = _newest_results().subquery()
+        newest = _truth_results().subquery()
         when = sa.func.coalesce(r.c.started_utc, r.c.finished_utc)
         query = (sa.select(r.c.run_id, u.c.model, u.c.serial, r.c.kind, r.c.started_utc, r.c.finished_utc,
                            r.c.outcome, r.c.operator, r.c.plan, sa.func.coalesce(counts.c.n, 0), s.c.verdict,
-                           r.c.log_path)
+                           r.c.log_path, newest.c.id, s.c.origin, s.c.promoted_utc.is_not(None), r.c.log_complete)
                  .join(u, u.c.id == r.c.unit_id)
                  .outerjoin(counts, counts.c.run_pk == r.c.id)
                  .outerjoin(newest, newest.c.run_pk == r.c.id)
@@ -193,8 +273,9 @@ class Records:
 
     def history_rows(self, serial: str, model: str | None = None, names: list[str] | None = None,
                      budgets: bool = True) -> tuple[list[tuple], list[tuple]]:
-        """The unit's latest result of every calibration run, oldest first, as (result id, run_id, when,
-        software_version, verdict), `when` being the run's start, else its end; and those results' coefficients
+        """The record of truth of every calibration run of the unit (`_truth_results`), oldest first, as (result
+        id, run_id, when, software_version, verdict, origin, promoted, mode), `when` being the run's start, else
+        its end; and those results' coefficients
         (`names` only, if given) as (result id, name, value, sigma, unit, budget) by name (budget None
         unless `budgets`). Two queries: the run columns once per run, not once per coefficient."""
         u, r, s, c = schema.units, schema.runs, schema.results, schema.coefficients
@@ -202,9 +283,10 @@ class Records:
         if model is not None:
             unit_ids = unit_ids.where(u.c.model == model)
         run_ids = sa.select(r.c.id).where(r.c.unit_id.in_(unit_ids.scalar_subquery()), r.c.kind == "calibration")
-        latest = _newest_results(s.c.run_pk.in_(run_ids.scalar_subquery())).subquery()
+        latest = _truth_results(s.c.run_pk.in_(run_ids.scalar_subquery())).subquery()
         when = sa.func.coalesce(r.c.started_utc, r.c.finished_utc)
-        runs_query = (sa.select(s.c.id, r.c.run_id, when, s.c.software_version, s.c.verdict)
+        runs_query = (sa.select(s.c.id, r.c.run_id, when, s.c.software_version, s.c.verdict, s.c.origin,
+                                s.c.promoted_utc.is_not(None), r.c.mode)
                       .select_from(latest).join(s, s.c.id == latest.c.id).join(r, r.c.id == s.c.run_pk)
                       .order_by(when, r.c.run_id))
         budget = c.c.budget if budgets else sa.null()
@@ -251,14 +333,34 @@ def _insert(conn: sa.Connection, statement: sa.Insert) -> int:
     return int(key[0])
 
 
-def _newest_results(*where: sa.ColumnElement[bool]) -> sa.Select:
-    """(run_pk, id) of each run's newest result: solved last (a re-solve's solved_utc, else the run's end), then
-    imported last."""
-    s = schema.results
+def _truth_results(*where: sa.ColumnElement[bool]) -> sa.Select:
+    """(run_pk, id) of each run's record of truth: the result a user promoted last; else the run's own result
+    (`bench run` wrote it; the newest if several); else, for a run whose own result is not recorded (an archive
+    of logs), the newest re-solve of its whole intact log (of the run's log itself when its hash is known; a
+    result recorded before schema version 3 counts as one). A subset or a damaged log's solve is never one
+    unless promoted: a run with only those has no record of truth."""
+    s, r = schema.results, schema.runs
+    same_log = sa.or_(s.c.log_sha256.is_(None), r.c.log_sha256.is_(None), s.c.log_sha256 == r.c.log_sha256)
+    eligible = sa.or_(s.c.promoted_utc.is_not(None), s.c.origin == "run", s.c.origin.is_(None),
+                      sa.and_(s.c.origin == "re-solve", same_log))
     rank = sa.func.row_number().over(partition_by=s.c.run_pk, order_by=(
+        s.c.promoted_utc.is_(None), s.c.promoted_utc.desc(),         # promoted first, the latest promotion
+        sa.case((s.c.origin == "run", 0), else_=1),                  # then the run's own
         sa.func.coalesce(s.c.solved_utc, s.c.imported_utc).desc(), s.c.id.desc())).label("rank")
-    ranked = sa.select(s.c.run_pk, s.c.id, rank).where(*where).subquery()
+    ranked = (sa.select(s.c.run_pk, s.c.id, rank).join(r, r.c.id == s.c.run_pk).where(eligible, *where)
+              .subquery())
     return sa.select(ranked.c.run_pk, ranked.c.id).where(ranked.c.rank == 1)
+
+
+def _finite(value: Any) -> float | None:
+    """A finite float from a number in a file, else None (10**400 overflows float: None, not OverflowError)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    try:
+        number = float(value)
+    except OverflowError:
+        return None
+    return number if math.isfinite(number) else None
 
 
 def _dict_or_none(value: Any) -> dict | None:
@@ -268,13 +370,12 @@ def _dict_or_none(value: Any) -> dict | None:
 def _coefficient_row(result_id: int, name: str, entry: Any) -> dict[str, Any] | None:
     """A `coefficients` row; None for an entry without a finite value (nothing to record)."""
     entry = entry if isinstance(entry, dict) else {}
-    value, sigma = entry.get("value"), entry.get("sigma")
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    value = _finite(entry.get("value"))
+    if value is None:
         return None
     extra = {k: v for k, v in entry.items() if k not in ("value", "sigma", "unit")}
-    return {"result_id": result_id, "name": str(name), "value": float(value),
-            "sigma": float(sigma) if isinstance(sigma, (int, float)) and math.isfinite(sigma) else None,
-            "unit": str(entry.get("unit", "")), "budget": extra or None}
+    return {"result_id": result_id, "name": str(name)[:32], "value": value, "sigma": _finite(entry.get("sigma")),
+            "unit": str(entry.get("unit", ""))[:64], "budget": extra or None}
 
 
 def _unit_id(conn: sa.Connection, model: str, serial: str) -> int:
@@ -285,8 +386,9 @@ def _unit_id(conn: sa.Connection, model: str, serial: str) -> int:
     return _insert(conn, sa.insert(u).values(model=model, serial=serial))
 
 
-_RUN_FIELDS = ("kind", "mode", "log_path", "log_sha256", "operator", "site", "table_url", "plan", "software_version",
-               "started_utc", "finished_utc", "outcome")
+_RUN_FIELDS = ("kind", "mode", "operator", "site", "table_url", "plan", "software_version", "started_utc",
+               "finished_utc", "outcome")
+_LOG_FIELDS = ("log_path", "log_sha256", "log_complete")
 
 
 def _upsert_run(conn: sa.Connection, info: RunInfo) -> tuple[int, bool]:
@@ -295,12 +397,28 @@ def _upsert_run(conn: sa.Connection, info: RunInfo) -> tuple[int, bool]:
     found = conn.execute(sa.select(r).where(r.c.run_id == info.run_id)).mappings().first()
     values = {f: getattr(info, f) for f in _RUN_FIELDS}
     if found is None:
+        values.update({f: getattr(info, f) for f in _LOG_FIELDS})
         unit_id = _unit_id(conn, info.model, info.serial)
         return _insert(conn, sa.insert(r).values(run_id=info.run_id, unit_id=unit_id, **values)), True
     missing = {f: v for f, v in values.items() if v not in (None, "", {}) and found[f] in (None, "", {})}
+    if _log_replaces(found, info):
+        missing.update({f: getattr(info, f) for f in _LOG_FIELDS})
     if missing:
         conn.execute(sa.update(r).where(r.c.id == found["id"]).values(**missing))
     return int(found["id"]), bool(missing)
+
+
+def _log_replaces(found: Any, info: RunInfo) -> bool:
+    """The log `info` names becomes the run's log: the run has none; or its log was unfinished (no footer) and
+    this one is finished, or is the same file grown (a run still recording, recorded again). A finished log is
+    never replaced by another file (a copy, a cut copy)."""
+    if info.log_path is None or info.log_sha256 is None:
+        return False
+    if found["log_path"] is None or found["log_sha256"] is None:
+        return True
+    if found["log_complete"] is not False or found["log_sha256"] == info.log_sha256:
+        return False
+    return info.log_complete is not False or found["log_path"] == info.log_path
 
 
 def _shown(engine: sa.Engine) -> str:
@@ -352,5 +470,6 @@ def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
 
 SOFTWARE_VERSION = __version__
 
-__all__ = ["DB_ENV", "RecordsError", "Records", "RunInfo", "RunRow", "SOFTWARE_VERSION", "database_url",
+__all__ = ["DB_ENV", "ORIGINS", "Derivation", "RecordsError", "Records", "ResultRow", "RunInfo", "RunRow",
+           "SOFTWARE_VERSION", "database_url",
            "default_url", "open_records", "utc"]
