@@ -174,3 +174,34 @@ def test_a_re_solve_by_this_version_is_derived_but_stands_in_without_the_runs_ow
     assert rc == 0, stderr
     with open_records(str(db)) as records:
         assert [(r.origin, r.truth) for r in records.results_of(run_id)] == [("re-solve", False), ("run", True)]
+
+
+def test_a_log_still_being_written_is_recorded_as_unfinished_and_its_hash_follows_the_finished_file(recorded,
+                                                                                                   tmp_path):
+    """`bench db import runs/` while a run was recording recorded the unfinished log as the run's, with a SHA-256
+    that is not the finished file's. Now a log without its MCAP footer is recorded as unfinished (`db list` says
+    so) and its hash is replaced when the finished file is imported."""
+    db = tmp_path / "r.sqlite"
+    growing = tmp_path / "runs" / recorded.log.name
+    growing.parent.mkdir()
+    data = recorded.log.read_bytes()
+    growing.write_bytes(data[: len(data) // 2])
+    rc, _, stderr = cli(["db", "import", "--db", str(db), str(growing.parent)])
+    assert rc == 0, stderr
+    with open_records(str(db)) as records:
+        (run,) = records.list_runs()
+        assert run.log_complete is False
+    assert "(log unfinished)" in _list_line(db, run.run_id)
+    growing.write_bytes(data)       # the run finished
+    rc, stdout, stderr = cli(["db", "import", "--db", str(db), str(growing.parent)])
+    assert rc == 0 and "1 recorded" in stdout, stderr
+    import sqlalchemy as sa
+
+    from bench.records import schema
+    with open_records(str(db)) as records:
+        (run,) = records.list_runs()
+        assert run.log_complete is True
+        with records.engine.connect() as conn:
+            (log_sha,) = conn.execute(sa.select(schema.runs.c.log_sha256)).one()
+    assert log_sha == _sha(recorded.log)
+    assert "(log unfinished)" not in _list_line(db, run.run_id)

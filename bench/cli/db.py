@@ -56,7 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    "re-solve: `bench solve` of the whole log; subset: a what-if solve; damaged: a "
                                    "solve of a damaged or cut log), software version, verdict; '*' marks the run's "
                                    "record of truth, the one `db list`, `db history` and their exports use.")
-    p.add_argument("run_id", metavar="RUN_ID")
+    p.add_argument("run_id", metavar="RUN_ID", help="the run (as `bench db list` shows it)")
     p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
     p.set_defaults(func=cmd_results)
     p = sub.add_parser("promote", help="make a result its run's record of truth",
@@ -64,7 +64,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    "`bench run` wrote): `db list`, `db history` and their exports use it from now "
                                    "on. RESULT is a result id from `bench db results RUN_ID`, or a recorded result "
                                    "file (its path or SHA-256). The latest promotion wins.")
-    p.add_argument("result", metavar="RESULT")
+    p.add_argument("result", metavar="RESULT", help="a result id (`bench db results RUN_ID`) or a recorded result file")
     p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
     p.set_defaults(func=cmd_promote)
     p = sub.add_parser("history", help="a unit's coefficients over time: changes in sigma, drift per year",
