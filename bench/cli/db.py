@@ -39,9 +39,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--db", metavar="URL", help=DB_HELP)
     sub = parser.add_subparsers(dest="db_command", metavar="ACTION")
     sub.required = True
-    p = sub.add_parser("import", help="record result files (*.result.json, *.table-check.json) and logs (*.mcap)",
+    p = sub.add_parser("import", help="record result files (*.result.json, *.table-check.json, *.noise.json) and "
+                                      "logs (*.mcap)",
                        description="Record result files and run logs on disk; folders are searched recursively. "
-                                   "Idempotent: a file already recorded is skipped.")
+                                   "Idempotent: a file already recorded is skipped. A file that cannot be recorded "
+                                   "is one line (the others are recorded; exit 4 at the end); a thermal model "
+                                   "(*.thermal.json) and in-memory simulations are named as holding nothing to "
+                                   "record.")
     p.add_argument("paths", nargs="+", metavar="PATH", help="result files, logs, or folders to search")
     p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
     p.add_argument("--quiet", action="store_true", help="print only the counts and failures")
@@ -103,7 +107,10 @@ def cmd_import(args: argparse.Namespace) -> ExitCode:
     if not args.quiet:
         for path in report.added:
             print(f"recorded {path}")
-    print(f"{len(report.added)} recorded, {len(report.known)} already known, {len(report.failed)} failed")
+        for path, reason in report.not_recorded:
+            print(f"not recorded {path}: {reason}")
+    print(f"{len(report.added)} recorded, {len(report.known)} already known, {len(report.failed)} failed"
+          + (f", {len(report.not_recorded)} with nothing to record" if report.not_recorded else ""))
     for path, reason in report.failed:
         print(f"{PROG}: {path}: {reason}", file=sys.stderr)
     return ExitCode.QUALITY if report.failed else ExitCode.OK
@@ -227,6 +234,7 @@ def record_outputs(args: argparse.Namespace, prog: str, paths: list[Path | str |
 
     files = [Path(p) for p in paths if p is not None]
     logs = [p for p in files if p.suffix == ".mcap"]
+    path = None
     try:
         # a result is keyed to the log it was solved from (the last log named: the one its run.log names)
         log_sha = sha256_of(logs[-1]) if logs else None
@@ -234,5 +242,6 @@ def record_outputs(args: argparse.Namespace, prog: str, paths: list[Path | str |
             for path in files:
                 import_file(records, path, log_sha256=None if path.suffix == ".mcap" else log_sha)
     except (RecordsError, OSError, ValueError) as exc:
-        print(f"{prog}: warning: not recorded in the records database ({exc}); the files are kept: "
+        what = f"{path}: " if path is not None and not isinstance(exc, RecordsError) else ""
+        print(f"{prog}: warning: {what}not recorded in the records database ({exc}); the files are kept: "
               f"`bench db import` records them later", file=sys.stderr)

@@ -84,8 +84,9 @@ class RunInfo:
 
 
 #: `results.origin`: the result `bench run` wrote; `bench solve` of the whole intact log; what-if solves of a
-#: subset; solves of a damaged log (steps lost or left out)
-ORIGINS = ("run", "re-solve", "subset", "damaged")
+#: subset; solves of a damaged log (steps lost or left out); one temperature block of a thermal run (its
+#: headline block, the result named after the run, is the run's)
+ORIGINS = ("run", "re-solve", "subset", "damaged", "block")
 
 
 @dataclass(frozen=True)
@@ -185,6 +186,12 @@ class Records:
             if rows:
                 conn.execute(sa.insert(schema.coefficients), rows)
             return True
+
+    def run_known(self, run_id: str) -> bool:
+        """The run is recorded."""
+        r = schema.runs
+        with self._connect() as conn:
+            return conn.execute(sa.select(r.c.id).where(r.c.run_id == run_id)).first() is not None
 
     def has_result(self, run_id: str, software_version: str) -> bool:
         """A result of `run_id` solved by `software_version` is recorded (what a resumed archive re-solve skips)."""
@@ -401,6 +408,8 @@ def _upsert_run(conn: sa.Connection, info: RunInfo) -> tuple[int, bool]:
         unit_id = _unit_id(conn, info.model, info.serial)
         return _insert(conn, sa.insert(r).values(run_id=info.run_id, unit_id=unit_id, **values)), True
     missing = {f: v for f, v in values.items() if v not in (None, "", {}) and found[f] in (None, "", {})}
+    if info.kind == "noise" and found["kind"] != "noise":     # its noise result shows what the run was
+        missing["kind"] = "noise"
     if _log_replaces(found, info):
         missing.update({f: getattr(info, f) for f in _LOG_FIELDS})
     if missing:
