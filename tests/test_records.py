@@ -167,24 +167,28 @@ def test_history_finds_the_drift_and_the_changes(archive, tmp_path, capsys):
 
 
 def _reference_table(history) -> list[str]:
-    """The history table as the first implementation printed it, one value at a time: the oracle of the columns."""
+    """The history table built one value at a time: the oracle of the column-wise table (its digits, drift line
+    and marks from the same rules)."""
+    from bench.records.history import _marks, drift_text
+
     def g(x):
         return "-" if x is None else f"{x:.6g}"
     lines = [f"unit {history.model} / {history.serial}: {len(history.runs)} calibration(s)"]
     for c in history.coefficients:
-        drift = c.drift_per_year()
-        drift_text = ("drift: needs two dated calibrations" if drift is None else
-                      f"drift: {g(drift[0])} {c.unit} per year" + ("" if drift[1] is None else f" +- {g(drift[1])}"))
-        lines += ["", f"{c.name} [{c.unit}]  {drift_text}",
-                  f"  {'when (UTC)':20} {'run':28} {'value':>14} {'sigma':>11} {'change':>9}"]
+        digits = c.digits()
+        width = max(14, digits + 7)
+        lines += ["", f"{c.name} [{c.unit}]  {drift_text(c)}",
+                  f"  {'when (UTC)':20} {'run':28} {'value':>{width}} {'sigma':>11} {'change':>9}"]
         previous = None
-        for p in c.points:
+        for p, k in zip(c.points, c.index.tolist()):
             z = None
             if previous is not None and None not in (previous.sigma, p.sigma) and (previous.sigma or p.sigma):
                 z = (p.value - previous.value) / math.hypot(previous.sigma, p.sigma)
             when = p.when.replace(microsecond=0).isoformat() + "Z"
-            lines.append(f"  {when:20} {p.run_id[:28]:28} {g(p.value):>14} {g(p.sigma):>11} "
-                         f"{'' if z is None else f'{z:+.2f} sig':>9}")
+            marks = _marks(history.calibrations[k])
+            lines.append((f"  {when:20} {p.run_id[:28]:28} {p.value:>{width}.{digits}g} {g(p.sigma):>11} "
+                          f"{'' if z is None else f'{z:+.2f} sig':>9}" + ("  " + ", ".join(marks) if marks else ""))
+                         .rstrip())
             previous = p
     return lines
 

@@ -177,3 +177,33 @@ def test_a_database_from_a_newer_schema_is_one_line_and_nothing_is_written(good_
         assert rc != 0, argv
         assert "newer than this software's" in stderr and "Traceback" not in stderr, (argv, stderr)
     assert db.read_bytes() == before
+
+
+def test_history_marks_failed_simulated_and_stand_in_results_shows_the_changes_and_no_drift_from_minutes(
+        tmp_path):
+    """Issue 27: `bench db history` printed `36012.5` on every row, listed failed and simulated runs unmarked, and
+    stated a drift per year from 30 minutes of runs."""
+    folder = tmp_path / "runs"
+    values = (36012.51, 36012.54, 36012.58)
+    for k, value in enumerate(values):
+        path = write_result(folder, "M-1", T0 + dt.timedelta(minutes=10 * k), seed=30 + k)
+        data = json.loads(path.read_text())
+        data["coefficients"]["Kg_x"]["value"] = value
+        data["verdict"] = {"verdict": "fail" if k == 1 else "pass", "passed": k != 1}
+        if k == 2:      # only a whole re-solve of this run is recorded: it stands in, marked
+            data["run"]["solved_by"] = "bench solve"
+        path.write_text(json.dumps(data))
+    db = tmp_path / "r.sqlite"
+    rc, _, stderr = cli(["db", "import", "--db", str(db), "--quiet", str(folder)])
+    assert rc == 0, stderr
+    rc, stdout, stderr = cli(["db", "history", "--db", str(db), "M-1", "--coefficient", "Kg_x", "--out",
+                              str(tmp_path / "hist")])
+    assert rc == 0, stderr
+    rows = [line for line in stdout.splitlines() if line.startswith("  2024-")]
+    assert [float(row.split()[2]) for row in rows] == list(values), rows
+    assert rows[0].endswith("  simulated") and rows[1].endswith("  FAILED, simulated")
+    assert rows[2].endswith("  simulated, re-solve (its own result not recorded)")
+    assert ("drift: not stated: the calibrations span 20 min, a drift per year needs at least 30 days" in stdout)
+    saved = json.loads((tmp_path / "hist" / "M-1.history.json").read_text())["coefficients"]["Kg_x"]
+    assert saved["drift_per_year"] is None and "span 20 min" in saved["drift_note"]
+    assert saved["calibrations"][1]["marks"] == ["FAILED", "simulated"]

@@ -175,7 +175,7 @@ class Records:
                 run_pk=run_pk, path=path, sha256=sha256,
                 software_version=run.software_version, imported_utc=_now(),
                 solved_utc=utc((_dict_or_none(data.get("run")) or {}).get("solved_utc")) or run.finished_utc,
-                verdict=None if verdict is None else ("pass" if verdict.get("passed") else "fail"),
+                verdict=_verdict_word(verdict),
                 verdict_json=verdict, quality=_dict_or_none(data.get("quality")),
                 temperature_c=_finite(mean_c), origin=derivation.origin, derivation=derivation.text[:400] or None,
                 log_sha256=derivation.log_sha256,
@@ -357,6 +357,16 @@ def _truth_results(*where: sa.ColumnElement[bool]) -> sa.Select:
     ranked = (sa.select(s.c.run_pk, s.c.id, rank).join(r, r.c.id == s.c.run_pk).where(eligible, *where)
               .subquery())
     return sa.select(ranked.c.run_pk, ranked.c.id).where(ranked.c.rank == 1)
+
+
+def _verdict_word(verdict: dict | None) -> str | None:
+    """"pass", "fail" or "not checked" (a verdict no check ran for is not a pass, nor a failure)."""
+    if verdict is None:
+        return None
+    word = verdict.get("verdict")
+    if word in ("pass", "fail", "not checked"):
+        return str(word)
+    return "pass" if verdict.get("passed") is True else "fail"
 
 
 def _finite(value: Any) -> float | None:
