@@ -207,3 +207,78 @@ def test_history_marks_failed_simulated_and_stand_in_results_shows_the_changes_a
     saved = json.loads((tmp_path / "hist" / "M-1.history.json").read_text())["coefficients"]["Kg_x"]
     assert saved["drift_per_year"] is None and "span 20 min" in saved["drift_note"]
     assert saved["calibrations"][1]["marks"] == ["FAILED", "simulated"]
+
+
+def _variants(good: str, folder: Path, prefix: str, n: int) -> None:
+    """`n` result files of distinct runs (the good file's run id and serial renamed)."""
+    data = json.loads(good)
+    run_id, serial = data["run"]["run_id"], data["run"]["imu"]["serial"]
+    folder.mkdir(parents=True)
+    for k in range(n):
+        text = good.replace(run_id, f"{prefix}-{k:03d}").replace(f'"{serial}"', f'"{prefix}-S{k % 3}"')
+        (folder / f"{prefix}-{k:03d}.result.json").write_text(text)
+
+
+def test_two_processes_importing_into_one_database_at_once_lose_nothing(good_result, tmp_path):
+    """Each process's transaction takes SQLite's write lock when it begins (BEGIN IMMEDIATE). Before, the driver
+    began a transaction only at the first INSERT, after the checks: both processes found a run (or the schema)
+    missing and one died with `UNIQUE constraint failed: runs.run_id` (or `schema_version.version`), exit 2, the
+    rest of its files not recorded (2 of 3 tries)."""
+    import subprocess
+    import sys
+
+    from tests.helpers.run import REPO
+
+    good = good_result.read_text()
+    _variants(good, tmp_path / "a", "A", 40)
+    _variants(good, tmp_path / "b", "B", 40)
+    _variants(good, tmp_path / "shared", "S", 100)         # both import these, first: each recorded once
+    db = tmp_path / "r.sqlite"
+    procs = [subprocess.Popen([sys.executable, "-m", "bench.cli", "db", "import", "--db", str(db), "--quiet",
+                               str(tmp_path / "shared"), str(tmp_path / folder)], cwd=REPO,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for folder in ("a", "b")]
+    outputs = [p.communicate(timeout=300) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outputs
+    recorded = [int(out.split("\n")[-2].split()[0]) for out, _ in outputs]
+    known = [int(out.split("\n")[-2].split()[2]) for out, _ in outputs]
+    assert sum(recorded) == 180 and sum(known) == 100, outputs
+    import sqlalchemy as sa
+
+    with open_records(str(db)) as records:
+        assert len(records.list_runs()) == 180
+        with records.engine.connect() as conn:
+            assert conn.exec_driver_sql("PRAGMA integrity_check").scalar() == "ok"
+            assert conn.execute(sa.select(sa.func.count()).select_from(schema.results)).scalar() == 180
+            assert conn.execute(sa.select(sa.func.count()).select_from(schema.units)).scalar() == 9
+
+
+def test_a_locked_or_corrupt_database_is_one_line_and_nothing_is_written(good_result, tmp_path, monkeypatch):
+    import sqlite3
+
+    from bench.records import store
+
+    db = tmp_path / "r.sqlite"
+    rc, _, stderr = cli(["db", "import", "--db", str(db), str(good_result)])
+    assert rc == 0, stderr
+    other = write_result(tmp_path / "other", "L-2", T0, seed=5)
+    monkeypatch.setattr(store, "SQLITE_BUSY_TIMEOUT_S", 0.2)
+    holder = sqlite3.connect(db, isolation_level=None)
+    try:
+        holder.execute("BEGIN EXCLUSIVE")               # another process in the middle of a write
+        before = db.read_bytes()
+        rc, stdout, stderr = cli(["db", "import", "--db", str(db), str(other)])
+        assert rc == 2 and len(stderr.splitlines()) == 1, stderr
+        assert "the database is locked by another process (waited 0.2 s): nothing was written" in stderr
+        assert db.read_bytes() == before
+    finally:
+        holder.close()
+
+    corrupt = tmp_path / "corrupt.sqlite"
+    corrupt.write_bytes(b"this is no database\n" * 400)
+    before = corrupt.read_bytes()
+    for argv in (["db", "import", "--db", str(corrupt), str(other)], ["db", "list", "--db", str(corrupt)],
+                 ["db", "history", "--db", str(corrupt), "L-2"]):
+        rc, _, stderr = cli(argv)
+        assert rc == 2 and len(stderr.splitlines()) == 1 and "not a SQLite database, or a corrupt one" in stderr, \
+            (argv, stderr)
+    assert corrupt.read_bytes() == before

@@ -15,7 +15,7 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator, TypeVar
 
 import sqlalchemy as sa
 
@@ -155,8 +155,7 @@ class Records:
 
     def add_run(self, info: RunInfo) -> bool:
         """Record a run (or fill in what an earlier record of it lacked); True if anything was new."""
-        with self._begin() as conn:
-            return _upsert_run(conn, info)[1]
+        return self._write(lambda conn: _upsert_run(conn, info)[1])
 
     def add_result(self, data: dict[str, Any], sha256: str, path: str | None, run: RunInfo,
                    derivation: Derivation | None = None) -> bool:
@@ -164,7 +163,8 @@ class Records:
         came to be (default: the run's own result); False if already held."""
         derivation = derivation or Derivation()
         table = schema.results
-        with self._begin() as conn:
+
+        def write(conn: sa.Connection) -> bool:
             if conn.execute(sa.select(table.c.id).where(table.c.sha256 == sha256)).first() is not None:
                 _upsert_run(conn, run)
                 return False
@@ -186,6 +186,8 @@ class Records:
             if rows:
                 conn.execute(sa.insert(schema.coefficients), rows)
             return True
+
+        return self._write(write)
 
     def run_known(self, run_id: str) -> bool:
         """The run is recorded."""
@@ -313,6 +315,19 @@ class Records:
 
     # -- plumbing --------------------------------------------------------------------------------
 
+    def _write(self, work: Callable[[sa.Connection], T]) -> T:
+        """`work` in one transaction; run again when another process recorded the same unit, run or result
+        between this one's check and its insert (a unique key's IntegrityError: PostgreSQL lets both check
+        at once; SQLite's writers take turns, `_sqlite_begin`)."""
+        for attempt in range(_WRITE_ATTEMPTS):
+            try:
+                with self._begin() as conn:
+                    return work(conn)
+            except RecordsError as exc:
+                if not isinstance(exc.__cause__, sa.exc.IntegrityError) or attempt == _WRITE_ATTEMPTS - 1:
+                    raise
+        raise AssertionError("unreachable")
+
     @contextlib.contextmanager
     def _begin(self) -> Iterator[sa.Connection]:
         """A connection in a transaction (committed when the block ends well); database errors as RecordsError."""
@@ -331,6 +346,10 @@ class Records:
             yield
         except sa.exc.SQLAlchemyError as exc:
             raise RecordsError(f"{_shown(self.engine)}: {_reason(exc)}") from exc
+
+
+_WRITE_ATTEMPTS = 3
+T = TypeVar("T")
 
 
 def _insert(conn: sa.Connection, statement: sa.Insert) -> int:
@@ -446,7 +465,13 @@ def _shown(engine: sa.Engine) -> str:
 
 def _reason(exc: BaseException) -> str:
     orig = getattr(exc, "orig", None)
-    return str(orig or exc).strip().splitlines()[0] if str(orig or exc).strip() else type(exc).__name__
+    text = str(orig or exc).strip().splitlines()[0] if str(orig or exc).strip() else type(exc).__name__
+    if "database is locked" in text:
+        return (f"the database is locked by another process (waited {SQLITE_BUSY_TIMEOUT_S:g} s): nothing was "
+                f"written; try again when it is done")
+    if "file is not a database" in text or "malformed" in text:
+        return f"not a SQLite database, or a corrupt one ({text}): nothing was written"
+    return text
 
 
 def open_records(url: str | None = None, *, create: bool = True) -> Records:
@@ -469,22 +494,42 @@ def open_records(url: str | None = None, *, create: bool = True) -> Records:
             raise RecordsError(f"{parsed.database}: cannot create its folder: {exc.strerror or exc}") from exc
     if parsed.get_backend_name() == "postgresql" and parsed.get_driver_name() in ("", "psycopg2"):
         parsed = parsed.set(drivername="postgresql+psycopg")     # psycopg 3: the driver the `postgres` extra installs
+    engine = None
     try:
         engine = sa.create_engine(parsed)
         if engine.dialect.name == "sqlite":
             sa.event.listen(engine, "connect", _sqlite_pragmas)
+            sa.event.listen(engine, "begin", _sqlite_begin)
         migrate(engine)
-    except (sa.exc.SQLAlchemyError, ImportError) as exc:
+    except (sa.exc.SQLAlchemyError, ImportError, RecordsError) as exc:
+        if engine is not None:
+            engine.dispose()
+        if isinstance(exc, RecordsError):
+            raise
         raise RecordsError(f"{parsed.render_as_string(hide_password=True)}: {_reason(exc)}") from exc
     return Records(engine)
 
 
+#: how long a SQLite writer waits for another process's transaction before it gives up with one line
+SQLITE_BUSY_TIMEOUT_S = 30.0
+
+
 def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
-    # foreign keys are off by default in SQLite; a writer waits for another instead of failing at once
+    # foreign keys are off by default in SQLite; a writer waits for another instead of failing at once. The
+    # driver's own transaction handling is off: `_sqlite_begin` starts each transaction itself.
+    dbapi_connection.isolation_level = None
     cursor = dbapi_connection.cursor()
     cursor.execute("PRAGMA foreign_keys=ON")
-    cursor.execute("PRAGMA busy_timeout=10000")
+    cursor.execute(f"PRAGMA busy_timeout={int(SQLITE_BUSY_TIMEOUT_S * 1000)}")
     cursor.close()
+
+
+def _sqlite_begin(conn: sa.Connection) -> None:
+    """BEGIN IMMEDIATE: a transaction takes the write lock when it starts (waiting for it up to the busy
+    timeout). With SQLite's default deferred BEGIN, two processes that both read and then write fail at once
+    with "database is locked" (each holds a read lock the other's write must wait for, so SQLite does not wait:
+    a deadlock); taking turns from the start, nothing is lost and nothing fails."""
+    conn.exec_driver_sql("BEGIN IMMEDIATE")
 
 
 SOFTWARE_VERSION = __version__
