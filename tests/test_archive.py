@@ -255,3 +255,29 @@ def test_every_result_not_recorded_is_a_non_zero_exit_and_relative_out_is_resolv
     assert "NOT recorded" in stderr and "1 result(s) not recorded" in stderr
     assert seen and all(out.is_absolute() and log.is_absolute() for log, out in seen)
     assert results_below(tmp_path / "relative")
+
+
+def test_a_log_starting_before_year_1_in_utc_does_not_stop_the_archive(archive, tmp_path):
+    """Issue 34: `run.started_utc = 0001-01-01T00:00:00+05:00` crashed the recording of its result (OverflowError)
+    and stopped `bench solve --archive`: the logs after it were never solved."""
+    from mcap.reader import make_reader
+
+    from tests.helpers.crafted import rewrite_log
+
+    (log,) = (archive / "c").glob("*.mcap")
+    with open(log, "rb") as f:
+        run = next(dict(r.metadata) for r in make_reader(f).iter_metadata() if r.name == "run")
+    folder = tmp_path / "arch"
+    folder.mkdir()
+    rewrite_log(log, folder / "a-early.mcap", metadata={"run": {**run, "started_utc": "0001-01-01T00:00:00+05:00",
+                                                                "run_id": "early-run"}})
+    for other in ("a", "b"):
+        shutil.copy(next((archive / other).rglob("*.mcap")), folder / f"z-{other}.mcap")
+    db = tmp_path / "r.sqlite"
+    rc, stdout, stderr = cli(["solve", "--archive", str(folder), "--scheduler", "loop", "--db", str(db),
+                              "--out", str(tmp_path / "out")])
+    assert rc == 0, stderr
+    assert "solved 3 of 3 log(s)" in stdout
+    with open_records(str(db)) as records:
+        runs = {r.run_id: r for r in records.list_runs()}
+    assert len(runs) == 3 and runs["early-run"].started_utc is None and runs["early-run"].results == 1
