@@ -186,9 +186,8 @@ def _reference_table(history) -> list[str]:
                 z = (p.value - previous.value) / math.hypot(previous.sigma, p.sigma)
             when = p.when.replace(microsecond=0).isoformat() + "Z"
             marks = _marks(history.calibrations[k])
-            lines.append((f"  {when:20} {p.run_id[:28]:28} {p.value:>{width}.{digits}g} {g(p.sigma):>11} "
-                          f"{'' if z is None else f'{z:+.2f} sig':>9}" + ("  " + ", ".join(marks) if marks else ""))
-                         .rstrip())
+            lines.append(f"  {when:20} {p.run_id[:28]:28} {p.value:>{width}.{digits}g} {g(p.sigma):>11} "
+                         f"{'' if z is None else f'{z:+.2f} sig':>9}" + ("  " + ", ".join(marks) if marks else ""))
             previous = p
     return lines
 

@@ -72,9 +72,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
     p.set_defaults(func=cmd_promote)
     p = sub.add_parser("history", help="a unit's coefficients over time: changes in sigma, drift per year",
-                       description="The unit's latest result of every calibration run, oldest first: each coefficient "
-                                   "with its 1-sigma, its change from the calibration before in combined sigma, and "
-                                   "its drift per year (weighted straight-line fit). --out writes JSON, CSV, a plot.")
+                       description="The record of truth of every calibration run of the unit (`bench db results`), "
+                                   "oldest first: each coefficient with the digits that show its changes, its "
+                                   "1-sigma, its change from the calibration before in combined sigma, marks (FAILED, "
+                                   "simulated, promoted, a stand-in re-solve), and its drift per year (weighted "
+                                   "straight-line fit, failed calibrations left out, stated over 30 days or more). "
+                                   "--out writes JSON, CSV, a plot.")
     p.add_argument("serial", metavar="SERIAL", help="the unit's serial number (as its logs record it)")
     p.add_argument("--coefficient", metavar="NAME", nargs="+", action="extend",
                    help="only these coefficients (e.g. Kg_x bg_z)")

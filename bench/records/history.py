@@ -84,6 +84,7 @@ class CoefficientHistory:
     sigmas: np.ndarray
     years: np.ndarray
     budgets: list[dict | None] | None = None
+    failed_all: np.ndarray | None = None      # per calibration of the unit: its verdict is fail (None: work it out)
 
     @property
     def points(self) -> list[Point]:
@@ -106,7 +107,8 @@ class CoefficientHistory:
         return [None if u else x for x, u in zip(z.tolist(), unknown.tolist())]
 
     def _failed(self) -> np.ndarray:
-        return np.array([self.calibrations[k].verdict == "fail" for k in self.index.tolist()], dtype=bool)
+        failed_all = self.failed_all if self.failed_all is not None else _failed_all(self.calibrations)
+        return failed_all[self.index]
 
     def drift_note(self) -> str | None:
         """Why no drift per year is stated (None: one is)."""
@@ -190,6 +192,10 @@ class UnitHistory:
         return {"serial": self.serial, "model": self.model, "coefficients": table}
 
 
+def _failed_all(calibrations: list[Calibration]) -> np.ndarray:
+    return np.array([cal.verdict == "fail" for cal in calibrations], dtype=bool)
+
+
 def _iso(when: dt.datetime | None) -> str | None:
     return None if when is None else when.replace(microsecond=0).isoformat() + "Z"
 
@@ -214,6 +220,7 @@ def unit_history(records: Records, serial: str, names: list[str] | None = None,
     years = np.array([math.nan if cal.when is None or first is None else
                       (cal.when - first).total_seconds() / SECONDS_PER_YEAR for cal in calibrations])
     out = []
+    failed_all = _failed_all(calibrations)
     if values:
         # columns, grouped by coefficient and in calibration order with one sort (300,000 values, not a loop each)
         result_ids, value_names, numbers, sigmas, units, budget_list = zip(*values)
@@ -230,7 +237,8 @@ def unit_history(records: Records, serial: str, names: list[str] | None = None,
                 continue
             index = where[g]
             out.append(CoefficientHistory(n, units[g[0]], calibrations, index, numbers_array[g], sigmas_array[g],
-                                          years[index], [budget_list[k] for k in g.tolist()] if budgets else None))
+                                          years[index], [budget_list[k] for k in g.tolist()] if budgets else None,
+                                          failed_all))
     return UnitHistory(serial, model or models[0], out, calibrations)
 
 
@@ -287,12 +295,18 @@ def format_history(history: UnitHistory) -> str:
         lines.append(f"  {'when (UTC)':20} {'run':28} {'value':>{width}} {'sigma':>11} {'change':>9}")
         z, unknown = c._changes()
         index = c.index.tolist()
-        # "%+5.2f sig" is f"{z:+.2f} sig" right-aligned in 9; NaN sigma: unknown
+        rows, values, row_notes = [heads[k] for k in index], c.values.tolist(), [notes[k] for k in index]
+        value = f"%{width}.{digits}g"
+        # "%+5.2f sig" is f"{z:+.2f} sig" right-aligned in 9
+        if not unknown.any() and not np.isnan(c.sigmas).any():      # the usual case: one format per line
+            sigmas = c.sigmas.tolist()
+            lines.append(f"%s{value} %11.6g          %s" % (rows[0], values[0], sigmas[0], row_notes[0]))
+            lines += [f"%s{value} %11.6g %+5.2f sig%s" % row
+                      for row in zip(rows[1:], values[1:], sigmas[1:], z.tolist(), row_notes[1:])]
+            continue
         changes = [" " * 9, *(" " * 9 if u else "%+5.2f sig" % x for x, u in zip(z.tolist(), unknown.tolist()))]
-        sigma_text = ["%11.6g" % s if s == s else "          -" for s in c.sigmas.tolist()]
-        line = f"%s%{width}.{digits}g %s %s%s"
-        lines += [(line % row).rstrip() for row in zip((heads[k] for k in index), c.values.tolist(), sigma_text,
-                                                       changes, (notes[k] for k in index))]
+        sigma_text = ["%11.6g" % s if s == s else "          -" for s in c.sigmas.tolist()]     # NaN: unknown
+        lines += [f"%s{value} %s %s%s" % row for row in zip(rows, values, sigma_text, changes, row_notes)]
     return "\n".join(lines) + "\n"
 
 

@@ -153,17 +153,8 @@ def _import_noise(records: Records, data: dict[str, Any], sha: str, path: Path) 
     run_id = content.text(source.get("run_id"), "source.run_id", 200)
     if not run_id:
         raise IngestError("the noise result names no run (source.run_id)")
-    info = None
-    log_name = source.get("log")
-    if isinstance(log_name, str) and log_name:
-        log_path = path.parent / Path(log_name).name      # a name from a file never leaves the result's folder
-        if log_path.is_file():
-            try:
-                from_log = log_run_info(log_path)
-            except (OSError, BenchError):
-                from_log = None
-            if from_log is not None and from_log.run_id == run_id:
-                info = RunInfo(**{**from_log.__dict__, "kind": "noise"})
+    from_log = _log_next_to(path, source.get("log"), run_id)
+    info = None if from_log is None else RunInfo(**{**from_log.__dict__, "kind": "noise"})
     if info is None:
         if not records.run_known(run_id):
             raise IngestError(f"its run {run_id[:60]!r} is not recorded and its log is not next to it: import the "
@@ -205,17 +196,23 @@ def result_run_info(data: dict[str, Any], path: Path, kind: str = "calibration")
                    plan=_plan(run.get("positions"), run.get("rotations")), software_version=software,
                    finished_utc=content.date(run.get("finished_utc"), "run.finished_utc"),
                    outcome=content.text(run.get("state"), "run.state", 32))
-    log_name = run.get("log")
-    if isinstance(log_name, str) and log_name:
-        log_path = path.parent / Path(log_name).name      # a name from a file never leaves the result's folder
-        if log_path.is_file():
-            try:
-                from_log = log_run_info(log_path)
-            except (OSError, BenchError):
-                return info                                # the log is damaged beyond its metadata: the result stands
-            if from_log.run_id == run_id:
-                return _merged(info, from_log)
-    return info
+    from_log = _log_next_to(path, run.get("log"), run_id)
+    return info if from_log is None else _merged(info, from_log)
+
+
+def _log_next_to(path: Path, log_name: Any, run_id: str) -> RunInfo | None:
+    """The run as the log a result file names describes it, when that log lies next to the file and is the run's
+    (None otherwise, or when the log is damaged beyond its metadata: the result stands on its own)."""
+    if not isinstance(log_name, str) or not log_name:
+        return None
+    log_path = path.parent / Path(log_name).name      # a name from a file never leaves the result's folder
+    if not log_path.is_file():
+        return None
+    try:
+        from_log = log_run_info(log_path)
+    except (OSError, BenchError):
+        return None
+    return from_log if from_log.run_id == run_id else None
 
 
 def derivation_of(data: dict[str, Any], log_sha256: str | None = None) -> Derivation:

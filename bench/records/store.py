@@ -207,7 +207,10 @@ class Records:
         """(run id, SHA-256 of the log solved) of every result `software_version` solved from a known log: what an
         archive re-solve skips, wherever the log lies now. A run's own result counts with its run's log."""
         r, s = schema.runs, schema.results
-        log_sha = sa.func.coalesce(s.c.log_sha256, sa.case((s.c.origin == "run", r.c.log_sha256), else_=None))
+        # a run's own result, and one recorded before schema version 3 (keyed then on the run's log), count with
+        # the run's log
+        own = sa.or_(s.c.origin == "run", s.c.origin.is_(None))
+        log_sha = sa.func.coalesce(s.c.log_sha256, sa.case((own, r.c.log_sha256), else_=None))
         query = (sa.select(r.c.run_id, log_sha).join(s, s.c.run_pk == r.c.id)
                  .where(s.c.software_version == software_version, log_sha.is_not(None)).distinct())
         with self._connect() as conn:
