@@ -16,6 +16,7 @@ import json
 import math
 import os
 import stat
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -60,6 +61,9 @@ def read_json(path: Path) -> tuple[dict[str, Any], str]:
     except UnicodeDecodeError as exc:
         raise IngestError(f"not UTF-8 JSON (byte {exc.start})") from exc
     except ValueError as exc:      # JSONDecodeError, and an integer of more digits than Python converts
+        if "integer string conversion" in str(exc):
+            raise IngestError(f"not JSON this software reads: an integer of more than {sys.get_int_max_str_digits()} "
+                              "digits") from exc
         raise IngestError(f"not JSON ({str(exc)[:120]})") from exc
     if not isinstance(data, dict):
         raise IngestError("not a result file (a JSON object)")
