@@ -281,3 +281,21 @@ def test_a_log_starting_before_year_1_in_utc_does_not_stop_the_archive(archive, 
     with open_records(str(db)) as records:
         runs = {r.run_id: r for r in records.list_runs()}
     assert len(runs) == 3 and runs["early-run"].started_utc is None and runs["early-run"].results == 1
+
+
+def test_a_thermal_runs_folder_imports_with_its_headline_result_as_the_record(thermal_run_log, tmp_path):
+    """`bench db import` of a thermal run's folder: its headline result (the block nearest the model's reference
+    temperature, named after the run) is the run's record of truth; each temperature's result is recorded as a
+    block of it, and the thermal model is said to hold nothing to record (issue 27)."""
+    folder = tmp_path / "run"
+    shutil.copytree(thermal_run_log.parent, folder)
+    db = tmp_path / "r.sqlite"
+    rc, stdout, stderr = cli(["db", "import", "--db", str(db), str(folder)])
+    assert rc == 0, stderr
+    assert "with nothing to record" in stdout and ".thermal.json: a thermal model" in stdout
+    with open_records(str(db)) as records:
+        (run,) = records.list_runs()
+        rows = records.results_of(run.run_id)
+    (truth,) = [r for r in rows if r.truth]
+    assert truth.origin == "run" and Path(truth.path).name == f"{run.run_id}.result.json"
+    assert sorted(r.origin for r in rows if not r.truth) == ["block", "block"]
