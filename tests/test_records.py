@@ -330,3 +330,31 @@ def test_a_query_on_a_database_that_is_not_there_says_so_and_creates_nothing(tmp
     assert main(["db", "history", "--db", str(missing), "A-1"]) == 2
     assert "no records database there" in capsys.readouterr().err
     assert not (tmp_path / "nowhere").exists()
+
+
+def test_two_processes_importing_into_one_postgresql_database_lose_nothing(postgres, archive, tmp_path):
+    """On PostgreSQL both processes may check for a run or result at once; the one whose insert then meets the
+    other's unique key runs its transaction again (it finds the row: already known) instead of ending the import
+    with `duplicate key value violates unique constraint`."""
+    import subprocess
+    import sys
+
+    from tests.helpers.run import REPO
+    from tests.test_records_import import _variants
+
+    good = sorted((archive / "b").glob("*.result.json"))[0].read_text()
+    _variants(good, tmp_path / "a", "A", 20)
+    _variants(good, tmp_path / "b", "B", 20)
+    _variants(good, tmp_path / "shared", "S", 60)
+    url = create_database(postgres, "concurrent")
+    with open_records(url):     # the schema first: two processes creating it at once is another matter
+        pass
+    procs = [subprocess.Popen([sys.executable, "-m", "bench.cli", "db", "import", "--db", url, "--quiet",
+                               str(tmp_path / "shared"), str(tmp_path / folder)], cwd=REPO,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for folder in ("a", "b")]
+    outputs = [p.communicate(timeout=300) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outputs
+    with open_records(url) as records:
+        assert len(records.list_runs()) == 100
+        with records.engine.connect() as conn:
+            assert conn.execute(sa.select(sa.func.count()).select_from(schema.results)).scalar() == 100
