@@ -335,7 +335,8 @@ def test_a_query_on_a_database_that_is_not_there_says_so_and_creates_nothing(tmp
 def test_two_processes_importing_into_one_postgresql_database_lose_nothing(postgres, archive, tmp_path):
     """On PostgreSQL both processes may check for a run or result at once; the one whose insert then meets the
     other's unique key runs its transaction again (it finds the row: already known) instead of ending the import
-    with `duplicate key value violates unique constraint`."""
+    with `duplicate key value violates unique constraint`. A new database's schema is created by one of them
+    (an advisory lock), the other waits."""
     import subprocess
     import sys
 
@@ -346,9 +347,7 @@ def test_two_processes_importing_into_one_postgresql_database_lose_nothing(postg
     _variants(good, tmp_path / "a", "A", 20)
     _variants(good, tmp_path / "b", "B", 20)
     _variants(good, tmp_path / "shared", "S", 60)
-    url = create_database(postgres, "concurrent")
-    with open_records(url):     # the schema first: two processes creating it at once is another matter
-        pass
+    url = create_database(postgres, "concurrent")      # empty: both processes open it, one creates the schema
     procs = [subprocess.Popen([sys.executable, "-m", "bench.cli", "db", "import", "--db", url, "--quiet",
                                str(tmp_path / "shared"), str(tmp_path / folder)], cwd=REPO,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for folder in ("a", "b")]
