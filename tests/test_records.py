@@ -357,3 +357,20 @@ def test_two_processes_importing_into_one_postgresql_database_lose_nothing(postg
         assert len(records.list_runs()) == 100
         with records.engine.connect() as conn:
             assert conn.execute(sa.select(sa.func.count()).select_from(schema.results)).scalar() == 100
+
+
+def test_nan_in_a_result_files_json_sections_is_recorded_on_postgresql(postgres, archive, tmp_path, capsys):
+    """PostgreSQL's JSON refuses NaN: a result file from another tool with NaN in its verdict, quality, site or a
+    coefficient's budget ended the whole import as a database error; it is recorded, the NaN as null."""
+    path = sorted((archive / "b").glob("*.result.json"))[0]
+    data = json.loads(path.read_text())
+    data["quality"] = {"reduced_chi2": float("nan"), "nested": [float("inf")]}
+    data["run"]["site"]["local_g"] = float("nan")
+    data["coefficients"]["Kg_x"]["budget"] = {"noise": float("nan")}
+    (tmp_path / "nan.result.json").write_text(json.dumps(data))
+    url = create_database(postgres, "nan")
+    assert main(["db", "import", "--db", url, str(tmp_path / "nan.result.json")]) == 0, capsys.readouterr().err
+    with open_records(url) as records:
+        with records.engine.connect() as conn:
+            assert conn.execute(sa.select(schema.results.c.quality)).scalar() == {"reduced_chi2": None,
+                                                                                   "nested": [None]}

@@ -176,7 +176,7 @@ class Records:
                 software_version=run.software_version, imported_utc=_now(),
                 solved_utc=utc((_dict_or_none(data.get("run")) or {}).get("solved_utc")) or run.finished_utc,
                 verdict=_verdict_word(verdict),
-                verdict_json=verdict, quality=_dict_or_none(data.get("quality")),
+                verdict_json=json_safe(verdict), quality=json_safe(_dict_or_none(data.get("quality"))),
                 temperature_c=_finite(mean_c), origin=derivation.origin, derivation=derivation.text[:400] or None,
                 log_sha256=derivation.log_sha256,
             ))
@@ -402,6 +402,18 @@ def _finite(value: Any) -> float | None:
     return number if math.isfinite(number) else None
 
 
+def json_safe(value: Any) -> Any:
+    """`value` with every NaN or infinity as None: a JSON column holds what JSON can say (PostgreSQL refuses NaN,
+    which a result file from another tool may hold; the bench writes none)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [json_safe(v) for v in value]
+    return value
+
+
 def _dict_or_none(value: Any) -> dict | None:
     return value if isinstance(value, dict) else None
 
@@ -414,7 +426,7 @@ def _coefficient_row(result_id: int, name: str, entry: Any) -> dict[str, Any] | 
         return None
     extra = {k: v for k, v in entry.items() if k not in ("value", "sigma", "unit")}
     return {"result_id": result_id, "name": str(name)[:32], "value": value, "sigma": _finite(entry.get("sigma")),
-            "unit": str(entry.get("unit", ""))[:64], "budget": extra or None}
+            "unit": str(entry.get("unit", ""))[:64], "budget": json_safe(extra) or None}
 
 
 def _unit_id(conn: sa.Connection, model: str, serial: str) -> int:
@@ -435,6 +447,7 @@ def _upsert_run(conn: sa.Connection, info: RunInfo) -> tuple[int, bool]:
     r = schema.runs
     found = conn.execute(sa.select(r).where(r.c.run_id == info.run_id)).mappings().first()
     values = {f: getattr(info, f) for f in _RUN_FIELDS}
+    values["site"] = json_safe(values["site"])
     if found is None:
         values.update({f: getattr(info, f) for f in _LOG_FIELDS})
         unit_id = _unit_id(conn, info.model, info.serial)
