@@ -11,9 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
-import math
 import os
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator, TypeVar
 
@@ -23,6 +21,20 @@ from bench import __version__
 from bench.records import schema
 from bench.records.errors import RecordsError
 from bench.records.migrate import migrate
+from bench.records.rows import (
+    ORIGINS,
+    Derivation,
+    ResultRow,
+    RunInfo,
+    RunRow,
+    coefficient_row,
+    dict_or_none,
+    finite,
+    json_safe,
+    now,
+    utc,
+    verdict_word,
+)
 
 #: environment variable naming the records database (a URL or a file path)
 DB_ENV = "BENCH_DB"
@@ -43,97 +55,6 @@ def database_url(name: str | None) -> str:
     if "://" in name:
         return name
     return f"sqlite:///{Path(name).expanduser().absolute()}"
-
-
-def utc(text: Any) -> dt.datetime | None:
-    """A naive UTC datetime from an ISO 8601 text (`2026-11-24T02:49:01Z`), or None."""
-    if not isinstance(text, str) or not text.strip():
-        return None
-    try:
-        when = dt.datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
-        # 0001-01-01T00:00:00+05:00 is before the first UTC datetime: OverflowError, an unusable time
-        return when.astimezone(dt.UTC).replace(tzinfo=None) if when.tzinfo is not None else when
-    except (ValueError, OverflowError):
-        return None
-
-
-def _now() -> dt.datetime:
-    return dt.datetime.now(dt.UTC).replace(tzinfo=None)
-
-
-@dataclass(frozen=True)
-class RunInfo:
-    """What the database holds of one run (the fields of `schema.runs`)."""
-
-    run_id: str
-    model: str
-    serial: str
-    kind: str = "calibration"
-    mode: str = ""
-    log_path: str | None = None
-    log_sha256: str | None = None
-    operator: str = ""
-    site: dict | None = None
-    table_url: str = ""
-    plan: str = ""
-    software_version: str = ""
-    started_utc: dt.datetime | None = None
-    finished_utc: dt.datetime | None = None
-    outcome: str = ""
-    log_complete: bool | None = None      # False: the log had no MCAP footer (still recording, or cut off)
-
-
-#: `results.origin`: the result `bench run` wrote; `bench solve` of the whole intact log; what-if solves of a
-#: subset; solves of a damaged log (steps lost or left out); one temperature block of a thermal run (its
-#: headline block, the result named after the run, is the run's)
-ORIGINS = ("run", "re-solve", "subset", "damaged", "block")
-
-
-@dataclass(frozen=True)
-class Derivation:
-    """How a result came to be (`results.origin`, `.derivation`, `.log_sha256`)."""
-
-    origin: str = "run"
-    text: str = ""
-    log_sha256: str | None = None
-
-
-@dataclass(frozen=True)
-class ResultRow:
-    """One result of a run (`bench db results`): `truth` marks the run's record of truth."""
-
-    result_id: int
-    run_id: str
-    origin: str | None
-    derivation: str | None
-    software_version: str
-    solved_utc: dt.datetime | None
-    verdict: str | None
-    promoted_utc: dt.datetime | None
-    path: str | None
-    truth: bool
-
-
-@dataclass(frozen=True)
-class RunRow:
-    """One line of `bench db list`."""
-
-    run_id: str
-    model: str
-    serial: str
-    kind: str
-    started_utc: dt.datetime | None
-    finished_utc: dt.datetime | None
-    outcome: str
-    operator: str
-    plan: str
-    results: int
-    verdict: str | None
-    log_path: str | None
-    truth_id: int | None = None           # the run's record of truth (None: no result, or only derived ones)
-    truth_origin: str | None = None       # the record of truth's origin ("run", "re-solve", None: none, or legacy)
-    promoted: bool = False                # the record of truth was promoted by a user
-    log_complete: bool | None = None
 
 
 class Records:
@@ -169,20 +90,20 @@ class Records:
                 _upsert_run(conn, run)
                 return False
             run_pk, _ = _upsert_run(conn, run)
-            verdict = _dict_or_none(data.get("verdict"))
-            mean_c = (_dict_or_none(data.get("temperature")) or {}).get("mean_c")
+            verdict = dict_or_none(data.get("verdict"))
+            mean_c = (dict_or_none(data.get("temperature")) or {}).get("mean_c")
             result_id = _insert(conn, sa.insert(table).values(
                 run_pk=run_pk, path=path, sha256=sha256,
-                software_version=run.software_version, imported_utc=_now(),
-                solved_utc=utc((_dict_or_none(data.get("run")) or {}).get("solved_utc")) or run.finished_utc,
-                verdict=_verdict_word(verdict),
-                verdict_json=json_safe(verdict), quality=json_safe(_dict_or_none(data.get("quality"))),
-                temperature_c=_finite(mean_c), origin=derivation.origin, derivation=derivation.text[:400] or None,
+                software_version=run.software_version, imported_utc=now(),
+                solved_utc=utc((dict_or_none(data.get("run")) or {}).get("solved_utc")) or run.finished_utc,
+                verdict=verdict_word(verdict),
+                verdict_json=json_safe(verdict), quality=json_safe(dict_or_none(data.get("quality"))),
+                temperature_c=finite(mean_c), origin=derivation.origin, derivation=derivation.text[:400] or None,
                 log_sha256=derivation.log_sha256,
             ))
-            table_in = _dict_or_none(data.get("coefficients")) or {}
+            table_in = dict_or_none(data.get("coefficients")) or {}
             rows = [row for name, entry in table_in.items()
-                    if (row := _coefficient_row(result_id, name, entry)) is not None]
+                    if (row := coefficient_row(result_id, name, entry)) is not None]
             if rows:
                 conn.execute(sa.insert(schema.coefficients), rows)
             return True
@@ -231,7 +152,7 @@ class Records:
             if found is None:
                 raise RecordsError(f"no recorded result {reference!r} (a result id from `bench db results RUN_ID`, "
                                    "or a recorded result file)")
-            conn.execute(sa.update(s).where(s.c.id == found[0]).values(promoted_utc=_now()))
+            conn.execute(sa.update(s).where(s.c.id == found[0]).values(promoted_utc=now()))
         rows = self.results_of_run_pk(found[1])
         return next(row for row in rows if row.result_id == found[0])
 
@@ -379,54 +300,6 @@ def _truth_results(*where: sa.ColumnElement[bool]) -> sa.Select:
     ranked = (sa.select(s.c.run_pk, s.c.id, rank).join(r, r.c.id == s.c.run_pk).where(eligible, *where)
               .subquery())
     return sa.select(ranked.c.run_pk, ranked.c.id).where(ranked.c.rank == 1)
-
-
-def _verdict_word(verdict: dict | None) -> str | None:
-    """"pass", "fail" or "not checked" (a verdict no check ran for is not a pass, nor a failure)."""
-    if verdict is None:
-        return None
-    word = verdict.get("verdict")
-    if word in ("pass", "fail", "not checked"):
-        return str(word)
-    return "pass" if verdict.get("passed") is True else "fail"
-
-
-def _finite(value: Any) -> float | None:
-    """A finite float from a number in a file, else None (10**400 overflows float: None, not OverflowError)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return None
-    try:
-        number = float(value)
-    except OverflowError:
-        return None
-    return number if math.isfinite(number) else None
-
-
-def json_safe(value: Any) -> Any:
-    """`value` with every NaN or infinity as None: a JSON column holds what JSON can say (PostgreSQL refuses NaN,
-    which a result file from another tool may hold; the bench writes none)."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {str(k): json_safe(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [json_safe(v) for v in value]
-    return value
-
-
-def _dict_or_none(value: Any) -> dict | None:
-    return value if isinstance(value, dict) else None
-
-
-def _coefficient_row(result_id: int, name: str, entry: Any) -> dict[str, Any] | None:
-    """A `coefficients` row; None for an entry without a finite value (nothing to record)."""
-    entry = entry if isinstance(entry, dict) else {}
-    value = _finite(entry.get("value"))
-    if value is None:
-        return None
-    extra = {k: v for k, v in entry.items() if k not in ("value", "sigma", "unit")}
-    return {"result_id": result_id, "name": str(name)[:32], "value": value, "sigma": _finite(entry.get("sigma")),
-            "unit": str(entry.get("unit", ""))[:64], "budget": json_safe(extra) or None}
 
 
 def _unit_id(conn: sa.Connection, model: str, serial: str) -> int:
