@@ -196,3 +196,106 @@ def test_a_thermal_runs_log_is_re_solved_one_calibration_per_temperature(thermal
     assert CalibrationResult.load(only_file(solved, "*.solved.result.json")).run["thermal"]["this_block"]
     with open_records(str(db)) as records:
         assert [r.serial for r in records.list_runs()] == ["THERMAL-1"]
+
+
+# -- issue 27: the archive's skip follows the log's content, copies are named, nothing goes unrecorded silently ----
+
+def test_moved_logs_are_skipped_by_run_id_and_content_and_a_backup_copy_gets_its_own_outputs(archive, tmp_path):
+    """Keyed on the log's path, every call after the logs moved re-solved everything and added result rows (three
+    for one run after two calls); two logs of one run in one folder wrote one output file ("solved 4 of 5", three
+    result files)."""
+    first = tmp_path / "first"
+    shutil.copytree(archive / "b", first)
+    db = tmp_path / "r.sqlite"
+    rc, stdout, stderr = cli(["solve", "--archive", str(first), "--scheduler", "loop", "--db", str(db),
+                              "--out", str(tmp_path / "out1")])
+    assert rc == 0, stderr
+    moved = tmp_path / "moved" / "elsewhere"
+    shutil.move(str(first), moved)
+    rc, stdout, stderr = cli(["solve", "--archive", str(moved), "--scheduler", "loop", "--db", str(db),
+                              "--out", str(tmp_path / "out2")])
+    assert rc == 0, stderr
+    assert "1 log(s), 1 already solved" in stdout and "0 to solve" in stdout
+    with open_records(str(db)) as records:
+        (run,) = records.list_runs()
+        assert run.results == 1
+
+    (log,) = moved.glob("*.mcap")
+    backup = moved / f"{log.stem}.backup.mcap"
+    shutil.copy(log, backup)
+    rc, stdout, stderr = cli(["solve", "--archive", str(moved), "--scheduler", "loop", "--db", str(db), "--redo",
+                              "--out", str(tmp_path / "out3")])
+    assert rc == 0, stderr
+    assert f"{backup}, {log}: 2 logs of one run" in stdout or f"{log}, {backup}: 2 logs of one run" in stdout
+    assert "solved 2 of 2 log(s)" in stdout
+    results = results_below(tmp_path / "out3")
+    assert sorted(Path(p).parent.name for p in results) == sorted([log.stem, backup.stem]), sorted(results)
+
+
+def test_every_result_not_recorded_is_a_non_zero_exit_and_relative_out_is_resolved(archive, tmp_path, monkeypatch):
+    """`--out RELATIVE` on a Dask cluster wrote into the worker's folder and recorded nothing, exit 0."""
+    import bench.solve.archive as archive_module
+
+    folder = tmp_path / "c"
+    shutil.copytree(archive / "c", folder)
+    seen: list[tuple[Path, Path]] = []
+    real = archive_module.solve_archive
+
+    def spy(tasks, **kwargs):
+        seen.extend(tasks)
+        return real(tasks, **kwargs)
+
+    monkeypatch.setattr(archive_module, "solve_archive", spy)
+    monkeypatch.chdir(tmp_path)
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("")
+    rc, stdout, stderr = cli(["solve", "--archive", "c", "--scheduler", "loop", "--db", str(blocker / "r.sqlite"),
+                              "--out", "relative"])
+    assert rc == 4, stderr
+    assert "NOT recorded" in stderr and "1 result(s) not recorded" in stderr
+    assert seen and all(out.is_absolute() and log.is_absolute() for log, out in seen)
+    assert results_below(tmp_path / "relative")
+
+
+def test_a_log_starting_before_year_1_in_utc_does_not_stop_the_archive(archive, tmp_path):
+    """Issue 34: `run.started_utc = 0001-01-01T00:00:00+05:00` crashed the recording of its result (OverflowError)
+    and stopped `bench solve --archive`: the logs after it were never solved."""
+    from mcap.reader import make_reader
+
+    from tests.helpers.crafted import rewrite_log
+
+    (log,) = (archive / "c").glob("*.mcap")
+    with open(log, "rb") as f:
+        run = next(dict(r.metadata) for r in make_reader(f).iter_metadata() if r.name == "run")
+    folder = tmp_path / "arch"
+    folder.mkdir()
+    rewrite_log(log, folder / "a-early.mcap", metadata={"run": {**run, "started_utc": "0001-01-01T00:00:00+05:00",
+                                                                "run_id": "early-run"}})
+    for other in ("a", "b"):
+        shutil.copy(next((archive / other).rglob("*.mcap")), folder / f"z-{other}.mcap")
+    db = tmp_path / "r.sqlite"
+    rc, stdout, stderr = cli(["solve", "--archive", str(folder), "--scheduler", "loop", "--db", str(db),
+                              "--out", str(tmp_path / "out")])
+    assert rc == 0, stderr
+    assert "solved 3 of 3 log(s)" in stdout
+    with open_records(str(db)) as records:
+        runs = {r.run_id: r for r in records.list_runs()}
+    assert len(runs) == 3 and runs["early-run"].started_utc is None and runs["early-run"].results == 1
+
+
+def test_a_thermal_runs_folder_imports_with_its_headline_result_as_the_record(thermal_run_log, tmp_path):
+    """`bench db import` of a thermal run's folder: its headline result (the block nearest the model's reference
+    temperature, named after the run) is the run's record of truth; each temperature's result is recorded as a
+    block of it, and the thermal model is said to hold nothing to record (issue 27)."""
+    folder = tmp_path / "run"
+    shutil.copytree(thermal_run_log.parent, folder)
+    db = tmp_path / "r.sqlite"
+    rc, stdout, stderr = cli(["db", "import", "--db", str(db), str(folder)])
+    assert rc == 0, stderr
+    assert "with nothing to record" in stdout and ".thermal.json: a thermal model" in stdout
+    with open_records(str(db)) as records:
+        (run,) = records.list_runs()
+        rows = records.results_of(run.run_id)
+    (truth,) = [r for r in rows if r.truth]
+    assert truth.origin == "run" and Path(truth.path).name == f"{run.run_id}.result.json"
+    assert sorted(r.origin for r in rows if not r.truth) == ["block", "block"]

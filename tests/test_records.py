@@ -167,24 +167,27 @@ def test_history_finds_the_drift_and_the_changes(archive, tmp_path, capsys):
 
 
 def _reference_table(history) -> list[str]:
-    """The history table as the first implementation printed it, one value at a time: the oracle of the columns."""
+    """The history table built one value at a time: the oracle of the column-wise table (its digits, drift line
+    and marks from the same rules)."""
+    from bench.records.history import _marks, drift_text
+
     def g(x):
         return "-" if x is None else f"{x:.6g}"
     lines = [f"unit {history.model} / {history.serial}: {len(history.runs)} calibration(s)"]
     for c in history.coefficients:
-        drift = c.drift_per_year()
-        drift_text = ("drift: needs two dated calibrations" if drift is None else
-                      f"drift: {g(drift[0])} {c.unit} per year" + ("" if drift[1] is None else f" +- {g(drift[1])}"))
-        lines += ["", f"{c.name} [{c.unit}]  {drift_text}",
-                  f"  {'when (UTC)':20} {'run':28} {'value':>14} {'sigma':>11} {'change':>9}"]
+        digits = c.digits()
+        width = max(14, digits + 7)
+        lines += ["", f"{c.name} [{c.unit}]  {drift_text(c)}",
+                  f"  {'when (UTC)':20} {'run':28} {'value':>{width}} {'sigma':>11} {'change':>9}"]
         previous = None
-        for p in c.points:
+        for p, k in zip(c.points, c.index.tolist()):
             z = None
             if previous is not None and None not in (previous.sigma, p.sigma) and (previous.sigma or p.sigma):
                 z = (p.value - previous.value) / math.hypot(previous.sigma, p.sigma)
             when = p.when.replace(microsecond=0).isoformat() + "Z"
-            lines.append(f"  {when:20} {p.run_id[:28]:28} {g(p.value):>14} {g(p.sigma):>11} "
-                         f"{'' if z is None else f'{z:+.2f} sig':>9}")
+            marks = _marks(history.calibrations[k])
+            lines.append(f"  {when:20} {p.run_id[:28]:28} {p.value:>{width}.{digits}g} {g(p.sigma):>11} "
+                         f"{'' if z is None else f'{z:+.2f} sig':>9}" + ("  " + ", ".join(marks) if marks else ""))
             previous = p
     return lines
 
@@ -223,12 +226,15 @@ def test_the_history_table_holds_every_value_unknown_sigmas_and_gaps_included(ar
     assert capsys.readouterr().out.splitlines() == _reference_table(two)
 
 
-def test_a_resolve_adds_a_result_and_history_takes_the_latest(archive, tmp_path):
+def test_a_resolve_is_a_derived_result_and_history_takes_it_once_promoted(archive, tmp_path):
+    """A re-solve by another version is recorded with the run but never replaces the run's own result (issue 27)
+    unless a user promotes it."""
     from bench.records.ingest import import_paths
 
     path = sorted((archive / "b").glob("*.result.json"))[0]
     data = json.loads(path.read_text())
     data["run"]["software_version"] = "9.0"
+    data["run"]["solved_by"] = "bench solve"
     data["run"]["solved_utc"] = "2030-01-01T00:00:00Z"      # re-solved long after the run
     data["coefficients"]["Kg_x"]["value"] += 1.0
     data["coefficients"]["Kg_x"]["budget"] = {"noise": 0.1, "table": 0.05}    # what a result with a budget adds
@@ -242,6 +248,10 @@ def test_a_resolve_adds_a_result_and_history_takes_the_latest(archive, tmp_path)
         assert sorted(r.results for r in rows) == [1, 2]
         assert records.has_result(data["run"]["run_id"], "9.0")
         assert not records.has_result(data["run"]["run_id"], "8.0")
+        kg = next(c for c in unit_history(records, "B-2").coefficients if c.name == "Kg_x")
+        own = next(p for p in kg.points if p.run_id == data["run"]["run_id"])
+        assert own.value == data["coefficients"]["Kg_x"]["value"] - 1.0 and own.software_version != "9.0"
+        records.promote(str(resolved))
         kg = next(c for c in unit_history(records, "B-2").coefficients if c.name == "Kg_x")
         assert len(kg.points) == 2
         newest = next(p for p in kg.points if p.run_id == data["run"]["run_id"])
@@ -320,3 +330,47 @@ def test_a_query_on_a_database_that_is_not_there_says_so_and_creates_nothing(tmp
     assert main(["db", "history", "--db", str(missing), "A-1"]) == 2
     assert "no records database there" in capsys.readouterr().err
     assert not (tmp_path / "nowhere").exists()
+
+
+def test_two_processes_importing_into_one_postgresql_database_lose_nothing(postgres, archive, tmp_path):
+    """On PostgreSQL both processes may check for a run or result at once; the one whose insert then meets the
+    other's unique key runs its transaction again (it finds the row: already known) instead of ending the import
+    with `duplicate key value violates unique constraint`. A new database's schema is created by one of them
+    (an advisory lock), the other waits."""
+    import subprocess
+    import sys
+
+    from tests.helpers.run import REPO
+    from tests.test_records_import import _variants
+
+    good = sorted((archive / "b").glob("*.result.json"))[0].read_text()
+    _variants(good, tmp_path / "a", "A", 20)
+    _variants(good, tmp_path / "b", "B", 20)
+    _variants(good, tmp_path / "shared", "S", 60)
+    url = create_database(postgres, "concurrent")      # empty: both processes open it, one creates the schema
+    procs = [subprocess.Popen([sys.executable, "-m", "bench.cli", "db", "import", "--db", url, "--quiet",
+                               str(tmp_path / "shared"), str(tmp_path / folder)], cwd=REPO,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for folder in ("a", "b")]
+    outputs = [p.communicate(timeout=300) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outputs
+    with open_records(url) as records:
+        assert len(records.list_runs()) == 100
+        with records.engine.connect() as conn:
+            assert conn.execute(sa.select(sa.func.count()).select_from(schema.results)).scalar() == 100
+
+
+def test_nan_in_a_result_files_json_sections_is_recorded_on_postgresql(postgres, archive, tmp_path, capsys):
+    """PostgreSQL's JSON refuses NaN: a result file from another tool with NaN in its verdict, quality, site or a
+    coefficient's budget ended the whole import as a database error; it is recorded, the NaN as null."""
+    path = sorted((archive / "b").glob("*.result.json"))[0]
+    data = json.loads(path.read_text())
+    data["quality"] = {"reduced_chi2": float("nan"), "nested": [float("inf")]}
+    data["run"]["site"]["local_g"] = float("nan")
+    data["coefficients"]["Kg_x"]["budget"] = {"noise": float("nan")}
+    (tmp_path / "nan.result.json").write_text(json.dumps(data))
+    url = create_database(postgres, "nan")
+    assert main(["db", "import", "--db", url, str(tmp_path / "nan.result.json")]) == 0, capsys.readouterr().err
+    with open_records(url) as records:
+        with records.engine.connect() as conn:
+            assert conn.execute(sa.select(schema.results.c.quality)).scalar() == {"reduced_chi2": None,
+                                                                                   "nested": [None]}

@@ -95,3 +95,113 @@ def test_bench_check_table_records_its_check(tmp_path):
         (run,) = records.list_runs()
         assert (run.kind, run.run_id, run.results) == ("table-check", check["run"]["run_id"], 1)
         assert unit_history(records, run.serial).coefficients == []      # a table check is not the IMU's calibration
+
+
+# -- issue 27: a run's record of truth is never replaced by what was derived from it ---------------------------
+
+def _db_copy(recorded, tmp_path: Path) -> Path:
+    """The fixture's database, copied: each test derives its own results from the one recorded run."""
+    db = tmp_path / "records.sqlite"
+    db.write_bytes(recorded.db.read_bytes())
+    return db
+
+
+def _list_line(db: Path, run_id: str) -> str:
+    rc, stdout, stderr = cli(["db", "list", "--db", str(db)])
+    assert rc == 0, stderr
+    (line,) = [line for line in stdout.splitlines() if line.split()[1:2] == [run_id[:28]]]
+    return line
+
+
+def test_what_if_solves_and_a_cut_copy_never_replace_the_runs_result(recorded, tmp_path):
+    """Issue 27's reproduction: `bench solve LOG --positions none --out sub2` and `bench solve COPY_CUT.mcap` were
+    recorded as results of the run: `db list` showed the run's `fail` and `db history --coefficient Kg_x` dropped
+    it. Now both are derived results of the run; the run's own result stays its record of truth."""
+    db = _db_copy(recorded, tmp_path)
+    own = json.loads(recorded.result_path.read_text())
+    run_id, serial = own["run"]["run_id"], own["run"]["imu"]["serial"]
+    verdict = "pass" if own["verdict"].get("passed") else "fail"
+    before = _list_line(db, run_id)
+    assert before.split()[-1] == verdict
+    rc, _, stderr = cli(["solve", str(recorded.log), "--positions", "none", "--out", str(tmp_path / "sub2"),
+                         "--no-html", "--quiet", "--db", str(db)])
+    assert rc in (0, 4), stderr
+    cut = tmp_path / "cut" / recorded.log.name
+    cut.parent.mkdir()
+    data = recorded.log.read_bytes()
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    rc, _, stderr = cli(["solve", str(cut), "--out", str(tmp_path / "cut-out"), "--no-html", "--quiet",
+                         "--db", str(db)])
+    assert rc in (0, 4), stderr
+    line = _list_line(db, run_id)
+    assert line.split()[-2:-1] == ["3"] and line.split()[-1] == verdict, line     # 3 results, the run's verdict
+    rc, stdout, stderr = cli(["db", "history", "--db", str(db), serial, "--coefficient", "Kg_x"])
+    assert rc == 0, stderr
+    assert run_id[:28] in stdout and "1 calibration(s)" in stdout
+    with open_records(str(db)) as records:
+        kg = next(c for c in unit_history(records, serial).coefficients if c.name == "Kg_x")
+        assert [p.value for p in kg.points] == [own["coefficients"]["Kg_x"]["value"]]
+        rows = records.results_of(run_id)
+        (run,) = records.list_runs()
+        assert run.log_path == str(recorded.log.absolute()) and run.log_complete   # the cut copy is not the log
+    assert [(r.origin, r.truth) for r in rows] == [("run", True), ("subset", False), ("damaged", False)]
+    rc, stdout, _ = cli(["db", "results", "--db", str(db), run_id])
+    assert rc == 0 and "subset" in stdout and "damaged" in stdout
+
+    # the user may promote one explicitly: it becomes the record, in the list and the history
+    subset = rows[1]
+    rc, stdout, stderr = cli(["db", "promote", "--db", str(db), str(subset.result_id)])
+    assert rc == 0 and f"now the record of truth of run {run_id}" in stdout, stderr
+    assert "(promoted)" in _list_line(db, run_id)
+    with open_records(str(db)) as records:
+        assert [r.truth for r in records.results_of(run_id)] == [False, True, False]
+    rc, _, stderr = cli(["db", "promote", "--db", str(db), "999999"])
+    assert rc == 2 and "no recorded result '999999'" in stderr
+
+
+def test_a_re_solve_by_this_version_is_derived_but_stands_in_without_the_runs_own_result(recorded, tmp_path):
+    """A whole re-solve never replaces the run's own result; for a run whose own result is not recorded (an
+    archive of logs) it is the record of truth."""
+    db = tmp_path / "r.sqlite"
+    rc, _, stderr = cli(["solve", str(recorded.log), "--out", str(tmp_path / "a"), "--no-html", "--quiet",
+                         "--db", str(db)])
+    assert rc in (0, 4), stderr
+    run_id = json.loads(recorded.result_path.read_text())["run"]["run_id"]
+    with open_records(str(db)) as records:
+        assert [(r.origin, r.truth) for r in records.results_of(run_id)] == [("re-solve", True)]
+    assert "(re-solve)" in _list_line(db, run_id)
+    rc, _, stderr = cli(["db", "import", "--db", str(db), str(recorded.result_path)])
+    assert rc == 0, stderr
+    with open_records(str(db)) as records:
+        assert [(r.origin, r.truth) for r in records.results_of(run_id)] == [("re-solve", False), ("run", True)]
+
+
+def test_a_log_still_being_written_is_recorded_as_unfinished_and_its_hash_follows_the_finished_file(recorded,
+                                                                                                   tmp_path):
+    """`bench db import runs/` while a run was recording recorded the unfinished log as the run's, with a SHA-256
+    that is not the finished file's. Now a log without its MCAP footer is recorded as unfinished (`db list` says
+    so) and its hash is replaced when the finished file is imported."""
+    db = tmp_path / "r.sqlite"
+    growing = tmp_path / "runs" / recorded.log.name
+    growing.parent.mkdir()
+    data = recorded.log.read_bytes()
+    growing.write_bytes(data[: len(data) // 2])
+    rc, _, stderr = cli(["db", "import", "--db", str(db), str(growing.parent)])
+    assert rc == 0, stderr
+    with open_records(str(db)) as records:
+        (run,) = records.list_runs()
+        assert run.log_complete is False
+    assert "(log unfinished)" in _list_line(db, run.run_id)
+    growing.write_bytes(data)       # the run finished
+    rc, stdout, stderr = cli(["db", "import", "--db", str(db), str(growing.parent)])
+    assert rc == 0 and "1 recorded" in stdout, stderr
+    import sqlalchemy as sa
+
+    from bench.records import schema
+    with open_records(str(db)) as records:
+        (run,) = records.list_runs()
+        assert run.log_complete is True
+        with records.engine.connect() as conn:
+            (log_sha,) = conn.execute(sa.select(schema.runs.c.log_sha256)).one()
+    assert log_sha == _sha(recorded.log)
+    assert "(log unfinished)" not in _list_line(db, run.run_id)

@@ -1,8 +1,10 @@
 """`bench db`: the calibration records (logic in `bench.records`).
 
 `bench db import PATH...` records result files and logs already on disk (idempotent),
-`bench db list` lists runs, `bench db history SERIAL` shows a unit's coefficients over
-time. `add_db_options` and `record_outputs` are the hooks `bench run`, `bench solve` and
+`bench db list` lists runs, `bench db results RUN_ID` a run's results (its record of truth
+and what was derived from it), `bench db promote RESULT` makes a result its run's record of
+truth, `bench db history SERIAL` shows a unit's coefficients over time. `add_db_options` and
+`record_outputs` are the hooks `bench run`, `bench solve` and
 `bench check-table` use to record what they wrote: after the files are written, and a
 database that fails only warns (the files are the record; `bench db import` adds them later).
 
@@ -16,8 +18,12 @@ import argparse
 import datetime as dt
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from bench.cli.common import ExitCode, fail
+
+if TYPE_CHECKING:
+    from bench.records.store import RunRow
 
 PROG = "bench db"
 DB_HELP = ("records database: a SQLAlchemy URL (postgresql://user@host/db) or a SQLite file path (default: $BENCH_DB, "
@@ -33,9 +39,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--db", metavar="URL", help=DB_HELP)
     sub = parser.add_subparsers(dest="db_command", metavar="ACTION")
     sub.required = True
-    p = sub.add_parser("import", help="record result files (*.result.json, *.table-check.json) and logs (*.mcap)",
+    p = sub.add_parser("import", help="record result files (*.result.json, *.table-check.json, *.noise.json) and "
+                                      "logs (*.mcap)",
                        description="Record result files and run logs on disk; folders are searched recursively. "
-                                   "Idempotent: a file already recorded is skipped.")
+                                   "Idempotent: a file already recorded is skipped. A file that cannot be recorded "
+                                   "is one line (the others are recorded; exit 4 at the end); a thermal model "
+                                   "(*.thermal.json) and in-memory simulations are named as holding nothing to "
+                                   "record.")
     p.add_argument("paths", nargs="+", metavar="PATH", help="result files, logs, or folders to search")
     p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
     p.add_argument("--quiet", action="store_true", help="print only the counts and failures")
@@ -45,10 +55,29 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--since", metavar="DATE", help="only runs started (else finished) on or after DATE (YYYY-MM-DD)")
     p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
     p.set_defaults(func=cmd_list)
+    p = sub.add_parser("results", help="a run's results: its record of truth and the results derived from it",
+                       description="Every recorded result of the run: its id, origin (run: `bench run` wrote it; "
+                                   "re-solve: `bench solve` of the whole log; subset: a what-if solve; damaged: a "
+                                   "solve of a damaged or cut log), software version, verdict; '*' marks the run's "
+                                   "record of truth, the one `db list`, `db history` and their exports use.")
+    p.add_argument("run_id", metavar="RUN_ID", help="the run (as `bench db list` shows it)")
+    p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
+    p.set_defaults(func=cmd_results)
+    p = sub.add_parser("promote", help="make a result its run's record of truth",
+                       description="Make a recorded result the record of truth of its run (instead of the result "
+                                   "`bench run` wrote): `db list`, `db history` and their exports use it from now "
+                                   "on. RESULT is a result id from `bench db results RUN_ID`, or a recorded result "
+                                   "file (its path or SHA-256). The latest promotion wins.")
+    p.add_argument("result", metavar="RESULT", help="a result id (`bench db results RUN_ID`) or a recorded result file")
+    p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
+    p.set_defaults(func=cmd_promote)
     p = sub.add_parser("history", help="a unit's coefficients over time: changes in sigma, drift per year",
-                       description="The unit's latest result of every calibration run, oldest first: each coefficient "
-                                   "with its 1-sigma, its change from the calibration before in combined sigma, and "
-                                   "its drift per year (weighted straight-line fit). --out writes JSON, CSV, a plot.")
+                       description="The record of truth of every calibration run of the unit (`bench db results`), "
+                                   "oldest first: each coefficient with the digits that show its changes, its "
+                                   "1-sigma, its change from the calibration before in combined sigma, marks (FAILED, "
+                                   "simulated, promoted, a stand-in re-solve), and its drift per year (weighted "
+                                   "straight-line fit, failed calibrations left out, stated over 30 days or more). "
+                                   "--out writes JSON, CSV, a plot.")
     p.add_argument("serial", metavar="SERIAL", help="the unit's serial number (as its logs record it)")
     p.add_argument("--coefficient", metavar="NAME", nargs="+", action="extend",
                    help="only these coefficients (e.g. Kg_x bg_z)")
@@ -81,7 +110,10 @@ def cmd_import(args: argparse.Namespace) -> ExitCode:
     if not args.quiet:
         for path in report.added:
             print(f"recorded {path}")
-    print(f"{len(report.added)} recorded, {len(report.known)} already known, {len(report.failed)} failed")
+        for path, reason in report.not_recorded:
+            print(f"not recorded {path}: {reason}")
+    print(f"{len(report.added)} recorded, {len(report.known)} already known, {len(report.failed)} failed"
+          + (f", {len(report.not_recorded)} with nothing to record" if report.not_recorded else ""))
     for path, reason in report.failed:
         print(f"{PROG}: {path}: {reason}", file=sys.stderr)
     return ExitCode.QUALITY if report.failed else ExitCode.OK
@@ -105,12 +137,61 @@ def cmd_list(args: argparse.Namespace) -> ExitCode:
     except RecordsError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     print(f"{'started (UTC)':20} {'run':28} {'kind':11} {'model':20} {'serial':14} {'outcome':9} {'results':>7} "
-          f"verdict")
+          f"verdict (of the record of truth)")
     for r in rows:
         when = r.started_utc or r.finished_utc
         print(f"{(when.isoformat(timespec='seconds') if when else '-'):20} {r.run_id[:28]:28} {r.kind:11} "
-              f"{r.model[:20]:20} {r.serial[:14]:14} {(r.outcome or '-'):9} {r.results:>7} {r.verdict or '-'}")
+              f"{r.model[:20]:20} {r.serial[:14]:14} {_outcome(r.outcome, r.log_complete):9} {r.results:>7} "
+              f"{_truth_text(r)}")
     print(f"{len(rows)} run(s)")
+    return ExitCode.OK
+
+
+def _outcome(outcome: str, log_complete: bool | None) -> str:
+    return (outcome or "-") + ("" if log_complete is not False else " (log unfinished)")
+
+
+def _truth_text(row: RunRow) -> str:
+    """The verdict of the run's record of truth, and where that record comes from when it is not the run's own."""
+    if row.truth_id is None:
+        return "- (only derived results: see `bench db results RUN_ID`)" if row.results else "-"
+    note = "promoted" if row.promoted else ("" if row.truth_origin in ("run", None) else row.truth_origin)
+    return (row.verdict or "-") + (f" ({note})" if note else "")
+
+
+def cmd_results(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without SQLAlchemy
+    from bench.records.store import RecordsError
+
+    try:
+        with _open(args, create=False) as records:
+            rows = records.results_of(args.run_id)
+    except RecordsError as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
+    print(f"results of run {args.run_id} ('*': the record of truth)")
+    print(f"  {'id':>6} {'origin':9} {'software':12} {'solved (UTC)':20} {'verdict':8} how")
+    for r in rows:
+        solved = r.solved_utc.isoformat(timespec="seconds") if r.solved_utc else "-"
+        how = (r.derivation or ("bench run" if r.origin == "run" else "recorded before schema 3")) + (
+            f"; promoted {r.promoted_utc.isoformat(timespec='seconds')}" if r.promoted_utc else "")
+        print(f"{'*' if r.truth else ' '} {r.result_id:>6} {(r.origin or '-'):9} {r.software_version[:12]:12} "
+              f"{solved:20} {(r.verdict or '-'):8} {how}")
+    if not any(r.truth for r in rows):
+        print("no record of truth: only derived results (`bench db promote RESULT_ID` makes one the record)")
+    return ExitCode.OK
+
+
+def cmd_promote(args: argparse.Namespace) -> ExitCode:
+    # imported when the command runs: `bench` starts without SQLAlchemy
+    from bench.records.store import RecordsError
+
+    try:
+        with _open(args, create=False) as records:
+            row = records.promote(args.result)
+    except RecordsError as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
+    print(f"result {row.result_id} ({row.origin or 'recorded before schema 3'}"
+          f"{': ' + row.derivation if row.derivation else ''}) is now the record of truth of run {row.run_id}")
     return ExitCode.OK
 
 
@@ -151,14 +232,19 @@ def record_outputs(args: argparse.Namespace, prog: str, paths: list[Path | str |
     if getattr(args, "no_db", False):
         return
     # imported when the command runs: `bench` starts without SQLAlchemy
-    from bench.records.ingest import import_file
+    from bench.records.ingest import import_file, sha256_of
     from bench.records.store import RecordsError, open_records
 
     files = [Path(p) for p in paths if p is not None]
+    logs = [p for p in files if p.suffix == ".mcap"]
+    path = None
     try:
+        # a result is keyed to the log it was solved from (the last log named: the one its run.log names)
+        log_sha = sha256_of(logs[-1]) if logs else None
         with open_records(getattr(args, "db", None)) as records:
             for path in files:
-                import_file(records, path)
+                import_file(records, path, log_sha256=None if path.suffix == ".mcap" else log_sha)
     except (RecordsError, OSError, ValueError) as exc:
-        print(f"{prog}: warning: not recorded in the records database ({exc}); the files are kept: "
+        what = f"{path}: " if path is not None and not isinstance(exc, RecordsError) else ""
+        print(f"{prog}: warning: {what}not recorded in the records database ({exc}); the files are kept: "
               f"`bench db import` records them later", file=sys.stderr)

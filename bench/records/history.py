@@ -7,7 +7,13 @@
   z = (v_k - v_{k-1}) / sqrt(s_k^2 + s_{k-1}^2) (None when a sigma is unknown);
 - the drift per year: the slope of a straight line through the values over time,
   weighted by 1/sigma^2 when every sigma is known, with its 1-sigma from the fit's
-  covariance (needs two calibrations at different times).
+  covariance. Stated only over a span that supports a rate per year: two dated
+  calibrations at least `MIN_DRIFT_SPAN_DAYS` apart (30 minutes of runs give no drift per
+  year: the table says why instead); failed calibrations are left out of the fit.
+
+The printed table marks each calibration that failed its verdict, ran on the simulators,
+or whose record is not the run's own result (a stand-in re-solve, a promoted result), and
+prints each coefficient's values with the digits that show their changes.
 """
 
 from __future__ import annotations
@@ -28,6 +34,10 @@ from bench.model.families import canonical_names
 from bench.records.store import Records, RecordsError
 
 SECONDS_PER_YEAR = 365.25 * 86400.0
+#: the shortest span of calibrations a drift per year is stated over
+MIN_DRIFT_SPAN_DAYS = 30.0
+#: the fewest and most significant digits a value is printed with
+MIN_DIGITS, MAX_DIGITS = 6, 15
 
 
 @dataclass(frozen=True)
@@ -45,12 +55,15 @@ class Point:
 
 @dataclass(frozen=True)
 class Calibration:
-    """One calibration run of the unit (its latest result)."""
+    """One calibration run of the unit (its record of truth: `Records.history_rows`)."""
 
     run_id: str
     when: dt.datetime | None
     software_version: str
     verdict: str | None
+    origin: str | None = "run"        # the record's origin: run, re-solve (its own result not recorded), ...
+    promoted: bool = False            # a user made this result the run's record (`bench db promote`)
+    simulated: bool = False           # a run on the simulators, not on the bench
 
 
 @dataclass(frozen=True, eq=False)
@@ -71,6 +84,7 @@ class CoefficientHistory:
     sigmas: np.ndarray
     years: np.ndarray
     budgets: list[dict | None] | None = None
+    failed_all: np.ndarray | None = None      # per calibration of the unit: its verdict is fail (None: work it out)
 
     @property
     def points(self) -> list[Point]:
@@ -92,15 +106,29 @@ class CoefficientHistory:
         z, unknown = self._changes()
         return [None if u else x for x, u in zip(z.tolist(), unknown.tolist())]
 
+    def _failed(self) -> np.ndarray:
+        failed_all = self.failed_all if self.failed_all is not None else _failed_all(self.calibrations)
+        return failed_all[self.index]
+
+    def drift_note(self) -> str | None:
+        """Why no drift per year is stated (None: one is)."""
+        used = ~np.isnan(self.years) & ~self._failed()
+        if np.count_nonzero(used) < 2:
+            return ("needs two dated calibrations" + (" that did not fail" if self._failed().any() else ""))
+        span_days = float(np.ptp(self.years[used])) * SECONDS_PER_YEAR / 86400.0
+        if span_days < MIN_DRIFT_SPAN_DAYS:
+            return (f"not stated: the calibrations span {_span(span_days)}, a drift per year needs at least "
+                    f"{MIN_DRIFT_SPAN_DAYS:g} days")
+        return None
+
     def drift_per_year(self) -> tuple[float, float | None] | None:
-        """(slope per year, its 1-sigma or None), or None with fewer than two dated calibrations at distinct times."""
-        dated = ~np.isnan(self.years)
-        if np.count_nonzero(dated) < 2:
+        """(slope per year, its 1-sigma or None), or None where `drift_note` says why (fewer than two dated
+        calibrations that did not fail, or a span shorter than `MIN_DRIFT_SPAN_DAYS`)."""
+        if self.drift_note() is not None:
             return None
-        years = self.years[dated] - self.years[dated][0]
-        if np.ptp(years) == 0.0:
-            return None
-        values, sigmas = self.values[dated], self.sigmas[dated]
+        used = ~np.isnan(self.years) & ~self._failed()
+        years = self.years[used] - self.years[used][0]
+        values, sigmas = self.values[used], self.sigmas[used]
         weighted = bool(np.all(sigmas > 0))       # NaN (unknown) compares False
         w = 1.0 / sigmas ** 2 if weighted else np.ones(len(years))
         design = np.column_stack([np.ones_like(years), years])
@@ -114,6 +142,23 @@ class CoefficientHistory:
         else:
             return float(coef[1]), None
         return float(coef[1]), float(math.sqrt(cov[1, 1]))
+
+    def digits(self) -> int:
+        """Significant digits that show the smallest change between consecutive values (two digits of it), or
+        the sigma's digits for a single value; `MIN_DIGITS`..`MAX_DIGITS` (36012.5 on every row hid changes of
+        0.03)."""
+        finite = self.values[np.isfinite(self.values)]
+        top = float(np.max(np.abs(finite))) if finite.size else 0.0
+        if top == 0.0:
+            return MIN_DIGITS
+        steps = np.abs(np.diff(finite))
+        steps = steps[steps > 0]
+        sigmas = self.sigmas[np.isfinite(self.sigmas) & (self.sigmas > 0)]
+        scale = float(steps.min()) if steps.size else float(sigmas.min()) if sigmas.size else 0.0
+        if scale == 0.0:
+            return MIN_DIGITS
+        digits = math.floor(math.log10(top)) - math.floor(math.log10(scale)) + 2
+        return max(MIN_DIGITS, min(MAX_DIGITS, digits))
 
 
 @dataclass(frozen=True)
@@ -138,11 +183,17 @@ class UnitHistory:
             table[c.name] = {
                 "unit": c.unit,
                 "calibrations": [{"run_id": p.run_id, "when_utc": _iso(p.when), "software_version": p.software_version,
-                                  "verdict": p.verdict, "value": p.value, "sigma": p.sigma, "budget": p.budget}
-                                 for p in c.points],
+                                  "verdict": p.verdict, "value": p.value, "sigma": p.sigma, "budget": p.budget,
+                                  "marks": _marks(cal)}
+                                 for p, cal in zip(c.points, (c.calibrations[k] for k in c.index.tolist()))],
                 "changes_sigma": c.changes_sigma(),
-                "drift_per_year": None if drift is None else {"value": drift[0], "sigma": drift[1]}}
+                "drift_per_year": None if drift is None else {"value": drift[0], "sigma": drift[1]},
+                "drift_note": c.drift_note()}
         return {"serial": self.serial, "model": self.model, "coefficients": table}
+
+
+def _failed_all(calibrations: list[Calibration]) -> np.ndarray:
+    return np.array([cal.verdict == "fail" for cal in calibrations], dtype=bool)
 
 
 def _iso(when: dt.datetime | None) -> str | None:
@@ -162,12 +213,14 @@ def unit_history(records: Records, serial: str, names: list[str] | None = None,
     if model is not None and model not in models:
         raise RecordsError(f"no unit {model!r} with serial {serial!r} in the records (models: {', '.join(models)})")
     runs, values = records.history_rows(serial, model, names, budgets=budgets)
-    calibrations = [Calibration(run_id, when, software, verdict) for _, run_id, when, software, verdict in runs]
+    calibrations = [Calibration(run_id, when, software, verdict, origin, bool(promoted), mode == "simulator")
+                    for _, run_id, when, software, verdict, origin, promoted, mode in runs]
     position = {row[0]: k for k, row in enumerate(runs)}
     first = next((cal.when for cal in calibrations if cal.when is not None), None)
     years = np.array([math.nan if cal.when is None or first is None else
                       (cal.when - first).total_seconds() / SECONDS_PER_YEAR for cal in calibrations])
     out = []
+    failed_all = _failed_all(calibrations)
     if values:
         # columns, grouped by coefficient and in calibration order with one sort (300,000 values, not a loop each)
         result_ids, value_names, numbers, sigmas, units, budget_list = zip(*values)
@@ -184,7 +237,8 @@ def unit_history(records: Records, serial: str, names: list[str] | None = None,
                 continue
             index = where[g]
             out.append(CoefficientHistory(n, units[g[0]], calibrations, index, numbers_array[g], sigmas_array[g],
-                                          years[index], [budget_list[k] for k in g.tolist()] if budgets else None))
+                                          years[index], [budget_list[k] for k in g.tolist()] if budgets else None,
+                                          failed_all))
     return UnitHistory(serial, model or models[0], out, calibrations)
 
 
@@ -197,28 +251,62 @@ def _g(x: float | None) -> str:
     return "-" if x is None else f"{x:.6g}"
 
 
+def _span(days: float) -> str:
+    if days < 1.0 / 24.0:
+        return f"{days * 1440.0:.0f} min"
+    if days < 2.0:
+        return f"{days * 24.0:.1f} h"
+    return f"{days:.1f} days"
+
+
+def _marks(cal: Calibration) -> list[str]:
+    """What a reader of the history must know of a calibration: it failed, ran on the simulators, or its record
+    is not the run's own result."""
+    marks = ["FAILED"] if cal.verdict == "fail" else []
+    if cal.simulated:
+        marks.append("simulated")
+    if cal.promoted:
+        marks.append("promoted")
+    elif cal.origin not in ("run", None):
+        marks.append(f"{cal.origin} (its own result not recorded)")
+    return marks
+
+
+def drift_text(c: CoefficientHistory) -> str:
+    """The history's drift line of one coefficient: the drift per year, or why none is stated."""
+    drift = c.drift_per_year()
+    if drift is None:
+        return f"drift: {c.drift_note()}"
+    failed = int(np.count_nonzero(c._failed()))
+    return (f"drift: {_g(drift[0])} {c.unit} per year" + ("" if drift[1] is None else f" +- {_g(drift[1])}")
+            + (f" ({failed} failed calibration(s) left out)" if failed else ""))
+
+
 def format_history(history: UnitHistory) -> str:
     """The table `bench db history` prints: per coefficient, each calibration, its change, the drift."""
     lines = [f"unit {history.model} / {history.serial}: {len(history.runs)} calibration(s)"]
     # formatted once per calibration, then per value in one comprehension per column: 300,000 values in a second
     heads = [f"  {(_iso(cal.when) or '-'):20} {cal.run_id[:28]:28} " for cal in history.calibrations]
+    notes = [("  " + ", ".join(m)) if (m := _marks(cal)) else "" for cal in history.calibrations]
     for c in history.coefficients:
-        drift = c.drift_per_year()
-        drift_text = ("drift: needs two dated calibrations" if drift is None else
-                      f"drift: {_g(drift[0])} {c.unit} per year" + ("" if drift[1] is None else f" +- {_g(drift[1])}"))
-        lines.append(f"\n{c.name} [{c.unit}]  {drift_text}")
-        lines.append(f"  {'when (UTC)':20} {'run':28} {'value':>14} {'sigma':>11} {'change':>9}")
+        digits = c.digits()
+        width = max(14, digits + 7)
+        lines.append(f"\n{c.name} [{c.unit}]  {drift_text(c)}")
+        lines.append(f"  {'when (UTC)':20} {'run':28} {'value':>{width}} {'sigma':>11} {'change':>9}")
         z, unknown = c._changes()
-        rows = [heads[k] for k in c.index.tolist()]
-        values, sigmas = c.values.tolist(), c.sigmas.tolist()
-        # "%14.6g" is f"{v:>14.6g}"; "%+5.2f sig" is f"{z:+.2f} sig" right-aligned in 9
+        index = c.index.tolist()
+        rows, values, row_notes = [heads[k] for k in index], c.values.tolist(), [notes[k] for k in index]
+        value = f"%{width}.{digits}g"
+        # "%+5.2f sig" is f"{z:+.2f} sig" right-aligned in 9
         if not unknown.any() and not np.isnan(c.sigmas).any():      # the usual case: one format per line
-            lines.append("%s%14.6g %11.6g          " % (rows[0], values[0], sigmas[0]))
-            lines += ["%s%14.6g %11.6g %+5.2f sig" % row for row in zip(rows[1:], values[1:], sigmas[1:], z.tolist())]
+            sigmas = c.sigmas.tolist()
+            lines.append(f"%s{value} %11.6g          %s" % (rows[0], values[0], sigmas[0], row_notes[0]))
+            lines += [f"%s{value} %11.6g %+5.2f sig%s" % row
+                      for row in zip(rows[1:], values[1:], sigmas[1:], z.tolist(), row_notes[1:])]
             continue
         changes = [" " * 9, *(" " * 9 if u else "%+5.2f sig" % x for x, u in zip(z.tolist(), unknown.tolist()))]
-        sigma_text = ["%11.6g" % s if s == s else "          -" for s in sigmas]     # NaN: unknown
-        lines += ["%s%14.6g %s %s" % row for row in zip(rows, values, sigma_text, changes)]
+        sigma_text = ["%11.6g" % s if s == s else "          -" for s in c.sigmas.tolist()]     # NaN: unknown
+        lines += [f"%s{value} %s %s%s" % row for row in zip(rows, values, sigma_text, changes, row_notes)]
     return "\n".join(lines) + "\n"
 
 
@@ -226,12 +314,12 @@ def history_csv(history: UnitHistory) -> str:
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(["serial", "coefficient", "unit", "when_utc", "run_id", "software_version", "verdict", "value",
-                     "sigma", "change_sigma"])
+                     "sigma", "change_sigma", "marks"])
     for c in history.coefficients:
-        for p, z in zip(c.points, [None, *c.changes_sigma()]):
+        for p, z, k in zip(c.points, [None, *c.changes_sigma()], c.index.tolist()):
             writer.writerow([history.serial, c.name, c.unit, _iso(p.when) or "", p.run_id, p.software_version,
                              p.verdict or "", repr(p.value), "" if p.sigma is None else repr(p.sigma),
-                             "" if z is None else f"{z:.4f}"])
+                             "" if z is None else f"{z:.4f}", "; ".join(_marks(c.calibrations[k]))])
     return buf.getvalue()
 
 
@@ -274,5 +362,5 @@ def _plot(history: UnitHistory, path: Path) -> None:
         plt.close(fig)
 
 
-__all__ = ["Calibration", "CoefficientHistory", "Point", "UnitHistory", "format_history", "history_csv", "unit_history",
-           "write_history"]
+__all__ = ["Calibration", "CoefficientHistory", "MIN_DRIFT_SPAN_DAYS", "Point", "UnitHistory", "drift_text",
+           "format_history", "history_csv", "unit_history", "write_history"]

@@ -37,8 +37,20 @@ def _v2(conn: sa.Connection) -> None:
     add_column(conn, "coefficients", sa.Column("budget", sa.JSON, nullable=True))
 
 
+def _v3(conn: sa.Connection) -> None:
+    """A run's record of truth apart from derived results: `results.origin`, `.derivation`, `.log_sha256`,
+    `.promoted_utc`; `runs.log_complete` (see `bench.records.schema`). Rows recorded before keep NULL origin."""
+    for table in ("runs", "results"):
+        for column in schema.version_columns(3, table):
+            add_column(conn, table, column)
+
+
+#: PostgreSQL's advisory lock key migrations hold (SQLite's writers take turns: `BEGIN IMMEDIATE`)
+_MIGRATION_LOCK = 0x7462_7265_636F  # "tbreco"
+
+
 #: version -> the migration that brings the version before it to it
-MIGRATIONS: dict[int, Callable[[sa.Connection], None]] = {1: _v1, 2: _v2}
+MIGRATIONS: dict[int, Callable[[sa.Connection], None]] = {1: _v1, 2: _v2, 3: _v3}
 
 
 def add_column(conn: sa.Connection, table: str, column: sa.Column) -> None:
@@ -65,6 +77,8 @@ def current_version(conn: sa.Connection) -> int:
 def migrate(engine: sa.Engine, target: int = schema.SCHEMA_VERSION) -> tuple[int, int]:
     """Bring the database to `target`; returns (version before, version after)."""
     with engine.begin() as conn:
+        if conn.dialect.name == "postgresql":   # two processes opening a new database: one migrates, one waits
+            conn.execute(sa.select(sa.func.pg_advisory_xact_lock(_MIGRATION_LOCK)))
         before = current_version(conn)
         if before > schema.SCHEMA_VERSION:
             raise SchemaError(f"the database has schema version {before}, newer than this software's "

@@ -16,6 +16,14 @@ PostgreSQL, so the two cannot drift apart.
   version 2 `budget` (JSON): what else the result file says of it (the uncertainty
   budget's components as the result file carries them), so a budget lands without a
   schema change.
+
+Version 3 separates a run's record of truth from what was derived from it: `results.origin`
+("run": the result `bench run` wrote; "re-solve": `bench solve` of the whole, intact log;
+"subset", "damaged": what-if solves and solves of damaged logs; NULL: recorded before version
+3), `results.derivation` (one line: how it was derived), `results.log_sha256` (the log it was
+solved from), `results.promoted_utc` (a user made it the run's record of truth, `bench db
+promote`), and `runs.log_complete` (False: the log had no MCAP footer when recorded, a run
+still recording or cut off; its hash is replaced when the finished file is recorded).
 """
 
 from __future__ import annotations
@@ -23,7 +31,7 @@ from __future__ import annotations
 import sqlalchemy as sa
 
 #: the schema version this software writes and reads
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 
 
 def define(metadata: sa.MetaData, version: int = SCHEMA_VERSION) -> dict[str, sa.Table]:
@@ -60,6 +68,7 @@ def define(metadata: sa.MetaData, version: int = SCHEMA_VERSION) -> dict[str, sa
         sa.Column("started_utc", sa.DateTime, nullable=True),
         sa.Column("finished_utc", sa.DateTime, nullable=True),
         sa.Column("outcome", sa.String(32), nullable=False),        # the run's final state: done, aborted, ...
+        *version_columns(version, "runs"),
         sa.Index("ix_runs_unit_started", "unit_id", "started_utc"),
         sa.Index("ix_runs_started", "started_utc"))
     tables["results"] = sa.Table(
@@ -75,6 +84,7 @@ def define(metadata: sa.MetaData, version: int = SCHEMA_VERSION) -> dict[str, sa
         sa.Column("verdict_json", sa.JSON, nullable=True),
         sa.Column("quality", sa.JSON, nullable=True),
         sa.Column("temperature_c", sa.Float, nullable=True),        # the IMU's mean temperature over the run
+        *version_columns(version, "results"),
         sa.Index("ix_results_run", "run_pk", "id"),
         sa.Index("ix_results_software", "run_pk", "software_version"))
     columns: list[sa.schema.SchemaItem] = [
@@ -89,6 +99,19 @@ def define(metadata: sa.MetaData, version: int = SCHEMA_VERSION) -> dict[str, sa
     tables["coefficients"] = sa.Table("coefficients", metadata, *columns,
                                       sa.Index("ix_coefficients_name", "name", "result_id"))
     return tables
+
+
+def version_columns(version: int, table: str, since: int = 3) -> list[sa.Column]:
+    """The columns version 3 added to `table` (the migration adds the same, `since` is the version they came
+    with): nothing before it."""
+    if version < since:
+        return []
+    if table == "runs":
+        return [sa.Column("log_complete", sa.Boolean, nullable=True)]     # None: not known (before version 3)
+    return [sa.Column("origin", sa.String(16), nullable=True),       # run | re-solve | subset | damaged | None
+            sa.Column("derivation", sa.String(400), nullable=True),  # how it was derived, one line
+            sa.Column("log_sha256", sa.String(64), nullable=True),   # the log it was solved from
+            sa.Column("promoted_utc", sa.DateTime, nullable=True)]   # made the run's record of truth by a user
 
 
 METADATA = sa.MetaData()

@@ -11,11 +11,9 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
-import math
 import os
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator, TypeVar
 
 import sqlalchemy as sa
 
@@ -23,6 +21,20 @@ from bench import __version__
 from bench.records import schema
 from bench.records.errors import RecordsError
 from bench.records.migrate import migrate
+from bench.records.rows import (
+    ORIGINS,
+    Derivation,
+    ResultRow,
+    RunInfo,
+    RunRow,
+    coefficient_row,
+    dict_or_none,
+    finite,
+    json_safe,
+    now,
+    utc,
+    verdict_word,
+)
 
 #: environment variable naming the records database (a URL or a file path)
 DB_ENV = "BENCH_DB"
@@ -45,60 +57,6 @@ def database_url(name: str | None) -> str:
     return f"sqlite:///{Path(name).expanduser().absolute()}"
 
 
-def utc(text: Any) -> dt.datetime | None:
-    """A naive UTC datetime from an ISO 8601 text (`2026-11-24T02:49:01Z`), or None."""
-    if not isinstance(text, str) or not text.strip():
-        return None
-    try:
-        when = dt.datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
-    except ValueError:
-        return None
-    return when.astimezone(dt.UTC).replace(tzinfo=None) if when.tzinfo is not None else when
-
-
-def _now() -> dt.datetime:
-    return dt.datetime.now(dt.UTC).replace(tzinfo=None)
-
-
-@dataclass(frozen=True)
-class RunInfo:
-    """What the database holds of one run (the fields of `schema.runs`)."""
-
-    run_id: str
-    model: str
-    serial: str
-    kind: str = "calibration"
-    mode: str = ""
-    log_path: str | None = None
-    log_sha256: str | None = None
-    operator: str = ""
-    site: dict | None = None
-    table_url: str = ""
-    plan: str = ""
-    software_version: str = ""
-    started_utc: dt.datetime | None = None
-    finished_utc: dt.datetime | None = None
-    outcome: str = ""
-
-
-@dataclass(frozen=True)
-class RunRow:
-    """One line of `bench db list`."""
-
-    run_id: str
-    model: str
-    serial: str
-    kind: str
-    started_utc: dt.datetime | None
-    finished_utc: dt.datetime | None
-    outcome: str
-    operator: str
-    plan: str
-    results: int
-    verdict: str | None
-    log_path: str | None
-
-
 class Records:
     """An open records database (`open_records`). Use as a context manager, or `close()`."""
 
@@ -118,33 +76,45 @@ class Records:
 
     def add_run(self, info: RunInfo) -> bool:
         """Record a run (or fill in what an earlier record of it lacked); True if anything was new."""
-        with self._begin() as conn:
-            return _upsert_run(conn, info)[1]
+        return self._write(lambda conn: _upsert_run(conn, info)[1])
 
-    def add_result(self, data: dict[str, Any], sha256: str, path: str | None, run: RunInfo) -> bool:
-        """Record one result file's content (`CalibrationResult.to_json` form) of `run`; False if already held."""
+    def add_result(self, data: dict[str, Any], sha256: str, path: str | None, run: RunInfo,
+                   derivation: Derivation | None = None) -> bool:
+        """Record one result file's content (`CalibrationResult.to_json` form) of `run`, as `derivation` says it
+        came to be (default: the run's own result); False if already held."""
+        derivation = derivation or Derivation()
         table = schema.results
-        with self._begin() as conn:
+
+        def write(conn: sa.Connection) -> bool:
             if conn.execute(sa.select(table.c.id).where(table.c.sha256 == sha256)).first() is not None:
                 _upsert_run(conn, run)
                 return False
             run_pk, _ = _upsert_run(conn, run)
-            verdict = _dict_or_none(data.get("verdict"))
-            mean_c = (_dict_or_none(data.get("temperature")) or {}).get("mean_c")
+            verdict = dict_or_none(data.get("verdict"))
+            mean_c = (dict_or_none(data.get("temperature")) or {}).get("mean_c")
             result_id = _insert(conn, sa.insert(table).values(
                 run_pk=run_pk, path=path, sha256=sha256,
-                software_version=run.software_version, imported_utc=_now(),
-                solved_utc=utc((_dict_or_none(data.get("run")) or {}).get("solved_utc")) or run.finished_utc,
-                verdict=None if verdict is None else ("pass" if verdict.get("passed") else "fail"),
-                verdict_json=verdict, quality=_dict_or_none(data.get("quality")),
-                temperature_c=float(mean_c) if isinstance(mean_c, (int, float)) and math.isfinite(mean_c) else None,
+                software_version=run.software_version, imported_utc=now(),
+                solved_utc=utc((dict_or_none(data.get("run")) or {}).get("solved_utc")) or run.finished_utc,
+                verdict=verdict_word(verdict),
+                verdict_json=json_safe(verdict), quality=json_safe(dict_or_none(data.get("quality"))),
+                temperature_c=finite(mean_c), origin=derivation.origin, derivation=derivation.text[:400] or None,
+                log_sha256=derivation.log_sha256,
             ))
-            table_in = _dict_or_none(data.get("coefficients")) or {}
+            table_in = dict_or_none(data.get("coefficients")) or {}
             rows = [row for name, entry in table_in.items()
-                    if (row := _coefficient_row(result_id, name, entry)) is not None]
+                    if (row := coefficient_row(result_id, name, entry)) is not None]
             if rows:
                 conn.execute(sa.insert(schema.coefficients), rows)
             return True
+
+        return self._write(write)
+
+    def run_known(self, run_id: str) -> bool:
+        """The run is recorded."""
+        r = schema.runs
+        with self._connect() as conn:
+            return conn.execute(sa.select(r.c.id).where(r.c.run_id == run_id)).first() is not None
 
     def has_result(self, run_id: str, software_version: str) -> bool:
         """A result of `run_id` solved by `software_version` is recorded (what a resumed archive re-solve skips)."""
@@ -154,13 +124,56 @@ class Records:
         with self._connect() as conn:
             return conn.execute(query).first() is not None
 
-    def logs_solved_by(self, software_version: str) -> set[str]:
-        """The log paths of the runs that have a result of `software_version` (what an archive re-solve skips)."""
+    def solved_keys(self, software_version: str) -> set[tuple[str, str]]:
+        """(run id, SHA-256 of the log solved) of every result `software_version` solved from a known log: what an
+        archive re-solve skips, wherever the log lies now. A run's own result counts with its run's log."""
         r, s = schema.runs, schema.results
-        query = (sa.select(r.c.log_path).join(s, s.c.run_pk == r.c.id)
-                 .where(s.c.software_version == software_version, r.c.log_path.is_not(None)).distinct())
+        # a run's own result, and one recorded before schema version 3 (keyed then on the run's log), count with
+        # the run's log
+        own = sa.or_(s.c.origin == "run", s.c.origin.is_(None))
+        log_sha = sa.func.coalesce(s.c.log_sha256, sa.case((own, r.c.log_sha256), else_=None))
+        query = (sa.select(r.c.run_id, log_sha).join(s, s.c.run_pk == r.c.id)
+                 .where(s.c.software_version == software_version, log_sha.is_not(None)).distinct())
         with self._connect() as conn:
-            return {path for (path,) in conn.execute(query)}
+            return {(run_id, sha) for run_id, sha in conn.execute(query)}
+
+    def promote(self, reference: str) -> ResultRow:
+        """Make a result its run's record of truth: `reference` is its id (`bench db results`), or the path or
+        SHA-256 of its file. RecordsError if no result matches."""
+        s = schema.results
+        if reference.isdigit() and len(reference) < 19:
+            where = s.c.id == int(reference)
+        elif len(reference) == 64 and all(c in "0123456789abcdef" for c in reference.lower()):
+            where = s.c.sha256 == reference.lower()
+        else:
+            where = s.c.path == str(Path(reference).absolute())
+        with self._begin() as conn:
+            found = conn.execute(sa.select(s.c.id, s.c.run_pk).where(where)).first()
+            if found is None:
+                raise RecordsError(f"no recorded result {reference!r} (a result id from `bench db results RUN_ID`, "
+                                   "or a recorded result file)")
+            conn.execute(sa.update(s).where(s.c.id == found[0]).values(promoted_utc=now()))
+        rows = self.results_of_run_pk(found[1])
+        return next(row for row in rows if row.result_id == found[0])
+
+    def results_of(self, run_id: str) -> list[ResultRow]:
+        """Every result of the run, oldest first, the record of truth marked; RecordsError if no such run."""
+        r = schema.runs
+        with self._connect() as conn:
+            found = conn.execute(sa.select(r.c.id).where(r.c.run_id == run_id)).first()
+        if found is None:
+            raise RecordsError(f"no run {run_id!r} in the records")
+        return self.results_of_run_pk(found[0])
+
+    def results_of_run_pk(self, run_pk: int) -> list[ResultRow]:
+        r, s = schema.runs, schema.results
+        truth = _truth_results(s.c.run_pk == run_pk).subquery()
+        query = (sa.select(s.c.id, r.c.run_id, s.c.origin, s.c.derivation, s.c.software_version, s.c.solved_utc,
+                           s.c.verdict, s.c.promoted_utc, s.c.path, truth.c.id.is_not(None))
+                 .join(r, r.c.id == s.c.run_pk).outerjoin(truth, truth.c.id == s.c.id)
+                 .where(s.c.run_pk == run_pk).order_by(s.c.id))
+        with self._connect() as conn:
+            return [ResultRow(*row) for row in conn.execute(query)]
 
     # -- reading ---------------------------------------------------------------------------------
 
@@ -168,11 +181,11 @@ class Records:
         """Runs (newest first), of one serial and/or started (else finished) at or after `since`."""
         u, r, s = schema.units, schema.runs, schema.results
         counts = sa.select(s.c.run_pk, sa.func.count(s.c.id).label("n")).group_by(s.c.run_pk).subquery()
-        newest = _newest_results().subquery()
+        newest = _truth_results().subquery()
         when = sa.func.coalesce(r.c.started_utc, r.c.finished_utc)
         query = (sa.select(r.c.run_id, u.c.model, u.c.serial, r.c.kind, r.c.started_utc, r.c.finished_utc,
                            r.c.outcome, r.c.operator, r.c.plan, sa.func.coalesce(counts.c.n, 0), s.c.verdict,
-                           r.c.log_path)
+                           r.c.log_path, newest.c.id, s.c.origin, s.c.promoted_utc.is_not(None), r.c.log_complete)
                  .join(u, u.c.id == r.c.unit_id)
                  .outerjoin(counts, counts.c.run_pk == r.c.id)
                  .outerjoin(newest, newest.c.run_pk == r.c.id)
@@ -193,8 +206,9 @@ class Records:
 
     def history_rows(self, serial: str, model: str | None = None, names: list[str] | None = None,
                      budgets: bool = True) -> tuple[list[tuple], list[tuple]]:
-        """The unit's latest result of every calibration run, oldest first, as (result id, run_id, when,
-        software_version, verdict), `when` being the run's start, else its end; and those results' coefficients
+        """The record of truth of every calibration run of the unit (`_truth_results`), oldest first, as (result
+        id, run_id, when, software_version, verdict, origin, promoted, mode), `when` being the run's start, else
+        its end; and those results' coefficients
         (`names` only, if given) as (result id, name, value, sigma, unit, budget) by name (budget None
         unless `budgets`). Two queries: the run columns once per run, not once per coefficient."""
         u, r, s, c = schema.units, schema.runs, schema.results, schema.coefficients
@@ -202,9 +216,10 @@ class Records:
         if model is not None:
             unit_ids = unit_ids.where(u.c.model == model)
         run_ids = sa.select(r.c.id).where(r.c.unit_id.in_(unit_ids.scalar_subquery()), r.c.kind == "calibration")
-        latest = _newest_results(s.c.run_pk.in_(run_ids.scalar_subquery())).subquery()
+        latest = _truth_results(s.c.run_pk.in_(run_ids.scalar_subquery())).subquery()
         when = sa.func.coalesce(r.c.started_utc, r.c.finished_utc)
-        runs_query = (sa.select(s.c.id, r.c.run_id, when, s.c.software_version, s.c.verdict)
+        runs_query = (sa.select(s.c.id, r.c.run_id, when, s.c.software_version, s.c.verdict, s.c.origin,
+                                s.c.promoted_utc.is_not(None), r.c.mode)
                       .select_from(latest).join(s, s.c.id == latest.c.id).join(r, r.c.id == s.c.run_pk)
                       .order_by(when, r.c.run_id))
         budget = c.c.budget if budgets else sa.null()
@@ -223,6 +238,19 @@ class Records:
             return runs, list(result.cursor.fetchall())
 
     # -- plumbing --------------------------------------------------------------------------------
+
+    def _write(self, work: Callable[[sa.Connection], T]) -> T:
+        """`work` in one transaction; run again when another process recorded the same unit, run or result
+        between this one's check and its insert (a unique key's IntegrityError: PostgreSQL lets both check
+        at once; SQLite's writers take turns, `_sqlite_begin`)."""
+        for attempt in range(_WRITE_ATTEMPTS):
+            try:
+                with self._begin() as conn:
+                    return work(conn)
+            except RecordsError as exc:
+                if not isinstance(exc.__cause__, sa.exc.IntegrityError) or attempt == _WRITE_ATTEMPTS - 1:
+                    raise
+        raise AssertionError("unreachable")
 
     @contextlib.contextmanager
     def _begin(self) -> Iterator[sa.Connection]:
@@ -244,6 +272,10 @@ class Records:
             raise RecordsError(f"{_shown(self.engine)}: {_reason(exc)}") from exc
 
 
+_WRITE_ATTEMPTS = 3
+T = TypeVar("T")
+
+
 def _insert(conn: sa.Connection, statement: sa.Insert) -> int:
     """Execute an INSERT of one row; its new primary key."""
     key = conn.execute(statement).inserted_primary_key
@@ -251,30 +283,23 @@ def _insert(conn: sa.Connection, statement: sa.Insert) -> int:
     return int(key[0])
 
 
-def _newest_results(*where: sa.ColumnElement[bool]) -> sa.Select:
-    """(run_pk, id) of each run's newest result: solved last (a re-solve's solved_utc, else the run's end), then
-    imported last."""
-    s = schema.results
+def _truth_results(*where: sa.ColumnElement[bool]) -> sa.Select:
+    """(run_pk, id) of each run's record of truth: the result a user promoted last; else the run's own result
+    (`bench run` wrote it; the newest if several); else, for a run whose own result is not recorded (an archive
+    of logs), the newest re-solve of its whole intact log (of the run's log itself when its hash is known; a
+    result recorded before schema version 3 counts as one). A subset or a damaged log's solve is never one
+    unless promoted: a run with only those has no record of truth."""
+    s, r = schema.results, schema.runs
+    same_log = sa.or_(s.c.log_sha256.is_(None), r.c.log_sha256.is_(None), s.c.log_sha256 == r.c.log_sha256)
+    eligible = sa.or_(s.c.promoted_utc.is_not(None), s.c.origin == "run", s.c.origin.is_(None),
+                      sa.and_(s.c.origin == "re-solve", same_log))
     rank = sa.func.row_number().over(partition_by=s.c.run_pk, order_by=(
+        s.c.promoted_utc.is_(None), s.c.promoted_utc.desc(),         # promoted first, the latest promotion
+        sa.case((s.c.origin == "run", 0), else_=1),                  # then the run's own
         sa.func.coalesce(s.c.solved_utc, s.c.imported_utc).desc(), s.c.id.desc())).label("rank")
-    ranked = sa.select(s.c.run_pk, s.c.id, rank).where(*where).subquery()
+    ranked = (sa.select(s.c.run_pk, s.c.id, rank).join(r, r.c.id == s.c.run_pk).where(eligible, *where)
+              .subquery())
     return sa.select(ranked.c.run_pk, ranked.c.id).where(ranked.c.rank == 1)
-
-
-def _dict_or_none(value: Any) -> dict | None:
-    return value if isinstance(value, dict) else None
-
-
-def _coefficient_row(result_id: int, name: str, entry: Any) -> dict[str, Any] | None:
-    """A `coefficients` row; None for an entry without a finite value (nothing to record)."""
-    entry = entry if isinstance(entry, dict) else {}
-    value, sigma = entry.get("value"), entry.get("sigma")
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        return None
-    extra = {k: v for k, v in entry.items() if k not in ("value", "sigma", "unit")}
-    return {"result_id": result_id, "name": str(name), "value": float(value),
-            "sigma": float(sigma) if isinstance(sigma, (int, float)) and math.isfinite(sigma) else None,
-            "unit": str(entry.get("unit", "")), "budget": extra or None}
 
 
 def _unit_id(conn: sa.Connection, model: str, serial: str) -> int:
@@ -285,8 +310,9 @@ def _unit_id(conn: sa.Connection, model: str, serial: str) -> int:
     return _insert(conn, sa.insert(u).values(model=model, serial=serial))
 
 
-_RUN_FIELDS = ("kind", "mode", "log_path", "log_sha256", "operator", "site", "table_url", "plan", "software_version",
-               "started_utc", "finished_utc", "outcome")
+_RUN_FIELDS = ("kind", "mode", "operator", "site", "table_url", "plan", "software_version", "started_utc",
+               "finished_utc", "outcome")
+_LOG_FIELDS = ("log_path", "log_sha256", "log_complete")
 
 
 def _upsert_run(conn: sa.Connection, info: RunInfo) -> tuple[int, bool]:
@@ -294,13 +320,32 @@ def _upsert_run(conn: sa.Connection, info: RunInfo) -> tuple[int, bool]:
     r = schema.runs
     found = conn.execute(sa.select(r).where(r.c.run_id == info.run_id)).mappings().first()
     values = {f: getattr(info, f) for f in _RUN_FIELDS}
+    values["site"] = json_safe(values["site"])
     if found is None:
+        values.update({f: getattr(info, f) for f in _LOG_FIELDS})
         unit_id = _unit_id(conn, info.model, info.serial)
         return _insert(conn, sa.insert(r).values(run_id=info.run_id, unit_id=unit_id, **values)), True
     missing = {f: v for f, v in values.items() if v not in (None, "", {}) and found[f] in (None, "", {})}
+    if info.kind == "noise" and found["kind"] != "noise":     # its noise result shows what the run was
+        missing["kind"] = "noise"
+    if _log_replaces(found, info):
+        missing.update({f: getattr(info, f) for f in _LOG_FIELDS})
     if missing:
         conn.execute(sa.update(r).where(r.c.id == found["id"]).values(**missing))
     return int(found["id"]), bool(missing)
+
+
+def _log_replaces(found: Any, info: RunInfo) -> bool:
+    """The log `info` names becomes the run's log: the run has none; or its log was unfinished (no footer) and
+    this one is finished, or is the same file grown (a run still recording, recorded again). A finished log is
+    never replaced by another file (a copy, a cut copy)."""
+    if info.log_path is None or info.log_sha256 is None:
+        return False
+    if found["log_path"] is None or found["log_sha256"] is None:
+        return True
+    if found["log_complete"] is not False or found["log_sha256"] == info.log_sha256:
+        return False
+    return info.log_complete is not False or found["log_path"] == info.log_path
 
 
 def _shown(engine: sa.Engine) -> str:
@@ -309,7 +354,13 @@ def _shown(engine: sa.Engine) -> str:
 
 def _reason(exc: BaseException) -> str:
     orig = getattr(exc, "orig", None)
-    return str(orig or exc).strip().splitlines()[0] if str(orig or exc).strip() else type(exc).__name__
+    text = str(orig or exc).strip().splitlines()[0] if str(orig or exc).strip() else type(exc).__name__
+    if "database is locked" in text:
+        return (f"the database is locked by another process (waited {SQLITE_BUSY_TIMEOUT_S:g} s): nothing was "
+                f"written; try again when it is done")
+    if "file is not a database" in text or "malformed" in text:
+        return f"not a SQLite database, or a corrupt one ({text}): nothing was written"
+    return text
 
 
 def open_records(url: str | None = None, *, create: bool = True) -> Records:
@@ -332,25 +383,46 @@ def open_records(url: str | None = None, *, create: bool = True) -> Records:
             raise RecordsError(f"{parsed.database}: cannot create its folder: {exc.strerror or exc}") from exc
     if parsed.get_backend_name() == "postgresql" and parsed.get_driver_name() in ("", "psycopg2"):
         parsed = parsed.set(drivername="postgresql+psycopg")     # psycopg 3: the driver the `postgres` extra installs
+    engine = None
     try:
         engine = sa.create_engine(parsed)
         if engine.dialect.name == "sqlite":
             sa.event.listen(engine, "connect", _sqlite_pragmas)
+            sa.event.listen(engine, "begin", _sqlite_begin)
         migrate(engine)
-    except (sa.exc.SQLAlchemyError, ImportError) as exc:
+    except (sa.exc.SQLAlchemyError, ImportError, RecordsError) as exc:
+        if engine is not None:
+            engine.dispose()
+        if isinstance(exc, RecordsError):
+            raise
         raise RecordsError(f"{parsed.render_as_string(hide_password=True)}: {_reason(exc)}") from exc
     return Records(engine)
 
 
+#: how long a SQLite writer waits for another process's transaction before it gives up with one line
+SQLITE_BUSY_TIMEOUT_S = 30.0
+
+
 def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
-    # foreign keys are off by default in SQLite; a writer waits for another instead of failing at once
+    # foreign keys are off by default in SQLite; a writer waits for another instead of failing at once. The
+    # driver's own transaction handling is off: `_sqlite_begin` starts each transaction itself.
+    dbapi_connection.isolation_level = None
     cursor = dbapi_connection.cursor()
     cursor.execute("PRAGMA foreign_keys=ON")
-    cursor.execute("PRAGMA busy_timeout=10000")
+    cursor.execute(f"PRAGMA busy_timeout={int(SQLITE_BUSY_TIMEOUT_S * 1000)}")
     cursor.close()
+
+
+def _sqlite_begin(conn: sa.Connection) -> None:
+    """BEGIN IMMEDIATE: a transaction takes the write lock when it starts (waiting for it up to the busy
+    timeout). With SQLite's default deferred BEGIN, two processes that both read and then write fail at once
+    with "database is locked" (each holds a read lock the other's write must wait for, so SQLite does not wait:
+    a deadlock); taking turns from the start, nothing is lost and nothing fails."""
+    conn.exec_driver_sql("BEGIN IMMEDIATE")
 
 
 SOFTWARE_VERSION = __version__
 
-__all__ = ["DB_ENV", "RecordsError", "Records", "RunInfo", "RunRow", "SOFTWARE_VERSION", "database_url",
+__all__ = ["DB_ENV", "ORIGINS", "Derivation", "RecordsError", "Records", "ResultRow", "RunInfo", "RunRow",
+           "SOFTWARE_VERSION", "database_url",
            "default_url", "open_records", "utc"]

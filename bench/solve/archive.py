@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 from bench.errors import BenchError
-from bench.log.names import logs_before, sibling_log
+from bench.log.names import logs_before, safe_name, sibling_log
 from bench.log.reader import read_log
 from bench.log.threads import reader_threads_limited
 from bench.parallel import SchedulerError, run_tasks
@@ -73,6 +73,45 @@ def resumed_parts(logs: list[Path]) -> dict[Path, Path]:
                 if earlier is not None and earlier in group:
                     parts.setdefault(earlier, log)
     return parts
+
+
+def log_run_ids(logs: list[Path]) -> dict[Path, str]:
+    """{log: its run id} for the logs whose metadata can be read (the others are left out: their solve says why)."""
+    ids: dict[Path, str] = {}
+    for log in logs:
+        try:
+            run = read_log(str(log), messages=False).metadata.get("run") or {}
+        except (BenchError, OSError):
+            continue
+        run_id = str(run.get("run_id", "")).strip()
+        if run_id:
+            ids[log] = run_id
+    return ids
+
+
+def same_run_logs(tasks: list[tuple[Path, Path]]) -> list[list[Path]]:
+    """Groups of two or more logs of one run that would write the same outputs (same output folder, same run id:
+    a backup copy next to the log is common). Only the logs sharing an output folder are read (metadata only)."""
+    by_folder: dict[Path, list[Path]] = {}
+    for log, out_dir in tasks:
+        by_folder.setdefault(out_dir, []).append(log)
+    groups: list[list[Path]] = []
+    for folder_logs in by_folder.values():
+        if len(folder_logs) < 2:
+            continue
+        by_run: dict[str, list[Path]] = {}
+        for log, run_id in log_run_ids(folder_logs).items():
+            by_run.setdefault(run_id, []).append(log)
+        groups += [sorted(group) for group in by_run.values() if len(group) > 1]
+    return groups
+
+
+def distinct_outputs(tasks: list[tuple[Path, Path]], groups: list[list[Path]]) -> list[tuple[Path, Path]]:
+    """The tasks with each log of a group in `same_run_logs` solved into a folder of its own, named after the log
+    (`OUT/<log stem>/`), so no result overwrites another's."""
+    own = {log: k for group in groups for k, log in enumerate(group, 1)}
+    return [(log, out_dir / (safe_name(log.stem) or f"copy-{own[log]}") if log in own else out_dir)
+            for log, out_dir in tasks]
 
 
 def output_folder(log: Path, roots: list[Path], out: Path | None) -> Path:
@@ -134,4 +173,5 @@ def solve_archive(tasks: list[tuple[Path, Path]], *, scheduler: str = "local", w
     return items
 
 
-__all__ = ["ArchiveError", "ArchiveItem", "find_logs", "output_folder", "resumed_parts", "solve_archive", "solve_log"]
+__all__ = ["ArchiveError", "ArchiveItem", "distinct_outputs", "find_logs", "log_run_ids", "output_folder",
+           "resumed_parts", "same_run_logs", "solve_archive", "solve_log"]

@@ -407,6 +407,7 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolv
                 "software_version": __version__, "recorded_with": meta.get("software_version", ""),
                 "state": recorded.final_state, "log": _name(recorded.logs[-1].path),
                 "logs": [_name(log.path) for log in recorded.logs], "positions": pos_name, "rotations": rot_name,
+                "subset": positions is not None or rotations is not None,   # a what-if: never the run's record
                 "started_utc": recorded.logs[0].metadata.get("run", {}).get("started_utc", ""),
                 "solved_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "solved_by": "bench solve",
                 "imu": {"model": imu.get("model", ""), "serial": imu.get("serial", "")},
