@@ -121,11 +121,14 @@ def test_a_paused_run_shows_its_imu_values_as_stale(tmp_path):
             await wait_until(pilot, lambda: snap(app).step_states.count(STEP_DONE) >= 1, "a step done")
             await press(pilot, "p")
             await wait_until(pilot, lambda: snap(app).run_state is RunState.PAUSED, "the pause")
+
+            def stale() -> bool:                # the session's clock goes on; a last block may come after the pause
+                clock.now += 1.0
+                return "stale: no sample for" in app.query_one("#imu-panel").plain
+            await wait_until(pilot, stale, "the stale mark")
             samples = snap(app).imu.samples
-            clock.now += 10.0
-            await wait_until(pilot, lambda: "stale: no sample for 10 s" in app.query_one("#imu-panel").plain,
-                             "the stale mark")
-            assert snap(app).imu.samples == samples         # nothing came while paused
+            await pilot.pause(0.3)
+            assert snap(app).imu.samples == samples and snap(app).imu.stale     # nothing comes while paused
             await press(pilot, "r")
             await wait_until(pilot, lambda: "stale" not in app.query_one("#imu-panel").plain, "fresh values")
     run(body)
@@ -220,6 +223,8 @@ def test_an_aborted_run_says_how_to_continue_it_and_the_command_works(tmp_path, 
             await wait_until(pilot, lambda: f"info: continue this run with: {command}" in events_text(app),
                              "the resume command in the event log")
             assert snap(app).outcome_text.endswith(f"; continue with: {command}")
+            await press(pilot, "2")             # the Results tab said "no result yet" after an abort
+            await wait_until(pilot, lambda: command in app.query_one("#results-panel").plain, "the Results tab")
         return app
 
     holder = []

@@ -160,11 +160,11 @@ def trace_levels(data: Sequence[float], cells: int, floor: float = 0.0) -> list[
     if x.size == 0 or cells <= 0:
         return []
     if x.size < cells:
-        levels = trace_levels(x, x.size, floor)
-        return [levels[k * x.size // cells] for k in range(cells)]
-    parts = np.array_split(x, cells)
-    means = np.array([part.mean() for part in parts])
-    scatter = np.sqrt(np.mean(np.concatenate([part - part.mean() for part in parts]) ** 2))
+        each = trace_levels(x, x.size, floor)
+        return [each[k * x.size // cells] for k in range(cells)]
+    cell = np.arange(x.size) * cells // x.size          # each sample's cell (vectorised: 6 traces a frame)
+    means = np.bincount(cell, x, cells) / np.bincount(cell, None, cells)
+    scatter = math.sqrt(float(np.mean((x - means[cell]) ** 2)))
     lo, hi = float(means.min()), float(means.max())
     span = max(hi - lo, TRACE_NOISE_SPAN * scatter / math.sqrt(x.size / cells), floor)
     if not span > 0:
@@ -512,8 +512,8 @@ class ResultsPanel(Vertical):
         yield Label("", id="results-units")
 
     def show_result(self, result, text: str = "") -> None:
-        if result is self.result:
-            return
+        if result is self.result and (result is not None or text == self.plain):
+            return              # (no result: the text is all there is; an aborted run's came after the start)
         self.result = result
         table = self.query_one("#results-table", DataTable)
         table.clear(columns=True)
