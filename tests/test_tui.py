@@ -181,9 +181,15 @@ def test_event_log_shows_an_event_added_between_snapshot_and_draw_once(tmp_path)
 
 
 def test_event_log_times_count_from_the_run_start_not_the_machines_uptime(tmp_path):
-    """A hardware run's clock is the monotonic clock: its event lines said [0:53:50] (issue 14, item 3)."""
+    """A hardware run's clock is the monotonic clock: its event lines said [0:53:50] (issue 14, item 3). A line
+    outside a run carries the local time (issue 33: timed from the session's first line, it went back when the
+    run started)."""
+    import time
+
+    wall_s = 1_795_773_600.0
+
     async def body():
-        app = make_app(tmp_path, auto_connect=False, refresh_hz=1.0)
+        app = make_app(tmp_path, auto_connect=False, refresh_hz=1.0, wall_clock=lambda: wall_s)
         async with app.run_test(size=SIZE) as pilot:
             buf = app.buffer
             buf.on_event(Event(3230.0, "info", "connected (scpi at tcp://lab:5025)"))
@@ -194,9 +200,9 @@ def test_event_log_times_count_from_the_run_start_not_the_machines_uptime(tmp_pa
             app.refresh_panels()
             await pilot.pause(0.05)
             text = events_text(app)
-            for line in ("[0:00:00] info: connected", "[0:00:00] transition: run started",
-                         "[0:00:15] transition: paused", "[0:00:30] transition: resumed",
-                         "[0:01:01] step_finished: P01 move done"):
+            for line in (f"[{time.strftime('%H:%M:%S', time.localtime(wall_s))}] info: connected",
+                         "[+0:00:00] transition: run started", "[+0:00:15] transition: paused",
+                         "[+0:00:30] transition: resumed", "[+0:01:01] step_finished: P01 move done"):
                 assert line in text, text
     run(body)
 
@@ -233,7 +239,6 @@ def test_imu_panel_shows_the_decimals_the_data_resolve(tmp_path):
     assert fine.step_counts == (1.0 / 256, 1.0 / 256) and fine.decimals(True, 3600.0 / kg, 3) == 3
     raw = ImuScales.from_config(config, sim=False)
     assert raw.step_counts == (1.0 / 256, 1.0 / 256) and raw.decimals(True, 1.0, 3) == 3   # the DBC's resolution
-    assert "1 s means" in raw.source
 
     async def body():
         app = make_app(tmp_path, config=config)
@@ -248,7 +253,7 @@ def test_imu_panel_shows_the_decimals_the_data_resolve(tmp_path):
             for ch in ("ax", "ay", "az"):
                 line = next(x for x in imu.splitlines() if x.startswith(ch))
                 assert re.fullmatch(rf"{ch} +-?\d+\.\d{{5}} g", line), line
-            assert "1 s means" in imu
+            assert "IMU: means over 1 s" in imu
     run(body)
 
 
@@ -257,9 +262,9 @@ def test_imu_scales_are_the_sim_truth_or_raw(tmp_path):
     sim = ImuScales.from_config(config, sim=True)
     assert sim.gyro_cps_per_dps == pytest.approx((36000.0,) * 3, rel=1e-2)
     assert sim.acc_cps_per_g == pytest.approx((40000.0,) * 3, rel=1e-2)
-    assert "sim truth" in sim.source
+    assert sim.source == "deg/s deg/h g (the simulator's scale)"      # it said "sim truth" (issue 33)
     raw = ImuScales.from_config(config, sim=False)
-    assert raw.gyro_cps_per_dps is None and "raw counts/s" in raw.source
+    assert raw.gyro_cps_per_dps is None and raw.source == "counts/s (no scale factors known)"
 
 
 # -- pilot tests against the simulator -----------------------------------------------------------
@@ -442,8 +447,13 @@ def test_quit_while_running_asks_then_stops_the_table(tmp_path):
 
 # -- snapshots (deterministic: states fed into the buffer) -------------------------------------------
 
+#: the snapshots' session clocks stand still: the IMU values never turn stale while one is taken, and a line
+#: outside a run would carry this wall-clock time
+SNAPSHOT_CLOCKS = dict(clock=lambda: 0.0, wall_clock=lambda: 1_795_773_600.0)
+
+
 def _snapshot_app(tmp_path):
-    return make_app(tmp_path, auto_connect=False, refresh_hz=10.0)
+    return make_app(tmp_path, auto_connect=False, refresh_hz=10.0, **SNAPSHOT_CLOCKS)
 
 
 def test_snapshot_idle(tmp_path, snap_compare):
@@ -493,7 +503,7 @@ def test_snapshot_running_light_theme(tmp_path, snap_compare):
         pilot.app.buffer.note("fault", "a fault line")
         pilot.app.refresh_panels()
         await pilot.pause(0.2)
-    app = make_app(tmp_path, auto_connect=False, refresh_hz=10.0, theme="textual-light")
+    app = make_app(tmp_path, auto_connect=False, refresh_hz=10.0, theme="textual-light", **SNAPSHOT_CLOCKS)
     assert snap_compare(app, terminal_size=SIZE, run_before=before)
 
 

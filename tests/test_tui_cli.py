@@ -62,6 +62,9 @@ def _ended(end: RunEnd | None, stopped_by: str | None = None):
      "bench tui: last run finished: quality check failed: 2 residual outliers. Log: /o/r.mcap"),
     (RunEnd("aborted", "the operator quit", Path("/o/r.mcap")), ExitCode.FAULT, "err",
      "bench tui: last run aborted (the operator quit); the table was stopped. Log: /o/r.mcap"),
+    (RunEnd("aborted", "the operator quit", Path("/o/r.mcap"), "bench run --sim --resume /o/r.mcap --out /o"),
+     ExitCode.FAULT, "err", "bench tui: last run aborted (the operator quit); the table was stopped. Log: /o/r.mcap "
+                            "(continue with: bench run --sim --resume /o/r.mcap --out /o)"),
     (RunEnd("failed", "TurntableLimitError: middle: limit", Path("/o/r.mcap")), ExitCode.FAULT, "err",
      "bench tui: last run failed (TurntableLimitError: middle: limit); the table was stopped. Log: /o/r.mcap"),
 ])
@@ -101,8 +104,10 @@ def test_abort_and_quit_exits_3_and_names_the_log(tmp_path, capsys):
     assert exit_status(app) == ExitCode.FAULT
     log = app.session.last_end.log_path
     assert log is not None and log.parent == tmp_path and log.suffix == ".mcap" and log.is_file()
+    # (make_app's configuration is text, no file: the command says FILE; tests/test_tui_trust.py runs a real one)
     assert capsys.readouterr().err.strip() == (f"bench tui: last run aborted (the operator quit); the table was "
-                                               f"stopped. Log: {log}")
+                                               f"stopped. Log: {log} (continue with: bench run --config FILE "
+                                               f"--resume {log} --out {tmp_path})")
 
 
 def test_a_finished_run_ends_by_its_verdict_as_bench_run_says_it():

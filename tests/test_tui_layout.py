@@ -17,7 +17,9 @@ SIZES = [pytest.param((100, 30), id="100x30"), pytest.param((140, 40), id="140x4
 
 
 def _app(tmp_path):
-    return make_app(tmp_path, auto_connect=False, refresh_hz=10.0)
+    # (the session's clocks stand still: the IMU values never turn stale while a snapshot is taken)
+    return make_app(tmp_path, auto_connect=False, refresh_hz=10.0, clock=lambda: 0.0,
+                    wall_clock=lambda: 1_795_773_600.0)
 
 
 def _fits(table) -> bool:
@@ -146,7 +148,7 @@ def test_budget_tab_shows_sigma_u_largest_parts_flags_and_the_highlighted_budget
             assert lines[1] == ("UNEXPLAINED SCATTER: gyros x residuals (chi2/dof 5, driven by R03 (+5.2), "
                                 "R07 (-3.1)): widened x2.5")
             kg_x = app.buffer.snapshot().result.coefficients["Kg_x"]      # noise n and bias instability n/2
-            assert f"Kg_x {kg_x.sigma:.3g} {2 * kg_x.sigma:.3g} noise 80% bias instab. 20%" in lines
+            assert f"Kg_x {kg_x.sigma:.3g} {2 * kg_x.sigma:.3g} noise 80% bias inst. 20%" in lines
             assert panel.detail == (f"Kg_x: sigma {kg_x.sigma:.3g} = noise (A) {kg_x.budget['noise']:.2g} (80%) + "
                                     f"bias instab. (B) {kg_x.budget['bias instability']:.2g} (20%) "
                                     f"(root-sum-square); U {2 * kg_x.sigma:.3g} (k = 2)")

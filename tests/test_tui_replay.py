@@ -93,6 +93,27 @@ def test_replay_pause_and_resume_the_playback(recorded_log):
     run(body)
 
 
+def test_replay_table_panel_is_as_tall_as_the_imu_panel(recorded_log):
+    """The replay's table panel has no jog line: it was one line shorter than the IMU panel (issue 33, item 10);
+    its link line named the log the header already names, and wrapped at 100 columns once played."""
+    async def body():
+        from bench.tui import create_app
+        from bench.tui.app import TOP_PANEL_HEIGHT
+
+        app = create_app(replay=recorded_log[0], speed=1.0, refresh_hz=20.0)
+        async with app.run_test(size=SIZE) as pilot:
+            await wait_until(pilot, lambda: snap(app).table_state is not None and snap(app).imu.samples > 0,
+                             "the playback under way")
+            await pilot.pause(0.2)
+            heights = [app.query_one(name).outer_size.height for name in ("#table-panel", "#imu-panel")]
+            assert heights == [TOP_PANEL_HEIGHT] * 2, heights
+            table = app.query_one("#table-panel").plain.splitlines()
+            assert table[-2:] == ["link: replay (1x)", "replay, no hardware: p / r pause and resume it"], table
+            await press(pilot, "q")
+            await wait_until(pilot, lambda: not app.is_running, "the app to exit")
+    run(body)
+
+
 def test_replay_result_is_solved_when_not_attached(recorded_log, tmp_path):
     import dataclasses
     import json
@@ -125,7 +146,7 @@ def test_replay_footer_shows_only_the_playback_keys(recorded_log):
         async with app.run_test(size=SIZE) as pilot:
             await wait_until(pilot, lambda: snap(app).event_count >= 1, "the playback under way")
             shown = {b.action for _, b, enabled, _ in app.active_bindings.values() if b.show}
-            assert shown == {"pause", "resume", "help", "quit_app"}, shown
+            assert shown == {"pause", "resume", "show_tab('plan-tab')", "help", "quit_app"}, shown   # (1-3 tabs)
             footer = app.query_one(Footer)
 
             def footer_keys() -> str:

@@ -5,9 +5,10 @@ SIGINT, SIGTERM and SIGHUP end the app as quitting does, without asking: any run
 aborted, the table stopped (servos off) and the log closed; exit 3 (130 for a replay).
 Quitting says where the last run's log is (one line) and exits with that run's code
 (`exit_status`): 0 done (or no run), 4 quality check failed or not solvable, 3 aborted or
-failed with the table stopped; a session that moved the table by hand also names its logs
-of manual moves (`bench.tui.manual_log`). It needs a terminal: without one (stdin or stdout not a
-TTY) it refuses to start (exit 2) instead of drawing into nothing.
+failed with the table stopped (the line adds the `bench run --resume LOG` that continues it);
+a session that moved the table by hand also names its logs of manual moves (`bench.tui.manual_log`).
+It needs a terminal: without one (stdin or stdout not a TTY) it refuses to start (exit 2) instead of
+drawing into nothing.
 """
 
 from __future__ import annotations
@@ -91,6 +92,8 @@ def exit_status(app: BenchApp) -> ExitCode:
              + ", ".join(f"{path}" + (f" (cut short: {cut[path]})" if path in cut else "") for path in manual.paths))
     end = getattr(session, "last_end", None)
     log = f". Log: {end.log_path}" if end is not None and end.log_path is not None else ""
+    if end is not None and end.resume:      # an aborted or failed run: how to continue it, as `bench run` says
+        log += f" (continue with: {end.resume})"
     if app.stopped_by is not None:
         return fail(PROG, f"interrupted ({app.stopped_by}); any run aborted, the table stopped{log}", ExitCode.FAULT)
     if session.running:                     # the run did not end within the session's bounded wait

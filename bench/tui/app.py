@@ -13,6 +13,7 @@ import asyncio
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 from types import FrameType
 from typing import Any, Callable
@@ -28,7 +29,7 @@ from bench.model.result import CalibrationResult
 from bench.plan.steps import CHAMBER_KINDS
 from bench.run.runner import compile_from_config
 from bench.tui.budget_panel import BudgetPanel
-from bench.tui.buffer import ImuScales, UiBuffer
+from bench.tui.buffer import CHANNELS, STALE_AFTER_S, ImuScales, UiBuffer
 from bench.tui.panels import ChamberPanel, EventLog, ImuPanel, PlanPanel, ResultsPanel, TablePanel
 from bench.tui.replay_session import ReplaySession, open_log
 from bench.tui.screens import ConfirmScreen, GotoScreen, HelpScreen, RateScreen
@@ -36,12 +37,19 @@ from bench.tui.session import OPERATOR_ERRORS, BenchSession, SessionError
 from drivers.turntable import FRAMES
 
 ESTOP_KEY = "f12"
+#: the tabs under the table and IMU panels: (key, tab id, title); the footer shows their keys as one group
+TABS = (("1", "plan-tab", "Plan"), ("2", "results-tab", "Results"), ("3", "budget-tab", "Budget"))
+TAB_KEYS = f"{TABS[0][0]}-{TABS[-1][0]}"
 #: The interpreter's thread switch interval while the app runs. The run's threads (sequencer, CAN
 #: receiver, recorder; on the simulator a CPU-bound simulated world) hold the GIL for up to the
 #: default 5 ms at a time, and one screen refresh needs the GIL many times: at 1 ms the panels keep
 #: their refresh rate under a 2 kHz IMU (tests/benchmarks/tui_refresh.py).
 SWITCH_INTERVAL_S = 0.001
 DARK_THEME, LIGHT_THEME = "textual-dark", "textual-light"
+#: The table and IMU panels' least height: the IMU panel's (its head, a row per channel, its legend, the border).
+#: The taller of the two sets the row's height; the shorter one is drawn as tall (the replay's table panel has
+#: no jog line, and was a line short of the IMU panel).
+TOP_PANEL_HEIGHT = 1 + len(CHANNELS) + 1 + 2
 #: Signals that end the app at once, without the quit question, as quitting does: the session closes (any run
 #: aborted, the table stopped, servos off, the log closed). Ctrl-C in the TUI is a key, not SIGINT.
 STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(
@@ -62,14 +70,17 @@ HELP_KEYS: tuple[tuple[str, str], ...] = (
     ("[ ]", "jog the chosen frame by -/+ the jog step (servo must be on)"),
     ("e x", "enable (servos on) / stop and disable (servos off), when no run is active"),
     ("c d", "connect / disconnect the table and IMU"),
+    (TAB_KEYS, "show the " + ", ".join(f"{title} ({key})" for key, _, title in TABS[:-1])
+     + f" or {TABS[-1][2]} ({TABS[-1][0]}) tab"),
     ("t", "light / dark theme"),
     ("?", "this help (Esc, q or ? closes it)"),
     ("q", "quit (asks first while a run is active: the run is aborted, the table stopped)"),
 )
 HELP_NOTE = ("Manual commands are refused while a plan runs; the first manual move (g, v, [ ]) starts a log of "
-             "manual moves (<id>-manual.mcap), a plan writes its own. Times are on the run's clock: simulated "
-             "seconds with the simulator. Replay mode (bench tui --replay LOG) has no hardware: p / r pause and "
-             "resume the playback, q quits, the rest is refused.")
+             "manual moves (<id>-manual.mcap), a plan writes its own. Event times: +h:mm:ss since the run started "
+             "(simulated seconds with the simulator), hh:mm:ss local time outside a run. IMU values: 1 s means, "
+             f"dimmed when stale (no sample for {STALE_AFTER_S:g} s). Replay mode (bench tui --replay LOG): no "
+             "hardware; p / r pause and resume the playback, q quits.")
 
 
 class BenchApp(App):
@@ -79,7 +90,7 @@ class BenchApp(App):
     ENABLE_COMMAND_PALETTE = False      # its footer entry would push "quit" off a 100-column footer
     CSS = """
     #top { height: auto; }
-    #top > * { border: round $primary; }
+    #top > * { border: round $primary; min-height: %d; }
     #table-panel { width: 58; }
     #imu-panel { width: 1fr; }
     #bottom { height: 1fr; }
@@ -88,7 +99,7 @@ class BenchApp(App):
     #left-tabs { border: round $primary; }
     #events { border: round $primary; }
     #chamber-panel { border-bottom: hkey $primary; }
-    """
+    """ % TOP_PANEL_HEIGHT
     BINDINGS = [
         Binding(ESTOP_KEY, "estop", "E-STOP", priority=True),
         Binding("s", "start", "start"),
@@ -106,6 +117,9 @@ class BenchApp(App):
         Binding("x", "disable", "disable", show=False),
         Binding("c", "connect", "connect", show=False),
         Binding("d", "disconnect", "disconnect", show=False),
+        # one footer entry for the three ("1-3 tabs": the footer fills a 100-column terminal), the help lists them
+        *(Binding(key, f"show_tab('{tab}')", "tabs" if k == 0 else title, show=k == 0, key_display=TAB_KEYS)
+          for k, (key, tab, title) in enumerate(TABS)),
         Binding("question_mark,f1", "help", "help"),
         Binding("q", "quit_app", "quit"),
     ]
@@ -156,7 +170,6 @@ class BenchApp(App):
         sys.setswitchinterval(min(self._switch_interval, SWITCH_INTERVAL_S))
         self.query_one("#events").border_title = "Events"
         self.query_one("#table-panel").border_title = "Table"
-        self.query_one("#imu-panel").border_title = "IMU"
         self.set_interval(1.0 / self.refresh_hz, self.refresh_panels)
         self.theme_changed_signal.subscribe(self, self._theme_changed)
         if isinstance(self.session, ReplaySession):     # its `replaying` is True
@@ -184,7 +197,7 @@ class BenchApp(App):
 
     def _draw(self) -> None:
         snap = self.buffer.snapshot()
-        jog = "" if self.session.replaying else \
+        jog = "replay, no hardware: p / r pause and resume it" if self.session.replaying else \
             f"jog: {FRAMES[self.jog_frame]} by {self.jog_step_deg:g} deg ([ ]; j: axis)"
         self.query_one(TablePanel).show(snap, self.session.link, self.session.link_detail, jog)
         self.query_one(ImuPanel).show(snap)
@@ -194,7 +207,7 @@ class BenchApp(App):
         log = self.query_one(EventLog)
         if snap.event_count > log.seen:
             # the events and their count in one call: an event added since the snapshot is shown once
-            log.add(*self.buffer.events_since(log.seen))
+            log.add(*self.buffer.lines_since(log.seen))
         if snap.result is not self._result_shown or (snap.result is None and snap.outcome_text
                                                      and self._result_shown is None):
             self._result_shown = snap.result
@@ -352,6 +365,9 @@ class BenchApp(App):
         except OPERATOR_ERRORS as exc:   # servo off, limits: shown to the operator
             self._refuse(exc)
 
+    def action_show_tab(self, tab: str) -> None:
+        self.query_one(TabbedContent).active = tab
+
     def action_toggle_theme(self) -> None:
         self.theme = LIGHT_THEME if self.current_theme.dark else DARK_THEME
 
@@ -429,24 +445,27 @@ class ReplayApp(BenchApp):
 def create_app(*, config=None, sim: bool = False, replay: str | Path | None = None, speed: float | None = 1.0,
                out_dir: str | Path | None = None, operator: str = "", auto_connect: bool = True,
                refresh_hz: float = 20.0, poll_s: float = 0.1, jog_step_deg: float = 1.0,
-               theme: str = DARK_THEME) -> BenchApp:
+               theme: str = DARK_THEME, clock: Callable[[], float] = time.monotonic,
+               wall_clock: Callable[[], float] = time.time) -> BenchApp:
     """The TUI for `config` (the built-in simulated bench when None and `sim`), or for the replay of
     the run log `replay` at `speed` times real time (None: as fast as possible; no hardware).
 
     `out_dir`: where logs and results go (default the config's output folder);
     `auto_connect`: open the devices when the app starts; `refresh_hz`: panel redraws
-    per second; `poll_s`: the idle monitor's period; `jog_step_deg`: what [ and ] move.
-    A log that cannot be read raises `bench.log.reader.LogError`.
+    per second; `poll_s`: the idle monitor's period; `jog_step_deg`: what [ and ] move; `clock` (monotonic)
+    and `wall_clock` (`time.time`): the session's clocks, for how old the IMU values are and the event log's
+    times outside a run (tests inject them). A log that cannot be read raises `bench.log.reader.LogError`.
     """
     if replay is not None:
-        return _create_replay_app(replay, speed, refresh_hz=refresh_hz, jog_step_deg=jog_step_deg, theme=theme)
+        return _create_replay_app(replay, speed, UiBuffer((), clock=clock, wall_clock=wall_clock),
+                                  refresh_hz=refresh_hz, jog_step_deg=jog_step_deg, theme=theme)
     if config is None:
         if not sim:
             raise ValueError("say config=..., sim=True or replay=LOG")
         config = default_sim_config()
     sim = sim or config.table.is_sim
     plan = compile_from_config(config)
-    buffer = UiBuffer(plan.steps)
+    buffer = UiBuffer(plan.steps, clock=clock, wall_clock=wall_clock)
     session = BenchSession(config, plan, sim=sim, out_dir=out_dir if out_dir is not None else config.output.folder,
                            buffer=buffer, operator=operator, poll_s=poll_s)
     names = " + ".join(s.name for s in (config.plan.positions, config.plan.rotations) if s is not None)
@@ -456,11 +475,10 @@ def create_app(*, config=None, sim: bool = False, replay: str | Path | None = No
                     jog_step_deg=jog_step_deg, theme=theme)
 
 
-def _create_replay_app(path, speed, **kwargs) -> BenchApp:
+def _create_replay_app(path, speed, buffer: UiBuffer, **kwargs) -> BenchApp:
     opened = open_log(path)
-    buffer = UiBuffer(opened.steps)
+    buffer.begin_run(opened.steps)
     session = ReplaySession(opened, buffer=buffer, speed=speed)
-    pace = f"{speed:g}x" if speed is not None else "as fast as possible"
     return ReplayApp(session, buffer, steps=opened.steps, limits=opened.limits,
                     scales=ImuScales.from_config(opened.config, opened.simulated), simulated=opened.simulated,
-                    auto_connect=False, subtitle=f"replay of {opened.path.name} ({pace}, no hardware)", **kwargs)
+                    auto_connect=False, subtitle=f"replay of {opened.path.name}", **kwargs)   # (the pace: link line)

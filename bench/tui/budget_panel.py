@@ -20,6 +20,9 @@ from bench.report.facts import BUDGET_COLUMNS, budget_flags
 
 #: component -> short name (the reports' column titles without their type); short name -> title with its type
 BUDGET_SHORT = {key: title.split(" (")[0] for key, title in BUDGET_COLUMNS}
+#: the table's names where the reports' are too long for it: at 100 columns the table has 60, and two parts of
+#: 16 characters ("bias instab. 93%") cut the last one ("bias instab. 1"); the line under it has the full names
+TABLE_SHORT = {"bias instab.": "bias inst.", "unexplained": "scatter"}
 _TITLES = {title.split(" (")[0]: title for _, title in BUDGET_COLUMNS}
 NO_BUDGET = "no uncertainty budget: the result has none (written before result version 2) or no run was solved yet"
 
@@ -84,7 +87,7 @@ class BudgetPanel(Vertical):
         table.add_columns("name", "sigma", "U", "largest part", "next")
         lines = list(flags)
         for name, c in coefficients.items():
-            parts = [f"{short} {share:.0f}%" for short, _, share in budget_shares(c.budget)[:2]]
+            parts = [f"{TABLE_SHORT.get(short, short)} {share:.0f}%" for short, _, share in budget_shares(c.budget)[:2]]
             row = [name, _num(c.sigma), _num(c.expanded), *parts, *["-"] * (2 - len(parts))]
             table.add_row(*row)
             lines.append(" ".join(row))

@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from collections import deque
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -30,6 +31,10 @@ CHANNELS = ("gx", "gy", "gz", "ax", "ay", "az")
 #: T seconds resolves one increment step per T, so the 0.1 s blocks of the idle monitor resolved only
 #: about 1 deg/h of a 36000 counts/s per deg/s gyro counting whole pulses; over 1 s, 0.1 deg/h.
 MEAN_WINDOW_S = 1.0
+#: The IMU panel marks its values stale once no sample came for this long on the session's monotonic clock
+#: (real seconds): a paused run, a replay paused or ended, a silent IMU. Samples come every 0.1 s or faster
+#: (the idle monitor's poll; a run drains the receiver continuously), so 3 s without one is no jitter.
+STALE_AFTER_S = 3.0
 
 STEP_PENDING, STEP_RUNNING, STEP_DONE, STEP_SKIPPED, STEP_FAILED = "pending", "running", "done", "skipped", "failed"
 #: the step under way when the operator aborted the run (an abort request, not a fault)
@@ -53,6 +58,24 @@ class ImuView:
     lost_samples: int = 0
     bad_frames: int = 0
     mean_s: float = 0.0                    # the data the means cover (seconds of samples)
+    age_s: float | None = None             # since the last sample came, session clock (s); None: no sample yet
+
+    @property
+    def stale(self) -> bool:
+        """No sample for `STALE_AFTER_S` or longer: the values shown are old ones."""
+        return self.age_s is not None and self.age_s >= STALE_AFTER_S
+
+
+@dataclass(frozen=True)
+class LogLine:
+    """An event as the event log shows it: `run_elapsed_s` is the time since the start of the run it belongs
+    to, on the run's clock, never less than the line before it in that run (None: not part of a run: the
+    session's own lines before, between and after runs); `wall_s` is the session's wall clock
+    (`time.time()`) when the event reached the buffer."""
+
+    event: Event
+    run_elapsed_s: float | None
+    wall_s: float
 
 
 @dataclass(frozen=True)
@@ -94,14 +117,19 @@ class UiBuffer(RunListener):
     `frame_faults`, e.g. an `ImuReceiver`'s `stats`) supplies the link counters.
     """
 
-    def __init__(self, steps: Sequence = (), *, history: int = 120, max_events: int = 2000):
+    def __init__(self, steps: Sequence = (), *, history: int = 120, max_events: int = 2000,
+                 clock: Callable[[], float] = time.monotonic, wall_clock: Callable[[], float] = time.time):
         if history < 2:
             raise ValueError(f"history must be at least 2 samples, got {history}")
         self._lock = threading.Lock()
         self.history = int(history)
         self.stats_source: ImuStats | None = None
-        self._events: deque[tuple[int, Event]] = deque(maxlen=max_events)
+        self.clock, self.wall_clock = clock, wall_clock     # injected by tests: no test waits on real time
+        self._events: deque[tuple[int, LogLine]] = deque(maxlen=max_events)
         self._event_count = 0
+        self._run_origin_s: float | None = None      # the current run's start on its clock (None: no run)
+        self._run_elapsed_s = 0.0                     # the last run line's elapsed time
+        self._imu_at: float | None = None             # session clock when the last sample came
         self._ring = np.zeros((6, self.history))
         self._ring_fill = 0
         self._blocks: deque[tuple[int, np.ndarray]] = deque()   # (samples, per-channel sums) of recent blocks
@@ -141,7 +169,8 @@ class UiBuffer(RunListener):
         return sum(s.estimated_s for s in self.steps)
 
     def note(self, kind: str, message: str, **data) -> None:
-        """Add a line of the UI's own (operator actions, link errors) to the event log."""
+        """Add a line of the UI's own (operator actions, link errors) to the event log, at the latest time seen
+        on the run's clock."""
         with self._lock:
             t = self._run_time_s if self._run_time_s is not None else 0.0
             self._add_event(Event(t, kind, message, data=data))
@@ -153,12 +182,25 @@ class UiBuffer(RunListener):
 
     # -- RunListener (the sequencer's thread) ------------------------------------------------
     def _add_event(self, event: Event) -> None:
+        """Keep `event` as a `LogLine` (lock held): a run's lines from its start transition (a transition to
+        running from idle; a resume is not a start) to its end (done or failed) count from that start, the
+        others are the session's."""
+        if event.kind == "transition" and event.state == RunState.RUNNING.value \
+                and (event.data or {}).get("from") == RunState.IDLE.value:
+            self._run_origin_s, self._run_elapsed_s = event.time_s, 0.0
+        elapsed = None
+        if self._run_origin_s is not None:
+            # a line of the run: monotonic (a note takes the latest time seen, which an event may trail)
+            elapsed = self._run_elapsed_s = max(self._run_elapsed_s, event.time_s - self._run_origin_s)
+            if event.kind == "transition" and event.state in (RunState.DONE.value, RunState.FAILED.value):
+                self._run_origin_s = None            # the run's last line
         self._event_count += 1
-        self._events.append((self._event_count, event))
+        self._events.append((self._event_count, LogLine(event, elapsed, self.wall_clock())))
 
     def on_event(self, event: Event) -> None:
         with self._lock:
             self._add_event(event)
+            latest_s = event.time_s if self._run_time_s is None else max(self._run_time_s, event.time_s)
             self._run_time_s = event.time_s
             index = event.step_index
             k = index if index is not None and 0 <= index < len(self._step_states) else None  # None: no valid step
@@ -170,6 +212,11 @@ class UiBuffer(RunListener):
                     self._aborted = True        # the sequencer emits a fault before an abort it was not asked for
                 if self._run_state is RunState.FAILED and self._current is not None:
                     self._step_states[self._current] = STEP_ABORTED if self._aborted else STEP_FAILED
+                    # the part of the step done before the end stays done: the progress never goes back
+                    # (it counted min(elapsed, estimate) while the step ran, and the time only goes on)
+                    if self._current_started is not None:
+                        step_s = self.steps[self._current].estimated_s
+                        self._done_estimated += min(max(0.0, latest_s - self._current_started), step_s)
                     self._current = None
             elif event.kind == "step_started" and k is not None:
                 self._step_states[k] = STEP_RUNNING
@@ -217,6 +264,7 @@ class UiBuffer(RunListener):
         rates = np.concatenate([block.gyro_rate, block.acc_rate], axis=1)  # (n, 6) counts/s
         tail = rates[-self.history:].T
         with self._lock:
+            self._imu_at = self.clock()
             m = tail.shape[1]
             self._ring = np.roll(self._ring, -m, axis=1)
             self._ring[:, -m:] = tail
@@ -237,14 +285,14 @@ class UiBuffer(RunListener):
     # -- the UI thread -------------------------------------------------------------------------
     def events_after(self, seen: int) -> list[Event]:
         """Events added after the `seen`-th one (those still kept), oldest first."""
-        return self.events_since(seen)[0]
+        return [line.event for line in self.lines_since(seen)[0]]
 
-    def events_since(self, seen: int) -> tuple[list[Event], int]:
-        """(events added after the `seen`-th one, oldest first; the count of events ever added), taken
-        together: the count is the `seen` of the next call, so no event is handed out twice or skipped
-        (an event added between a `snapshot()` and this call is counted with the events it returns)."""
+    def lines_since(self, seen: int) -> tuple[list[LogLine], int]:
+        """(the event log's lines added after the `seen`-th one, oldest first; the count of events ever
+        added), taken together: the count is the `seen` of the next call, so no event is handed out twice
+        or skipped (an event added between a `snapshot()` and this call is counted with those it returns)."""
         with self._lock:
-            return [e for k, e in self._events if k > seen], self._event_count
+            return [line for k, line in self._events if k > seen], self._event_count
 
     def snapshot(self) -> UiSnapshot:
         stats = self.stats_source
@@ -253,8 +301,9 @@ class UiBuffer(RunListener):
         with self._lock:
             fill = self._ring_fill
             history = tuple(tuple(map(float, row[self.history - fill:])) for row in self._ring)
+            age = None if self._imu_at is None else max(0.0, self.clock() - self._imu_at)
             imu = ImuView(self._imu_samples, self._last_counter, self._rate_hz, self._gyro, self._acc,
-                          self._temperature, history, lost, bad, self._mean_s)
+                          self._temperature, history, lost, bad, self._mean_s, age)
             return UiSnapshot(self._run_state, self._run_time_s, self._table_state, self._table_states, imu,
                               tuple(self._step_states), self._current, self._current_started,
                               self._done_estimated, self._event_count, self._result, self._outcome_text,
@@ -286,6 +335,12 @@ def progress(snapshot: UiSnapshot, steps: Sequence) -> Progress:
     return Progress(fraction, max(0.0, total - done), left)
 
 
+#: the IMU panel's legend, under its values (its title says they are means over `MEAN_WINDOW_S`): the units,
+#: and where the scale factors come from. Only the simulator knows its IMU's scale factors (its true ones).
+SIM_SOURCE = "deg/s deg/h g (the simulator's scale)"
+RAW_SOURCE = "counts/s (no scale factors known)"
+
+
 @dataclass(frozen=True)
 class ImuScales:
     """Nominal scale factors to show the IMU in physical units, where they came from, and the
@@ -300,7 +355,7 @@ class ImuScales:
 
     gyro_cps_per_dps: tuple[float, float, float] | None = None
     acc_cps_per_g: tuple[float, float, float] | None = None
-    source: str = "raw counts/s (no nominal scale known)"
+    source: str = RAW_SOURCE
     step_counts: tuple[float, float] = (1.0, 1.0)
 
     @classmethod
@@ -313,12 +368,11 @@ class ImuScales:
         step = (float(max(scale[0:3])), float(max(scale[3:6])))
         if sim and config.sim.noise.quantise:
             step = (max(step[0], 1.0), max(step[1], 1.0))    # the simulated IMU counts whole pulses
-        means = f"{MEAN_WINDOW_S:g} s means"
         if not sim:
-            return cls(source=f"raw counts/s, {means}, no scale", step_counts=step)
+            return cls(source=RAW_SOURCE, step_counts=step)
         imu = config.sim.imu
         return cls(triple(float(k) * DEG for k in imu.gyro_scale), triple(float(k) * G0 for k in imu.acc_scale),
-                   f"deg/s deg/h g: sim truth, {means}", step)
+                   SIM_SOURCE, step)
 
     def decimals(self, gyro: bool, per_count: float, most: int) -> int:
         """Decimals that show what a `MEAN_WINDOW_S` mean resolves in a unit of `per_count` units per

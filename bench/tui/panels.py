@@ -7,35 +7,42 @@ operator sees without parsing the screen.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from typing import Sequence
 
+import numpy as np
 from rich.console import JustifyMethod
 from rich.table import Table as RichTable
 from rich.text import Text
 from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
-from textual.widgets import DataTable, Label, ProgressBar, RichLog, Sparkline, Static
+from textual.widget import Widget
+from textual.widgets import DataTable, Label, ProgressBar, RichLog, Static
 
 from bench.acceptance.verdict import stored_headline
 from bench.model.families import family_of
 from bench.model.kinematics import FRAMES
 from bench.model.units import format_hms
-from bench.plan.events import Event, RunState
+from bench.plan.events import RunState
 from bench.plan.steps import thermal_block
 from bench.report.facts import turn_angle_missing
 from bench.tui.buffer import (
     CHANNELS,
+    MEAN_WINDOW_S,
     STEP_ABORTED,
     STEP_DONE,
     STEP_FAILED,
     STEP_RUNNING,
     ImuScales,
+    LogLine,
     UiSnapshot,
     progress,
 )
 
 DEG_PER_HOUR_PER_DPS = 3600.0
+#: the IMU panel's title: what its values are
+IMU_TITLE = f"IMU: means over {MEAN_WINDOW_S:g} s"
 
 
 @dataclass(frozen=True)
@@ -132,29 +139,96 @@ class _Stack:
         yield from self.parts
 
 
+#: a sparkline's eight levels, lowest first
+TRACE_LEVELS = "▁▂▃▄▅▆▇█"
+#: a trace spans at least this many standard errors of a cell's mean: a channel whose cells differ by no more
+#: than their noise draws as a flat line about mid-height, not as a full-height bar
+TRACE_NOISE_SPAN = 16.0
+
+
+def trace_levels(data: Sequence[float], cells: int, floor: float = 0.0) -> list[int]:
+    """The sparkline of `data` in `cells` cells (fewer samples than cells: each sample over several cells), as
+    levels 0..7 (`TRACE_LEVELS`).
+
+    Each cell is the mean of its share of the samples. Textual's Sparkline draws the maximum of each
+    share on a scale from the smallest to the largest sample: a near-constant channel's noise then fills
+    every cell to the top (a solid bar). Here the scale spans the cells' means, but at least `floor` (one
+    resolution step per sample, counts/s) and `TRACE_NOISE_SPAN` standard errors of a mean (the scatter
+    within the cells), centred on the means' midrange: a constant channel is a flat line, a move stands out.
+    """
+    x = np.asarray(data, dtype=float)
+    x = x[np.isfinite(x)]
+    if x.size == 0 or cells <= 0:
+        return []
+    if x.size < cells:
+        each = trace_levels(x, x.size, floor)
+        return [each[k * x.size // cells] for k in range(cells)]
+    cell = np.arange(x.size) * cells // x.size          # each sample's cell (vectorised: 6 traces a frame)
+    means = np.bincount(cell, x, cells) / np.bincount(cell, None, cells)
+    scatter = math.sqrt(float(np.mean((x - means[cell]) ** 2)))
+    lo, hi = float(means.min()), float(means.max())
+    span = max(hi - lo, TRACE_NOISE_SPAN * scatter / math.sqrt(x.size / cells), floor)
+    if not span > 0:
+        return [3] * cells                      # all equal: the middle
+    levels = np.floor((means - (lo + hi) / 2.0) / span * len(TRACE_LEVELS) + 3.5)
+    return [int(k) for k in np.clip(levels, 0, len(TRACE_LEVELS) - 1)]
+
+
+class Trace(Widget):
+    """One channel's recent samples as a one-line sparkline (`trace_levels`)."""
+
+    DEFAULT_CSS = "Trace { width: 1fr; height: 1; color: $primary; }"
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.data: tuple[float, ...] = ()
+        self.floor = 0.0
+
+    def show(self, data: tuple[float, ...], floor: float) -> None:
+        if data != self.data or floor != self.floor:
+            self.data, self.floor = data, floor
+            self.refresh()
+
+    @property
+    def plain(self) -> str:
+        """What it draws at its current width."""
+        return "".join(TRACE_LEVELS[k] for k in trace_levels(self.data, self.size.width, self.floor))
+
+    def render(self) -> Text:
+        return Text(self.plain)
+
+
+def format_age(seconds: float) -> str:
+    """How long ago, in whole seconds up to 999 s, then h:mm:ss."""
+    return f"{seconds:.0f} s" if seconds < 999.5 else format_hms(seconds)
+
+
 class ImuPanel(Vertical):
     """Latest gyro (deg/s and deg/h) and accelerometer (g) per axis with a sparkline each, rate,
-    temperature and link counters."""
+    temperature and link counters. Once no sample came for `STALE_AFTER_S` (a paused run, a paused or
+    ended replay, a silent IMU) the values are dimmed and the first line says how old they are."""
 
     DEFAULT_CSS = """
     ImuPanel { height: auto; padding: 0 1; }
     ImuPanel .imu-row { height: 1; }
     ImuPanel .imu-value { width: 26; }
-    ImuPanel Sparkline { width: 1fr; height: 1; }
+    ImuPanel.-stale .imu-value { text-style: dim; }
+    ImuPanel.-stale Trace { text-style: dim; color: $foreground-muted; }
     """
 
     def __init__(self, scales: ImuScales, **kwargs):
         super().__init__(**kwargs)
         self.scales = scales
         self.plain = ""
-        self.border_title = "IMU"
+        self._head_drawn: tuple[str, str] | None = None
+        self.border_title = IMU_TITLE
 
     def compose(self) -> ComposeResult:
         yield Label("", id="imu-head")
         for ch in CHANNELS:
             with Horizontal(classes="imu-row"):
                 yield Label("", id=f"imu-{ch}", classes="imu-value")
-                yield Sparkline([], id=f"spark-{ch}")
+                yield Trace(id=f"spark-{ch}")
         yield Label(Text(self.scales.source, style="dim"), id="imu-units")
 
     def _value(self, k: int, cps: float | None) -> str:
@@ -175,20 +249,26 @@ class ImuPanel(Vertical):
 
     def show(self, snapshot: UiSnapshot) -> None:
         imu = snapshot.imu
-        rate = f"{imu.rate_hz:g} Hz" if math.isfinite(imu.rate_hz) else "- Hz"
-        temp = f"{imu.temperature_c:.1f} C" if math.isfinite(imu.temperature_c) else "- C"
-        head = f"{rate}  {temp}  lost {imu.lost_samples}  bad frames {imu.bad_frames}"
-        set_text(self.query_one("#imu-head", Label), head)
+        if imu.stale and imu.age_s is not None:
+            head = Text(f"stale: no sample for {format_age(imu.age_s)}", style=f"bold {palette(self.app).warn}")
+        else:
+            rate = f"{imu.rate_hz:g} Hz" if math.isfinite(imu.rate_hz) else "- Hz"
+            temp = f"{imu.temperature_c:.1f} C" if math.isfinite(imu.temperature_c) else "- C"
+            head = Text(f"{rate}  {temp}  lost {imu.lost_samples}  bad frames {imu.bad_frames}")
+        self.set_class(imu.stale, "-stale")
+        drawn = (head.plain, str(head.style))
+        if drawn != self._head_drawn:          # (an update costs a layout pass: only on a change)
+            self._head_drawn = drawn
+            self.query_one("#imu-head", Label).update(head)
         values = (imu.gyro_cps or (None,) * 3) + (imu.acc_cps or (None,) * 3)
-        lines = [head]
+        lines = [IMU_TITLE, head.plain]
         for k, ch in enumerate(CHANNELS):
             text = self._value(k, values[k])
             lines.append(text)
             set_text(self.query_one(f"#imu-{ch}", Label), text)
-            data = list(imu.history[k])
-            spark = self.query_one(f"#spark-{ch}", Sparkline)
-            if data != list(spark.data or []):
-                spark.data = data
+            step = self.scales.step_counts[0 if k < 3 else 1]
+            floor = step * imu.rate_hz if math.isfinite(imu.rate_hz) else 0.0   # one step per sample, counts/s
+            self.query_one(f"#spark-{ch}", Trace).show(imu.history[k], floor)
         lines.append(self.scales.source)
         self.plain = "\n".join(lines)
 
@@ -364,10 +444,20 @@ def event_style(kind: str, pal: Palette) -> str:
     return {"fault": f"bold {pal.error}", "warning": pal.warn, "transition": "bold"}.get(kind, "")
 
 
+def log_time(line: LogLine) -> str:
+    """An event log line's time: `+h:mm:ss` since the start of its run (on the run's clock: simulated seconds
+    on the simulator), or the local wall-clock time `hh:mm:ss` of a line outside a run (the session's own,
+    before, between and after runs). A run's times never go back; no line is timed against a run that
+    started after it."""
+    if line.run_elapsed_s is not None:
+        return "+" + format_hms(line.run_elapsed_s)
+    return time.strftime("%H:%M:%S", time.localtime(line.wall_s))
+
+
 class EventLog(RichLog):
-    """The run's events and the UI's own notes, one line each, timed from the start of the current run
-    (before any run: from the session's first line). A hardware run's clock is the host's monotonic
-    clock, whose raw value (the machine's uptime) means nothing to an operator."""
+    """The run's events and the UI's own notes, one line each, timed by `log_time`: a run's lines from its
+    start (a hardware run's clock is the host's monotonic clock, whose raw value, the machine's uptime,
+    means nothing to an operator), the others by the wall clock."""
 
     DEFAULT_CSS = "EventLog { height: 1fr; }"
     MAX_LINES = 2000
@@ -377,20 +467,17 @@ class EventLog(RichLog):
         self.seen = 0
         self.plain_lines: list[str] = []
         self._kinds: list[str] = []
-        self.origin_s: float | None = None      # the time shown as 0:00:00
 
-    def add(self, events: Sequence[Event], total: int) -> None:
+    def add(self, lines: Sequence[LogLine], total: int) -> None:
         pal = palette(self.app)
-        for e in events:
-            if self.origin_s is None or (e.kind == "transition" and e.state == "running"
-                                         and (e.data or {}).get("from") == "idle"):
-                self.origin_s = e.time_s         # a run starts (not a resume): its times count from here
+        for line in lines:
+            e = line.event
             if e.kind == "step_started":
                 continue                 # the plan panel shows the running step
-            line = f"[{format_hms(e.time_s - self.origin_s)}] {e.kind}: {e.message}"
-            self.plain_lines.append(line)
+            text = f"[{log_time(line)}] {e.kind}: {e.message}"
+            self.plain_lines.append(text)
             self._kinds.append(e.kind)
-            self.write(Text(line, style=event_style(e.kind, pal)))
+            self.write(Text(text, style=event_style(e.kind, pal)))
         self.plain_lines = self.plain_lines[-self.MAX_LINES:]
         self._kinds = self._kinds[-self.MAX_LINES:]
         self.seen = total
@@ -410,7 +497,7 @@ class ResultsPanel(Vertical):
 
     DEFAULT_CSS = """
     ResultsPanel { height: 1fr; }
-    ResultsPanel #results-status { height: auto; }
+    ResultsPanel #results-status { height: auto; width: 1fr; }
     ResultsPanel #results-units { height: auto; width: 1fr; }
     ResultsPanel DataTable { height: 1fr; }
     """
@@ -426,8 +513,8 @@ class ResultsPanel(Vertical):
         yield Label("", id="results-units")
 
     def show_result(self, result, text: str = "") -> None:
-        if result is self.result:
-            return
+        if result is self.result and (result is not None or text == self.plain):
+            return              # (no result: the text is all there is; an aborted run's came after the start)
         self.result = result
         table = self.query_one("#results-table", DataTable)
         table.clear(columns=True)

@@ -163,7 +163,8 @@ class ReplaySession:
         if self._thread is not None:
             raise SessionError("the log is already being replayed")
         self.link = LINK_REPLAY
-        self.link_detail = f"{self.opened.path.name}, " + (f"{self.speed:g}x" if self.speed else "as fast as possible")
+        # (the header names the log: here its name would wrap the table panel's line at 100 columns)
+        self.link_detail = f"{self.speed:g}x" if self.speed else "as fast as possible"
         for note in self.opened.notes:
             self.buffer.note("warning", note)
         self._thread = threading.Thread(target=self._body, name="bench-tui-replay", daemon=True)
@@ -193,7 +194,7 @@ class ReplaySession:
             result, text = None, f"no result: {type(exc).__name__}: {exc}"
         self.buffer.note("info" if result is not None or is_manual_log(self.opened.log) else "warning", text)
         self.buffer.set_outcome(result, text)
-        self.link_detail = f"{self.opened.path.name}, played to the end"
+        self.link_detail = "played to the end"
 
     def pause(self) -> None:
         if not self.playing:

@@ -28,9 +28,12 @@ DIALOG_CSS = """
 
 
 class ConfirmScreen(ModalScreen[bool]):
-    """Yes/no with a title and a description; dismisses with True only on "yes"."""
+    """Yes/no with a title and a description; dismisses with True only on "yes". A line under the buttons says
+    the keys: y for yes, n or Esc for no, Enter for the highlighted button (no at first: a stray Enter is safe)."""
 
-    DEFAULT_CSS = DIALOG_CSS.format(name="ConfirmScreen")
+    DEFAULT_CSS = DIALOG_CSS.format(name="ConfirmScreen") + """
+    ConfirmScreen #confirm-keys { margin-top: 1; color: $text-muted; }
+    """
     BINDINGS = [Binding("escape", "cancel", "cancel"), Binding("y", "confirm", "yes"), Binding("n", "cancel", "no")]
     AUTO_FOCUS = "#no"      # a stray Enter must not start anything
 
@@ -45,6 +48,14 @@ class ConfirmScreen(ModalScreen[bool]):
             with Horizontal(classes="buttons"):
                 yield Button(self.no, id="no")
                 yield Button(self.yes, id="yes", variant="warning")
+            yield Label(self.keys_text(self.no), id="confirm-keys")
+
+    def keys_text(self, highlighted: str) -> str:
+        return f"y: {self.yes}   n or Esc: {self.no}   Enter: the highlighted button ({highlighted})"
+
+    def on_descendant_focus(self, event) -> None:
+        if isinstance(event.widget, Button):
+            self.query_one("#confirm-keys", Label).update(self.keys_text(str(event.widget.label)))
 
     def on_button_pressed(self, event: Button.Pressed) -> None:
         self.dismiss(event.button.id == "yes")

@@ -22,11 +22,13 @@ with the simulator a new simulated world, table back at zero).
 
 from __future__ import annotations
 
+import shlex
 import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
+from bench.config.load import SIM_CONFIG_TOML
 from bench.errors import BenchError
 from bench.plan.events import RunState
 from bench.run.runner import BenchRun, RunOutcome
@@ -78,11 +80,30 @@ class RunEnd:
 
     `kind`: done, quality (a quality check failed), unsolved (finished, cannot be solved), aborted
     (on request: a, F12, quit), failed (a fault; the table was stopped). `reason`: one line, '' when done.
-    `log_path`: the run's log."""
+    `log_path`: the run's log. `resume`: the command that continues an aborted or failed run from its log
+    (`resume_command`), '' otherwise."""
 
     kind: str
     reason: str
     log_path: Path | None
+    resume: str = ""
+
+
+def resume_command(config, sim: bool, log_path: Path) -> str:
+    """The `bench run --resume LOG` command line that continues the run recorded in `log_path`: this session's
+    configuration (its file, or --sim for the built-in simulated bench; `--config FILE` for one given as text,
+    which only the Python API does), and `--out` the log's folder when that is not the configuration's output
+    folder, so that the continued run writes beside the log it continues."""
+    args = ["bench", "run"]
+    builtin = config.path is None and config.source_text == SIM_CONFIG_TOML
+    if not builtin:
+        args += ["--config", str(config.path) if config.path is not None else "FILE"]
+    if sim and (builtin or not config.table.is_sim):
+        args.append("--sim")
+    args += ["--resume", str(log_path)]
+    if log_path.parent.resolve() != Path(config.output.folder).resolve():
+        args += ["--out", str(log_path.parent)]
+    return shlex.join(args)
 
 
 #: what an operator command can fail with, shown to the operator; anything else is a bug and ends the app,
@@ -477,7 +498,13 @@ class BenchSession:
         finally:
             if run.receiver is not None:
                 run.receiver.on_frames = None      # the finished sequencer's listeners are closed
-            self.last_end = RunEnd(kind, reason, run.log_path if run.recorder is not None else None)
+            log = run.log_path if run.recorder is not None else None
+            resume = resume_command(self.config, self.sim, log) if log is not None and kind in (END_ABORTED,
+                                                                                               END_FAILED) else ""
+            if resume:
+                text = f"{text}; continue with: {resume}" if text else f"continue with: {resume}"
+                self.buffer.note("info", f"continue this run with: {resume}")
+            self.last_end = RunEnd(kind, reason, log, resume)
             self.buffer.set_outcome(result, text)
             if self.run is run and run.table is not None:
                 self._start_monitor()
