@@ -398,7 +398,8 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolv
     calibration, chosen, dropped = _solve_what_can_be(chosen, setup.site, inputs)
     solution = LogSolution(calibration, chosen, list(recorded.imu_stats), list(recorded.damage))
     link = recorded.imu_link()
-    failures = quality_failures(solution, link)
+    failures = quality_failures(solution)
+    lost = recorded.extraction.lost_samples()       # of the whole record, as `bench run` counted them
     plan = recorded.logs[-1].metadata.get("plan", {})
     pos_name = _subset_name(positions, plan.get("positions", ""))
     rot_name = _subset_name(rotations, plan.get("rotations", ""))
@@ -411,12 +412,12 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolv
                 "solved_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "solved_by": "bench solve",
                 "imu": {"model": imu.get("model", ""), "serial": imu.get("serial", "")},
                 "site": recorded.site.to_dict(), "quality_failures": failures, "imu_link": link.as_dict(),
-                "left_out": sorted({*recorded.left_out, *dropped}), "damage": list(recorded.damage),
-                "notes": list(recorded.notes)}
+                "lost_samples": lost, "left_out": sorted({*recorded.left_out, *dropped}),
+                "damage": list(recorded.damage), "notes": list(recorded.notes)}
     result = calibration.to_result(run=run_info, sim_truth=recorded.truth)
     result.temperature = imu_temperature(recorded.logs, setup.layout, setup.rate_hz)
     limits = config.acceptance if config is not None else AcceptanceLimits()
-    verdict = judge(result, limits, lost_samples=link.lost_samples, quality_failures=judged_failures(failures, limits))
+    verdict = judge(result, limits, lost_samples=lost["total"], quality_failures=judged_failures(failures, limits))
     result.verdict = verdict.to_json()
     return Resolved(solution, result, failures, pos_name, rot_name, positions is not None or rotations is not None,
                     verdict)
