@@ -160,3 +160,16 @@ def test_a_limit_judges_a_dwells_lost_samples_in_place_of_the_quality_check(reco
     assert "P07 dwell: 6 of 150 samples lost in its window; mean over the 144 received (judged by its" in report
     assert json.dumps(result["run"]["lost_samples"]) == json.dumps(
         {"total": LOST, "in_windows": {"P07": LOST}, "outside_windows": 0})
+
+
+def test_a_window_reaching_past_the_decoded_samples_counts_only_the_gaps_between_them():
+    """A log cut inside a window lost the samples after the cut to the damage, not on the link: only the counter
+    gaps between the first and last sample decoded count as lost (the extraction still says the dwell is short)."""
+    from bench.solve.extract import missing_in_window
+
+    counter = np.array([10, 11, 12, 15, 16, 20], dtype=np.int64)       # 13, 14, 17, 18, 19 missing
+    window = slice(*np.searchsorted(counter, [12, 16 + 1]))
+    assert missing_in_window(counter, window, 12, 16) == 2
+    assert missing_in_window(counter, slice(*np.searchsorted(counter, [15, 30 + 1])), 15, 30) == 3   # 17..19
+    assert missing_in_window(counter, slice(0, 0), 30, 40) == 0                                         # all past
+    assert missing_in_window(np.zeros(0, np.int64), slice(0, 0), 0, 5) == 0

@@ -516,6 +516,7 @@ def test_can_frame_loss_during_a_move_is_counted_logged_and_reported_not_failed(
     assert result["run"]["quality_failures"] == []
     assert result["run"]["lost_samples"] == {"total": lost, "in_windows": {}, "outside_windows": lost}
     assert f"Note: {note}" in only_file(tmp_path / "out", "*.report.md").read_text(encoding="utf-8")
+    assert f"<p>Note: {note}" in only_file(tmp_path / "out", "*.report.html").read_text(encoding="utf-8")
     log_path = only_file(tmp_path / "out", "*.mcap")
     log = read_log(log_path)
     warnings = [e for e in log.events if e.kind == "warning" and "imu_stats" in e.data]

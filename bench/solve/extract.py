@@ -9,15 +9,15 @@ serves the live run (which solves from the log it just wrote) and `bench solve`.
   (`bench.model.observations.mean_and_standard_error`). Missing samples (counter gaps) only
   shorten the dwell; they are reported, naming the dwell.
 - Turn: the gyro increments summed over the window (rest to rest). A turn with a
-  missing sample cannot be integrated and is left out, with the reason.
-- Lost samples are told apart by where they fell (`Extraction.lost_in_windows`): inside a
-  dwell's or turn's counter window, or outside every one (moves, settles: no observation
-  uses those samples). The Earth-rate
+  missing sample cannot be integrated and is left out, with the reason. The Earth-rate
   integral is nominal: the window length times the Earth rate at the initial attitude,
   plus the change while the frame moves, integrated along the frame angles the
   controller reported (piecewise linear between polls). Where the motion sits inside
   the window does not matter because a turn of whole revolutions starts and ends in
   the same attitude.
+- Lost samples are told apart by where they fell (`Extraction.lost_in_windows`): inside a
+  dwell's or turn's counter window, or outside every one (moves, settles: no observation
+  uses those samples).
 """
 
 from __future__ import annotations
