@@ -17,33 +17,36 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bench.config.load import parse_config
 from bench.log.format import HEADER_SIZE, LENGTH_OFFSET, TOPIC_CAN
 from bench.log.reader import read_log
+from bench.log.run_info import layout_and_config_from_log
 from bench.solve.extract import finished_observation_steps
 from tests.helpers.mcap_surgery import rewrite
-from tests.helpers.run import cli, config_text, load_json, only_file
+from tests.helpers.run import cli, config_text, load_json, only_file, record_thermal_run
 
 LOST = 6        # samples each damaged copy loses
+
+
+def _recording(log_path: Path) -> SimpleNamespace:
+    """A recorded log with its decoded sample counters and receive times and its dwell and turn windows."""
+    log = read_log(str(log_path))
+    setup = layout_and_config_from_log(log)
+    samples, stats = log.imu_samples(setup.layout, setup.rate_hz)
+    assert stats.lost_samples == 0
+    windows = {unit: (f.data["step"]["kind"], f.data["counter_first"], f.data["counter_last"])
+               for unit, (_, f) in finished_observation_steps(log.events).items()}
+    return SimpleNamespace(log=log_path, counter=samples.counter.copy(), receive_time_s=samples.receive_time_s.copy(),
+                           windows=windows, layout=setup.layout, rate_hz=setup.rate_hz)
 
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
     folder = tmp_path_factory.mktemp("lost")
-    text = config_text()
     config = folder / "bench.toml"
-    config.write_text(text, encoding="utf-8")
+    config.write_text(config_text(), encoding="utf-8")
     rc, _, stderr = cli(["run", "--config", str(config), "--out", str(folder / "out"), "--quiet", "--no-db"])
     assert rc == 0, stderr
-    log_path = only_file(folder / "out", "*.mcap")
-    parsed = parse_config(text)
-    log = read_log(str(log_path))
-    samples, stats = log.imu_samples(parsed.imu.layout, parsed.imu.rate_hz)
-    assert stats.lost_samples == 0
-    windows = {unit: (f.data["step"]["kind"], f.data["counter_first"], f.data["counter_last"])
-               for unit, (_, f) in finished_observation_steps(log.events).items()}
-    return SimpleNamespace(log=log_path, counter=samples.counter.copy(), receive_time_s=samples.receive_time_s.copy(),
-                           windows=windows, layout=parsed.imu.layout, rate_hz=parsed.imu.rate_hz)
+    return _recording(only_file(folder / "out", "*.mcap"))
 
 
 def _between_windows(recorded) -> int:
@@ -83,8 +86,8 @@ def _without_samples(recorded, first_counter: int, dst: Path, acceptance: str = 
 
 def _solve(log: Path, out: Path) -> tuple[int, str, str, dict, str]:
     rc, stdout, stderr = cli(["solve", str(log), "--out", str(out), "--no-html", "--no-db"])
-    result = load_json(only_file(out, "*.result.json"))
-    return rc, stdout, stderr, result, only_file(out, "*.report.md").read_text(encoding="utf-8")
+    result = load_json(only_file(out, "*.solved.result.json"))
+    return rc, stdout, stderr, result, only_file(out, "*.solved.report.md").read_text(encoding="utf-8")
 
 
 def _note(n: int) -> str:
@@ -173,3 +176,24 @@ def test_a_window_reaching_past_the_decoded_samples_counts_only_the_gaps_between
     assert missing_in_window(counter, slice(*np.searchsorted(counter, [15, 30 + 1])), 15, 30) == 3   # 17..19
     assert missing_in_window(counter, slice(0, 0), 30, 40) == 0                                         # all past
     assert missing_in_window(np.zeros(0, np.int64), slice(0, 0), 0, 5) == 0
+
+
+def test_a_thermal_run_fails_on_a_dwell_of_any_temperature_that_lost_samples_and_notes_a_soaks(tmp_path_factory):
+    """A thermal log re-solved (its headline result is the block nearest the reference, here T2): samples lost in a
+    dwell of T1 fail it, naming the dwell; samples lost while the chamber soaks are only reported."""
+    folder = tmp_path_factory.mktemp("thermal-lost")
+    thermal = _recording(record_thermal_run(folder / "run", serial="LOST-1"))
+    attached = read_log(str(thermal.log)).attachments[thermal.log.name.removesuffix(".mcap") + ".result.json"]
+    assert json.loads(attached[1])["run"]["thermal"]["this_block"] == 2
+    kind, first, last = thermal.windows["T1-P07"]
+    damaged = _without_samples(thermal, (first + last) // 2, folder / "dwell.mcap")
+    rc, stdout, stderr, result, _ = _solve(damaged, folder / "dwell")
+    assert rc == 4, stderr
+    assert f"T1-P07 dwell: {LOST} of {last - first + 1} samples lost in its window" in stderr
+    assert result["run"]["lost_samples"] == {"total": LOST, "in_windows": {"T1-P07": LOST}, "outside_windows": 0}
+    soak_first = max(last for unit, (_, _, last) in thermal.windows.items() if unit.startswith("T1-")) + 100
+    soaked = _without_samples(thermal, soak_first, folder / "soak.mcap")
+    rc, stdout, stderr, result, _ = _solve(soaked, folder / "soak")
+    assert rc == 0, stderr
+    assert result["run"]["lost_samples"] == {"total": LOST, "in_windows": {}, "outside_windows": LOST}
+    assert f"note: {_note(LOST)}" in stdout
