@@ -121,6 +121,14 @@ def test_samples_lost_inside_a_dwell_fail_the_quality_check_naming_the_dwell(rec
         f"{damaged}: {expected}; mean over the {last - first + 1 - LOST} received"]
     assert result["run"]["lost_samples"] == {"total": LOST, "in_windows": {unit: LOST}, "outside_windows": 0}
     assert "note:" not in stdout and expected in report
+    # a solve of the turns alone does not use the dwell's window: its loss is reported, not failed
+    rc, stdout, stderr = cli(["solve", str(damaged), "--positions", "none", "--out", str(tmp_path / "turns"),
+                              "--no-html", "--no-db"])
+    assert rc == 0, stderr
+    assert f"note: {_note(LOST)} the solve uses" in stdout
+    turns = load_json(only_file(tmp_path / "turns", "*.result.json"))
+    assert turns["run"]["lost_samples"] == {"total": LOST, "in_windows": {}, "outside_windows": LOST}
+    assert turns["run"]["quality_failures"] == []
 
 
 def test_samples_lost_inside_a_turn_leave_it_out_naming_the_turn(recorded, tmp_path):

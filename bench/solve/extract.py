@@ -23,6 +23,7 @@ serves the live run (which solves from the log it just wrote) and `bench solve`.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -66,6 +67,7 @@ class Extraction:
 
 #: the words of a dwell's or turn's line when its window lost samples (`dwell_lost_samples` finds the dwells')
 SAMPLES_LOST_IN_WINDOW = "samples lost in its window"
+_WINDOW_LOSS_LINE = re.compile(r"(?:^|: )(\S+) (?:dwell|turn): \d+ of \d+ " + SAMPLES_LOST_IN_WINDOW)
 
 
 def dwell_lost_samples(line: str) -> bool:
@@ -76,6 +78,20 @@ def dwell_lost_samples(line: str) -> bool:
 def window_lost_samples(line: str) -> bool:
     """Whether a problem line is a dwell's or turn's whose window lost samples."""
     return SAMPLES_LOST_IN_WINDOW in line
+
+
+def window_loss_unit(line: str) -> str | None:
+    """The unit of a dwell's or turn's line saying its window lost samples (after any `FILE: ` prefix), else None."""
+    found = _WINDOW_LOSS_LINE.search(line)
+    return found.group(1) if found else None
+
+
+def without_windows(lost: dict[str, Any], units: set[str]) -> dict[str, Any]:
+    """`Extraction.lost_samples()` with the samples lost in the windows of `units` counted as outside every window
+    (the windows a subset solve does not use)."""
+    moved = sum(n for unit, n in lost["in_windows"].items() if unit in units)
+    return {"total": lost["total"], "in_windows": {u: n for u, n in lost["in_windows"].items() if u not in units},
+            "outside_windows": lost["outside_windows"] + moved}
 
 
 def missing_in_window(counter: np.ndarray, window: slice, first: int, last: int) -> int:

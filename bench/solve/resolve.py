@@ -41,7 +41,7 @@ from bench.model.observations import PositionObservation, RotationObservation
 from bench.model.result import CalibrationResult
 from bench.report.markdown import markdown_report, md_text, write_reports
 from bench.run.runner import judged_failures, quality_failures
-from bench.solve.extract import Extraction, finished_observation_steps
+from bench.solve.extract import Extraction, finished_observation_steps, window_loss_unit, without_windows
 from bench.solve.from_logs import LogSolution, extract_from_logs, solve_extraction
 from bench.solve.inputs import budget_inputs
 from bench.solve.methods import SolverError
@@ -394,12 +394,14 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolv
     config, setup = recorded.setup.config, recorded.setup
     inputs = budget_inputs(config, recorded.sim) if config is not None else None
     chosen = select(recorded.extraction, positions, rotations)
-    chosen.problems = recorded.problems()
+    # a subset does not use the windows it leaves out: their lost samples are outside the windows it uses
+    unused = _unused_windows(recorded, chosen, positions, rotations)
+    chosen.problems = [p for p in recorded.problems() if window_loss_unit(p) not in unused]
     calibration, chosen, dropped = _solve_what_can_be(chosen, setup.site, inputs)
     solution = LogSolution(calibration, chosen, list(recorded.imu_stats), list(recorded.damage))
     link = recorded.imu_link()
     failures = quality_failures(solution)
-    lost = recorded.extraction.lost_samples()       # of the whole record, as `bench run` counted them
+    lost = without_windows(recorded.extraction.lost_samples(), unused)
     plan = recorded.logs[-1].metadata.get("plan", {})
     pos_name = _subset_name(positions, plan.get("positions", ""))
     rot_name = _subset_name(rotations, plan.get("rotations", ""))
@@ -421,6 +423,15 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolv
     result.verdict = verdict.to_json()
     return Resolved(solution, result, failures, pos_name, rot_name, positions is not None or rotations is not None,
                     verdict)
+
+
+def _unused_windows(recorded: Recorded, chosen: Extraction, positions, rotations) -> set[str]:
+    """The recorded dwells (with `positions` given) and turns (with `rotations`) a subset leaves out."""
+    kept = set(chosen.units)
+    kinds = {unit: finished.data["step"]["kind"] for log in recorded.logs
+             for unit, (_, finished) in finished_observation_steps(log.events).items()}
+    return {unit for unit, kind in kinds.items() if unit not in kept
+            and ((kind == "dwell" and positions is not None) or (kind == "turn" and rotations is not None))}
 
 
 def _solve_what_can_be(chosen: Extraction, site, inputs):
