@@ -391,11 +391,12 @@ def _check_damaged_solve(damaged: Path, out: Path, planned: set, left_out: set, 
     assert solved | left_out == planned and not solved & left_out
     lines = report.splitlines()
     for unit in left_out:     # its own line, or the extraction's line saying why it was left out
-        assert any(line.startswith(f"- {unit}: left out: ") or (f": {unit}: " in line and "left out" in line)
+        assert any(line.startswith(f"- {unit}: left out: ")
+                   or ((f": {unit}: " in line or f": {unit} turn: " in line) and "left out" in line)
                    for line in lines), unit
     assert ", ".join(sorted(left_out)) in report
     for unit in degraded:
-        assert any(f": {unit}: " in line and "samples missing in the dwell" in line for line in lines), unit
+        assert any(f": {unit} dwell: " in line and "samples lost in its window" in line for line in lines), unit
     assert result["run"]["damage"] and all(d in report for d in result["run"]["damage"])
     assert any(damage_words in d for d in result["run"]["damage"])
     return result

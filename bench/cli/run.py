@@ -203,14 +203,20 @@ def records_line(args: argparse.Namespace) -> str:
 
 def run_summary(outcome, verified=None) -> str:
     """Three lines: `verdict: PASS|FAIL|NOT CHECKED (...)`, `worst:   ...`, `result:  FILE  report: FILE, FILE[
-    verification: FILE]` (the fourth, `records: ...`, is printed after recording)."""
+    verification: FILE]` (the fourth, `records: ...`, is printed after recording); between the second and the third,
+    `note:    ...` when IMU samples were lost outside every dwell and turn window."""
     verdict = outcome.verdict
     worst = verdict.worst if verdict is not None else None
     reports = ", ".join(str(p) for p in (outcome.report_path, outcome.html_report_path) if p is not None)
     verification = f"  verification: {verified.md_path}" if verified is not None else ""
+    # imported when the command runs: `bench` starts without the bench core
+    from bench.report.facts import lost_samples_note
+
+    lost = lost_samples_note(outcome.result.run) if outcome.result is not None else None
     return (f"verdict: {verdict.headline() if verdict is not None else 'none'}\n"
             f"worst:   {worst.labelled() if worst is not None else 'no check ran'}\n"
-            f"result:  {outcome.result_path}  report: {reports}{verification}")
+            + (f"note:    {lost}\n" if lost else "")
+            + f"result:  {outcome.result_path}  report: {reports}{verification}")
 
 
 def add_verification(outcome, verified, config) -> None:

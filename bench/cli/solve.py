@@ -53,6 +53,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=cmd_solve)
 
 
+def _notes(recorded, run: dict) -> list[str]:
+    """The notes of reading the logs, and the samples lost outside every window the solve uses (`run`: its
+    result's, `lost_samples_note`)."""
+    from bench.report.facts import lost_samples_note
+
+    lost = lost_samples_note(run)
+    return list(recorded.notes) + ([lost] if lost else [])
+
+
 def _solve_thermal(args: argparse.Namespace, recorded) -> ExitCode:
     """A thermal log: every temperature solved again and the model refitted (`bench.thermal.resolve`)."""
     # imported when the command runs: `bench` starts without the bench core
@@ -73,7 +82,7 @@ def _solve_thermal(args: argparse.Namespace, recorded) -> ExitCode:
         blocks = resolved.solution.blocks
         print(f"solved {recorded.run_id} from {len(recorded.logs)} log(s): {len(blocks)} "
               f"temperature{'s' if len(blocks) != 1 else ''}, one calibration each")
-        for note in recorded.notes:
+        for note in _notes(recorded, resolved.solution.head.point.result.run):
             print(f"note: {note}")
         for path in resolved.results:
             print(f"result: {path}")
@@ -177,7 +186,7 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
             print(f"solved {recorded.run_id} from {len(recorded.logs)} log(s): {len(extraction.positions)} positions "
                   f"({resolved.positions or 'none'}), {len(extraction.rotations)} rotations "
                   f"({resolved.rotations or 'none'})")
-            for note in recorded.notes:
+            for note in _notes(recorded, resolved.result.run):
                 print(f"note: {note}")
             print(f"result: {result_path}\nreport: {report_path}" + (f"\n        {html_path}" if html_path else ""))
         logs_solved = [log.path for log in recorded.logs]

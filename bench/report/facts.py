@@ -29,6 +29,18 @@ def run_facts(run: dict[str, Any]) -> list[tuple[str, str]]:
     return rows
 
 
+def lost_samples_note(run: dict[str, Any]) -> str | None:
+    """The line saying how many IMU samples were lost outside every dwell and turn window the solve uses (None: none
+    were, or the result does not record it): they fail no quality check, only an [acceptance] `max_lost_samples`."""
+    lost = run.get("lost_samples")
+    outside = lost.get("outside_windows") if isinstance(lost, dict) else None
+    if type(outside) is not int or outside <= 0:
+        return None
+    return (f"{outside} IMU sample{'s' if outside != 1 else ''} lost outside every dwell and turn window the solve "
+            "uses (while the table moved or settled, or in a step a subset leaves out): no observation uses them, so "
+            "no quality check fails (an [acceptance] max_lost_samples counts them)")
+
+
 def describe_site(site: dict[str, Any]) -> str:
     """'latitude 30.27 deg, height 10 m' (keys without a value left out, unknown keys as they are)."""
     parts = []

@@ -35,6 +35,7 @@ from bench.report.facts import (
     budget_notes,
     budget_table,
     consistency_lines,
+    lost_samples_note,
     quality_findings,
     run_facts,
     verdict_view,
@@ -237,8 +238,9 @@ def _acceptance(verdict) -> str:
     return "\n".join(html)
 
 
-def _verdict(verdict, failures, problems) -> str:
-    """The run's quality checks (each failure is a failed check of the verdict, unless a limit judges it)."""
+def _verdict(verdict, failures, problems, note: str | None = None) -> str:
+    """The run's quality checks (each failure is a failed check of the verdict, unless a limit judges it), and
+    `note` (`lost_samples_note`)."""
     html = ["<h2>Quality checks</h2>"]
     if failures:
         html.append('<p class="fail">Quality check failed:</p><ul>'
@@ -246,6 +248,8 @@ def _verdict(verdict, failures, problems) -> str:
     else:
         html.append("<p>No quality check failed (they can fail a result, not pass it: the verdict above says whether "
                     "it was checked).</p>" if isinstance(verdict, dict) else "<p>No quality check failed.</p>")
+    if note:
+        html.append(f"<p>Note: {_e(note)}.</p>")
     if problems:
         html.append("<p>Steps left out or degraded:</p><ul>" + "".join(f"<li>{_e(p)}</li>" for p in problems)
                     + "</ul>")
@@ -431,7 +435,7 @@ def html_report(result: CalibrationResult, *, log=None, layout=None, problems=()
     the log is the live run's, read before it was closed (its missing summary is not damage).
     """
     parts = [_acceptance(result.verdict), _metadata(result, log, imu_link, log_still_open),
-             _verdict(result.verdict, list(failures), list(problems)),
+             _verdict(result.verdict, list(failures), list(problems), lost_samples_note(result.run)),
              _coefficients(result), _budget(result), _quality(result), _residuals(result)]
     if log is not None:
         parts.append(_log_plots(log_series(log, layout)))

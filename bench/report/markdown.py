@@ -34,6 +34,7 @@ from bench.report.facts import (
     budget_notes,
     budget_table,
     consistency_lines,
+    lost_samples_note,
     quality_findings,
     run_facts,
     verdict_view,
@@ -74,6 +75,9 @@ def markdown_report(result: CalibrationResult, *, problems: Sequence[str] = (), 
     else:
         lines.append("No quality check failed (they can fail a result, not pass it: the verdict above says "
                      "whether it was checked)." if result.verdict is not None else "No quality check failed.")
+    note = lost_samples_note(run)
+    if note:
+        lines += ["", f"Note: {md_text(note)}."]
     lines.append("")
     truth = result.sim_truth
     lines.append("## Coefficients")

@@ -40,7 +40,7 @@ from bench.report.noise import write_noise_outputs
 from bench.run.imu_check import check_imu_stream
 from bench.run.sequencer import ListenerError, Sequencer, SequencerOptions, describe_listener_error
 from bench.sim.world import SimWorld
-from bench.solve.extract import Extraction
+from bench.solve.extract import Extraction, dwell_lost_samples, window_lost_samples
 from bench.solve.from_logs import extract_from_logs, solve_logs
 from bench.solve.inputs import budget_inputs
 from bench.thermal.from_log import ThermalSolution, solve_thermal, write_thermal_files
@@ -378,11 +378,12 @@ class BenchRun:
                               budget=budget_inputs(config, self.sim),
                               # A log being resumed was cut off: its missing summary is expected, not damage.
                               still_open=frozenset({str(self.log_path), *map(str, self.previous_logs)}))
-        failures = quality_failures(solution, receiver.stats)
-        run_info = self._run_info(seq.state, receiver, failures)
+        failures = quality_failures(solution)
+        lost = solution.extraction.lost_samples()
+        run_info = {**self._run_info(seq.state, receiver, failures), "lost_samples": lost}
         result = solution.calibration.to_result(run=run_info, sim_truth=config.sim.imu if self.sim else None)
         result.temperature = imu_temperature(logs, config.imu.layout, config.imu.rate_hz)
-        verdict = judge(result, config.acceptance, lost_samples=receiver.stats.lost_samples,
+        verdict = judge(result, config.acceptance, lost_samples=lost["total"],
                         quality_failures=judged_failures(failures, config.acceptance))
         result.verdict = verdict.to_json()
         result_path = self.out_dir / f"{self.run_id}.result.json"
@@ -418,11 +419,14 @@ class BenchRun:
         nearest the model's reference temperature (`bench.thermal.from_log.solve_thermal`)."""
         config = self.config
         logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
-        link_failures = [f"{LOST_SAMPLES_FAILURE}: {receiver.stats.summary()}"] if receiver.stats.lost_samples else []
-        run_info = self._run_info(state, receiver, link_failures)
         still_open = frozenset({str(self.log_path), *map(str, self.previous_logs)})
+        extraction, _, damage = extract_from_logs(logs, config.site.site, config.imu.layout, config.imu.rate_hz,
+                                                  still_open=still_open)
+        link_failures = window_loss_failures(extraction)
+        lost = extraction.lost_samples()
+        run_info = {**self._run_info(state, receiver, link_failures), "lost_samples": lost}
         solution = solve_thermal(logs, config.site.site, config.imu.layout, config.imu.rate_hz, config, self.sim,
-                                 run=run_info, still_open=still_open)
+                                 run=run_info, extracted=(extraction, damage))
         results, model_path = write_thermal_files(
             solution, self.out_dir, self.run_id, {"mode": run_info["mode"], "run_id": self.run_id,
                                                   "log": self.log_path.name},
@@ -430,7 +434,7 @@ class BenchRun:
         written = results + ([model_path] if model_path is not None else [])
         head = solution.head
         result, problems, failures, verdict = judge_thermal_head(solution, results, model_path, link_failures,
-                                                                 config.acceptance, receiver.stats.lost_samples)
+                                                                 config.acceptance, lost["total"])
         result_path = self.out_dir / f"{self.run_id}.result.json"
         with unfinished(result_path) as partial:
             result.save(partial)
@@ -526,12 +530,15 @@ def save_replacing(result: CalibrationResult, path: Path) -> None:
         result.save(partial)
 
 
-#: how `quality_failures` words the two failures an [acceptance] limit can take over
+#: how a verification's notes word samples the IMU link lost; how `quality_failures` words residual outliers
 LOST_SAMPLES_FAILURE, OUTLIERS_FAILURE = "IMU link lost samples", "residual outliers beyond the outlier threshold"
 
 
-def quality_failures(solution, live_stats) -> list[str]:
-    """Why a finished run's result should not be trusted as is (empty = passed)."""
+def quality_failures(solution) -> list[str]:
+    """Why a finished run's result should not be trusted as is (empty = passed). Samples lost on the IMU link
+    fail it where they touch an observation: the line of each dwell or turn whose window lost samples (the
+    extraction's); samples lost outside every window are a note of the result (`run.lost_samples`), not a failure.
+    Both are told from the logs' sample counters, so `bench run` and `bench solve LOG` agree."""
     failures = list(solution.extraction.problems) + list(solution.damage)
     outliers = solution.calibration.quality().get("outliers", [])
     if outliers:
@@ -539,9 +546,12 @@ def quality_failures(solution, live_stats) -> list[str]:
     budget = solution.calibration.budget
     if budget is not None and budget.table_included:    # without the table's part any real table fails the test
         failures += [c.describe() for c in budget.inconsistent()]
-    if live_stats.lost_samples:
-        failures.append(f"{LOST_SAMPLES_FAILURE}: {live_stats.summary()}")
     return failures
+
+
+def window_loss_failures(extraction: Extraction) -> list[str]:
+    """A thermal run's lines of the dwells and turns (of every temperature block) whose windows lost samples."""
+    return [p for p in extraction.problems if window_lost_samples(p)]
 
 
 def thermal_failures(result: CalibrationResult, problems: list[str], damage: list[str],
@@ -564,7 +574,7 @@ def judge_thermal_head(solution: ThermalSolution, results: list[Path], model_pat
     head = solution.head
     result = head.point.result
     problems = list(head.extraction.problems)
-    failures = thermal_failures(result, problems, solution.damage, link_failures)
+    failures = thermal_failures(result, problems, solution.damage, [f for f in link_failures if f not in problems])
     result.run["thermal"] = {"model": model_path.name if model_path is not None else None,
                              "results": [p.name for p in results], "this_block": head.temperature_index}
     verdict = judge(result, limits, lost_samples=lost_samples, quality_failures=judged_failures(failures, limits))
@@ -574,7 +584,10 @@ def judge_thermal_head(solution: ThermalSolution, results: list[Path], model_pat
 
 def judged_failures(failures: list[str], limits: AcceptanceLimits) -> list[str]:
     """The quality failures that fail the verdict as they are: lost samples and residual outliers are
-    judged by `max_lost_samples` and `max_residual_sigma` instead when the configuration sets them."""
+    judged by `max_lost_samples` and `max_residual_sigma` instead when the configuration sets them. The limit
+    counts every lost sample, in windows and outside; it takes over a dwell's lost samples (its mean is over the
+    samples received), never a turn left out for them (its integral is missing from the solve)."""
     return [f for f in failures
-            if not (limits.max_lost_samples is not None and f.startswith(LOST_SAMPLES_FAILURE))
+            if not (limits.max_lost_samples is not None
+                    and (f.startswith(LOST_SAMPLES_FAILURE) or dwell_lost_samples(f)))
             and not (limits.max_residual_sigma is not None and f.endswith(OUTLIERS_FAILURE))]

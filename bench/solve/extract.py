@@ -7,7 +7,7 @@ serves the live run (which solves from the log it just wrote) and `bench solve`.
 
 - Dwell: mean output rate over the window's samples, with block-mean standard errors
   (`bench.model.observations.mean_and_standard_error`). Missing samples (counter gaps) only
-  shorten the dwell; they are reported.
+  shorten the dwell; they are reported, naming the dwell.
 - Turn: the gyro increments summed over the window (rest to rest). A turn with a
   missing sample cannot be integrated and is left out, with the reason. The Earth-rate
   integral is nominal: the window length times the Earth rate at the initial attitude,
@@ -15,12 +15,17 @@ serves the live run (which solves from the log it just wrote) and `bench solve`.
   controller reported (piecewise linear between polls). Where the motion sits inside
   the window does not matter because a turn of whole revolutions starts and ends in
   the same attitude.
+- Lost samples are told apart by where they fell (`Extraction.lost_in_windows`): inside a
+  dwell's or turn's counter window, or outside every one (moves, settles: no observation
+  uses those samples).
 """
 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -45,10 +50,58 @@ class Extraction:
     positions: list[PositionObservation] = field(default_factory=list)
     rotations: list[RotationObservation] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)   # one line per step left out or degraded
+    #: unit -> samples missing from the sample counters inside its dwell or turn window (units without loss absent)
+    lost_in_windows: dict[str, int] = field(default_factory=dict)
+    lost_outside: int = 0       # lost samples outside every window (`bench.solve.from_logs` counts them)
 
     @property
     def units(self) -> list[str]:
         return [o.label for o in self.positions] + [o.label for o in self.rotations]
+
+    def lost_samples(self) -> dict[str, Any]:
+        """Where the samples lost on the IMU link fell, as a result records it (`run.lost_samples`): `total`,
+        `in_windows` (unit -> count, the windows of the dwells and turns) and `outside_windows`."""
+        inside = sum(self.lost_in_windows.values())
+        return {"total": inside + self.lost_outside, "in_windows": dict(sorted(self.lost_in_windows.items())),
+                "outside_windows": self.lost_outside}
+
+
+#: the words of a dwell's or turn's line when its window lost samples (`dwell_lost_samples` finds the dwells')
+SAMPLES_LOST_IN_WINDOW = "samples lost in its window"
+_WINDOW_LOSS_LINE = re.compile(r"(?:^|: )(\S+) (?:dwell|turn): \d+ of \d+ " + SAMPLES_LOST_IN_WINDOW)
+
+
+def dwell_lost_samples(line: str) -> bool:
+    """Whether a problem line is a dwell's that lost samples but was used (a mean over the samples received)."""
+    return f"{SAMPLES_LOST_IN_WINDOW}; mean over the" in line
+
+
+def window_lost_samples(line: str) -> bool:
+    """Whether a problem line is a dwell's or turn's whose window lost samples."""
+    return SAMPLES_LOST_IN_WINDOW in line
+
+
+def window_loss_unit(line: str) -> str | None:
+    """The unit of a dwell's or turn's line saying its window lost samples (after any `FILE: ` prefix), else None."""
+    found = _WINDOW_LOSS_LINE.search(line)
+    return found.group(1) if found else None
+
+
+def without_windows(lost: dict[str, Any], units: set[str]) -> dict[str, Any]:
+    """`Extraction.lost_samples()` with the samples lost in the windows of `units` counted as outside every window
+    (the windows a subset solve does not use)."""
+    moved = sum(n for unit, n in lost["in_windows"].items() if unit in units)
+    return {"total": lost["total"], "in_windows": {u: n for u, n in lost["in_windows"].items() if u not in units},
+            "outside_windows": lost["outside_windows"] + moved}
+
+
+def missing_in_window(counter: np.ndarray, window: slice, first: int, last: int) -> int:
+    """Counters of [first, last] missing from `counter` (sorted, unique; `window` its part inside), counted only
+    between the first and the last counter decoded: a window reaching past them was cut, not lost on the link."""
+    if not len(counter):
+        return 0
+    lo, hi = max(first, int(counter[0])), min(last, int(counter[-1]))
+    return max(0, hi - lo + 1 - (window.stop - window.start)) if lo <= hi else 0
 
 
 def _vector(v, n: int = 3) -> bool:
@@ -183,6 +236,9 @@ def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: 
         window = _window(counter, first, last)
         n = window.stop - window.start
         expected = last - first + 1
+        missing = missing_in_window(counter, window, first, last)
+        if missing:
+            out.lost_in_windows[unit] = missing
         if n == 0:
             out.problems.append(f"{unit}: no IMU samples in its window (counters {first}..{last}); left out")
             continue
@@ -193,7 +249,7 @@ def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: 
             continue
         if step["kind"] == "dwell":
             if n < expected:
-                out.problems.append(f"{unit}: {expected - n} of {expected} samples missing in the dwell; "
+                out.problems.append(f"{unit} dwell: {expected - n} of {expected} {SAMPLES_LOST_IN_WINDOW}; "
                                     f"mean over the {n} received")
             gyro_mean, gyro_std, gyro_sem = mean_and_standard_error(
                 gyro_counts[window] * rate_hz, duration_s=n / rate_hz,
@@ -206,7 +262,7 @@ def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: 
                                                      start_s=first / rate_hz, output_step=output_step))
         else:
             if n < expected:
-                out.problems.append(f"{unit}: {expected - n} of {expected} samples missing during the turn: "
+                out.problems.append(f"{unit} turn: {expected - n} of {expected} {SAMPLES_LOST_IN_WINDOW}: "
                                     "its integral is incomplete; left out")
                 continue
             t0 = started.time_s if started is not None else -np.inf

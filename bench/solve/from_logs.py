@@ -32,6 +32,10 @@ def extract_from_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz
                       still_open: frozenset[str] = frozenset()) -> tuple[Extraction, list[ImuStats], list[str]]:
     """Observations of all logs merged by unit, the IMU link statistics and the damage of each log.
 
+    The samples each log's decode lost (`ImuStats.lost_samples`) are told apart by where they fell:
+    inside the counter window of a dwell or turn (`Extraction.lost_in_windows`) or outside every one
+    (`Extraction.lost_outside`). `bench run` and `bench solve` both count them here, from the logs.
+
     A log in `still_open` (the live run reading its own log before closing it, or an interrupted run's log it
     resumes) has no summary yet by design, and a resumed one may end inside a record, as a full disk or a crash
     leaves it: neither is reported as damage (the cut-off tail holds only what came after the last message that
@@ -39,6 +43,8 @@ def extract_from_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz
     """
     merged_positions, merged_rotations, problems = {}, {}, []
     stats, damage = [], []
+    lost_in_windows: dict[str, int] = {}
+    lost_outside = 0
     for log in logs:
         samples, link = log.imu_samples(layout, rate_hz)
         stats.append(link)
@@ -51,8 +57,13 @@ def extract_from_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz
         merged_positions.update({o.label: o for o in part.positions})
         merged_rotations.update({o.label: o for o in part.rotations})
         problems += [f"{log.path}: {p}" for p in part.problems]
+        for unit, n in part.lost_in_windows.items():
+            lost_in_windows[unit] = lost_in_windows.get(unit, 0) + n
+        # the link's count (every sample the decode lost) less those inside a window: the ones outside every window
+        lost_outside += max(0, link.lost_samples - sum(part.lost_in_windows.values()))
     extraction = Extraction([merged_positions[k] for k in sorted(merged_positions)],
-                            [merged_rotations[k] for k in sorted(merged_rotations)], problems)
+                            [merged_rotations[k] for k in sorted(merged_rotations)], problems,
+                            lost_in_windows, lost_outside)
     return extraction, stats, damage
 
 

@@ -41,7 +41,7 @@ from bench.model.observations import PositionObservation, RotationObservation
 from bench.model.result import CalibrationResult
 from bench.report.markdown import markdown_report, md_text, write_reports
 from bench.run.runner import judged_failures, quality_failures
-from bench.solve.extract import Extraction, finished_observation_steps
+from bench.solve.extract import Extraction, finished_observation_steps, window_loss_unit, without_windows
 from bench.solve.from_logs import LogSolution, extract_from_logs, solve_extraction
 from bench.solve.inputs import budget_inputs
 from bench.solve.methods import SolverError
@@ -394,11 +394,14 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolv
     config, setup = recorded.setup.config, recorded.setup
     inputs = budget_inputs(config, recorded.sim) if config is not None else None
     chosen = select(recorded.extraction, positions, rotations)
-    chosen.problems = recorded.problems()
+    # a subset does not use the windows it leaves out: their lost samples are outside the windows it uses
+    unused = _unused_windows(recorded, chosen, positions, rotations)
+    chosen.problems = [p for p in recorded.problems() if window_loss_unit(p) not in unused]
     calibration, chosen, dropped = _solve_what_can_be(chosen, setup.site, inputs)
     solution = LogSolution(calibration, chosen, list(recorded.imu_stats), list(recorded.damage))
     link = recorded.imu_link()
-    failures = quality_failures(solution, link)
+    failures = quality_failures(solution)
+    lost = without_windows(recorded.extraction.lost_samples(), unused)
     plan = recorded.logs[-1].metadata.get("plan", {})
     pos_name = _subset_name(positions, plan.get("positions", ""))
     rot_name = _subset_name(rotations, plan.get("rotations", ""))
@@ -412,15 +415,24 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolv
                 "solved_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "solved_by": "bench solve",
                 "imu": {"model": imu.get("model", ""), "serial": imu.get("serial", "")},
                 "site": recorded.site.to_dict(), "quality_failures": failures, "imu_link": link.as_dict(),
-                "left_out": sorted({*recorded.left_out, *dropped}), "damage": list(recorded.damage),
-                "notes": list(recorded.notes)}
+                "lost_samples": lost, "left_out": sorted({*recorded.left_out, *dropped}),
+                "damage": list(recorded.damage), "notes": list(recorded.notes)}
     result = calibration.to_result(run=run_info, sim_truth=recorded.truth)
     result.temperature = imu_temperature(recorded.logs, setup.layout, setup.rate_hz)
     limits = config.acceptance if config is not None else AcceptanceLimits()
-    verdict = judge(result, limits, lost_samples=link.lost_samples, quality_failures=judged_failures(failures, limits))
+    verdict = judge(result, limits, lost_samples=lost["total"], quality_failures=judged_failures(failures, limits))
     result.verdict = verdict.to_json()
     return Resolved(solution, result, failures, pos_name, rot_name, positions is not None or rotations is not None,
                     verdict)
+
+
+def _unused_windows(recorded: Recorded, chosen: Extraction, positions, rotations) -> set[str]:
+    """The recorded dwells (with `positions` given) and turns (with `rotations`) a subset leaves out."""
+    kept = set(chosen.units)
+    kinds = {unit: finished.data["step"]["kind"] for log in recorded.logs
+             for unit, (_, finished) in finished_observation_steps(log.events).items()}
+    return {unit for unit, kind in kinds.items() if unit not in kept
+            and ((kind == "dwell" and positions is not None) or (kind == "turn" and rotations is not None))}
 
 
 def _solve_what_can_be(chosen: Extraction, site, inputs):

@@ -21,7 +21,7 @@ from bench.log.names import output_path
 from bench.log.reader import RunLog
 from bench.plan.steps import thermal_block
 from bench.report.markdown import markdown_report, write_reports
-from bench.run.runner import LOST_SAMPLES_FAILURE, judge_thermal_head
+from bench.run.runner import judge_thermal_head, window_loss_failures
 from bench.solve.resolve import Recorded, SolveInputError
 from bench.thermal.from_log import ThermalSolution, solve_thermal, write_thermal_files
 
@@ -55,7 +55,8 @@ def resolve_thermal(recorded: Recorded, out_dir: str | Path, *, html: bool = Tru
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     link = recorded.imu_link()
-    link_failures = [f"{LOST_SAMPLES_FAILURE}: {link.summary()}"] if link.lost_samples else []
+    link_failures = window_loss_failures(recorded.extraction)
+    lost = recorded.extraction.lost_samples()
     meta, imu = recorded.run_meta, recorded.logs[-1].metadata.get("imu", {})
     names = [Path(log.path).name for log in recorded.logs]
     run_info = {"run_id": recorded.run_id, "mode": meta.get("mode", ""), "operator": meta.get("operator", ""),
@@ -66,6 +67,7 @@ def resolve_thermal(recorded: Recorded, out_dir: str | Path, *, html: bool = Tru
                 "solved_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "solved_by": "bench solve",
                 "imu": {"model": imu.get("model", ""), "serial": imu.get("serial", "")},
                 "site": recorded.site.to_dict(), "quality_failures": link_failures, "imu_link": link.as_dict(),
+                "lost_samples": lost,
                 "notes": list(recorded.notes)}
     # the observations `load_recorded` extracted (merged by unit, the damage of every log): not read twice
     solution = solve_thermal(recorded.logs, recorded.site, setup.layout, setup.rate_hz, config, recorded.sim,
@@ -78,7 +80,7 @@ def resolve_thermal(recorded: Recorded, out_dir: str | Path, *, html: bool = Tru
         html=html)
     head = solution.head
     result, problems, failures, verdict = judge_thermal_head(solution, results, model_path, link_failures,
-                                                             config.acceptance, link.lost_samples)
+                                                             config.acceptance, lost["total"])
     result_path = out / f"{stem}.result.json"
     result.save(result_path)
     report: dict[str, Any] = dict(
