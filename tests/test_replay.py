@@ -344,7 +344,7 @@ def test_cli_replays_and_prints_the_summary(recorded, replayed):
 def test_cli_progress_and_speed(recorded):
     rc, out, err = cli(["replay", str(recorded.log_path), "--speed", "2000"])
     assert rc == 0, err
-    assert "P01 (1/" in err and "transition: run complete" in err
+    assert "P01 (unit 1 of" in err and "transition: run complete" in err
     assert out.count("\n") == 1 and out.startswith("replayed ")
 
 
