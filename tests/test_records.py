@@ -279,7 +279,7 @@ def test_unreadable_files_are_reported_and_the_rest_recorded(archive, tmp_path, 
     assert main(["db", "import", "--db", db, str(folder / "missing")]) == 2
 
 
-def test_record_outputs_warns_and_never_fails(tmp_path, capsys, archive):
+def test_record_outputs_warns_and_says_whether_it_recorded(tmp_path, capsys, archive):
     import argparse
 
     from bench.cli.db import record_outputs
@@ -287,11 +287,11 @@ def test_record_outputs_warns_and_never_fails(tmp_path, capsys, archive):
     blocker = tmp_path / "file"
     blocker.write_text("")
     result = sorted((archive / "b").glob("*.result.json"))[0]
-    record_outputs(argparse.Namespace(db=str(blocker / "r.sqlite"), no_db=False), "bench solve", [result])
+    assert not record_outputs(argparse.Namespace(db=str(blocker / "r.sqlite"), no_db=False), "bench solve", [result])
     assert "bench solve: warning: not recorded in the records database" in capsys.readouterr().err
-    record_outputs(argparse.Namespace(db=str(tmp_path / "r.sqlite"), no_db=True), "bench solve", [result])
+    assert record_outputs(argparse.Namespace(db=str(tmp_path / "r.sqlite"), no_db=True), "bench solve", [result])
     assert not (tmp_path / "r.sqlite").exists()
-    record_outputs(argparse.Namespace(db=str(tmp_path / "r.sqlite"), no_db=False), "bench solve", [result])
+    assert record_outputs(argparse.Namespace(db=str(tmp_path / "r.sqlite"), no_db=False), "bench solve", [result])
     with open_records(str(tmp_path / "r.sqlite")) as records:
         assert len(records.list_runs()) == 1
 

@@ -71,13 +71,15 @@ def test_bench_solve_records_a_resolve_and_no_db_skips(recorded, tmp_path):
     assert not (tmp_path / "skipped.sqlite").exists()
 
 
-def test_a_failing_database_warns_and_keeps_the_files(recorded, tmp_path):
+def test_a_failing_database_keeps_the_files_and_is_a_non_zero_exit(recorded, tmp_path):
+    """Records are sacred: a result the database did not take is exit 7 (NOT_RECORDED), the files kept."""
     blocker = tmp_path / "not-a-folder"
     blocker.write_text("")
     rc, stdout, stderr = cli(["solve", str(recorded.log), "--out", str(tmp_path / "out"), "--no-html",
                               "--db", str(blocker / "r.sqlite")])
-    assert rc == 0
+    assert rc == 7, stderr
     assert "bench solve: warning: not recorded in the records database" in stderr
+    assert "NOT recorded in the records database" in stderr.splitlines()[-1]
     assert only_file(tmp_path / "out", "*.result.json").stat().st_size > 0
 
 

@@ -104,6 +104,9 @@ def test_the_closing_lines_say_when_a_run_is_not_recorded():
     assert records_line(argparse.Namespace(no_db=True, db=None)) == "records: not recorded (--no-db)"
     assert records_line(argparse.Namespace(no_db=False, db="postgresql://u:secret@host/db")) == \
         "records: postgresql://u:***@host/db"
+    # the database did not take the files: the line says so (and the run exits 7, NOT_RECORDED)
+    assert records_line(argparse.Namespace(no_db=False, db="/x/r.sqlite"), recorded=False).startswith(
+        "records: NOT recorded in /x/r.sqlite (")
 
 
 # -- 1. noise off recovers the truth ----------------------------------------------------

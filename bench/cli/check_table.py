@@ -22,7 +22,7 @@ import re
 from pathlib import Path
 
 from bench.cli.common import ExitCode, ended_early, fail, raise_interrupted, run_plan, stop_signals
-from bench.cli.db import add_db_options, record_outputs
+from bench.cli.db import add_db_options, not_recorded_exit, record_outputs
 from bench.errors import BenchError
 from bench.model.units import format_hms
 
@@ -288,10 +288,11 @@ def _report(args, analysis, out_dir: Path, paths: dict | None = None) -> ExitCod
         for note in analysis.problems + analysis.notes:
             print(f"note: {note}")
         print(f"log:    {analysis.log_path}\nresult: {paths['json']}\nreport: {paths['markdown']}, {paths['html']}")
-    record_outputs(args, PROG, [paths["json"], analysis.log_path])     # after the files: a failure only warns
+    recorded = record_outputs(args, PROG, [paths["json"], analysis.log_path])     # after the files are written
+    code = ExitCode.OK
     if analysis.problems:
-        return fail(PROG, "quality check failed: " + "; ".join(analysis.problems), ExitCode.QUALITY)
-    if analysis.sim_within_3_sigma is False:
-        return fail(PROG, "the estimate misses the simulated table's truth by more than 3 sigma",
+        code = fail(PROG, "quality check failed: " + "; ".join(analysis.problems), ExitCode.QUALITY)
+    elif analysis.sim_within_3_sigma is False:
+        code = fail(PROG, "the estimate misses the simulated table's truth by more than 3 sigma",
                     ExitCode.SIM_TRUTH_MISSED)
-    return ExitCode.OK
+    return code if recorded else not_recorded_exit(PROG, code)

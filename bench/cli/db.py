@@ -227,10 +227,12 @@ def add_db_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-db", action="store_true", help="do not record the result in the records database")
 
 
-def record_outputs(args: argparse.Namespace, prog: str, paths: list[Path | str | None]) -> None:
-    """Record the written result files (and logs) unless --no-db; a failure is one warning line, never an error."""
+def record_outputs(args: argparse.Namespace, prog: str, paths: list[Path | str | None]) -> bool:
+    """Record the written result files (and logs) unless --no-db; whether that is done (True also with --no-db:
+    nothing was asked). A failure is one warning line; the caller ends with `ExitCode.NOT_RECORDED`
+    (`not_recorded_exit`) after its own lines, the files kept."""
     if getattr(args, "no_db", False):
-        return
+        return True
     # imported when the command runs: `bench` starts without SQLAlchemy
     from bench.records.ingest import import_file, sha256_of
     from bench.records.store import RecordsError, open_records
@@ -248,3 +250,14 @@ def record_outputs(args: argparse.Namespace, prog: str, paths: list[Path | str |
         what = f"{path}: " if path is not None and not isinstance(exc, RecordsError) else ""
         print(f"{prog}: warning: {what}not recorded in the records database ({exc}); the files are kept: "
               f"`bench db import` records them later", file=sys.stderr)
+        return False
+    return True
+
+
+def not_recorded_exit(prog: str, code: ExitCode) -> ExitCode:
+    """The exit code of a command whose files the records database did not take: `NOT_RECORDED` unless `code`
+    already says something worse than a success (the warning line above said why)."""
+    if code == ExitCode.OK:
+        return fail(prog, "finished, but NOT recorded in the records database (see the warning above)",
+                    ExitCode.NOT_RECORDED)
+    return code

@@ -34,6 +34,9 @@ class ExitCode(IntEnum):
     #: no stop could be sent to the controller or confirmed (its link is gone): the table may still be moving;
     #: the message says TABLE STATE UNKNOWN, the operator must stop it at the controller
     TABLE_STATE_UNKNOWN = 6
+    #: the command's files are written but the records database did not take them (unreachable, locked, full, a
+    #: newer schema): a failure to record is not a success; `bench db import` records the files later
+    NOT_RECORDED = 7
     #: stopped by a signal (SIGINT, SIGTERM, SIGHUP) where nothing can move (`bench replay`)
     INTERRUPTED = 130
     #: stdout closed by its reader (`bench evaluate | head`): a quiet stop, 128 + SIGPIPE

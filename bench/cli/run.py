@@ -14,7 +14,7 @@ import argparse
 from pathlib import Path
 
 from bench.cli.common import ExitCode, ended_early, fail, raise_interrupted, run_plan, stop_signals
-from bench.cli.db import add_db_options, record_outputs
+from bench.cli.db import add_db_options, not_recorded_exit, record_outputs
 from bench.cli.verify import run_verification
 
 
@@ -138,15 +138,15 @@ def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
                         ExitCode.FAULT)
 
 
-def _record(args: argparse.Namespace, paths: list) -> str:
-    """`record_outputs`; a stop signal ends it: returns the words saying the recording is not done ('' if done)."""
+def _record(args: argparse.Namespace, paths: list) -> tuple[str, bool]:
+    """`record_outputs`; a stop signal ends it: (the words saying the recording was interrupted, '' if it was not;
+    whether the records database took the files)."""
     try:
         with stop_signals(raise_interrupted):
-            record_outputs(args, PROG, paths)
+            return "", record_outputs(args, PROG, paths)
     except KeyboardInterrupt as exc:
         return (f"interrupted ({exc or 'Ctrl-C'}) while recording: NOT recorded in the records database (the files "
-                "are kept: bench db import records them)")
-    return ""
+                "are kept: bench db import records them)"), False
 
 
 def _after_the_result(args: argparse.Namespace, config, outcome, run, sim: bool, out_dir: Path) -> ExitCode:
@@ -170,19 +170,21 @@ def _after_the_result(args: argparse.Namespace, config, outcome, run, sim: bool,
     print(run_summary(outcome, verified))
     if outcome.thermal_paths:       # a calibration over temperature: each temperature's result and the model
         print("thermal: " + ", ".join(str(p) for p in outcome.thermal_paths))
-    not_recorded = _record(args, [outcome.result_path, outcome.log_path])   # after the files: a failure warns above
-    if not_recorded:
-        return fail(PROG, f"{not_recorded}; result: {outcome.result_path}", ExitCode.FAULT)
-    print(records_line(args))
+    interrupted, recorded = _record(args, [outcome.result_path, outcome.log_path])   # after the files
+    if interrupted:
+        return fail(PROG, f"{interrupted}; result: {outcome.result_path}", ExitCode.FAULT)
+    print(records_line(args, recorded))
+    code = ExitCode.OK
     if outcome.verdict is not None and outcome.verdict.failed:
-        return fail(PROG, "verdict FAIL: " + "; ".join(c.labelled() for c in outcome.verdict.failed),
+        code = fail(PROG, "verdict FAIL: " + "; ".join(c.labelled() for c in outcome.verdict.failed),
                     ExitCode.QUALITY)
-    return ExitCode.OK
+    return code if recorded else not_recorded_exit(PROG, code)
 
 
-def records_line(args: argparse.Namespace) -> str:
-    """`records: FILE-OR-URL`, the records database the run's files went to (`--db`, else the default; a failure
-    to record is the warning line above it), or `records: not recorded (--no-db)`."""
+def records_line(args: argparse.Namespace, recorded: bool = True) -> str:
+    """`records: FILE-OR-URL`, the records database the run's files went to (`--db`, else the default), `records:
+    NOT recorded in FILE-OR-URL (...)` when it did not take them (the warning line above says why), or `records: not
+    recorded (--no-db)`."""
     if getattr(args, "no_db", False):
         return "records: not recorded (--no-db)"
     # imported when the command runs: `bench` starts without SQLAlchemy
@@ -198,7 +200,8 @@ def records_line(args: argparse.Namespace) -> str:
                  else parsed.render_as_string(hide_password=True))
     except ArgumentError:
         shown = url
-    return f"records: {shown}"
+    return f"records: {shown}" if recorded else (f"records: NOT recorded in {shown} (the warning above says why; "
+                                                 "`bench db import` records the files)")
 
 
 def run_summary(outcome, verified=None) -> str:

@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 
 from bench.cli.common import ExitCode, fail
-from bench.cli.db import add_db_options, record_outputs
+from bench.cli.db import add_db_options, not_recorded_exit, record_outputs
 from bench.cli.solve_archive import add_archive_options, cmd_archive
 
 PROG = "bench solve"
@@ -94,11 +94,12 @@ def _solve_thermal(args: argparse.Namespace, recorded) -> ExitCode:
         print(f"verdict: {resolved.verdict.headline()}")
     logs_solved = [log.path for log in recorded.logs]
     del recorded
-    record_outputs(args, PROG, [resolved.result_path, *logs_solved])
+    recorded = record_outputs(args, PROG, [resolved.result_path, *logs_solved])
+    code = ExitCode.OK
     failures = [c.labelled() for c in resolved.verdict.failed]
     if failures:
-        return fail(PROG, "verdict FAIL: " + "; ".join(failures), ExitCode.QUALITY)
-    return ExitCode.OK
+        code = fail(PROG, "verdict FAIL: " + "; ".join(failures), ExitCode.QUALITY)
+    return code if recorded else not_recorded_exit(PROG, code)
 
 
 def cmd_solve(args: argparse.Namespace) -> ExitCode:
@@ -173,6 +174,7 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
             if not args.quiet:
                 print(f"wrote {args.json}")
         failures = comparison.failures
+        recorded_ok = True             # a comparison writes no result to record
     else:
         out_dir = Path(args.out) if args.out else Path(recorded.logs[0].path).parent
         try:
@@ -193,13 +195,12 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
         # the logs' decoded samples and states go before the records database reads the logs' metadata again
         # (a 1 GB log solved and then read for its records peaked at 2.1 GB)
         del recorded
-        record_outputs(args, PROG, [result_path, *logs_solved])   # after the files are written
+        recorded_ok = record_outputs(args, PROG, [result_path, *logs_solved])   # after the files are written
         failures = resolved.failures
         if resolved.verdict is not None:
             if not args.quiet:
                 print(f"verdict: {resolved.verdict.headline()}")
             # the recorded [acceptance] limits judge (they include the quality checks)
             failures = [c.labelled() for c in resolved.verdict.failed]
-    if failures:
-        return fail(PROG, "verdict FAIL: " + "; ".join(failures), ExitCode.QUALITY)
-    return ExitCode.OK
+    code = fail(PROG, "verdict FAIL: " + "; ".join(failures), ExitCode.QUALITY) if failures else ExitCode.OK
+    return code if recorded_ok else not_recorded_exit(PROG, code)
