@@ -15,6 +15,7 @@ from pathlib import Path
 from bench.cli.common import ExitCode, fail
 from bench.cli.db import add_db_options, record_outputs
 from bench.cli.solve_archive import add_archive_options, cmd_archive
+from bench.errors import InputError
 
 PROG = "bench solve"
 
@@ -56,7 +57,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _solve_thermal(args: argparse.Namespace, recorded) -> ExitCode:
     """A thermal log: every temperature solved again and the model refitted (`bench.thermal.resolve`)."""
     # imported when the command runs: `bench` starts without the bench core
-    from bench.errors import InputError
     from bench.solve.methods import SolverError
     from bench.thermal.resolve import resolve_thermal
 
@@ -117,7 +117,7 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
         return fail(PROG, "--json writes the --compare table: give --compare too", ExitCode.USAGE)
     against = None
     if args.against:
-        from bench.model.result import CalibrationResult, ResultFormatError  # only with --against
+        from bench.model.result import CalibrationResult  # only with --against
 
         if args.compare:
             return fail(PROG, "--against is for the reports of a solve, not for --compare", ExitCode.USAGE)
@@ -125,7 +125,7 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
             against = CalibrationResult.load(args.against)
         except OSError as exc:
             return fail(PROG, f"{args.against}: cannot read: {exc.strerror or exc}", ExitCode.USAGE)
-        except ResultFormatError as exc:
+        except InputError as exc:   # not a result, not a regular file, too large
             return fail(PROG, str(exc), ExitCode.USAGE)
     try:
         methods = parse_methods(args.compare) if args.compare else None

@@ -48,6 +48,7 @@ from functools import cached_property
 import numpy as np
 
 from bench.errors import BenchError
+from bench.files import InputFileError, open_input
 from bench.log.chunks import DeferredChunk, InflateBudget
 from bench.log.format import (
     CAN_ENCODING,
@@ -537,7 +538,7 @@ class _FileSource:
         self.path = path
 
     def __call__(self, offset: int, length: int) -> bytes:
-        with open(self.path, "rb") as f:
+        with open_input(self.path, max_bytes=None, what="run log") as f:
             f.seek(offset)
             return f.read(length)
 
@@ -561,11 +562,13 @@ def _imu_records(rows: list[dict], times: np.ndarray) -> ImuRecords:
 def _map_file(path: str):
     """The file's bytes, memory-mapped (no copy; the walk reads each byte about once)."""
     try:
-        with open(path, "rb") as f:
+        with open_input(path, max_bytes=None, what="run log") as f:   # a regular file: never a FIFO or a device
             try:
                 return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
             except (ValueError, OSError):   # empty, or a file that cannot be mapped: read it
                 return f.read()
+    except InputFileError as exc:
+        raise LogError(str(exc)) from exc
     except OSError as exc:
         raise LogError(f"{path}: cannot read: {exc.strerror or exc}") from exc
 

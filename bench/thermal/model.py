@@ -18,16 +18,14 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bench.calibration.compensation import MAX_RESULT_BYTES
 from bench.errors import InputError
+from bench.files import read_input_text, write_output_text
 from bench.model.families import RESULT_UNITS, canonical_names, family_of
 from bench.model.result import CalibrationResult
 from bench.model.thermal import DIAGONAL_NAMES
@@ -127,7 +125,7 @@ class ThermalModel:
         return json.dumps(self.to_json(), indent=2, allow_nan=False)
 
     def save(self, path: str | Path) -> None:
-        Path(path).write_text(self.dumps() + "\n", encoding="utf-8")
+        write_output_text(path, self.dumps() + "\n")
 
     @classmethod
     def from_json(cls, data: Any, origin: str = "<thermal>") -> "ThermalModel":
@@ -191,19 +189,8 @@ class ThermalModel:
 
 
 def read_bounded_text(path: str) -> str:
-    """The UTF-8 text of a regular file of at most `MAX_RESULT_BYTES` (`ThermalFormatError` otherwise)."""
-    info = os.stat(path)
-    if not stat.S_ISREG(info.st_mode):
-        raise ThermalFormatError(f"{path}: not a regular file")
-    if info.st_size > MAX_RESULT_BYTES:
-        raise ThermalFormatError(f"{path}: {info.st_size} bytes, more than a thermal file holds "
-                                 f"(at most {MAX_RESULT_BYTES})")
-    with open(path, "rb") as f:
-        data = f.read(MAX_RESULT_BYTES + 1)
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ThermalFormatError(f"{path}: not UTF-8 (byte {exc.start})") from exc
+    """The UTF-8 text of a regular file of at most `MAX_INPUT_FILE_BYTES` (`InputError` otherwise)."""
+    return read_input_text(path, what="result or thermal file")
 
 
 def is_thermal_text(text: str) -> bool:
