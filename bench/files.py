@@ -18,12 +18,14 @@ and renamed into place once complete: a failure leaves the old file as it was, n
 from __future__ import annotations
 
 import contextlib
+import json
+import math
 import os
 import stat
 import struct
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 from bench.errors import InputError
 
@@ -35,6 +37,8 @@ _KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"), (sta
           (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"))
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 _OP_HEADER, _OP_METADATA, _OP_CHUNK = 0x01, 0x0C, 0x06
+#: the most digits of an integer in a JSON file (counters and sample counts need 19; Python refuses over 4300)
+MAX_JSON_INT_DIGITS = 30
 #: how far into a file the run metadata of a log is looked for (the recorder writes it after the header)
 _RUN_LOG_HEAD_BYTES = 1 << 20
 
@@ -97,6 +101,43 @@ def read_input_text(path: str | os.PathLike, *, max_bytes: int = MAX_INPUT_FILE_
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise InputFileError(f"{_short(path)}: not UTF-8 (byte {exc.start}): not a {what}") from None
+
+
+class _Refused(ValueError):
+    """A number `parse_json` does not take."""
+
+
+def _json_int(text: str) -> int:
+    if len(text.lstrip("-")) > MAX_JSON_INT_DIGITS:
+        raise _Refused(f"an integer of {len(text.lstrip('-'))} digits (at most {MAX_JSON_INT_DIGITS})")
+    return int(text)
+
+
+def _json_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise _Refused(f"the number {text[:40]} is beyond the range of a float")
+    return value
+
+
+def _json_constant(name: str) -> Any:
+    raise _Refused(f"{name} is not a number")
+
+
+def parse_json(text: str | bytes, origin: str) -> Any:
+    """JSON from a file from outside, the one boundary for its numbers: an integer of more than
+    `MAX_JSON_INT_DIGITS` digits, a number beyond a float (1e400), NaN or Infinity, or nesting deeper than
+    Python's recursion limit is an `InputFileError` (one line naming `origin`), as is invalid JSON."""
+    try:
+        return json.loads(text, parse_int=_json_int, parse_float=_json_float, parse_constant=_json_constant)
+    except json.JSONDecodeError as exc:
+        raise InputFileError(f"{_short(origin)}:{exc.lineno}: invalid JSON: {exc.msg}") from None
+    except _Refused as exc:
+        raise InputFileError(f"{_short(origin)}: {exc}") from None
+    except RecursionError:
+        raise InputFileError(f"{_short(origin)}: JSON nested too deeply") from None
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise InputFileError(f"{_short(origin)}: invalid JSON: {str(exc)[:100]}") from None
 
 
 def _string(buf: bytes, pos: int) -> tuple[str, int]:
@@ -185,5 +226,6 @@ def write_output_text(out: str | os.PathLike, text: str, inputs: Iterable[str | 
         temporary.write_text(text, encoding="utf-8")
 
 
-__all__ = ["MAX_INPUT_FILE_BYTES", "InputFileError", "OutputFileError", "check_output", "file_kind", "is_run_log",
-           "open_input", "read_input_bytes", "read_input_text", "replaced_output", "write_output_text"]
+__all__ = ["MAX_INPUT_FILE_BYTES", "MAX_JSON_INT_DIGITS", "InputFileError", "OutputFileError", "check_output",
+           "file_kind", "is_run_log", "open_input", "parse_json", "read_input_bytes", "read_input_text",
+           "replaced_output", "write_output_text"]

@@ -65,6 +65,7 @@ from bench.log.json_topics import (
     chamber_state_row,
     event_row,
     malformed_damage,
+    metadata_damage,
     not_read_damage,
     parse_json_rows,
     parse_topic,
@@ -623,6 +624,7 @@ def _read_log(path: str, defer_samples: bool, messages: bool = True) -> RunLog:
                              f"attachment {dbc[:64]!r} (the run's DBC file) holds {len(w.attachments[dbc][1])} bytes, "
                              f"more than a DBC file may ({MAX_DBC_BYTES} bytes); dropped"))
         del w.attachments[dbc]
+    damage += metadata_damage(w.metadata)
 
     # The summary's statistics tell how many messages each channel should have.
     if w.statistics is not None:

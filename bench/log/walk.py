@@ -79,7 +79,7 @@ _DROP_BEHIND = 64 << 20   # bytes of a mapped file the walk leaves mapped behind
 class Damage:
     """One damaged or missing part of a log."""
 
-    kind: str                    # "chunk", "truncated", "corrupt", "no_summary", "attachment", "message"
+    kind: str                    # "chunk", "truncated", "corrupt", "no_summary", "attachment", "message", "metadata"
     offset: int                  # byte offset of the damaged record (or of the end of the file)
     reason: str
     start_ns: int | None = None  # log-time range of a lost chunk, when its header was readable
@@ -105,7 +105,9 @@ class Damage:
             return f"chunk at byte {self.offset}{where}: {self.reason}; its messages lost ({what})"
         if self.kind == "truncated":
             return f"truncated after byte {self.offset}: {self.reason}{where}"
-        return f"byte {self.offset}: {self.reason}{where}" if self.kind != "no_summary" else self.reason
+        if self.kind in ("no_summary", "metadata"):
+            return self.reason
+        return f"byte {self.offset}: {self.reason}{where}"
 
 
 @dataclass

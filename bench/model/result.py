@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.errors import InputError
-from bench.files import read_input_text, write_output_text
+from bench.files import InputFileError, parse_json, read_input_text, write_output_text
 from bench.model.families import RESULT_UNITS, canonical_names, family_of
 from bench.model.imu import ImuCoefficients
 
@@ -137,13 +137,9 @@ class CalibrationResult:
     @classmethod
     def loads(cls, text: str, origin: str = "<result>") -> "CalibrationResult":
         try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ResultFormatError(f"{origin}:{exc.lineno}: invalid JSON: {exc.msg}") from exc
-        except RecursionError:
-            raise ResultFormatError(f"{origin}: JSON nested too deeply") from None
-        except ValueError as exc:   # an integer of more digits than Python converts
-            raise ResultFormatError(f"{origin}: invalid JSON: {str(exc)[:100]}") from None
+            data = parse_json(text, origin)
+        except InputFileError as exc:
+            raise ResultFormatError(str(exc)) from None
         return cls.from_json(data, origin)
 
     @classmethod
@@ -184,7 +180,7 @@ def _read_table(table: Any, origin: str, where: str) -> dict[str, Coefficient]:
                 budget = {str(c): math.nan if v is None else float(v) for c, v in budget.items()}
             out[name] = Coefficient(float(entry["value"]), math.nan if sigma is None else float(sigma),
                                     str(entry["unit"]), budget, None if k is None else float(k))
-        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
             raise ResultFormatError(f"{origin}: {where}.{name}: needs value, sigma and unit (and a budget of "
                                     "numbers, when given)") from exc
         expected = RESULT_UNITS[family_of(name)][0]

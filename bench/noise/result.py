@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from bench.errors import InputError
-from bench.files import MAX_INPUT_FILE_BYTES, read_input_bytes, write_output_text
+from bench.files import MAX_INPUT_FILE_BYTES, InputFileError, parse_json, read_input_bytes, write_output_text
 from bench.model.units import MICRO_G
 from bench.noise.allan import AllanCurve, PhaseAccumulator, allan_curves
 from bench.noise.fit import ChannelFit, TermFit, fit_curve
@@ -216,9 +216,9 @@ class NoiseResult:
         path = Path(path)
         raw = read_input_bytes(path, max_bytes=MAX_INPUT_FILE_BYTES, what="noise result")
         try:
-            doc = json.loads(raw.decode("utf-8"))
-        except (UnicodeDecodeError, ValueError, RecursionError) as exc:
-            raise NoiseResultError(f"{path}: not JSON ({str(exc)[:80]})") from None
+            doc = parse_json(raw, str(path))
+        except InputFileError as exc:
+            raise NoiseResultError(str(exc)) from None
         return cls.from_json(doc, str(path))
 
 

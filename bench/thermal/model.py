@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from bench.errors import InputError
-from bench.files import read_input_text, write_output_text
+from bench.files import InputFileError, parse_json, read_input_text, write_output_text
 from bench.model.families import RESULT_UNITS, canonical_names, family_of
 from bench.model.result import CalibrationResult
 from bench.model.thermal import DIAGONAL_NAMES
@@ -174,11 +174,9 @@ class ThermalModel:
     @classmethod
     def loads(cls, text: str, origin: str = "<thermal>") -> "ThermalModel":
         try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ThermalFormatError(f"{origin}:{exc.lineno}: invalid JSON: {exc.msg}") from exc
-        except RecursionError as exc:
-            raise ThermalFormatError(f"{origin}: JSON nested too deeply") from exc
+            data = parse_json(text, origin)
+        except InputFileError as exc:
+            raise ThermalFormatError(str(exc)) from None
         return cls.from_json(data, origin)
 
     @classmethod
@@ -196,8 +194,8 @@ def read_bounded_text(path: str) -> str:
 def is_thermal_text(text: str) -> bool:
     """Whether `text` is JSON of a thermal file (any version), to tell it from a calibration result."""
     try:
-        data = json.loads(text)
-    except (json.JSONDecodeError, RecursionError):
+        data = parse_json(text, "<thermal>")
+    except InputError:
         return False
     return isinstance(data, dict) and data.get("format") == THERMAL_FORMAT
 

@@ -117,15 +117,16 @@ def lz4_bomb(block: bytes, total: int, *, content_size: bool = True) -> bytes:
     return b"".join(out + [comp.flush()])
 
 
-def rewrite(src, dst, message=None, attachment=None):
+def rewrite(src, dst, message=None, attachment=None, metadata=None):
     """A copy of log `src` at `dst` through `mcap.writer`, each message's data through
-    `message(topic, data) -> data` and each attachment's through `attachment(name, data) -> data`."""
+    `message(topic, data) -> data`, each attachment's through `attachment(name, data) -> data` and each
+    metadata record's through `metadata(name, dict) -> dict`."""
     with open(src, "rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
         messages = list(reader.iter_messages(log_time_order=False))
         attachments = list(reader.iter_attachments())
-        metadata = list(reader.iter_metadata())
+        records = list(reader.iter_metadata())
     with open(dst, "wb") as f:
         w = Writer(f, compression=CompressionType.ZSTD)
         w.start(profile="", library="tests/helpers/mcap_surgery.py")
@@ -138,8 +139,8 @@ def rewrite(src, dst, message=None, attachment=None):
         for a in attachments:
             data = a.data if attachment is None else attachment(a.name, a.data)
             w.add_attachment(a.log_time, a.create_time, a.name, a.media_type, data)
-        for m in metadata:
-            w.add_metadata(m.name, m.metadata)
+        for m in records:
+            w.add_metadata(m.name, m.metadata if metadata is None else metadata(m.name, dict(m.metadata)))
         w.finish()
     return dst
 
