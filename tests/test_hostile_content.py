@@ -148,3 +148,22 @@ def test_parse_json_is_the_one_boundary_for_numbers():
             parse_json(raw, "f.json")
     assert parse_json('{"a": [1, 2.5, -3e-300, 123456789012345678901234567890]}', "f") == {
         "a": [1, 2.5, -3e-300, 123456789012345678901234567890]}
+
+
+@pytest.mark.parametrize("time_s", [math.nan, 1e300, -1e300], ids=["nan", "1e300", "-1e300"])
+@pytest.mark.parametrize("suffix", [".asc", ".blf"])
+def test_export_can_leaves_out_frames_whose_time_is_no_time(short_log, tmp_path, time_s, suffix):
+    seen: list[int] = []
+
+    def forge(topic: str, data: bytes) -> bytes:
+        if topic != "/can/raw" or seen:
+            return data
+        seen.append(1)
+        return ms.can_frames(5, 8, 0x100, time_s)
+
+    log = ms.rewrite(short_log, tmp_path / "frames.mcap", forge)
+    out = tmp_path / f"frames{suffix}"
+    rc, stdout, err = cli(["export-can", str(log), "--out", str(out)])
+    assert rc == 0 and "Traceback" not in err, err
+    assert err.count("\n") == 1 and "5 frames whose recorded time is no time" in err, err
+    assert out.stat().st_size > 0 and sorted(p.name for p in tmp_path.iterdir()) == sorted(["frames.mcap", out.name])

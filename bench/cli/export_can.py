@@ -39,7 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def cmd_export_can(args: argparse.Namespace) -> ExitCode:
     # imported when the command runs: `bench` starts without the bench core
     from bench.files import check_output, replaced_output
-    from bench.log.can_export import CanExportError, can_format, export_can
+    from bench.log.can_export import MAX_FRAME_TIME_S, CanExportError, can_format, export_can
     from bench.log.reader import LogError, read_log
 
     try:
@@ -49,10 +49,13 @@ def cmd_export_can(args: argparse.Namespace) -> ExitCode:
         for line in log.damage:
             print(f"{PROG}: damaged log: {line}", file=sys.stderr)
         with replaced_output(args.out, (args.log,), force=args.force) as temporary:
-            count = export_can(log, temporary, args.from_s, args.to_s)
+            count, left_out = export_can(log, temporary, args.from_s, args.to_s)
     except (LogError, CanExportError, InputError) as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     except OSError as exc:
         return fail(PROG, f"{args.out}: cannot write: {exc.strerror or exc}", ExitCode.USAGE)
+    if left_out:
+        print(f"{PROG}: {left_out} frames whose recorded time is no time (NaN, negative or past "
+              f"{MAX_FRAME_TIME_S:g} s) left out", file=sys.stderr)
     print(f"wrote {count} CAN frames to {args.out}")
     return ExitCode.OK
