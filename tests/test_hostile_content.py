@@ -167,3 +167,37 @@ def test_export_can_leaves_out_frames_whose_time_is_no_time(short_log, tmp_path,
     assert rc == 0 and "Traceback" not in err, err
     assert err.count("\n") == 1 and "5 frames whose recorded time is no time" in err, err
     assert out.stat().st_size > 0 and sorted(p.name for p in tmp_path.iterdir()) == sorted(["frames.mcap", out.name])
+
+
+# -- item 6: long text fields are cut before they are held or parsed in bulk ----------------------------------
+
+def _chamber_log(path: Path, states: int, text_bytes: int) -> Path:
+    from mcap.writer import CompressionType, Writer
+
+    with open(path, "wb") as f:
+        writer = Writer(f, compression=CompressionType.ZSTD, chunk_size=4 << 20)
+        writer.start(profile="", library="tests")
+        channel = writer.register_channel("/chamber/state", "json", 0)
+        for k in range(states):
+            state = {"time_s": float(k), "temperature_c": 25.0, "setpoint_c": 25.0, "ramp_c_per_min": None,
+                     "running": True, "alarms": 1, "alarm_text": "x" * text_bytes}
+            writer.add_message(channel, k * 1_000_000_000, json.dumps(state).encode(), k * 1_000_000_000)
+        writer.finish()
+    return path
+
+
+def test_chamber_states_with_1_mb_alarm_texts_are_cut_as_they_are_read(tmp_path):
+    """200 states of 1 MB each (a file of ~1 MB: the text compresses) were held, joined and parsed whole:
+    three copies of 200 MB at once. Cut as they are gathered, the read holds about one message at a time."""
+    import tracemalloc
+
+    log_path = _chamber_log(tmp_path / "alarms.mcap", 200, 1 << 20)
+    tracemalloc.start()
+    try:
+        log = read_log(log_path)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert len(log.chamber_states) == 200
+    assert {len(s.alarm_text) for s in log.chamber_states} == {500}
+    assert peak < 64 << 20, f"{peak / 2 ** 20:.0f} MiB traced at the peak"

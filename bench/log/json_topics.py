@@ -17,6 +17,10 @@ from drivers.chamber import ChamberAlarms, ChamberState
 
 #: an alarm text from the log is cut to this many characters
 MAX_ALARM_TEXT = 500
+#: a message of a kept JSON topic longer than this (a table or chamber state is ~300 bytes, an event a few kB) is
+#: parsed alone as it is gathered and its strings cut to `MAX_CUT_TEXT` characters (`shrink_message`)
+MAX_JSON_MESSAGE_BYTES = 64 << 10
+MAX_CUT_TEXT = 4096
 _T = TypeVar("_T")
 
 _INT64 = (-(1 << 63), 1 << 63)
@@ -167,6 +171,33 @@ def metadata_damage(metadata: dict[str, dict[str, str]]) -> list[Damage]:
     return damage
 
 
+def _cut_strings(value, depth: int = 0):
+    """`value` with every string longer than `MAX_CUT_TEXT` cut to it (None past 16 levels of nesting)."""
+    if type(value) is str:
+        return value[:MAX_CUT_TEXT]
+    if depth >= 16:
+        return None
+    if type(value) is dict:
+        return {k[:MAX_CUT_TEXT]: _cut_strings(v, depth + 1) for k, v in value.items()}
+    if type(value) is list:
+        return [_cut_strings(v, depth + 1) for v in value]
+    return value
+
+
+def shrink_message(payload: bytes) -> bytes:
+    """A JSON message over `MAX_JSON_MESSAGE_BYTES`, parsed alone and its strings cut to `MAX_CUT_TEXT` characters
+    (an alarm text of 1 MB), or `b"0"` (malformed: not an object) when it does not parse or is still too long
+    (a huge array). Called as the message is gathered, so no reader ever holds or parses the long form in bulk."""
+    try:
+        row = json.loads(payload, parse_constant=_no_constant)
+    except (ValueError, RecursionError):
+        return b"0"
+    if type(row) is not dict:
+        return b"0"
+    cut = json.dumps(_cut_strings(row), separators=(",", ":")).encode()
+    return cut if len(cut) <= MAX_JSON_MESSAGE_BYTES else b"0"
+
+
 def not_read_damage(topic: str, count: int, limit: int) -> Damage:
     """`count` messages on `topic` past the `limit` the reader parses: not read, counted as lost."""
     return Damage("message", 0, f"{count} {topic} messages past the first {limit} not read", lost={topic: count})
@@ -203,6 +234,6 @@ def parse_json_rows(payloads: list[bytes]) -> tuple[list, int]:
     return rows, bad
 
 
-__all__ = ["MAX_ALARM_TEXT", "chamber_state_row", "event_ok", "event_row", "is_int", "is_number", "is_vec3",
-           "malformed_damage", "metadata_damage", "not_read_damage", "numbers_ok", "parse_json_rows", "parse_topic",
-           "sample_row_ok", "state_row_ok", "utc_text_ok"]
+__all__ = ["MAX_ALARM_TEXT", "MAX_CUT_TEXT", "MAX_JSON_MESSAGE_BYTES", "chamber_state_row", "event_ok", "event_row",
+           "is_int", "is_number", "is_vec3", "malformed_damage", "metadata_damage", "not_read_damage", "numbers_ok",
+           "parse_json_rows", "parse_topic", "sample_row_ok", "shrink_message", "state_row_ok", "utc_text_ok"]

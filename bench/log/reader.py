@@ -62,6 +62,7 @@ from bench.log.format import (
     decode_can_frames,
 )
 from bench.log.json_topics import (
+    MAX_JSON_MESSAGE_BYTES,
     chamber_state_row,
     event_row,
     malformed_damage,
@@ -70,10 +71,11 @@ from bench.log.json_topics import (
     parse_json_rows,
     parse_topic,
     sample_row_ok,
+    shrink_message,
     state_row_ok,
 )
 from bench.log.threads import reader_threads
-from bench.log.walk import MAX_DBC_BYTES, ChannelData, Damage, WalkError, walk
+from bench.log.walk import MAX_DBC_BYTES, ChannelData, Damage, MessageCut, WalkError, walk
 from bench.plan.events import Event
 from drivers.chamber import ChamberState
 from drivers.imu import ImuSampleBlock, ImuStats
@@ -95,6 +97,8 @@ MAX_CHAMBER_STATES = 200_000
 #: the topics a read keeps (the others are only counted)
 KEPT_TOPICS = frozenset({TOPIC_CAN, TOPIC_SAMPLES, TOPIC_STATE, TOPIC_EVENTS, TOPIC_CHAMBER})
 _JSON_BATCH = 1 << 16
+#: the kept JSON topics' long messages are cut as they are gathered (1 MB alarm texts by the thousand took 4.4 GB)
+_CUT = MessageCut(frozenset({TOPIC_STATE, TOPIC_EVENTS, TOPIC_CHAMBER}), MAX_JSON_MESSAGE_BYTES, shrink_message)
 
 
 @dataclass
@@ -596,7 +600,8 @@ def _read_log(path: str, defer_samples: bool, messages: bool = True) -> RunLog:
                  source=_FileSource(path),
                  keep_topics=frozenset(KEPT_TOPICS if messages else ()),
                  keep_limits={TOPIC_STATE: MAX_JSON_MESSAGES, TOPIC_EVENTS: MAX_EVENTS,
-                              TOPIC_CHAMBER: MAX_CHAMBER_STATES})
+                              TOPIC_CHAMBER: MAX_CHAMBER_STATES},
+                 cut=_CUT)
     except WalkError as exc:
         raise LogError(f"{path}: {exc}") from exc
     finally:
