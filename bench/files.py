@@ -220,9 +220,9 @@ def replaced_output(out: str | os.PathLike, inputs: Iterable[str | os.PathLike] 
 
 
 def write_output_text(out: str | os.PathLike, text: str, inputs: Iterable[str | os.PathLike] = (), *,
-                      force: bool = False) -> None:
+                      force: bool = False, option: str = "--out") -> None:
     """Write `text` (UTF-8) to `out` through `replaced_output`."""
-    with replaced_output(out, inputs, force=force) as temporary:
+    with replaced_output(out, inputs, force=force, option=option) as temporary:
         temporary.write_text(text, encoding="utf-8")
 
 

@@ -199,3 +199,16 @@ def test_the_run_log_check_reads_only_the_head(run, tmp_path):
     assert is_run_log(log)
     assert not is_run_log(result) and not is_run_log(Path("/dev/zero")) and not is_run_log(tmp_path)
     json.loads(result.read_text(encoding="utf-8"))
+
+
+def test_a_table_check_file_of_1_gb_is_refused_before_it_is_read(tmp_path):
+    from bench.config.load import ConfigError, parse_config
+
+    big = tmp_path / "t.table-check.json"
+    with open(big, "wb") as f:
+        f.truncate(1 << 30)    # sparse: read whole it held 2.2 GB
+    text = ('format = "turntable-bench/config"\nversion = 1\n[site]\nlatitude_deg = 30.27\n[table]\nurl = "sim"\n'
+            f'dialect = "scpi"\ncheck = "{big}"\n[imu]\ninterface = "virtual"\nchannel = "t"\nrate_hz = 200.0\n'
+            '[plan]\npositions = "optimal-24"\n')
+    with pytest.raises(ConfigError, match="more than a table-check file holds"):
+        parse_config(text)

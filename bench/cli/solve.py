@@ -16,6 +16,7 @@ from bench.cli.common import ExitCode, fail
 from bench.cli.db import add_db_options, record_outputs
 from bench.cli.solve_archive import add_archive_options, cmd_archive
 from bench.errors import InputError
+from bench.files import write_output_text
 
 PROG = "bench solve"
 
@@ -158,7 +159,10 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
             print(format_comparison(comparison), end="")
         if args.json:
             try:
-                Path(args.json).write_text(json.dumps(comparison.to_json(), indent=2) + "\n", encoding="utf-8")
+                write_output_text(args.json, json.dumps(comparison.to_json(), indent=2) + "\n", args.logs,
+                                  option="--json")
+            except InputError as exc:   # a log read, or a run log
+                return fail(PROG, str(exc), ExitCode.USAGE)
             except OSError as exc:
                 return fail(PROG, f"cannot write {args.json}: {exc.strerror or exc}", ExitCode.USAGE)
             if not args.quiet:
