@@ -201,3 +201,16 @@ def test_chamber_states_with_1_mb_alarm_texts_are_cut_as_they_are_read(tmp_path)
     assert len(log.chamber_states) == 200
     assert {len(s.alarm_text) for s in log.chamber_states} == {500}
     assert peak < 64 << 20, f"{peak / 2 ** 20:.0f} MiB traced at the peak"
+
+
+def test_a_design_matrix_with_nan_is_a_solver_error_not_a_linalg_error():
+    """Found by tests/fuzz/hostile_files.py: a thermal log whose table states hold null in every message gave
+    `LinAlgError: SVD did not converge` in bench solve."""
+    import numpy as np
+
+    from bench.solve.methods import SolverError, _require_rank
+
+    design = np.ones((6, 4))
+    design[2, 1] = np.nan
+    with pytest.raises(SolverError, match="not all finite"):
+        _require_rank(design, "rotation schedule")
