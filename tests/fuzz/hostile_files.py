@@ -215,7 +215,7 @@ def _config(folder: Path, which: str, path: Path) -> Path:
 # -- running ---------------------------------------------------------------------------------------------------
 
 def run_one(code: Path, argv: list[str], cwd: Path, timeout_s: float, as_limit: int) -> dict:
-    env = {**os.environ, "PYTHONPATH": str(code), "MPLBACKEND": "Agg"}
+    env = {**os.environ, "PYTHONPATH": str(code), "MPLBACKEND": "Agg"}   # BENCH_DB: set by main, in --out
     err_path = cwd / f".stderr-{os.getpid()}-{time.monotonic_ns()}"
     with open(err_path, "wb") as err:
         returncode, hung, usage, wall_s = run_limited([sys.executable, "-m", "bench.cli", *argv], cwd, env,
@@ -282,7 +282,7 @@ def jobs_for(base: Path, thermal: Path, result: Path, logs, json_files, out: Pat
                 ("check-table --calibration", ["check-table", "--log", str(base), "--calibration", str(special),
                                                "--out", str(work)]),
                 ("noise --calibration", ["noise", str(base), "--calibration", str(special), "--out", str(work)]),
-                ("thermal eval", ["thermal", "eval", str(special), "25"]),
+                ("thermal eval", ["thermal", "eval", str(special), "--temperature-c", "25"]),
                 ("run --resume", ["run", "--config", str(config), "--sim", "--resume", str(special), "--out",
                                   str(work), "--quiet", "--no-db"])):
             jobs.append(("non-regular", f"{what} {name}", argv))
@@ -318,6 +318,7 @@ def main() -> int:
     args = ap.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="hostile-files-"))
     out.mkdir(parents=True, exist_ok=True)
+    os.environ["BENCH_DB"] = str(out / "records.sqlite")   # the runs record here, never in the user's database
     rng = random.Random(args.seed)
     from tests.helpers.run import record_short_run, record_thermal_run
 
