@@ -389,6 +389,6 @@ def test_apply_refuses_a_file_that_is_no_log_and_never_overwrites_the_log(noise_
     assert rc == 2 and len(stderr.strip().splitlines()) == 1, stderr
     rc, _, stderr = cli(["apply", str(noise_free_run.truth), str(noise_free_run.log), "--out",
                          str(noise_free_run.log)])
-    assert rc == 2 and "is the log itself" in stderr
+    assert rc == 2 and "a file this command reads" in stderr
     rc, _, stderr = cli(["apply", str(noise_free_run.truth), str(noise_free_run.log), "--out", str(tmp_path / "o.txt")])
     assert rc == 2 and "--format" in stderr

@@ -351,7 +351,7 @@ def test_bench_noise_usage_errors_are_one_line(argv, message):
 
 
 def test_a_file_that_is_not_a_noise_result_is_refused(tmp_path):
-    for text, message in (("{", "not JSON"), ('{"format": "x"}', "format"),
+    for text, message in (("{", "invalid JSON"), ('{"format": "x"}', "format"),
                           (json.dumps({"format": FORMAT, "version": 9}), "version"),
                           (json.dumps({"format": FORMAT, "version": 1, "channels": {"g": {"terms": {
                               "arw": {"value": -1}}}}, "rate_hz": 1, "n_samples": 1}), "value")):
@@ -451,7 +451,7 @@ def test_imu_noise_file_feeds_the_bias_stabilities(tmp_path):
 
 @pytest.mark.parametrize("content, message", [
     (None, "no such noise result file"),
-    ("{", "not JSON"),
+    ("{", "invalid JSON"),
     ('{"format": "turntable-bench/result", "version": 1}', "format is"),
     (json.dumps({"format": FORMAT, "version": 1, "channels": {}, "rate_hz": 100, "n_samples": 10}),
      "holds no gyro bias instability"),

@@ -153,7 +153,7 @@ def test_a_result_without_temperature_needs_one_given():
     (lambda d: d["thermal_model"].update(version=2), "thermal_model: not a"),
     (lambda d: d["thermal_model"]["coefficients"].update(Zz_q={}), "unknown coefficient name"),
     (lambda d: d["thermal_model"]["coefficients"]["D0_x"].update(degree=3), "D0_x: malformed"),
-    (lambda d: d["thermal_model"]["coefficients"]["D0_x"].update(polynomial=[float("nan"), 1.0]), "D0_x: malformed"),
+    (lambda d: d["thermal_model"]["coefficients"]["D0_x"].update(polynomial=[float("nan"), 1.0]), "NaN is not a"),
 ])
 def test_a_bad_thermal_file_is_one_clear_error(mutate, message):
     points = [point_from_result(_result(t, {"D0_x": 0.1 * t}, {"D0_x": 0.01}), f"r{t:g}") for t in TEMPS]

@@ -18,8 +18,6 @@ sigmas, taken as independent (the result file holds no covariances).
 from __future__ import annotations
 
 import math
-import os
-import stat
 from dataclasses import dataclass
 from typing import Any
 
@@ -144,26 +142,9 @@ __all__ = ["EQUATIONS", "FORCE_UNITS", "RATE_UNITS", "RAW_UNIT", "TRIADS", "Comp
            "TriadCompensation", "compensation_of", "load_result"]
 
 
-#: the largest result file read (a result of the bench is a few tens of kB)
-MAX_RESULT_BYTES = 16 * 1024 * 1024
 
 
 def load_result(path: str) -> CalibrationResult:
-    """A result file from outside, bounded: a regular file of at most `MAX_RESULT_BYTES`, UTF-8 JSON
+    """A result file from outside, bounded: a regular file of at most `MAX_INPUT_FILE_BYTES`, UTF-8 JSON
     (`InputError` in one line otherwise; OSError when it cannot be read)."""
-    info = os.stat(path)
-    if not stat.S_ISREG(info.st_mode):
-        raise CompensationError(f"{path}: not a regular file")
-    if info.st_size > MAX_RESULT_BYTES:
-        raise CompensationError(f"{path}: {info.st_size} bytes, more than a result file holds "
-                                f"(at most {MAX_RESULT_BYTES})")
-    with open(path, "rb") as f:
-        data = f.read(MAX_RESULT_BYTES + 1)
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise CompensationError(f"{path}: not UTF-8 (byte {exc.start})") from exc
-    try:
-        return CalibrationResult.loads(text, path)
-    except RecursionError as exc:
-        raise CompensationError(f"{path}: JSON nested too deeply") from exc
+    return CalibrationResult.load(path)

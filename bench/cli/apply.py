@@ -21,8 +21,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Decode a run log's IMU samples from its raw CAN frames, compensate them with a result's "
                     "calibration (u = C (y - b)) and write them: a new MCAP (--out FILE.mcap: the raw samples on "
                     "/imu/samples and the compensated ones on /imu/compensated; the log itself is not changed) or "
-                    "CSV (--out FILE.csv). Exit codes: 0 written, 2 usage error, unusable result or log, or "
-                    "unwritable output.")
+                    "CSV (--out FILE.csv). --out is never the LOG or RESULT read, nor a run log (unless --force); "
+                    "it is replaced only once written in full. Exit codes: 0 written, 2 usage error, unusable "
+                    "result or log, or unwritable output.")
     parser.add_argument("result", metavar="RESULT", help="a result file (<run-id>.result.json)")
     parser.add_argument("log", metavar="LOG", help="a run log (.mcap)")
     parser.add_argument("--out", metavar="FILE", required=True, help="output file: .mcap or .csv")
@@ -31,6 +32,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="unit of the angular rates (default %(default)s)")
     parser.add_argument("--force-unit", choices=("g", "m/s^2"), default="g",
                         help="unit of the specific force (default %(default)s)")
+    parser.add_argument("--force", action="store_true",
+                        help="replace --out even when it is a run log (never the LOG or RESULT read)")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
     parser.set_defaults(func=cmd_apply)
 
@@ -39,6 +42,7 @@ def cmd_apply(args: argparse.Namespace) -> ExitCode:
     # imported when the command runs: `bench` starts without the bench core
     from bench.calibration.apply import apply_to_log, write_csv, write_mcap
     from bench.calibration.compensation import compensation_of, load_result
+    from bench.files import check_output, replaced_output
     from bench.log.reader import LogError
 
     out = Path(args.out)
@@ -51,9 +55,11 @@ def cmd_apply(args: argparse.Namespace) -> ExitCode:
         return fail(PROG, str(exc), ExitCode.USAGE)
     except OSError as exc:
         return fail(PROG, f"{args.result}: cannot read: {exc.strerror or exc}", ExitCode.USAGE)
-    if out.resolve() == Path(args.log).resolve():
-        return fail(PROG, f"--out {args.out} is the log itself: write the compensated samples to a new file",
-                    ExitCode.USAGE)
+    inputs = (args.result, args.log)
+    try:
+        check_output(out, inputs, force=args.force)   # before reading a large log
+    except InputError as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
     try:
         samples, _log = apply_to_log(compensation, args.log, rate_unit=args.rate_unit, force_unit=args.force_unit)
     except (LogError, InputError) as exc:
@@ -61,10 +67,13 @@ def cmd_apply(args: argparse.Namespace) -> ExitCode:
     if not len(samples):
         return fail(PROG, f"{args.log}: no IMU samples to compensate", ExitCode.USAGE)
     try:
-        if fmt == "csv":
-            write_csv(samples, out)
-        else:
-            write_mcap(samples, out, compensation=compensation, source_log=args.log)
+        with replaced_output(out, inputs, force=args.force) as temporary:
+            if fmt == "csv":
+                write_csv(samples, temporary)
+            else:
+                write_mcap(samples, temporary, compensation=compensation, source_log=args.log)
+    except InputError as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
     except OSError as exc:
         return fail(PROG, f"{args.out}: cannot write: {exc.strerror or exc}", ExitCode.USAGE)
     if not args.quiet:

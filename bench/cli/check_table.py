@@ -23,7 +23,7 @@ from pathlib import Path
 
 from bench.cli.common import ExitCode, ended_early, fail, raise_interrupted, run_plan, stop_signals
 from bench.cli.db import add_db_options, not_recorded_exit, record_outputs
-from bench.errors import BenchError
+from bench.errors import BenchError, InputError
 from bench.model.units import format_hms
 
 PROG = "bench check-table"
@@ -73,13 +73,13 @@ def _load_calibration(path: str | None):
         return None
     # imported when the command runs: `bench` starts without the bench core
     from bench.model.imu import ImuCoefficients
-    from bench.model.result import CalibrationResult, ResultFormatError
+    from bench.model.result import CalibrationResult
 
     try:
         values = CalibrationResult.load(path).values()
     except OSError as exc:
         raise UsageError(f"{path}: cannot read: {exc.strerror or exc}") from exc
-    except ResultFormatError as exc:
+    except InputError as exc:   # not a result, not a regular file, too large
         raise UsageError(str(exc)) from exc
     ideal = ImuCoefficients.ideal().to_canonical()
     needed = [n for n in ideal if n.split("_")[0] in ("Ka", "K0", "Ea")]
@@ -185,8 +185,6 @@ def _from_log(args, calibration) -> ExitCode:
 
     if args.black_box_arcsec is not None or args.seed is not None:
         return fail(PROG, "--black-box-arcsec/--seed are for a simulated run, not for --log", ExitCode.USAGE)
-    if not Path(args.log).is_file():
-        return fail(PROG, f"{args.log}: no such file", ExitCode.USAGE)
     try:
         analysis = analyse_log(args.log, calibration=calibration)
     except (LogError, TableCheckError, OSError) as exc:

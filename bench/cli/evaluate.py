@@ -10,6 +10,7 @@ from pathlib import Path
 
 from bench.cli.common import ExitCode, add_scheduler_arguments, fail, task_progress
 from bench.errors import InputError
+from bench.files import write_output_text
 
 PROG = "bench evaluate"
 
@@ -87,7 +88,9 @@ def cmd_evaluate(args: argparse.Namespace) -> ExitCode:
         print()
     if args.json:
         try:
-            Path(args.json).write_text(json.dumps(table, indent=2) + "\n", encoding="utf-8")
+            write_output_text(args.json, json.dumps(table, indent=2) + "\n", option="--json")
+        except InputError as exc:   # a run log
+            return fail(PROG, str(exc), ExitCode.USAGE)
         except OSError as exc:
             return fail(PROG, f"cannot write {args.json}: {exc.strerror or exc}", ExitCode.USAGE)
         print(f"wrote {args.json}")

@@ -40,6 +40,7 @@ def cmd_export(args: argparse.Namespace) -> ExitCode:
     # imported when the command runs: `bench` starts without the bench core
     from bench.calibration.compensation import compensation_of, load_result
     from bench.calibration.export import export_text
+    from bench.files import write_output_text
     from bench.thermal.export import export_thermal
     from bench.thermal.model import ThermalModel, is_thermal_text, read_bounded_text
 
@@ -60,7 +61,9 @@ def cmd_export(args: argparse.Namespace) -> ExitCode:
         sys.stdout.write(text)
         return ExitCode.OK
     try:
-        Path(args.out).write_text(text, encoding="utf-8")
+        write_output_text(args.out, text, (args.result,))
+    except InputError as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
     except OSError as exc:
         return fail(PROG, f"{args.out}: cannot write: {exc.strerror or exc}", ExitCode.USAGE)
     return ExitCode.OK

@@ -11,6 +11,7 @@ import argparse
 import sys
 
 from bench.cli.common import ExitCode, fail, number_type
+from bench.errors import InputError
 
 PROG = "bench export-can"
 
@@ -31,21 +32,30 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="first frame to write, seconds after the log's first frame (default: the first)")
     parser.add_argument("--to-s", type=_seconds, metavar="S",
                         help="last frame to write, seconds after the log's first frame (default: the last)")
+    parser.add_argument("--force", action="store_true", help="replace --out even when it is a run log (never LOG)")
     parser.set_defaults(func=cmd_export_can)
 
 
 def cmd_export_can(args: argparse.Namespace) -> ExitCode:
     # imported when the command runs: `bench` starts without the bench core
-    from bench.log.can_export import CanExportError, can_format, export_can
+    from bench.files import check_output, replaced_output
+    from bench.log.can_export import MAX_FRAME_TIME_S, CanExportError, can_format, export_can
     from bench.log.reader import LogError, read_log
 
     try:
         can_format(args.out)              # before reading a large log
+        check_output(args.out, (args.log,), force=args.force)
         log = read_log(args.log)
         for line in log.damage:
             print(f"{PROG}: damaged log: {line}", file=sys.stderr)
-        count = export_can(log, args.out, args.from_s, args.to_s)
-    except (LogError, CanExportError) as exc:
+        with replaced_output(args.out, (args.log,), force=args.force) as temporary:
+            count, left_out = export_can(log, temporary, args.from_s, args.to_s)
+    except (LogError, CanExportError, InputError) as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
+    except OSError as exc:
+        return fail(PROG, f"{args.out}: cannot write: {exc.strerror or exc}", ExitCode.USAGE)
+    if left_out:
+        print(f"{PROG}: {left_out} frames whose recorded time is no time (NaN, negative or past "
+              f"{MAX_FRAME_TIME_S:g} s) left out", file=sys.stderr)
     print(f"wrote {count} CAN frames to {args.out}")
     return ExitCode.OK

@@ -13,6 +13,7 @@ import math
 from pathlib import Path
 
 from bench.cli.common import ExitCode, add_noise_arguments, fail, noise_from_args, number_type
+from bench.errors import InputError
 
 PROG = "bench noise"
 MAX_SIM_SAMPLES = 100_000_000     # per channel: 6 channels of float64 are 4.8 GB
@@ -93,6 +94,8 @@ def cmd_noise(args: argparse.Namespace) -> ExitCode:
                     return fail(PROG, f"{args.calibration}: cannot read: {exc.strerror or exc}", ExitCode.USAGE)
                 except (ResultFormatError, KeyError) as exc:
                     return fail(PROG, f"{args.calibration}: not a usable calibration result: {exc}", ExitCode.USAGE)
+                except InputError as exc:   # not a regular file, too large
+                    return fail(PROG, str(exc), ExitCode.USAGE)
                 label = Path(args.calibration).name
             result, name = analyse_log(args.log, calibration=calibration, calibration_label=label,
                                        points_per_octave=args.points_per_octave)

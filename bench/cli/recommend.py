@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import math
-from pathlib import Path
 
 from bench.cli.common import (
     ExitCode,
@@ -15,6 +14,7 @@ from bench.cli.common import (
     task_progress,
 )
 from bench.errors import InputError
+from bench.files import write_output_text
 
 PROG = "bench schedules recommend"
 
@@ -129,7 +129,10 @@ def cmd_recommend(args: argparse.Namespace) -> ExitCode:
         print(line)
     if args.write_config:
         try:
-            Path(args.write_config).write_text(plan_snippet(rec), encoding="utf-8")
+            write_output_text(args.write_config, plan_snippet(rec), [args.check] if args.check else [],
+                              option="--write-config")
+        except InputError as exc:   # a run log
+            return fail(PROG, str(exc), ExitCode.USAGE)
         except OSError as exc:
             return fail(PROG, f"cannot write {args.write_config}: {exc.strerror or exc}", ExitCode.USAGE)
         print(f"\nwrote {args.write_config}: the [plan] table for `bench run --config` (replace your config's [plan])")

@@ -33,6 +33,7 @@ from bench.config.load import (
     parse_config,
 )
 from bench.errors import InputError
+from bench.files import write_output_text
 from bench.model.imu import NoiseModel
 from drivers.chamber import DIALECTS as CHAMBER_DIALECTS
 from drivers.imu import SHIPPED_LAYOUTS
@@ -191,7 +192,8 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
             text = rig_config_text(config, table_url, dialect, peers[0],
                                    (chamber_url, chamber_dialect) if chamber is not None else None)
             parse_config(text, source=args.write_config, base_dir=Path(args.write_config).resolve().parent)
-            Path(args.write_config).write_text(text, encoding="utf-8")
+            # never over the --config read, nor over a run log
+            write_output_text(args.write_config, text, [args.config] if args.config else [], option="--write-config")
             print(f"bench configuration written to {args.write_config}", flush=True)
         run_console(lambda line: _console(rig, line, apply_imu_command, chamber))
 

@@ -15,6 +15,8 @@ from pathlib import Path
 from bench.cli.common import ExitCode, fail
 from bench.cli.db import add_db_options, not_recorded_exit, record_outputs
 from bench.cli.solve_archive import add_archive_options, cmd_archive
+from bench.errors import InputError
+from bench.files import write_output_text
 
 PROG = "bench solve"
 
@@ -65,7 +67,6 @@ def _notes(recorded, run: dict) -> list[str]:
 def _solve_thermal(args: argparse.Namespace, recorded) -> ExitCode:
     """A thermal log: every temperature solved again and the model refitted (`bench.thermal.resolve`)."""
     # imported when the command runs: `bench` starts without the bench core
-    from bench.errors import InputError
     from bench.solve.methods import SolverError
     from bench.thermal.resolve import resolve_thermal
 
@@ -127,7 +128,7 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
         return fail(PROG, "--json writes the --compare table: give --compare too", ExitCode.USAGE)
     against = None
     if args.against:
-        from bench.model.result import CalibrationResult, ResultFormatError  # only with --against
+        from bench.model.result import CalibrationResult  # only with --against
 
         if args.compare:
             return fail(PROG, "--against is for the reports of a solve, not for --compare", ExitCode.USAGE)
@@ -135,7 +136,7 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
             against = CalibrationResult.load(args.against)
         except OSError as exc:
             return fail(PROG, f"{args.against}: cannot read: {exc.strerror or exc}", ExitCode.USAGE)
-        except ResultFormatError as exc:
+        except InputError as exc:   # not a result, not a regular file, too large
             return fail(PROG, str(exc), ExitCode.USAGE)
     try:
         methods = parse_methods(args.compare) if args.compare else None
@@ -168,7 +169,10 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
             print(format_comparison(comparison), end="")
         if args.json:
             try:
-                Path(args.json).write_text(json.dumps(comparison.to_json(), indent=2) + "\n", encoding="utf-8")
+                write_output_text(args.json, json.dumps(comparison.to_json(), indent=2) + "\n", args.logs,
+                                  option="--json")
+            except InputError as exc:   # a log read, or a run log
+                return fail(PROG, str(exc), ExitCode.USAGE)
             except OSError as exc:
                 return fail(PROG, f"cannot write {args.json}: {exc.strerror or exc}", ExitCode.USAGE)
             if not args.quiet:

@@ -21,8 +21,9 @@ from bench.acceptance.limits import (
     CoefficientLimits,
 )
 from bench.config.reader import ConfigError, Table, read_text, show
+from bench.errors import InputError
 from bench.model.families import FAMILY_INFO, canonical_names, family_of
-from bench.model.result import CalibrationResult, ResultFormatError
+from bench.model.result import CalibrationResult
 
 #: family -> (lowest, highest, unit) of a value, in result units
 VALUE_RANGES = {"Kg": (0.0, 1e9, "counts/s per deg/s"), "Ka": (0.0, 1e9, "counts/s per g"),
@@ -77,9 +78,8 @@ def acceptance_limits(t: Table) -> AcceptanceLimits:
             result = CalibrationResult.loads(read_text(path, "the reference result file"), str(path))
         except ConfigError as exc:
             raise t.error("reference", exc.message) from exc
-        except (ResultFormatError, RecursionError) as exc:
-            raise t.error("reference", str(exc) if isinstance(exc, ResultFormatError) else
-                          f"{show(str(path))}: JSON nested too deeply") from exc
+        except InputError as exc:   # not a result, not JSON, a number out of range
+            raise t.error("reference", str(exc)) from exc
         reference, reference_name, reference_path = result.values(), path.name, str(path)
     limits = AcceptanceLimits(families, coefficients,
                               t.integer("max_lost_samples", None, ge=0, le=MAX_LOST_SAMPLES),

@@ -30,6 +30,7 @@ from bench.config.reader import ConfigError, Located, Table, describe, parse_tom
 from bench.config.register_map import TABLE_MAP, load_register_map, register_map_value
 from bench.config.thermal import THERMAL_KEYS, sim_thermal
 from bench.config.thermal_plan import PLAN_THERMAL_KEYS, check_against_chamber, thermal_plan
+from bench.errors import InputError
 from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
 from bench.model.families import BODY_AXES, SENSOR_AXES, canonical_names, family_of
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu, default_sim_si_imu
@@ -43,7 +44,7 @@ from bench.model.table_prior import (
 )
 from bench.model.thermal import ImuThermal
 from bench.model.units import ARCSEC
-from bench.noise.result import NoiseResult, NoiseResultError
+from bench.noise.result import NoiseResult
 from bench.plan.compiler import ORDERS, PlanTiming
 from bench.plan.thermal import ThermalPlan
 from drivers.errors import ImuConfigError
@@ -384,7 +385,7 @@ def _imu_noise(t: Table) -> ImuNoise:
         result = NoiseResult.load(path)
     except OSError as exc:
         raise t.error("noise", f"cannot read {show(str(path))}: {exc.strerror or exc}") from None
-    except NoiseResultError as exc:
+    except InputError as exc:   # not a noise result, not JSON, a number out of range, too large
         raise t.error("noise", str(exc).removeprefix(f"{path}: ")) from None
     values = []
     for what, value, key, high in (("gyro", result.gyro_bias_stability_dph, "gyro_bias_stability_dph", 3600.0),

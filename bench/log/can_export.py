@@ -25,6 +25,8 @@ CAN_FORMATS: dict[str, tuple[type[can.io.generic.MessageWriter], str]] = {
     ".csv": (can.CSVWriter, "python-can CSV"),
 }
 _BATCH = 10_000
+#: the latest frame time exported, s (the run clock, or the epoch: 1e10 s is the year 2286)
+MAX_FRAME_TIME_S = 1e10
 
 
 class CanExportError(BenchError):
@@ -70,14 +72,17 @@ def frame_range(log: RunLog, from_s: float | None = None, to_s: float | None = N
     return lo, max(lo, hi)
 
 
-def export_can(log: RunLog, path: str | Path, from_s: float | None = None, to_s: float | None = None) -> int:
+def export_can(log: RunLog, path: str | Path, from_s: float | None = None,
+               to_s: float | None = None) -> tuple[int, int]:
     """Write the log's frames (optionally from `from_s` to `to_s` s after the first frame) to `path` in the
-    format its extension names; returns how many were written. CanExportError when there is nothing."""
+    format its extension names; returns how many were written and how many were left out because their time
+    is no time (`frame_time_ok`: the writers turn it into a date). CanExportError when there is nothing."""
     writer_class, _ = CAN_FORMATS[can_format(path)]
     lo, hi = frame_range(log, from_s, to_s)
     if hi <= lo:
         raise CanExportError(f"{log.path}: no CAN frames"
                              + ("" if from_s is None and to_s is None else " in the time range given"))
+    left_out = 0
     with writer_class(str(path)) as writer:
         first = 0   # index of the piece's first frame in the log
         for piece in log.can_pieces():
@@ -85,11 +90,21 @@ def export_can(log: RunLog, path: str | Path, from_s: float | None = None, to_s:
             a, b = max(lo, first) - first, min(hi, first + n) - first
             for start in range(a, b, _BATCH):
                 for message in can_messages(piece, start, min(b, start + _BATCH)):
-                    writer.on_message_received(message)
+                    if frame_time_ok(message.timestamp):
+                        writer.on_message_received(message)
+                    else:
+                        left_out += 1
             first += n
             if first >= hi:
                 break
-    return hi - lo
+    return hi - lo - left_out, left_out
 
 
-__all__ = ["CAN_FORMATS", "CanExportError", "can_format", "can_messages", "export_can", "frame_range"]
+def frame_time_ok(time_s: float) -> bool:
+    """Whether a frame's recorded time is one a writer can date: finite, 0..`MAX_FRAME_TIME_S` (a log is
+    hostile: NaN or 1e300 made the ASC and BLF writers raise halfway through the file)."""
+    return 0.0 <= time_s <= MAX_FRAME_TIME_S
+
+
+__all__ = ["CAN_FORMATS", "MAX_FRAME_TIME_S", "CanExportError", "can_format", "can_messages", "export_can",
+           "frame_range", "frame_time_ok"]

@@ -5,6 +5,7 @@ for the fields and types its reader relies on, and what is malformed or past a r
 
 from __future__ import annotations
 
+import datetime
 import json
 import math
 from collections.abc import Callable
@@ -16,6 +17,10 @@ from drivers.chamber import ChamberAlarms, ChamberState
 
 #: an alarm text from the log is cut to this many characters
 MAX_ALARM_TEXT = 500
+#: a message of a kept JSON topic longer than this (a table or chamber state is ~300 bytes, an event a few kB) is
+#: parsed alone as it is gathered and its strings cut to `MAX_CUT_TEXT` characters (`shrink_message`)
+MAX_JSON_MESSAGE_BYTES = 64 << 10
+MAX_CUT_TEXT = 4096
 _T = TypeVar("_T")
 
 _INT64 = (-(1 << 63), 1 << 63)
@@ -81,8 +86,26 @@ def parse_topic(d: ChannelData, topic: str, limit: int, convert: Callable[[dict]
     return items
 
 
+def numbers_ok(value, depth: int = 0) -> bool:
+    """Whether every number in a parsed JSON value is finite and every integer fits an int64 (the recorder
+    writes no other: 1e999, NaN or a 400-digit integer in a message is hostile), nested at most 16 deep."""
+    kind = type(value)
+    if kind is float:
+        return math.isfinite(value)
+    if kind is int:
+        return _INT64[0] <= value < _INT64[1]
+    if kind is dict:
+        return depth < 16 and all(numbers_ok(v, depth + 1) for v in value.values())
+    if kind is list:
+        return depth < 16 and all(numbers_ok(v, depth + 1) for v in value)
+    return True
+
+
 def event_row(r: dict) -> Event | None:
-    """An `/events` message, or None when it cannot be one or its fields have the wrong types."""
+    """An `/events` message, or None when it cannot be one, its fields have the wrong types or a number in it
+    is out of range (`numbers_ok`)."""
+    if not numbers_ok(r):
+        return None
     try:
         event = Event.from_dict(r)
     except (KeyError, TypeError, ValueError, AttributeError, OverflowError):
@@ -100,7 +123,10 @@ def chamber_state_row(r: dict) -> ChamberState | None:
             return math.nan
         if type(value) not in (int, float):
             raise TypeError(key)
-        return float(value)
+        number = float(value)   # OverflowError past a float
+        if not math.isfinite(number):
+            raise ValueError(key)
+        return number
 
     try:
         time_s = number("time_s")
@@ -116,6 +142,62 @@ def chamber_state_row(r: dict) -> ChamberState | None:
         return None
 
 
+def utc_text_ok(text: object) -> bool:
+    """Whether `text` is an ISO 8601 date and time that converts to UTC within years 1..9999 (what the records
+    database and the reports do with it): `0001-01-01T00:00:00+05:00` is not."""
+    if not isinstance(text, str) or len(text) > 64:
+        return False
+    try:
+        when = datetime.datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+        if when.tzinfo is not None:
+            when.astimezone(datetime.UTC)
+    except (ValueError, OverflowError):
+        return False
+    return True
+
+
+def metadata_damage(metadata: dict[str, dict[str, str]]) -> list[Damage]:
+    """The run metadata's dates (`run.*_utc`) that are not dates in UTC, each dropped from `metadata` and said as
+    damage (a date the records or a report cannot convert would end the command after it has written)."""
+    run = metadata.get("run")
+    if not isinstance(run, dict):
+        return []
+    damage = []
+    for key in [k for k in run if k.endswith("_utc")]:
+        value = run[key]
+        if value and not utc_text_ok(value):
+            del run[key]
+            damage.append(Damage("metadata", 0, f"run.{key} {value[:40]!r} is not a date and time in UTC; dropped"))
+    return damage
+
+
+def _cut_strings(value, depth: int = 0):
+    """`value` with every string longer than `MAX_CUT_TEXT` cut to it (None past 16 levels of nesting)."""
+    if type(value) is str:
+        return value[:MAX_CUT_TEXT]
+    if depth >= 16:
+        return None
+    if type(value) is dict:
+        return {k[:MAX_CUT_TEXT]: _cut_strings(v, depth + 1) for k, v in value.items()}
+    if type(value) is list:
+        return [_cut_strings(v, depth + 1) for v in value]
+    return value
+
+
+def shrink_message(payload: bytes) -> bytes:
+    """A JSON message over `MAX_JSON_MESSAGE_BYTES`, parsed alone and its strings cut to `MAX_CUT_TEXT` characters
+    (an alarm text of 1 MB), or `b"0"` (malformed: not an object) when it does not parse or is still too long
+    (a huge array). Called as the message is gathered, so no reader ever holds or parses the long form in bulk."""
+    try:
+        row = json.loads(payload, parse_constant=_no_constant)
+    except (ValueError, RecursionError):
+        return b"0"
+    if type(row) is not dict:
+        return b"0"
+    cut = json.dumps(_cut_strings(row), separators=(",", ":")).encode()
+    return cut if len(cut) <= MAX_JSON_MESSAGE_BYTES else b"0"
+
+
 def not_read_damage(topic: str, count: int, limit: int) -> Damage:
     """`count` messages on `topic` past the `limit` the reader parses: not read, counted as lost."""
     return Damage("message", 0, f"{count} {topic} messages past the first {limit} not read", lost={topic: count})
@@ -126,10 +208,15 @@ def malformed_damage(topic: str, count: int) -> Damage:
     return Damage("message", 0, f"{count} malformed {topic} messages skipped", lost={topic: count})
 
 
+def _no_constant(name: str):
+    """NaN and Infinity are not JSON (the recorder never writes them): the message holding one is malformed."""
+    raise ValueError(f"{name} is not a number")
+
+
 def parse_json_rows(payloads: list[bytes]) -> tuple[list, int]:
     """Each message of a JSON channel as a dict (None where malformed) and the malformed count."""
     try:
-        rows = json.loads(b"[" + b",".join(payloads) + b"]")
+        rows = json.loads(b"[" + b",".join(payloads) + b"]", parse_constant=_no_constant)
         if len(rows) == len(payloads) and all(isinstance(r, dict) for r in rows):
             return rows, 0
     except (ValueError, RecursionError):   # RecursionError: arrays nested too deep
@@ -137,7 +224,7 @@ def parse_json_rows(payloads: list[bytes]) -> tuple[list, int]:
     rows, bad = [], 0
     for p in payloads:
         try:
-            r = json.loads(p)
+            r = json.loads(p, parse_constant=_no_constant)
             if not isinstance(r, dict):
                 raise ValueError("not an object")
             rows.append(r)
@@ -147,5 +234,6 @@ def parse_json_rows(payloads: list[bytes]) -> tuple[list, int]:
     return rows, bad
 
 
-__all__ = ["MAX_ALARM_TEXT", "chamber_state_row", "event_ok", "event_row", "is_int", "is_number", "is_vec3",
-           "malformed_damage", "not_read_damage", "parse_json_rows", "parse_topic", "sample_row_ok", "state_row_ok"]
+__all__ = ["MAX_ALARM_TEXT", "MAX_CUT_TEXT", "MAX_JSON_MESSAGE_BYTES", "chamber_state_row", "event_ok", "event_row",
+           "is_int", "is_number", "is_vec3", "malformed_damage", "metadata_damage", "not_read_damage", "numbers_ok",
+           "parse_json_rows", "parse_topic", "sample_row_ok", "shrink_message", "state_row_ok", "utc_text_ok"]

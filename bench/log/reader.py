@@ -48,6 +48,7 @@ from functools import cached_property
 import numpy as np
 
 from bench.errors import BenchError
+from bench.files import InputFileError, open_input
 from bench.log.chunks import DeferredChunk, InflateBudget
 from bench.log.format import (
     CAN_ENCODING,
@@ -61,17 +62,20 @@ from bench.log.format import (
     decode_can_frames,
 )
 from bench.log.json_topics import (
+    MAX_JSON_MESSAGE_BYTES,
     chamber_state_row,
     event_row,
     malformed_damage,
+    metadata_damage,
     not_read_damage,
     parse_json_rows,
     parse_topic,
     sample_row_ok,
+    shrink_message,
     state_row_ok,
 )
 from bench.log.threads import reader_threads
-from bench.log.walk import MAX_DBC_BYTES, ChannelData, Damage, WalkError, walk
+from bench.log.walk import MAX_DBC_BYTES, ChannelData, Damage, MessageCut, WalkError, walk
 from bench.plan.events import Event
 from drivers.chamber import ChamberState
 from drivers.imu import ImuSampleBlock, ImuStats
@@ -93,6 +97,8 @@ MAX_CHAMBER_STATES = 200_000
 #: the topics a read keeps (the others are only counted)
 KEPT_TOPICS = frozenset({TOPIC_CAN, TOPIC_SAMPLES, TOPIC_STATE, TOPIC_EVENTS, TOPIC_CHAMBER})
 _JSON_BATCH = 1 << 16
+#: the kept JSON topics' long messages are cut as they are gathered (1 MB alarm texts by the thousand took 4.4 GB)
+_CUT = MessageCut(frozenset({TOPIC_STATE, TOPIC_EVENTS, TOPIC_CHAMBER}), MAX_JSON_MESSAGE_BYTES, shrink_message)
 
 
 @dataclass
@@ -537,7 +543,7 @@ class _FileSource:
         self.path = path
 
     def __call__(self, offset: int, length: int) -> bytes:
-        with open(self.path, "rb") as f:
+        with open_input(self.path, max_bytes=None, what="run log") as f:
             f.seek(offset)
             return f.read(length)
 
@@ -561,11 +567,13 @@ def _imu_records(rows: list[dict], times: np.ndarray) -> ImuRecords:
 def _map_file(path: str):
     """The file's bytes, memory-mapped (no copy; the walk reads each byte about once)."""
     try:
-        with open(path, "rb") as f:
+        with open_input(path, max_bytes=None, what="run log") as f:   # a regular file: never a FIFO or a device
             try:
                 return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
             except (ValueError, OSError):   # empty, or a file that cannot be mapped: read it
                 return f.read()
+    except InputFileError as exc:
+        raise LogError(str(exc)) from exc
     except OSError as exc:
         raise LogError(f"{path}: cannot read: {exc.strerror or exc}") from exc
 
@@ -592,7 +600,8 @@ def _read_log(path: str, defer_samples: bool, messages: bool = True) -> RunLog:
                  source=_FileSource(path),
                  keep_topics=frozenset(KEPT_TOPICS if messages else ()),
                  keep_limits={TOPIC_STATE: MAX_JSON_MESSAGES, TOPIC_EVENTS: MAX_EVENTS,
-                              TOPIC_CHAMBER: MAX_CHAMBER_STATES})
+                              TOPIC_CHAMBER: MAX_CHAMBER_STATES},
+                 cut=_CUT)
     except WalkError as exc:
         raise LogError(f"{path}: {exc}") from exc
     finally:
@@ -620,6 +629,7 @@ def _read_log(path: str, defer_samples: bool, messages: bool = True) -> RunLog:
                              f"attachment {dbc[:64]!r} (the run's DBC file) holds {len(w.attachments[dbc][1])} bytes, "
                              f"more than a DBC file may ({MAX_DBC_BYTES} bytes); dropped"))
         del w.attachments[dbc]
+    damage += metadata_damage(w.metadata)
 
     # The summary's statistics tell how many messages each channel should have.
     if w.statistics is not None:

@@ -79,7 +79,7 @@ _DROP_BEHIND = 64 << 20   # bytes of a mapped file the walk leaves mapped behind
 class Damage:
     """One damaged or missing part of a log."""
 
-    kind: str                    # "chunk", "truncated", "corrupt", "no_summary", "attachment", "message"
+    kind: str                    # "chunk", "truncated", "corrupt", "no_summary", "attachment", "message", "metadata"
     offset: int                  # byte offset of the damaged record (or of the end of the file)
     reason: str
     start_ns: int | None = None  # log-time range of a lost chunk, when its header was readable
@@ -105,7 +105,9 @@ class Damage:
             return f"chunk at byte {self.offset}{where}: {self.reason}; its messages lost ({what})"
         if self.kind == "truncated":
             return f"truncated after byte {self.offset}: {self.reason}{where}"
-        return f"byte {self.offset}: {self.reason}{where}" if self.kind != "no_summary" else self.reason
+        if self.kind in ("no_summary", "metadata"):
+            return self.reason
+        return f"byte {self.offset}: {self.reason}{where}"
 
 
 @dataclass
@@ -312,8 +314,9 @@ def attachment_head(buf, body: int, end: int) -> tuple[str, int] | None:
 class _Walker:
     def __init__(self, buf: bytes, defer_topics: frozenset[str] = frozenset(),
                  source: Callable[[int, int], bytes] | None = None, keep_topics: frozenset[str] | None = None,
-                 keep_limits: dict[str, int] | None = None):
+                 keep_limits: dict[str, int] | None = None, cut: MessageCut | None = None):
         self.buf = buf
+        self.cut = cut
         self.defer_topics = defer_topics
         self.source = source
         self.keep_topics = keep_topics
@@ -710,6 +713,9 @@ class _Walker:
         others are copied out (up to the topic's limit, the rest counted)."""
         d = self.channel_data(ch)
         topic = self.w.channels[ch].topic if ch in self.w.channels else None
+        if (self.cut is not None and topic in self.cut.topics and len(lengths)
+                and int(lengths.max()) > self.cut.max_bytes):
+            data, starts, lengths = self.cut.apply(data, starts, lengths)
         if self.source is None or self.current is None or topic is None:
             d.add((data, starts), lengths, times)
             return
@@ -754,14 +760,36 @@ def _one_stride(data: bytes, q: int, stride: int) -> bool:
     return bool((ops == OP_MESSAGE).all() and (lengths == stride - 9).all())
 
 
+@dataclass(frozen=True)
+class MessageCut:
+    """Messages of `topics` longer than `max_bytes` go through `shrink(payload) -> payload` as they are gathered,
+    one at a time, before anything holds them all (a JSON message with a 1 MB text, kept by the thousand, would
+    be parsed in bulk later)."""
+
+    topics: frozenset[str]
+    max_bytes: int
+    shrink: Callable[[bytes], bytes]
+
+    def apply(self, data, starts: np.ndarray, lengths: np.ndarray) -> tuple[bytes, np.ndarray, np.ndarray]:
+        """The payloads at `starts` (of `lengths`) in `data`, the long ones shrunk, back to back: (joined,
+        their starts, their lengths)."""
+        whole = memoryview(data)
+        payloads = [bytes(whole[a:a + n]) if n <= self.max_bytes else self.shrink(bytes(whole[a:a + n]))
+                    for a, n in zip(starts.tolist(), lengths.tolist())]
+        new_lengths = np.array([len(p) for p in payloads], np.int64)
+        new_starts = np.concatenate([[0], np.cumsum(new_lengths)[:-1]]).astype(np.int64)
+        return b"".join(payloads), new_starts, new_lengths
+
+
 def walk(buf: bytes, defer_topics: frozenset[str] = frozenset(),
          source: Callable[[int, int], bytes] | None = None, keep_topics: frozenset[str] | None = None,
-         keep_limits: dict[str, int] | None = None) -> Walk:
+         keep_limits: dict[str, int] | None = None, cut: MessageCut | None = None) -> Walk:
     """Walk an MCAP file held in memory; raises `WalkError` if it is not MCAP at all.
 
     Chunks holding nothing but messages of `defer_topics` are not decompressed: their channel
     data holds them as `DeferredChunk` parts (see `ChannelData.inflate_deferred`), with their
     compressed data copied, or read again through `source(offset, length)` when given (nothing held).
     With a `source`, no decompressed chunk outlives its gathering: see `_Walker.add_part` (`keep_topics`:
-    the topics whose messages are kept, None for all; `keep_limits`: the most messages kept per topic)."""
-    return _Walker(buf, frozenset(defer_topics), source, keep_topics, keep_limits).run()
+    the topics whose messages are kept, None for all; `keep_limits`: the most messages kept per topic; `cut`: what
+    is done to a kept message too long to be held as it is)."""
+    return _Walker(buf, frozenset(defer_topics), source, keep_topics, keep_limits, cut).run()

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.errors import InputError
+from bench.files import InputFileError, parse_json, read_input_text, write_output_text
 from bench.model.families import RESULT_UNITS, canonical_names, family_of
 from bench.model.imu import ImuCoefficients
 
@@ -109,7 +110,8 @@ class CalibrationResult:
         return json.dumps(self.to_json(), indent=2, allow_nan=False)
 
     def save(self, path: str | Path) -> None:
-        Path(path).write_text(self.dumps() + "\n", encoding="utf-8")
+        """Write the result (never over a run log; renamed into place once written)."""
+        write_output_text(path, self.dumps() + "\n")
 
     @classmethod
     def from_json(cls, data: dict[str, Any], origin: str = "<result>") -> "CalibrationResult":
@@ -135,14 +137,16 @@ class CalibrationResult:
     @classmethod
     def loads(cls, text: str, origin: str = "<result>") -> "CalibrationResult":
         try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ResultFormatError(f"{origin}:{exc.lineno}: invalid JSON: {exc.msg}") from exc
+            data = parse_json(text, origin)
+        except InputFileError as exc:
+            raise ResultFormatError(str(exc)) from None
         return cls.from_json(data, origin)
 
     @classmethod
     def load(cls, path: str | Path) -> "CalibrationResult":
-        return cls.loads(Path(path).read_text(encoding="utf-8"), str(path))
+        """A result file from outside: a regular file of at most `MAX_INPUT_FILE_BYTES` (`InputError` in one line;
+        OSError when it cannot be opened)."""
+        return cls.loads(read_input_text(path, what="result file"), str(path))
 
     def values(self) -> dict[str, float]:
         return {k: c.value for k, c in self.coefficients.items()}
@@ -176,7 +180,7 @@ def _read_table(table: Any, origin: str, where: str) -> dict[str, Coefficient]:
                 budget = {str(c): math.nan if v is None else float(v) for c, v in budget.items()}
             out[name] = Coefficient(float(entry["value"]), math.nan if sigma is None else float(sigma),
                                     str(entry["unit"]), budget, None if k is None else float(k))
-        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
             raise ResultFormatError(f"{origin}: {where}.{name}: needs value, sigma and unit (and a budget of "
                                     "numbers, when given)") from exc
         expected = RESULT_UNITS[family_of(name)][0]

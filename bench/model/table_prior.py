@@ -21,7 +21,6 @@ The budget (`bench.solve.budget`) propagates it through the plan's solve.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from bench.errors import InputError
+from bench.files import parse_json, read_input_text
 from bench.model.units import ARCSEC
 
 #: the table check's result format (`bench check-table`)
@@ -93,6 +93,11 @@ def from_datasheet(pointing: float | dict[str, float], orthogonality: float | No
     return TablePrior.from_sigmas(sig * ARCSEC, f"datasheet: pointing accuracy {what} (1-sigma)")
 
 
+#: the largest |value| or sigma of a table-check combination, arcsec, and |coefficient| of an angle in one
+MAX_CHECK_ARCSEC = 1e6
+MAX_CHECK_COEFFICIENT = 1e3
+
+
 def from_check(data: Any, prior_sigma_arcsec: np.ndarray | None, origin: str) -> TablePrior:
     """The prior given a table-check result (its JSON) and the stated prior of every angle (3, 3 arcsec)."""
     if not isinstance(data, dict) or data.get("format") != CHECK_FORMAT:
@@ -117,14 +122,24 @@ def from_check(data: Any, prior_sigma_arcsec: np.ndarray | None, origin: str) ->
     if not rows or corr.shape != (len(rows), len(rows)) or not (np.all(np.isfinite(v)) and np.all(s >= 0)
                                                                 and np.all(np.isfinite(corr))):
         raise TablePriorError(f"{origin}: combinations, sigmas or correlation are missing or not finite")
+    # a check measures angles of arcseconds: values far beyond make the covariance overflow
+    if (np.abs(a).max() > MAX_CHECK_COEFFICIENT or np.abs(np.array(values)).max() > MAX_CHECK_ARCSEC
+            or max(sigmas) > MAX_CHECK_ARCSEC or np.abs(corr).max() > 1.0):
+        raise TablePriorError(f"{origin}: a coefficient beyond {MAX_CHECK_COEFFICIENT:g}, a value or sigma beyond "
+                              f"{MAX_CHECK_ARCSEC:g} arcsec, or a correlation beyond 1")
     stated = prior_sigma_arcsec is not None
     prior = (np.asarray(prior_sigma_arcsec, dtype=float).reshape(9) if stated
              else np.full(9, UNSEEN_PRIOR_ARCSEC)) * ARCSEC
     p = np.diag(prior ** 2)
     s_cov = corr * np.outer(s, s)
-    gain = p @ a.T @ np.linalg.inv(a @ p @ a.T + s_cov)
+    try:
+        gain = p @ a.T @ np.linalg.inv(a @ p @ a.T + s_cov)
+    except np.linalg.LinAlgError as exc:
+        raise TablePriorError(f"{origin}: its combinations cannot be combined (singular: {exc})") from None
     mu = gain @ v
     q = p - gain @ a @ p
+    if not np.all(np.isfinite(q + np.outer(mu, mu))):
+        raise TablePriorError(f"{origin}: its combinations give no finite angle covariance")
     unseen = ("the datasheet figure" if stated else f"a stated prior of {UNSEEN_PRIOR_ARCSEC:g} arcsec "
               "(no [table] pointing_accuracy_arcsec)")
     return TablePrior(q + np.outer(mu, mu), f"table check {Path(origin).name}: {len(rows)} measured combinations; "
@@ -134,13 +149,11 @@ def from_check(data: Any, prior_sigma_arcsec: np.ndarray | None, origin: str) ->
 def load_check(path: str | Path, prior_sigma_arcsec: np.ndarray | None) -> TablePrior:
     """`from_check` of a table-check file (TablePriorError: unreadable or not a check)."""
     try:
-        text = Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise TablePriorError(f"{path}: cannot read: {getattr(exc, 'strerror', None) or exc}") from exc
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise TablePriorError(f"{path}:{exc.lineno}: invalid JSON: {exc.msg}") from exc
+        data = parse_json(read_input_text(path, what="table-check file"), str(path))
+    except OSError as exc:
+        raise TablePriorError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+    except InputError as exc:   # not a regular file, too large, not JSON, a number out of range
+        raise TablePriorError(str(exc)) from None
     return from_check(data, prior_sigma_arcsec, str(path))
 
 

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from bench.errors import InputError
+from bench.files import MAX_INPUT_FILE_BYTES, InputFileError, parse_json, read_input_bytes, write_output_text
 from bench.model.units import MICRO_G
 from bench.noise.allan import AllanCurve, AllanError, PhaseAccumulator, allan_curves
 from bench.noise.fit import MIN_RECORD_SAMPLES, ChannelFit, TermFit, fit_curve
@@ -46,7 +47,6 @@ ACC_TERMS = {"vrw": ("random_walk", 1.0, "ug/sqrt(Hz)"),
              "bias_instability": ("bias_instability", 1.0, "ug"),
              "rrw": ("rate_random_walk", 60.0, "ug/sqrt(h)"),
              "quantisation": ("quantisation", 1.0, "ug s")}
-MAX_RESULT_BYTES = 16 << 20
 
 
 class NoiseResultError(InputError):
@@ -195,7 +195,7 @@ class NoiseResult:
         return out
 
     def save(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(self.to_json(), indent=1, allow_nan=False) + "\n", encoding="utf-8")
+        write_output_text(path, json.dumps(self.to_json(), indent=1, allow_nan=False) + "\n")
 
     @classmethod
     def from_json(cls, doc: Any, source: str = "<json>") -> "NoiseResult":
@@ -232,14 +232,11 @@ class NoiseResult:
     def load(cls, path: str | Path) -> "NoiseResult":
         """Read a noise result file (OSError if unreadable; NoiseResultError if it is not one)."""
         path = Path(path)
-        with open(path, "rb") as f:
-            raw = f.read(MAX_RESULT_BYTES + 1)
-        if len(raw) > MAX_RESULT_BYTES:
-            raise NoiseResultError(f"{path}: larger than {MAX_RESULT_BYTES >> 20} MiB: not a noise result")
+        raw = read_input_bytes(path, max_bytes=MAX_INPUT_FILE_BYTES, what="noise result")
         try:
-            doc = json.loads(raw.decode("utf-8"))
-        except (UnicodeDecodeError, ValueError, RecursionError) as exc:
-            raise NoiseResultError(f"{path}: not JSON ({str(exc)[:80]})") from None
+            doc = parse_json(raw, str(path))
+        except InputFileError as exc:
+            raise NoiseResultError(str(exc)) from None
         return cls.from_json(doc, str(path))
 
 

@@ -138,10 +138,15 @@ def thermal_prefix(temperature_index: int) -> str:
     return f"T{temperature_index}"
 
 
+#: the digits of a temperature block's number in a unit label ("T12-P03")
+MAX_BLOCK_DIGITS = 6
+
+
 def thermal_block(unit: str) -> int | None:
     """The 1-based temperature block of a unit label ("T2-P03" and "T2" -> 2), None outside a thermal plan."""
     head = unit.split("-", 1)[0]
-    if len(head) >= 2 and head[0] == "T" and head[1:].isdigit():
+    # ASCII digits only ("T²" is no block: str.isdigit takes it) and a few of them (a label from a log is hostile)
+    if 2 <= len(head) <= 1 + MAX_BLOCK_DIGITS and head[0] == "T" and head[1:].isascii() and head[1:].isdigit():
         return int(head[1:])
     return None
 

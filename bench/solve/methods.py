@@ -93,6 +93,8 @@ def fit_per_sensor(design: np.ndarray, y: np.ndarray, sigma: np.ndarray | None) 
 
 
 def _require_rank(design: np.ndarray, what: str) -> None:
+    if not np.all(np.isfinite(design)):   # a log whose table states hold null angles: no SVD converges on NaN
+        raise SolverError(f"{what}: the steps' table angles or rates are not all finite numbers")
     rank = np.linalg.matrix_rank(design, tol=1e-9 * np.abs(design).max())
     if rank < design.shape[1]:
         raise SolverError(f"{what}: the steps determine only {rank} of {design.shape[1]} unknowns per sensor "

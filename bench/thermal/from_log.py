@@ -20,12 +20,13 @@ from typing import Any
 
 import numpy as np
 
+from bench.config.thermal import MAX_TEMPERATURE_C, MIN_TEMPERATURE_C
 from bench.errors import InputError
 from bench.log.reader import RunLog
 from bench.model.earth import Site
 from bench.model.imu import ImuCoefficients
 from bench.model.thermal import ImuThermal
-from bench.plan.steps import thermal_block
+from bench.plan.steps import MAX_BLOCK_DIGITS, thermal_block
 from bench.solve.budget import BudgetInputs
 from bench.solve.extract import Extraction, finished_observation_steps
 from bench.solve.from_logs import extract_from_logs, solve_extraction
@@ -60,10 +61,13 @@ def _setpoints(logs: list[RunLog]) -> dict[int, float]:
         for event in log.events:
             step = event.data.get("step") if event.kind == "step_started" else None
             if isinstance(step, dict) and step.get("kind") == "set_temperature":
-                try:
-                    out[int(step["temperature_index"])] = float(step["setpoint_c"])
-                except (KeyError, TypeError, ValueError):
-                    continue
+                index, setpoint = step.get("temperature_index"), step.get("setpoint_c")
+                # a log is hostile: a block number is a small integer, a setpoint a temperature in range (a
+                # comparison, never a conversion: 10**400 has no float, NaN is in no range)
+                if (type(index) is int and 1 <= index < 10 ** MAX_BLOCK_DIGITS
+                        and isinstance(setpoint, (int, float)) and not isinstance(setpoint, bool)
+                        and MIN_TEMPERATURE_C <= setpoint <= MAX_TEMPERATURE_C):
+                    out[index] = float(setpoint)
     return out
 
 

@@ -18,16 +18,14 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bench.calibration.compensation import MAX_RESULT_BYTES
 from bench.errors import InputError
+from bench.files import InputFileError, parse_json, read_input_text, write_output_text
 from bench.model.families import RESULT_UNITS, canonical_names, family_of
 from bench.model.result import CalibrationResult
 from bench.model.thermal import DIAGONAL_NAMES
@@ -127,7 +125,7 @@ class ThermalModel:
         return json.dumps(self.to_json(), indent=2, allow_nan=False)
 
     def save(self, path: str | Path) -> None:
-        Path(path).write_text(self.dumps() + "\n", encoding="utf-8")
+        write_output_text(path, self.dumps() + "\n")
 
     @classmethod
     def from_json(cls, data: Any, origin: str = "<thermal>") -> "ThermalModel":
@@ -176,11 +174,9 @@ class ThermalModel:
     @classmethod
     def loads(cls, text: str, origin: str = "<thermal>") -> "ThermalModel":
         try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ThermalFormatError(f"{origin}:{exc.lineno}: invalid JSON: {exc.msg}") from exc
-        except RecursionError as exc:
-            raise ThermalFormatError(f"{origin}: JSON nested too deeply") from exc
+            data = parse_json(text, origin)
+        except InputFileError as exc:
+            raise ThermalFormatError(str(exc)) from None
         return cls.from_json(data, origin)
 
     @classmethod
@@ -191,26 +187,15 @@ class ThermalModel:
 
 
 def read_bounded_text(path: str) -> str:
-    """The UTF-8 text of a regular file of at most `MAX_RESULT_BYTES` (`ThermalFormatError` otherwise)."""
-    info = os.stat(path)
-    if not stat.S_ISREG(info.st_mode):
-        raise ThermalFormatError(f"{path}: not a regular file")
-    if info.st_size > MAX_RESULT_BYTES:
-        raise ThermalFormatError(f"{path}: {info.st_size} bytes, more than a thermal file holds "
-                                 f"(at most {MAX_RESULT_BYTES})")
-    with open(path, "rb") as f:
-        data = f.read(MAX_RESULT_BYTES + 1)
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ThermalFormatError(f"{path}: not UTF-8 (byte {exc.start})") from exc
+    """The UTF-8 text of a regular file of at most `MAX_INPUT_FILE_BYTES` (`InputError` otherwise)."""
+    return read_input_text(path, what="result or thermal file")
 
 
 def is_thermal_text(text: str) -> bool:
     """Whether `text` is JSON of a thermal file (any version), to tell it from a calibration result."""
     try:
-        data = json.loads(text)
-    except (json.JSONDecodeError, RecursionError):
+        data = parse_json(text, "<thermal>")
+    except InputError:
         return False
     return isinstance(data, dict) and data.get("format") == THERMAL_FORMAT
 

@@ -17,10 +17,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bench.config.load import BenchConfig
+from bench.errors import InputError
 from bench.log.reader import LogError, RunLog, read_log
 from bench.log.replay import ReplayStats, replay
 from bench.log.run_info import NO_PLAN_IN_MANUAL_LOG, is_manual_log, layout_and_config_from_log, steps_from_log
-from bench.model.result import CalibrationResult, ResultFormatError
+from bench.model.result import CalibrationResult
 from bench.solve.methods import SolverError
 from bench.solve.resolve import SolveInputError, load_recorded, solve_recorded
 from bench.tui.buffer import UiBuffer
@@ -109,7 +110,7 @@ def log_result(opened: OpenedLog) -> tuple[CalibrationResult | None, str]:
             try:
                 return (CalibrationResult.loads(data.decode("utf-8"), origin=f"{opened.path.name}:{name}"),
                         f"result attached to the log ({name})")
-            except (ResultFormatError, UnicodeDecodeError) as exc:
+            except (InputError, UnicodeDecodeError) as exc:   # not a result, or a number out of range
                 why = f"the attached {name} is unreadable ({exc}); "
     try:
         resolved = solve_recorded(load_recorded([str(opened.path)], earlier=False))

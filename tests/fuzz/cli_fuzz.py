@@ -118,8 +118,28 @@ def directed_inputs(out: Path) -> list[tuple[str, Path]]:
     return jobs
 
 
-def _limit() -> None:
-    resource.setrlimit(resource.RLIMIT_AS, (ADDRESS_SPACE_LIMIT, ADDRESS_SPACE_LIMIT))
+def run_limited(argv: list[str], cwd: Path, env: dict, out, err, timeout_s: float,
+                as_limit: int = ADDRESS_SPACE_LIMIT) -> tuple[int, bool, resource.struct_rusage, float]:
+    """Run `argv` in its own session under an address-space limit, killed after `timeout_s`:
+    (exit code, whether it hung, its resource usage (ru_maxrss: peak RSS, KiB), seconds)."""
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (as_limit, as_limit))
+
+    proc = subprocess.Popen(argv, cwd=cwd, env=env, stdin=subprocess.DEVNULL, stdout=out, stderr=err,
+                            preexec_fn=limit, start_new_session=True)
+    start, hung = time.monotonic(), False
+    while True:
+        pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+        if pid:
+            break
+        if time.monotonic() - start > timeout_s:
+            hung = True
+            os.killpg(proc.pid, signal.SIGKILL)
+            pid, status, usage = os.wait4(proc.pid, 0)
+            break
+        time.sleep(0.02)
+    proc.returncode = os.waitstatus_to_exitcode(status)  # reaped here, not by Popen
+    return proc.returncode, hung, usage, time.monotonic() - start
 
 
 def run_one(kind: str, path: Path, logs: Path, code: Path, timeout_s: float) -> dict:
@@ -127,35 +147,22 @@ def run_one(kind: str, path: Path, logs: Path, code: Path, timeout_s: float) -> 
             else [sys.executable, "-m", "bench.cli", "schedules", "validate", str(path)])
     env = {**os.environ, "PYTHONPATH": str(code)}
     with open(logs.with_suffix(".stdout"), "wb") as out, open(logs.with_suffix(".stderr"), "wb") as err:
-        proc = subprocess.Popen(argv, cwd=logs.parent, env=env, stdin=subprocess.DEVNULL, stdout=out, stderr=err,
-                                preexec_fn=_limit, start_new_session=True)
-        start, hung = time.monotonic(), False
-        while True:
-            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
-            if pid:
-                break
-            if time.monotonic() - start > timeout_s:
-                hung = True
-                os.killpg(proc.pid, signal.SIGKILL)
-                pid, status, usage = os.wait4(proc.pid, 0)
-                break
-            time.sleep(0.02)
-        proc.returncode = os.waitstatus_to_exitcode(status)  # reaped here, not by Popen
+        returncode, hung, usage, wall_s = run_limited(argv, logs.parent, env, out, err, timeout_s)
     stderr = logs.with_suffix(".stderr").read_text(encoding="utf-8", errors="replace")
     lines = stderr.strip().splitlines()
     if hung:
         outcome = "hang"
-    elif "Traceback (most recent call last)" in stderr or proc.returncode < 0:
+    elif "Traceback (most recent call last)" in stderr or returncode < 0:
         outcome = "crash"
-    elif proc.returncode == 0:
+    elif returncode == 0:
         outcome = "ok"
     elif len(lines) == 1:
         outcome = "error"
     else:
         outcome = "not one line"
     last = lines[-1] if lines else ""
-    return {"kind": kind, "path": str(path), "outcome": outcome, "exit": proc.returncode,
-            "wall_s": round(time.monotonic() - start, 2), "max_rss_kb": usage.ru_maxrss, "last_line": last[:300]}
+    return {"kind": kind, "path": str(path), "outcome": outcome, "exit": returncode,
+            "wall_s": round(wall_s, 2), "max_rss_kb": usage.ru_maxrss, "last_line": last[:300]}
 
 
 def main() -> int:
