@@ -171,7 +171,7 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
         rig = SimRig(config)
         closers.append(rig.close)
         table_url = _listen(rig.controller, dialect, table_listen, closers, config.table.register_map,
-                            args.idle_timeout_s)
+                            idle_timeout_s=args.idle_timeout_s)
         print(f"simulated table ({dialect}) listening on {table_url}", flush=True)
         peers = [_serve_imu(rig, where, args.idle_timeout_s) for where in imu_listen]
         for peer in peers:

@@ -58,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _notes(recorded, run: dict) -> list[str]:
     """The notes of reading the logs, and the samples lost outside every window the solve uses (`run`: its
     result's, `lost_samples_note`)."""
-    from bench.report.facts import lost_samples_note
+    from bench.report.facts import lost_samples_note  # the reports' code loads when a solve prints: CLI start-up
 
     lost = lost_samples_note(run)
     return list(recorded.notes) + ([lost] if lost else [])
