@@ -404,3 +404,17 @@ def test_inline_svg_prefixes_ids_and_drops_namespace_urls():
     assert 'id="f7-m1"' in out and 'href="#f7-m1"' in out and "url(#f7-p2)" in out and 'id="f7-figure_1"' in out
     with pytest.raises(ValueError):
         inline_svg("<html></html>", "x")
+
+
+def test_a_report_whose_writing_fails_leaves_no_half_file(run, tmp_path, monkeypatch):
+    """Issue 34, item 3: outputs are written under a temporary name and renamed into place; a report that cannot
+    be made (here the HTML) leaves neither a half file nor the temporary one."""
+    from bench.report import markdown as markdown_module
+
+    def broken(*args, **kwargs):
+        return "<html>" * 1000 + "\ud800"        # fails while the file is written (cannot be encoded)
+
+    monkeypatch.setattr(markdown_module, "html_report", broken)
+    with pytest.raises(UnicodeEncodeError):
+        write_reports(run.result, tmp_path, "half")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["half.report.md"]

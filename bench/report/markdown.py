@@ -17,6 +17,7 @@ from html import escape
 from pathlib import Path
 from typing import Any, Sequence
 
+from bench.files import write_output_text
 from bench.log.names import output_path
 from bench.model.result import CalibrationResult
 from bench.report.compare import (
@@ -234,10 +235,10 @@ def write_reports(result: CalibrationResult, out_dir: str | Path, run_id: str, *
     title = title or f"Calibration report {run_id}"
     # never a path out of out_dir, whatever the run id
     md_path, html_path = output_path(out_dir, f"{run_id}.report.md"), output_path(out_dir, f"{run_id}.report.html")
-    md_path.write_text(markdown_report(result, problems=problems, failures=failures, imu_link=imu_link, title=title,
-                                       against=against, against_label=against_label), encoding="utf-8")
-    html_path.write_text(html_report(result, log=log, layout=layout, problems=problems, failures=failures,
-                                     imu_link=imu_link, against=against, against_label=against_label, title=title,
-                                     log_still_open=log_still_open),
-                         encoding="utf-8")
+    # each written under a temporary name and renamed: an interrupted write leaves no half report
+    write_output_text(md_path, markdown_report(result, problems=problems, failures=failures, imu_link=imu_link,
+                                               title=title, against=against, against_label=against_label))
+    write_output_text(html_path, html_report(result, log=log, layout=layout, problems=problems, failures=failures,
+                                             imu_link=imu_link, against=against, against_label=against_label,
+                                             title=title, log_still_open=log_still_open))
     return md_path, html_path

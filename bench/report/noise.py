@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from bench import __version__
+from bench.files import write_output_text
 from bench.log.names import output_path
 from bench.noise.fit import FLICKER_FACTOR
 from bench.noise.result import NoiseResult
@@ -189,8 +190,8 @@ def write_noise_outputs(result: NoiseResult, out_dir: str | Path, name: str) -> 
     json_path, md_path, html_path = (output_path(out_dir, f"{name}.noise.{ext}") for ext in ("json", "md", "html"))
     title = f"Noise characterisation {name}"
     result.save(json_path)
-    md_path.write_text(markdown_noise_report(result, title), encoding="utf-8")
-    html_path.write_text(html_noise_report(result, title), encoding="utf-8")
+    write_output_text(md_path, markdown_noise_report(result, title))     # renamed into place: never half a report
+    write_output_text(html_path, html_noise_report(result, title))
     return json_path, md_path, html_path
 
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import __version__
+from bench.files import write_output_text
 from bench.model.families import FAMILY_INFO, family_of
 from bench.report.html import CSS
 from bench.report.markdown import md_text
@@ -162,7 +163,7 @@ def write_thermal_reports(model: ThermalModel, out_dir: str | Path, stem: str = 
     for suffix in (".md", ".html") if html else (".md",):
         text = markdown_thermal(model, title) if suffix == ".md" else html_thermal(model, title)
         path = out / f"{stem}{suffix}"
-        path.write_text(text, encoding="utf-8")
+        write_output_text(path, text)        # renamed into place: never half a report
         written.append(path)
     return written
 

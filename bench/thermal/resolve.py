@@ -17,6 +17,7 @@ from typing import Any
 
 from bench import __version__
 from bench.acceptance.verdict import Verdict
+from bench.files import write_output_text
 from bench.log.names import output_path
 from bench.log.reader import RunLog
 from bench.plan.steps import thermal_block
@@ -91,7 +92,7 @@ def resolve_thermal(recorded: Recorded, out_dir: str | Path, *, html: bool = Tru
                                                **report)
     else:
         report_path, html_path = out / f"{stem}.report.md", None
-        report_path.write_text(markdown_report(result, **report), encoding="utf-8")
+        write_output_text(report_path, markdown_report(result, **report))   # renamed into place
     return ThermalResolved(solution, result_path, report_path, html_path, results, model_path, failures, verdict)
 
 
