@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 from drivers.errors import TurntableProtocolError, quote_bytes
 from drivers.turntable.base import AxisMode
+from drivers.turntable.program import split_program_units
 
 # -- error codes (the manual lists none: its error table is "TBD"; these numbers are ours) ---------------------
 
@@ -186,20 +187,9 @@ def resolve_mode(text: str) -> str | None:
 
 
 def _split_units(message: str) -> list[str]:
-    units: list[str] = []
-    current: list[str] = []
-    quoted = False
-    for char in message:
-        if char == '"':
-            quoted = not quoted
-        if char == ";" and not quoted:
-            units.append("".join(current))
-            current = []
-        else:
-            current.append(char)
-    if quoted:
+    units, unterminated = split_program_units(message)
+    if unterminated:
         raise AclError(SYNTAX_ERROR, "unterminated string", message)
-    units.append("".join(current))
     return units
 
 

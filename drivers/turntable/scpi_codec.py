@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 from drivers.errors import QUOTE_LIMIT, TurntableCommandError, TurntableProtocolError, quote_bytes
 from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
+from drivers.turntable.program import split_program_units
 
 # -- keywords and commands -------------------------------------------------------------
 
@@ -436,19 +437,7 @@ def parse_request(unit: str, path: tuple[str, ...] = ()) -> tuple[ScpiRequest, t
 
 def split_units(line: bytes) -> list[str]:
     """A request line -> its program units (split at ';' outside quoted strings; empty units dropped)."""
-    text = line.decode("latin-1")
-    units: list[str] = []
-    current: list[str] = []
-    quoted = False
-    for char in text:
-        if char == '"':
-            quoted = not quoted
-        if char == ";" and not quoted:
-            units.append("".join(current))
-            current = []
-        else:
-            current.append(char)
-    units.append("".join(current))
+    units, _ = split_program_units(line.decode("latin-1"))
     return [u for u in units if u.strip()]
 
 
