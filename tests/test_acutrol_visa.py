@@ -155,13 +155,14 @@ def test_the_public_clients_sequence_through_pyvisa(served):
                                    for mode in ("pos", "rate", "synt")}
         client.send_position(10)
         assert client.ask(":mode? 1") == "Position\n"
-        assert client.wait_stop(at_deg=10.0)["pos"] == pytest.approx(10.0, abs=1e-6)
+        # within what `wait_stop` waits for (1e-4 deg): where in its settling the poll lands is the machine's speed
+        assert client.wait_stop(at_deg=10.0)["pos"] == pytest.approx(10.0, abs=1e-4)
         client.send_rate(-20)
         assert client.ask(":mode? 1") == "Rate\n"
         client.stop()
         rest = client.wait_stop()["pos"]
         client.send_delta_position(5)
-        assert client.wait_stop(at_deg=rest + 5.0)["pos"] == pytest.approx(rest + 5.0, abs=1e-6)
+        assert client.wait_stop(at_deg=rest + 5.0)["pos"] == pytest.approx(rest + 5.0, abs=1e-4)
         assert not client.check_error() and client.ask(":interlock? 1") == "Close\n"
         _fault_console(proc, "limit outer")
         assert client.ask(":interlock? 1") == "Fault\n" and client.ask("*stb?") == "65\n"
