@@ -110,13 +110,13 @@ class ModbusRequests:
         self._tx = b""
 
     # -- link -------------------------------------------------------------------------
-    def _make_client(self):
-        common = {"timeout": self.timeout_s, "retries": 0, "trace_packet": self._trace_packet}
-        if self.framing == "tcp":
-            kw = dict(self._client_kwargs)
-            return ModbusTcpClient(kw.pop("host"), **kw, **common)
+    def _make_client(self) -> ModbusTcpClient | ModbusSerialClient:
         kw = dict(self._client_kwargs)
-        return ModbusSerialClient(kw.pop("port"), **kw, **common)
+        if self.framing == "tcp":
+            return ModbusTcpClient(kw.pop("host"), **kw, timeout=self.timeout_s, retries=0,
+                                   trace_packet=self._trace_packet)
+        return ModbusSerialClient(kw.pop("port"), **kw, timeout=self.timeout_s, retries=0,
+                                  trace_packet=self._trace_packet)
 
     def _trace_packet(self, sending: bool, data: bytes) -> bytes:
         # Keep what went out and what came back, to say why a reply did not decode.
