@@ -15,14 +15,16 @@
     │     TurntableFault (> TurntableEStop), ChamberAlarm
     ├── DeviceLimitError (ValueError)        a demand outside the configured limits; nothing sent
     │     TurntableLimitError, ChamberLimitError
-    ├── DeviceConfigError (ValueError)       a URL, dialect, option, limit or DBC the driver cannot use; nothing sent
-    │     TurntableConfigError, ChamberConfigError (> ChamberMapError), ImuConfigError
-    └── RegisterMapError (ValueError)        a Modbus register map that cannot be used (drivers.turntable.modbus_map)
+    └── DeviceConfigError (ValueError)       a URL, dialect, option, limit, register map or DBC the driver cannot use
+          TurntableConfigError, ChamberConfigError (> ChamberMapError), ImuConfigError,
+          RegisterMapError (a Modbus register map, drivers.turntable.modbus_map)
 
-Code catches the kinds (`DeviceError`, `DeviceTimeout`, ...). The device-named leaves under each
-kind are what a driver raises, for their names alone: a boundary prints an error as
+Code catches the kinds (`DeviceError`, `DeviceTimeout`, ...). The device-named classes under each
+kind are what a driver raises, for their names: a boundary prints an error as
 `TurntableTimeout: ...` and a run records a fault's error by that name, so they stay as users
-and old logs know them. Only `TurntableEStop` is branched on (the sequencer's safe stop).
+and old logs know them. Caught by name are only `TurntableEStop` (an abort instead of a stop),
+the codecs' request errors (what a simulator replies) and `RegisterMapError` (restated as a
+`ChamberMapError` for a chamber's map).
 
 Every driver error is raised `from` the low-level cause (socket error, serial error,
 pymodbus exception) so a traceback shows both what the bench tried and what failed.

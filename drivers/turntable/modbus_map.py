@@ -14,7 +14,13 @@ import struct
 from dataclasses import dataclass, field, replace
 from typing import Any, Iterable, Mapping, Sequence
 
-from drivers.errors import DeviceError, TurntableChecksumError, TurntableLimitError, TurntableProtocolError, quote_bytes
+from drivers.errors import (
+    DeviceConfigError,
+    TurntableChecksumError,
+    TurntableLimitError,
+    TurntableProtocolError,
+    quote_bytes,
+)
 from drivers.turntable.base import FRAMES, AxisMode, AxisState, AxisStatus, TableState
 
 MAX_READ_REGISTERS = 125          # Modbus limit for one read (function 3)
@@ -51,7 +57,7 @@ DEFAULT_FAULT_TEXT = {1: "emergency stop", 2: "limit switch tripped", 3: "servo 
                       4: "Modbus watchdog expired"}
 
 
-class RegisterMapError(DeviceError, ValueError):
+class RegisterMapError(DeviceConfigError):
     """A register map (configuration) that cannot describe a controller; the message names the key."""
 
 
