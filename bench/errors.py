@@ -1,7 +1,7 @@
 """The bench's exception root.
 
 Every error the bench raises on purpose derives from `BenchError`, raised `from` its
-cause; a command line turns it (and the drivers' own `TurntableError` / `ImuError`)
+cause; a command line turns it (and the drivers' `DeviceError`)
 into one line and an exit code, and lets anything else raise: an exception that is
 not a `BenchError` is a bug and deserves its traceback.
 

@@ -1,4 +1,30 @@
-"""The drivers' exception trees: one for the turntable, one for the thermal chamber, one for the IMU over CAN.
+"""The drivers' errors: one tree under `DeviceError`, for the turntable, the thermal chamber and the IMU over CAN.
+
+    DeviceError                              any driver error: what a boundary (CLI, TUI) catches
+    ├── DeviceTimeout (TimeoutError)         no (complete) reply within the timeout, after the retries
+    │     TurntableTimeout, ChamberTimeout, ImuTimeout
+    ├── DeviceConnectionError (ConnectionError)   the link could not be opened, or was lost and not regained
+    │     TurntableConnectionError, ChamberConnectionError, ImuConnectionError
+    ├── DeviceProtocolError  .raw            a reply (or frame) that does not follow the protocol
+    │   │ TurntableProtocolError (> ScpiRequestError, MnRequestError), ChamberProtocolError, ImuFrameError
+    │   └── DeviceChecksumError              a framed reply whose checksum/CRC does not match
+    │         TurntableChecksumError (> MnChecksumError), ChamberChecksumError
+    ├── DeviceCommandError  .code            the controller understood a request and refused it
+    │     TurntableCommandError, ChamberCommandError
+    ├── DeviceFault  .state                  the device reports a fault
+    │     TurntableFault (> TurntableEStop), ChamberAlarm
+    ├── DeviceLimitError (ValueError)        a demand outside the configured limits; nothing sent
+    │     TurntableLimitError, ChamberLimitError
+    └── DeviceConfigError (ValueError)       a URL, dialect, option, limit, register map or DBC the driver cannot use
+          TurntableConfigError, ChamberConfigError (> ChamberMapError), ImuConfigError,
+          RegisterMapError (a Modbus register map, drivers.turntable.modbus_map)
+
+Code catches the kinds (`DeviceError`, `DeviceTimeout`, ...). The device-named classes under each
+kind are what a driver raises, for their names: a boundary prints an error as
+`TurntableTimeout: ...` and a run records a fault's error by that name, so they stay as users
+and old logs know them. Caught by name are only `TurntableEStop` (an abort instead of a stop),
+the codecs' request errors (what a simulator replies) and `RegisterMapError` (restated as a
+`ChamberMapError` for a chamber's map).
 
 Every driver error is raised `from` the low-level cause (socket error, serial error,
 pymodbus exception) so a traceback shows both what the bench tried and what failed.
@@ -34,150 +60,159 @@ def quote_bytes(raw: bytes | bytearray | memoryview | str, limit: int = QUOTE_LI
     return f"{text} ... ({total:,} bytes)" if hex_dump else f"{text}... ({total:,} bytes)"
 
 
-# What some errors carry besides their message, the same in every device family's tree (mixins, not roots:
-# each tree's base is its family's error).
-class _CarriesRaw(Exception):
-    """`raw`: the offending bytes (or None when not applicable)."""
+class DeviceError(Exception):
+    """Base of every device driver error (turntable, thermal chamber, IMU)."""
+
+
+class DeviceTimeout(DeviceError, TimeoutError):
+    """No (complete) reply within the timeout, after the configured retries."""
+
+
+class DeviceConnectionError(DeviceError, ConnectionError):
+    """The link to the device could not be opened or was lost and not regained."""
+
+
+class DeviceProtocolError(DeviceError):
+    """A reply that does not follow the protocol: garbage, wrong echo, malformed fields, an undecodable frame.
+
+    `raw` holds the offending bytes (or None when not applicable).
+    """
 
     def __init__(self, message: str, raw: bytes | None = None):
         super().__init__(message)
         self.raw = raw
 
 
-class _CarriesCode(Exception):
-    """`code`: the controller's error or exception code (or None when it gives none)."""
+class DeviceChecksumError(DeviceProtocolError):
+    """A framed reply whose checksum/CRC does not match its content."""
+
+
+class DeviceCommandError(DeviceError):
+    """The controller understood the request and refused it (error reply, Modbus exception).
+
+    `code` is the controller's error or exception code when it gives one.
+    """
 
     def __init__(self, message: str, code: int | None = None):
         super().__init__(message)
         self.code = code
 
 
-class _CarriesState(Exception):
-    """`state`: the last state read (or None)."""
+class DeviceFault(DeviceError):
+    """The device reports a fault (servo fault, limit trip, chamber alarm); `state` is the last state read."""
 
     def __init__(self, message: str, state=None):
         super().__init__(message)
         self.state = state
 
 
-class TurntableError(Exception):
-    """Base of every turntable driver error."""
+class DeviceLimitError(DeviceError, ValueError):
+    """A demand outside the configured limits; raised before anything is sent."""
 
 
-class TurntableTimeout(TurntableError, TimeoutError):
-    """No (complete) reply within the timeout, after the configured retries."""
+class DeviceConfigError(DeviceError, ValueError):
+    """A URL, dialect, option, limit, register map or DBC the driver cannot use; raised before anything is sent."""
 
 
-class TurntableConnectionError(TurntableError, ConnectionError):
-    """The link to the controller could not be opened or was lost and not regained."""
+# The device-named leaves (see the module docstring: their names are printed and recorded).
+class TurntableTimeout(DeviceTimeout):
+    """The turntable controller did not answer."""
 
 
-class TurntableProtocolError(TurntableError, _CarriesRaw):
-    """A reply that does not follow the dialect: garbage, wrong echo, malformed fields.
-
-    `raw` holds the offending bytes (or None when not applicable).
-    """
+class TurntableConnectionError(DeviceConnectionError):
+    """The link to the turntable controller could not be opened or was lost."""
 
 
-class TurntableChecksumError(TurntableProtocolError):
-    """A framed reply whose checksum/CRC does not match its content."""
+class TurntableProtocolError(DeviceProtocolError):
+    """A turntable reply that does not follow the dialect."""
 
 
-class TurntableCommandError(TurntableError, _CarriesCode):
-    """The controller understood the request and refused it (error reply, Modbus exception).
-
-    `code` is the controller's error or exception code when it gives one.
-    """
+class TurntableChecksumError(TurntableProtocolError, DeviceChecksumError):
+    """A framed turntable reply whose checksum/CRC does not match its content."""
 
 
-class TurntableFault(TurntableError, _CarriesState):
-    """The controller reports a fault (servo fault, limit trip); `state` is the last TableState read."""
+class TurntableCommandError(DeviceCommandError):
+    """The turntable controller refused a request."""
+
+
+class TurntableFault(DeviceFault):
+    """The turntable controller reports a fault (servo fault, limit trip); `state` is the last TableState read."""
 
 
 class TurntableEStop(TurntableFault):
     """The emergency stop is active: the table is not under servo control."""
 
 
-class TurntableLimitError(TurntableError, ValueError):
-    """A demand outside the configured limits; raised before anything is sent."""
+class TurntableLimitError(DeviceLimitError):
+    """A table demand outside the configured limits; raised before anything is sent."""
 
 
-class TurntableConfigError(TurntableError, ValueError):
-    """A URL, dialect, option or limit the driver cannot use; raised before anything is sent."""
+class TurntableConfigError(DeviceConfigError):
+    """A URL, dialect, option or limit the turntable driver cannot use; raised before anything is sent."""
 
 
-class ChamberError(Exception):
-    """Base of every thermal-chamber driver error."""
+class ChamberTimeout(DeviceTimeout):
+    """The chamber controller did not answer."""
 
 
-class ChamberTimeout(ChamberError, TimeoutError):
-    """No (complete) reply within the timeout, after the configured retries."""
+class ChamberConnectionError(DeviceConnectionError):
+    """The link to the chamber controller could not be opened or was lost."""
 
 
-class ChamberConnectionError(ChamberError, ConnectionError):
-    """The link to the chamber controller could not be opened or was lost and not regained."""
+class ChamberProtocolError(DeviceProtocolError):
+    """A chamber reply that does not follow the dialect."""
 
 
-class ChamberProtocolError(ChamberError, _CarriesRaw):
-    """A reply that does not follow the dialect; `raw` holds the offending bytes (or None)."""
+class ChamberChecksumError(ChamberProtocolError, DeviceChecksumError):
+    """A framed chamber reply (Modbus RTU) whose CRC does not match its content."""
 
 
-class ChamberChecksumError(ChamberProtocolError):
-    """A framed reply (Modbus RTU) whose CRC does not match its content."""
+class ChamberCommandError(DeviceCommandError):
+    """The chamber controller refused a request (an `NA:` reply, a Modbus exception)."""
 
 
-class ChamberCommandError(ChamberError, _CarriesCode):
-    """The controller understood the request and refused it (an `NA:` reply, a Modbus exception); `code`
-    is the controller's code when it gives one."""
+class ChamberAlarm(DeviceFault):
+    """The chamber reports an alarm (over-temperature, door open, ...); `state` is the last ChamberState read."""
 
 
-class ChamberAlarm(ChamberError, _CarriesState):
-    """The controller reports an alarm (over-temperature, door open, ...); `state` is the last ChamberState read."""
-
-
-class ChamberLimitError(ChamberError, ValueError):
+class ChamberLimitError(DeviceLimitError):
     """A setpoint or ramp rate outside the configured limits; raised before anything is sent."""
 
 
-class ChamberConfigError(ChamberError, ValueError):
+class ChamberConfigError(DeviceConfigError):
     """A URL, dialect, register map, option or limit the chamber driver cannot use; raised before anything is sent."""
+
+
+class ImuTimeout(DeviceTimeout):
+    """No IMU frame within the timeout."""
+
+
+class ImuConnectionError(DeviceConnectionError):
+    """The CAN bus could not be opened, or failed while in use."""
+
+
+class ImuConfigError(DeviceConfigError):
+    """A DBC file or signal mapping that cannot describe an IMU sample."""
+
+
+class ImuFrameError(DeviceProtocolError):
+    """A CAN frame that cannot be decoded (wrong length, bad CRC, unknown id) where one is required."""
 
 
 @dataclass(frozen=True)
 class LinkErrors:
-    """The error classes the shared request machinery (drivers.line_link, drivers.modbus_link) raises for one
-    device family, so the turntable and the chamber share one retry/reconnect logic and keep their own trees."""
+    """The device-named errors the shared request machinery (drivers.line_link, drivers.modbus_link) raises for
+    one device, so the turntable and the chamber share one retry/reconnect logic and keep their errors' names."""
 
-    timeout: type[Exception]
-    connection: type[Exception]
-    protocol: type[Exception]      # takes (message, raw)
-    checksum: type[Exception]      # takes (message, raw); a subclass of `protocol`
-    command: type[Exception]       # takes (message, code)
-    config: type[Exception]
-    base: type[Exception]
+    timeout: type[DeviceTimeout]
+    connection: type[DeviceConnectionError]
+    protocol: type[DeviceProtocolError]
+    checksum: type[DeviceChecksumError]     # a subclass of `protocol`
+    command: type[DeviceCommandError]
+    config: type[DeviceConfigError]
 
 
 TURNTABLE_LINK_ERRORS = LinkErrors(TurntableTimeout, TurntableConnectionError, TurntableProtocolError,
-                                   TurntableChecksumError, TurntableCommandError, TurntableConfigError, TurntableError)
+                                   TurntableChecksumError, TurntableCommandError, TurntableConfigError)
 CHAMBER_LINK_ERRORS = LinkErrors(ChamberTimeout, ChamberConnectionError, ChamberProtocolError, ChamberChecksumError,
-                                 ChamberCommandError, ChamberConfigError, ChamberError)
-
-
-class ImuError(Exception):
-    """Base of every IMU (CAN) driver error."""
-
-
-class ImuTimeout(ImuError, TimeoutError):
-    """No IMU frame within the timeout."""
-
-
-class ImuConnectionError(ImuError, ConnectionError):
-    """The CAN bus could not be opened, or failed while in use."""
-
-
-class ImuConfigError(ImuError, ValueError):
-    """A DBC file or signal mapping that cannot describe an IMU sample."""
-
-
-class ImuFrameError(ImuError):
-    """A CAN frame that cannot be decoded (wrong length, bad CRC, unknown id) where one is required."""
+                                 ChamberCommandError, ChamberConfigError)

@@ -2,7 +2,7 @@
 
 `LineRequests._transact` sends one request line and parses one reply line with the
 dialect's pure codec. What goes wrong is handled here once for every dialect, raising
-the device family's errors (`link_errors`, a `drivers.errors.LinkErrors`):
+the device's own errors (`link_errors`, a `drivers.errors.LinkErrors`):
 - no reply within `timeout_s`: retry (input discarded first), then `timeout`;
 - a controller that was only slow answers the timed-out attempts as well: the reply that
   comes first answers the request (it is the same request), and the replies still owed
@@ -58,8 +58,8 @@ class LineRequests:
         if isinstance(transport, str):
             try:
                 transport = open_transport(transport)
-            except ValueError as exc:       # the transports' own config error, in this family's words
-                if isinstance(exc, self.link_errors.base):
+            except ValueError as exc:       # the transports' own config error, under this device's name
+                if isinstance(exc, self.link_errors.config):
                     raise
                 raise self.link_errors.config(str(exc)) from exc
         self.transport = transport
@@ -100,7 +100,7 @@ class LineRequests:
                 self.channel.write_line(request, self.terminator)
                 line = self.channel.read_line(self.timeout_s)
             except ConnectionError as exc:
-                # the family's own connection error is a ConnectionError too: a failed reopen
+                # the device's own connection error is a ConnectionError too: a failed reopen
                 if isinstance(exc, errors.connection):
                     last = exc
                     continue

@@ -3,7 +3,7 @@
 URLs: `modbus+tcp://host[:port][?unit=N]` (port 502 by default) and
 `modbus+rtu:///dev/ttyUSB0?baud=115200&parity=E&unit=N` (also bytesize, stopbits).
 
-Failures map onto the device family's errors (`link_errors`, a `drivers.errors.LinkErrors`):
+Failures map onto the device's own errors (`link_errors`, a `drivers.errors.LinkErrors`):
 no reply -> retry, then `timeout`; a reply that does not decode (garbage, bad CRC,
 malformed MBAP) -> retry, then `protocol`/`checksum`; on RTU, a controller that was only
 slow answers the attempts that timed out as well: after the reply, the replies still owed
@@ -27,7 +27,7 @@ from urllib.parse import parse_qs, urlencode, urlsplit
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
-from drivers.errors import TURNTABLE_LINK_ERRORS, LinkErrors, TurntableChecksumError, quote_bytes
+from drivers.errors import TURNTABLE_LINK_ERRORS, DeviceChecksumError, LinkErrors, quote_bytes
 from drivers.transport import MAX_REPLY_BYTES, serial_settings
 from drivers.turntable.modbus_map import exception_name, explain_bad_reply
 
@@ -110,13 +110,13 @@ class ModbusRequests:
         self._tx = b""
 
     # -- link -------------------------------------------------------------------------
-    def _make_client(self):
-        common = {"timeout": self.timeout_s, "retries": 0, "trace_packet": self._trace_packet}
-        if self.framing == "tcp":
-            kw = dict(self._client_kwargs)
-            return ModbusTcpClient(kw.pop("host"), **kw, **common)
+    def _make_client(self) -> ModbusTcpClient | ModbusSerialClient:
         kw = dict(self._client_kwargs)
-        return ModbusSerialClient(kw.pop("port"), **kw, **common)
+        if self.framing == "tcp":
+            return ModbusTcpClient(kw.pop("host"), **kw, timeout=self.timeout_s, retries=0,
+                                   trace_packet=self._trace_packet)
+        return ModbusSerialClient(kw.pop("port"), **kw, timeout=self.timeout_s, retries=0,
+                                  trace_packet=self._trace_packet)
 
     def _trace_packet(self, sending: bool, data: bytes) -> bytes:
         # Keep what went out and what came back, to say why a reply did not decode.
@@ -232,7 +232,7 @@ class ModbusRequests:
                                   f"({attempts} attempt{'s' if attempts > 1 else ''})")
         tid = int.from_bytes(self._tx[0:2], "big") if self.framing == "tcp" and len(self._tx) >= 2 else None
         error = explain_bad_reply(self._rx, self.framing, self.unit, function_code, tid)
-        kind = errors.checksum if isinstance(error, TurntableChecksumError) else errors.protocol
+        kind = errors.checksum if isinstance(error, DeviceChecksumError) else errors.protocol
         return kind(f"{what}: {error} ({attempts} attempt{'s' if attempts > 1 else ''})", error.raw)
 
     def _read(self, address: int, count: int, what: str) -> list[int]:

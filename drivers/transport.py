@@ -9,7 +9,7 @@
   the Modbus client, which hands them to pymodbus.)
 
 Transports raise the builtin `ConnectionError` (lost or refused link) and return b''
-from `read` on a timeout; clients translate those into their own error tree. A URL or
+from `read` on a timeout; clients translate those into their device's errors. A URL or
 option they cannot use raises `TurntableConfigError` (also a `ValueError`) at once.
 
 What a client reads while waiting for one reply is bounded, so a peer that streams

@@ -19,10 +19,10 @@ from drivers.errors import (
     ChamberAlarm,
     ChamberCommandError,
     ChamberConnectionError,
-    ChamberError,
     ChamberLimitError,
     ChamberProtocolError,
     ChamberTimeout,
+    DeviceError,
 )
 from tests.test_bounded_errors import SHORT, WAIT_S, GarbagePeer
 
@@ -174,7 +174,7 @@ def test_a_lost_link_is_a_connection_error_and_make_safe_does_not_raise(rig):
     server.close()
     with pytest.raises(ChamberConnectionError) as info:
         chamber.read_state()
-    assert isinstance(info.value, ChamberError)
+    assert isinstance(info.value, DeviceError)
     assert chamber.make_safe(23.0).endswith("stop failed: the chamber may still be controlling")
 
 

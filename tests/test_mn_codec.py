@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from bench.sim import controller as simctl
 from bench.sim.controller import SimController
 from bench.sim.mn_server import MnSimHandler
-from drivers.errors import TurntableChecksumError, TurntableCommandError, TurntableError, TurntableProtocolError
+from drivers.errors import DeviceError, TurntableChecksumError, TurntableCommandError, TurntableProtocolError
 from drivers.turntable import mn_codec as codec
 from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
 
@@ -321,7 +321,7 @@ def _check_decoders(data: bytes) -> None:
     for decode in _decoders():
         try:
             decode(data)
-        except TurntableError:
+        except DeviceError:
             pass
 
 

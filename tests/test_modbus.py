@@ -15,10 +15,10 @@ from bench.sim.controller import SimController
 from bench.sim.modbus_server import ModbusSimServer
 from drivers.clock import ManualClock
 from drivers.errors import (
+    DeviceError,
     TurntableChecksumError,
     TurntableCommandError,
     TurntableConnectionError,
-    TurntableError,
     TurntableEStop,
     TurntableFault,
     TurntableLimitError,
@@ -371,7 +371,7 @@ def test_random_replies_decode_or_raise_a_turntable_error(framing, data):
             table.enable()
         else:
             table.set_mode(0, "rate")
-    except TurntableError:
+    except DeviceError:
         pass
     finally:
         table.close()

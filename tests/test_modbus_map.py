@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.errors import TurntableChecksumError, TurntableError, TurntableLimitError, TurntableProtocolError
+from drivers.errors import DeviceError, TurntableChecksumError, TurntableLimitError, TurntableProtocolError
 from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
 from drivers.turntable.modbus_map import (
     RegisterMap,
@@ -147,7 +147,7 @@ def test_bad_maps_name_the_key(d, words):
     with pytest.raises(RegisterMapError, match=words) as info:
         RegisterMap.from_dict(d, source="table.toml")
     assert str(info.value).startswith("table.toml: ")
-    assert isinstance(info.value, ValueError) and isinstance(info.value, TurntableError)
+    assert isinstance(info.value, ValueError) and isinstance(info.value, DeviceError)
 
 
 def test_layout_helpers():
@@ -189,7 +189,7 @@ def test_random_registers_decode_or_raise_a_turntable_error(m, regs):
                    lambda: m.decode_value(regs[:2], "rate"), lambda: m.decode_status(regs[0] if regs else 0)):
         try:
             decode()
-        except TurntableError:
+        except DeviceError:
             pass
 
 

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from drivers.errors import TurntableCommandError, TurntableError, TurntableProtocolError
+from drivers.errors import DeviceError, TurntableCommandError, TurntableProtocolError
 from drivers.turntable import scpi_codec as sc
 from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
 
@@ -309,7 +309,7 @@ def test_decoders_decode_or_raise_turntable_errors(data):
     for decode in DECODERS:
         try:
             decode(data)
-        except TurntableError:
+        except DeviceError:
             pass
 
 

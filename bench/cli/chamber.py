@@ -25,7 +25,7 @@ from bench.config.load import ConfigError, load_config
 from bench.config.register_map import load_chamber_register_map
 from bench.errors import InputError
 from drivers.chamber import ALARM_NAMES, DIALECTS, Chamber, ChamberLimits, ChamberState, open_chamber
-from drivers.errors import ChamberConfigError, ChamberError, ChamberLimitError
+from drivers.errors import ChamberConfigError, DeviceConfigError, DeviceError, DeviceLimitError
 from drivers.transport import MODBUS_SCHEMES
 
 # -- bench chamber ----------------------------------------------------------------------
@@ -125,10 +125,10 @@ def cmd_chamber(args: argparse.Namespace) -> ExitCode:
     try:
         config = _chamber_config(args)
         chamber = open_chamber(config.url, config.dialect, **config.driver_options())
-    except (ChamberConfigError, ConfigError, InputError) as exc:
+    except (DeviceConfigError, ConfigError, InputError) as exc:
         return fail(prog, f"{exc}", ExitCode.USAGE)
-    return drive_device(prog, chamber, lambda: _run_chamber_command(chamber, args), errors=ChamberError,
-                        refused=(ChamberLimitError, ChamberConfigError), unreachable="cannot reach the chamber",
+    return drive_device(prog, chamber, lambda: _run_chamber_command(chamber, args), errors=DeviceError,
+                        refused=(DeviceLimitError, DeviceConfigError), unreachable="cannot reach the chamber",
                         make_safe=lambda: f"chamber: {chamber.make_safe(config.safe_setpoint_c)}")
 
 
@@ -219,7 +219,7 @@ def cmd_sim_chamber(args: argparse.Namespace) -> ExitCode:
         if args.register_map is not None and args.dialect != "modbus":
             raise ChamberConfigError("--register-map is for the modbus dialect only")
         register_map = load_chamber_register_map(args.register_map) if args.register_map is not None else None
-    except (ValueError, ConfigError) as exc:      # ChamberConfigError is a ValueError
+    except (ValueError, ConfigError) as exc:      # DeviceConfigError is a ValueError
         return fail(prog, f"{exc}", ExitCode.USAGE)
     sim = SimChamber(physics)
     closers: list = []

@@ -16,17 +16,13 @@ from bench.cli.edge import STOP_SIGNALS, ExitCode, Interrupted, fail, raise_inte
 from bench.cli.progress import ProgressPrinter
 from bench.errors import BenchError
 from bench.model.imu import NoiseModel
-from drivers.errors import ChamberError, ImuError, TurntableError
+from drivers.errors import DeviceError
 from drivers.turntable.base import TABLE_STATE_UNKNOWN
 
 if TYPE_CHECKING:
     from bench.run.runner import BenchRun
     from bench.run.sequencer import Sequencer
     from drivers.session import DeviceSession
-
-
-#: errors a command turns into one line and an exit code; anything else is a bug and raises
-KNOWN_ERRORS = (BenchError, TurntableError, ImuError)
 
 
 def ended_early(prog: str, what: str, sequencer: Sequencer | None, after: str = "") -> ExitCode:
@@ -169,13 +165,13 @@ def run_plan(run: BenchRun, prog: str, *, quiet: bool, simulated: bool) -> ExitC
     with stop_signals(abort):
         try:
             run.open()
-        except (TurntableError, ImuError, ChamberError, BenchError, OSError) as exc:
+        except (DeviceError, BenchError, OSError) as exc:
             return fail(prog, f"cannot start: {exc}; nothing moved", ExitCode.USAGE)
         progress = ProgressPrinter(run.plan.steps, quiet=quiet, simulated=simulated)
         run.extra_listeners.append(progress)
         try:
             run.run()
-        except TurntableError as exc:
+        except DeviceError as exc:
             return fail(prog, f"cannot enable the table: {exc}; nothing moved", ExitCode.FAULT)
         finally:
             progress.close()
@@ -184,6 +180,6 @@ def run_plan(run: BenchRun, prog: str, *, quiet: bool, simulated: bool) -> ExitC
     return None
 
 
-__all__ = ["KNOWN_ERRORS", "STOP_SIGNALS", "ExitCode", "Interrupted", "add_noise_arguments", "drive_device",
+__all__ = ["STOP_SIGNALS", "ExitCode", "Interrupted", "add_noise_arguments", "drive_device",
            "ended_early", "fail",
            "noise_from_args", "raise_interrupted", "run_plan", "signal_name", "speed_factor", "stop_signals"]

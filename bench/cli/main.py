@@ -16,7 +16,7 @@ import sys
 from bench import __version__
 from bench.cli.edge import ExitCode, FirstSignal, ensure_standard_streams, fail, stop_signals
 from bench.errors import BenchError
-from drivers.errors import ChamberConfigError, ChamberError, ImuError, TurntableConfigError, TurntableError
+from drivers.errors import DeviceConfigError, DeviceError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
 
     The edge of every command:
     - KeyboardInterrupt -> "interrupted", 130; a `BenchError` -> one line, 2; a driver
-      error -> one line, 2 for a `TurntableConfigError` (nothing was sent), 3 otherwise;
+      error (`DeviceError`) -> one line, 2 for a `DeviceConfigError` (nothing was sent), 3 otherwise;
     - an `OSError` (a file that cannot be read or written, a full disk, ...) -> one line
       `bench COMMAND: FILE: reason`, exit 2 (usage or unreadable input/unwritable output);
     - stdout closed by its reader (`bench evaluate | head -3`: a `BrokenPipeError` on
@@ -134,13 +134,13 @@ def _run(args: argparse.Namespace) -> int:
         return int(args.func(args))
     except KeyboardInterrupt as exc:
         return fail(f"bench {args.command}", f"interrupted ({exc or 'Ctrl-C'})", ExitCode.INTERRUPTED)
-    except (TurntableConfigError, ChamberConfigError) as exc:
+    except DeviceConfigError as exc:
         # a URL, dialect, option or limit the driver refused before sending anything: nothing moved
         print(f"bench {args.command}: {exc}", file=sys.stderr)
         return ExitCode.USAGE
-    except (TurntableError, ChamberError, ImuError) as exc:
+    except DeviceError as exc:
         # a command that moves hardware handles these itself (and stops the table); this is the backstop.
-        # (TurntableTimeout and TurntableConnectionError are OSErrors too: they end here, not as I/O errors.)
+        # (DeviceTimeout and DeviceConnectionError are OSErrors too: they end here, not as I/O errors.)
         print(f"bench {args.command}: {type(exc).__name__}: {exc}", file=sys.stderr)
         return ExitCode.FAULT
     except BenchError as exc:

@@ -25,7 +25,7 @@ from bench.cli.sim_serving import (
 )
 from bench.config.load import ConfigError, load_register_map
 from bench.errors import InputError
-from drivers.errors import TurntableConfigError, TurntableError, TurntableLimitError
+from drivers.errors import DeviceConfigError, DeviceError, DeviceLimitError
 from drivers.transport import MODBUS_SCHEMES
 from drivers.turntable import (
     DIALECTS,
@@ -167,10 +167,10 @@ def cmd_table(args: argparse.Namespace) -> ExitCode:
             options["register_map"] = replace(register_map, watchdog_s=0.0) if args.no_watchdog else register_map
         table = open_turntable(args.url, args.dialect, limits=limits, timeout_s=args.timeout_s,
                                retries=args.retries, **options)
-    except (TurntableConfigError, ConfigError) as exc:
+    except (DeviceConfigError, ConfigError) as exc:
         return fail(prog, f"{exc}", ExitCode.USAGE)
-    return drive_device(prog, table, lambda: _run_table_command(table, args), errors=TurntableError,
-                        refused=(TurntableLimitError,), refused_at_connect=(TurntableLimitError,),
+    return drive_device(prog, table, lambda: _run_table_command(table, args), errors=DeviceError,
+                        refused=(DeviceLimitError,), refused_at_connect=(DeviceLimitError,),
                         unreachable="cannot reach the controller",
                         make_safe=lambda: _stop_table(table), note_faults=False)
 

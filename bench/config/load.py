@@ -47,7 +47,7 @@ from bench.model.units import ARCSEC
 from bench.noise.result import NoiseResult
 from bench.plan.compiler import ORDERS, PlanTiming
 from bench.plan.thermal import ThermalPlan
-from drivers.errors import ImuConfigError
+from drivers.errors import DeviceConfigError
 from drivers.imu import SHIPPED_LAYOUTS, ImuFrameSpec, ImuLayout
 from drivers.imu.slcan_bus import SLCAN_CLIENTS
 from drivers.turntable import DIALECTS, FRAMES, AxisLimits, TurntableLimits, check_url_dialect
@@ -341,12 +341,12 @@ def _imu(t: Table) -> ImuConfig:
             raise t.error("signals", f"must be a table ([imu.signals]), got {describe(signals)}")
         try:
             spec = ImuFrameSpec.from_dict(signals)
-        except ImuConfigError as exc:
+        except DeviceConfigError as exc:
             raise t.error("signals", str(exc)) from exc
     blame = "dbc" if t.has("dbc") else ("signals" if t.has("signals") else ("layout" if t.has("layout") else None))
     try:
         layout = ImuLayout.from_dbc(dbc, spec)
-    except ImuConfigError as exc:
+    except DeviceConfigError as exc:
         raise t.error(blame, str(exc)) from exc
     if not fd:
         for message in layout.messages:

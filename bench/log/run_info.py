@@ -32,7 +32,7 @@ from bench.log.names import safe_name, shown
 from bench.log.reader import LogError, RunLog
 from bench.model.earth import Site
 from bench.plan.steps import Step, step_from_dict
-from drivers.errors import ImuConfigError
+from drivers.errors import DeviceConfigError
 from drivers.imu import SHIPPED_LAYOUTS, ImuFrameSpec, ImuLayout, shipped_layout_name, spec_of
 from schedules import builtin_names
 from schedules.tomllines import locate_lines
@@ -202,7 +202,7 @@ def _prefer_attached_dbc(log: RunLog, config: BenchConfig, notes: list[str]) -> 
         return config.imu.layout
     try:
         layout = ImuLayout.from_dbc_string(text, config.imu.spec, source=f"{log.path}:{config.imu.dbc.name}")
-    except ImuConfigError as exc:
+    except DeviceConfigError as exc:
         notes.append(f"the attached {config.imu.dbc.name} cannot be used ({exc}): using the file on this machine")
         return config.imu.layout
     notes.append(f"{config.imu.dbc.name} differs from the file on this machine: decoding with the attached copy")
@@ -223,7 +223,7 @@ def _recorded_spec(text: str | None, imu_meta: dict, notes: list[str]) -> tuple[
         return fallback, shipped, dbc_name
     try:
         return spec_of(imu), shipped, dbc_name
-    except ImuConfigError as exc:
+    except DeviceConfigError as exc:
         notes.append(f"the recorded [imu.signals] is unusable ({exc}): using the default mapping")
         return fallback, shipped, dbc_name
 
@@ -234,13 +234,13 @@ def _layout_from_attachment(log: RunLog, dbc_name: str, spec: ImuFrameSpec, ship
         try:
             return ImuLayout.from_dbc_string(attached[1].decode("utf-8", errors="replace"), spec,
                                              source=f"{log.path}:{dbc_name}")
-        except ImuConfigError as exc:
+        except DeviceConfigError as exc:
             raise LogError(f"{log.path}: the attached DBC {dbc_name} cannot be used: {exc}") from exc
     shipped = SHIPPED_LAYOUTS[shipped_name or "classic"][0]
     if dbc_name == shipped.name:
         try:
             return ImuLayout.from_dbc(shipped, spec)
-        except ImuConfigError as exc:
+        except DeviceConfigError as exc:
             raise LogError(f"{log.path}: the shipped {dbc_name} does not fit the recorded mapping: {exc}") from exc
     raise LogError(f"{log.path}: cannot decode the IMU frames: no {dbc_name} attachment and no usable configuration")
 

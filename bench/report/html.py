@@ -41,7 +41,7 @@ from bench.report.facts import (
     verdict_view,
 )
 from bench.solve.extract import finished_observation_steps
-from drivers.errors import ImuError
+from drivers.errors import DeviceError
 from drivers.imu import ImuLayout, spec_of
 
 CSS = """
@@ -110,7 +110,7 @@ def _log_samples(log, layout, rate_hz: float, notes: list[str]):
     try:
         block, _ = log.imu_samples(layout if layout is not None else log_layout(log), rate_hz)
         return block.receive_time_s, block.counter, block.acc_rate, block.gyro_rate
-    except (ImuError, ValueError, tomllib.TOMLDecodeError) as exc:
+    except (DeviceError, ValueError, tomllib.TOMLDecodeError) as exc:
         notes.append(f"raw CAN frames not decoded ({exc}); plots use the recorded /imu/samples topic")
     records = log.imu_records
     return records.receive_time_s, records.counter, records.acc_counts * rate_hz, records.gyro_counts * rate_hz

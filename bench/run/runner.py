@@ -137,7 +137,7 @@ class BenchRun:
 
     # -- devices -----------------------------------------------------------------------
     def open(self, *, record: bool = True) -> None:
-        """Open the devices and the recorder. Raises TurntableError/ImuError/OSError/ValueError; nothing moves.
+        """Open the devices and the recorder. Raises DeviceError/OSError/ValueError; nothing moves.
 
         The output folder is checked first (`OutputFolderError`): no device is opened for a run that could
         not be logged. `record=False` leaves the log for `start_log()` (the TUI opens it when a plan starts,

@@ -30,7 +30,7 @@ from drivers.chamber import ascii_codec as codec
 from drivers.chamber.modbus_map import READ_ONLY, ChamberRegisterMap
 from drivers.chamber.presets import ChamberMap, default_map
 from drivers.chamber.watlow_f4 import WatlowF4Map
-from drivers.errors import ChamberError
+from drivers.errors import DeviceError
 
 GARBAGE = b"\x00\xfe#?%garbage\x1b"
 NA_FOR_ERROR = {ERR_RANGE: codec.NA_RANGE, ERR_ALARM: codec.NA_ALARM}
@@ -114,7 +114,7 @@ class ChamberModbusServer(ModbusServing):
     """The simulated chamber as a Modbus server (TCP listeners and RTU ptys, `ModbusServing`) serving a register
     map (default: the Watlow F4P's, `bench.sim.chamber_f4`)."""
 
-    device_errors = (ChamberError,)
+    device_errors = (DeviceError,)
     device_error_code = ExcCodes.ILLEGAL_VALUE
 
     def __init__(self, chamber: SimChamber, register_map: ChamberMap | None = None, **kwargs):

@@ -21,7 +21,7 @@ import re
 
 from bench.sim.controller import ERR_FAULT, ERR_NOT_ENABLED, ERR_WRONG_MODE, SimCommandError, SimController
 from bench.sim.serve import LineServer, held_first, reply_with_fault
-from drivers.errors import TurntableProtocolError
+from drivers.errors import DeviceProtocolError
 from drivers.turntable import mn_codec as codec
 from drivers.turntable.base import FRAMES, AxisMode, AxisStatus
 
@@ -63,7 +63,7 @@ class MnSimHandler:
         except codec.MnRequestError as exc:
             hint = _CMD_HINT.match(line)
             return codec.encode_error(hint.group(1).decode("ascii") if hint else codec.UNREADABLE_CMD, exc.code)
-        except TurntableProtocolError:
+        except DeviceProtocolError:
             return codec.encode_error(codec.UNREADABLE_CMD, codec.ERR_SYNTAX)
         try:
             return self._execute(request)

@@ -40,7 +40,7 @@ from bench.sim.controller import (
 from bench.sim.modbus_serving import GARBAGE, ModbusServing, Refused
 from bench.sim.serve import IDLE_TIMEOUT_S, MAX_CONNECTIONS
 from drivers.clock import SYSTEM_CLOCK, Clock
-from drivers.errors import TurntableError
+from drivers.errors import DeviceError
 from drivers.turntable.base import AxisStatus, TableState
 from drivers.turntable.modbus_map import READ_ONLY_REGISTERS, RegisterMap, mask_axes
 
@@ -68,7 +68,7 @@ class ModbusSimServer(ModbusServing):
     connections each listener serves at once (the excess is accepted and closed at once).
     """
 
-    device_errors = (TurntableError,)
+    device_errors = (DeviceError,)
 
     def __init__(self, controller: SimController, register_map: RegisterMap | None = None,
                  wall_clock: Clock = SYSTEM_CLOCK, watchdog_poll_s: float = 0.02,
@@ -129,7 +129,7 @@ class ModbusSimServer(ModbusServing):
             a = getattr(m, name)[k]
             try:
                 return m.decode_value([image[a], image[a + 1]], kind)
-            except TurntableError as exc:
+            except DeviceError as exc:
                 raise Refused(ExcCodes.ILLEGAL_VALUE, str(exc)) from exc
 
         try:
@@ -148,7 +148,7 @@ class ModbusSimServer(ModbusServing):
                 if ("mode", k) in touched:
                     try:
                         mode = m.decode_mode(image[m.mode[k]])
-                    except TurntableError as exc:
+                    except DeviceError as exc:
                         raise Refused(ExcCodes.ILLEGAL_VALUE, str(exc)) from exc
                     self.controller.set_mode(k, mode)
             for k in range(3):

@@ -34,6 +34,7 @@ from pymodbus.constants import ExcCodes
 from pymodbus.framer import FramerType
 from pymodbus.pdu import ExceptionResponse
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from bench.sim.controller import WireFaults
@@ -50,6 +51,16 @@ class _CloseAtOnce(asyncio.Protocol):
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         transport.close()
+
+
+class _HeardHandler(ServerRequestHandler):
+    """pymodbus's handler of one connection, telling its server each time bytes arrive (for the idle reaper)."""
+
+    server: _BoundedTcpServer
+
+    def data_received(self, data: bytes) -> None:
+        self.server.heard(self.unique_id)
+        super().data_received(data)
 
 
 class _BoundedTcpServer(ModbusTcpServer):
@@ -77,17 +88,18 @@ class _BoundedTcpServer(ModbusTcpServer):
             self.evicted += 1
             self._drop(victim)
         protocol = super().handle_new_connection()
-        uid, received = protocol.unique_id, protocol.data_received
-        self._last_heard[uid] = time.monotonic()
-
-        def heard(data: bytes) -> None:
-            self._last_heard[uid] = time.monotonic()
-            received(data)
-
-        protocol.data_received = heard
+        self.heard(protocol.unique_id)
         if self._reaper is None:
             self._reaper = self.loop.call_later(min(_REAP_PERIOD_S, self.idle_timeout_s), self._reap)
         return protocol
+
+    def callback_new_connection(self) -> _HeardHandler:
+        # pymodbus's factory of a connection's handler (as its own), with the handler that notes when it is heard
+        return _HeardHandler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
+
+    def heard(self, uid: str) -> None:
+        """Connection `uid` sent bytes (or was just made): it is not idle now."""
+        self._last_heard[uid] = time.monotonic()
 
     def _drop(self, uid: str) -> None:
         self._last_heard.pop(uid, None)
@@ -168,6 +180,11 @@ class ModbusServing(ClosedOnExit):
                 start = address
         return SimDevice(unit, simdata=blocks, action=self._action)
 
+    def _served_device(self) -> SimDevice:
+        if self._device is None:        # every subclass registers its device in its constructor
+            raise RuntimeError(f"{type(self).__name__} registered no Modbus device")
+        return self._device
+
     def _read_image(self) -> Mapping[int, int]:
         """address -> register value of the device now (under `_lock`); an address not in it reads 0."""
         raise NotImplementedError
@@ -178,6 +195,7 @@ class ModbusServing(ClosedOnExit):
 
     async def _action(self, function_code, start_address, address, count, registers, set_values):
         # pymodbus's hook for every request: a write executes, a read is filled from the live image
+        failures: tuple[type[Exception], ...] = (*self.device_errors, ValueError)
         try:
             with self._lock:
                 if set_values is not None:
@@ -190,7 +208,7 @@ class ModbusServing(ClosedOnExit):
         except Refused as exc:
             self.last_refusal = str(exc)
             return exc.code
-        except (*self.device_errors, ValueError) as exc:
+        except failures as exc:
             self.last_refusal = str(exc)
             return self.device_error_code
 
@@ -270,7 +288,7 @@ class ModbusServing(ClosedOnExit):
         self._ensure_loop()
 
         async def start():
-            server = _BoundedTcpServer(self._device, address=(host, port), trace_packet=self._trace_packet,
+            server = _BoundedTcpServer(self._served_device(), address=(host, port), trace_packet=self._trace_packet,
                                        trace_pdu=self._trace_pdu, max_connections=self.max_connections,
                                        idle_timeout_s=self.idle_timeout_s)
             await server.serve_forever(background=True)
@@ -328,8 +346,9 @@ class ModbusServing(ClosedOnExit):
         bridge.start()
 
         async def start():
-            server = ModbusSerialServer(self._device, framer=FramerType.RTU, port=server_path, baudrate=baudrate,
-                                        parity=parity, trace_packet=self._trace_packet, trace_pdu=self._trace_pdu)
+            server = ModbusSerialServer(self._served_device(), framer=FramerType.RTU, port=server_path,
+                                        baudrate=baudrate, parity=parity, trace_packet=self._trace_packet,
+                                        trace_pdu=self._trace_pdu)
             await server.serve_forever(background=True)
             return server
 

@@ -24,7 +24,8 @@ import socket
 import threading
 import time
 import tty
-from typing import TYPE_CHECKING, Callable, Self
+from collections.abc import Hashable, Mapping
+from typing import TYPE_CHECKING, Callable, Self, TypeVar
 
 if TYPE_CHECKING:
     from bench.sim.controller import WireFaults
@@ -37,7 +38,10 @@ MAX_CONNECTIONS = 32
 IDLE_TIMEOUT_S = 300.0
 
 
-def longest_idle(last_heard: dict[int, float]) -> int | None:
+ConnectionKey = TypeVar("ConnectionKey", bound=Hashable)
+
+
+def longest_idle(last_heard: Mapping[ConnectionKey, float]) -> ConnectionKey | None:
     """The key of the connection heard from the longest ago (None: none)."""
     return min(last_heard, key=last_heard.__getitem__) if last_heard else None
 

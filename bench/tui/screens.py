@@ -14,7 +14,7 @@ from textual.widgets import Button, Input, Label, Select, Static
 
 from bench.model.kinematics import triple
 from bench.tui.session import check_rate_command
-from drivers.errors import TurntableLimitError
+from drivers.errors import DeviceLimitError
 from drivers.turntable import FRAMES
 
 DIALOG_CSS = """
@@ -108,7 +108,7 @@ class GotoScreen(ModalScreen["tuple[float, float, float] | None"]):
                 return None
             try:
                 self.limits.check_position(k, value)
-            except TurntableLimitError as exc:
+            except DeviceLimitError as exc:
                 error.update(str(exc))
                 return None
             angles.append(value)
@@ -184,7 +184,7 @@ class RateScreen(ModalScreen["tuple | None"]):
             return None
         try:
             check_rate_command(self.limits, frame, rate)
-        except TurntableLimitError as exc:
+        except DeviceLimitError as exc:
             error.update(str(exc))
             return None
         error.update("")

@@ -37,7 +37,7 @@ from bench.sim.world import PumpedReceiver
 from bench.solve.methods import SolverError
 from bench.tui.buffer import UiBuffer
 from bench.tui.manual_log import ManualLogs
-from drivers.errors import ImuError, TurntableError, TurntableLimitError
+from drivers.errors import DeviceError, TurntableLimitError
 from drivers.imu.receiver import ImuReceiver
 from drivers.turntable import FRAMES, AxisMode, Turntable, frame_index
 
@@ -108,7 +108,7 @@ def resume_command(config, sim: bool, log_path: Path) -> str:
 
 #: what an operator command can fail with, shown to the operator; anything else is a bug and ends the app,
 #: whose unmount stops the table
-OPERATOR_ERRORS = (BenchError, TurntableError, ImuError, OSError)
+OPERATOR_ERRORS = (BenchError, DeviceError, OSError)
 
 
 class BenchSession:
@@ -231,7 +231,7 @@ class BenchSession:
                     failing = False
                     self.link, self.link_detail = LINK_CONNECTED, ""
                     self._note("info", "link to the table is back")
-            except (TurntableError, ImuError, OSError) as exc:
+            except (DeviceError, OSError) as exc:
                 if not failing:
                     failing = True
                     self.link, self.link_detail = LINK_ERROR, f"{type(exc).__name__}: {exc}"
@@ -318,7 +318,7 @@ class BenchSession:
             return
         try:
             manual.on_table_state(_table(run).read_state())     # where the table was before the move
-        except (TurntableError, OSError):
+        except (DeviceError, OSError):
             pass                                                # the monitor's next poll records it
 
     def _end_manual_log(self, table: Turntable) -> None:
@@ -329,7 +329,7 @@ class BenchSession:
         manual.event("info", "table stopped, servos off")
         try:
             manual.on_table_state(table.read_state())
-        except (TurntableError, OSError):
+        except (DeviceError, OSError):
             pass                                    # the stop is in the log; the link is going anyway
 
     def _close_manual_log(self, run: BenchRun | None, reason: str) -> None:
@@ -475,7 +475,7 @@ class BenchSession:
                 return
             try:
                 run.run()
-            except TurntableError as exc:
+            except DeviceError as exc:
                 text = f"cannot enable the table: {exc}; nothing moved"
                 reason = text
                 self.buffer.note("fault", text)

@@ -8,7 +8,7 @@ are for a controller described register by register in a configuration. The ship
 map of a real controller is `drivers.chamber.watlow_f4` (the default). The client
 (`drivers.chamber.modbus`) and the simulator serve the same map; drivers/CHAMBER.md
 documents both. Configuration is read with the turntable map's checks
-(`drivers.turntable.modbus_map`), in the chamber's error tree.
+(`drivers.turntable.modbus_map`), its errors named for the chamber.
 """
 
 from __future__ import annotations
@@ -18,7 +18,12 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar, Iterable, Mapping, Sequence
 
 from drivers.chamber.base import ChamberAlarms, ChamberState
-from drivers.errors import ChamberConfigError, ChamberLimitError, ChamberProtocolError, TurntableProtocolError
+from drivers.errors import (
+    ChamberConfigError,
+    ChamberLimitError,
+    ChamberProtocolError,
+    DeviceProtocolError,
+)
 from drivers.turntable.modbus_map import (
     MAX_READ_REGISTERS,
     RegisterMapError,
@@ -288,7 +293,7 @@ def read_words(reads: Sequence[tuple[int, int]], blocks: Sequence[Sequence[int]]
     for (start, count), block in zip(reads, blocks):
         try:
             checked = check_registers(block, count, f"the {what} block at {start}")
-        except TurntableProtocolError as exc:       # the shared check's wording, in the chamber's tree
+        except DeviceProtocolError as exc:       # the shared check's wording, under the chamber's name
             raise ChamberProtocolError(str(exc)) from exc
         words.update({start + i: w for i, w in enumerate(checked)})
     return words

@@ -21,12 +21,13 @@ from urllib.parse import urlsplit
 
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import (
+    DeviceConnectionError,
+    DeviceTimeout,
     TurntableCommandError,
     TurntableConfigError,
     TurntableConnectionError,
     TurntableLimitError,
     TurntableProtocolError,
-    TurntableTimeout,
 )
 from drivers.transport import ByteTransport, LineChannel
 from drivers.turntable import acutrol_codec as ac
@@ -138,7 +139,7 @@ class AcutrolTurntable(LineTurntable):
             return None
         try:
             return self._transact(sent, lambda line: parse(line.decode("ascii", "replace"), line))
-        except TurntableTimeout:
+        except DeviceTimeout:
             self._raise_queued(sent)        # a refused query is not answered: the error queue says why
             raise
 
@@ -157,7 +158,7 @@ class AcutrolTurntable(LineTurntable):
                     self._open()
                 self.channel.write_line(sent, self.terminator)
                 return
-            except TurntableConnectionError:
+            except DeviceConnectionError:
                 raise
             except ConnectionError as exc:
                 self.transport.close()

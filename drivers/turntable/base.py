@@ -21,9 +21,11 @@ from typing import Callable, Iterable, Sequence
 
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import (
+    DeviceCommandError,
+    DeviceError,
+    DeviceFault,
     TurntableCommandError,
     TurntableConfigError,
-    TurntableError,
     TurntableEStop,
     TurntableFault,
     TurntableLimitError,
@@ -332,10 +334,10 @@ class Turntable(DeviceSession[TableState]):
         "exception 4"): the state is read and its reason put first, the controller's own words after."""
         try:
             yield
-        except TurntableCommandError as exc:
+        except DeviceCommandError as exc:
             try:
                 reason = self._read_state().why_refused(frames)
-            except TurntableError:
+            except DeviceError:
                 reason = ""
             if not reason:
                 raise
@@ -345,7 +347,7 @@ class Turntable(DeviceSession[TableState]):
         with self._lock:
             self._abort()
 
-    def _state_error(self, state: TableState) -> TurntableError | None:
+    def _state_error(self, state: TableState) -> DeviceFault | None:
         """`check_state` raises `TurntableEStop`/`TurntableFault` for a state that shows one."""
         if state.estop:
             return TurntableEStop(f"{self.dialect} controller: {state.describe_fault()}", state)
@@ -373,7 +375,7 @@ class Turntable(DeviceSession[TableState]):
             except TurntableEStop:
                 self.safe_abort()
                 raise
-            except TurntableError:
+            except DeviceError:
                 self.safe_stop()
                 raise
             done = all(target is None or (state.axes[k].in_position

@@ -21,7 +21,7 @@ import threading
 from typing import Sequence
 
 from drivers.clock import SYSTEM_CLOCK, Clock
-from drivers.errors import TURNTABLE_LINK_ERRORS, TurntableError
+from drivers.errors import TURNTABLE_LINK_ERRORS, DeviceError
 from drivers.modbus_link import DEFAULT_TCP_PORT, ModbusRequests, parse_modbus_url
 from drivers.turntable.base import AxisMode, TableState, Turntable, TurntableLimits
 from drivers.turntable.modbus_map import RegisterMap, axis_mask, contiguous_runs
@@ -52,7 +52,7 @@ class ModbusTurntable(ModbusRequests, Turntable):
         self._setup_link(url, self.map.unit, timeout_s, retries)
         period = self.map.watchdog_s
         self.watchdog_refresh_s = (max(period / 4, 0.02) if watchdog_refresh_s is None else float(watchdog_refresh_s))
-        self.watchdog_error: TurntableError | None = None
+        self.watchdog_error: DeviceError | None = None
         self.release_watchdog = release_watchdog
         self._watchdog_value = 0
         self._watchdog_stop = threading.Event()
@@ -67,7 +67,7 @@ class ModbusTurntable(ModbusRequests, Turntable):
         if self.map.watchdog_s > 0:
             try:
                 self._refresh_watchdog()
-            except TurntableError:
+            except DeviceError:
                 self._client.close()
                 self._client = None
                 raise
@@ -87,7 +87,7 @@ class ModbusTurntable(ModbusRequests, Turntable):
             if self.release_watchdog and self.map.watchdog_s > 0 and self._watchdog_value:
                 try:
                     self._write_single(self.map.watchdog, 0, "watchdog release")
-                except TurntableError:
+                except DeviceError:
                     pass      # best effort: the link may be what failed; the watchdog then trips, which is safe
             self._client.close()
             self._client = None
@@ -114,7 +114,7 @@ class ModbusTurntable(ModbusRequests, Turntable):
                     return
                 self._refresh_watchdog()
                 self.watchdog_error = None
-            except TurntableError as exc:
+            except DeviceError as exc:
                 self.watchdog_error = exc
             finally:
                 self._lock.release()

@@ -15,8 +15,8 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Iterable, Mapping, Sequence
 
 from drivers.errors import (
+    DeviceConfigError,
     TurntableChecksumError,
-    TurntableError,
     TurntableLimitError,
     TurntableProtocolError,
     quote_bytes,
@@ -57,7 +57,7 @@ DEFAULT_FAULT_TEXT = {1: "emergency stop", 2: "limit switch tripped", 3: "servo 
                       4: "Modbus watchdog expired"}
 
 
-class RegisterMapError(TurntableError, ValueError):
+class RegisterMapError(DeviceConfigError):
     """A register map (configuration) that cannot describe a controller; the message names the key."""
 
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 from typing import Sequence
 
 from drivers.clock import SYSTEM_CLOCK, Clock
-from drivers.errors import TurntableCommandError, TurntableConnectionError, TurntableError
+from drivers.errors import DeviceCommandError, DeviceError, TurntableCommandError, TurntableConnectionError
 from drivers.transport import ByteTransport
 from drivers.turntable import scpi_codec as sc
 from drivers.turntable.base import AxisMode, AxisStatus, TableState, TurntableLimits, frame_index
@@ -48,14 +48,14 @@ class ScpiTurntable(LineTurntable):
         """Send commands on one line with the error query; raise every error they caused."""
         try:
             self._transact(sc.confirmed(*units, long_form=self.long_form), sc.decode_confirmation)
-        except TurntableCommandError as first:
+        except DeviceCommandError as first:
             if len(units) == 1:
                 raise
             entries = [str(first)]
             for _ in range(MAX_DRAIN):
                 try:
                     code, text = self._transact(self._unit("SYSTEM:ERROR?"), sc.decode_error)
-                except TurntableError as exc:   # the refusal is the error to report, not the failed read-out
+                except DeviceError as exc:   # the refusal is the error to report, not the failed read-out
                     entries.append(f"(error queue not read: {exc})")
                     break
                 if code == sc.NO_ERROR:

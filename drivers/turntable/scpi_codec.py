@@ -20,7 +20,7 @@ import math
 import re
 from dataclasses import dataclass
 
-from drivers.errors import QUOTE_LIMIT, TurntableCommandError, TurntableProtocolError, quote_bytes
+from drivers.errors import QUOTE_LIMIT, DeviceProtocolError, TurntableCommandError, TurntableProtocolError, quote_bytes
 from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
 from drivers.turntable.program import split_program_units
 
@@ -305,7 +305,7 @@ def _status(field: str, raw: bytes) -> AxisStatus:
     word = _integer(field, "status word", raw)
     try:
         return status_from_word(word)
-    except TurntableProtocolError as exc:
+    except DeviceProtocolError as exc:
         raise TurntableProtocolError(str(exc), raw) from exc
 
 
