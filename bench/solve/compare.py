@@ -12,8 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from bench.model.families import ERROR_TITLES
-from bench.schedule_design.monte_carlo import POSITION_KEYS, ROTATION_KEYS
+from bench.model.families import ERROR_TITLES, POSITION_KEYS, ROTATION_KEYS
 from bench.solve.resolve import NONE, Recorded, SolveInputError, load_subset_schedule, solve_recorded
 
 #: `--compare` method names and the (positions, rotations) schedules they stand for.
