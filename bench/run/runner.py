@@ -37,13 +37,14 @@ from bench.plan.steps import step_to_dict
 from bench.plan.thermal import compile_thermal_plan
 from bench.report.markdown import write_reports
 from bench.report.noise import write_noise_outputs
+from bench.report.thermal import write_thermal_files
 from bench.run.imu_check import check_imu_stream
 from bench.run.sequencer import ListenerError, Sequencer, SequencerOptions, describe_listener_error
 from bench.sim.world import SimWorld
 from bench.solve.extract import Extraction, dwell_lost_samples, window_lost_samples
 from bench.solve.from_logs import extract_from_logs, solve_logs
 from bench.solve.inputs import budget_inputs
-from bench.thermal.from_log import ThermalSolution, solve_thermal, write_thermal_files
+from bench.thermal.from_log import ThermalSolution, solve_thermal
 from bench.thermal.model import ThermalModel
 from bench.verify.plan import sim_table_record
 from drivers.chamber import Chamber, open_chamber

@@ -22,9 +22,10 @@ from bench.log.names import output_path
 from bench.log.reader import RunLog
 from bench.plan.steps import thermal_block
 from bench.report.markdown import markdown_report, write_reports
+from bench.report.thermal import write_thermal_files
 from bench.run.runner import judge_thermal_head, window_loss_failures
 from bench.solve.resolve import Recorded, SolveInputError
-from bench.thermal.from_log import ThermalSolution, solve_thermal, write_thermal_files
+from bench.thermal.from_log import ThermalSolution, solve_thermal
 
 
 def is_thermal_log(log: RunLog) -> bool:
