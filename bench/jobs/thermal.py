@@ -19,12 +19,12 @@ from bench import __version__
 from bench.acceptance.quality import window_loss_failures
 from bench.acceptance.verdict import Verdict
 from bench.files import write_output_text
+from bench.jobs.resolve import Recorded, SolveInputError
 from bench.log.names import output_path
 from bench.log.reader import RunLog
 from bench.plan.steps import thermal_block
 from bench.report.markdown import markdown_report, write_reports
 from bench.report.thermal import write_thermal_files
-from bench.solve.resolve import Recorded, SolveInputError
 from bench.thermal.from_log import ThermalSolution, solve_thermal
 from bench.thermal.verdict import judge_thermal_head
 

@@ -9,7 +9,7 @@ or a subset chosen by schedules (`select`: a recorded position counts for a sche
 position with the same nominal angles modulo 360, a turn for a schedule turn with the
 same start state, frame and direction); with no subset it is the very computation
 `bench run` made, so its coefficients equal the run's bit for bit. Comparing methods
-(`--compare`) is in `bench.solve.compare`.
+(`--compare`) is in `bench.jobs.compare`.
 """
 
 from __future__ import annotations
