@@ -110,7 +110,7 @@ def test_a_resumed_runs_logs_are_one_calibration_in_the_archive(tmp_path):
     """A run killed and resumed leaves two logs next to each other, the later naming the earlier: the archive
     solves them together, as `bench solve LATER` does, and not the earlier alone (an extra, partial calibration
     in the unit's history)."""
-    from bench.solve.archive import find_logs, resumed_parts
+    from bench.jobs.archive import find_logs, resumed_parts
     from tests.helpers.run import kill_run_after_units, load_json
 
     run = tmp_path / "archive" / "resumed"
@@ -149,8 +149,8 @@ def test_an_archive_task_is_one_cores_work(archive, tmp_path, monkeypatch):
     `bench solve LOG` does uses the reader's pools (on a machine of 4 cores: so this check can fail)."""
     from concurrent.futures import ThreadPoolExecutor as Pool
 
+    from bench.jobs.archive import solve_log
     from bench.log import threads
-    from bench.solve.archive import solve_log
 
     monkeypatch.setattr(threads, "usable_cores", lambda: 4)
     made: list[str] = []
@@ -234,7 +234,7 @@ def test_moved_logs_are_skipped_by_run_id_and_content_and_a_backup_copy_gets_its
 
 def test_every_result_not_recorded_is_a_non_zero_exit_and_relative_out_is_resolved(archive, tmp_path, monkeypatch):
     """`--out RELATIVE` on a Dask cluster wrote into the worker's folder and recorded nothing, exit 0."""
-    import bench.solve.archive as archive_module
+    import bench.jobs.archive as archive_module
 
     folder = tmp_path / "c"
     shutil.copytree(archive / "c", folder)

@@ -8,11 +8,10 @@ import pytest
 
 from bench.cli.main import main
 from bench.model.earth import Site
+from bench.model.families import POSITION_KEYS, ROTATION_KEYS
 from bench.model.imu import default_sim_imu
 from bench.model.units import ARCSEC
 from bench.schedule_design.monte_carlo import (
-    POSITION_KEYS,
-    ROTATION_KEYS,
     builtin_schedules,
     draw_black_boxes,
     evaluate,

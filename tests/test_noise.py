@@ -17,6 +17,7 @@ from scipy.signal import lfilter
 
 from bench.config.load import ConfigError, parse_config
 from bench.model.imu import NoiseModel, default_sim_imu
+from bench.model.noise_result import FORMAT, VERSION, NoiseResult, NoiseResultError
 from bench.noise.allan import (
     AllanError,
     PhaseAccumulator,
@@ -28,7 +29,7 @@ from bench.noise.allan import (
 )
 from bench.noise.covariance import avar_covariance, basis, cross_terms
 from bench.noise.fit import FLICKER_FACTOR, fit_curve
-from bench.noise.result import FORMAT, VERSION, NoiseResult, NoiseResultError, analyse
+from bench.noise.result import analyse
 from bench.noise.simulate import sim_truth, simulate_static
 from bench.noise.theory import GM_PEAK_ADEV, GM_PEAK_TAU, GM_TO_ALLAN_BI, gauss_markov_avar
 from bench.sim.imu import SimImu

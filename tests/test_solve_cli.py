@@ -23,11 +23,11 @@ from mcap.records import Chunk
 from mcap.stream_reader import StreamReader
 
 from bench.config.load import parse_config
+from bench.jobs.compare import METHODS
+from bench.jobs.resolve import angle_key
 from bench.log.reader import read_log
 from bench.model.families import canonical_names
-from bench.solve.compare import METHODS
 from bench.solve.extract import finished_observation_steps
-from bench.solve.resolve import angle_key
 from schedules import load_builtin
 from tests.helpers.run import cli, config_text, kill_run_after_units, load_json, only_file
 
@@ -448,7 +448,7 @@ def test_a_log_cut_mid_chunk_is_read_up_to_the_cut(noisy, damaged_copy, tmp_path
 def test_too_few_turns_left_solve_the_positions_and_say_why_the_turns_are_left_out(noisy):
     """Damage can leave fewer turns than the rotation method needs: the positions are still
     solved, the remaining turns listed as left out with the solver's reason."""
-    from bench.solve.resolve import load_recorded, solve_recorded
+    from bench.jobs.resolve import load_recorded, solve_recorded
 
     recorded = load_recorded([noisy.log])
     kept = recorded.extraction.rotations[:2]

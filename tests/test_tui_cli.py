@@ -11,12 +11,13 @@ from types import SimpleNamespace
 import pytest
 
 from bench.acceptance.limits import AcceptanceLimits
+from bench.acceptance.quality import judged_failures
 from bench.acceptance.verdict import judge
 from bench.cli.common import ExitCode
 from bench.cli.tui import NO_TERMINAL, exit_status
 from bench.model.result import CalibrationResult
 from bench.plan.events import RunState
-from bench.run.runner import RunOutcome, judged_failures
+from bench.run.runner import RunOutcome
 from bench.tui.session import RunEnd, run_end_of
 from tests.helpers.run import REPO, config_text
 from tests.helpers.tui import connected, dialog_open, make_app, press, run, start_plan, wait_until

@@ -44,9 +44,9 @@ def _unwritable(path: Path) -> str:
 def cmd_evaluate(args: argparse.Namespace) -> ExitCode:
     # imported when the command runs: `bench` starts without the bench core
     from bench.model.earth import Site
-    from bench.model.families import ERROR_TITLES
+    from bench.model.families import ERROR_TITLES, POSITION_KEYS, ROTATION_KEYS
     from bench.parallel import SchedulerError, check_scheduler, describe
-    from bench.schedule_design.monte_carlo import POSITION_KEYS, ROTATION_KEYS, builtin_schedules, evaluate, paper_value
+    from bench.schedule_design.monte_carlo import builtin_schedules, evaluate, paper_value
 
     if args.runs < 1:
         return fail(PROG, "--runs must be at least 1", ExitCode.USAGE)

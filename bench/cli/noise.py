@@ -117,7 +117,8 @@ def cmd_noise(args: argparse.Namespace) -> ExitCode:
 def _simulated(args: argparse.Namespace):
     # the simulator is needed by --sim only
     from bench.model.imu import default_sim_imu
-    from bench.noise.result import NoiseResult, analyse
+    from bench.model.noise_result import NoiseResult
+    from bench.noise.result import analyse
     from bench.noise.simulate import sim_truth, simulate_static
 
     noise = _sim_noise(args)

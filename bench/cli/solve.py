@@ -1,4 +1,4 @@
-"""`bench solve`: re-solve recorded runs from their MCAP logs (logic in `bench.solve.resolve`).
+"""`bench solve`: re-solve recorded runs from their MCAP logs (logic in `bench.jobs.resolve`).
 
 Exit codes: 0 solved, the verdict PASS or NOT CHECKED; 2 usage error, a file that cannot be
 read as a run log, a subset the logs lack, or a static noise recording (`bench noise`
@@ -65,10 +65,10 @@ def _notes(recorded, run: dict) -> list[str]:
 
 
 def _solve_thermal(args: argparse.Namespace, recorded) -> ExitCode:
-    """A thermal log: every temperature solved again and the model refitted (`bench.thermal.resolve`)."""
+    """A thermal log: every temperature solved again and the model refitted (`bench.jobs.thermal`)."""
     # imported when the command runs: `bench` starts without the bench core
+    from bench.jobs.thermal import resolve_thermal
     from bench.solve.methods import SolverError
-    from bench.thermal.resolve import resolve_thermal
 
     out_dir = Path(args.out) if args.out else Path(recorded.logs[0].path).parent
     try:
@@ -105,10 +105,8 @@ def _solve_thermal(args: argparse.Namespace, recorded) -> ExitCode:
 
 def cmd_solve(args: argparse.Namespace) -> ExitCode:
     # imported when the command runs: `bench` starts without the bench core
-    from bench.log.reader import LogError
-    from bench.solve.compare import compare, format_comparison, parse_methods
-    from bench.solve.methods import SolverError
-    from bench.solve.resolve import (
+    from bench.jobs.compare import compare, format_comparison, parse_methods
+    from bench.jobs.resolve import (
         SolveInputError,
         load_recorded,
         load_subset_schedule,
@@ -116,7 +114,9 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
         static_noise_plan,
         write_outputs,
     )
-    from bench.thermal.resolve import is_thermal_log
+    from bench.jobs.thermal import is_thermal_log
+    from bench.log.reader import LogError
+    from bench.solve.methods import SolverError
 
     if args.archive:
         return cmd_archive(args)

@@ -1,4 +1,4 @@
-"""`bench solve --archive DIR...`: re-solve every run log below the folders on Dask (logic in `bench.solve.archive`).
+"""`bench solve --archive DIR...`: re-solve every run log below the folders on Dask (logic in `bench.jobs.archive`).
 
 Each log is solved as `bench solve LOG` solves it, its result written next to it (or under
 `--out` at the same relative place) and recorded in the records database; a log that
@@ -40,10 +40,7 @@ def cmd_archive(args: argparse.Namespace) -> ExitCode:
     # imported when the command runs: `bench` starts without the bench core or SQLAlchemy
     from bench import __version__
     from bench.errors import BenchError
-    from bench.parallel import SchedulerError, check_scheduler, describe
-    from bench.records.ingest import import_file, sha256_of
-    from bench.records.store import RecordsError, open_records
-    from bench.solve.archive import (
+    from bench.jobs.archive import (
         ArchiveItem,
         distinct_outputs,
         find_logs,
@@ -53,6 +50,9 @@ def cmd_archive(args: argparse.Namespace) -> ExitCode:
         same_run_logs,
         solve_archive,
     )
+    from bench.parallel import SchedulerError, check_scheduler, describe
+    from bench.records.ingest import import_file, sha256_of
+    from bench.records.store import RecordsError, open_records
 
     if args.logs:
         return fail(PROG, "give logs or --archive DIR..., not both", ExitCode.USAGE)

@@ -34,6 +34,7 @@ from bench.errors import InputError
 from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
 from bench.model.families import BODY_AXES, SENSOR_AXES, canonical_names, family_of
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu, default_sim_si_imu
+from bench.model.noise_result import NoiseResult
 from bench.model.table_prior import (
     FRAME_KEYS,
     TablePrior,
@@ -44,7 +45,6 @@ from bench.model.table_prior import (
 )
 from bench.model.thermal import ImuThermal
 from bench.model.units import ARCSEC
-from bench.noise.result import NoiseResult
 from bench.plan.compiler import ORDERS, PlanTiming
 from bench.plan.thermal import ThermalPlan
 from drivers.errors import DeviceConfigError

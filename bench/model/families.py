@@ -63,6 +63,9 @@ ERROR_TITLES = {f.error_key: f.error_title for f in FAMILY_INFO.values()}
 #: the families each method determines, in schedule design's order
 POSITION_FAMILIES = ("D0", "K0", "Ka", "Ea")
 ROTATION_FAMILIES = ("Kg", "Eg")
+#: the Monte-Carlo error keys of each method's families, in schedule design's order (its tables' columns)
+POSITION_KEYS = tuple(FAMILY_INFO[k].error_key for k in POSITION_FAMILIES)
+ROTATION_KEYS = tuple(FAMILY_INFO[k].error_key for k in ROTATION_FAMILIES)
 
 
 def family_of(name: str) -> str:
@@ -80,5 +83,6 @@ def canonical_names() -> list[str]:
     return names
 
 
-__all__ = ["BODY_AXES", "DESIGN_UNITS", "ERROR_TITLES", "FAMILY_INFO", "POSITION_FAMILIES", "RESULT_UNITS",
-           "ROTATION_FAMILIES", "SENSOR_AXES", "TITLES", "Family", "canonical_names", "family_of"]
+__all__ = ["BODY_AXES", "DESIGN_UNITS", "ERROR_TITLES", "FAMILY_INFO", "POSITION_FAMILIES", "POSITION_KEYS",
+           "RESULT_UNITS", "ROTATION_FAMILIES", "ROTATION_KEYS", "SENSOR_AXES", "TITLES", "Family", "canonical_names",
+           "family_of"]

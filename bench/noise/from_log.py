@@ -32,10 +32,11 @@ from bench.log.names import run_id_of
 from bench.log.reader import LogError, RunLog, read_log
 from bench.log.run_info import layout_and_config_from_log
 from bench.model.imu import ImuCoefficients
+from bench.model.noise_result import CHANNELS, NoiseResult
 from bench.model.units import DEG_PER_HOUR, MICRO_G
 from bench.noise.allan import PhaseAccumulator
 from bench.noise.fit import MIN_RECORD_SAMPLES
-from bench.noise.result import CHANNELS, NoiseResult, analyse_phase
+from bench.noise.result import analyse_phase
 from bench.noise.simulate import counts_to_allan_units
 from bench.solve.extract import finished_observation_steps
 from drivers.imu import ImuSampleBlock

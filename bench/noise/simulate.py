@@ -14,9 +14,9 @@ import numpy as np
 
 from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
+from bench.model.noise_result import CHANNELS
 from bench.model.units import DEG_PER_HOUR, MICRO_G
 from bench.noise.allan import cluster_sizes
-from bench.noise.result import CHANNELS
 from bench.noise.theory import GM_TO_ALLAN_BI, expected_bias_instability, sim_channel_params
 from bench.sim.imu import SimImu
 from bench.sim.table import SimTable

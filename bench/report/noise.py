@@ -18,8 +18,8 @@ import numpy as np
 from bench import __version__
 from bench.files import write_output_text
 from bench.log.names import output_path
+from bench.model.noise_result import NoiseResult
 from bench.noise.fit import FLICKER_FACTOR
-from bench.noise.result import NoiseResult
 from bench.report.html import CSS
 from bench.report.markdown import md_text
 from bench.report.plots import allan_figure

@@ -1,4 +1,5 @@
-"""Reports of a thermal model: `thermal.md` and the self-contained `thermal.html` (`bench thermal`).
+"""Reports of a thermal model: `thermal.md` and the self-contained `thermal.html` (`bench thermal`), and a thermal
+run's files: its per-temperature results and the model with its reports (`write_thermal_files`).
 
 Both list every modelled coefficient's polynomial (degree chosen by the data) with its
 1-sigma terms and the calibrations it was fitted to; for a simulated run also the
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 from html import escape
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -23,6 +25,7 @@ from bench.report.html import CSS
 from bench.report.markdown import md_text
 from bench.report.plots import _RC, AXIS_COLORS, _figure, check_drawable, plt, to_svg
 from bench.thermal.fit import DEGREE_RULE
+from bench.thermal.from_log import ThermalSolution
 from bench.thermal.model import ThermalModel
 
 #: how far beyond the calibrated range the plots draw the model, degC
@@ -168,4 +171,25 @@ def write_thermal_reports(model: ThermalModel, out_dir: str | Path, stem: str = 
     return written
 
 
-__all__ = ["READING", "family_figure", "html_thermal", "markdown_thermal", "write_thermal_reports"]
+def write_thermal_files(solution: ThermalSolution, out_dir: Path, stem: str, run: dict[str, Any],
+                        title: str, *, html: bool = True) -> tuple[list[Path], Path | None]:
+    """`<stem>.T<k>.result.json` per temperature and `<stem>.thermal.json` (`.md`, and with `html` `.html`) with
+    `run` in the model (`stem` is ours, never a name from a file). Returns (the result files, the model file or
+    None)."""
+    results = []
+    for block in solution.blocks:
+        path = out_dir / f"{stem}.T{block.temperature_index}.result.json"
+        block.point.result.save(path)
+        results.append(path)
+    model = solution.model
+    if model is None:
+        return results, None
+    model.run = {**run, "results": [p.name for p in results]}
+    model_path = out_dir / f"{stem}.thermal.json"
+    model.save(model_path)
+    write_thermal_reports(model, out_dir, f"{stem}.thermal", title=title, html=html)
+    return results, model_path
+
+
+__all__ = ["READING", "family_figure", "html_thermal", "markdown_thermal", "write_thermal_files",
+           "write_thermal_reports"]

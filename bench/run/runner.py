@@ -21,7 +21,7 @@ from typing import Iterable, Iterator
 import can
 
 from bench import __version__
-from bench.acceptance.limits import AcceptanceLimits
+from bench.acceptance.quality import LOST_SAMPLES_FAILURE, judged_failures, quality_failures, window_loss_failures
 from bench.acceptance.verdict import Verdict, judge
 from bench.config.load import BenchConfig
 from bench.errors import BenchError
@@ -37,14 +37,16 @@ from bench.plan.steps import step_to_dict
 from bench.plan.thermal import compile_thermal_plan
 from bench.report.markdown import write_reports
 from bench.report.noise import write_noise_outputs
+from bench.report.thermal import write_thermal_files
 from bench.run.imu_check import check_imu_stream
 from bench.run.sequencer import ListenerError, Sequencer, SequencerOptions, describe_listener_error
 from bench.sim.world import SimWorld
-from bench.solve.extract import Extraction, dwell_lost_samples, window_lost_samples
+from bench.solve.extract import Extraction
 from bench.solve.from_logs import extract_from_logs, solve_logs
 from bench.solve.inputs import budget_inputs
-from bench.thermal.from_log import ThermalSolution, solve_thermal, write_thermal_files
+from bench.thermal.from_log import solve_thermal
 from bench.thermal.model import ThermalModel
+from bench.thermal.verdict import judge_thermal_head
 from bench.verify.plan import sim_table_record
 from drivers.chamber import Chamber, open_chamber
 from drivers.clock import SYSTEM_CLOCK, Clock
@@ -422,7 +424,7 @@ class BenchRun:
         still_open = frozenset({str(self.log_path), *map(str, self.previous_logs)})
         extraction, _, damage = extract_from_logs(logs, config.site.site, config.imu.layout, config.imu.rate_hz,
                                                   still_open=still_open)
-        link_failures = window_loss_failures(extraction)
+        link_failures = window_loss_failures(extraction.problems)
         lost = extraction.lost_samples()
         run_info = {**self._run_info(state, receiver, link_failures), "lost_samples": lost}
         solution = solve_thermal(logs, config.site.site, config.imu.layout, config.imu.rate_hz, config, self.sim,
@@ -528,66 +530,3 @@ def save_replacing(result: CalibrationResult, path: Path) -> None:
     """Write `result` over `path` in one step (a temporary file renamed): a reader never sees half of it."""
     with unfinished(path) as partial:
         result.save(partial)
-
-
-#: how a verification's notes word samples the IMU link lost; how `quality_failures` words residual outliers
-LOST_SAMPLES_FAILURE, OUTLIERS_FAILURE = "IMU link lost samples", "residual outliers beyond the outlier threshold"
-
-
-def quality_failures(solution) -> list[str]:
-    """Why a finished run's result should not be trusted as is (empty = passed). Samples lost on the IMU link
-    fail it where they touch an observation: the line of each dwell or turn whose window lost samples (the
-    extraction's); samples lost outside every window are a note of the result (`run.lost_samples`), not a failure.
-    Both are told from the logs' sample counters, so `bench run` and `bench solve LOG` agree."""
-    failures = list(solution.extraction.problems) + list(solution.damage)
-    outliers = solution.calibration.quality().get("outliers", [])
-    if outliers:
-        failures.append(f"{len(outliers)} {OUTLIERS_FAILURE}")
-    budget = solution.calibration.budget
-    if budget is not None and budget.table_included:    # without the table's part any real table fails the test
-        failures += [c.describe() for c in budget.inconsistent()]
-    return failures
-
-
-def window_loss_failures(extraction: Extraction) -> list[str]:
-    """A thermal run's lines of the dwells and turns (of every temperature block) whose windows lost samples."""
-    return [p for p in extraction.problems if window_lost_samples(p)]
-
-
-def thermal_failures(result: CalibrationResult, problems: list[str], damage: list[str],
-                     link_failures: list[str]) -> list[str]:
-    """A thermal run's quality failures, as its headline result records them (`run.quality_failures`): the
-    block's problems, the logs' damage, the IMU link's, its residual outliers."""
-    failures = problems + damage + link_failures
-    outliers = result.quality.get("outliers", []) if isinstance(result.quality, dict) else []
-    if outliers:
-        failures.append(f"{len(outliers)} {OUTLIERS_FAILURE}")
-    result.run["quality_failures"] = failures
-    return failures
-
-
-def judge_thermal_head(solution: ThermalSolution, results: list[Path], model_path: Path | None,
-                       link_failures: list[str], limits: AcceptanceLimits,
-                       lost_samples: int) -> tuple[CalibrationResult, list[str], list[str], Verdict]:
-    """A thermal run's headline result (the block nearest the model's reference temperature) with its quality
-    failures, the names of the files written and its verdict: (result, problems, failures, verdict)."""
-    head = solution.head
-    result = head.point.result
-    problems = list(head.extraction.problems)
-    failures = thermal_failures(result, problems, solution.damage, [f for f in link_failures if f not in problems])
-    result.run["thermal"] = {"model": model_path.name if model_path is not None else None,
-                             "results": [p.name for p in results], "this_block": head.temperature_index}
-    verdict = judge(result, limits, lost_samples=lost_samples, quality_failures=judged_failures(failures, limits))
-    result.verdict = verdict.to_json()
-    return result, problems, failures, verdict
-
-
-def judged_failures(failures: list[str], limits: AcceptanceLimits) -> list[str]:
-    """The quality failures that fail the verdict as they are: lost samples and residual outliers are
-    judged by `max_lost_samples` and `max_residual_sigma` instead when the configuration sets them. The limit
-    counts every lost sample, in windows and outside; it takes over a dwell's lost samples (its mean is over the
-    samples received), never a turn left out for them (its integral is missing from the solve)."""
-    return [f for f in failures
-            if not (limits.max_lost_samples is not None
-                    and (f.startswith(LOST_SAMPLES_FAILURE) or dwell_lost_samples(f)))
-            and not (limits.max_residual_sigma is not None and f.endswith(OUTLIERS_FAILURE))]

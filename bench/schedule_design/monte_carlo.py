@@ -18,6 +18,7 @@ import numpy as np
 
 from bench.model.closed_form import position_outputs, turn_closed_form, turn_integrals
 from bench.model.earth import Site
+from bench.model.families import POSITION_KEYS, ROTATION_KEYS
 from bench.model.imu import ImuCoefficients, default_sim_imu
 from bench.model.units import ARCSEC, DEG_PER_HOUR, G0
 from bench.parallel import run_tasks
@@ -47,8 +48,6 @@ PAPER_ROTATIONS = {
     (273.1, "optimal"): (1.42e-6, 1.90e-3),
     (273.1, "traditional"): (6.61e-6, 4.57e-3),
 }
-POSITION_KEYS = ("gyro_bias_dph", "acc_bias_g", "acc_scale", "acc_axes")
-ROTATION_KEYS = ("gyro_scale", "gyro_axes")
 #: Monte-Carlo runs per task: fixed, not from the number of workers, so that the sums (and the tables) are the
 #: same however the tasks are scheduled; about 0.5 s of work on the development machine
 CHUNK_RUNS = 2000

@@ -1,2 +1,2 @@
-"""From observations to coefficients: least-squares methods, calibrate, extraction from a log,
-re-solve and method comparison."""
+"""From observations to coefficients: least-squares methods, calibrate, extraction from a log, the budget
+inputs (re-solving recorded logs and comparing methods are in `bench.jobs`)."""

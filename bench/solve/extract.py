@@ -23,12 +23,12 @@ serves the live run (which solves from the log it just wrote) and `bench solve`.
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from bench.acceptance.quality import SAMPLES_LOST_IN_WINDOW
 from bench.model.earth import Site
 from bench.model.kinematics import FRAMES
 from bench.model.motion import Piece
@@ -64,27 +64,6 @@ class Extraction:
         inside = sum(self.lost_in_windows.values())
         return {"total": inside + self.lost_outside, "in_windows": dict(sorted(self.lost_in_windows.items())),
                 "outside_windows": self.lost_outside}
-
-
-#: the words of a dwell's or turn's line when its window lost samples (`dwell_lost_samples` finds the dwells')
-SAMPLES_LOST_IN_WINDOW = "samples lost in its window"
-_WINDOW_LOSS_LINE = re.compile(r"(?:^|: )(\S+) (?:dwell|turn): \d+ of \d+ " + SAMPLES_LOST_IN_WINDOW)
-
-
-def dwell_lost_samples(line: str) -> bool:
-    """Whether a problem line is a dwell's that lost samples but was used (a mean over the samples received)."""
-    return f"{SAMPLES_LOST_IN_WINDOW}; mean over the" in line
-
-
-def window_lost_samples(line: str) -> bool:
-    """Whether a problem line is a dwell's or turn's whose window lost samples."""
-    return SAMPLES_LOST_IN_WINDOW in line
-
-
-def window_loss_unit(line: str) -> str | None:
-    """The unit of a dwell's or turn's line saying its window lost samples (after any `FILE: ` prefix), else None."""
-    found = _WINDOW_LOSS_LINE.search(line)
-    return found.group(1) if found else None
 
 
 def without_windows(lost: dict[str, Any], units: set[str]) -> dict[str, Any]:

@@ -8,14 +8,14 @@ is the IMU's temperature over that block's observation windows (from the decoded
 samples), and `fit_thermal_model` fits every coefficient against those temperatures.
 
 `solve_thermal` is that whole computation for a configuration (its bias stabilities, budget
-inputs and, on the simulator, truth), shared by `bench run` and `bench solve`; `write_thermal_files`
-writes its per-temperature results and the model with its reports.
+inputs and, on the simulator, truth), shared by `bench run` and `bench solve`;
+`bench.report.thermal.write_thermal_files` writes its per-temperature results and the model
+with its reports.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -175,28 +175,5 @@ def solve_thermal(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: fl
     return ThermalSolution(blocks, damage, model, nearest_block(blocks, reference_c), reference_c)
 
 
-def write_thermal_files(solution: ThermalSolution, out_dir: Path, stem: str, run: dict[str, Any],
-                        title: str, *, html: bool = True) -> tuple[list[Path], Path | None]:
-    """`<stem>.T<k>.result.json` per temperature and `<stem>.thermal.json` (`.md`, and with `html` `.html`) with
-    `run` in the model (`stem` is ours, never a name from a file). Returns (the result files, the model file or
-    None)."""
-    # local: matplotlib (the thermal report's figures) is heavy and needed only here
-    from bench.report.thermal import write_thermal_reports
-
-    results = []
-    for block in solution.blocks:
-        path = out_dir / f"{stem}.T{block.temperature_index}.result.json"
-        block.point.result.save(path)
-        results.append(path)
-    model = solution.model
-    if model is None:
-        return results, None
-    model.run = {**run, "results": [p.name for p in results]}
-    model_path = out_dir / f"{stem}.thermal.json"
-    model.save(model_path)
-    write_thermal_reports(model, out_dir, f"{stem}.thermal", title=title, html=html)
-    return results, model_path
-
-
 __all__ = ["THERMAL_REFERENCE_C", "BlockSolution", "ThermalRunError", "ThermalSolution", "fit_blocks",
-           "nearest_block", "solve_blocks", "solve_thermal", "write_thermal_files"]
+           "nearest_block", "solve_blocks", "solve_thermal"]

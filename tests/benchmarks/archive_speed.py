@@ -42,9 +42,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-import bench.solve.archive as archive_module  # noqa: E402
+import bench.jobs.archive as archive_module  # noqa: E402
 from bench.cli.main import main  # noqa: E402
-from bench.solve.archive import solve_archive  # noqa: E402
+from bench.jobs.archive import solve_archive  # noqa: E402
 from tests.helpers.run import config_text, results_below  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
@@ -102,7 +102,7 @@ THREADED_LOOP = "loop, reader threads"
 @contextlib.contextmanager
 def threaded_reader():
     """The archive's tasks read as `bench solve LOG` does, with the reader's own threads (an archive task reads
-    without: `bench.solve.archive.solve_log`): what a shell loop of `bench solve` would take."""
+    without: `bench.jobs.archive.solve_log`): what a shell loop of `bench solve` would take."""
     original = archive_module.reader_threads_limited
     archive_module.reader_threads_limited = lambda threads: contextlib.nullcontext()
     try:

@@ -16,15 +16,17 @@ from pathlib import Path
 from typing import Any
 
 from bench import __version__
+from bench.acceptance.quality import window_loss_failures
 from bench.acceptance.verdict import Verdict
 from bench.files import write_output_text
+from bench.jobs.resolve import Recorded, SolveInputError
 from bench.log.names import output_path
 from bench.log.reader import RunLog
 from bench.plan.steps import thermal_block
 from bench.report.markdown import markdown_report, write_reports
-from bench.run.runner import judge_thermal_head, window_loss_failures
-from bench.solve.resolve import Recorded, SolveInputError
-from bench.thermal.from_log import ThermalSolution, solve_thermal, write_thermal_files
+from bench.report.thermal import write_thermal_files
+from bench.thermal.from_log import ThermalSolution, solve_thermal
+from bench.thermal.verdict import judge_thermal_head
 
 
 def is_thermal_log(log: RunLog) -> bool:
@@ -56,7 +58,7 @@ def resolve_thermal(recorded: Recorded, out_dir: str | Path, *, html: bool = Tru
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     link = recorded.imu_link()
-    link_failures = window_loss_failures(recorded.extraction)
+    link_failures = window_loss_failures(recorded.extraction.problems)
     lost = recorded.extraction.lost_samples()
     meta, imu = recorded.run_meta, recorded.logs[-1].metadata.get("imu", {})
     names = [Path(log.path).name for log in recorded.logs]

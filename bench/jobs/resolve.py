@@ -9,7 +9,7 @@ or a subset chosen by schedules (`select`: a recorded position counts for a sche
 position with the same nominal angles modulo 360, a turn for a schedule turn with the
 same start state, frame and direction); with no subset it is the very computation
 `bench run` made, so its coefficients equal the run's bit for bit. Comparing methods
-(`--compare`) is in `bench.solve.compare`.
+(`--compare`) is in `bench.jobs.compare`.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from typing import Sequence
 
 from bench import __version__
 from bench.acceptance.limits import AcceptanceLimits
+from bench.acceptance.quality import judged_failures, quality_failures, window_loss_unit
 from bench.acceptance.verdict import Verdict, judge
 from bench.errors import InputError
 from bench.log.names import logs_before, output_path, run_id_of, sibling_log
@@ -40,8 +41,7 @@ from bench.model.earth import Site
 from bench.model.observations import PositionObservation, RotationObservation
 from bench.model.result import CalibrationResult
 from bench.report.markdown import markdown_report, md_text, write_reports
-from bench.run.runner import judged_failures, quality_failures
-from bench.solve.extract import Extraction, finished_observation_steps, window_loss_unit, without_windows
+from bench.solve.extract import Extraction, finished_observation_steps, without_windows
 from bench.solve.from_logs import LogSolution, extract_from_logs, solve_extraction
 from bench.solve.inputs import budget_inputs
 from bench.solve.methods import SolverError

@@ -4,7 +4,7 @@
 logs a resumed run's later log names as its earlier ones (solved with it, not on their own:
 an interrupted run is one calibration); `solve_log(log, out_dir)` is
 one task: read, solve, write `<stem>.result.json` and the report exactly as `bench solve`
-does (`bench.solve.resolve`), and return an `ArchiveItem` (a log that cannot be solved
+does (`bench.jobs.resolve`), and return an `ArchiveItem` (a log that cannot be solved
 is an item with its reason, never an exception: one bad log does not stop the archive).
 `solve_archive` runs the tasks with `bench.parallel.run_tasks` on a Dask cluster (a
 `LocalCluster` of `workers` processes, or a running scheduler by address) or, with
@@ -19,13 +19,13 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 from bench.errors import BenchError
+from bench.jobs.resolve import load_recorded, solve_recorded, static_noise_plan, write_outputs
+from bench.jobs.thermal import is_thermal_log, resolve_thermal
 from bench.log.names import logs_before, safe_name, sibling_log
 from bench.log.reader import read_log
 from bench.log.threads import reader_threads_limited
 from bench.parallel import SchedulerError, run_tasks
 from bench.solve.methods import SolverError
-from bench.solve.resolve import load_recorded, solve_recorded, static_noise_plan, write_outputs
-from bench.thermal.resolve import is_thermal_log, resolve_thermal
 
 #: The archive cannot be solved at all: a bad scheduler, Dask missing, a scheduler that cannot be reached.
 ArchiveError = SchedulerError
