@@ -17,7 +17,7 @@ PROG = "bench apply"
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "apply", help="compensate a run log's IMU samples with a calibration (MCAP or CSV)",
+        "apply",
         description="Decode a run log's IMU samples from its raw CAN frames, compensate them with a result's "
                     "calibration (u = C (y - b)) and write them: a new MCAP (--out FILE.mcap: the raw samples on "
                     "/imu/samples and the compensated ones on /imu/compensated; the log itself is not changed) or "

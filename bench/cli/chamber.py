@@ -32,7 +32,7 @@ from drivers.transport import MODBUS_SCHEMES
 
 def register_chamber(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "chamber", help="manual control of a thermal chamber: status, set, run, stop, clear",
+        "chamber",
         description="Talk to a thermal chamber controller (drivers/CHAMBER.md), given by --config's [chamber] "
                     "or by --url. Exit codes: 0 done, 2 usage error or demand beyond the limits (nothing sent), "
                     "3 alarm, refusal, no reply, link failure or interrupted (the chamber is then made safe).")
@@ -141,7 +141,7 @@ CHAMBER_FAULT_HELP = """chamber fault console (one command per line on stdin):
 
 
 def register_sim_chamber(kinds: argparse._SubParsersAction) -> None:
-    """`chamber` under `bench sim` (`kinds` is what `bench.cli.table.register_sim` returns)."""
+    """`chamber` under `bench sim` (`kinds` is what `bench.cli.table.register_sim_table` returns)."""
     sim = kinds.add_parser(
         "chamber", help="serve the simulated thermal chamber in a controller dialect until Ctrl-C",
         description="Serve the simulated chamber (first-order air with heating and cooling rate limits, in "

@@ -33,7 +33,7 @@ DEFAULT_DWELL_S = 10.0
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "check-table", help="measure the turntable's pointing error (hardware, simulator or a recorded log)",
+        "check-table",
         description="Run the table-check schedule (middle 0, outer x inner positions) and estimate, from the "
                     "horizontal accelerometers, the observable combinations of the table's nine black-box "
                     "angles (outer-axis tilt = levelness; inner-axis tilt at middle 0) with 1-sigma "

@@ -32,7 +32,7 @@ DB_HELP = ("records database: a SQLAlchemy URL (postgresql://user@host/db) or a 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "db", help="calibration records: import results and logs, list runs, a unit's history",
+        "db",
         description="The records database (SQLite file by default; PostgreSQL with --db postgresql://...). "
                     "Exit codes: 0 done, 2 usage error or the database cannot be opened, 4 import found unreadable "
                     "files (the others are recorded).")

@@ -16,7 +16,7 @@ PROG = "bench evaluate"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    ev = sub.add_parser("evaluate", help="Monte-Carlo tables of schedule errors under turntable pointing error",
+    ev = sub.add_parser("evaluate",
                         description="Reproduce the paper's Tables 2 and 4: optimal vs traditional schedules at "
                                     "three black-box levels, ours beside the paper's value.")
     ev.add_argument("--runs", type=int, default=100, help="Monte-Carlo runs per level (default 100)")

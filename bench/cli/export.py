@@ -22,7 +22,7 @@ FORMAT_NAMES = ("json", "csv", "c", "yaml", "toml")
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "export", help="write a result's compensation (matrix, bias, uncertainties) for firmware",
+        "export",
         description="Write the compensation of a calibration result, u = C (y - b) per triad (C the inverse of "
                     "scale x direction cosines in rad/s or m/s^2 per counts/s, b the bias in counts/s), with "
                     "its 1-sigma uncertainties, as JSON, CSV, a C header, kalibr-style YAML or TOML; of a thermal "

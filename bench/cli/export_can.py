@@ -21,7 +21,7 @@ _seconds = number_type("a number of seconds >= 0", lambda value: value >= 0)
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "export-can", help="write a run log's raw CAN frames as .asc, .blf, .log (candump) or .csv",
+        "export-can",
         description="Write the raw CAN frames recorded on /can/raw, with their recorded timestamps (the run "
                     "clock), in the format the output's extension names: .asc (Vector ASC), .blf (Vector "
                     "BLF), .log (candump -L) or .csv (python-can CSV). Exit codes: 0 written, 2 unreadable log, "

@@ -24,7 +24,7 @@ _positive = number_type("a positive number", lambda value: value > 0)
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "noise", help="Allan deviation and noise terms (ARW/VRW, bias instability, RRW) of a static recording",
+        "noise",
         description="Overlapping Allan deviation of each gyro and accelerometer with +-1 sigma intervals and the "
                     "fitted noise terms (IEEE Std 952): of the longest dwell of a run log (record one with "
                     "plan.positions = \"static-noise\"), or of the simulated IMU alone (--sim). Writes "

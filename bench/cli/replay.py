@@ -20,7 +20,7 @@ PROG = "bench replay"
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "replay", help="play a run log back through the progress output (no hardware)",
+        "replay",
         description="Play a run log's events, table states, CAN frames and IMU samples (decoded from the raw "
                     "frames with the layout recorded in the log) back through the listeners a live run uses. "
                     "A damaged log replays what is readable. Exit codes: 0 replayed, 2 not a readable run log, "

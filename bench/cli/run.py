@@ -20,7 +20,7 @@ from bench.cli.verify import run_verification
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "run", help="run a calibration plan (hardware from --config, or the simulator with --sim)",
+        "run",
         description="Run a calibration plan unattended: move through the schedules, record everything to "
                     "MCAP, solve from the log, write result JSON and a report. Exit codes: 0 done, 2 usage or "
                     "configuration error (nothing moved), 3 hardware fault or aborted (table stopped; "

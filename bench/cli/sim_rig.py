@@ -13,7 +13,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from bench.cli.chamber import CHAMBER_LISTEN_HELP, apply_chamber_command, listen_chamber
+from bench.cli.chamber import CHAMBER_LISTEN_HELP, apply_chamber_command, listen_chamber, register_sim_chamber
 from bench.cli.common import ExitCode, fail
 from bench.cli.sim_serving import (
     add_idle_timeout_option,
@@ -23,7 +23,7 @@ from bench.cli.sim_serving import (
     run_console,
     run_until_stopped,
 )
-from bench.cli.table import FAULT_HELP, _apply_fault_command, _listen
+from bench.cli.table import FAULT_HELP, _apply_fault_command, _listen, register_sim_table
 from bench.config.load import (
     BenchConfig,
     ConfigError,
@@ -53,8 +53,15 @@ CHAMBER_RIG_HELP = ("  chamber COMMAND: the chamber's console, e.g. chamber alar
                     "(chamber help)")
 
 
+def register_sim(subparsers: argparse._SubParsersAction) -> None:
+    """`bench sim` and its devices, in the order `bench sim --help` lists them: table, rig, chamber."""
+    kinds = register_sim_table(subparsers)
+    register(kinds)
+    register_sim_chamber(kinds)
+
+
 def register(kinds: argparse._SubParsersAction) -> None:
-    """`rig` under `bench sim` (`kinds` is what `bench.cli.table.register_sim` returns)."""
+    """`rig` under `bench sim` (`kinds` is what `bench.cli.table.register_sim_table` returns)."""
     rig = kinds.add_parser(
         "rig", help="serve a whole simulated bench (table and CAN IMU) in wall-clock time until Ctrl-C",
         description="Serve the simulated turntable in a controller dialect and the simulated IMU mounted on it "
@@ -224,4 +231,4 @@ def _console(rig, line: str, apply_imu_command, chamber=None) -> str:
     return _apply_fault_command(rig.controller, line)
 
 
-__all__ = ["cmd_sim_rig", "register"]
+__all__ = ["cmd_sim_rig", "register", "register_sim"]

@@ -23,7 +23,7 @@ PROG = "bench solve"
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "solve", help="re-solve a calibration from recorded run logs (all of it, a subset, or compare methods)",
+        "solve",
         description="Extract the observations (position means, rest-to-rest turn integrals) from one or more run "
                     "logs of one IMU (a resumed run's earlier logs are read too) and solve; write result JSON and "
                     "report as `bench run` does. Damaged logs are read around the damage and the report lists "

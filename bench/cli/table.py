@@ -43,7 +43,7 @@ from drivers.turntable.modbus_map import RegisterMap
 
 def register_table(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "table", help="manual control of a turntable: status, enable, goto, rate, stop, abort",
+        "table",
         description="Talk to a turntable controller. Exit codes: 0 done, 2 usage error or demand beyond "
                     "the limits (nothing sent), 3 fault, e-stop, no reply, link failure or interrupted.")
     parser.add_argument("--url", required=True, help="tcp://HOST:PORT, a serial device or pyserial URL, "
@@ -188,9 +188,9 @@ FAULT_HELP = """fault console (one command per line on stdin):
   state | help"""
 
 
-def register_sim(subparsers: argparse._SubParsersAction) -> argparse._SubParsersAction:
+def register_sim_table(subparsers: argparse._SubParsersAction) -> argparse._SubParsersAction:
     """`bench sim` and its `table`; returns the `sim` subcommands for the others (`bench sim rig`)."""
-    sim = subparsers.add_parser("sim", help="serve simulated devices for manual or external testing")
+    sim = subparsers.add_parser("sim")
     kinds = sim.add_subparsers(dest="sim_command", metavar="DEVICE", required=True)
     table = kinds.add_parser(
         "table", help="serve the simulated turntable in a controller dialect until Ctrl-C, SIGTERM or SIGHUP",

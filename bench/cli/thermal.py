@@ -35,7 +35,7 @@ def _temperatures(text: str) -> list[float]:
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "thermal", help="calibration over temperature: per-coefficient polynomials in the IMU's temperature",
+        "thermal",
         description="Fit every coefficient against the IMU's temperature (a polynomial of degree 0..3 chosen by the "
                     "data, with its covariance and band) from calibrations at several temperatures: simulated "
                     "(sim) or result files (fit). Writes thermal.json, thermal.md and thermal.html; `bench export "

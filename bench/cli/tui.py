@@ -29,7 +29,7 @@ NO_TERMINAL = "needs a terminal (stdin and stdout must be one); for an unattende
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "tui", help="the lab-operator terminal UI (live table, IMU, plan, events, results)",
+        "tui",
         description="Interactive operator screen: connect, go to positions, start/pause/resume/abort the plan, "
                     "emergency stop (F12, on every screen). Runs record and solve exactly like `bench run`.")
     parser.add_argument("--config", metavar="FILE", help="bench configuration (see bench.example.toml)")

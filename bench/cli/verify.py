@@ -32,7 +32,7 @@ PROG = "bench verify"
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "verify", help="check a calibration on a verification plan the fit did not use",
+        "verify",
         description="Run the verification plan ([plan] verification, default verify-default: positions at 45 deg "
                     "tilts, turns at three rates both ways), compensate it with the calibration and report the "
                     "errors (gyro bias deg/h, scale factor ppm per rate, misalignment arcsec, accelerometer bias ug, "
