@@ -52,6 +52,18 @@ def test_the_command_line_starts_without_the_heavy_dependencies(argv):
         assert not set(HEAVY) & set(packages), f"{stage}: {sorted(set(HEAVY) & set(packages))}"
 
 
+#: what no `bench COMMAND --help` needs: a command imports these when it runs
+HEAVY_FOR_A_COMMAND = ("scipy", "matplotlib", "textual", "sqlalchemy", "mcap", "pymodbus")
+
+
+@pytest.mark.parametrize("name", [command.name for command in COMMANDS])
+def test_a_commands_help_loads_its_module_but_not_what_the_command_runs_on(name):
+    loaded = set(_loaded([name, "--help"])["main"])
+    assert not set(HEAVY_FOR_A_COMMAND) & loaded, sorted(set(HEAVY_FOR_A_COMMAND) & loaded)
+    if name != "sim":       # `bench sim rig --imu-layout` lists the CAN driver's layouts: python-can
+        assert "can" not in loaded
+
+
 def test_a_command_imports_what_it_needs_when_it_is_parsed():
     """The probe can see a heavy import: `bench schedules --help` loads its command module and numpy."""
     assert "numpy" in _loaded(["schedules", "--help"])["main"]

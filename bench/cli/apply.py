@@ -9,8 +9,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from bench.calibration.compensation import compensation_of, load_result
 from bench.cli.common import ExitCode, fail
 from bench.errors import InputError
+from bench.files import check_output, replaced_output
 
 PROG = "bench apply"
 
@@ -39,10 +41,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def cmd_apply(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
+    # heavy (scipy, python-can, mcap): imported when the command runs, not for its --help
     from bench.calibration.apply import apply_to_log, write_csv, write_mcap
-    from bench.calibration.compensation import compensation_of, load_result
-    from bench.files import check_output, replaced_output
     from bench.log.reader import LogError
 
     out = Path(args.out)

@@ -21,7 +21,7 @@ from bench.cli.sim_serving import (
     serve_until_stopped,
 )
 from bench.config.chamber import ChamberConfig
-from bench.config.load import ConfigError, load_config
+from bench.config.reader import ConfigError
 from bench.config.register_map import load_chamber_register_map
 from bench.errors import InputError
 from drivers.chamber import ALARM_NAMES, DIALECTS, Chamber, ChamberLimits, ChamberState, open_chamber
@@ -79,6 +79,9 @@ def format_chamber_state(state: ChamberState) -> str:
 
 def _chamber_config(args: argparse.Namespace) -> ChamberConfig:
     if args.config is not None:
+        # heavy (scipy, python-can): the whole configuration's loader, only for --config
+        from bench.config.load import load_config
+
         config = load_config(args.config).chamber
         if config is None:
             raise InputError(f"{args.config} has no [chamber] section")
@@ -174,7 +177,8 @@ CHAMBER_LISTEN_HELP = ("tcp://127.0.0.1:PORT (ascii), modbus+tcp://127.0.0.1:POR
 def listen_chamber(sim, dialect: str, where: str, closers: list, register_map=None,
                    idle_timeout_s: float = IDLE_TIMEOUT_S) -> str:
     """Serve `sim` on one --listen address; returns the URL a client opens (InputError for a bad address)."""
-    from bench.sim.chamber_server import serve_chamber  # the simulators: only for `bench sim`
+    # heavy (scipy, pymodbus): the simulators load only when one is served
+    from bench.sim.chamber_server import serve_chamber
 
     if where == "pty":
         close, url = serve_chamber(sim, dialect, "pty", register_map=register_map, idle_timeout_s=idle_timeout_s)
@@ -205,7 +209,7 @@ def apply_chamber_command(sim, line: str) -> str:
 
 
 def cmd_sim_chamber(args: argparse.Namespace) -> ExitCode:
-    # the simulators load only for `bench sim`
+    # heavy (scipy): the simulators load only when one is served
     from bench.sim.chamber import ChamberPhysics, SimChamber
 
     prog = "bench sim chamber"

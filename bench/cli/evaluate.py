@@ -11,6 +11,9 @@ from pathlib import Path
 from bench.cli.common import ExitCode, add_scheduler_arguments, fail, task_progress
 from bench.errors import InputError
 from bench.files import write_output_text
+from bench.model.earth import Site
+from bench.model.families import ERROR_TITLES
+from bench.parallel import SchedulerError, check_scheduler, describe
 
 PROG = "bench evaluate"
 
@@ -42,10 +45,7 @@ def _unwritable(path: Path) -> str:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
-    from bench.model.earth import Site
-    from bench.model.families import ERROR_TITLES
-    from bench.parallel import SchedulerError, check_scheduler, describe
+    # heavy (scipy): imported when the command runs, not for its --help
     from bench.schedule_design.monte_carlo import POSITION_KEYS, ROTATION_KEYS, builtin_schedules, evaluate, paper_value
 
     if args.runs < 1:

@@ -11,8 +11,11 @@ import argparse
 import sys
 from pathlib import Path
 
+from bench.calibration.compensation import compensation_of, load_result
+from bench.calibration.export import export_text
 from bench.cli.common import ExitCode, fail
 from bench.errors import InputError
+from bench.files import write_output_text
 
 PROG = "bench export"
 #: file suffix -> format, when --format is not given
@@ -37,10 +40,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
-    from bench.calibration.compensation import compensation_of, load_result
-    from bench.calibration.export import export_text
-    from bench.files import write_output_text
+    # heavy (scipy): imported when the command runs, not for its --help
     from bench.thermal.export import export_thermal
     from bench.thermal.model import ThermalModel, is_thermal_text, read_bounded_text
 

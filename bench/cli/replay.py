@@ -40,7 +40,7 @@ def cmd_replay(args: argparse.Namespace) -> ExitCode:
 
 
 def _replay(args: argparse.Namespace, stop: threading.Event) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
+    # heavy (scipy, python-can, mcap): imported when the command runs, not for its --help
     from bench.log.reader import LogError, read_log
     from bench.log.replay import replay
     from bench.log.run_info import is_manual_log, steps_from_log

@@ -19,8 +19,11 @@ import sys
 import time
 from pathlib import Path
 
+from bench import __version__
 from bench.cli.common import ExitCode, add_scheduler_arguments, fail
 from bench.cli.progress import CountProgress
+from bench.errors import BenchError
+from bench.parallel import SchedulerError, check_scheduler, describe
 
 PROG = "bench solve"
 
@@ -37,10 +40,7 @@ def add_archive_options(parser: argparse.ArgumentParser) -> None:
 
 
 def cmd_archive(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core or SQLAlchemy
-    from bench import __version__
-    from bench.errors import BenchError
-    from bench.parallel import SchedulerError, check_scheduler, describe
+    # heavy (scipy, python-can, mcap, matplotlib, SQLAlchemy): imported when the command runs, not for its --help
     from bench.records.ingest import import_file, sha256_of
     from bench.records.store import RecordsError, open_records
     from bench.solve.archive import (
