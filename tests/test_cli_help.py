@@ -20,7 +20,7 @@ def _arguments(parser: argparse.ArgumentParser, path: tuple[str, ...]):
             yield path, action
 
 
-ARGUMENTS = list(_arguments(build_parser(), ("bench",)))
+ARGUMENTS = list(_arguments(build_parser(load_all=True), ("bench",)))
 
 
 def _label(item) -> str:
@@ -45,7 +45,7 @@ def _subparsers(parser: argparse.ArgumentParser) -> argparse._SubParsersAction:
 
 def test_the_schedules_help_names_all_its_subcommands():
     """It said "list, show and validate" while analyze, search and recommend were there too."""
-    commands = _subparsers(build_parser())
+    commands = _subparsers(build_parser(load_all=True))
     schedules = commands.choices["schedules"]
     names = list(_subparsers(schedules).choices)
     assert names == ["list", "show", "validate", "analyze", "search", "recommend"]

@@ -9,15 +9,17 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from bench.calibration.compensation import compensation_of, load_result
 from bench.cli.common import ExitCode, fail
 from bench.errors import InputError
+from bench.files import check_output, replaced_output
 
 PROG = "bench apply"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "apply", help="compensate a run log's IMU samples with a calibration (MCAP or CSV)",
+        "apply",
         description="Decode a run log's IMU samples from its raw CAN frames, compensate them with a result's "
                     "calibration (u = C (y - b)) and write them: a new MCAP (--out FILE.mcap: the raw samples on "
                     "/imu/samples and the compensated ones on /imu/compensated; the log itself is not changed) or "
@@ -39,10 +41,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def cmd_apply(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
+    # heavy (scipy, python-can, mcap): imported when the command runs, not for its --help
     from bench.calibration.apply import apply_to_log, write_csv, write_mcap
-    from bench.calibration.compensation import compensation_of, load_result
-    from bench.files import check_output, replaced_output
     from bench.log.reader import LogError
 
     out = Path(args.out)

@@ -21,7 +21,7 @@ from bench.cli.sim_serving import (
     serve_until_stopped,
 )
 from bench.config.chamber import ChamberConfig
-from bench.config.load import ConfigError, load_config
+from bench.config.reader import ConfigError
 from bench.config.register_map import load_chamber_register_map
 from bench.errors import InputError
 from drivers.chamber import ALARM_NAMES, DIALECTS, Chamber, ChamberLimits, ChamberState, open_chamber
@@ -32,7 +32,7 @@ from drivers.transport import MODBUS_SCHEMES
 
 def register_chamber(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "chamber", help="manual control of a thermal chamber: status, set, run, stop, clear",
+        "chamber",
         description="Talk to a thermal chamber controller (drivers/CHAMBER.md), given by --config's [chamber] "
                     "or by --url. Exit codes: 0 done, 2 usage error or demand beyond the limits (nothing sent), "
                     "3 alarm, refusal, no reply, link failure or interrupted (the chamber is then made safe).")
@@ -79,6 +79,9 @@ def format_chamber_state(state: ChamberState) -> str:
 
 def _chamber_config(args: argparse.Namespace) -> ChamberConfig:
     if args.config is not None:
+        # heavy (scipy, python-can): the whole configuration's loader, only for --config
+        from bench.config.load import load_config
+
         config = load_config(args.config).chamber
         if config is None:
             raise InputError(f"{args.config} has no [chamber] section")
@@ -141,7 +144,7 @@ CHAMBER_FAULT_HELP = """chamber fault console (one command per line on stdin):
 
 
 def register_sim_chamber(kinds: argparse._SubParsersAction) -> None:
-    """`chamber` under `bench sim` (`kinds` is what `bench.cli.table.register_sim` returns)."""
+    """`chamber` under `bench sim` (`kinds` is what `bench.cli.table.register_sim_table` returns)."""
     sim = kinds.add_parser(
         "chamber", help="serve the simulated thermal chamber in a controller dialect until Ctrl-C",
         description="Serve the simulated chamber (first-order air with heating and cooling rate limits, in "
@@ -174,7 +177,8 @@ CHAMBER_LISTEN_HELP = ("tcp://127.0.0.1:PORT (ascii), modbus+tcp://127.0.0.1:POR
 def listen_chamber(sim, dialect: str, where: str, closers: list, register_map=None,
                    idle_timeout_s: float = IDLE_TIMEOUT_S) -> str:
     """Serve `sim` on one --listen address; returns the URL a client opens (InputError for a bad address)."""
-    from bench.sim.chamber_server import serve_chamber  # the simulators: only for `bench sim`
+    # heavy (scipy, pymodbus): the simulators load only when one is served
+    from bench.sim.chamber_server import serve_chamber
 
     if where == "pty":
         close, url = serve_chamber(sim, dialect, "pty", register_map=register_map, idle_timeout_s=idle_timeout_s)
@@ -205,7 +209,7 @@ def apply_chamber_command(sim, line: str) -> str:
 
 
 def cmd_sim_chamber(args: argparse.Namespace) -> ExitCode:
-    # the simulators load only for `bench sim`
+    # heavy (scipy): the simulators load only when one is served
     from bench.sim.chamber import ChamberPhysics, SimChamber
 
     prog = "bench sim chamber"

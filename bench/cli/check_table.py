@@ -24,7 +24,11 @@ from pathlib import Path
 from bench.cli.common import ExitCode, ended_early, fail, raise_interrupted, run_plan, stop_signals
 from bench.cli.db import add_db_options, not_recorded_exit, record_outputs
 from bench.errors import BenchError, InputError
+from bench.model.imu import ImuCoefficients
+from bench.model.result import CalibrationResult
 from bench.model.units import format_hms
+from bench.plan.compiler import PlanError
+from schedules import ScheduleError, resolve_schedule
 
 PROG = "bench check-table"
 DEFAULT_SCHEDULE = "table-check-324"
@@ -33,7 +37,7 @@ DEFAULT_DWELL_S = 10.0
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "check-table", help="measure the turntable's pointing error (hardware, simulator or a recorded log)",
+        "check-table",
         description="Run the table-check schedule (middle 0, outer x inner positions) and estimate, from the "
                     "horizontal accelerometers, the observable combinations of the table's nine black-box "
                     "angles (outer-axis tilt = levelness; inner-axis tilt at middle 0) with 1-sigma "
@@ -71,10 +75,6 @@ def _load_calibration(path: str | None):
     """The accelerometer model of a result file (gyro part ideal: unused here), or None."""
     if path is None:
         return None
-    # imported when the command runs: `bench` starts without the bench core
-    from bench.model.imu import ImuCoefficients
-    from bench.model.result import CalibrationResult
-
     try:
         values = CalibrationResult.load(path).values()
     except OSError as exc:
@@ -91,7 +91,7 @@ def _load_calibration(path: str | None):
 
 def _sim_config_text(black_box_arcsec: float | None, seed: int | None) -> str:
     """The built-in simulator configuration with the black box and seed asked for (recorded in the log)."""
-    # imported when the command runs: `bench` starts without the bench core
+    # heavy (scipy, python-can): imported when the command runs, not for its --help
     from bench.config.load import SIM_CONFIG_TOML
 
     text = SIM_CONFIG_TOML
@@ -106,7 +106,7 @@ def _sim_config_text(black_box_arcsec: float | None, seed: int | None) -> str:
 
 def build_config(args: argparse.Namespace):
     """(config, sim) for a live or simulated check; UsageError on bad arguments or configuration."""
-    # imported when the command runs: `bench` starts without the bench core
+    # heavy (scipy, python-can): imported when the command runs, not for its --help
     from bench.config.load import ConfigError, load_config, parse_config
 
     if args.black_box_arcsec is not None or args.seed is not None:
@@ -131,11 +131,9 @@ def build_config(args: argparse.Namespace):
 
 def table_check_plan(config, schedule_spec: str, dwell_s: float):
     """(config with the table-check schedule as its plan, compiled plan); UsageError when it cannot run."""
-    # imported when the command runs: `bench` starts without the bench core
-    from bench.plan.compiler import PlanError
+    # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
     from bench.run.runner import compile_from_config
     from bench.table_check.estimate import TableCheckError, check_positions
-    from schedules import ScheduleError, resolve_schedule
 
     if not dwell_s > 0:
         raise UsageError(f"--dwell-s must be positive, got {dwell_s:g}")
@@ -178,7 +176,7 @@ def cmd_check_table(args: argparse.Namespace) -> ExitCode:
 
 
 def _from_log(args, calibration) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
+    # heavy (scipy, python-can, mcap): imported when the command runs, not for its --help
     from bench.log.reader import LogError
     from bench.table_check.estimate import TableCheckError
     from bench.table_check.from_log import analyse_log
@@ -194,7 +192,7 @@ def _from_log(args, calibration) -> ExitCode:
 
 
 def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
+    # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
     from bench.log.reader import LogError
     from bench.log.recorder import RecorderError
     from bench.run.runner import BenchRun
@@ -251,7 +249,7 @@ def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
 
 def format_summary(analysis) -> str:
     """The result as printed: one line per combination (with the truth on the simulator), then the fit."""
-    # imported when the command runs: `bench` starts without the bench core
+    # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
     from bench.table_check.report import summary_rows
 
     est = analysis.estimate
@@ -273,7 +271,7 @@ def format_summary(analysis) -> str:
 
 
 def _report(args, analysis, out_dir: Path, paths: dict | None = None) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
+    # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
     from bench.table_check.report import write_outputs
 
     if paths is None:

@@ -32,7 +32,7 @@ DB_HELP = ("records database: a SQLAlchemy URL (postgresql://user@host/db) or a 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "db", help="calibration records: import results and logs, list runs, a unit's history",
+        "db",
         description="The records database (SQLite file by default; PostgreSQL with --db postgresql://...). "
                     "Exit codes: 0 done, 2 usage error or the database cannot be opened, 4 import found unreadable "
                     "files (the others are recorded).")
@@ -88,14 +88,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _open(args: argparse.Namespace, create: bool = True):
-    # imported when the command runs: `bench` starts without SQLAlchemy
+    # heavy (SQLAlchemy): imported when the command runs, not for its --help
     from bench.records.store import open_records
 
     return open_records(getattr(args, "db", None), create=create)
 
 
 def cmd_import(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without SQLAlchemy
+    # heavy (SQLAlchemy): imported when the command runs, not for its --help
     from bench.records.ingest import import_paths
     from bench.records.store import RecordsError
 
@@ -120,7 +120,7 @@ def cmd_import(args: argparse.Namespace) -> ExitCode:
 
 
 def cmd_list(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without SQLAlchemy
+    # heavy (SQLAlchemy): imported when the command runs, not for its --help
     from bench.records.store import RecordsError
 
     since = None
@@ -160,7 +160,7 @@ def _truth_text(row: RunRow) -> str:
 
 
 def cmd_results(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without SQLAlchemy
+    # heavy (SQLAlchemy): imported when the command runs, not for its --help
     from bench.records.store import RecordsError
 
     try:
@@ -182,7 +182,7 @@ def cmd_results(args: argparse.Namespace) -> ExitCode:
 
 
 def cmd_promote(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without SQLAlchemy
+    # heavy (SQLAlchemy): imported when the command runs, not for its --help
     from bench.records.store import RecordsError
 
     try:
@@ -196,7 +196,7 @@ def cmd_promote(args: argparse.Namespace) -> ExitCode:
 
 
 def cmd_history(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without SQLAlchemy
+    # heavy (SQLAlchemy): imported when the command runs, not for its --help
     from bench.records.history import format_history, unit_history, write_history
     from bench.records.store import RecordsError
 
@@ -233,7 +233,7 @@ def record_outputs(args: argparse.Namespace, prog: str, paths: list[Path | str |
     (`not_recorded_exit`) after its own lines, the files kept."""
     if getattr(args, "no_db", False):
         return True
-    # imported when the command runs: `bench` starts without SQLAlchemy
+    # heavy (SQLAlchemy): imported when the command runs, not for its --help
     from bench.records.ingest import import_file, sha256_of
     from bench.records.store import RecordsError, open_records
 

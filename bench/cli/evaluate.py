@@ -11,12 +11,15 @@ from pathlib import Path
 from bench.cli.common import ExitCode, add_scheduler_arguments, fail, task_progress
 from bench.errors import InputError
 from bench.files import write_output_text
+from bench.model.earth import Site
+from bench.model.families import ERROR_TITLES, POSITION_KEYS, ROTATION_KEYS
+from bench.parallel import SchedulerError, check_scheduler, describe
 
 PROG = "bench evaluate"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    ev = sub.add_parser("evaluate", help="Monte-Carlo tables of schedule errors under turntable pointing error",
+    ev = sub.add_parser("evaluate",
                         description="Reproduce the paper's Tables 2 and 4: optimal vs traditional schedules at "
                                     "three black-box levels, ours beside the paper's value.")
     ev.add_argument("--runs", type=int, default=100, help="Monte-Carlo runs per level (default 100)")
@@ -42,10 +45,7 @@ def _unwritable(path: Path) -> str:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
-    from bench.model.earth import Site
-    from bench.model.families import ERROR_TITLES, POSITION_KEYS, ROTATION_KEYS
-    from bench.parallel import SchedulerError, check_scheduler, describe
+    # heavy (scipy): imported when the command runs, not for its --help
     from bench.schedule_design.monte_carlo import builtin_schedules, evaluate, paper_value
 
     if args.runs < 1:

@@ -11,8 +11,11 @@ import argparse
 import sys
 from pathlib import Path
 
+from bench.calibration.compensation import compensation_of, load_result
+from bench.calibration.export import export_text
 from bench.cli.common import ExitCode, fail
 from bench.errors import InputError
+from bench.files import write_output_text
 
 PROG = "bench export"
 #: file suffix -> format, when --format is not given
@@ -22,7 +25,7 @@ FORMAT_NAMES = ("json", "csv", "c", "yaml", "toml")
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "export", help="write a result's compensation (matrix, bias, uncertainties) for firmware",
+        "export",
         description="Write the compensation of a calibration result, u = C (y - b) per triad (C the inverse of "
                     "scale x direction cosines in rad/s or m/s^2 per counts/s, b the bias in counts/s), with "
                     "its 1-sigma uncertainties, as JSON, CSV, a C header, kalibr-style YAML or TOML; of a thermal "
@@ -37,10 +40,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
-    from bench.calibration.compensation import compensation_of, load_result
-    from bench.calibration.export import export_text
-    from bench.files import write_output_text
+    # heavy (scipy): imported when the command runs, not for its --help
     from bench.thermal.export import export_thermal
     from bench.thermal.model import ThermalModel, is_thermal_text, read_bounded_text
 

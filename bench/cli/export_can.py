@@ -12,6 +12,7 @@ import sys
 
 from bench.cli.common import ExitCode, fail, number_type
 from bench.errors import InputError
+from bench.files import check_output, replaced_output
 
 PROG = "bench export-can"
 
@@ -21,7 +22,7 @@ _seconds = number_type("a number of seconds >= 0", lambda value: value >= 0)
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "export-can", help="write a run log's raw CAN frames as .asc, .blf, .log (candump) or .csv",
+        "export-can",
         description="Write the raw CAN frames recorded on /can/raw, with their recorded timestamps (the run "
                     "clock), in the format the output's extension names: .asc (Vector ASC), .blf (Vector "
                     "BLF), .log (candump -L) or .csv (python-can CSV). Exit codes: 0 written, 2 unreadable log, "
@@ -37,8 +38,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def cmd_export_can(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
-    from bench.files import check_output, replaced_output
+    # heavy (python-can, mcap): imported when the command runs, not for its --help
     from bench.log.can_export import MAX_FRAME_TIME_S, CanExportError, can_format, export_can
     from bench.log.reader import LogError, read_log
 

@@ -11,66 +11,33 @@ import os
 import select
 import sys
 
-# Only what the edge needs is imported here: `main` installs the stop-signal policy before a command module,
-# numpy or a driver is imported (that takes a second, more on a loaded machine: a signal then must not be lost).
+# Only what the edge needs is imported here (no command module: `bench.cli.commands` imports the chosen one when
+# argparse reaches its name), so `bench --help` and `--version` load no numpy, scipy, python-can, matplotlib or
+# Textual, and `main` installs the stop-signal policy before a command module, numpy or a driver is imported (that
+# takes a while on a loaded machine: a signal then must not be lost).
 from bench import __version__
+from bench.cli.commands import CommandChoice
 from bench.cli.edge import ExitCode, FirstSignal, ensure_standard_streams, fail, stop_signals
 from bench.errors import BenchError
 from drivers.errors import DeviceConfigError, DeviceError
 
+DESCRIPTION = ("IMU calibration on a three-axis turntable. Exit codes (every command): 0 done, 1 a schedule file "
+               "failed validation, 2 usage, configuration or I/O error (nothing moved), 3 hardware fault or aborted "
+               "(table stopped), 4 finished but a quality check failed, 5 simulated truth missed (check-table), 6 "
+               "TABLE STATE UNKNOWN (no stop could be sent or confirmed: stop it at the controller), 130 interrupted "
+               "(replay), 141 stdout closed by its reader (e.g. | head).")
 
-def build_parser() -> argparse.ArgumentParser:
-    # the command modules, imported here (after `main` installed the signal policy)
-    from bench.cli import apply as apply_cli
-    from bench.cli import chamber as chamber_cli
-    from bench.cli import (
-        check_table,
-        evaluate,
-        export_can,
-        replay,
-        run,
-        schedules,
-        sim_rig,
-        solve,
-        table,
-        thermal,
-        tui,
-    )
-    from bench.cli import db as db_cli
-    from bench.cli import export as export_cli
-    from bench.cli import noise as noise_command
-    from bench.cli import verify as verify_cli
 
-    parser = argparse.ArgumentParser(
-        prog="bench", description="IMU calibration on a three-axis turntable. Exit codes (every command): 0 done, "
-                                  "1 a schedule file failed validation, 2 usage, configuration or I/O error (nothing "
-                                  "moved), 3 hardware fault or aborted (table stopped), 4 finished but a quality "
-                                  "check failed, 5 simulated truth missed (check-table), 6 TABLE STATE UNKNOWN (no "
-                                  "stop could be sent or confirmed: stop it at the controller), 130 interrupted "
-                                  "(replay), "
-                                  "141 stdout closed by its reader (e.g. | head).")
+def build_parser(*, load_all: bool = False) -> argparse.ArgumentParser:
+    """The `bench` parser. The commands are listed from `bench.cli.commands.COMMANDS`; a command's module is
+    imported when its name is parsed (after `main` installed the signal policy), or every one now (`load_all`,
+    for a caller that walks the whole tree)."""
+    parser = argparse.ArgumentParser(prog="bench", description=DESCRIPTION)
     parser.add_argument("--version", action="version", version=f"turntable-bench {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    sub.required = True
-    evaluate.register(sub)
-    run.register(sub)
-    tui.register(sub)
-    replay.register(sub)
-    solve.register(sub)
-    schedules.register(sub)
-    table.register_table(sub)
-    sim_kinds = table.register_sim(sub)
-    sim_rig.register(sim_kinds)
-    chamber_cli.register_sim_chamber(sim_kinds)
-    chamber_cli.register_chamber(sub)
-    check_table.register(sub)
-    export_can.register(sub)
-    noise_command.register(sub)
-    export_cli.register(sub)
-    apply_cli.register(sub)
-    verify_cli.register(sub)
-    thermal.register(sub)
-    db_cli.register(sub)
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, action=CommandChoice)
+    if load_all:
+        assert isinstance(commands, CommandChoice)
+        commands.load_all()
     return parser
 
 

@@ -14,6 +14,8 @@ from pathlib import Path
 
 from bench.cli.common import ExitCode, add_noise_arguments, fail, noise_from_args, number_type
 from bench.errors import InputError
+from bench.model.imu import default_sim_imu
+from bench.model.result import CalibrationResult, ResultFormatError
 
 PROG = "bench noise"
 MAX_SIM_SAMPLES = 100_000_000     # per channel: 6 channels of float64 are 4.8 GB
@@ -24,7 +26,7 @@ _positive = number_type("a positive number", lambda value: value > 0)
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "noise", help="Allan deviation and noise terms (ARW/VRW, bias instability, RRW) of a static recording",
+        "noise",
         description="Overlapping Allan deviation of each gyro and accelerometer with +-1 sigma intervals and the "
                     "fitted noise terms (IEEE Std 952): of the longest dwell of a run log (record one with "
                     "plan.positions = \"static-noise\"), or of the simulated IMU alone (--sim). Writes "
@@ -59,9 +61,8 @@ def _sim_noise(args: argparse.Namespace):
 
 
 def cmd_noise(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
+    # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
     from bench.log.reader import LogError
-    from bench.model.result import CalibrationResult, ResultFormatError
     from bench.noise.allan import AllanError
     from bench.noise.from_log import NoiseInputError, analyse_log
     from bench.report.noise import write_noise_outputs
@@ -115,8 +116,7 @@ def cmd_noise(args: argparse.Namespace) -> ExitCode:
 
 
 def _simulated(args: argparse.Namespace):
-    # the simulator is needed by --sim only
-    from bench.model.imu import default_sim_imu
+    # heavy (scipy): imported when the command runs, not for its --help
     from bench.model.noise_result import NoiseResult
     from bench.noise.result import analyse
     from bench.noise.simulate import sim_truth, simulate_static

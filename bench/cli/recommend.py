@@ -15,6 +15,11 @@ from bench.cli.common import (
 )
 from bench.errors import InputError
 from bench.files import write_output_text
+from bench.model.earth import Site
+from bench.model.families import DESIGN_UNITS, TITLES
+from bench.model.units import format_hms
+from bench.parallel import SchedulerError, check_scheduler
+from schedules import ScheduleError
 
 PROG = "bench schedules recommend"
 
@@ -49,9 +54,7 @@ def _cell(e) -> str:
 
 def format_recommendation(rec, top: int = 9) -> list[str]:
     """The printed result: recommendation, per-family errors, candidate table, score, irreducible part, why."""
-    # imported when the command runs: `bench` starts without the bench core
-    from bench.model.families import DESIGN_UNITS, TITLES
-    from bench.model.units import format_hms
+    # heavy (scipy): imported when the command runs, not for its --help
     from bench.schedule_design.recommend import FAMILIES, REFERENCE_PAIR, fmt_value
 
     best, n = rec.best, rec.noise
@@ -91,9 +94,7 @@ def format_recommendation(rec, top: int = 9) -> list[str]:
 
 
 def cmd_recommend(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
-    from bench.model.earth import Site
-    from bench.parallel import SchedulerError, check_scheduler
+    # heavy (scipy): imported when the command runs, not for its --help
     from bench.schedule_design.recommend import (
         PointingLevel,
         RecommendError,
@@ -102,7 +103,6 @@ def cmd_recommend(args: argparse.Namespace) -> ExitCode:
         recommend,
         resolve_candidates,
     )
-    from schedules import ScheduleError
 
     noise_values = (args.gyro_arw, args.acc_vrw, args.gyro_bi, args.acc_bi)
     if not all(math.isfinite(v) and v >= 0 for v in noise_values):

@@ -20,7 +20,7 @@ PROG = "bench replay"
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "replay", help="play a run log back through the progress output (no hardware)",
+        "replay",
         description="Play a run log's events, table states, CAN frames and IMU samples (decoded from the raw "
                     "frames with the layout recorded in the log) back through the listeners a live run uses. "
                     "A damaged log replays what is readable. Exit codes: 0 replayed, 2 not a readable run log, "
@@ -40,7 +40,7 @@ def cmd_replay(args: argparse.Namespace) -> ExitCode:
 
 
 def _replay(args: argparse.Namespace, stop: threading.Event) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
+    # heavy (scipy, python-can, mcap): imported when the command runs, not for its --help
     from bench.log.reader import LogError, read_log
     from bench.log.replay import replay
     from bench.log.run_info import is_manual_log, steps_from_log

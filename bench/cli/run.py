@@ -13,14 +13,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from bench.acceptance.verdict import Verdict
 from bench.cli.common import ExitCode, ended_early, fail, raise_interrupted, run_plan, stop_signals
 from bench.cli.db import add_db_options, not_recorded_exit, record_outputs
 from bench.cli.verify import run_verification
+from bench.model.units import format_hms
+from bench.plan.compiler import PlanError
+from bench.report.facts import lost_samples_note
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "run", help="run a calibration plan (hardware from --config, or the simulator with --sim)",
+        "run",
         description="Run a calibration plan unattended: move through the schedules, record everything to "
                     "MCAP, solve from the log, write result JSON and a report. Exit codes: 0 done, 2 usage or "
                     "configuration error (nothing moved), 3 hardware fault or aborted (table stopped; "
@@ -57,13 +61,11 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
 
 
 def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
-    # imported when the command runs, so that `bench --help` and the other commands start without them
+    # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
     from bench.config.load import ConfigError, default_sim_config, load_config
     from bench.log.reader import LogError
     from bench.log.recorder import RecorderError
     from bench.log.run_setup import SetupMismatch
-    from bench.model.units import format_hms
-    from bench.plan.compiler import PlanError
     from bench.run.resume import resume_point
     from bench.run.runner import BenchRun, compile_from_config
     from bench.solve.inputs import SolveInputError, check_solvable
@@ -151,7 +153,8 @@ def _record(args: argparse.Namespace, paths: list) -> tuple[str, bool]:
 
 def _after_the_result(args: argparse.Namespace, config, outcome, run, sim: bool, out_dir: Path) -> ExitCode:
     """The verification (if configured), the summary and the recording of a run that has its result."""
-    from bench.verify.plan import format_errors  # imported when the command runs: `bench` starts without it
+    # heavy (scipy, python-can): imported when the command runs, not for its --help
+    from bench.verify.plan import format_errors
 
     if not args.quiet:
         print(f"log:    {outcome.log_path}")
@@ -187,7 +190,7 @@ def records_line(args: argparse.Namespace, recorded: bool = True) -> str:
     recorded (--no-db)`."""
     if getattr(args, "no_db", False):
         return "records: not recorded (--no-db)"
-    # imported when the command runs: `bench` starts without SQLAlchemy
+    # heavy (SQLAlchemy): imported when the command runs, not for its --help
     from sqlalchemy import make_url
     from sqlalchemy.exc import ArgumentError
 
@@ -212,9 +215,6 @@ def run_summary(outcome, verified=None) -> str:
     worst = verdict.worst if verdict is not None else None
     reports = ", ".join(str(p) for p in (outcome.report_path, outcome.html_report_path) if p is not None)
     verification = f"  verification: {verified.md_path}" if verified is not None else ""
-    # imported when the command runs: `bench` starts without the bench core
-    from bench.report.facts import lost_samples_note
-
     lost = lost_samples_note(outcome.result.run) if outcome.result is not None else None
     return (f"verdict: {verdict.headline() if verdict is not None else 'none'}\n"
             f"worst:   {worst.labelled() if worst is not None else 'no check ran'}\n"
@@ -224,8 +224,7 @@ def run_summary(outcome, verified=None) -> str:
 
 def add_verification(outcome, verified, config) -> None:
     """The verification's checks into the result's verdict; the result file and its reports written again."""
-    # imported when the command runs: `bench` starts without the bench core
-    from bench.acceptance.verdict import Verdict
+    # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
     from bench.log.reader import read_log
     from bench.report.markdown import write_reports
     from bench.run.runner import save_replacing

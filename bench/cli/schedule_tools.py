@@ -14,15 +14,8 @@ from bench.cli.progress import CountProgress
 from bench.errors import InputError
 from bench.model.earth import Site
 from bench.model.units import format_hms
-from bench.schedule_design.sensitivity import (
-    ANGLE_NAMES,
-    position_noise_sigma,
-    position_sensitivity,
-    rotation_noise_sigma,
-    rotation_sensitivity,
-)
-from bench.solve.methods import SolverError
-from schedules import ScheduleError, load_builtin, resolve_schedule
+from bench.plan.compiler import PlanError, PlanTiming, compile_plan
+from schedules import ScheduleError, load_builtin, load_schedule, resolve_schedule
 
 
 def register_tools(commands: argparse._SubParsersAction) -> None:
@@ -58,6 +51,9 @@ def _fmt(value: float, status: str) -> str:
 
 def sensitivity_lines(sens) -> list[str]:
     """The table: one row per coefficient, one column per black-box angle (display unit per arcsec)."""
+    # heavy (scipy): imported when the command runs, not for its --help
+    from bench.schedule_design.sensitivity import ANGLE_NAMES
+
     short = [n.replace("outer", "o").replace("middle", "m").replace("inner", "i").replace("alpha", "a")
              .replace("beta", "b").replace("gamma", "g") for n in ANGLE_NAMES]
     lines = [f"{'coef':<7}{'unit/arcsec':<12}" + "".join(f"{s:>10}" for s in short)]
@@ -76,9 +72,15 @@ def sensitivity_lines(sens) -> list[str]:
 
 
 def cmd_analyze(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
-    from bench.plan.compiler import PlanError, PlanTiming, compile_plan
+    # heavy (scipy): imported when the command runs, not for its --help
     from bench.schedule_design.monte_carlo import evaluate
+    from bench.schedule_design.sensitivity import (
+        position_noise_sigma,
+        position_sensitivity,
+        rotation_noise_sigma,
+        rotation_sensitivity,
+    )
+    from bench.solve.methods import SolverError
 
     if args.runs < 1 or args.dwell_s <= 0 or args.turn_rate_dps <= 0:
         return fail("bench schedules analyze", "--runs, --dwell-s and --turn-rate-dps must be positive", ExitCode.USAGE)
@@ -140,7 +142,7 @@ def cmd_analyze(args: argparse.Namespace) -> ExitCode:
 
 
 def cmd_search(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
+    # heavy (scipy): imported when the command runs, not for its --help
     from bench.schedule_design.search import (
         CRITERIA_TEXT,
         POSITION_GROUPS,
@@ -150,7 +152,6 @@ def cmd_search(args: argparse.Namespace) -> ExitCode:
         search_rotations,
         write_best,
     )
-    from schedules import load_schedule
 
     if not 1 <= args.groups <= 32 or not 1 <= args.choose <= args.groups or args.best < 0:
         return fail("bench schedules search", "need 1 <= --choose <= --groups <= 32 and --best >= 0", ExitCode.USAGE)

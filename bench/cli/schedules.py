@@ -27,7 +27,7 @@ _AXIS_TOL = 1e-6  # a frame axis within this of a unit body axis counts as along
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `schedules` command and its subcommands to a `bench` CLI parser."""
     parser = subparsers.add_parser(
-        "schedules", help="list, show, validate, analyze and search calibration schedules; recommend a plan",
+        "schedules",
         description="Calibration schedules: list the built-in ones, show and validate schedule files, analyze "
                     "their sensitivity to the table's pointing error, search for better ones and recommend "
                     "a plan for a time budget and a table.")

@@ -12,8 +12,9 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from bench.cli.chamber import CHAMBER_LISTEN_HELP, apply_chamber_command, listen_chamber
+from bench.cli.chamber import CHAMBER_LISTEN_HELP, apply_chamber_command, listen_chamber, register_sim_chamber
 from bench.cli.common import ExitCode, fail
 from bench.cli.sim_serving import (
     add_idle_timeout_option,
@@ -23,21 +24,18 @@ from bench.cli.sim_serving import (
     run_console,
     run_until_stopped,
 )
-from bench.cli.table import FAULT_HELP, _apply_fault_command, _listen
-from bench.config.load import (
-    BenchConfig,
-    ConfigError,
-    default_sim_config,
-    load_config,
-    load_register_map,
-    parse_config,
-)
+from bench.cli.table import FAULT_HELP, _apply_fault_command, _listen, register_sim_table
+from bench.config.reader import ConfigError
+from bench.config.register_map import load_register_map
 from bench.errors import InputError
 from bench.files import write_output_text
 from bench.model.imu import NoiseModel
 from drivers.chamber import DIALECTS as CHAMBER_DIALECTS
 from drivers.imu import SHIPPED_LAYOUTS
 from drivers.turntable import DIALECTS
+
+if TYPE_CHECKING:
+    from bench.config.load import BenchConfig
 
 PROG = "bench sim rig"
 IMU_LISTEN_HELP = ("slcan (a simulated SLCAN adapter on a new pty: python-can interface slcan), "
@@ -53,8 +51,15 @@ CHAMBER_RIG_HELP = ("  chamber COMMAND: the chamber's console, e.g. chamber alar
                     "(chamber help)")
 
 
+def register_sim(subparsers: argparse._SubParsersAction) -> None:
+    """`bench sim` and its devices, in the order `bench sim --help` lists them: table, rig, chamber."""
+    kinds = register_sim_table(subparsers)
+    register(kinds)
+    register_sim_chamber(kinds)
+
+
 def register(kinds: argparse._SubParsersAction) -> None:
-    """`rig` under `bench sim` (`kinds` is what `bench.cli.table.register_sim` returns)."""
+    """`rig` under `bench sim` (`kinds` is what `bench.cli.table.register_sim_table` returns)."""
     rig = kinds.add_parser(
         "rig", help="serve a whole simulated bench (table and CAN IMU) in wall-clock time until Ctrl-C",
         description="Serve the simulated turntable in a controller dialect and the simulated IMU mounted on it "
@@ -105,7 +110,9 @@ def register(kinds: argparse._SubParsersAction) -> None:
 def _truth_config(args: argparse.Namespace) -> BenchConfig:
     """--config (or the built-in sim configuration) with the flags applied, written out and read back
     through the configuration loader, so the rig's world is exactly what the written file says."""
-    from bench.sim.rig import RigPeer, rig_config_text  # the simulators: only for `bench sim`
+    # heavy (scipy, python-can): the configuration's loader and the simulators load only when one is served
+    from bench.config.load import default_sim_config, load_config, parse_config
+    from bench.sim.rig import RigPeer, rig_config_text
 
     base = load_config(args.config) if args.config else default_sim_config()
     sim, site, imu = base.sim, base.site, base.imu
@@ -147,7 +154,9 @@ def _serve_imu(rig, where: str, idle_timeout_s: float):
 
 
 def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
-    from bench.sim.rig import SimRig, apply_imu_command, rig_config_text  # only for `bench sim`
+    # heavy (scipy, python-can): the configuration's loader and the simulators load only when one is served
+    from bench.config.load import parse_config
+    from bench.sim.rig import SimRig, apply_imu_command, rig_config_text
 
     try:
         config = _truth_config(args)
@@ -180,7 +189,8 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
                   + "".join(f", {k} {v!r}" for k, v in peer.bus_options.items()), flush=True)
         chamber, chamber_url = None, ""
         if chamber_listen:
-            from bench.sim.chamber import SimChamber  # the simulators: only for `bench sim`
+            # heavy (scipy): the simulators load only when one is served
+            from bench.sim.chamber import SimChamber
 
             chamber = SimChamber()
             register_map = config.chamber.register_map if config.chamber is not None else None
@@ -224,4 +234,4 @@ def _console(rig, line: str, apply_imu_command, chamber=None) -> str:
     return _apply_fault_command(rig.controller, line)
 
 
-__all__ = ["cmd_sim_rig", "register"]
+__all__ = ["cmd_sim_rig", "register", "register_sim"]

@@ -75,7 +75,8 @@ def apply_console_line(line: str, faults: Any, device_command: Callable[[str, li
     """One fault-console line: `device_command(cmd, words)` first (None: not one of the device's; a text to
     print, "" for "ok"), then the wire faults on `faults` (a `WireFaults`), `state` and `help`. Returns what
     to print; a typo is an error line, never an exception (it must not stop the simulator)."""
-    from bench.sim.controller import WIRE_FAULTS  # the simulators: only for `bench sim`
+    # heavy (scipy): the simulators load only when one is served
+    from bench.sim.controller import WIRE_FAULTS
 
     words = line.split()
     if not words:

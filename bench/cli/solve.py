@@ -17,13 +17,15 @@ from bench.cli.db import add_db_options, not_recorded_exit, record_outputs
 from bench.cli.solve_archive import add_archive_options, cmd_archive
 from bench.errors import InputError
 from bench.files import write_output_text
+from bench.model.result import CalibrationResult
+from bench.report.facts import lost_samples_note
 
 PROG = "bench solve"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "solve", help="re-solve a calibration from recorded run logs (all of it, a subset, or compare methods)",
+        "solve",
         description="Extract the observations (position means, rest-to-rest turn integrals) from one or more run "
                     "logs of one IMU (a resumed run's earlier logs are read too) and solve; write result JSON and "
                     "report as `bench run` does. Damaged logs are read around the damage and the report lists "
@@ -58,15 +60,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _notes(recorded, run: dict) -> list[str]:
     """The notes of reading the logs, and the samples lost outside every window the solve uses (`run`: its
     result's, `lost_samples_note`)."""
-    from bench.report.facts import lost_samples_note  # the reports' code loads when a solve prints: CLI start-up
-
     lost = lost_samples_note(run)
     return list(recorded.notes) + ([lost] if lost else [])
 
 
 def _solve_thermal(args: argparse.Namespace, recorded) -> ExitCode:
     """A thermal log: every temperature solved again and the model refitted (`bench.jobs.thermal`)."""
-    # imported when the command runs: `bench` starts without the bench core
+    # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
     from bench.jobs.thermal import resolve_thermal
     from bench.solve.methods import SolverError
 
@@ -104,7 +104,7 @@ def _solve_thermal(args: argparse.Namespace, recorded) -> ExitCode:
 
 
 def cmd_solve(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
+    # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
     from bench.jobs.compare import compare, format_comparison, parse_methods
     from bench.jobs.resolve import (
         SolveInputError,
@@ -128,8 +128,6 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
         return fail(PROG, "--json writes the --compare table: give --compare too", ExitCode.USAGE)
     against = None
     if args.against:
-        from bench.model.result import CalibrationResult  # only with --against
-
         if args.compare:
             return fail(PROG, "--against is for the reports of a solve, not for --compare", ExitCode.USAGE)
         try:

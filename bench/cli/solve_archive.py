@@ -19,8 +19,11 @@ import sys
 import time
 from pathlib import Path
 
+from bench import __version__
 from bench.cli.common import ExitCode, add_scheduler_arguments, fail
 from bench.cli.progress import CountProgress
+from bench.errors import BenchError
+from bench.parallel import SchedulerError, check_scheduler, describe
 
 PROG = "bench solve"
 
@@ -37,9 +40,7 @@ def add_archive_options(parser: argparse.ArgumentParser) -> None:
 
 
 def cmd_archive(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core or SQLAlchemy
-    from bench import __version__
-    from bench.errors import BenchError
+    # heavy (scipy, python-can, mcap, matplotlib, SQLAlchemy): imported when the command runs, not for its --help
     from bench.jobs.archive import (
         ArchiveItem,
         distinct_outputs,
@@ -50,7 +51,6 @@ def cmd_archive(args: argparse.Namespace) -> ExitCode:
         same_run_logs,
         solve_archive,
     )
-    from bench.parallel import SchedulerError, check_scheduler, describe
     from bench.records.ingest import import_file, sha256_of
     from bench.records.store import RecordsError, open_records
 

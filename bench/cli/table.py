@@ -13,6 +13,8 @@ import time
 from dataclasses import replace
 from typing import TextIO
 
+import numpy as np
+
 from bench.cli.common import ExitCode, drive_device, fail
 from bench.cli.sim_serving import (
     IDLE_TIMEOUT_S,
@@ -23,8 +25,11 @@ from bench.cli.sim_serving import (
     remote_hosts,
     serve_until_stopped,
 )
-from bench.config.load import ConfigError, load_register_map
+from bench.config.reader import ConfigError
+from bench.config.register_map import load_register_map
 from bench.errors import InputError
+from bench.model.earth import Site
+from bench.model.units import ARCSEC
 from drivers.errors import DeviceConfigError, DeviceError, DeviceLimitError
 from drivers.transport import MODBUS_SCHEMES
 from drivers.turntable import (
@@ -43,7 +48,7 @@ from drivers.turntable.modbus_map import RegisterMap
 
 def register_table(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "table", help="manual control of a turntable: status, enable, goto, rate, stop, abort",
+        "table",
         description="Talk to a turntable controller. Exit codes: 0 done, 2 usage error or demand beyond "
                     "the limits (nothing sent), 3 fault, e-stop, no reply, link failure or interrupted.")
     parser.add_argument("--url", required=True, help="tcp://HOST:PORT, a serial device or pyserial URL, "
@@ -188,9 +193,9 @@ FAULT_HELP = """fault console (one command per line on stdin):
   state | help"""
 
 
-def register_sim(subparsers: argparse._SubParsersAction) -> argparse._SubParsersAction:
+def register_sim_table(subparsers: argparse._SubParsersAction) -> argparse._SubParsersAction:
     """`bench sim` and its `table`; returns the `sim` subcommands for the others (`bench sim rig`)."""
-    sim = subparsers.add_parser("sim", help="serve simulated devices for manual or external testing")
+    sim = subparsers.add_parser("sim")
     kinds = sim.add_subparsers(dest="sim_command", metavar="DEVICE", required=True)
     table = kinds.add_parser(
         "table", help="serve the simulated turntable in a controller dialect until Ctrl-C, SIGTERM or SIGHUP",
@@ -247,7 +252,8 @@ def _listen(controller, dialect: str, where: str, closers: list, register_map=No
     (None: the default map); `framing`: the acutrol simulator's ('tcp' framed responses, 'gpib' query answers);
     `idle_timeout_s`: a TCP connection silent that long is closed."""
     if dialect == "modbus":
-        from bench.sim.modbus_server import ModbusSimServer  # pymodbus: only for the Modbus simulator
+        # heavy (scipy, pymodbus): the simulators load only when one is served
+        from bench.sim.modbus_server import ModbusSimServer
 
         modbus = ModbusSimServer(controller, register_map, idle_timeout_s=idle_timeout_s)
         closers.append(modbus.close)
@@ -256,20 +262,23 @@ def _listen(controller, dialect: str, where: str, closers: list, register_map=No
         host, port = host_port(where, "modbus+tcp", "the modbus simulator listens on modbus+tcp://HOST:PORT or pty")
         host, port = modbus.start_tcp(host, port)
         return f"modbus+tcp://{host}:{port}"
-    # the simulators load only for `bench sim` (the Modbus one imports pymodbus)
+    # heavy (scipy): the simulators load only when one is served
     from bench.sim.serve import Handler, LineServer
 
     handler: Handler
     if dialect == "acutrol":
-        from bench.sim.acutrol_server import AcutrolSimHandler  # the simulators: only for `bench sim`
+        # heavy (scipy): the simulators load only when one is served
+        from bench.sim.acutrol_server import AcutrolSimHandler
 
         handler = AcutrolSimHandler(controller, framing)
     elif dialect == "scpi":
-        from bench.sim.scpi_server import ScpiSimHandler  # the simulators: only for `bench sim`
+        # heavy (scipy): the simulators load only when one is served
+        from bench.sim.scpi_server import ScpiSimHandler
 
         handler = ScpiSimHandler(controller)
     else:
-        from bench.sim.mn_server import MnSimHandler  # the simulators: only for `bench sim`
+        # heavy (scipy): the simulators load only when one is served
+        from bench.sim.mn_server import MnSimHandler
 
         handler = MnSimHandler(controller)
     server = LineServer(handler, idle_timeout_s=idle_timeout_s)
@@ -282,11 +291,7 @@ def _listen(controller, dialect: str, where: str, closers: list, register_map=No
 
 
 def cmd_sim_table(args: argparse.Namespace) -> ExitCode:
-    # the simulators load only for `bench sim`
-    import numpy as np
-
-    from bench.model.earth import Site
-    from bench.model.units import ARCSEC
+    # heavy (scipy): the simulators load only when one is served
     from bench.sim.controller import SimController
     from bench.sim.table import SimTable
 

@@ -12,10 +12,12 @@ error, a configuration or a result that cannot be used.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import time
 from pathlib import Path
 
+from bench.calibration.compensation import load_result
 from bench.cli.common import ExitCode, fail, number_type
 from bench.errors import InputError
 
@@ -35,7 +37,7 @@ def _temperatures(text: str) -> list[float]:
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "thermal", help="calibration over temperature: per-coefficient polynomials in the IMU's temperature",
+        "thermal",
         description="Fit every coefficient against the IMU's temperature (a polynomial of degree 0..3 chosen by the "
                     "data, with its covariance and band) from calibrations at several temperatures: simulated "
                     "(sim) or result files (fit). Writes thermal.json, thermal.md and thermal.html; `bench export "
@@ -93,7 +95,7 @@ def _summary(model) -> list[str]:
 
 
 def _write(model, out: Path, quiet: bool) -> None:
-    # imported when the command runs: matplotlib is heavy
+    # heavy (scipy, python-can, matplotlib): imported when the command runs, not for its --help
     from bench.report.thermal import write_thermal_reports
 
     path = out / "thermal.json"
@@ -105,9 +107,7 @@ def _write(model, out: Path, quiet: bool) -> None:
 
 
 def cmd_thermal_sim(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
-    import dataclasses
-
+    # heavy (scipy, python-can): imported when the command runs, not for its --help
     from bench.config.load import default_sim_config, load_config
     from bench.thermal.simulate import DEMO_THERMAL, simulate_thermal
 
@@ -164,8 +164,7 @@ def _split(text: str) -> tuple[str, float | None]:
 
 
 def cmd_thermal_fit(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
-    from bench.calibration.compensation import load_result
+    # heavy (scipy): imported when the command runs, not for its --help
     from bench.thermal.model import fit_thermal_model, point_from_result
 
     points = []
@@ -186,7 +185,7 @@ def cmd_thermal_fit(args: argparse.Namespace) -> ExitCode:
 
 
 def cmd_thermal_eval(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
+    # heavy (scipy): imported when the command runs, not for its --help
     from bench.thermal.model import ThermalModel
 
     try:

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 from bench.cli.common import ExitCode, fail, speed_factor
 from bench.errors import BenchError
+from bench.tui import create_app
 
 if TYPE_CHECKING:
     from bench.tui.app import BenchApp
@@ -29,7 +30,7 @@ NO_TERMINAL = "needs a terminal (stdin and stdout must be one); for an unattende
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "tui", help="the lab-operator terminal UI (live table, IMU, plan, events, results)",
+        "tui",
         description="Interactive operator screen: connect, go to positions, start/pause/resume/abort the plan, "
                     "emergency stop (F12, on every screen). Runs record and solve exactly like `bench run`.")
     parser.add_argument("--config", metavar="FILE", help="bench configuration (see bench.example.toml)")
@@ -45,9 +46,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def cmd_tui(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: Textual and the bench core load only for `bench tui`
+    # heavy (scipy, python-can): imported when the command runs, not for its --help
     from bench.config.load import default_sim_config, load_config
-    from bench.tui import create_app
 
     if args.replay:
         if args.config or args.sim:
@@ -81,7 +81,7 @@ def exit_status(app: BenchApp) -> ExitCode:
     """What `bench tui` says and returns once the live app has ended: the last run's log (one line) and
     its exit code (`ExitCode`: 0 done or no run, 4 quality check failed or not solvable, 3 aborted or
     failed with the table stopped, 3 after a stop signal)."""
-    # imported when the command runs: `bench` starts without the bench core
+    # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
     from bench.tui.session import END_DONE, END_QUALITY, END_UNSOLVED
 
     session = app.session
@@ -118,9 +118,6 @@ def _say(line: str) -> None:
 
 
 def _replay(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
-    from bench.tui import create_app
-
     try:
         app = create_app(replay=args.replay, speed=args.speed if args.speed is not None else 1.0)
     except (BenchError, OSError) as exc:

@@ -19,7 +19,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from bench.acceptance.limits import BEYOND_FAIL
+from bench.acceptance.verdict import Verdict
+from bench.calibration.compensation import compensation_of, load_result
 from bench.cli.common import ExitCode, ended_early, fail, raise_interrupted, run_plan, stop_signals
+from bench.errors import InputError
 
 if TYPE_CHECKING:
     from bench.acceptance.verdict import Check
@@ -32,7 +36,7 @@ PROG = "bench verify"
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "verify", help="check a calibration on a verification plan the fit did not use",
+        "verify",
         description="Run the verification plan ([plan] verification, default verify-default: positions at 45 deg "
                     "tilts, turns at three rates both ways), compensate it with the calibration and report the "
                     "errors (gyro bias deg/h, scale factor ppm per rate, misalignment arcsec, accelerometer bias ug, "
@@ -63,10 +67,7 @@ def run_verification(config: BenchConfig, calibration: CalibrationResult, *, cal
                      operator: str = "") -> tuple[ExitCode | None, VerifyOutcome | None]:
     """Run the verification plan and check `calibration` on it: (an exit code after one line when it could not
     be done, None) or (None, the outcome)."""
-    # imported when the command runs: `bench` starts without the bench core
-    from bench.acceptance.limits import BEYOND_FAIL
-    from bench.calibration.compensation import compensation_of
-    from bench.errors import InputError
+    # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
     from bench.run.runner import BenchRun
     from bench.solve.inputs import budget_inputs
     from bench.verify.errors import verify_extraction
@@ -117,11 +118,8 @@ def run_verification(config: BenchConfig, calibration: CalibrationResult, *, cal
 
 
 def cmd_verify(args: argparse.Namespace) -> ExitCode:
-    # imported when the command runs: `bench` starts without the bench core
-    from bench.acceptance.verdict import Verdict
-    from bench.calibration.compensation import load_result
+    # heavy (scipy, python-can): imported when the command runs, not for its --help
     from bench.config.load import ConfigError, default_sim_config, load_config
-    from bench.errors import InputError
     from bench.verify.plan import format_errors
 
     if not args.config and not args.sim:
