@@ -14,8 +14,8 @@ import threading
 import numpy as np
 import pytest
 
+from bench.log.events import RunState, make_event
 from bench.log.reader import read_log
-from bench.plan.events import Event, RunState
 from bench.run.runner import compile_from_config
 from bench.tui.buffer import (
     STEP_ABORTED,
@@ -70,11 +70,11 @@ def test_buffer_step_states_progress_and_countdown(tmp_path):
     steps = plan.steps
     buf = UiBuffer(steps)
     dwell = next(s for s in steps if s.kind == "dwell")
-    buf.on_event(Event(0.0, "transition", "run started", state="running", data={"from": "idle"}))
+    buf.on_event(make_event(0.0, "transition", "run started", state="running", data={"from": "idle"}))
     for s in steps[:dwell.index]:
-        buf.on_event(Event(1.0, "step_started", "", step_index=s.index, step_unit=s.unit))
-        buf.on_event(Event(2.0, "step_finished", "", step_index=s.index, step_unit=s.unit))
-    buf.on_event(Event(10.0, "step_started", "", step_index=dwell.index, step_unit=dwell.unit))
+        buf.on_event(make_event(1.0, "step_started", "", step_index=s.index, step_unit=s.unit))
+        buf.on_event(make_event(2.0, "step_finished", "", step_index=s.index, step_unit=s.unit))
+    buf.on_event(make_event(10.0, "step_started", "", step_index=dwell.index, step_unit=dwell.unit))
     buf.on_table_state(_state(11.0))
     s = buf.snapshot()
     assert s.run_state is RunState.RUNNING
@@ -85,9 +85,9 @@ def test_buffer_step_states_progress_and_countdown(tmp_path):
     done = sum(x.estimated_s for x in steps[:dwell.index]) + 1.0
     assert p.fraction == pytest.approx(done / plan.estimated_total_s)
     assert p.remaining_s == pytest.approx(plan.estimated_total_s - done)
-    buf.on_event(Event(12.0, "fault", "TurntableLimitError", step_index=dwell.index, step_unit=dwell.unit))
-    buf.on_event(Event(12.0, "transition", "stop", state="aborting", data={"from": "running"}))
-    buf.on_event(Event(13.0, "transition", "ended", state="failed", data={"from": "aborting"}))
+    buf.on_event(make_event(12.0, "fault", "TurntableLimitError", step_index=dwell.index, step_unit=dwell.unit))
+    buf.on_event(make_event(12.0, "transition", "stop", state="aborting", data={"from": "running"}))
+    buf.on_event(make_event(13.0, "transition", "ended", state="failed", data={"from": "aborting"}))
     s = buf.snapshot()
     assert s.run_state is RunState.FAILED and s.step_states[dwell.index] == STEP_FAILED
     assert s.current_step is None and s.event_count == 2 * dwell.index + 5
@@ -102,12 +102,13 @@ def test_buffer_tells_an_aborted_run_from_a_failed_one(tmp_path):
     steps = compile_from_config(make_config(tmp_path)).steps
     for fault, shown, step_shown in ((False, "aborted", STEP_ABORTED), (True, "failed", STEP_FAILED)):
         buf = UiBuffer(steps)
-        buf.on_event(Event(0.0, "transition", "run started", state="running", data={"from": "idle"}))
-        buf.on_event(Event(1.0, "step_started", "", step_index=0, step_unit=steps[0].unit))
+        buf.on_event(make_event(0.0, "transition", "run started", state="running", data={"from": "idle"}))
+        buf.on_event(make_event(1.0, "step_started", "", step_index=0, step_unit=steps[0].unit))
         if fault:
-            buf.on_event(Event(2.0, "fault", "TurntableLimitError: limit", step_index=0, step_unit=steps[0].unit))
-        buf.on_event(Event(2.0, "transition", "aborted by the operator", state="aborting", data={"from": "running"}))
-        buf.on_event(Event(3.0, "transition", "run ended early", state="failed", data={"from": "aborting"}))
+            buf.on_event(make_event(2.0, "fault", "TurntableLimitError: limit", step_index=0, step_unit=steps[0].unit))
+        buf.on_event(make_event(2.0, "transition", "aborted by the operator", state="aborting",
+                                data={"from": "running"}))
+        buf.on_event(make_event(3.0, "transition", "run ended early", state="failed", data={"from": "aborting"}))
         s = buf.snapshot()
         assert s.run_state is RunState.FAILED and s.run_state_text == shown and s.step_states[0] == step_shown
         buf.begin_run(steps)
@@ -163,7 +164,7 @@ def test_event_log_shows_an_event_added_between_snapshot_and_draw_once(tmp_path)
         async with app.run_test(size=SIZE) as pilot:
             buf = app.buffer
             real_snapshot = buf.snapshot
-            late = [Event(1.0, "step_finished", "P01 move done in 0.0 s", step_index=0, step_unit="P01")]
+            late = [make_event(1.0, "step_finished", "P01 move done in 0.0 s", step_index=0, step_unit="P01")]
 
             def snapshot_then_an_event():
                 s = real_snapshot()
@@ -171,7 +172,7 @@ def test_event_log_shows_an_event_added_between_snapshot_and_draw_once(tmp_path)
                     buf.on_event(late.pop())         # what the run's thread does between the two calls
                 return s
             buf.snapshot = snapshot_then_an_event
-            buf.on_event(Event(0.0, "transition", "run started: 3 steps", state="running", data={"from": "idle"}))
+            buf.on_event(make_event(0.0, "transition", "run started: 3 steps", state="running", data={"from": "idle"}))
             for _ in range(3):
                 app.refresh_panels()
                 await pilot.pause(0.05)
@@ -192,11 +193,12 @@ def test_event_log_times_count_from_the_run_start_not_the_machines_uptime(tmp_pa
         app = make_app(tmp_path, auto_connect=False, refresh_hz=1.0, wall_clock=lambda: wall_s)
         async with app.run_test(size=SIZE) as pilot:
             buf = app.buffer
-            buf.on_event(Event(3230.0, "info", "connected (scpi at tcp://lab:5025)"))
-            buf.on_event(Event(3290.0, "transition", "run started: 3 steps", state="running", data={"from": "idle"}))
-            buf.on_event(Event(3305.0, "transition", "paused", state="paused", data={"from": "running"}))
-            buf.on_event(Event(3320.0, "transition", "resumed", state="running", data={"from": "paused"}))
-            buf.on_event(Event(3351.0, "step_finished", "P01 move done in 2.0 s", step_index=0, step_unit="P01"))
+            buf.on_event(make_event(3230.0, "info", "connected (scpi at tcp://lab:5025)"))
+            buf.on_event(make_event(3290.0, "transition", "run started: 3 steps", state="running",
+                                    data={"from": "idle"}))
+            buf.on_event(make_event(3305.0, "transition", "paused", state="paused", data={"from": "running"}))
+            buf.on_event(make_event(3320.0, "transition", "resumed", state="running", data={"from": "paused"}))
+            buf.on_event(make_event(3351.0, "step_finished", "P01 move done in 2.0 s", step_index=0, step_unit="P01"))
             app.refresh_panels()
             await pilot.pause(0.05)
             text = events_text(app)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from bench.plan.events import RunState
+from bench.log.events import RunState
 from bench.tui.buffer import STEP_DONE
 from tests.helpers.run import config_text
 from tests.helpers.tui import SIZE, events_text, press, run, snap, wait_until

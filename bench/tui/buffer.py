@@ -17,10 +17,22 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from bench.log.events import (
+    Event,
+    Fault,
+    Info,
+    RunListener,
+    RunState,
+    SoakStatus,
+    StepFinished,
+    StepSkipped,
+    StepStarted,
+    Transition,
+    make_event,
+)
 from bench.model.kinematics import triple
 from bench.model.result import CalibrationResult
 from bench.model.units import DEG, G0
-from bench.plan.events import Event, RunListener, RunState
 from drivers.chamber import ChamberState
 from drivers.imu import ImuStats
 from drivers.turntable import TableState
@@ -96,7 +108,7 @@ class UiSnapshot:
     outcome_text: str = ""
     aborted: bool = False                  # the run went to `aborting` on request, with no fault before it
     chamber_state: ChamberState | None = None   # the last polled chamber state (a thermal plan's runs)
-    #: the current (or last) soak's state: `bench.run.soak.SoakStatus.as_dict()` with `time_s`, `done` and the
+    #: the current (or last) soak's state: `bench.log.events.SoakStatus.as_dict()` with `time_s`, `done` and the
     #: soak step's `step_index`; from the sequencer's checks, else (a replay) its decision events
     soak: dict | None = None
 
@@ -173,7 +185,7 @@ class UiBuffer(RunListener):
         on the run's clock."""
         with self._lock:
             t = self._run_time_s if self._run_time_s is not None else 0.0
-            self._add_event(Event(t, kind, message, data=data))
+            self._add_event(make_event(t, kind, message, data=data))
 
     def set_outcome(self, result: CalibrationResult | None = None, text: str = "") -> None:
         """The finished run's result (a CalibrationResult, or None) and a one-line account."""
@@ -185,14 +197,13 @@ class UiBuffer(RunListener):
         """Keep `event` as a `LogLine` (lock held): a run's lines from its start transition (a transition to
         running from idle; a resume is not a start) to its end (done or failed) count from that start, the
         others are the session's."""
-        if event.kind == "transition" and event.state == RunState.RUNNING.value \
-                and (event.data or {}).get("from") == RunState.IDLE.value:
+        if isinstance(event, Transition) and event.to(RunState.RUNNING) and event.previous == RunState.IDLE.value:
             self._run_origin_s, self._run_elapsed_s = event.time_s, 0.0
         elapsed = None
         if self._run_origin_s is not None:
             # a line of the run: monotonic (a note takes the latest time seen, which an event may trail)
             elapsed = self._run_elapsed_s = max(self._run_elapsed_s, event.time_s - self._run_origin_s)
-            if event.kind == "transition" and event.state in (RunState.DONE.value, RunState.FAILED.value):
+            if isinstance(event, Transition) and event.to(RunState.DONE, RunState.FAILED):
                 self._run_origin_s = None            # the run's last line
         self._event_count += 1
         self._events.append((self._event_count, LogLine(event, elapsed, self.wall_clock())))
@@ -204,9 +215,9 @@ class UiBuffer(RunListener):
             self._run_time_s = event.time_s
             index = event.step_index
             k = index if index is not None and 0 <= index < len(self._step_states) else None  # None: no valid step
-            if event.kind == "fault":
+            if isinstance(event, Fault):
                 self._fault_seen = True
-            if event.kind == "transition" and event.state is not None:
+            if isinstance(event, Transition) and event.state is not None:
                 self._run_state = RunState(event.state)
                 if self._run_state is RunState.ABORTING and not self._fault_seen:
                     self._aborted = True        # the sequencer emits a fault before an abort it was not asked for
@@ -218,28 +229,26 @@ class UiBuffer(RunListener):
                         step_s = self.steps[self._current].estimated_s
                         self._done_estimated += min(max(0.0, latest_s - self._current_started), step_s)
                     self._current = None
-            elif event.kind == "step_started" and k is not None:
+            elif isinstance(event, StepStarted) and k is not None:
                 self._step_states[k] = STEP_RUNNING
                 self._current, self._current_started = k, event.time_s
-            elif event.kind in ("step_finished", "step_skipped") and k is not None:
-                self._step_states[k] = STEP_DONE if event.kind == "step_finished" else STEP_SKIPPED
+            elif isinstance(event, (StepFinished, StepSkipped)) and k is not None:
+                self._step_states[k] = STEP_DONE if isinstance(event, StepFinished) else STEP_SKIPPED
                 self._done_estimated += self.steps[k].estimated_s
                 if self._current == k:
                     self._current = None
-            elif event.kind == "fault" and k is not None:
+            elif isinstance(event, Fault) and k is not None:
                 self._step_states[k] = STEP_FAILED
-            if event.kind == "step_started" and k is not None and self.steps[k].kind == "soak":
+            if isinstance(event, StepStarted) and k is not None and self.steps[k].kind == "soak":
                 self._soak = None                # a new soak: nothing known of it yet
-            elif event.kind == "info" and "soak" in event.data and k is not None:
-                self._set_soak(event.time_s, k, event.data)
+            elif isinstance(event, Info) and event.soak is not None and k is not None:
+                self._set_soak(event.soak, k)
 
-    def _set_soak(self, time_s: float, step_index: int | None, data: dict) -> None:
+    def _set_soak(self, status: SoakStatus, step_index: int | None) -> None:
         """Keep a soak state (lock held); a decision event older than the last check changes nothing."""
-        if self._soak is not None and self._soak["time_s"] > time_s:
+        if self._soak is not None and self._soak["time_s"] > status.time_s:
             return
-        keys = ("imu_temperature_c", "rate_c_per_min", "chamber_c", "chamber_at_setpoint", "steady_for_s")
-        self._soak = {**{key: data.get(key) for key in keys}, "time_s": time_s,
-                      "done": bool(data.get("done", data.get("soak") == "done")),
+        self._soak = {**status.as_dict(), "time_s": status.time_s, "done": status.done,
                       "step_index": step_index if step_index is not None else self._current}
 
     def on_chamber_state(self, state: ChamberState) -> None:
@@ -247,9 +256,9 @@ class UiBuffer(RunListener):
             self._chamber_state = state
             self._run_time_s = state.time_s
 
-    def on_soak_status(self, status) -> None:
+    def on_soak_status(self, status: SoakStatus) -> None:
         with self._lock:
-            self._set_soak(status.time_s, self._current, {**status.as_dict(), "done": status.done})
+            self._set_soak(status, self._current)
 
     def on_table_state(self, state: TableState) -> None:
         with self._lock:

@@ -21,10 +21,10 @@ from textual.widget import Widget
 from textual.widgets import DataTable, Label, ProgressBar, RichLog, Static
 
 from bench.acceptance.verdict import stored_headline
+from bench.log.events import RunState, StepStarted
 from bench.model.families import family_of
 from bench.model.kinematics import FRAMES
 from bench.model.units import format_hms
-from bench.plan.events import RunState
 from bench.plan.steps import thermal_block
 from bench.report.facts import turn_angle_missing
 from bench.tui.buffer import (
@@ -472,7 +472,7 @@ class EventLog(RichLog):
         pal = palette(self.app)
         for line in lines:
             e = line.event
-            if e.kind == "step_started":
+            if isinstance(e, StepStarted):
                 continue                 # the plan panel shows the running step
             text = f"[{log_time(line)}] {e.kind}: {e.message}"
             self.plain_lines.append(text)

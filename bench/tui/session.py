@@ -30,7 +30,7 @@ from typing import Callable, Sequence
 
 from bench.config.load import SIM_CONFIG_TOML
 from bench.errors import BenchError
-from bench.plan.events import RunState
+from bench.log.events import RunState
 from bench.run.runner import BenchRun, RunOutcome
 from bench.run.sequencer import RunAborted
 from bench.sim.world import PumpedReceiver
