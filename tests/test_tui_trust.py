@@ -20,7 +20,7 @@ import pytest
 from bench.log.events import RunState, make_event
 from bench.model.result import CalibrationResult, coefficient_table
 from bench.run.runner import compile_from_config
-from bench.tui.buffer import STALE_AFTER_S, STEP_DONE, UiBuffer, progress
+from bench.tui.buffer import STALE_AFTER_S, StepState, UiBuffer, progress
 from bench.tui.panels import TRACE_LEVELS, log_time, trace_levels
 from drivers.imu import ImuSampleBlock
 from tests.helpers.run import REPO, config_text
@@ -118,7 +118,7 @@ def test_a_paused_run_shows_its_imu_values_as_stale(tmp_path):
         async with app.run_test(size=SIZE) as pilot:
             await connected(pilot)
             await start_plan(pilot)
-            await wait_until(pilot, lambda: snap(app).step_states.count(STEP_DONE) >= 1, "a step done")
+            await wait_until(pilot, lambda: snap(app).step_states.count(StepState.DONE) >= 1, "a step done")
             await press(pilot, "p")
             await wait_until(pilot, lambda: snap(app).run_state is RunState.PAUSED, "the pause")
 
@@ -212,7 +212,7 @@ def test_an_aborted_run_says_how_to_continue_it_and_the_command_works(tmp_path, 
         async with app.run_test(size=SIZE) as pilot:
             await connected(pilot)
             await start_plan(pilot)
-            await wait_until(pilot, lambda: snap(app).step_states.count(STEP_DONE) >= 4, "a unit done")
+            await wait_until(pilot, lambda: snap(app).step_states.count(StepState.DONE) >= 4, "a unit done")
             await press(pilot, "a")
             await dialog_open(pilot, "ConfirmScreen", "#yes")
             await press(pilot, "y")

@@ -23,6 +23,8 @@ from typing import TYPE_CHECKING, Any, ClassVar, Sequence
 
 from bench.model.kinematics import FRAMES
 from bench.model.observations import DIRECTION_SIGN
+from bench.plan.steps import OBSERVATION_KINDS
+from schedules.loader import Direction, Frame
 
 if TYPE_CHECKING:   # types only: the log layer does not import the drivers or python-can at run time
     import can
@@ -55,8 +57,6 @@ class EventKind(enum.StrEnum):
 
 #: Event kinds: a state transition, step boundaries, and things worth a line in the log.
 EVENT_KINDS = tuple(k.value for k in EventKind)
-#: the step kinds whose finished event carries an IMU counter window the solvers use
-OBSERVATION_STEP_KINDS = ("dwell", "turn")
 
 
 @dataclass(frozen=True)
@@ -176,7 +176,7 @@ class StepEvent(Event):
     @property
     def observation(self) -> bool:
         """Whether the step is a dwell or a turn (its record says so)."""
-        return self.step_kind in OBSERVATION_STEP_KINDS
+        return self.step_kind in OBSERVATION_KINDS
 
     def _data(self) -> dict[str, Any]:
         return {} if self.step is None else {"step": self.step}
@@ -220,8 +220,8 @@ class TurnRecord:
 
     start_deg: tuple[float, float, float]
     target_deg: tuple[float, float, float]
-    frame: str
-    direction: str
+    frame: Frame
+    direction: Direction
     revolutions: int
 
 
@@ -372,7 +372,7 @@ def _step_finished(time_s, message, state, step_index, step_unit, data) -> Event
     step = data.get("step")
     record = step if isinstance(step, dict) else None
     window, malformed = None, None
-    if "counter_first" in data and (record is None or record.get("kind") in OBSERVATION_STEP_KINDS):
+    if "counter_first" in data and (record is None or record.get("kind") in OBSERVATION_KINDS):
         first, last = data.get("counter_first"), data.get("counter_last")
         if record is None:
             malformed = "its step record is not an object"

@@ -8,6 +8,7 @@ second: high-rate IMU data never becomes one UI message per sample.
 
 from __future__ import annotations
 
+import enum
 import math
 import threading
 import time
@@ -48,9 +49,20 @@ MEAN_WINDOW_S = 1.0
 #: (the idle monitor's poll; a run drains the receiver continuously), so 3 s without one is no jitter.
 STALE_AFTER_S = 3.0
 
-STEP_PENDING, STEP_RUNNING, STEP_DONE, STEP_SKIPPED, STEP_FAILED = "pending", "running", "done", "skipped", "failed"
-#: the step under way when the operator aborted the run (an abort request, not a fault)
-STEP_ABORTED = "aborted"
+
+
+class StepState(enum.StrEnum):
+    """Where a step of the plan stands, as the plan panel shows it."""
+
+    PENDING = "pending"
+    RUNNING = "running"
+    DONE = "done"
+    SKIPPED = "skipped"
+    FAILED = "failed"
+    #: the step under way when the operator aborted the run (an abort request, not a fault)
+    ABORTED = "aborted"
+
+
 #: what the TUI calls a run that failed because it was aborted on request (operator, e-stop, quit): the
 #: sequencer's state is `failed` either way; the log tells them apart (a fault event comes before a failure)
 RUN_ABORTED = "aborted"
@@ -99,7 +111,7 @@ class UiSnapshot:
     table_state: TableState | None
     table_states: int
     imu: ImuView
-    step_states: tuple[str, ...]
+    step_states: tuple[StepState, ...]
     current_step: int | None
     current_started_s: float | None
     done_estimated_s: float
@@ -165,7 +177,7 @@ class UiBuffer(RunListener):
         """Forget the previous run's step states, progress and result; keep table/IMU/log."""
         with self._lock:
             self.steps = tuple(steps)
-            self._step_states = [STEP_PENDING] * len(self.steps)
+            self._step_states = [StepState.PENDING] * len(self.steps)
             self._current: int | None = None
             self._current_started: float | None = None
             self._done_estimated = 0.0
@@ -222,7 +234,7 @@ class UiBuffer(RunListener):
                 if self._run_state is RunState.ABORTING and not self._fault_seen:
                     self._aborted = True        # the sequencer emits a fault before an abort it was not asked for
                 if self._run_state is RunState.FAILED and self._current is not None:
-                    self._step_states[self._current] = STEP_ABORTED if self._aborted else STEP_FAILED
+                    self._step_states[self._current] = StepState.ABORTED if self._aborted else StepState.FAILED
                     # the part of the step done before the end stays done: the progress never goes back
                     # (it counted min(elapsed, estimate) while the step ran, and the time only goes on)
                     if self._current_started is not None:
@@ -230,15 +242,15 @@ class UiBuffer(RunListener):
                         self._done_estimated += min(max(0.0, latest_s - self._current_started), step_s)
                     self._current = None
             elif isinstance(event, StepStarted) and k is not None:
-                self._step_states[k] = STEP_RUNNING
+                self._step_states[k] = StepState.RUNNING
                 self._current, self._current_started = k, event.time_s
             elif isinstance(event, (StepFinished, StepSkipped)) and k is not None:
-                self._step_states[k] = STEP_DONE if isinstance(event, StepFinished) else STEP_SKIPPED
+                self._step_states[k] = StepState.DONE if isinstance(event, StepFinished) else StepState.SKIPPED
                 self._done_estimated += self.steps[k].estimated_s
                 if self._current == k:
                     self._current = None
             elif isinstance(event, Fault) and k is not None:
-                self._step_states[k] = STEP_FAILED
+                self._step_states[k] = StepState.FAILED
             if isinstance(event, StepStarted) and k is not None and self.steps[k].kind == "soak":
                 self._soak = None                # a new soak: nothing known of it yet
             elif isinstance(event, Info) and event.soak is not None and k is not None:

@@ -30,12 +30,9 @@ from bench.report.facts import turn_angle_missing
 from bench.tui.buffer import (
     CHANNELS,
     MEAN_WINDOW_S,
-    STEP_ABORTED,
-    STEP_DONE,
-    STEP_FAILED,
-    STEP_RUNNING,
     ImuScales,
     LogLine,
+    StepState,
     UiSnapshot,
     progress,
 )
@@ -289,9 +286,9 @@ def describe_step(step) -> str:
     return ""
 
 
-def state_style(state: str, pal: Palette) -> str:
-    return {STEP_RUNNING: f"bold {pal.warn}", STEP_DONE: pal.ok, STEP_FAILED: f"bold {pal.error}",
-            STEP_ABORTED: f"bold {pal.warn}"}.get(state, "dim")
+def state_style(state: StepState, pal: Palette) -> str:
+    return {StepState.RUNNING: f"bold {pal.warn}", StepState.DONE: pal.ok, StepState.FAILED: f"bold {pal.error}",
+            StepState.ABORTED: f"bold {pal.warn}"}.get(state, "dim")
 
 
 class PlanPanel(Vertical):
