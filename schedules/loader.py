@@ -52,6 +52,7 @@ from __future__ import annotations
 import pathlib
 import tomllib
 from dataclasses import dataclass, replace
+from typing import Literal
 
 from schedules.tomlinput import InputLimitError, loads, read_text_file, syntax_error_location
 from schedules.tomllines import LineMap, locate_lines
@@ -59,8 +60,11 @@ from schedules.tomllines import LineMap, locate_lines
 FORMAT = "turntable-bench/schedule"
 VERSION = 1
 KINDS = ("positions", "rotations", "table-check", "static", "verification")
-FRAMES = ("outer", "middle", "inner")
-DIRECTIONS = ("ccw", "cw")
+#: a table frame (axis) by name, and a turn's direction (CCW: a positive right-handed rotation about the frame axis)
+Frame = Literal["outer", "middle", "inner"]
+Direction = Literal["ccw", "cw"]
+FRAMES: tuple[Frame, Frame, Frame] = ("outer", "middle", "inner")
+DIRECTIONS: tuple[Direction, Direction] = ("ccw", "cw")
 
 _REQUIRED_TOP = ("format", "version", "name", "kind", "description")
 _OPTIONAL_TOP = ("source", "position", "rotation")
@@ -86,8 +90,8 @@ class RotationStep:
     """One turn: from `start_deg`, `frame` turns `revolutions` whole turns in `direction`."""
 
     start_deg: tuple[float, float, float]
-    frame: str
-    direction: str
+    frame: Frame
+    direction: Direction
     revolutions: int
     line: int | None = None  # 1-based line of its [[rotation]] header
     rate_dps: float | None = None   # its own turn rate (verification schedules); None: the plan's

@@ -25,8 +25,8 @@ import pytest
 import bench.log.recorder as recorder_module
 import bench.run.runner as runner_module
 from bench.config.load import load_config
+from bench.log.events import RunListener
 from bench.log.reader import read_log
-from bench.plan.events import RunListener
 from bench.run.runner import BenchRun, compile_from_config
 from drivers.turntable import AxisStatus
 from tests.helpers.disk import FillingDisk

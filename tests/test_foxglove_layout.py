@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from bench.log.events import make_event
 from bench.log.format import CHANNELS, SCHEMAS, TF_FRAMES, TOPIC_EVENTS, TOPIC_LOG, TOPIC_TF
 from bench.log.recorder import McapRecorder
-from bench.plan.events import Event
 from drivers.imu import ImuSampleBlock
 from drivers.turntable import AxisMode, AxisState, AxisStatus, TableState
 
@@ -125,7 +125,7 @@ def test_message_paths_resolve_to_numbers_in_a_recorded_log(layout, tmp_path):
     block = ImuSampleBlock(np.arange(5, dtype=np.int64), np.linspace(0.0, 0.04, 5), np.full((5, 3), 0.25),
                            np.full((5, 3), 40.0), np.full(5, 25.0), np.zeros(5, np.int64), 100.0)
     with McapRecorder(str(log)) as recorder:
-        recorder.on_event(Event(0.0, "transition", "run started", "running", data={"from": "idle"}))
+        recorder.on_event(make_event(0.0, "transition", "run started", "running", data={"from": "idle"}))
         recorder.on_table_state(TableState(0.01, axes))
         recorder.on_imu(block)
     by_topic: dict[str, list[dict]] = {}

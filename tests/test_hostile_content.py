@@ -17,9 +17,9 @@ import pytest
 
 from bench.config.load import ConfigError, parse_config
 from bench.files import InputFileError, parse_json
+from bench.log.events import Event
 from bench.log.json_topics import chamber_state_row, event_row, parse_json_rows, utc_text_ok
 from bench.log.reader import read_log
-from bench.plan.events import Event
 from bench.plan.steps import thermal_block
 from bench.thermal.from_log import _setpoints
 from tests.helpers import mcap_surgery as ms

@@ -25,9 +25,9 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from bench.log.events import make_event
 from bench.log.reader import LogError, read_log
 from bench.log.recorder import McapRecorder
-from bench.plan.events import Event
 from drivers.imu import ImuEncoder, decode_frames, default_layout
 from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
 from tests.helpers.mcap_surgery import FORGED, KINDS, mutate
@@ -47,7 +47,7 @@ def _record(path, compression: str) -> bytes:
     clock = _Clock()
     rec = McapRecorder(path, clock=clock, compression=compression,
                        metadata={"run": {"run_id": "fuzz"}, "imu": {"dbc": "imu.dbc", "rate_hz": "1000"}})
-    rec.on_event(Event(0.0, "transition", "start", state="running", data={"from": "idle"}))
+    rec.on_event(make_event(0.0, "transition", "start", state="running", data={"from": "idle"}))
     rng = np.random.default_rng(0)
     for b in range(6):
         counters = np.arange(10 * b, 10 * b + 10)
@@ -61,9 +61,9 @@ def _record(path, compression: str) -> bytes:
         axes = tuple(AxisState(10.0 * b + j, 0.5, AxisMode.POSITION, AxisStatus.ENABLED) for j in range(3))
         rec.on_table_state(TableState(float(times[-1]), axes, ""))
         step = {"kind": "dwell", "angles_deg": [0.0, 90.0, 0.0]}
-        rec.on_event(Event(float(times[0]), "step_started", "dwell", step_index=b, step_unit=f"P{b:02d}",
+        rec.on_event(make_event(float(times[0]), "step_started", "dwell", step_index=b, step_unit=f"P{b:02d}",
                            data={"step": step}))
-        rec.on_event(Event(float(times[-1]), "step_finished", "dwell done", step_index=b, step_unit=f"P{b:02d}",
+        rec.on_event(make_event(float(times[-1]), "step_finished", "dwell done", step_index=b, step_unit=f"P{b:02d}",
                            data={"step": step, "counter_first": int(counters[0]), "counter_last": int(counters[-1])}))
         clock.t += 1.5   # past the chunk interval: every batch ends its chunk
     rec.add_attachment("imu.dbc", "text/plain", b"VERSION \"\"\n")

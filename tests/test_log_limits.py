@@ -340,6 +340,7 @@ def test_honest_chunks_still_read_exactly_as_before(can_chunk, tmp_path):
 def test_a_turn_window_holding_many_or_repeated_table_states_is_integrated_in_bounded_time():
     # A log from outside may hold any number of table states inside a turn's window, in any order: they
     # are taken in time order, once per time, a block of pieces at a time (the same integral).
+    from bench.log.events import TurnRecord
     from bench.model.earth import Site
     from bench.model.motion import Piece
     from bench.model.observations import turn_earth_integral
@@ -347,7 +348,7 @@ def test_a_turn_window_holding_many_or_repeated_table_states_is_integrated_in_bo
     from bench.solve.extract import _turn_earth_integral
 
     site, n = Site(latitude_deg=30.0), 3000
-    step = {"frame": "outer", "start_deg": [0.0, 90.0, 0.0], "target_deg": [360.0, 90.0, 0.0]}
+    step = TurnRecord((0.0, 90.0, 0.0), (360.0, 90.0, 0.0), "outer", "ccw", 1)
     t = np.linspace(0.0, 36.0, n)
     angles = np.zeros((n, 3))
     angles[:, 0] = 10.0 * t
@@ -355,7 +356,7 @@ def test_a_turn_window_holding_many_or_repeated_table_states_is_integrated_in_bo
     theta = (angles[:, 0] - 360.0) * DEG
     pieces = [Piece(float(t[i]), float(theta[i]), float((theta[i + 1] - theta[i]) / (t[i + 1] - t[i])), 0.0)
               for i in range(n - 1)] + [Piece(float(t[-1]), float(theta[-1]), 0.0, 0.0)]
-    one_call = turn_earth_integral(site, step["start_deg"], 0, pieces, 0.0, 36.0)
+    one_call = turn_earth_integral(site, step.start_deg, 0, pieces, 0.0, 36.0)
     blocked = _turn_earth_integral(site, step, 36.0, -1.0, 37.0, t, angles, None)
     np.testing.assert_allclose(blocked, one_call, rtol=1e-12, atol=1e-18)   # its at-rest terms cancel here
     repeated = _turn_earth_integral(site, step, 36.0, -1.0, 37.0, np.concatenate([t] * 20),

@@ -17,10 +17,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from bench.log.events import finished_observation_steps
 from bench.log.format import HEADER_SIZE, LENGTH_OFFSET, TOPIC_CAN
 from bench.log.reader import read_log
 from bench.log.run_info import layout_and_config_from_log
-from bench.solve.extract import finished_observation_steps
 from tests.helpers.mcap_surgery import rewrite
 from tests.helpers.run import cli, config_text, load_json, only_file, record_thermal_run
 
@@ -33,7 +33,7 @@ def _recording(log_path: Path) -> SimpleNamespace:
     setup = layout_and_config_from_log(log)
     samples, stats = log.imu_samples(setup.layout, setup.rate_hz)
     assert stats.lost_samples == 0
-    windows = {unit: (f.data["step"]["kind"], f.data["counter_first"], f.data["counter_last"])
+    windows = {unit: (f.step_kind, f.window.first, f.window.last)
                for unit, (_, f) in finished_observation_steps(log.events).items()}
     return SimpleNamespace(log=log_path, counter=samples.counter.copy(), receive_time_s=samples.receive_time_s.copy(),
                            windows=windows, layout=setup.layout, rate_hz=setup.rate_hz)

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
 import io
 
 from bench.cli.progress import ERASE_TO_END, CountProgress, ProgressPrinter
-from bench.plan.events import Event
+from bench.log.events import Event, make_event
 from bench.plan.steps import DwellStep, MoveStep, SettleStep, TurnStep, step_to_dict
 
 STEPS = (MoveStep(index=0, unit="P01", target_deg=(0.0, 90.0, 90.0), rate_dps=60.0, estimated_s=2.0),
@@ -33,17 +34,17 @@ class WallClock:
 def _step_events(index: int, start_s: float) -> list[Event]:
     step = STEPS[index]
     data = {"step": step_to_dict(step)}
-    return [Event(start_s, "step_started", f"{step.unit} {step.kind}", None, index, step.unit, data),
-            Event(start_s + step.estimated_s, "step_finished", f"{step.unit} {step.kind} done", None, index,
+    return [make_event(start_s, "step_started", f"{step.unit} {step.kind}", None, index, step.unit, data),
+            make_event(start_s + step.estimated_s, "step_finished", f"{step.unit} {step.kind} done", None, index,
                   step.unit, data)]
 
 
 def _whole_run() -> list[Event]:
-    events, t = [Event(0.0, "transition", "run started", "running")], 0.0
+    events, t = [make_event(0.0, "transition", "run started", "running")], 0.0
     for index, step in enumerate(STEPS):
         events += _step_events(index, t)
         t += step.estimated_s
-    return events + [Event(t, "transition", "run done", "done")]
+    return events + [make_event(t, "transition", "run done", "done")]
 
 
 def _feed(printer: ProgressPrinter, events: list[Event]) -> None:
@@ -85,9 +86,9 @@ def test_after_the_run_starts_ending_the_bar_is_not_drawn_again():
     out = io.StringIO()
     printer = ProgressPrinter(STEPS, out, live=True)
     events = _whole_run()[:4] + [
-        Event(3.1, "transition", "interrupted (SIGINT)", "aborting"),
-        Event(3.2, "info", "table stopped and servos off", None),
-        Event(3.3, "transition", "run ended early; table stopped", "failed")]
+        make_event(3.1, "transition", "interrupted (SIGINT)", "aborting"),
+        make_event(3.2, "info", "table stopped and servos off", None),
+        make_event(3.3, "transition", "run ended early; table stopped", "failed")]
     for event in events:
         printer.on_event(event)
     printer.close()
@@ -101,7 +102,7 @@ def test_after_the_run_starts_ending_the_bar_is_not_drawn_again():
 
 def test_quiet_prints_faults_only():
     out = io.StringIO()
-    events = _whole_run()[:3] + [Event(2.0, "fault", "TurntableTimeout: no reply", None, 1, "P01",
+    events = _whole_run()[:3] + [make_event(2.0, "fault", "TurntableTimeout: no reply", None, 1, "P01",
                                        {"error": "TurntableTimeout"})]
     _feed(ProgressPrinter(STEPS, out, quiet=True, live=False), events)
     assert out.getvalue() == "FAULT: TurntableTimeout: no reply\n"
@@ -109,7 +110,7 @@ def test_quiet_prints_faults_only():
 
 def test_skipped_units_of_a_resumed_run_are_one_line_each():
     out = io.StringIO()
-    skipped = [Event(0.0, "step_skipped", f"{s.unit} {s.kind}", None, s.index, s.unit, {}) for s in STEPS[:5]]
+    skipped = [make_event(0.0, "step_skipped", f"{s.unit} {s.kind}", None, s.index, s.unit, {}) for s in STEPS[:5]]
     _feed(ProgressPrinter(STEPS, out, live=False), skipped)
     assert out.getvalue().splitlines() == ["skipped P01 (complete in an earlier log)",
                                            "skipped P02 (complete in an earlier log)",
@@ -129,8 +130,7 @@ def test_close_on_a_stream_whose_reader_went_away_does_not_raise():
 def test_times_are_from_the_runs_start_not_the_machines_uptime():
     """A hardware run's clock is the monotonic clock: its lines said [0:53:50] for the first step."""
     out = io.StringIO()
-    shifted = [Event(e.time_s + 3230.0, e.kind, e.message, e.state, e.step_index, e.step_unit, e.data)
-               for e in _whole_run()]
+    shifted = [dataclasses.replace(e, time_s=e.time_s + 3230.0) for e in _whole_run()]
     _feed(ProgressPrinter(STEPS, out, live=False), shifted)
     lines = out.getvalue().splitlines()
     assert lines[:2] == ["[0:00:00] transition: run started", "[0:00:00] P01 (unit 1 of 3, 0% done)"]

@@ -14,11 +14,11 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
+from bench.log.events import make_event
 from bench.log.format import CAN_ENCODING, CHANNELS, FLAG_ERROR, FLAG_FD, FLAG_REMOTE
 from bench.log.reader import LogError, read_log
 from bench.log.recorder import McapRecorder, RecorderError, frame_quaternions
 from bench.model.kinematics import rot_y, rot_z
-from bench.plan.events import Event
 from drivers.imu import ImuEncoder, decode_frames, default_layout
 from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
 
@@ -77,7 +77,7 @@ def record(path, n_batches=12, clock=None, extras=False, **kwargs) -> Run:
     rec = McapRecorder(path, metadata=metadata, clock=clock or FakeClock(), **kwargs)
     run = Run([], None, [], [], [], rec)
     blocks = []
-    ev = Event(0.0, "transition", "start", state="running", data={"from": "idle"})
+    ev = make_event(0.0, "transition", "start", state="running", data={"from": "idle"})
     rec.on_event(ev)
     run.events.append(ev)
     for b in range(n_batches):
@@ -101,7 +101,7 @@ def record(path, n_batches=12, clock=None, extras=False, **kwargs) -> Run:
         blocks.append(block)
         if b == n_batches // 2:
             for kind in ("step_started", "warning", "fault"):
-                e = Event(float(st_.time_s), kind, f"{kind} at batch {b}", step_index=b, step_unit="P03",
+                e = make_event(float(st_.time_s), kind, f"{kind} at batch {b}", step_index=b, step_unit="P03",
                           data={"step": {"kind": "dwell", "dwell_s": 60.0}, "n": np.int64(3)})
                 rec.on_event(e)
                 run.events.append(e)
@@ -301,7 +301,7 @@ def test_non_finite_values_become_null(tmp_path):
     with McapRecorder(path) as rec:
         axes = tuple(AxisState(math.nan, 0.0, AxisMode.OFF, AxisStatus(0)) for _ in range(3))
         rec.on_table_state(TableState(1.0, axes))
-        rec.on_event(Event(2.0, "info", "odd value", data={"x": math.inf}))
+        rec.on_event(make_event(2.0, "info", "odd value", data={"x": math.inf}))
         msgs, block = make_messages(3)
         block.temperature_c[:] = np.nan
         block.gyro_counts[1, 2] = np.nan
@@ -310,7 +310,7 @@ def test_non_finite_values_become_null(tmp_path):
         for _, channel, msg in make_reader(f).iter_messages():
             json.loads(msg.data, parse_constant=lambda c, channel=channel: pytest.fail(f"{channel.topic}: {c}"))
     log = read_log(path)
-    assert np.isnan(log.table_states.angles_deg).all() and log.events[0].data == {"x": None}
+    assert np.isnan(log.table_states.angles_deg).all() and log.events[0].to_dict()["data"] == {"x": None}
     assert np.isnan(log.imu_records.temperature_c).all() and np.isnan(log.imu_records.gyro_counts[1, 2])
 
 

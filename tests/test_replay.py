@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 from bench.config.load import parse_config
+from bench.log.events import RunListener, StepFinished
 from bench.log.reader import read_log
 from bench.log.replay import replay
 from bench.log.run_info import layout_and_config_from_log, steps_from_log
-from bench.plan.events import RunListener
 from bench.plan.steps import step_from_dict, step_to_dict
 from bench.run.runner import BenchRun, compile_from_config
 from drivers.clock import ManualClock
@@ -128,8 +128,8 @@ def test_replay_delivers_the_live_event_sequence(recorded, replayed):
     capture, stats = replayed
     live = recorded.live.events
     assert len(live) > 100 and stats.events == len(live)
-    assert [(e.kind, e.message, e.step_index, e.time_s, e.data) for e in capture.events] == \
-           [(e.kind, e.message, e.step_index, e.time_s, e.data) for e in live]
+    assert [(e.kind, e.message, e.step_index, e.time_s, e.to_dict()["data"]) for e in capture.events] == \
+           [(e.kind, e.message, e.step_index, e.time_s, e.to_dict()["data"]) for e in live]
     assert capture.events == live     # state and step_unit too
     assert capture.closed == 1
 
@@ -177,8 +177,8 @@ def test_samples_of_a_finished_step_arrive_before_its_event(replayed):
     for kind, item in capture.order:
         if kind == "imu":
             newest = int(item.counter[-1])
-        elif kind == "event" and item.kind == "step_finished" and "counter_last" in item.data:
-            assert newest >= item.data["counter_last"], item
+        elif kind == "event" and isinstance(item, StepFinished) and item.window is not None:
+            assert newest >= item.window.last, item
             checked += 1
     assert checked > 20
 
@@ -436,10 +436,10 @@ def test_cli_reads_the_frames_once_with_or_without_quiet(recorded, monkeypatch):
 def test_a_thermal_runs_chamber_states_are_read_and_replayed_in_log_time_order(thermal_run_log):
     """A thermal run's `/chamber/state` messages come back as `ChamberState`s (every one recorded) and are
     replayed to `on_chamber_state` in log-time order among the table states (they were not read at all)."""
+    from bench.log.events import RunListener
     from bench.log.format import TOPIC_CHAMBER
     from bench.log.reader import read_log
     from bench.log.replay import replay
-    from bench.plan.events import RunListener
 
     log = read_log(str(thermal_run_log))
     states = log.chamber_states

@@ -23,12 +23,12 @@ import pytest
 import bench
 from bench.cli.run import records_line
 from bench.config.load import parse_config
+from bench.log.events import Fault, RunWarning, finished_observation_steps
 from bench.log.reader import read_log
 from bench.model.families import canonical_names, family_of
 from bench.model.imu import default_sim_imu
 from bench.run.runner import BenchRun, compile_from_config
 from bench.run.sequencer import RunAborted
-from bench.solve.extract import finished_observation_steps
 from drivers.errors import TurntableEStop, TurntableFault, TurntableTimeout
 from drivers.imu import DEFAULT_DBC
 from drivers.turntable import AxisStatus
@@ -406,7 +406,7 @@ def test_resume_skips_earlier_log_entries_that_are_not_logs_next_to_it(ideal, tm
 # -- 6. simulated faults -------------------------------------------------------------------------
 
 def _fault_events(log, error: str) -> list:
-    return [e for e in log.events if e.kind == "fault" and e.data.get("error") == error]
+    return [e for e in log.events if isinstance(e, Fault) and e.error == error]
 
 
 def test_estop_mid_move_ends_failed_with_servos_off(tmp_path):
@@ -533,9 +533,9 @@ def test_can_frame_loss_during_a_move_is_counted_logged_and_reported_not_failed(
     assert f"<p>Note: {note}" in only_file(tmp_path / "out", "*.report.html").read_text(encoding="utf-8")
     log_path = only_file(tmp_path / "out", "*.mcap")
     log = read_log(log_path)
-    warnings = [e for e in log.events if e.kind == "warning" and "imu_stats" in e.data]
+    warnings = [e for e in log.events if isinstance(e, RunWarning) and "imu_stats" in e.details]
     assert warnings and warnings[0].step_unit == move.unit
-    assert warnings[-1].data["imu_stats"]["incomplete_samples"] + warnings[-1].data["imu_stats"]["counter_gaps"] \
+    assert warnings[-1].details["imu_stats"]["incomplete_samples"] + warnings[-1].details["imu_stats"]["counter_gaps"] \
         == stats.lost_samples
     _, from_log = log.imu_samples(parse_config(text).imu.layout, 50.0)
     assert from_log.lost_samples == stats.lost_samples     # the raw frames in the log show the same loss
@@ -593,7 +593,7 @@ def test_builtin_schedules_are_attached(tmp_path):
 
 def test_transition_events_carry_the_state_they_left(ideal):
     transitions = [e for e in read_log(ideal.log).events if e.kind == "transition"]
-    assert [(e.data.get("from"), e.state) for e in transitions] == [("idle", "running"), ("running", "done")]
+    assert [(e.previous, e.state) for e in transitions] == [("idle", "running"), ("running", "done")]
 
 
 # -- 8. bad configuration: exit code 2, one line, nothing moves ------------------------------------

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
+from bench.log.events import RunListener, RunState, Transition
 from bench.model.earth import Site
 from bench.model.imu import NoiseModel, default_sim_imu
-from bench.plan.events import RunListener, RunState
 from bench.plan.steps import DwellStep, MoveStep, SettleStep, TurnStep
 from bench.run.sequencer import RunAborted, Sequencer, SequencerError, SequencerOptions
 from bench.sim.world import SimWorld
@@ -49,7 +49,7 @@ class Recorder(RunListener):
         self.frames += len(frames)
 
     def kinds(self):
-        return [(e.kind, e.state or e.step_unit) for e in self.events]
+        return [(e.kind, e.state if isinstance(e, Transition) else e.step_unit) for e in self.events]
 
 
 @pytest.fixture
@@ -80,9 +80,9 @@ def test_a_run_goes_idle_running_done_with_every_step_boundary_as_an_event(bench
     finished = [e.step_index for e in listener.events if e.kind == "step_finished"]
     assert started == finished == list(range(len(STEPS)))
     dwell = next(e for e in listener.events if e.kind == "step_finished" and e.step_index == 2)
-    assert dwell.data["counter_last"] - dwell.data["counter_first"] + 1 == dwell.data["samples"] == 100  # 2 s at 50 Hz
+    assert dwell.window.last - dwell.window.first + 1 == dwell.window.samples == 100  # 2 s at 50 Hz
     turn = seq.windows["R01"]
-    assert turn["samples"] >= 50 * (4.0 + 1.0)             # rest, 360 deg at 90 deg/s, rest
+    assert turn.samples >= 50 * (4.0 + 1.0)             # rest, 360 deg at 90 deg/s, rest
     assert listener.frames == 7 * listener.samples > 0     # every frame reached the listeners
     world = bench[0]
     assert world.controller.state().angles_deg == pytest.approx((0.0, 0.0, -360.0))
@@ -160,7 +160,7 @@ def test_silent_imu_while_recording_is_a_fault_and_a_safe_stop(bench):
     assert seq.run() is RunState.FAILED
     assert isinstance(seq.error, ImuTimeout)
     fault = next(e for e in listener.events if e.kind == "fault")
-    assert fault.data["error"] == "ImuTimeout" and fault.step_unit == "P01"
+    assert fault.error == "ImuTimeout" and fault.step_unit == "P01"
     assert all(not a.enabled for a in world.controller.state().axes)
 
 

@@ -25,9 +25,9 @@ from mcap.stream_reader import StreamReader
 from bench.config.load import parse_config
 from bench.jobs.compare import METHODS
 from bench.jobs.resolve import angle_key
+from bench.log.events import finished_observation_steps
 from bench.log.reader import read_log
 from bench.model.families import canonical_names
-from bench.solve.extract import finished_observation_steps
 from schedules import load_builtin
 from tests.helpers.run import cli, config_text, kill_run_after_units, load_json, only_file
 
@@ -363,7 +363,7 @@ def _expected_loss(original: Path, damaged: Path, lost_chunks: set[int], text: s
     samples = set(log.imu_samples(config.imu.layout, config.imu.rate_hz)[0].counter.tolist())
     surviving = set(broken.imu_samples(config.imu.layout, config.imu.rate_hz)[0].counter.tolist())
     lost_samples = samples - surviving
-    windows = {u: (f.data["step"]["kind"], range(f.data["counter_first"], f.data["counter_last"] + 1))
+    windows = {u: (f.step_kind, range(f.window.first, f.window.last + 1))
                for u, (_, f) in finished_observation_steps(log.events).items()}
     planned = set(windows)
     left_out, degraded = planned - kept, set()

@@ -19,8 +19,8 @@ import bench.config.load as config_load
 import bench.log.recorder as recorder_module
 import bench.run.runner as runner_module
 from bench.config.load import load_config
+from bench.log.events import RunListener
 from bench.log.reader import read_log
-from bench.plan.events import RunListener
 from bench.run.runner import BenchRun, compile_from_config
 from bench.solve.inputs import SolveInputError, check_solvable
 from drivers.errors import TurntableConnectionError

@@ -21,6 +21,7 @@ import pytest
 from mcap.reader import make_reader
 
 from bench.config.load import parse_config
+from bench.log.events import Info, StepFinished
 from bench.log.reader import read_log
 from bench.model.result import CalibrationResult
 from bench.thermal.model import ThermalModel
@@ -94,13 +95,13 @@ def test_the_log_records_the_chamber_state_and_every_soak_decision(thermal_run):
     assert len(states) > 100 and {"temperature_c", "setpoint_c", "running", "alarms"} <= set(states[0])
     assert min(s["temperature_c"] for s in states) < -19.0 and max(s["temperature_c"] for s in states) > 49.0
     events = read_log(str(log_path)).events
-    soaks = [e for e in events if e.kind == "step_finished" and e.data["step"]["kind"] == "soak"]
-    assert [e.data["step"]["setpoint_c"] for e in soaks] == list(TEMPERATURES_C)
+    soaks = [e for e in events if isinstance(e, StepFinished) and e.step_kind == "soak"]
+    assert [e.step["setpoint_c"] for e in soaks] == list(TEMPERATURES_C)
     for e in soaks:
-        assert abs(e.data["rate_c_per_min"]) < 0.1 and e.data["steady_for_s"] >= 180.0
-    decisions = [e.data["soak"] for e in events if e.kind == "info" and "soak" in e.data]
+        assert abs(e.soak.rate_c_per_min) < 0.1 and e.soak.steady_for_s >= 180.0
+    decisions = [e.soak.decision for e in events if isinstance(e, Info) and e.soak is not None]
     assert decisions.count("done") == 4 and decisions.count("imu_settling") >= 4
-    assert events[-2].data.get("chamber") == "made_safe" and "23 degC" in events[-2].message
+    assert events[-2].details.get("chamber") == "made_safe" and "23 degC" in events[-2].message
 
 
 def test_bench_solve_re_solves_every_temperature_and_refits_the_model_as_the_run_did(thermal_run, tmp_path):
@@ -176,8 +177,7 @@ Kg_x = [0.36]
     events = read_log(str(done.log_path)).events
     skipped = {e.step_unit for e in events if e.kind == "step_skipped"}
     assert "T1" in skipped and "T2" not in skipped
-    soaked = [e.data["step"]["setpoint_c"] for e in events if e.kind == "step_finished"
-              and e.data["step"]["kind"] == "soak"]
+    soaked = [e.step["setpoint_c"] for e in events if isinstance(e, StepFinished) and e.step_kind == "soak"]
     assert soaked == [30.0]
 
 
@@ -201,8 +201,8 @@ def test_a_thermal_run_over_the_modbus_rtu_chamber_and_its_re_solve(tmp_path):
         assert run.world.chamber.state().setpoint_c == 23.0            # made safe at the end, over RTU
     assert outcome.error is None and len(outcome.thermal_paths) == 1 and outcome.thermal_model is None
     events = read_log(str(outcome.log_path)).events
-    assert [e.data["soak"] for e in events if e.kind == "info" and "soak" in e.data][-1] == "done"
-    assert events[-2].data.get("chamber") == "made_safe"
+    assert [e.soak.decision for e in events if isinstance(e, Info) and e.soak is not None][-1] == "done"
+    assert events[-2].details.get("chamber") == "made_safe"
     rc, stdout, stderr = cli(["solve", str(outcome.log_path), "--out", str(tmp_path / "solved"), "--no-html"])
     assert rc == 0, stderr
     assert "1 temperature, one calibration each" in stdout and "thermal: " not in stdout

@@ -15,10 +15,10 @@ import threading
 import pytest
 
 from bench.config.load import SIM_CONFIG_TOML, ConfigError, parse_config
+from bench.log.events import Info, RunListener, RunState, StepFinished
 from bench.model.earth import Site
 from bench.model.imu import NoiseModel, default_sim_imu
 from bench.model.thermal import ImuThermal
-from bench.plan.events import RunListener, RunState
 from bench.plan.steps import (
     DwellStep,
     SetTemperatureStep,
@@ -176,7 +176,7 @@ def _soak(make, tau_s: float):
     listener = Listener()
     seq = Sequencer(_soak_steps(), table, imu, world.clock, [listener], OPTIONS, chamber=chamber)
     assert seq.run() is RunState.DONE, seq.error
-    done = next(e for e in listener.events if e.kind == "step_finished" and e.data["step"]["kind"] == "soak")
+    done = next(e for e in listener.events if isinstance(e, StepFinished) and e.step_kind == "soak")
     air_at = next(s.time_s for s in listener.chamber_states if abs(s.temperature_c - 40.0) <= 1.0)
     return world, listener, done, air_at
 
@@ -186,19 +186,20 @@ def test_the_soak_waits_for_the_imu_not_the_chamber(world_with_chamber):
     ends only once the IMU's own temperature has settled (its rate below 0.05 degC/min for 2 min), and
     an IMU that follows the air closely (30 s) is soaked far sooner in the same chamber."""
     world, listener, slow, air_at = _soak(world_with_chamber, 600.0)
-    decisions = [e.data["soak"] for e in listener.events if "soak" in e.data and e.kind == "info"]
+    soak_infos = [e.soak for e in listener.events if isinstance(e, Info) and e.soak is not None]
+    decisions = [s.decision for s in soak_infos]
     assert decisions[:2] == ["chamber_approaching", "imu_settling"] and decisions[-1] == "done"
-    settling_at = next(e.time_s for e in listener.events if e.data.get("soak") == "imu_settling")
+    settling_at = next(s.time_s for s in soak_infos if s.decision == "imu_settling")
     assert settling_at == pytest.approx(air_at, abs=OPTIONS.chamber_poll_s + 1e-6)
     # at the chamber's arrival the IMU was still far from it; at the soak's end it is there
-    imu_at_arrival = next(e.data["imu_temperature_c"] for e in listener.events if e.data.get("soak") == "imu_settling")
+    imu_at_arrival = next(s.imu_temperature_c for s in soak_infos if s.decision == "imu_settling")
     assert 40.0 - imu_at_arrival > 3.0
-    assert slow.data["imu_temperature_c"] == pytest.approx(40.0, abs=0.6)
-    assert abs(slow.data["rate_c_per_min"]) < 0.05 and slow.data["steady_for_s"] >= 120.0
+    assert slow.soak.imu_temperature_c == pytest.approx(40.0, abs=0.6)
+    assert abs(slow.soak.rate_c_per_min) < 0.05 and slow.soak.steady_for_s >= 120.0
     # every check of the soak reached the listeners (the TUI's chamber panel), the last one the decision's
     statuses = listener.soak_statuses
     assert len(statuses) > 100 and [s.time_s for s in statuses] == sorted(s.time_s for s in statuses)
-    assert statuses[-1].done and statuses[-1].as_dict() == {k: slow.data[k] for k in statuses[-1].as_dict()}
+    assert statuses[-1].done and statuses[-1].as_dict() == slow.soak.as_dict()
     slow_after_air = slow.time_s - air_at
     assert slow_after_air > 3 * 600.0 * 0.5        # the IMU's lag, not the air's, set the soak's length
     # the chamber was logged as it went, and made safe at the end of the run
@@ -216,7 +217,7 @@ def test_a_soak_past_its_maximum_is_a_fault_and_the_chamber_is_made_safe(world_w
     seq = Sequencer(_soak_steps(max_soak_s=1200.0), table, imu, world.clock, [listener], OPTIONS, chamber=chamber)
     assert seq.run() is RunState.FAILED and isinstance(seq.error, SoakTimeout)
     assert "did not soak at 40 degC within 20 min" in str(seq.error)
-    made_safe = [e for e in listener.events if e.data.get("chamber") == "made_safe"]
+    made_safe = [e for e in listener.events if e.to_dict()["data"].get("chamber") == "made_safe"]
     assert len(made_safe) == 1 and "setpoint 23 degC (safe setpoint), running" in made_safe[0].message
     assert world.chamber.state().setpoint_c == 23.0
     assert not any(a.enabled for a in table.read_state().axes)        # servos off
@@ -238,9 +239,9 @@ def test_a_chamber_alarm_during_the_run_is_a_fault_the_table_stops_and_the_chamb
     assert seq.run() is RunState.FAILED and isinstance(seq.error, ChamberAlarm)
     assert "door open" in str(seq.error)
     fault = next(e for e in listener.events if e.kind == "fault")
-    assert fault.step_unit == "T1-P01" and fault.data["error"] == "ChamberAlarm"
+    assert fault.step_unit == "T1-P01" and fault.error == "ChamberAlarm"
     # the controller refuses to run with the alarm latched: the safe setpoint fails, the chamber is stopped
-    made_safe = next(e for e in listener.events if e.data.get("chamber") == "made_safe")
+    made_safe = next(e for e in listener.events if e.to_dict()["data"].get("chamber") == "made_safe")
     assert made_safe.message.endswith("stopped") and not world.chamber.state().running
     assert not any(a.enabled for a in table.read_state().axes)
     kinds = [e.kind for e in listener.events]
@@ -258,7 +259,7 @@ def test_a_lost_chamber_link_is_a_fault_and_the_table_still_stops(world_with_cha
     seq = Sequencer(_with_a_dwell(_soak_steps(stable_s=60.0)), table, imu, world.clock, [listener], OPTIONS,
                     chamber=chamber)
     assert seq.run() is RunState.FAILED and isinstance(seq.error, ChamberTimeout)
-    made_safe = next(e for e in listener.events if e.data.get("chamber") == "made_safe")
+    made_safe = next(e for e in listener.events if e.to_dict()["data"].get("chamber") == "made_safe")
     assert "failed" in made_safe.message          # best effort, reported; the run still ends
     assert not any(a.enabled for a in table.read_state().axes)
     assert [e.state for e in listener.events if e.kind == "transition"][-2:] == ["aborting", "failed"]
@@ -269,7 +270,7 @@ def test_an_abort_during_the_soak_makes_the_chamber_safe(world_with_chamber):
     listener = Listener()
     seq = Sequencer(_soak_steps(), table, imu, world.clock, [listener], OPTIONS, chamber=chamber)
     listener.hooks[("info", "T1")] = lambda: seq.abort("operator") if any(
-        e.data.get("soak") == "imu_settling" for e in listener.events) else None
+        e.to_dict()["data"].get("soak") == "imu_settling" for e in listener.events) else None
     assert seq.run() is RunState.FAILED
     assert str(seq.error) == "operator"
     assert world.chamber.state().setpoint_c == 23.0 and world.chamber.state().running
@@ -297,14 +298,14 @@ def test_resume_skips_the_chamber_steps_of_a_temperature_whose_units_are_all_don
     seq = Sequencer(steps, table, imu, world.clock, [listener], OPTIONS, completed_units={"T1-P01"}, chamber=chamber)
     assert seq.run() is RunState.DONE
     assert [e.step_unit for e in listener.events if e.kind == "step_skipped"] == ["T1", "T1", "T1-P01"]
-    assert not any(e.data.get("soak") for e in listener.events)
+    assert not any(e.to_dict()["data"].get("soak") for e in listener.events)
     # a block with a unit left is soaked again (its chamber steps run)
     world2, table2, imu2, chamber2 = world_with_chamber(30.0)
     listener2 = Listener()
     seq2 = Sequencer(steps, table2, imu2, world2.clock, [listener2], OPTIONS, completed_units={"T9-P01"},
                      chamber=chamber2)
     assert seq2.run() is RunState.DONE
-    assert any(e.data.get("soak") == "done" for e in listener2.events)
+    assert any(e.to_dict()["data"].get("soak") == "done" for e in listener2.events)
 
 
 def test_a_pause_holds_the_chamber_and_an_alarm_raised_meanwhile_ends_the_run_while_paused(world_with_chamber):
@@ -324,8 +325,8 @@ def test_a_pause_holds_the_chamber_and_an_alarm_raised_meanwhile_ends_the_run_wh
             world.chamber.trip_alarm(ChamberAlarms.EQUIPMENT_FAULT)
             guard.start()
 
-    listener.hooks[("step_finished", "T1")] = lambda: seq.pause() if listener.events[-1].data["step"]["kind"] == \
-        "soak" else None
+    listener.hooks[("step_finished", "T1")] = lambda: seq.pause() if listener.events[-1].step_kind == "soak" \
+        else None
     listener.hooks[("transition", None)] = on_transition
     try:
         assert seq.run() is RunState.FAILED and isinstance(seq.error, ChamberAlarm), seq.error

@@ -14,16 +14,12 @@ import threading
 import numpy as np
 import pytest
 
+from bench.log.events import RunState, make_event
 from bench.log.reader import read_log
-from bench.plan.events import Event, RunState
 from bench.run.runner import compile_from_config
 from bench.tui.buffer import (
-    STEP_ABORTED,
-    STEP_DONE,
-    STEP_FAILED,
-    STEP_PENDING,
-    STEP_RUNNING,
     ImuScales,
+    StepState,
     UiBuffer,
     progress,
 )
@@ -70,44 +66,45 @@ def test_buffer_step_states_progress_and_countdown(tmp_path):
     steps = plan.steps
     buf = UiBuffer(steps)
     dwell = next(s for s in steps if s.kind == "dwell")
-    buf.on_event(Event(0.0, "transition", "run started", state="running", data={"from": "idle"}))
+    buf.on_event(make_event(0.0, "transition", "run started", state="running", data={"from": "idle"}))
     for s in steps[:dwell.index]:
-        buf.on_event(Event(1.0, "step_started", "", step_index=s.index, step_unit=s.unit))
-        buf.on_event(Event(2.0, "step_finished", "", step_index=s.index, step_unit=s.unit))
-    buf.on_event(Event(10.0, "step_started", "", step_index=dwell.index, step_unit=dwell.unit))
+        buf.on_event(make_event(1.0, "step_started", "", step_index=s.index, step_unit=s.unit))
+        buf.on_event(make_event(2.0, "step_finished", "", step_index=s.index, step_unit=s.unit))
+    buf.on_event(make_event(10.0, "step_started", "", step_index=dwell.index, step_unit=dwell.unit))
     buf.on_table_state(_state(11.0))
     s = buf.snapshot()
     assert s.run_state is RunState.RUNNING
-    assert s.step_states[:dwell.index] == (STEP_DONE,) * dwell.index
-    assert s.step_states[dwell.index] == STEP_RUNNING and s.step_states[dwell.index + 1] == STEP_PENDING
+    assert s.step_states[:dwell.index] == (StepState.DONE,) * dwell.index
+    assert s.step_states[dwell.index] == StepState.RUNNING and s.step_states[dwell.index + 1] == StepState.PENDING
     p = progress(s, steps)
     assert p.step_left_s == pytest.approx(dwell.estimated_s - 1.0)
     done = sum(x.estimated_s for x in steps[:dwell.index]) + 1.0
     assert p.fraction == pytest.approx(done / plan.estimated_total_s)
     assert p.remaining_s == pytest.approx(plan.estimated_total_s - done)
-    buf.on_event(Event(12.0, "fault", "TurntableLimitError", step_index=dwell.index, step_unit=dwell.unit))
-    buf.on_event(Event(12.0, "transition", "stop", state="aborting", data={"from": "running"}))
-    buf.on_event(Event(13.0, "transition", "ended", state="failed", data={"from": "aborting"}))
+    buf.on_event(make_event(12.0, "fault", "TurntableLimitError", step_index=dwell.index, step_unit=dwell.unit))
+    buf.on_event(make_event(12.0, "transition", "stop", state="aborting", data={"from": "running"}))
+    buf.on_event(make_event(13.0, "transition", "ended", state="failed", data={"from": "aborting"}))
     s = buf.snapshot()
-    assert s.run_state is RunState.FAILED and s.step_states[dwell.index] == STEP_FAILED
+    assert s.run_state is RunState.FAILED and s.step_states[dwell.index] == StepState.FAILED
     assert s.current_step is None and s.event_count == 2 * dwell.index + 5
     assert [e.kind for e in buf.events_after(s.event_count - 2)] == ["transition", "transition"]
     buf.begin_run(steps)
-    assert set(buf.snapshot().step_states) == {STEP_PENDING}
+    assert set(buf.snapshot().step_states) == {StepState.PENDING}
 
 
 def test_buffer_tells_an_aborted_run_from_a_failed_one(tmp_path):
     """The sequencer ends both in `failed`; a fault event comes before the failure it was not asked for,
     none before a requested abort (operator, e-stop, quit): the TUI says `aborted` for those (issue 19)."""
     steps = compile_from_config(make_config(tmp_path)).steps
-    for fault, shown, step_shown in ((False, "aborted", STEP_ABORTED), (True, "failed", STEP_FAILED)):
+    for fault, shown, step_shown in ((False, "aborted", StepState.ABORTED), (True, "failed", StepState.FAILED)):
         buf = UiBuffer(steps)
-        buf.on_event(Event(0.0, "transition", "run started", state="running", data={"from": "idle"}))
-        buf.on_event(Event(1.0, "step_started", "", step_index=0, step_unit=steps[0].unit))
+        buf.on_event(make_event(0.0, "transition", "run started", state="running", data={"from": "idle"}))
+        buf.on_event(make_event(1.0, "step_started", "", step_index=0, step_unit=steps[0].unit))
         if fault:
-            buf.on_event(Event(2.0, "fault", "TurntableLimitError: limit", step_index=0, step_unit=steps[0].unit))
-        buf.on_event(Event(2.0, "transition", "aborted by the operator", state="aborting", data={"from": "running"}))
-        buf.on_event(Event(3.0, "transition", "run ended early", state="failed", data={"from": "aborting"}))
+            buf.on_event(make_event(2.0, "fault", "TurntableLimitError: limit", step_index=0, step_unit=steps[0].unit))
+        buf.on_event(make_event(2.0, "transition", "aborted by the operator", state="aborting",
+                                data={"from": "running"}))
+        buf.on_event(make_event(3.0, "transition", "run ended early", state="failed", data={"from": "aborting"}))
         s = buf.snapshot()
         assert s.run_state is RunState.FAILED and s.run_state_text == shown and s.step_states[0] == step_shown
         buf.begin_run(steps)
@@ -163,7 +160,7 @@ def test_event_log_shows_an_event_added_between_snapshot_and_draw_once(tmp_path)
         async with app.run_test(size=SIZE) as pilot:
             buf = app.buffer
             real_snapshot = buf.snapshot
-            late = [Event(1.0, "step_finished", "P01 move done in 0.0 s", step_index=0, step_unit="P01")]
+            late = [make_event(1.0, "step_finished", "P01 move done in 0.0 s", step_index=0, step_unit="P01")]
 
             def snapshot_then_an_event():
                 s = real_snapshot()
@@ -171,7 +168,7 @@ def test_event_log_shows_an_event_added_between_snapshot_and_draw_once(tmp_path)
                     buf.on_event(late.pop())         # what the run's thread does between the two calls
                 return s
             buf.snapshot = snapshot_then_an_event
-            buf.on_event(Event(0.0, "transition", "run started: 3 steps", state="running", data={"from": "idle"}))
+            buf.on_event(make_event(0.0, "transition", "run started: 3 steps", state="running", data={"from": "idle"}))
             for _ in range(3):
                 app.refresh_panels()
                 await pilot.pause(0.05)
@@ -192,11 +189,12 @@ def test_event_log_times_count_from_the_run_start_not_the_machines_uptime(tmp_pa
         app = make_app(tmp_path, auto_connect=False, refresh_hz=1.0, wall_clock=lambda: wall_s)
         async with app.run_test(size=SIZE) as pilot:
             buf = app.buffer
-            buf.on_event(Event(3230.0, "info", "connected (scpi at tcp://lab:5025)"))
-            buf.on_event(Event(3290.0, "transition", "run started: 3 steps", state="running", data={"from": "idle"}))
-            buf.on_event(Event(3305.0, "transition", "paused", state="paused", data={"from": "running"}))
-            buf.on_event(Event(3320.0, "transition", "resumed", state="running", data={"from": "paused"}))
-            buf.on_event(Event(3351.0, "step_finished", "P01 move done in 2.0 s", step_index=0, step_unit="P01"))
+            buf.on_event(make_event(3230.0, "info", "connected (scpi at tcp://lab:5025)"))
+            buf.on_event(make_event(3290.0, "transition", "run started: 3 steps", state="running",
+                                    data={"from": "idle"}))
+            buf.on_event(make_event(3305.0, "transition", "paused", state="paused", data={"from": "running"}))
+            buf.on_event(make_event(3320.0, "transition", "resumed", state="running", data={"from": "paused"}))
+            buf.on_event(make_event(3351.0, "step_finished", "P01 move done in 2.0 s", step_index=0, step_unit="P01"))
             app.refresh_panels()
             await pilot.pause(0.05)
             text = events_text(app)
@@ -322,17 +320,17 @@ def test_start_pause_resume_abort_ends_stopped(tmp_path):
             await pilot.pause(0.2)
             assert not app.session.running and snap(app).run_state is RunState.IDLE
             await start_plan(pilot)
-            await wait_until(pilot, lambda: snap(app).step_states.count(STEP_DONE) >= 2, "two steps done")
+            await wait_until(pilot, lambda: snap(app).step_states.count(StepState.DONE) >= 2, "two steps done")
             await press(pilot, "p")
             await wait_until(pilot, lambda: snap(app).run_state is RunState.PAUSED, "the pause")
-            done = snap(app).step_states.count(STEP_DONE)
+            done = snap(app).step_states.count(StepState.DONE)
             await pilot.pause(0.3)
-            assert snap(app).step_states.count(STEP_DONE) == done     # paused: no progress
+            assert snap(app).step_states.count(StepState.DONE) == done     # paused: no progress
             assert snap(app).current_step is None
             await pilot.pause(0.1)
             assert "run paused" in app.query_one("#plan-panel").plain
             await press(pilot, "r")
-            await wait_until(pilot, lambda: snap(app).step_states.count(STEP_DONE) > done, "progress after resume")
+            await wait_until(pilot, lambda: snap(app).step_states.count(StepState.DONE) > done, "progress after resume")
             for key in ("v", "right_square_bracket", "g", "h"):   # manual commands are refused during a run
                 await press(pilot, key)
             assert len(app.screen_stack) == 1
@@ -343,18 +341,18 @@ def test_start_pause_resume_abort_ends_stopped(tmp_path):
             assert "Abort the run?" in str(dialog.query_one(".title").render())
             await press(pilot, "n")
             await wait_until(pilot, lambda: len(app.screen_stack) == 1, "the dialog to close")
-            done = snap(app).step_states.count(STEP_DONE)
-            await wait_until(pilot, lambda: snap(app).step_states.count(STEP_DONE) > done, "the run going on")
+            done = snap(app).step_states.count(StepState.DONE)
+            await wait_until(pilot, lambda: snap(app).step_states.count(StepState.DONE) > done, "the run going on")
             assert snap(app).run_state is RunState.RUNNING
             await press(pilot, "a")
             await dialog_open(pilot, "ConfirmScreen", "#no")
             await press(pilot, "y")
             await wait_ended(pilot)
             s = snap(app)
-            assert s.run_state is RunState.FAILED and STEP_PENDING in s.step_states
+            assert s.run_state is RunState.FAILED and StepState.PENDING in s.step_states
             # (the step under way, if the abort came within one rather than at a step boundary, reads aborted)
-            assert s.run_state_text == "aborted" and STEP_FAILED not in s.step_states, s.step_states
-            assert set(s.step_states) <= {STEP_DONE, STEP_PENDING, STEP_ABORTED}
+            assert s.run_state_text == "aborted" and StepState.FAILED not in s.step_states, s.step_states
+            assert set(s.step_states) <= {StepState.DONE, StepState.PENDING, StepState.ABORTED}
             await wait_until(pilot, lambda: "run aborted" in app.query_one("#plan-panel").plain, "the plan panel")
             assert "run failed" not in app.query_one("#plan-panel").plain
             log = events_text(app)
@@ -372,7 +370,7 @@ def test_estop_from_the_main_screen_during_a_run(tmp_path):
         async with app.run_test(size=SIZE) as pilot:
             await connected(pilot)
             await start_plan(pilot)
-            await wait_until(pilot, lambda: snap(app).step_states.count(STEP_DONE) >= 1, "a step done")
+            await wait_until(pilot, lambda: snap(app).step_states.count(StepState.DONE) >= 1, "a step done")
             await press(pilot, "f12")                        # never asks (issue 19: `a` asks, F12 does not)
             assert len(app.screen_stack) == 1
             await wait_ended(pilot)
@@ -414,7 +412,7 @@ def test_a_limit_fault_mid_run_shows_in_the_table_panel_and_the_log(tmp_path):
             await wait_until(pilot, lambda: (snap(app).current_step or 0) >= 3, "step 4 under way")
             app.session.run.world.controller.trip_limit(1)
             await wait_ended(pilot)
-            assert snap(app).run_state is RunState.FAILED and STEP_FAILED in snap(app).step_states
+            assert snap(app).run_state is RunState.FAILED and StepState.FAILED in snap(app).step_states
             table = app.query_one("#table-panel").plain
             assert "FAULT" in table and "middle: limit" in table, table
             # the event-log panel is redrawn at 20 Hz: it may show the event a refresh later

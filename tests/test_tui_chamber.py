@@ -12,8 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.config.load import parse_config
-from bench.plan.events import Event, RunState
-from bench.run.soak import SoakStatus
+from bench.log.events import RunState, SoakStatus, make_event
 from drivers.chamber import ChamberAlarms, ChamberState
 from drivers.imu import ImuSampleBlock
 from tests.helpers.run import thermal_plan_text
@@ -61,11 +60,11 @@ def test_the_panel_shows_the_temperature_step_chamber_imu_rate_and_soak_time(tmp
             buf, steps = app.buffer, app.steps
             second_set = next(s for s in steps if s.kind == "set_temperature" and s.temperature_index == 2)
             soak = next(s for s in steps if s.kind == "soak" and s.temperature_index == 2)
-            buf.on_event(Event(0.0, "transition", "run started", state="running", data={"from": "idle"}))
+            buf.on_event(make_event(0.0, "transition", "run started", state="running", data={"from": "idle"}))
             for s in steps[:soak.index]:
-                buf.on_event(Event(1.0, "step_started", s.kind, step_index=s.index, step_unit=s.unit))
-                buf.on_event(Event(2.0, "step_finished", s.kind, step_index=s.index, step_unit=s.unit))
-            buf.on_event(Event(100.0, "step_started", "T2 soak", step_index=soak.index, step_unit=soak.unit))
+                buf.on_event(make_event(1.0, "step_started", s.kind, step_index=s.index, step_unit=s.unit))
+                buf.on_event(make_event(2.0, "step_finished", s.kind, step_index=s.index, step_unit=s.unit))
+            buf.on_event(make_event(100.0, "step_started", "T2 soak", step_index=soak.index, step_unit=soak.unit))
             buf.on_chamber_state(ChamberState(130.0, 39.6, 40.0, 0.0, True))
             buf.on_imu(_imu(37.25))
             buf.on_soak_status(SoakStatus(130.0, 37.25, 0.84, 39.6, True, 0.0, False))

@@ -15,8 +15,8 @@ from bench.acceptance.quality import judged_failures
 from bench.acceptance.verdict import judge
 from bench.cli.common import ExitCode
 from bench.cli.tui import NO_TERMINAL, exit_status
+from bench.log.events import RunState
 from bench.model.result import CalibrationResult
-from bench.plan.events import RunState
 from bench.run.runner import RunOutcome
 from bench.tui.session import RunEnd, run_end_of
 from tests.helpers.run import REPO, config_text

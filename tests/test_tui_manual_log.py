@@ -16,6 +16,7 @@ import pytest
 
 import bench.log.recorder as recorder_module
 from bench.cli.tui import exit_status
+from bench.log.events import Note
 from bench.log.reader import read_log
 from bench.log.recorder import McapRecorder
 from bench.log.run_info import NO_PLAN_IN_MANUAL_LOG
@@ -97,7 +98,7 @@ def test_a_manual_move_starts_a_log_with_the_move_in_it(manual_session):
     assert counts["/imu/samples"] > 0
     log = read_log(str(path))
     assert log.complete and not log.damage
-    commands = [e.data for e in log.events if "command" in e.data]
+    commands = [e.details for e in log.events if isinstance(e, Note) and "command" in e.details]
     assert [c["command"] for c in commands] == ["go_to", "jog"]
     assert commands[0]["angles_deg"] == [5.0, 0.0, 0.0] and commands[1]["frame"] == "inner"
     assert commands[1]["step_deg"] == 1.0

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from bench.plan.events import RunState
-from bench.tui.buffer import STEP_DONE
+from bench.log.events import RunState
+from bench.tui.buffer import StepState
 from tests.helpers.run import config_text
 from tests.helpers.tui import SIZE, events_text, press, run, snap, wait_until
 
@@ -41,7 +41,7 @@ def test_replay_shows_the_recorded_run_and_its_result(recorded_log):
             await wait_until(pilot, lambda: snap(app).result is not None, "the replay to end with its result")
             await pilot.pause(0.2)
             s = snap(app)
-            assert s.run_state is RunState.DONE and set(s.step_states) == {STEP_DONE}
+            assert s.run_state is RunState.DONE and set(s.step_states) == {StepState.DONE}
             assert s.event_count >= len(recorded.events)
             plan = app.query_one("#plan-panel").plain
             assert "run done" in plan and "100.0%" in plan and f"{len(app.steps)} done" in plan, plan

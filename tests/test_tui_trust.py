@@ -17,10 +17,10 @@ import time
 import numpy as np
 import pytest
 
+from bench.log.events import RunState, make_event
 from bench.model.result import CalibrationResult, coefficient_table
-from bench.plan.events import Event, RunState
 from bench.run.runner import compile_from_config
-from bench.tui.buffer import STALE_AFTER_S, STEP_DONE, UiBuffer, progress
+from bench.tui.buffer import STALE_AFTER_S, StepState, UiBuffer, progress
 from bench.tui.panels import TRACE_LEVELS, log_time, trace_levels
 from drivers.imu import ImuSampleBlock
 from tests.helpers.run import REPO, config_text
@@ -118,7 +118,7 @@ def test_a_paused_run_shows_its_imu_values_as_stale(tmp_path):
         async with app.run_test(size=SIZE) as pilot:
             await connected(pilot)
             await start_plan(pilot)
-            await wait_until(pilot, lambda: snap(app).step_states.count(STEP_DONE) >= 1, "a step done")
+            await wait_until(pilot, lambda: snap(app).step_states.count(StepState.DONE) >= 1, "a step done")
             await press(pilot, "p")
             await wait_until(pilot, lambda: snap(app).run_state is RunState.PAUSED, "the pause")
 
@@ -145,17 +145,17 @@ def test_event_times_never_go_back_and_lines_outside_a_run_carry_the_local_time(
     wall.now += 25.0
     buf.note("info", "log out/run.mcap")
     wall.now += 1.0
-    buf.on_event(Event(25.0, "transition", "run started: 3 steps", state="running", data={"from": "idle"}))
-    buf.on_event(Event(40.0, "transition", "paused", state="paused", data={"from": "running"}))
-    buf.on_event(Event(55.0, "transition", "resumed", state="running", data={"from": "paused"}))
-    buf.on_event(Event(86.0, "step_finished", "P01 dwell done", step_index=0, step_unit="P01"))
-    buf.on_event(Event(85.5, "info", "an event stamped before the last one"))
+    buf.on_event(make_event(25.0, "transition", "run started: 3 steps", state="running", data={"from": "idle"}))
+    buf.on_event(make_event(40.0, "transition", "paused", state="paused", data={"from": "running"}))
+    buf.on_event(make_event(55.0, "transition", "resumed", state="running", data={"from": "paused"}))
+    buf.on_event(make_event(86.0, "step_finished", "P01 dwell done", step_index=0, step_unit="P01"))
+    buf.on_event(make_event(85.5, "info", "an event stamped before the last one"))
     buf.note("warning", "abort requested")                  # a note: the latest time seen on the run's clock
-    buf.on_event(Event(90.0, "transition", "run ended early", state="failed", data={"from": "aborting"}))
+    buf.on_event(make_event(90.0, "transition", "run ended early", state="failed", data={"from": "aborting"}))
     wall.now += 100.0
     buf.note("info", "aborted; table stopped")
-    buf.on_event(Event(0.0, "transition", "run started: 3 steps", state="running", data={"from": "idle"}))
-    buf.on_event(Event(3.0, "step_finished", "P01 move done", step_index=0, step_unit="P01"))
+    buf.on_event(make_event(0.0, "transition", "run started: 3 steps", state="running", data={"from": "idle"}))
+    buf.on_event(make_event(3.0, "step_finished", "P01 move done", step_index=0, step_unit="P01"))
     lines, count = buf.lines_since(0)
     shown = [f"[{log_time(line)}] {line.event.kind}: {line.event.message}" for line in lines]
     assert count == len(shown) == 12
@@ -180,15 +180,15 @@ def test_the_progress_never_goes_back_when_a_run_is_aborted(tmp_path):
     steps = compile_from_config(make_config(tmp_path)).steps
     buf = UiBuffer(steps)
     dwell = next(s for s in steps if s.kind == "dwell")
-    buf.on_event(Event(0.0, "transition", "run started", state="running", data={"from": "idle"}))
+    buf.on_event(make_event(0.0, "transition", "run started", state="running", data={"from": "idle"}))
     for s in steps[:dwell.index]:
-        buf.on_event(Event(0.0, "step_started", "", step_index=s.index, step_unit=s.unit))
-        buf.on_event(Event(0.0, "step_finished", "", step_index=s.index, step_unit=s.unit))
-    buf.on_event(Event(10.0, "step_started", "", step_index=dwell.index, step_unit=dwell.unit))
-    buf.on_event(Event(10.0 + dwell.estimated_s / 2, "transition", "aborted by the operator", state="aborting",
+        buf.on_event(make_event(0.0, "step_started", "", step_index=s.index, step_unit=s.unit))
+        buf.on_event(make_event(0.0, "step_finished", "", step_index=s.index, step_unit=s.unit))
+    buf.on_event(make_event(10.0, "step_started", "", step_index=dwell.index, step_unit=dwell.unit))
+    buf.on_event(make_event(10.0 + dwell.estimated_s / 2, "transition", "aborted by the operator", state="aborting",
                        data={"from": "running"}))
     before = progress(buf.snapshot(), steps).fraction
-    buf.on_event(Event(10.0 + dwell.estimated_s / 2 + 0.5, "transition", "run ended early", state="failed",
+    buf.on_event(make_event(10.0 + dwell.estimated_s / 2 + 0.5, "transition", "run ended early", state="failed",
                        data={"from": "aborting"}))
     after = progress(buf.snapshot(), steps).fraction
     assert buf.snapshot().run_state_text == "aborted"
@@ -212,7 +212,7 @@ def test_an_aborted_run_says_how_to_continue_it_and_the_command_works(tmp_path, 
         async with app.run_test(size=SIZE) as pilot:
             await connected(pilot)
             await start_plan(pilot)
-            await wait_until(pilot, lambda: snap(app).step_states.count(STEP_DONE) >= 4, "a unit done")
+            await wait_until(pilot, lambda: snap(app).step_states.count(StepState.DONE) >= 4, "a unit done")
             await press(pilot, "a")
             await dialog_open(pilot, "ConfirmScreen", "#yes")
             await press(pilot, "y")

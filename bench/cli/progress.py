@@ -15,8 +15,19 @@ import sys
 import time
 from typing import Callable, Sequence, TextIO
 
+from bench.log.events import (
+    Event,
+    Fault,
+    Info,
+    RunListener,
+    RunState,
+    RunWarning,
+    StepFinished,
+    StepSkipped,
+    StepStarted,
+    Transition,
+)
 from bench.model.units import format_hms
-from bench.plan.events import Event, RunListener, RunState
 from bench.plan.steps import Step
 
 #: erase from the cursor to the end of the line (ECMA-48 EL): what the last draw left goes
@@ -101,14 +112,14 @@ class ProgressPrinter(RunListener):
 
     def on_event(self, event: Event) -> None:
         self._note_time(event.time_s)
-        if event.kind == "fault":
+        if isinstance(event, Fault):
             self._print(f"FAULT: {event.message}")
             return
-        if event.kind == "transition" and event.state in _ENDING:
+        if isinstance(event, Transition) and event.state in _ENDING:
             self._ending = True
         if self.quiet:
             return
-        if event.kind == "step_started":
+        if isinstance(event, StepStarted):
             index = event.step_index
             self._current = self.steps[index] if index is not None else None
             self._started_at = event.time_s
@@ -119,18 +130,18 @@ class ProgressPrinter(RunListener):
                 # all of them done)
                 self._print(f"{self._stamp(event.time_s)} {self._current.unit} (unit {number} of {len(self.units)}, "
                             f"{self._fraction(event.time_s):.0%} done)")
-        elif event.kind in ("step_finished", "step_skipped"):
+        elif isinstance(event, (StepFinished, StepSkipped)):
             if event.step_index is not None:
                 self._done_s += self.steps[event.step_index].estimated_s
             self._current = None
-            if event.kind == "step_finished":
+            if isinstance(event, StepFinished):
                 self._finished += 1
             else:
                 self._skipped += 1
                 if not self.live and event.step_unit != self._last_unit:
                     self._last_unit = event.step_unit
                     self._print(f"skipped {event.step_unit} (complete in an earlier log)")
-        elif event.kind in ("transition", "warning", "info"):
+        elif isinstance(event, (Transition, RunWarning, Info)):
             self._print(f"{self._stamp(event.time_s)} {event.kind}: {event.message}")
         if self.live and not self._ending:
             self._status(event.time_s)

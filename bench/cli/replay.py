@@ -14,6 +14,7 @@ import threading
 
 from bench.cli.common import ExitCode, fail, speed_factor, stop_signals
 from bench.cli.progress import ProgressPrinter
+from bench.log.events import Event, Fault
 
 PROG = "bench replay"
 
@@ -76,9 +77,9 @@ def _replay(args: argparse.Namespace, stop: threading.Event) -> ExitCode:
 class TolerantProgress(ProgressPrinter):
     """The live progress printer; a step index the recorded plan lacks (damaged metadata) becomes a plain line."""
 
-    def on_event(self, event) -> None:
+    def on_event(self, event: Event) -> None:
         if event.step_index is not None and not 0 <= event.step_index < len(self.steps):
-            if event.kind == "fault" or not self.quiet:
+            if isinstance(event, Fault) or not self.quiet:
                 self._print(f"{event.kind}: {event.message}")
             return
         super().on_event(event)

@@ -82,7 +82,7 @@ def exit_status(app: BenchApp) -> ExitCode:
     its exit code (`ExitCode`: 0 done or no run, 4 quality check failed or not solvable, 3 aborted or
     failed with the table stopped, 3 after a stop signal)."""
     # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
-    from bench.tui.session import END_DONE, END_QUALITY, END_UNSOLVED
+    from bench.tui.session import EndKind
 
     session = app.session
     manual = getattr(session, "manual", None)           # (a replay session has no logs of manual moves)
@@ -101,10 +101,10 @@ def exit_status(app: BenchApp) -> ExitCode:
                     ExitCode.FAULT)
     if end is None:
         return ExitCode.OK
-    if end.kind == END_DONE:
+    if end.kind == EndKind.DONE:
         _say(f"{PROG}: last run done{log}")
         return ExitCode.OK
-    if end.kind in (END_QUALITY, END_UNSOLVED):
+    if end.kind in (EndKind.QUALITY, EndKind.UNSOLVED):
         return fail(PROG, f"last run finished: {end.reason}{log}", ExitCode.QUALITY)
     return fail(PROG, f"last run {end.kind} ({end.reason}); the table was stopped{log}", ExitCode.FAULT)
 

@@ -26,6 +26,15 @@ from bench.acceptance.limits import AcceptanceLimits
 from bench.acceptance.quality import judged_failures, quality_failures, window_loss_unit
 from bench.acceptance.verdict import Verdict, judge
 from bench.errors import InputError
+from bench.log.events import (
+    DwellRecord,
+    StepSkipped,
+    StepStarted,
+    Transition,
+    TurnRecord,
+    final_state,
+    finished_observation_steps,
+)
 from bench.log.names import logs_before, output_path, run_id_of, sibling_log
 from bench.log.reader import LogError, RunLog, read_log
 from bench.log.run_info import (
@@ -41,7 +50,7 @@ from bench.model.earth import Site
 from bench.model.observations import PositionObservation, RotationObservation
 from bench.model.result import CalibrationResult
 from bench.report.markdown import markdown_report, md_text, write_reports
-from bench.solve.extract import Extraction, finished_observation_steps, without_windows
+from bench.solve.extract import Extraction, without_windows
 from bench.solve.from_logs import LogSolution, extract_from_logs, solve_extraction
 from bench.solve.inputs import budget_inputs
 from bench.solve.methods import SolverError
@@ -86,8 +95,7 @@ class Recorded:
 
     @property
     def final_state(self) -> str:
-        states = [e.state for e in self.logs[-1].events if e.kind == "transition" and e.state]
-        return states[-1] if states else "unknown"
+        return final_state(self.logs[-1].events) or "unknown"
 
     @property
     def site(self) -> Site:
@@ -195,10 +203,11 @@ def _check_one_setup(logs: list[RunLog]) -> None:
                                   "solve them separately")
 
 
-def _nominal(step: dict) -> tuple:
-    if step.get("kind") == "dwell":
-        return ("dwell", angle_key(step["angles_deg"]))
-    return ("turn", angle_key(step["start_deg"]), step["frame"], step["direction"])
+def _nominal(record: DwellRecord | TurnRecord | None) -> tuple:
+    if isinstance(record, TurnRecord):
+        return ("turn", angle_key(record.start_deg), record.frame, record.direction)
+    assert record is not None                   # a finished observation step has its record
+    return ("dwell", angle_key(record.angles_deg))
 
 
 def _check_units_agree(logs: list[RunLog]) -> None:
@@ -206,7 +215,7 @@ def _check_units_agree(logs: list[RunLog]) -> None:
     seen: dict[str, tuple[str, tuple]] = {}
     for log in logs:
         for unit, (_, finished) in finished_observation_steps(log.events).items():
-            nominal = _nominal(finished.data["step"])
+            nominal = _nominal(finished.record)
             if unit in seen and seen[unit][1] != nominal:
                 raise SolveInputError(f"{seen[unit][0]} and {log.path} both record unit {unit} with different "
                                       "steps: they are not parts of one run; solve them separately")
@@ -231,10 +240,10 @@ def _left_out(logs: list[RunLog], planned: list[str], extraction: Extraction) ->
     finished, started, skipped = set(), {}, {}
     for log in logs:
         finished |= set(finished_observation_steps(log.events))
-        started.update({e.step_unit: (log, e) for e in log.events if e.kind == "step_started" and e.step_unit})
-        skipped.update({e.step_unit: log for e in log.events if e.kind == "step_skipped" and e.step_unit})
+        started.update({e.step_unit: (log, e) for e in log.events if isinstance(e, StepStarted) and e.step_unit})
+        skipped.update({e.step_unit: log for e in log.events if isinstance(e, StepSkipped) and e.step_unit})
     last = logs[-1]
-    final = [e.state for e in last.events if e.kind == "transition" and e.state]
+    final = [e.state for e in last.events if isinstance(e, Transition) and e.state]
     ended = max((e.time_s for log in logs for e in log.events), default=0.0)
     out = {}
     for unit in planned:
@@ -429,7 +438,7 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolv
 def _unused_windows(recorded: Recorded, chosen: Extraction, positions, rotations) -> set[str]:
     """The recorded dwells (with `positions` given) and turns (with `rotations`) a subset leaves out."""
     kept = set(chosen.units)
-    kinds = {unit: finished.data["step"]["kind"] for log in recorded.logs
+    kinds = {unit: "turn" if isinstance(finished.record, TurnRecord) else "dwell" for log in recorded.logs
              for unit, (_, finished) in finished_observation_steps(log.events).items()}
     return {unit for unit, kind in kinds.items() if unit not in kept
             and ((kind == "dwell" and positions is not None) or (kind == "turn" and rotations is not None))}

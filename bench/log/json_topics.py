@@ -11,8 +11,8 @@ import math
 from collections.abc import Callable
 from typing import TypeVar
 
+from bench.log.events import Event
 from bench.log.walk import ChannelData, Damage
-from bench.plan.events import Event
 from drivers.chamber import ChamberAlarms, ChamberState
 
 #: an alarm text from the log is cut to this many characters
@@ -59,13 +59,6 @@ def sample_row_ok(r: dict) -> bool:
         return False
 
 
-def event_ok(e: Event) -> bool:
-    """Whether an event's fields have the types the readers of events rely on (`Event.from_dict` keeps
-    whatever the log holds)."""
-    return ((e.state is None or type(e.state) is str) and (e.step_unit is None or type(e.step_unit) is str)
-            and (e.step_index is None or is_int(e.step_index)))
-
-
 def parse_topic(d: ChannelData, topic: str, limit: int, convert: Callable[[dict], _T | None],
             damage: list[Damage]) -> list[_T]:
     """The first `limit` messages of a JSON topic, each `convert`ed (None: malformed); those past the limit and
@@ -107,10 +100,9 @@ def event_row(r: dict) -> Event | None:
     if not numbers_ok(r):
         return None
     try:
-        event = Event.from_dict(r)
+        return Event.from_dict(r)
     except (KeyError, TypeError, ValueError, AttributeError, OverflowError):
         return None
-    return event if event_ok(event) else None
 
 
 def chamber_state_row(r: dict) -> ChamberState | None:
@@ -234,6 +226,6 @@ def parse_json_rows(payloads: list[bytes]) -> tuple[list, int]:
     return rows, bad
 
 
-__all__ = ["MAX_ALARM_TEXT", "MAX_CUT_TEXT", "MAX_JSON_MESSAGE_BYTES", "chamber_state_row", "event_ok", "event_row",
+__all__ = ["MAX_ALARM_TEXT", "MAX_CUT_TEXT", "MAX_JSON_MESSAGE_BYTES", "chamber_state_row", "event_row",
            "is_int", "is_number", "is_vec3", "malformed_damage", "metadata_damage", "not_read_damage", "numbers_ok",
            "parse_json_rows", "parse_topic", "sample_row_ok", "shrink_message", "state_row_ok", "utc_text_ok"]

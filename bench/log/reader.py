@@ -50,6 +50,7 @@ import numpy as np
 from bench.errors import BenchError
 from bench.files import InputFileError, open_input
 from bench.log.chunks import DeferredChunk, InflateBudget
+from bench.log.events import Event
 from bench.log.format import (
     CAN_ENCODING,
     FLAG_ERROR,
@@ -76,7 +77,6 @@ from bench.log.json_topics import (
 )
 from bench.log.threads import reader_threads
 from bench.log.walk import MAX_DBC_BYTES, ChannelData, Damage, MessageCut, WalkError, walk
-from bench.plan.events import Event
 from drivers.chamber import ChamberState
 from drivers.imu import ImuSampleBlock, ImuStats
 from drivers.imu.layout import ImuLayout

@@ -61,6 +61,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 import bench
 from bench.errors import BenchError
+from bench.log.events import Event, Fault, RunListener, RunWarning
 from bench.log.format import (
     CAN_SCHEMA_NAME,
     CAN_SCHEMA_TEXT,
@@ -82,7 +83,6 @@ from bench.log.format import (
     TOPIC_TF,
     encode_can_frames,
 )
-from bench.plan.events import Event, RunListener
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 #: Default run-clock chunk interval, s: a chunk closes every this many seconds of recorded log time.
@@ -285,7 +285,7 @@ class McapRecorder(RunListener):
     def on_event(self, event: Event) -> None:
         self._check_open()
         t = time_ns(event.time_s)
-        level = LOG_ERROR if event.kind == "fault" else LOG_WARNING if event.kind == "warning" else LOG_INFO
+        level = LOG_ERROR if isinstance(event, Fault) else LOG_WARNING if isinstance(event, RunWarning) else LOG_INFO
         text = event.message if event.step_unit is None else f"[{event.step_unit}] {event.message}"
         log = to_json({"timestamp": {"sec": t // 1_000_000_000, "nsec": t % 1_000_000_000}, "level": level,
                        "message": text, "name": f"sequencer.{event.kind}", "file": "", "line": 0})

@@ -30,9 +30,9 @@ from typing import Iterable
 import numpy as np
 
 from bench.log.can_export import can_messages
+from bench.log.events import RunListener, final_state
 from bench.log.reader import LogError, RunLog
 from bench.log.run_info import layout_and_config_from_log
-from bench.plan.events import RunListener
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.imu import ImuSampleBlock, ImuStats
 from drivers.imu.layout import ImuLayout
@@ -121,7 +121,7 @@ def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s,
     if bad_states:
         stats.notes.append(f"{bad_states} table states with an unknown mode not replayed")
     events = log.events
-    stats.run_state = next((str(e.state) for e in reversed(events) if e.kind == "transition" and e.state), "")
+    stats.run_state = final_state(events) or ""
 
     chamber = log.chamber_states
     ev_t = _monotone(np.array([e.time_s for e in events], float))

@@ -16,7 +16,10 @@ from collections.abc import Iterable
 
 import numpy as np
 
-FRAMES = ("outer", "middle", "inner")
+from schedules.loader import Frame
+
+FRAMES: tuple[Frame, Frame, Frame] = ("outer", "middle", "inner")
+
 #: Frame axis in the frame's own coordinates.
 FRAME_AXES = {
     "outer": np.array([0.0, 0.0, 1.0]),

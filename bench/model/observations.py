@@ -15,9 +15,10 @@ from bench.model.earth import Site
 from bench.model.kinematics import FRAMES, frame_axes_in_body, frame_matrix_parts, split_at_frame, triple
 from bench.model.motion import Piece, trig_integrals
 from bench.model.units import DEG
+from schedules.loader import Direction, Frame
 
 FRAME_INDEX = {name: k for k, name in enumerate(FRAMES)}
-DIRECTION_SIGN = {"ccw": 1, "cw": -1}
+DIRECTION_SIGN: dict[Direction, int] = {"ccw": 1, "cw": -1}
 
 
 def _vec3(x, name: str) -> np.ndarray:
@@ -143,8 +144,8 @@ class RotationObservation:
     """
 
     start_deg: tuple[float, float, float]
-    frame: str
-    direction: str
+    frame: Frame
+    direction: Direction
     revolutions: int
     duration_s: float
     sample_count: int

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.errors import InputError
+from bench.log.events import DwellRecord, finished_observation_steps
 from bench.log.names import run_id_of
 from bench.log.reader import LogError, RunLog, read_log
 from bench.log.run_info import layout_and_config_from_log
@@ -38,7 +39,6 @@ from bench.noise.allan import PhaseAccumulator
 from bench.noise.fit import MIN_RECORD_SAMPLES
 from bench.noise.result import analyse_phase
 from bench.noise.simulate import counts_to_allan_units
-from bench.solve.extract import finished_observation_steps
 from drivers.imu import ImuSampleBlock
 from drivers.imu.layout import ImuLayout
 
@@ -138,9 +138,9 @@ class _Dwell:
 def _dwell(path: str | Path, calibration: ImuCoefficients | None, calibration_label: str) -> _Dwell:
     log = read_log(str(path))
     setup = layout_and_config_from_log(log)
-    dwells = [(finished.data["counter_first"], finished.data["counter_last"], unit)
+    dwells = [(finished.window.first, finished.window.last, unit)
               for unit, (_, finished) in finished_observation_steps(log.events).items()
-              if finished.data["step"].get("kind") == "dwell"]
+              if finished.window is not None and isinstance(finished.record, DwellRecord)]
     if not dwells:
         raise NoiseInputError(f"{log.path}: no finished dwell in the log (record one with a static-noise plan)")
     first, last, unit = max(dwells, key=lambda d: d[1] - d[0])

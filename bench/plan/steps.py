@@ -14,9 +14,10 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, Union
+from typing import Any, Literal, Union
 
 from bench.model.kinematics import FRAMES
+from schedules.loader import Direction, Frame
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -28,7 +29,7 @@ class MoveStep:
     target_deg: tuple[float, float, float]
     rate_dps: float
     estimated_s: float
-    kind: str = "move"
+    kind: Literal["move"] = "move"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -39,7 +40,7 @@ class SettleStep:
     unit: str
     duration_s: float
     estimated_s: float
-    kind: str = "settle"
+    kind: Literal["settle"] = "settle"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -54,7 +55,7 @@ class DwellStep:
     target_deg: tuple[float, float, float]   # absolute controller angles (where the table is)
     dwell_s: float
     estimated_s: float
-    kind: str = "dwell"
+    kind: Literal["dwell"] = "dwell"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -71,14 +72,14 @@ class TurnStep:
     schedule_index: int
     start_deg: tuple[float, float, float]    # nominal initial state
     target_deg: tuple[float, float, float]   # absolute controller angles at the start
-    frame: str                               # "outer" | "middle" | "inner"
-    direction: str                           # "ccw" | "cw"
+    frame: Frame
+    direction: Direction
     revolutions: int
     rate_dps: float
     accel_dps2: float
     rest_s: float
     estimated_s: float
-    kind: str = "turn"
+    kind: Literal["turn"] = "turn"
 
     @property
     def frame_index(self) -> int:
@@ -105,7 +106,7 @@ class SetTemperatureStep:
     setpoint_c: float
     ramp_c_per_min: float | None
     estimated_s: float
-    kind: str = "set_temperature"
+    kind: Literal["set_temperature"] = "set_temperature"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -124,13 +125,15 @@ class SoakStep:
     chamber_tolerance_c: float
     rate_window_s: float
     estimated_s: float
-    kind: str = "soak"
+    kind: Literal["soak"] = "soak"
 
 
 Step = Union[MoveStep, SettleStep, DwellStep, TurnStep, SetTemperatureStep, SoakStep]
-OBSERVATION_KINDS = ("dwell", "turn")
+#: what a step is (each step class's `kind`)
+StepKind = Literal["move", "settle", "dwell", "turn", "set_temperature", "soak"]
+OBSERVATION_KINDS: tuple[StepKind, ...] = ("dwell", "turn")
 #: step kinds that drive the thermal chamber
-CHAMBER_KINDS = ("set_temperature", "soak")
+CHAMBER_KINDS: tuple[StepKind, ...] = ("set_temperature", "soak")
 
 
 def thermal_prefix(temperature_index: int) -> str:

@@ -20,6 +20,7 @@ import numpy as np
 
 from bench import __version__
 from bench.acceptance.verdict import FAIL, NOT_CHECKED, PASS
+from bench.log.events import TurnRecord, finished_observation_steps
 from bench.model.result import CalibrationResult
 from bench.report.compare import (
     Comparison,
@@ -40,7 +41,6 @@ from bench.report.facts import (
     run_facts,
     verdict_view,
 )
-from bench.solve.extract import finished_observation_steps
 from drivers.errors import DeviceError
 from drivers.imu import ImuLayout, spec_of
 
@@ -134,12 +134,14 @@ def log_series(log, layout=None) -> LogSeries:
                        angles_deg=states.angles_deg, notes=notes)
     labels, means, stds = [], [], []
     for unit, (started, finished) in sorted(finished_observation_steps(log.events).items()):
-        kind = finished.data["step"]["kind"]
+        kind = "turn" if isinstance(finished.record, TurnRecord) else "dwell"
+        counters = finished.window
+        assert counters is not None                  # a finished observation step has one
         if started is not None:
             series.spans.append((started.time_s - t0, finished.time_s - t0, kind))
         if kind != "dwell":
             continue
-        lo, hi = np.searchsorted(counter, [int(finished.data["counter_first"]), int(finished.data["counter_last"]) + 1])
+        lo, hi = np.searchsorted(counter, [counters.first, counters.last + 1])
         if hi - lo < 2:
             notes.append(f"{unit}: fewer than 2 samples in its window, not plotted")
             continue

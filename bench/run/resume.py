@@ -18,14 +18,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from bench.config.load import BenchConfig
+from bench.log.events import RunState, final_state, finished_observation_steps
 from bench.log.names import LOG_SUFFIX, logs_before, shown, sibling_log
 from bench.log.reader import RunLog, read_log
 from bench.log.run_info import NO_PLAN_IN_MANUAL_LOG, is_manual_log
 from bench.log.run_setup import SetupMismatch, check_same_setup, nominal, setup_of_log, setup_of_run
 from bench.plan.compiler import CompiledPlan
-from bench.plan.events import RunState
 from bench.plan.steps import step_to_dict
-from bench.solve.extract import finished_observation_steps
 
 
 @dataclass
@@ -86,8 +85,7 @@ def _check_resumable(log: RunLog) -> None:
     if run_id != name.removesuffix(LOG_SUFFIX):
         raise SetupMismatch(f"{log.path} records run id {shown(run_id)}, not the one its name says "
                             f"({shown(name.removesuffix(LOG_SUFFIX))}): a log of another run is not resumed")
-    final = next((e.state for e in reversed(log.events) if e.kind == "transition" and e.state), None)
-    if final == RunState.DONE.value:
+    if final_state(log.events) == RunState.DONE.value:
         raise SetupMismatch(f"{log.path} is of a finished run (it ended done): there is nothing to resume "
                             f"(bench solve {log.path} solves it)")
 
@@ -96,8 +94,8 @@ def _finished_units(log: RunLog, planned: dict[str, tuple]) -> set[str]:
     """The log's finished observation units; `SetupMismatch` if one is not the plan's step of that label."""
     done = set()
     for unit, (_, finished) in finished_observation_steps(log.events).items():
-        step = finished.data.get("step")
-        if unit not in planned or not isinstance(step, dict) or nominal(step) != planned[unit]:
+        step = finished.step
+        if unit not in planned or step is None or nominal(step) != planned[unit]:
             raise SetupMismatch(f"{log.path} is not a log of this run: its unit {shown(unit)} is not this plan's "
                                 "step of that name")
         done.add(unit)

@@ -25,6 +25,7 @@ from bench.acceptance.quality import LOST_SAMPLES_FAILURE, judged_failures, qual
 from bench.acceptance.verdict import Verdict, judge
 from bench.config.load import BenchConfig
 from bench.errors import BenchError
+from bench.log.events import RunListener, RunState
 from bench.log.reader import read_log
 from bench.log.recorder import CHUNK_RUN_INTERVAL_S, McapRecorder, RecorderError
 from bench.log.run_info import MANUAL_LOG_KIND, MANUAL_LOG_SUFFIX
@@ -32,7 +33,6 @@ from bench.log.temperature import imu_temperature
 from bench.model.result import CalibrationResult
 from bench.noise.from_log import NoiseInputError, analyse_log
 from bench.plan.compiler import CompiledPlan, compile_plan
-from bench.plan.events import RunListener, RunState
 from bench.plan.steps import step_to_dict
 from bench.plan.thermal import compile_thermal_plan
 from bench.report.markdown import write_reports

@@ -1,6 +1,6 @@
 """The sequencer: executes a compiled plan through an explicit state machine.
 
-States (bench.plan.events.RunState) and the only transitions allowed:
+States (bench.log.events.RunState) and the only transitions allowed:
 
     idle -> running            start
     running -> paused          pause request, taken at the next step boundary (a safe point)
@@ -44,12 +44,25 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
-from typing import Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
 from bench.errors import BenchError
-from bench.plan.events import Event, RunListener, RunState
+from bench.log.events import (
+    CounterWindow,
+    Event,
+    Fault,
+    Info,
+    RunListener,
+    RunState,
+    RunWarning,
+    SoakStatus,
+    StepFinished,
+    StepSkipped,
+    StepStarted,
+    Transition,
+)
 from bench.plan.steps import (
     DwellStep,
     MoveStep,
@@ -152,7 +165,7 @@ class Sequencer:
         self.error: BaseException | None = None
         self.stop_result: StopResult | None = None      # what the safe stop of a run ended early achieved
         self.current_step: Step | None = None
-        self.windows: dict[str, dict] = {}          # unit -> counter window of its observation
+        self.windows: dict[str, CounterWindow] = {}          # unit -> counter window of its observation
         self._abort_reason: str | None = None
         self._pause_requested = threading.Event()
         self._resume = threading.Event()
@@ -218,20 +231,21 @@ class Sequencer:
         while self._reported < len(self.listener_errors):     # bounded: a listener fails at most once
             listener, exc = self.listener_errors[self._reported]
             self._reported += 1
-            self._emit("warning", f"{describe_listener_error(listener, exc)} (it gets nothing more)",
+            self._emit(RunWarning, f"{describe_listener_error(listener, exc)} (it gets nothing more)",
                        self.current_step)
 
     # -- events ----------------------------------------------------------------------
-    def _emit(self, kind: str, message: str, at: Step | None = None, **data) -> None:
-        event = Event(self.clock.now(), kind, message, self.state.value if kind == "transition" else None,
-                      at.index if at is not None else None, at.unit if at is not None else None, data)
+    def _emit(self, kind: Callable[..., Event], message: str, at: Step | None = None, **fields: Any) -> None:
+        """An event of class `kind` now, of step `at` (None: of no step), with its kind's `fields`."""
+        event = kind(self.clock.now(), message, at.index if at is not None else None,
+                     at.unit if at is not None else None, **fields)
         self._dispatch("on_event", event)
 
     def _transition(self, new: RunState, message: str) -> None:
         if (self.state, new) not in _TRANSITIONS:
             raise SequencerError(f"illegal transition {self.state.value} -> {new.value}")
         old, self.state = self.state, new
-        self._emit("transition", message, None, **{"from": old.value})
+        self._emit(Transition, message, None, state=new.value, previous=old.value)
 
     def _on_frames(self, frames) -> None:
         self._dispatch("on_can_frames", frames)
@@ -246,15 +260,15 @@ class Sequencer:
                 if self._pause_requested.is_set():
                     self._pause()
                 if step.unit in self.completed_units or self._block_complete(step):
-                    self._emit("step_skipped", f"{step.unit} {step.kind}: complete in an earlier run", step,
+                    self._emit(StepSkipped, f"{step.unit} {step.kind}: complete in an earlier run", step,
                                step=step_to_dict(step))
                     continue
                 self._execute(step)
             self._drain_imu()
             self._check_abort()         # an abort asked for after the last step's checks ends the run as aborted
             if self.chamber is not None:
-                self._emit("info", f"chamber: {self.chamber.make_safe(self.options.chamber_safe_setpoint_c)}",
-                           chamber="made_safe")
+                self._emit(Info, f"chamber: {self.chamber.make_safe(self.options.chamber_safe_setpoint_c)}",
+                           details={"chamber": "made_safe"})
             self._transition(RunState.DONE, "run complete")
         except BaseException as exc:  # noqa: BLE001 - every way out must stop the table; re-raised if not ours
             self.error = exc
@@ -292,15 +306,15 @@ class Sequencer:
                 message = str(exc)
             else:
                 message = f"{type(exc).__name__}: {exc}"
-                self._emit("fault", message, self.current_step, error=type(exc).__name__)
+                self._emit(Fault, message, self.current_step, error=type(exc).__name__)
             if (self.state, RunState.ABORTING) in _TRANSITIONS:    # not from done (a KeyboardInterrupt after it)
                 self._transition(RunState.ABORTING, message)
             try:
                 self._safe_stop(estop=isinstance(exc, TurntableEStop))
             finally:
                 if self.chamber is not None:      # after the table: never skipped, never raises
-                    self._emit("info", f"chamber: {self.chamber.make_safe(self.options.chamber_safe_setpoint_c)}",
-                               chamber="made_safe")
+                    self._emit(Info, f"chamber: {self.chamber.make_safe(self.options.chamber_safe_setpoint_c)}",
+                               details={"chamber": "made_safe"})
         finally:
             held, self._held = self._held, None
             for method, payload in held:
@@ -331,7 +345,7 @@ class Sequencer:
             self.table.disable()
             self._publish_state(self.table.read_state())
             self.stop_result = StopResult(StopOutcome.STOPPED)
-            self._emit("info", "table stopped and servos off")
+            self._emit(Info, "table stopped and servos off")
         except Exception as exc:  # noqa: BLE001 - fall back to the controller's abort, report the first error
             aborted = self.table.safe_abort()
             self.stop_result = StopResult(aborted.outcome, aborted.error, exc)
@@ -346,9 +360,10 @@ class Sequencer:
         a fault when the table state is unknown."""
         result = self.stop_result
         assert result is not None
-        data: dict = {"table_state": "unknown"} if result.unknown else {}
-        kind = "fault" if result.unknown else "warning" if result.stop_error is not None else "info"
-        self._emit(kind, prefix + result.describe(), None, **data)
+        if result.unknown:
+            self._emit(Fault, prefix + result.describe(), None, table_state="unknown")
+        else:
+            self._emit(RunWarning if result.stop_error is not None else Info, prefix + result.describe())
 
     @property
     def stop_words(self) -> str:
@@ -366,26 +381,27 @@ class Sequencer:
     # -- steps -------------------------------------------------------------------------
     def _execute(self, step: Step) -> None:
         self.current_step = step
-        self._emit("step_started", f"{step.unit} {step.kind}", step, step=step_to_dict(step))
+        self._emit(StepStarted, f"{step.unit} {step.kind}", step, step=step_to_dict(step))
         started = self.clock.now()
-        data: dict = {}
+        data: dict[str, Any] = {}
         if isinstance(step, MoveStep):
             self._move(step.target_deg, step.rate_dps)
         elif isinstance(step, SettleStep):
             self._rest(step.duration_s)
         elif isinstance(step, DwellStep):
-            data = self._record(lambda: self._rest(step.dwell_s))
+            data = {"window": self._record(lambda: self._rest(step.dwell_s))}
         elif isinstance(step, TurnStep):
-            data = self._record(lambda: self._turn(step))
+            data = {"window": self._record(lambda: self._turn(step))}
         elif isinstance(step, SetTemperatureStep):
             self._set_temperature(step)
         elif isinstance(step, SoakStep):
-            data = self._soak_until_steady(step)
+            soak_s, status = self._soak_until_steady(step)
+            data = {"soak_s": soak_s, "soak": status}
         else:
             raise SequencerError(f"unknown step {step!r}")
         if isinstance(step, (DwellStep, TurnStep)):
-            self.windows[step.unit] = data
-        self._emit("step_finished", f"{step.unit} {step.kind} done in {self.clock.now() - started:.1f} s", step,
+            self.windows[step.unit] = data["window"]
+        self._emit(StepFinished, f"{step.unit} {step.kind} done in {self.clock.now() - started:.1f} s", step,
                    step=step_to_dict(step), **data)
         self.current_step = None
 
@@ -394,7 +410,7 @@ class Sequencer:
         self._move(step.end_deg, step.rate_dps)
         self._rest(step.rest_s)
 
-    def _record(self, body) -> dict:
+    def _record(self, body) -> CounterWindow:
         """Run `body` while collecting the counter window of the samples received during it."""
         self._drain_imu()                       # samples before the window belong to the previous step
         self._window = []
@@ -407,7 +423,7 @@ class Sequencer:
             self._window = None
         if not window:
             raise ImuTimeout("no IMU samples were received during the recording window")
-        return {"counter_first": window[0], "counter_last": window[1], "samples": window[2]}
+        return CounterWindow(window[0], window[1], window[2])
 
     def _move(self, target_deg: Sequence[float], rate_dps: float) -> None:
         self.table.move_to(tuple(target_deg), rate_dps=rate_dps)
@@ -455,9 +471,9 @@ class Sequencer:
         self.chamber.run()
         self._poll_chamber(force=True)
 
-    def _soak_until_steady(self, step: SoakStep) -> dict:
-        """Rest until the IMU is soaked (`bench.run.soak`); its decisions are events. `SoakTimeout` past the
-        step's maximum."""
+    def _soak_until_steady(self, step: SoakStep) -> tuple[float, SoakStatus]:
+        """Rest until the IMU is soaked (`bench.run.soak`); its decisions are events. The time it took and the
+        last status; `SoakTimeout` past the step's maximum."""
         tracker = self._soak = SoakTracker(step, self.clock.now())
         try:
             while True:
@@ -468,10 +484,10 @@ class Sequencer:
                 status = tracker.status(self.clock.now())
                 self._dispatch("on_soak_status", status)
                 if status.decision:
-                    self._emit("info", f"soak {step.setpoint_c:g} degC: {SOAK_DECISIONS[status.decision]}", step,
-                               soak=status.decision, **status.as_dict())
+                    self._emit(Info, f"soak {step.setpoint_c:g} degC: {SOAK_DECISIONS[status.decision]}", step,
+                               soak=status)
                 if status.done:
-                    return {"soak_s": self.clock.now() - tracker.start_s, **status.as_dict()}
+                    return self.clock.now() - tracker.start_s, status
                 if tracker.timed_out(self.clock.now()):
                     raise SoakTimeout(f"the IMU did not soak at {step.setpoint_c:g} degC within "
                                       f"{step.max_soak_s / 60.0:g} min (IMU {status.imu_temperature_c} degC, rate "
@@ -531,4 +547,5 @@ class Sequencer:
         lost = stats.lost_samples + stats.frame_faults
         if lost > self._lost_reported:
             self._lost_reported = lost
-            self._emit("warning", f"IMU link: {stats.summary()}", self.current_step, imu_stats=stats.as_dict())
+            self._emit(RunWarning, f"IMU link: {stats.summary()}", self.current_step,
+                       details={"imu_stats": stats.as_dict()})

@@ -7,36 +7,17 @@ the IMU's temperature rate (the least-squares slope over the last `rate_window_s
 `rate_c_per_min` without a break for `stable_s`. The chamber reaching its setpoint only
 starts the watch: an IMU that lags the air (its case and mount) keeps the soak going
 until it has settled itself. Pure computation on the sequencer's clock times; the
-sequencer turns its decisions into events.
+sequencer turns its decisions into events (`bench.log.events.SoakStatus` is what it says at each check).
 """
 
 from __future__ import annotations
 
 import collections
-from dataclasses import dataclass
 
 import numpy as np
 
+from bench.log.events import SoakStatus
 from bench.plan.steps import SoakStep
-
-
-@dataclass(frozen=True)
-class SoakStatus:
-    """What the tracker knows at `time_s`; `decision` names a change worth an event ('' if none)."""
-
-    time_s: float
-    imu_temperature_c: float | None
-    rate_c_per_min: float | None
-    chamber_c: float | None
-    chamber_at_setpoint: bool
-    steady_for_s: float
-    done: bool
-    decision: str = ""
-
-    def as_dict(self) -> dict:
-        return {"imu_temperature_c": self.imu_temperature_c, "rate_c_per_min": self.rate_c_per_min,
-                "chamber_c": self.chamber_c, "chamber_at_setpoint": self.chamber_at_setpoint,
-                "steady_for_s": self.steady_for_s}
 
 
 class SoakTracker:
@@ -100,4 +81,4 @@ SOAK_DECISIONS = {
     "done": "IMU soaked",
 }
 
-__all__ = ["SOAK_DECISIONS", "SoakStatus", "SoakTracker"]
+__all__ = ["SOAK_DECISIONS", "SoakTracker"]

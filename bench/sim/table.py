@@ -18,6 +18,7 @@ from bench.model import kinematics
 from bench.model.earth import Site
 from bench.model.motion import Piece, active_piece, sample_pieces, trapezoid_pieces
 from bench.model.units import DEG
+from schedules.loader import Direction, Frame
 
 FRAMES = kinematics.FRAMES
 
@@ -37,7 +38,7 @@ class TableLimits:
             object.__setattr__(self, name, values)
 
 
-def _frame_index(frame: str | int) -> int:
+def _frame_index(frame: Frame | int) -> int:
     if isinstance(frame, (int, np.integer)) and 0 <= int(frame) < 3:
         return int(frame)
     if isinstance(frame, str) and frame.lower() in FRAMES:
@@ -129,7 +130,7 @@ class SimTable:
             raise ValueError(f"angles_deg must be finite, got {angles_deg}")
         return max(self._move_axis(k, t, float(target[k]), float(rate[k]), float(accel[k])) for k in range(3))
 
-    def move_axis(self, t: float, frame: str | int, angle_deg: float, rate_dps: float | None = None,
+    def move_axis(self, t: float, frame: Frame | int, angle_deg: float, rate_dps: float | None = None,
                   accel_dps2: float | None = None) -> float:
         """Rest-to-rest move of one frame to an absolute angle, the others untouched; returns its rest time."""
         k = _frame_index(frame)
@@ -139,7 +140,7 @@ class SimTable:
                         self.limits.max_rate_dps[k], "rate_dps", k) * DEG
         return self._move_axis(k, t, float(angle_deg) * DEG, rate, self._accel(k, accel_dps2))
 
-    def turn(self, t: float, frame: str | int, direction: str, revolutions: int, rate_dps: float,
+    def turn(self, t: float, frame: Frame | int, direction: Direction, revolutions: int, rate_dps: float,
              accel_dps2: float | None = None) -> float:
         """Rest-to-rest turn of one frame by whole revolutions; returns the time it is at rest.
 
@@ -160,7 +161,7 @@ class SimTable:
         self._axes[k].extend(pieces)
         return pieces[-1].t0
 
-    def set_rate(self, t: float, frame: str | int, rate_dps: float, accel_dps2: float | None = None) -> float:
+    def set_rate(self, t: float, frame: Frame | int, rate_dps: float, accel_dps2: float | None = None) -> float:
         """Rate mode: ramp one frame to the signed angle rate (deg/s) and hold it; returns when reached."""
         k = _frame_index(frame)
         lim = self.limits.max_rate_dps[k]
@@ -248,11 +249,11 @@ class SimTable:
         return self._evaluate(times)[1:]
 
     # -- inspection -----------------------------------------------------------------
-    def pieces(self, frame: str | int) -> list[Piece]:
+    def pieces(self, frame: Frame | int) -> list[Piece]:
         """A copy of one axis's trajectory (Pieces are immutable)."""
         return list(self._axes[_frame_index(frame)])
 
-    def axis_at(self, t: float, frame: str | int) -> tuple[float, float, float]:
+    def axis_at(self, t: float, frame: Frame | int) -> tuple[float, float, float]:
         """(angle rad, rate rad/s, accel rad/s^2) of one frame at time t."""
         p = active_piece(self._axes[_frame_index(frame)], t)
         theta, rate = p.at(max(t, p.t0))

@@ -1,7 +1,7 @@
 """Solver observations from a run's record: one per dwell, one per turn (the log is the source of truth).
 
 Inputs are what a run log holds: the sequencer's events (each finished observation
-step carries the IMU counter window it recorded), the decoded IMU samples (unwrapped
+step carries the IMU counter window it recorded; `bench.log.events` parses them), the decoded IMU samples (unwrapped
 counters, per-sample increments) and the polled table states. The same function
 serves the live run (which solves from the log it just wrote) and `bench solve`.
 
@@ -22,18 +22,17 @@ serves the live run (which solves from the log it just wrote) and `bench solve`.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
 from bench.acceptance.quality import SAMPLES_LOST_IN_WINDOW
+from bench.log.events import Event, TurnRecord, finished_observation_steps, malformed_observation_steps
 from bench.model.earth import Site
 from bench.model.kinematics import FRAMES
 from bench.model.motion import Piece
 from bench.model.observations import (
-    DIRECTION_SIGN,
     PositionObservation,
     RotationObservation,
     mean_and_standard_error,
@@ -41,7 +40,6 @@ from bench.model.observations import (
     turn_earth_integral,
 )
 from bench.model.units import DEG
-from bench.plan.events import Event
 from drivers.imu.layout import describe_status
 
 
@@ -83,75 +81,6 @@ def missing_in_window(counter: np.ndarray, window: slice, first: int, last: int)
     return max(0, hi - lo + 1 - (window.stop - window.start)) if lo <= hi else 0
 
 
-def _vector(v, n: int = 3) -> bool:
-    return (isinstance(v, list) and len(v) == n
-            and all(type(x) in (int, float) and math.isfinite(x) for x in v))
-
-
-def _int(x) -> bool:
-    return type(x) is int and abs(x) < 1 << 62
-
-
-def malformed_step(event: Event) -> str | None:
-    """Why a dwell's or turn's step_finished event cannot be used (a log from outside may hold anything
-    in its events), or None: the step record and the counter window the extraction and the reports read."""
-    step, data = event.data.get("step"), event.data
-    if not isinstance(step, dict):
-        return "its step record is not an object"
-    if not (_int(data.get("counter_first")) and _int(data.get("counter_last"))
-            and data["counter_first"] <= data["counter_last"]):
-        return "its IMU counter window is not two integers, first <= last"
-    if step.get("kind") == "dwell":
-        return None if _vector(step.get("angles_deg")) else "its angles_deg are not three finite numbers"
-    if not (_vector(step.get("start_deg")) and _vector(step.get("target_deg"))):
-        return "its start_deg or target_deg are not three finite numbers"
-    if step.get("frame") not in FRAMES or step.get("direction") not in DIRECTION_SIGN:
-        return "its frame or direction is not one the bench knows"
-    if not (_int(step.get("revolutions")) and step["revolutions"] > 0):
-        return "its revolutions are not a positive integer"
-    return None
-
-
-def _observation(event: Event) -> bool:
-    """Whether `event` belongs to a dwell or a turn (its step record says so)."""
-    step = event.data.get("step")
-    return isinstance(step, dict) and step.get("kind") in ("dwell", "turn")
-
-
-def finished_observation_steps(events: list[Event]) -> dict[str, tuple[Event | None, Event]]:
-    """unit -> (its step_started event, its step_finished event) for dwells and turns; a re-run wins.
-    Only well-formed finished steps count (`malformed_step`; `malformed_observation_steps` lists the others)."""
-    started: dict[str, Event] = {}
-    done: dict[str, tuple[Event | None, Event]] = {}
-    for event in events:
-        unit = event.step_unit
-        if unit is None or not _observation(event):
-            continue
-        if event.kind == "step_started":
-            started[unit] = event
-        elif event.kind == "step_finished" and "counter_first" in event.data and malformed_step(event) is None:
-            done[unit] = (started.get(unit), event)
-    return done
-
-
-def malformed_observation_steps(events: list[Event]) -> list[str]:
-    """One line per dwell or turn whose step_finished event cannot be used (`malformed_step`), unless a
-    well-formed one of the same unit replaces it."""
-    good = finished_observation_steps(events)
-    lines = {}
-    for event in events:
-        if (event.kind != "step_finished" or "counter_first" not in event.data or event.step_unit is None
-                or event.step_unit in good):
-            continue
-        step = event.data.get("step")
-        if isinstance(step, dict) and step.get("kind") not in ("dwell", "turn"):
-            continue
-        why = malformed_step(event)
-        if why is not None:
-            lines[event.step_unit] = f"{event.step_unit}: its step_finished event is malformed ({why}); left out"
-    return [lines[k] for k in sorted(lines)]
-
-
 _PIECES_AT_ONCE = 256   # table-state pieces per Earth-rate integral call (see `_turn_earth_integral`)
 
 
@@ -160,10 +89,10 @@ def _window(counter: np.ndarray, first: int, last: int) -> slice:
     return slice(int(lo), int(hi))
 
 
-def _turn_earth_integral(site: Site, step: dict, samples_duration_s: float, t0: float, t1: float,
+def _turn_earth_integral(site: Site, turn: TurnRecord, samples_duration_s: float, t0: float, t1: float,
                          state_time_s: np.ndarray, state_angles_deg: np.ndarray, mounting) -> np.ndarray:
-    k = FRAMES.index(step["frame"])
-    start_nominal = np.asarray(step["start_deg"], dtype=float)
+    k = FRAMES.index(turn.frame)
+    start_nominal = np.asarray(turn.start_deg, dtype=float)
     rest = [Piece(0.0, start_nominal[k] * DEG, 0.0, 0.0)]
     base = turn_earth_integral(site, start_nominal, k, rest, 0.0, samples_duration_s, mounting=mounting)
     inside = np.flatnonzero((state_time_s >= t0) & (state_time_s <= t1))
@@ -172,7 +101,7 @@ def _turn_earth_integral(site: Site, step: dict, samples_duration_s: float, t0: 
     if len(times) < 2:
         return base
     # Frame angle in the schedule's nominal terms (the controller's is multi-turn).
-    theta = (state_angles_deg[inside[first], k] - step["target_deg"][k] + start_nominal[k]) * DEG
+    theta = (state_angles_deg[inside[first], k] - turn.target_deg[k] + start_nominal[k]) * DEG
     pieces = [Piece(float(times[i]), float(theta[i]), float((theta[i + 1] - theta[i]) / (times[i + 1] - times[i])), 0.0)
               for i in range(len(times) - 1)]
     pieces.append(Piece(float(times[-1]), float(theta[-1]), 0.0, 0.0))
@@ -188,7 +117,7 @@ def _turn_earth_integral(site: Site, step: dict, samples_duration_s: float, t0: 
     return base + moving - at_rest
 
 
-def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: np.ndarray, acc_counts: np.ndarray,
+def extract_observations(events: Sequence[Event], counter: np.ndarray, gyro_counts: np.ndarray, acc_counts: np.ndarray,
                          rate_hz: float, site: Site, state_time_s: np.ndarray, state_angles_deg: np.ndarray,
                          mounting=None, status: np.ndarray | None = None,
                          status_invalid: int = 0, status_required: int = 0,
@@ -210,8 +139,9 @@ def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: 
         status = np.asarray(status, dtype=np.int64)
         flagged = (status & status_invalid) | (~status & status_required)
     for unit, (started, finished) in sorted(finished_observation_steps(events).items()):
-        step, data = finished.data["step"], finished.data
-        first, last = int(data["counter_first"]), int(data["counter_last"])
+        record, counters = finished.record, finished.window
+        assert record is not None and counters is not None        # a usable finished step has both
+        first, last = counters.first, counters.last
         window = _window(counter, first, last)
         n = window.stop - window.start
         expected = last - first + 1
@@ -226,7 +156,7 @@ def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: 
             out.problems.append(f"{unit}: {int(np.count_nonzero(flagged[window]))} of {n} samples flagged unusable "
                                 f"by the IMU ({describe_status(bits, status_invalid, status_required)}); left out")
             continue
-        if step["kind"] == "dwell":
+        if not isinstance(record, TurnRecord):
             if n < expected:
                 out.problems.append(f"{unit} dwell: {expected - n} of {expected} {SAMPLES_LOST_IN_WINDOW}; "
                                     f"mean over the {n} received")
@@ -236,7 +166,7 @@ def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: 
             acc_mean, acc_std, acc_sem = mean_and_standard_error(
                 acc_counts[window] * rate_hz, duration_s=n / rate_hz,
                 output_step=None if resolution is None else resolution[3:])
-            out.positions.append(PositionObservation(tuple(step["angles_deg"]), n / rate_hz, n, gyro_mean, acc_mean,
+            out.positions.append(PositionObservation(record.angles_deg, n / rate_hz, n, gyro_mean, acc_mean,
                                                      gyro_std, acc_std, gyro_sem, acc_sem, label=unit,
                                                      start_s=first / rate_hz, output_step=output_step))
         else:
@@ -245,10 +175,10 @@ def extract_observations(events: list[Event], counter: np.ndarray, gyro_counts: 
                                     "its integral is incomplete; left out")
                 continue
             t0 = started.time_s if started is not None else -np.inf
-            earth = _turn_earth_integral(site, step, n / rate_hz, t0, finished.time_s, state_time_s,
+            earth = _turn_earth_integral(site, record, n / rate_hz, t0, finished.time_s, state_time_s,
                                          state_angles_deg, mounting)
             out.rotations.append(RotationObservation(
-                tuple(step["start_deg"]), step["frame"], step["direction"], int(step["revolutions"]), n / rate_hz, n,
+                record.start_deg, record.frame, record.direction, record.revolutions, n / rate_hz, n,
                 gyro_counts[window].sum(axis=0), earth_integral_rad=earth, label=unit,
                 start_s=first / rate_hz))
     if resolution is not None:

@@ -22,13 +22,14 @@ import numpy as np
 
 from bench.config.thermal import MAX_TEMPERATURE_C, MIN_TEMPERATURE_C
 from bench.errors import InputError
+from bench.log.events import StepStarted, finished_observation_steps
 from bench.log.reader import RunLog
 from bench.model.earth import Site
 from bench.model.imu import ImuCoefficients
 from bench.model.thermal import ImuThermal
 from bench.plan.steps import MAX_BLOCK_DIGITS, thermal_block
 from bench.solve.budget import BudgetInputs
-from bench.solve.extract import Extraction, finished_observation_steps
+from bench.solve.extract import Extraction
 from bench.solve.from_logs import extract_from_logs, solve_extraction
 from bench.solve.inputs import bias_stabilities, budget_inputs
 from bench.solve.methods import SolverError
@@ -59,7 +60,7 @@ def _setpoints(logs: list[RunLog]) -> dict[int, float]:
     out: dict[int, float] = {}
     for log in logs:
         for event in log.events:
-            step = event.data.get("step") if event.kind == "step_started" else None
+            step = event.step if isinstance(event, StepStarted) else None
             if isinstance(step, dict) and step.get("kind") == "set_temperature":
                 index, setpoint = step.get("temperature_index"), step.get("setpoint_c")
                 # a log is hostile: a block number is a small integer, a setpoint a temperature in range (a
@@ -80,7 +81,8 @@ def _block_temperature(logs: list[RunLog], layout: ImuLayout, rate_hz: float, k:
         for unit, (_, finished) in finished_observation_steps(log.events).items():
             if thermal_block(unit) != k:
                 continue
-            first, last = int(finished.data["counter_first"]), int(finished.data["counter_last"])
+            assert finished.window is not None          # a finished observation step has one
+            first, last = finished.window.first, finished.window.last
             a, b = np.searchsorted(counter, first), np.searchsorted(counter, last, side="right")
             values.append(samples.temperature_c[a:b])
     temps = np.concatenate(values) if values else np.zeros(0)

@@ -8,6 +8,7 @@ second: high-rate IMU data never becomes one UI message per sample.
 
 from __future__ import annotations
 
+import enum
 import math
 import threading
 import time
@@ -17,10 +18,22 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from bench.log.events import (
+    Event,
+    Fault,
+    Info,
+    RunListener,
+    RunState,
+    SoakStatus,
+    StepFinished,
+    StepSkipped,
+    StepStarted,
+    Transition,
+    make_event,
+)
 from bench.model.kinematics import triple
 from bench.model.result import CalibrationResult
 from bench.model.units import DEG, G0
-from bench.plan.events import Event, RunListener, RunState
 from drivers.chamber import ChamberState
 from drivers.imu import ImuStats
 from drivers.turntable import TableState
@@ -36,9 +49,20 @@ MEAN_WINDOW_S = 1.0
 #: (the idle monitor's poll; a run drains the receiver continuously), so 3 s without one is no jitter.
 STALE_AFTER_S = 3.0
 
-STEP_PENDING, STEP_RUNNING, STEP_DONE, STEP_SKIPPED, STEP_FAILED = "pending", "running", "done", "skipped", "failed"
-#: the step under way when the operator aborted the run (an abort request, not a fault)
-STEP_ABORTED = "aborted"
+
+
+class StepState(enum.StrEnum):
+    """Where a step of the plan stands, as the plan panel shows it."""
+
+    PENDING = "pending"
+    RUNNING = "running"
+    DONE = "done"
+    SKIPPED = "skipped"
+    FAILED = "failed"
+    #: the step under way when the operator aborted the run (an abort request, not a fault)
+    ABORTED = "aborted"
+
+
 #: what the TUI calls a run that failed because it was aborted on request (operator, e-stop, quit): the
 #: sequencer's state is `failed` either way; the log tells them apart (a fault event comes before a failure)
 RUN_ABORTED = "aborted"
@@ -87,7 +111,7 @@ class UiSnapshot:
     table_state: TableState | None
     table_states: int
     imu: ImuView
-    step_states: tuple[str, ...]
+    step_states: tuple[StepState, ...]
     current_step: int | None
     current_started_s: float | None
     done_estimated_s: float
@@ -96,7 +120,7 @@ class UiSnapshot:
     outcome_text: str = ""
     aborted: bool = False                  # the run went to `aborting` on request, with no fault before it
     chamber_state: ChamberState | None = None   # the last polled chamber state (a thermal plan's runs)
-    #: the current (or last) soak's state: `bench.run.soak.SoakStatus.as_dict()` with `time_s`, `done` and the
+    #: the current (or last) soak's state: `bench.log.events.SoakStatus.as_dict()` with `time_s`, `done` and the
     #: soak step's `step_index`; from the sequencer's checks, else (a replay) its decision events
     soak: dict | None = None
 
@@ -153,7 +177,7 @@ class UiBuffer(RunListener):
         """Forget the previous run's step states, progress and result; keep table/IMU/log."""
         with self._lock:
             self.steps = tuple(steps)
-            self._step_states = [STEP_PENDING] * len(self.steps)
+            self._step_states = [StepState.PENDING] * len(self.steps)
             self._current: int | None = None
             self._current_started: float | None = None
             self._done_estimated = 0.0
@@ -173,7 +197,7 @@ class UiBuffer(RunListener):
         on the run's clock."""
         with self._lock:
             t = self._run_time_s if self._run_time_s is not None else 0.0
-            self._add_event(Event(t, kind, message, data=data))
+            self._add_event(make_event(t, kind, message, data=data))
 
     def set_outcome(self, result: CalibrationResult | None = None, text: str = "") -> None:
         """The finished run's result (a CalibrationResult, or None) and a one-line account."""
@@ -185,14 +209,13 @@ class UiBuffer(RunListener):
         """Keep `event` as a `LogLine` (lock held): a run's lines from its start transition (a transition to
         running from idle; a resume is not a start) to its end (done or failed) count from that start, the
         others are the session's."""
-        if event.kind == "transition" and event.state == RunState.RUNNING.value \
-                and (event.data or {}).get("from") == RunState.IDLE.value:
+        if isinstance(event, Transition) and event.to(RunState.RUNNING) and event.previous == RunState.IDLE.value:
             self._run_origin_s, self._run_elapsed_s = event.time_s, 0.0
         elapsed = None
         if self._run_origin_s is not None:
             # a line of the run: monotonic (a note takes the latest time seen, which an event may trail)
             elapsed = self._run_elapsed_s = max(self._run_elapsed_s, event.time_s - self._run_origin_s)
-            if event.kind == "transition" and event.state in (RunState.DONE.value, RunState.FAILED.value):
+            if isinstance(event, Transition) and event.to(RunState.DONE, RunState.FAILED):
                 self._run_origin_s = None            # the run's last line
         self._event_count += 1
         self._events.append((self._event_count, LogLine(event, elapsed, self.wall_clock())))
@@ -204,42 +227,40 @@ class UiBuffer(RunListener):
             self._run_time_s = event.time_s
             index = event.step_index
             k = index if index is not None and 0 <= index < len(self._step_states) else None  # None: no valid step
-            if event.kind == "fault":
+            if isinstance(event, Fault):
                 self._fault_seen = True
-            if event.kind == "transition" and event.state is not None:
+            if isinstance(event, Transition) and event.state is not None:
                 self._run_state = RunState(event.state)
                 if self._run_state is RunState.ABORTING and not self._fault_seen:
                     self._aborted = True        # the sequencer emits a fault before an abort it was not asked for
                 if self._run_state is RunState.FAILED and self._current is not None:
-                    self._step_states[self._current] = STEP_ABORTED if self._aborted else STEP_FAILED
+                    self._step_states[self._current] = StepState.ABORTED if self._aborted else StepState.FAILED
                     # the part of the step done before the end stays done: the progress never goes back
                     # (it counted min(elapsed, estimate) while the step ran, and the time only goes on)
                     if self._current_started is not None:
                         step_s = self.steps[self._current].estimated_s
                         self._done_estimated += min(max(0.0, latest_s - self._current_started), step_s)
                     self._current = None
-            elif event.kind == "step_started" and k is not None:
-                self._step_states[k] = STEP_RUNNING
+            elif isinstance(event, StepStarted) and k is not None:
+                self._step_states[k] = StepState.RUNNING
                 self._current, self._current_started = k, event.time_s
-            elif event.kind in ("step_finished", "step_skipped") and k is not None:
-                self._step_states[k] = STEP_DONE if event.kind == "step_finished" else STEP_SKIPPED
+            elif isinstance(event, (StepFinished, StepSkipped)) and k is not None:
+                self._step_states[k] = StepState.DONE if isinstance(event, StepFinished) else StepState.SKIPPED
                 self._done_estimated += self.steps[k].estimated_s
                 if self._current == k:
                     self._current = None
-            elif event.kind == "fault" and k is not None:
-                self._step_states[k] = STEP_FAILED
-            if event.kind == "step_started" and k is not None and self.steps[k].kind == "soak":
+            elif isinstance(event, Fault) and k is not None:
+                self._step_states[k] = StepState.FAILED
+            if isinstance(event, StepStarted) and k is not None and self.steps[k].kind == "soak":
                 self._soak = None                # a new soak: nothing known of it yet
-            elif event.kind == "info" and "soak" in event.data and k is not None:
-                self._set_soak(event.time_s, k, event.data)
+            elif isinstance(event, Info) and event.soak is not None and k is not None:
+                self._set_soak(event.soak, k)
 
-    def _set_soak(self, time_s: float, step_index: int | None, data: dict) -> None:
+    def _set_soak(self, status: SoakStatus, step_index: int | None) -> None:
         """Keep a soak state (lock held); a decision event older than the last check changes nothing."""
-        if self._soak is not None and self._soak["time_s"] > time_s:
+        if self._soak is not None and self._soak["time_s"] > status.time_s:
             return
-        keys = ("imu_temperature_c", "rate_c_per_min", "chamber_c", "chamber_at_setpoint", "steady_for_s")
-        self._soak = {**{key: data.get(key) for key in keys}, "time_s": time_s,
-                      "done": bool(data.get("done", data.get("soak") == "done")),
+        self._soak = {**status.as_dict(), "time_s": status.time_s, "done": status.done,
                       "step_index": step_index if step_index is not None else self._current}
 
     def on_chamber_state(self, state: ChamberState) -> None:
@@ -247,9 +268,9 @@ class UiBuffer(RunListener):
             self._chamber_state = state
             self._run_time_s = state.time_s
 
-    def on_soak_status(self, status) -> None:
+    def on_soak_status(self, status: SoakStatus) -> None:
         with self._lock:
-            self._set_soak(status.time_s, self._current, {**status.as_dict(), "done": status.done})
+            self._set_soak(status, self._current)
 
     def on_table_state(self, state: TableState) -> None:
         with self._lock:

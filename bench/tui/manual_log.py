@@ -27,8 +27,8 @@ from pathlib import Path
 from typing import Callable
 
 from bench.errors import BenchError
+from bench.log.events import Event, Info, RunWarning, make_event
 from bench.log.recorder import McapRecorder
-from bench.plan.events import Event
 from bench.run.runner import BenchRun
 from drivers.clock import Clock
 
@@ -60,7 +60,7 @@ class ManualLog:
     # -- records (any thread; never blocks, never raises) ---------------------------------------
     def event(self, kind: str, message: str, **data) -> None:
         """An operator command or a note, stamped now on the run clock."""
-        self._put("on_event", Event(self.clock.now(), kind, message, data=data))
+        self._put("on_event", make_event(self.clock.now(), kind, message, data=data))
 
     def on_table_state(self, state) -> None:
         self._put("on_table_state", state)
@@ -119,9 +119,9 @@ class ManualLog:
         if not self._closing:
             self._closing = True                  # nothing more from the callers; the last records wait for room
             now = self.clock.now()
-            last = [Event(now, "info", f"manual log closed: {reason}")]
+            last: list[Event] = [Info(now, f"manual log closed: {reason}")]
             if self.dropped:
-                last.insert(0, Event(now, "warning", f"{self.dropped} records were dropped: the disk did not keep up"))
+                last.insert(0, RunWarning(now, f"{self.dropped} records were dropped: the disk did not keep up"))
             deadline = time.monotonic() + timeout_s
             try:
                 for item in [*(("on_event", event) for event in last), _END]:

@@ -21,21 +21,18 @@ from textual.widget import Widget
 from textual.widgets import DataTable, Label, ProgressBar, RichLog, Static
 
 from bench.acceptance.verdict import stored_headline
+from bench.log.events import RunState, StepStarted
 from bench.model.families import family_of
 from bench.model.kinematics import FRAMES
 from bench.model.units import format_hms
-from bench.plan.events import RunState
 from bench.plan.steps import thermal_block
 from bench.report.facts import turn_angle_missing
 from bench.tui.buffer import (
     CHANNELS,
     MEAN_WINDOW_S,
-    STEP_ABORTED,
-    STEP_DONE,
-    STEP_FAILED,
-    STEP_RUNNING,
     ImuScales,
     LogLine,
+    StepState,
     UiSnapshot,
     progress,
 )
@@ -289,9 +286,9 @@ def describe_step(step) -> str:
     return ""
 
 
-def state_style(state: str, pal: Palette) -> str:
-    return {STEP_RUNNING: f"bold {pal.warn}", STEP_DONE: pal.ok, STEP_FAILED: f"bold {pal.error}",
-            STEP_ABORTED: f"bold {pal.warn}"}.get(state, "dim")
+def state_style(state: StepState, pal: Palette) -> str:
+    return {StepState.RUNNING: f"bold {pal.warn}", StepState.DONE: pal.ok, StepState.FAILED: f"bold {pal.error}",
+            StepState.ABORTED: f"bold {pal.warn}"}.get(state, "dim")
 
 
 class PlanPanel(Vertical):
@@ -472,7 +469,7 @@ class EventLog(RichLog):
         pal = palette(self.app)
         for line in lines:
             e = line.event
-            if e.kind == "step_started":
+            if isinstance(e, StepStarted):
                 continue                 # the plan panel shows the running step
             text = f"[{log_time(line)}] {e.kind}: {e.message}"
             self.plain_lines.append(text)

@@ -22,6 +22,7 @@ with the simulator a new simulated world, table back at zero).
 
 from __future__ import annotations
 
+import enum
 import shlex
 import threading
 from dataclasses import dataclass
@@ -30,7 +31,7 @@ from typing import Callable, Sequence
 
 from bench.config.load import SIM_CONFIG_TOML
 from bench.errors import BenchError
-from bench.plan.events import RunState
+from bench.log.events import RunState
 from bench.run.runner import BenchRun, RunOutcome
 from bench.run.sequencer import RunAborted
 from bench.sim.world import PumpedReceiver
@@ -44,34 +45,41 @@ from drivers.turntable import FRAMES, AxisMode, Turntable, frame_index
 LINK_DISCONNECTED, LINK_CONNECTING, LINK_CONNECTED, LINK_ERROR = "disconnected", "connecting", "connected", "error"
 
 
-def run_end_of(outcome: RunOutcome, stop_words: str = "table stopped") -> tuple[str, str, str]:
-    """How a finished run ends, from what `BenchRun.finish()` returned: (END_* kind, the reason a non-zero exit
+def run_end_of(outcome: RunOutcome, stop_words: str = "table stopped") -> tuple[EndKind, str, str]:
+    """How a finished run ends, from what `BenchRun.finish()` returned: (its `EndKind`, the reason a non-zero exit
     gives, the line the event log shows). A judged run ends by its verdict, as `bench run` does. `stop_words`: what
     the run's stop did ("table stopped", or TABLE STATE UNKNOWN when it could not be sent or confirmed)."""
     if isinstance(outcome.error, RunAborted):
-        return END_ABORTED, str(outcome.error), f"aborted: {outcome.error}; {stop_words}. Log: {outcome.log_path.name}"
+        return (EndKind.ABORTED, str(outcome.error),
+                f"aborted: {outcome.error}; {stop_words}. Log: {outcome.log_path.name}")
     if outcome.error is not None:
-        return (END_FAILED, f"{outcome.error}",
+        return (EndKind.FAILED, f"{outcome.error}",
                 f"{outcome.state.value}: {outcome.error}; {stop_words}. Log: {outcome.log_path.name}")
     if outcome.verdict is not None and outcome.verdict.failed:
         text = "verdict FAIL: " + "; ".join(c.labelled() for c in outcome.verdict.failed)
-        return END_QUALITY, text, text
+        return EndKind.QUALITY, text, text
     if outcome.verdict is None and outcome.failures:         # not judged (a noise recording)
         text = "quality check failed: " + "; ".join(outcome.failures)
-        return END_QUALITY, text, text
+        return EndKind.QUALITY, text, text
     if outcome.result_path is not None:
         verdict = f"verdict {outcome.verdict.outcome}; " if outcome.verdict is not None else ""
-        return END_DONE, "", f"done; {verdict}result {outcome.result_path.name}"
+        return EndKind.DONE, "", f"done; {verdict}result {outcome.result_path.name}"
     text = f"{outcome.state.value}: no result written"       # finish() writes a result whenever the run ended well
-    return END_UNSOLVED, text, text
+    return EndKind.UNSOLVED, text, text
 
 
 class SessionError(BenchError):
     """An operator command that cannot be done now (says why)."""
 
 
-#: how a session's run ended (`RunEnd.kind`)
-END_DONE, END_QUALITY, END_UNSOLVED, END_ABORTED, END_FAILED = "done", "quality", "unsolved", "aborted", "failed"
+class EndKind(enum.StrEnum):
+    """How a session's run ended (`RunEnd.kind`)."""
+
+    DONE = "done"
+    QUALITY = "quality"
+    UNSOLVED = "unsolved"
+    ABORTED = "aborted"
+    FAILED = "failed"
 
 
 @dataclass(frozen=True)
@@ -83,7 +91,7 @@ class RunEnd:
     `log_path`: the run's log. `resume`: the command that continues an aborted or failed run from its log
     (`resume_command`), '' otherwise."""
 
-    kind: str
+    kind: EndKind
     reason: str
     log_path: Path | None
     resume: str = ""
@@ -467,11 +475,11 @@ class BenchSession:
 
     def _run_body(self, run: BenchRun) -> None:
         text, result = "", None
-        kind, reason = END_FAILED, "the run's thread ended without an account"    # replaced on every known path
+        kind, reason = EndKind.FAILED, "the run's thread ended without an account"    # replaced on every known path
         try:
             if self._estop:
                 text = "not started: emergency stop"
-                kind, reason = END_ABORTED, "emergency stop before the start"
+                kind, reason = EndKind.ABORTED, "emergency stop before the start"
                 return
             try:
                 run.run()
@@ -484,7 +492,7 @@ class BenchSession:
                 self.outcome = run.finish()
             except SolverError as exc:
                 text = f"the run finished but cannot be solved: {exc}"
-                kind, reason = END_UNSOLVED, text
+                kind, reason = EndKind.UNSOLVED, text
                 self.buffer.note("warning", text)
                 return
             outcome = self.outcome
@@ -493,14 +501,14 @@ class BenchSession:
             self.buffer.note("info", text)
         except Exception as exc:  # noqa: BLE001 - the operator must see it; the sequencer already stopped the table
             text = f"run error: {type(exc).__name__}: {exc}"
-            kind, reason = END_FAILED, text
+            kind, reason = EndKind.FAILED, text
             self.buffer.note("fault", text)
         finally:
             if run.receiver is not None:
                 run.receiver.on_frames = None      # the finished sequencer's listeners are closed
             log = run.log_path if run.recorder is not None else None
-            resume = resume_command(self.config, self.sim, log) if log is not None and kind in (END_ABORTED,
-                                                                                               END_FAILED) else ""
+            resume = resume_command(self.config, self.sim, log) if log is not None and kind in (EndKind.ABORTED,
+                                                                                               EndKind.FAILED) else ""
             if resume:
                 text = f"{text}; continue with: {resume}" if text else f"continue with: {resume}"
                 self.buffer.note("info", f"continue this run with: {resume}")

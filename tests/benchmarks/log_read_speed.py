@@ -76,8 +76,8 @@ def synthetic_path(cache: Path, args) -> Path:
 def write_synthetic(path: Path, n_samples: int, decimation: int = 1) -> None:
     import can
 
+    from bench.log.events import make_event
     from bench.log.recorder import McapRecorder
-    from bench.plan.events import Event
     from drivers.imu import ImuSampleBlock
     from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
 
@@ -105,7 +105,7 @@ def write_synthetic(path: Path, n_samples: int, decimation: int = 1) -> None:
             rec.on_table_state(TableState(t, (axis, axis, axis)))
             next_state += 50
         if s >= next_event:
-            rec.on_event(Event(t, "info", f"sample {s}", data={"samples": s}))
+            rec.on_event(make_event(t, "info", f"sample {s}", data={"samples": s}))
             next_event += 10_000
     rec.close()
     os.replace(tmp, path)

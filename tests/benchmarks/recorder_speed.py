@@ -25,9 +25,9 @@ import time
 import can
 import numpy as np
 
+from bench.log.events import make_event
 from bench.log.reader import read_log
 from bench.log.recorder import McapRecorder
-from bench.plan.events import Event
 from drivers.imu import ImuEncoder, ImuSampleBlock, decode_frames, default_layout
 from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
 
@@ -76,7 +76,7 @@ def record(path: str, msgs, block) -> float:
             rec.on_table_state(state(t))
             next_state += 50
         if s >= next_event:
-            rec.on_event(Event(t, "info", f"sample {s}", data={"samples": s}))
+            rec.on_event(make_event(t, "info", f"sample {s}", data={"samples": s}))
             next_event += 10_000
     rec.close()
     elapsed = time.perf_counter() - t0

@@ -24,9 +24,9 @@ from typing import Callable
 from mcap.reader import make_reader
 
 from bench.config.load import parse_config
+from bench.log.events import RunListener
 from bench.model.families import family_of
 from bench.model.imu import NoiseModel
-from bench.plan.events import RunListener
 from bench.run.runner import BenchRun, compile_from_config
 from bench.sim.acquire import AcquisitionTiming, acquire
 from bench.sim.imu import SimImu
@@ -340,8 +340,8 @@ def load_json(path: Path) -> dict:
 def kill_run_after_units(config: Path, out: Path, units: int = 5) -> tuple[Path, dict]:
     """Start `bench run --config` as a process, SIGKILL it once its log holds `units` finished
     observation steps; returns the killed log and those steps (unit -> events)."""
+    from bench.log.events import finished_observation_steps
     from bench.log.reader import LogError, read_log
-    from bench.solve.extract import finished_observation_steps
 
     seen: dict = {}
 

@@ -19,10 +19,10 @@ def write_static_log(path: Path, seconds: float, rate_hz: float, layout_name: st
                      drop: tuple[tuple[int, int], ...] = (), seed: int = 0) -> Path:
     """Write the log to `path` (via a `.partial` file); `drop`: [start, stop) sample ranges left out."""
     from bench.config.load import parse_config
+    from bench.log.events import make_event
     from bench.log.format import record_dtype
     from bench.log.recorder import McapRecorder
     from bench.model.earth import Site
-    from bench.plan.events import Event
     from bench.plan.steps import DwellStep, step_to_dict
     from bench.run.runner import compile_from_config
     from bench.sim.imu import SimImu
@@ -64,7 +64,7 @@ seed = {seed}
     per = len(layout.messages)
     per_batch = 100 * per                        # frames per /can/raw message
     with McapRecorder(str(tmp), metadata=metadata) as rec:
-        rec.on_event(Event(0.0, "step_started", "P01 dwell", step_index=dwell.index, step_unit="P01",
+        rec.on_event(make_event(0.0, "step_started", "P01 dwell", step_index=dwell.index, step_unit="P01",
                            data={"step": step_to_dict(dwell)}))
         done, t_end = 0, 0.0
         while done < n_total:
@@ -86,7 +86,7 @@ seed = {seed}
                 batch = records[lo:lo + per_batch]
                 rec.on_encoded_can_frames(batch.tobytes(), len(batch), float(batch["t"][-1]))
             done += len(block)
-        rec.on_event(Event(t_end, "step_finished", "P01 dwell done", step_index=dwell.index, step_unit="P01",
+        rec.on_event(make_event(t_end, "step_finished", "P01 dwell done", step_index=dwell.index, step_unit="P01",
                            data={"step": step_to_dict(dwell), "counter_first": 0, "counter_last": n_total - 1,
                                  "samples": n_total}))
     os.replace(tmp, path)

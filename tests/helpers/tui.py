@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from bench.config.load import parse_config
+from bench.log.events import RunState, make_event
 from bench.model.result import CalibrationResult, coefficient_table
-from bench.plan.events import Event, RunState
 from drivers.imu import ImuSampleBlock
 from drivers.turntable import AxisMode, AxisState, AxisStatus, TableState
 from tests.helpers.run import config_text
@@ -107,16 +107,16 @@ def feed_running(app) -> None:
     """A run under way fed straight into the app's buffer (no wall-clock text, no run ids): for snapshots."""
     buf, steps = app.buffer, app.steps
     app.session.link, app.session.link_detail = "connected", "scpi, simulator"
-    buf.on_event(Event(0.0, "transition", "run started: %d steps" % len(steps), state="running",
+    buf.on_event(make_event(0.0, "transition", "run started: %d steps" % len(steps), state="running",
                        data={"from": "idle"}))
     t = 0.0
     dwell = [s for s in steps if s.kind == "dwell"][2]
     for s in steps[:dwell.index]:
-        buf.on_event(Event(t, "step_started", f"{s.unit} {s.kind}", step_index=s.index, step_unit=s.unit))
+        buf.on_event(make_event(t, "step_started", f"{s.unit} {s.kind}", step_index=s.index, step_unit=s.unit))
         t += s.estimated_s
-        buf.on_event(Event(t, "step_finished", f"{s.unit} {s.kind} done in {s.estimated_s:.1f} s",
+        buf.on_event(make_event(t, "step_finished", f"{s.unit} {s.kind} done in {s.estimated_s:.1f} s",
                            step_index=s.index, step_unit=s.unit))
-    buf.on_event(Event(t, "step_started", f"{dwell.unit} dwell", step_index=dwell.index, step_unit=dwell.unit))
+    buf.on_event(make_event(t, "step_started", f"{dwell.unit} dwell", step_index=dwell.index, step_unit=dwell.unit))
     enabled = AxisStatus.ENABLED | AxisStatus.IN_POSITION
     buf.on_table_state(TableState(t + 1.0, tuple(AxisState(a, 0.0, AxisMode.POSITION, enabled)
                                                  for a in dwell.target_deg)))
@@ -136,7 +136,7 @@ def feed_result(app) -> None:
     offsets = (0.4, -1.3, 2.6, 0.0, -0.7)
     values = {name: v + offsets[k % len(offsets)] * sigmas[name] for k, (name, v) in enumerate(truth.items())}
     result = CalibrationResult(coefficient_table(values, sigmas), sim_truth=coefficient_table(truth))
-    app.buffer.on_event(Event(300.0, "transition", "run complete", state="done", data={"from": "running"}))
+    app.buffer.on_event(make_event(300.0, "transition", "run complete", state="done", data={"from": "running"}))
     app.buffer.set_outcome(result, "done; result run.result.json")
 
 
@@ -158,5 +158,5 @@ def feed_budget_result(app, table_included: bool = False) -> None:
                                                 "drivers": ["R03 (+5.2)", "R07 (-3.1)"]}]}}
     result = CalibrationResult(coefficient_table(values, sigmas, budgets, 2.0), quality=quality,
                                sim_truth=coefficient_table(truth))
-    app.buffer.on_event(Event(300.0, "transition", "run complete", state="done", data={"from": "running"}))
+    app.buffer.on_event(make_event(300.0, "transition", "run complete", state="done", data={"from": "running"}))
     app.buffer.set_outcome(result, "done; result run.result.json")
