@@ -1,4 +1,5 @@
-"""IMU over CAN: the live assembler and the bulk decoder, fault by fault, and against each other."""
+"""IMU over CAN: the stream decoder fed live (frame by frame) and in pieces, and the bulk decoder, fault by fault,
+and against each other."""
 
 from __future__ import annotations
 
@@ -12,12 +13,12 @@ from drivers.imu import (
     EXTENDED_ID_FLAG,
     ImuEncoder,
     ImuSampleBlock,
-    SampleAssembler,
+    StreamDecoder,
     decode_frames,
     default_fd_layout,
     default_layout,
 )
-from drivers.imu.stream import StreamDecoder
+from drivers.imu.receiver import ImuReceiver
 
 LAYOUT = default_layout()
 M = len(LAYOUT.messages)   # 7 frames per sample
@@ -35,25 +36,29 @@ def frames_of(counters, layout=LAYOUT) -> list[tuple[int, bytes, float]]:
     return [(*enc.frame(i), 0.001 * i) for i in range(len(enc))]
 
 
+def arrays(frames, width=64):
+    """(ids, data, lengths, timestamps) of (key, data, time) frames, as the decoders take them."""
+    ids = np.array([k for k, _, _ in frames], np.int64)
+    data = np.zeros((len(frames), width), np.uint8)
+    for i, (_, d, _) in enumerate(frames):
+        data[i, :len(d)] = np.frombuffer(d, np.uint8)
+    return ids, data, np.array([len(d) for _, d, _ in frames], np.int64), np.array([t for _, _, t in frames], float)
+
+
 def live(frames, layout=LAYOUT, window=8) -> tuple[ImuSampleBlock, object]:
-    asm = SampleAssembler(layout, 1000.0, window)
+    """The stream decoder as the live receiver drives it, a frame per piece: take after each, flush at the end."""
+    decoder = StreamDecoder(layout, 1000.0, window)
     blocks = []
-    for key, data, t in frames:
-        asm.feed(key & ~EXTENDED_ID_FLAG, data, t, is_extended_id=bool(key & EXTENDED_ID_FLAG))
-        blocks.append(asm.take_block())
-    blocks.append(asm.flush())
-    return ImuSampleBlock.concatenate(blocks, 1000.0), asm.stats
+    for frame in frames:
+        decoder.feed(*arrays([frame]))
+        blocks.append(decoder.take_block())
+    decoder.flush()
+    blocks.append(decoder.take_block())
+    return ImuSampleBlock.concatenate(blocks, 1000.0), decoder.stats
 
 
 def bulk(frames, layout=LAYOUT, window=8, width=64):
-    n = len(frames)
-    ids = np.array([k for k, _, _ in frames], np.int64)
-    data = np.zeros((n, width), np.uint8)
-    lengths = np.array([len(d) for _, d, _ in frames], np.int64)
-    for i, (_, d, _) in enumerate(frames):
-        data[i, :len(d)] = np.frombuffer(d, np.uint8)
-    times = np.array([t for _, _, t in frames], float)
-    return decode_frames(ids, data, lengths, times, layout=layout, reorder_window=window)
+    return decode_frames(*arrays(frames, width), layout=layout, reorder_window=window)
 
 
 def assert_same(a: ImuSampleBlock, b: ImuSampleBlock) -> None:
@@ -69,13 +74,7 @@ def streamed(frames, cuts, layout=LAYOUT, window=8, width=64):
     decoder = StreamDecoder(layout, 1000.0, window)
     bounds = [0, *sorted(c for c in cuts if 0 < c < len(frames)), len(frames)]
     for a, b in zip(bounds, bounds[1:]):
-        piece = frames[a:b]
-        ids = np.array([k for k, _, _ in piece], np.int64)
-        data = np.zeros((len(piece), width), np.uint8)
-        for i, (_, d, _) in enumerate(piece):
-            data[i, :len(d)] = np.frombuffer(d, np.uint8)
-        decoder.feed(ids, data, np.array([len(d) for _, d, _ in piece], np.int64),
-                     np.array([t for _, _, t in piece], float))
+        decoder.feed(*arrays(frames[a:b], width))
     return decoder.finish()
 
 
@@ -253,48 +252,60 @@ def test_many_wraps_and_a_32_bit_fd_counter():
 def test_samples_wait_behind_an_incomplete_one_and_leave_in_order():
     frames = frames_of(range(30))
     del frames[2 * M]                            # sample 2 will never complete
-    asm = SampleAssembler(LAYOUT, 1000.0, 8)
+    decoder = StreamDecoder(LAYOUT, 1000.0, 8)
     emitted = []
-    for i, (key, data, t) in enumerate(frames):
-        asm.feed(key, data, t)
-        emitted += asm.take_block().counter.tolist()
+    for i, frame in enumerate(frames):
+        decoder.feed(*arrays([frame]))
+        emitted += decoder.take_block().counter.tolist()
         if i == 2 * M + 5 * M:                  # sample 7 complete: still held behind sample 2
             assert emitted == [0, 1]
-    emitted += asm.flush().counter.tolist()
+    decoder.flush()
+    emitted += decoder.take_block().counter.tolist()
     assert emitted == [c for c in range(30) if c != 2]
-    assert asm.stats.incomplete_samples == 1
+    assert decoder.stats.incomplete_samples == 1
 
 
 def test_in_order_samples_are_emitted_at_once():
-    asm = SampleAssembler()
-    for key, data, t in frames_of([7]):
-        asm.feed(key, data, t)
-    assert asm.take_block().counter.tolist() == [7] and asm.pending_samples == 0
+    """A complete sample leaves with the piece that completed it, not a reorder window later (the sequencer
+    counts a dwell's samples as they come); a later copy of one of its frames is a duplicate."""
+    decoder = StreamDecoder()
+    frames = frames_of([7, 8])
+    decoder.feed(*arrays(frames[:M]))
+    assert decoder.take_block().counter.tolist() == [7]
+    decoder.feed(*arrays(frames[M:M + 3] + frames[2:3]))
+    assert len(decoder.take_block()) == 0 and decoder.stats.duplicates == 1
+    decoder.feed(*arrays(frames[M + 3:]))
+    assert decoder.take_block().counter.tolist() == [8]
+    assert (decoder.stats.frames_ok, decoder.stats.lost_samples) == (2 * M, 0)
 
 
 def test_frames_after_a_flush_continue_the_stream():
     frames = frames_of(range(20))
-    asm = SampleAssembler()
+    decoder = StreamDecoder()
     for f in frames[:10 * M + 3]:
-        asm.feed(*f)
-    first = asm.flush()
+        decoder.feed(*arrays([f]))
+    decoder.flush()
     # the stream ended (for all the flush knows) inside sample 10: cut by the end, not lost
-    assert first.counter.tolist() == list(range(10))
-    assert (asm.stats.left_mid_sample, asm.stats.incomplete_samples, asm.stats.lost_samples) == (1, 0, 0)
+    assert decoder.take_block().counter.tolist() == list(range(10))
+    stats = decoder.stats
+    assert (stats.left_mid_sample, stats.incomplete_samples, stats.lost_samples) == (1, 0, 0)
     for f in frames[10 * M + 3:]:
-        asm.feed(*f)
-    rest = asm.flush()
-    assert rest.counter.tolist() == list(range(11, 20))
-    assert asm.stats.late == 4 and asm.stats.frames == len(frames)
+        decoder.feed(*arrays([f]))
+    decoder.flush()
+    assert decoder.take_block().counter.tolist() == list(range(11, 20))
+    assert stats.late == 4 and stats.frames == len(frames)
     # it went on: sample 10 was lost after all; the new end is at a sample boundary
-    assert (asm.stats.left_mid_sample, asm.stats.incomplete_samples) == (0, 1)
+    assert (stats.left_mid_sample, stats.incomplete_samples) == (0, 1)
+    decoder.finish()
+    with pytest.raises(ImuFrameError):
+        decoder.feed(*arrays(frames[:1]))
 
 
 def test_bad_construction():
     with pytest.raises(ImuConfigError):
-        SampleAssembler(LAYOUT, 1000.0, 0)
+        ImuReceiver({"interface": "virtual", "channel": "test_bad_construction"}, LAYOUT, 1000.0, 0)
     with pytest.raises(ImuConfigError):
-        SampleAssembler(LAYOUT, -1.0)
+        ImuReceiver({"interface": "virtual", "channel": "test_bad_construction"}, LAYOUT, -1.0)
     with pytest.raises(ImuFrameError):
         decode_frames(np.zeros(3), np.zeros((2, 8), np.uint8))
     with pytest.raises(ImuFrameError):

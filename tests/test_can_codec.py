@@ -18,7 +18,7 @@ from drivers.imu import (
     ImuEncoder,
     ImuFrameSpec,
     ImuLayout,
-    SampleAssembler,
+    StreamDecoder,
     decode_frames,
     default_fd_layout,
     default_layout,
@@ -96,10 +96,10 @@ def test_frames_as_the_manual_prints_them():
         (0x105, "34 12 ff 27 00 00 00 51"),
         (0x106, "34 12 29 09 11 00 00 ab"),
     ]
-    asm = SampleAssembler()
+    decoder = StreamDecoder()
     for k, d in frames:
-        asm.feed(k, d, 1.5)
-    block = asm.take_block()
+        decoder.feed([k], np.frombuffer(d, np.uint8).reshape(1, 8), timestamps=[1.5])
+    block = decoder.take_block()
     assert block.counter.tolist() == [0x1234]
     assert block.gyro_counts.tolist() == [[100.5, -2.25, 0.0]]
     assert block.acc_counts.tolist() == [[40.0, -1.0, 39.99609375]]
@@ -224,13 +224,14 @@ def test_user_dbc_with_motorola_extended_ids_and_a_5_bit_counter():
     assert np.array_equal(block.gyro_counts, gyro) and np.array_equal(block.acc_counts, acc)
     assert block.counter.tolist() == list(range(80))     # the 5-bit counter unwrapped
     assert np.isnan(block.temperature_c).all() and not block.status.any()
-    asm = SampleAssembler(layout)
+    decoder = StreamDecoder(layout)
     for i in range(len(frames)):
         key, data = frames.frame(i)
-        asm.feed(key & ~EXTENDED_ID_FLAG, data, 0.0, is_extended_id=True)
-        asm.feed(key & ~EXTENDED_ID_FLAG, data, 0.0, is_extended_id=False)   # same number, 11-bit: unknown
-    live = asm.flush()
-    assert np.array_equal(live.acc_counts, acc) and asm.stats.unknown_id == len(frames)
+        row = np.frombuffer(data, np.uint8).reshape(1, -1)
+        decoder.feed([key], row)
+        decoder.feed([key & ~EXTENDED_ID_FLAG], row)   # same number, 11-bit: unknown
+    live, stats = decoder.finish()
+    assert np.array_equal(live.acc_counts, acc) and stats.unknown_id == len(frames)
 
 
 def _spec(**override):

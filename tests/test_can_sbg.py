@@ -25,7 +25,7 @@ from bench.sim.can_imu import SimCanImu
 from bench.sim.imu import SimImu
 from bench.sim.rig import imu_layout_lines
 from bench.sim.table import SimTable
-from drivers.imu import SHIPPED_LAYOUTS, ImuEncoder, SampleAssembler, decode_frames, frames_from_messages
+from drivers.imu import SHIPPED_LAYOUTS, ImuEncoder, decode_frames, frames_from_messages
 from drivers.imu.layout import SBG_ECAN_DBC, describe_status, sbg_ecan_layout
 from drivers.imu.receiver import ImuReceiver
 from drivers.imu.stream import StreamDecoder
@@ -72,13 +72,14 @@ def _arrays(frames: list[tuple[int, bytes]]):
 
 
 def _all_decoders(frames: list[tuple[int, bytes]], cut: int = 4):
-    """(block, stats) of the live assembler, the bulk decoder and the stream decoder (pieces of `cut`):
-    asserted identical, returned once."""
+    """(block, stats) of the stream decoder fed live (a frame at a time), the bulk decoder and the stream
+    decoder in pieces of `cut`: asserted identical, returned once."""
     layout = sbg_ecan_layout()
-    live = SampleAssembler(layout, RATE_HZ)
-    for i, (key, payload) in enumerate(frames):
-        live.feed(key, payload, float(i))
-    live_block = live.flush()
+    live = StreamDecoder(layout, RATE_HZ)
+    one_by_one = _arrays(frames)
+    for i in range(len(frames)):
+        live.feed(*(a[i:i + 1] for a in one_by_one))
+    live_block, _ = live.finish()
     bulk_block, bulk_stats = decode_frames(*_arrays(frames), layout=layout, rate_hz=RATE_HZ)
     stream = StreamDecoder(layout, RATE_HZ)
     ids, data, lengths, times = _arrays(frames)

@@ -176,14 +176,14 @@ def test_thread_in_real_time(buses):
 
 def test_feeding_something_that_is_not_a_frame():
     from drivers.errors import ImuFrameError
-    from drivers.imu import SampleAssembler
+    from drivers.imu import StreamDecoder
 
-    asm = SampleAssembler()
+    decoder = StreamDecoder()
     with pytest.raises(ImuFrameError):
-        asm.feed(0x100, None, 0.0)
+        decoder.feed([0x100], [[None] * 8], None, [0.0])
     with pytest.raises(ImuFrameError):
-        asm.feed(0x100, "abcdefgh", 0.0)
-    assert asm.stats.frames == 0
+        decoder.feed([0x100], ["abcdefgh"], None, [0.0])
+    assert decoder.stats.frames == 0
 
 
 def test_receiver_opens_and_closes_its_own_bus():

@@ -153,7 +153,7 @@ def test_silent_imu_while_recording_is_a_fault_and_a_safe_stop(bench):
         stats, on_frames = imu.stats, None
 
         def poll(self):
-            return imu._receiver.assembler.take_block()
+            return imu._receiver.decoder.take_block()
 
     listener = Recorder()
     seq = Sequencer(STEPS, table, Silent(), world.clock, [listener], OPTIONS)

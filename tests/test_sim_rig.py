@@ -242,7 +242,7 @@ crc = {IMU_GYRO_X = "CRC", IMU_GYRO_Y = "CRC", IMU_GYRO_Z = "CRC", IMU_ACC_X = "
 
 
 def test_the_rig_serves_and_writes_its_register_map(tmp_path):
-    from bench.cli.table import _listen  # how `bench sim rig` starts its table listener
+    from bench.cli.table import start_listener  # how `bench sim rig` starts its table listener
 
     register_map = tmp_path / "map.toml"
     register_map.write_text("[modbus]\nunit = 3\nwatchdog_s = 0.0\n[modbus.fault_codes]\n9 = \"coolant\"\n")
@@ -252,7 +252,8 @@ def test_the_rig_serves_and_writes_its_register_map(tmp_path):
     closers: list = []
     with SimRig(source) as map_rig:
         try:
-            url = _listen(map_rig.controller, "modbus", "modbus+tcp://127.0.0.1:0", closers, source.table.register_map)
+            url = start_listener(map_rig.controller, "modbus", "modbus+tcp://127.0.0.1:0", closers,
+                                 source.table.register_map)
             path = tmp_path / "bench.toml"
             path.write_text(rig_config_text(source, url, "modbus", map_rig.serve_socketcand()))
             written = load_config(path)

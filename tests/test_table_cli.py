@@ -216,7 +216,7 @@ def test_sim_table_with_allow_remote_warns_loudly(capsys, monkeypatch):
         def __iter__(self):
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(table_cli, "_listen", lambda controller, dialect, where, closers, **options: "tcp://0.0.0.0:5025")
+    monkeypatch.setattr(table_cli, "start_listener", lambda controller, dialect, where, closers, **options: "tcp://0.0.0.0:5025")
     monkeypatch.setattr(sys, "stdin", CtrlC())
     assert main(["sim", "table", "--dialect", "scpi", "--listen", "tcp://0.0.0.0:5025", "--allow-remote"]) == 0
     captured = capsys.readouterr()

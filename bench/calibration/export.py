@@ -88,12 +88,12 @@ def _csv_sigma(x: float) -> str:
 C_PREFIX = "TB_IMU"
 
 
-def _comment_text(text: str) -> str:
+def comment_text(text: str) -> str:
     """Text safe inside a C block comment: printable ASCII, no `*/`."""
     return re.sub(r"[^ -~]", "?", text).replace("*/", "*?")
 
 
-def _c_num(x: float) -> str:
+def c_num(x: float) -> str:
     if not math.isfinite(x):
         return "NAN"
     text = repr(float(x))
@@ -102,9 +102,9 @@ def _c_num(x: float) -> str:
 
 def _c_array(name: str, values: np.ndarray, unit: str) -> str:
     if values.ndim == 1:
-        body = "{" + ", ".join(map(_c_num, values)) + "}"
+        body = "{" + ", ".join(map(c_num, values)) + "}"
         return f"static const double {name}[3] = {body};   /* {unit} */\n"
-    rows = ",\n    ".join("{" + ", ".join(map(_c_num, row)) + "}" for row in values)
+    rows = ",\n    ".join("{" + ", ".join(map(c_num, row)) + "}" for row in values)
     return f"static const double {name}[3][3] = {{\n    {rows}\n}};   /* {unit} */\n"
 
 
@@ -113,7 +113,7 @@ def to_c_header(c: Compensation) -> str:
     ident = _identity(c)
     lines = ["/* IMU compensation exported by turntable-bench (format "
              f"{COMPENSATION_FORMAT} {COMPENSATION_VERSION}).", " *"]
-    lines += [f" * {key}: {_comment_text(value) or '(not recorded)'}" for key, value in ident.items()]
+    lines += [f" * {key}: {comment_text(value) or '(not recorded)'}" for key, value in ident.items()]
     lines += [" *",
               " * gyro:          w_b[i] = sum_j TB_IMU_GYRO_MATRIX[i][j] * (F[j] - TB_IMU_GYRO_BIAS[j])",
               " * accelerometer: f_b[i] = sum_j TB_IMU_ACC_MATRIX[i][j] * (J[j] - TB_IMU_ACC_BIAS[j])",
@@ -153,16 +153,16 @@ def to_c_header(c: Compensation) -> str:
 
 # -- YAML (kalibr-style) ------------------------------------------------------------------------
 
-def _yaml_num(x: float) -> str:
+def yaml_num(x: float) -> str:
     return repr(float(x)) if math.isfinite(x) else ".nan"
 
 
 def _yaml_matrix(m: np.ndarray, indent: str) -> str:
-    return "".join(f"{indent}- [{', '.join(map(_yaml_num, row))}]\n" for row in m)
+    return "".join(f"{indent}- [{', '.join(map(yaml_num, row))}]\n" for row in m)
 
 
 def _yaml_vector(v: np.ndarray) -> str:
-    return "[" + ", ".join(map(_yaml_num, v)) + "]"
+    return "[" + ", ".join(map(yaml_num, v)) + "]"
 
 
 def to_yaml(c: Compensation, rostopic: str = "/imu0", update_rate_hz: float | None = None) -> str:
@@ -180,7 +180,7 @@ def to_yaml(c: Compensation, rostopic: str = "/imu0", update_rate_hz: float | No
            "# compensation:      u = C (y - bias), C = M^-1"]
     out += ["imu0:", "  model: scale-misalignment", f"  rostopic: {json.dumps(rostopic)}", "  time_offset: 0.0"]
     if update_rate_hz is not None:
-        out.append(f"  update_rate: {_yaml_num(update_rate_hz)}")
+        out.append(f"  update_rate: {yaml_num(update_rate_hz)}")
     out += ["  T_i_b:"] + [f"    - [{', '.join('1.0' if i == j else '0.0' for j in range(4))}]" for i in range(4)]
     out += [f"  imu_model: {json.dumps(c.imu_model)}", f"  imu_serial: {json.dumps(c.imu_serial)}",
             f"  run_id: {json.dumps(c.run_id)}", f"  calibrated_utc: {json.dumps(c.calibrated_utc)}",
@@ -201,12 +201,12 @@ def to_yaml(c: Compensation, rostopic: str = "/imu0", update_rate_hz: float | No
 
 # -- TOML -----------------------------------------------------------------------------------------
 
-def _toml_num(x: float) -> str:
+def toml_num(x: float) -> str:
     return repr(float(x)) if math.isfinite(x) else "nan"
 
 
 def _toml_matrix(m: np.ndarray) -> str:
-    return "[\n" + "".join(f"  [{', '.join(map(_toml_num, row))}],\n" for row in m) + "]"
+    return "[\n" + "".join(f"  [{', '.join(map(toml_num, row))}],\n" for row in m) + "]"
 
 
 def to_toml(c: Compensation) -> str:
@@ -219,8 +219,8 @@ def to_toml(c: Compensation) -> str:
                   f"output_unit = {json.dumps(t.input_unit)}", f"matrix_unit = {json.dumps(t.matrix_unit)}",
                   f"matrix = {_toml_matrix(t.matrix)}", f"matrix_sigma = {_toml_matrix(t.matrix_sigma)}",
                   f"bias_unit = {json.dumps(RAW_UNIT)}",
-                  f"bias = [{', '.join(map(_toml_num, t.bias_counts))}]",
-                  f"bias_sigma = [{', '.join(map(_toml_num, t.bias_sigma))}]"]
+                  f"bias = [{', '.join(map(toml_num, t.bias_counts))}]",
+                  f"bias_sigma = [{', '.join(map(toml_num, t.bias_sigma))}]"]
     return "\n".join(lines) + "\n"
 
 
@@ -234,5 +234,5 @@ def export_text(c: Compensation, fmt: str) -> str:
     return FORMATS[fmt](c)
 
 
-__all__ = ["COMPENSATION_FORMAT", "COMPENSATION_VERSION", "CSV_COLUMNS", "FORMATS", "export_text", "to_c_header",
-           "to_csv", "to_json", "to_toml", "to_yaml"]
+__all__ = ["COMPENSATION_FORMAT", "COMPENSATION_VERSION", "CSV_COLUMNS", "FORMATS", "c_num", "comment_text",
+           "export_text", "to_c_header", "to_csv", "to_json", "to_toml", "to_yaml", "toml_num", "yaml_num"]

@@ -24,7 +24,7 @@ from bench.cli.sim_serving import (
     run_console,
     run_until_stopped,
 )
-from bench.cli.table import FAULT_HELP, _apply_fault_command, _listen, register_sim_table
+from bench.cli.table import FAULT_HELP, apply_fault_command, start_listener, register_sim_table
 from bench.config.reader import ConfigError
 from bench.config.register_map import load_register_map
 from bench.errors import InputError
@@ -179,8 +179,8 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
     def serve() -> None:
         rig = SimRig(config)
         closers.append(rig.close)
-        table_url = _listen(rig.controller, dialect, table_listen, closers, config.table.register_map,
-                            idle_timeout_s=args.idle_timeout_s)
+        table_url = start_listener(rig.controller, dialect, table_listen, closers, config.table.register_map,
+                                   idle_timeout_s=args.idle_timeout_s)
         print(f"simulated table ({dialect}) listening on {table_url}", flush=True)
         peers = [_serve_imu(rig, where, args.idle_timeout_s) for where in imu_listen]
         for peer in peers:
@@ -231,7 +231,7 @@ def _console(rig, line: str, apply_imu_command, chamber=None) -> str:
         return apply_chamber_command(chamber, " ".join(words[1:]))
     if words[0].lower() == "help":
         return FAULT_HELP + "\n" + IMU_FAULT_HELP + ("" if chamber is None else "\n" + CHAMBER_RIG_HELP)
-    return _apply_fault_command(rig.controller, line)
+    return apply_fault_command(rig.controller, line)
 
 
 __all__ = ["cmd_sim_rig", "register", "register_sim"]

@@ -225,7 +225,7 @@ def register_sim_table(subparsers: argparse._SubParsersAction) -> argparse._SubP
     return kinds
 
 
-def _apply_fault_command(controller, line: str) -> str:
+def apply_fault_command(controller, line: str) -> str:
     """Execute one fault-console line on the simulated controller; returns what to print."""
     def table_command(cmd: str, rest: list[str]) -> str | None:
         if cmd == "estop":
@@ -246,8 +246,8 @@ def _apply_fault_command(controller, line: str) -> str:
                               lambda: format_state(controller.state()))
 
 
-def _listen(controller, dialect: str, where: str, closers: list, register_map=None, framing: str = "tcp",
-            idle_timeout_s: float = IDLE_TIMEOUT_S) -> str:
+def start_listener(controller, dialect: str, where: str, closers: list, register_map=None, framing: str = "tcp",
+                   idle_timeout_s: float = IDLE_TIMEOUT_S) -> str:
     """Start one listener; returns the address a client uses. `register_map`: the Modbus simulator's
     (None: the default map); `framing`: the acutrol simulator's ('tcp' framed responses, 'gpib' query answers);
     `idle_timeout_s`: a TCP connection silent that long is closed."""
@@ -306,7 +306,7 @@ def cmd_sim_table(args: argparse.Namespace) -> ExitCode:
     controller = SimController(SimTable(site, black_box_rad=black_box))
     closers: list = []
     return serve_until_stopped("bench sim table", "table", args.dialect,
-                               lambda where: _listen(controller, args.dialect, where, closers,
-                                                     framing=args.acl_framing,
-                                                     idle_timeout_s=args.idle_timeout_s), args.listen, remote,
-                               lambda line: _apply_fault_command(controller, line), closers)
+                               lambda where: start_listener(controller, args.dialect, where, closers,
+                                                            framing=args.acl_framing,
+                                                            idle_timeout_s=args.idle_timeout_s), args.listen, remote,
+                               lambda line: apply_fault_command(controller, line), closers)

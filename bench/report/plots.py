@@ -38,10 +38,10 @@ AXIS_COLORS = ("#1f77b4", "#2ca02c", "#d62728")     # x / outer, y / middle, z /
 OUTLIER_COLOR = "#d62728"
 DWELL_SHADE, TURN_SHADE = "#cfe3f5", "#f8dfc4"
 
-_RC: dict[RcKeyType, str | float | bool] = {
+PLOT_RC: dict[RcKeyType, str | float | bool] = {
     "svg.fonttype": "none", "svg.hashsalt": "turntable-bench", "font.size": 8.0, "axes.titlesize": 9.0,
     "axes.grid": True, "grid.alpha": 0.3, "figure.dpi": 72.0}
-_NO_METADATA = {"Creator": None, "Date": None, "Format": None, "Type": None}
+NO_SVG_METADATA = {"Creator": None, "Date": None, "Format": None, "Type": None}
 _counter = itertools.count(1)
 _ID_REF = re.compile(r'(\bid="|href="#|url\(#)([^")]+)')
 
@@ -86,8 +86,8 @@ def to_svg(fig) -> str:
     """The figure as an inline SVG fragment (see the module docstring); closes the figure."""
     buf = io.StringIO()
     try:
-        with plt.rc_context(_RC):  # the SVG options are read when saving
-            fig.savefig(buf, format="svg", metadata=_NO_METADATA)
+        with plt.rc_context(PLOT_RC):  # the SVG options are read when saving
+            fig.savefig(buf, format="svg", metadata=NO_SVG_METADATA)
     finally:
         plt.close(fig)
     return inline_svg(buf.getvalue(), f"fig{next(_counter)}-")
@@ -109,12 +109,12 @@ def inline_svg(text: str, prefix: str) -> str:
     return text
 
 
-def _figure(rows: int, cols: int, width_in: float, height_in: float, *, left_in: float = 0.8,
-            right_in: float = 0.2, bottom_in: float = 0.5, top_in: float = 0.3, hgap_in: float = 0.3,
-            wgap_in: float = 0.7, **kw):
+def new_figure(rows: int, cols: int, width_in: float, height_in: float, *, left_in: float = 0.8,
+               right_in: float = 0.2, bottom_in: float = 0.5, top_in: float = 0.3, hgap_in: float = 0.3,
+               wgap_in: float = 0.7, **kw):
     """Subplots with fixed margins in inches (no tight_layout: measuring every label costs a draw).
 
-    Call inside `plt.rc_context(_RC)`: fonts and grids are taken when artists are made.
+    Call inside `plt.rc_context(PLOT_RC)`: fonts and grids are taken when artists are made.
     """
     fig, axes = plt.subplots(rows, cols, figsize=(width_in, height_in), squeeze=False, **kw)
     axis_h = (height_in - bottom_in - top_in - hgap_in * (rows - 1)) / rows
@@ -147,8 +147,8 @@ def residual_figure(positions: list[dict], rotations: list[dict], threshold: flo
         return None
     check_drawable("the normalized residuals",
                    *([np.nan if x is None else x for x in (r.get(key) or [])] for _, rows, key in panels for r in rows))
-    with plt.rc_context(_RC):
-        fig, axes = _figure(len(panels), 1, 10.0, 2.6 * len(panels) + 0.3, hgap_in=0.95, bottom_in=0.65)
+    with plt.rc_context(PLOT_RC):
+        fig, axes = new_figure(len(panels), 1, 10.0, 2.6 * len(panels) + 0.3, hgap_in=0.95, bottom_in=0.65)
         for ax, (title, rows, key) in zip(axes[:, 0], panels):
             x = np.arange(len(rows))
             for k, (axis, color) in enumerate(zip("xyz", AXIS_COLORS)):
@@ -170,10 +170,10 @@ def step_means_figure(labels: list[str], acc_mean: np.ndarray, acc_std: np.ndarr
                       gyro_mean: np.ndarray, gyro_std: np.ndarray) -> str:
     """Each dwell's mean output per axis (counts/s) with +-1 std of its samples: accelerometers, gyros."""
     check_drawable("the dwell means", acc_mean, acc_std, gyro_mean, gyro_std)
-    with plt.rc_context(_RC):
+    with plt.rc_context(PLOT_RC):
         # One panel per sensor, the three axes side by side: every axis shares its sensor's range,
         # and ticks are what drawing costs.
-        fig, axes = _figure(2, 1, 10.0, 5.6, sharex=True, top_in=0.3, bottom_in=0.5, hgap_in=0.35)
+        fig, axes = new_figure(2, 1, 10.0, 5.6, sharex=True, top_in=0.3, bottom_in=0.5, hgap_in=0.35)
         x = np.arange(len(labels))
         for ax, (name, mean, std) in zip(axes[:, 0], (("accelerometers", acc_mean, acc_std),
                                                      ("gyros", gyro_mean, gyro_std))):
@@ -192,8 +192,8 @@ def timeseries_figure(t_s: np.ndarray, acc: np.ndarray, gyro: np.ndarray,
     """Accelerometer and gyro outputs (counts/s per axis) over run time, dwells and turns shaded."""
     check_drawable("the IMU outputs", acc, gyro)
     check_drawable("the sample and step times", t_s, [x for t0, t1, _ in spans for x in (t0, t1)])
-    with plt.rc_context(_RC):
-        fig, axes = _figure(2, 1, 10.0, 5.0, sharex=True, top_in=0.3, hgap_in=0.3)
+    with plt.rc_context(PLOT_RC):
+        fig, axes = new_figure(2, 1, 10.0, 5.0, sharex=True, top_in=0.3, hgap_in=0.3)
         for ax, name, data in ((axes[0, 0], "accelerometers", acc), (axes[1, 0], "gyros", gyro)):
             _shade(ax, spans)
             for k, axis in enumerate("xyz"):
@@ -210,8 +210,8 @@ def angles_figure(t_s: np.ndarray, angles_deg: np.ndarray, spans: Sequence[tuple
     """The controller's frame angles (outer, middle, inner) over run time."""
     check_drawable("the table angles", angles_deg)
     check_drawable("the table state and step times", t_s, [x for t0, t1, _ in spans for x in (t0, t1)])
-    with plt.rc_context(_RC):
-        fig, axes = _figure(1, 1, 10.0, 3.0, top_in=0.3)
+    with plt.rc_context(PLOT_RC):
+        fig, axes = new_figure(1, 1, 10.0, 3.0, top_in=0.3)
         ax = axes[0, 0]
         _shade(ax, spans)
         for k, frame in enumerate(FRAMES):
@@ -226,8 +226,8 @@ def angles_figure(t_s: np.ndarray, angles_deg: np.ndarray, spans: Sequence[tuple
 def sigma_bars_figure(names: list[str], z: list[float | None], threshold: float, title: str) -> str:
     """One bar per coefficient: a difference in units of its sigma, bars beyond +-threshold in red."""
     check_drawable("the differences", [np.nan if x is None else x for x in z])
-    with plt.rc_context(_RC):
-        fig, axes = _figure(1, 1, 10.0, 3.2, bottom_in=0.7)
+    with plt.rc_context(PLOT_RC):
+        fig, axes = new_figure(1, 1, 10.0, 3.2, bottom_in=0.7)
         ax = axes[0, 0]
         v = np.array([np.nan if x is None else x for x in z], float)
         colors = [OUTLIER_COLOR if abs(x) > threshold else "#7f7f7f" for x in np.nan_to_num(v)]
@@ -269,8 +269,8 @@ def allan_axes_figure(channels: Sequence[tuple[str, dict, dict[str, np.ndarray]]
         check_drawable(f"the Allan deviation of {name}", ch["tau_s"], ch["adev"], ch["adev_low"], ch["adev_high"],
                        *lines.values(), *(np.asarray(model[k], float) for k in ("adev", "adev_sigma") if k in model))
     rows = -(-len(channels) // 2)
-    with plt.rc_context(_RC):
-        fig, axes = _figure(rows, 2, 10.0, 3.0 * rows + 0.2, hgap_in=0.75, wgap_in=0.8, bottom_in=0.55)
+    with plt.rc_context(PLOT_RC):
+        fig, axes = new_figure(rows, 2, 10.0, 3.0 * rows + 0.2, hgap_in=0.75, wgap_in=0.8, bottom_in=0.55)
         for ax in axes.reshape(-1)[len(channels):]:
             ax.set_visible(False)
         for ax, (name, ch, lines) in zip(axes.reshape(-1), channels):

@@ -23,7 +23,7 @@ from bench.files import write_output_text
 from bench.model.families import FAMILY_INFO, family_of
 from bench.report.html import CSS
 from bench.report.markdown import md_text
-from bench.report.plots import _RC, AXIS_COLORS, _figure, check_drawable, plt, to_svg
+from bench.report.plots import AXIS_COLORS, PLOT_RC, check_drawable, new_figure, plt, to_svg
 from bench.thermal.fit import DEGREE_RULE
 from bench.thermal.from_log import ThermalSolution
 from bench.thermal.model import ThermalModel
@@ -98,9 +98,9 @@ def family_figure(model: ThermalModel, family: str) -> str | None:
     grid = np.linspace(low - PLOT_MARGIN_C, high + PLOT_MARGIN_C, 121)
     cols = 3
     rows = -(-len(names) // cols)
-    with plt.rc_context(_RC):
-        fig, axes = _figure(rows, cols, 10.0, 2.4 * rows + 0.4, hgap_in=0.7, wgap_in=0.9, left_in=0.9,
-                            bottom_in=0.5, top_in=0.45)
+    with plt.rc_context(PLOT_RC):
+        fig, axes = new_figure(rows, cols, 10.0, 2.4 * rows + 0.4, hgap_in=0.7, wgap_in=0.9, left_in=0.9,
+                               bottom_in=0.5, top_in=0.45)
         for ax in axes.reshape(-1)[len(names):]:
             ax.set_visible(False)
         for k, (ax, name) in enumerate(zip(axes.reshape(-1), names)):

@@ -28,10 +28,10 @@ from bench.model.units import ARCSEC, DEG, DEG_PER_HOUR, G0, MICRO_G
 from bench.solve.budget import probe_boxes, rotation_design_nominal
 from bench.solve.methods import (
     SolverError,
-    _scale_axes_bias_jacobian,
     nominal_position_inputs,
     position_design,
     scale_axes_bias,
+    scale_axes_bias_jacobian,
 )
 
 #: The nine black-box angles: rows (outer = C_t^o0, middle = C_o^m0, inner = C_m^i0), columns.
@@ -242,7 +242,7 @@ def position_noise_sigma(angles_deg, noise: NoiseModel, dwell_s: float, imu: Imu
         quant = (_QUANT_COUNTS / dwell_s / imu.acc_scale[s]) if noise.quantise else 0.0
         sigma_counts = imu.acc_scale[s] * math.sqrt(acc_white ** 2 + acc_gm + quant ** 2)
         params = np.concatenate([imu.acc_matrix[s], [imu.acc_scale[s] * imu.acc_bias[s]]])
-        jac = _scale_axes_bias_jacobian(params)
+        jac = scale_axes_bias_jacobian(params)
         cov = jac @ (sigma_counts ** 2 * inv) @ jac.T
         sd = np.sqrt(np.diag(cov))
         out[f"Ka_{SENSOR_AXES[s]}"] = sd[0] / imu.acc_scale[s] * DESIGN_UNITS["Ka"][1]
@@ -280,7 +280,7 @@ def rotation_noise_sigma(turns, noise: NoiseModel, rate_dps: float = 10.0, imu: 
         except np.linalg.LinAlgError as exc:
             raise SolverError("rotation schedule: singular design") from exc
         params = np.concatenate([imu.gyro_matrix[s], [imu.gyro_scale[s] * imu.gyro_bias[s]]])
-        jac = _scale_axes_bias_jacobian(params)
+        jac = scale_axes_bias_jacobian(params)
         sd = np.sqrt(np.diag(jac @ cov0 @ jac.T))
         out[f"Kg_{SENSOR_AXES[s]}"] = sd[0] / imu.gyro_scale[s] * DESIGN_UNITS["Kg"][1]
         for a in range(3):

@@ -75,12 +75,12 @@ from bench.model.units import ARCSEC
 from bench.solve.methods import (
     GyroBias,
     SensorTriad,
-    _scale_axes_bias_jacobian,
     nominal_position_inputs,
     pooled_sigma,
     position_design,
     rotation_design,
     scale_axes_bias,
+    scale_axes_bias_jacobian,
 )
 
 #: coverage factor of the expanded uncertainty
@@ -278,7 +278,7 @@ def _operator(design: np.ndarray, sigma: np.ndarray | None) -> np.ndarray:
 def _triad_var(triad: SensorTriad, design: np.ndarray, s: int, c_y: np.ndarray) -> np.ndarray:
     """(5,) variances of (scale, axes, bias) of sensor s for observation covariance c_y (K, K)."""
     p = _operator(design, None if triad.fit.sigma is None else triad.fit.sigma[:, s])
-    jac = _scale_axes_bias_jacobian(triad.fit.params[s])
+    jac = scale_axes_bias_jacobian(triad.fit.params[s])
     return np.diag(jac @ p @ c_y @ p.T @ jac.T).copy()
 
 

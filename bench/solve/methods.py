@@ -108,7 +108,7 @@ def scale_axes_bias(params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     return scale, p / scale[..., None], q / scale
 
 
-def _scale_axes_bias_jacobian(params: np.ndarray) -> np.ndarray:
+def scale_axes_bias_jacobian(params: np.ndarray) -> np.ndarray:
     """d(scale, axes[3], bias)/d(p, q) for one sensor: (5, 4)."""
     p, q = params[:3], params[3]
     m = float(np.linalg.norm(p))
@@ -134,14 +134,14 @@ class SensorTriad:
     def cov_noise_sensor(self, s: int) -> np.ndarray:
         """(5, 5) covariance of sensor s's (scale, axes, bias) from the sample noise alone (never scaled)."""
         cov = self.fit.cov_noise if self.fit.cov_noise is not None else self.fit.cov
-        jac = _scale_axes_bias_jacobian(self.fit.params[s])
+        jac = scale_axes_bias_jacobian(self.fit.params[s])
         return jac @ cov[s] @ jac.T
 
     @classmethod
     def from_fit(cls, fit: LinearFit) -> "SensorTriad":
         scale, axes, bias = scale_axes_bias(fit.params)
         cov = np.array([j @ c @ j.T for j, c in
-                        zip((_scale_axes_bias_jacobian(p) for p in fit.params), fit.cov)])
+                        zip((scale_axes_bias_jacobian(p) for p in fit.params), fit.cov)])
         return cls(scale, axes, bias, cov, fit)
 
 

@@ -19,7 +19,7 @@ from bench.log.names import output_path
 from bench.model.units import ARCSEC
 from bench.report.html import CSS
 from bench.report.markdown import md_text
-from bench.report.plots import _NO_METADATA, _RC, _figure, inline_svg, plt
+from bench.report.plots import NO_SVG_METADATA, PLOT_RC, inline_svg, new_figure, plt
 from bench.table_check.from_log import TableCheckAnalysis
 
 UG = 1e-6   # micro-g in units of g
@@ -29,8 +29,8 @@ def _svg_text(fig) -> str:
     """Standalone SVG document of a figure; closes it."""
     buf = io.StringIO()
     try:
-        with plt.rc_context(_RC):
-            fig.savefig(buf, format="svg", metadata=_NO_METADATA)
+        with plt.rc_context(PLOT_RC):
+            fig.savefig(buf, format="svg", metadata=NO_SVG_METADATA)
     finally:
         plt.close(fig)
     return buf.getvalue()
@@ -50,8 +50,8 @@ def curves_figure(analysis: TableCheckAnalysis) -> str:
     inner = est.angles_deg[:, 2] % 360.0
     levels = np.unique(outer)
     colors = plt.get_cmap("viridis")(np.linspace(0.0, 1.0, max(len(levels), 2)))
-    with plt.rc_context(_RC):
-        fig, axes = _figure(1, 2, 10.0, 3.8, right_in=1.3, wgap_in=0.8)
+    with plt.rc_context(PLOT_RC):
+        fig, axes = new_figure(1, 2, 10.0, 3.8, right_in=1.3, wgap_in=0.8)
         for k, (ax, name) in enumerate(zip(axes[0], ("x", "y"))):
             for level, color in zip(levels, colors):
                 sel = np.flatnonzero(outer == level)
@@ -76,8 +76,8 @@ def map_figure(analysis: TableCheckAnalysis) -> str:
     oi, ii = np.searchsorted(o_levels, outer), np.searchsorted(i_levels, inner)
     for k in range(2):
         grid[k, oi, ii] = y[:, k]
-    with plt.rc_context(_RC):
-        fig, axes = _figure(1, 2, 10.0, 4.4, right_in=0.6, wgap_in=1.3, bottom_in=0.6)
+    with plt.rc_context(PLOT_RC):
+        fig, axes = new_figure(1, 2, 10.0, 4.4, right_in=0.6, wgap_in=1.3, bottom_in=0.6)
         for k, (ax, name) in enumerate(zip(axes[0], ("x", "y"))):
             lim = np.nanmax(np.abs(grid[k])) or 1.0
             img = ax.imshow(grid[k], origin="lower", aspect="auto", cmap="RdBu_r", vmin=-lim, vmax=lim,

@@ -19,7 +19,7 @@ from typing import Any, Callable
 import numpy as np
 
 from bench import __version__
-from bench.calibration.export import _c_num, _comment_text, _toml_num, _yaml_num
+from bench.calibration.export import c_num, comment_text, toml_num, yaml_num
 from bench.thermal.fit import MAX_DEGREE
 from bench.thermal.model import MODEL_FORMAT, MODEL_VERSION, ThermalModel
 
@@ -88,26 +88,26 @@ def to_c_header(model: ThermalModel) -> str:
     names = list(model.fits)
     low, high = model.range_c
     lines = [f"/* IMU thermal model exported by turntable-bench (format {MODEL_FORMAT} {MODEL_VERSION}).", " *"]
-    lines += [f" * {key}: {_comment_text(value) or '(not recorded)'}" for key, value in _identity(model).items()]
+    lines += [f" * {key}: {comment_text(value) or '(not recorded)'}" for key, value in _identity(model).items()]
     lines += [" *", f" * {EQUATION}.",
               f" * Calibrated from {low:g} to {high:g} degC; units per coefficient below (display units).",
               " */", f"#ifndef {C_PREFIX}_H", f"#define {C_PREFIX}_H", "", "#include <math.h>", "",
               f"#define {C_PREFIX}_COUNT {len(names)}", f"#define {C_PREFIX}_TERMS {TERMS}",
-              f"#define {C_PREFIX}_REFERENCE_C {_c_num(model.reference_c)}",
-              f"#define {C_PREFIX}_MIN_C {_c_num(low)}", f"#define {C_PREFIX}_MAX_C {_c_num(high)}", "",
+              f"#define {C_PREFIX}_REFERENCE_C {c_num(model.reference_c)}",
+              f"#define {C_PREFIX}_MIN_C {c_num(low)}", f"#define {C_PREFIX}_MAX_C {c_num(high)}", "",
               "enum tb_imu_thermal_coefficient {"]
     lines += [f"    {C_PREFIX}_{name} = {k}," for k, name in enumerate(names)]
     lines += ["};", "", f"static const char *const {C_PREFIX}_NAMES[{C_PREFIX}_COUNT] = {{"]
-    lines += [f"    \"{name}\",   /* {_comment_text(model.fits[name].unit)} */" for name in names]
+    lines += [f"    \"{name}\",   /* {comment_text(model.fits[name].unit)} */" for name in names]
     lines += ["};", "", f"static const double {C_PREFIX}_POLY[{C_PREFIX}_COUNT][{C_PREFIX}_TERMS] = {{"]
     for name in names:
         poly, _ = _padded(model, name)
-        lines.append("    {" + ", ".join(map(_c_num, poly)) + f"}},   /* {name} */")
+        lines.append("    {" + ", ".join(map(c_num, poly)) + f"}},   /* {name} */")
     lines += ["};", "",
               f"static const double {C_PREFIX}_COV[{C_PREFIX}_COUNT][{C_PREFIX}_TERMS][{C_PREFIX}_TERMS] = {{"]
     for name in names:
         _, cov = _padded(model, name)
-        rows = ", ".join("{" + ", ".join(map(_c_num, row)) + "}" for row in cov)
+        rows = ", ".join("{" + ", ".join(map(c_num, row)) + "}" for row in cov)
         lines.append(f"    {{{rows}}},   /* {name} */")
     lines += ["};", "",
               "/* coefficient k at IMU temperature t_c (degC) */",
@@ -139,14 +139,14 @@ def to_yaml(model: ThermalModel) -> str:
     out = ["# IMU thermal model from turntable-bench (see bench.thermal.export)", f"# {EQUATION}",
            f"format: {json.dumps(MODEL_FORMAT)}", f"version: {MODEL_VERSION}"]
     out += [f"{key}: {json.dumps(value)}" for key, value in ident.items()]
-    out += [f"reference_c: {_yaml_num(model.reference_c)}",
-            f"temperature_range_c: [{_yaml_num(low)}, {_yaml_num(high)}]", "coefficients:"]
+    out += [f"reference_c: {yaml_num(model.reference_c)}",
+            f"temperature_range_c: [{yaml_num(low)}, {yaml_num(high)}]", "coefficients:"]
     for name, fit in model.fits.items():
         poly, cov = _padded(model, name)
         out += [f"  {name}:", f"    unit: {json.dumps(fit.unit)}", f"    degree: {fit.degree}",
-                f"    polynomial: [{', '.join(map(_yaml_num, poly))}]",
-                f"    polynomial_sigma: [{', '.join(map(_yaml_num, np.sqrt(np.diag(cov))))}]", "    covariance:"]
-        out += [f"      - [{', '.join(map(_yaml_num, row))}]" for row in cov]
+                f"    polynomial: [{', '.join(map(yaml_num, poly))}]",
+                f"    polynomial_sigma: [{', '.join(map(yaml_num, np.sqrt(np.diag(cov))))}]", "    covariance:"]
+        out += [f"      - [{', '.join(map(yaml_num, row))}]" for row in cov]
     return "\n".join(out) + "\n"
 
 
@@ -154,14 +154,14 @@ def to_toml(model: ThermalModel) -> str:
     low, high = model.range_c
     lines = [f"format = {json.dumps(MODEL_FORMAT)}", f"version = {MODEL_VERSION}"]
     lines += [f"{key} = {json.dumps(value)}" for key, value in _identity(model).items()]
-    lines += [f"equation = {json.dumps(EQUATION)}", f"reference_c = {_toml_num(model.reference_c)}",
-              f"temperature_range_c = [{_toml_num(low)}, {_toml_num(high)}]"]
+    lines += [f"equation = {json.dumps(EQUATION)}", f"reference_c = {toml_num(model.reference_c)}",
+              f"temperature_range_c = [{toml_num(low)}, {toml_num(high)}]"]
     for name, fit in model.fits.items():
         poly, cov = _padded(model, name)
         lines += ["", f"[coefficients.{name}]", f"unit = {json.dumps(fit.unit)}", f"degree = {fit.degree}",
-                  f"polynomial = [{', '.join(map(_toml_num, poly))}]",
-                  f"polynomial_sigma = [{', '.join(map(_toml_num, np.sqrt(np.diag(cov))))}]",
-                  "covariance = [" + ", ".join("[" + ", ".join(map(_toml_num, row)) + "]" for row in cov) + "]"]
+                  f"polynomial = [{', '.join(map(toml_num, poly))}]",
+                  f"polynomial_sigma = [{', '.join(map(toml_num, np.sqrt(np.diag(cov))))}]",
+                  "covariance = [" + ", ".join("[" + ", ".join(map(toml_num, row)) + "]" for row in cov) + "]"]
     return "\n".join(lines) + "\n"
 
 

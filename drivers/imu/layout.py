@@ -2,12 +2,12 @@
 
 cantools only reads the DBC; its per-frame decode is far too slow for the hot path.
 `ImuLayout` compiles every mapped signal into plain numbers (byte window, shift, mask,
-sign, factor, offset) that the live assembler applies with Python ints and the bulk
-decoder with numpy. Supported signals: integer (not float, not multiplexed), Intel or
-Motorola, whose bits lie within 8 consecutive bytes (any signal of <= 57 bits, or a
-byte-aligned one of up to 64 bits); the counter is unsigned with factor 1, offset 0,
-the same width in every message; the CRC (optional) is an unsigned byte-aligned 8-bit
-signal holding CRC-8/SAE-J1850 over the id and every other data byte (`drivers.imu.crc`).
+sign, factor, offset) that the decoders apply with numpy (`drivers.imu.rules`).
+Supported signals: integer (not float, not multiplexed), Intel or Motorola, whose bits
+lie within 8 consecutive bytes (any signal of <= 57 bits, or a byte-aligned one of up to
+64 bits); the counter is unsigned with factor 1, offset 0, the same width in every
+message; the CRC (optional) is an unsigned byte-aligned 8-bit signal holding
+CRC-8/SAE-J1850 over the id and every other data byte (`drivers.imu.crc`).
 Anything else raises `ImuConfigError` naming the signal.
 """
 

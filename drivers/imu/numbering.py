@@ -11,7 +11,7 @@ IMU_ACCEL / IMU_GYRO nothing that ties them to it. The rule (drivers/CAN.md, sbg
 - a data frame before the first time-stamp frame has no sample: it is counted as late
   (its sample began before the stream was joined) and not used.
 Numbered frames carry their number in 8 bytes after their own (`ImuLayout.numbered`), so the
-counter decoders (`SampleAssembler`, `decode_frames`, `StreamDecoder`) apply unchanged, with
+counter decoders (`decode_frames`, `StreamDecoder`) apply unchanged, with
 every rule of theirs (reorder window, duplicates, gaps, joined / left mid-sample). A frame of
 a known id and the wrong length keeps its bytes and gets length 0: it is counted wrong_length.
 """
@@ -69,31 +69,6 @@ class FrameNumberer:
         self._last_raw = raw
         self._current = self._first_number + round((self._ticks - self._first_tick) * self._per_tick)
         return self._current
-
-    # -- one frame at a time (the live assembler) ----------------------------------------
-    def frame(self, key: int, data: bytes) -> tuple[bytes, bool]:
-        """The frame as the numbered layout reads it, and whether to use it (False: before the first time
-        stamp, counted in `before_start`)."""
-        length = self._lengths.get(key)
-        if length is None:
-            return data, True                 # unknown id: counted by the decoder
-        if len(data) != length:
-            return b"", True                  # length 0: counted wrong_length by the decoder
-        if key == self._info_key:
-            number = self._open(self._signal.raw(bytes(data)))
-        elif self._current is None:
-            self.before_start += 1
-            return data, False
-        else:
-            number = self._current
-        return bytes(data) + (number & _NUMBER_MASK).to_bytes(8, "little"), True
-
-    def frames(self, frames):
-        """(key, data, timestamp) items numbered, the ones before the first time stamp left out."""
-        for key, data, t in frames:
-            numbered, use = self.frame(key, data)
-            if use:
-                yield key, numbered, t
 
     # -- arrays (the bulk and stream decoders) --------------------------------------------
     def arrays(self, ids: np.ndarray, data: np.ndarray, lengths: np.ndarray, timestamps: np.ndarray):

@@ -1,4 +1,4 @@
-"""The IMU receiver: a python-can bus drained through the live assembler.
+"""The IMU receiver: a python-can bus drained poll by poll into the stream decoder.
 
 `ImuReceiver({"interface": "socketcan", "channel": "can0", "fd": True}, layout)` opens
 the bus with `can.Bus(**config)`; it can also take a bus the caller owns (then `close`
@@ -16,10 +16,11 @@ from collections.abc import Callable, Mapping
 import can
 
 from drivers.errors import ImuConfigError, ImuConnectionError
-from drivers.imu.assembler import SampleAssembler
-from drivers.imu.layout import ImuLayout
+from drivers.imu.layout import ImuLayout, default_layout
+from drivers.imu.rules import frames_from_messages
 from drivers.imu.samples import ImuSampleBlock, ImuStats
 from drivers.imu.slcan_bus import SLCAN_CLIENTS, BulkSlcanBus
+from drivers.imu.stream import StreamDecoder
 
 #: python-can's socketcand client logs here
 SOCKETCAND_LOGGER = "can.interfaces.socketcand.socketcand"
@@ -117,7 +118,9 @@ class TimeBase:
 
 
 class ImuReceiver:
-    """Receive an IMU's frames from a CAN bus and assemble them into samples.
+    """Receive an IMU's frames from a CAN bus and decode them into samples: each poll's frames go to a
+    `StreamDecoder` as one piece, and a sample leaves as soon as it is complete and every older counter is
+    resolved (the rules: `drivers.imu.rules`).
 
     With `time_base` (the run clock's `now`), every frame's timestamp is mapped onto that clock
     (`TimeBase`) before anything else sees it: the samples' receive times and the logged frames
@@ -127,8 +130,13 @@ class ImuReceiver:
                  reorder_window: int = 8,
                  on_frames: Callable[[list[can.Message]], None] | None = None,
                  time_base: Callable[[], float] | None = None):
-        self.assembler = SampleAssembler(layout, rate_hz, reorder_window)
-        self.layout, self.rate_hz = self.assembler.layout, self.assembler.rate_hz
+        if not (isinstance(reorder_window, int) and reorder_window >= 1):
+            raise ImuConfigError(f"reorder_window must be a positive integer, got {reorder_window!r}")
+        if not (rate_hz > 0 and rate_hz != float("inf")):
+            raise ImuConfigError(f"rate_hz must be positive, got {rate_hz!r}")
+        self.layout = layout if layout is not None else default_layout()
+        self.rate_hz = float(rate_hz)
+        self.decoder = StreamDecoder(self.layout, self.rate_hz, reorder_window)
         self.on_frames = on_frames
         self.time_base = TimeBase(time_base) if time_base is not None else None
         self.bus: can.BusABC
@@ -173,7 +181,7 @@ class ImuReceiver:
         finally:
             if messages:
                 self._deliver(messages)
-        return self.assembler.take_block()
+        return self.decoder.take_block()
 
     def _deliver(self, messages: list[can.Message]) -> None:
         if self.time_base is not None:
@@ -183,15 +191,19 @@ class ImuReceiver:
             self.on_frames(messages)
         data = [m for m in messages if not (m.is_error_frame or m.is_remote_frame)]
         self.non_data_frames += len(messages) - len(data)
-        self.assembler.feed_messages(data)
+        if data:
+            self.decoder.feed(*frames_from_messages(data, width=None))
 
     def flush(self) -> ImuSampleBlock:
-        """End of a recording: resolve every pending sample and return what is left."""
-        return self.assembler.flush()
+        """End of a recording: resolve every pending sample and return what is left (the bus stays open: frames
+        polled after it continue the stream)."""
+        self.decoder.flush()
+        return self.decoder.take_block()
 
     @property
     def stats(self) -> ImuStats:
-        return self.assembler.stats
+        """A copy of the decoder's counts so far."""
+        return ImuStats(**self.decoder.stats.as_dict())
 
     def close(self) -> None:
         """Shut the bus down if this receiver opened it (idempotent)."""

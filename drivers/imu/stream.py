@@ -1,13 +1,18 @@
-"""The bulk decoder fed in pieces: a log's frames chunk by chunk, in bounded memory.
+"""The stream decoder: frames in pieces, samples out, in bounded memory (a log chunk by chunk, the live
+receiver poll by poll).
 
 `StreamDecoder.feed(...)` takes the next frames in arrival order (the arrays
 `decode_frames` takes) and `finish()` ends the stream: the samples and counts are exactly
 those of `decode_frames` given all the frames at once (the tests hold the two to that),
-whatever the cuts. The state carried from piece to piece is small: the last counter seen
-(for unwrapping), the reorder head, the first counter, and the accepted frames of the
-counters still inside the reorder window (at most `reorder_window` x messages frames once
-duplicates are dropped). A counter at or below head - window can receive no more frames
-(a frame that old is late), so its sample is final and emitted.
+whatever the cuts; the rules are in `drivers.imu.rules`. The state carried from piece to
+piece is small: the last counter seen (for unwrapping), the reorder head, the first
+counter, and the accepted frames of the counters still inside the reorder window (at most
+`reorder_window` x messages frames once duplicates are dropped). A counter at or below
+head - window can receive no more frames (a frame that old is late), so its sample is
+final and emitted; so is a complete sample with every older counter resolved (a live
+consumer gets each sample as soon as it can be had: a later frame of it is a duplicate).
+`flush()` resolves everything pending without ending the stream (the end of a recording
+on a bus that stays open); `finish()` ends it.
 """
 
 from __future__ import annotations
@@ -15,9 +20,9 @@ from __future__ import annotations
 import numpy as np
 
 from drivers.errors import ImuFrameError
-from drivers.imu.bulk import _as_arrays, _block, _counters, _screen, _unwrap_steps, extract
 from drivers.imu.layout import ImuLayout, default_layout
 from drivers.imu.numbering import FrameNumberer
+from drivers.imu.rules import FrameScreen, SampleColumns, as_arrays, extract, unwrap_steps
 from drivers.imu.samples import ImuSampleBlock, ImuStats
 
 
@@ -34,10 +39,14 @@ class StreamDecoder:
             self.layout = self._numberer.numbered_layout
         self.rate_hz = float(rate_hz)
         self.window = reorder_window
+        self._screen = FrameScreen(self.layout)
+        self._columns = SampleColumns(self.layout)
         self.stats = ImuStats()
         self._blocks: list[ImuSampleBlock] = []
         self._c_last: np.ndarray | None = None   # the last valid frame's raw counter (1 element, its dtype)
         self._u_last = self._head = self._u0 = self._next = 0
+        self._start = 0           # frames of counters below it are late: the first counter; after a flush, head + 1
+        self._left = False        # a flush counted a sample left mid-sample: frames after it make it lost
         # accepted frames of counters not resolved yet: data rows, times, counters, messages, heads at arrival
         self._pending: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self._finished = False
@@ -47,7 +56,7 @@ class StreamDecoder:
         """The next frames, in arrival order (arrays as `decode_frames` takes them)."""
         if self._finished:
             raise ImuFrameError("this stream is finished")
-        ids, data, lengths, timestamps = _as_arrays(ids, data, lengths, timestamps)
+        ids, data, lengths, timestamps = as_arrays(ids, data, lengths, timestamps)
         if self._numberer is not None:
             before = self._numberer.before_start
             ids, data, lengths, timestamps = self._numberer.arrays(ids, data, lengths, timestamps)
@@ -58,7 +67,11 @@ class StreamDecoder:
         stats.frames += n
         if not n:
             return
-        msg_index, valid, n_known, n_length_ok = _screen(ids, data, lengths, layout)
+        if self._left:   # the stream went on after a flush: the sample it cut was lost after all
+            self._left = False
+            stats.left_mid_sample -= 1
+            stats.incomplete_samples += 1
+        msg_index, valid, n_known, n_length_ok = self._screen.screen(ids, data, lengths)
         stats.unknown_id += n - n_known
         stats.wrong_length += n_known - n_length_ok
         n_valid = int(np.count_nonzero(valid))
@@ -66,21 +79,30 @@ class StreamDecoder:
         if not n_valid:
             return
         vi = None if n_valid == n else np.flatnonzero(valid)
-        c = _counters(data, msg_index, valid, vi, layout)
+        c = self._screen.counters(data, msg_index, valid, vi)
         first = self._c_last is None
         if first:
-            self._u_last = self._head = self._u0 = self._next = int(c[0])
+            self._u_last = self._head = self._u0 = self._next = self._start = int(c[0])
             self._c_last = np.asarray(c[:1]).copy()
-        d = _unwrap_steps(np.concatenate([np.asarray(self._c_last, dtype=c.dtype), c]), layout.counter_bits)
+        d = unwrap_steps(np.concatenate([np.asarray(self._c_last, dtype=c.dtype), c]), layout.counter_bits)
         u = np.cumsum(d, dtype=np.int64)
         u += self._u_last
         head = np.maximum.accumulate(u)
         np.maximum(head, self._head, out=head)
         self._c_last = np.asarray(c[-1:]).copy()
         self._u_last, self._head = int(u[-1]), int(head[-1])
-        accepted = (u > head - self.window) & (u >= self._u0)
+        accepted = (u > head - self.window) & (u >= self._start)
         n_accepted = int(np.count_nonzero(accepted))
         stats.late += n_valid - n_accepted
+        emitted = accepted & (u < self._next)   # a frame of a sample emitted complete already
+        if emitted.any():
+            n_emitted = int(np.count_nonzero(emitted))
+            stats.duplicates += n_emitted
+            n_accepted -= n_emitted
+            accepted &= ~emitted
+        # counted at arrival, as used (a duplicate found among them later is taken back off by `_dedupe`)
+        stats.frames_ok += n_accepted
+        stats.out_of_order += int(np.count_nonzero(accepted & (u < head)))
         if vi is None and n_accepted == n:   # every frame good and in time (the usual piece): no gathers
             new = (data, timestamps, u, msg_index.astype(np.int64), head)
         else:
@@ -90,15 +112,31 @@ class StreamDecoder:
         if self._pending is not None:
             new = tuple(np.concatenate([p, q]) for p, q in zip(self._pending, new))   # type: ignore[assignment]
         self._pending = new
-        self._resolve(self._head - self.window)
+        self._resolve(self._complete_through(self._head - self.window))
+
+    def flush(self) -> None:
+        """Resolve every pending counter as at the end of the stream, which goes on: later frames of the
+        counters resolved are late, and a sample counted as left mid-sample becomes an incomplete one when
+        more frames come."""
+        if self._finished:
+            raise ImuFrameError("this stream is finished")
+        if self._c_last is not None:
+            self._resolve(self._head, final=True)
+            self._start = self._head + 1
 
     def finish(self) -> tuple[ImuSampleBlock, ImuStats]:
         """End of the stream: every counter up to the newest is resolved; the samples and the counts."""
         if not self._finished:
+            self.flush()
             self._finished = True
-            if self._c_last is not None:
-                self._resolve(self._head, final=True)
         return self.samples(), self.stats
+
+    def take_block(self) -> ImuSampleBlock:
+        """The samples resolved since the last take, in counter order, as one block (possibly empty)."""
+        blocks = self.take()
+        if len(blocks) == 1:
+            return blocks[0]
+        return ImuSampleBlock.concatenate(blocks, self.rate_hz) if blocks else ImuSampleBlock.empty(self.rate_hz)
 
     def take(self) -> list[ImuSampleBlock]:
         """The blocks of samples resolved since the last `take`, in counter order, handed over and forgotten
@@ -131,30 +169,34 @@ class StreamDecoder:
             rest = tuple(a[later] for a in self._pending)
             data, t, u, k, h = data[now], t[now], u[now], k[now], h[now]
         self._pending = self._dedupe(*rest) if len(rest[2]) else None
-        du = np.diff(u)
+        du = u[1:] - u[:-1]
         # in order: a counter's frames are consecutive and in message order, so nothing repeats
-        in_order = bool(((du > 0) | ((du == 0) & (np.diff(k) > 0))).all())
+        in_order = bool(((du > 0) | ((du == 0) & (k[1:] > k[:-1]))).all())
         if not in_order:
             data, t, u, k, h = self._dedupe(data, t, u, k, h)
         stats, n_msgs = self.stats, len(self.layout.messages)
         lo, self._next = self._next, cutoff + 1
-        stats.frames_ok += len(u)
-        stats.out_of_order += int(np.count_nonzero(u < h))
         if not len(u):
             stats.counter_gaps += cutoff - lo + 1
             return
         if in_order:
-            starts = np.flatnonzero(du != 0) + 1
-            starts = np.concatenate([[0], starts]) if len(u) else starts
+            starts = np.zeros(np.count_nonzero(du) + 1, np.int64)
+            starts[1:] = np.flatnonzero(du) + 1
             counters = u[starts]
-            present = np.diff(starts, append=len(u))
+            present = np.empty_like(starts)
+            present[:-1] = starts[1:] - starts[:-1]
+            present[-1] = len(u) - starts[-1]
             complete = present == n_msgs
             firsts = starts[complete]
-
-            def frames_of(m):
-                return firsts + m
-            last = t[firsts + n_msgs - 1] if len(firsts) else t[:0]
-            block = _block(self.layout, data, frames_of, counters[complete].copy(), last, self.rate_hz)
+            if len(firsts) * n_msgs == len(u):   # every sample complete, frames in order: strided views, no gathers
+                def frames_of(m):
+                    return slice(m, None, n_msgs)
+                last = t[n_msgs - 1::n_msgs].copy()
+            else:
+                def frames_of(m):
+                    return firsts + m
+                last = t[firsts + n_msgs - 1] if len(firsts) else t[:0]
+            block = self._columns.block(data, frames_of, counters[complete].copy(), last, self.rate_hz)
         else:
             counters, row = np.unique(u, return_inverse=True)
             row = row.reshape(-1)
@@ -175,6 +217,7 @@ class StreamDecoder:
         left = int(final and int(counters[-1]) == self._head and not complete[-1]
                    and self._counters_seen + len(counters) > 1)
         self._counters_seen += len(counters)
+        self._left = self._left or bool(left)
         stats.joined_mid_sample += joined
         stats.left_mid_sample += left
         stats.samples += int(np.count_nonzero(complete))
@@ -182,6 +225,23 @@ class StreamDecoder:
         stats.counter_gaps += (cutoff - lo + 1) - len(counters)
         if len(block):
             self._blocks.append(block)
+
+    def _complete_through(self, cutoff: int) -> int:
+        """The last counter to resolve now: `cutoff` (the reorder window has passed it), or past it the last of
+        the unbroken run of complete samples that follows (rule 4: a sample leaves once it is complete and
+        every older counter is resolved)."""
+        assert self._pending is not None
+        first = max(cutoff + 1, self._next)
+        u, k = self._pending[2], self._pending[3]
+        later = u >= first
+        rel = u[later] - first               # 0 .. reorder window - 1: what waits lies within the window
+        if not len(rel):
+            return cutoff
+        present = np.zeros((int(rel.max()) + 1, len(self.layout.messages)), bool)
+        present[rel, k[later]] = True        # (a repeated frame sets its mark again)
+        complete = np.all(present, axis=1, keepdims=False).reshape(-1)
+        run = len(complete) if complete.all() else int(np.argmin(complete))
+        return first + run - 1 if run else cutoff
 
     def _dedupe(self, data, t, u, k, h):
         """The first frame of each (counter, message) only; the others counted as duplicates."""
@@ -200,6 +260,8 @@ class StreamDecoder:
         if not dups:
             return data, t, u, k, h
         self.stats.duplicates += dups
+        self.stats.frames_ok -= dups
+        self.stats.out_of_order -= int(np.count_nonzero(repeat & (u < h)))
         keep = ~repeat
         return data[keep], t[keep], u[keep], k[keep], h[keep]
 

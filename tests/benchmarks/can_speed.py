@@ -5,7 +5,7 @@ Prints medians over the repeats, on one core (everything runs in one thread):
 - ingest: `ImuReceiver.poll()` draining a python-can virtual bus pre-filled with frames of
   the default classic layout (receive + length/CRC check + assemble + sample arrays out,
   raw frames handed to a logging callback); the bus is filled before the clock starts;
-- the assembler alone on the same messages (no bus);
+- the stream decoder alone on the same messages, in polls of 10,000 (no bus);
 - bulk decode (`decode_frames`) of recorded frames held in arrays;
 and the CAN FD layout's bulk rate for reference.
 """
@@ -20,7 +20,14 @@ import time
 import can
 import numpy as np
 
-from drivers.imu import ImuEncoder, SampleAssembler, decode_frames, default_fd_layout, default_layout
+from drivers.imu import (
+    ImuEncoder,
+    StreamDecoder,
+    decode_frames,
+    default_fd_layout,
+    default_layout,
+    frames_from_messages,
+)
 from drivers.imu.receiver import ImuReceiver
 
 LIVE_TARGET, BULK_TARGET = 50_000, 2_000_000
@@ -64,13 +71,14 @@ def bench_ingest(msgs: list[can.Message], repeats: int) -> list[float]:
     return rates
 
 
-def bench_assembler(msgs: list[can.Message], repeats: int) -> list[float]:
+def bench_decoder(msgs: list[can.Message], repeats: int) -> list[float]:
     rates = []
     for _ in range(repeats):
-        asm = SampleAssembler(default_layout(), 1000.0)
+        decoder = StreamDecoder(default_layout(), 1000.0)
         t0 = time.perf_counter()
-        asm.feed_messages(msgs)
-        asm.take_block()
+        for a in range(0, len(msgs), 10_000):
+            decoder.feed(*frames_from_messages(msgs[a:a + 10_000], width=None))
+            decoder.take_block()
         rates.append(len(msgs) / (time.perf_counter() - t0))
     return rates
 
@@ -107,7 +115,7 @@ def main() -> int:
     print(f"classic layout, {len(layout.messages)} frames per sample; {len(msgs):,} frames live, "
           f"{args.repeats} repeats")
     print(line("ingest: virtual bus -> ImuReceiver.poll", bench_ingest(msgs, args.repeats), LIVE_TARGET))
-    print(line("assembler alone (SampleAssembler.feed)", bench_assembler(msgs, args.repeats)))
+    print(line("stream decoder alone (StreamDecoder.feed)", bench_decoder(msgs, args.repeats)))
     bulk_frames, bulk_times = recorded(args.bulk_frames, layout)
     print(line(f"bulk decode_frames, {len(bulk_frames):,} frames", bench_bulk(bulk_frames, bulk_times, layout,
                                                                              args.repeats), BULK_TARGET))
