@@ -24,7 +24,7 @@ from bench.cli.sim_serving import (
     run_console,
     run_until_stopped,
 )
-from bench.cli.table import FAULT_HELP, apply_fault_command, start_listener, register_sim_table
+from bench.cli.table import FAULT_HELP, apply_fault_command, register_sim_table, start_listener
 from bench.config.reader import ConfigError
 from bench.config.register_map import load_register_map
 from bench.errors import InputError
