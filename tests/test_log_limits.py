@@ -20,11 +20,11 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-import bench.log.chunks as chunks_module
-from bench.log.chunks import MAX_CHUNK_BYTES, MAX_RECORDS
+import bench.log.mcap.chunks as chunks_module
 from bench.log.format import TOPIC_CAN, TOPIC_EVENTS
+from bench.log.mcap.chunks import MAX_CHUNK_BYTES, MAX_RECORDS
+from bench.log.mcap.walk import MAX_ATTACHMENT_BYTES, MAX_DBC_BYTES, walk
 from bench.log.reader import read_log
-from bench.log.walk import MAX_ATTACHMENT_BYTES, MAX_DBC_BYTES, walk
 from tests.helpers.mcap_surgery import (
     can_frames,
     chunk_fields,
@@ -218,7 +218,7 @@ def test_a_file_of_chunk_opcodes_resyncs_in_bounded_time(can_chunk, tmp_path):
 
 def test_records_outside_chunks_are_counted_and_the_walk_stops_at_the_limit(can_chunk, tmp_path, monkeypatch):
     buf, _, _ = can_chunk
-    import bench.log.walk as walk_module
+    import bench.log.mcap.walk as walk_module
     monkeypatch.setattr(walk_module, "MAX_RECORDS", 50)
     log = read_log(_crafted(tmp_path, buf))
     assert any("more than 50 records outside chunks" in d for d in log.damage), log.damage
@@ -368,7 +368,7 @@ def test_a_turn_window_holding_many_or_repeated_table_states_is_integrated_in_bo
 def test_the_can_frames_are_decoded_chunk_by_chunk_and_never_held(run_log, monkeypatch):
     """1 GiB of a log's frames made the reader hold 2-3.8 GB (every frame as arrays); now each chunk is read
     from the file, decoded and let go, and the samples are those of decoding every frame at once."""
-    from bench.log.chunks import DeferredChunk
+    from bench.log.mcap.chunks import DeferredChunk
     from bench.log.run_info import layout_and_config_from_log
     from drivers.imu import decode_frames
     from drivers.imu.stream import StreamDecoder
@@ -434,7 +434,7 @@ def _setup(log):
 def test_chunks_left_in_the_file_past_what_may_stream_keep_no_index(can_chunk, tmp_path, monkeypatch):
     """A 1 GB file of 250 honest 256 MiB chunks, each with a 4 MB message index, held 1 GB of index entries
     before the walk began (2.2 GB peak): a chunk left in the file past what the log may stream keeps none."""
-    from bench.log.chunks import Prefetch
+    from bench.log.mcap.chunks import Prefetch
     data, n, size = _four_honest_chunks(can_chunk)
     honest_at = chunks(data)[-4:]
     topics = frozenset({TOPIC_CAN, "/imu/samples"})   # what read_log leaves in the file

@@ -487,7 +487,7 @@ def test_a_corrupt_record_header_resyncs_at_the_next_chunk(chunked_log, tmp_path
 
 
 def test_good_chunks_are_gathered_through_their_message_index(chunked_log, monkeypatch):
-    import bench.log.walk as mw
+    import bench.log.mcap.walk as mw
     walked = []
     original = mw._Walker.chunk_records
 

@@ -412,7 +412,7 @@ def test_cli_a_stop_signal_stops_a_paced_replay_even_with_sigint_ignored(recorde
 def test_cli_reads_the_frames_once_with_or_without_quiet(recorded, monkeypatch):
     """Without --quiet the log's summary came first and read every frame chunk once more (a 1 GB log: a
     whole extra pass) before the replay read them again."""
-    from bench.log.chunks import DeferredChunk
+    from bench.log.mcap.chunks import DeferredChunk
 
     inflated = [0]
     inflate = DeferredChunk.inflate

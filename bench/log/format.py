@@ -17,8 +17,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from bench.log.mcap.walk import ChannelData
 from bench.log.threads import reader_threads
-from bench.log.walk import ChannelData
 
 CAN_ENCODING = "turntable-bench/can-frames-v1"
 EXTENDED_ID_FLAG = 1 << 31

@@ -1,6 +1,6 @@
 """Read a run log (MCAP, as written by `bench.log.recorder`) into arrays, tolerating damage.
 
-`read_log(path)` never needs the summary: it walks the records (see `bench.log.walk`),
+`read_log(path)` never needs the summary: it walks the records (see `bench.log.mcap.walk`),
 checks every chunk's CRC, and reads around damage: a file cut off by a crash gives
 everything up to its last complete chunk, a chunk that fails its CRC (or cannot be
 decompressed) is skipped and reading resumes after it. `RunLog.damage` says exactly what
@@ -22,10 +22,10 @@ unpacked chunk by chunk on worker threads straight into the frame arrays, each c
 as its frames are copied.
 
 A log from outside is hostile: what the reader does for one is bounded (the limits are
-module constants). Chunks: see `bench.log.chunks` (a chunk inflates to exactly what it
+module constants). Chunks: see `bench.log.mcap.chunks` (a chunk inflates to exactly what it
 declares, at most `MAX_CHUNK_BYTES`; all of a log's chunks to at most its inflate
 budget; at most `MAX_RECORDS` records outside chunks). Records and attachments: see
-`bench.log.walk` (`MAX_RECORD_BYTES`, `MAX_ATTACHMENT_BYTES`, `MAX_DBC_BYTES`; the DBC
+`bench.log.mcap.walk` (`MAX_RECORD_BYTES`, `MAX_ATTACHMENT_BYTES`, `MAX_DBC_BYTES`; the DBC
 file the run's metadata names counts as one whatever its name). A CAN record claiming more
 than 64 data bytes makes its message malformed. At most `MAX_JSON_MESSAGES` table states
 and samples, `MAX_EVENTS` events and `MAX_CHAMBER_STATES` thermal-chamber states
@@ -49,7 +49,6 @@ import numpy as np
 
 from bench.errors import BenchError
 from bench.files import InputFileError, open_input
-from bench.log.chunks import DeferredChunk, InflateBudget
 from bench.log.format import (
     CAN_ENCODING,
     FLAG_ERROR,
@@ -74,8 +73,9 @@ from bench.log.json_topics import (
     shrink_message,
     state_row_ok,
 )
+from bench.log.mcap.chunks import DeferredChunk, InflateBudget
+from bench.log.mcap.walk import MAX_DBC_BYTES, ChannelData, Damage, MessageCut, WalkError, walk
 from bench.log.threads import reader_threads
-from bench.log.walk import MAX_DBC_BYTES, ChannelData, Damage, MessageCut, WalkError, walk
 from bench.plan.events import Event
 from drivers.chamber import ChamberState
 from drivers.imu import ImuSampleBlock, ImuStats

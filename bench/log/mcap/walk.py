@@ -13,9 +13,9 @@ their lengths and log times); damage is collected as `Damage` entries with byte 
 and log-time ranges.
 
 Speed: chunks are decompressed, CRC-checked and framed by their message index on worker
-threads ahead of the walk (`bench.log.chunks._Prefetch`; zstd, zlib and numpy release
+threads ahead of the walk (`bench.log.mcap.chunks._Prefetch`; zstd, zlib and numpy release
 the GIL), while the walk itself stays sequential and decides everything exactly as it
-would inline. The record layout and chunk decoding live in `bench.log.chunks`.
+would inline. The record layout and chunk decoding live in `bench.log.mcap.chunks`.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from typing import Callable
 import numpy as np
 from mcap.records import Attachment, Channel, Footer, Header, Metadata, Schema, Statistics
 
-from bench.log.chunks import (
+from bench.log.mcap.chunks import (
     MAGIC,
     MAX_DEFINITIONS,
     MAX_RECORDS,

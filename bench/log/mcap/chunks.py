@@ -1,4 +1,4 @@
-"""MCAP record framing and chunk decoding for the damage-tolerant walk (`bench.log.walk`).
+"""MCAP record framing and chunk decoding for the damage-tolerant walk (`bench.log.mcap.walk`).
 
 Constants of the MCAP record layout, chunk decompression with CRC checks, the
 plausibility checks used to resynchronise after damage, the vectorised framing of a
