@@ -73,7 +73,7 @@ from bench.log.json_topics import (
     shrink_message,
     state_row_ok,
 )
-from bench.log.mcap.chunks import DeferredChunk, InflateBudget
+from bench.log.mcap.chunks import ChunkRefused, DeferredChunk, InflateBudget, inflate_or_refusal
 from bench.log.mcap.walk import MAX_DBC_BYTES, ChannelData, Damage, MessageCut, WalkError, walk
 from bench.log.threads import reader_threads
 from bench.plan.events import Event
@@ -477,9 +477,9 @@ _STREAM_AHEAD_BYTES = 96 << 20
 
 def _can_part(part, lengths: np.ndarray, log_times: np.ndarray):
     """One `/can/raw` part as (chunk data, payload starts) or its payloads back to back (a deferred chunk is
-    read and decompressed first, on a worker thread), or the reason a deferred chunk cannot be used."""
+    read and decompressed first, on a worker thread), or why a deferred chunk cannot be used (`ChunkRefused`)."""
     if isinstance(part, DeferredChunk):
-        return part.inflate()
+        return inflate_or_refusal(part)
     return part
 
 
@@ -521,9 +521,9 @@ def _inflated_parts(d: ChannelData):
             in_flight -= size
             answer = job.result() if isinstance(job, Future) else job
             del job   # (a finished future holds its result: the caller's piece must be the only reference)
-            if isinstance(answer, str):
+            if isinstance(answer, ChunkRefused):
                 part = d.parts[k]
-                answer = Damage("chunk", part.offset, answer, part.start_ns, part.end_ns,
+                answer = Damage("chunk", part.offset, str(answer), part.start_ns, part.end_ns,
                                 {TOPIC_CAN: len(part.offsets)})
             yield k, answer
             answer = None

@@ -27,7 +27,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from io import BytesIO
 from types import ModuleType
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 from mcap.data_stream import ReadDataStream
@@ -61,8 +61,31 @@ _CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, com
 _U64 = struct.Struct("<Q")
 MESSAGE_DATA_OFFSET = 9 + 22                   # record header + message header
 
-#: (start, end, uncompressed size, crc, compression, data start, data length) of a chunk record
-ChunkFields = tuple[int, int, int, int, str, int, int]
+
+
+class ChunkHeader(NamedTuple):
+    """A chunk record's fields ahead of its data (MCAP spec), and where its data lies in the file."""
+
+    start_ns: int       # log time of its first and last message
+    end_ns: int
+    size: int           # uncompressed, as declared
+    crc: int            # of the uncompressed data; 0: none
+    compression: str    # "", "zstd" or "lz4" (anything else is damage when decompressed)
+    data_start: int     # byte offset of the compressed data in the file
+    data_length: int
+
+    @property
+    def data_span(self) -> tuple[int, int]:
+        """(file offset, length) of the compressed data."""
+        return self.data_start, self.data_length
+
+
+class ScannedChunk(NamedTuple):
+    """A chunk found by the scan ahead of the walk, with the message index records right after it."""
+
+    offset: int                      # of the chunk record
+    header: ChunkHeader
+    index_records: list[tuple[int, int]]   # (body, end) offsets of its message index records
 
 #: The most a chunk may declare (and inflate to) uncompressed. The recorder closes its chunks at
 #: 4 MiB (`McapRecorder(chunk_size=...)`); a chunk declaring more is damage, never decompressed.
@@ -109,12 +132,20 @@ class InflateBudget:
     cap: int = MAX_LOG_INFLATED   # what `total` is capped at, and the ratio to the file size (said in the refusal)
     ratio: int = MAX_INFLATE_RATIO
 
-    def take(self, size: int) -> str | None:
-        """Count a chunk of `size` bytes; the reason it may not be decompressed (`over_limits`) instead."""
+    def take(self, size: int) -> None:
+        """Count a chunk of `size` bytes; `ChunkRefused` (the reason: `over_limits`) if it may not be decompressed."""
         reason = over_limits(size, self.used, self.total, self.cap, self.ratio)
-        if reason is None:
-            self.used += size
-        return reason
+        if reason is not None:
+            raise ChunkRefused(reason)
+        self.used += size
+
+    def fits(self, size: int) -> bool:
+        """`take`, saying whether the chunk fits instead of why not."""
+        try:
+            self.take(size)
+        except ChunkRefused:
+            return False
+        return True
 
 
 class WalkError(BenchError):
@@ -122,7 +153,8 @@ class WalkError(BenchError):
 
 
 class ChunkRefused(Exception):
-    """A chunk not decompressed, or not kept, because of its size; the message is the reason (damage)."""
+    """A chunk not decompressed, or not kept: its size, its data, its CRC or its framing; the message is the
+    reason, as the damage line tells it."""
 
 
 def body_stream(buf, start: int, end: int) -> ReadDataStream:
@@ -208,31 +240,26 @@ def over_limits(size: int, used: int, budget: int, cap: int = MAX_LOG_INFLATED,
     return None
 
 
-def chunk_failure(compression: str, exc: BaseException) -> str:
-    """The damage reason for `inflate_chunk`'s exception."""
-    if isinstance(exc, ChunkRefused):
-        return str(exc)
-    return f"{compression or 'uncompressed'} data cannot be decompressed ({exc})"
-
-
-def inflate_chunk(compression: str, payload, size: int, crc: int):
-    """Decompress one chunk and compute its CRC (when it has one), in a worker thread: (data, computed
-    crc or None, exception or None); the data is exactly `size` bytes (else the exception says why,
-    `chunk_failure` turns it into the damage reason)."""
+def inflate_checked(compression: str, payload, size: int, crc: int) -> bytes:
+    """One chunk's data, exactly `size` bytes, when it decompresses and passes its CRC (when it has one);
+    `ChunkRefused` with the damage reason otherwise (`WalkError` when a compression library is missing).
+    Pure: worker threads run it."""
     try:
         data = _decompress(compression, payload, size)
+    except (ChunkRefused, WalkError):
+        raise
     except Exception as exc:
-        return None, None, exc
-    return data, (zlib.crc32(data) if crc != 0 else None), None
+        raise ChunkRefused(f"{compression or 'uncompressed'} data cannot be decompressed ({exc})") from exc
+    if crc != 0 and zlib.crc32(data) != crc:
+        raise ChunkRefused("CRC mismatch")
+    return data
 
 
-def _inflate_and_frame(compression: str, payload, size: int, crc: int, buf, index: list[tuple[int, int]]):
-    """`inflate_chunk`, then `index_chunk` on a good chunk with the message index records that follow it."""
-    data, computed, exc = inflate_chunk(compression, payload, size, crc)
-    framed = None
-    if exc is None and (crc == 0 or computed == crc):
-        framed = index_chunk(buf, data, index)
-    return data, computed, exc, framed
+def _inflate_and_frame(header: ChunkHeader, payload, buf, index: list[tuple[int, int]]):
+    """`inflate_checked`, then `index_chunk` with the message index records that follow the chunk:
+    (data, framing)."""
+    data = inflate_checked(header.compression, payload, header.size, header.crc)
+    return data, index_chunk(buf, data, index)
 
 
 @dataclass
@@ -254,16 +281,16 @@ class DeferredChunk:
     span: tuple[int, int] = (0, 0)                                 # (file offset, length) of the compressed data
     source: Callable[[int, int], bytes] | None = field(default=None, repr=False)
 
-    def read_again(self) -> bytes | str:
-        """The compressed data read from `source` again, or the reason it cannot be."""
+    def read_again(self) -> bytes:
+        """The compressed data read from `source` again (`ChunkRefused` if it cannot be)."""
         if self.source is None:
-            return "chunk data not available"
+            raise ChunkRefused("chunk data not available")
         try:
             payload = self.source(*self.span)
         except OSError as err:
-            return f"cannot read the chunk's data again: {err.strerror or err}"
+            raise ChunkRefused(f"cannot read the chunk's data again: {err.strerror or err}") from err
         if len(payload) != self.span[1]:
-            return "the file is shorter than when it was walked"
+            raise ChunkRefused("the file is shorter than when it was walked")
         return payload
 
     @property
@@ -272,28 +299,30 @@ class DeferredChunk:
         ends = np.append(self.offsets[1:], self.size).astype(np.int64)
         return ends - self.offsets.astype(np.int64) - MESSAGE_DATA_OFFSET
 
-    def _inflate_checked(self, payload: bytes | str):
-        """The chunk's data from its compressed `payload` when it decompresses and passes its CRC; else a
-        reason string (also when `payload` is one: the chunk could not be read again)."""
-        if isinstance(payload, str):
-            return payload
-        data, computed, exc = inflate_chunk(self.compression, payload, self.size, self.crc)
-        if exc is not None:
-            return chunk_failure(self.compression, exc)
-        if self.crc != 0 and computed != self.crc:
-            return "CRC mismatch"
-        return data
+    def _inflate_checked(self, payload: bytes) -> bytes:
+        """`inflate_checked` of the chunk's compressed `payload` (a missing compression library, which stops
+        the walk, is this chunk's damage here)."""
+        try:
+            return inflate_checked(self.compression, payload, self.size, self.crc)
+        except WalkError as exc:
+            raise ChunkRefused(f"{self.compression or 'uncompressed'} data cannot be decompressed ({exc})") from exc
 
-    def inflate(self):
+    def inflate(self) -> tuple[bytes, np.ndarray]:
         """(chunk data, payload starts) when the chunk decompresses, passes its CRC and is framed
-        exactly by its index; else a reason string."""
+        exactly by its index; `ChunkRefused` with the reason otherwise."""
         data = self._inflate_checked(self.payload if self.payload is not None else self.read_again())
-        if isinstance(data, str):
-            return data
         framed = _frame_by_entries(data, [(self.channel, self.log_times, self.offsets)])
         if framed is False or framed[0] != 0:
-            return "malformed chunk content (its message index does not frame it)"
+            raise ChunkRefused("malformed chunk content (its message index does not frame it)")
         return data, framed[1][0][1]
+
+
+def inflate_or_refusal(chunk: DeferredChunk) -> tuple[bytes, np.ndarray] | ChunkRefused:
+    """`chunk.inflate()`, or its refusal (for a pool's map: the answers of every chunk, in order)."""
+    try:
+        return chunk.inflate()
+    except ChunkRefused as refused:
+        return refused
 
 
 @dataclass
@@ -308,15 +337,12 @@ class ChunkSlice(DeferredChunk):
     def lengths(self) -> np.ndarray:
         return self.payload_lengths
 
-    def inflate(self):
-        """(chunk data, payload starts), or the reason the chunk cannot be used again."""
-        data = self._inflate_checked(self.read_again())
-        if isinstance(data, str):
-            return data
-        return data, self.offsets
+    def inflate(self) -> tuple[bytes, np.ndarray]:
+        """(chunk data, payload starts); `ChunkRefused` with the reason the chunk cannot be used again."""
+        return self._inflate_checked(self.read_again()), self.offsets
 
 
-def _deferrable(buf, fields: tuple, index: list[tuple[int, int]], deferred_channels: set[int]):
+def _deferrable(buf, header: ChunkHeader, index: list[tuple[int, int]], deferred_channels: set[int]):
     """(channel, log times, offsets) when the chunk holds messages of one deferred channel and
     nothing else, as far as its message index says; else None."""
     if not index or not deferred_channels:
@@ -325,8 +351,7 @@ def _deferrable(buf, fields: tuple, index: list[tuple[int, int]], deferred_chann
     if entries is False or len(entries) != 1 or entries[0][0] not in deferred_channels:
         return None
     ch, t, o = entries[0]
-    usize = fields[2]
-    if not len(o) or int(o[0]) != 0 or int(o[-1]) > usize - MESSAGE_DATA_OFFSET:
+    if not len(o) or int(o[0]) != 0 or int(o[-1]) > header.size - MESSAGE_DATA_OFFSET:
         return None
     if len(o) > 1 and not (np.diff(o.astype(np.int64)) >= MESSAGE_DATA_OFFSET).all():
         return None
@@ -377,7 +402,7 @@ class Prefetch:
         self.buf = buf
         self.topics: dict[int, str] = {}
         self.chunks = self._scan(buf)
-        self.index = {c[0]: k for k, c in enumerate(self.chunks)}
+        self.index = {c.offset: k for k, c in enumerate(self.chunks)}
         deferred_channels = {ch for ch, topic in self.topics.items() if topic in defer_topics}
         # offset -> (channel, log times, offsets); None for a deferrable chunk past what the log may stream
         # (`lazy`: counted at its declared size in file order, as the walk counts it): its index is not kept
@@ -385,19 +410,19 @@ class Prefetch:
         self.deferred: dict[int, tuple | None] = {}
         stream_room = streamed_budget(len(buf))
         behind = _DropBehind(buf)
-        for pos, fields, index in self.chunks if deferred_channels else ():
-            found = _deferrable(buf, fields, index, deferred_channels) if fields[2] <= MAX_CHUNK_BYTES else None
+        for pos, header, index in self.chunks if deferred_channels else ():
+            found = _deferrable(buf, header, index, deferred_channels) if header.size <= MAX_CHUNK_BYTES else None
             if index:   # the index records were read: let their pages go (a file of 4 MB indexes is all index)
                 _drop_pages(buf, index[0][0], index[-1][1])
                 behind.passed(index[-1][1])
             if found is not None:
-                self.deferred[pos] = found if not lazy or stream_room.take(fields[2]) is None else None
+                self.deferred[pos] = found if not lazy or stream_room.fits(header.size) else None
         behind.passed(len(buf), last=True)
         # the chunks within the limits, counted in file order as the walk counts them (a deferred one at its
         # compressed size: it is kept so; nothing when `lazy`: it is read again from the file when needed)
         room = InflateBudget(inflate_budget(len(buf)) if budget is None else budget)
-        self.allowed = {pos for pos, fields, _ in self.chunks
-                        if room.take((0 if lazy else fields[6]) if pos in self.deferred else fields[2]) is None}
+        self.allowed = {pos for pos, header, _ in self.chunks
+                        if room.fits((0 if lazy else header.data_length) if pos in self.deferred else header.size)}
         self.futures: dict[int, Future] = {}
         self.in_flight = 0   # declared bytes of the chunks submitted and not taken yet
         self.submitted = 0
@@ -406,12 +431,12 @@ class Prefetch:
                      if len(self.chunks) >= self.MIN_CHUNKS and workers > 1 else None)
         self.ahead = workers * self.AHEAD_PER_WORKER
 
-    def _scan(self, buf) -> list[tuple[int, ChunkFields, list[tuple[int, int]]]]:
-        """(offset, `chunk_fields`, the message index records right after it) of every chunk; the
-        channel topics of the channel records outside chunks into `self.topics`."""
+    def _scan(self, buf) -> list[ScannedChunk]:
+        """Every chunk with its header and the message index records right after it; the channel topics
+        of the channel records outside chunks into `self.topics`."""
         size, pos = len(buf), 8
         behind = _DropBehind(buf)   # the pages scanned go as the scan passes them: small chunks are all headers
-        found: list[tuple[int, ChunkFields, list[tuple[int, int]]]] = []
+        found: list[ScannedChunk] = []
         # the index records of the last chunk, while only such records follow it
         current: list[tuple[int, int]] | None = None
         records = 0
@@ -422,11 +447,11 @@ class Prefetch:
             if op not in OP_NAMES or end > size or op == OP_FOOTER:
                 break
             if op == OP_CHUNK:
-                f = chunk_fields(buf, pos + 9, length)
-                if f is None:
+                header = read_chunk_header(buf, pos + 9, length)
+                if header is None:
                     break
                 current = []
-                found.append((pos, f, current))
+                found.append(ScannedChunk(pos, header, current))
             elif op == OP_MESSAGE_INDEX:
                 if current is not None:
                     current.append((pos + 9, end))
@@ -443,30 +468,36 @@ class Prefetch:
         behind.passed(pos, last=True)
         return found
 
-    def take(self, pos: int, fields: tuple):
-        """(data, computed crc, exception, (message index records, their framing)) of the chunk at `pos`,
-        None if it was not prefetched."""
+    def scanned(self, pos: int, header: ChunkHeader) -> ScannedChunk | None:
+        """The chunk the scan found at `pos`, if it found this one there."""
         k = self.index.get(pos)
-        if self.pool is None or k is None or self.chunks[k][1] != fields:
+        return self.chunks[k] if k is not None and self.chunks[k].header == header else None
+
+    def take(self, pos: int, header: ChunkHeader):
+        """(data, (message index records, their framing)) of the chunk at `pos`, None if it was not
+        prefetched; `ChunkRefused` if it failed (as `inflate_checked`)."""
+        k = self.index.get(pos)
+        if self.pool is None or k is None or self.chunks[k].header != header:
             return None
         while self.submitted < min(len(self.chunks), k + 1 + self.ahead):
-            cpos, (_, _, usize, crc, compression, dstart, dlen), index = self.chunks[self.submitted][:3]
-            if cpos in self.deferred or cpos not in self.allowed:
+            ahead = self.chunks[self.submitted]
+            if ahead.offset in self.deferred or ahead.offset not in self.allowed:
                 self.submitted += 1
                 continue
-            if self.futures and self.in_flight + usize > PREFETCH_BYTES:
+            if self.futures and self.in_flight + ahead.header.size > PREFETCH_BYTES:
                 break   # enough decompressed data ahead already
-            self.futures[cpos] = self.pool.submit(_inflate_and_frame, compression,
-                                                  memoryview(self.buf)[dstart:dstart + dlen], usize, crc, self.buf,
-                                                  index)
-            self.in_flight += usize
+            start, length = ahead.header.data_span
+            self.futures[ahead.offset] = self.pool.submit(_inflate_and_frame, ahead.header,
+                                                          memoryview(self.buf)[start:start + length], self.buf,
+                                                          ahead.index_records)
+            self.in_flight += ahead.header.size
             self.submitted += 1
         future = self.futures.pop(pos, None)
         if future is None:
             return None
-        self.in_flight -= self.chunks[k][1][2]
-        data, computed, exc, framed = future.result()
-        return data, computed, exc, (self.chunks[k][2], framed)
+        self.in_flight -= self.chunks[k].header.size
+        data, framed = future.result()
+        return data, (self.chunks[k].index_records, framed)
 
     def close(self) -> None:
         if self.pool is not None:
@@ -474,8 +505,8 @@ class Prefetch:
             self.futures.clear()
 
 
-def chunk_fields(buf, body: int, length: int) -> ChunkFields | None:
-    """(start, end, usize, crc, compression, data_start, data_len) of a chunk body, or None if inconsistent."""
+def read_chunk_header(buf, body: int, length: int) -> ChunkHeader | None:
+    """The header of the chunk record whose body is at `body`, or None if it is inconsistent."""
     if length < 40:
         return None
     start, end, usize, crc, clen = _CHUNK_HEAD.unpack_from(buf, body)
@@ -488,7 +519,7 @@ def chunk_fields(buf, body: int, length: int) -> ChunkFields | None:
     (dlen,) = _U64.unpack_from(buf, body + 32 + clen)
     if 40 + clen + dlen != length or start > end:
         return None
-    return start, end, usize, crc, compression, body + 40 + clen, dlen
+    return ChunkHeader(start, end, usize, crc, compression, body + 40 + clen, dlen)
 
 
 def _plausible_chunk_at(buf, pos: int, size: int) -> bool:
@@ -497,8 +528,8 @@ def _plausible_chunk_at(buf, pos: int, size: int) -> bool:
     (length,) = _U64.unpack_from(buf, pos + 1)
     if pos + 9 + length > size:
         return False
-    f = chunk_fields(buf, pos + 9, length)
-    return f is not None and f[4] in ("", "zstd", "lz4")
+    header = read_chunk_header(buf, pos + 9, length)
+    return header is not None and header.compression in ("", "zstd", "lz4")
 
 
 def plausible_record_at(buf, pos: int, size: int) -> bool:

@@ -49,18 +49,20 @@ from bench.log.mcap.chunks import (
     OP_SCHEMA,
     OP_STATISTICS,
     RECORD_HEAD,
+    ChunkHeader,
+    ChunkRefused,
     ChunkSlice,
     DeferredChunk,
     InflateBudget,
     Prefetch,
     WalkError,
     body_stream,
-    chunk_failure,
-    chunk_fields,
     index_chunk,
     inflate_budget,
-    inflate_chunk,
+    inflate_checked,
+    inflate_or_refusal,
     plausible_record_at,
+    read_chunk_header,
     resync,
     streamed_budget,
 )
@@ -151,19 +153,26 @@ class ChannelData:
         if not todo:
             return []
         chunks = [self.parts[k] for k in todo]
-        refused = {k: budget.take(c.size) for k, c in zip(todo, chunks)} if budget is not None else {}
-        inflate = [c for k, c in zip(todo, chunks) if refused.get(k) is None]
+        refused: dict[int, ChunkRefused] = {}
+        for k, c in zip(todo, chunks):
+            if budget is None:
+                break
+            try:
+                budget.take(c.size)
+            except ChunkRefused as exc:
+                refused[k] = exc
+        inflate = [c for k, c in zip(todo, chunks) if k not in refused]
         threads = reader_threads()
         if len(inflate) >= 3 and threads > 1:
             with ThreadPoolExecutor(threads, thread_name_prefix="mcap-inflate") as pool:
-                answers = iter(list(pool.map(lambda c: c.inflate(), inflate)))
+                answers = iter(list(pool.map(inflate_or_refusal, inflate)))
         else:
-            answers = iter([c.inflate() for c in inflate])
+            answers = iter([inflate_or_refusal(c) for c in inflate])
         damage, dropped = [], set()
         for k, chunk in zip(todo, chunks):
             answer = refused.get(k) or next(answers)
-            if isinstance(answer, str):
-                damage.append(Damage("chunk", chunk.offset, answer, chunk.start_ns, chunk.end_ns,
+            if isinstance(answer, ChunkRefused):
+                damage.append(Damage("chunk", chunk.offset, str(answer), chunk.start_ns, chunk.end_ns,
                                      {topic: len(chunk.offsets)}))
                 dropped.add(k)
             else:
@@ -311,6 +320,29 @@ def attachment_head(buf, body: int, end: int) -> tuple[str, int] | None:
     return name, struct.unpack_from("<Q", buf, q)[0]
 
 
+class _OverLimits(ChunkRefused):
+    """A chunk refused by the limits (told with the refused chunks right before it, see `_Walker.refuse`)."""
+
+
+def _within_limits(budget: InflateBudget, size: int) -> None:
+    """`budget.take(size)`, its refusal an `_OverLimits`."""
+    try:
+        budget.take(size)
+    except ChunkRefused as exc:
+        raise _OverLimits(str(exc)) from exc
+
+
+@dataclass
+class _PendingChunk:
+    """A good chunk waiting for the message index records after it (its data, or still compressed)."""
+
+    offset: int
+    header: ChunkHeader
+    data: bytes | DeferredChunk
+    index: list[tuple[int, int]] = field(default_factory=list)   # (body, end) of the index records seen
+    framed: tuple | None = None   # (message index records, `index_chunk` answer), from a worker
+
+
 class _Walker:
     def __init__(self, buf: bytes, defer_topics: frozenset[str] = frozenset(),
                  source: Callable[[int, int], bytes] | None = None, keep_topics: frozenset[str] | None = None,
@@ -321,17 +353,13 @@ class _Walker:
         self.source = source
         self.keep_topics = keep_topics
         self.keep_limits = keep_limits or {}
-        self.current: tuple | None = None   # (offset, start, end, compression, span, size, crc) of the chunk gathered
-        self.pending_where: tuple | None = None   # the same of the pending chunk
+        self.current: tuple[int, ChunkHeader] | None = None   # (offset, header) of the chunk being gathered
         self.w = Walk(size=len(buf), budget=InflateBudget(inflate_budget(len(buf))),
                       stream_budget=streamed_budget(len(buf)))
         self.lost_chunk: Damage | None = None   # message index records after a lost chunk count its messages
         self.last_refused: Damage | None = None   # the refusal the next refused chunk joins, if nothing came between
-        # a good chunk waiting for its message index records: (offset, start, end, data or still compressed)
-        self.pending: tuple[int, int, int, bytes | DeferredChunk] | None = None
-        self.pending_index: list[tuple[int, int]] = []
+        self.pending: _PendingChunk | None = None   # a good chunk waiting for its message index records
         self.prefetch: Prefetch | None = None
-        self.framed = None   # (message index records, `index_chunk` answer) of the pending chunk, from a worker
         self.loose: dict[int, tuple[list, list, list]] = {}   # messages outside chunks not yet in their channel
         self.dropped = 0   # the file's pages before this offset were unmapped (`drop_behind`)
 
@@ -492,7 +520,7 @@ class _Walker:
             loose[2].append(log_time)
         elif op == OP_MESSAGE_INDEX:
             if self.pending is not None:
-                self.pending_index.append((body, end))
+                self.pending.index.append((body, end))
             elif self.lost_chunk is not None and end - body >= 6:
                 ch, n = struct.unpack_from("<HI", buf, body)
                 lost = self.lost_chunk.lost   # (refused chunks told as one add up)
@@ -538,97 +566,90 @@ class _Walker:
 
     def chunk(self, pos: int, body: int, length: int) -> bool:
         """Read one chunk record; False when its framing is broken (the caller re-syncs)."""
-        buf, w = self.buf, self.w
+        w = self.w
         self.lost_chunk = None
         joinable, self.last_refused = self.last_refused, None
-        f = chunk_fields(buf, body, length)
-        if f is None:
+        header = read_chunk_header(self.buf, body, length)
+        if header is None:
             w.damage.append(Damage("chunk", pos, "chunk header inconsistent"))
             self.lost_chunk = w.damage[-1]
             return False
-        start, end, usize, crc, compression, dstart, dlen = f
         self.flush_loose()
-        prefetch = self.prefetch
-        deferred = prefetch.deferred.get(pos) if prefetch is not None else None
-        if (deferred is None and prefetch is not None and pos in prefetch.deferred and self.source is not None
-                and prefetch.chunks[prefetch.index[pos]][1] == f):
+        try:
+            self.pending = self._checked_chunk(pos, header)
+        except _OverLimits as refused:
+            self.refuse(pos, str(refused), header.start_ns, header.end_ns, joinable)
+        except ChunkRefused as failed:
+            w.damage.append(Damage("chunk", pos, str(failed), header.start_ns, header.end_ns))
+            self.lost_chunk = w.damage[-1]
+        return True
+
+    def _checked_chunk(self, pos: int, header: ChunkHeader) -> _PendingChunk:
+        """The chunk at `pos`, decompressed and checked (or kept compressed, deferred), waiting for the message
+        index records after it; `_OverLimits` if the limits refuse it, `ChunkRefused` if it fails."""
+        w, prefetch = self.w, self.prefetch
+        scanned = prefetch is not None and prefetch.scanned(pos, header) is not None
+        deferred = prefetch.deferred.get(pos) if prefetch is not None and scanned else None
+        if prefetch is not None and scanned and deferred is None and pos in prefetch.deferred \
+                and self.source is not None:
             # left in the file, past what the log may stream (the prefetch kept no index for it)
-            self.refuse(pos, w.stream_budget.take(usize) or "past what this log's chunks may stream", start, end,
-                        joinable)
-            return True
-        if deferred is not None and prefetch is not None and prefetch.chunks[prefetch.index[pos]][1] == f:
+            _within_limits(w.stream_budget, header.size)
+            raise _OverLimits("past what this log's chunks may stream")
+        if deferred is not None:
             # kept compressed: counted against the budget at that size now, at its own when it is inflated
             # (`ChannelData.inflate_deferred`); with a `source`, nothing is kept (it is read again when needed)
             # but its index is: counted at its own size against what the log may stream, so a file of a
             # million small bomb chunks keeps the index of a few
-            refused = (w.stream_budget.take(usize) if self.source is not None else w.budget.take(dlen))
-            if refused is not None:
-                self.refuse(pos, refused, start, end, joinable)
-                return True
+            if self.source is not None:
+                _within_limits(w.stream_budget, header.size)
+            else:
+                _within_limits(w.budget, header.data_length)
             ch, t, o = deferred
-            payload = None if self.source is not None else bytes(buf[dstart:dstart + dlen])
-            self.pending = (pos, start, end, DeferredChunk(pos, start, end, compression, payload, usize, crc,
-                                                           ch, t, o, (dstart, dlen), self.source))
-            self.pending_index = []
-            return True
-        refused = w.budget.take(usize)
-        if refused is not None:
-            self.refuse(pos, refused, start, end, joinable)
-            return True
-        done = self.prefetch.take(pos, f) if self.prefetch is not None else None
+            start, length = header.data_span
+            payload = None if self.source is not None else bytes(self.buf[start:start + length])
+            return _PendingChunk(pos, header, DeferredChunk(pos, header.start_ns, header.end_ns, header.compression,
+                                                            payload, header.size, header.crc, ch, t, o,
+                                                            header.data_span, self.source))
+        _within_limits(w.budget, header.size)
+        done = prefetch.take(pos, header) if prefetch is not None else None
         if done is not None:
-            data, computed, exc, self.framed = done
-        else:
-            data, computed, exc = inflate_chunk(compression, memoryview(buf)[dstart:dstart + dlen], usize, crc)
-            self.framed = None
-        if isinstance(exc, WalkError):
-            raise exc
-        if exc is not None:
-            w.damage.append(Damage("chunk", pos, chunk_failure(compression, exc), start, end))
-            self.lost_chunk = w.damage[-1]
-            return True
-        if crc != 0 and computed != crc:
-            reason = "CRC mismatch"
-        else:   # good: its records are gathered once the message index records after it are seen
-            self.pending, self.pending_index = (pos, start, end, data), []
-            self.pending_where = (pos, start, end, compression, (dstart, dlen), usize, crc)
-            return True
-        w.damage.append(Damage("chunk", pos, reason, start, end))
-        self.lost_chunk = w.damage[-1]
-        return True
+            data, framed = done
+            return _PendingChunk(pos, header, data, framed=framed)
+        start, length = header.data_span
+        data = inflate_checked(header.compression, memoryview(self.buf)[start:start + length], header.size, header.crc)
+        return _PendingChunk(pos, header, data)
 
     def finish_chunk(self) -> None:
         """Gather the pending chunk's records: by its message index when that checks out, else record by record."""
-        if self.pending is None:
+        pending, self.pending = self.pending, None
+        if pending is None:
             return
-        (pos, start, end, data), index = self.pending, self.pending_index
-        self.pending, self.pending_index = None, []
-        self.current, self.pending_where = self.pending_where, None
         try:
-            self._finish_chunk(pos, start, end, data, index)
+            self._finish_chunk(pending)
         finally:
             self.current = None
 
-    def _finish_chunk(self, pos: int, start: int, end: int, data, index) -> None:
+    def _finish_chunk(self, pending: _PendingChunk) -> None:
+        data, index = pending.data, pending.index
         if isinstance(data, DeferredChunk):
             chunk = data
             assert self.prefetch is not None   # only the prefetch's scan defers chunks
-            if index == self.prefetch.chunks[self.prefetch.index[pos]][2]:
+            if index == self.prefetch.chunks[self.prefetch.index[pending.offset]].index_records:
                 self.channel_data(chunk.channel).add(chunk, chunk.lengths, chunk.log_times)
                 self.w.chunks += 1
                 return
             # the walk found other index records after it than the scan did: check it now, inline
-            answer = self.w.budget.take(chunk.size) or chunk.inflate()
-            if isinstance(answer, str):
-                self.w.damage.append(Damage("chunk", pos, answer, start, end,
+            try:
+                self.w.budget.take(chunk.size)
+                data, _ = chunk.inflate()
+            except ChunkRefused as failed:
+                self.w.damage.append(Damage("chunk", pending.offset, str(failed), chunk.start_ns, chunk.end_ns,
                                             {self.w.topic(chunk.channel): len(chunk.offsets)}))
                 return
-            data = answer[0]
-            self.current = (pos, start, end, chunk.compression, chunk.span, chunk.size, chunk.crc)
+        self.current = (pending.offset, pending.header)
         framed = None
-        if self.framed is not None and self.framed[0] == index:   # the worker framed it with these records
-            framed = self.framed[1]
-        self.framed = None
+        if pending.framed is not None and pending.framed[0] == index:   # the worker framed it with these records
+            framed = pending.framed[1]
         if self.chunk_by_index(data, index, framed):
             self.w.chunks += 1
             return
@@ -636,7 +657,8 @@ class _Walker:
         if reason is None:
             self.w.chunks += 1
             return
-        self.w.damage.append(Damage("chunk", pos, reason, start, end))
+        header = pending.header
+        self.w.damage.append(Damage("chunk", pending.offset, reason, header.start_ns, header.end_ns))
 
     def chunk_by_index(self, data: bytes, index: list[tuple[int, int]], framed=None) -> bool:
         """Gathering with the chunk's message index (`framed`: `index_chunk`'s answer when a worker
@@ -720,9 +742,9 @@ class _Walker:
             d.add((data, starts), lengths, times)
             return
         if topic in self.defer_topics:
-            pos, start, end, compression, span, size, crc = self.current
-            d.add(ChunkSlice(pos, start, end, compression, None, size, crc, ch, times, starts, span, self.source,
-                             lengths), lengths, times)
+            pos, header = self.current
+            d.add(ChunkSlice(pos, header.start_ns, header.end_ns, header.compression, None, header.size, header.crc,
+                             ch, times, starts, header.data_span, self.source, lengths), lengths, times)
             return
         if self.keep_topics is not None and topic not in self.keep_topics:
             d.not_kept += len(lengths)
