@@ -11,7 +11,8 @@ import math
 from collections.abc import Callable
 from typing import TypeVar
 
-from bench.log.mcap.walk import ChannelData, Damage
+from bench.log.mcap.channel import ChannelData
+from bench.log.mcap.damage import Damage
 from bench.plan.events import Event
 from drivers.chamber import ChamberAlarms, ChamberState
 

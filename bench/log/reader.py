@@ -73,8 +73,11 @@ from bench.log.json_topics import (
     shrink_message,
     state_row_ok,
 )
-from bench.log.mcap.chunks import ChunkRefused, DeferredChunk, InflateBudget, inflate_or_refusal
-from bench.log.mcap.walk import MAX_DBC_BYTES, ChannelData, Damage, MessageCut, WalkError, walk
+from bench.log.mcap.channel import ChannelData
+from bench.log.mcap.chunks import ChunkRefused, InflateBudget, inflated_or_refusal
+from bench.log.mcap.damage import Damage
+from bench.log.mcap.parts import InChunk, Part
+from bench.log.mcap.walk import MAX_DBC_BYTES, MessageCut, WalkError, walk
 from bench.log.threads import reader_threads
 from bench.plan.events import Event
 from drivers.chamber import ChamberState
@@ -475,25 +478,15 @@ _FEED_FRAMES = 1 << 20
 _STREAM_AHEAD_BYTES = 96 << 20
 
 
-def _can_part(part, lengths: np.ndarray, log_times: np.ndarray):
-    """One `/can/raw` part as (chunk data, payload starts) or its payloads back to back (a deferred chunk is
-    read and decompressed first, on a worker thread), or why a deferred chunk cannot be used (`ChunkRefused`)."""
-    if isinstance(part, DeferredChunk):
-        return inflate_or_refusal(part)
-    return part
-
-
-def _decoded_slices(part, lengths: np.ndarray, log_times: np.ndarray):
+def _decoded_slices(part: Part, lengths: np.ndarray, log_times: np.ndarray):
     """(frames, malformed count) of a part's payloads, at most `_SLICE_BYTES` of payloads at a time."""
-    if isinstance(part, tuple):
-        data, starts = part
-    else:   # payloads back to back
-        data, starts = part, np.cumsum(lengths) - lengths
+    data, starts = part.located(lengths)
     ends = np.cumsum(lengths)
     a = 0
     while a < len(lengths):
         b = max(a + 1, int(np.searchsorted(ends, ends[a] - lengths[a] + _SLICE_BYTES, side="right")))
-        yield decode_can_frames(ChannelData([(data, starts[a:b])], [lengths[a:b]], [log_times[a:b]]), release=True)
+        yield decode_can_frames(ChannelData([InChunk(data, starts[a:b])], [lengths[a:b]], [log_times[a:b]]),
+                                release=True)
         a = b
 
 
@@ -512,9 +505,9 @@ def _inflated_parts(d: ChannelData):
                 k = todo[nxt]
                 nxt += 1
                 part = d.parts[k]
-                size = part.size if isinstance(part, DeferredChunk) else int(d.lengths[k].sum())
-                job = (pool.submit(_can_part, part, d.lengths[k], d.log_times[k]) if pool is not None
-                       else _can_part(part, d.lengths[k], d.log_times[k]))
+                size = part.declared_bytes(d.lengths[k])
+                # a deferred chunk is read and decompressed first, on a worker thread
+                job = pool.submit(inflated_or_refusal, part) if pool is not None else inflated_or_refusal(part)
                 ahead.append((k, job, size))
                 in_flight += size
             k, job, size = ahead.popleft()

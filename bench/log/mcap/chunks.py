@@ -34,6 +34,7 @@ from mcap.data_stream import ReadDataStream
 from mcap.records import Channel
 
 from bench.errors import BenchError
+from bench.log.mcap.parts import NOT_INFLATED, InChunk, Part
 from bench.log.threads import reader_threads
 
 zstandard: ModuleType | None   # None when it is not installed
@@ -265,7 +266,10 @@ def _inflate_and_frame(header: ChunkHeader, payload, buf, index: list[tuple[int,
 @dataclass
 class DeferredChunk:
     """A chunk holding messages of one deferred channel only, kept compressed until they are asked
-    for (`inflate`). Its message index gave the offsets and log times; nothing is checked yet."""
+    for (`inflate`). Its message index gave the offsets and log times; nothing is checked yet.
+    A `Part` (`bench.log.mcap.parts`): `inflated()` gives its payloads, the other methods need that first."""
+
+    compressed = True
 
     offset: int                 # byte offset of the chunk record in the file
     start_ns: int
@@ -317,10 +321,29 @@ class DeferredChunk:
         return data, framed[1][0][1]
 
 
-def inflate_or_refusal(chunk: DeferredChunk) -> tuple[bytes, np.ndarray] | ChunkRefused:
-    """`chunk.inflate()`, or its refusal (for a pool's map: the answers of every chunk, in order)."""
+    def inflated(self) -> InChunk:
+        return InChunk(*self.inflate())
+
+    def declared_bytes(self, lengths: np.ndarray) -> int:
+        return self.size
+
+    def located(self, lengths: np.ndarray) -> tuple[bytes, np.ndarray]:
+        raise RuntimeError(NOT_INFLATED)
+
+    def joined(self, lengths: np.ndarray) -> bytes:
+        raise RuntimeError(NOT_INFLATED)
+
+    def head(self, count: int, lengths: np.ndarray) -> Part:
+        raise RuntimeError(NOT_INFLATED)
+
+    def byte_at(self, offset: int, lengths: np.ndarray) -> int:
+        raise RuntimeError(NOT_INFLATED)
+
+
+def inflated_or_refusal(part: Part) -> Part | ChunkRefused:
+    """`part.inflated()`, or its refusal (for a pool's map: the answers of every part, in order)."""
     try:
-        return chunk.inflate()
+        return part.inflated()
     except ChunkRefused as refused:
         return refused
 

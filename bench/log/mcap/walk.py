@@ -8,12 +8,12 @@ body is `start u64 | end u64 | uncompressed size u64 | uncompressed crc32 u32 |
 compression string | data length u64 | data`, its data again records). Record bodies
 other than messages are parsed with the library's own record classes.
 
-Messages are gathered per channel and per chunk in compact form (payloads joined, with
-their lengths and log times); damage is collected as `Damage` entries with byte offsets
-and log-time ranges.
+Messages are gathered per channel and per chunk (`bench.log.mcap.channel.ChannelData`: a part per
+chunk, `bench.log.mcap.parts`, with their lengths and log times); damage is collected as `Damage`
+entries with byte offsets and log-time ranges (`bench.log.mcap.damage`).
 
 Speed: chunks are decompressed, CRC-checked and framed by their message index on worker
-threads ahead of the walk (`bench.log.mcap.chunks._Prefetch`; zstd, zlib and numpy release
+threads ahead of the walk (`bench.log.mcap.chunks.Prefetch`; zstd, zlib and numpy release
 the GIL), while the walk itself stays sequential and decides everything exactly as it
 would inline. The record layout and chunk decoding live in `bench.log.mcap.chunks`.
 """
@@ -24,13 +24,13 @@ import mmap
 import struct
 import zlib
 from array import array
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 from mcap.records import Attachment, Channel, Footer, Header, Metadata, Schema, Statistics
 
+from bench.log.mcap.channel import ChannelData
 from bench.log.mcap.chunks import (
     MAGIC,
     MAX_DEFINITIONS,
@@ -60,209 +60,15 @@ from bench.log.mcap.chunks import (
     index_chunk,
     inflate_budget,
     inflate_checked,
-    inflate_or_refusal,
     plausible_record_at,
     read_chunk_header,
     resync,
     streamed_budget,
 )
-from bench.log.threads import reader_threads
+from bench.log.mcap.damage import Damage
+from bench.log.mcap.parts import InChunk, Joined, gather
 
-
-def _fmt_range(start_ns: int, end_ns: int) -> str:
-    return f"log time {start_ns / 1e9:.3f}..{end_ns / 1e9:.3f} s"
-
-
-_MAX_DESCRIBE = 600   # characters of a damage line
 _DROP_BEHIND = 64 << 20   # bytes of a mapped file the walk leaves mapped behind it
-
-
-@dataclass
-class Damage:
-    """One damaged or missing part of a log."""
-
-    kind: str                    # "chunk", "truncated", "corrupt", "no_summary", "attachment", "message", "metadata"
-    offset: int                  # byte offset of the damaged record (or of the end of the file)
-    reason: str
-    start_ns: int | None = None  # log-time range of a lost chunk, when its header was readable
-    end_ns: int | None = None
-    lost: dict[str, int] = field(default_factory=dict)   # topic -> messages lost, when known
-    chunks: int = 1              # consecutive chunks refused for the same reason, told as one
-    last_offset: int = 0         # byte offset of the last of them
-
-    def describe(self) -> str:
-        """One line (whatever the reason quotes from the file)."""
-        return " ".join(self._describe().split())[:_MAX_DESCRIBE]
-
-    def _describe(self) -> str:
-        where = ""
-        if self.start_ns is not None and self.end_ns is not None:   # a range is known whole or not at all
-            where = f" ({_fmt_range(self.start_ns, self.end_ns)})"
-        if self.kind == "chunk":
-            what = (", ".join(f"{n} on {t}" for t, n in sorted(self.lost.items())) if self.lost
-                    else "count unknown")
-            if self.chunks > 1:
-                return (f"{self.chunks} chunks at bytes {self.offset}..{self.last_offset}{where}, each: "
-                        f"{self.reason}; their messages lost ({what})")
-            return f"chunk at byte {self.offset}{where}: {self.reason}; its messages lost ({what})"
-        if self.kind == "truncated":
-            return f"truncated after byte {self.offset}: {self.reason}{where}"
-        if self.kind in ("no_summary", "metadata"):
-            return self.reason
-        return f"byte {self.offset}: {self.reason}{where}"
-
-
-@dataclass
-class ChannelData:
-    """Messages of one channel in file order: payloads per chunk, their lengths and log times.
-
-    A part is either the payloads joined (bytes) or, until first used, a lazy reference
-    `(chunk data, payload starts)`: gathering costs a slice per message, and most readers
-    never touch the high-rate JSON topics (the decompressed chunk stays in memory meanwhile).
-    A part can also be a `DeferredChunk` (walked with `defer_topics`): still compressed and
-    unchecked; `inflate_deferred` decompresses and checks those, and says what it had to drop.
-    """
-
-    parts: list = field(default_factory=list)      # bytes or (chunk bytes, starts array), one per chunk
-    lengths: list = field(default_factory=list)    # int64 arrays, payload lengths, one per part
-    log_times: list = field(default_factory=list)  # uint64 arrays, log times (ns), one per part
-    not_kept: int = 0       # messages counted, not kept: a topic the walk was not asked to keep
-    over_limit: int = 0     # messages counted, not kept: past the walk's limit for the topic
-
-    def add(self, part, lengths, log_times) -> None:
-        self.parts.append(part)
-        self.lengths.append(np.asarray(lengths, np.int64))
-        self.log_times.append(np.asarray(log_times, np.uint64))
-
-    def __len__(self) -> int:
-        return sum(len(x) for x in self.lengths)
-
-    @property
-    def log_time_ns(self) -> np.ndarray:
-        return np.concatenate(self.log_times) if self.log_times else np.zeros(0, np.uint64)
-
-    @property
-    def deferred_chunks(self) -> int:
-        """Parts still compressed and unchecked."""
-        return sum(isinstance(p, DeferredChunk) for p in self.parts)
-
-    def inflate_deferred(self, topic: str, budget: InflateBudget | None = None) -> list[Damage]:
-        """Decompress and check the deferred parts (on worker threads); a part that fails, or does not fit
-        what is left of the log's `budget`, is dropped and told as a `Damage` (its messages lost, on `topic`)."""
-        todo = [k for k, p in enumerate(self.parts) if isinstance(p, DeferredChunk)]
-        if not todo:
-            return []
-        chunks = [self.parts[k] for k in todo]
-        refused: dict[int, ChunkRefused] = {}
-        for k, c in zip(todo, chunks):
-            if budget is None:
-                break
-            try:
-                budget.take(c.size)
-            except ChunkRefused as exc:
-                refused[k] = exc
-        inflate = [c for k, c in zip(todo, chunks) if k not in refused]
-        threads = reader_threads()
-        if len(inflate) >= 3 and threads > 1:
-            with ThreadPoolExecutor(threads, thread_name_prefix="mcap-inflate") as pool:
-                answers = iter(list(pool.map(inflate_or_refusal, inflate)))
-        else:
-            answers = iter([inflate_or_refusal(c) for c in inflate])
-        damage, dropped = [], set()
-        for k, chunk in zip(todo, chunks):
-            answer = refused.get(k) or next(answers)
-            if isinstance(answer, ChunkRefused):
-                damage.append(Damage("chunk", chunk.offset, str(answer), chunk.start_ns, chunk.end_ns,
-                                     {topic: len(chunk.offsets)}))
-                dropped.add(k)
-            else:
-                self.parts[k] = answer
-        if dropped:
-            keep = [k for k in range(len(self.parts)) if k not in dropped]
-            self.parts, self.lengths, self.log_times = ([x[k] for k in keep] for x in
-                                                        (self.parts, self.lengths, self.log_times))
-        return damage
-
-    def _gathered(self) -> list[bytes]:
-        if self.deferred_chunks:
-            raise RuntimeError("inflate_deferred() first: this channel has deferred chunks")
-        for k, part in enumerate(self.parts):
-            if isinstance(part, tuple):
-                data, starts = part
-                self.parts[k] = _gather(data, starts, self.lengths[k])
-        return self.parts
-
-    def payloads(self, limit: int | None = None) -> list[bytes]:
-        """One bytes per message (the first `limit` messages only, when given: see `keep_first`)."""
-        if limit is not None:
-            self.keep_first(limit)
-        out: list[bytes] = []
-        for part, lengths in zip(self._gathered(), self.lengths):
-            ends = np.cumsum(lengths).tolist()
-            out += [part[e - n:e] for e, n in zip(ends, lengths.tolist())]
-        return out
-
-    def keep_first(self, limit: int) -> int:
-        """Keep the first `limit` messages only (the parts after them are dropped unread); how many went."""
-        dropped, seen = 0, 0
-        for k, lengths in enumerate(self.lengths):
-            if seen + len(lengths) > limit:
-                keep = limit - seen
-                dropped = len(self) - limit
-                part = self.parts[k]
-                if isinstance(part, tuple):
-                    part = (part[0], part[1][:keep])
-                elif isinstance(part, bytes):
-                    part = part[:int(lengths[:keep].sum())]
-                else:   # a deferred chunk: inflate_deferred first
-                    raise RuntimeError("inflate_deferred() first: this channel has deferred chunks")
-                self.parts = self.parts[:k] + [part]
-                self.lengths = self.lengths[:k] + [lengths[:keep]]
-                self.log_times = self.log_times[:k] + [self.log_times[k][:keep]]
-                break
-            seen += len(lengths)
-        return dropped
-
-    def part_bytes(self, k: int) -> bytes:
-        """Part `k`'s payloads back to back, without keeping them (for one pass over a large channel:
-        the lazy parts stay lazy)."""
-        part = self.parts[k]
-        if isinstance(part, DeferredChunk):
-            raise RuntimeError("inflate_deferred() first: this channel has deferred chunks")
-        if not isinstance(part, tuple):
-            return part
-        data, starts = part
-        return _gather(data, starts, self.lengths[k])
-
-    def first_byte(self, k: int, offset: int) -> int:
-        """Byte `offset` of part `k`'s payloads back to back (without joining them)."""
-        part = self.parts[k]
-        if isinstance(part, tuple):
-            data, starts = part
-            lengths = self.lengths[k]
-            i = int(np.searchsorted(np.cumsum(lengths), offset, side="right"))
-            before = int(lengths[:i].sum())
-            return data[int(starts[i]) + offset - before]
-        return self.part_bytes(k)[offset]
-
-    def part_payloads(self, k: int) -> list[bytes]:
-        """Part `k`'s payloads, one bytes per message."""
-        part, ends = self.part_bytes(k), np.cumsum(self.lengths[k]).tolist()
-        return [part[e - n:e] for e, n in zip(ends, self.lengths[k].tolist())]
-
-    def compact(self) -> None:
-        """Join the lazy parts' payloads now: the decompressed chunks they point into can then be freed."""
-        self._gathered()
-
-    def joined_parts(self):
-        """`part_bytes` of every part, in order."""
-        for k in range(len(self.parts)):
-            yield self.part_bytes(k)
-
-    def joined(self) -> bytes:
-        """All payloads back to back."""
-        parts = self._gathered()
-        return parts[0] if len(parts) == 1 else b"".join(parts)
 
 
 @dataclass
@@ -491,7 +297,7 @@ class _Walker:
     def flush_loose(self) -> None:
         """The messages read outside chunks since the last chunk, into their channels (one part each)."""
         for ch, (payloads, lengths, times) in self.loose.items():
-            self.channel_data(ch).add(b"".join(payloads), lengths, times)
+            self.channel_data(ch).add(Joined(b"".join(payloads)), lengths, times)
         self.loose = {}
 
     def record(self, op: int, pos: int, body: int, end: int) -> None:
@@ -739,7 +545,7 @@ class _Walker:
                 and int(lengths.max()) > self.cut.max_bytes):
             data, starts, lengths = self.cut.apply(data, starts, lengths)
         if self.source is None or self.current is None or topic is None:
-            d.add((data, starts), lengths, times)
+            d.add(InChunk(data, starts), lengths, times)
             return
         if topic in self.defer_topics:
             pos, header = self.current
@@ -757,21 +563,7 @@ class _Walker:
                 starts, lengths, times = starts[:room], lengths[:room], times[:room]
             if not len(lengths):
                 return
-        d.add(_gather(data, starts, lengths), lengths, times)
-
-
-def _gather(data: bytes, starts: np.ndarray, lengths: np.ndarray) -> bytes:
-    """The payloads at `starts` (of `lengths`) in `data`, back to back. Payloads of one length at one stride
-    (a chunk of equal messages: what bulk frames and bombs look like) are copied as one strided array; the
-    others one slice each."""
-    n = len(starts)
-    if n > 1:
-        length, stride = int(lengths[0]), int(starts[1] - starts[0])
-        if (stride >= length > 0 and (lengths == length).all()
-                and (np.diff(starts) == stride).all() and int(starts[-1]) + length <= len(data)):
-            return np.ndarray((n, length), np.uint8, data, int(starts[0]), (stride, 1)).tobytes()
-    whole = memoryview(data)
-    return b"".join([whole[a:b] for a, b in zip(starts.tolist(), (starts + lengths).tolist())])
+        d.add(Joined(gather(data, starts, lengths)), lengths, times)
 
 
 def _one_stride(data: bytes, q: int, stride: int) -> bool:
