@@ -17,7 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from bench.log.mcap.channel import ChannelData
+from bench.log.mcap import ChannelData
 from bench.log.threads import reader_threads
 
 CAN_ENCODING = "turntable-bench/can-frames-v1"

@@ -11,8 +11,7 @@ import math
 from collections.abc import Callable
 from typing import TypeVar
 
-from bench.log.mcap.channel import ChannelData
-from bench.log.mcap.damage import Damage
+from bench.log.mcap import ChannelData, Damage
 from bench.plan.events import Event
 from drivers.chamber import ChamberAlarms, ChamberState
 

@@ -73,11 +73,19 @@ from bench.log.json_topics import (
     shrink_message,
     state_row_ok,
 )
-from bench.log.mcap.channel import ChannelData
-from bench.log.mcap.chunks import ChunkRefused, InflateBudget, inflated_or_refusal
-from bench.log.mcap.damage import Damage
-from bench.log.mcap.parts import InChunk, Part
-from bench.log.mcap.walk import MAX_DBC_BYTES, MessageCut, WalkError, walk
+from bench.log.mcap import (
+    MAX_DBC_BYTES,
+    ChannelData,
+    ChunkRefused,
+    Damage,
+    InChunk,
+    InflateBudget,
+    MessageCut,
+    Part,
+    WalkError,
+    inflated_or_refusal,
+)
+from bench.log.mcap.walk import walk
 from bench.log.threads import reader_threads
 from bench.plan.events import Event
 from drivers.chamber import ChamberState

@@ -1,10 +1,11 @@
-"""MCAP record framing and chunk decoding for the damage-tolerant walk (`bench.log.mcap.walk`).
+"""Chunk decoding within limits, for the damage-tolerant walk (`bench.log.mcap.walk`).
 
-Constants of the MCAP record layout, chunk decompression with CRC checks, the
-plausibility checks used to resynchronise after damage, the vectorised framing of a
-chunk by its message index, and `Prefetch`, which decompresses and frames chunks on
-worker threads ahead of the walk (zstd, zlib and numpy release the GIL). Everything
-here is pure: the walk decides what to do with what it returns.
+Chunk decompression with CRC checks (`inflate_checked`; a chunk that fails raises `ChunkRefused`, its
+message the damage reason), the budgets of what a log's chunks may inflate to, the chunks kept
+compressed until asked for (`DeferredChunk`, `ChunkSlice`), and `Prefetch`, which decompresses and
+frames chunks on worker threads ahead of the walk (zstd, zlib and numpy release the GIL). The record
+layout is `bench.log.mcap.records`. Everything here is pure: the walk decides what to do with what
+it returns.
 
 Limits (a log from outside is hostile): a chunk may declare at most `MAX_CHUNK_BYTES`
 uncompressed, and it must inflate to exactly what it declares, whatever its compression
@@ -20,21 +21,35 @@ decompression bomb thousands of times.
 
 from __future__ import annotations
 
-import mmap
-import struct
 import zlib
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from io import BytesIO
 from types import ModuleType
 from typing import Callable, NamedTuple
 
 import numpy as np
-from mcap.data_stream import ReadDataStream
 from mcap.records import Channel
 
-from bench.errors import BenchError
 from bench.log.mcap.parts import NOT_INFLATED, InChunk, Part
+from bench.log.mcap.records import (
+    MESSAGE_DATA_OFFSET,
+    OP_CHANNEL,
+    OP_CHUNK,
+    OP_FOOTER,
+    OP_MESSAGE_INDEX,
+    OP_NAMES,
+    RECORD_HEAD,
+    ChunkHeader,
+    ChunkRefused,
+    PageDropper,
+    WalkError,
+    body_stream,
+    drop_pages,
+    frame_by_entries,
+    index_chunk,
+    index_entries,
+    read_chunk_header,
+)
 from bench.log.threads import reader_threads
 
 zstandard: ModuleType | None   # None when it is not installed
@@ -47,39 +62,6 @@ try:
     import lz4.frame as lz4_frame  # type: ignore[import-untyped]
 except ImportError:    # pragma: no cover - mcap depends on it
     lz4_frame = None
-
-MAGIC = b"\x89MCAP0\r\n"
-OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_MESSAGE_INDEX = 1, 2, 3, 4, 5, 6, 7
-OP_CHUNK_INDEX, OP_ATTACHMENT, OP_ATTACHMENT_INDEX, OP_STATISTICS, OP_METADATA = 8, 9, 10, 11, 12
-OP_METADATA_INDEX, OP_SUMMARY_OFFSET, OP_DATA_END = 13, 14, 15
-OP_NAMES = {1: "header", 2: "footer", 3: "schema", 4: "channel", 5: "message", 6: "chunk", 7: "message index",
-            8: "chunk index", 9: "attachment", 10: "attachment index", 11: "statistics", 12: "metadata",
-            13: "metadata index", 14: "summary offset", 15: "data end"}
-
-RECORD_HEAD = struct.Struct("<BQ")
-MESSAGE_HEAD = struct.Struct("<BQHIQ")     # opcode, length, channel id, sequence, log time
-_CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
-_U64 = struct.Struct("<Q")
-MESSAGE_DATA_OFFSET = 9 + 22                   # record header + message header
-
-
-
-class ChunkHeader(NamedTuple):
-    """A chunk record's fields ahead of its data (MCAP spec), and where its data lies in the file."""
-
-    start_ns: int       # log time of its first and last message
-    end_ns: int
-    size: int           # uncompressed, as declared
-    crc: int            # of the uncompressed data; 0: none
-    compression: str    # "", "zstd" or "lz4" (anything else is damage when decompressed)
-    data_start: int     # byte offset of the compressed data in the file
-    data_length: int
-
-    @property
-    def data_span(self) -> tuple[int, int]:
-        """(file offset, length) of the compressed data."""
-        return self.data_start, self.data_length
-
 
 class ScannedChunk(NamedTuple):
     """A chunk found by the scan ahead of the walk, with the message index records right after it."""
@@ -105,8 +87,6 @@ STREAMED_INFLATE_RATIO = 6
 MAX_STREAMED_INFLATED = 64 << 30
 #: Records a log may hold outside chunks (a recorded log holds a few per chunk); the walk reads no further.
 MAX_RECORDS = 1_000_000
-#: Schema and channel records a chunk may hold (a recorded log has six channels).
-MAX_DEFINITIONS = 4096
 #: Decompressed chunks the prefetch may hold ahead of the walk, in bytes (at least one chunk).
 PREFETCH_BYTES = 64 << 20
 _FIRST_STEP, _MAX_STEP = 1 << 20, 64 << 20   # output steps of a frame that does not state its size
@@ -147,19 +127,6 @@ class InflateBudget:
         except ChunkRefused:
             return False
         return True
-
-
-class WalkError(BenchError):
-    """The file cannot be read as MCAP at all (the caller turns this into its own error)."""
-
-
-class ChunkRefused(Exception):
-    """A chunk not decompressed, or not kept: its size, its data, its CRC or its framing; the message is the
-    reason, as the damage line tells it."""
-
-
-def body_stream(buf, start: int, end: int) -> ReadDataStream:
-    return ReadDataStream(BytesIO(bytes(buf[start:end])))
 
 
 def _bounded(read, size: int, stated: bool) -> bytes:
@@ -315,7 +282,7 @@ class DeferredChunk:
         """(chunk data, payload starts) when the chunk decompresses, passes its CRC and is framed
         exactly by its index; `ChunkRefused` with the reason otherwise."""
         data = self._inflate_checked(self.payload if self.payload is not None else self.read_again())
-        framed = _frame_by_entries(data, [(self.channel, self.log_times, self.offsets)])
+        framed = frame_by_entries(data, [(self.channel, self.log_times, self.offsets)])
         if framed is False or framed[0] != 0:
             raise ChunkRefused("malformed chunk content (its message index does not frame it)")
         return data, framed[1][0][1]
@@ -370,7 +337,7 @@ def _deferrable(buf, header: ChunkHeader, index: list[tuple[int, int]], deferred
     nothing else, as far as its message index says; else None."""
     if not index or not deferred_channels:
         return None
-    entries = _index_entries(buf, index)
+    entries = index_entries(buf, index)
     if entries is False or len(entries) != 1 or entries[0][0] not in deferred_channels:
         return None
     ch, t, o = entries[0]
@@ -384,29 +351,6 @@ def _deferrable(buf, header: ChunkHeader, index: list[tuple[int, int]], deferred
 # bytes of a memory-mapped file the chunk scan leaves mapped behind it (1 GB of 15 kB chunks, each with
 # its message indexes, touched every page: 1 GB of the file counted as the reader's memory)
 SCAN_DROP_BYTES = 64 << 20
-
-
-def _drop_pages(buf, start: int, end: int) -> None:
-    """Unmap the whole pages of a memory-mapped file between `start` and `end` (read again from the page cache
-    if needed): what was read once does not count towards the process' memory."""
-    if not isinstance(buf, mmap.mmap) or not hasattr(mmap, "MADV_DONTNEED"):
-        return
-    first = -(-start // mmap.PAGESIZE) * mmap.PAGESIZE
-    last = end - end % mmap.PAGESIZE
-    if last > first:
-        buf.madvise(mmap.MADV_DONTNEED, first, last - first)
-
-
-class _DropBehind:
-    """Lets the pages of a mapped file go every `SCAN_DROP_BYTES` as a pass over it moves on."""
-
-    def __init__(self, buf):
-        self.buf, self.dropped = buf, 0
-
-    def passed(self, pos: int, last: bool = False) -> None:
-        if last or pos - self.dropped > SCAN_DROP_BYTES:
-            _drop_pages(self.buf, self.dropped, len(self.buf) if last else pos)
-            self.dropped = pos - pos % mmap.PAGESIZE   # the page `pos` is in goes next time
 
 
 class Prefetch:
@@ -432,11 +376,11 @@ class Prefetch:
         # (a 1 GB file of 250 honest 256 MiB chunks held 1 GB of index entries here)
         self.deferred: dict[int, tuple | None] = {}
         stream_room = streamed_budget(len(buf))
-        behind = _DropBehind(buf)
+        behind = PageDropper(buf, SCAN_DROP_BYTES)
         for pos, header, index in self.chunks if deferred_channels else ():
             found = _deferrable(buf, header, index, deferred_channels) if header.size <= MAX_CHUNK_BYTES else None
             if index:   # the index records were read: let their pages go (a file of 4 MB indexes is all index)
-                _drop_pages(buf, index[0][0], index[-1][1])
+                drop_pages(buf, index[0][0], index[-1][1])
                 behind.passed(index[-1][1])
             if found is not None:
                 self.deferred[pos] = found if not lazy or stream_room.fits(header.size) else None
@@ -458,7 +402,8 @@ class Prefetch:
         """Every chunk with its header and the message index records right after it; the channel topics
         of the channel records outside chunks into `self.topics`."""
         size, pos = len(buf), 8
-        behind = _DropBehind(buf)   # the pages scanned go as the scan passes them: small chunks are all headers
+        # the pages scanned go as the scan passes them: small chunks are all headers
+        behind = PageDropper(buf, SCAN_DROP_BYTES)
         found: list[ScannedChunk] = []
         # the index records of the last chunk, while only such records follow it
         current: list[tuple[int, int]] | None = None
@@ -526,141 +471,3 @@ class Prefetch:
         if self.pool is not None:
             self.pool.shutdown(wait=True, cancel_futures=True)
             self.futures.clear()
-
-
-def read_chunk_header(buf, body: int, length: int) -> ChunkHeader | None:
-    """The header of the chunk record whose body is at `body`, or None if it is inconsistent."""
-    if length < 40:
-        return None
-    start, end, usize, crc, clen = _CHUNK_HEAD.unpack_from(buf, body)
-    if clen > 16 or 40 + clen > length:
-        return None
-    try:
-        compression = bytes(buf[body + 32:body + 32 + clen]).decode("ascii")
-    except UnicodeDecodeError:
-        return None
-    (dlen,) = _U64.unpack_from(buf, body + 32 + clen)
-    if 40 + clen + dlen != length or start > end:
-        return None
-    return ChunkHeader(start, end, usize, crc, compression, body + 40 + clen, dlen)
-
-
-def _plausible_chunk_at(buf, pos: int, size: int) -> bool:
-    if pos + 9 > size or buf[pos] != OP_CHUNK:
-        return False
-    (length,) = _U64.unpack_from(buf, pos + 1)
-    if pos + 9 + length > size:
-        return False
-    header = read_chunk_header(buf, pos + 9, length)
-    return header is not None and header.compression in ("", "zstd", "lz4")
-
-
-def plausible_record_at(buf, pos: int, size: int) -> bool:
-    if pos == size:
-        return True
-    if pos + 9 > size:
-        return False
-    return buf[pos] in OP_NAMES   # a length past the end is a truncation, told apart by the main loop
-
-
-_RESYNC_TRIES, _RESYNC_WINDOW = 64, 1 << 22
-
-
-def _chunk_candidates(buf, start: int, stop: int, size: int) -> np.ndarray:
-    """Offsets in [start, stop) of a chunk opcode followed by a length that fits the file (vectorised)."""
-    if size < 9 + 40:
-        return np.zeros(0, np.int64)
-    u8 = np.frombuffer(buf, np.uint8, count=stop - start, offset=start)
-    cand = np.flatnonzero(u8 == OP_CHUNK).astype(np.int64) + start
-    cand = cand[cand + 9 + 40 <= size]
-    if not len(cand):
-        return cand
-    lengths = np.ndarray((size - 8,), "<u8", buf, 1, (1,))[cand]
-    return cand[(lengths >= 40) & (lengths <= (size - 9 - cand).astype(np.uint64))]
-
-
-def resync(buf, pos: int, size: int, passed=None) -> int:
-    """The offset of the next plausible chunk record after `pos`, or `size`: the next few chunk opcodes
-    one by one, then windows of the file screened at once (a file of chunk opcodes takes no longer);
-    `passed(offset)` is told after each window (the walk unmaps what it has left behind)."""
-    p = pos + 1
-    for _ in range(_RESYNC_TRIES):
-        p = buf.find(b"\x06", p)
-        if p < 0:
-            return size
-        if _plausible_chunk_at(buf, p, size):
-            return p
-        p += 1
-    while p < size:
-        stop = min(size, p + _RESYNC_WINDOW)
-        for c in _chunk_candidates(buf, p, stop, size).tolist():
-            if _plausible_chunk_at(buf, c, size):
-                return c
-        p = stop
-        if passed is not None:
-            passed(p)
-    return size
-
-
-def index_chunk(buf, data: bytes, index: list[tuple[int, int]]):
-    """Vectorised framing of a chunk by its message index records (`(body, end)` offsets in `buf`):
-    (offset of the first message, [(channel, payload starts, lengths, log times)] by channel id), or
-    False unless the index provably frames every message of the chunk: its records tile the chunk from
-    the first message to the end. Pure (worker threads run it)."""
-    entries = _index_entries(buf, index)
-    return False if entries is False else _frame_by_entries(data, entries)
-
-
-def _index_entries(buf, index: list[tuple[int, int]]):
-    """[(channel, log times, offsets)] by channel id from a chunk's message index records (copies,
-    in file order), or False if they are malformed."""
-    if not index:
-        return False
-    by_channel: dict[int, list] = {}
-    for body, end in index:
-        ch, n = struct.unpack_from("<HI", buf, body)
-        if n % 16 or body + 6 + n > end:
-            return False
-        entries = np.frombuffer(buf, "<u8", count=n // 8, offset=body + 6).reshape(-1, 2)
-        by_channel.setdefault(ch, []).append(entries)
-    per_channel = []
-    for ch in sorted(by_channel):
-        parts = by_channel[ch]
-        entries = parts[0] if len(parts) == 1 else np.concatenate(parts)
-        t, o = entries[:, 0], entries[:, 1]
-        if len(o) > 1 and not (o[1:] > o[:-1]).all():   # kept in file order, as the tiling check sorts
-            order = np.argsort(o, kind="stable")
-            t, o = t[order], o[order]
-        per_channel.append((ch, t.copy(), o.copy()))   # copies: nothing may keep the file's buffer alive
-    return per_channel
-
-
-def _frame_by_entries(data: bytes, per_channel: list):
-    """`index_chunk` for index entries already read (`_index_entries`)."""
-    size = len(data)
-    if size < 31:
-        return False
-    o_all = np.concatenate([o for _, _, o in per_channel])
-    if not len(o_all) or int(o_all.max()) > size - 31:
-        return False
-    o_all = o_all.astype(np.int64)
-    # Every record's header fields, read in place: views of the chunk at every byte offset.
-    u8 = np.frombuffer(data, np.uint8)
-    length = np.ndarray((size - 8,), "<u8", data, 1, (1,))[o_all].astype(np.int64)
-    rec_ch = np.ndarray((size - 10,), "<u2", data, 9, (1,))[o_all]
-    rec_t = np.ndarray((size - 22,), "<u8", data, 15, (1,))[o_all]
-    chans = np.concatenate([np.full(len(o), ch, np.uint16) for ch, _, o in per_channel])
-    times = np.concatenate([t for _, t, _ in per_channel])
-    if not ((u8[o_all] == OP_MESSAGE).all() and (length >= 22).all() and (rec_ch == chans).all()
-            and (rec_t == times).all()):
-        return False
-    order = np.argsort(o_all, kind="stable")
-    o, ends = o_all[order], (o_all + 9 + length)[order]
-    if not ((o[1:] == ends[:-1]).all() and ends[-1] == size):
-        return False
-    out, k = [], 0
-    for ch, t, offsets in per_channel:
-        m = len(offsets)
-        out.append((ch, o_all[k:k + m] + MESSAGE_DATA_OFFSET, length[k:k + m] - 22, t))
-        k += m
-    return int(o[0]), out

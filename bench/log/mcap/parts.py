@@ -11,7 +11,8 @@ messages are one part, with their payload lengths and log times kept beside it. 
 
 from __future__ import annotations
 
-from typing import Protocol
+from dataclasses import dataclass
+from typing import Callable, Protocol
 
 import numpy as np
 
@@ -117,3 +118,24 @@ def gather(data: bytes, starts: np.ndarray, lengths: np.ndarray) -> bytes:
             return np.ndarray((n, length), np.uint8, data, int(starts[0]), (stride, 1)).tobytes()
     whole = memoryview(data)
     return b"".join([whole[a:b] for a, b in zip(starts.tolist(), (starts + lengths).tolist())])
+
+
+@dataclass(frozen=True)
+class MessageCut:
+    """Messages of `topics` longer than `max_bytes` go through `shrink(payload) -> payload` as they are gathered,
+    one at a time, before anything holds them all (a JSON message with a 1 MB text, kept by the thousand, would
+    be parsed in bulk later)."""
+
+    topics: frozenset[str]
+    max_bytes: int
+    shrink: Callable[[bytes], bytes]
+
+    def apply(self, data, starts: np.ndarray, lengths: np.ndarray) -> tuple[bytes, np.ndarray, np.ndarray]:
+        """The payloads at `starts` (of `lengths`) in `data`, the long ones shrunk, back to back: (joined,
+        their starts, their lengths)."""
+        whole = memoryview(data)
+        payloads = [bytes(whole[a:a + n]) if n <= self.max_bytes else self.shrink(bytes(whole[a:a + n]))
+                    for a, n in zip(starts.tolist(), lengths.tolist())]
+        new_lengths = np.array([len(p) for p in payloads], np.int64)
+        new_starts = np.concatenate([[0], np.cumsum(new_lengths)[:-1]]).astype(np.int64)
+        return b"".join(payloads), new_starts, new_lengths

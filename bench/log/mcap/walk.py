@@ -20,10 +20,8 @@ would inline. The record layout and chunk decoding live in `bench.log.mcap.chunk
 
 from __future__ import annotations
 
-import mmap
 import struct
 import zlib
-from array import array
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -32,9 +30,19 @@ from mcap.records import Attachment, Channel, Footer, Header, Metadata, Schema, 
 
 from bench.log.mcap.channel import ChannelData
 from bench.log.mcap.chunks import (
-    MAGIC,
-    MAX_DEFINITIONS,
     MAX_RECORDS,
+    ChunkSlice,
+    DeferredChunk,
+    InflateBudget,
+    Prefetch,
+    inflate_budget,
+    inflate_checked,
+    streamed_budget,
+)
+from bench.log.mcap.damage import Damage
+from bench.log.mcap.parts import InChunk, Joined, MessageCut, gather
+from bench.log.mcap.records import (
+    MAGIC,
     MESSAGE_DATA_OFFSET,
     MESSAGE_HEAD,
     OP_ATTACHMENT,
@@ -51,22 +59,16 @@ from bench.log.mcap.chunks import (
     RECORD_HEAD,
     ChunkHeader,
     ChunkRefused,
-    ChunkSlice,
-    DeferredChunk,
-    InflateBudget,
-    Prefetch,
+    PageDropper,
     WalkError,
+    attachment_head,
     body_stream,
+    chunk_content,
     index_chunk,
-    inflate_budget,
-    inflate_checked,
     plausible_record_at,
     read_chunk_header,
     resync,
-    streamed_budget,
 )
-from bench.log.mcap.damage import Damage
-from bench.log.mcap.parts import InChunk, Joined, gather
 
 _DROP_BEHIND = 64 << 20   # bytes of a mapped file the walk leaves mapped behind it
 
@@ -107,23 +109,6 @@ MAX_DBC_BYTES = 1 << 20
 def attachment_limit(name: str) -> int:
     """How many bytes the attachment `name` may hold: `MAX_DBC_BYTES` for a DBC file (`*.dbc`)."""
     return MAX_DBC_BYTES if name.lower().endswith(".dbc") else MAX_ATTACHMENT_BYTES
-
-
-def attachment_head(buf, body: int, end: int) -> tuple[str, int] | None:
-    """(name, data length) of an attachment record, read without its data; None if malformed."""
-    q = body + 16                                    # log time, create time
-    if q + 4 > end:
-        return None
-    (n,) = struct.unpack_from("<I", buf, q)
-    if q + 4 + n + 4 > end:
-        return None
-    name = bytes(buf[q + 4:q + 4 + n]).decode("utf-8", "replace")
-    q += 4 + n
-    (m,) = struct.unpack_from("<I", buf, q)
-    q += 4 + m
-    if q + 8 > end:
-        return None
-    return name, struct.unpack_from("<Q", buf, q)[0]
 
 
 class _OverLimits(ChunkRefused):
@@ -167,7 +152,7 @@ class _Walker:
         self.pending: _PendingChunk | None = None   # a good chunk waiting for its message index records
         self.prefetch: Prefetch | None = None
         self.loose: dict[int, tuple[list, list, list]] = {}   # messages outside chunks not yet in their channel
-        self.dropped = 0   # the file's pages before this offset were unmapped (`drop_behind`)
+        self.pages = PageDropper(buf, _DROP_BEHIND, keep=_DROP_BEHIND // 2)
 
     def channel_data(self, channel_id: int) -> ChannelData:
         d = self.w.data.get(channel_id)
@@ -280,19 +265,9 @@ class _Walker:
                                         f"incomplete ({size - body} of {length} bytes)"))
 
     def passed(self, pos: int) -> None:
-        """The walk (or a resync) has read up to `pos`."""
-        if pos - self.dropped > _DROP_BEHIND:
-            self.drop_behind(pos)
-
-    def drop_behind(self, pos: int) -> None:
-        """Unmap the pages of a memory-mapped file well behind `pos` (they are read again from the page cache
-        if needed): a file read once does not count whole towards the process' memory."""
-        start = self.dropped - self.dropped % mmap.PAGESIZE
-        stop = pos - _DROP_BEHIND // 2
-        stop -= stop % mmap.PAGESIZE
-        if stop > start and isinstance(self.buf, mmap.mmap) and hasattr(mmap, "MADV_DONTNEED"):
-            self.buf.madvise(mmap.MADV_DONTNEED, start, stop - start)
-        self.dropped = max(self.dropped, stop)
+        """The walk (or a resync) has read up to `pos`: the pages well behind it go (a file read once does not
+        count whole towards the process' memory)."""
+        self.pages.passed(pos)
 
     def flush_loose(self) -> None:
         """The messages read outside chunks since the last chunk, into their channels (one part each)."""
@@ -486,33 +461,10 @@ class _Walker:
         records only (MCAP spec). The framing is followed record by record, except where the messages
         provably follow at one stride (checked at once); the messages' fields are read vectorised and
         kept as lazy parts, like the message index gives them."""
-        unpack_rec = RECORD_HEAD.unpack_from
-        size = len(data)
-        starts = array("q")
-        strided = np.zeros(0, np.int64)   # the messages found at one stride, to the end of the chunk
-        others: list[tuple[int, int, int]] = []
-        q = 0
-        while q < size:
-            if q + 9 > size:
-                return f"malformed chunk content at offset {q}"
-            op, ln = unpack_rec(data, q)
-            end = q + 9 + ln
-            if end > size:
-                return f"malformed chunk content: record at offset {q} overruns the chunk"
-            if op == OP_MESSAGE:
-                if ln < 22 or not messages:
-                    return f"malformed message at chunk offset {q}"
-                if not starts and (size - q) % (9 + ln) == 0 and _one_stride(data, q, 9 + ln):
-                    strided = np.arange(q, size, 9 + ln, dtype=np.int64)
-                    break
-                starts.append(q)
-            elif op in (OP_SCHEMA, OP_CHANNEL):
-                if len(others) >= MAX_DEFINITIONS:
-                    return f"malformed chunk content: more than {MAX_DEFINITIONS} schema and channel records"
-                others.append((op, q, end))
-            else:
-                return f"malformed chunk content: {OP_NAMES.get(op, f'opcode {op:#x}')} record at offset {q}"
-            q = end
+        try:
+            o, others = chunk_content(data, messages)
+        except ChunkRefused as malformed:
+            return str(malformed)
         for op, q, end in others:
             try:
                 if op == OP_SCHEMA:
@@ -523,9 +475,9 @@ class _Walker:
                     self.w.channels.setdefault(c.id, c)
             except Exception as exc:
                 return f"malformed {OP_NAMES[op]} record in the chunk ({exc})"
-        o = np.frombuffer(starts, np.int64) if starts else strided
         if not len(o):
             return None
+        size = len(data)
         lengths = np.ndarray((size - 8,), "<u8", data, 1, (1,))[o].astype(np.int64) - 22
         channels = np.ndarray((size - 10,), "<u2", data, 9, (1,))[o]
         times = np.ndarray((size - 22,), "<u8", data, 15, (1,))[o]
@@ -564,35 +516,6 @@ class _Walker:
             if not len(lengths):
                 return
         d.add(Joined(gather(data, starts, lengths)), lengths, times)
-
-
-def _one_stride(data: bytes, q: int, stride: int) -> bool:
-    """Whether every record from `q` to the end of `data` is a message of length `stride` (vectorised)."""
-    n = (len(data) - q) // stride
-    ops = np.ndarray((n,), np.uint8, data, q, (stride,))
-    lengths = np.ndarray((n,), "<u8", data, q + 1, (stride,))
-    return bool((ops == OP_MESSAGE).all() and (lengths == stride - 9).all())
-
-
-@dataclass(frozen=True)
-class MessageCut:
-    """Messages of `topics` longer than `max_bytes` go through `shrink(payload) -> payload` as they are gathered,
-    one at a time, before anything holds them all (a JSON message with a 1 MB text, kept by the thousand, would
-    be parsed in bulk later)."""
-
-    topics: frozenset[str]
-    max_bytes: int
-    shrink: Callable[[bytes], bytes]
-
-    def apply(self, data, starts: np.ndarray, lengths: np.ndarray) -> tuple[bytes, np.ndarray, np.ndarray]:
-        """The payloads at `starts` (of `lengths`) in `data`, the long ones shrunk, back to back: (joined,
-        their starts, their lengths)."""
-        whole = memoryview(data)
-        payloads = [bytes(whole[a:a + n]) if n <= self.max_bytes else self.shrink(bytes(whole[a:a + n]))
-                    for a, n in zip(starts.tolist(), lengths.tolist())]
-        new_lengths = np.array([len(p) for p in payloads], np.int64)
-        new_starts = np.concatenate([[0], np.cumsum(new_lengths)[:-1]]).astype(np.int64)
-        return b"".join(payloads), new_starts, new_lengths
 
 
 def walk(buf: bytes, defer_topics: frozenset[str] = frozenset(),
