@@ -3,10 +3,12 @@
 `read_log(path)` never needs the summary: it walks the records (see `bench.log.mcap.walk`),
 checks every chunk's CRC, and reads around damage: a file cut off by a crash gives
 everything up to its last complete chunk, a chunk that fails its CRC (or cannot be
-decompressed) is skipped and reading resumes after it. `RunLog.damage` says exactly what
-was lost (byte offsets, log-time ranges, message counts per topic where the file's
-message index or summary tells them); `RunLog.complete` is False when anything was. A
-file that is not MCAP at all raises `LogError` with a one-line message naming the file.
+decompressed) is skipped and reading resumes after it. `RunLog.scan()` says exactly what
+was lost (`damage`; `lost`: byte offsets, log-time ranges, message counts per topic where the
+file's message index or summary tells them; `complete` is False when anything was), reading
+the frames' chunks no pass has read yet (an explicit call: it can be most of the file);
+`read_log(path, scan=True)` does so at once, `RunLog.damage_found` is what is known without
+it. A file that is not MCAP at all raises `LogError` with a one-line message naming the file.
 
 The raw CAN frames (`/can/raw`) are the source of truth for IMU data:
 `RunLog.imu_samples(layout, rate_hz)` decodes them with the bulk decoder. The decoded
@@ -40,7 +42,7 @@ from __future__ import annotations
 import dataclasses
 import mmap
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -177,14 +179,29 @@ class ImuRecords:
         return len(self.counter)
 
 
+@dataclass(frozen=True)
+class LogScan:
+    """What `RunLog.scan()` found, every chunk of the log looked at."""
+
+    damage: list[str]      # what was lost, one line each (also what reading the states and samples found)
+    lost: list[Damage]     # the entries behind `damage`, with offsets and counts
+    can_frame_count: int   # frames in `/can/raw` (read)
+    non_data_frames: int   # error and remote frames among them (recorded, never decoded)
+
+    @property
+    def complete(self) -> bool:
+        """True when nothing was lost (the file was closed and every record read)."""
+        return not self.damage
+
+
 @dataclass
 class RunLog:
     """Everything read from one run log.
 
     The raw CAN frames are not held: `imu_samples` decodes them chunk by chunk (each chunk read
     from the file, decompressed, decoded and let go), and so do `can_pieces`, `can_timestamp_s`
-    and the frame counts. Damage in those chunks is found by the first of them (or by reading
-    `damage`, `lost` or `complete`, which make sure every chunk was looked at).
+    and the frame counts. Damage in those chunks is found by the first of them (or by `scan()`, which
+    makes sure every chunk was looked at: what was lost, whether the log is complete, the frame counts).
     """
 
     path: str
@@ -209,40 +226,20 @@ class RunLog:
     _non_data: int = field(default=0, repr=False)
     _frame_times: np.ndarray | None = field(default=None, repr=False)
 
-    @property
-    def damage(self) -> list[str]:
-        """What was lost, one line each (every chunk looked at first)."""
-        self._scan_can()
-        return self._damage
+    def scan(self) -> LogScan:
+        """What was lost and how many frames there are, every `/can/raw` chunk looked at: the chunks no pass
+        has read yet are read now (each decompressed and decoded, then let go: once per log, and nothing
+        when a decode or a pass over the frames already read them all)."""
+        if not self._can_scanned:
+            for _ in self.can_pieces():
+                pass
+        return LogScan(list(self._damage), list(self._lost), self._frame_count, self._non_data)
 
     @property
     def damage_found(self) -> list[str]:
-        """`damage` as far as found so far, without reading the frames' chunks for it (the first pass over them,
-        by whatever reads them, adds theirs)."""
+        """The damage found so far, one line each, without reading the frames' chunks for it (the first pass
+        over them, by whatever reads them, adds theirs; `scan()` makes it whole)."""
         return self._damage
-
-    @property
-    def lost(self) -> list[Damage]:
-        """The damage entries behind `damage`, with offsets and counts."""
-        self._scan_can()
-        return self._lost
-
-    @property
-    def complete(self) -> bool:
-        """True when nothing was lost (the file was closed and every record read)."""
-        return not self.damage
-
-    @property
-    def can_frame_count(self) -> int:
-        """Frames in `/can/raw` (read)."""
-        self._scan_can()
-        return self._frame_count
-
-    @property
-    def non_data_frames(self) -> int:
-        """Error and remote frames in `/can/raw` (recorded, never decoded)."""
-        self._scan_can()
-        return self._non_data
 
     @property
     def can_timestamp_s(self) -> np.ndarray:
@@ -314,11 +311,6 @@ class RunLog:
                     self._add(malformed_damage(TOPIC_CAN, bad))
         self._can_scanned = True
 
-    def _scan_can(self) -> None:
-        if not self._can_scanned:
-            for _ in self.can_pieces():
-                pass
-
     @cached_property
     def table_states(self) -> TableStates:
         """The `/table/state` topic as arrays (parsed on first use; malformed messages are skipped
@@ -380,7 +372,7 @@ class RunLog:
         """Decode the raw data frames into samples (the source of truth) and link statistics, chunk by
         chunk (memory: the samples, not the frames).
 
-        Error and remote frames are logged but never decoded, as live (`non_data_frames` counts
+        Error and remote frames are logged but never decoded, as live (`scan().non_data_frames` counts
         them). The decode is kept: solving and the report both ask for it (treat the arrays as
         read-only).
         """
@@ -393,25 +385,11 @@ class RunLog:
         by chunk (memory: a few chunks, not the samples of the log; nothing is kept: a second call decodes
         again, unless `imu_samples` kept a decode, which is given whole). The blocks joined are exactly
         `imu_samples`' block."""
-        for cached_layout, cached_rate, cached_window, decoded in self._decoded:
-            if (cached_layout is layout or cached_layout == layout) and cached_rate == rate_hz \
-                    and cached_window == reorder_window:
-                yield decoded[0]
-                return
-        decoder = StreamDecoder(layout, rate_hz, reorder_window)
-        try:
-            for t, ids, data, lengths, flags in self.can_pieces():
-                keep = (flags & (FLAG_REMOTE | FLAG_ERROR)) == 0
-                if not keep.all():
-                    t, ids, data, lengths = t[keep], ids[keep], data[keep], lengths[keep]
-                for a in range(0, len(ids), _FEED_FRAMES):
-                    b = a + _FEED_FRAMES
-                    decoder.feed(ids[a:b], data[a:b], lengths[a:b], t[a:b])
-                    yield from decoder.take()
-                t = ids = data = lengths = flags = keep = None
-            block, _ = decoder.finish()
-        except MemoryError as exc:
-            raise LogError(f"{self.path}: not enough memory to decode its CAN frames") from exc
+        kept = self._kept_decode(layout, rate_hz, reorder_window)
+        if kept is not None:
+            yield kept[0]
+            return
+        block, _ = yield from self._decode(StreamDecoder(layout, rate_hz, reorder_window), None, hand_over=True)
         if len(block):
             yield block
 
@@ -420,11 +398,33 @@ class RunLog:
         """`imu_samples`, calling `visit(frame times)` with every piece of frames when the decode reads them
         now (one pass over the chunks serves both); the last item says whether it did (not when the decode
         was kept from before)."""
+        kept = self._kept_decode(layout, rate_hz, reorder_window)
+        if kept is not None:
+            return (*kept, False)
+        decoding = self._decode(StreamDecoder(layout, rate_hz, reorder_window), visit, hand_over=False)
+        while True:   # (nothing is handed over: this runs the decode to its end)
+            try:
+                next(decoding)
+            except StopIteration as done:
+                decoded = done.value
+                break
+        self._decoded.append((layout, rate_hz, reorder_window, decoded))
+        return (*decoded, visit is not None)
+
+    def _kept_decode(self, layout: ImuLayout | None, rate_hz: float,
+                     reorder_window: int) -> tuple[ImuSampleBlock, ImuStats] | None:
+        """The decode `imu_samples` kept for these arguments, if it did."""
         for cached_layout, cached_rate, cached_window, decoded in self._decoded:
             if (cached_layout is layout or cached_layout == layout) and cached_rate == rate_hz \
                     and cached_window == reorder_window:
-                return (*decoded, False)
-        decoder = StreamDecoder(layout, rate_hz, reorder_window)
+                return decoded
+        return None
+
+    def _decode(self, decoder: StreamDecoder, visit,
+                hand_over: bool) -> Generator[ImuSampleBlock, None, tuple[ImuSampleBlock, ImuStats]]:
+        """Feed every data frame of `/can/raw` to `decoder`, piece by piece (`visit(frame times)` with each
+        piece first, when given): the decoder's answer (`finish()`). `hand_over`: yield the blocks the decoder
+        resolves as it goes (they are then not in its answer)."""
         try:
             for t, ids, data, lengths, flags in self.can_pieces():
                 if visit is not None:
@@ -435,12 +435,12 @@ class RunLog:
                 for a in range(0, len(ids), _FEED_FRAMES):   # a chunk of 256 MiB holds ~11 M frames
                     b = a + _FEED_FRAMES
                     decoder.feed(ids[a:b], data[a:b], lengths[a:b], t[a:b])
+                    if hand_over:
+                        yield from decoder.take()
                 t = ids = data = lengths = flags = keep = None   # let the piece go before the next is read
-            decoded = decoder.finish()
+            return decoder.finish()
         except MemoryError as exc:
             raise LogError(f"{self.path}: not enough memory to decode its CAN frames") from exc
-        self._decoded.append((layout, rate_hz, reorder_window, decoded))
-        return (*decoded, visit is not None)
 
     @property
     def unchecked_chunks(self) -> int:
@@ -466,8 +466,9 @@ class RunLog:
         """One line: what the log holds and whether anything was lost. `read_frames=False`: without reading the
         frames' chunks for it (the frames as recorded, the damage found so far), for a caller about to read them."""
         if read_frames:
-            frames = f"{self.can_frame_count} CAN frames"
-            state = "complete" if self.complete else f"DAMAGED ({len(self.damage)} problems)"
+            scan = self.scan()
+            frames = f"{scan.can_frame_count} CAN frames"
+            state = "complete" if scan.complete else f"DAMAGED ({len(scan.damage)} problems)"
         else:
             frames = f"{self.message_counts.get(TOPIC_CAN, 0)} batches of CAN frames recorded"
             found = self.damage_found
@@ -579,13 +580,16 @@ def _map_file(path: str):
         raise LogError(f"{path}: cannot read: {exc.strerror or exc}") from exc
 
 
-def read_log(path, *, defer_samples: bool = True, messages: bool = True) -> RunLog:
+def read_log(path, *, defer_samples: bool = True, messages: bool = True, scan: bool = False) -> RunLog:
     """Read a run log; see the module docstring for how damage is handled and what `defer_samples` does.
     `messages=False`: the records and metadata only (no table states, events, frames or samples are kept:
-    what a catalogue of logs needs, at a fraction of the memory)."""
+    what a catalogue of logs needs, at a fraction of the memory). `scan`: `RunLog.scan()` before returning."""
     path = str(path)
     try:
-        return _read_log(path, defer_samples, messages)
+        log = _read_log(path, defer_samples, messages)
+        if scan:
+            log.scan()
+        return log
     except MemoryError as exc:   # within the reader's limits, but more than this machine has
         raise LogError(f"{path}: not enough memory to read it") from exc
 
@@ -669,4 +673,4 @@ def _read_log(path: str, defer_samples: bool, messages: bool = True) -> RunLog:
                   _samples=by_topic.get(TOPIC_SAMPLES), _states=by_topic.get(TOPIC_STATE), _budget=w.budget)
 
 
-__all__ = ["ImuRecords", "LogError", "RunLog", "TableStates", "read_log"]
+__all__ = ["ImuRecords", "LogError", "LogScan", "RunLog", "TableStates", "read_log"]

@@ -122,8 +122,7 @@ def _fingerprint(path: Path, **kwargs) -> dict:
     out["damage"] = damage
     out["lost"] = [[d.kind, d.offset, d.reason, d.start_ns, d.end_ns, d.lost, d.chunks, d.last_offset] for d in lost]
     scan = log.scan() if hasattr(log, "scan") else log
-    out["frames"] = [scan.can_frame_count if hasattr(scan, "can_frame_count") else scan.can_frames,
-                     scan.non_data_frames]
+    out["frames"] = [scan.can_frame_count, scan.non_data_frames]
     out["timestamps"] = _digest(log.can_timestamp_s)
     out["summary"] = log.summary().replace(str(path), "<path>")
     return out
