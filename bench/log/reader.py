@@ -41,9 +41,7 @@ from __future__ import annotations
 
 import dataclasses
 import mmap
-from collections import deque
 from collections.abc import Generator, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -51,6 +49,7 @@ import numpy as np
 
 from bench.errors import BenchError
 from bench.files import InputFileError, open_input
+from bench.log.can_stream import decoded_slices, inflated_parts
 from bench.log.format import (
     CAN_ENCODING,
     FLAG_ERROR,
@@ -78,17 +77,13 @@ from bench.log.json_topics import (
 from bench.log.mcap import (
     MAX_DBC_BYTES,
     ChannelData,
-    ChunkRefused,
     Damage,
-    InChunk,
     InflateBudget,
     MessageCut,
-    Part,
     WalkError,
-    inflated_or_refusal,
 )
 from bench.log.mcap.walk import walk
-from bench.log.threads import reader_threads
+from bench.log.topic_arrays import ImuRecords, TableStates, imu_records_from_rows
 from bench.plan.events import Event
 from drivers.chamber import ChamberState
 from drivers.imu import ImuSampleBlock, ImuStats
@@ -110,73 +105,10 @@ MAX_CHAMBER_STATES = 200_000
 #: the topics a read keeps (the others are only counted)
 KEPT_TOPICS = frozenset({TOPIC_CAN, TOPIC_SAMPLES, TOPIC_STATE, TOPIC_EVENTS, TOPIC_CHAMBER})
 _JSON_BATCH = 1 << 16
+#: Frames handed to the stream decoder at once (its working arrays are about 100 bytes a frame).
+_FEED_FRAMES = 1 << 20
 #: the kept JSON topics' long messages are cut as they are gathered (1 MB alarm texts by the thousand took 4.4 GB)
 _CUT = MessageCut(frozenset({TOPIC_STATE, TOPIC_EVENTS, TOPIC_CHAMBER}), MAX_JSON_MESSAGE_BYTES, shrink_message)
-
-
-@dataclass
-class TableStates:
-    """The polled table states, in log order."""
-
-    time_s: np.ndarray      # (n,)
-    angles_deg: np.ndarray  # (n, 3) outer, middle, inner
-    rates_dps: np.ndarray   # (n, 3)
-    status: np.ndarray      # (n, 3) int64 AxisStatus bits
-    estop: np.ndarray       # (n,) bool
-    modes: list             # n tuples of 3 mode strings
-    fault_text: list        # n strings
-
-    def __len__(self) -> int:
-        return len(self.time_s)
-
-    @classmethod
-    def concatenate(cls, parts: list["TableStates"]) -> "TableStates":
-        if len(parts) == 1:
-            return parts[0]
-        return cls(np.concatenate([p.time_s for p in parts]), np.concatenate([p.angles_deg for p in parts]),
-                   np.concatenate([p.rates_dps for p in parts]), np.concatenate([p.status for p in parts]),
-                   np.concatenate([p.estop for p in parts]), [m for p in parts for m in p.modes],
-                   [t for p in parts for t in p.fault_text])
-
-    @classmethod
-    def from_dicts(cls, rows: list[dict]) -> "TableStates":
-        n = len(rows)
-
-        def vec(key, dtype=float):
-            try:   # numpy reads None as NaN for floats; anything else odd takes the explicit route
-                return np.array([r[key] for r in rows], dtype).reshape(n, 3)
-            except (TypeError, ValueError):
-                return np.array([[np.nan if v is None else v for v in r[key]] for r in rows], dtype).reshape(n, 3)
-
-        try:
-            time_s = np.array([r["time_s"] for r in rows], float).reshape(n)
-        except (TypeError, ValueError):
-            time_s = np.array([np.nan if r["time_s"] is None else r["time_s"] for r in rows], float).reshape(n)
-        return cls(time_s,
-                   vec("angles_deg"), vec("rates_dps"), vec("status", np.int64),
-                   np.array([bool(r.get("estop")) for r in rows], bool).reshape(n),
-                   [tuple(r["modes"]) for r in rows], [str(r.get("fault_text", "")) for r in rows])
-
-
-@dataclass
-class ImuRecords:
-    """The decoded samples as recorded on `/imu/samples` (possibly decimated), in log order.
-
-    Derived data for viewing: the solver decodes the raw frames instead
-    (`RunLog.imu_samples`, a `drivers.imu.ImuSampleBlock`); see `bench.sim.imu.ImuSamples`
-    for how the three sample arrays differ.
-    """
-
-    counter: np.ndarray         # (n,) int64
-    imu_time_s: np.ndarray      # (n,) counter / rate: the IMU's own time base
-    receive_time_s: np.ndarray  # (n,) the message log times: when each sample was complete, on the run clock
-    gyro_counts: np.ndarray     # (n, 3)
-    acc_counts: np.ndarray      # (n, 3)
-    temperature_c: np.ndarray   # (n,) NaN where not recorded
-    status: np.ndarray          # (n,) int64
-
-    def __len__(self) -> int:
-        return len(self.counter)
 
 
 @dataclass(frozen=True)
@@ -285,7 +217,7 @@ class RunLog:
         if d is None:
             self._can_scanned = True
             return
-        for k, answer in _inflated_parts(d):
+        for k, answer in inflated_parts(d):
             fresh = k >= self._scan_pos
             if isinstance(answer, Damage):
                 if fresh:
@@ -296,7 +228,7 @@ class RunLog:
             # a part's payloads are decoded a slice at a time (a 256 MiB chunk of frames is ~11 M frames: its
             # arrays, and the general route's for mixed lengths, would be several times that at once)
             frames = non_data = bad = 0
-            for piece, malformed in _decoded_slices(answer, d.lengths[k], d.log_times[k]):
+            for piece, malformed in decoded_slices(answer, d.lengths[k], d.log_times[k]):
                 frames += len(piece[1])
                 non_data += int(np.count_nonzero(piece[4] & (FLAG_REMOTE | FLAG_ERROR)))
                 bad += malformed
@@ -338,18 +270,18 @@ class RunLog:
         self.check_deferred()
         d = self._samples
         if d is None or not len(d):
-            return _imu_records([], np.zeros(0))
+            return imu_records_from_rows([], np.zeros(0))
         parts, bad = [], 0
         for rows, times, malformed in self._json_batches(d, TOPIC_SAMPLES):
             bad += malformed
             times = times[[i for i, r in enumerate(rows) if r is not None]] / 1e9
             rows = [r for r in rows if r is not None]
             try:
-                parts.append(_imu_records(rows, times))
+                parts.append(imu_records_from_rows(rows, times))
             except (KeyError, TypeError, ValueError, OverflowError):   # some rows lack fields: keep the others
                 good = [k for k, r in enumerate(rows) if sample_row_ok(r)]
                 bad += len(rows) - len(good)
-                parts.append(_imu_records([rows[k] for k in good], times[good]))
+                parts.append(imu_records_from_rows([rows[k] for k in good], times[good]))
         if bad:
             self._add(malformed_damage(TOPIC_SAMPLES, bad))
         return ImuRecords(*(np.concatenate([getattr(p, f.name) for p in parts])
@@ -479,64 +411,6 @@ class RunLog:
                 f"{len(self.events)} events, {self.chunks} chunks{unchecked}; {state}")
 
 
-#: Payload bytes of a `/can/raw` part decoded into frame arrays at once.
-_SLICE_BYTES = 32 << 20
-#: Frames handed to the stream decoder at once (its working arrays are about 100 bytes a frame).
-_FEED_FRAMES = 1 << 20
-#: Declared bytes of `/can/raw` chunks decompressed ahead of the one being decoded (at least one chunk).
-_STREAM_AHEAD_BYTES = 96 << 20
-
-
-def _decoded_slices(part: Part, lengths: np.ndarray, log_times: np.ndarray):
-    """(frames, malformed count) of a part's payloads, at most `_SLICE_BYTES` of payloads at a time."""
-    data, starts = part.located(lengths)
-    ends = np.cumsum(lengths)
-    a = 0
-    while a < len(lengths):
-        b = max(a + 1, int(np.searchsorted(ends, ends[a] - lengths[a] + _SLICE_BYTES, side="right")))
-        yield decode_can_frames(ChannelData([InChunk(data, starts[a:b])], [lengths[a:b]], [log_times[a:b]]),
-                                release=True)
-        a = b
-
-
-def _inflated_parts(d: ChannelData):
-    """(part index, (frames, malformed) or `Damage`) for every part of `d` still there, in order; the next
-    parts are read and decompressed on a worker thread while the caller decodes (zstd releases the GIL).
-    (What they may inflate to was counted by the walk.)"""
-    todo = [k for k, p in enumerate(d.parts) if p is not None]
-    threads = reader_threads(2)
-    pool = ThreadPoolExecutor(threads, thread_name_prefix="can-stream") if len(todo) > 1 and threads > 1 else None
-    ahead: deque = deque()   # (k, future or answer, declared bytes)
-    in_flight, nxt = 0, 0
-    try:
-        while ahead or nxt < len(todo):
-            while nxt < len(todo) and (not ahead or in_flight < _STREAM_AHEAD_BYTES):
-                k = todo[nxt]
-                nxt += 1
-                part = d.parts[k]
-                size = part.declared_bytes(d.lengths[k])
-                # a deferred chunk is read and decompressed first, on a worker thread
-                job = pool.submit(inflated_or_refusal, part) if pool is not None else inflated_or_refusal(part)
-                ahead.append((k, job, size))
-                in_flight += size
-            k, job, size = ahead.popleft()
-            in_flight -= size
-            answer = job.result() if isinstance(job, Future) else job
-            del job   # (a finished future holds its result: the caller's piece must be the only reference)
-            if isinstance(answer, ChunkRefused):
-                part = d.parts[k]
-                answer = Damage("chunk", part.offset, str(answer), part.start_ns, part.end_ns,
-                                {TOPIC_CAN: len(part.offsets)})
-            yield k, answer
-            answer = None
-    finally:
-        if pool is not None:
-            for _, job, _ in ahead:
-                if isinstance(job, Future):
-                    job.cancel()
-            pool.shutdown(wait=True)
-
-
 class _FileSource:
     """Reads spans of a log file again when a deferred chunk is needed (the walk keeps no copy). The
     chunk's CRC and framing are checked on every read, as the first time."""
@@ -548,22 +422,6 @@ class _FileSource:
         with open_input(self.path, max_bytes=None, what="run log") as f:
             f.seek(offset)
             return f.read(length)
-
-
-def _imu_records(rows: list[dict], times: np.ndarray) -> ImuRecords:
-    """`/imu/samples` rows as arrays (KeyError/TypeError/ValueError when a row lacks a field or has a wrong one)."""
-    n = len(rows)
-    records = ImuRecords(np.array([r["counter"] for r in rows], np.int64),
-                         # logs before 2026-11-24 hold counter / rate in "time_s" and no "imu_time_s"
-                         np.array([r.get("imu_time_s", r["time_s"]) for r in rows], float), times,
-                         np.array([r["gyro_counts"] for r in rows], float).reshape(n, 3),
-                         np.array([r["acc_counts"] for r in rows], float).reshape(n, 3),
-                         np.array([np.nan if r["temperature_c"] is None else r["temperature_c"] for r in rows],
-                                  float),
-                         np.array([r["status"] for r in rows], np.int64))
-    if any(a.shape != (n,) for a in (records.counter, records.imu_time_s, records.temperature_c, records.status)):
-        raise ValueError("a scalar field holds an array")
-    return records
 
 
 def _map_file(path: str):
