@@ -118,7 +118,7 @@ def test_a_closed_progress_pipe_ends_the_run_exit_3_with_the_table_stopped(confi
         stop_process(proc)
     assert proc.returncode == 3
     log = read_log(only_file(out, "*.mcap"))
-    assert log.summary_present and log.complete, log.damage
+    assert log.summary_present and log.scan().complete, log.scan().damage
     faults = [e for e in log.events if e.kind == "fault"]
     assert len(faults) == 1 and "ProgressPrinter failed: BrokenPipeError" in faults[0].message
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
@@ -148,7 +148,7 @@ def test_sigterm_and_sighup_abort_bench_run_like_ctrl_c(signum, tmp_path):
     assert len(stderr.strip().splitlines()) == 1, stderr
     assert f"interrupted ({name})" in stderr and f"--resume {log_path}" in stderr
     log = read_log(log_path)
-    assert log.summary_present and log.complete, log.damage
+    assert log.summary_present and log.scan().complete, log.scan().damage
     assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS
     assert not (log.table_states.status[-1] & AxisStatus.ENABLED).any()     # servos off
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
@@ -195,7 +195,7 @@ def test_sigterm_aborts_bench_check_table_like_ctrl_c(tmp_path):
     assert proc.returncode == 3, stderr
     assert len(stderr.strip().splitlines()) == 1 and "interrupted (SIGTERM)" in stderr, stderr
     log = read_log(log_path)
-    assert log.summary_present and log.complete, log.damage
+    assert log.summary_present and log.scan().complete, log.scan().damage
     assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS
     assert not (log.table_states.status[-1] & AxisStatus.ENABLED).any()
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
@@ -264,7 +264,7 @@ def test_a_stop_signal_ends_bench_tui_mid_run_with_the_table_stopped(signum, tmp
     assert proc.returncode == 3, output.text()[-2000:]
     assert f"bench tui: interrupted ({name}); any run aborted, the table stopped" in output.text()
     log = read_log(log_path)
-    assert log.summary_present and log.complete, log.damage
+    assert log.summary_present and log.scan().complete, log.scan().damage
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
     assert any(e.kind == "info" and "servos off" in e.message for e in log.events)
     assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS

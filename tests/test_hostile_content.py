@@ -59,7 +59,7 @@ def test_a_start_date_that_is_no_utc_date_is_damage_not_a_traceback(short_log, t
                      metadata=lambda name, data: {**data, "started_utc": when} if name == "run" else data)
     read = read_log(log)
     assert "started_utc" not in read.metadata["run"]
-    assert any("run.started_utc" in line and "not a date" in line for line in read.damage), read.damage
+    assert any("run.started_utc" in line and "not a date" in line for line in read.scan().damage), read.scan().damage
     rc, _, err = cli(["solve", str(log), "--out", str(tmp_path / "out"), "--quiet"])   # the records database on
     assert rc in (0, 4) and "Traceback" not in err, err
     assert not utc_text_ok(when) and utc_text_ok("2026-11-24T02:49:01Z") and not utc_text_ok("x" * 100)

@@ -20,11 +20,11 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-import bench.log.chunks as chunks_module
-from bench.log.chunks import MAX_CHUNK_BYTES, MAX_RECORDS
+import bench.log.mcap.chunks as chunks_module
 from bench.log.format import TOPIC_CAN, TOPIC_EVENTS
+from bench.log.mcap.chunks import MAX_CHUNK_BYTES, MAX_RECORDS
+from bench.log.mcap.walk import MAX_ATTACHMENT_BYTES, MAX_DBC_BYTES, walk
 from bench.log.reader import read_log
-from bench.log.walk import MAX_ATTACHMENT_BYTES, MAX_DBC_BYTES, walk
 from tests.helpers.mcap_surgery import (
     can_frames,
     chunk_fields,
@@ -73,8 +73,8 @@ def _crafted(tmp_path: Path, data: bytes, name: str = "crafted.mcap") -> Path:
 
 
 def _chunk_damage(log, pos: int) -> str:
-    found = [d for d in log.damage if d.startswith(f"chunk at byte {pos}")]
-    assert len(found) == 1, log.damage
+    found = [d for d in log.scan().damage if d.startswith(f"chunk at byte {pos}")]
+    assert len(found) == 1, log.scan().damage
     return found[0]
 
 
@@ -177,13 +177,13 @@ def test_deferred_sample_chunks_count_against_the_budget_kept_and_inflated(run_l
     used = walk(run_log.read_bytes(), frozenset({"/imu/samples", TOPIC_CAN}), source=lambda o, n: b"").budget.used
     monkeypatch.setattr(chunks_module, "MAX_LOG_INFLATED", used)
     log = read_log(run_log)
-    assert log.complete and log.unchecked_chunks and len(log.can_ids)
+    assert log.scan().complete and log.unchecked_chunks and len(log.can_ids)
     assert len(log.imu_records) == 0 and log.unchecked_chunks == 0
-    refused = [d for d in log.damage if "past what this log's chunks may inflate to in all" in d]
+    refused = [d for d in log.scan().damage if "past what this log's chunks may inflate to in all" in d]
     assert refused and all("on /imu/samples" in d for d in refused)
     monkeypatch.setattr(chunks_module, "MAX_LOG_INFLATED", used - 1)
     log = read_log(run_log)   # one byte less: a chunk is refused as the walk reaches it
-    assert len(log.can_ids) and any("past what" in d for d in log.damage)
+    assert len(log.can_ids) and any("past what" in d for d in log.scan().damage)
 
 
 def test_a_chunk_walked_record_by_record_is_not_walked_in_python_per_message(can_chunk, tmp_path):
@@ -195,7 +195,7 @@ def test_a_chunk_walked_record_by_record_is_not_walked_in_python_per_message(can
     path = _crafted(tmp_path, replace_chunk(buf, pos, chunk_record(zstd_bomb(msg, len(content)), "zstd",
                                                                    len(content), zlib.crc32(content))))
     log = read_log(path)
-    assert not [d for d in log.damage if d.startswith(f"chunk at byte {pos}")], log.damage
+    assert not [d for d in log.scan().damage if d.startswith(f"chunk at byte {pos}")], log.scan().damage
     assert int(np.count_nonzero(log.can_timestamp_s == 12345.5)) == n
 
 
@@ -212,16 +212,17 @@ def test_a_file_of_chunk_opcodes_resyncs_in_bounded_time(can_chunk, tmp_path):
     buf, pos, _ = can_chunk
     path = _crafted(tmp_path, replace_chunk(buf, pos, b"\x06" * (8 << 20)))
     log = read_log(path)
-    assert any(d.startswith(f"byte {pos}: chunk record with an impossible length; bytes {pos}..") for d in log.damage)
+    assert any(d.startswith(f"byte {pos}: chunk record with an impossible length; bytes {pos}..")
+               for d in log.scan().damage)
     assert len(log.can_ids) > 0
 
 
 def test_records_outside_chunks_are_counted_and_the_walk_stops_at_the_limit(can_chunk, tmp_path, monkeypatch):
     buf, _, _ = can_chunk
-    import bench.log.walk as walk_module
+    import bench.log.mcap.walk as walk_module
     monkeypatch.setattr(walk_module, "MAX_RECORDS", 50)
     log = read_log(_crafted(tmp_path, buf))
-    assert any("more than 50 records outside chunks" in d for d in log.damage), log.damage
+    assert any("more than 50 records outside chunks" in d for d in log.scan().damage), log.scan().damage
     assert MAX_RECORDS >= 100 * len(top_records(buf))   # a recorded log is far from the real limit
 
 
@@ -278,7 +279,7 @@ def test_crafted_content_is_read_as_damage_with_bounded_memory(run_log, crafted_
     for text in (f"1 malformed {TOPIC_CAN} messages skipped", f"1 malformed {TOPIC_EVENTS} messages skipped",
                  f"attachment 'sim_imu.dbc' holds {len(good.attachments['sim_imu.dbc'][1]) + (2 << 20) + 9} bytes, "
                  f"more than {MAX_DBC_BYTES} bytes"):
-        assert any(text in d for d in log.damage), (text, log.damage)
+        assert any(text in d for d in log.scan().damage), (text, log.scan().damage)
     assert np.abs(log.table_states.angles_deg[:, :2]).max() == 1e308
     block, stats = log.imu_samples()
     assert len(block.counter)
@@ -307,7 +308,7 @@ def test_a_message_of_records_all_claiming_255_bytes_is_malformed_not_an_error(r
 
     log = read_log(rewrite(run_log, tmp_path / "all255.mcap", message=edit))
     assert len(log.can_ids) == 0
-    assert any(f"malformed {TOPIC_CAN} messages skipped" in d for d in log.damage)
+    assert any(f"malformed {TOPIC_CAN} messages skipped" in d for d in log.scan().damage)
     block, stats = log.imu_samples()
     assert len(block.counter) == 0
 
@@ -317,7 +318,7 @@ def test_attachments_over_their_limit_are_skipped_without_reading_them(run_log, 
     path = rewrite(run_log, tmp_path / "big.mcap", attachment=lambda name, data: big if name == "bench.toml" else data)
     log, peak = _peak_while(lambda: read_log(path))
     assert "bench.toml" not in log.attachments and "sim_imu.dbc" in log.attachments
-    assert any(f"attachment 'bench.toml' holds {len(big)} bytes" in d for d in log.damage)
+    assert any(f"attachment 'bench.toml' holds {len(big)} bytes" in d for d in log.scan().damage)
     assert peak < MAX_ATTACHMENT_BYTES   # reading it would copy it at least twice
 
 
@@ -333,7 +334,7 @@ def test_honest_chunks_still_read_exactly_as_before(can_chunk, tmp_path):
                               ("lz4", lz4_bomb(content, len(content), content_size=False))):
         chunk = chunk_record(data, compression, len(content), zlib.crc32(content), f["start"], f["end"])
         log = read_log(_crafted(tmp_path, replace_chunk(buf, pos, chunk, drop_index=False)))
-        assert not [d for d in log.damage if "chunk" in d], (compression, log.damage)
+        assert not [d for d in log.scan().damage if "chunk" in d], (compression, log.scan().damage)
         np.testing.assert_array_equal(log.can_data, expected.can_data)
 
 
@@ -369,7 +370,7 @@ def test_a_turn_window_holding_many_or_repeated_table_states_is_integrated_in_bo
 def test_the_can_frames_are_decoded_chunk_by_chunk_and_never_held(run_log, monkeypatch):
     """1 GiB of a log's frames made the reader hold 2-3.8 GB (every frame as arrays); now each chunk is read
     from the file, decoded and let go, and the samples are those of decoding every frame at once."""
-    from bench.log.chunks import DeferredChunk
+    from bench.log.mcap.chunks import DeferredChunk
     from bench.log.run_info import layout_and_config_from_log
     from drivers.imu import decode_frames
     from drivers.imu.stream import StreamDecoder
@@ -390,7 +391,7 @@ def test_the_can_frames_are_decoded_chunk_by_chunk_and_never_held(run_log, monke
     assert len(fed) == len(parts) and max(fed) < sum(fed) // 5       # piece by piece
     assert log._frame_times is None and "_all_frames" not in vars(log)   # nothing of the frames kept
     t, ids, data, lengths, flags = log.can_frames()
-    assert sum(fed) == len(ids) == log.can_frame_count
+    assert sum(fed) == len(ids) == log.scan().can_frame_count
     whole, whole_stats = decode_frames(ids, data, lengths, t, layout=setup.layout, rate_hz=setup.rate_hz)
     assert whole_stats == stats and np.array_equal(whole.counter, block.counter)
     assert np.array_equal(whole.gyro_counts, block.gyro_counts) and np.array_equal(whole.receive_time_s,
@@ -401,14 +402,14 @@ def test_a_log_larger_than_what_may_be_held_is_still_read_whole(run_log, monkeyp
     """The 1 GiB budget of what the reader holds cut an 8 h 1 kHz static log at about 1.9 h (issue 17): the
     streamed frames have a budget of their own (time, not memory), so a log past the first is read whole."""
     good = read_log(run_log)
-    n_frames, n_samples = good.can_frame_count, len(good.imu_samples(*_setup(good))[0])
+    n_frames, n_samples = good.scan().can_frame_count, len(good.imu_samples(*_setup(good))[0])
     can_bytes = sum(p.size for p in good._can.parts)
     held = walk(run_log.read_bytes(), frozenset({"/imu/samples", TOPIC_CAN}), source=lambda o, n: b"").budget.used
     assert can_bytes > held > 0
     monkeypatch.setattr(chunks_module, "MAX_LOG_INFLATED", held)   # room for what is held, not the frames
     log = read_log(run_log)
-    assert log.complete, log.damage
-    assert log.can_frame_count == n_frames and len(log.imu_samples(*_setup(log))[0]) == n_samples
+    assert log.scan().complete, log.scan().damage
+    assert log.scan().can_frame_count == n_frames and len(log.imu_samples(*_setup(log))[0]) == n_samples
 
 
 def test_the_streamed_frames_have_a_budget_of_their_own(run_log, monkeypatch):
@@ -418,11 +419,11 @@ def test_the_streamed_frames_have_a_budget_of_their_own(run_log, monkeypatch):
     log = read_log(run_log)
     # the chunks left in the file (frames and samples) are counted as the walk meets them: the later ones are
     # refused, their index not kept
-    refused = [d for d in log.damage if "past what this log's chunks may inflate to in all" in d]
+    refused = [d for d in log.scan().damage if "past what this log's chunks may inflate to in all" in d]
     assert refused and all(f"at most {sum(sizes) // 2})" in d for d in refused)
     assert any(f"on {TOPIC_CAN}" in d for d in refused)
-    assert 0 < log.can_frame_count < good.can_frame_count
-    lost = sum(d.lost.get(TOPIC_CAN, 0) for d in log.lost)
+    assert 0 < log.scan().can_frame_count < good.scan().can_frame_count
+    lost = sum(d.lost.get(TOPIC_CAN, 0) for d in log.scan().lost)
     assert lost == good.message_counts[TOPIC_CAN] - sum(len(p.offsets) for p in log._can.parts if p is not None)
 
 
@@ -435,7 +436,7 @@ def _setup(log):
 def test_chunks_left_in_the_file_past_what_may_stream_keep_no_index(can_chunk, tmp_path, monkeypatch):
     """A 1 GB file of 250 honest 256 MiB chunks, each with a 4 MB message index, held 1 GB of index entries
     before the walk began (2.2 GB peak): a chunk left in the file past what the log may stream keeps none."""
-    from bench.log.chunks import Prefetch
+    from bench.log.mcap.chunks import Prefetch
     data, n, size = _four_honest_chunks(can_chunk)
     honest_at = chunks(data)[-4:]
     topics = frozenset({TOPIC_CAN, "/imu/samples"})   # what read_log leaves in the file
@@ -448,7 +449,7 @@ def test_chunks_left_in_the_file_past_what_may_stream_keep_no_index(can_chunk, t
     refused = {pos for pos, entries in lazy.deferred.items() if entries is None}
     assert refused == set(honest_at[1:])
     log = read_log(_crafted(tmp_path, data))
-    damage = [d for d in log.lost if "past what this log's chunks may inflate to in all" in d.reason]
+    damage = [d for d in log.scan().lost if "past what this log's chunks may inflate to in all" in d.reason]
     assert sum(d.chunks for d in damage) == len(refused)
     assert sum(d.lost.get(TOPIC_CAN, 0) for d in damage) >= 2 * n   # their index still counts what was lost
 

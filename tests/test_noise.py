@@ -491,7 +491,7 @@ def test_a_static_run_whose_dwell_cannot_be_analysed_keeps_its_log_and_says_how(
         assert any("bench noise" in f and "--calibration" in f for f in outcome.failures)
     from bench.log.reader import read_log
 
-    assert read_log(str(outcome.log_path)).complete          # closed with its summary
+    assert read_log(str(outcome.log_path)).scan().complete          # closed with its summary
 
 
 def test_bench_solve_of_a_static_noise_log_points_to_bench_noise(tmp_path):

@@ -165,7 +165,7 @@ def assert_frames_equal(log, msgs):
 def test_round_trip_is_lossless(closed_log):
     path, run = closed_log
     log = read_log(path)
-    assert log.complete and log.damage == [] and log.summary_present
+    assert log.scan().complete and log.scan().damage == [] and log.summary_present
     assert_frames_equal(log, run.messages)
     assert log.can_data.shape[1] == 8 and not log.can_flags.any()
     block, stats = log.imu_samples(LAYOUT, RATE_HZ)
@@ -203,7 +203,7 @@ def test_mixed_frames_round_trip_with_flags(tmp_path):
     run = record(path, n_batches=6, extras=True)
     run.recorder.close()
     log = read_log(path)
-    assert log.complete
+    assert log.scan().complete
     assert_frames_equal(log, run.messages)
     assert log.can_data.shape[1] == 64
     ext = np.flatnonzero(log.can_ids == (0x1ABCDEF0 | 1 << 31))
@@ -213,7 +213,7 @@ def test_mixed_frames_round_trip_with_flags(tmp_path):
     assert set(log.can_flags[log.can_ids == 0]) == {FLAG_ERROR}
     block, stats = log.imu_samples(LAYOUT, RATE_HZ)
     # the extended-id and FD frames are unknown to the layout; remote and error frames are not decoded
-    assert stats.samples == len(run.block) and stats.unknown_id == 4 and log.non_data_frames == 4
+    assert stats.samples == len(run.block) and stats.unknown_id == 4 and log.scan().non_data_frames == 4
 
 
 def test_decimated_sample_topic_keeps_every_raw_frame(tmp_path):
@@ -331,7 +331,7 @@ def test_chunk_closes_after_the_interval_so_an_unclosed_file_is_readable(tmp_pat
     grown = path.stat().st_size
     assert grown > start_size
     log = read_log(path)          # the recorder is still open: no summary yet
-    assert not log.summary_present and not log.complete and "not closed" in log.damage[0]
+    assert not log.summary_present and not log.scan().complete and "not closed" in log.scan().damage[0]
     assert_frames_equal(log, msgs)
     np.testing.assert_array_equal(log.imu_records.counter, block.counter)
     rec.on_can_frames(msgs[:7])   # into a new chunk, not yet closed
@@ -392,15 +392,15 @@ def test_truncated_files_read_up_to_the_last_complete_chunk(chunked_log, tmp_pat
         complete = [c for c in chunks if c[1] <= cut]
         n = sum(c[2] for c in complete)
         assert_frames_equal(log, run.messages[:n])
-        assert not log.complete and not log.summary_present
-        assert any("not closed" in d for d in log.damage)
+        assert not log.scan().complete and not log.summary_present
+        assert any("not closed" in d for d in log.scan().damage)
         inside = [c for c in chunks if c[0] < cut < c[1]]
         if inside:
             idx = inside[0][3]
             text = f"log time {idx.message_start_time / 1e9:.3f}..{idx.message_end_time / 1e9:.3f} s"
             text = text if cut - inside[0][0] >= 25 else ""   # the chunk header holds the time range
             assert any(d.startswith(f"truncated after byte {cut}: the last chunk (at byte {inside[0][0]})")
-                       and text in d and "messages lost" in d for d in log.damage), log.damage
+                       and text in d and "messages lost" in d for d in log.scan().damage), log.scan().damage
 
 
 def test_a_file_cut_inside_the_header_is_an_error(chunked_log, tmp_path):
@@ -428,18 +428,18 @@ def test_a_corrupt_chunk_is_skipped_and_reading_resumes_after_it(tmp_path, compr
         log = read_log(path, defer_samples=defer)
         before = sum(c[2] for c in chunks[:bad])
         assert_frames_equal(log, run.messages[:before] + run.messages[before + frames:])
-        assert log.summary_present and not log.complete
-        chunk_damage = [d for d in log.damage if d.startswith(f"chunk at byte {start}")]
-        assert len(chunk_damage) == 1, log.damage
+        assert log.summary_present and not log.scan().complete
+        chunk_damage = [d for d in log.scan().damage if d.startswith(f"chunk at byte {start}")]
+        assert len(chunk_damage) == 1, log.scan().damage
         text = chunk_damage[0]
         assert f"log time {idx.message_start_time / 1e9:.3f}..{idx.message_end_time / 1e9:.3f} s" in text
         # the frames have chunks of their own: only they are lost with it
         assert "messages lost" in text and "on /can/raw" in text and "on /table/state" not in text
         if compression == "none":
             assert "CRC mismatch" in text
-        assert len(log.damage) == 1     # the message index accounts for every lost message
-        assert log.lost[0].lost == {"/can/raw": 1}
-        assert len(log.imu_records) == len(run.batch_frames) * SAMPLES_PER_BATCH and log.damage == [text]
+        assert len(log.scan().damage) == 1     # the message index accounts for every lost message
+        assert log.scan().lost[0].lost == {"/can/raw": 1}
+        assert len(log.imu_records) == len(run.batch_frames) * SAMPLES_PER_BATCH and log.scan().damage == [text]
 
 
 @pytest.mark.parametrize("compression", ["zstd", "none"])
@@ -457,18 +457,18 @@ def test_imu_samples_have_chunks_of_their_own_checked_when_first_read(tmp_path, 
 
     log = read_log(path)   # the samples chunks are left compressed: the damage is not seen yet
     assert_frames_equal(log, run.messages)
-    assert log.complete and log.unchecked_chunks == len(samples_only)
+    assert log.scan().complete and log.unchecked_chunks == len(samples_only)
     assert f"{len(samples_only)} /imu/samples chunks" in log.summary()
     records = log.imu_records   # now they are read: one chunk is lost, and said so
-    assert log.unchecked_chunks == 0 and not log.complete and len(log.damage) == 1
-    assert log.damage[0].startswith(f"chunk at byte {start}")
-    assert f"{SAMPLES_PER_BATCH} on /imu/samples" in log.damage[0]
+    assert log.unchecked_chunks == 0 and not log.scan().complete and len(log.scan().damage) == 1
+    assert log.scan().damage[0].startswith(f"chunk at byte {start}")
+    assert f"{SAMPLES_PER_BATCH} on /imu/samples" in log.scan().damage[0]
     if compression == "none":
-        assert "CRC mismatch" in log.damage[0]
+        assert "CRC mismatch" in log.scan().damage[0]
     assert len(records) == len(run.batch_frames) * SAMPLES_PER_BATCH - SAMPLES_PER_BATCH
 
     eager = read_log(path, defer_samples=False)   # the same damage, found at once
-    assert eager.unchecked_chunks == 0 and eager.damage == log.damage
+    assert eager.unchecked_chunks == 0 and eager.scan().damage == log.scan().damage
     assert len(eager.imu_records) == len(records)
 
 
@@ -482,12 +482,13 @@ def test_a_corrupt_record_header_resyncs_at_the_next_chunk(chunked_log, tmp_path
     log = read_log(p)
     before = sum(c[2] for c in chunks[:4])
     assert_frames_equal(log, run.messages[:before] + run.messages[before + frames:])
-    assert any(f"byte {start}: unreadable record" in d and "next chunk" in d for d in log.damage), log.damage
-    assert any("summary counts" in d for d in log.damage)
+    damage = log.scan().damage
+    assert any(f"byte {start}: unreadable record" in d and "next chunk" in d for d in damage), damage
+    assert any("summary counts" in d for d in log.scan().damage)
 
 
 def test_good_chunks_are_gathered_through_their_message_index(chunked_log, monkeypatch):
-    import bench.log.walk as mw
+    import bench.log.mcap.walk as mw
     walked = []
     original = mw._Walker.chunk_records
 
@@ -498,7 +499,7 @@ def test_good_chunks_are_gathered_through_their_message_index(chunked_log, monke
     monkeypatch.setattr(mw._Walker, "chunk_records", spy)
     path, run, chunks, _ = chunked_log
     log = read_log(path)
-    assert log.complete and log.chunks == len(chunks)
+    assert log.scan().complete and log.chunks == len(chunks)
     assert True not in walked     # only the first chunk's schema/channel prefix is walked record by record
 
 
@@ -511,7 +512,7 @@ def test_a_wrong_message_index_falls_back_to_the_record_walk(chunked_log, tmp_pa
     p = tmp_path / "index.mcap"
     p.write_bytes(bytes(data))
     log = read_log(p)
-    assert log.complete, log.damage
+    assert log.scan().complete, log.scan().damage
     assert_frames_equal(log, run.messages)
     np.testing.assert_array_equal(log.imu_records.counter, run.block.counter)
 
@@ -581,7 +582,7 @@ def test_random_damage_never_crashes_the_reader(small_log, tmp_path, flips, cut)
         assert "\n" not in str(exc)
         return
     assert len(log.can_ids) <= n_frames + 50
-    assert all(isinstance(d, str) for d in log.damage)
+    assert all(isinstance(d, str) for d in log.scan().damage)
     log.imu_samples(LAYOUT, RATE_HZ)
 
 
@@ -594,7 +595,7 @@ def test_random_bytes_after_the_magic_are_an_error_or_damage(tmp_path, body):
         log = read_log(p)
     except LogError:
         return
-    assert not log.complete
+    assert not log.scan().complete
 
 
 def test_malformed_messages_found_on_first_use_are_counted_in_damage_and_lost(tmp_path):
@@ -621,5 +622,5 @@ def test_malformed_messages_found_on_first_use_are_counted_in_damage_and_lost(tm
     log = read_log(path)
     assert len(log.imu_records) == 1 and log.imu_records.counter.tolist() == [7]
     assert len(log.table_states.time_s) == 1
-    assert {topic: n for d in log.lost for topic, n in d.lost.items()} == {TOPIC_SAMPLES: 2, TOPIC_STATE: 2}
-    assert len(log.damage) == len(log.lost) == 2 and not log.complete
+    assert {topic: n for d in log.scan().lost for topic, n in d.lost.items()} == {TOPIC_SAMPLES: 2, TOPIC_STATE: 2}
+    assert len(log.scan().damage) == len(log.scan().lost) == 2 and not log.scan().complete

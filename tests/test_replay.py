@@ -412,7 +412,7 @@ def test_cli_a_stop_signal_stops_a_paced_replay_even_with_sigint_ignored(recorde
 def test_cli_reads_the_frames_once_with_or_without_quiet(recorded, monkeypatch):
     """Without --quiet the log's summary came first and read every frame chunk once more (a 1 GB log: a
     whole extra pass) before the replay read them again."""
-    from bench.log.chunks import DeferredChunk
+    from bench.log.mcap.chunks import DeferredChunk
 
     inflated = [0]
     inflate = DeferredChunk.inflate
@@ -443,7 +443,7 @@ def test_a_thermal_runs_chamber_states_are_read_and_replayed_in_log_time_order(t
 
     log = read_log(str(thermal_run_log))
     states = log.chamber_states
-    assert len(states) == log.message_counts[TOPIC_CHAMBER] >= 10 and log.complete
+    assert len(states) == log.message_counts[TOPIC_CHAMBER] >= 10 and log.scan().complete
     assert [round(s.setpoint_c) for s in states] == sorted(round(s.setpoint_c) for s in states)
     assert {round(s.setpoint_c) for s in states} == {24, 26} and all(s.running and not s.alarm for s in states)
 
@@ -487,8 +487,8 @@ def test_chamber_states_past_the_readers_limit_are_said_not_read(thermal_run_log
     monkeypatch.setattr(reader, "MAX_CHAMBER_STATES", 10)
     log = reader.read_log(str(thermal_run_log))
     recorded = log.message_counts[TOPIC_CHAMBER]
-    assert len(log.chamber_states) == 10 < recorded and not log.complete
-    assert log.damage == [f"byte 0: {recorded - 10} {TOPIC_CHAMBER} messages past the first 10 not read"]
+    assert len(log.chamber_states) == 10 < recorded and not log.scan().complete
+    assert log.scan().damage == [f"byte 0: {recorded - 10} {TOPIC_CHAMBER} messages past the first 10 not read"]
 
 
 def test_the_summary_counts_frames_and_batches_and_its_time_includes_the_read():

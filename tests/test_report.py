@@ -326,7 +326,7 @@ def test_damaged_log_without_its_dbc_is_reported(run, tmp_path):
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[: len(data) * 2 // 3])
     log = read_log(cut)
-    assert not log.complete
+    assert not log.scan().complete
     assert log.chunks >= 20 and log.unchecked_chunks >= 10, \
         (f"test setup: the cut keeps many whole chunks, /imu/samples ones among them: {log.chunks} chunks, "
          f"{log.unchecked_chunks} of /imu/samples")
@@ -336,12 +336,12 @@ def test_damaged_log_without_its_dbc_is_reported(run, tmp_path):
     assert_well_formed(html)
     assert "The log is damaged; what was lost:" in html
     lost = re.search(r"what was lost:</p><ul>(.*?)</ul>", html, re.S).group(1)
-    assert lost.count("<li>") == len(log.damage)
+    assert lost.count("<li>") == len(log.scan().damage)
     assert "plots use the recorded /imu/samples topic" in html and html.count("<svg ") == 5
     # The live run reads its own log before closing it: a missing summary is expected there, nothing else is.
-    no_summary = [d.describe() for d in log.lost if d.kind == "no_summary"]
-    assert no_summary and log_damage(log, still_open=True) == [d for d in log.damage if d not in no_summary]
-    assert log_damage(log) == log.damage
+    no_summary = [d.describe() for d in log.scan().lost if d.kind == "no_summary"]
+    assert no_summary and log_damage(log, still_open=True) == [d for d in log.scan().damage if d not in no_summary]
+    assert log_damage(log) == log.scan().damage
 
 
 def test_log_without_its_dbc_plots_the_decoded_topic(run):

@@ -234,7 +234,7 @@ def test_abort_through_the_api_leaves_the_table_stopped_and_disabled(tmp_path, w
         assert_disabled(run.world.controller, at_rest=True)
     assert not list(tmp_path.glob("*.result.json"))
     log = read_log(outcome.log_path)
-    assert log.summary_present and log.complete, log.damage
+    assert log.summary_present and log.scan().complete, log.scan().damage
     states = transitions(log.events)
     assert states[-2:] == ["aborting", "failed"]
     aborting = next(e for e in log.events if e.kind == "transition" and e.state == "aborting")
@@ -290,7 +290,7 @@ def test_sigint_aborts_with_exit_code_3_and_a_complete_log(tmp_path):
     assert f"--resume {log_path}" in stderr
     assert not list(out.glob("*.result.json"))
     log = read_log(log_path)
-    assert log.summary_present and log.complete, log.damage
+    assert log.summary_present and log.scan().complete, log.scan().damage
     assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
     aborting = next(e for e in log.events if e.kind == "transition" and e.state == "aborting")
@@ -306,7 +306,7 @@ def test_sigkill_then_resume_gives_the_uninterrupted_result(ideal, tmp_path):
     killed, seen = kill_run_after_units(ideal.config, out)
     log = read_log(killed)
     assert not log.summary_present
-    assert any("no summary" in d for d in log.damage), log.damage
+    assert any("no summary" in d for d in log.scan().damage), log.scan().damage
     done = finished_observation_steps(log.events)
     assert set(seen) <= set(done)            # what was in closed chunks before the kill is still there
     assert 5 <= len(done) < 30
@@ -429,7 +429,7 @@ def test_estop_mid_move_ends_failed_with_servos_off(tmp_path):
     assert faults[0].step_index == trigger.step_index
     assert any(e.kind == "info" and "e-stop" in e.message for e in log.events)
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
-    assert log.complete, log.damage
+    assert log.scan().complete, log.scan().damage
 
 
 def test_limit_trip_mid_move_ends_failed_with_the_table_stopped(tmp_path):
@@ -478,7 +478,7 @@ def test_reply_timeouts_end_failed_and_the_table_stops(tmp_path):
     assert any(e.kind == "fault" and e.message.startswith("TABLE STATE UNKNOWN") for e in log.events)
     assert not any("abort sent" in e.message for e in log.events)
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
-    assert log.complete, log.damage
+    assert log.scan().complete, log.scan().damage
 
 
 def test_turns_whose_samples_the_imu_flags_over_range_are_left_out_and_named(tmp_path):

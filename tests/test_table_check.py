@@ -383,7 +383,7 @@ def test_sigint_aborts_with_exit_code_3_the_table_stopped_and_no_check(tmp_path)
     assert len(stderr.strip().splitlines()) == 1 and "interrupted" in stderr, stderr
     assert not list(out.glob("*.table-check.json"))
     log = read_log(log_path)
-    assert log.summary_present and log.complete, log.damage
+    assert log.summary_present and log.scan().complete, log.scan().damage
     assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
 

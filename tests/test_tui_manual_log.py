@@ -97,7 +97,7 @@ def test_a_manual_move_starts_a_log_with_the_move_in_it(manual_session):
     assert counts["/table/state"] > 5 and counts["/events"] >= 4 and counts["/can/raw"] > 0
     assert counts["/imu/samples"] > 0
     log = read_log(str(path))
-    assert log.complete and not log.damage
+    assert log.scan().complete and not log.scan().damage
     commands = [e.details for e in log.events if isinstance(e, Note) and "command" in e.details]
     assert [c["command"] for c in commands] == ["go_to", "jog"]
     assert commands[0]["angles_deg"] == [5.0, 0.0, 0.0] and commands[1]["frame"] == "inner"
@@ -274,7 +274,7 @@ def test_a_full_disk_warns_the_controls_still_work_and_quit_stops_the_table(tmp_
                                                f"cannot write MCAP log {path}: No space left on device)")
     # what reached the disk is kept: a log cut short at the failure, readable like a crashed run's
     log = read_log(str(app.session.manual_logs[0]))
-    assert not log.complete and log.metadata["run"]["kind"] == "manual"
+    assert not log.scan().complete and log.metadata["run"]["kind"] == "manual"
 
 
 def test_bench_run_will_not_resume_a_log_of_manual_moves(manual_session, tmp_path):
@@ -319,7 +319,7 @@ def test_a_stalled_disk_drops_records_without_blocking_and_says_how_many(tmp_pat
     recorder.release.set()
     assert manual.close("test over")
     log = read_log(str(tmp_path / "m.mcap"))
-    assert log.complete and list(log.table_states.time_s) == [0.0, 1.0, 2.0, 3.0]
+    assert log.scan().complete and list(log.table_states.time_s) == [0.0, 1.0, 2.0, 3.0]
     assert [e.message for e in log.events] == ["7 records were dropped: the disk did not keep up",
                                                "manual log closed: test over"]
 

@@ -46,7 +46,7 @@ def cmd_export_can(args: argparse.Namespace) -> ExitCode:
         can_format(args.out)              # before reading a large log
         check_output(args.out, (args.log,), force=args.force)
         log = read_log(args.log)
-        for line in log.damage:
+        for line in log.scan().damage:
             print(f"{PROG}: damaged log: {line}", file=sys.stderr)
         with replaced_output(args.out, (args.log,), force=args.force) as temporary:
             count, left_out = export_can(log, temporary, args.from_s, args.to_s)

@@ -51,7 +51,7 @@ def _replay(args: argparse.Namespace, stop: threading.Event) -> ExitCode:
     except LogError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     # what the walk found is said now; damage in the frames' chunks after the replay, which reads them (reading
-    # `log.damage` here would read every chunk once more first)
+    # `log.scan()` here would read every chunk once more first)
     told = list(log.damage_found)
     for line in told:
         print(f"bench replay: damaged log: {line}", file=sys.stderr)
@@ -66,7 +66,7 @@ def _replay(args: argparse.Namespace, stop: threading.Event) -> ExitCode:
     if not args.quiet:   # the frames as recorded: the replay reads them (once), then says what it found
         print(log.summary(read_frames=False), file=sys.stderr, flush=True)
     stats = replay(log, [progress], speed=args.speed, stop=stop)
-    for line in log.damage[len(told):]:
+    for line in log.scan().damage[len(told):]:
         print(f"bench replay: damaged log: {line}", file=sys.stderr)
     for note in stats.notes:
         print(f"bench replay: {note}", file=sys.stderr)

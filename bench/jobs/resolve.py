@@ -254,7 +254,7 @@ def _left_out(logs: list[RunLog], planned: list[str], extraction: Extraction) ->
         elif unit in started:
             log, event = started[unit]
             out[unit] = (f"left out: started at {event.time_s:.1f} s in {_name(log.path)} but its end is not in the "
-                         + ("log (cut off or damaged, see the damage lines)" if not log.complete else "log"))
+                         + ("log (cut off or damaged, see the damage lines)" if not log.scan().complete else "log"))
         elif unit in skipped:
             log = skipped[unit]
             earlier = ", ".join(map(_name, _earlier_names(log))) or "not named"
@@ -262,7 +262,7 @@ def _left_out(logs: list[RunLog], planned: list[str], extraction: Extraction) ->
                          "which is not among the logs read")
         elif final and final[-1] == "done":
             out[unit] = "left out: the run finished but this unit's records are lost in the damage"
-        elif not last.complete:
+        elif not last.scan().complete:
             out[unit] = (f"left out: no record of it in the logs ({_name(last.path)} is cut off or damaged "
                          f"after {ended:.1f} s)")
         else:
@@ -511,7 +511,7 @@ def _provenance(recorded: Recorded) -> str:
     lines = ["## Logs", ""]
     for log in recorded.logs:
         lines.append(f"- {md_text(log.summary())}")
-        lines += [f"  - {md_text(d)}" for d in log.damage]
+        lines += [f"  - {md_text(d)}" for d in log.scan().damage]
     if recorded.left_out:
         lines += ["", f"Units planned but not solved ({len(recorded.left_out)}): "
                   + md_text(", ".join(sorted(recorded.left_out)))]

@@ -17,8 +17,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from bench.log.mcap import ChannelData
 from bench.log.threads import reader_threads
-from bench.log.walk import ChannelData
 
 CAN_ENCODING = "turntable-bench/can-frames-v1"
 EXTENDED_ID_FLAG = 1 << 31
@@ -236,7 +236,7 @@ def _uniform_can_parts(d: ChannelData, release: bool = False):
                 data_out[a:b, :length] = arr["data"]
             flags[a:b] = arr["flags"]
             if release:
-                d.parts[k] = b""
+                d.release(k)
 
     workers = min(len(sizes) // 4, reader_threads())
     if workers > 1:
@@ -257,7 +257,7 @@ def _uniform_can_parts(d: ChannelData, release: bool = False):
             pieces.append(list(piece))
             bad += b
             if release:
-                d.parts[k] = b""
+                d.release(k)
         elif sizes[k]:
             a, b = starts[k], starts[k + 1]
             pieces.append([t[a:b], ids[a:b], data[a:b], np.full(b - a, length, np.int64), flags[a:b]])

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from typing import TypeVar
 
 from bench.log.events import Event
-from bench.log.walk import ChannelData, Damage
+from bench.log.mcap import ChannelData, Damage
 from drivers.chamber import ChamberAlarms, ChamberState
 
 #: an alarm text from the log is cut to this many characters
@@ -50,7 +50,7 @@ def state_row_ok(r: dict) -> bool:
 
 
 def sample_row_ok(r: dict) -> bool:
-    """Whether an `/imu/samples` row converts (`bench.log.reader._imu_records`)."""
+    """Whether an `/imu/samples` row converts (`bench.log.topic_arrays.imu_records_from_rows`)."""
     try:
         return (is_int(r["counter"]) and is_number(r["time_s"]) and is_number(r.get("imu_time_s", 0.0))
                 and is_vec3(r["gyro_counts"])

@@ -1,12 +1,14 @@
 """Read a run log (MCAP, as written by `bench.log.recorder`) into arrays, tolerating damage.
 
-`read_log(path)` never needs the summary: it walks the records (see `bench.log.walk`),
+`read_log(path)` never needs the summary: it walks the records (see `bench.log.mcap.walk`),
 checks every chunk's CRC, and reads around damage: a file cut off by a crash gives
 everything up to its last complete chunk, a chunk that fails its CRC (or cannot be
-decompressed) is skipped and reading resumes after it. `RunLog.damage` says exactly what
-was lost (byte offsets, log-time ranges, message counts per topic where the file's
-message index or summary tells them); `RunLog.complete` is False when anything was. A
-file that is not MCAP at all raises `LogError` with a one-line message naming the file.
+decompressed) is skipped and reading resumes after it. `RunLog.scan()` says exactly what
+was lost (`damage`; `lost`: byte offsets, log-time ranges, message counts per topic where the
+file's message index or summary tells them; `complete` is False when anything was), reading
+the frames' chunks no pass has read yet (an explicit call: it can be most of the file);
+`read_log(path, scan=True)` does so at once, `RunLog.damage_found` is what is known without
+it. A file that is not MCAP at all raises `LogError` with a one-line message naming the file.
 
 The raw CAN frames (`/can/raw`) are the source of truth for IMU data:
 `RunLog.imu_samples(layout, rate_hz)` decodes them with the bulk decoder. The decoded
@@ -22,10 +24,10 @@ unpacked chunk by chunk on worker threads straight into the frame arrays, each c
 as its frames are copied.
 
 A log from outside is hostile: what the reader does for one is bounded (the limits are
-module constants). Chunks: see `bench.log.chunks` (a chunk inflates to exactly what it
+module constants). Chunks: see `bench.log.mcap.chunks` (a chunk inflates to exactly what it
 declares, at most `MAX_CHUNK_BYTES`; all of a log's chunks to at most its inflate
 budget; at most `MAX_RECORDS` records outside chunks). Records and attachments: see
-`bench.log.walk` (`MAX_RECORD_BYTES`, `MAX_ATTACHMENT_BYTES`, `MAX_DBC_BYTES`; the DBC
+`bench.log.mcap.walk` (`MAX_RECORD_BYTES`, `MAX_ATTACHMENT_BYTES`, `MAX_DBC_BYTES`; the DBC
 file the run's metadata names counts as one whatever its name). A CAN record claiming more
 than 64 data bytes makes its message malformed. At most `MAX_JSON_MESSAGES` table states
 and samples, `MAX_EVENTS` events and `MAX_CHAMBER_STATES` thermal-chamber states
@@ -39,9 +41,7 @@ from __future__ import annotations
 
 import dataclasses
 import mmap
-from collections import deque
-from collections.abc import Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
+from collections.abc import Generator, Iterator
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -49,7 +49,7 @@ import numpy as np
 
 from bench.errors import BenchError
 from bench.files import InputFileError, open_input
-from bench.log.chunks import DeferredChunk, InflateBudget
+from bench.log.can_stream import decoded_slices, inflated_parts
 from bench.log.events import Event
 from bench.log.format import (
     CAN_ENCODING,
@@ -75,8 +75,16 @@ from bench.log.json_topics import (
     shrink_message,
     state_row_ok,
 )
-from bench.log.threads import reader_threads
-from bench.log.walk import MAX_DBC_BYTES, ChannelData, Damage, MessageCut, WalkError, walk
+from bench.log.mcap import (
+    MAX_DBC_BYTES,
+    ChannelData,
+    Damage,
+    InflateBudget,
+    MessageCut,
+    WalkError,
+)
+from bench.log.mcap.walk import walk
+from bench.log.topic_arrays import ImuRecords, TableStates, imu_records_from_rows
 from drivers.chamber import ChamberState
 from drivers.imu import ImuSampleBlock, ImuStats
 from drivers.imu.layout import ImuLayout
@@ -97,73 +105,25 @@ MAX_CHAMBER_STATES = 200_000
 #: the topics a read keeps (the others are only counted)
 KEPT_TOPICS = frozenset({TOPIC_CAN, TOPIC_SAMPLES, TOPIC_STATE, TOPIC_EVENTS, TOPIC_CHAMBER})
 _JSON_BATCH = 1 << 16
+#: Frames handed to the stream decoder at once (its working arrays are about 100 bytes a frame).
+_FEED_FRAMES = 1 << 20
 #: the kept JSON topics' long messages are cut as they are gathered (1 MB alarm texts by the thousand took 4.4 GB)
 _CUT = MessageCut(frozenset({TOPIC_STATE, TOPIC_EVENTS, TOPIC_CHAMBER}), MAX_JSON_MESSAGE_BYTES, shrink_message)
 
 
-@dataclass
-class TableStates:
-    """The polled table states, in log order."""
+@dataclass(frozen=True)
+class LogScan:
+    """What `RunLog.scan()` found, every chunk of the log looked at."""
 
-    time_s: np.ndarray      # (n,)
-    angles_deg: np.ndarray  # (n, 3) outer, middle, inner
-    rates_dps: np.ndarray   # (n, 3)
-    status: np.ndarray      # (n, 3) int64 AxisStatus bits
-    estop: np.ndarray       # (n,) bool
-    modes: list             # n tuples of 3 mode strings
-    fault_text: list        # n strings
+    damage: list[str]      # what was lost, one line each (also what reading the states and samples found)
+    lost: list[Damage]     # the entries behind `damage`, with offsets and counts
+    can_frame_count: int   # frames in `/can/raw` (read)
+    non_data_frames: int   # error and remote frames among them (recorded, never decoded)
 
-    def __len__(self) -> int:
-        return len(self.time_s)
-
-    @classmethod
-    def concatenate(cls, parts: list["TableStates"]) -> "TableStates":
-        if len(parts) == 1:
-            return parts[0]
-        return cls(np.concatenate([p.time_s for p in parts]), np.concatenate([p.angles_deg for p in parts]),
-                   np.concatenate([p.rates_dps for p in parts]), np.concatenate([p.status for p in parts]),
-                   np.concatenate([p.estop for p in parts]), [m for p in parts for m in p.modes],
-                   [t for p in parts for t in p.fault_text])
-
-    @classmethod
-    def from_dicts(cls, rows: list[dict]) -> "TableStates":
-        n = len(rows)
-
-        def vec(key, dtype=float):
-            try:   # numpy reads None as NaN for floats; anything else odd takes the explicit route
-                return np.array([r[key] for r in rows], dtype).reshape(n, 3)
-            except (TypeError, ValueError):
-                return np.array([[np.nan if v is None else v for v in r[key]] for r in rows], dtype).reshape(n, 3)
-
-        try:
-            time_s = np.array([r["time_s"] for r in rows], float).reshape(n)
-        except (TypeError, ValueError):
-            time_s = np.array([np.nan if r["time_s"] is None else r["time_s"] for r in rows], float).reshape(n)
-        return cls(time_s,
-                   vec("angles_deg"), vec("rates_dps"), vec("status", np.int64),
-                   np.array([bool(r.get("estop")) for r in rows], bool).reshape(n),
-                   [tuple(r["modes"]) for r in rows], [str(r.get("fault_text", "")) for r in rows])
-
-
-@dataclass
-class ImuRecords:
-    """The decoded samples as recorded on `/imu/samples` (possibly decimated), in log order.
-
-    Derived data for viewing: the solver decodes the raw frames instead
-    (`RunLog.imu_samples`, a `drivers.imu.ImuSampleBlock`); see `bench.sim.imu.ImuSamples`
-    for how the three sample arrays differ.
-    """
-
-    counter: np.ndarray         # (n,) int64
-    imu_time_s: np.ndarray      # (n,) counter / rate: the IMU's own time base
-    receive_time_s: np.ndarray  # (n,) the message log times: when each sample was complete, on the run clock
-    gyro_counts: np.ndarray     # (n, 3)
-    acc_counts: np.ndarray      # (n, 3)
-    temperature_c: np.ndarray   # (n,) NaN where not recorded
-    status: np.ndarray          # (n,) int64
-
-    def __len__(self) -> int:
-        return len(self.counter)
+    @property
+    def complete(self) -> bool:
+        """True when nothing was lost (the file was closed and every record read)."""
+        return not self.damage
 
 
 @dataclass
@@ -172,8 +132,8 @@ class RunLog:
 
     The raw CAN frames are not held: `imu_samples` decodes them chunk by chunk (each chunk read
     from the file, decompressed, decoded and let go), and so do `can_pieces`, `can_timestamp_s`
-    and the frame counts. Damage in those chunks is found by the first of them (or by reading
-    `damage`, `lost` or `complete`, which make sure every chunk was looked at).
+    and the frame counts. Damage in those chunks is found by the first of them (or by `scan()`, which
+    makes sure every chunk was looked at: what was lost, whether the log is complete, the frame counts).
     """
 
     path: str
@@ -198,40 +158,20 @@ class RunLog:
     _non_data: int = field(default=0, repr=False)
     _frame_times: np.ndarray | None = field(default=None, repr=False)
 
-    @property
-    def damage(self) -> list[str]:
-        """What was lost, one line each (every chunk looked at first)."""
-        self._scan_can()
-        return self._damage
+    def scan(self) -> LogScan:
+        """What was lost and how many frames there are, every `/can/raw` chunk looked at: the chunks no pass
+        has read yet are read now (each decompressed and decoded, then let go: once per log, and nothing
+        when a decode or a pass over the frames already read them all)."""
+        if not self._can_scanned:
+            for _ in self.can_pieces():
+                pass
+        return LogScan(list(self._damage), list(self._lost), self._frame_count, self._non_data)
 
     @property
     def damage_found(self) -> list[str]:
-        """`damage` as far as found so far, without reading the frames' chunks for it (the first pass over them,
-        by whatever reads them, adds theirs)."""
+        """The damage found so far, one line each, without reading the frames' chunks for it (the first pass
+        over them, by whatever reads them, adds theirs; `scan()` makes it whole)."""
         return self._damage
-
-    @property
-    def lost(self) -> list[Damage]:
-        """The damage entries behind `damage`, with offsets and counts."""
-        self._scan_can()
-        return self._lost
-
-    @property
-    def complete(self) -> bool:
-        """True when nothing was lost (the file was closed and every record read)."""
-        return not self.damage
-
-    @property
-    def can_frame_count(self) -> int:
-        """Frames in `/can/raw` (read)."""
-        self._scan_can()
-        return self._frame_count
-
-    @property
-    def non_data_frames(self) -> int:
-        """Error and remote frames in `/can/raw` (recorded, never decoded)."""
-        self._scan_can()
-        return self._non_data
 
     @property
     def can_timestamp_s(self) -> np.ndarray:
@@ -277,7 +217,7 @@ class RunLog:
         if d is None:
             self._can_scanned = True
             return
-        for k, answer in _inflated_parts(d):
+        for k, answer in inflated_parts(d):
             fresh = k >= self._scan_pos
             if isinstance(answer, Damage):
                 if fresh:
@@ -288,7 +228,7 @@ class RunLog:
             # a part's payloads are decoded a slice at a time (a 256 MiB chunk of frames is ~11 M frames: its
             # arrays, and the general route's for mixed lengths, would be several times that at once)
             frames = non_data = bad = 0
-            for piece, malformed in _decoded_slices(answer, d.lengths[k], d.log_times[k]):
+            for piece, malformed in decoded_slices(answer, d.lengths[k], d.log_times[k]):
                 frames += len(piece[1])
                 non_data += int(np.count_nonzero(piece[4] & (FLAG_REMOTE | FLAG_ERROR)))
                 bad += malformed
@@ -302,11 +242,6 @@ class RunLog:
                 if bad:
                     self._add(malformed_damage(TOPIC_CAN, bad))
         self._can_scanned = True
-
-    def _scan_can(self) -> None:
-        if not self._can_scanned:
-            for _ in self.can_pieces():
-                pass
 
     @cached_property
     def table_states(self) -> TableStates:
@@ -335,18 +270,18 @@ class RunLog:
         self.check_deferred()
         d = self._samples
         if d is None or not len(d):
-            return _imu_records([], np.zeros(0))
+            return imu_records_from_rows([], np.zeros(0))
         parts, bad = [], 0
         for rows, times, malformed in self._json_batches(d, TOPIC_SAMPLES):
             bad += malformed
             times = times[[i for i, r in enumerate(rows) if r is not None]] / 1e9
             rows = [r for r in rows if r is not None]
             try:
-                parts.append(_imu_records(rows, times))
+                parts.append(imu_records_from_rows(rows, times))
             except (KeyError, TypeError, ValueError, OverflowError):   # some rows lack fields: keep the others
                 good = [k for k, r in enumerate(rows) if sample_row_ok(r)]
                 bad += len(rows) - len(good)
-                parts.append(_imu_records([rows[k] for k in good], times[good]))
+                parts.append(imu_records_from_rows([rows[k] for k in good], times[good]))
         if bad:
             self._add(malformed_damage(TOPIC_SAMPLES, bad))
         return ImuRecords(*(np.concatenate([getattr(p, f.name) for p in parts])
@@ -369,7 +304,7 @@ class RunLog:
         """Decode the raw data frames into samples (the source of truth) and link statistics, chunk by
         chunk (memory: the samples, not the frames).
 
-        Error and remote frames are logged but never decoded, as live (`non_data_frames` counts
+        Error and remote frames are logged but never decoded, as live (`scan().non_data_frames` counts
         them). The decode is kept: solving and the report both ask for it (treat the arrays as
         read-only).
         """
@@ -382,25 +317,11 @@ class RunLog:
         by chunk (memory: a few chunks, not the samples of the log; nothing is kept: a second call decodes
         again, unless `imu_samples` kept a decode, which is given whole). The blocks joined are exactly
         `imu_samples`' block."""
-        for cached_layout, cached_rate, cached_window, decoded in self._decoded:
-            if (cached_layout is layout or cached_layout == layout) and cached_rate == rate_hz \
-                    and cached_window == reorder_window:
-                yield decoded[0]
-                return
-        decoder = StreamDecoder(layout, rate_hz, reorder_window)
-        try:
-            for t, ids, data, lengths, flags in self.can_pieces():
-                keep = (flags & (FLAG_REMOTE | FLAG_ERROR)) == 0
-                if not keep.all():
-                    t, ids, data, lengths = t[keep], ids[keep], data[keep], lengths[keep]
-                for a in range(0, len(ids), _FEED_FRAMES):
-                    b = a + _FEED_FRAMES
-                    decoder.feed(ids[a:b], data[a:b], lengths[a:b], t[a:b])
-                    yield from decoder.take()
-                t = ids = data = lengths = flags = keep = None
-            block, _ = decoder.finish()
-        except MemoryError as exc:
-            raise LogError(f"{self.path}: not enough memory to decode its CAN frames") from exc
+        kept = self._kept_decode(layout, rate_hz, reorder_window)
+        if kept is not None:
+            yield kept[0]
+            return
+        block, _ = yield from self._decode(StreamDecoder(layout, rate_hz, reorder_window), None, hand_over=True)
         if len(block):
             yield block
 
@@ -409,11 +330,33 @@ class RunLog:
         """`imu_samples`, calling `visit(frame times)` with every piece of frames when the decode reads them
         now (one pass over the chunks serves both); the last item says whether it did (not when the decode
         was kept from before)."""
+        kept = self._kept_decode(layout, rate_hz, reorder_window)
+        if kept is not None:
+            return (*kept, False)
+        decoding = self._decode(StreamDecoder(layout, rate_hz, reorder_window), visit, hand_over=False)
+        while True:   # (nothing is handed over: this runs the decode to its end)
+            try:
+                next(decoding)
+            except StopIteration as done:
+                decoded = done.value
+                break
+        self._decoded.append((layout, rate_hz, reorder_window, decoded))
+        return (*decoded, visit is not None)
+
+    def _kept_decode(self, layout: ImuLayout | None, rate_hz: float,
+                     reorder_window: int) -> tuple[ImuSampleBlock, ImuStats] | None:
+        """The decode `imu_samples` kept for these arguments, if it did."""
         for cached_layout, cached_rate, cached_window, decoded in self._decoded:
             if (cached_layout is layout or cached_layout == layout) and cached_rate == rate_hz \
                     and cached_window == reorder_window:
-                return (*decoded, False)
-        decoder = StreamDecoder(layout, rate_hz, reorder_window)
+                return decoded
+        return None
+
+    def _decode(self, decoder: StreamDecoder, visit,
+                hand_over: bool) -> Generator[ImuSampleBlock, None, tuple[ImuSampleBlock, ImuStats]]:
+        """Feed every data frame of `/can/raw` to `decoder`, piece by piece (`visit(frame times)` with each
+        piece first, when given): the decoder's answer (`finish()`). `hand_over`: yield the blocks the decoder
+        resolves as it goes (they are then not in its answer)."""
         try:
             for t, ids, data, lengths, flags in self.can_pieces():
                 if visit is not None:
@@ -424,12 +367,12 @@ class RunLog:
                 for a in range(0, len(ids), _FEED_FRAMES):   # a chunk of 256 MiB holds ~11 M frames
                     b = a + _FEED_FRAMES
                     decoder.feed(ids[a:b], data[a:b], lengths[a:b], t[a:b])
+                    if hand_over:
+                        yield from decoder.take()
                 t = ids = data = lengths = flags = keep = None   # let the piece go before the next is read
-            decoded = decoder.finish()
+            return decoder.finish()
         except MemoryError as exc:
             raise LogError(f"{self.path}: not enough memory to decode its CAN frames") from exc
-        self._decoded.append((layout, rate_hz, reorder_window, decoded))
-        return (*decoded, visit is not None)
 
     @property
     def unchecked_chunks(self) -> int:
@@ -455,8 +398,9 @@ class RunLog:
         """One line: what the log holds and whether anything was lost. `read_frames=False`: without reading the
         frames' chunks for it (the frames as recorded, the damage found so far), for a caller about to read them."""
         if read_frames:
-            frames = f"{self.can_frame_count} CAN frames"
-            state = "complete" if self.complete else f"DAMAGED ({len(self.damage)} problems)"
+            scan = self.scan()
+            frames = f"{scan.can_frame_count} CAN frames"
+            state = "complete" if scan.complete else f"DAMAGED ({len(scan.damage)} problems)"
         else:
             frames = f"{self.message_counts.get(TOPIC_CAN, 0)} batches of CAN frames recorded"
             found = self.damage_found
@@ -465,74 +409,6 @@ class RunLog:
                      if self.unchecked_chunks else "")
         return (f"{self.path}: {frames}, {len(self.table_states)} table states, "
                 f"{len(self.events)} events, {self.chunks} chunks{unchecked}; {state}")
-
-
-#: Payload bytes of a `/can/raw` part decoded into frame arrays at once.
-_SLICE_BYTES = 32 << 20
-#: Frames handed to the stream decoder at once (its working arrays are about 100 bytes a frame).
-_FEED_FRAMES = 1 << 20
-#: Declared bytes of `/can/raw` chunks decompressed ahead of the one being decoded (at least one chunk).
-_STREAM_AHEAD_BYTES = 96 << 20
-
-
-def _can_part(part, lengths: np.ndarray, log_times: np.ndarray):
-    """One `/can/raw` part as (chunk data, payload starts) or its payloads back to back (a deferred chunk is
-    read and decompressed first, on a worker thread), or the reason a deferred chunk cannot be used."""
-    if isinstance(part, DeferredChunk):
-        return part.inflate()
-    return part
-
-
-def _decoded_slices(part, lengths: np.ndarray, log_times: np.ndarray):
-    """(frames, malformed count) of a part's payloads, at most `_SLICE_BYTES` of payloads at a time."""
-    if isinstance(part, tuple):
-        data, starts = part
-    else:   # payloads back to back
-        data, starts = part, np.cumsum(lengths) - lengths
-    ends = np.cumsum(lengths)
-    a = 0
-    while a < len(lengths):
-        b = max(a + 1, int(np.searchsorted(ends, ends[a] - lengths[a] + _SLICE_BYTES, side="right")))
-        yield decode_can_frames(ChannelData([(data, starts[a:b])], [lengths[a:b]], [log_times[a:b]]), release=True)
-        a = b
-
-
-def _inflated_parts(d: ChannelData):
-    """(part index, (frames, malformed) or `Damage`) for every part of `d` still there, in order; the next
-    parts are read and decompressed on a worker thread while the caller decodes (zstd releases the GIL).
-    (What they may inflate to was counted by the walk.)"""
-    todo = [k for k, p in enumerate(d.parts) if p is not None]
-    threads = reader_threads(2)
-    pool = ThreadPoolExecutor(threads, thread_name_prefix="can-stream") if len(todo) > 1 and threads > 1 else None
-    ahead: deque = deque()   # (k, future or answer, declared bytes)
-    in_flight, nxt = 0, 0
-    try:
-        while ahead or nxt < len(todo):
-            while nxt < len(todo) and (not ahead or in_flight < _STREAM_AHEAD_BYTES):
-                k = todo[nxt]
-                nxt += 1
-                part = d.parts[k]
-                size = part.size if isinstance(part, DeferredChunk) else int(d.lengths[k].sum())
-                job = (pool.submit(_can_part, part, d.lengths[k], d.log_times[k]) if pool is not None
-                       else _can_part(part, d.lengths[k], d.log_times[k]))
-                ahead.append((k, job, size))
-                in_flight += size
-            k, job, size = ahead.popleft()
-            in_flight -= size
-            answer = job.result() if isinstance(job, Future) else job
-            del job   # (a finished future holds its result: the caller's piece must be the only reference)
-            if isinstance(answer, str):
-                part = d.parts[k]
-                answer = Damage("chunk", part.offset, answer, part.start_ns, part.end_ns,
-                                {TOPIC_CAN: len(part.offsets)})
-            yield k, answer
-            answer = None
-    finally:
-        if pool is not None:
-            for _, job, _ in ahead:
-                if isinstance(job, Future):
-                    job.cancel()
-            pool.shutdown(wait=True)
 
 
 class _FileSource:
@@ -546,22 +422,6 @@ class _FileSource:
         with open_input(self.path, max_bytes=None, what="run log") as f:
             f.seek(offset)
             return f.read(length)
-
-
-def _imu_records(rows: list[dict], times: np.ndarray) -> ImuRecords:
-    """`/imu/samples` rows as arrays (KeyError/TypeError/ValueError when a row lacks a field or has a wrong one)."""
-    n = len(rows)
-    records = ImuRecords(np.array([r["counter"] for r in rows], np.int64),
-                         # logs before 2026-11-24 hold counter / rate in "time_s" and no "imu_time_s"
-                         np.array([r.get("imu_time_s", r["time_s"]) for r in rows], float), times,
-                         np.array([r["gyro_counts"] for r in rows], float).reshape(n, 3),
-                         np.array([r["acc_counts"] for r in rows], float).reshape(n, 3),
-                         np.array([np.nan if r["temperature_c"] is None else r["temperature_c"] for r in rows],
-                                  float),
-                         np.array([r["status"] for r in rows], np.int64))
-    if any(a.shape != (n,) for a in (records.counter, records.imu_time_s, records.temperature_c, records.status)):
-        raise ValueError("a scalar field holds an array")
-    return records
 
 
 def _map_file(path: str):
@@ -578,13 +438,16 @@ def _map_file(path: str):
         raise LogError(f"{path}: cannot read: {exc.strerror or exc}") from exc
 
 
-def read_log(path, *, defer_samples: bool = True, messages: bool = True) -> RunLog:
+def read_log(path, *, defer_samples: bool = True, messages: bool = True, scan: bool = False) -> RunLog:
     """Read a run log; see the module docstring for how damage is handled and what `defer_samples` does.
     `messages=False`: the records and metadata only (no table states, events, frames or samples are kept:
-    what a catalogue of logs needs, at a fraction of the memory)."""
+    what a catalogue of logs needs, at a fraction of the memory). `scan`: `RunLog.scan()` before returning."""
     path = str(path)
     try:
-        return _read_log(path, defer_samples, messages)
+        log = _read_log(path, defer_samples, messages)
+        if scan:
+            log.scan()
+        return log
     except MemoryError as exc:   # within the reader's limits, but more than this machine has
         raise LogError(f"{path}: not enough memory to read it") from exc
 
@@ -668,4 +531,4 @@ def _read_log(path: str, defer_samples: bool, messages: bool = True) -> RunLog:
                   _samples=by_topic.get(TOPIC_SAMPLES), _states=by_topic.get(TOPIC_STATE), _budget=w.budget)
 
 
-__all__ = ["ImuRecords", "LogError", "RunLog", "TableStates", "read_log"]
+__all__ = ["ImuRecords", "LogError", "LogScan", "RunLog", "TableStates", "read_log"]

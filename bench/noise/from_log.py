@@ -122,7 +122,8 @@ class _Dwell:
             self.notes.append(renamed)
         return ({"kind": "log", "log": Path(log.path).name, "run_id": run_id, "dwell": self.unit,
                  "scales": self.scales_from,
-                 "damage": [d.describe() for d in log.lost if not (still_open and d.kind == "no_summary")]}, run_id)
+                 "damage": [d.describe() for d in log.scan().lost
+                            if not (still_open and d.kind == "no_summary")]}, run_id)
 
     def missing_note(self, present: int, start: int, stop: int) -> None:
         expected = self.last - self.first + 1

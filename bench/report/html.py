@@ -193,8 +193,9 @@ def _plot(what: str, caption: str, draw, *args) -> str:
 
 def log_damage(log, still_open: bool = False) -> list[str]:
     """What the log lost; a log still being written (`still_open`) lacks its summary by design."""
-    expected = {d.describe() for d in log.lost if d.kind == "no_summary"} if still_open else set()
-    return [d for d in log.damage if d not in expected]
+    scan = log.scan()
+    expected = {d.describe() for d in scan.lost if d.kind == "no_summary"} if still_open else set()
+    return [d for d in scan.damage if d not in expected]
 
 
 def _metadata(result: CalibrationResult, log, imu_link, log_still_open: bool) -> str:
@@ -210,8 +211,9 @@ def _metadata(result: CalibrationResult, log, imu_link, log_still_open: bool) ->
         cfg = log.metadata.get("config", {})
         if cfg.get("path"):
             rows.append(([_e("configuration"), _e(cfg["path"])], ""))
-        rows.append(([_e("log file"), _e(f"{log.path}: {log.can_frame_count} CAN frames, {len(log.table_states)} table "
-                                            f"states, {len(log.events)} events, {log.chunks} chunks")], ""))
+        rows.append(([_e("log file"), _e(f"{log.path}: {log.scan().can_frame_count} CAN frames, "
+                                            f"{len(log.table_states)} table states, {len(log.events)} events, "
+                                            f"{log.chunks} chunks")], ""))
     damage = log_damage(log, log_still_open) if log is not None else []
     html = ["<h2>Run</h2>", _table(["field", "value"], rows)]
     if damage:

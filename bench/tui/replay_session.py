@@ -81,7 +81,7 @@ class OpenedLog:
 def open_log(path: str | Path) -> OpenedLog:
     """Read `path` for replay; `bench.log.reader.LogError` if it is not a readable run log."""
     log = read_log(str(path))
-    notes = [f"damaged log: {line}" for line in log.damage]
+    notes = [f"damaged log: {line}" for line in log.scan().damage]
     try:
         steps = tuple(steps_from_log(log))
     except LogError as exc:

@@ -87,7 +87,7 @@ def record(path: str, msgs, block) -> float:
 def check_lossless(path: str, frames, times) -> None:
     log = read_log(path)
     n = len(frames)
-    assert log.complete, log.damage
+    assert log.scan().complete, log.scan().damage
     assert len(log.can_ids) == n, f"{len(log.can_ids)} frames read, {n} written"
     assert np.array_equal(log.can_ids, frames.ids.astype(np.uint32))
     assert np.array_equal(log.can_lengths, frames.lengths)

@@ -42,7 +42,7 @@ def main() -> int:
             print(f"exit {code}: {walls[-1]:.1f} s wall for {sim_s:.0f} s simulated ({sim_s / walls[-1]:.0f}x), "
                   f"{frames} CAN frames recorded = {frames / walls[-1]:,.0f} frames/s; link: {link['frames']} "
                   f"received, {link['samples']} samples, {link['counter_gaps'] + link['incomplete_samples']} lost; "
-                  f"log complete: {log.complete}")
+                  f"log complete: {log.scan().complete}")
     median = statistics.median(walls)
     print(f"median wall time over {args.repeats}: {median:.1f} s (target < 60 s: {'met' if median < 60 else 'MISSED'})")
     return 0

@@ -1,6 +1,6 @@
 """Byte surgery on MCAP logs, for the tests (and tests/fuzz/hostile_logs.py) that treat a log as hostile.
 
-Built on the record layout in `bench.log.chunks` (opcode u8 | length u64 | body; a chunk
+Built on the record layout in `bench.log.mcap.records` (opcode u8 | length u64 | body; a chunk
 body is start u64 | end u64 | uncompressed size u64 | crc u32 | compression string |
 data length u64 | data): find the top-level records, build chunk, message and message
 index records, put a crafted chunk in place of a real one, and compress a repeated block
@@ -20,8 +20,8 @@ import zstandard
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from bench.log.chunks import OP_CHUNK, OP_FOOTER, OP_MESSAGE, OP_MESSAGE_INDEX, RECORD_HEAD
 from bench.log.format import CAN_RECORD, HEADER_SIZE, LENGTH_OFFSET
+from bench.log.mcap.records import OP_CHUNK, OP_FOOTER, OP_MESSAGE, OP_MESSAGE_INDEX, RECORD_HEAD
 
 
 def top_records(buf: bytes) -> list[tuple[int, int, int]]:

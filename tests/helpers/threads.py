@@ -14,8 +14,8 @@ and each name falls under one of `PROJECT_THREAD_PREFIXES`:
   bench/sim/socketcand_server.py)
 - `modbus-watchdog`: the Modbus turntable driver's watchdog (drivers/turntable/modbus.py)
 - `mcap-inflate`, `can-frames`, `can-stream`, `imu-screen`: `ThreadPoolExecutor` workers of the log reader
-  (bench/log/chunks.py, bench/log/walk.py, bench/log/reader.py: `can-stream` reads and decompresses the
-  next `/can/raw` chunks while one is decoded) and of the bulk IMU decoder
+  (bench/log/mcap/chunks.py, bench/log/mcap/channel.py, bench/log/format.py, bench/log/can_stream.py: `can-stream`
+  reads and decompresses the next `/can/raw` chunks while one is decoded) and of the bulk IMU decoder
   (drivers/imu/bulk.py); an executor names its threads `<prefix>_<n>`
 - `allan-channel`, `allan-part`: `ThreadPoolExecutor` workers of the Allan deviation (bench/noise/allan.py):
   the phase accumulated one channel each, the sums over one part of a channel's record each;

@@ -1,10 +1,11 @@
-"""MCAP record framing and chunk decoding for the damage-tolerant walk (`bench.log.walk`).
+"""Chunk decoding within limits, for the damage-tolerant walk (`bench.log.mcap.walk`).
 
-Constants of the MCAP record layout, chunk decompression with CRC checks, the
-plausibility checks used to resynchronise after damage, the vectorised framing of a
-chunk by its message index, and `Prefetch`, which decompresses and frames chunks on
-worker threads ahead of the walk (zstd, zlib and numpy release the GIL). Everything
-here is pure: the walk decides what to do with what it returns.
+Chunk decompression with CRC checks (`inflate_checked`; a chunk that fails raises `ChunkRefused`, its
+message the damage reason), the budgets of what a log's chunks may inflate to, the chunks kept
+compressed until asked for (`DeferredChunk`, `ChunkSlice`), and `Prefetch`, which decompresses and
+frames chunks on worker threads ahead of the walk (zstd, zlib and numpy release the GIL). The record
+layout is `bench.log.mcap.records`. Everything here is pure: the walk decides what to do with what
+it returns.
 
 Limits (a log from outside is hostile): a chunk may declare at most `MAX_CHUNK_BYTES`
 uncompressed, and it must inflate to exactly what it declares, whatever its compression
@@ -20,20 +21,35 @@ decompression bomb thousands of times.
 
 from __future__ import annotations
 
-import mmap
-import struct
 import zlib
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from io import BytesIO
 from types import ModuleType
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
-from mcap.data_stream import ReadDataStream
 from mcap.records import Channel
 
-from bench.errors import BenchError
+from bench.log.mcap.parts import NOT_INFLATED, InChunk, Part
+from bench.log.mcap.records import (
+    MESSAGE_DATA_OFFSET,
+    OP_CHANNEL,
+    OP_CHUNK,
+    OP_FOOTER,
+    OP_MESSAGE_INDEX,
+    OP_NAMES,
+    RECORD_HEAD,
+    ChunkHeader,
+    ChunkRefused,
+    PageDropper,
+    WalkError,
+    body_stream,
+    drop_pages,
+    frame_by_entries,
+    index_chunk,
+    index_entries,
+    read_chunk_header,
+)
 from bench.log.threads import reader_threads
 
 zstandard: ModuleType | None   # None when it is not installed
@@ -47,22 +63,12 @@ try:
 except ImportError:    # pragma: no cover - mcap depends on it
     lz4_frame = None
 
-MAGIC = b"\x89MCAP0\r\n"
-OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_MESSAGE_INDEX = 1, 2, 3, 4, 5, 6, 7
-OP_CHUNK_INDEX, OP_ATTACHMENT, OP_ATTACHMENT_INDEX, OP_STATISTICS, OP_METADATA = 8, 9, 10, 11, 12
-OP_METADATA_INDEX, OP_SUMMARY_OFFSET, OP_DATA_END = 13, 14, 15
-OP_NAMES = {1: "header", 2: "footer", 3: "schema", 4: "channel", 5: "message", 6: "chunk", 7: "message index",
-            8: "chunk index", 9: "attachment", 10: "attachment index", 11: "statistics", 12: "metadata",
-            13: "metadata index", 14: "summary offset", 15: "data end"}
+class ScannedChunk(NamedTuple):
+    """A chunk found by the scan ahead of the walk, with the message index records right after it."""
 
-RECORD_HEAD = struct.Struct("<BQ")
-MESSAGE_HEAD = struct.Struct("<BQHIQ")     # opcode, length, channel id, sequence, log time
-_CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
-_U64 = struct.Struct("<Q")
-MESSAGE_DATA_OFFSET = 9 + 22                   # record header + message header
-
-#: (start, end, uncompressed size, crc, compression, data start, data length) of a chunk record
-ChunkFields = tuple[int, int, int, int, str, int, int]
+    offset: int                      # of the chunk record
+    header: ChunkHeader
+    index_records: list[tuple[int, int]]   # (body, end) offsets of its message index records
 
 #: The most a chunk may declare (and inflate to) uncompressed. The recorder closes its chunks at
 #: 4 MiB (`McapRecorder(chunk_size=...)`); a chunk declaring more is damage, never decompressed.
@@ -81,8 +87,6 @@ STREAMED_INFLATE_RATIO = 6
 MAX_STREAMED_INFLATED = 64 << 30
 #: Records a log may hold outside chunks (a recorded log holds a few per chunk); the walk reads no further.
 MAX_RECORDS = 1_000_000
-#: Schema and channel records a chunk may hold (a recorded log has six channels).
-MAX_DEFINITIONS = 4096
 #: Decompressed chunks the prefetch may hold ahead of the walk, in bytes (at least one chunk).
 PREFETCH_BYTES = 64 << 20
 _FIRST_STEP, _MAX_STEP = 1 << 20, 64 << 20   # output steps of a frame that does not state its size
@@ -109,24 +113,20 @@ class InflateBudget:
     cap: int = MAX_LOG_INFLATED   # what `total` is capped at, and the ratio to the file size (said in the refusal)
     ratio: int = MAX_INFLATE_RATIO
 
-    def take(self, size: int) -> str | None:
-        """Count a chunk of `size` bytes; the reason it may not be decompressed (`over_limits`) instead."""
+    def take(self, size: int) -> None:
+        """Count a chunk of `size` bytes; `ChunkRefused` (the reason: `over_limits`) if it may not be decompressed."""
         reason = over_limits(size, self.used, self.total, self.cap, self.ratio)
-        if reason is None:
-            self.used += size
-        return reason
+        if reason is not None:
+            raise ChunkRefused(reason)
+        self.used += size
 
-
-class WalkError(BenchError):
-    """The file cannot be read as MCAP at all (the caller turns this into its own error)."""
-
-
-class ChunkRefused(Exception):
-    """A chunk not decompressed, or not kept, because of its size; the message is the reason (damage)."""
-
-
-def body_stream(buf, start: int, end: int) -> ReadDataStream:
-    return ReadDataStream(BytesIO(bytes(buf[start:end])))
+    def fits(self, size: int) -> bool:
+        """`take`, saying whether the chunk fits instead of why not."""
+        try:
+            self.take(size)
+        except ChunkRefused:
+            return False
+        return True
 
 
 def _bounded(read, size: int, stated: bool) -> bytes:
@@ -208,37 +208,35 @@ def over_limits(size: int, used: int, budget: int, cap: int = MAX_LOG_INFLATED,
     return None
 
 
-def chunk_failure(compression: str, exc: BaseException) -> str:
-    """The damage reason for `inflate_chunk`'s exception."""
-    if isinstance(exc, ChunkRefused):
-        return str(exc)
-    return f"{compression or 'uncompressed'} data cannot be decompressed ({exc})"
-
-
-def inflate_chunk(compression: str, payload, size: int, crc: int):
-    """Decompress one chunk and compute its CRC (when it has one), in a worker thread: (data, computed
-    crc or None, exception or None); the data is exactly `size` bytes (else the exception says why,
-    `chunk_failure` turns it into the damage reason)."""
+def inflate_checked(compression: str, payload, size: int, crc: int) -> bytes:
+    """One chunk's data, exactly `size` bytes, when it decompresses and passes its CRC (when it has one);
+    `ChunkRefused` with the damage reason otherwise (`WalkError` when a compression library is missing).
+    Pure: worker threads run it."""
     try:
         data = _decompress(compression, payload, size)
+    except (ChunkRefused, WalkError):
+        raise
     except Exception as exc:
-        return None, None, exc
-    return data, (zlib.crc32(data) if crc != 0 else None), None
+        raise ChunkRefused(f"{compression or 'uncompressed'} data cannot be decompressed ({exc})") from exc
+    if crc != 0 and zlib.crc32(data) != crc:
+        raise ChunkRefused("CRC mismatch")
+    return data
 
 
-def _inflate_and_frame(compression: str, payload, size: int, crc: int, buf, index: list[tuple[int, int]]):
-    """`inflate_chunk`, then `index_chunk` on a good chunk with the message index records that follow it."""
-    data, computed, exc = inflate_chunk(compression, payload, size, crc)
-    framed = None
-    if exc is None and (crc == 0 or computed == crc):
-        framed = index_chunk(buf, data, index)
-    return data, computed, exc, framed
+def _inflate_and_frame(header: ChunkHeader, payload, buf, index: list[tuple[int, int]]):
+    """`inflate_checked`, then `index_chunk` with the message index records that follow the chunk:
+    (data, framing)."""
+    data = inflate_checked(header.compression, payload, header.size, header.crc)
+    return data, index_chunk(buf, data, index)
 
 
 @dataclass
 class DeferredChunk:
     """A chunk holding messages of one deferred channel only, kept compressed until they are asked
-    for (`inflate`). Its message index gave the offsets and log times; nothing is checked yet."""
+    for (`inflate`). Its message index gave the offsets and log times; nothing is checked yet.
+    A `Part` (`bench.log.mcap.parts`): `inflated()` gives its payloads, the other methods need that first."""
+
+    compressed = True
 
     offset: int                 # byte offset of the chunk record in the file
     start_ns: int
@@ -254,16 +252,16 @@ class DeferredChunk:
     span: tuple[int, int] = (0, 0)                                 # (file offset, length) of the compressed data
     source: Callable[[int, int], bytes] | None = field(default=None, repr=False)
 
-    def read_again(self) -> bytes | str:
-        """The compressed data read from `source` again, or the reason it cannot be."""
+    def read_again(self) -> bytes:
+        """The compressed data read from `source` again (`ChunkRefused` if it cannot be)."""
         if self.source is None:
-            return "chunk data not available"
+            raise ChunkRefused("chunk data not available")
         try:
             payload = self.source(*self.span)
         except OSError as err:
-            return f"cannot read the chunk's data again: {err.strerror or err}"
+            raise ChunkRefused(f"cannot read the chunk's data again: {err.strerror or err}") from err
         if len(payload) != self.span[1]:
-            return "the file is shorter than when it was walked"
+            raise ChunkRefused("the file is shorter than when it was walked")
         return payload
 
     @property
@@ -272,28 +270,49 @@ class DeferredChunk:
         ends = np.append(self.offsets[1:], self.size).astype(np.int64)
         return ends - self.offsets.astype(np.int64) - MESSAGE_DATA_OFFSET
 
-    def _inflate_checked(self, payload: bytes | str):
-        """The chunk's data from its compressed `payload` when it decompresses and passes its CRC; else a
-        reason string (also when `payload` is one: the chunk could not be read again)."""
-        if isinstance(payload, str):
-            return payload
-        data, computed, exc = inflate_chunk(self.compression, payload, self.size, self.crc)
-        if exc is not None:
-            return chunk_failure(self.compression, exc)
-        if self.crc != 0 and computed != self.crc:
-            return "CRC mismatch"
-        return data
+    def _inflate_checked(self, payload: bytes) -> bytes:
+        """`inflate_checked` of the chunk's compressed `payload` (a missing compression library, which stops
+        the walk, is this chunk's damage here)."""
+        try:
+            return inflate_checked(self.compression, payload, self.size, self.crc)
+        except WalkError as exc:
+            raise ChunkRefused(f"{self.compression or 'uncompressed'} data cannot be decompressed ({exc})") from exc
 
-    def inflate(self):
+    def inflate(self) -> tuple[bytes, np.ndarray]:
         """(chunk data, payload starts) when the chunk decompresses, passes its CRC and is framed
-        exactly by its index; else a reason string."""
+        exactly by its index; `ChunkRefused` with the reason otherwise."""
         data = self._inflate_checked(self.payload if self.payload is not None else self.read_again())
-        if isinstance(data, str):
-            return data
-        framed = _frame_by_entries(data, [(self.channel, self.log_times, self.offsets)])
+        framed = frame_by_entries(data, [(self.channel, self.log_times, self.offsets)])
         if framed is False or framed[0] != 0:
-            return "malformed chunk content (its message index does not frame it)"
+            raise ChunkRefused("malformed chunk content (its message index does not frame it)")
         return data, framed[1][0][1]
+
+
+    def inflated(self) -> InChunk:
+        return InChunk(*self.inflate())
+
+    def declared_bytes(self, lengths: np.ndarray) -> int:
+        return self.size
+
+    def located(self, lengths: np.ndarray) -> tuple[bytes, np.ndarray]:
+        raise RuntimeError(NOT_INFLATED)
+
+    def joined(self, lengths: np.ndarray) -> bytes:
+        raise RuntimeError(NOT_INFLATED)
+
+    def head(self, count: int, lengths: np.ndarray) -> Part:
+        raise RuntimeError(NOT_INFLATED)
+
+    def byte_at(self, offset: int, lengths: np.ndarray) -> int:
+        raise RuntimeError(NOT_INFLATED)
+
+
+def inflated_or_refusal(part: Part) -> Part | ChunkRefused:
+    """`part.inflated()`, or its refusal (for a pool's map: the answers of every part, in order)."""
+    try:
+        return part.inflated()
+    except ChunkRefused as refused:
+        return refused
 
 
 @dataclass
@@ -308,25 +327,21 @@ class ChunkSlice(DeferredChunk):
     def lengths(self) -> np.ndarray:
         return self.payload_lengths
 
-    def inflate(self):
-        """(chunk data, payload starts), or the reason the chunk cannot be used again."""
-        data = self._inflate_checked(self.read_again())
-        if isinstance(data, str):
-            return data
-        return data, self.offsets
+    def inflate(self) -> tuple[bytes, np.ndarray]:
+        """(chunk data, payload starts); `ChunkRefused` with the reason the chunk cannot be used again."""
+        return self._inflate_checked(self.read_again()), self.offsets
 
 
-def _deferrable(buf, fields: tuple, index: list[tuple[int, int]], deferred_channels: set[int]):
+def _deferrable(buf, header: ChunkHeader, index: list[tuple[int, int]], deferred_channels: set[int]):
     """(channel, log times, offsets) when the chunk holds messages of one deferred channel and
     nothing else, as far as its message index says; else None."""
     if not index or not deferred_channels:
         return None
-    entries = _index_entries(buf, index)
+    entries = index_entries(buf, index)
     if entries is False or len(entries) != 1 or entries[0][0] not in deferred_channels:
         return None
     ch, t, o = entries[0]
-    usize = fields[2]
-    if not len(o) or int(o[0]) != 0 or int(o[-1]) > usize - MESSAGE_DATA_OFFSET:
+    if not len(o) or int(o[0]) != 0 or int(o[-1]) > header.size - MESSAGE_DATA_OFFSET:
         return None
     if len(o) > 1 and not (np.diff(o.astype(np.int64)) >= MESSAGE_DATA_OFFSET).all():
         return None
@@ -336,29 +351,6 @@ def _deferrable(buf, fields: tuple, index: list[tuple[int, int]], deferred_chann
 # bytes of a memory-mapped file the chunk scan leaves mapped behind it (1 GB of 15 kB chunks, each with
 # its message indexes, touched every page: 1 GB of the file counted as the reader's memory)
 SCAN_DROP_BYTES = 64 << 20
-
-
-def _drop_pages(buf, start: int, end: int) -> None:
-    """Unmap the whole pages of a memory-mapped file between `start` and `end` (read again from the page cache
-    if needed): what was read once does not count towards the process' memory."""
-    if not isinstance(buf, mmap.mmap) or not hasattr(mmap, "MADV_DONTNEED"):
-        return
-    first = -(-start // mmap.PAGESIZE) * mmap.PAGESIZE
-    last = end - end % mmap.PAGESIZE
-    if last > first:
-        buf.madvise(mmap.MADV_DONTNEED, first, last - first)
-
-
-class _DropBehind:
-    """Lets the pages of a mapped file go every `SCAN_DROP_BYTES` as a pass over it moves on."""
-
-    def __init__(self, buf):
-        self.buf, self.dropped = buf, 0
-
-    def passed(self, pos: int, last: bool = False) -> None:
-        if last or pos - self.dropped > SCAN_DROP_BYTES:
-            _drop_pages(self.buf, self.dropped, len(self.buf) if last else pos)
-            self.dropped = pos - pos % mmap.PAGESIZE   # the page `pos` is in goes next time
 
 
 class Prefetch:
@@ -377,27 +369,27 @@ class Prefetch:
         self.buf = buf
         self.topics: dict[int, str] = {}
         self.chunks = self._scan(buf)
-        self.index = {c[0]: k for k, c in enumerate(self.chunks)}
+        self.index = {c.offset: k for k, c in enumerate(self.chunks)}
         deferred_channels = {ch for ch, topic in self.topics.items() if topic in defer_topics}
         # offset -> (channel, log times, offsets); None for a deferrable chunk past what the log may stream
         # (`lazy`: counted at its declared size in file order, as the walk counts it): its index is not kept
         # (a 1 GB file of 250 honest 256 MiB chunks held 1 GB of index entries here)
         self.deferred: dict[int, tuple | None] = {}
         stream_room = streamed_budget(len(buf))
-        behind = _DropBehind(buf)
-        for pos, fields, index in self.chunks if deferred_channels else ():
-            found = _deferrable(buf, fields, index, deferred_channels) if fields[2] <= MAX_CHUNK_BYTES else None
+        behind = PageDropper(buf, SCAN_DROP_BYTES)
+        for pos, header, index in self.chunks if deferred_channels else ():
+            found = _deferrable(buf, header, index, deferred_channels) if header.size <= MAX_CHUNK_BYTES else None
             if index:   # the index records were read: let their pages go (a file of 4 MB indexes is all index)
-                _drop_pages(buf, index[0][0], index[-1][1])
+                drop_pages(buf, index[0][0], index[-1][1])
                 behind.passed(index[-1][1])
             if found is not None:
-                self.deferred[pos] = found if not lazy or stream_room.take(fields[2]) is None else None
+                self.deferred[pos] = found if not lazy or stream_room.fits(header.size) else None
         behind.passed(len(buf), last=True)
         # the chunks within the limits, counted in file order as the walk counts them (a deferred one at its
         # compressed size: it is kept so; nothing when `lazy`: it is read again from the file when needed)
         room = InflateBudget(inflate_budget(len(buf)) if budget is None else budget)
-        self.allowed = {pos for pos, fields, _ in self.chunks
-                        if room.take((0 if lazy else fields[6]) if pos in self.deferred else fields[2]) is None}
+        self.allowed = {pos for pos, header, _ in self.chunks
+                        if room.fits((0 if lazy else header.data_length) if pos in self.deferred else header.size)}
         self.futures: dict[int, Future] = {}
         self.in_flight = 0   # declared bytes of the chunks submitted and not taken yet
         self.submitted = 0
@@ -406,12 +398,13 @@ class Prefetch:
                      if len(self.chunks) >= self.MIN_CHUNKS and workers > 1 else None)
         self.ahead = workers * self.AHEAD_PER_WORKER
 
-    def _scan(self, buf) -> list[tuple[int, ChunkFields, list[tuple[int, int]]]]:
-        """(offset, `chunk_fields`, the message index records right after it) of every chunk; the
-        channel topics of the channel records outside chunks into `self.topics`."""
+    def _scan(self, buf) -> list[ScannedChunk]:
+        """Every chunk with its header and the message index records right after it; the channel topics
+        of the channel records outside chunks into `self.topics`."""
         size, pos = len(buf), 8
-        behind = _DropBehind(buf)   # the pages scanned go as the scan passes them: small chunks are all headers
-        found: list[tuple[int, ChunkFields, list[tuple[int, int]]]] = []
+        # the pages scanned go as the scan passes them: small chunks are all headers
+        behind = PageDropper(buf, SCAN_DROP_BYTES)
+        found: list[ScannedChunk] = []
         # the index records of the last chunk, while only such records follow it
         current: list[tuple[int, int]] | None = None
         records = 0
@@ -422,11 +415,11 @@ class Prefetch:
             if op not in OP_NAMES or end > size or op == OP_FOOTER:
                 break
             if op == OP_CHUNK:
-                f = chunk_fields(buf, pos + 9, length)
-                if f is None:
+                header = read_chunk_header(buf, pos + 9, length)
+                if header is None:
                     break
                 current = []
-                found.append((pos, f, current))
+                found.append(ScannedChunk(pos, header, current))
             elif op == OP_MESSAGE_INDEX:
                 if current is not None:
                     current.append((pos + 9, end))
@@ -443,170 +436,38 @@ class Prefetch:
         behind.passed(pos, last=True)
         return found
 
-    def take(self, pos: int, fields: tuple):
-        """(data, computed crc, exception, (message index records, their framing)) of the chunk at `pos`,
-        None if it was not prefetched."""
+    def scanned(self, pos: int, header: ChunkHeader) -> ScannedChunk | None:
+        """The chunk the scan found at `pos`, if it found this one there."""
         k = self.index.get(pos)
-        if self.pool is None or k is None or self.chunks[k][1] != fields:
+        return self.chunks[k] if k is not None and self.chunks[k].header == header else None
+
+    def take(self, pos: int, header: ChunkHeader):
+        """(data, (message index records, their framing)) of the chunk at `pos`, None if it was not
+        prefetched; `ChunkRefused` if it failed (as `inflate_checked`)."""
+        k = self.index.get(pos)
+        if self.pool is None or k is None or self.chunks[k].header != header:
             return None
         while self.submitted < min(len(self.chunks), k + 1 + self.ahead):
-            cpos, (_, _, usize, crc, compression, dstart, dlen), index = self.chunks[self.submitted][:3]
-            if cpos in self.deferred or cpos not in self.allowed:
+            ahead = self.chunks[self.submitted]
+            if ahead.offset in self.deferred or ahead.offset not in self.allowed:
                 self.submitted += 1
                 continue
-            if self.futures and self.in_flight + usize > PREFETCH_BYTES:
+            if self.futures and self.in_flight + ahead.header.size > PREFETCH_BYTES:
                 break   # enough decompressed data ahead already
-            self.futures[cpos] = self.pool.submit(_inflate_and_frame, compression,
-                                                  memoryview(self.buf)[dstart:dstart + dlen], usize, crc, self.buf,
-                                                  index)
-            self.in_flight += usize
+            start, length = ahead.header.data_span
+            self.futures[ahead.offset] = self.pool.submit(_inflate_and_frame, ahead.header,
+                                                          memoryview(self.buf)[start:start + length], self.buf,
+                                                          ahead.index_records)
+            self.in_flight += ahead.header.size
             self.submitted += 1
         future = self.futures.pop(pos, None)
         if future is None:
             return None
-        self.in_flight -= self.chunks[k][1][2]
-        data, computed, exc, framed = future.result()
-        return data, computed, exc, (self.chunks[k][2], framed)
+        self.in_flight -= self.chunks[k].header.size
+        data, framed = future.result()
+        return data, (self.chunks[k].index_records, framed)
 
     def close(self) -> None:
         if self.pool is not None:
             self.pool.shutdown(wait=True, cancel_futures=True)
             self.futures.clear()
-
-
-def chunk_fields(buf, body: int, length: int) -> ChunkFields | None:
-    """(start, end, usize, crc, compression, data_start, data_len) of a chunk body, or None if inconsistent."""
-    if length < 40:
-        return None
-    start, end, usize, crc, clen = _CHUNK_HEAD.unpack_from(buf, body)
-    if clen > 16 or 40 + clen > length:
-        return None
-    try:
-        compression = bytes(buf[body + 32:body + 32 + clen]).decode("ascii")
-    except UnicodeDecodeError:
-        return None
-    (dlen,) = _U64.unpack_from(buf, body + 32 + clen)
-    if 40 + clen + dlen != length or start > end:
-        return None
-    return start, end, usize, crc, compression, body + 40 + clen, dlen
-
-
-def _plausible_chunk_at(buf, pos: int, size: int) -> bool:
-    if pos + 9 > size or buf[pos] != OP_CHUNK:
-        return False
-    (length,) = _U64.unpack_from(buf, pos + 1)
-    if pos + 9 + length > size:
-        return False
-    f = chunk_fields(buf, pos + 9, length)
-    return f is not None and f[4] in ("", "zstd", "lz4")
-
-
-def plausible_record_at(buf, pos: int, size: int) -> bool:
-    if pos == size:
-        return True
-    if pos + 9 > size:
-        return False
-    return buf[pos] in OP_NAMES   # a length past the end is a truncation, told apart by the main loop
-
-
-_RESYNC_TRIES, _RESYNC_WINDOW = 64, 1 << 22
-
-
-def _chunk_candidates(buf, start: int, stop: int, size: int) -> np.ndarray:
-    """Offsets in [start, stop) of a chunk opcode followed by a length that fits the file (vectorised)."""
-    if size < 9 + 40:
-        return np.zeros(0, np.int64)
-    u8 = np.frombuffer(buf, np.uint8, count=stop - start, offset=start)
-    cand = np.flatnonzero(u8 == OP_CHUNK).astype(np.int64) + start
-    cand = cand[cand + 9 + 40 <= size]
-    if not len(cand):
-        return cand
-    lengths = np.ndarray((size - 8,), "<u8", buf, 1, (1,))[cand]
-    return cand[(lengths >= 40) & (lengths <= (size - 9 - cand).astype(np.uint64))]
-
-
-def resync(buf, pos: int, size: int, passed=None) -> int:
-    """The offset of the next plausible chunk record after `pos`, or `size`: the next few chunk opcodes
-    one by one, then windows of the file screened at once (a file of chunk opcodes takes no longer);
-    `passed(offset)` is told after each window (the walk unmaps what it has left behind)."""
-    p = pos + 1
-    for _ in range(_RESYNC_TRIES):
-        p = buf.find(b"\x06", p)
-        if p < 0:
-            return size
-        if _plausible_chunk_at(buf, p, size):
-            return p
-        p += 1
-    while p < size:
-        stop = min(size, p + _RESYNC_WINDOW)
-        for c in _chunk_candidates(buf, p, stop, size).tolist():
-            if _plausible_chunk_at(buf, c, size):
-                return c
-        p = stop
-        if passed is not None:
-            passed(p)
-    return size
-
-
-def index_chunk(buf, data: bytes, index: list[tuple[int, int]]):
-    """Vectorised framing of a chunk by its message index records (`(body, end)` offsets in `buf`):
-    (offset of the first message, [(channel, payload starts, lengths, log times)] by channel id), or
-    False unless the index provably frames every message of the chunk: its records tile the chunk from
-    the first message to the end. Pure (worker threads run it)."""
-    entries = _index_entries(buf, index)
-    return False if entries is False else _frame_by_entries(data, entries)
-
-
-def _index_entries(buf, index: list[tuple[int, int]]):
-    """[(channel, log times, offsets)] by channel id from a chunk's message index records (copies,
-    in file order), or False if they are malformed."""
-    if not index:
-        return False
-    by_channel: dict[int, list] = {}
-    for body, end in index:
-        ch, n = struct.unpack_from("<HI", buf, body)
-        if n % 16 or body + 6 + n > end:
-            return False
-        entries = np.frombuffer(buf, "<u8", count=n // 8, offset=body + 6).reshape(-1, 2)
-        by_channel.setdefault(ch, []).append(entries)
-    per_channel = []
-    for ch in sorted(by_channel):
-        parts = by_channel[ch]
-        entries = parts[0] if len(parts) == 1 else np.concatenate(parts)
-        t, o = entries[:, 0], entries[:, 1]
-        if len(o) > 1 and not (o[1:] > o[:-1]).all():   # kept in file order, as the tiling check sorts
-            order = np.argsort(o, kind="stable")
-            t, o = t[order], o[order]
-        per_channel.append((ch, t.copy(), o.copy()))   # copies: nothing may keep the file's buffer alive
-    return per_channel
-
-
-def _frame_by_entries(data: bytes, per_channel: list):
-    """`index_chunk` for index entries already read (`_index_entries`)."""
-    size = len(data)
-    if size < 31:
-        return False
-    o_all = np.concatenate([o for _, _, o in per_channel])
-    if not len(o_all) or int(o_all.max()) > size - 31:
-        return False
-    o_all = o_all.astype(np.int64)
-    # Every record's header fields, read in place: views of the chunk at every byte offset.
-    u8 = np.frombuffer(data, np.uint8)
-    length = np.ndarray((size - 8,), "<u8", data, 1, (1,))[o_all].astype(np.int64)
-    rec_ch = np.ndarray((size - 10,), "<u2", data, 9, (1,))[o_all]
-    rec_t = np.ndarray((size - 22,), "<u8", data, 15, (1,))[o_all]
-    chans = np.concatenate([np.full(len(o), ch, np.uint16) for ch, _, o in per_channel])
-    times = np.concatenate([t for _, t, _ in per_channel])
-    if not ((u8[o_all] == OP_MESSAGE).all() and (length >= 22).all() and (rec_ch == chans).all()
-            and (rec_t == times).all()):
-        return False
-    order = np.argsort(o_all, kind="stable")
-    o, ends = o_all[order], (o_all + 9 + length)[order]
-    if not ((o[1:] == ends[:-1]).all() and ends[-1] == size):
-        return False
-    out, k = [], 0
-    for ch, t, offsets in per_channel:
-        m = len(offsets)
-        out.append((ch, o_all[k:k + m] + MESSAGE_DATA_OFFSET, length[k:k + m] - 22, t))
-        k += m
-    return int(o[0]), out

@@ -8,33 +8,41 @@ body is `start u64 | end u64 | uncompressed size u64 | uncompressed crc32 u32 |
 compression string | data length u64 | data`, its data again records). Record bodies
 other than messages are parsed with the library's own record classes.
 
-Messages are gathered per channel and per chunk in compact form (payloads joined, with
-their lengths and log times); damage is collected as `Damage` entries with byte offsets
-and log-time ranges.
+Messages are gathered per channel and per chunk (`bench.log.mcap.channel.ChannelData`: a part per
+chunk, `bench.log.mcap.parts`, with their lengths and log times); damage is collected as `Damage`
+entries with byte offsets and log-time ranges (`bench.log.mcap.damage`).
 
 Speed: chunks are decompressed, CRC-checked and framed by their message index on worker
-threads ahead of the walk (`bench.log.chunks._Prefetch`; zstd, zlib and numpy release
+threads ahead of the walk (`bench.log.mcap.chunks.Prefetch`; zstd, zlib and numpy release
 the GIL), while the walk itself stays sequential and decides everything exactly as it
-would inline. The record layout and chunk decoding live in `bench.log.chunks`.
+would inline. The record layout and chunk decoding live in `bench.log.mcap.chunks`.
 """
 
 from __future__ import annotations
 
-import mmap
 import struct
 import zlib
-from array import array
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 from mcap.records import Attachment, Channel, Footer, Header, Metadata, Schema, Statistics
 
-from bench.log.chunks import (
-    MAGIC,
-    MAX_DEFINITIONS,
+from bench.log.mcap.channel import ChannelData
+from bench.log.mcap.chunks import (
     MAX_RECORDS,
+    ChunkSlice,
+    DeferredChunk,
+    InflateBudget,
+    Prefetch,
+    inflate_budget,
+    inflate_checked,
+    streamed_budget,
+)
+from bench.log.mcap.damage import Damage
+from bench.log.mcap.parts import InChunk, Joined, MessageCut, gather
+from bench.log.mcap.records import (
+    MAGIC,
     MESSAGE_DATA_OFFSET,
     MESSAGE_HEAD,
     OP_ATTACHMENT,
@@ -49,211 +57,20 @@ from bench.log.chunks import (
     OP_SCHEMA,
     OP_STATISTICS,
     RECORD_HEAD,
-    ChunkSlice,
-    DeferredChunk,
-    InflateBudget,
-    Prefetch,
+    ChunkHeader,
+    ChunkRefused,
+    PageDropper,
     WalkError,
+    attachment_head,
     body_stream,
-    chunk_failure,
-    chunk_fields,
+    chunk_content,
     index_chunk,
-    inflate_budget,
-    inflate_chunk,
     plausible_record_at,
+    read_chunk_header,
     resync,
-    streamed_budget,
 )
-from bench.log.threads import reader_threads
 
-
-def _fmt_range(start_ns: int, end_ns: int) -> str:
-    return f"log time {start_ns / 1e9:.3f}..{end_ns / 1e9:.3f} s"
-
-
-_MAX_DESCRIBE = 600   # characters of a damage line
 _DROP_BEHIND = 64 << 20   # bytes of a mapped file the walk leaves mapped behind it
-
-
-@dataclass
-class Damage:
-    """One damaged or missing part of a log."""
-
-    kind: str                    # "chunk", "truncated", "corrupt", "no_summary", "attachment", "message", "metadata"
-    offset: int                  # byte offset of the damaged record (or of the end of the file)
-    reason: str
-    start_ns: int | None = None  # log-time range of a lost chunk, when its header was readable
-    end_ns: int | None = None
-    lost: dict[str, int] = field(default_factory=dict)   # topic -> messages lost, when known
-    chunks: int = 1              # consecutive chunks refused for the same reason, told as one
-    last_offset: int = 0         # byte offset of the last of them
-
-    def describe(self) -> str:
-        """One line (whatever the reason quotes from the file)."""
-        return " ".join(self._describe().split())[:_MAX_DESCRIBE]
-
-    def _describe(self) -> str:
-        where = ""
-        if self.start_ns is not None and self.end_ns is not None:   # a range is known whole or not at all
-            where = f" ({_fmt_range(self.start_ns, self.end_ns)})"
-        if self.kind == "chunk":
-            what = (", ".join(f"{n} on {t}" for t, n in sorted(self.lost.items())) if self.lost
-                    else "count unknown")
-            if self.chunks > 1:
-                return (f"{self.chunks} chunks at bytes {self.offset}..{self.last_offset}{where}, each: "
-                        f"{self.reason}; their messages lost ({what})")
-            return f"chunk at byte {self.offset}{where}: {self.reason}; its messages lost ({what})"
-        if self.kind == "truncated":
-            return f"truncated after byte {self.offset}: {self.reason}{where}"
-        if self.kind in ("no_summary", "metadata"):
-            return self.reason
-        return f"byte {self.offset}: {self.reason}{where}"
-
-
-@dataclass
-class ChannelData:
-    """Messages of one channel in file order: payloads per chunk, their lengths and log times.
-
-    A part is either the payloads joined (bytes) or, until first used, a lazy reference
-    `(chunk data, payload starts)`: gathering costs a slice per message, and most readers
-    never touch the high-rate JSON topics (the decompressed chunk stays in memory meanwhile).
-    A part can also be a `DeferredChunk` (walked with `defer_topics`): still compressed and
-    unchecked; `inflate_deferred` decompresses and checks those, and says what it had to drop.
-    """
-
-    parts: list = field(default_factory=list)      # bytes or (chunk bytes, starts array), one per chunk
-    lengths: list = field(default_factory=list)    # int64 arrays, payload lengths, one per part
-    log_times: list = field(default_factory=list)  # uint64 arrays, log times (ns), one per part
-    not_kept: int = 0       # messages counted, not kept: a topic the walk was not asked to keep
-    over_limit: int = 0     # messages counted, not kept: past the walk's limit for the topic
-
-    def add(self, part, lengths, log_times) -> None:
-        self.parts.append(part)
-        self.lengths.append(np.asarray(lengths, np.int64))
-        self.log_times.append(np.asarray(log_times, np.uint64))
-
-    def __len__(self) -> int:
-        return sum(len(x) for x in self.lengths)
-
-    @property
-    def log_time_ns(self) -> np.ndarray:
-        return np.concatenate(self.log_times) if self.log_times else np.zeros(0, np.uint64)
-
-    @property
-    def deferred_chunks(self) -> int:
-        """Parts still compressed and unchecked."""
-        return sum(isinstance(p, DeferredChunk) for p in self.parts)
-
-    def inflate_deferred(self, topic: str, budget: InflateBudget | None = None) -> list[Damage]:
-        """Decompress and check the deferred parts (on worker threads); a part that fails, or does not fit
-        what is left of the log's `budget`, is dropped and told as a `Damage` (its messages lost, on `topic`)."""
-        todo = [k for k, p in enumerate(self.parts) if isinstance(p, DeferredChunk)]
-        if not todo:
-            return []
-        chunks = [self.parts[k] for k in todo]
-        refused = {k: budget.take(c.size) for k, c in zip(todo, chunks)} if budget is not None else {}
-        inflate = [c for k, c in zip(todo, chunks) if refused.get(k) is None]
-        threads = reader_threads()
-        if len(inflate) >= 3 and threads > 1:
-            with ThreadPoolExecutor(threads, thread_name_prefix="mcap-inflate") as pool:
-                answers = iter(list(pool.map(lambda c: c.inflate(), inflate)))
-        else:
-            answers = iter([c.inflate() for c in inflate])
-        damage, dropped = [], set()
-        for k, chunk in zip(todo, chunks):
-            answer = refused.get(k) or next(answers)
-            if isinstance(answer, str):
-                damage.append(Damage("chunk", chunk.offset, answer, chunk.start_ns, chunk.end_ns,
-                                     {topic: len(chunk.offsets)}))
-                dropped.add(k)
-            else:
-                self.parts[k] = answer
-        if dropped:
-            keep = [k for k in range(len(self.parts)) if k not in dropped]
-            self.parts, self.lengths, self.log_times = ([x[k] for k in keep] for x in
-                                                        (self.parts, self.lengths, self.log_times))
-        return damage
-
-    def _gathered(self) -> list[bytes]:
-        if self.deferred_chunks:
-            raise RuntimeError("inflate_deferred() first: this channel has deferred chunks")
-        for k, part in enumerate(self.parts):
-            if isinstance(part, tuple):
-                data, starts = part
-                self.parts[k] = _gather(data, starts, self.lengths[k])
-        return self.parts
-
-    def payloads(self, limit: int | None = None) -> list[bytes]:
-        """One bytes per message (the first `limit` messages only, when given: see `keep_first`)."""
-        if limit is not None:
-            self.keep_first(limit)
-        out: list[bytes] = []
-        for part, lengths in zip(self._gathered(), self.lengths):
-            ends = np.cumsum(lengths).tolist()
-            out += [part[e - n:e] for e, n in zip(ends, lengths.tolist())]
-        return out
-
-    def keep_first(self, limit: int) -> int:
-        """Keep the first `limit` messages only (the parts after them are dropped unread); how many went."""
-        dropped, seen = 0, 0
-        for k, lengths in enumerate(self.lengths):
-            if seen + len(lengths) > limit:
-                keep = limit - seen
-                dropped = len(self) - limit
-                part = self.parts[k]
-                if isinstance(part, tuple):
-                    part = (part[0], part[1][:keep])
-                elif isinstance(part, bytes):
-                    part = part[:int(lengths[:keep].sum())]
-                else:   # a deferred chunk: inflate_deferred first
-                    raise RuntimeError("inflate_deferred() first: this channel has deferred chunks")
-                self.parts = self.parts[:k] + [part]
-                self.lengths = self.lengths[:k] + [lengths[:keep]]
-                self.log_times = self.log_times[:k] + [self.log_times[k][:keep]]
-                break
-            seen += len(lengths)
-        return dropped
-
-    def part_bytes(self, k: int) -> bytes:
-        """Part `k`'s payloads back to back, without keeping them (for one pass over a large channel:
-        the lazy parts stay lazy)."""
-        part = self.parts[k]
-        if isinstance(part, DeferredChunk):
-            raise RuntimeError("inflate_deferred() first: this channel has deferred chunks")
-        if not isinstance(part, tuple):
-            return part
-        data, starts = part
-        return _gather(data, starts, self.lengths[k])
-
-    def first_byte(self, k: int, offset: int) -> int:
-        """Byte `offset` of part `k`'s payloads back to back (without joining them)."""
-        part = self.parts[k]
-        if isinstance(part, tuple):
-            data, starts = part
-            lengths = self.lengths[k]
-            i = int(np.searchsorted(np.cumsum(lengths), offset, side="right"))
-            before = int(lengths[:i].sum())
-            return data[int(starts[i]) + offset - before]
-        return self.part_bytes(k)[offset]
-
-    def part_payloads(self, k: int) -> list[bytes]:
-        """Part `k`'s payloads, one bytes per message."""
-        part, ends = self.part_bytes(k), np.cumsum(self.lengths[k]).tolist()
-        return [part[e - n:e] for e, n in zip(ends, self.lengths[k].tolist())]
-
-    def compact(self) -> None:
-        """Join the lazy parts' payloads now: the decompressed chunks they point into can then be freed."""
-        self._gathered()
-
-    def joined_parts(self):
-        """`part_bytes` of every part, in order."""
-        for k in range(len(self.parts)):
-            yield self.part_bytes(k)
-
-    def joined(self) -> bytes:
-        """All payloads back to back."""
-        parts = self._gathered()
-        return parts[0] if len(parts) == 1 else b"".join(parts)
 
 
 @dataclass
@@ -294,21 +111,27 @@ def attachment_limit(name: str) -> int:
     return MAX_DBC_BYTES if name.lower().endswith(".dbc") else MAX_ATTACHMENT_BYTES
 
 
-def attachment_head(buf, body: int, end: int) -> tuple[str, int] | None:
-    """(name, data length) of an attachment record, read without its data; None if malformed."""
-    q = body + 16                                    # log time, create time
-    if q + 4 > end:
-        return None
-    (n,) = struct.unpack_from("<I", buf, q)
-    if q + 4 + n + 4 > end:
-        return None
-    name = bytes(buf[q + 4:q + 4 + n]).decode("utf-8", "replace")
-    q += 4 + n
-    (m,) = struct.unpack_from("<I", buf, q)
-    q += 4 + m
-    if q + 8 > end:
-        return None
-    return name, struct.unpack_from("<Q", buf, q)[0]
+class _OverLimits(ChunkRefused):
+    """A chunk refused by the limits (told with the refused chunks right before it, see `_Walker.refuse`)."""
+
+
+def _within_limits(budget: InflateBudget, size: int) -> None:
+    """`budget.take(size)`, its refusal an `_OverLimits`."""
+    try:
+        budget.take(size)
+    except ChunkRefused as exc:
+        raise _OverLimits(str(exc)) from exc
+
+
+@dataclass
+class _PendingChunk:
+    """A good chunk waiting for the message index records after it (its data, or still compressed)."""
+
+    offset: int
+    header: ChunkHeader
+    data: bytes | DeferredChunk
+    index: list[tuple[int, int]] = field(default_factory=list)   # (body, end) of the index records seen
+    framed: tuple | None = None   # (message index records, `index_chunk` answer), from a worker
 
 
 class _Walker:
@@ -321,19 +144,15 @@ class _Walker:
         self.source = source
         self.keep_topics = keep_topics
         self.keep_limits = keep_limits or {}
-        self.current: tuple | None = None   # (offset, start, end, compression, span, size, crc) of the chunk gathered
-        self.pending_where: tuple | None = None   # the same of the pending chunk
+        self.current: tuple[int, ChunkHeader] | None = None   # (offset, header) of the chunk being gathered
         self.w = Walk(size=len(buf), budget=InflateBudget(inflate_budget(len(buf))),
                       stream_budget=streamed_budget(len(buf)))
         self.lost_chunk: Damage | None = None   # message index records after a lost chunk count its messages
         self.last_refused: Damage | None = None   # the refusal the next refused chunk joins, if nothing came between
-        # a good chunk waiting for its message index records: (offset, start, end, data or still compressed)
-        self.pending: tuple[int, int, int, bytes | DeferredChunk] | None = None
-        self.pending_index: list[tuple[int, int]] = []
+        self.pending: _PendingChunk | None = None   # a good chunk waiting for its message index records
         self.prefetch: Prefetch | None = None
-        self.framed = None   # (message index records, `index_chunk` answer) of the pending chunk, from a worker
         self.loose: dict[int, tuple[list, list, list]] = {}   # messages outside chunks not yet in their channel
-        self.dropped = 0   # the file's pages before this offset were unmapped (`drop_behind`)
+        self.pages = PageDropper(buf, _DROP_BEHIND, keep=_DROP_BEHIND // 2)
 
     def channel_data(self, channel_id: int) -> ChannelData:
         d = self.w.data.get(channel_id)
@@ -446,24 +265,14 @@ class _Walker:
                                         f"incomplete ({size - body} of {length} bytes)"))
 
     def passed(self, pos: int) -> None:
-        """The walk (or a resync) has read up to `pos`."""
-        if pos - self.dropped > _DROP_BEHIND:
-            self.drop_behind(pos)
-
-    def drop_behind(self, pos: int) -> None:
-        """Unmap the pages of a memory-mapped file well behind `pos` (they are read again from the page cache
-        if needed): a file read once does not count whole towards the process' memory."""
-        start = self.dropped - self.dropped % mmap.PAGESIZE
-        stop = pos - _DROP_BEHIND // 2
-        stop -= stop % mmap.PAGESIZE
-        if stop > start and isinstance(self.buf, mmap.mmap) and hasattr(mmap, "MADV_DONTNEED"):
-            self.buf.madvise(mmap.MADV_DONTNEED, start, stop - start)
-        self.dropped = max(self.dropped, stop)
+        """The walk (or a resync) has read up to `pos`: the pages well behind it go (a file read once does not
+        count whole towards the process' memory)."""
+        self.pages.passed(pos)
 
     def flush_loose(self) -> None:
         """The messages read outside chunks since the last chunk, into their channels (one part each)."""
         for ch, (payloads, lengths, times) in self.loose.items():
-            self.channel_data(ch).add(b"".join(payloads), lengths, times)
+            self.channel_data(ch).add(Joined(b"".join(payloads)), lengths, times)
         self.loose = {}
 
     def record(self, op: int, pos: int, body: int, end: int) -> None:
@@ -492,7 +301,7 @@ class _Walker:
             loose[2].append(log_time)
         elif op == OP_MESSAGE_INDEX:
             if self.pending is not None:
-                self.pending_index.append((body, end))
+                self.pending.index.append((body, end))
             elif self.lost_chunk is not None and end - body >= 6:
                 ch, n = struct.unpack_from("<HI", buf, body)
                 lost = self.lost_chunk.lost   # (refused chunks told as one add up)
@@ -538,97 +347,90 @@ class _Walker:
 
     def chunk(self, pos: int, body: int, length: int) -> bool:
         """Read one chunk record; False when its framing is broken (the caller re-syncs)."""
-        buf, w = self.buf, self.w
+        w = self.w
         self.lost_chunk = None
         joinable, self.last_refused = self.last_refused, None
-        f = chunk_fields(buf, body, length)
-        if f is None:
+        header = read_chunk_header(self.buf, body, length)
+        if header is None:
             w.damage.append(Damage("chunk", pos, "chunk header inconsistent"))
             self.lost_chunk = w.damage[-1]
             return False
-        start, end, usize, crc, compression, dstart, dlen = f
         self.flush_loose()
-        prefetch = self.prefetch
-        deferred = prefetch.deferred.get(pos) if prefetch is not None else None
-        if (deferred is None and prefetch is not None and pos in prefetch.deferred and self.source is not None
-                and prefetch.chunks[prefetch.index[pos]][1] == f):
+        try:
+            self.pending = self._checked_chunk(pos, header)
+        except _OverLimits as refused:
+            self.refuse(pos, str(refused), header.start_ns, header.end_ns, joinable)
+        except ChunkRefused as failed:
+            w.damage.append(Damage("chunk", pos, str(failed), header.start_ns, header.end_ns))
+            self.lost_chunk = w.damage[-1]
+        return True
+
+    def _checked_chunk(self, pos: int, header: ChunkHeader) -> _PendingChunk:
+        """The chunk at `pos`, decompressed and checked (or kept compressed, deferred), waiting for the message
+        index records after it; `_OverLimits` if the limits refuse it, `ChunkRefused` if it fails."""
+        w, prefetch = self.w, self.prefetch
+        scanned = prefetch is not None and prefetch.scanned(pos, header) is not None
+        deferred = prefetch.deferred.get(pos) if prefetch is not None and scanned else None
+        if prefetch is not None and scanned and deferred is None and pos in prefetch.deferred \
+                and self.source is not None:
             # left in the file, past what the log may stream (the prefetch kept no index for it)
-            self.refuse(pos, w.stream_budget.take(usize) or "past what this log's chunks may stream", start, end,
-                        joinable)
-            return True
-        if deferred is not None and prefetch is not None and prefetch.chunks[prefetch.index[pos]][1] == f:
+            _within_limits(w.stream_budget, header.size)
+            raise _OverLimits("past what this log's chunks may stream")
+        if deferred is not None:
             # kept compressed: counted against the budget at that size now, at its own when it is inflated
             # (`ChannelData.inflate_deferred`); with a `source`, nothing is kept (it is read again when needed)
             # but its index is: counted at its own size against what the log may stream, so a file of a
             # million small bomb chunks keeps the index of a few
-            refused = (w.stream_budget.take(usize) if self.source is not None else w.budget.take(dlen))
-            if refused is not None:
-                self.refuse(pos, refused, start, end, joinable)
-                return True
+            if self.source is not None:
+                _within_limits(w.stream_budget, header.size)
+            else:
+                _within_limits(w.budget, header.data_length)
             ch, t, o = deferred
-            payload = None if self.source is not None else bytes(buf[dstart:dstart + dlen])
-            self.pending = (pos, start, end, DeferredChunk(pos, start, end, compression, payload, usize, crc,
-                                                           ch, t, o, (dstart, dlen), self.source))
-            self.pending_index = []
-            return True
-        refused = w.budget.take(usize)
-        if refused is not None:
-            self.refuse(pos, refused, start, end, joinable)
-            return True
-        done = self.prefetch.take(pos, f) if self.prefetch is not None else None
+            start, length = header.data_span
+            payload = None if self.source is not None else bytes(self.buf[start:start + length])
+            return _PendingChunk(pos, header, DeferredChunk(pos, header.start_ns, header.end_ns, header.compression,
+                                                            payload, header.size, header.crc, ch, t, o,
+                                                            header.data_span, self.source))
+        _within_limits(w.budget, header.size)
+        done = prefetch.take(pos, header) if prefetch is not None else None
         if done is not None:
-            data, computed, exc, self.framed = done
-        else:
-            data, computed, exc = inflate_chunk(compression, memoryview(buf)[dstart:dstart + dlen], usize, crc)
-            self.framed = None
-        if isinstance(exc, WalkError):
-            raise exc
-        if exc is not None:
-            w.damage.append(Damage("chunk", pos, chunk_failure(compression, exc), start, end))
-            self.lost_chunk = w.damage[-1]
-            return True
-        if crc != 0 and computed != crc:
-            reason = "CRC mismatch"
-        else:   # good: its records are gathered once the message index records after it are seen
-            self.pending, self.pending_index = (pos, start, end, data), []
-            self.pending_where = (pos, start, end, compression, (dstart, dlen), usize, crc)
-            return True
-        w.damage.append(Damage("chunk", pos, reason, start, end))
-        self.lost_chunk = w.damage[-1]
-        return True
+            data, framed = done
+            return _PendingChunk(pos, header, data, framed=framed)
+        start, length = header.data_span
+        data = inflate_checked(header.compression, memoryview(self.buf)[start:start + length], header.size, header.crc)
+        return _PendingChunk(pos, header, data)
 
     def finish_chunk(self) -> None:
         """Gather the pending chunk's records: by its message index when that checks out, else record by record."""
-        if self.pending is None:
+        pending, self.pending = self.pending, None
+        if pending is None:
             return
-        (pos, start, end, data), index = self.pending, self.pending_index
-        self.pending, self.pending_index = None, []
-        self.current, self.pending_where = self.pending_where, None
         try:
-            self._finish_chunk(pos, start, end, data, index)
+            self._finish_chunk(pending)
         finally:
             self.current = None
 
-    def _finish_chunk(self, pos: int, start: int, end: int, data, index) -> None:
+    def _finish_chunk(self, pending: _PendingChunk) -> None:
+        data, index = pending.data, pending.index
         if isinstance(data, DeferredChunk):
             chunk = data
             assert self.prefetch is not None   # only the prefetch's scan defers chunks
-            if index == self.prefetch.chunks[self.prefetch.index[pos]][2]:
+            if index == self.prefetch.chunks[self.prefetch.index[pending.offset]].index_records:
                 self.channel_data(chunk.channel).add(chunk, chunk.lengths, chunk.log_times)
                 self.w.chunks += 1
                 return
             # the walk found other index records after it than the scan did: check it now, inline
-            answer = self.w.budget.take(chunk.size) or chunk.inflate()
-            if isinstance(answer, str):
-                self.w.damage.append(Damage("chunk", pos, answer, start, end,
+            try:
+                self.w.budget.take(chunk.size)
+                data, _ = chunk.inflate()
+            except ChunkRefused as failed:
+                self.w.damage.append(Damage("chunk", pending.offset, str(failed), chunk.start_ns, chunk.end_ns,
                                             {self.w.topic(chunk.channel): len(chunk.offsets)}))
                 return
-            data = answer[0]
-            self.current = (pos, start, end, chunk.compression, chunk.span, chunk.size, chunk.crc)
+        self.current = (pending.offset, pending.header)
         framed = None
-        if self.framed is not None and self.framed[0] == index:   # the worker framed it with these records
-            framed = self.framed[1]
-        self.framed = None
+        if pending.framed is not None and pending.framed[0] == index:   # the worker framed it with these records
+            framed = pending.framed[1]
         if self.chunk_by_index(data, index, framed):
             self.w.chunks += 1
             return
@@ -636,7 +438,8 @@ class _Walker:
         if reason is None:
             self.w.chunks += 1
             return
-        self.w.damage.append(Damage("chunk", pos, reason, start, end))
+        header = pending.header
+        self.w.damage.append(Damage("chunk", pending.offset, reason, header.start_ns, header.end_ns))
 
     def chunk_by_index(self, data: bytes, index: list[tuple[int, int]], framed=None) -> bool:
         """Gathering with the chunk's message index (`framed`: `index_chunk`'s answer when a worker
@@ -658,33 +461,10 @@ class _Walker:
         records only (MCAP spec). The framing is followed record by record, except where the messages
         provably follow at one stride (checked at once); the messages' fields are read vectorised and
         kept as lazy parts, like the message index gives them."""
-        unpack_rec = RECORD_HEAD.unpack_from
-        size = len(data)
-        starts = array("q")
-        strided = np.zeros(0, np.int64)   # the messages found at one stride, to the end of the chunk
-        others: list[tuple[int, int, int]] = []
-        q = 0
-        while q < size:
-            if q + 9 > size:
-                return f"malformed chunk content at offset {q}"
-            op, ln = unpack_rec(data, q)
-            end = q + 9 + ln
-            if end > size:
-                return f"malformed chunk content: record at offset {q} overruns the chunk"
-            if op == OP_MESSAGE:
-                if ln < 22 or not messages:
-                    return f"malformed message at chunk offset {q}"
-                if not starts and (size - q) % (9 + ln) == 0 and _one_stride(data, q, 9 + ln):
-                    strided = np.arange(q, size, 9 + ln, dtype=np.int64)
-                    break
-                starts.append(q)
-            elif op in (OP_SCHEMA, OP_CHANNEL):
-                if len(others) >= MAX_DEFINITIONS:
-                    return f"malformed chunk content: more than {MAX_DEFINITIONS} schema and channel records"
-                others.append((op, q, end))
-            else:
-                return f"malformed chunk content: {OP_NAMES.get(op, f'opcode {op:#x}')} record at offset {q}"
-            q = end
+        try:
+            o, others = chunk_content(data, messages)
+        except ChunkRefused as malformed:
+            return str(malformed)
         for op, q, end in others:
             try:
                 if op == OP_SCHEMA:
@@ -695,9 +475,9 @@ class _Walker:
                     self.w.channels.setdefault(c.id, c)
             except Exception as exc:
                 return f"malformed {OP_NAMES[op]} record in the chunk ({exc})"
-        o = np.frombuffer(starts, np.int64) if starts else strided
         if not len(o):
             return None
+        size = len(data)
         lengths = np.ndarray((size - 8,), "<u8", data, 1, (1,))[o].astype(np.int64) - 22
         channels = np.ndarray((size - 10,), "<u2", data, 9, (1,))[o]
         times = np.ndarray((size - 22,), "<u8", data, 15, (1,))[o]
@@ -717,12 +497,12 @@ class _Walker:
                 and int(lengths.max()) > self.cut.max_bytes):
             data, starts, lengths = self.cut.apply(data, starts, lengths)
         if self.source is None or self.current is None or topic is None:
-            d.add((data, starts), lengths, times)
+            d.add(InChunk(data, starts), lengths, times)
             return
         if topic in self.defer_topics:
-            pos, start, end, compression, span, size, crc = self.current
-            d.add(ChunkSlice(pos, start, end, compression, None, size, crc, ch, times, starts, span, self.source,
-                             lengths), lengths, times)
+            pos, header = self.current
+            d.add(ChunkSlice(pos, header.start_ns, header.end_ns, header.compression, None, header.size, header.crc,
+                             ch, times, starts, header.data_span, self.source, lengths), lengths, times)
             return
         if self.keep_topics is not None and topic not in self.keep_topics:
             d.not_kept += len(lengths)
@@ -735,50 +515,7 @@ class _Walker:
                 starts, lengths, times = starts[:room], lengths[:room], times[:room]
             if not len(lengths):
                 return
-        d.add(_gather(data, starts, lengths), lengths, times)
-
-
-def _gather(data: bytes, starts: np.ndarray, lengths: np.ndarray) -> bytes:
-    """The payloads at `starts` (of `lengths`) in `data`, back to back. Payloads of one length at one stride
-    (a chunk of equal messages: what bulk frames and bombs look like) are copied as one strided array; the
-    others one slice each."""
-    n = len(starts)
-    if n > 1:
-        length, stride = int(lengths[0]), int(starts[1] - starts[0])
-        if (stride >= length > 0 and (lengths == length).all()
-                and (np.diff(starts) == stride).all() and int(starts[-1]) + length <= len(data)):
-            return np.ndarray((n, length), np.uint8, data, int(starts[0]), (stride, 1)).tobytes()
-    whole = memoryview(data)
-    return b"".join([whole[a:b] for a, b in zip(starts.tolist(), (starts + lengths).tolist())])
-
-
-def _one_stride(data: bytes, q: int, stride: int) -> bool:
-    """Whether every record from `q` to the end of `data` is a message of length `stride` (vectorised)."""
-    n = (len(data) - q) // stride
-    ops = np.ndarray((n,), np.uint8, data, q, (stride,))
-    lengths = np.ndarray((n,), "<u8", data, q + 1, (stride,))
-    return bool((ops == OP_MESSAGE).all() and (lengths == stride - 9).all())
-
-
-@dataclass(frozen=True)
-class MessageCut:
-    """Messages of `topics` longer than `max_bytes` go through `shrink(payload) -> payload` as they are gathered,
-    one at a time, before anything holds them all (a JSON message with a 1 MB text, kept by the thousand, would
-    be parsed in bulk later)."""
-
-    topics: frozenset[str]
-    max_bytes: int
-    shrink: Callable[[bytes], bytes]
-
-    def apply(self, data, starts: np.ndarray, lengths: np.ndarray) -> tuple[bytes, np.ndarray, np.ndarray]:
-        """The payloads at `starts` (of `lengths`) in `data`, the long ones shrunk, back to back: (joined,
-        their starts, their lengths)."""
-        whole = memoryview(data)
-        payloads = [bytes(whole[a:a + n]) if n <= self.max_bytes else self.shrink(bytes(whole[a:a + n]))
-                    for a, n in zip(starts.tolist(), lengths.tolist())]
-        new_lengths = np.array([len(p) for p in payloads], np.int64)
-        new_starts = np.concatenate([[0], np.cumsum(new_lengths)[:-1]]).astype(np.int64)
-        return b"".join(payloads), new_starts, new_lengths
+        d.add(Joined(gather(data, starts, lengths)), lengths, times)
 
 
 def walk(buf: bytes, defer_topics: frozenset[str] = frozenset(),
