@@ -93,13 +93,48 @@ def stop_signals(on_signal: Callable[[int], None]) -> Iterator[None]:
         for signum in STOP_SIGNALS:
             if signum == getattr(signal, "SIGHUP", None) and signal.getsignal(signum) is signal.SIG_IGN:
                 continue
-            handler = signal.signal(signum, lambda received, _frame: on_signal(received))
+            handler = signal.signal(signum, lambda received, frame: _deliver(on_signal, received, frame))
             # (None: a handler not installed from Python; the default is the closest to put back)
             previous[signum] = signal.SIG_DFL if handler is None else handler
         yield
     finally:
         for installed, handler in previous.items():
             signal.signal(installed, handler)
+
+
+#: how long a stop signal that came during an import waits before it is delivered again (see `_deliver`)
+REDELIVER_AFTER_S = 0.005
+
+
+def _deliver(on_signal: Callable[[int], None], signum: int, frame: FrameType | None) -> None:
+    """Call `on_signal(signum)`, unless the signal came while a module was being imported: then send it again to
+    the main thread a moment later, until it lands outside an import.
+
+    Why: an exception raised inside an import can come out as another one. numpy's compiled core, interrupted
+    while it imports `datetime`, reports an ImportError with a page of advice, so Ctrl-C during start-up ended in
+    a traceback instead of "interrupted". Deferred by milliseconds, the signal is never lost."""
+    if not _importing(frame):
+        on_signal(signum)
+        return
+    main_thread = threading.main_thread()
+
+    def again() -> None:
+        if main_thread.is_alive() and main_thread.ident is not None:
+            with contextlib.suppress(ProcessLookupError, OSError):
+                signal.pthread_kill(main_thread.ident, signum)
+
+    timer = threading.Timer(REDELIVER_AFTER_S, again)
+    timer.daemon = True
+    timer.start()
+
+
+def _importing(frame: FrameType | None) -> bool:
+    """True when the interrupted code runs inside an import (importlib's frozen bootstrap is on the stack)."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
 
 
 def ensure_standard_streams() -> None:
