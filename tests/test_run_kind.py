@@ -176,3 +176,14 @@ def test_a_log_of_manual_moves_records_its_kind(tmp_path):
 def test_a_missing_or_unknown_recorded_kind_is_told_as_before(raw):
     assert recorded_run_kind({"run": {"kind": raw}}) is None
     assert recorded_run_kind({"run": "not a table"}) is None and recorded_run_kind({}) is None
+
+
+def test_every_kind_a_run_records_has_its_finish():
+    """`BenchRun.finish` dispatches on the run's kind: every kind a plan gives has an entry (manual moves are no
+    run: `open_manual_log`)."""
+    from bench.run.runner import FINISHERS, BenchRun
+
+    assert set(FINISHERS) == set(RunKind) - {RunKind.MANUAL}
+    assert FINISHERS[RunKind.THERMAL] is BenchRun._finish_thermal
+    assert FINISHERS[RunKind.STATIC_NOISE] is BenchRun._finish_noise
+    assert FINISHERS[RunKind.CALIBRATION] is BenchRun._finish_calibration

@@ -16,7 +16,7 @@ import time
 from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Callable, Iterable, Iterator
 
 import can
 
@@ -361,7 +361,8 @@ class BenchRun:
 
     # -- after the run ---------------------------------------------------------------------
     def finish(self) -> RunOutcome:
-        """Solve from the log(s), write result and report, attach the result, close the log."""
+        """Finish the run as its kind finishes (`FINISHERS`: solve from the log(s), write result and report,
+        attach the result), close the log."""
         _, receiver, recorder, _ = self._opened()
         seq = self.sequencer
         if seq is None or seq.error is not None:
@@ -373,10 +374,10 @@ class BenchRun:
             error = ListenerError(describe_listener_error(recorder, broken))
             return RunOutcome(seq.state, self.log_path, error=error)
         recorder.flush()
-        if self.kind is RunKind.STATIC_NOISE:
-            return self._finish_noise(seq.state, receiver, recorder)
-        if self.kind is RunKind.THERMAL:
-            return self._finish_thermal(seq.state, receiver, recorder)
+        return FINISHERS[self.kind](self, seq.state, receiver, recorder)
+
+    def _finish_calibration(self, state: RunState, receiver: ImuReceiver, recorder: McapRecorder) -> RunOutcome:
+        """A calibration: solved from the log(s) (and the logs of the run it resumes), judged, reported."""
         logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
         config = self.config
         solution = solve_logs(logs, config.site.site, config.imu.layout, config.imu.rate_hz,
@@ -385,7 +386,7 @@ class BenchRun:
                               still_open=frozenset({str(self.log_path), *map(str, self.previous_logs)}))
         failures = quality_failures(solution)
         lost = solution.extraction.lost_samples()
-        run_info = self._run_info(seq.state, receiver, failures, lost).to_dict()
+        run_info = self._run_info(state, receiver, failures, lost).to_dict()
         result = solution.calibration.to_result(run=run_info, sim_truth=config.sim.imu if self.sim else None)
         result.temperature = imu_temperature(logs, config.imu.layout, config.imu.rate_hz)
         verdict = judge(result, config.acceptance, lost_samples=lost["total"],
@@ -401,7 +402,7 @@ class BenchRun:
             recorder.add_attachment(result_path.name, "application/json", partial.read_bytes(),
                                     self.clock.now() if self.clock is not None else 0.0)
             recorder.close()
-        return RunOutcome(seq.state, self.log_path, result_path, report_path, result, failures,
+        return RunOutcome(state, self.log_path, result_path, report_path, result, failures,
                           html_report_path=html_report_path, verdict=verdict,
                           problems=list(solution.extraction.problems))
 
@@ -507,6 +508,18 @@ class BenchRun:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+#: How a run of each kind finishes (`BenchRun.finish`). A verification's and a table check's commands read their
+#: logs themselves (`BenchRun.finish_observations`, `bench.table_check`); finished here such a run is solved as a
+#: calibration, as `bench solve` solves its log. A log of manual moves is no run (`BenchRun.open_manual_log`).
+FINISHERS: dict[RunKind, Callable[[BenchRun, RunState, ImuReceiver, McapRecorder], RunOutcome]] = {
+    RunKind.CALIBRATION: BenchRun._finish_calibration,
+    RunKind.THERMAL: BenchRun._finish_thermal,
+    RunKind.STATIC_NOISE: BenchRun._finish_noise,
+    RunKind.VERIFICATION: BenchRun._finish_calibration,
+    RunKind.TABLE_CHECK: BenchRun._finish_calibration,
+}
 
 
 @contextmanager
