@@ -541,7 +541,7 @@ def test_connecting_writes_no_log_a_manual_move_and_a_plan_each_write_theirs(tmp
             await wait_until(pilot, lambda: len(app.session.manual_logs) == 2, "the second log of manual moves")
         assert sorted(tmp_path.glob("*.mcap")) == sorted([manual, log, app.session.manual_logs[1]])
         assert app.session.last_end.log_path == log
-        assert len(read_log(str(log)).events) > 0 and "kind" not in read_log(str(log)).metadata["run"]
+        assert len(read_log(str(log)).events) > 0 and read_log(str(log)).metadata["run"]["kind"] == "calibration"
     run(body)
 
 

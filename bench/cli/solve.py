@@ -114,8 +114,8 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
         static_noise_plan,
         write_outputs,
     )
-    from bench.jobs.thermal import is_thermal_log
     from bench.log.reader import LogError
+    from bench.log.run_kind import RunKind
     from bench.solve.methods import SolverError
 
     if args.archive:
@@ -146,10 +146,10 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
             return fail(PROG, f"{recorded.logs[-1].path} is a static noise recording (plan positions {static!r}: one "
                               f"dwell, nothing to calibrate): analyse it with `bench noise {recorded.logs[-1].path}`",
                         ExitCode.USAGE)
-        thermal = next((log.path for log in recorded.logs if is_thermal_log(log)), None)
+        thermal = recorded.first_log_of_kind(RunKind.THERMAL)
         if thermal is not None:     # its blocks are solved one temperature each, never together
             if methods is not None or positions is not None or rotations is not None:
-                return fail(PROG, f"{thermal} is a calibration over temperature ([plan] temperatures_c): it is "
+                return fail(PROG, f"{thermal.path} is a calibration over temperature ([plan] temperatures_c): it is "
                                   "re-solved whole, one calibration per temperature (no --compare, --positions or "
                                   "--rotations)", ExitCode.USAGE)
             return _solve_thermal(args, recorded)

@@ -20,9 +20,10 @@ from typing import Callable, Iterable
 
 from bench.errors import BenchError
 from bench.jobs.resolve import load_recorded, solve_recorded, static_noise_plan, write_outputs
-from bench.jobs.thermal import is_thermal_log, resolve_thermal
+from bench.jobs.thermal import resolve_thermal
 from bench.log.names import logs_before, safe_name, sibling_log
 from bench.log.reader import read_log
+from bench.log.run_kind import RunKind
 from bench.log.threads import reader_threads_limited
 from bench.parallel import SchedulerError, run_tasks
 from bench.solve.methods import SolverError
@@ -140,7 +141,7 @@ def _solve_log(log: str, out_dir: str, html: bool) -> ArchiveItem:
         if static is not None:     # as `bench solve LOG` refuses it
             return ArchiveItem(log, False, error=f"a static noise recording (plan positions {static!r}), "
                                                  f"nothing to calibrate: analyse it with `bench noise {log}`")
-        if any(is_thermal_log(part) for part in recorded.logs):   # one calibration per temperature, as
+        if recorded.kind is RunKind.THERMAL:      # one calibration per temperature, as
             thermal = resolve_thermal(recorded, out_dir, html=html)   # `bench solve LOG` solves it
             return ArchiveItem(log, True, result=str(thermal.result_path), run_id=recorded.run_id,
                                failures=tuple(c.describe() for c in thermal.verdict.failed))

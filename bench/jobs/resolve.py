@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import dataclasses
 import re
-import time
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Sequence
 
@@ -44,11 +44,13 @@ from bench.log.run_info import (
     layout_and_config_from_log,
     steps_from_log,
 )
+from bench.log.run_kind import RunKind, run_kind, run_kind_of_logs
 from bench.log.run_setup import differences, setup_of_log
 from bench.log.temperature import imu_temperature
 from bench.model.earth import Site
 from bench.model.observations import PositionObservation, RotationObservation
 from bench.model.result import CalibrationResult
+from bench.model.run_section import RunInfo, utc_stamp
 from bench.report.markdown import markdown_report, md_text, write_reports
 from bench.solve.extract import Extraction, without_windows
 from bench.solve.from_logs import LogSolution, extract_from_logs, solve_extraction
@@ -83,6 +85,15 @@ class Recorded:
     planned: list[str]                      # every observation unit of the plan(s), in plan order
     left_out: dict[str, str]                # unit -> why it is not in `extraction` (one line)
     notes: list[str] = field(default_factory=list)
+
+    @cached_property
+    def kind(self) -> RunKind:
+        """The kind of the recorded run (`bench.log.run_kind`: recorded, or told as before for an older log)."""
+        return run_kind_of_logs(self.logs, self.setup.config)
+
+    def first_log_of_kind(self, kind: RunKind) -> RunLog | None:
+        """The first log that records a run of `kind` (the one a refusal names)."""
+        return next((log for log in self.logs if run_kind(log, self.setup.config) is kind), None)
 
     @property
     def run_meta(self) -> dict[str, str]:
@@ -271,10 +282,12 @@ def _left_out(logs: list[RunLog], planned: list[str], extraction: Extraction) ->
 
 
 def static_noise_plan(recorded: Recorded) -> str | None:
-    """The name of the recorded plan's positions when they are a static noise recording ("static" kind), else None."""
+    """The name of the recorded plan's positions when the run is a static noise recording, else None."""
+    if recorded.kind is not RunKind.STATIC_NOISE:
+        return None
     config = recorded.setup.config
     positions = config.plan.positions if config is not None else None
-    return positions.name if positions is not None and positions.kind == "static" else None
+    return positions.name if positions is not None else recorded.logs[-1].metadata.get("plan", {}).get("positions", "")
 
 
 def load_recorded(paths: list[str], *, earlier: bool = True) -> Recorded:
@@ -408,31 +421,37 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolv
     chosen.problems = [p for p in recorded.problems() if window_loss_unit(p) not in unused]
     calibration, chosen, dropped = _solve_what_can_be(chosen, setup.site, inputs)
     solution = LogSolution(calibration, chosen, list(recorded.imu_stats), list(recorded.damage))
-    link = recorded.imu_link()
     failures = quality_failures(solution)
     lost = without_windows(recorded.extraction.lost_samples(), unused)
     plan = recorded.logs[-1].metadata.get("plan", {})
     pos_name = _subset_name(positions, plan.get("positions", ""))
     rot_name = _subset_name(rotations, plan.get("rotations", ""))
-    meta, imu = recorded.run_meta, recorded.logs[-1].metadata.get("imu", {})
-    run_info = {"run_id": recorded.run_id, "mode": meta.get("mode", ""), "operator": meta.get("operator", ""),
-                "software_version": __version__, "recorded_with": meta.get("software_version", ""),
-                "state": recorded.final_state, "log": _name(recorded.logs[-1].path),
-                "logs": [_name(log.path) for log in recorded.logs], "positions": pos_name, "rotations": rot_name,
-                "subset": positions is not None or rotations is not None,   # a what-if: never the run's record
-                "started_utc": recorded.logs[0].metadata.get("run", {}).get("started_utc", ""),
-                "solved_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "solved_by": "bench solve",
-                "imu": {"model": imu.get("model", ""), "serial": imu.get("serial", "")},
-                "site": recorded.site.to_dict(), "quality_failures": failures, "imu_link": link.as_dict(),
-                "lost_samples": lost, "left_out": sorted({*recorded.left_out, *dropped}),
-                "damage": list(recorded.damage), "notes": list(recorded.notes)}
-    result = calibration.to_result(run=run_info, sim_truth=recorded.truth)
+    run_info = solved_run_info(recorded, pos_name, rot_name, failures, lost)
+    run_info.subset = positions is not None or rotations is not None   # a what-if: never the run's record
+    run_info.started_utc = recorded.logs[0].metadata.get("run", {}).get("started_utc", "")
+    run_info.left_out = sorted({*recorded.left_out, *dropped})
+    run_info.damage = list(recorded.damage)
+    result = calibration.to_result(run=run_info.to_dict(), sim_truth=recorded.truth)
     result.temperature = imu_temperature(recorded.logs, setup.layout, setup.rate_hz)
     limits = config.acceptance if config is not None else AcceptanceLimits()
     verdict = judge(result, limits, lost_samples=lost["total"], quality_failures=judged_failures(failures, limits))
     result.verdict = verdict.to_json()
     return Resolved(solution, result, failures, pos_name, rot_name, positions is not None or rotations is not None,
                     verdict)
+
+
+def solved_run_info(recorded: Recorded, positions: str, rotations: str, failures: list[str],
+                    lost: dict) -> RunInfo:
+    """The result's run section of a solve of `recorded` (what a plain solve adds, the caller sets)."""
+    meta, imu = recorded.run_meta, recorded.logs[-1].metadata.get("imu", {})
+    return RunInfo(run_id=recorded.run_id, mode=meta.get("mode", ""), operator=meta.get("operator", ""),
+                   software_version=__version__, recorded_with=meta.get("software_version", ""),
+                   state=recorded.final_state, log=_name(recorded.logs[-1].path),
+                   logs=[_name(log.path) for log in recorded.logs], positions=positions, rotations=rotations,
+                   solved_utc=utc_stamp(), solved_by="bench solve",
+                   imu={"model": imu.get("model", ""), "serial": imu.get("serial", "")},
+                   site=recorded.site.to_dict(), quality_failures=failures, imu_link=recorded.imu_link().as_dict(),
+                   lost_samples=lost, notes=list(recorded.notes))
 
 
 def _unused_windows(recorded: Recorded, chosen: Extraction, positions, rotations) -> set[str]:
@@ -521,4 +540,4 @@ def _provenance(recorded: Recorded) -> str:
 
 
 __all__ = ["NONE", "Recorded", "Resolved", "SolveInputError", "angle_key", "load_recorded", "load_subset_schedule",
-           "output_stem", "read_logs", "select", "solve_recorded", "write_outputs"]
+           "output_stem", "read_logs", "select", "solve_recorded", "solved_run_info", "write_outputs"]

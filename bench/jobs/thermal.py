@@ -10,28 +10,19 @@ its verdict and reports (`--no-html`: the Markdown reports only).
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bench import __version__
 from bench.acceptance.quality import window_loss_failures
 from bench.acceptance.verdict import Verdict
 from bench.files import write_output_text
-from bench.jobs.resolve import Recorded, SolveInputError
+from bench.jobs.resolve import Recorded, SolveInputError, solved_run_info
 from bench.log.names import output_path
-from bench.log.reader import RunLog
-from bench.plan.steps import thermal_block
 from bench.report.markdown import markdown_report, write_reports
 from bench.report.thermal import write_thermal_files
 from bench.thermal.from_log import ThermalSolution, solve_thermal
 from bench.thermal.verdict import judge_thermal_head
-
-
-def is_thermal_log(log: RunLog) -> bool:
-    """A log of a thermal plan: its steps belong to temperature blocks ("T2-P03")."""
-    return any(e.step_unit is not None and thermal_block(e.step_unit) is not None for e in log.events)
 
 
 @dataclass
@@ -60,25 +51,16 @@ def resolve_thermal(recorded: Recorded, out_dir: str | Path, *, html: bool = Tru
     link = recorded.imu_link()
     link_failures = window_loss_failures(recorded.extraction.problems)
     lost = recorded.extraction.lost_samples()
-    meta, imu = recorded.run_meta, recorded.logs[-1].metadata.get("imu", {})
-    names = [Path(log.path).name for log in recorded.logs]
-    run_info = {"run_id": recorded.run_id, "mode": meta.get("mode", ""), "operator": meta.get("operator", ""),
-                "software_version": __version__, "recorded_with": meta.get("software_version", ""),
-                "state": recorded.final_state, "log": names[-1], "logs": names,
-                "positions": config.plan.positions.name if config.plan.positions is not None else "",
-                "rotations": config.plan.rotations.name if config.plan.rotations is not None else "",
-                "solved_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "solved_by": "bench solve",
-                "imu": {"model": imu.get("model", ""), "serial": imu.get("serial", "")},
-                "site": recorded.site.to_dict(), "quality_failures": link_failures, "imu_link": link.as_dict(),
-                "lost_samples": lost,
-                "notes": list(recorded.notes)}
+    positions, rotations = config.plan.positions, config.plan.rotations
+    run_info = solved_run_info(recorded, positions.name if positions is not None else "",
+                               rotations.name if rotations is not None else "", link_failures, lost).to_dict()
     # the observations `load_recorded` extracted (merged by unit, the damage of every log): not read twice
     solution = solve_thermal(recorded.logs, recorded.site, setup.layout, setup.rate_hz, config, recorded.sim,
                              run=run_info, extracted=(recorded.extraction, list(recorded.damage)))
     stem = f"{recorded.run_id}.solved"
     output_path(out, f"{stem}.thermal.json")        # a name from the log never leaves `out` (InputError)
     results, model_path = write_thermal_files(
-        solution, out, stem, {"mode": run_info["mode"], "run_id": recorded.run_id, "log": names[-1],
+        solution, out, stem, {"mode": run_info["mode"], "run_id": recorded.run_id, "log": run_info["log"],
                               "solved_by": "bench solve"}, title=f"Thermal model {stem} (re-solved from the log)",
         html=html)
     head = solution.head

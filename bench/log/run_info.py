@@ -13,7 +13,7 @@ signal mapping in the recorded TOML, and `LogSetup.notes` says why `config` is N
 metadata (`steps_json`, the `bench.plan.steps.step_to_dict` form).
 
 A log of manual moves (`bench tui`: the operator's go-to, rate and jog commands, no plan;
-`run.kind` = `MANUAL_LOG_KIND`) has no plan record: `is_manual_log` tells it, and
+`run.kind` = "manual", `bench.log.run_kind`) has no plan record: `is_manual_log` tells it, and
 `steps_from_log` says so in its `LogError` (`NO_PLAN_IN_MANUAL_LOG`).
 """
 
@@ -30,6 +30,7 @@ from pathlib import Path
 from bench.config.load import BenchConfig, ConfigError, parse_config
 from bench.log.names import safe_name, shown
 from bench.log.reader import LogError, RunLog
+from bench.log.run_kind import RunKind, recorded_run_kind
 from bench.model.earth import Site
 from bench.plan.steps import Step, step_from_dict
 from drivers.errors import DeviceConfigError
@@ -39,8 +40,8 @@ from schedules.tomllines import locate_lines
 
 #: Keys of the configuration that name files the run attaches to its log (by base name).
 _ATTACHED_FILE_KEYS = (("imu", "dbc"), ("plan", "positions"), ("plan", "rotations"), ("acceptance", "reference"))
-#: `run.kind` of a log of manual moves (`bench tui`); its run id ends with `MANUAL_LOG_SUFFIX`.
-MANUAL_LOG_KIND, MANUAL_LOG_SUFFIX = "manual", "-manual"
+#: The end of the run id of a log of manual moves (`bench tui`).
+MANUAL_LOG_SUFFIX = "-manual"
 #: Why such a log cannot be solved or resumed.
 NO_PLAN_IN_MANUAL_LOG = "a log of manual moves (bench tui), not a calibration run: it holds no calibration plan"
 _STRING_LITERAL = re.compile(r'"(?:[^"\\\n]|\\.)*"|\'[^\'\n]*\'')
@@ -87,8 +88,9 @@ def layout_and_config_from_log(log: RunLog) -> LogSetup:
 
 
 def is_manual_log(log: RunLog) -> bool:
-    """The log is one of manual moves (`bench tui`), not of a calibration run."""
-    return (log.metadata.get("run") or {}).get("kind") == MANUAL_LOG_KIND
+    """The log is one of manual moves (`bench tui`), not of a calibration run (such a log has always recorded
+    its kind: its metadata tells it, its events are not read)."""
+    return recorded_run_kind(log.metadata) is RunKind.MANUAL
 
 
 def steps_from_log(log: RunLog) -> tuple[Step, ...]:
@@ -267,5 +269,5 @@ def _site_from_metadata(log: RunLog, notes: list[str]) -> Site | None:
         return None
 
 
-__all__ = ["MANUAL_LOG_KIND", "MANUAL_LOG_SUFFIX", "NO_PLAN_IN_MANUAL_LOG", "LogSetup", "is_manual_log",
+__all__ = ["MANUAL_LOG_SUFFIX", "NO_PLAN_IN_MANUAL_LOG", "LogSetup", "is_manual_log",
            "layout_and_config_from_log", "steps_from_log"]

@@ -16,7 +16,7 @@ import time
 from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Callable, Iterable, Iterator
 
 import can
 
@@ -28,9 +28,11 @@ from bench.errors import BenchError
 from bench.log.events import RunListener, RunState
 from bench.log.reader import read_log
 from bench.log.recorder import CHUNK_RUN_INTERVAL_S, McapRecorder, RecorderError
-from bench.log.run_info import MANUAL_LOG_KIND, MANUAL_LOG_SUFFIX
+from bench.log.run_info import MANUAL_LOG_SUFFIX
+from bench.log.run_kind import RunKind, kind_of_config
 from bench.log.temperature import imu_temperature
 from bench.model.result import CalibrationResult
+from bench.model.run_section import RunInfo, utc_stamp
 from bench.noise.from_log import NoiseInputError, analyse_log
 from bench.plan.compiler import CompiledPlan, compile_plan
 from bench.plan.steps import step_to_dict
@@ -124,6 +126,7 @@ class BenchRun:
         self.extra_listeners = list(listeners)
         # (`run_id`: a name of the caller's, e.g. a verification run named after its calibration run)
         self.run_id = run_id or _new_run_id()
+        self.kind = kind_of_config(config)       # recorded in the log (`run.kind`); `finish` dispatches on it
         self.log_path = self.out_dir / f"{self.run_id}.mcap"
         # set by open() and run(); None before
         self.world: SimWorld | None = None
@@ -243,7 +246,7 @@ class BenchRun:
 
     def open_manual_log(self) -> McapRecorder:
         """A new log of manual moves (the TUI's, `<id>-manual.mcap`): this run's devices, configuration, site
-        and IMU records, no plan (`run.kind` = `MANUAL_LOG_KIND`). Not the run's log (`recorder`): the caller
+        and IMU records, no plan (`run.kind` = "manual"). Not the run's log (`recorder`): the caller
         writes it from one thread and closes it. Raises `OutputFolderError` when it cannot be written."""
         if self.table is None:
             raise BenchError("BenchRun: open() it first")
@@ -252,7 +255,7 @@ class BenchRun:
         path = self.out_dir / f"{run_id}.mcap"
         metadata = self._metadata(run_id)
         del metadata["plan"]
-        metadata["run"]["kind"] = MANUAL_LOG_KIND
+        metadata["run"]["kind"] = RunKind.MANUAL.value
         try:
             return self._new_recorder(path, metadata)
         except OSError as exc:
@@ -293,8 +296,8 @@ class BenchRun:
         config, identity = self.config, self.config.imu.identity
         return {
             "run": {"run_id": run_id or self.run_id, "operator": self.operator, "software_version": __version__,
-                    "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                    "mode": "simulator" if self.sim else "hardware",
+                    "started_utc": utc_stamp(),
+                    "mode": "simulator" if self.sim else "hardware", "kind": self.kind.value,
                     "logs_before": json.dumps(self.previous_logs), "resumed_units": json.dumps(sorted(self.completed))},
             "config": {"toml": config.source_text, "path": str(config.path or "<built-in --sim>")},
             # a value the site does not have (local g: from latitude and height) is left out, not "None"
@@ -358,7 +361,8 @@ class BenchRun:
 
     # -- after the run ---------------------------------------------------------------------
     def finish(self) -> RunOutcome:
-        """Solve from the log(s), write result and report, attach the result, close the log."""
+        """Finish the run as its kind finishes (`FINISHERS`: solve from the log(s), write result and report,
+        attach the result), close the log."""
         _, receiver, recorder, _ = self._opened()
         seq = self.sequencer
         if seq is None or seq.error is not None:
@@ -370,10 +374,10 @@ class BenchRun:
             error = ListenerError(describe_listener_error(recorder, broken))
             return RunOutcome(seq.state, self.log_path, error=error)
         recorder.flush()
-        if self.is_static_noise:
-            return self._finish_noise(seq.state, receiver, recorder)
-        if self.is_thermal:
-            return self._finish_thermal(seq.state, receiver, recorder)
+        return FINISHERS[self.kind](self, seq.state, receiver, recorder)
+
+    def _finish_calibration(self, state: RunState, receiver: ImuReceiver, recorder: McapRecorder) -> RunOutcome:
+        """A calibration: solved from the log(s) (and the logs of the run it resumes), judged, reported."""
         logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
         config = self.config
         solution = solve_logs(logs, config.site.site, config.imu.layout, config.imu.rate_hz,
@@ -382,7 +386,7 @@ class BenchRun:
                               still_open=frozenset({str(self.log_path), *map(str, self.previous_logs)}))
         failures = quality_failures(solution)
         lost = solution.extraction.lost_samples()
-        run_info = {**self._run_info(seq.state, receiver, failures), "lost_samples": lost}
+        run_info = self._run_info(state, receiver, failures, lost).to_dict()
         result = solution.calibration.to_result(run=run_info, sim_truth=config.sim.imu if self.sim else None)
         result.temperature = imu_temperature(logs, config.imu.layout, config.imu.rate_hz)
         verdict = judge(result, config.acceptance, lost_samples=lost["total"],
@@ -398,22 +402,22 @@ class BenchRun:
             recorder.add_attachment(result_path.name, "application/json", partial.read_bytes(),
                                     self.clock.now() if self.clock is not None else 0.0)
             recorder.close()
-        return RunOutcome(seq.state, self.log_path, result_path, report_path, result, failures,
+        return RunOutcome(state, self.log_path, result_path, report_path, result, failures,
                           html_report_path=html_report_path, verdict=verdict,
                           problems=list(solution.extraction.problems))
 
-    def _run_info(self, state: RunState, receiver: ImuReceiver, failures: list[str]) -> dict:
+    def _run_info(self, state: RunState, receiver: ImuReceiver, failures: list[str], lost: dict) -> RunInfo:
         config, identity = self.config, self.config.imu.identity
-        return {"run_id": self.run_id, "mode": "simulator" if self.sim else "hardware", "operator": self.operator,
-                "software_version": __version__, "state": state.value, "log": self.log_path.name,
-                "logs": [Path(p).name for p in self.previous_logs] + [self.log_path.name],
-                "positions": _name(config.plan.positions), "rotations": _name(config.plan.rotations),
-                "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                "imu": {"model": identity.model, "serial": identity.serial},
-                "site": config.site.site.to_dict(), "quality_failures": failures,
-                **({"sim": sim_table_record(config)} if self.sim else {}),      # (its verification's table)
-                "imu_link": {**receiver.stats.as_dict(),
-                             **(receiver.time_base.as_dict() if receiver.time_base is not None else {})}}
+        return RunInfo(run_id=self.run_id, mode="simulator" if self.sim else "hardware", operator=self.operator,
+                       software_version=__version__, state=state.value, log=self.log_path.name,
+                       logs=[Path(p).name for p in self.previous_logs] + [self.log_path.name],
+                       positions=_name(config.plan.positions), rotations=_name(config.plan.rotations),
+                       finished_utc=utc_stamp(), imu={"model": identity.model, "serial": identity.serial},
+                       site=config.site.site.to_dict(), quality_failures=failures,
+                       sim=sim_table_record(config) if self.sim else None,      # (its verification's table)
+                       imu_link={**receiver.stats.as_dict(),
+                                 **(receiver.time_base.as_dict() if receiver.time_base is not None else {})},
+                       lost_samples=lost)
 
     def _finish_thermal(self, state: RunState, receiver: ImuReceiver, recorder: McapRecorder) -> RunOutcome:
         """A thermal run: one calibration per temperature (`<run-id>.T<k>.result.json`), the thermal model
@@ -426,7 +430,7 @@ class BenchRun:
                                                   still_open=still_open)
         link_failures = window_loss_failures(extraction.problems)
         lost = extraction.lost_samples()
-        run_info = {**self._run_info(state, receiver, link_failures), "lost_samples": lost}
+        run_info = self._run_info(state, receiver, link_failures, lost).to_dict()
         solution = solve_thermal(logs, config.site.site, config.imu.layout, config.imu.rate_hz, config, self.sim,
                                  run=run_info, extracted=(extraction, damage))
         results, model_path = write_thermal_files(
@@ -474,12 +478,6 @@ class BenchRun:
             extraction.problems.append(f"{LOST_SAMPLES_FAILURE}: {receiver.stats.summary()}")
         return extraction, None
 
-    @property
-    def is_static_noise(self) -> bool:
-        """A plan of one long dwell (a "static" schedule): analysed by `bench noise`, not solved."""
-        positions = self.config.plan.positions
-        return positions is not None and positions.kind == "static"
-
     def _finish_noise(self, state: RunState, receiver: ImuReceiver, recorder: McapRecorder) -> RunOutcome:
         """The Allan deviation and noise terms of the dwell just recorded: `<run-id>.noise.json/.md/.html`.
 
@@ -510,6 +508,18 @@ class BenchRun:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+#: How a run of each kind finishes (`BenchRun.finish`). A verification's and a table check's commands read their
+#: logs themselves (`BenchRun.finish_observations`, `bench.table_check`); finished here such a run is solved as a
+#: calibration, as `bench solve` solves its log. A log of manual moves is no run (`BenchRun.open_manual_log`).
+FINISHERS: dict[RunKind, Callable[[BenchRun, RunState, ImuReceiver, McapRecorder], RunOutcome]] = {
+    RunKind.CALIBRATION: BenchRun._finish_calibration,
+    RunKind.THERMAL: BenchRun._finish_thermal,
+    RunKind.STATIC_NOISE: BenchRun._finish_noise,
+    RunKind.VERIFICATION: BenchRun._finish_calibration,
+    RunKind.TABLE_CHECK: BenchRun._finish_calibration,
+}
 
 
 @contextmanager
