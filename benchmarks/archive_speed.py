@@ -1,6 +1,6 @@
 """Benchmark and must-show check: re-solving an archive of 50 simulated logs on Dask (issue 20).
 
-Run: python tests/benchmarks/archive_speed.py [--logs 50] [--units 5] [--repeats 1] [--dir DIR]
+Run: python benchmarks/archive_speed.py [--logs 50] [--units 5] [--repeats 1] [--dir DIR]
          [--rate-hz 50] [--dwell-s 2] [--distinct N]
 
 Builds once (cached in DIR, default <system temp>/turntable-bench-archive) an archive of
@@ -40,14 +40,14 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import bench.solve.archive as archive_module  # noqa: E402
 from bench.cli.main import main  # noqa: E402
 from bench.solve.archive import solve_archive  # noqa: E402
 from tests.helpers.run import config_text, results_below  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 
 
 def _record(folder: Path, serial: str, seed: int, dwell_s: float = 2.0, rate_hz: float = 50.0) -> None:

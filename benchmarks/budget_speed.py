@@ -1,6 +1,6 @@
 """Benchmark: what the uncertainty budget adds to a run's solve time (target < 10 %).
 
-Run: python tests/benchmarks/budget_speed.py [--repeats 7] [--log RUN.mcap]
+Run: python benchmarks/budget_speed.py [--repeats 7] [--log RUN.mcap]
 Records the default simulated plan once (`bench run --sim`: optimal-24 + optimal-5s6r,
 dwell 60 s, 200 Hz, the table's part from the simulated black box), unless --log names a
 log. Then, side by side in one process, `repeats` times each: the run's solve from the log

@@ -1,6 +1,6 @@
 """Benchmark: IMU over CAN ingest and bulk decode (targets: >= 50,000 and >= 2,000,000 frames/s).
 
-Run: python tests/benchmarks/can_speed.py [--repeats 5] [--live-frames 70000] [--bulk-frames 1000000]
+Run: python benchmarks/can_speed.py [--repeats 5] [--live-frames 70000] [--bulk-frames 1000000]
 Prints medians over the repeats, on one core (everything runs in one thread):
 - ingest: `ImuReceiver.poll()` draining a python-can virtual bus pre-filled with frames of
   the default classic layout (receive + length/CRC check + assemble + sample arrays out,

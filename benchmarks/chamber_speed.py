@@ -1,6 +1,6 @@
 """Benchmark: the chamber's state-poll round trip per dialect and link, and the simulated chamber's speed.
 
-Run: python tests/benchmarks/chamber_speed.py [--polls 1000] [--repeats 5]
+Run: python benchmarks/chamber_speed.py [--polls 1000] [--repeats 5]
 For each dialect (ascii, modbus) it serves the simulated chamber on 127.0.0.1 (Modbus TCP
 for modbus) and on a pty (Modbus RTU at 115200 baud nominal), connects the real driver
 through the real transport and times `read_state()` (one MON? for ascii, two register
@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.sim.chamber import SimChamber  # noqa: E402
 from bench.sim.chamber_server import serve_chamber  # noqa: E402

@@ -1,6 +1,6 @@
 """Benchmark: `bench db history` on a records database of 10,000 results (issue 20, "Must show": under 1 s).
 
-Run: python tests/benchmarks/db_history_speed.py [--results 10000] [--units 100] [--repeats 5] [--db-dir DIR]
+Run: python benchmarks/db_history_speed.py [--results 10000] [--units 100] [--repeats 5] [--db-dir DIR]
          [--baseline TREE]
 
 Builds (once, cached in DIR, default <system temp>/turntable-bench-db-history) two SQLite
@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import sqlalchemy as sa
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.cli.main import main  # noqa: E402
 from bench.records import schema  # noqa: E402
@@ -147,7 +147,7 @@ def run(args: argparse.Namespace) -> None:
                       f"{wall * 1e3:.0f} ms wall, {cpu * 1e3:.0f} ms CPU (median of {args.repeats}; load {load:.1f}; "
                       f"target < 1000 ms)")
                 continue
-            here = Path(__file__).resolve().parents[2]
+            here = Path(__file__).resolve().parents[1]
             base, new = [], []
             for _ in range(args.rounds):        # alternately, so that a change of load hits both alike
                 base.append(timed_in(Path(args.baseline), argv, args.repeats))

@@ -1,6 +1,6 @@
 """Benchmark: `bench evaluate` with 100 runs at all levels for both tables (target < 5 s).
 
-Run: python tests/benchmarks/evaluate_speed.py [--repeats 7]
+Run: python benchmarks/evaluate_speed.py [--repeats 7]
 Prints the median wall time of the whole command (a fresh interpreter each time,
 imports included) and of the in-process Monte-Carlo computation alone, side by side.
 """

@@ -1,9 +1,9 @@
 """Benchmark: reading IMU samples out of a log with two checkouts of the code, side by side.
 
-Run: python tests/benchmarks/log_read_side_by_side.py --before ROOT LOG --after ROOT LOG [--repeats 5]
+Run: python benchmarks/log_read_side_by_side.py --before ROOT LOG --after ROOT LOG [--repeats 5]
 
 Each ROOT is a checkout (e.g. a `git worktree` of an older commit), each LOG a log written by that
-checkout's recorder (`tests/benchmarks/log_read_speed.py --build-only --cache DIR` with that checkout
+checkout's recorder (`benchmarks/log_read_speed.py --build-only --cache DIR` with that checkout
 on PYTHONPATH writes one). Every repeat runs both in fresh processes, alternating, and times
 `read_log` + `RunLog.imu_samples(default layout, 1 kHz)`; prints the medians, the spreads and the ratio.
 """

@@ -3,8 +3,8 @@
 Targets: `read_log` + `RunLog.imu_samples` >= 1,000,000 samples/s; re-solving a 1-hour
 log at a 1 kHz IMU rate (`read_log` + `solve_logs`, what `bench solve` does) in < 10 s.
 
-Run: python tests/benchmarks/log_read_speed.py [--samples 1000000] [--repeats 3] [--cache DIR]
-     python tests/benchmarks/log_read_speed.py --one-hour [--repeats 3] [--cache DIR]
+Run: python benchmarks/log_read_speed.py [--samples 1000000] [--repeats 3] [--cache DIR]
+     python benchmarks/log_read_speed.py --one-hour [--repeats 3] [--cache DIR]
 
 Logs are cached in DIR (default: <system temp>/turntable-bench-log-read, printed) and
 reused by later runs (`--rebuild` writes them again):

@@ -1,6 +1,6 @@
 """Benchmark: does `bench noise` recover the simulated IMU's configured noise terms? (issue 17)
 
-Run: python tests/benchmarks/noise_recovery.py [--seeds 5] [--case 8h200 --case 1h1000]
+Run: python benchmarks/noise_recovery.py [--seeds 5] [--case 8h200 --case 1h1000]
 
 Per case (8 h at 200 Hz, 1 h at 1 kHz: 5.76 M and 3.6 M samples per channel) and seed, the
 simulated IMU alone (`bench.noise.simulate.simulate_static`) with all three slopes visible:

@@ -4,7 +4,7 @@ Target: the overlapping Allan deviation of 6 channels of an 8 h, 1 kHz recording
 per channel), the log read included, in under 10 s on this machine (allan_variance_ros: 215 s
 for an 8 h bag).
 
-Run: python tests/benchmarks/noise_speed.py [--hours 8] [--rate-hz 1000] [--repeats 3]
+Run: python benchmarks/noise_speed.py [--hours 8] [--rate-hz 1000] [--repeats 3]
                                             [--log-hours 1] [--layout packed|classic] [--cache DIR]
                                             [--rebuild] [--whole] [--skip-memory] [--allantools-on-log]
 
@@ -128,7 +128,7 @@ def _in_process(route: str, path: Path) -> dict:
     import sys
 
     done = subprocess.run([sys.executable, __file__, "--one", route, str(path)], capture_output=True, text=True,
-                          check=True, env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
+                          check=True, env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 

@@ -1,6 +1,6 @@
 """Benchmark: total plan duration, travel-ordered vs the paper's listing order vs the lower bound.
 
-Run: python tests/benchmarks/plan_duration.py [--repeats 5]
+Run: python benchmarks/plan_duration.py [--repeats 5]
 Timing: dwell 60 s, settle 5 s, moves 20 deg/s at 10 deg/s^2 (+0.5 s command overhead
 per move), turns 10 deg/s at 5 deg/s^2, 1 revolution, rest 2 s; start at (0, 0, 0),
 continuous axes. The lower bound is dwells + settles + turns (no moves at all).

@@ -1,6 +1,6 @@
 """Benchmark: the MCAP recorder and the log reader (targets: >= 20,000 frames/s, >= 1,000,000 samples/s).
 
-Run: python tests/benchmarks/recorder_speed.py [--frames 2000000] [--repeats 3] [--dir /tmp]
+Run: python benchmarks/recorder_speed.py [--frames 2000000] [--repeats 3] [--dir /tmp]
 Records >= 2,000,000 raw CAN frames of the default classic layout (7 frames per sample,
 so ~285,700 samples are also written to /imu/samples) through `McapRecorder` in
 realistic batches of 70..700 frames (with the matching decoded sample blocks, a table

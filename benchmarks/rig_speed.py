@@ -1,6 +1,6 @@
 """Benchmark: a wall-clock run against `bench sim rig` with the IMU at 2 kHz over SLCAN (issue 14).
 
-Run: python tests/benchmarks/rig_speed.py [--rate-hz 2000] [--layout packed] [--slcan-client bench]
+Run: python benchmarks/rig_speed.py [--rate-hz 2000] [--layout packed] [--slcan-client bench]
 [--imu-listen slcan] [--repeats 3]
 Starts `bench sim rig` (SCPI over TCP, the IMU over SLCAN on a pty in the given frame layout, noise on;
 read by the bench's bulk SLCAN reader or python-can's `slcan` interface) and `bench run
@@ -25,11 +25,11 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from tests.helpers.sim_process import read_until  # noqa: E402
-from tests.test_sim_rig import RIG_CONFIG, SHORT_PLAN, _start_rig, _with_plan  # noqa: E402
+from tests.protocol.test_sim_rig import RIG_CONFIG, SHORT_PLAN, _start_rig, _with_plan  # noqa: E402
 
 
 def _proc_cpu_s(pid: int) -> float:

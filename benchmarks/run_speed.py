@@ -1,6 +1,6 @@
 """Benchmark: the full default simulated plan (`bench run --sim`) in wall time (target < 60 s).
 
-Run: python tests/benchmarks/run_speed.py [--repeats 3]
+Run: python benchmarks/run_speed.py [--repeats 3]
 Each repeat runs `bench run --sim --quiet --out TMP` as a fresh process: optimal-24 +
 optimal-5s6r, dwell 60 s, settle 5 s, turns at 10 deg/s, 1 revolution, IMU at 200 Hz,
 noise on, every sample through the SCPI driver over loopback TCP, the python-can

@@ -1,4 +1,4 @@
-"""Benchmark: the exhaustive schedule search (not a test). Run: python tests/benchmarks/schedule_search_speed.py"""
+"""Benchmark: the exhaustive schedule search (not a test). Run: python benchmarks/schedule_search_speed.py"""
 
 import time
 

@@ -1,6 +1,6 @@
 """Benchmark: turntable state-poll round trip to the simulator, per dialect, over TCP loopback and a pty.
 
-Run: python tests/benchmarks/table_poll_rtt.py [--polls 2000] [--repeats 5]
+Run: python benchmarks/table_poll_rtt.py [--polls 2000] [--repeats 5]
 For each dialect (scpi, mn, modbus, acutrol) it serves the simulated table in that dialect on
 127.0.0.1 (Modbus TCP for modbus) and on a pty (Modbus RTU for modbus, 115200 baud
 nominal), connects the real driver through the real transport, and times
@@ -17,7 +17,7 @@ import statistics
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.sim.controller import SimController  # noqa: E402
 from bench.sim.serve import LineServer  # noqa: E402

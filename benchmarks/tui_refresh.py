@@ -1,6 +1,6 @@
 """Benchmark: the TUI while a plan runs with the simulated IMU streaming at 2 kHz (not a timed test).
 
-Run: python tests/benchmarks/tui_refresh.py [--seconds 25] [--rate-hz 2000] [--refresh-hz 20]
+Run: python benchmarks/tui_refresh.py [--seconds 25] [--rate-hz 2000] [--refresh-hz 20]
 The app runs headless (`App.run_test`, 100x30) on the simulator (SCPI table over
 loopback TCP, the IMU's CAN frames on the python-can virtual bus, the live decoder and
 the MCAP recorder, exactly as `bench tui --sim`) with the short test plan at
@@ -22,7 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))   # tests.helpers
 
 

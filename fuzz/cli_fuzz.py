@@ -1,12 +1,12 @@
 """Fuzz `bench run --config F --dry-run` and `bench schedules validate F` as subprocesses.
 
-Not collected by pytest (the suite's in-process fuzz test is tests/test_config_fuzz.py).
+Not collected by pytest (the suite's in-process fuzz test is tests/unit/config/test_config_fuzz.py).
 Writes mutated copies of bench.example.toml and of shipped schedules (tests/helpers/mutations.py),
 runs each command with a timeout and a 4 GiB address-space limit, and prints a table of inputs
 tried, crashes (a traceback or a death by signal), hangs (timeouts), other multi-line errors
 and the peak RSS over all runs. A config sometimes names a mutated schedule file beside it.
 
-    python tests/fuzz/cli_fuzz.py [--code ROOT ...] [--configs 200] [--schedules 200] [--seed 1]
+    python fuzz/cli_fuzz.py [--code ROOT ...] [--configs 200] [--schedules 200] [--seed 1]
                                   [--jobs 2] [--timeout-s 60] [--out DIR] [--json FILE]
 
 `--code ROOT` runs the bench from another checkout (e.g. a `git worktree add /tmp/before <commit>`)
@@ -32,7 +32,7 @@ from collections import Counter
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from tests.helpers.mutations import mutate  # noqa: E402

@@ -1,6 +1,7 @@
 """Run the bench's file-reading commands on hostile files and content, as subprocesses (issue 34 items 3-6).
 
-Not collected by pytest (the suite's tests are tests/test_hostile_files.py and tests/test_hostile_content.py).
+Not collected by pytest (the suite's tests are tests/unit/cli/test_hostile_files.py and
+tests/unit/cli/test_hostile_content.py).
 Records a short simulated run and a thermal one (or takes `--base LOG --thermal LOG`), then writes, with
 the generators below, logs and JSON files and runs the commands that read them:
 
@@ -18,7 +19,7 @@ Each command runs with a timeout and an address-space limit (`--as-limit-gib`, 4
 runs, tracebacks (a traceback or a death by signal), hangs (timeouts), the worst peak RSS (`wait4`) and
 the worst time, with the inputs that gave them, and every traceback's last line.
 
-    python tests/fuzz/hostile_files.py [--code ROOT] [--base LOG --thermal LOG] [--random 60] [--seed 34]
+    python fuzz/hostile_files.py [--code ROOT] [--base LOG --thermal LOG] [--random 60] [--seed 34]
                                        [--jobs 2] [--timeout-s 120] [--out DIR] [--json FILE]
 """
 
@@ -36,10 +37,10 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from tests.fuzz.cli_fuzz import run_limited  # noqa: E402
+from fuzz.cli_fuzz import run_limited  # noqa: E402
 from tests.helpers import mcap_surgery as ms  # noqa: E402
 
 GiB = 1 << 30

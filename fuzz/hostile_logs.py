@@ -1,7 +1,7 @@
 """Run `bench solve` and `bench replay --quiet` on hostile run logs, as subprocesses (issue 13, items 6 and 7).
 
-Not collected by pytest (the suite's in-process fuzz test is tests/test_log_fuzz.py, the crafted
-cases are tests/test_log_limits.py). Records a short simulated run (or takes `--base LOG`),
+Not collected by pytest (the suite's in-process fuzz test is tests/unit/log/test_log_fuzz.py, the crafted
+cases are tests/unit/log/test_log_limits.py). Records a short simulated run (or takes `--base LOG`),
 writes crafted logs (decompression bombs in zstd, lz4 and uncompressed chunks, chunks over the
 size cap, CAN records claiming 255 data bytes, malformed step events, table angles of 1e308, a
 DBC padded with a long comment) and `--random` mutated copies (tests/helpers/mcap_surgery.py:
@@ -11,7 +11,7 @@ Each runs with a timeout and an 8 GiB address-space limit; prints per code tree 
 tried, crashes (a traceback, or a death by signal), hangs (timeouts), the peak RSS
 (`/usr/bin/time`) and the slowest run.
 
-    python tests/fuzz/hostile_logs.py [--code ROOT ...] [--base LOG] [--random 220] [--seed 13] [--big]
+    python fuzz/hostile_logs.py [--code ROOT ...] [--base LOG] [--random 220] [--seed 13] [--big]
                                       [--timeout-s 120] [--out DIR] [--json FILE]
 
 `--code ROOT` runs the bench from another checkout through PYTHONPATH (e.g. `git worktree add
@@ -34,7 +34,7 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from mcap.reader import make_reader  # noqa: E402

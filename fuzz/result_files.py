@@ -1,6 +1,6 @@
 """Fuzz `bench db import` with hostile result files (issue 34 item 5), in a subprocess under limits.
 
-Not collected by pytest (the crafted cases are tests/test_records_import.py). Writes a real result
+Not collected by pytest (the crafted cases are tests/unit/records/test_records_import.py). Writes a real result
 file (the in-memory simulated acquisition and the solver) and `--inputs` mutated copies: a field
 anywhere in it replaced by a hostile value (10**400, 5,000-digit integers, 1e999, NaN, dates out of
 range, labels such as `T²-P01`, 1 MB texts, nesting 100 or 100,000 deep, wrong types), plus a FIFO,
@@ -10,7 +10,7 @@ reports per file its exit code, whether an exception escaped (a crash), its time
 folder is imported at once (one bad file must not stop the others). Prints inputs, crashes, hangs,
 the worst time and the peak RSS.
 
-    python tests/fuzz/result_files.py [--inputs 300] [--seed 34] [--timeout-s 120] [--out DIR]
+    python fuzz/result_files.py [--inputs 300] [--seed 34] [--timeout-s 120] [--out DIR]
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 HOSTILE: list[str] = [

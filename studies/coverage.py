@@ -8,8 +8,8 @@ uncertainty (k = 2; 95.4 %). The budget gets the table's part as the true RMS, a
 also as 2x and 0.5x of it (a wrong datasheet) from the very same observations. The
 table check is studied the same way at 2 s and 10 s dwells.
 
-    PYTHONPATH=. python -m tests.studies.coverage                    # the README's table (about 40 min)
-    PYTHONPATH=. python -m tests.studies.coverage --draws 40 --quick  # a few minutes
+    PYTHONPATH=. python -m studies.coverage                    # the README's table (about 40 min)
+    PYTHONPATH=. python -m studies.coverage --draws 40 --quick  # a few minutes
 """
 
 from __future__ import annotations

@@ -11,8 +11,8 @@ noncentrality: the degree test at 1 % finds a one-term step with z = 2.6 half th
 z = 3.4 about 80 % of the time). `--temperatures-c` reruns the study at other
 temperatures (each point's sigmas taken as the run's median) to show what the spread buys.
 
-    PYTHONPATH=. python -m tests.studies.thermal_degree_power RUN.thermal.json [--draws 2000]
-    PYTHONPATH=. python -m tests.studies.thermal_degree_power RUN.thermal.json --temperatures-c -40 -20 0 25 50 70
+    PYTHONPATH=. python -m studies.thermal_degree_power RUN.thermal.json [--draws 2000]
+    PYTHONPATH=. python -m studies.thermal_degree_power RUN.thermal.json --temperatures-c -40 -20 0 25 50 70
 """
 
 from __future__ import annotations

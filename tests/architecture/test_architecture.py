@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PACKAGES = ("bench", "drivers", "schedules")
 #: third-party packages only one place may import
 ONLY_IN = {"textual": "bench.tui"}

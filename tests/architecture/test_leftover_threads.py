@@ -11,7 +11,7 @@ import pytest
 
 from tests.helpers.threads import PROJECT_THREAD_PREFIXES, check_no_leftover_threads, project_threads
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _started(name: str, release: threading.Event) -> threading.Thread:

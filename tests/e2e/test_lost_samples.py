@@ -4,7 +4,7 @@ their count, and an [acceptance] `max_lost_samples` counts every lost sample.
 
 One real run is recorded on the simulator; its copies lose the CAN frames of chosen samples (picked by their
 counters, cut by the frames' receive times), and `bench solve` re-solves them: the very extraction and quality
-check `bench run` uses on its own log (tests/test_run.py drops frames on a live run).
+check `bench run` uses on its own log (tests/e2e/test_run.py drops frames on a live run).
 """
 
 from __future__ import annotations

@@ -500,7 +500,7 @@ def test_can_frame_loss_during_a_move_is_counted_logged_and_reported_not_failed(
     """Through the CLI: three frames dropped while the table moves to a position (issue 27, item 6: this failed
     the whole calibration). The loss is counted and logged; outside every dwell and turn window it fails no quality
     check, and the closing lines, the result and the report say how many samples were lost; `bench solve LOG`
-    tells the same from the log (tests/test_lost_samples.py: losses inside windows, `max_lost_samples`)."""
+    tells the same from the log (tests/e2e/test_lost_samples.py: losses inside windows, `max_lost_samples`)."""
     text = config_text()
     plan = _plan(text)
     move = plan.steps[step_index(plan, "move", 3)]

@@ -1,6 +1,6 @@
 """Fail safe, round two (issue 34): the stop the bench reports is the stop it made; no stop signal is lost.
 
-The lost-controller case end to end against `bench sim rig` is in tests/test_sim_rig.py.
+The lost-controller case end to end against `bench sim rig` is in tests/protocol/test_sim_rig.py.
 Subprocess runs are few and bounded; nothing here asserts on wall time.
 """
 

@@ -6,10 +6,10 @@ constant 120 s), each temperature is soaked on the IMU's own temperature and cal
 the default schedules (short 20 s dwells, 100 Hz), all on the simulated clock in one log. The
 run then solves one calibration per temperature from the log and fits the thermal model; the
 fitted polynomials must recover the configured ones within their uncertainty, as
-tests/test_thermal_run.py checks for the in-memory `bench thermal sim`. One seed (0, the
+tests/e2e/test_thermal_run.py checks for the in-memory `bench thermal sim`. One seed (0, the
 example's); on seed 2 the short run misses D0_x's small quadratic term, a 3.4-sigma effect the
 1 % degree test finds in 82 % of runs (README, "Calibrating over temperature";
-tests/studies/thermal_degree_power.py): that limit is known, not hidden by this test.
+studies/thermal_degree_power.py): that limit is known, not hidden by this test.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from bench.thermal.model import ThermalModel
 from tests.helpers.run import cli, only_file
 
 #: the README's example: the shipped thermal.example.toml
-THERMAL_RUN_TOML = (Path(__file__).resolve().parents[1] / "thermal.example.toml").read_text(encoding="utf-8")
+THERMAL_RUN_TOML = (Path(__file__).resolve().parents[2] / "thermal.example.toml").read_text(encoding="utf-8")
 TEMPERATURES_C = (-20.0, 0.0, 25.0, 50.0)
 Z_LIMIT = 3.0
 # a bound on a hung run, not a speed check: about 2 min of CPU, far longer on a loaded machine

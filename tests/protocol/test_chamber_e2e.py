@@ -24,7 +24,7 @@ from drivers.errors import (
     ChamberProtocolError,
     ChamberTimeout,
 )
-from tests.test_bounded_errors import SHORT, WAIT_S, GarbagePeer
+from tests.protocol.test_bounded_errors import SHORT, WAIT_S, GarbagePeer
 
 TRANSPORTS = ["ascii-tcp", "ascii-pty", "modbus-tcp", "modbus-rtu"]
 WIDE = ChamberLimits(-100.0, 200.0, 30.0)    # wider than the simulated controller's own range

@@ -1,6 +1,6 @@
-"""The chamber's Modbus dialect with the generic map (preset "generic"; the F4P's: tests/test_chamber_watlow_f4.py):
-the register map and scaling (pure), and the client over exact expected exchanges on Modbus TCP (loopback) and RTU
-(a pty): requests, scaling, refusals, garbage, silence, a lost link."""
+"""The chamber's Modbus dialect with the generic map (preset "generic"; the F4P's:
+tests/protocol/test_chamber_watlow_f4.py): the register map and scaling (pure), and the client over exact expected
+exchanges on Modbus TCP (loopback) and RTU (a pty): requests, scaling, refusals, garbage, silence, a lost link."""
 
 from __future__ import annotations
 

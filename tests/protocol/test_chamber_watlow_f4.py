@@ -23,7 +23,7 @@ from drivers.chamber.modbus import ModbusChamber
 from drivers.chamber.watlow_f4 import REGISTERS, WatlowF4Map, is_f4p_register
 from drivers.errors import ChamberAlarm, ChamberCommandError, ChamberLimitError, ChamberProtocolError
 from tests.helpers.modbus_exchange import ModbusExchange
-from tests.test_chamber_modbus import read, rtu, write
+from tests.protocol.test_chamber_modbus import read, rtu, write
 
 WIDE = ChamberLimits(-100.0, 200.0, 30.0)
 

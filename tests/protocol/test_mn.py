@@ -381,7 +381,7 @@ def test_wire_faults_end_to_end(live):
 
 
 def test_a_late_reply_is_dropped_not_read_as_the_reply_to_the_next_request(live):
-    """See tests/test_scpi.py: the same over `$MN`, whose echo check cannot tell two STA replies apart."""
+    """See tests/protocol/test_scpi.py: the same over `$MN`, whose echo check cannot tell two STA replies apart."""
     table, ctl, clock = live
     table.enable(["outer"])
     table.set_rate("outer", 10.0)

@@ -1,6 +1,6 @@
 """The simulators' servers stay bounded (issue 13 item 10): connections forgotten when they end,
 a cap on concurrent ones (the excess refused, the rest served), an accept loop that outlives
-per-connection failures, (`bench sim table` binding beyond loopback only when told: tests/test_table_cli.py).
+per-connection failures, (`bench sim table` binding beyond loopback only when told: tests/protocol/test_table_cli.py).
 
 Everything runs on 127.0.0.1; waits are bounded polls on the server's own counters.
 """

@@ -17,7 +17,7 @@ from bench.cli.main import main
 from drivers.turntable import open_turntable
 from tests.helpers.run import stop_process, wait_for
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def _read_line(proc: subprocess.Popen, timeout_s: float = 20.0) -> str:

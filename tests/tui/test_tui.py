@@ -515,7 +515,7 @@ def test_snapshot_running_light_theme(tmp_path, snap_compare):
 def test_connecting_writes_no_log_a_manual_move_and_a_plan_each_write_theirs(tmp_path):
     """Every session wrote an .mcap at connect, even when nothing was run. Now connecting writes nothing, the
     first manual move starts a log of manual moves, a plan closes it and writes its own log, and a manual move
-    after the plan starts a new log of manual moves (tests/test_tui_manual_log.py: its contents)."""
+    after the plan starts a new log of manual moves (tests/tui/test_tui_manual_log.py: its contents)."""
     async def body():
         app = make_app(tmp_path)
         async with app.run_test(size=SIZE) as pilot:

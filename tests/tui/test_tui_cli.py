@@ -104,7 +104,7 @@ def test_abort_and_quit_exits_3_and_names_the_log(tmp_path, capsys):
     assert exit_status(app) == ExitCode.FAULT
     log = app.session.last_end.log_path
     assert log is not None and log.parent == tmp_path and log.suffix == ".mcap" and log.is_file()
-    # (make_app's configuration is text, no file: the command says FILE; tests/test_tui_trust.py runs a real one)
+    # (make_app's configuration is text, no file: the command says FILE; tests/tui/test_tui_trust.py runs a real one)
     assert capsys.readouterr().err.strip() == (f"bench tui: last run aborted (the operator quit); the table was "
                                                f"stopped. Log: {log} (continue with: bench run --config FILE "
                                                f"--resume {log} --out {tmp_path})")

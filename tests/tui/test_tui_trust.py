@@ -280,7 +280,7 @@ def test_the_results_status_wraps_instead_of_cutting_the_file_name(tmp_path):
 
 def test_budget_table_fits_two_long_parts_at_100_columns(tmp_path):
     """The Budget tab cut `bias instab. 19%` to `bias instab. 1`: two parts of 16 characters did not fit."""
-    from tests.test_tui_layout import _fits
+    from tests.tui.test_tui_layout import _fits
 
     async def body():
         app = make_app(tmp_path, auto_connect=False, refresh_hz=10.0)

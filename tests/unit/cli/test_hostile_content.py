@@ -204,7 +204,7 @@ def test_chamber_states_with_1_mb_alarm_texts_are_cut_as_they_are_read(tmp_path)
 
 
 def test_a_design_matrix_with_nan_is_a_solver_error_not_a_linalg_error():
-    """Found by tests/fuzz/hostile_files.py: a thermal log whose table states hold null in every message gave
+    """Found by fuzz/hostile_files.py: a thermal log whose table states hold null in every message gave
     `LinAlgError: SVD did not converge` in bench solve."""
     import numpy as np
 

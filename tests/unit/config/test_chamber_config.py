@@ -12,7 +12,7 @@ from bench.config.register_map import load_chamber_register_map
 from drivers.chamber import ChamberLimits, open_chamber
 from drivers.chamber.modbus_map import ChamberRegisterMap
 from drivers.chamber.watlow_f4 import REGISTERS, WatlowF4Map
-from tests.test_config import BASE
+from tests.unit.config.test_config import BASE
 
 # Line numbers below are asserted exactly: the [chamber] section starts on line 23.
 ASCII = BASE + """
@@ -142,10 +142,10 @@ def test_register_map_file(tmp_path):
 
 
 def test_the_examples_commented_chamber_section_loads_when_uncommented():
-    example = (Path(__file__).resolve().parents[1] / "bench.example.toml").read_text(encoding="utf-8")
+    example = (Path(__file__).resolve().parents[3] / "bench.example.toml").read_text(encoding="utf-8")
     start = example.index("# [chamber]\n")
     keys = ("url", "dialect", "timeout_s", "retries", "poll_s", "safe_setpoint_c", "[chamber", "min_", "max_")
     section = [line[2:] for line in example[start:].splitlines() if line.startswith("# ") and line[2:].startswith(keys)]
-    chamber = parse(example[:start] + "\n".join(section) + "\n", base_dir=Path(__file__).resolve().parents[1]).chamber
+    chamber = parse(example[:start] + "\n".join(section) + "\n", base_dir=Path(__file__).resolve().parents[3]).chamber
     assert chamber.url == "tcp://192.168.1.40:5030" and chamber.safe_setpoint_c == 23.0
     assert chamber.limits == ChamberLimits(-40.0, 85.0, 5.0)

@@ -26,7 +26,7 @@ from drivers.turntable.modbus_map import RegisterMap
 from schedules import builtin_path
 from schedules.tomllines import leaf_paths, locate_lines
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[3]
 EXAMPLE = REPO_ROOT / "bench.example.toml"
 
 # Line numbers below are asserted exactly: keep this text's layout.

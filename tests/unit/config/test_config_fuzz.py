@@ -9,7 +9,7 @@ compiles to a plan (or a one-line `PlanError`) whose dry run prints; a schedule 
 prints step by step as `bench schedules show` does.
 
 Deterministic (`derandomize=True`) and bounded (`max_examples`); the command-line fuzzer
-(subprocesses, timeouts, peak memory) is tests/fuzz/cli_fuzz.py.
+(subprocesses, timeouts, peak memory) is fuzz/cli_fuzz.py.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from bench.run.runner import compile_from_config
 from schedules import ScheduleError, builtin_path, load_schedule
 from tests.helpers.mutations import mutate
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[3]
 EXAMPLE = (REPO_ROOT / "bench.example.toml").read_text(encoding="utf-8")
 SCHEDULES = ("optimal-24", "optimal-5s6r", "table-check-324", "traditional-3s6r")
 SCHEDULE_TEXTS = {name: builtin_path(name).read_text(encoding="utf-8") for name in SCHEDULES}

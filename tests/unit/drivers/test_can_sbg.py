@@ -266,7 +266,7 @@ def test_the_rounding_that_noise_does_not_dither_away():
 
 def test_bench_run_sim_with_the_sbg_layout_recovers_the_truth_within_its_budget(tmp_path):
     """`bench run --sim` on the short plan (3 s dwells, 200 Hz) with the MEMS IMU the layout simulates: exit 0 and
-    every coefficient within 3 sigma of the truth (the noise-on standard of tests/test_run.py), the resolution in
+    every coefficient within 3 sigma of the truth (the noise-on standard of tests/e2e/test_run.py), the resolution in
     the budget of the turns, the uncertainties not inflated."""
     config = tmp_path / "bench.toml"
     config.write_text(config_text(noise="true", rate_hz=RATE_HZ).replace("[imu]\n", '[imu]\nlayout = "sbg-ecan"\n'))

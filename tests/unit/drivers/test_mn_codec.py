@@ -16,7 +16,7 @@ from drivers.errors import TurntableChecksumError, TurntableCommandError, Turnta
 from drivers.turntable import mn_codec as codec
 from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
 
-DOC = Path(__file__).resolve().parents[1] / "drivers" / "MN.md"
+DOC = Path(__file__).resolve().parents[3] / "drivers" / "MN.md"
 
 
 # -- checksum and frames -------------------------------------------------------------

@@ -22,7 +22,7 @@ from bench.plan.events import Event
 from drivers.imu import ImuSampleBlock
 from drivers.turntable import AxisMode, AxisState, AxisStatus, TableState
 
-LAYOUT = Path(__file__).resolve().parents[1] / "foxglove" / "turntable-bench.layout.json"
+LAYOUT = Path(__file__).resolve().parents[3] / "foxglove" / "turntable-bench.layout.json"
 PANEL_TYPES = {"Plot", "3D", "RosOut", "RawMessages"}
 #: Foxglove message path: /topic.field or /topic.field[index] (all the layout needs).
 PATH = re.compile(r"^(?P<topic>/[A-Za-z0-9_/]+)\.(?P<field>[A-Za-z_][A-Za-z0-9_]*)(?:\[(?P<index>\d+)\])?$")

@@ -2,7 +2,7 @@
 the static-noise plan and `[imu] noise = FILE`.
 
 The long recoveries (8 h at 200 Hz, 1 h at 1 kHz, several seeds) are in
-tests/benchmarks/noise_recovery.py; here 1 h at 100 Hz keeps each case near a second.
+benchmarks/noise_recovery.py; here 1 h at 100 Hz keeps each case near a second.
 """
 
 from __future__ import annotations

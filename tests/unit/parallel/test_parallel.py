@@ -5,7 +5,7 @@ One Dask cluster of two single-threaded workers serves the module, reached by ad
 serialised and sent); its workers are threads of the test process, which spares the suite a
 worker process's imports (seconds each). Worker processes are tested by the `local` path
 (a cluster started by the command): `bench solve --archive --workers 2` in
-tests/test_archive.py.
+tests/unit/solve/test_archive.py.
 """
 
 from __future__ import annotations

@@ -341,7 +341,7 @@ def test_two_processes_importing_into_one_postgresql_database_lose_nothing(postg
     import sys
 
     from tests.helpers.run import REPO
-    from tests.test_records_import import _variants
+    from tests.unit.records.test_records_import import _variants
 
     good = sorted((archive / "b").glob("*.result.json"))[0].read_text()
     _variants(good, tmp_path / "a", "A", 20)

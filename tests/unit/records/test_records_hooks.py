@@ -14,7 +14,7 @@ from bench import __version__
 from bench.records.history import unit_history
 from bench.records.store import open_records
 from tests.helpers.run import cli, config_text, only_file
-from tests.test_table_check import _schedule_text
+from tests.unit.table_check.test_table_check import _schedule_text
 
 
 def _sha(path: Path) -> str:

@@ -19,7 +19,7 @@ from bench.cli import schedules as schedules_cli
 from schedules import ScheduleError, load_builtin, load_schedule, parse_schedule
 from schedules.tomlinput import nesting_error_line
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[3]
 
 # --- shipped schedules --------------------------------------------------------------
 

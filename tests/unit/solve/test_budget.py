@@ -30,7 +30,7 @@ from bench.solve.calibrate import solve
 from bench.solve.inputs import budget_inputs
 from bench.solve.methods import gyro_bias_from_positions, solve_gyros
 from schedules import load_builtin
-from tests.studies.coverage import calibration_coverage
+from studies.coverage import calibration_coverage
 
 SITE = Site(30.27)
 FAST = AcquisitionTiming(dwell_s=10.0, settle_s=1.0, move_rate_dps=60.0, move_accel_dps2=40.0, turn_rate_dps=20.0,
