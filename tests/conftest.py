@@ -1,6 +1,10 @@
-"""Fixtures shared by test files: the leftover-thread check runs for every test (autouse)."""
+"""Fixtures shared by test files: the leftover-thread check runs for every test (autouse); the recorded logs that
+tests only read are recorded once per session (`short_run`, `thermal_run_log`)."""
 
 from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -47,3 +51,17 @@ def thermal_run_log(tmp_path_factory):
     from tests.helpers.run import record_thermal_run
 
     return record_thermal_run(tmp_path_factory.mktemp("thermal-run") / "run", serial="THERMAL-1")
+
+
+@pytest.fixture(scope="session")
+def short_run(tmp_path_factory) -> SimpleNamespace:
+    """A finished simulated run of the shortest plan (`tests.helpers.run.record_short_run`: traditional-12 +
+    traditional-3s6r, 1 s dwells), recorded once per session for the tests that only read it: `log` (the MCAP),
+    `result` (its result file), `finished_s` (the run clock's time when it finished). Copy a file to change it."""
+    from tests.helpers.run import record_short_run
+
+    folder = tmp_path_factory.mktemp("short-run")
+    with pytest.MonkeyPatch.context() as patch:   # a database of its own, as every test has (records_database_in_tmp)
+        patch.setenv("BENCH_DB", str(tmp_path_factory.mktemp("short-run-records") / "records.sqlite"))
+        log, finished_s = record_short_run(folder)
+    return SimpleNamespace(log=Path(log), result=next(Path(log).parent.glob("*.result.json")), finished_s=finished_s)

@@ -6,22 +6,13 @@ import pytest
 
 from bench.plan.events import RunState
 from bench.tui.buffer import STEP_DONE
-from tests.helpers.run import config_text
 from tests.helpers.tui import SIZE, events_text, press, run, snap, wait_until
 
 
 @pytest.fixture(scope="module")
-def recorded_log(tmp_path_factory):
-    """A short simulated run recorded with `bench run` (1 s dwells): its log and result JSON."""
-    from tests.helpers.run import cli
-
-    out = tmp_path_factory.mktemp("tui-replay")
-    config = out / "bench.toml"
-    config.write_text(config_text(dwell_s=1.0, positions="traditional-12", rotations="traditional-3s6r"))
-    rc, _, err = cli(["run", "--config", str(config), "--out", str(out), "--quiet"])
-    assert rc == 0, err
-    log_path = next(out.glob("*.mcap"))
-    return log_path, next(out.glob("*.result.json"))
+def recorded_log(short_run):
+    """A short simulated run (the session's: 1 s dwells): its log and result JSON."""
+    return short_run.log, short_run.result
 
 
 def test_replay_shows_the_recorded_run_and_its_result(recorded_log):

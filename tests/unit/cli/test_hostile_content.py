@@ -23,15 +23,14 @@ from bench.plan.events import Event
 from bench.plan.steps import thermal_block
 from bench.thermal.from_log import _setpoints
 from tests.helpers import mcap_surgery as ms
-from tests.helpers.run import cli, record_short_run
+from tests.helpers.run import cli
 
 BIG = "1" + "0" * 400
 
 
 @pytest.fixture(scope="module")
-def short_log(tmp_path_factory) -> Path:
-    log, _ = record_short_run(tmp_path_factory.mktemp("short"))
-    return log
+def short_log(short_run) -> Path:
+    return short_run.log
 
 
 def _relabel(new: str):

@@ -19,17 +19,15 @@ from pathlib import Path
 import pytest
 
 from bench.files import MAX_INPUT_FILE_BYTES, InputFileError, is_run_log, read_input_bytes, replaced_output
-from tests.helpers.run import REPO, cli, record_short_run
+from tests.helpers.run import REPO, cli
 
 TIMEOUT_S = 20
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory) -> tuple[Path, Path]:
-    """A finished short simulated run: (its log, its result)."""
-    folder = tmp_path_factory.mktemp("run")
-    log, _ = record_short_run(folder)
-    return log, next(folder.glob("*.result.json"))
+def run(short_run) -> tuple[Path, Path]:
+    """A finished short simulated run (the session's): (its log, its result)."""
+    return short_run.log, short_run.result
 
 
 def _digest(path: Path) -> str:

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 from bench.log.reader import read_log
-from tests.helpers.run import cli, record_short_run
+from tests.helpers.run import cli
 
 
 @pytest.fixture(scope="module")
-def log_path(tmp_path_factory):
-    return record_short_run(tmp_path_factory.mktemp("export_can"))[0]
+def log_path(short_run):
+    return short_run.log
 
 
 @pytest.mark.parametrize("extension", [".asc", ".blf", ".log", ".csv"])

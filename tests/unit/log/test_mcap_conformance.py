@@ -14,12 +14,11 @@ import pytest
 from mcap.reader import make_reader
 
 from bench.log.format import CAN_ENCODING, CAN_SCHEMA_NAME
-from tests.helpers.run import record_short_run
 
 
 @pytest.fixture(scope="module")
-def run_log(tmp_path_factory):
-    return record_short_run(tmp_path_factory.mktemp("conformance"))
+def run_log(short_run):
+    return short_run.log, short_run.finished_s
 
 
 def test_every_schema_with_data_names_its_encoding(run_log):
