@@ -1,5 +1,5 @@
 """Fixtures shared by test files: the leftover-thread check runs for every test (autouse); the recorded logs that
-tests only read are recorded once per session (`short_run`, `thermal_run_log`)."""
+tests only read are recorded once per session (`short_run`, `cli_run_log`, `thermal_run_log`)."""
 
 from __future__ import annotations
 
@@ -12,6 +12,15 @@ import pytest
 pytest.register_assert_rewrite("tests.helpers")
 
 from tests.helpers.threads import check_no_leftover_threads, project_threads  # noqa: E402
+
+E2E = Path(__file__).parent / "e2e"
+
+
+def pytest_collection_modifyitems(items):
+    """Every test in tests/e2e/ (whole simulated runs) is `slow`, without a mark in each module."""
+    for item in items:
+        if E2E in item.path.parents:
+            item.add_marker(pytest.mark.slow)
 
 
 @pytest.fixture(autouse=True)
@@ -65,3 +74,17 @@ def short_run(tmp_path_factory) -> SimpleNamespace:
         patch.setenv("BENCH_DB", str(tmp_path_factory.mktemp("short-run-records") / "records.sqlite"))
         log, finished_s = record_short_run(folder)
     return SimpleNamespace(log=Path(log), result=next(Path(log).parent.glob("*.result.json")), finished_s=finished_s)
+
+
+@pytest.fixture(scope="session")
+def cli_run_log(tmp_path_factory) -> Path:
+    """The log of `bench run --config` of the short test plan with 1 s dwells (`tests.helpers.run.config_text`;
+    its configuration attached as bench.toml), recorded once per session for the tests that only read it."""
+    from tests.helpers.run import cli, config_text, only_file
+
+    folder = tmp_path_factory.mktemp("cli-run")
+    config = folder / "bench.toml"
+    config.write_text(config_text(dwell_s=1.0), encoding="utf-8")
+    rc, _, stderr = cli(["run", "--config", str(config), "--out", str(folder / "run"), "--quiet", "--no-db"])
+    assert rc == 0, stderr
+    return only_file(folder / "run", "*.mcap")

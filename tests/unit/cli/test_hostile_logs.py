@@ -35,12 +35,8 @@ def _schedule_text() -> str:
 
 
 @pytest.fixture(scope="module")
-def recorded(tmp_path_factory):
+def recorded(tmp_path_factory, cli_run_log):
     folder = tmp_path_factory.mktemp("hostile")
-    config = folder / "bench.toml"
-    config.write_text(config_text(dwell_s=1.0), encoding="utf-8")
-    rc, _, stderr = cli(["run", "--config", str(config), "--out", str(folder / "run"), "--quiet"])
-    assert rc == 0, stderr
     schedule = folder / "table-check-16.toml"
     schedule.write_text(_schedule_text(), encoding="utf-8")
     check_config = folder / "check.toml"
@@ -48,7 +44,7 @@ def recorded(tmp_path_factory):
     rc, _, stderr = cli(["check-table", "--config", str(check_config), "--schedule", str(schedule), "--dwell-s", "1",
                          "--out", str(folder / "check"), "--quiet", "--operator", SCRIPT])
     assert rc == 0, stderr
-    return SimpleNamespace(folder=folder, log=only_file(folder / "run", "*.mcap"),
+    return SimpleNamespace(folder=folder, log=cli_run_log,
                            check_log=only_file(folder / "check", "*.mcap"),
                            check_json=json.loads(only_file(folder / "check", "*.table-check.json").read_text()),
                            check_md=only_file(folder / "check", "*.table-check.md").read_text(encoding="utf-8"),

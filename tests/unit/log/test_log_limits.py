@@ -39,20 +39,15 @@ from tests.helpers.mcap_surgery import (
     top_records,
     zstd_bomb,
 )
-from tests.helpers.run import cli, config_text
+from tests.helpers.run import cli
 
 GiB = 1 << 30
 
 
 @pytest.fixture(scope="module")
-def run_log(tmp_path_factory) -> Path:
-    """A real simulated run's log (the short test plan with 1 s dwells)."""
-    folder = tmp_path_factory.mktemp("limits")
-    config = folder / "bench.toml"
-    config.write_text(config_text(dwell_s=1.0), encoding="utf-8")
-    rc, _, stderr = cli(["run", "--config", str(config), "--out", str(folder / "run"), "--quiet"])
-    assert rc == 0, stderr
-    return next((folder / "run").glob("*.mcap"))
+def run_log(cli_run_log) -> Path:
+    """A real simulated run's log (the session's `bench run` of the short test plan with 1 s dwells)."""
+    return cli_run_log
 
 
 @pytest.fixture(scope="module")
