@@ -87,6 +87,7 @@ def _thread_names_in_source():
     return found
 
 
+@pytest.mark.slow
 def test_every_thread_the_project_starts_has_a_known_name():
     found = _thread_names_in_source()
     assert found, "no Thread(...) call found in bench/ or drivers/"

@@ -20,6 +20,7 @@ def _console(proc: subprocess.Popen, line: str, marker: str) -> str:
     return read_until(proc, marker)[-1]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dialect, listen, prefix", [
     ("ascii", "tcp://127.0.0.1:0", "tcp://127.0.0.1:"),
     ("ascii", "pty", "/dev/pts/"),
@@ -61,6 +62,7 @@ def test_bench_chamber_drives_the_served_simulator(dialect, listen, prefix):
         stop_process(proc)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_the_rig_serves_a_chamber_and_writes_its_section(tmp_path):
     written = tmp_path / "bench.toml"
@@ -117,6 +119,7 @@ def test_usage_errors_are_one_line_exit_2(tmp_path):
         assert code == 2 and words in err and len(err.strip().splitlines()) == 1, (argv, err)
 
 
+@pytest.mark.slow
 def test_the_simulator_serves_the_generic_map_on_request():
     proc = start_sim("chamber", "--dialect", "modbus", "--register-map", "generic", "--listen",
                      "modbus+tcp://127.0.0.1:0")
@@ -137,6 +140,7 @@ def test_an_unreachable_chamber_is_exit_3():
     assert code == 3 and "cannot reach the chamber" in err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
 def test_a_stop_signal_while_waiting_for_the_chamber_makes_it_safe(signum):
     from bench.sim.chamber import SimChamber

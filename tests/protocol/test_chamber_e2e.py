@@ -137,6 +137,7 @@ def test_a_setpoint_beyond_the_controllers_range_is_refused_by_the_controller(ri
     assert sim.state().setpoint_c == 23.0
 
 
+@pytest.mark.slow
 def test_one_garbled_reply_is_retried_three_are_a_protocol_error(rig):
     chamber, sim, _, _, _ = rig
     sim.faults.garbage = 1

@@ -43,6 +43,7 @@ def _console(proc: subprocess.Popen, line: str, marker: str) -> str:
     return read_until(proc, marker)[-1]
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_mbpoll_reads_the_process_value_and_writes_the_set_point_at_the_f4p_numbers():
     proc = start_sim("chamber", "--dialect", "modbus", "--listen", "modbus+tcp://127.0.0.1:0")

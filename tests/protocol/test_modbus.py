@@ -434,6 +434,7 @@ def test_e2e_refused_command_is_a_modbus_exception(sim):
         assert "not enabled" in server.last_refusal
 
 
+@pytest.mark.slow
 def test_e2e_wire_faults(sim):
     controller, server, url, clock = sim
     faults = controller.faults

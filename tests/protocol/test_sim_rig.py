@@ -327,6 +327,7 @@ def _with_plan(text: str, plan: str) -> str:
     return text[:start] + plan + text[end:]
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(240)     # a plan in wall-clock time: ~1 min, the suite's 120 s per test is too tight under load
 @pytest.mark.parametrize("dialect, table_listen, imu_listen, url_prefix", [
     ("scpi", "tcp://127.0.0.1:0", "slcan", "tcp://127.0.0.1:"),
@@ -407,6 +408,7 @@ def test_the_rig_serves_the_packed_layout_and_writes_it(tmp_path):
         stop_process(rig)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(240)     # the rig and the run in wall-clock time
 def test_a_controller_killed_mid_run_is_table_state_unknown_exit_6_never_table_stopped(tmp_path):
     """Issue 34 item 1: the controller's process dies mid-run; no stop can reach it, and the bench says so."""

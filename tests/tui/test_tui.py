@@ -311,6 +311,7 @@ def test_connect_shows_table_and_imu_then_go_to_position(tmp_path):
     run(body)
 
 
+@pytest.mark.slow
 def test_start_pause_resume_abort_ends_stopped(tmp_path):
     async def body():
         app = make_app(tmp_path)
@@ -366,6 +367,7 @@ def test_start_pause_resume_abort_ends_stopped(tmp_path):
     run(body)
 
 
+@pytest.mark.slow
 def test_estop_from_the_main_screen_during_a_run(tmp_path):
     async def body():
         app = make_app(tmp_path)
@@ -384,6 +386,7 @@ def test_estop_from_the_main_screen_during_a_run(tmp_path):
     run(body)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dialog_key, dialog", [("g", "GotoScreen"), ("question_mark", "HelpScreen"),
                                                 ("s", "ConfirmScreen")])
 def test_estop_from_an_open_dialog(tmp_path, dialog_key, dialog):
@@ -405,6 +408,7 @@ def test_estop_from_an_open_dialog(tmp_path, dialog_key, dialog):
     run(body)
 
 
+@pytest.mark.slow
 def test_a_limit_fault_mid_run_shows_in_the_table_panel_and_the_log(tmp_path):
     async def body():
         app = make_app(tmp_path)
@@ -424,6 +428,7 @@ def test_a_limit_fault_mid_run_shows_in_the_table_panel_and_the_log(tmp_path):
     run(body)
 
 
+@pytest.mark.slow
 def test_quit_while_running_asks_then_stops_the_table(tmp_path):
     async def body():
         app = make_app(tmp_path)
@@ -456,10 +461,12 @@ def _snapshot_app(tmp_path):
     return make_app(tmp_path, auto_connect=False, refresh_hz=10.0, **SNAPSHOT_CLOCKS)
 
 
+@pytest.mark.slow
 def test_snapshot_idle(tmp_path, snap_compare):
     assert snap_compare(_snapshot_app(tmp_path), terminal_size=SIZE)
 
 
+@pytest.mark.slow
 def test_snapshot_running(tmp_path, snap_compare):
     async def before(pilot):
         feed_running(pilot.app)
@@ -468,6 +475,7 @@ def test_snapshot_running(tmp_path, snap_compare):
     assert snap_compare(_snapshot_app(tmp_path), terminal_size=SIZE, run_before=before)
 
 
+@pytest.mark.slow
 def test_snapshot_results(tmp_path, snap_compare):
     async def before(pilot):
         app = pilot.app
@@ -496,6 +504,7 @@ def test_cli_needs_config_or_sim(tmp_path):
 # -- connect / enable keys, rate mode, jog, theme --------------------------------------------------
 
 
+@pytest.mark.slow
 def test_snapshot_running_light_theme(tmp_path, snap_compare):
     async def before(pilot):
         feed_running(pilot.app)
@@ -512,6 +521,7 @@ def test_snapshot_running_light_theme(tmp_path, snap_compare):
 
 # -- the run's log starts with the plan (issue 19) ---------------------------------------------------
 
+@pytest.mark.slow
 def test_connecting_writes_no_log_a_manual_move_and_a_plan_each_write_theirs(tmp_path):
     """Every session wrote an .mcap at connect, even when nothing was run. Now connecting writes nothing, the
     first manual move starts a log of manual moves, a plan closes it and writes its own log, and a manual move
@@ -560,6 +570,7 @@ def test_a_session_that_runs_nothing_leaves_no_file(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_a_plan_whose_log_cannot_be_written_does_not_move_the_table(tmp_path):
     """The output folder is checked again when the plan starts: gone since the connect (a file in its place,
     which stops root too), the start is refused and nothing moves."""

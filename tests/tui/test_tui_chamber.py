@@ -10,6 +10,7 @@ feeds the buffer (deterministic); one drives a short soak of the simulated chamb
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from bench.config.load import parse_config
 from bench.plan.events import Event, RunState
@@ -103,6 +104,7 @@ def test_a_plan_without_temperatures_has_no_chamber_panel(tmp_path):
     run(body)
 
 
+@pytest.mark.slow
 def test_a_live_soak_on_the_simulator_fills_the_panel_from_the_sequencer(tmp_path):
     """The simulated chamber goes to 25 degC (from its 23 degC room); the panel follows the sequencer's own
     soak checks to the end of the soak (then the run is aborted: the calibration is not this test's)."""

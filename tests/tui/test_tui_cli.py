@@ -31,6 +31,7 @@ def _bench_tui(*args: str, tmp_path: Path) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT_S)
 
 
+@pytest.mark.slow
 def test_without_a_terminal_bench_tui_refuses_to_start(tmp_path):
     """It spun at 90-99 % CPU until killed; now one line, exit 2, and nothing written."""
     out = tmp_path / "out"
@@ -41,6 +42,7 @@ def test_without_a_terminal_bench_tui_refuses_to_start(tmp_path):
     assert not out.exists() or not any(out.iterdir())
 
 
+@pytest.mark.slow
 def test_speed_is_refused_without_replay(tmp_path):
     config = tmp_path / "bench.toml"
     config.write_text(config_text(), encoding="utf-8")
@@ -81,6 +83,7 @@ def test_a_stop_signal_says_where_the_log_is(capsys):
                                                "stopped. Log: /o/r.mcap")
 
 
+@pytest.mark.slow
 def test_abort_and_quit_exits_3_and_names_the_log(tmp_path, capsys):
     """'Abort and quit' exited 0 and printed nothing (issue 19)."""
     async def body():

@@ -8,6 +8,7 @@ from tests.helpers.run import assert_disabled
 from tests.helpers.tui import SIZE, connected, dialog_open, events_text, make_app, press, run, snap, wait_until
 
 
+@pytest.mark.slow
 def test_connect_enable_disable_disconnect_keys_and_theme(tmp_path):
     async def body():
         app = make_app(tmp_path, auto_connect=False)
@@ -44,6 +45,7 @@ def test_connect_enable_disable_disconnect_keys_and_theme(tmp_path):
     run(body)
 
 
+@pytest.mark.slow
 def test_rate_mode_stop_and_jog_on_the_simulator(tmp_path):
     async def body():
         app = make_app(tmp_path)

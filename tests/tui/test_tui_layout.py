@@ -51,6 +51,7 @@ def test_top_and_bottom_panels_touch_and_the_plan_table_fits(tmp_path, size):
     run(body)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size", SIZES)
 def test_results_show_truth_and_error_in_sigmas_without_scrolling(tmp_path, size):
     async def body():
@@ -75,6 +76,7 @@ def test_results_show_truth_and_error_in_sigmas_without_scrolling(tmp_path, size
     run(body)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size", SIZES)
 def test_help_rows_fit_with_descriptions_wrapping_under_themselves(tmp_path, size):
     async def body():
@@ -100,6 +102,7 @@ def test_help_rows_fit_with_descriptions_wrapping_under_themselves(tmp_path, siz
 
 # -- snapshots at both sizes (look at them: tests/__snapshots__/test_tui_layout/) ---------------------
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size", SIZES)
 def test_snapshot_running_at(tmp_path, snap_compare, size):
     async def before(pilot):
@@ -107,6 +110,7 @@ def test_snapshot_running_at(tmp_path, snap_compare, size):
     assert snap_compare(_app(tmp_path), terminal_size=size, run_before=before)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size", SIZES)
 def test_snapshot_results_at(tmp_path, snap_compare, size):
     async def before(pilot):
@@ -114,6 +118,7 @@ def test_snapshot_results_at(tmp_path, snap_compare, size):
     assert snap_compare(_app(tmp_path), terminal_size=size, run_before=before)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size", SIZES)
 def test_snapshot_help_at(tmp_path, snap_compare, size):
     async def before(pilot):
@@ -125,6 +130,7 @@ def test_snapshot_help_at(tmp_path, snap_compare, size):
 
 # -- the uncertainty budget (issue 15): the Results status warns, the Budget tab has every coefficient's budget --
 
+@pytest.mark.slow
 def test_budget_tab_shows_sigma_u_largest_parts_flags_and_the_highlighted_budget(tmp_path):
     from tests.helpers.tui import feed_budget_result
 

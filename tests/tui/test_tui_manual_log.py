@@ -167,6 +167,7 @@ def test_tui_replay_shows_the_manual_moves(manual_session):
     run(body)
 
 
+@pytest.mark.slow
 def test_no_move_no_file(tmp_path):
     """Servos on, halt, servos off, disconnect and connect again: nothing moved, nothing written."""
     async def body():
@@ -194,6 +195,7 @@ def test_no_move_no_file(tmp_path):
     assert holder[0].session.manual_logs == []
 
 
+@pytest.mark.slow
 def test_a_log_that_cannot_be_opened_warns_once_and_the_moves_go_ahead(tmp_path):
     """The output folder gone since the connect (a file in its place, which stops root too): the operator is
     told once, the table moves anyway, and it is stopped on quit."""
@@ -230,6 +232,7 @@ def test_a_log_that_cannot_be_opened_warns_once_and_the_moves_go_ahead(tmp_path)
     assert [p.name for p in tmp_path.iterdir()] == ["out"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size", SIZES, ids=[f"{w}x{h}" for w, h in SIZES])
 def test_a_full_disk_warns_the_controls_still_work_and_quit_stops_the_table(tmp_path, monkeypatch, capsys, size):
     monkeypatch.setattr(FillingDisk, "full", False)

@@ -15,6 +15,7 @@ def recorded_log(short_run):
     return short_run.log, short_run.result
 
 
+@pytest.mark.slow
 def test_replay_shows_the_recorded_run_and_its_result(recorded_log):
     import json
 
@@ -63,6 +64,7 @@ def test_replay_shows_the_recorded_run_and_its_result(recorded_log):
     run(body)
 
 
+@pytest.mark.slow
 def test_replay_pause_and_resume_the_playback(recorded_log):
     async def body():
         from bench.tui import create_app
@@ -84,6 +86,7 @@ def test_replay_pause_and_resume_the_playback(recorded_log):
     run(body)
 
 
+@pytest.mark.slow
 def test_replay_table_panel_is_as_tall_as_the_imu_panel(recorded_log):
     """The replay's table panel has no jog line: it was one line shorter than the IMU panel (issue 33, item 10);
     its link line named the log the header already names, and wrapped at 100 columns once played."""
@@ -125,6 +128,7 @@ def test_replay_result_is_solved_when_not_attached(recorded_log, tmp_path):
     assert result is None and text.startswith("no result in this log")
 
 
+@pytest.mark.slow
 def test_replay_footer_shows_only_the_playback_keys(recorded_log):
     """The footer listed E-STOP, start, abort, go to, rate and halt in replay mode too (issue 19); they
     are hidden there, and pressed anyway they still say why nothing happens."""
@@ -156,6 +160,7 @@ def test_replay_footer_shows_only_the_playback_keys(recorded_log):
     run(body)
 
 
+@pytest.mark.slow
 def test_live_footer_keeps_the_hardware_keys(tmp_path):
     async def body():
         from tests.helpers.tui import make_app
@@ -168,6 +173,7 @@ def test_live_footer_keeps_the_hardware_keys(tmp_path):
     run(body)
 
 
+@pytest.mark.slow
 def test_replay_of_a_thermal_run_shows_the_chamber(thermal_run_log):
     """The Chamber panel of a thermal run's replay shows the recorded chamber states (it said "no reading yet"):
     at the end, the last one polled, at the second temperature's setpoint."""

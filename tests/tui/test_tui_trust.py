@@ -84,6 +84,7 @@ def test_imu_values_turn_stale_when_no_sample_came_on_the_session_clock():
     assert buf.snapshot().imu.age_s == 0.0 and not buf.snapshot().imu.stale
 
 
+@pytest.mark.slow
 def test_imu_panel_dims_stale_values_and_says_how_old_they_are(tmp_path):
     clock = FakeClock(0.0)
 
@@ -109,6 +110,7 @@ def test_imu_panel_dims_stale_values_and_says_how_old_they_are(tmp_path):
     run(body)
 
 
+@pytest.mark.slow
 def test_a_paused_run_shows_its_imu_values_as_stale(tmp_path):
     """The live case: a paused run reads no IMU; once the session's clock moved on, the panel says so."""
     clock = FakeClock(0.0)
@@ -197,6 +199,7 @@ def test_the_progress_never_goes_back_when_a_run_is_aborted(tmp_path):
     assert after == pytest.approx((done + dwell.estimated_s / 2 + 0.5) / sum(s.estimated_s for s in steps))
 
 
+@pytest.mark.slow
 def test_an_aborted_run_says_how_to_continue_it_and_the_command_works(tmp_path, capsys):
     """After an abort neither the event log nor the quit line named `bench run --resume LOG`."""
     from bench.cli.common import ExitCode
@@ -259,6 +262,7 @@ def test_the_resume_command_names_the_built_in_simulator_and_a_log_outside_the_o
 
 # -- item 10: texts that fit, panels that line up, sparklines, legend, keys, the Start dialog ----------
 
+@pytest.mark.slow
 def test_the_results_status_wraps_instead_of_cutting_the_file_name(tmp_path):
     """`result attached to the log (....result.jso`: the status line was cut at the panel's edge."""
     async def body():
@@ -278,6 +282,7 @@ def test_the_results_status_wraps_instead_of_cutting_the_file_name(tmp_path):
     run(body)
 
 
+@pytest.mark.slow
 def test_budget_table_fits_two_long_parts_at_100_columns(tmp_path):
     """The Budget tab cut `bias instab. 19%` to `bias instab. 1`: two parts of 16 characters did not fit."""
     from tests.tui.test_tui_layout import _fits
@@ -334,6 +339,7 @@ def test_the_imu_panel_says_what_its_values_are_in_plain_words(tmp_path):
     run(body)
 
 
+@pytest.mark.slow
 def test_number_keys_show_the_tabs_and_the_footer_and_help_say_so(tmp_path):
     """The Results and Budget tabs were reachable only with Shift-Tab and arrows, and nothing said so."""
     from textual.widgets._footer import FooterKey
@@ -359,6 +365,7 @@ def test_number_keys_show_the_tabs_and_the_footer_and_help_say_so(tmp_path):
     run(body)
 
 
+@pytest.mark.slow
 def test_the_start_dialog_says_what_enter_does(tmp_path):
     """In the Start dialog Enter means Cancel (the focused button): safe, and now said on the dialog."""
     async def body():

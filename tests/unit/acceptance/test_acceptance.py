@@ -225,6 +225,7 @@ nominal = 0.0
 FAILING = PASSING.replace("max_sigma = 0.1", "max_sigma = 1e-6")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("limits, code", [(PASSING, 0), (FAILING, 4)], ids=["pass", "fail"])
 def test_bench_run_judges_the_result_and_says_so_in_its_closing_lines(tmp_path, limits, code):
     out, db = tmp_path / "out", tmp_path / "records.sqlite"
@@ -269,6 +270,7 @@ def test_bench_run_judges_the_result_and_says_so_in_its_closing_lines(tmp_path, 
     assert json.loads(result_path.read_text())["coefficients"]["Kg_x"]["unit"] == "counts/s per deg/s"
 
 
+@pytest.mark.slow
 def test_bench_solve_judges_a_log_by_its_recorded_acceptance_limits(tmp_path):
     out = tmp_path / "out"
     rc, _, _ = cli(["run", "--config", str(_config(tmp_path, FAILING)), "--out", str(out), "--quiet"])

@@ -243,6 +243,7 @@ def _relative(got: np.ndarray, true: np.ndarray) -> float:
     return float((np.linalg.norm(got - true, axis=1) / np.linalg.norm(true, axis=1)).max())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("calibration", ["solved", "truth"])
 def test_bench_apply_returns_the_true_body_rates_and_specific_force(noise_free_run, tmp_path, calibration):
     """Sample by sample to 1e-9 relative, with the run's own solved calibration or the true coefficients
@@ -256,6 +257,7 @@ def test_bench_apply_returns_the_true_body_rates_and_specific_force(noise_free_r
     assert _relative(forces, run.true_forces) <= 1e-9
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("calibration", ["solved", "truth"])
 def test_with_the_classic_layout_a_sample_is_true_to_one_resolution_step(coarse_run, tmp_path, calibration):
     run = coarse_run
@@ -275,6 +277,7 @@ def test_with_the_classic_layout_a_sample_is_true_to_one_resolution_step(coarse_
         assert np.abs(integral - true_integral).max() <= tolerance * np.abs(true_integral).max()
 
 
+@pytest.mark.slow
 def test_bench_apply_writes_an_mcap_with_the_raw_and_the_compensated_topics(noise_free_run, tmp_path):
     run = noise_free_run
     out = tmp_path / "applied.mcap"
@@ -326,6 +329,7 @@ int main(int argc, char **argv)
 """
 
 
+@pytest.mark.slow
 def test_the_c_header_compiles_and_compensates_a_log_as_bench_apply_does(noise_free_run, tmp_path):
     compiler = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
     if compiler is None:

@@ -118,6 +118,7 @@ def check_log(tmp_path_factory) -> Path:
     return only_file(folder / "out", "*.mcap")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("buffered", [True, False], ids=["buffered", "unbuffered"])
 @pytest.mark.parametrize("command", ["evaluate", "schedules-show", "check-table-log"])
 def test_a_closed_stdout_is_a_quiet_exit_141(command, buffered, request, tmp_path):
@@ -131,6 +132,7 @@ def test_a_closed_stdout_is_a_quiet_exit_141(command, buffered, request, tmp_pat
     assert done.returncode == EXIT_BROKEN_PIPE
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not hasattr(fcntl, "F_SETPIPE_SZ"), reason="needs Linux pipe sizes")
 @pytest.mark.parametrize("buffered", [True, False], ids=["buffered", "unbuffered"])
 def test_reading_one_line_then_closing_the_pipe_is_a_quiet_exit_141(buffered):

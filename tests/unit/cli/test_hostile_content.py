@@ -44,6 +44,7 @@ def _relabel(new: str):
     return edit
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("label", ["T²-P01", "T" + "1" * 5000], ids=["superscript", "5000-digits"])
 def test_a_hostile_step_label_is_no_traceback_in_solve(short_log, tmp_path, label):
     log = ms.rewrite(short_log, tmp_path / "label.mcap", _relabel(label))
@@ -52,6 +53,7 @@ def test_a_hostile_step_label_is_no_traceback_in_solve(short_log, tmp_path, labe
     assert thermal_block(label) is None and thermal_block("T12-P03") == 12 and thermal_block("T٣-P01") is None
 
 
+@pytest.mark.slow
 def test_a_start_date_that_is_no_utc_date_is_damage_not_a_traceback(short_log, tmp_path):
     when = "0001-01-01T00:00:00+05:00"
     log = ms.rewrite(short_log, tmp_path / "date.mcap",
@@ -149,6 +151,7 @@ def test_parse_json_is_the_one_boundary_for_numbers():
         "a": [1, 2.5, -3e-300, 123456789012345678901234567890]}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("time_s", [math.nan, 1e300, -1e300], ids=["nan", "1e300", "-1e300"])
 @pytest.mark.parametrize("suffix", [".asc", ".blf"])
 def test_export_can_leaves_out_frames_whose_time_is_no_time(short_log, tmp_path, time_s, suffix):
@@ -185,6 +188,7 @@ def _chamber_log(path: Path, states: int, text_bytes: int) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_chamber_states_with_1_mb_alarm_texts_are_cut_as_they_are_read(tmp_path):
     """200 states of 1 MB each (a file of ~1 MB: the text compresses) were held, joined and parsed whole:
     three copies of 200 MB at once. Cut as they are gathered, the read holds about one message at a time."""

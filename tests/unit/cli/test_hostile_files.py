@@ -67,6 +67,7 @@ def test_apply_refuses_another_runs_log_unless_forced(run, tmp_path):
     assert list(tmp_path.glob(".*partial*")) == []
 
 
+@pytest.mark.slow
 def test_apply_rewrites_its_own_output(run, tmp_path):
     """A compensated MCAP is not a run log: running apply again replaces it without --force."""
     log, result = run
@@ -152,6 +153,7 @@ def _commands(log: Path, result: Path, special: Path, out: Path) -> dict[str, li
     }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind,name", [("fifo", name) for name in _commands(Path(), Path(), Path(), Path())]
                          + [("dev-zero", name) for name in ("solve --against", "check-table --calibration", "export",
                                                             "replay")])
@@ -167,6 +169,7 @@ def test_a_special_file_as_input_is_one_line_at_once(name, kind, run, fifo, tmp_
     assert "Traceback" not in proc.stderr
 
 
+@pytest.mark.slow
 def test_run_resume_of_a_special_file_is_one_line(fifo, tmp_path):
     from tests.helpers.run import config_text
 

@@ -93,6 +93,7 @@ def test_the_bench_makes_run_ids_of_its_own_format(recorded):
 
 # -- bench solve ---------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 @pytest.mark.parametrize("run_id, label", [("../../escape", "dots"), ("a\x00b", "nul"),
                                            ("<img src=x onerror=alert(1)>", "html")])
 def test_solve_names_outputs_after_the_log_when_its_run_id_is_not_safe(recorded, tmp_path, run_id, label):
@@ -114,6 +115,7 @@ def test_solve_names_outputs_after_the_log_when_its_run_id_is_not_safe(recorded,
     assert "<img" not in md and "\x00" not in md
 
 
+@pytest.mark.slow
 def test_solve_skips_logs_before_entries_that_are_not_sibling_logs(recorded, tmp_path):
     entries = ["/etc/passwd", "../x", "..", "sub/../../../etc/shadow.mcap"]
     crafted = _craft(recorded.log, tmp_path / "logs", metadata={"run": {"logs_before": json.dumps(entries)}})

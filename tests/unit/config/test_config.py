@@ -613,6 +613,7 @@ def documents(draw):
     return "\n".join(out) + "\n", expected
 
 
+@pytest.mark.slow
 @settings(max_examples=250, deadline=None)
 @given(documents())
 def test_locator_finds_what_a_writer_wrote(doc):

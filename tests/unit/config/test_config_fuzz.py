@@ -17,6 +17,7 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
+import pytest
 from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
@@ -40,6 +41,7 @@ def assert_one_line(error: ConfigError | ScheduleError, paths: set[str]) -> None
     assert len(text) < 1500 + len(error.path), text
 
 
+@pytest.mark.slow
 @settings(max_examples=150, deadline=None, derandomize=True, database=None)
 @given(rnd=st.randoms(use_true_random=False), own_schedule=st.booleans())
 def test_mutated_configuration_loads_or_gives_one_config_error(rnd, own_schedule):
@@ -68,6 +70,7 @@ def test_mutated_configuration_loads_or_gives_one_config_error(rnd, own_schedule
         event("loaded")
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None, derandomize=True, database=None)
 @given(rnd=st.randoms(use_true_random=False), name=st.sampled_from(SCHEDULES))
 def test_mutated_schedule_loads_or_gives_one_schedule_error(rnd, name):

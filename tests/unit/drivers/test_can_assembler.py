@@ -338,6 +338,7 @@ def faulty_streams(draw):
     return layout, counters, frames, draw(st.integers(1, 10))
 
 
+@pytest.mark.slow
 @settings(max_examples=250, deadline=None)
 @given(faulty_streams())
 def test_live_and_bulk_agree_on_random_faults(case):
@@ -356,6 +357,7 @@ def test_live_and_bulk_agree_on_random_faults(case):
     assert stats.joined_mid_sample in (0, 1) and stats.left_mid_sample in (0, 1)
 
 
+@pytest.mark.slow
 @settings(max_examples=250, deadline=None)
 @given(st.lists(st.tuples(st.sampled_from([0x100, 0x101, 0x105, 0x106, 0x110, 0x123]),
                           st.binary(min_size=0, max_size=64), st.floats(allow_nan=True)), max_size=40))

@@ -312,6 +312,7 @@ def test_missing_or_unreadable_dbc(tmp_path):
         ImuFrameSpec.from_dict({k: v for k, v in USER_MAPPING.items() if k != "acc_z"})
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(st.text(max_size=400) | st.builds(lambda cut, junk: USER_DBC[:cut] + junk,
                                          st.integers(0, len(USER_DBC)), st.text(max_size=40)))

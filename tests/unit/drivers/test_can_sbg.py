@@ -264,6 +264,7 @@ def test_the_rounding_that_noise_does_not_dither_away():
 
 # -- a whole run ---------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_bench_run_sim_with_the_sbg_layout_recovers_the_truth_within_its_budget(tmp_path):
     """`bench run --sim` on the short plan (3 s dwells, 200 Hz) with the MEMS IMU the layout simulates: exit 0 and
     every coefficient within 3 sigma of the truth (the noise-on standard of tests/e2e/test_run.py), the resolution in
@@ -286,6 +287,7 @@ def test_bench_run_sim_with_the_sbg_layout_recovers_the_truth_within_its_budget(
           f"outside U (k = 2): {outside or 'none'}")
 
 
+@pytest.mark.slow
 def test_bench_sim_rig_serves_the_sbg_layout_and_writes_it(tmp_path):
     """`bench sim rig --imu-layout sbg-ecan`: the written configuration selects the layout and the simulated MEMS
     IMU, and python-can's socketcand client receives its frames, decoded with no loss."""
@@ -340,6 +342,7 @@ def test_an_sbg_imu_configured_with_other_ids_is_read_with_an_edited_copy_of_the
     assert parse_config(rewritten).imu.layout == layout
 
 
+@pytest.mark.slow
 def test_a_dwell_whose_samples_lack_a_health_bit_is_left_out_and_named(tmp_path):
     """sbg's status bits mean healthy when set: during the second dwell the simulated IMU reports its gyroscopes
     out of range (bit 9 clear); the run names that dwell and leaves it out, and uses the others."""
@@ -359,6 +362,7 @@ def test_a_dwell_whose_samples_lack_a_health_bit_is_left_out_and_named(tmp_path)
     assert named[0].endswith("; left out")
 
 
+@pytest.mark.slow
 def test_an_imu_too_quiet_to_dither_its_resolution_is_flagged(tmp_path):
     """Noise off: every dwell's rounding follows its signal (a gyro bias below half a step reads 0); the budget,
     which takes the dwells' rounding as independent, says it does not cover that."""

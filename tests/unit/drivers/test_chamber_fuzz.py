@@ -3,6 +3,7 @@ random configuration builds a register map or raises ChamberMapError naming its 
 
 from __future__ import annotations
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -19,6 +20,7 @@ LINES = st.one_of(st.binary(max_size=300), st.lists(FIELDS, max_size=9).map(lamb
                                                                                                          "replace")))
 
 
+@pytest.mark.slow
 @settings(max_examples=400, deadline=None)
 @given(LINES)
 def test_random_monitor_replies_decode_or_raise_the_dialects_error(line):
@@ -48,6 +50,7 @@ LEAVES = st.one_of(st.none(), st.booleans(), st.integers(-3, 70000), st.floats(a
 VALUES = st.one_of(LEAVES, st.dictionaries(SUBKEYS, LEAVES, max_size=4))
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(st.dictionaries(KEYS, VALUES, max_size=5))
 def test_random_configuration_builds_a_map_or_raises_chamber_map_error(d):

@@ -234,6 +234,7 @@ LEAVES = st.one_of(st.none(), st.booleans(), st.integers(-3, 70000), st.floats(a
 VALUES = st.one_of(LEAVES, st.dictionaries(SUBKEYS, LEAVES, max_size=4))
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(st.dictionaries(KEYS, VALUES, max_size=5))
 def test_random_configuration_builds_a_map_or_raises_register_map_error(d):

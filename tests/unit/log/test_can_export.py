@@ -15,6 +15,7 @@ def log_path(short_run):
     return short_run.log
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("extension", [".asc", ".blf", ".log", ".csv"])
 def test_every_format_reads_back_frame_for_frame(log_path, tmp_path, extension):
     log = read_log(log_path)

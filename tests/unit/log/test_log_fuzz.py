@@ -22,6 +22,7 @@ from pathlib import Path
 
 import can
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -85,6 +86,7 @@ mutations = st.lists(st.tuples(st.sampled_from(KINDS), st.floats(0, 1, exclude_m
                      min_size=1, max_size=3)
 
 
+@pytest.mark.slow
 @settings(max_examples=150, deadline=2000, derandomize=True,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(compression=st.sampled_from(["zstd", "lz4", "none"]), steps=mutations)

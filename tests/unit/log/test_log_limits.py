@@ -108,6 +108,7 @@ def _bomb_cases(can: int):
     }
 
 
+@pytest.mark.slow
 def test_decompression_bombs_are_refused_as_damage_of_their_chunk_without_allocating_them(can_chunk, tmp_path):
     buf, pos, can = can_chunk
     good = read_log(_crafted(tmp_path, buf, "good.mcap"))
@@ -279,6 +280,7 @@ def test_crafted_content_is_read_as_damage_with_bounded_memory(run_log, crafted_
     assert len(block.counter)
 
 
+@pytest.mark.slow
 def test_crafted_content_solves_with_steps_left_out_and_a_report_without_the_bad_plot(crafted_content, tmp_path):
     path, _ = crafted_content
     rc, _, stderr = cli(["solve", str(path), "--out", str(tmp_path)])

@@ -433,6 +433,7 @@ def test_cli_reads_the_frames_once_with_or_without_quiet(recorded, monkeypatch):
     assert "batches of CAN frames recorded" in said[False] and recorded.log_path.name in said[False].splitlines()[0]
 
 
+@pytest.mark.slow
 def test_a_thermal_runs_chamber_states_are_read_and_replayed_in_log_time_order(thermal_run_log):
     """A thermal run's `/chamber/state` messages come back as `ChamberState`s (every one recorded) and are
     replayed to `on_chamber_state` in log-time order among the table states (they were not read at all)."""
@@ -480,6 +481,7 @@ def test_malformed_chamber_states_are_counted_not_read():
         assert chamber_state_row(bad) is None, bad
 
 
+@pytest.mark.slow
 def test_chamber_states_past_the_readers_limit_are_said_not_read(thermal_run_log, monkeypatch):
     from bench.log import reader
     from bench.log.format import TOPIC_CHAMBER

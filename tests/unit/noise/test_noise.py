@@ -215,6 +215,7 @@ def test_the_model_covariance_of_the_allan_points_matches_monte_carlo():
     assert np.all(np.abs(corr(measured) - corr(model)) < 0.15) and np.all(corr(model)[2:] > 0.3)
 
 
+@pytest.mark.slow
 def test_terms_over_seeds_are_within_their_stated_uncertainty():
     # regression: the bias instability was the lowest noisy point / 0.664 with one point's chi-square sigma, and
     # missed by up to 4.6 sigma on these records; ARW and bias instability must respect their sigmas
@@ -263,6 +264,7 @@ def test_white_noise_hidden_under_quantisation_is_an_upper_bound_not_a_number():
     assert vrw["value"] >= noise.acc_vrw_ug_rt_hz
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1])
 def test_one_hour_recovers_the_configured_terms(seed):
     rate = 100.0
@@ -295,6 +297,7 @@ def _small_result(tmp_path: Path) -> Path:
     return tmp_path / "sim-0.05h-100hz-seed2.noise.json"
 
 
+@pytest.mark.slow
 def test_bench_noise_sim_writes_json_markdown_and_html(tmp_path):
     path = _small_result(tmp_path)
     doc = json.loads(path.read_text())
@@ -312,6 +315,7 @@ def test_bench_noise_sim_writes_json_markdown_and_html(tmp_path):
     assert loaded.gyro_bias_stability_dph == doc["summary"]["gyro_bias_stability_dph"]
 
 
+@pytest.mark.slow
 def test_the_plot_draws_each_channels_fitted_curve_beside_its_term_lines(tmp_path):
     # the fitted total curve (the JSON `model`) was in the result but not in the figure
     import matplotlib.pyplot as plt
@@ -383,6 +387,7 @@ def _noise_config(dwell_s: float = 120.0) -> str:
                        noise="true")
 
 
+@pytest.mark.slow
 def test_bench_run_of_the_static_noise_plan_writes_the_noise_result(tmp_path):
     (tmp_path / "bench.toml").write_text(_noise_config())
     rc, out, err = cli(["run", "--config", str(tmp_path / "bench.toml"), "--out", str(tmp_path / "runs"), "--quiet"])
@@ -405,6 +410,7 @@ def test_bench_run_of_the_static_noise_plan_writes_the_noise_result(tmp_path):
     assert again["channels"] == doc["channels"]
 
 
+@pytest.mark.slow
 def test_bench_noise_needs_a_dwell_and_scales(tmp_path, monkeypatch):
     import bench.noise.from_log as from_log
 
@@ -435,6 +441,7 @@ def test_bench_noise_needs_a_dwell_and_scales(tmp_path, monkeypatch):
     assert rc == 2 and err.count("\n") == 1
 
 
+@pytest.mark.slow
 def test_imu_noise_file_feeds_the_bias_stabilities(tmp_path):
     result = _small_result(tmp_path)
     noise = NoiseResult.load(result)
@@ -477,6 +484,7 @@ def test_sim_noise_random_walk_keys_have_ranges(key, value, bound):
     assert getattr(good.sim.noise, key) == 2.5
 
 
+@pytest.mark.slow
 def test_a_static_run_whose_dwell_cannot_be_analysed_keeps_its_log_and_says_how(tmp_path, monkeypatch):
     import bench.run.runner as runner
     from bench.noise.from_log import NoiseInputError
@@ -493,6 +501,7 @@ def test_a_static_run_whose_dwell_cannot_be_analysed_keeps_its_log_and_says_how(
     assert read_log(str(outcome.log_path)).complete          # closed with its summary
 
 
+@pytest.mark.slow
 def test_bench_solve_of_a_static_noise_log_points_to_bench_noise(tmp_path):
     # regression: `bench solve` on a static-noise log exited 4 with "position method needs at least 4 positions"
     with api_run(_noise_config(dwell_s=20.0), tmp_path) as (_, outcome):

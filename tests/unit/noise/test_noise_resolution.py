@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from bench.model.imu import NoiseModel, default_sim_imu
 from bench.noise.allan import allan_curve
@@ -15,6 +16,7 @@ from tests.helpers.run import cli
 from tests.helpers.static_log import write_static_log
 
 
+@pytest.mark.slow
 def test_the_readme_example_reports_no_quantisation_read_off_one_point():
     """`bench noise --sim --duration-h 1 --rate-hz 200 --seed 0` gave gyro_x quantisation 0.01722 +- 2e-05 arcsec
     against a truth of 0.02886 (-573 sigma), read off the single shortest tau. It is now not given, with the reason,
@@ -61,6 +63,7 @@ def test_bench_noise_of_a_one_second_dwell_is_refused_not_reported_as_bounds(tmp
     assert not list((tmp_path / "out").glob("*.noise.json")) if (tmp_path / "out").exists() else True
 
 
+@pytest.mark.slow
 def test_a_long_enough_record_still_gives_every_resolved_term(tmp_path):
     code, out, err = cli(["noise", "--sim", "--duration-h", "0.05", "--rate-hz", "200", "--out", str(tmp_path)])
     assert code == 0, err

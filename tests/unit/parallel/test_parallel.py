@@ -80,6 +80,7 @@ def test_recommend_on_dask_is_the_plain_loop(scheduler):
     assert rows(on_dask) == rows(serial) and len(rows(serial)) == 16
 
 
+@pytest.mark.slow
 def test_the_commands_take_a_scheduler_by_address(scheduler, tmp_path):
     out = {}
     for where in ("loop", scheduler):
@@ -123,6 +124,7 @@ def _malloc_trim_threshold() -> str | None:
     return os.environ.get("MALLOC_TRIM_THRESHOLD_")
 
 
+@pytest.mark.slow
 def test_local_workers_keep_the_dynamic_mmap_threshold(monkeypatch):
     """Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536, which made a log's solve take 1.6x the CPU
     in a worker (every large numpy temporary mmapped and page-faulted afresh): our local workers go without."""
@@ -131,6 +133,7 @@ def test_local_workers_keep_the_dynamic_mmap_threshold(monkeypatch):
     assert error is None and value is None
 
 
+@pytest.mark.slow
 def test_a_local_cluster_does_not_need_the_dashboard_port():
     """With 127.0.0.1:8787 (Dask's default HTTP port) held, by another cluster or a second archive solved at once,
     the local cluster runs its tasks without Dask's multi-line "Port 8787 is already in use" warning (its HTTP

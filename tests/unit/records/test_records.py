@@ -332,6 +332,7 @@ def test_a_query_on_a_database_that_is_not_there_says_so_and_creates_nothing(tmp
     assert not (tmp_path / "nowhere").exists()
 
 
+@pytest.mark.slow
 def test_two_processes_importing_into_one_postgresql_database_lose_nothing(postgres, archive, tmp_path):
     """On PostgreSQL both processes may check for a run or result at once; the one whose insert then meets the
     other's unique key runs its transaction again (it finds the row: already known) instead of ending the import

@@ -83,6 +83,7 @@ def test_a_failing_database_keeps_the_files_and_is_a_non_zero_exit(recorded, tmp
     assert only_file(tmp_path / "out", "*.result.json").stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_bench_check_table_records_its_check(tmp_path):
     schedule = tmp_path / "table-check-16.toml"
     schedule.write_text(_schedule_text((0, 90, 180, 270), (45, 135, 225, 315)), encoding="utf-8")

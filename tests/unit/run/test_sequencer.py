@@ -238,6 +238,7 @@ def test_illegal_transitions_are_refused(bench):
         seq._transition(RunState.DONE, "no")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dialect", ["mn", "modbus", "acutrol"])
 def test_a_whole_run_works_in_the_other_dialects(tmp_path, dialect):
     """`bench run` on the simulator served in $MN (TCP), Modbus TCP and ACL (TCP): same plan, same precision."""

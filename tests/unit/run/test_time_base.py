@@ -54,6 +54,7 @@ def test_frames_and_samples_are_re_stamped_on_the_run_clock():
     assert base.as_dict()["can_lag_min_s"] <= base.as_dict()["can_lag_max_s"]
 
 
+@pytest.mark.slow
 def test_a_hardware_run_records_the_offset_and_logs_on_the_run_clock(tmp_path):
     """The IMU sends with the epoch stamps of python-can's virtual bus; the run's clock is monotonic."""
     channel = f"turntable-bench-time-base-{uuid.uuid4().hex[:8]}"

@@ -50,6 +50,7 @@ def archive(tmp_path_factory) -> Path:
     return root
 
 
+@pytest.mark.slow
 def test_archive_on_dask_equals_one_by_one_and_records_every_unit(archive, tmp_path):
     one = tmp_path / "one"
     codes = {}
@@ -82,6 +83,7 @@ def test_archive_on_dask_equals_one_by_one_and_records_every_unit(archive, tmp_p
     assert "not-a-log.mcap" in stderr
 
 
+@pytest.mark.slow
 def test_the_plain_loop_writes_the_same_next_to_each_log(archive, tmp_path):
     copy = tmp_path / "copy"
     shutil.copytree(archive / "a", copy)
@@ -93,6 +95,7 @@ def test_the_plain_loop_writes_the_same_next_to_each_log(archive, tmp_path):
     assert results_below(copy) == results_below(tmp_path / "ref") and len(results_below(copy)) == 2
 
 
+@pytest.mark.slow
 def test_archive_usage_errors(archive, tmp_path):
     log = next(archive.rglob("*.mcap"))
     for argv, message in (([str(log), "--archive", str(archive)], "not both"),
@@ -106,6 +109,7 @@ def test_archive_usage_errors(archive, tmp_path):
         assert rc == 2 and message in stderr, (argv, stderr)
 
 
+@pytest.mark.slow
 def test_a_resumed_runs_logs_are_one_calibration_in_the_archive(tmp_path):
     """A run killed and resumed leaves two logs next to each other, the later naming the earlier: the archive
     solves them together, as `bench solve LATER` does, and not the earlier alone (an extra, partial calibration
@@ -143,6 +147,7 @@ def test_a_resumed_runs_logs_are_one_calibration_in_the_archive(tmp_path):
 READER_POOLS = ("mcap-inflate", "can-stream", "can-frames")
 
 
+@pytest.mark.slow
 def test_an_archive_task_is_one_cores_work(archive, tmp_path, monkeypatch):
     """An archive task's log reader starts no thread pool: the cores are the workers', one task each (with pools
     of its own each solve took 1.2 cores and two workers on two cores competed for them). The same log solved as
@@ -172,6 +177,7 @@ def test_an_archive_task_is_one_cores_work(archive, tmp_path, monkeypatch):
     assert results_below(tmp_path / "task") == results_below(tmp_path / "one")
 
 
+@pytest.mark.slow
 def test_a_thermal_runs_log_is_re_solved_one_calibration_per_temperature(thermal_run_log, tmp_path):
     """A thermal run's log in the archive is solved as `bench solve LOG` solves it: one calibration per
     temperature and the thermal model refitted (solved whole, its two temperatures made one calibration that
@@ -200,6 +206,7 @@ def test_a_thermal_runs_log_is_re_solved_one_calibration_per_temperature(thermal
 
 # -- issue 27: the archive's skip follows the log's content, copies are named, nothing goes unrecorded silently ----
 
+@pytest.mark.slow
 def test_moved_logs_are_skipped_by_run_id_and_content_and_a_backup_copy_gets_its_own_outputs(archive, tmp_path):
     """Keyed on the log's path, every call after the logs moved re-solved everything and added result rows (three
     for one run after two calls); two logs of one run in one folder wrote one output file ("solved 4 of 5", three
@@ -232,6 +239,7 @@ def test_moved_logs_are_skipped_by_run_id_and_content_and_a_backup_copy_gets_its
     assert sorted(Path(p).parent.name for p in results) == sorted([log.stem, backup.stem]), sorted(results)
 
 
+@pytest.mark.slow
 def test_every_result_not_recorded_is_a_non_zero_exit_and_relative_out_is_resolved(archive, tmp_path, monkeypatch):
     """`--out RELATIVE` on a Dask cluster wrote into the worker's folder and recorded nothing, exit 0."""
     import bench.solve.archive as archive_module
@@ -257,6 +265,7 @@ def test_every_result_not_recorded_is_a_non_zero_exit_and_relative_out_is_resolv
     assert results_below(tmp_path / "relative")
 
 
+@pytest.mark.slow
 def test_a_log_starting_before_year_1_in_utc_does_not_stop_the_archive(archive, tmp_path):
     """Issue 34: `run.started_utc = 0001-01-01T00:00:00+05:00` crashed the recording of its result (OverflowError)
     and stopped `bench solve --archive`: the logs after it were never solved."""
@@ -284,6 +293,7 @@ def test_a_log_starting_before_year_1_in_utc_does_not_stop_the_archive(archive, 
     assert len(runs) == 3 and runs["early-run"].started_utc is None and runs["early-run"].results == 1
 
 
+@pytest.mark.slow
 def test_a_thermal_runs_folder_imports_with_its_headline_result_as_the_record(thermal_run_log, tmp_path):
     """`bench db import` of a thermal run's folder: its headline result (the block nearest the model's reference
     temperature, named after the run) is the run's record of truth; each temperature's result is recorded as a

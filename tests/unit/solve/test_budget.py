@@ -167,6 +167,7 @@ def test_table_prior_from_configuration(tmp_path):
     assert from_check(check, None, "x").source.endswith("(no [table] pointing_accuracy_arcsec)")
 
 
+@pytest.mark.slow
 def test_coverage_small_study_is_within_its_binomial_bounds():
     """40 seed-fixed simulated calibrations on a traditional plan with a 20" table (the case where the
     noise-only sigma was 800 times too small): the truth lies within U (k = 2) and within sigma about as

@@ -148,6 +148,7 @@ def _residual_keys(result: dict) -> tuple[list, list]:
     return positions, rotations
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["optimal", "traditional"])
 def test_a_builtin_subset_solves_exactly_its_schedules_steps(all_data, tmp_path, method):
     positions, rotations = METHODS[method]
@@ -165,6 +166,7 @@ def test_a_builtin_subset_solves_exactly_its_schedules_steps(all_data, tmp_path,
     assert f"{len(got_positions)} positions ({positions}), {len(got_rotations)} rotations ({rotations})" in stdout
 
 
+@pytest.mark.slow
 def test_a_schedule_file_subset_and_none(all_data, tmp_path):
     """Six positions from a schedule file (each body axis up and down) and no rotations:
     the accelerometers only (the gyro bias needs the turns' scale factors and axes)."""
@@ -208,6 +210,7 @@ def test_a_subset_the_log_lacks_is_exit_2_naming_what_is_missing(noisy, tmp_path
 
 # -- 3. comparing methods (paper section 5.2, Table 5) ----------------------------------------------------
 
+@pytest.mark.slow
 def test_compare_shows_optimal_closer_to_the_all_data_solution_than_traditional(all_data, tmp_path):
     table_path = tmp_path / "compare.json"
     rc, stdout, stderr = _solve(all_data.log, "--compare", "optimal,traditional,all", "--json", table_path)
@@ -239,6 +242,7 @@ def test_compare_shows_optimal_closer_to_the_all_data_solution_than_traditional(
     assert "Error from the simulator's truth" in stdout and f"wrote {table_path}" in stdout
 
 
+@pytest.mark.slow
 def test_compare_usage_errors(all_data, noisy):
     rc, _, stderr = _solve(all_data.log, "--compare", "optimal")
     assert rc == 2 and "at least two methods" in _one_line(stderr)
@@ -252,6 +256,7 @@ def test_compare_usage_errors(all_data, noisy):
 
 # -- 4. several logs ------------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_killed_and_resumed_logs_solve_together_to_the_resumed_runs_result(noisy, tmp_path):
     out = tmp_path / "out"
     killed, _ = kill_run_after_units(noisy.config, out)
@@ -282,6 +287,7 @@ def test_killed_and_resumed_logs_solve_together_to_the_resumed_runs_result(noisy
     assert set(alone["run"]["left_out"]) == done_before
 
 
+@pytest.mark.slow
 def test_logs_of_different_imus_or_runs_are_not_merged(noisy, all_data):
     rc, stdout, stderr = _solve(noisy.log, all_data.log)
     line = _one_line(stderr)
@@ -311,6 +317,7 @@ def test_logs_of_different_plans_sites_or_tables_are_not_merged(noisy, tmp_path,
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_resuming_with_a_log_of_another_plan_is_refused(all_data, tmp_path):
     """The issue's case: `bench run --sim --resume` an all-64 run's log would skip its P01-P24 and R01-R06 by
     label and solve them as optimal-24 and optimal-5s6r: a wrong calibration with exit 0. Refused, nothing moved."""

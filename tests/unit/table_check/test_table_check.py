@@ -366,6 +366,7 @@ def test_unreachable_table_is_exit_2_nothing_moved(tmp_path):
     assert "cannot start" in err and "nothing moved" in err
 
 
+@pytest.mark.slow
 def test_sigint_aborts_with_exit_code_3_the_table_stopped_and_no_check(tmp_path):
     config = tmp_path / "bench.toml"
     config.write_text(config_text(), encoding="utf-8")

@@ -116,6 +116,7 @@ def verification_data():
 BLACK_BOX_RAD = np.random.default_rng(0).standard_normal((3, 3)) * 20.0 * ARCSEC
 
 
+@pytest.mark.slow
 def test_u_includes_the_tables_part_and_covers_what_the_table_does_to_the_errors():
     """Issue 27: on a table with a black box the true calibration's verification errors are the table's (up to
     ~40 arcsec of misalignment); U without the table's part leaves them beyond U, with it they lie within."""
@@ -158,6 +159,7 @@ def _write(tmp_path, text: str, name: str = "other.toml"):
     return path
 
 
+@pytest.mark.slow
 def test_a_simulated_verification_runs_on_the_table_its_calibration_recorded(tmp_path):
     config = load_config(_write(tmp_path, config_text(seed=3, black_box_arcsec=20.0)))
     result = _result(default_sim_imu())
@@ -284,6 +286,7 @@ def _other_imus_calibration(tmp_path):
 WRONG = {"verify acc bias x"} | {f"verify gyro scale y @ {r:g} deg/s" for r in RATES_DPS}
 
 
+@pytest.mark.slow
 def test_bench_verify_fails_another_imus_calibration_and_names_the_checks(verified, tmp_path):
     _, config, run_out, _ = verified
     out = tmp_path / "out"
@@ -305,6 +308,7 @@ def test_bench_verify_fails_another_imus_calibration_and_names_the_checks(verifi
         pytest.approx(-300.0, abs=5.0)
 
 
+@pytest.mark.slow
 def test_an_error_beyond_its_u_fails_bench_verify_without_any_limit(verified, tmp_path):
     """Issue 27: `bench verify` printed "(beyond U)" lines, then `verdict: PASS`, exit 0; beyond U now fails."""
     folder, _, _, _ = verified
