@@ -129,6 +129,7 @@ def test_unreachable_controller_and_usage_errors(capsys):
     assert exit_info.value.code == 2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_sim_table_stops_on_a_stop_signal_even_when_started_with_sigint_ignored(signum):
     # A shell starts `bench sim table ... &` in a script with SIGINT ignored; Ctrl-C/SIGINT must still stop it,
@@ -225,6 +226,7 @@ def test_sim_table_with_allow_remote_warns_loudly(capsys, monkeypatch):
     assert len(warning) == 1 and "reachable from the NETWORK" in warning[0] and "0.0.0.0:5025" in warning[0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("simulator", [("scpi", "tcp://127.0.0.1:0")], indirect=True)
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
 def test_sigterm_and_sighup_stop_a_goto_like_ctrl_c(simulator, signum, capsys):

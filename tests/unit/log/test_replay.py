@@ -378,6 +378,7 @@ def test_cli_damaged_log_replays_what_is_readable(recorded, tmp_path):
     assert f"replayed {stats.events} events" in out
 
 
+@pytest.mark.slow
 def test_cli_ctrl_c_stops_a_paced_replay_with_the_summary(recorded):
     proc = start_cli("replay", str(recorded.log_path), "--speed", "1")
     try:
@@ -391,6 +392,7 @@ def test_cli_ctrl_c_stops_a_paced_replay_with_the_summary(recorded):
     assert out.startswith("replayed ") and "stopped early" in out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum, ignored", [(signal.SIGINT, True), (signal.SIGTERM, False), (signal.SIGHUP, False)])
 def test_cli_a_stop_signal_stops_a_paced_replay_even_with_sigint_ignored(recorded, signum, ignored):
     # A shell starts `bench replay LOG &` in a script with SIGINT ignored: SIGINT must still stop it;

@@ -181,6 +181,7 @@ def _soak(make, tau_s: float):
     return world, listener, done, air_at
 
 
+@pytest.mark.slow
 def test_the_soak_waits_for_the_imu_not_the_chamber(world_with_chamber):
     """The chamber's air reaches 40 degC long before an IMU with a 600 s case time constant does: the soak
     ends only once the IMU's own temperature has settled (its rate below 0.05 degC/min for 2 min), and
@@ -210,6 +211,7 @@ def test_the_soak_waits_for_the_imu_not_the_chamber(world_with_chamber):
     assert fast.time_s - fast_air_at < slow_after_air / 3
 
 
+@pytest.mark.slow
 def test_a_soak_past_its_maximum_is_a_fault_and_the_chamber_is_made_safe(world_with_chamber):
     world, table, imu, chamber = world_with_chamber(600.0)
     listener = Listener()
@@ -228,6 +230,7 @@ def _with_a_dwell(steps):
     return steps + (dwell,)
 
 
+@pytest.mark.slow
 def test_a_chamber_alarm_during_the_run_is_a_fault_the_table_stops_and_the_chamber_is_made_safe(
         world_with_chamber):
     world, table, imu, chamber = world_with_chamber(30.0)
@@ -247,6 +250,7 @@ def test_a_chamber_alarm_during_the_run_is_a_fault_the_table_stops_and_the_chamb
     assert kinds.index("fault") < kinds.index("info", kinds.index("fault"))
 
 
+@pytest.mark.slow
 def test_a_lost_chamber_link_is_a_fault_and_the_table_still_stops(world_with_chamber):
     world, table, imu, chamber = world_with_chamber(30.0, chamber_timeout_s=0.2)
     listener = Listener()
@@ -290,6 +294,7 @@ def test_a_thermal_plan_value_checks():
     assert [s.kind for s in plan.steps[:2]] == ["set_temperature", "soak"]
 
 
+@pytest.mark.slow
 def test_resume_skips_the_chamber_steps_of_a_temperature_whose_units_are_all_done(world_with_chamber):
     world, table, imu, chamber = world_with_chamber(30.0)
     listener = Listener()
@@ -307,6 +312,7 @@ def test_resume_skips_the_chamber_steps_of_a_temperature_whose_units_are_all_don
     assert any(e.data.get("soak") == "done" for e in listener2.events)
 
 
+@pytest.mark.slow
 def test_a_pause_holds_the_chamber_and_an_alarm_raised_meanwhile_ends_the_run_while_paused(world_with_chamber):
     """The simulated clock stands still while paused, yet the chamber is still polled (on the wall clock too):
     an alarm raised during the pause ends the run then, without waiting for a resume (before, only after it)."""

@@ -112,6 +112,7 @@ def test_a_log_that_starts_before_year_1_in_utc_is_recorded_with_its_start_unkno
         assert (run.run_id, run.started_utc, run.log_complete) == ("early-run", None, True)
 
 
+@pytest.mark.slow
 def test_a_noise_result_of_a_run_is_recorded_and_a_simulated_imus_is_named(tmp_path):
     """A static-noise run's `<run-id>.noise.json` was ignored without a word (the run told the user to import it
     later); the noise of the simulated IMU alone belongs to no run and says so."""
@@ -141,6 +142,7 @@ def test_a_noise_result_of_a_run_is_recorded_and_a_simulated_imus_is_named(tmp_p
     assert rc == 0 and "0 recorded, 2 already known" in stdout
 
 
+@pytest.mark.slow
 def test_thermal_sim_results_say_in_one_line_why_they_are_not_recorded(tmp_path):
     """`bench thermal sim` results were refused as "the result names no run", the path printed twice."""
     config = tmp_path / "bench.toml"
@@ -219,6 +221,7 @@ def _variants(good: str, folder: Path, prefix: str, n: int) -> None:
         (folder / f"{prefix}-{k:03d}.result.json").write_text(text)
 
 
+@pytest.mark.slow
 def test_two_processes_importing_into_one_database_at_once_lose_nothing(good_result, tmp_path):
     """Each process's transaction takes SQLite's write lock when it begins (BEGIN IMMEDIATE). Before, the driver
     began a transaction only at the first INSERT, after the checks: both processes found a run (or the schema)

@@ -189,6 +189,7 @@ def test_plots_cover_the_log(run):
     assert len(series.state_t_s) == len(run.log.table_states) and not series.notes
 
 
+@pytest.mark.slow
 def test_report_time_for_the_short_log(run, tmp_path):
     started = time.perf_counter()
     md, html = write_reports(run.result, tmp_path, "timed", log=run.log)
@@ -321,6 +322,7 @@ def test_markdown_escapes_free_text_as_the_html_report_does(run, tmp_path):
 
 # -- logs that are not pristine -------------------------------------------------------------
 
+@pytest.mark.slow
 def test_damaged_log_without_its_dbc_is_reported(run, tmp_path):
     data = run.log_path.read_bytes()
     cut = tmp_path / "cut.mcap"

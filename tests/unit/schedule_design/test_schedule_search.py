@@ -79,6 +79,7 @@ def test_vectorised_sensitivity_equals_part_1_on_random_schedules(seed):
                 assert np.allclose(slow.row(f"Ea_{body}{s}"), dp[c, a], atol=1e-7)
 
 
+@pytest.mark.slow
 def test_rotation_search_finds_table_3_and_agrees_with_part_1():
     result = search_rotations()
     assert len(all_rotations()) == 96
@@ -94,6 +95,7 @@ def test_rotation_search_finds_table_3_and_agrees_with_part_1():
         assert sorted(sens.remaining_geometric.nonzero()[1].tolist()) == [8, 8]
 
 
+@pytest.mark.slow
 def test_cli_search_writes_loadable_files(tmp_path, capsys):
     assert main(["schedules", "search", "--groups", "16", "--choose", "6", "--out", str(tmp_path),
                  "--best", "2"]) == 0

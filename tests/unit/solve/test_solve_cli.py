@@ -89,6 +89,7 @@ def _one_line(stderr: str) -> str:
 
 # -- 1. bit for bit ------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 @pytest.mark.parametrize("recording", ["noisy", "all_data"])
 def test_solving_a_recorded_log_reproduces_bench_runs_result_bit_for_bit(request, recording, tmp_path):
     run = request.getfixturevalue(recording)

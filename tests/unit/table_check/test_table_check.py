@@ -389,6 +389,7 @@ def test_sigint_aborts_with_exit_code_3_the_table_stopped_and_no_check(tmp_path)
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
 
 
+@pytest.mark.slow
 def test_short_dwells_get_right_sigmas():
     """Issue 15: at 2 s dwells the per-dwell standard errors of quantised outputs depend on the
     signal; weighting by them biased the estimate (RMS z 1.45 over these two seeds, 0.69 now).
