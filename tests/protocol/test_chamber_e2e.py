@@ -154,6 +154,7 @@ def test_a_corrupted_reply_is_retried(rig):
     assert not chamber.read_state().running
 
 
+@pytest.mark.slow
 def test_silence_is_a_timeout(rig):
     chamber, sim, _, _, _ = rig
     with impatient(chamber) as other, pytest.raises(ChamberTimeout):

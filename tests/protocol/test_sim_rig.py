@@ -390,6 +390,7 @@ def test_bench_run_against_the_rig_in_another_process_recovers_its_truth(tmp_pat
         stop_process(rig)
 
 
+@pytest.mark.slow
 def test_the_rig_serves_the_packed_layout_and_writes_it(tmp_path):
     written = tmp_path / "bench.toml"
     rig = _start_rig("--imu-layout", "packed", "--imu-rate-hz", "2000", "--imu-listen", "socketcand://127.0.0.1:0",
@@ -446,6 +447,7 @@ def test_a_controller_killed_mid_run_is_table_state_unknown_exit_6_never_table_s
     assert not any("abort sent" in m or "servos off" in m or m.endswith("table stopped") for m in messages), messages
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGHUP])
 def test_the_rig_stops_on_sigint_even_when_ignored_and_on_sighup(signum):
     # a shell starts `bench sim rig ... &` in a script with SIGINT ignored; SIGINT and SIGHUP must still stop it

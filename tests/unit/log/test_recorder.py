@@ -563,6 +563,7 @@ def small_log(tmp_path_factory):
     return path.read_bytes(), len(run.messages)
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(flips=st.lists(st.tuples(st.floats(0, 1, exclude_max=True), st.integers(1, 255)), min_size=1, max_size=4),
        cut=st.one_of(st.none(), st.floats(0, 1)))

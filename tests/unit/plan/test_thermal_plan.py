@@ -268,6 +268,7 @@ def test_a_lost_chamber_link_is_a_fault_and_the_table_still_stops(world_with_cha
     assert [e.state for e in listener.events if e.kind == "transition"][-2:] == ["aborting", "failed"]
 
 
+@pytest.mark.slow
 def test_an_abort_during_the_soak_makes_the_chamber_safe(world_with_chamber):
     world, table, imu, chamber = world_with_chamber(600.0)
     listener = Listener()

@@ -109,6 +109,7 @@ def test_cli_search_writes_loadable_files(tmp_path, capsys):
     assert main(["schedules", "validate", *map(str, files)]) == 0
 
 
+@pytest.mark.slow
 def test_cli_search_without_out_says_that_nothing_was_written(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert main(["schedules", "search", "--groups", "8", "--choose", "3", "--best", "2"]) == 0

@@ -57,6 +57,7 @@ def test_turn_integral_brute_force_matches_closed_form():
     assert np.abs(counts - without_earth).max() > 1e3 * 1e-9 * np.abs(closed).max()
 
 
+@pytest.mark.slow
 def test_noise_on_truth_within_three_sigma():
     """Over repeated seeds, >= 99 % of the coefficients lie within 3 sigma of the truth."""
     imu = default_sim_imu()

@@ -239,6 +239,7 @@ def verified(tmp_path_factory):
     return folder, config, out, stdout
 
 
+@pytest.mark.slow
 def test_bench_run_verifies_and_the_errors_lie_within_their_expanded_uncertainties(verified):
     """Issue 27: the same simulated table as the calibration, and U with the table's part: every error lies
     within U, and each is a check of its own."""
