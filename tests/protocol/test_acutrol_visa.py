@@ -138,6 +138,7 @@ def _fault_console(proc, command: str) -> None:
     assert proc.stdout.readline().strip() == "ok"
 
 
+@pytest.mark.slow
 def test_the_public_clients_sequence_through_pyvisa(served):
     framing, port, proc = served
     manager = pyvisa.ResourceManager("@py")

@@ -148,6 +148,7 @@ def test_one_garbled_reply_is_retried_three_are_a_protocol_error(rig):
     assert chamber.read_state().temperature_c == pytest.approx(23.0)     # the link recovers
 
 
+@pytest.mark.slow
 def test_a_corrupted_reply_is_retried(rig):
     chamber, sim, _, _, _ = rig
     sim.faults.checksum = 1

@@ -512,6 +512,7 @@ def test_imu_off_and_on_from_the_console(rig):
         assert apply_imu_command(rig, fault) == "ok"
 
 
+@pytest.mark.slow
 def test_python_cans_socketcand_warnings_about_reads_that_end_inside_a_frame_are_silenced(caplog):
     # python-can's client reads 1024 bytes at a time and logs a warning each time a read ends inside a
     # `< frame >` element: on any TCP stream with a backlog (a busy client), not a framing fault of the

@@ -269,6 +269,7 @@ def test_imu_scales_are_the_sim_truth_or_raw(tmp_path):
 
 # -- pilot tests against the simulator -----------------------------------------------------------
 
+@pytest.mark.slow
 def test_connect_shows_table_and_imu_then_go_to_position(tmp_path):
     async def body():
         app = make_app(tmp_path)

@@ -300,6 +300,7 @@ def test_bench_apply_writes_an_mcap_with_the_raw_and_the_compensated_topics(nois
     assert [m["counter"] for m in topics["/imu/samples"]] == run.samples.counter.tolist()
 
 
+@pytest.mark.slow
 def test_apply_and_the_library_are_one_code_path(noise_free_run):
     c = compensation_of(CalibrationResult.load(noise_free_run.truth))
     applied = compensate_block(c, noise_free_run.samples, rate_unit="deg/s", force_unit="g")
@@ -360,6 +361,7 @@ def test_the_c_header_compiles_and_compensates_a_log_as_bench_apply_does(noise_f
 
 # -- the commands' errors ----------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_export_writes_every_format_and_infers_it_from_the_suffix(noise_free_run, tmp_path):
     for name in ("c.h", "c.json", "c.csv", "c.yaml", "c.toml"):
         rc, _, stderr = cli(["export", str(noise_free_run.result), "--out", str(tmp_path / name)])
@@ -386,6 +388,7 @@ def test_a_bad_result_file_is_one_line_and_exit_2(tmp_path, content, message):
         assert rc == 2 and message in stderr and len(stderr.strip().splitlines()) == 1, stderr
 
 
+@pytest.mark.slow
 def test_apply_refuses_a_file_that_is_no_log_and_never_overwrites_the_log(noise_free_run, tmp_path):
     not_a_log = tmp_path / "x.mcap"
     not_a_log.write_bytes(b"hello" * 100)

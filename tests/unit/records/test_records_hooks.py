@@ -37,6 +37,7 @@ def recorded(tmp_path_factory):
                            result_path=only_file(out, "*.result.json"))
 
 
+@pytest.mark.slow
 def test_bench_run_records_its_run_log_and_result(recorded):
     result = json.loads(recorded.result_path.read_text())
     with open_records(str(recorded.db)) as records:
@@ -58,6 +59,7 @@ def test_bench_run_records_its_run_log_and_result(recorded):
     assert result_sha == _sha(recorded.result_path)
 
 
+@pytest.mark.slow
 def test_bench_solve_records_a_resolve_and_no_db_skips(recorded, tmp_path):
     rc, _, stderr = cli(["solve", str(recorded.log), "--out", str(tmp_path / "a"), "--no-html", "--quiet",
                          "--db", str(tmp_path / "r.sqlite")])
@@ -71,6 +73,7 @@ def test_bench_solve_records_a_resolve_and_no_db_skips(recorded, tmp_path):
     assert not (tmp_path / "skipped.sqlite").exists()
 
 
+@pytest.mark.slow
 def test_a_failing_database_keeps_the_files_and_is_a_non_zero_exit(recorded, tmp_path):
     """Records are sacred: a result the database did not take is exit 7 (NOT_RECORDED), the files kept."""
     blocker = tmp_path / "not-a-folder"
@@ -116,6 +119,7 @@ def _list_line(db: Path, run_id: str) -> str:
     return line
 
 
+@pytest.mark.slow
 def test_what_if_solves_and_a_cut_copy_never_replace_the_runs_result(recorded, tmp_path):
     """Issue 27's reproduction: `bench solve LOG --positions none --out sub2` and `bench solve COPY_CUT.mcap` were
     recorded as results of the run: `db list` showed the run's `fail` and `db history --coefficient Kg_x` dropped
@@ -162,6 +166,7 @@ def test_what_if_solves_and_a_cut_copy_never_replace_the_runs_result(recorded, t
     assert rc == 2 and "no recorded result '999999'" in stderr
 
 
+@pytest.mark.slow
 def test_a_re_solve_by_this_version_is_derived_but_stands_in_without_the_runs_own_result(recorded, tmp_path):
     """A whole re-solve never replaces the run's own result; for a run whose own result is not recorded (an
     archive of logs) it is the record of truth."""
@@ -179,6 +184,7 @@ def test_a_re_solve_by_this_version_is_derived_but_stands_in_without_the_runs_ow
         assert [(r.origin, r.truth) for r in records.results_of(run_id)] == [("re-solve", False), ("run", True)]
 
 
+@pytest.mark.slow
 def test_a_log_still_being_written_is_recorded_as_unfinished_and_its_hash_follows_the_finished_file(recorded,
                                                                                                    tmp_path):
     """`bench db import runs/` while a run was recording recorded the unfinished log as the run's, with a SHA-256

@@ -69,6 +69,7 @@ def _run_refused(tmp_path, controller, url, channel, fragment):
     assert not list(tmp_path.rglob("*.mcap"))
 
 
+@pytest.mark.slow
 def test_a_silent_imu_stops_the_run_before_anything_moves(tmp_path, served_table, channel):
     controller, url = served_table
     _run_refused(tmp_path, controller, url, channel,
@@ -109,6 +110,7 @@ def test_an_imu_at_another_rate_stops_the_run_before_anything_moves(tmp_path, se
         bus.shutdown()
 
 
+@pytest.mark.slow
 def test_an_imu_at_its_rate_passes_the_check(channel):
     controller = SimController()
     imu, bus = _sender(controller, channel, rate_hz=RATE_HZ)

@@ -116,6 +116,7 @@ def test_solving_a_recorded_log_reproduces_bench_runs_result_bit_for_bit(request
     assert all(f"| {name} |" in report for name in canonical_names())
 
 
+@pytest.mark.slow
 def test_against_an_earlier_result_compares_in_the_report(noisy, tmp_path):
     rc, _, stderr = _solve(noisy.log, "--out", tmp_path, "--against", noisy.result_path, "--quiet")
     assert rc == 0, stderr
@@ -128,6 +129,7 @@ def test_against_an_earlier_result_compares_in_the_report(noisy, tmp_path):
     assert rc == 2 and "not a turntable-bench/result file" in _one_line(stderr)
 
 
+@pytest.mark.slow
 def test_default_output_goes_next_to_the_first_log(noisy, tmp_path):
     log = tmp_path / "copied" / noisy.log.name
     log.parent.mkdir()
@@ -186,6 +188,7 @@ def test_a_schedule_file_subset_and_none(all_data, tmp_path):
     assert any("gyro bias not solved" in flag for flag in result["quality"]["flags"])
 
 
+@pytest.mark.slow
 def test_a_subset_the_log_lacks_is_exit_2_naming_what_is_missing(noisy, tmp_path):
     recorded = {angle_key(p.angles_deg) for p in load_builtin("optimal-24").positions}
     missing = [angle_key(p.angles_deg) for p in load_builtin("traditional-12").positions
@@ -296,6 +299,7 @@ def test_logs_of_different_imus_or_runs_are_not_merged(noisy, all_data):
     assert str(noisy.log) in line and str(all_data.log) in line and "one IMU" in line
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("record, value, named", [
     ("site", {"latitude_deg": "45.0"}, "site latitude 45.0 deg, height 0.0 m, local g None in crafted.mcap, "
                                        "latitude 30.27 deg"),
@@ -420,6 +424,7 @@ def damaged_copy(noisy, tmp_path):
     return make
 
 
+@pytest.mark.slow
 def test_a_log_without_summary_solves_everything_and_says_the_summary_is_missing(noisy, damaged_copy, tmp_path):
     footer_summary_start = _footer_summary_start(noisy.log)
     # cut before the DataEnd record (13 bytes): what a crash after the last write leaves
@@ -438,6 +443,7 @@ def _footer_summary_start(path: Path) -> int:
     return struct.unpack_from("<Q", footer, 9)[0]
 
 
+@pytest.mark.slow
 def test_a_log_cut_mid_chunk_is_read_up_to_the_cut(noisy, damaged_copy, tmp_path):
     """Cut in the middle of the first chunk holding a turn's end: every turn is lost, the
     positions before that chunk are solved (gyro bias needs the turns: not solved)."""
@@ -453,6 +459,7 @@ def test_a_log_cut_mid_chunk_is_read_up_to_the_cut(noisy, damaged_copy, tmp_path
     assert {name.split("_")[0] for name in result["coefficients"]} == {"Ka", "Ea", "K0"}
 
 
+@pytest.mark.slow
 def test_too_few_turns_left_solve_the_positions_and_say_why_the_turns_are_left_out(noisy):
     """Damage can leave fewer turns than the rotation method needs: the positions are still
     solved, the remaining turns listed as left out with the solver's reason."""
@@ -473,6 +480,7 @@ def test_too_few_turns_left_solve_the_positions_and_say_why_the_turns_are_left_o
 CHUNK_CRC_AT = 1 + 8 + 8 + 8 + 8
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("where", ["crc", "data"])
 def test_a_chunk_with_a_bad_crc_is_skipped_and_reading_resumes_after_it(noisy, damaged_copy, tmp_path, where):
     """`crc`: the chunk's stored CRC no longer matches its records; `data`: its compressed
