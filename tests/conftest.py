@@ -1,6 +1,10 @@
-"""Fixtures shared by test files: the leftover-thread check runs for every test (autouse)."""
+"""Fixtures shared by test files: the leftover-thread check runs for every test (autouse); the recorded logs that
+tests only read are recorded once per session (`short_run`, `cli_run_log`, `thermal_run_log`)."""
 
 from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -8,6 +12,15 @@ import pytest
 pytest.register_assert_rewrite("tests.helpers")
 
 from tests.helpers.threads import check_no_leftover_threads, project_threads  # noqa: E402
+
+E2E = Path(__file__).parent / "e2e"
+
+
+def pytest_collection_modifyitems(items):
+    """Every test in tests/e2e/ (whole simulated runs) is `slow`, without a mark in each module."""
+    for item in items:
+        if E2E in item.path.parents:
+            item.add_marker(pytest.mark.slow)
 
 
 @pytest.fixture(autouse=True)
@@ -47,3 +60,31 @@ def thermal_run_log(tmp_path_factory):
     from tests.helpers.run import record_thermal_run
 
     return record_thermal_run(tmp_path_factory.mktemp("thermal-run") / "run", serial="THERMAL-1")
+
+
+@pytest.fixture(scope="session")
+def short_run(tmp_path_factory) -> SimpleNamespace:
+    """A finished simulated run of the shortest plan (`tests.helpers.run.record_short_run`: traditional-12 +
+    traditional-3s6r, 1 s dwells), recorded once per session for the tests that only read it: `log` (the MCAP),
+    `result` (its result file), `finished_s` (the run clock's time when it finished). Copy a file to change it."""
+    from tests.helpers.run import record_short_run
+
+    folder = tmp_path_factory.mktemp("short-run")
+    with pytest.MonkeyPatch.context() as patch:   # a database of its own, as every test has (records_database_in_tmp)
+        patch.setenv("BENCH_DB", str(tmp_path_factory.mktemp("short-run-records") / "records.sqlite"))
+        log, finished_s = record_short_run(folder)
+    return SimpleNamespace(log=Path(log), result=next(Path(log).parent.glob("*.result.json")), finished_s=finished_s)
+
+
+@pytest.fixture(scope="session")
+def cli_run_log(tmp_path_factory) -> Path:
+    """The log of `bench run --config` of the short test plan with 1 s dwells (`tests.helpers.run.config_text`;
+    its configuration attached as bench.toml), recorded once per session for the tests that only read it."""
+    from tests.helpers.run import cli, config_text, only_file
+
+    folder = tmp_path_factory.mktemp("cli-run")
+    config = folder / "bench.toml"
+    config.write_text(config_text(dwell_s=1.0), encoding="utf-8")
+    rc, _, stderr = cli(["run", "--config", str(config), "--out", str(folder / "run"), "--quiet", "--no-db"])
+    assert rc == 0, stderr
+    return only_file(folder / "run", "*.mcap")

@@ -43,7 +43,7 @@ TAB_KEYS = f"{TABS[0][0]}-{TABS[-1][0]}"
 #: The interpreter's thread switch interval while the app runs. The run's threads (sequencer, CAN
 #: receiver, recorder; on the simulator a CPU-bound simulated world) hold the GIL for up to the
 #: default 5 ms at a time, and one screen refresh needs the GIL many times: at 1 ms the panels keep
-#: their refresh rate under a 2 kHz IMU (tests/benchmarks/tui_refresh.py).
+#: their refresh rate under a 2 kHz IMU (benchmarks/tui_refresh.py).
 SWITCH_INTERVAL_S = 0.001
 DARK_THEME, LIGHT_THEME = "textual-dark", "textual-light"
 #: The table and IMU panels' least height: the IMU panel's (its head, a row per channel, its legend, the border).

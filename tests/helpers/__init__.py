@@ -1,4 +1,4 @@
-"""Helpers shared by test modules (and tests/benchmarks scripts): import them as `tests.helpers.<module>`.
+"""Helpers shared by test modules (and the benchmarks/ and fuzz/ scripts): import them as `tests.helpers.<module>`.
 
 Test modules import helpers from here only, never from each other.
 """

@@ -1,4 +1,4 @@
-"""Byte surgery on MCAP logs, for the tests (and tests/fuzz/hostile_logs.py) that treat a log as hostile.
+"""Byte surgery on MCAP logs, for the tests (and fuzz/hostile_logs.py) that treat a log as hostile.
 
 Built on the record layout in `bench.log.mcap.records` (opcode u8 | length u64 | body; a chunk
 body is start u64 | end u64 | uncompressed size u64 | crc u32 | compression string |
@@ -145,7 +145,7 @@ def rewrite(src, dst, message=None, attachment=None, metadata=None):
     return dst
 
 
-# -- mutations (the suite's fuzz test, tests/test_log_fuzz.py, and tests/fuzz/hostile_logs.py) ---------
+# -- mutations (the suite's fuzz test, tests/unit/log/test_log_fuzz.py, and fuzz/hostile_logs.py) ---------
 
 #: Forged values for lengths and sizes: small, around the limits, and the largest a field holds.
 FORGED = (0, 1, 7, 21, 255, 1 << 16, 1 << 31, 1 << 32, 1 << 40, (1 << 63) - 1, (1 << 64) - 1)

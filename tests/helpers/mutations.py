@@ -5,8 +5,8 @@ returns the bytes to write: lines deleted, duplicated, swapped or uncommented, v
 replaced with huge, tiny, NaN, negative or 400-digit numbers, long strings, deeply
 nested arrays or inline tables, wrong types and special paths, random bytes inserted,
 the file cut short. `rnd` is a `random.Random`: the suite's fuzz test
-(tests/test_config_fuzz.py) passes hypothesis' `st.randoms()`, the command-line fuzzer
-(tests/fuzz/cli_fuzz.py) a seeded one.
+(tests/unit/config/test_config_fuzz.py) passes hypothesis' `st.randoms()`, the command-line fuzzer
+(fuzz/cli_fuzz.py) a seeded one.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Shared pieces of the `bench run` end-to-end tests (tests/test_run.py).
+"""Shared pieces of the `bench run` end-to-end tests (tests/e2e/test_run.py).
 
 A short plan (optimal-24 + optimal-5s6r, 3 s dwells, 50 Hz IMU) keeps one simulated run
 at a few seconds of wall time; runs are driven through the CLI in-process

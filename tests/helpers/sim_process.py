@@ -1,5 +1,5 @@
 """A `bench sim ...` command run in a child process, and reading its output (tests of the simulators' CLIs and
-tests/benchmarks/rig_speed.py)."""
+benchmarks/rig_speed.py)."""
 
 from __future__ import annotations
 

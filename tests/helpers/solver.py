@@ -1,4 +1,4 @@
-"""Assertions shared by the solver tests (tests/test_solver.py, tests/test_acquire.py)."""
+"""Assertions shared by the solver tests (tests/unit/solve/test_solver.py, tests/unit/solve/test_acquire.py)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """A simulated static-noise log written as a run writes it, fast (no sequencer, no wall clock).
 
-For the tests of `bench noise LOG` and the `tests/benchmarks/noise_speed.py` benchmark: metadata,
+For the tests of `bench noise LOG` and the `benchmarks/noise_speed.py` benchmark: metadata,
 the dwell's `step_started` / `step_finished` events and the raw CAN frames of the simulated IMU
 (quantised counts, the configured layout), in batches of 100 samples per `/can/raw` message as the
 recorder gets them live (its chunks close every 5 s of run clock). `drop` takes whole samples' frames out

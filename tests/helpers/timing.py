@@ -1,4 +1,4 @@
-"""Timing a device poll for the benchmarks (tests/benchmarks/table_poll_rtt.py, chamber_speed.py)."""
+"""Timing a device poll for the benchmarks (benchmarks/table_poll_rtt.py, chamber_speed.py)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Shared helpers of the TUI pilot tests (tests/test_tui*.py): the app on the simulator, bounded waits.
+"""Shared helpers of the TUI pilot tests (tests/tui/test_tui*.py): the app on the simulator, bounded waits.
 
 pytest-asyncio is not installed: each test runs its coroutine with `asyncio.run`. Every
 wait is bounded in time and count.
