@@ -28,8 +28,8 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
 from drivers.errors import TURNTABLE_LINK_ERRORS, DeviceChecksumError, LinkErrors, quote_bytes
+from drivers.modbus_frames import exception_name, explain_bad_reply
 from drivers.transport import MAX_REPLY_BYTES, serial_settings
-from drivers.turntable.modbus_map import exception_name, explain_bad_reply
 
 # pymodbus logs every timeout at ERROR; without a handler Python would print those to
 # stderr. The application's own logging configuration still receives them.

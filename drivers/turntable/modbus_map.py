@@ -16,10 +16,8 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from drivers.errors import (
     DeviceConfigError,
-    TurntableChecksumError,
     TurntableLimitError,
     TurntableProtocolError,
-    quote_bytes,
 )
 from drivers.turntable.base import FRAMES, AxisMode, AxisState, AxisStatus, TableState
 
@@ -40,32 +38,12 @@ SINGLE_REGISTERS = {"fault_code": 1, "watchdog": 1, "command": 1, "command_axes"
 STATE_REGISTERS = ("status", "mode", "actual_position", "actual_rate", "fault_code")
 READ_ONLY_REGISTERS = ("status", "actual_position", "actual_rate", "fault_code")
 
-EXCEPTION_NAMES = {
-    1: "illegal function",
-    2: "illegal data address",
-    3: "illegal data value",
-    4: "server device failure",
-    5: "acknowledge",
-    6: "server device busy",
-    7: "negative acknowledge",
-    8: "memory parity error",
-    10: "gateway path unavailable",
-    11: "gateway target device failed to respond",
-}
-
 DEFAULT_FAULT_TEXT = {1: "emergency stop", 2: "limit switch tripped", 3: "servo amplifier fault",
                       4: "Modbus watchdog expired"}
 
 
 class RegisterMapError(DeviceConfigError):
     """A register map (configuration) that cannot describe a controller; the message names the key."""
-
-
-def exception_name(code: int | None) -> str:
-    """'illegal data address' for 2, ...; 'unknown exception' for codes Modbus does not define (or none)."""
-    if code is None:
-        return "unknown exception"
-    return EXCEPTION_NAMES.get(code, "unknown exception")
 
 
 @dataclass(frozen=True)
@@ -400,49 +378,6 @@ def contiguous_runs(values: Mapping[int, int]) -> list[tuple[int, list[int]]]:
     return runs
 
 
-# -- wire checks (no I/O) ------------------------------------------------------------
-def crc16(data: bytes) -> bytes:
-    """The Modbus RTU CRC of `data`, as the two bytes that follow it on the wire (low byte first)."""
-    crc = 0xFFFF
-    for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return crc.to_bytes(2, "little")
-
-
-def explain_bad_reply(raw: bytes, framing: str, unit: int, function_code: int,
-                      transaction_id: int | None = None) -> TurntableProtocolError:
-    """Why bytes received in reply to a request did not decode: a typed error to raise.
-
-    `framing` is 'rtu' or 'tcp'. A reply that looks like ours (unit and function code,
-    or MBAP transaction id) with a wrong CRC -> `TurntableChecksumError`; a malformed
-    MBAP header -> `TurntableProtocolError` naming the field; anything else is garbage.
-    """
-    raw = bytes(raw)
-    if framing == "rtu":
-        if len(raw) >= 4 and raw[0] == unit and raw[1] & 0x7F == function_code:
-            if crc16(raw[:-2]) != raw[-2:]:
-                return TurntableChecksumError(
-                    f"reply CRC {raw[-2:].hex(' ')} does not match its content (expected "
-                    f"{crc16(raw[:-2]).hex(' ')}): {quote_bytes(raw, hex_dump=True)}", raw)
-            return TurntableProtocolError(f"reply frame does not decode: {quote_bytes(raw, hex_dump=True)}", raw)
-        return TurntableProtocolError(f"garbage instead of a Modbus RTU reply: {quote_bytes(raw, hex_dump=True)}", raw)
-    if framing != "tcp":
-        raise ValueError(f"framing must be 'rtu' or 'tcp', got {framing!r}")
-    if len(raw) >= 8 and (transaction_id is None or int.from_bytes(raw[0:2], "big") == transaction_id):
-        protocol = int.from_bytes(raw[2:4], "big")
-        length = int.from_bytes(raw[4:6], "big")
-        if protocol != 0:
-            return TurntableProtocolError(f"malformed MBAP header: protocol id {protocol} (must be 0): "
-                                          f"{quote_bytes(raw, hex_dump=True)}", raw)
-        if length != len(raw) - 6:
-            return TurntableProtocolError(f"malformed MBAP header: length field {length} but {len(raw) - 6} "
-                                          f"bytes follow it: {quote_bytes(raw, hex_dump=True)}", raw)
-        return TurntableProtocolError(f"reply PDU does not decode: {quote_bytes(raw, hex_dump=True)}", raw)
-    return TurntableProtocolError(f"garbage instead of a Modbus TCP reply: {quote_bytes(raw, hex_dump=True)}", raw)
-
-
 # -- helpers (also the chamber's register map's) ------------------------------------------
 def check_registers(registers: Sequence[int], count: int, what: str) -> list[int]:
     try:
@@ -536,8 +471,8 @@ def _axis_addresses(value: Any, source: str, key: str) -> tuple[int, int, int]:
     return outer, middle, inner
 
 
-__all__ = ["RegisterMap", "RegisterMapError", "EXCEPTION_NAMES", "exception_name", "axis_mask", "mask_axes",
-           "contiguous_runs", "crc16", "explain_bad_reply", "MAX_READ_REGISTERS", "check_code_tables",
+__all__ = ["RegisterMap", "RegisterMapError", "axis_mask", "mask_axes",
+           "contiguous_runs", "MAX_READ_REGISTERS", "check_code_tables",
            "check_registers", "map_int", "map_number", "map_table", "map_no_unknown", "CODE_TABLES", "command_code",
            "decode_command", "map_code_tables"]
 

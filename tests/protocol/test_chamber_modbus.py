@@ -20,7 +20,7 @@ from drivers.errors import (
     ChamberProtocolError,
     ChamberTimeout,
 )
-from drivers.turntable.modbus_map import crc16
+from drivers.modbus_frames import crc16
 from tests.helpers.modbus_exchange import GONE, ModbusExchange
 
 # The generic map's state as drivers/CHAMBER.md lays it out: 100 process value 23.4 degC (234 = 00ea), 101 unused,

@@ -25,9 +25,10 @@ from drivers.errors import (
     TurntableProtocolError,
     TurntableTimeout,
 )
+from drivers.modbus_frames import crc16
 from drivers.turntable.base import AxisLimits, AxisMode, AxisStatus, TableState, TurntableLimits
 from drivers.turntable.modbus import ModbusTurntable, parse_modbus_url
-from drivers.turntable.modbus_map import RegisterMap, crc16
+from drivers.turntable.modbus_map import RegisterMap
 from tests.helpers.modbus_exchange import DROP, GONE, ModbusExchange
 
 NO_WATCHDOG = RegisterMap.default().with_changes(watchdog_s=0)

@@ -10,16 +10,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.errors import DeviceError, TurntableChecksumError, TurntableLimitError, TurntableProtocolError
+from drivers.errors import (
+    DeviceChecksumError,
+    DeviceError,
+    DeviceProtocolError,
+    TurntableLimitError,
+    TurntableProtocolError,
+)
+from drivers.modbus_frames import crc16, exception_name, explain_bad_reply
 from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
 from drivers.turntable.modbus_map import (
     RegisterMap,
     RegisterMapError,
     axis_mask,
     contiguous_runs,
-    crc16,
-    exception_name,
-    explain_bad_reply,
     mask_axes,
 )
 
@@ -167,7 +171,7 @@ def test_crc16_matches_the_modbus_specification_example():
 def test_explain_bad_reply():
     frame = bytes.fromhex("01 03 04 00 01 00 02")
     bad_crc = frame + bytes(2)
-    assert isinstance(explain_bad_reply(bad_crc, "rtu", 1, 3), TurntableChecksumError)
+    assert isinstance(explain_bad_reply(bad_crc, "rtu", 1, 3), DeviceChecksumError)
     assert "garbage" in str(explain_bad_reply(b"\xde\xad", "rtu", 1, 3))
     assert "protocol id 7" in str(explain_bad_reply(bytes.fromhex("0001 0007 0003 01 03 00"), "tcp", 1, 3, 1))
     assert "length field 9" in str(explain_bad_reply(bytes.fromhex("0001 0000 0009 01 03 00"), "tcp", 1, 3, 1))
@@ -208,7 +212,7 @@ def test_any_full_state_block_of_valid_registers_decodes_or_raises_protocol_erro
        st.one_of(st.none(), st.integers(0, 0xFFFF)))
 def test_random_reply_bytes_always_explain_as_a_protocol_error(raw, framing, unit, fc, tid):
     error = explain_bad_reply(raw, framing, unit, fc, tid)
-    assert isinstance(error, TurntableProtocolError) and error.raw == raw
+    assert isinstance(error, DeviceProtocolError) and error.raw == raw
 
 
 @settings(max_examples=300, deadline=None)
