@@ -110,7 +110,13 @@ class StreamDecoder:
             new = (np.ascontiguousarray(data[rows]), timestamps[rows], u[accepted],
                    msg_index[rows].astype(np.int64), head[accepted])
         if self._pending is not None:
-            new = tuple(np.concatenate([p, q]) for p, q in zip(self._pending, new))   # type: ignore[assignment]
+            waiting = self._pending
+            if waiting[0].shape[1] != new[0].shape[1]:
+                # pieces as wide as their longest frame (a log or bus mixing 8- and 64-byte frames): the
+                # narrower data padded with zeros, past every used frame's length
+                width = max(waiting[0].shape[1], new[0].shape[1])
+                waiting, new = (_widened(waiting[0], width), *waiting[1:]), (_widened(new[0], width), *new[1:])
+            new = tuple(np.concatenate([p, q]) for p, q in zip(waiting, new))   # type: ignore[assignment]
         self._pending = new
         self._resolve(self._complete_through(self._head - self.window))
 
@@ -264,6 +270,15 @@ class StreamDecoder:
         self.stats.out_of_order -= int(np.count_nonzero(repeat & (u < h)))
         keep = ~repeat
         return data[keep], t[keep], u[keep], k[keep], h[keep]
+
+
+def _widened(data: np.ndarray, width: int) -> np.ndarray:
+    """`data` (frames x bytes) padded with zero bytes to `width` columns."""
+    if data.shape[1] == width:
+        return data
+    out = np.zeros((len(data), width), np.uint8)
+    out[:, :data.shape[1]] = data
+    return out
 
 
 def decode_stream(pieces, layout: ImuLayout | None = None, rate_hz: float = 1000.0,
