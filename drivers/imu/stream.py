@@ -167,14 +167,17 @@ class StreamDecoder:
         data, t, u, k, h = self._pending
         now = u <= cutoff
         n_now = int(np.count_nonzero(now))
-        if now[:n_now].all():   # the usual case, the final counters first: slices, not gathers
+        if n_now == len(u):   # everything waiting resolves (a live poll of whole samples)
+            self._pending = None
+        elif now[:n_now].all():   # the usual case, the final counters first: slices, not gathers
             rest = tuple(a[n_now:].copy() for a in self._pending)   # (small: copied, the piece may go)
             data, t, u, k, h = (a[:n_now] for a in self._pending)
+            self._pending = self._dedupe(*rest)
         else:
             later = ~now
             rest = tuple(a[later] for a in self._pending)
             data, t, u, k, h = data[now], t[now], u[now], k[now], h[now]
-        self._pending = self._dedupe(*rest) if len(rest[2]) else None
+            self._pending = self._dedupe(*rest) if len(rest[2]) else None
         du = u[1:] - u[:-1]
         # in order: a counter's frames are consecutive and in message order, so nothing repeats
         in_order = bool(((du > 0) | ((du == 0) & (k[1:] > k[:-1]))).all())
@@ -186,23 +189,21 @@ class StreamDecoder:
             stats.counter_gaps += cutoff - lo + 1
             return
         if in_order:
-            starts = np.zeros(np.count_nonzero(du) + 1, np.int64)
-            starts[1:] = np.flatnonzero(du) + 1
+            steps = np.flatnonzero(du)
+            starts = np.empty(len(steps) + 1, np.int64)
+            starts[0] = 0
+            np.add(steps, 1, out=starts[1:])
             counters = u[starts]
-            present = np.empty_like(starts)
-            present[:-1] = starts[1:] - starts[:-1]
-            present[-1] = len(u) - starts[-1]
+            present = np.diff(starts, append=len(u))
             complete = present == n_msgs
             firsts = starts[complete]
             if len(firsts) * n_msgs == len(u):   # every sample complete, frames in order: strided views, no gathers
-                def frames_of(m):
-                    return slice(m, None, n_msgs)
-                last = t[n_msgs - 1::n_msgs].copy()
+                block = self._columns.block(data, None, counters.copy(), t[n_msgs - 1::n_msgs].copy(), self.rate_hz)
             else:
                 def frames_of(m):
                     return firsts + m
                 last = t[firsts + n_msgs - 1] if len(firsts) else t[:0]
-            block = self._columns.block(data, frames_of, counters[complete].copy(), last, self.rate_hz)
+                block = self._columns.block(data, frames_of, counters[complete].copy(), last, self.rate_hz)
         else:
             counters, row = np.unique(u, return_inverse=True)
             row = row.reshape(-1)
@@ -226,8 +227,9 @@ class StreamDecoder:
         self._left = self._left or bool(left)
         stats.joined_mid_sample += joined
         stats.left_mid_sample += left
-        stats.samples += int(np.count_nonzero(complete))
-        stats.incomplete_samples += int(np.count_nonzero(~complete)) - joined - left
+        n_complete = int(np.count_nonzero(complete))
+        stats.samples += n_complete
+        stats.incomplete_samples += len(complete) - n_complete - joined - left
         stats.counter_gaps += (cutoff - lo + 1) - len(counters)
         if len(block):
             self._blocks.append(block)
