@@ -76,7 +76,7 @@ def as_arrays(ids, data, lengths, timestamps):
         lengths = np.full(n, width, np.int64) if lengths is None else np.asarray(lengths)
         if lengths.shape != (n,) or (n and lengths.dtype.kind not in "iu"):
             raise ImuFrameError(f"lengths must be {n} integers, got {lengths.shape} {lengths.dtype}")
-        if n and (lengths.min() < 0 or lengths.max() > width):
+        if n and (np.minimum.reduce(lengths) < 0 or np.maximum.reduce(lengths) > width):
             raise ImuFrameError(f"frame lengths must lie in 0..{width} (the data width)")
         timestamps = np.zeros(n) if timestamps is None else np.asarray(timestamps, dtype=np.float64)
         if timestamps.shape != (n,):
@@ -140,7 +140,7 @@ class FrameScreen:
 
         Returns (msg_index, valid, known frames, frames of the right length)."""
         keys, n, dtype, top = self._keys, len(ids), self._dtype, self._top
-        lut = self._lut if n and (ids.dtype.kind == "u" or int(ids.min()) >= 0) else None
+        lut = self._lut if n and (ids.dtype.kind == "u" or int(np.minimum.reduce(ids)) >= 0) else None
         expected, one_length, crc_mode = self._expected, self._one_length, self._crc_mode
         tables, id_const, crc_byte = self._tables, self._id_const, self._crc_byte
         msg_index = np.empty(n, dtype)
@@ -149,7 +149,7 @@ class FrameScreen:
         def screen_block(a: int) -> tuple[int, int]:
             b = min(n, a + _BLOCK)
             if lut is not None:
-                mi = lut[np.minimum(ids[a:b], top + 1)]
+                mi = lut.take(np.minimum(ids[a:b], top + 1))   # (take: faster than indexing)
             else:
                 mi = np.full(b - a, -1, dtype)
                 for k, key in enumerate(keys):
@@ -163,9 +163,9 @@ class FrameScreen:
             counts = int(np.count_nonzero(known)), int(np.count_nonzero(ok))
             if crc_mode == "linear":
                 chunks = data[a:b, :8].view("<u2")
-                crc = id_const[mi]
+                crc = id_const.take(mi)   # (mi -1, an unknown id: the table's last entry)
                 for column, table in tables:
-                    crc ^= table[chunks[:, column]]
+                    crc ^= table.take(chunks[:, column])
                 ok &= crc == data[a:b, crc_byte]
             valid[a:b] = ok
             return counts
@@ -234,7 +234,7 @@ def unwrap_steps(c: np.ndarray, counter_bits: int) -> np.ndarray:
     """Differences of consecutive counters, wrapped into -modulus/2 .. modulus/2 - 1."""
     if c.dtype.kind == "u" and c.dtype.itemsize * 8 == counter_bits:
         # unsigned subtraction wraps by itself; read as signed it is the shortest step
-        return np.diff(c).view(f"i{c.dtype.itemsize}")
+        return (c[1:] - c[:-1]).view(f"i{c.dtype.itemsize}")   # (np.diff: the same, with more overhead)
     modulus = 1 << counter_bits
     # Bound to a name first: written inline, mypy typed np.diff(...) with numpy's datetime64 overload
     # (a timedelta64 result, which has no `&`); the values are int64 either way.

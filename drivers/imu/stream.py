@@ -78,37 +78,28 @@ class StreamDecoder:
         stats.crc_errors += n_length_ok - n_valid
         if not n_valid:
             return
-        vi = None if n_valid == n else np.flatnonzero(valid)
+        vi = None if n_valid == n else valid.nonzero()[0]
         c = self._screen.counters(data, msg_index, valid, vi)
         first = self._c_last is None
         if first:
             self._u_last = self._head = self._u0 = self._next = self._start = int(c[0])
             self._c_last = np.asarray(c[:1]).copy()
         d = unwrap_steps(np.concatenate([np.asarray(self._c_last, dtype=c.dtype), c]), layout.counter_bits)
-        u = np.cumsum(d, dtype=np.int64)
+        u = np.add.accumulate(d, dtype=np.int64)   # (np.cumsum: the same, with more overhead)
         u += self._u_last
-        head = np.maximum.accumulate(u)
-        np.maximum(head, self._head, out=head)
         self._c_last = np.asarray(c[-1:]).copy()
-        self._u_last, self._head = int(u[-1]), int(head[-1])
-        accepted = (u > head - self.window) & (u >= self._start)
-        n_accepted = int(np.count_nonzero(accepted))
-        stats.late += n_valid - n_accepted
-        emitted = accepted & (u < self._next)   # a frame of a sample emitted complete already
-        if emitted.any():
-            n_emitted = int(np.count_nonzero(emitted))
-            stats.duplicates += n_emitted
-            n_accepted -= n_emitted
-            accepted &= ~emitted
-        # counted at arrival, as used (a duplicate found among them later is taken back off by `_dedupe`)
-        stats.frames_ok += n_accepted
-        stats.out_of_order += int(np.count_nonzero(accepted & (u < head)))
-        if vi is None and n_accepted == n:   # every frame good and in time (the usual piece): no gathers
-            new = (data, timestamps, u, msg_index.astype(np.int64), head)
+        self._u_last = int(u[-1])
+        if int(np.minimum.reduce(d)) >= 0 and int(u[0]) >= max(self._head, self._start, self._next):
+            # counters never going back, from the head on (the usual piece): none late, out of order or of an
+            # emitted sample, and each frame's head is its own counter
+            self._head = self._u_last
+            stats.frames_ok += n_valid
+            if vi is None:
+                new = (data, timestamps, u, msg_index.astype(np.int64), u)
+            else:
+                new = (np.ascontiguousarray(data[vi]), timestamps[vi], u, msg_index[vi].astype(np.int64), u)
         else:
-            rows = np.flatnonzero(accepted) if vi is None else vi[accepted]
-            new = (np.ascontiguousarray(data[rows]), timestamps[rows], u[accepted],
-                   msg_index[rows].astype(np.int64), head[accepted])
+            new = self._accepted(data, timestamps, msg_index, vi, u)
         if self._pending is not None:
             waiting = self._pending
             if waiting[0].shape[1] != new[0].shape[1]:
@@ -119,6 +110,32 @@ class StreamDecoder:
             new = tuple(np.concatenate([p, q]) for p, q in zip(waiting, new))   # type: ignore[assignment]
         self._pending = new
         self._resolve(self._complete_through(self._head - self.window))
+
+    def _accepted(self, data, timestamps, msg_index, vi, u):
+        """Rule 3 for a piece's valid frames (`vi`: their rows, None for all; `u`: their unwrapped counters):
+        the frames used, as (data rows, times, counters, messages, heads at arrival); late frames and
+        frames of samples emitted already counted."""
+        stats, n, n_valid = self.stats, len(data), len(u)
+        head = np.maximum.accumulate(u)
+        np.maximum(head, self._head, out=head)
+        self._head = int(head[-1])
+        accepted = (u > head - self.window) & (u >= self._start)
+        n_accepted = int(np.count_nonzero(accepted))
+        stats.late += n_valid - n_accepted
+        emitted = accepted & (u < self._next)   # a frame of a sample emitted complete already
+        if np.count_nonzero(emitted):
+            n_emitted = int(np.count_nonzero(emitted))
+            stats.duplicates += n_emitted
+            n_accepted -= n_emitted
+            accepted &= ~emitted
+        # counted at arrival, as used (a duplicate found among them later is taken back off by `_dedupe`)
+        stats.frames_ok += n_accepted
+        stats.out_of_order += int(np.count_nonzero(accepted & (u < head)))
+        if vi is None and n_accepted == n:   # every frame good and in time: no gathers
+            return data, timestamps, u, msg_index.astype(np.int64), head
+        rows = accepted.nonzero()[0] if vi is None else vi[accepted]
+        return (np.ascontiguousarray(data[rows]), timestamps[rows], u[accepted], msg_index[rows].astype(np.int64),
+                head[accepted])
 
     def flush(self) -> None:
         """Resolve every pending counter as at the end of the stream, which goes on: later frames of the
@@ -169,7 +186,7 @@ class StreamDecoder:
         n_now = int(np.count_nonzero(now))
         if n_now == len(u):   # everything waiting resolves (a live poll of whole samples)
             self._pending = None
-        elif now[:n_now].all():   # the usual case, the final counters first: slices, not gathers
+        elif np.count_nonzero(now[:n_now]) == n_now:   # the usual case, the final counters first: slices, not gathers
             rest = tuple(a[n_now:].copy() for a in self._pending)   # (small: copied, the piece may go)
             data, t, u, k, h = (a[:n_now] for a in self._pending)
             self._pending = self._dedupe(*rest)
@@ -180,7 +197,7 @@ class StreamDecoder:
             self._pending = self._dedupe(*rest) if len(rest[2]) else None
         du = u[1:] - u[:-1]
         # in order: a counter's frames are consecutive and in message order, so nothing repeats
-        in_order = bool(((du > 0) | ((du == 0) & (k[1:] > k[:-1]))).all())
+        in_order = np.count_nonzero((du > 0) | ((du == 0) & (k[1:] > k[:-1]))) == len(du)
         if not in_order:
             data, t, u, k, h = self._dedupe(data, t, u, k, h)
         stats, n_msgs = self.stats, len(self.layout.messages)
@@ -189,12 +206,13 @@ class StreamDecoder:
             stats.counter_gaps += cutoff - lo + 1
             return
         if in_order:
-            steps = np.flatnonzero(du)
-            starts = np.empty(len(steps) + 1, np.int64)
-            starts[0] = 0
-            np.add(steps, 1, out=starts[1:])
+            steps = du.nonzero()[0]
+            bounds = np.empty(len(steps) + 2, np.int64)   # each counter's first frame, then the end
+            bounds[0], bounds[-1] = 0, len(u)
+            np.add(steps, 1, out=bounds[1:-1])
+            starts = bounds[:-1]
             counters = u[starts]
-            present = np.diff(starts, append=len(u))
+            present = bounds[1:] - starts
             complete = present == n_msgs
             firsts = starts[complete]
             if len(firsts) * n_msgs == len(u):   # every sample complete, frames in order: strided views, no gathers
@@ -245,10 +263,12 @@ class StreamDecoder:
         rel = u[later] - first               # 0 .. reorder window - 1: what waits lies within the window
         if not len(rel):
             return cutoff
-        present = np.zeros((int(rel.max()) + 1, len(self.layout.messages)), bool)
+        present = np.zeros((int(np.maximum.reduce(rel)) + 1, len(self.layout.messages)), bool)
         present[rel, k[later]] = True        # (a repeated frame sets its mark again)
-        complete = np.all(present, axis=1, keepdims=False).reshape(-1)
-        run = len(complete) if complete.all() else int(np.argmin(complete))
+        complete = np.logical_and.reduce(present, axis=1)
+        run = int(complete.argmin())
+        if complete[run]:   # all complete
+            run = len(complete)
         return first + run - 1 if run else cutoff
 
     def _dedupe(self, data, t, u, k, h):
