@@ -28,6 +28,7 @@ A time-stamped layout (sbg-ecan) has its frames numbered first (`drivers.imu.num
 
 from __future__ import annotations
 
+import functools
 import os
 from concurrent.futures import ThreadPoolExecutor
 
@@ -172,15 +173,16 @@ class FrameScreen:
 
         blocks = range(0, n, _BLOCK)
         if len(blocks) <= 1:   # a poll's batch
-            counts = [screen_block(0)]
-        elif len(blocks) >= _PARALLEL_BLOCKS and _WORKERS > 1:
-            # numpy releases the GIL in these block operations: the blocks screen on every core
-            with ThreadPoolExecutor(_WORKERS, thread_name_prefix="imu-screen") as pool:
-                counts = list(pool.map(screen_block, blocks))
+            n_known, n_length_ok = screen_block(0)
         else:
-            counts = [screen_block(a) for a in blocks]
-        n_known = sum(k for k, _ in counts)
-        n_length_ok = sum(k for _, k in counts)
+            if len(blocks) >= _PARALLEL_BLOCKS and _WORKERS > 1:
+                # numpy releases the GIL in these block operations: the blocks screen on every core
+                with ThreadPoolExecutor(_WORKERS, thread_name_prefix="imu-screen") as pool:
+                    counts = list(pool.map(screen_block, blocks))
+            else:
+                counts = [screen_block(a) for a in blocks]
+            n_known = sum(k for k, _ in counts)
+            n_length_ok = sum(k for _, k in counts)
         if crc_mode == "per message":
             valid = check_crcs(data, msg_index, valid, self.layout)
         return msg_index, valid, n_known, n_length_ok
@@ -205,12 +207,20 @@ def same_signal(sigs) -> bool:
                    first.window_shift) for s in sigs)
 
 
-def extract_all(data: np.ndarray, sig: SignalLayout) -> np.ndarray:
-    """Raw values of `sig` in every row; a zero-copy view when it is a whole byte-aligned integer."""
+@functools.lru_cache(maxsize=256)
+def _whole_integer_dtype(sig: SignalLayout) -> np.dtype | None:
+    """The dtype reading `sig` as a whole byte-aligned integer of 1, 2, 4 or 8 bytes, or None (cached: a poll
+    asks for it every time)."""
     nbytes = sig.last_byte - sig.first_byte + 1
     if sig.length == 8 * nbytes and nbytes in (1, 2, 4, 8) and sig.window_shift == 0:
-        kind = "i" if sig.signed else "u"
-        dtype = np.dtype(f"{'>' if sig.big_endian else '<'}{kind}{nbytes}")
+        return np.dtype(f"{'>' if sig.big_endian else '<'}{'i' if sig.signed else 'u'}{nbytes}")
+    return None
+
+
+def extract_all(data: np.ndarray, sig: SignalLayout) -> np.ndarray:
+    """Raw values of `sig` in every row; a zero-copy view when it is a whole byte-aligned integer."""
+    dtype = _whole_integer_dtype(sig)
+    if dtype is not None:
         return np.ndarray((data.shape[0],), dtype=dtype, buffer=data, offset=sig.first_byte,
                           strides=(data.shape[1],))
     return extract(data, slice(None), sig)
