@@ -144,10 +144,8 @@ class FrameScreen:
         lut = self._lut if n and (ids.dtype.kind == "u" or int(np.minimum.reduce(ids)) >= 0) else None
         expected, one_length, crc_mode = self._expected, self._one_length, self._crc_mode
         tables, id_const, crc_byte = self._tables, self._id_const, self._crc_byte
-        msg_index = np.empty(n, dtype)
-        valid = np.empty(n, bool)
 
-        def screen_block(a: int) -> tuple[int, int]:
+        def screen_block(a: int) -> tuple[np.ndarray, np.ndarray, int, int]:
             b = min(n, a + _BLOCK)
             if lut is not None:
                 mi = lut.take(np.minimum(ids[a:b], top + 1))   # (take: faster than indexing)
@@ -155,34 +153,34 @@ class FrameScreen:
                 mi = np.full(b - a, -1, dtype)
                 for k, key in enumerate(keys):
                     mi[ids[a:b] == key] = k
-            msg_index[a:b] = mi
             known = mi >= 0
             if one_length is not None:
                 ok = known & (lengths[a:b] == one_length)
             else:
                 ok = known & (lengths[a:b] == expected[np.maximum(mi, 0)])
-            counts = int(np.count_nonzero(known)), int(np.count_nonzero(ok))
+            n_known, n_ok = int(np.count_nonzero(known)), int(np.count_nonzero(ok))
             if crc_mode == "linear":
                 chunks = data[a:b, :8].view("<u2")
                 crc = id_const.take(mi)   # (mi -1, an unknown id: the table's last entry)
                 for column, table in tables:
                     crc ^= table.take(chunks[:, column])
                 ok &= crc == data[a:b, crc_byte]
-            valid[a:b] = ok
-            return counts
+            return mi, ok, n_known, n_ok
 
         blocks = range(0, n, _BLOCK)
         if len(blocks) <= 1:   # a poll's batch
-            n_known, n_length_ok = screen_block(0)
+            msg_index, valid, n_known, n_length_ok = screen_block(0)
         else:
             if len(blocks) >= _PARALLEL_BLOCKS and _WORKERS > 1:
                 # numpy releases the GIL in these block operations: the blocks screen on every core
                 with ThreadPoolExecutor(_WORKERS, thread_name_prefix="imu-screen") as pool:
-                    counts = list(pool.map(screen_block, blocks))
+                    screened = list(pool.map(screen_block, blocks))
             else:
-                counts = [screen_block(a) for a in blocks]
-            n_known = sum(k for k, _ in counts)
-            n_length_ok = sum(k for _, k in counts)
+                screened = [screen_block(a) for a in blocks]
+            msg_index = np.concatenate([mi for mi, _, _, _ in screened])
+            valid = np.concatenate([ok for _, ok, _, _ in screened])
+            n_known = sum(k for _, _, k, _ in screened)
+            n_length_ok = sum(k for _, _, _, k in screened)
         if crc_mode == "per message":
             valid = check_crcs(data, msg_index, valid, self.layout)
         return msg_index, valid, n_known, n_length_ok
