@@ -102,15 +102,15 @@ def _group_in_order(layout, data, timestamps, vi, ka, d, c0, rate_hz, stats) -> 
     stats.counter_gaps = span - len(starts)
     if len(first) == 0:
         return ImuSampleBlock.empty(rate_hz)
-    if vi is None and len(first) * n_msgs == m:   # every frame used, in order: strided views, no gathers
-        def frames_of(k):
-            return slice(k, None, n_msgs)
-    else:
-        def frames_of(k):
-            return first + k if vi is None else vi[first + k]
-    last = timestamps[frames_of(n_msgs - 1)]
     counters = rows[complete]
     counters += c0
+    if vi is None and len(first) * n_msgs == m:   # every frame used, in order: strided views, no gathers
+        last = timestamps[n_msgs - 1::n_msgs]
+        return SampleColumns(layout).block(data, None, counters, np.array(last, dtype=np.float64), rate_hz)
+
+    def frames_of(k):
+        return first + k if vi is None else vi[first + k]
+    last = timestamps[frames_of(n_msgs - 1)]
     return SampleColumns(layout).block(data, frames_of, counters, np.array(last, dtype=np.float64), rate_hz)
 
 

@@ -28,6 +28,7 @@ A time-stamped layout (sbg-ecan) has its frames numbered first (`drivers.imu.num
 
 from __future__ import annotations
 
+import functools
 import os
 from concurrent.futures import ThreadPoolExecutor
 
@@ -66,7 +67,7 @@ def as_arrays(ids, data, lengths, timestamps):
     try:
         ids = np.asarray(ids)
         data = np.asarray(data)
-        if ids.ndim != 1 or (len(ids) and not np.issubdtype(ids.dtype, np.integer)):
+        if ids.ndim != 1 or (len(ids) and ids.dtype.kind not in "iu"):   # (np.issubdtype: slower)
             raise ImuFrameError(f"ids must be a 1-D integer array, got shape {ids.shape} {ids.dtype}")
         if data.ndim != 2 or data.dtype != np.uint8:
             raise ImuFrameError(f"data must be a 2-D uint8 array (frames x bytes), got {data.shape} {data.dtype}")
@@ -74,9 +75,9 @@ def as_arrays(ids, data, lengths, timestamps):
         if len(ids) != n:
             raise ImuFrameError(f"{len(ids)} ids for {n} frames of data")
         lengths = np.full(n, width, np.int64) if lengths is None else np.asarray(lengths)
-        if lengths.shape != (n,) or (n and not np.issubdtype(lengths.dtype, np.integer)):
+        if lengths.shape != (n,) or (n and lengths.dtype.kind not in "iu"):
             raise ImuFrameError(f"lengths must be {n} integers, got {lengths.shape} {lengths.dtype}")
-        if n and (lengths.min() < 0 or lengths.max() > width):
+        if n and (np.minimum.reduce(lengths) < 0 or np.maximum.reduce(lengths) > width):
             raise ImuFrameError(f"frame lengths must lie in 0..{width} (the data width)")
         timestamps = np.zeros(n) if timestamps is None else np.asarray(timestamps, dtype=np.float64)
         if timestamps.shape != (n,):
@@ -140,45 +141,46 @@ class FrameScreen:
 
         Returns (msg_index, valid, known frames, frames of the right length)."""
         keys, n, dtype, top = self._keys, len(ids), self._dtype, self._top
-        lut = self._lut if n and (ids.dtype.kind == "u" or int(ids.min()) >= 0) else None
+        lut = self._lut if n and (ids.dtype.kind == "u" or int(np.minimum.reduce(ids)) >= 0) else None
         expected, one_length, crc_mode = self._expected, self._one_length, self._crc_mode
         tables, id_const, crc_byte = self._tables, self._id_const, self._crc_byte
-        msg_index = np.empty(n, dtype)
-        valid = np.empty(n, bool)
 
-        def screen_block(a: int) -> tuple[int, int]:
+        def screen_block(a: int) -> tuple[np.ndarray, np.ndarray, int, int]:
             b = min(n, a + _BLOCK)
             if lut is not None:
-                mi = lut[np.minimum(ids[a:b], top + 1)]
+                mi = lut.take(np.minimum(ids[a:b], top + 1))   # (take: faster than indexing)
             else:
                 mi = np.full(b - a, -1, dtype)
                 for k, key in enumerate(keys):
                     mi[ids[a:b] == key] = k
-            msg_index[a:b] = mi
             known = mi >= 0
             if one_length is not None:
                 ok = known & (lengths[a:b] == one_length)
             else:
                 ok = known & (lengths[a:b] == expected[np.maximum(mi, 0)])
-            counts = int(np.count_nonzero(known)), int(np.count_nonzero(ok))
+            n_known, n_ok = int(np.count_nonzero(known)), int(np.count_nonzero(ok))
             if crc_mode == "linear":
                 chunks = data[a:b, :8].view("<u2")
-                crc = id_const[mi]
+                crc = id_const.take(mi)   # (mi -1, an unknown id: the table's last entry)
                 for column, table in tables:
-                    crc ^= table[chunks[:, column]]
+                    crc ^= table.take(chunks[:, column])
                 ok &= crc == data[a:b, crc_byte]
-            valid[a:b] = ok
-            return counts
+            return mi, ok, n_known, n_ok
 
         blocks = range(0, n, _BLOCK)
-        if len(blocks) >= _PARALLEL_BLOCKS and _WORKERS > 1:
-            # numpy releases the GIL in these block operations: the blocks screen on every core
-            with ThreadPoolExecutor(_WORKERS, thread_name_prefix="imu-screen") as pool:
-                counts = list(pool.map(screen_block, blocks))
+        if len(blocks) <= 1:   # a poll's batch
+            msg_index, valid, n_known, n_length_ok = screen_block(0)
         else:
-            counts = [screen_block(a) for a in blocks]
-        n_known = sum(k for k, _ in counts)
-        n_length_ok = sum(k for _, k in counts)
+            if len(blocks) >= _PARALLEL_BLOCKS and _WORKERS > 1:
+                # numpy releases the GIL in these block operations: the blocks screen on every core
+                with ThreadPoolExecutor(_WORKERS, thread_name_prefix="imu-screen") as pool:
+                    screened = list(pool.map(screen_block, blocks))
+            else:
+                screened = [screen_block(a) for a in blocks]
+            msg_index = np.concatenate([mi for mi, _, _, _ in screened])
+            valid = np.concatenate([ok for _, ok, _, _ in screened])
+            n_known = sum(k for _, _, k, _ in screened)
+            n_length_ok = sum(k for _, _, _, k in screened)
         if crc_mode == "per message":
             valid = check_crcs(data, msg_index, valid, self.layout)
         return msg_index, valid, n_known, n_length_ok
@@ -203,12 +205,20 @@ def same_signal(sigs) -> bool:
                    first.window_shift) for s in sigs)
 
 
-def extract_all(data: np.ndarray, sig: SignalLayout) -> np.ndarray:
-    """Raw values of `sig` in every row; a zero-copy view when it is a whole byte-aligned integer."""
+@functools.lru_cache(maxsize=256)
+def _whole_integer_dtype(sig: SignalLayout) -> np.dtype | None:
+    """The dtype reading `sig` as a whole byte-aligned integer of 1, 2, 4 or 8 bytes, or None (cached: a poll
+    asks for it every time)."""
     nbytes = sig.last_byte - sig.first_byte + 1
     if sig.length == 8 * nbytes and nbytes in (1, 2, 4, 8) and sig.window_shift == 0:
-        kind = "i" if sig.signed else "u"
-        dtype = np.dtype(f"{'>' if sig.big_endian else '<'}{kind}{nbytes}")
+        return np.dtype(f"{'>' if sig.big_endian else '<'}{'i' if sig.signed else 'u'}{nbytes}")
+    return None
+
+
+def extract_all(data: np.ndarray, sig: SignalLayout) -> np.ndarray:
+    """Raw values of `sig` in every row; a zero-copy view when it is a whole byte-aligned integer."""
+    dtype = _whole_integer_dtype(sig)
+    if dtype is not None:
         return np.ndarray((data.shape[0],), dtype=dtype, buffer=data, offset=sig.first_byte,
                           strides=(data.shape[1],))
     return extract(data, slice(None), sig)
@@ -232,7 +242,7 @@ def unwrap_steps(c: np.ndarray, counter_bits: int) -> np.ndarray:
     """Differences of consecutive counters, wrapped into -modulus/2 .. modulus/2 - 1."""
     if c.dtype.kind == "u" and c.dtype.itemsize * 8 == counter_bits:
         # unsigned subtraction wraps by itself; read as signed it is the shortest step
-        return np.diff(c).view(f"i{c.dtype.itemsize}")
+        return (c[1:] - c[:-1]).view(f"i{c.dtype.itemsize}")   # (np.diff: the same, with more overhead)
     modulus = 1 << counter_bits
     # Bound to a name first: written inline, mypy typed np.diff(...) with numpy's datetime64 overload
     # (a timedelta64 result, which has no `&`); the values are int64 either way.
@@ -267,40 +277,86 @@ class SampleColumns:
     def __init__(self, layout: ImuLayout):
         self.layout = layout
         where = {column: (k, sig) for k, m in enumerate(layout.messages) for column, sig in m.values}
-        scale, offset = layout.scale, layout.offset
-        #: per column 0..6 (gyro, acc, temperature if the layout has one): (column, message, signal, view
-        #: dtype, scale, offset); message None for a column no message holds (its value: 0 x scale + offset)
-        self._columns: list[tuple[int, int | None, SignalLayout | None, np.dtype | None, float, float]] = []
-        for column in range(7):
-            if column == 6 and not layout.has_column[6]:
-                continue
-            k, sig = where.get(column, (None, None))
-            self._columns.append((column, k, sig, _view_dtype(sig) if sig is not None else None, scale[column],
-                                  offset[column]))
+        #: the float columns: 0..5 (gyro, acc) and 6 (temperature) if the layout has one
+        self._n_float = 7 if layout.has_column[6] else 6
+        #: (column, message, signal, view dtype) of each float column a message holds; the others read 0
+        self._sources = [(column, *where[column], _view_dtype(where[column][1]))
+                         for column in range(self._n_float) if column in where]
+        self._absent = [column for column in range(self._n_float) if column not in where]
+        self._scale = np.array(layout.scale[:self._n_float], np.float64)
+        self._offset = np.array(layout.offset[:self._n_float], np.float64)
         # an integer bit field: scale and offset do not apply
         self._status = where[7] if layout.has_column[7] and 7 in where else None
+        self._status_dtype = _view_dtype(self._status[1]) if self._status is not None else None
+        self._runs_of_width: dict[int, list[tuple[int, int, np.dtype, int, int]] | None] = {}
+
+    def _runs(self, width: int) -> list[tuple[int, int, np.dtype, int, int]] | None:
+        """For frames `width` bytes wide, a sample's frames side by side (one row of messages x width bytes):
+        runs of consecutive float columns read with one view each, (first column, columns, dtype, byte of the
+        first, bytes between columns), and the status as (-1, 1, dtype, byte, 0); None when a signal is not
+        a whole byte-aligned integer (read column by column then)."""
+        if width in self._runs_of_width:
+            return self._runs_of_width[width]
+        runs: list[tuple[int, int, np.dtype, int, int]] | None = []
+        sources = [(column, k * width + sig.first_byte, dtype) for column, k, sig, dtype in self._sources]
+        if self._status is not None:
+            k, sig = self._status
+            sources.append((-1, k * width + sig.first_byte, self._status_dtype))
+        for column, at, dtype in sources:
+            if dtype is None:
+                runs = None
+                break
+            assert runs is not None
+            if runs and column >= 0:
+                first, count, run_dtype, run_at, step = runs[-1]
+                if (first >= 0 and run_dtype == dtype and column == first + count
+                        and (at - run_at == count * step if count > 1 else at > run_at)):
+                    runs[-1] = (first, count + 1, dtype, run_at, (at - run_at) // count)
+                    continue
+            runs.append((column, 1, dtype, at, 0))
+        self._runs_of_width[width] = runs
+        return runs
 
     def block(self, data: np.ndarray, frames_of, counters: np.ndarray, receive_time_s: np.ndarray,
               rate_hz: float) -> ImuSampleBlock:
-        """The samples straight from the frames, `frames_of(k)` indexing message k's frame of every sample:
-        exactly `ImuSampleBlock.from_raw` of the raw values (raw * scale + offset in float64), without the
-        (samples, 8) intermediate arrays."""
+        """The samples straight from the frames, `frames_of(k)` indexing message k's frame of every sample
+        (None: `data` holds exactly every sample's frames, in message order): exactly `ImuSampleBlock.from_raw`
+        of the raw values (raw * scale + offset in float64), without its int64 intermediate; all columns
+        scaled at once (a poll's few samples: few numpy calls)."""
         samples = len(counters)
-        gyro, acc = np.empty((samples, 3)), np.empty((samples, 3))
-        temperature = np.full(samples, np.nan)
-        for column, k, sig, dtype, scale, offset in self._columns:
-            out = gyro[:, column] if column < 3 else acc[:, column - 3] if column < 6 else temperature
-            if k is None or sig is None:
-                out[...] = np.float64(0.0) * scale + offset
-            else:
-                np.multiply(signal_values(data, frames_of(k), sig, dtype), scale, out=out)
-                out += offset
+        values = np.empty((samples, self._n_float))
         status = np.zeros(samples, np.int64)
-        if self._status is not None:
-            k, sig = self._status
-            status[:] = extract(data, frames_of(k), sig)
-        return ImuSampleBlock(counters, np.asarray(receive_time_s, dtype=np.float64), gyro, acc, temperature,
-                              status, float(rate_hz))
+        runs = None
+        if frames_of is None and data.flags.c_contiguous and len(data) == samples * len(self.layout.messages):
+            runs = self._runs(data.shape[1])
+        if runs is not None:
+            # a sample's frames side by side are one wide row: columns at evenly spaced bytes of it read
+            # through one strided view
+            row = data.shape[1] * len(self.layout.messages)
+            for first, count, run_dtype, at, step in runs:
+                view = np.ndarray((samples, count), dtype=run_dtype, buffer=data, offset=at, strides=(row, step))
+                if first < 0:
+                    status[:] = view[:, 0]
+                else:
+                    values[:, first:first + count] = view
+        elif frames_of is None:
+            n_msgs = len(self.layout.messages)
+
+            def frames_of(k):
+                return slice(k, None, n_msgs)
+        if runs is None:
+            for column, k, sig, dtype in self._sources:
+                values[:, column] = signal_values(data, frames_of(k), sig, dtype)
+            if self._status is not None:
+                k, sig = self._status
+                status[:] = signal_values(data, frames_of(k), sig, self._status_dtype)
+        for column in self._absent:
+            values[:, column] = 0.0
+        values *= self._scale
+        values += self._offset
+        temperature = values[:, 6].copy() if self._n_float == 7 else np.full(samples, np.nan)
+        return ImuSampleBlock(counters, np.asarray(receive_time_s, dtype=np.float64), values[:, 0:3].copy(),
+                              values[:, 3:6].copy(), temperature, status, float(rate_hz))
 
 
 def frames_from_messages(messages, width: int | None = 64) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -311,18 +367,22 @@ def frames_from_messages(messages, width: int | None = 64) -> tuple[np.ndarray, 
     """
     messages = list(messages)
     n = len(messages)
-    ids = np.fromiter((m.arbitration_id | (EXTENDED_ID_FLAG if m.is_extended_id else 0) for m in messages),
-                      np.int64, n)
-    lengths = np.fromiter((len(m.data) for m in messages), np.int64, n)
-    longest = int(lengths.max()) if n else 0
+    flag = EXTENDED_ID_FLAG
+    ids = np.array([m.arbitration_id | flag if m.is_extended_id else m.arbitration_id for m in messages], np.int64)
+    sizes = [len(m.data) for m in messages]
+    lengths = np.array(sizes, np.int64)
+    longest = max(sizes, default=0)
     if width is None:
         width = max(8, longest)
     elif longest > width:
         raise ImuFrameError(f"a frame of {longest} bytes does not fit a data width of {width}")
-    timestamps = np.fromiter((m.timestamp for m in messages), np.float64, n)
-    buf = bytearray(n * width)
-    for i, m in enumerate(messages):
-        buf[i * width:i * width + len(m.data)] = m.data
+    timestamps = np.array([m.timestamp for m in messages], np.float64)
+    if n and min(sizes) == width:   # every frame as wide as the array (the usual batch): their bytes joined
+        buf = bytearray().join([m.data for m in messages])
+    else:
+        buf = bytearray(n * width)
+        for i, m in enumerate(messages):
+            buf[i * width:i * width + len(m.data)] = m.data
     return ids, np.frombuffer(buf, np.uint8).reshape(n, width), lengths, timestamps
 
 __all__ = ["FrameScreen", "SampleColumns", "as_arrays", "check_crcs", "extract", "extract_all", "frames_from_messages",

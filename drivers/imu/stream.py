@@ -78,24 +78,52 @@ class StreamDecoder:
         stats.crc_errors += n_length_ok - n_valid
         if not n_valid:
             return
-        vi = None if n_valid == n else np.flatnonzero(valid)
+        vi = None if n_valid == n else valid.nonzero()[0]
         c = self._screen.counters(data, msg_index, valid, vi)
         first = self._c_last is None
         if first:
             self._u_last = self._head = self._u0 = self._next = self._start = int(c[0])
             self._c_last = np.asarray(c[:1]).copy()
         d = unwrap_steps(np.concatenate([np.asarray(self._c_last, dtype=c.dtype), c]), layout.counter_bits)
-        u = np.cumsum(d, dtype=np.int64)
+        u = np.add.accumulate(d, dtype=np.int64)   # (np.cumsum: the same, with more overhead)
         u += self._u_last
+        self._c_last = np.asarray(c[-1:]).copy()
+        self._u_last = int(u[-1])
+        if int(np.minimum.reduce(d)) >= 0 and int(u[0]) >= max(self._head, self._start, self._next):
+            # counters never going back, from the head on (the usual piece): none late, out of order or of an
+            # emitted sample, and each frame's head is its own counter
+            self._head = self._u_last
+            stats.frames_ok += n_valid
+            if vi is None:
+                new = (data, timestamps, u, msg_index.astype(np.int64), u)
+            else:
+                new = (np.ascontiguousarray(data[vi]), timestamps[vi], u, msg_index[vi].astype(np.int64), u)
+        else:
+            new = self._accepted(data, timestamps, msg_index, vi, u)
+        if self._pending is not None:
+            waiting = self._pending
+            if waiting[0].shape[1] != new[0].shape[1]:
+                # pieces as wide as their longest frame (a log or bus mixing 8- and 64-byte frames): the
+                # narrower data padded with zeros, past every used frame's length
+                width = max(waiting[0].shape[1], new[0].shape[1])
+                waiting, new = (_widened(waiting[0], width), *waiting[1:]), (_widened(new[0], width), *new[1:])
+            new = tuple(np.concatenate([p, q]) for p, q in zip(waiting, new))   # type: ignore[assignment]
+        self._pending = new
+        self._resolve(self._complete_through(self._head - self.window))
+
+    def _accepted(self, data, timestamps, msg_index, vi, u):
+        """Rule 3 for a piece's valid frames (`vi`: their rows, None for all; `u`: their unwrapped counters):
+        the frames used, as (data rows, times, counters, messages, heads at arrival); late frames and
+        frames of samples emitted already counted."""
+        stats, n, n_valid = self.stats, len(data), len(u)
         head = np.maximum.accumulate(u)
         np.maximum(head, self._head, out=head)
-        self._c_last = np.asarray(c[-1:]).copy()
-        self._u_last, self._head = int(u[-1]), int(head[-1])
+        self._head = int(head[-1])
         accepted = (u > head - self.window) & (u >= self._start)
         n_accepted = int(np.count_nonzero(accepted))
         stats.late += n_valid - n_accepted
         emitted = accepted & (u < self._next)   # a frame of a sample emitted complete already
-        if emitted.any():
+        if np.count_nonzero(emitted):
             n_emitted = int(np.count_nonzero(emitted))
             stats.duplicates += n_emitted
             n_accepted -= n_emitted
@@ -103,16 +131,11 @@ class StreamDecoder:
         # counted at arrival, as used (a duplicate found among them later is taken back off by `_dedupe`)
         stats.frames_ok += n_accepted
         stats.out_of_order += int(np.count_nonzero(accepted & (u < head)))
-        if vi is None and n_accepted == n:   # every frame good and in time (the usual piece): no gathers
-            new = (data, timestamps, u, msg_index.astype(np.int64), head)
-        else:
-            rows = np.flatnonzero(accepted) if vi is None else vi[accepted]
-            new = (np.ascontiguousarray(data[rows]), timestamps[rows], u[accepted],
-                   msg_index[rows].astype(np.int64), head[accepted])
-        if self._pending is not None:
-            new = tuple(np.concatenate([p, q]) for p, q in zip(self._pending, new))   # type: ignore[assignment]
-        self._pending = new
-        self._resolve(self._complete_through(self._head - self.window))
+        if vi is None and n_accepted == n:   # every frame good and in time: no gathers
+            return data, timestamps, u, msg_index.astype(np.int64), head
+        rows = accepted.nonzero()[0] if vi is None else vi[accepted]
+        return (np.ascontiguousarray(data[rows]), timestamps[rows], u[accepted], msg_index[rows].astype(np.int64),
+                head[accepted])
 
     def flush(self) -> None:
         """Resolve every pending counter as at the end of the stream, which goes on: later frames of the
@@ -161,17 +184,20 @@ class StreamDecoder:
         data, t, u, k, h = self._pending
         now = u <= cutoff
         n_now = int(np.count_nonzero(now))
-        if now[:n_now].all():   # the usual case, the final counters first: slices, not gathers
+        if n_now == len(u):   # everything waiting resolves (a live poll of whole samples)
+            self._pending = None
+        elif np.count_nonzero(now[:n_now]) == n_now:   # the usual case, the final counters first: slices, not gathers
             rest = tuple(a[n_now:].copy() for a in self._pending)   # (small: copied, the piece may go)
             data, t, u, k, h = (a[:n_now] for a in self._pending)
+            self._pending = self._dedupe(*rest)
         else:
             later = ~now
             rest = tuple(a[later] for a in self._pending)
             data, t, u, k, h = data[now], t[now], u[now], k[now], h[now]
-        self._pending = self._dedupe(*rest) if len(rest[2]) else None
+            self._pending = self._dedupe(*rest) if len(rest[2]) else None
         du = u[1:] - u[:-1]
         # in order: a counter's frames are consecutive and in message order, so nothing repeats
-        in_order = bool(((du > 0) | ((du == 0) & (k[1:] > k[:-1]))).all())
+        in_order = np.count_nonzero((du > 0) | ((du == 0) & (k[1:] > k[:-1]))) == len(du)
         if not in_order:
             data, t, u, k, h = self._dedupe(data, t, u, k, h)
         stats, n_msgs = self.stats, len(self.layout.messages)
@@ -180,23 +206,22 @@ class StreamDecoder:
             stats.counter_gaps += cutoff - lo + 1
             return
         if in_order:
-            starts = np.zeros(np.count_nonzero(du) + 1, np.int64)
-            starts[1:] = np.flatnonzero(du) + 1
+            steps = du.nonzero()[0]
+            bounds = np.empty(len(steps) + 2, np.int64)   # each counter's first frame, then the end
+            bounds[0], bounds[-1] = 0, len(u)
+            np.add(steps, 1, out=bounds[1:-1])
+            starts = bounds[:-1]
             counters = u[starts]
-            present = np.empty_like(starts)
-            present[:-1] = starts[1:] - starts[:-1]
-            present[-1] = len(u) - starts[-1]
+            present = bounds[1:] - starts
             complete = present == n_msgs
             firsts = starts[complete]
             if len(firsts) * n_msgs == len(u):   # every sample complete, frames in order: strided views, no gathers
-                def frames_of(m):
-                    return slice(m, None, n_msgs)
-                last = t[n_msgs - 1::n_msgs].copy()
+                block = self._columns.block(data, None, counters.copy(), t[n_msgs - 1::n_msgs].copy(), self.rate_hz)
             else:
                 def frames_of(m):
                     return firsts + m
                 last = t[firsts + n_msgs - 1] if len(firsts) else t[:0]
-            block = self._columns.block(data, frames_of, counters[complete].copy(), last, self.rate_hz)
+                block = self._columns.block(data, frames_of, counters[complete].copy(), last, self.rate_hz)
         else:
             counters, row = np.unique(u, return_inverse=True)
             row = row.reshape(-1)
@@ -220,8 +245,9 @@ class StreamDecoder:
         self._left = self._left or bool(left)
         stats.joined_mid_sample += joined
         stats.left_mid_sample += left
-        stats.samples += int(np.count_nonzero(complete))
-        stats.incomplete_samples += int(np.count_nonzero(~complete)) - joined - left
+        n_complete = int(np.count_nonzero(complete))
+        stats.samples += n_complete
+        stats.incomplete_samples += len(complete) - n_complete - joined - left
         stats.counter_gaps += (cutoff - lo + 1) - len(counters)
         if len(block):
             self._blocks.append(block)
@@ -237,10 +263,12 @@ class StreamDecoder:
         rel = u[later] - first               # 0 .. reorder window - 1: what waits lies within the window
         if not len(rel):
             return cutoff
-        present = np.zeros((int(rel.max()) + 1, len(self.layout.messages)), bool)
+        present = np.zeros((int(np.maximum.reduce(rel)) + 1, len(self.layout.messages)), bool)
         present[rel, k[later]] = True        # (a repeated frame sets its mark again)
-        complete = np.all(present, axis=1, keepdims=False).reshape(-1)
-        run = len(complete) if complete.all() else int(np.argmin(complete))
+        complete = np.logical_and.reduce(present, axis=1)
+        run = int(complete.argmin())
+        if complete[run]:   # all complete
+            run = len(complete)
         return first + run - 1 if run else cutoff
 
     def _dedupe(self, data, t, u, k, h):
@@ -264,6 +292,15 @@ class StreamDecoder:
         self.stats.out_of_order -= int(np.count_nonzero(repeat & (u < h)))
         keep = ~repeat
         return data[keep], t[keep], u[keep], k[keep], h[keep]
+
+
+def _widened(data: np.ndarray, width: int) -> np.ndarray:
+    """`data` (frames x bytes) padded with zero bytes to `width` columns."""
+    if data.shape[1] == width:
+        return data
+    out = np.zeros((len(data), width), np.uint8)
+    out[:, :data.shape[1]] = data
+    return out
 
 
 def decode_stream(pieces, layout: ImuLayout | None = None, rate_hz: float = 1000.0,

@@ -225,6 +225,26 @@ def test_unknown_ids_and_wrong_lengths():
     assert len(block) == 19
 
 
+def test_pieces_of_different_widths_decode_as_one_piece():
+    """A log (or a CAN FD bus) mixing 8- and 64-byte frames gives pieces as wide as their longest frame: a
+    sample's frames waiting in a piece of one width meet the next piece's of another (this raised a bare
+    ValueError). The 64-byte frames are wrong_length for the classic layout, exactly as all at once."""
+    frames = frames_of(range(12))
+    for at in (3 * M + 2, 5 * M + 4, 9 * M + 6):   # mid-sample, so a piece boundary leaves frames waiting
+        frames.insert(at, (frames[at][0], bytes(64), 0.0))
+    block_b, stats_b = bulk(frames)
+    assert (stats_b.wrong_length, stats_b.samples) == (3, 12)
+    for cuts in ([3 * M + 2], [3 * M + 1, 3 * M + 3], range(5, len(frames), 5), range(1, len(frames))):
+        decoder = StreamDecoder(LAYOUT, 1000.0, 8)
+        bounds = [0, *cuts, len(frames)]
+        for a, b in zip(bounds, bounds[1:]):
+            piece = frames[a:b]
+            decoder.feed(*arrays(piece, width=max(8, *(len(d) for _, d, _ in piece))))
+        block, stats = decoder.finish()
+        assert stats == stats_b, list(cuts)[:5]
+        assert_same(block, block_b)
+
+
 def test_counter_wrap_unwraps_to_a_monotonic_index():
     counters = range(65530, 65550)              # the 16-bit counter goes 65535 -> 0
     block, stats = check_both(frames_of(counters))
