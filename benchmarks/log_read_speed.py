@@ -270,7 +270,8 @@ def one_hour(args, cache: Path) -> bool:
     median = statistics.median(times)
     met = median < RESOLVE_TARGET_S
     print(f"log: {sim_s:.0f} s simulated, {stats.samples:,} samples, {stats.frames:,} CAN frames, "
-          f"{len(log.table_states):,} table states, {len(log.events):,} events, {path.stat().st_size / 1e6:.0f} MB; "
+          f"{len(log.read_table_states()):,} table states, {len(log.events):,} events, "
+          f"{path.stat().st_size / 1e6:.0f} MB; "
           f"{len(solution.extraction.positions)} dwells + {len(solution.extraction.rotations)} turns extracted")
     print(f"re-solve (read_log + config from the log + solve_logs): median {median:.2f} s (min {min(times):.2f}, "
           f"max {max(times):.2f}); target < {RESOLVE_TARGET_S:g} s: {'met' if met else 'MISSED'}")

@@ -88,11 +88,12 @@ def check_lossless(path: str, frames, times) -> None:
     log = read_log(path)
     n = len(frames)
     assert log.scan().complete, log.scan().damage
-    assert len(log.can_ids) == n, f"{len(log.can_ids)} frames read, {n} written"
-    assert np.array_equal(log.can_ids, frames.ids.astype(np.uint32))
-    assert np.array_equal(log.can_lengths, frames.lengths)
-    assert np.array_equal(log.can_data[:, :8], frames.data[:, :8]) and not log.can_data[:, 8:].any()
-    assert np.array_equal(log.can_timestamp_s, times)
+    read = log.read_can_frames()
+    assert len(read.ids) == n, f"{len(read.ids)} frames read, {n} written"
+    assert np.array_equal(read.ids, frames.ids.astype(np.uint32))
+    assert np.array_equal(read.lengths, frames.lengths)
+    assert np.array_equal(read.data[:, :8], frames.data[:, :8]) and not read.data[:, 8:].any()
+    assert np.array_equal(log.read_can_timestamps_s(), times)
 
 
 def read(path: str, layout) -> tuple[float, float, int]:

@@ -38,7 +38,7 @@ def main() -> int:
             result = json.load(open(glob.glob(f"{out}/*.result.json")[0]))
             link = result["run"]["imu_link"]
             sim_s = log.events[-1].time_s
-            frames = len(log.can_ids)
+            frames = len(log.read_can_frames().ids)
             print(f"exit {code}: {walls[-1]:.1f} s wall for {sim_s:.0f} s simulated ({sim_s / walls[-1]:.0f}x), "
                   f"{frames} CAN frames recorded = {frames / walls[-1]:,.0f} frames/s; link: {link['frames']} "
                   f"received, {link['samples']} samples, {link['counter_gaps'] + link['incomplete_samples']} lost; "

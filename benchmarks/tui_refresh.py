@@ -78,7 +78,7 @@ def main() -> int:
                          poll_s=3600.0)
         r = asyncio.run(measure(app, args.seconds))
         log = read_log(str(r["log_path"]))
-        recorded = len(log.can_ids)
+        recorded = len(log.read_can_frames().ids)
 
     s = r["samples"]
     windows = [(b[0] - a[0], b[1] - a[1], b[2] - a[2]) for a, b in zip(s, s[1:])]

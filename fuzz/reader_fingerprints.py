@@ -87,6 +87,11 @@ def _damage_now(log) -> tuple[list[str], list]:
     return list(log.damage), list(log.lost)
 
 
+def _read(log, method: str, attribute: str):
+    """`log.method()`, or the property it replaced (issue 28 item 5: I/O in properties made explicit)."""
+    return getattr(log, method)() if hasattr(log, method) else getattr(log, attribute)
+
+
 def _found(log) -> list[str]:
     return list(log.damage_found)
 
@@ -105,13 +110,13 @@ def _fingerprint(path: Path, **kwargs) -> dict:
                  "metadata": log.metadata, "attachments": sorted(log.attachments),
                  "summary_found": log.summary(read_frames=False).replace(str(path), "<path>"),
                  "unchecked": log.unchecked_chunks}
-    states = log.table_states
+    states = _read(log, "read_table_states", "table_states")
     out["states"] = [len(states), _digest(states.time_s, states.angles_deg, states.rates_dps, states.status,
                                           states.estop), repr(states.modes)[:2000], repr(states.fault_text)[:2000]]
     out["events"] = [repr(e)[:300] for e in log.events]
     out["chamber"] = len(log.chamber_states)
     out["found_after_states"] = _found(log)
-    records = log.imu_records
+    records = _read(log, "read_imu_records", "imu_records")
     out["records"] = [len(records), _digest(records.counter, records.imu_time_s, records.receive_time_s,
                                             records.gyro_counts, records.acc_counts, records.temperature_c,
                                             records.status)]
@@ -123,7 +128,7 @@ def _fingerprint(path: Path, **kwargs) -> dict:
     out["lost"] = [[d.kind, d.offset, d.reason, d.start_ns, d.end_ns, d.lost, d.chunks, d.last_offset] for d in lost]
     scan = log.scan() if hasattr(log, "scan") else log
     out["frames"] = [scan.can_frame_count, scan.non_data_frames]
-    out["timestamps"] = _digest(log.can_timestamp_s)
+    out["timestamps"] = _digest(_read(log, "read_can_timestamps_s", "can_timestamp_s"))
     out["summary"] = log.summary().replace(str(path), "<path>")
     return out
 

@@ -63,7 +63,7 @@ def can_format(path: str | Path) -> str:
 
 def frame_range(log: RunLog, from_s: float | None = None, to_s: float | None = None) -> tuple[int, int]:
     """Indices lo:hi of the frames from `from_s` to `to_s` seconds after the log's first frame (inclusive)."""
-    stamps = log.can_timestamp_s
+    stamps = log.read_can_timestamps_s()
     if not len(stamps):
         return 0, 0
     t0 = float(stamps[0])

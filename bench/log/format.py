@@ -28,7 +28,7 @@ CAN_RECORD = struct.Struct("<dIBB")
 HEADER_SIZE = CAN_RECORD.size           # 14 bytes
 _T_END, _ID_END = 8, 12                 # end of the timestamp and of the id in the header
 FLAGS_OFFSET, LENGTH_OFFSET = 12, 13    # where the flags and the data length byte sit
-#: Data width of `RunLog.can_data` when every frame fits a classic frame; CAN FD logs get 64.
+#: Data width of `RunLog.read_can_frames().data` when every frame fits a classic frame; CAN FD logs get 64.
 CLASSIC_WIDTH, FD_WIDTH = 8, 64
 #: The most data bytes a frame has (CAN FD): a record claiming more makes its message malformed.
 MAX_DATA = FD_WIDTH

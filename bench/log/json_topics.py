@@ -1,18 +1,24 @@
 """The JSON topics of a run log, message by message (a log from outside is hostile): each parsed
 (`parse_json_rows`: one `json.loads` for a batch, message by message only when that fails), each row checked
 for the fields and types its reader relies on, and what is malformed or past a reader's limit said as
-`Damage` (counted as lost). Used by `bench.log.reader`."""
+`Damage` (counted as lost); `table_states_of` and `imu_records_of` turn the two array topics into arrays, a
+batch at a time. Used by `bench.log.reader`."""
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import TypeVar
 
+import numpy as np
+
 from bench.log.events import Event
+from bench.log.format import TOPIC_SAMPLES, TOPIC_STATE
 from bench.log.mcap import ChannelData, Damage
+from bench.log.topic_arrays import ImuRecords, TableStates, imu_records_from_rows
 from drivers.chamber import ChamberAlarms, ChamberState
 
 #: an alarm text from the log is cut to this many characters
@@ -22,6 +28,8 @@ MAX_ALARM_TEXT = 500
 MAX_JSON_MESSAGE_BYTES = 64 << 10
 MAX_CUT_TEXT = 4096
 _T = TypeVar("_T")
+#: messages of an array topic parsed at once (what is parsed at once stays small)
+_JSON_BATCH = 1 << 16
 
 _INT64 = (-(1 << 63), 1 << 63)
 
@@ -226,6 +234,62 @@ def parse_json_rows(payloads: list[bytes]) -> tuple[list, int]:
     return rows, bad
 
 
+def _json_batches(d: ChannelData, topic: str, limit: int,
+                  damage: list[Damage]) -> Iterator[tuple[list, np.ndarray, int]]:
+    """(rows, log times ns, malformed count) of the topic's messages in batches of `_JSON_BATCH`; rows are
+    dicts, None where malformed. Messages past the first `limit` are not parsed: said in `damage`, counted
+    as lost."""
+    skipped = d.keep_first(limit)
+    if skipped:
+        damage.append(not_read_damage(topic, skipped, limit))
+    payloads, times = d.payloads(), d.log_time_ns
+    for a in range(0, len(payloads), _JSON_BATCH):
+        rows, bad = parse_json_rows(payloads[a:a + _JSON_BATCH])
+        yield rows, times[a:a + _JSON_BATCH], bad
+
+
+def table_states_of(d: ChannelData | None, limit: int, damage: list[Damage]) -> TableStates:
+    """The `/table/state` messages (the first `limit`) as arrays; malformed messages are skipped, and they and
+    those past the limit said in `damage`."""
+    if d is None or not len(d):
+        return TableStates.from_dicts([])
+    parts, bad = [], 0
+    for rows, _, malformed in _json_batches(d, TOPIC_STATE, limit, damage):
+        bad += malformed
+        rows = [r for r in rows if r is not None]
+        try:
+            parts.append(TableStates.from_dicts(rows))
+        except (KeyError, TypeError, ValueError, OverflowError):   # keep the rows that check out
+            good = [r for r in rows if state_row_ok(r)]
+            bad += len(rows) - len(good)
+            parts.append(TableStates.from_dicts(good))
+    if bad:
+        damage.append(malformed_damage(TOPIC_STATE, bad))
+    return TableStates.concatenate(parts)
+
+
+def imu_records_of(d: ChannelData | None, limit: int, damage: list[Damage]) -> ImuRecords:
+    """The `/imu/samples` messages as arrays (as `table_states_of`)."""
+    if d is None or not len(d):
+        return imu_records_from_rows([], np.zeros(0))
+    parts, bad = [], 0
+    for rows, times, malformed in _json_batches(d, TOPIC_SAMPLES, limit, damage):
+        bad += malformed
+        times = times[[i for i, r in enumerate(rows) if r is not None]] / 1e9
+        rows = [r for r in rows if r is not None]
+        try:
+            parts.append(imu_records_from_rows(rows, times))
+        except (KeyError, TypeError, ValueError, OverflowError):   # some rows lack fields: keep the others
+            good = [k for k, r in enumerate(rows) if sample_row_ok(r)]
+            bad += len(rows) - len(good)
+            parts.append(imu_records_from_rows([rows[k] for k in good], times[good]))
+    if bad:
+        damage.append(malformed_damage(TOPIC_SAMPLES, bad))
+    return ImuRecords(*(np.concatenate([getattr(p, f.name) for p in parts])
+                        for f in dataclasses.fields(ImuRecords)))
+
+
 __all__ = ["MAX_ALARM_TEXT", "MAX_CUT_TEXT", "MAX_JSON_MESSAGE_BYTES", "chamber_state_row", "event_row",
-           "is_int", "is_number", "is_vec3", "malformed_damage", "metadata_damage", "not_read_damage", "numbers_ok",
-           "parse_json_rows", "parse_topic", "sample_row_ok", "shrink_message", "state_row_ok", "utc_text_ok"]
+           "imu_records_of", "is_int", "is_number", "is_vec3", "malformed_damage", "metadata_damage",
+           "not_read_damage", "numbers_ok", "parse_json_rows", "parse_topic", "sample_row_ok", "shrink_message",
+           "state_row_ok", "table_states_of", "utc_text_ok"]

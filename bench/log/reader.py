@@ -11,12 +11,13 @@ the frames' chunks no pass has read yet (an explicit call: it can be most of the
 it. A file that is not MCAP at all raises `LogError` with a one-line message naming the file.
 
 The raw CAN frames (`/can/raw`) are the source of truth for IMU data:
-`RunLog.imu_samples(layout, rate_hz)` decodes them with the bulk decoder. The decoded
-`/imu/samples` topic (possibly decimated) is parsed on first use of `RunLog.imu_records`,
-the table states on first use of `RunLog.table_states` (a reader that wants the samples
-does not pay for them; malformed messages found then are added to `damage`).
-The recorder writes `/imu/samples` in chunks of their own, the bulk of a log; `read_log`
-leaves those compressed and unchecked until `RunLog.imu_records` (or
+`RunLog.imu_samples(layout, rate_hz)` decodes them with the bulk decoder. What reads the file or
+parses a topic after `read_log` is a method that says so: the decoded `/imu/samples` topic (possibly
+decimated) is parsed by `RunLog.read_imu_records()`, the table states by `RunLog.read_table_states()`
+(each once, then kept: a reader that wants the samples does not pay for them; malformed messages found
+then are added to the damage), the frames by `read_can_frames()` and `read_can_timestamps_s()` (every
+call a pass over the chunks, nothing kept). The recorder writes `/imu/samples` in chunks of their own,
+the bulk of a log; `read_log` leaves those compressed and unchecked until `RunLog.read_imu_records()` (or
 `RunLog.check_deferred()`) needs them, and adds any damage found then to `damage`
 (`read_log(path, defer_samples=False)` checks every chunk at once).
 The file is memory-mapped; `/can/raw` batches of one frame length (the usual case) are
@@ -39,11 +40,10 @@ never a traceback.
 
 from __future__ import annotations
 
-import dataclasses
 import mmap
 from collections.abc import Generator, Iterator
 from dataclasses import dataclass, field
-from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 
@@ -66,14 +66,13 @@ from bench.log.json_topics import (
     MAX_JSON_MESSAGE_BYTES,
     chamber_state_row,
     event_row,
+    imu_records_of,
     malformed_damage,
     metadata_damage,
     not_read_damage,
-    parse_json_rows,
     parse_topic,
-    sample_row_ok,
     shrink_message,
-    state_row_ok,
+    table_states_of,
 )
 from bench.log.mcap import (
     MAX_DBC_BYTES,
@@ -84,7 +83,7 @@ from bench.log.mcap import (
     WalkError,
 )
 from bench.log.mcap.walk import walk
-from bench.log.topic_arrays import ImuRecords, TableStates, imu_records_from_rows
+from bench.log.topic_arrays import ImuRecords, TableStates
 from drivers.chamber import ChamberState
 from drivers.imu import ImuSampleBlock, ImuStats
 from drivers.imu.layout import ImuLayout
@@ -104,11 +103,20 @@ MAX_EVENTS = 100_000
 MAX_CHAMBER_STATES = 200_000
 #: the topics a read keeps (the others are only counted)
 KEPT_TOPICS = frozenset({TOPIC_CAN, TOPIC_SAMPLES, TOPIC_STATE, TOPIC_EVENTS, TOPIC_CHAMBER})
-_JSON_BATCH = 1 << 16
 #: Frames handed to the stream decoder at once (its working arrays are about 100 bytes a frame).
 _FEED_FRAMES = 1 << 20
 #: the kept JSON topics' long messages are cut as they are gathered (1 MB alarm texts by the thousand took 4.4 GB)
 _CUT = MessageCut(frozenset({TOPIC_STATE, TOPIC_EVENTS, TOPIC_CHAMBER}), MAX_JSON_MESSAGE_BYTES, shrink_message)
+
+
+class CanFrames(NamedTuple):
+    """Every `/can/raw` frame of a log (`RunLog.read_can_frames`), as `RunLog.can_pieces` gives them, joined."""
+
+    timestamp_s: np.ndarray   # (n,) float64, the frames' own timestamps (run clock)
+    ids: np.ndarray           # (n,) uint32, bit 31 set = extended id
+    data: np.ndarray          # (n, 8 or 64) uint8, zero-padded
+    lengths: np.ndarray       # (n,) int64 data lengths
+    flags: np.ndarray         # (n,) uint8 (FD, BRS, ESI, remote, error: bits as in `bench.log.format`)
 
 
 @dataclass(frozen=True)
@@ -131,9 +139,10 @@ class RunLog:
     """Everything read from one run log.
 
     The raw CAN frames are not held: `imu_samples` decodes them chunk by chunk (each chunk read
-    from the file, decompressed, decoded and let go), and so do `can_pieces`, `can_timestamp_s`
-    and the frame counts. Damage in those chunks is found by the first of them (or by `scan()`, which
-    makes sure every chunk was looked at: what was lost, whether the log is complete, the frame counts).
+    from the file, decompressed, decoded and let go), and so do `can_pieces`, `read_can_frames`,
+    `read_can_timestamps_s` and the frame counts. Damage in those chunks is found by the first of them (or by
+    `scan()`, which makes sure every chunk was looked at: what was lost, whether the log is complete, the frame
+    counts).
     """
 
     path: str
@@ -156,7 +165,8 @@ class RunLog:
     _scan_pos: int = field(default=0, repr=False)   # the `/can/raw` parts before this one are counted
     _frame_count: int = field(default=0, repr=False)
     _non_data: int = field(default=0, repr=False)
-    _frame_times: np.ndarray | None = field(default=None, repr=False)
+    _table_states: TableStates | None = field(default=None, repr=False)   # `read_table_states`, once parsed
+    _imu_records: ImuRecords | None = field(default=None, repr=False)     # `read_imu_records`, once parsed
 
     def scan(self) -> LogScan:
         """What was lost and how many frames there are, every `/can/raw` chunk looked at: the chunks no pass
@@ -173,40 +183,26 @@ class RunLog:
         over them, by whatever reads them, adds theirs; `scan()` makes it whole)."""
         return self._damage
 
-    @property
-    def can_timestamp_s(self) -> np.ndarray:
-        """Every frame's own timestamp (run clock), float64 (8 bytes a frame: one pass over the chunks)."""
-        if self._frame_times is None:
-            times: list[np.ndarray] = []
-            for t, *_ in self.can_pieces():
-                times.append(np.asarray(t, float))
-            self._frame_times = np.concatenate(times) if times else np.zeros(0)
-        return self._frame_times
+    def read_can_timestamps_s(self) -> np.ndarray:
+        """Every frame's own timestamp (run clock), float64: one pass over the chunks, 8 bytes a frame (nothing
+        kept: a second call reads again)."""
+        times = [np.asarray(t, float) for t, *_ in self.can_pieces()]
+        return np.concatenate(times) if times else np.zeros(0)
 
-    def can_frames(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Every frame at once, (timestamps, ids, data, lengths, flags) as `can_pieces` gives them, joined
-        (30 to 90 bytes a frame: for small logs and tests; large ones go piece by piece)."""
+    def read_can_frames(self) -> CanFrames:
+        """Every frame at once, as `can_pieces` gives them, joined: one pass over the chunks, 30 to 90 bytes a
+        frame (for small logs and tests; large ones go piece by piece; nothing kept)."""
         pieces = list(self.can_pieces())
         if not pieces:
-            return decode_can_frames(None)[0]
+            return CanFrames(*decode_can_frames(None)[0])
         width = max(p[2].shape[1] for p in pieces)
         data = np.zeros((sum(len(p[1]) for p in pieces), width), np.uint8)
         a = 0
         for p in pieces:
             data[a:a + len(p[1]), :p[2].shape[1]] = p[2]
             a += len(p[1])
-        return (np.concatenate([p[0] for p in pieces]), np.concatenate([p[1] for p in pieces]), data,
-                np.concatenate([p[3] for p in pieces]), np.concatenate([p[4] for p in pieces]))
-
-    @cached_property
-    def _all_frames(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        return self.can_frames()
-
-    # Every frame at once (`can_frames`, kept): for tests and small logs; the bench's own readers stream.
-    can_ids = property(lambda self: self._all_frames[1], doc="(n,) uint32 ids, bit 31 set = extended id")
-    can_data = property(lambda self: self._all_frames[2], doc="(n, 8 or 64) uint8 data, zero-padded")
-    can_lengths = property(lambda self: self._all_frames[3], doc="(n,) int64 data lengths")
-    can_flags = property(lambda self: self._all_frames[4], doc="(n,) uint8 flags (FD, BRS, ESI, remote, error)")
+        return CanFrames(np.concatenate([p[0] for p in pieces]), np.concatenate([p[1] for p in pieces]), data,
+                         np.concatenate([p[3] for p in pieces]), np.concatenate([p[4] for p in pieces]))
 
     def can_pieces(self):
         """The `/can/raw` frames chunk by chunk, in file order: (timestamps s, ids uint32 (bit 31: extended),
@@ -243,61 +239,24 @@ class RunLog:
                     self._add(malformed_damage(TOPIC_CAN, bad))
         self._can_scanned = True
 
-    @cached_property
-    def table_states(self) -> TableStates:
-        """The `/table/state` topic as arrays (parsed on first use; malformed messages are skipped
-        and counted in `damage`, as are those past the first `MAX_JSON_MESSAGES`)."""
-        d = self._states
-        if d is None or not len(d):
-            return TableStates.from_dicts([])
-        parts, bad = [], 0
-        for rows, _, malformed in self._json_batches(d, TOPIC_STATE):
-            bad += malformed
-            rows = [r for r in rows if r is not None]
-            try:
-                parts.append(TableStates.from_dicts(rows))
-            except (KeyError, TypeError, ValueError, OverflowError):   # keep the rows that check out
-                good = [r for r in rows if state_row_ok(r)]
-                bad += len(rows) - len(good)
-                parts.append(TableStates.from_dicts(good))
-        if bad:
-            self._add(malformed_damage(TOPIC_STATE, bad))
-        return TableStates.concatenate(parts)
+    def read_table_states(self) -> TableStates:
+        """The `/table/state` topic as arrays, parsed on the first call and kept (malformed messages are skipped
+        and added to the damage, as are those past the first `MAX_JSON_MESSAGES`)."""
+        if self._table_states is None:
+            found: list[Damage] = []
+            self._table_states = table_states_of(self._states, MAX_JSON_MESSAGES, found)
+            self._add(*found)
+        return self._table_states
 
-    @cached_property
-    def imu_records(self) -> ImuRecords:
-        """The `/imu/samples` topic as arrays (parsed on first use; as `table_states`)."""
-        self.check_deferred()
-        d = self._samples
-        if d is None or not len(d):
-            return imu_records_from_rows([], np.zeros(0))
-        parts, bad = [], 0
-        for rows, times, malformed in self._json_batches(d, TOPIC_SAMPLES):
-            bad += malformed
-            times = times[[i for i, r in enumerate(rows) if r is not None]] / 1e9
-            rows = [r for r in rows if r is not None]
-            try:
-                parts.append(imu_records_from_rows(rows, times))
-            except (KeyError, TypeError, ValueError, OverflowError):   # some rows lack fields: keep the others
-                good = [k for k, r in enumerate(rows) if sample_row_ok(r)]
-                bad += len(rows) - len(good)
-                parts.append(imu_records_from_rows([rows[k] for k in good], times[good]))
-        if bad:
-            self._add(malformed_damage(TOPIC_SAMPLES, bad))
-        return ImuRecords(*(np.concatenate([getattr(p, f.name) for p in parts])
-                            for f in dataclasses.fields(ImuRecords)))
-
-    def _json_batches(self, d: ChannelData, topic: str):
-        """(rows, log times, malformed count) of the topic's messages in batches of `_JSON_BATCH` (what is
-        parsed at once stays small); rows are dicts, None where malformed. Messages past the first
-        `MAX_JSON_MESSAGES` are not parsed: said in `damage`, counted as lost."""
-        skipped = d.keep_first(MAX_JSON_MESSAGES)
-        if skipped:
-            self._add(not_read_damage(topic, skipped, MAX_JSON_MESSAGES))
-        payloads, times = d.payloads(), d.log_time_ns
-        for a in range(0, len(payloads), _JSON_BATCH):
-            rows, bad = parse_json_rows(payloads[a:a + _JSON_BATCH])
-            yield rows, times[a:a + _JSON_BATCH], bad
+    def read_imu_records(self) -> ImuRecords:
+        """The `/imu/samples` topic as arrays, its deferred chunks read now (see `check_deferred`); parsed on the
+        first call and kept, as `read_table_states`."""
+        if self._imu_records is None:
+            self.check_deferred()
+            found: list[Damage] = []
+            self._imu_records = imu_records_of(self._samples, MAX_JSON_MESSAGES, found)
+            self._add(*found)
+        return self._imu_records
 
     def imu_samples(self, layout: ImuLayout | None = None, rate_hz: float = 1000.0,
                     reorder_window: int = 8) -> tuple[ImuSampleBlock, ImuStats]:
@@ -385,14 +344,14 @@ class RunLog:
         if self._samples is None or not self.unchecked_chunks:
             return []
         found = self._samples.inflate_deferred(TOPIC_SAMPLES, self._budget)
-        for damage in found:
-            self._add(damage)
+        self._add(*found)
         return [d.describe() for d in found]
 
-    def _add(self, damage: Damage) -> None:
+    def _add(self, *found: Damage) -> None:
         """Damage found after `read_log`: into `lost` and `damage` alike."""
-        self._lost.append(damage)
-        self._damage.append(damage.describe())
+        for damage in found:
+            self._lost.append(damage)
+            self._damage.append(damage.describe())
 
     def summary(self, read_frames: bool = True) -> str:
         """One line: what the log holds and whether anything was lost. `read_frames=False`: without reading the
@@ -407,7 +366,7 @@ class RunLog:
             state = f"DAMAGED ({len(found)} problems so far)" if found else "no damage found so far"
         unchecked = (f" ({self.unchecked_chunks} {TOPIC_SAMPLES} chunks, derived from {TOPIC_CAN}, not read)"
                      if self.unchecked_chunks else "")
-        return (f"{self.path}: {frames}, {len(self.table_states)} table states, "
+        return (f"{self.path}: {frames}, {len(self.read_table_states())} table states, "
                 f"{len(self.events)} events, {self.chunks} chunks{unchecked}; {state}")
 
 
@@ -531,4 +490,4 @@ def _read_log(path: str, defer_samples: bool, messages: bool = True) -> RunLog:
                   _samples=by_topic.get(TOPIC_SAMPLES), _states=by_topic.get(TOPIC_STATE), _budget=w.budget)
 
 
-__all__ = ["ImuRecords", "LogError", "LogScan", "RunLog", "TableStates", "read_log"]
+__all__ = ["CanFrames", "ImuRecords", "LogError", "LogScan", "RunLog", "TableStates", "read_log"]

@@ -337,7 +337,7 @@ def _slice(block: ImuSampleBlock, lo: int, hi: int) -> ImuSampleBlock:
 
 def _table_states(log: RunLog) -> tuple[list[TableState], int]:
     """The recorded states as `TableState`s (and how many had a mode this version does not know)."""
-    s = log.table_states
+    s = log.read_table_states()
     out, bad = [], 0
     angles, rates, status = s.angles_deg.tolist(), s.rates_dps.tolist(), s.status.tolist()
     for i, t in enumerate(s.time_s.tolist()):

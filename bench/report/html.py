@@ -112,7 +112,7 @@ def _log_samples(log, layout, rate_hz: float, notes: list[str]):
         return block.receive_time_s, block.counter, block.acc_rate, block.gyro_rate
     except (DeviceError, ValueError, tomllib.TOMLDecodeError) as exc:
         notes.append(f"raw CAN frames not decoded ({exc}); plots use the recorded /imu/samples topic")
-    records = log.imu_records
+    records = log.read_imu_records()
     return records.receive_time_s, records.counter, records.acc_counts * rate_hz, records.gyro_counts * rate_hz
 
 
@@ -127,7 +127,7 @@ def log_series(log, layout=None) -> LogSeries:
     if not (math.isfinite(rate_hz) and rate_hz > 0):
         return LogSeries(0.0, notes=["the log does not say the IMU rate: no IMU plots"])
     t, counter, acc, gyro = _log_samples(log, layout, rate_hz, notes)
-    states = log.table_states
+    states = log.read_table_states()
     starts = [x[0] for x in (t, states.time_s) if len(x)] + ([log.events[0].time_s] if log.events else [])
     t0 = float(np.nanmin(starts)) if starts else 0.0
     series = LogSeries(t0, sample_t_s=t - t0, acc_rate=acc, gyro_rate=gyro, state_t_s=states.time_s - t0,
@@ -212,7 +212,7 @@ def _metadata(result: CalibrationResult, log, imu_link, log_still_open: bool) ->
         if cfg.get("path"):
             rows.append(([_e("configuration"), _e(cfg["path"])], ""))
         rows.append(([_e("log file"), _e(f"{log.path}: {log.scan().can_frame_count} CAN frames, "
-                                            f"{len(log.table_states)} table states, {len(log.events)} events, "
+                                            f"{len(log.read_table_states())} table states, {len(log.events)} events, "
                                             f"{log.chunks} chunks")], ""))
     damage = log_damage(log, log_still_open) if log is not None else []
     html = ["<h2>Run</h2>", _table(["field", "value"], rows)]

@@ -50,7 +50,7 @@ def extract_from_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz
         stats.append(link)
         damage += [f"{log.path}: {d.describe()}" for d in log.scan().lost
                    if not (d.kind in ("no_summary", "truncated") and log.path in still_open)]
-        states = log.table_states
+        states = log.read_table_states()
         part = extract_observations(log.events, samples.counter, samples.gyro_counts, samples.acc_counts, rate_hz,
                                     site, states.time_s, states.angles_deg, mounting, samples.status,
                                     layout.status_invalid, layout.status_required, layout.output_step)

@@ -123,7 +123,7 @@ def test_a_closed_progress_pipe_ends_the_run_exit_3_with_the_table_stopped(confi
     assert len(faults) == 1 and "ProgressPrinter failed: BrokenPipeError" in faults[0].message
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
     assert any(e.kind == "info" and "servos off" in e.message for e in log.events)
-    assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS
+    assert np.abs(log.read_table_states().rates_dps[-1]).max() < AT_REST_DPS
     assert not list(out.glob("*.result.json"))
 
 
@@ -149,8 +149,8 @@ def test_sigterm_and_sighup_abort_bench_run_like_ctrl_c(signum, tmp_path):
     assert f"interrupted ({name})" in stderr and f"--resume {log_path}" in stderr
     log = read_log(log_path)
     assert log.summary_present and log.scan().complete, log.scan().damage
-    assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS
-    assert not (log.table_states.status[-1] & AxisStatus.ENABLED).any()     # servos off
+    assert np.abs(log.read_table_states().rates_dps[-1]).max() < AT_REST_DPS
+    assert not (log.read_table_states().status[-1] & AxisStatus.ENABLED).any()     # servos off
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
     assert any(e.kind == "info" and "servos off" in e.message for e in log.events)
 
@@ -196,8 +196,8 @@ def test_sigterm_aborts_bench_check_table_like_ctrl_c(tmp_path):
     assert len(stderr.strip().splitlines()) == 1 and "interrupted (SIGTERM)" in stderr, stderr
     log = read_log(log_path)
     assert log.summary_present and log.scan().complete, log.scan().damage
-    assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS
-    assert not (log.table_states.status[-1] & AxisStatus.ENABLED).any()
+    assert np.abs(log.read_table_states().rates_dps[-1]).max() < AT_REST_DPS
+    assert not (log.read_table_states().status[-1] & AxisStatus.ENABLED).any()
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
 
 
@@ -267,8 +267,8 @@ def test_a_stop_signal_ends_bench_tui_mid_run_with_the_table_stopped(signum, tmp
     assert log.summary_present and log.scan().complete, log.scan().damage
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
     assert any(e.kind == "info" and "servos off" in e.message for e in log.events)
-    assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS
-    assert not (log.table_states.status[-1] & AxisStatus.ENABLED).any()
+    assert np.abs(log.read_table_states().rates_dps[-1]).max() < AT_REST_DPS
+    assert not (log.read_table_states().status[-1] & AxisStatus.ENABLED).any()
 
 
 # -- 3. an output folder that cannot be written ------------------------------------------------------

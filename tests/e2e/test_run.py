@@ -241,7 +241,7 @@ def test_abort_through_the_api_leaves_the_table_stopped_and_disabled(tmp_path, w
     assert aborting.message == "operator abort"
     assert not any(e.kind == "step_finished" and e.step_index == trigger.step_index for e in log.events)
     assert any(e.kind == "info" and "servos off" in e.message for e in log.events)
-    table = log.table_states
+    table = log.read_table_states()
     assert np.abs(table.rates_dps[-1]).max() < AT_REST_DPS
     if where == "mid-move":
         after = table.time_s >= aborting.time_s
@@ -291,7 +291,7 @@ def test_sigint_aborts_with_exit_code_3_and_a_complete_log(tmp_path):
     assert not list(out.glob("*.result.json"))
     log = read_log(log_path)
     assert log.summary_present and log.scan().complete, log.scan().damage
-    assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS
+    assert np.abs(log.read_table_states().rates_dps[-1]).max() < AT_REST_DPS
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
     aborting = next(e for e in log.events if e.kind == "transition" and e.state == "aborting")
     assert "interrupted" in aborting.message
@@ -311,7 +311,7 @@ def test_sigkill_then_resume_gives_the_uninterrupted_result(ideal, tmp_path):
     assert set(seen) <= set(done)            # what was in closed chunks before the kill is still there
     assert 5 <= len(done) < 30
     times = [e.time_s for e in log.events]
-    assert times == sorted(times) and len(log.table_states) and len(log.can_ids)
+    assert times == sorted(times) and len(log.read_table_states()) and len(log.read_can_frames().ids)
 
     rc, _, stderr = cli(["run", "--config", str(ideal.config), "--out", str(out), "--quiet", "--resume", str(killed)])
     assert rc == 0, stderr
@@ -449,7 +449,7 @@ def test_limit_trip_mid_move_ends_failed_with_the_table_stopped(tmp_path):
     faults = _fault_events(log, "TurntableFault")
     assert len(faults) == 1 and "limit" in faults[0].message
     assert any(e.kind == "info" and "stopped and servos off" in e.message for e in log.events)
-    assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS
+    assert np.abs(log.read_table_states().rates_dps[-1]).max() < AT_REST_DPS
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
 
 

@@ -138,13 +138,13 @@ def test_a_backgrounded_bench_run_never_loses_sigint_whenever_it_comes(tmp_path)
         if proc.returncode == 130:          # ended before the run began: nothing moved, nothing logged as moving
             assert "nothing moved" in lines[0], stderr
             for path in logs:
-                states = read_log(path).table_states
+                states = read_log(path).read_table_states()
                 assert not len(states.rates_dps) or np.abs(states.rates_dps).max() < AT_REST_DPS
         else:                               # the run had begun: aborted, the table at rest, servos off
             assert proc.returncode == 3, (delay_s, stderr)
             log = read_log(only_file(out, "*.mcap"))
             assert transitions(log.events)[-2:] == ["aborting", "failed"], (delay_s, transitions(log.events))
-            assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS
+            assert np.abs(log.read_table_states().rates_dps[-1]).max() < AT_REST_DPS
             assert not list(out.glob("*.result.json"))
     print(f"SIGINT sweep (delay s, exit code): {outcomes}")
 

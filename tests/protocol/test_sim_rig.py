@@ -374,7 +374,7 @@ def test_bench_run_against_the_rig_in_another_process_recovers_its_truth(tmp_pat
         # one time base: the interface's epoch stamps mapped onto the run clock, so the CAN frames, the
         # samples and the table states span the same stretch of time (they were ~1.8e9 s against ~1e4 s)
         log = read_log(only_file(out, "*.mcap"))
-        states, frames = log.table_states.time_s, log.can_timestamp_s
+        states, frames = log.read_table_states().time_s, log.read_can_timestamps_s()
         assert abs(frames[0] - states[0]) < 30.0 and abs(frames[-1] - states[-1]) < 30.0, (frames[[0, -1]],
                                                                                           states[[0, -1]])
         assert "can_time_offset_s" in log.metadata["imu"] and "can_lag_max_s" in link

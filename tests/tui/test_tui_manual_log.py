@@ -107,13 +107,13 @@ def test_a_manual_move_starts_a_log_with_the_move_in_it(manual_session):
     assert messages[-1] == "manual log closed: the session ended"
     assert "table stopped, servos off" in messages
     # the move itself: the table states go from zero to the targets, and end stopped with the servos off
-    states = log.table_states
+    states = log.read_table_states()
     assert list(states.angles_deg[0]) == [0.0, 0.0, 0.0]
     assert any(abs(a[0] - 5.0) < 1e-3 and abs(a[2]) < 1e-3 for a in states.angles_deg)
     assert abs(states.angles_deg[-1][0] - 5.0) < 1e-3 and abs(states.angles_deg[-1][2] - 1.0) < 1e-3
     assert list(states.modes[-1]) == ["off", "off", "off"]
     # IMU data from the first move on, on the run clock like the states
-    can_t = log.can_timestamp_s
+    can_t = log.read_can_timestamps_s()
     assert can_t[0] >= states.time_s[0] - 0.5 and can_t[-1] <= states.time_s[-1] + 0.5
 
 
@@ -322,7 +322,7 @@ def test_a_stalled_disk_drops_records_without_blocking_and_says_how_many(tmp_pat
     recorder.release.set()
     assert manual.close("test over")
     log = read_log(str(tmp_path / "m.mcap"))
-    assert log.scan().complete and list(log.table_states.time_s) == [0.0, 1.0, 2.0, 3.0]
+    assert log.scan().complete and list(log.read_table_states().time_s) == [0.0, 1.0, 2.0, 3.0]
     assert [e.message for e in log.events] == ["7 records were dropped: the disk did not keep up",
                                                "manual log closed: test over"]
 

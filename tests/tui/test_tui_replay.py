@@ -43,7 +43,7 @@ def test_replay_shows_the_recorded_run_and_its_result(recorded_log):
                 assert f"{e.kind}: {e.message}" in log
             assert "result attached to the log" in log
             table = app.query_one("#table-panel").plain
-            last = recorded.table_states.angles_deg[-1]
+            last = recorded.read_table_states().angles_deg[-1]
             assert f"outer  {last[0]:.4f}" in table and "link: replay" in table, table
             assert app.query_one("#left-tabs").active == "results-tab"
             results = app.query_one("#results-panel").plain

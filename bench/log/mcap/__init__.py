@@ -4,7 +4,8 @@ reads around damage and says what it lost (`Walk.damage`: `Damage` entries, one 
 Modules, bottom up: `records` (the record layout, chunk headers, resync after damage, framing a chunk by its
 message index, letting a mapped file's pages go), `parts` (where one channel's messages of one chunk are
 held: the `Part` protocol), `chunks` (decompression within limits, chunks kept compressed until asked for,
-the prefetch on worker threads), `channel` (`ChannelData`: one channel's parts), `damage`, `walk`.
+the prefetch on worker threads), `channel` (`ChannelData`: one channel's parts), `damage`, `keep` (what of the
+messages a walk gathers outlives it), `walk`.
 A refused chunk raises `ChunkRefused` inside the package; what leaves it is `Damage`, or `WalkError` for
 a file that is not MCAP at all.
 """

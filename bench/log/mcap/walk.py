@@ -31,7 +31,6 @@ from mcap.records import Attachment, Channel, Footer, Header, Metadata, Schema, 
 from bench.log.mcap.channel import ChannelData
 from bench.log.mcap.chunks import (
     MAX_RECORDS,
-    ChunkSlice,
     DeferredChunk,
     InflateBudget,
     Prefetch,
@@ -40,7 +39,8 @@ from bench.log.mcap.chunks import (
     streamed_budget,
 )
 from bench.log.mcap.damage import Damage
-from bench.log.mcap.parts import InChunk, Joined, MessageCut, gather
+from bench.log.mcap.keep import Keep
+from bench.log.mcap.parts import Joined, MessageCut
 from bench.log.mcap.records import (
     MAGIC,
     MESSAGE_DATA_OFFSET,
@@ -139,11 +139,9 @@ class _Walker:
                  source: Callable[[int, int], bytes] | None = None, keep_topics: frozenset[str] | None = None,
                  keep_limits: dict[str, int] | None = None, cut: MessageCut | None = None):
         self.buf = buf
-        self.cut = cut
         self.defer_topics = defer_topics
         self.source = source
-        self.keep_topics = keep_topics
-        self.keep_limits = keep_limits or {}
+        self.keep = Keep(source, defer_topics, keep_topics, keep_limits or {}, cut)
         self.current: tuple[int, ChunkHeader] | None = None   # (offset, header) of the chunk being gathered
         self.w = Walk(size=len(buf), budget=InflateBudget(inflate_budget(len(buf))),
                       stream_budget=streamed_budget(len(buf)))
@@ -487,36 +485,9 @@ class _Walker:
         return None
 
     def add_part(self, ch: int, data: bytes, starts: np.ndarray, lengths: np.ndarray, times: np.ndarray) -> None:
-        """One channel's messages in the chunk being gathered. Without a `source`: a lazy part (the chunk stays
-        in memory while it lives). With one, nothing keeps the chunk: a deferred topic's messages become a
-        `ChunkSlice` (read again from the file when needed), a topic not kept is only counted, and the
-        others are copied out (up to the topic's limit, the rest counted)."""
-        d = self.channel_data(ch)
+        """One channel's messages in the chunk being gathered (or outside chunks), kept as `self.keep` says."""
         topic = self.w.channels[ch].topic if ch in self.w.channels else None
-        if (self.cut is not None and topic in self.cut.topics and len(lengths)
-                and int(lengths.max()) > self.cut.max_bytes):
-            data, starts, lengths = self.cut.apply(data, starts, lengths)
-        if self.source is None or self.current is None or topic is None:
-            d.add(InChunk(data, starts), lengths, times)
-            return
-        if topic in self.defer_topics:
-            pos, header = self.current
-            d.add(ChunkSlice(pos, header.start_ns, header.end_ns, header.compression, None, header.size, header.crc,
-                             ch, times, starts, header.data_span, self.source, lengths), lengths, times)
-            return
-        if self.keep_topics is not None and topic not in self.keep_topics:
-            d.not_kept += len(lengths)
-            return
-        limit = self.keep_limits.get(topic)
-        if limit is not None:
-            room = max(0, limit - len(d))
-            if room < len(lengths):
-                d.over_limit += len(lengths) - room
-                starts, lengths, times = starts[:room], lengths[:room], times[:room]
-            if not len(lengths):
-                return
-        d.add(Joined(gather(data, starts, lengths)), lengths, times)
-
+        self.keep.add(self.channel_data(ch), ch, topic, self.current, data, starts, lengths, times)
 
 def walk(buf: bytes, defer_topics: frozenset[str] = frozenset(),
          source: Callable[[int, int], bytes] | None = None, keep_topics: frozenset[str] | None = None,
@@ -526,7 +497,7 @@ def walk(buf: bytes, defer_topics: frozenset[str] = frozenset(),
     Chunks holding nothing but messages of `defer_topics` are not decompressed: their channel
     data holds them as `DeferredChunk` parts (see `ChannelData.inflate_deferred`), with their
     compressed data copied, or read again through `source(offset, length)` when given (nothing held).
-    With a `source`, no decompressed chunk outlives its gathering: see `_Walker.add_part` (`keep_topics`:
+    With a `source`, no decompressed chunk outlives its gathering: see `bench.log.mcap.keep.Keep` (`keep_topics`:
     the topics whose messages are kept, None for all; `keep_limits`: the most messages kept per topic; `cut`: what
     is done to a kept message too long to be held as it is)."""
     return _Walker(buf, frozenset(defer_topics), source, keep_topics, keep_limits, cut).run()

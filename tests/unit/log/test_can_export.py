@@ -22,16 +22,17 @@ def test_every_format_reads_back_frame_for_frame(log_path, tmp_path, extension):
     out = tmp_path / f"frames{extension}"
     rc, stdout, stderr = cli(["export-can", str(log_path), "--out", str(out)])
     assert rc == 0, stderr
-    n = len(log.can_ids)
+    frames = log.read_can_frames()
+    n = len(frames.ids)
     assert stdout.strip() == f"wrote {n} CAN frames to {out}"
     back = list(can.LogReader(str(out)))
     assert len(back) == n
     ids = np.array([m.arbitration_id | (1 << 31 if m.is_extended_id else 0) for m in back], dtype=np.uint32)
-    assert (ids == log.can_ids).all()
-    assert [bytes(m.data) for m in back] == [log.can_data[k, :log.can_lengths[k]].tobytes() for k in range(n)]
+    assert (ids == frames.ids).all()
+    assert [bytes(m.data) for m in back] == [frames.data[k, :frames.lengths[k]].tobytes() for k in range(n)]
     stamps = np.array([m.timestamp for m in back])
     # relative times survive every format to its resolution (ASC and BLF: 10 us or better)
-    assert np.abs((stamps - stamps[0]) - (log.can_timestamp_s - log.can_timestamp_s[0])).max() < 2e-5
+    assert np.abs((stamps - stamps[0]) - (frames.timestamp_s - frames.timestamp_s[0])).max() < 2e-5
 
 
 def test_a_time_range_keeps_the_frames_inside_it(log_path, tmp_path):
@@ -39,12 +40,13 @@ def test_a_time_range_keeps_the_frames_inside_it(log_path, tmp_path):
     out = tmp_path / "part.log"
     rc, stdout, stderr = cli(["export-can", str(log_path), "--out", str(out), "--from-s", "10", "--to-s", "12.5"])
     assert rc == 0, stderr
-    rel = log.can_timestamp_s - log.can_timestamp_s[0]
+    stamps_s = log.read_can_timestamps_s()
+    rel = stamps_s - stamps_s[0]
     inside = (rel >= 10.0 - 1e-9) & (rel <= 12.5 + 1e-9)
     assert 0 < inside.sum() < len(rel)
     back = list(can.LogReader(str(out)))
     assert len(back) == inside.sum()
-    assert back[0].timestamp == pytest.approx(log.can_timestamp_s[inside][0], abs=1e-6)
+    assert back[0].timestamp == pytest.approx(stamps_s[inside][0], abs=1e-6)
 
 
 @pytest.mark.parametrize("args, fragment", [

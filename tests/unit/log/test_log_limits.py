@@ -119,7 +119,8 @@ def test_decompression_bombs_are_refused_as_damage_of_their_chunk_without_alloca
         assert reason in text and "messages lost" in text, (name, text)
         assert peak < 32 << 20, (name, peak)   # nothing near what the chunk declares or inflates to
         # everything else is still read: only the replaced chunk's frames are missing
-        assert 0 < len(good.can_ids) - len(log.can_ids) < len(good.can_ids) // 4, name
+        good_frames = len(good.read_can_frames().ids)
+        assert 0 < good_frames - len(log.read_can_frames().ids) < good_frames // 4, name
 
 
 def test_a_chunk_over_the_cap_is_refused_even_when_its_index_frames_it(can_chunk, tmp_path):
@@ -173,13 +174,13 @@ def test_deferred_sample_chunks_count_against_the_budget_kept_and_inflated(run_l
     used = walk(run_log.read_bytes(), frozenset({"/imu/samples", TOPIC_CAN}), source=lambda o, n: b"").budget.used
     monkeypatch.setattr(chunks_module, "MAX_LOG_INFLATED", used)
     log = read_log(run_log)
-    assert log.scan().complete and log.unchecked_chunks and len(log.can_ids)
-    assert len(log.imu_records) == 0 and log.unchecked_chunks == 0
+    assert log.scan().complete and log.unchecked_chunks and len(log.read_can_frames().ids)
+    assert len(log.read_imu_records()) == 0 and log.unchecked_chunks == 0
     refused = [d for d in log.scan().damage if "past what this log's chunks may inflate to in all" in d]
     assert refused and all("on /imu/samples" in d for d in refused)
     monkeypatch.setattr(chunks_module, "MAX_LOG_INFLATED", used - 1)
     log = read_log(run_log)   # one byte less: a chunk is refused as the walk reaches it
-    assert len(log.can_ids) and any("past what" in d for d in log.scan().damage)
+    assert len(log.read_can_frames().ids) and any("past what" in d for d in log.scan().damage)
 
 
 def test_a_chunk_walked_record_by_record_is_not_walked_in_python_per_message(can_chunk, tmp_path):
@@ -192,7 +193,7 @@ def test_a_chunk_walked_record_by_record_is_not_walked_in_python_per_message(can
                                                                    len(content), zlib.crc32(content))))
     log = read_log(path)
     assert not [d for d in log.scan().damage if d.startswith(f"chunk at byte {pos}")], log.scan().damage
-    assert int(np.count_nonzero(log.can_timestamp_s == 12345.5)) == n
+    assert int(np.count_nonzero(log.read_can_timestamps_s() == 12345.5)) == n
 
 
 def test_records_inside_a_chunk_other_than_schemas_channels_and_messages_make_it_damage(can_chunk, tmp_path):
@@ -210,7 +211,7 @@ def test_a_file_of_chunk_opcodes_resyncs_in_bounded_time(can_chunk, tmp_path):
     log = read_log(path)
     assert any(d.startswith(f"byte {pos}: chunk record with an impossible length; bytes {pos}..")
                for d in log.scan().damage)
-    assert len(log.can_ids) > 0
+    assert len(log.read_can_frames().ids) > 0
 
 
 def test_records_outside_chunks_are_counted_and_the_walk_stops_at_the_limit(can_chunk, tmp_path, monkeypatch):
@@ -270,13 +271,14 @@ def test_crafted_content_is_read_as_damage_with_bounded_memory(run_log, crafted_
     log, peak = _peak_while(lambda: read_log(path))
     assert peak < 64 << 20     # the 255-byte claim allocates nothing per claim, the DBC is not kept
     good = read_log(run_log)
-    assert len(log.can_ids) == len(good.can_ids) - frames_replaced and int(log.can_lengths.max()) <= 64
+    frames = log.read_can_frames()
+    assert len(frames.ids) == len(good.read_can_frames().ids) - frames_replaced and int(frames.lengths.max()) <= 64
     assert not any(name.endswith(".dbc") for name in log.attachments)
     for text in (f"1 malformed {TOPIC_CAN} messages skipped", f"1 malformed {TOPIC_EVENTS} messages skipped",
                  f"attachment 'sim_imu.dbc' holds {len(good.attachments['sim_imu.dbc'][1]) + (2 << 20) + 9} bytes, "
                  f"more than {MAX_DBC_BYTES} bytes"):
         assert any(text in d for d in log.scan().damage), (text, log.scan().damage)
-    assert np.abs(log.table_states.angles_deg[:, :2]).max() == 1e308
+    assert np.abs(log.read_table_states().angles_deg[:, :2]).max() == 1e308
     block, stats = log.imu_samples()
     assert len(block.counter)
 
@@ -304,7 +306,7 @@ def test_a_message_of_records_all_claiming_255_bytes_is_malformed_not_an_error(r
         return can_frames(50, length=255) if topic == TOPIC_CAN else data
 
     log = read_log(rewrite(run_log, tmp_path / "all255.mcap", message=edit))
-    assert len(log.can_ids) == 0
+    assert len(log.read_can_frames().ids) == 0
     assert any(f"malformed {TOPIC_CAN} messages skipped" in d for d in log.scan().damage)
     block, stats = log.imu_samples()
     assert len(block.counter) == 0
@@ -324,7 +326,7 @@ def test_honest_chunks_still_read_exactly_as_before(can_chunk, tmp_path):
     buf, pos, _ = can_chunk
     f = chunk_fields(buf, pos)
     content = inflate(f["compression"], f["data"])
-    expected = read_log(_crafted(tmp_path, buf, "orig.mcap"))
+    expected = read_log(_crafted(tmp_path, buf, "orig.mcap")).read_can_frames().data
     for compression, data in (("", content), ("zstd", zstd_bomb(content, len(content))),
                               ("lz4", lz4_bomb(content, len(content))),
                               ("zstd", zstd_bomb(content, len(content), content_size=False)),
@@ -332,7 +334,7 @@ def test_honest_chunks_still_read_exactly_as_before(can_chunk, tmp_path):
         chunk = chunk_record(data, compression, len(content), zlib.crc32(content), f["start"], f["end"])
         log = read_log(_crafted(tmp_path, replace_chunk(buf, pos, chunk, drop_index=False)))
         assert not [d for d in log.scan().damage if "chunk" in d], (compression, log.scan().damage)
-        np.testing.assert_array_equal(log.can_data, expected.can_data)
+        np.testing.assert_array_equal(log.read_can_frames().data, expected)
 
 
 def test_a_turn_window_holding_many_or_repeated_table_states_is_integrated_in_bounded_time():
@@ -386,8 +388,8 @@ def test_the_can_frames_are_decoded_chunk_by_chunk_and_never_held(run_log, monke
     parts = log._can.parts
     assert len(parts) > 10 and all(isinstance(p, DeferredChunk) and p.payload is None for p in parts)
     assert len(fed) == len(parts) and max(fed) < sum(fed) // 5       # piece by piece
-    assert log._frame_times is None and "_all_frames" not in vars(log)   # nothing of the frames kept
-    t, ids, data, lengths, flags = log.can_frames()
+    assert not [k for k, v in vars(log).items() if isinstance(v, np.ndarray)]   # nothing of the frames kept
+    t, ids, data, lengths, flags = log.read_can_frames()
     assert sum(fed) == len(ids) == log.scan().can_frame_count
     whole, whole_stats = decode_frames(ids, data, lengths, t, layout=setup.layout, rate_hz=setup.rate_hz)
     assert whole_stats == stats and np.array_equal(whole.counter, block.counter)
@@ -458,7 +460,7 @@ def test_a_metadata_read_keeps_no_messages(run_log):
     meta, meta_peak = _peak_while(lambda: read_log(run_log, messages=False))
     assert meta.metadata == full.metadata and meta.attachments.keys() == full.attachments.keys()
     assert meta.message_counts == full.message_counts          # still counted
-    assert not meta.events and len(meta.table_states) == 0 and full.events and len(full.table_states)
+    assert not meta.events and len(meta.read_table_states()) == 0 and full.events and len(full.read_table_states())
     assert meta_peak < full_peak
 
 

@@ -70,7 +70,7 @@ def test_a_deferred_chunk_failing_its_crc_is_named_when_read_and_at_once(tmp_pat
         deferred = read_log(log_path)
         if deferred.damage_found:   # a chunk the walk decompressed: found at once
             continue
-        records = deferred.imu_records   # the deferred /imu/samples chunks are read now
+        records = deferred.read_imu_records()   # the deferred /imu/samples chunks are read now
         damage = deferred.scan().damage   # and the /can/raw ones
         if "/imu/samples" not in damage[0]:
             continue

@@ -151,13 +151,15 @@ def _count_frames(payload: bytes) -> int:
 
 
 def assert_frames_equal(log, msgs):
-    assert len(log.can_ids) == len(msgs)
+    frames = log.read_can_frames()
+    assert len(frames.ids) == len(msgs)
+    assert np.array_equal(frames.timestamp_s, log.read_can_timestamps_s())
     for i, m in enumerate(msgs):
-        n = int(log.can_lengths[i])
-        assert bytes(log.can_data[i, :n]) == bytes(m.data)
-        assert not log.can_data[i, n:].any()
-        assert int(log.can_ids[i]) == m.arbitration_id | ((1 << 31) if m.is_extended_id else 0)
-        assert log.can_timestamp_s[i] == m.timestamp
+        n = int(frames.lengths[i])
+        assert bytes(frames.data[i, :n]) == bytes(m.data)
+        assert not frames.data[i, n:].any()
+        assert int(frames.ids[i]) == m.arbitration_id | ((1 << 31) if m.is_extended_id else 0)
+        assert frames.timestamp_s[i] == m.timestamp
 
 
 # -- round trip ----------------------------------------------------------------------------
@@ -167,14 +169,15 @@ def test_round_trip_is_lossless(closed_log):
     log = read_log(path)
     assert log.scan().complete and log.scan().damage == [] and log.summary_present
     assert_frames_equal(log, run.messages)
-    assert log.can_data.shape[1] == 8 and not log.can_flags.any()
+    frames = log.read_can_frames()
+    assert frames.data.shape[1] == 8 and not frames.flags.any()
     block, stats = log.imu_samples(LAYOUT, RATE_HZ)
     assert stats.samples == len(run.block) and stats.lost_samples == 0 and stats.frame_faults == 0
     np.testing.assert_array_equal(block.counter, run.block.counter)
     np.testing.assert_array_equal(block.gyro_counts, run.block.gyro_counts)
     np.testing.assert_array_equal(block.acc_counts, run.block.acc_counts)
     np.testing.assert_array_equal(block.receive_time_s, run.block.receive_time_s)
-    rec = log.imu_records
+    rec = log.read_imu_records()
     np.testing.assert_array_equal(rec.counter, run.block.counter)
     np.testing.assert_array_equal(rec.gyro_counts, run.block.gyro_counts)
     np.testing.assert_array_equal(rec.acc_counts, run.block.acc_counts)
@@ -187,7 +190,7 @@ def test_round_trip_is_lossless(closed_log):
     assert log.metadata["result"] == {"rms": "1.5", "ok": "true"}
     assert log.attachments["plan.toml"] == ("application/toml", b"[[positions]]\nouter = 0\n")
     assert "imu.dbc" in log.attachments
-    ts = log.table_states
+    ts = log.read_table_states()
     assert len(ts) == len(run.states)
     np.testing.assert_array_equal(ts.time_s, [s.time_s for s in run.states])
     np.testing.assert_array_equal(ts.angles_deg, [s.angles_deg for s in run.states])
@@ -205,12 +208,13 @@ def test_mixed_frames_round_trip_with_flags(tmp_path):
     log = read_log(path)
     assert log.scan().complete
     assert_frames_equal(log, run.messages)
-    assert log.can_data.shape[1] == 64
-    ext = np.flatnonzero(log.can_ids == (0x1ABCDEF0 | 1 << 31))
+    frames = log.read_can_frames()
+    assert frames.data.shape[1] == 64
+    ext = np.flatnonzero(frames.ids == (0x1ABCDEF0 | 1 << 31))
     assert len(ext) == 2
-    assert set(log.can_flags[log.can_ids == 0x123]) == {FLAG_FD | 0x02}
-    assert set(log.can_flags[log.can_ids == 0x321]) == {FLAG_REMOTE}
-    assert set(log.can_flags[log.can_ids == 0]) == {FLAG_ERROR}
+    assert set(frames.flags[frames.ids == 0x123]) == {FLAG_FD | 0x02}
+    assert set(frames.flags[frames.ids == 0x321]) == {FLAG_REMOTE}
+    assert set(frames.flags[frames.ids == 0]) == {FLAG_ERROR}
     block, stats = log.imu_samples(LAYOUT, RATE_HZ)
     # the extended-id and FD frames are unknown to the layout; remote and error frames are not decoded
     assert stats.samples == len(run.block) and stats.unknown_id == 4 and log.scan().non_data_frames == 4
@@ -222,7 +226,7 @@ def test_decimated_sample_topic_keeps_every_raw_frame(tmp_path):
     run.recorder.close()
     log = read_log(path)
     assert_frames_equal(log, run.messages)
-    np.testing.assert_array_equal(log.imu_records.counter, run.block.counter[run.block.counter % 4 == 0])
+    np.testing.assert_array_equal(log.read_imu_records().counter, run.block.counter[run.block.counter % 4 == 0])
     assert len(log.imu_samples(LAYOUT, RATE_HZ)[0]) == len(run.block)
 
 
@@ -310,8 +314,9 @@ def test_non_finite_values_become_null(tmp_path):
         for _, channel, msg in make_reader(f).iter_messages():
             json.loads(msg.data, parse_constant=lambda c, channel=channel: pytest.fail(f"{channel.topic}: {c}"))
     log = read_log(path)
-    assert np.isnan(log.table_states.angles_deg).all() and log.events[0].to_dict()["data"] == {"x": None}
-    assert np.isnan(log.imu_records.temperature_c).all() and np.isnan(log.imu_records.gyro_counts[1, 2])
+    assert np.isnan(log.read_table_states().angles_deg).all() and log.events[0].to_dict()["data"] == {"x": None}
+    records = log.read_imu_records()
+    assert np.isnan(records.temperature_c).all() and np.isnan(records.gyro_counts[1, 2])
 
 
 # -- chunking and crashes ------------------------------------------------------------------
@@ -333,12 +338,12 @@ def test_chunk_closes_after_the_interval_so_an_unclosed_file_is_readable(tmp_pat
     log = read_log(path)          # the recorder is still open: no summary yet
     assert not log.summary_present and not log.scan().complete and "not closed" in log.scan().damage[0]
     assert_frames_equal(log, msgs)
-    np.testing.assert_array_equal(log.imu_records.counter, block.counter)
+    np.testing.assert_array_equal(log.read_imu_records().counter, block.counter)
     rec.on_can_frames(msgs[:7])   # into a new chunk, not yet closed
     assert path.stat().st_size == grown
     rec.close()
     rec.close()                   # idempotent
-    assert len(read_log(path).can_ids) == len(msgs) + 7
+    assert len(read_log(path).read_can_frames().ids) == len(msgs) + 7
     with pytest.raises(RecorderError, match="closed"):
         rec.on_can_frames(msgs[:1])
 
@@ -439,7 +444,8 @@ def test_a_corrupt_chunk_is_skipped_and_reading_resumes_after_it(tmp_path, compr
             assert "CRC mismatch" in text
         assert len(log.scan().damage) == 1     # the message index accounts for every lost message
         assert log.scan().lost[0].lost == {"/can/raw": 1}
-        assert len(log.imu_records) == len(run.batch_frames) * SAMPLES_PER_BATCH and log.scan().damage == [text]
+        assert len(log.read_imu_records()) == len(run.batch_frames) * SAMPLES_PER_BATCH
+        assert log.scan().damage == [text]
 
 
 @pytest.mark.parametrize("compression", ["zstd", "none"])
@@ -459,7 +465,7 @@ def test_imu_samples_have_chunks_of_their_own_checked_when_first_read(tmp_path, 
     assert_frames_equal(log, run.messages)
     assert log.scan().complete and log.unchecked_chunks == len(samples_only)
     assert f"{len(samples_only)} /imu/samples chunks" in log.summary()
-    records = log.imu_records   # now they are read: one chunk is lost, and said so
+    records = log.read_imu_records()   # now they are read: one chunk is lost, and said so
     assert log.unchecked_chunks == 0 and not log.scan().complete and len(log.scan().damage) == 1
     assert log.scan().damage[0].startswith(f"chunk at byte {start}")
     assert f"{SAMPLES_PER_BATCH} on /imu/samples" in log.scan().damage[0]
@@ -469,7 +475,7 @@ def test_imu_samples_have_chunks_of_their_own_checked_when_first_read(tmp_path, 
 
     eager = read_log(path, defer_samples=False)   # the same damage, found at once
     assert eager.unchecked_chunks == 0 and eager.scan().damage == log.scan().damage
-    assert len(eager.imu_records) == len(records)
+    assert len(eager.read_imu_records()) == len(records)
 
 
 def test_a_corrupt_record_header_resyncs_at_the_next_chunk(chunked_log, tmp_path):
@@ -514,7 +520,7 @@ def test_a_wrong_message_index_falls_back_to_the_record_walk(chunked_log, tmp_pa
     log = read_log(p)
     assert log.scan().complete, log.scan().damage
     assert_frames_equal(log, run.messages)
-    np.testing.assert_array_equal(log.imu_records.counter, run.block.counter)
+    np.testing.assert_array_equal(log.read_imu_records().counter, run.block.counter)
 
 
 def test_not_mcap_and_empty_files_give_one_line_errors(tmp_path):
@@ -582,7 +588,7 @@ def test_random_damage_never_crashes_the_reader(small_log, tmp_path, flips, cut)
     except LogError as exc:
         assert "\n" not in str(exc)
         return
-    assert len(log.can_ids) <= n_frames + 50
+    assert len(log.read_can_frames().ids) <= n_frames + 50
     assert all(isinstance(d, str) for d in log.scan().damage)
     log.imu_samples(LAYOUT, RATE_HZ)
 
@@ -621,7 +627,9 @@ def test_malformed_messages_found_on_first_use_are_counted_in_damage_and_lost(tm
                 writer.add_message(channel, log_time=k + 1, data=payload, publish_time=k + 1)
         writer.finish()
     log = read_log(path)
-    assert len(log.imu_records) == 1 and log.imu_records.counter.tolist() == [7]
-    assert len(log.table_states.time_s) == 1
+    records = log.read_imu_records()
+    assert len(records) == 1 and records.counter.tolist() == [7]
+    assert log.read_imu_records() is records   # parsed once, kept (its damage counted once)
+    assert len(log.read_table_states().time_s) == 1
     assert {topic: n for d in log.scan().lost for topic, n in d.lost.items()} == {TOPIC_SAMPLES: 2, TOPIC_STATE: 2}
     assert len(log.scan().damage) == len(log.scan().lost) == 2 and not log.scan().complete

@@ -186,7 +186,7 @@ def test_plots_cover_the_log(run):
     assert len(series.sample_t_s) > 10000 and series.acc_rate.shape == (len(series.sample_t_s), 3)
     # A dwell at rest: the accelerometers' means are ~ +-1 g (40000 counts/s per g) or 0 per axis.
     assert np.all(np.abs(series.acc_mean).max(axis=1) > 30000)
-    assert len(series.state_t_s) == len(run.log.table_states) and not series.notes
+    assert len(series.state_t_s) == len(run.log.read_table_states()) and not series.notes
 
 
 @pytest.mark.slow
@@ -194,7 +194,7 @@ def test_report_time_for_the_short_log(run, tmp_path):
     started = time.perf_counter()
     md, html = write_reports(run.result, tmp_path, "timed", log=run.log)
     elapsed = time.perf_counter() - started
-    print(f"\nreports for a log of {len(run.log.can_ids)} CAN frames: {elapsed:.2f} s, "
+    print(f"\nreports for a log of {len(run.log.read_can_frames().ids)} CAN frames: {elapsed:.2f} s, "
           f"HTML {html.stat().st_size / 1e3:.0f} kB")
     assert md.name == "timed.report.md" and html.name == "timed.report.html"
     assert_self_contained(html.read_text(encoding="utf-8"))
@@ -351,7 +351,7 @@ def test_log_without_its_dbc_plots_the_decoded_topic(run):
     log.attachments.clear()
     series = log_series(log)
     assert series.notes and "/imu/samples" in series.notes[0]
-    assert len(series.sample_t_s) == len(log.imu_records) > 0
+    assert len(series.sample_t_s) == len(log.read_imu_records()) > 0
     reference = log_series(run.log)
     assert series.dwell_labels == reference.dwell_labels
     np.testing.assert_allclose(series.acc_mean, reference.acc_mean)

@@ -385,7 +385,7 @@ def test_sigint_aborts_with_exit_code_3_the_table_stopped_and_no_check(tmp_path)
     assert not list(out.glob("*.table-check.json"))
     log = read_log(log_path)
     assert log.summary_present and log.scan().complete, log.scan().damage
-    assert np.abs(log.table_states.rates_dps[-1]).max() < AT_REST_DPS
+    assert np.abs(log.read_table_states().rates_dps[-1]).max() < AT_REST_DPS
     assert transitions(log.events)[-2:] == ["aborting", "failed"]
 
 
