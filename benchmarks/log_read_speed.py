@@ -201,6 +201,7 @@ def one_hour_config(out_dir: Path):
 
 
 def build_one_hour(folder: Path) -> Path:
+    from bench.run.devices import SIMULATOR
     from bench.run.runner import BenchRun
 
     folder.mkdir(parents=True, exist_ok=True)
@@ -210,7 +211,7 @@ def build_one_hour(folder: Path) -> Path:
     print(f"building the 1-hour log in {folder}: dwell {config.plan.dwell_s} s, plan estimate "
           f"{plan.estimated_total_s:.0f} s simulated at {config.imu.rate_hz:g} Hz ...", flush=True)
     t0 = time.perf_counter()
-    with BenchRun(config, plan, sim=True, out_dir=folder, operator="benchmark") as run:
+    with BenchRun(config, plan, devices=SIMULATOR, out_dir=folder, operator="benchmark") as run:
         run.open()
         run.run()
         outcome = run.finish()

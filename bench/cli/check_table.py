@@ -195,6 +195,7 @@ def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
     # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
     from bench.log.reader import LogError
     from bench.log.recorder import RecorderError
+    from bench.run.devices import device_opener
     from bench.run.runner import BenchRun
     from bench.table_check.estimate import TableCheckError
     from bench.table_check.from_log import analyse_log
@@ -207,7 +208,7 @@ def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
               + (" (simulated)" if sim else ""))
     # A stop signal (Ctrl-C, SIGTERM, SIGHUP) aborts the plan while it runs (run_plan); after it, it ends
     # the analysis (an Interrupted): either way the devices and the log are closed.
-    with stop_signals(raise_interrupted), BenchRun(config, plan, sim=sim, out_dir=out_dir,
+    with stop_signals(raise_interrupted), BenchRun(config, plan, devices=device_opener(sim), out_dir=out_dir,
                                                    operator=args.operator) as run:
         try:     # a signal after the plan's last check is raised here: the run ends as interrupted
             failed = run_plan(run, PROG, quiet=args.quiet, simulated=sim)

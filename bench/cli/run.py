@@ -66,6 +66,7 @@ def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
     from bench.log.reader import LogError
     from bench.log.recorder import RecorderError
     from bench.log.run_setup import SetupMismatch
+    from bench.run.devices import device_opener
     from bench.run.resume import resume_point
     from bench.run.runner import BenchRun, compile_from_config
     from bench.solve.inputs import SolveInputError, check_solvable
@@ -103,8 +104,9 @@ def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
     out_dir = Path(args.out) if args.out else Path(config.output.folder)
     # A stop signal (Ctrl-C, SIGTERM, SIGHUP) aborts the plan while it runs (run_plan); after it, it ends
     # the solve (an Interrupted): either way the devices and the log are closed.
-    with stop_signals(raise_interrupted), BenchRun(config, plan, sim=sim, out_dir=out_dir, operator=args.operator,
-                                                   completed=completed, previous_logs=previous_logs) as run:
+    with stop_signals(raise_interrupted), BenchRun(config, plan, devices=device_opener(sim), out_dir=out_dir,
+                                                   operator=args.operator, completed=completed,
+                                                   previous_logs=previous_logs) as run:
         stage = "after the plan"
         started.append(True)
         try:

@@ -68,6 +68,7 @@ def run_verification(config: BenchConfig, calibration: CalibrationResult, *, cal
     """Run the verification plan and check `calibration` on it: (an exit code after one line when it could not
     be done, None) or (None, the outcome)."""
     # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
+    from bench.run.devices import device_opener
     from bench.run.runner import BenchRun
     from bench.solve.inputs import budget_inputs
     from bench.verify.errors import verify_extraction
@@ -86,8 +87,8 @@ def run_verification(config: BenchConfig, calibration: CalibrationResult, *, cal
         plan = verification_plan(vconfig)
     except InputError as exc:
         return fail(prog, f"cannot verify: {exc}; the verification did not start", ExitCode.USAGE), None
-    with stop_signals(raise_interrupted), BenchRun(vconfig, plan, sim=sim, out_dir=out_dir, operator=operator,
-                                                   run_id=run_id) as run:
+    with stop_signals(raise_interrupted), BenchRun(vconfig, plan, devices=device_opener(sim), out_dir=out_dir,
+                                                   operator=operator, run_id=run_id) as run:
         try:     # a signal after the plan's last check is raised here: the run ends as interrupted
             failed = run_plan(run, prog, quiet=quiet, simulated=sim)
         except KeyboardInterrupt as exc:

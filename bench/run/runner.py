@@ -1,7 +1,7 @@
 """One calibration run end to end: devices, recorder, sequencer, solve from the log, result and report.
 
 `BenchRun` is what `bench run` executes and what the TUI will drive: open the devices
-(the simulated world when asked), record everything to `<out>/<run-id>.mcap`, run the
+(the simulator or the drivers, `bench.run.devices`), record everything to `<out>/<run-id>.mcap`, run the
 compiled plan, then solve from the log just written (plus the logs of the run it
 resumes) and write `<run-id>.result.json`, `<run-id>.report.md` and `<run-id>.report.html`.
 """
@@ -17,8 +17,6 @@ from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
-
-import can
 
 from bench import __version__
 from bench.acceptance.quality import LOST_SAMPLES_FAILURE, judged_failures, quality_failures, window_loss_failures
@@ -40,7 +38,7 @@ from bench.plan.thermal import compile_thermal_plan
 from bench.report.markdown import write_reports
 from bench.report.noise import write_noise_outputs
 from bench.report.thermal import write_thermal_files
-from bench.run.imu_check import check_imu_stream
+from bench.run.devices import DeviceOpener, Devices
 from bench.run.sequencer import ListenerError, Sequencer, SequencerOptions, describe_listener_error
 from bench.sim.world import SimWorld
 from bench.solve.extract import Extraction
@@ -50,10 +48,10 @@ from bench.thermal.from_log import solve_thermal
 from bench.thermal.model import ThermalModel
 from bench.thermal.verdict import judge_thermal_head
 from bench.verify.plan import sim_table_record
-from drivers.chamber import Chamber, open_chamber
-from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.chamber import Chamber
+from drivers.clock import Clock
 from drivers.imu.receiver import ImuReceiver
-from drivers.turntable import Turntable, open_turntable
+from drivers.turntable import Turntable
 from schedules import builtin_path
 
 #: The sequencer's loop periods on the simulator: coarse, because the simulated clock jumps.
@@ -113,12 +111,12 @@ class OutputFolderError(BenchError):
 
 
 class BenchRun:
-    """A run of `plan` with `config`'s devices (or the simulator when `sim`)."""
+    """A run of `plan` on the devices `devices` opens (`bench.run.devices`: the simulator or the drivers)."""
 
-    def __init__(self, config: BenchConfig, plan: CompiledPlan, *, sim: bool, out_dir: str | Path, operator: str = "",
-                 completed: Iterable[str] = (), previous_logs: Iterable[str] = (),
+    def __init__(self, config: BenchConfig, plan: CompiledPlan, *, devices: DeviceOpener, out_dir: str | Path,
+                 operator: str = "", completed: Iterable[str] = (), previous_logs: Iterable[str] = (),
                  listeners: Iterable[RunListener] = (), run_id: str | None = None):
-        self.config, self.plan, self.sim = config, plan, sim
+        self.config, self.plan, self.opener = config, plan, devices
         self.out_dir = Path(out_dir)
         self.operator = operator
         self.completed = set(completed)
@@ -129,55 +127,23 @@ class BenchRun:
         self.kind = kind_of_config(config)       # recorded in the log (`run.kind`); `finish` dispatches on it
         self.log_path = self.out_dir / f"{self.run_id}.mcap"
         # set by open() and run(); None before
-        self.world: SimWorld | None = None
-        self.table: Turntable | None = None
-        self.receiver: ImuReceiver | None = None
-        self.imu_check = ""                      # what the check of a hardware IMU found before the run
+        self.devices: Devices | None = None
         self.recorder: McapRecorder | None = None
-        self.chamber: Chamber | None = None      # a thermal plan's chamber (opened by open())
         self.sequencer: Sequencer | None = None
-        self.clock: Clock | None = None
         self._abort_reason: str | None = None      # an abort asked for before the sequencer existed
         self._stack = ExitStack()
 
     # -- devices -----------------------------------------------------------------------
     def open(self, *, record: bool = True) -> None:
-        """Open the devices and the recorder. Raises DeviceError/OSError/ValueError; nothing moves.
+        """Open the devices (the opener's) and the recorder. Raises DeviceError/OSError/ValueError; nothing moves.
 
         The output folder is checked first (`OutputFolderError`): no device is opened for a run that could
         not be logged. `record=False` leaves the log for `start_log()` (the TUI opens it when a plan starts,
         so a session that runs nothing writes no log); `run()` refuses to start without it."""
-        config = self.config
         self._check_output_folder()
         try:
-            if self.sim:
-                self.world = self._stack.enter_context(SimWorld(
-                    config.site.site, config.sim.imu, config.sim.noise, black_box_rad=config.sim.black_box_rad,
-                    dialect=config.table.dialect, imu_rate_hz=config.imu.rate_hz, layout=config.imu.layout,
-                    seed=config.sim.seed, register_map=config.table.register_map, imu_thermal=config.sim.thermal))
-                self.clock, url = self.world.clock, self.world.table_url
-                bus: can.BusABC | dict = self.world.receiver_bus()
-            else:
-                self.clock, url, bus = SYSTEM_CLOCK, config.table.url, config.imu.bus_kwargs()
-            options: dict[str, object] = {"limits": config.table.limits, "clock": self.clock,
-                                          "timeout_s": config.table.timeout_s, "retries": config.table.retries}
-            if config.table.dialect == "modbus" and config.table.register_map is not None:
-                options["register_map"] = config.table.register_map
-            self.table = table = open_turntable(url, config.table.dialect, **options)
-            table.connect()
-            self._stack.callback(table.close)
-            # hardware: the interface's frame timestamps are mapped onto the run clock (one time base in the
-            # log); the simulator's frames carry the run clock's time already
-            self.receiver = receiver = ImuReceiver(bus, config.imu.layout, config.imu.rate_hz,
-                                                   time_base=None if self.sim else self.clock.now)
-            self._stack.callback(receiver.close)
-            if not self.sim:
-                # the IMU must be there, at its rate and layout, before anything moves (the simulated one
-                # runs on the run clock and always is)
-                self.imu_check = check_imu_stream(
-                    receiver, config.imu.rate_hz, f"interface {config.imu.interface} channel {config.imu.channel}")
-            if self.is_thermal:
-                self._open_chamber()
+            self.devices = devices = self.opener.open(self.config, self.is_thermal)
+            self._stack.callback(devices.close)
             if record:
                 self._open_recorder()
         except BaseException:
@@ -189,28 +155,38 @@ class BenchRun:
         """A calibration at each chamber temperature (`[plan] temperatures_c`)."""
         return self.config.plan.thermal is not None
 
-    def _open_chamber(self) -> None:
-        """The thermal plan's chamber: the configured one, or on the simulator a simulated chamber on the run
-        clock whose air is the thermal IMU's ambient."""
-        chamber_config = self.config.chamber
-        if chamber_config is None:
-            raise BenchError("a thermal plan needs a [chamber]")
-        assert self.clock is not None
-        if self.sim:
-            assert self.world is not None
-            # served in the configured dialect over the kind of link its url names (TCP, or a pty: RTU, serial)
-            url = self.world.add_chamber(chamber_config.dialect, chamber_config.register_map,
-                                         where=chamber_config.sim_link)
-            if self.world.imu.case is not None:
-                self.world.drive_imu_from_chamber()
-        elif chamber_config.is_sim:
-            raise BenchError('chamber url "sim" is the simulated chamber: run with --sim (or a simulated table)')
-        else:
-            url = chamber_config.url
-        self.chamber = chamber = open_chamber(url, chamber_config.dialect, clock=self.clock,
-                                              **chamber_config.driver_options())
-        chamber.connect()
-        self._stack.callback(chamber.close)
+    @property
+    def sim(self) -> bool:
+        """The devices are the simulator's (the opener's choice, known before they open)."""
+        return self.opener.simulated
+
+    # the opened devices' parts (None before open())
+    @property
+    def table(self) -> Turntable | None:
+        return self.devices.table if self.devices is not None else None
+
+    @property
+    def receiver(self) -> ImuReceiver | None:
+        return self.devices.receiver if self.devices is not None else None
+
+    @property
+    def clock(self) -> Clock | None:
+        return self.devices.clock if self.devices is not None else None
+
+    @property
+    def chamber(self) -> Chamber | None:
+        """A thermal plan's chamber."""
+        return self.devices.chamber if self.devices is not None else None
+
+    @property
+    def world(self) -> SimWorld | None:
+        """The simulated world behind the devices (None: hardware, or not open)."""
+        return self.devices.world if self.devices is not None else None
+
+    @property
+    def imu_check(self) -> str:
+        """What the check of a hardware IMU found before the run."""
+        return self.devices.imu_check if self.devices is not None else ""
 
     def start_log(self) -> None:
         """Open the log of a run opened with `record=False` (nothing if it is open): the output folder is
@@ -335,7 +311,8 @@ class BenchRun:
     def run(self) -> RunState:
         """Enable the table and execute the plan (blocking). Errors end in a safe stop, see `sequencer.error`."""
         table, receiver, recorder, clock = self._opened()
-        imu = self.world.imu_source(receiver) if self.world is not None else receiver
+        assert self.devices is not None          # (_opened checked it)
+        imu = self.devices.imu_source()
         self.sequencer = sequencer = Sequencer(self.plan.steps, table, imu, clock,
                                                [recorder, *self.extra_listeners], self.options(), self.completed,
                                                chamber=self.chamber)

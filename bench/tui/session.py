@@ -32,14 +32,13 @@ from typing import Callable, Sequence
 from bench.config.load import SIM_CONFIG_TOML
 from bench.errors import BenchError
 from bench.log.events import RunState
+from bench.run.devices import Devices, ImuSource, device_opener
 from bench.run.runner import BenchRun, RunOutcome
 from bench.run.sequencer import RunAborted
-from bench.sim.world import PumpedReceiver
 from bench.solve.methods import SolverError
 from bench.tui.buffer import UiBuffer
 from bench.tui.manual_log import ManualLogs
 from drivers.errors import DeviceError, TurntableLimitError
-from drivers.imu.receiver import ImuReceiver
 from drivers.turntable import FRAMES, AxisMode, Turntable, frame_index
 
 LINK_DISCONNECTED, LINK_CONNECTING, LINK_CONNECTED, LINK_ERROR = "disconnected", "connecting", "connected", "error"
@@ -149,7 +148,7 @@ class BenchSession:
         self._threads: list[threading.Thread] = []
         self._monitor: threading.Thread | None = None
         self._monitor_stop = threading.Event()
-        self._imu: PumpedReceiver | ImuReceiver | None = None
+        self._imu: ImuSource | None = None
         self.manual = ManualLogs(self.buffer.note, self.join_timeout_s)   # the logs of manual moves
 
     # -- state -----------------------------------------------------------------------------
@@ -225,8 +224,7 @@ class BenchSession:
                 return
             manual = self.manual.current                        # (its frames come through the receiver)
             try:
-                if self.sim and run.world is not None:
-                    run.world.clock.advance(self.poll_s)       # the run's clock on the simulator
+                _devices(run).let_idle_time_pass(self.poll_s)   # (the simulator's run clock moves when told)
                 state = _table(run).read_state()
                 self.buffer.on_table_state(state)
                 if manual is not None:
@@ -252,18 +250,18 @@ class BenchSession:
             if self.run is not None:
                 raise SessionError("already connected")
             self.link, self.link_detail = LINK_CONNECTING, ""
-        run = BenchRun(self.config, self.plan, sim=self.sim, out_dir=self.out_dir, operator=self.operator,
-                       listeners=[self.buffer])
+        run = BenchRun(self.config, self.plan, devices=device_opener(self.sim), out_dir=self.out_dir,
+                       operator=self.operator, listeners=[self.buffer])
         try:
             run.open(record=False)          # the log starts with the plan (start): connecting writes no file
         except BaseException as exc:
             self.link, self.link_detail = LINK_ERROR, f"{type(exc).__name__}: {exc}"
             raise
         with self._lock:
-            receiver = _receiver(run)
+            devices = _devices(run)
             self.run, self._spent, self._estop = run, False, False
-            self._imu = run.world.imu_source(receiver) if run.world is not None else receiver
-            self.buffer.stats_source = receiver.stats
+            self._imu = devices.imu_source()
+            self.buffer.stats_source = devices.receiver.stats
             self.link = LINK_CONNECTED
             self.link_detail = (f"{self.config.table.dialect}, simulator" if self.sim
                                 else f"{self.config.table.dialect} at {self.config.table.url}")
@@ -585,11 +583,11 @@ def _table(run: BenchRun) -> Turntable:
     return run.table
 
 
-def _receiver(run: BenchRun) -> ImuReceiver:
-    """The IMU receiver of an opened run."""
-    if run.receiver is None:
+def _devices(run: BenchRun) -> Devices:
+    """The devices of an opened run."""
+    if run.devices is None:
         raise SessionError("not connected")
-    return run.receiver
+    return run.devices
 
 
 def _require_at_rest(state, k: int) -> None:

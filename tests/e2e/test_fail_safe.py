@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 import bench.log.recorder as recorder_module
-import bench.run.runner as runner_module
+import bench.run.devices as devices_module
 from bench.config.load import load_config
 from bench.log.events import RunListener
 from bench.log.reader import read_log
@@ -278,8 +278,8 @@ def test_an_unwritable_output_folder_is_exit_2_one_line_and_no_device_opened(com
     (tmp_path / "afile").write_text("a file, not a folder\n", encoding="utf-8")
     out = tmp_path / "afile" / "sub"          # cannot be made, also for root (chmod would not stop root)
     opened = []
-    original_open_turntable = runner_module.open_turntable
-    monkeypatch.setattr(runner_module, "open_turntable",
+    original_open_turntable = devices_module.open_turntable
+    monkeypatch.setattr(devices_module, "open_turntable",
                         lambda *args, **kwargs: opened.append(args) or original_open_turntable(*args, **kwargs))
     rc, _, stderr = cli([command, "--config", str(config), "--out", str(out), "--quiet"])
     assert rc == 2, stderr

@@ -27,6 +27,7 @@ from bench.log.events import Fault, RunWarning, finished_observation_steps
 from bench.log.reader import read_log
 from bench.model.families import canonical_names, family_of
 from bench.model.imu import default_sim_imu
+from bench.run.devices import SIMULATOR
 from bench.run.runner import BenchRun, compile_from_config
 from bench.run.sequencer import RunAborted
 from drivers.errors import TurntableEStop, TurntableFault, TurntableTimeout
@@ -257,7 +258,7 @@ def test_an_abort_asked_while_the_devices_open_ends_the_run_at_its_start(tmp_pat
     # the run must not go ahead; it aborts at its first step with the table stopped and servos off.
     text = config_text()
     config = parse_config(text, source=str(tmp_path / "bench.toml"), base_dir=tmp_path)
-    with BenchRun(config, compile_from_config(config), sim=True, out_dir=tmp_path) as run:
+    with BenchRun(config, compile_from_config(config), devices=SIMULATOR, out_dir=tmp_path) as run:
         run.open()
         run.abort("interrupted (Ctrl-C)")
         assert run.run().value == "failed"
@@ -583,7 +584,7 @@ def test_mcap_passes_crc_validation_and_holds_channels_metadata_attachments(idea
 
 def test_builtin_schedules_are_attached(tmp_path):
     config = parse_config(config_text())
-    with BenchRun(config, compile_from_config(config), sim=True, out_dir=tmp_path) as run:
+    with BenchRun(config, compile_from_config(config), devices=SIMULATOR, out_dir=tmp_path) as run:
         run.open()
         run.recorder.close()
     _, _, _, attachments = read_all_messages(run.log_path)

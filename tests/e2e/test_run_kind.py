@@ -15,6 +15,7 @@ from bench.log.reader import read_log
 from bench.log.run_info import is_manual_log, layout_and_config_from_log
 from bench.log.run_kind import RunKind, kind_of_config, recorded_run_kind, run_kind
 from bench.plan.compiler import compile_plan
+from bench.run.devices import SIMULATOR
 from bench.run.runner import BenchRun, compile_from_config
 from bench.verify.plan import verification_config, verification_plan
 from schedules import resolve_schedule
@@ -81,7 +82,7 @@ def _config(tmp_path: Path, text: str):
 
 def _record_unsolved(config, plan, out: Path) -> Path:
     """Run `plan` on the simulator and close its log without solving (as `bench verify`/`check-table` do)."""
-    with BenchRun(config, plan, sim=True, out_dir=out) as run:
+    with BenchRun(config, plan, devices=SIMULATOR, out_dir=out) as run:
         run.open()
         run.run()
         assert run.sequencer is not None and run.sequencer.error is None, run.sequencer.error
@@ -163,7 +164,7 @@ def test_a_table_check_run_records_its_kind_and_an_older_log_reads_as_a_calibrat
 
 def test_a_log_of_manual_moves_records_its_kind(tmp_path):
     config = _config(tmp_path, config_text(**SHORT))
-    with BenchRun(config, compile_from_config(config), sim=True, out_dir=tmp_path / "runs") as run:
+    with BenchRun(config, compile_from_config(config), devices=SIMULATOR, out_dir=tmp_path / "runs") as run:
         run.open(record=False)
         recorder = run.open_manual_log()
         recorder.close()

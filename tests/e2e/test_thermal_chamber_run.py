@@ -138,6 +138,7 @@ def assert_same_thermal_outputs(run_out: Path, solved_out: Path) -> None:
 def test_a_thermal_run_cut_off_resumes_without_soaking_the_finished_temperature_again(tmp_path):
     """Aborted at the second temperature's first dwell; `--resume` skips the first temperature whole (its
     set-temperature and soak too), soaks the second again and solves both temperatures from both logs."""
+    from bench.run.devices import SIMULATOR
     from bench.run.resume import resume_point
     from bench.run.runner import BenchRun, compile_from_config
     from tests.helpers.run import Trigger, api_run, config_text
@@ -167,7 +168,7 @@ Kg_x = [0.36]
     assert resumed.completed and all(u.startswith("T1-") for u in resumed.completed)
     assert len(resumed.completed) == len([s for s in plan.steps if s.kind in ("dwell", "turn")]) // 2
     out = tmp_path / "resumed"
-    with BenchRun(config, plan, sim=True, out_dir=out, completed=resumed.completed,
+    with BenchRun(config, plan, devices=SIMULATOR, out_dir=out, completed=resumed.completed,
                   previous_logs=resumed.previous_logs) as run:
         run.open()
         run.run()
@@ -186,6 +187,7 @@ def test_a_thermal_run_over_the_modbus_rtu_chamber_and_its_re_solve(tmp_path):
     speaking Modbus RTU on a pty (no dialect key). The smallest thermal plan (one temperature near the room's,
     the shortest schedules) runs through it: set, soak, polls, the chamber made safe at the end; `bench solve`
     on its log then gives the run's results again."""
+    from bench.run.devices import SIMULATOR
     from bench.run.runner import BenchRun, compile_from_config
     from tests.helpers.run import thermal_config_text
 
@@ -193,7 +195,7 @@ def test_a_thermal_run_over_the_modbus_rtu_chamber_and_its_re_solve(tmp_path):
     config = parse_config(text, source=str(tmp_path / "bench.toml"), base_dir=tmp_path)
     assert config.chamber.dialect == "modbus"
     out = tmp_path / "run"
-    with BenchRun(config, compile_from_config(config), sim=True, out_dir=out) as run:
+    with BenchRun(config, compile_from_config(config), devices=SIMULATOR, out_dir=out) as run:
         run.open()
         assert run.chamber.dialect == "modbus" and run.chamber.url.startswith("modbus+rtu:///dev/pts/")
         assert run.run().value == "done", run.sequencer.error

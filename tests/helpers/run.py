@@ -27,6 +27,7 @@ from bench.config.load import parse_config
 from bench.log.events import RunListener
 from bench.model.families import family_of
 from bench.model.imu import NoiseModel
+from bench.run.devices import SIMULATOR
 from bench.run.runner import BenchRun, compile_from_config
 from bench.sim.acquire import AcquisitionTiming, acquire
 from bench.sim.imu import SimImu
@@ -162,7 +163,7 @@ def api_run(text: str, out_dir: Path, *listeners: RunListener):
     with the simulated world still open (closed on exit)."""
     config = parse_config(text, source=str(out_dir / "bench.toml"), base_dir=out_dir)
     plan = compile_from_config(config)
-    run = BenchRun(config, plan, sim=True, out_dir=out_dir, operator="api", listeners=listeners)
+    run = BenchRun(config, plan, devices=SIMULATOR, out_dir=out_dir, operator="api", listeners=listeners)
     for listener in listeners:
         listener.run = run
     with run:

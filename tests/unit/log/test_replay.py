@@ -23,6 +23,7 @@ from bench.log.reader import read_log
 from bench.log.replay import replay
 from bench.log.run_info import layout_and_config_from_log, steps_from_log
 from bench.plan.steps import step_from_dict, step_to_dict
+from bench.run.devices import SIMULATOR
 from bench.run.runner import BenchRun, compile_from_config
 from drivers.clock import ManualClock
 from drivers.imu import DEFAULT_DBC, DEFAULT_PACKED_DBC, ImuSampleBlock, default_packed_layout
@@ -78,7 +79,7 @@ def recorded(tmp_path_factory) -> Recorded:
     config = parse_config(config_text(dwell_s=1.0), source=str(out / "bench.toml"), base_dir=out)
     plan = compile_from_config(config)
     live = Capture()
-    with BenchRun(config, plan, sim=True, out_dir=out, listeners=[live]) as run:
+    with BenchRun(config, plan, devices=SIMULATOR, out_dir=out, listeners=[live]) as run:
         run.open()
         run.run()
         outcome = run.finish()

@@ -17,6 +17,7 @@ import pytest
 from bench.config.load import parse_config
 from bench.log.reader import read_log
 from bench.model.imu import default_sim_imu
+from bench.run.devices import DRIVERS
 from bench.run.runner import BenchRun, compile_from_config
 from bench.sim.can_imu import SimCanImu
 from bench.sim.controller import SimController
@@ -67,7 +68,7 @@ def test_a_hardware_run_records_the_offset_and_logs_on_the_run_clock(tmp_path):
         try:
             text = config_text(url=f"tcp://{host}:{port}").replace('"turntable-bench-test"', f'"{channel}"')
             config = parse_config(text, source=str(tmp_path / "bench.toml"), base_dir=tmp_path)
-            with BenchRun(config, compile_from_config(config), sim=False, out_dir=tmp_path / "out") as run:
+            with BenchRun(config, compile_from_config(config), devices=DRIVERS, out_dir=tmp_path / "out") as run:
                 run.open()                   # checks the IMU stream: the time base is anchored by then
                 log_path = run.log_path
         finally:

@@ -1,0 +1,161 @@
+"""A run's devices as one bundle, and the two ways to open it: the simulator, or the drivers by URL.
+
+`Devices` holds what a run commands and reads (the turntable, the IMU receiver, the thermal plan's chamber,
+the run clock) and, on the simulator, the simulated world behind them. `BenchRun` takes a `DeviceOpener`
+(`SIMULATOR` or `DRIVERS`) and never decides between them itself. Closing the bundle closes each device once,
+the last opened first: chamber, receiver, table, then the simulated world.
+"""
+
+from __future__ import annotations
+
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from typing import Callable
+
+import can
+
+from bench.config.chamber import ChamberConfig
+from bench.config.load import BenchConfig
+from bench.errors import BenchError
+from bench.run.imu_check import check_imu_stream
+from bench.sim.world import PumpedReceiver, SimWorld
+from drivers.chamber import Chamber, open_chamber
+from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.imu.receiver import ImuReceiver
+from drivers.turntable import Turntable, open_turntable
+
+#: What the sequencer and the TUI poll for IMU samples: the receiver, or on the simulator the receiver with the
+#: simulated IMU sending up to the run clock's now before each poll.
+ImuSource = PumpedReceiver | ImuReceiver
+
+
+@dataclass
+class Devices:
+    """The opened devices of a run (`open_simulator`, `open_drivers`); `close()` closes them."""
+
+    table: Turntable
+    receiver: ImuReceiver
+    clock: Clock
+    chamber: Chamber | None = None       # a thermal plan's chamber
+    world: SimWorld | None = None        # the simulated world behind the devices (None: hardware)
+    imu_check: str = ""                  # what the check of a hardware IMU found before the run
+    _stack: ExitStack = field(default_factory=ExitStack, repr=False)
+
+    @property
+    def simulated(self) -> bool:
+        return self.world is not None
+
+    def imu_source(self) -> ImuSource:
+        """Where IMU samples are polled: the receiver, or on the simulator the receiver pumped by the simulated IMU."""
+        return self.world.imu_source(self.receiver) if self.world is not None else self.receiver
+
+    def let_idle_time_pass(self, seconds: float) -> None:
+        """Between polls of an idle table: the simulated run clock advances by `seconds` (it only moves when told);
+        on hardware the real time has passed by itself."""
+        if self.world is not None:
+            self.world.clock.advance(seconds)
+
+    def close(self) -> None:
+        """Close each device once, the last opened first (closing again is a no-op)."""
+        self._stack.close()
+
+
+@dataclass(frozen=True)
+class DeviceOpener:
+    """How a run's devices are opened: `open(config, with_chamber)` raises DeviceError/OSError/ValueError/
+    BenchError with whatever it opened closed again; nothing moves."""
+
+    simulated: bool
+    open: Callable[[BenchConfig, bool], Devices]
+
+
+def open_simulator(config: BenchConfig, with_chamber: bool) -> Devices:
+    """The simulated world of `config` ([sim], the table's dialect, the IMU's rate and layout) and the drivers
+    opened on it; with a chamber, a simulated one on the run clock whose air is the thermal IMU's ambient."""
+    stack = ExitStack()
+    try:
+        world = stack.enter_context(SimWorld(
+            config.site.site, config.sim.imu, config.sim.noise, black_box_rad=config.sim.black_box_rad,
+            dialect=config.table.dialect, imu_rate_hz=config.imu.rate_hz, layout=config.imu.layout,
+            seed=config.sim.seed, register_map=config.table.register_map, imu_thermal=config.sim.thermal))
+        clock, bus = world.clock, world.receiver_bus()
+        table = _open_table(config, world.table_url, clock, stack)
+        # the simulator's frames carry the run clock's time already; its IMU runs on that clock and always is there
+        receiver = _open_receiver(config, bus, None, stack)
+        devices = Devices(table, receiver, clock, world=world, _stack=stack)
+        if with_chamber:
+            chamber_config = _chamber_config(config)
+            # served in the configured dialect over the kind of link its url names (TCP, or a pty: RTU, serial)
+            url = world.add_chamber(chamber_config.dialect, chamber_config.register_map,
+                                    where=chamber_config.sim_link)
+            if world.imu.case is not None:
+                world.drive_imu_from_chamber()
+            devices.chamber = _open_chamber(config, url, clock, stack)
+        return devices
+    except BaseException:
+        stack.close()
+        raise
+
+
+def open_drivers(config: BenchConfig, with_chamber: bool) -> Devices:
+    """The configured devices by their URLs on the system clock; the IMU stream is checked (rate and layout)
+    before anything moves."""
+    stack = ExitStack()
+    try:
+        clock, bus = SYSTEM_CLOCK, config.imu.bus_kwargs()
+        table = _open_table(config, config.table.url, clock, stack)
+        # the interface's frame timestamps are mapped onto the run clock (one time base in the log)
+        receiver = _open_receiver(config, bus, clock.now, stack)
+        imu_check = check_imu_stream(
+            receiver, config.imu.rate_hz, f"interface {config.imu.interface} channel {config.imu.channel}")
+        devices = Devices(table, receiver, clock, imu_check=imu_check, _stack=stack)
+        if with_chamber:
+            chamber_config = _chamber_config(config)
+            if chamber_config.is_sim:
+                raise BenchError('chamber url "sim" is the simulated chamber: run with --sim (or a simulated table)')
+            devices.chamber = _open_chamber(config, chamber_config.url, clock, stack)
+        return devices
+    except BaseException:
+        stack.close()
+        raise
+
+
+SIMULATOR = DeviceOpener(simulated=True, open=open_simulator)
+DRIVERS = DeviceOpener(simulated=False, open=open_drivers)
+
+
+def device_opener(sim: bool) -> DeviceOpener:
+    """The simulator's opener when `sim` (`--sim`, or a simulated table), else the drivers'."""
+    return SIMULATOR if sim else DRIVERS
+
+
+def _open_table(config: BenchConfig, url: str, clock: Clock, stack: ExitStack) -> Turntable:
+    options: dict[str, object] = {"limits": config.table.limits, "clock": clock,
+                                  "timeout_s": config.table.timeout_s, "retries": config.table.retries}
+    if config.table.dialect == "modbus" and config.table.register_map is not None:
+        options["register_map"] = config.table.register_map
+    table = open_turntable(url, config.table.dialect, **options)
+    table.connect()
+    stack.callback(table.close)
+    return table
+
+
+def _open_receiver(config: BenchConfig, bus: can.BusABC | dict, time_base: Callable[[], float] | None,
+                   stack: ExitStack) -> ImuReceiver:
+    receiver = ImuReceiver(bus, config.imu.layout, config.imu.rate_hz, time_base=time_base)
+    stack.callback(receiver.close)
+    return receiver
+
+
+def _chamber_config(config: BenchConfig) -> ChamberConfig:
+    if config.chamber is None:
+        raise BenchError("a thermal plan needs a [chamber]")
+    return config.chamber
+
+
+def _open_chamber(config: BenchConfig, url: str, clock: Clock, stack: ExitStack) -> Chamber:
+    chamber_config = _chamber_config(config)
+    chamber = open_chamber(url, chamber_config.dialect, clock=clock, **chamber_config.driver_options())
+    chamber.connect()
+    stack.callback(chamber.close)
+    return chamber
