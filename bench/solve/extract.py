@@ -131,8 +131,8 @@ def extract_observations(events: Sequence[Event], counter: np.ndarray, gyro_coun
     `output_step` (6 channels, counts/s): an IMU that sends each sample's value rounded on its own
     (`ImuLayout.output_step`, sbg-ecan); its rounding enters the dwells' standard errors and each turn's
     `rounding_var` (`bench.model.observations.rounding_bias_variance`); None: a counter output."""
-    out = Extraction(problems=[QualityFailure(FailureKind.MALFORMED_STEP, line)
-                               for line in malformed_observation_steps(events)])
+    out = Extraction(problems=[QualityFailure(FailureKind.MALFORMED_STEP, line, unit)
+                               for unit, line in malformed_observation_steps(events).items()])
     counter = np.asarray(counter, dtype=np.int64)
     resolution = None if output_step is None else np.asarray(output_step, dtype=float)
     flagged = None

@@ -55,8 +55,8 @@ def test_the_extraction_makes_each_line_with_its_kind_and_unit():
     out = extract_observations(events, counter, np.zeros((n, 3)), np.zeros((n, 3)), 100.0, Site(),
                                np.array([0.0]), np.zeros((1, 3)), status=status, status_invalid=1)
     by_unit = {p.unit: p for p in out.problems}
-    malformed = [p for p in out.problems if p.kind is K.MALFORMED_STEP]
-    assert len(malformed) == 1 and malformed[0].text.startswith("P04: its step_finished event is malformed")
+    assert by_unit["P04"].kind is K.MALFORMED_STEP
+    assert by_unit["P04"].text.startswith("P04: its step_finished event is malformed")
     assert by_unit["P01"] == QualityFailure(
         K.DWELL_LOST_SAMPLES, "P01 dwell: 4 of 100 samples lost in its window; mean over the 96 received", "P01")
     assert by_unit["P02"] == QualityFailure(
