@@ -17,6 +17,7 @@ from bench.cli.db import add_db_options, not_recorded_exit, record_outputs
 from bench.cli.solve_archive import add_archive_options, cmd_archive
 from bench.errors import InputError
 from bench.files import write_output_text
+from bench.model.quality import texts
 from bench.model.result import CalibrationResult
 from bench.report.facts import lost_samples_note
 
@@ -198,7 +199,7 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
         # (a 1 GB log solved and then read for its records peaked at 2.1 GB)
         del recorded
         recorded_ok = record_outputs(args, PROG, [result_path, *logs_solved])   # after the files are written
-        failures = resolved.failures
+        failures = texts(resolved.failures)
         if resolved.verdict is not None:
             if not args.quiet:
                 print(f"verdict: {resolved.verdict.headline()}")

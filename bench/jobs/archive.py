@@ -25,6 +25,7 @@ from bench.log.names import logs_before, safe_name, sibling_log
 from bench.log.reader import read_log
 from bench.log.run_kind import RunKind
 from bench.log.threads import reader_threads_limited
+from bench.model.quality import texts
 from bench.parallel import SchedulerError, run_tasks
 from bench.solve.methods import SolverError
 
@@ -153,7 +154,7 @@ def _solve_log(log: str, out_dir: str, html: bool) -> ArchiveItem:
         return ArchiveItem(log, False, error=str(exc))
     except OSError as exc:
         return ArchiveItem(log, False, error=f"{exc.strerror or exc} ({exc.filename})")
-    failures = resolved.failures
+    failures = texts(resolved.failures)
     if resolved.verdict is not None:
         failures = [c.describe() for c in resolved.verdict.failed]
     return ArchiveItem(log, True, result=str(result_path), run_id=recorded.run_id, failures=tuple(failures))

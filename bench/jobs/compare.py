@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 from bench.jobs.resolve import NONE, Recorded, SolveInputError, load_subset_schedule, solve_recorded
 from bench.model.families import ERROR_TITLES, POSITION_KEYS, ROTATION_KEYS
+from bench.model.quality import texts
 
 #: `--compare` method names and the (positions, rotations) schedules they stand for.
 METHODS = {"optimal": ("optimal-24", "optimal-5s6r"),
@@ -101,7 +102,7 @@ def compare(recorded: Recorded, methods: list[Method]) -> Comparison:
         rows.append({"name": m.name, "positions": r.positions, "rotations": r.rotations,
                      "vs_reference": family_differences(values, reference),
                      "vs_truth": family_differences(values, truth) if truth is not None else None})
-    return Comparison(methods[-1].name, rows, solved[-1][1].failures)
+    return Comparison(methods[-1].name, rows, texts(solved[-1][1].failures))
 
 
 def format_comparison(comparison: Comparison) -> str:

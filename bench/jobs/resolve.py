@@ -23,7 +23,7 @@ from typing import Sequence
 
 from bench import __version__
 from bench.acceptance.limits import AcceptanceLimits
-from bench.acceptance.quality import judged_failures, quality_failures, window_loss_unit
+from bench.acceptance.quality import judged_failures, quality_failures
 from bench.acceptance.verdict import Verdict, judge
 from bench.errors import InputError
 from bench.log.events import (
@@ -49,6 +49,7 @@ from bench.log.run_setup import differences, setup_of_log
 from bench.log.temperature import imu_temperature
 from bench.model.earth import Site
 from bench.model.observations import PositionObservation, RotationObservation
+from bench.model.quality import FailureKind, QualityFailure, texts
 from bench.model.result import CalibrationResult
 from bench.model.run_section import RunInfo, utc_stamp
 from bench.report.markdown import markdown_report, md_text, write_reports
@@ -121,9 +122,10 @@ class Recorded:
         config = self.setup.config
         return config.sim.imu if self.sim and config is not None else None
 
-    def problems(self) -> list[str]:
-        """Steps left out or degraded: the extraction's lines, then the units not in the logs."""
-        return list(self.extraction.problems) + [f"{unit}: {why}" for unit, why in self.left_out.items()
+    def problems(self) -> list[QualityFailure]:
+        """Steps left out or degraded: the extraction's, then the units not in the logs."""
+        return list(self.extraction.problems) + [QualityFailure(FailureKind.LEFT_OUT, f"{unit}: {why}", unit)
+                                                 for unit, why in self.left_out.items()
                                                  if not why.startswith(_RECORDED)]
 
     def imu_link(self) -> ImuStats:
@@ -404,7 +406,7 @@ class Resolved:
 
     solution: LogSolution
     result: CalibrationResult
-    failures: list[str]
+    failures: list[QualityFailure]
     positions: str                     # schedule names ("" = none)
     rotations: str
     subset: bool                       # a subset was selected (the output name says which)
@@ -418,7 +420,7 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolv
     chosen = select(recorded.extraction, positions, rotations)
     # a subset does not use the windows it leaves out: their lost samples are outside the windows it uses
     unused = _unused_windows(recorded, chosen, positions, rotations)
-    chosen.problems = [p for p in recorded.problems() if window_loss_unit(p) not in unused]
+    chosen.problems = [p for p in recorded.problems() if not (p.window_loss and p.unit in unused)]
     calibration, chosen, dropped = _solve_what_can_be(chosen, setup.site, inputs)
     solution = LogSolution(calibration, chosen, list(recorded.imu_stats), list(recorded.damage))
     failures = quality_failures(solution)
@@ -434,13 +436,14 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolv
     result = calibration.to_result(run=run_info.to_dict(), sim_truth=recorded.truth)
     result.temperature = imu_temperature(recorded.logs, setup.layout, setup.rate_hz)
     limits = config.acceptance if config is not None else AcceptanceLimits()
-    verdict = judge(result, limits, lost_samples=lost["total"], quality_failures=judged_failures(failures, limits))
+    verdict = judge(result, limits, lost_samples=lost["total"],
+                    quality_failures=texts(judged_failures(failures, limits)))
     result.verdict = verdict.to_json()
     return Resolved(solution, result, failures, pos_name, rot_name, positions is not None or rotations is not None,
                     verdict)
 
 
-def solved_run_info(recorded: Recorded, positions: str, rotations: str, failures: list[str],
+def solved_run_info(recorded: Recorded, positions: str, rotations: str, failures: list[QualityFailure],
                     lost: dict) -> RunInfo:
     """The result's run section of a solve of `recorded` (what a plain solve adds, the caller sets)."""
     meta, imu = recorded.run_meta, recorded.logs[-1].metadata.get("imu", {})
@@ -487,7 +490,8 @@ def _solve_what_can_be(chosen: Extraction, site, inputs):
             calibration = attempt(part)
         except SolverError:
             continue
-        part.problems += [f"{o.label}: left out: {first}" for o in dropped]
+        part.problems += [QualityFailure(FailureKind.LEFT_OUT, f"{o.label}: left out: {first}", o.label)
+                          for o in dropped]
         return calibration, part, [o.label for o in dropped]
     raise first
 
@@ -512,7 +516,7 @@ def write_outputs(recorded: Recorded, resolved: Resolved, out_dir: str | Path, *
     stem = output_stem(recorded, resolved)
     result_path = output_path(out_dir, f"{stem}.result.json")     # a name from the log never leaves out_dir
     resolved.result.save(result_path)
-    report = dict(problems=resolved.solution.extraction.problems, failures=resolved.failures,
+    report = dict(problems=texts(resolved.solution.extraction.problems), failures=texts(resolved.failures),
                   imu_link=resolved.result.run["imu_link"], against=against, against_label=against_label,
                   title=f"Calibration report {stem} (re-solved from the log)")
     if html:

@@ -19,6 +19,7 @@ from bench.acceptance.verdict import Verdict
 from bench.files import write_output_text
 from bench.jobs.resolve import Recorded, SolveInputError, solved_run_info
 from bench.log.names import output_path
+from bench.model.quality import QualityFailure, texts
 from bench.report.markdown import markdown_report, write_reports
 from bench.report.thermal import write_thermal_files
 from bench.thermal.from_log import ThermalSolution, solve_thermal
@@ -35,7 +36,7 @@ class ThermalResolved:
     html_report_path: Path | None
     results: list[Path]                # one per temperature
     model_path: Path | None            # None below two temperatures
-    failures: list[str]
+    failures: list[QualityFailure]
     verdict: Verdict
 
 
@@ -69,7 +70,7 @@ def resolve_thermal(recorded: Recorded, out_dir: str | Path, *, html: bool = Tru
     result_path = out / f"{stem}.result.json"
     result.save(result_path)
     report: dict[str, Any] = dict(
-        problems=problems, failures=failures, imu_link=link.as_dict(),
+        problems=problems, failures=texts(failures), imu_link=link.as_dict(),
         title=f"Calibration report {stem} (temperature block T{head.temperature_index}, re-solved)")
     if html:
         report_path, html_path = write_reports(result, out, stem, log=recorded.logs[-1], layout=setup.layout,

@@ -446,9 +446,9 @@ def finished_observation_steps(events: Sequence[Event]) -> dict[str, tuple[StepS
     return done
 
 
-def malformed_observation_steps(events: Sequence[Event]) -> list[str]:
-    """One line per dwell or turn whose step_finished event cannot be used (`StepFinished.malformed`), unless a
-    well-formed one of the same unit replaces it."""
+def malformed_observation_steps(events: Sequence[Event]) -> dict[str, str]:
+    """unit -> its line, in the order of the units, for each dwell or turn whose step_finished event cannot be
+    used (`StepFinished.malformed`), unless a well-formed one of the same unit replaces it."""
     good = finished_observation_steps(events)
     lines = {}
     for event in events:
@@ -456,7 +456,7 @@ def malformed_observation_steps(events: Sequence[Event]) -> list[str]:
                 and event.step_unit not in good):
             lines[event.step_unit] = (f"{event.step_unit}: its step_finished event is malformed ({event.malformed}); "
                                       "left out")
-    return [lines[k] for k in sorted(lines)]
+    return {k: lines[k] for k in sorted(lines)}
 
 
 def final_state(events: Sequence[Event]) -> str | None:

@@ -5,7 +5,8 @@
 plain solve `subset`, `started_utc`, `left_out`, `damage`). `RunInfo.to_dict` gives the
 section in the order result files have always had it, without the entries a writer does not
 set; entries added to the dict later (a thermal block, the verification, the thermal model)
-come back from `from_dict` in `extra`, in their order.
+come back from `from_dict` in `extra`, in their order. The quality failures are kept as their lines and come
+back with their kinds (`bench.model.quality.from_text`).
 """
 
 from __future__ import annotations
@@ -13,6 +14,8 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, fields
 from typing import Any, Mapping
+
+from bench.model.quality import QualityFailure, from_text, texts
 
 #: The section's entries in the order of the result file (the optional ones only when set).
 _ORDER = ("run_id", "mode", "operator", "software_version", "recorded_with", "state", "log", "logs", "positions",
@@ -40,7 +43,7 @@ class RunInfo:
     rotations: str
     imu: dict[str, str]                 # model, serial
     site: dict[str, Any]
-    quality_failures: list[str]
+    quality_failures: list[QualityFailure]   # the file keeps their lines
     imu_link: dict[str, Any]            # the IMU link statistics (and the CAN time base, live)
     lost_samples: dict[str, Any]
     recorded_with: str | None = None    # bench solve: the software version that recorded the log
@@ -57,6 +60,7 @@ class RunInfo:
 
     def to_dict(self) -> dict[str, Any]:
         out = {name: getattr(self, name) for name in _ORDER if getattr(self, name) is not None}
+        out["quality_failures"] = texts(self.quality_failures)
         return out | self.extra
 
     @classmethod
@@ -67,6 +71,7 @@ class RunInfo:
         if missing:
             raise ValueError(f"the run section lacks {', '.join(missing)}")
         known = {name: data[name] for name in _ORDER if name in data}
+        known["quality_failures"] = [from_text(str(text)) for text in data["quality_failures"]]
         return cls(**known, extra={k: v for k, v in data.items() if k not in _ORDER})
 
 

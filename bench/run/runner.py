@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
 from bench import __version__
-from bench.acceptance.quality import LOST_SAMPLES_FAILURE, judged_failures, quality_failures, window_loss_failures
+from bench.acceptance.quality import judged_failures, quality_failures, window_loss_failures
 from bench.acceptance.verdict import Verdict, judge
 from bench.config.load import BenchConfig
 from bench.errors import BenchError
@@ -29,6 +29,7 @@ from bench.log.recorder import CHUNK_RUN_INTERVAL_S, McapRecorder, RecorderError
 from bench.log.run_info import MANUAL_LOG_SUFFIX
 from bench.log.run_kind import RunKind, kind_of_config
 from bench.log.temperature import imu_temperature
+from bench.model.quality import QualityFailure, damage, link_lost_samples, texts
 from bench.model.result import CalibrationResult
 from bench.model.run_section import RunInfo, utc_stamp
 from bench.noise.from_log import NoiseInputError, analyse_log
@@ -367,23 +368,24 @@ class BenchRun:
         result = solution.calibration.to_result(run=run_info, sim_truth=config.sim.imu if self.sim else None)
         result.temperature = imu_temperature(logs, config.imu.layout, config.imu.rate_hz)
         verdict = judge(result, config.acceptance, lost_samples=lost["total"],
-                        quality_failures=judged_failures(failures, config.acceptance))
+                        quality_failures=texts(judged_failures(failures, config.acceptance)))
         result.verdict = verdict.to_json()
         result_path = self.out_dir / f"{self.run_id}.result.json"
         with unfinished(result_path) as partial:
             result.save(partial)
             report_path, html_report_path = write_reports(
                 result, self.out_dir, self.run_id, log=logs[-1], layout=config.imu.layout, log_still_open=True,
-                problems=solution.extraction.problems, failures=failures, imu_link=receiver.stats.as_dict(),
+                problems=texts(solution.extraction.problems), failures=texts(failures),
+                imu_link=receiver.stats.as_dict(),
                 title=f"Calibration report {self.run_id}")
             recorder.add_attachment(result_path.name, "application/json", partial.read_bytes(),
                                     self.clock.now() if self.clock is not None else 0.0)
             recorder.close()
-        return RunOutcome(state, self.log_path, result_path, report_path, result, failures,
+        return RunOutcome(state, self.log_path, result_path, report_path, result, texts(failures),
                           html_report_path=html_report_path, verdict=verdict,
-                          problems=list(solution.extraction.problems))
+                          problems=texts(solution.extraction.problems))
 
-    def _run_info(self, state: RunState, receiver: ImuReceiver, failures: list[str], lost: dict) -> RunInfo:
+    def _run_info(self, state: RunState, receiver: ImuReceiver, failures: list[QualityFailure], lost: dict) -> RunInfo:
         config, identity = self.config, self.config.imu.identity
         return RunInfo(run_id=self.run_id, mode="simulator" if self.sim else "hardware", operator=self.operator,
                        software_version=__version__, state=state.value, log=self.log_path.name,
@@ -403,13 +405,13 @@ class BenchRun:
         config = self.config
         logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
         still_open = frozenset({str(self.log_path), *map(str, self.previous_logs)})
-        extraction, _, damage = extract_from_logs(logs, config.site.site, config.imu.layout, config.imu.rate_hz,
+        extraction, _, damage_lines = extract_from_logs(logs, config.site.site, config.imu.layout, config.imu.rate_hz,
                                                   still_open=still_open)
         link_failures = window_loss_failures(extraction.problems)
         lost = extraction.lost_samples()
         run_info = self._run_info(state, receiver, link_failures, lost).to_dict()
         solution = solve_thermal(logs, config.site.site, config.imu.layout, config.imu.rate_hz, config, self.sim,
-                                 run=run_info, extracted=(extraction, damage))
+                                 run=run_info, extracted=(extraction, damage_lines))
         results, model_path = write_thermal_files(
             solution, self.out_dir, self.run_id, {"mode": run_info["mode"], "run_id": self.run_id,
                                                   "log": self.log_path.name},
@@ -423,14 +425,14 @@ class BenchRun:
             result.save(partial)
             report_path, html_report_path = write_reports(
                 result, self.out_dir, self.run_id, log=logs[-1], layout=config.imu.layout, log_still_open=True,
-                problems=problems, failures=failures, imu_link=receiver.stats.as_dict(),
+                problems=problems, failures=texts(failures), imu_link=receiver.stats.as_dict(),
                 title=f"Calibration report {self.run_id} (temperature block T{head.temperature_index})")
             now_s = self.clock.now() if self.clock is not None else 0.0
             recorder.add_attachment(result_path.name, "application/json", partial.read_bytes(), now_s)
             for path in written:
                 recorder.add_attachment(path.name, "application/json", path.read_bytes(), now_s)
             recorder.close()
-        return RunOutcome(state, self.log_path, result_path, report_path, result, failures,
+        return RunOutcome(state, self.log_path, result_path, report_path, result, texts(failures),
                           html_report_path=html_report_path, verdict=verdict, problems=problems,
                           thermal_paths=written, thermal_model=solution.model)
 
@@ -448,11 +450,11 @@ class BenchRun:
         if broken is not None:          # the log failed on the run's very last event
             return None, ListenerError(describe_listener_error(recorder, broken))
         config = self.config
-        extraction, _, damage = extract_from_logs([read_log(str(self.log_path))], config.site.site,
+        extraction, _, damage_lines = extract_from_logs([read_log(str(self.log_path))], config.site.site,
                                                   config.imu.layout, config.imu.rate_hz)
-        extraction.problems += damage
+        extraction.problems += damage(damage_lines)
         if receiver.stats.lost_samples:
-            extraction.problems.append(f"{LOST_SAMPLES_FAILURE}: {receiver.stats.summary()}")
+            extraction.problems.append(link_lost_samples(receiver.stats.summary()))
         return extraction, None
 
     def _finish_noise(self, state: RunState, receiver: ImuReceiver, recorder: McapRecorder) -> RunOutcome:

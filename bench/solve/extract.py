@@ -27,7 +27,6 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from bench.acceptance.quality import SAMPLES_LOST_IN_WINDOW
 from bench.log.events import Event, TurnRecord, finished_observation_steps, malformed_observation_steps
 from bench.model.earth import Site
 from bench.model.kinematics import FRAMES
@@ -39,6 +38,7 @@ from bench.model.observations import (
     rounding_bias_variance,
     turn_earth_integral,
 )
+from bench.model.quality import FailureKind, QualityFailure, window_loss
 from bench.model.units import DEG
 from drivers.imu.layout import describe_status
 
@@ -47,7 +47,7 @@ from drivers.imu.layout import describe_status
 class Extraction:
     positions: list[PositionObservation] = field(default_factory=list)
     rotations: list[RotationObservation] = field(default_factory=list)
-    problems: list[str] = field(default_factory=list)   # one line per step left out or degraded
+    problems: list[QualityFailure] = field(default_factory=list)   # one per step left out or degraded
     #: unit -> samples missing from the sample counters inside its dwell or turn window (units without loss absent)
     lost_in_windows: dict[str, int] = field(default_factory=dict)
     lost_outside: int = 0       # lost samples outside every window (`bench.solve.from_logs` counts them)
@@ -131,7 +131,8 @@ def extract_observations(events: Sequence[Event], counter: np.ndarray, gyro_coun
     `output_step` (6 channels, counts/s): an IMU that sends each sample's value rounded on its own
     (`ImuLayout.output_step`, sbg-ecan); its rounding enters the dwells' standard errors and each turn's
     `rounding_var` (`bench.model.observations.rounding_bias_variance`); None: a counter output."""
-    out = Extraction(problems=malformed_observation_steps(events))
+    out = Extraction(problems=[QualityFailure(FailureKind.MALFORMED_STEP, line, unit)
+                               for unit, line in malformed_observation_steps(events).items()])
     counter = np.asarray(counter, dtype=np.int64)
     resolution = None if output_step is None else np.asarray(output_step, dtype=float)
     flagged = None
@@ -149,17 +150,19 @@ def extract_observations(events: Sequence[Event], counter: np.ndarray, gyro_coun
         if missing:
             out.lost_in_windows[unit] = missing
         if n == 0:
-            out.problems.append(f"{unit}: no IMU samples in its window (counters {first}..{last}); left out")
+            out.problems.append(QualityFailure(
+                FailureKind.NO_SAMPLES, f"{unit}: no IMU samples in its window (counters {first}..{last}); left out",
+                unit))
             continue
         if flagged is not None and flagged[window].any():
             bits = int(np.bitwise_or.reduce(flagged[window]))
-            out.problems.append(f"{unit}: {int(np.count_nonzero(flagged[window]))} of {n} samples flagged unusable "
-                                f"by the IMU ({describe_status(bits, status_invalid, status_required)}); left out")
+            out.problems.append(QualityFailure(
+                FailureKind.FLAGGED, f"{unit}: {int(np.count_nonzero(flagged[window]))} of {n} samples flagged "
+                f"unusable by the IMU ({describe_status(bits, status_invalid, status_required)}); left out", unit))
             continue
         if not isinstance(record, TurnRecord):
             if n < expected:
-                out.problems.append(f"{unit} dwell: {expected - n} of {expected} {SAMPLES_LOST_IN_WINDOW}; "
-                                    f"mean over the {n} received")
+                out.problems.append(window_loss(unit, False, expected - n, expected))
             gyro_mean, gyro_std, gyro_sem = mean_and_standard_error(
                 gyro_counts[window] * rate_hz, duration_s=n / rate_hz,
                 output_step=None if resolution is None else resolution[:3])
@@ -171,8 +174,7 @@ def extract_observations(events: Sequence[Event], counter: np.ndarray, gyro_coun
                                                      start_s=first / rate_hz, output_step=output_step))
         else:
             if n < expected:
-                out.problems.append(f"{unit} turn: {expected - n} of {expected} {SAMPLES_LOST_IN_WINDOW}: "
-                                    "its integral is incomplete; left out")
+                out.problems.append(window_loss(unit, True, expected - n, expected))
                 continue
             t0 = started.time_s if started is not None else -np.inf
             earth = _turn_earth_integral(site, record, n / rate_hz, t0, finished.time_s, state_time_s,

@@ -56,7 +56,7 @@ def extract_from_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz
                                     layout.status_invalid, layout.status_required, layout.output_step)
         merged_positions.update({o.label: o for o in part.positions})
         merged_rotations.update({o.label: o for o in part.rotations})
-        problems += [f"{log.path}: {p}" for p in part.problems]
+        problems += [p.prefixed(str(log.path)) for p in part.problems]
         for unit, n in part.lost_in_windows.items():
             lost_in_windows[unit] = lost_in_windows.get(unit, 0) + n
         # the link's count (every sample the decode lost) less those inside a window: the ones outside every window

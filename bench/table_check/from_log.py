@@ -17,6 +17,7 @@ from bench import __version__
 from bench.log.names import run_id_of
 from bench.log.reader import LogError, read_log
 from bench.log.run_info import layout_and_config_from_log
+from bench.model.quality import texts
 from bench.model.table_prior import CHECK_FORMAT
 from bench.model.units import ARCSEC, MICRO_G
 from bench.solve.from_logs import extract_from_logs
@@ -187,7 +188,7 @@ def analyse_log(path: str | Path, *, calibration=None, still_open: bool = False)
     black_box = None
     if mode == "simulator" and setup.config is not None:
         black_box = np.asarray(setup.config.sim.black_box_rad, dtype=float)
-    problems = list(extraction.problems) + list(damage)
+    problems = texts(extraction.problems) + list(damage)
     if stats and stats[0].lost_samples:
         problems.append(f"IMU link lost samples: {stats[0].summary()}")
     imu_meta = log.metadata.get("imu", {})

@@ -112,7 +112,7 @@ def solve_blocks(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: flo
     for k in blocks:
         part = Extraction([o for o in extraction.positions if thermal_block(o.label) == k],
                           [o for o in extraction.rotations if thermal_block(o.label) == k],
-                          [p for p in extraction.problems if f"T{k}-" in p])
+                          [p for p in extraction.problems if p.unit is not None and thermal_block(p.unit) == k])
         calibration = solve_extraction(part, site, gyro_bias_stability_dph=gyro_bias_stability_dph,
                                        acc_bias_stability_ug=acc_bias_stability_ug, budget=budget)
         temperature = _block_temperature(logs, layout, rate_hz, k)

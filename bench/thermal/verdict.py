@@ -8,13 +8,14 @@ from pathlib import Path
 from bench.acceptance.limits import AcceptanceLimits
 from bench.acceptance.quality import judged_failures, thermal_failures
 from bench.acceptance.verdict import Verdict, judge
+from bench.model.quality import QualityFailure, texts
 from bench.model.result import CalibrationResult
 from bench.thermal.from_log import ThermalSolution
 
 
 def judge_thermal_head(solution: ThermalSolution, results: list[Path], model_path: Path | None,
-                       link_failures: list[str], limits: AcceptanceLimits,
-                       lost_samples: int) -> tuple[CalibrationResult, list[str], list[str], Verdict]:
+                       link_failures: list[QualityFailure], limits: AcceptanceLimits,
+                       lost_samples: int) -> tuple[CalibrationResult, list[str], list[QualityFailure], Verdict]:
     """A thermal run's headline result (the block nearest the model's reference temperature) with its quality
     failures, the names of the files written and its verdict: (result, problems, failures, verdict)."""
     head = solution.head
@@ -23,9 +24,10 @@ def judge_thermal_head(solution: ThermalSolution, results: list[Path], model_pat
     failures = thermal_failures(result, problems, solution.damage, [f for f in link_failures if f not in problems])
     result.run["thermal"] = {"model": model_path.name if model_path is not None else None,
                              "results": [p.name for p in results], "this_block": head.temperature_index}
-    verdict = judge(result, limits, lost_samples=lost_samples, quality_failures=judged_failures(failures, limits))
+    verdict = judge(result, limits, lost_samples=lost_samples,
+                    quality_failures=texts(judged_failures(failures, limits)))
     result.verdict = verdict.to_json()
-    return result, problems, failures, verdict
+    return result, texts(problems), failures, verdict
 
 
 __all__ = ["judge_thermal_head"]

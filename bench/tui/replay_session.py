@@ -22,6 +22,7 @@ from bench.jobs.resolve import SolveInputError, load_recorded, solve_recorded
 from bench.log.reader import LogError, RunLog, read_log
 from bench.log.replay import ReplayStats, replay
 from bench.log.run_info import NO_PLAN_IN_MANUAL_LOG, is_manual_log, layout_and_config_from_log, steps_from_log
+from bench.model.quality import texts
 from bench.model.result import CalibrationResult
 from bench.solve.methods import SolverError
 from bench.tui.buffer import UiBuffer
@@ -116,7 +117,7 @@ def log_result(opened: OpenedLog) -> tuple[CalibrationResult | None, str]:
         resolved = solve_recorded(load_recorded([str(opened.path)], earlier=False))
     except (LogError, SolveInputError, SolverError) as exc:
         return None, f"no result in this log: {why}cannot solve it: {exc}"
-    failures = f"; quality: {'; '.join(resolved.failures)}" if resolved.failures else ""
+    failures = f"; quality: {'; '.join(texts(resolved.failures))}" if resolved.failures else ""
     return resolved.result, f"{why}no result attached: solved from the log as `bench solve` does{failures}"
 
 

@@ -38,6 +38,7 @@ from bench.model.earth import Site
 from bench.model.families import BODY_AXES, SENSOR_AXES
 from bench.model.kinematics import attitude
 from bench.model.observations import PositionObservation, RotationObservation, turn_axis_in_body
+from bench.model.quality import texts
 from bench.model.result import CalibrationResult
 from bench.model.table_prior import TablePrior
 from bench.model.units import ARCSEC, DEG, DEG_PER_HOUR, G0, MICRO_G
@@ -274,7 +275,7 @@ def verify_extraction(extraction: Extraction, rates_dps: dict[str, float], compe
     (`bench.verify.table_part`), without it a note says that U leaves the table out."""
     errors, notes = _errors(extraction.positions, extraction.rotations, rates_dps, compensation, calibration, site,
                             mounting)
-    out = Verification(notes=list(extraction.problems) + notes)
+    out = Verification(notes=texts(extraction.problems) + notes)
     if table is None:
         out.errors = errors
         return out

@@ -16,6 +16,7 @@ from bench.acceptance.verdict import judge
 from bench.cli.common import ExitCode
 from bench.cli.tui import NO_TERMINAL, exit_status
 from bench.log.events import RunState
+from bench.model.quality import link_lost_samples, texts
 from bench.model.result import CalibrationResult
 from bench.run.runner import RunOutcome
 from bench.tui.session import RunEnd, run_end_of
@@ -118,14 +119,14 @@ def test_a_finished_run_ends_by_its_verdict_as_bench_run_says_it():
     """Issue 27: the TUI ended a run by its raw quality failures: "done" beside a failed acceptance limit, and
     "quality check failed" for lost samples a limit had judged acceptable."""
     limits = AcceptanceLimits(max_lost_samples=10)
-    lost = ["IMU link lost samples: 3 lost"]
+    lost = [link_lost_samples("3 lost")]
 
     def outcome(verdict, failures=()):
         return RunOutcome(RunState.DONE, Path("/o/r.mcap"), result_path=Path("/o/r.result.json"),
                           failures=list(failures), verdict=verdict)
 
-    judged = judge(CalibrationResult({}), limits, lost_samples=3, quality_failures=judged_failures(lost, limits))
-    assert run_end_of(outcome(judged, lost)) == ("done", "", "done; verdict PASS; result r.result.json")
+    judged = judge(CalibrationResult({}), limits, lost_samples=3, quality_failures=texts(judged_failures(lost, limits)))
+    assert run_end_of(outcome(judged, texts(lost))) == ("done", "", "done; verdict PASS; result r.result.json")
     failing = judge(CalibrationResult({}), AcceptanceLimits(max_lost_samples=0), lost_samples=3)
     kind, reason, text = run_end_of(outcome(failing))
     assert kind == "quality" and text == reason == "verdict FAIL: acceptance limit: lost samples 3 > 0 samples"

@@ -115,14 +115,14 @@ def test_a_malformed_dwell_is_kept_with_its_reason_until_a_well_formed_one_repla
     window = {"counter_first": 10, "counter_last": 5, "samples": 0}
     bad = _finished("P01", DWELL, **window)
     assert isinstance(bad, StepFinished) and not bad.usable and bad.window is None
-    assert malformed_observation_steps([bad]) == [
-        "P01: its step_finished event is malformed (its IMU counter window is not two integers, first <= last); "
-        "left out"]
+    assert malformed_observation_steps([bad]) == {
+        "P01": "P01: its step_finished event is malformed (its IMU counter window is not two integers, "
+               "first <= last); left out"}
     good = _finished("P01", DWELL, counter_first=5, counter_last=10, samples=6)
-    assert malformed_observation_steps([bad, good]) == malformed_observation_steps([good, bad]) == []
+    assert malformed_observation_steps([bad, good]) == malformed_observation_steps([good, bad]) == {}
     assert finished_observation_steps([good, bad])["P01"][1] is good
     # not an object: named; a step of another kind with a window, or a dwell without one: no observation, no line
-    assert malformed_observation_steps([_finished("P02", "dwell", **window)]) == [
-        "P02: its step_finished event is malformed (its step record is not an object); left out"]
+    assert malformed_observation_steps([_finished("P02", "dwell", **window)]) == {
+        "P02": "P02: its step_finished event is malformed (its step record is not an object); left out"}
     others = [_finished("T1", SOAK, counter_first=1, counter_last=2), _finished("P03", DWELL)]
-    assert malformed_observation_steps(others) == [] and finished_observation_steps(others) == {}
+    assert malformed_observation_steps(others) == {} and finished_observation_steps(others) == {}

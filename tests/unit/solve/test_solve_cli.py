@@ -464,6 +464,7 @@ def test_too_few_turns_left_solve_the_positions_and_say_why_the_turns_are_left_o
     """Damage can leave fewer turns than the rotation method needs: the positions are still
     solved, the remaining turns listed as left out with the solver's reason."""
     from bench.jobs.resolve import load_recorded, solve_recorded
+    from bench.model.quality import FailureKind, QualityFailure
 
     recorded = load_recorded([noisy.log])
     kept = recorded.extraction.rotations[:2]
@@ -472,7 +473,8 @@ def test_too_few_turns_left_solve_the_positions_and_say_why_the_turns_are_left_o
     assert {name.split("_")[0] for name in resolved.result.coefficients} == {"Ka", "Ea", "K0"}
     assert resolved.result.run["left_out"] == sorted(o.label for o in kept)
     for o in kept:
-        assert f"{o.label}: left out: rotation method needs at least 4 turns, got 2" in resolved.failures
+        assert QualityFailure(FailureKind.LEFT_OUT, f"{o.label}: left out: rotation method needs at least 4 turns, "
+                              "got 2", o.label) in resolved.failures
     assert resolved.result.residuals["rotations"] == []
 
 
