@@ -1,4 +1,4 @@
-"""`bench solve`: re-solve recorded runs from their MCAP logs (logic in `bench.jobs.resolve`).
+"""`bench solve`: re-solve recorded runs from their MCAP logs (`bench.finish`; outputs: `bench.jobs.resolve`).
 
 Exit codes: 0 solved, the verdict PASS or NOT CHECKED; 2 usage error, a file that cannot be
 read as a run log, a subset the logs lack, or a static noise recording (`bench noise`
@@ -17,7 +17,6 @@ from bench.cli.db import add_db_options, not_recorded_exit, record_outputs
 from bench.cli.solve_archive import add_archive_options, cmd_archive
 from bench.errors import InputError
 from bench.files import write_output_text
-from bench.model.quality import texts
 from bench.model.result import CalibrationResult
 from bench.report.facts import lost_samples_note
 
@@ -65,56 +64,41 @@ def _notes(recorded, run: dict) -> list[str]:
     return list(recorded.notes) + ([lost] if lost else [])
 
 
-def _solve_thermal(args: argparse.Namespace, recorded) -> ExitCode:
-    """A thermal log: every temperature solved again and the model refitted (`bench.jobs.thermal`)."""
-    # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
-    from bench.jobs.thermal import resolve_thermal
-    from bench.solve.methods import SolverError
+def _thermal_lines(recorded, finished) -> list[str]:
+    """What `bench solve` says of a thermal log's re-solve."""
+    solution = finished.thermal
+    blocks = solution.blocks
+    lines = [f"solved {recorded.run_id} from {len(recorded.logs)} log(s): {len(blocks)} "
+             f"temperature{'s' if len(blocks) != 1 else ''}, one calibration each"]
+    lines += [f"note: {note}" for note in _notes(recorded, solution.head.point.result.run)]
+    lines += [f"result: {path}" for path in finished.thermal_results]
+    if finished.thermal_model_path is not None:
+        lines.append(f"thermal: {finished.thermal_model_path}")
+    lines.append(f"report: {finished.report_path} (T{solution.head.temperature_index}, nearest "
+                 f"{solution.reference_c:g} degC)" + (f"\n        {finished.html_report_path}"
+                                                      if finished.html_report_path else ""))
+    return lines
 
-    out_dir = Path(args.out) if args.out else Path(recorded.logs[0].path).parent
-    try:
-        resolved = resolve_thermal(recorded, out_dir, html=not args.no_html)
-    except SolverError as exc:
-        return fail(PROG, f"cannot be solved: {exc}", ExitCode.QUALITY)
-    except InputError as exc:
-        return fail(PROG, str(exc), ExitCode.USAGE)
-    except OSError as exc:
-        return fail(PROG, f"cannot write the result: {exc}", ExitCode.USAGE)
-    if not args.quiet:
-        blocks = resolved.solution.blocks
-        print(f"solved {recorded.run_id} from {len(recorded.logs)} log(s): {len(blocks)} "
-              f"temperature{'s' if len(blocks) != 1 else ''}, one calibration each")
-        for note in _notes(recorded, resolved.solution.head.point.result.run):
-            print(f"note: {note}")
-        for path in resolved.results:
-            print(f"result: {path}")
-        if resolved.model_path is not None:
-            print(f"thermal: {resolved.model_path}")
-        print(f"report: {resolved.report_path} (T{resolved.solution.head.temperature_index}, nearest "
-              f"{resolved.solution.reference_c:g} degC)" + (f"\n        {resolved.html_report_path}"
-                                                             if resolved.html_report_path else ""))
-        print(f"verdict: {resolved.verdict.headline()}")
-    logs_solved = [log.path for log in recorded.logs]
-    del recorded
-    recorded = record_outputs(args, PROG, [resolved.result_path, *logs_solved])
-    code = ExitCode.OK
-    failures = [c.labelled() for c in resolved.verdict.failed]
-    if failures:
-        code = fail(PROG, "verdict FAIL: " + "; ".join(failures), ExitCode.QUALITY)
-    return code if recorded else not_recorded_exit(PROG, code)
+
+def _calibration_lines(recorded, finished) -> list[str]:
+    """What `bench solve` says of a calibration's re-solve."""
+    resolved = finished.resolved
+    extraction = resolved.solution.extraction
+    return ([f"solved {recorded.run_id} from {len(recorded.logs)} log(s): {len(extraction.positions)} positions "
+             f"({resolved.positions or 'none'}), {len(extraction.rotations)} rotations "
+             f"({resolved.rotations or 'none'})"]
+            + [f"note: {note}" for note in _notes(recorded, resolved.result.run)]
+            + [f"result: {finished.result_path}\nreport: {finished.report_path}"
+               + (f"\n        {finished.html_report_path}" if finished.html_report_path else "")])
 
 
 def cmd_solve(args: argparse.Namespace) -> ExitCode:
     # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
+    from bench.finish.calibration import load_subset_schedule
+    from bench.finish.finish import finish
+    from bench.finish.recorded import SolveInputError, load_recorded
     from bench.jobs.compare import compare, format_comparison, parse_methods
-    from bench.jobs.resolve import (
-        SolveInputError,
-        load_recorded,
-        load_subset_schedule,
-        solve_recorded,
-        static_noise_plan,
-        write_outputs,
-    )
+    from bench.jobs.resolve import ResolveTarget, output_stem
     from bench.log.reader import LogError
     from bench.log.run_kind import RunKind
     from bench.solve.methods import SolverError
@@ -142,26 +126,27 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
         positions = load_subset_schedule(args.positions, "positions")
         rotations = load_subset_schedule(args.rotations, "rotations")
         recorded = load_recorded(args.logs, earlier=not args.no_earlier)
-        static = static_noise_plan(recorded)
-        if static is not None:
-            return fail(PROG, f"{recorded.logs[-1].path} is a static noise recording (plan positions {static!r}: one "
-                              f"dwell, nothing to calibrate): analyse it with `bench noise {recorded.logs[-1].path}`",
-                        ExitCode.USAGE)
-        thermal = recorded.first_log_of_kind(RunKind.THERMAL)
-        if thermal is not None:     # its blocks are solved one temperature each, never together
-            if methods is not None or positions is not None or rotations is not None:
-                return fail(PROG, f"{thermal.path} is a calibration over temperature ([plan] temperatures_c): it is "
-                                  "re-solved whole, one calibration per temperature (no --compare, --positions or "
-                                  "--rotations)", ExitCode.USAGE)
-            return _solve_thermal(args, recorded)
-        if methods is not None:
+        if recorded.kind is RunKind.THERMAL and (methods is not None or positions is not None or rotations is not None):
+            # its blocks are solved one temperature each, never together
+            thermal_log = recorded.first_log_of_kind(RunKind.THERMAL) or recorded.logs[-1]
+            return fail(PROG, f"{thermal_log.path} is a calibration over temperature "
+                              "([plan] temperatures_c): it is re-solved whole, one calibration per temperature (no "
+                              "--compare, --positions or --rotations)", ExitCode.USAGE)
+        if methods is not None and recorded.kind is not RunKind.STATIC_NOISE:
             comparison = compare(recorded, methods)
         else:
-            resolved = solve_recorded(recorded, positions, rotations)
+            out_dir = Path(args.out) if args.out else Path(recorded.logs[0].path).parent
+            target = ResolveTarget(out_dir, output_stem(recorded, positions, rotations), html=not args.no_html,
+                                   against=against, against_label=args.against and Path(args.against).name)
+            finished = finish(recorded, target, positions=positions, rotations=rotations)
     except (LogError, SolveInputError) as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     except SolverError as exc:
         return fail(PROG, f"cannot be solved: {exc}", ExitCode.QUALITY)
+    except InputError as exc:       # a name from the log that would leave the output folder
+        return fail(PROG, str(exc), ExitCode.USAGE)
+    except OSError as exc:
+        return fail(PROG, f"cannot write the result: {exc}", ExitCode.USAGE)
 
     if methods is not None:
         if not args.quiet:
@@ -179,31 +164,22 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
         failures = comparison.failures
         recorded_ok = True             # a comparison writes no result to record
     else:
-        out_dir = Path(args.out) if args.out else Path(recorded.logs[0].path).parent
-        try:
-            result_path, report_path, html_path = write_outputs(recorded, resolved, out_dir, html=not args.no_html,
-                                                                against=against,
-                                                                against_label=args.against and Path(args.against).name)
-        except OSError as exc:
-            return fail(PROG, f"cannot write the result: {exc}", ExitCode.USAGE)
         if not args.quiet:
-            extraction = resolved.solution.extraction
-            print(f"solved {recorded.run_id} from {len(recorded.logs)} log(s): {len(extraction.positions)} positions "
-                  f"({resolved.positions or 'none'}), {len(extraction.rotations)} rotations "
-                  f"({resolved.rotations or 'none'})")
-            for note in _notes(recorded, resolved.result.run):
-                print(f"note: {note}")
-            print(f"result: {result_path}\nreport: {report_path}" + (f"\n        {html_path}" if html_path else ""))
+            lines = (_thermal_lines if finished.thermal is not None else _calibration_lines)(recorded, finished)
+            print("\n".join(lines))
+        thermal = finished.thermal is not None
+        if not args.quiet and thermal and finished.verdict is not None:
+            print(f"verdict: {finished.verdict.headline()}")
         logs_solved = [log.path for log in recorded.logs]
         # the logs' decoded samples and states go before the records database reads the logs' metadata again
         # (a 1 GB log solved and then read for its records peaked at 2.1 GB)
         del recorded
-        recorded_ok = record_outputs(args, PROG, [result_path, *logs_solved])   # after the files are written
-        failures = texts(resolved.failures)
-        if resolved.verdict is not None:
-            if not args.quiet:
-                print(f"verdict: {resolved.verdict.headline()}")
+        recorded_ok = record_outputs(args, PROG, [finished.result_path, *logs_solved])   # after the files are written
+        failures = finished.failures
+        if finished.verdict is not None:
+            if not args.quiet and not thermal:
+                print(f"verdict: {finished.verdict.headline()}")
             # the recorded [acceptance] limits judge (they include the quality checks)
-            failures = [c.labelled() for c in resolved.verdict.failed]
+            failures = [c.labelled() for c in finished.verdict.failed]
     code = fail(PROG, "verdict FAIL: " + "; ".join(failures), ExitCode.QUALITY) if failures else ExitCode.OK
     return code if recorded_ok else not_recorded_exit(PROG, code)

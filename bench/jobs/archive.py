@@ -4,7 +4,7 @@
 logs a resumed run's later log names as its earlier ones (solved with it, not on their own:
 an interrupted run is one calibration); `solve_log(log, out_dir)` is
 one task: read, solve, write `<stem>.result.json` and the report exactly as `bench solve`
-does (`bench.jobs.resolve`), and return an `ArchiveItem` (a log that cannot be solved
+does (`bench.finish`, `bench.jobs.resolve`), and return an `ArchiveItem` (a log that cannot be solved
 is an item with its reason, never an exception: one bad log does not stop the archive).
 `solve_archive` runs the tasks with `bench.parallel.run_tasks` on a Dask cluster (a
 `LocalCluster` of `workers` processes, or a running scheduler by address) or, with
@@ -19,13 +19,12 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 from bench.errors import BenchError
-from bench.jobs.resolve import load_recorded, solve_recorded, static_noise_plan, write_outputs
-from bench.jobs.thermal import resolve_thermal
+from bench.finish.finish import finish
+from bench.finish.recorded import load_recorded
+from bench.jobs.resolve import ResolveTarget, output_stem
 from bench.log.names import logs_before, safe_name, sibling_log
 from bench.log.reader import read_log
-from bench.log.run_kind import RunKind
 from bench.log.threads import reader_threads_limited
-from bench.model.quality import texts
 from bench.parallel import SchedulerError, run_tasks
 from bench.solve.methods import SolverError
 
@@ -138,26 +137,17 @@ def solve_log(log: str, out_dir: str, html: bool = False) -> ArchiveItem:
 def _solve_log(log: str, out_dir: str, html: bool) -> ArchiveItem:
     try:
         recorded = load_recorded([log])
-        static = static_noise_plan(recorded)
-        if static is not None:     # as `bench solve LOG` refuses it
-            return ArchiveItem(log, False, error=f"a static noise recording (plan positions {static!r}), "
-                                                 f"nothing to calibrate: analyse it with `bench noise {log}`")
-        if recorded.kind is RunKind.THERMAL:      # one calibration per temperature, as
-            thermal = resolve_thermal(recorded, out_dir, html=html)   # `bench solve LOG` solves it
-            return ArchiveItem(log, True, result=str(thermal.result_path), run_id=recorded.run_id,
-                               failures=tuple(c.describe() for c in thermal.verdict.failed))
-        resolved = solve_recorded(recorded)
-        result_path, _, _ = write_outputs(recorded, resolved, out_dir, html=html)
+        finished = finish(recorded, ResolveTarget(Path(out_dir), output_stem(recorded), html=html))
     except SolverError as exc:
         return ArchiveItem(log, False, error=f"cannot be solved: {exc}")
-    except BenchError as exc:
+    except BenchError as exc:       # (a static noise recording is refused, as `bench solve LOG` refuses it)
         return ArchiveItem(log, False, error=str(exc))
     except OSError as exc:
         return ArchiveItem(log, False, error=f"{exc.strerror or exc} ({exc.filename})")
-    failures = texts(resolved.failures)
-    if resolved.verdict is not None:
-        failures = [c.describe() for c in resolved.verdict.failed]
-    return ArchiveItem(log, True, result=str(result_path), run_id=recorded.run_id, failures=tuple(failures))
+    failures = finished.failures
+    if finished.verdict is not None:
+        failures = [c.describe() for c in finished.verdict.failed]
+    return ArchiveItem(log, True, result=str(finished.result_path), run_id=recorded.run_id, failures=tuple(failures))
 
 
 def solve_archive(tasks: list[tuple[Path, Path]], *, scheduler: str = "local", workers: int | None = None,

@@ -1,7 +1,7 @@
 """Compare calibration methods on one all-data log: the paper's section 5.2 and Table 5.
 
 Each method is a (positions, rotations) schedule pair whose recorded steps are solved
-on their own (`bench.jobs.resolve.solve_recorded`); the table gives, per coefficient family,
+on their own (`bench.finish.calibration.solve_recorded`); the table gives, per coefficient family,
 the root-sum-square difference of each method from the last one listed (the all-data
 solution) and, for a simulated log, from the simulator's truth, with the errors
 defined as `bench.schedule_design.monte_carlo` defines them for the paper's Tables 2 and 4.
@@ -12,7 +12,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from bench.jobs.resolve import NONE, Recorded, SolveInputError, load_subset_schedule, solve_recorded
+from bench.finish.calibration import NONE, load_subset_schedule, solve_recorded
+from bench.finish.recorded import Recorded, SolveInputError
 from bench.model.families import ERROR_TITLES, POSITION_KEYS, ROTATION_KEYS
 from bench.model.quality import texts
 

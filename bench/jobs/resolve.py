@@ -1,533 +1,86 @@
-"""Re-solve recorded runs from their MCAP logs: the logic of `bench solve` (CLI in `bench.cli.solve`).
+"""Re-solve recorded runs from their MCAP logs: the outputs of `bench solve` and the archive (CLI in
+`bench.cli.solve`).
 
-`load_recorded(paths)` reads one or more logs of one IMU (a resumed run's earlier logs
-are added when the later log names them and they are found), rebuilds the run's setup
-from the first log (`bench.log.run_info`), extracts every complete step and merges them by
-unit exactly as `bench run` does (`bench.solve.from_logs`), and accounts for every planned
-unit that is not in the logs (`Recorded.left_out`). `solve_recorded` solves all of it
-or a subset chosen by schedules (`select`: a recorded position counts for a schedule
-position with the same nominal angles modulo 360, a turn for a schedule turn with the
-same start state, frame and direction); with no subset it is the very computation
-`bench run` made, so its coefficients equal the run's bit for bit. Comparing methods
-(`--compare`) is in `bench.jobs.compare`.
+A re-solve finishes the recorded run as the live run did (`bench.finish.finish`, from `load_recorded`) with a
+`ResolveTarget`: the outputs are named `<run-id>.solved.*` for the whole record (never the names `bench run`
+wrote: nothing is overwritten) and `<run-id>.<positions>+<rotations>.*` for a subset; the result's run section says
+who solved it when (`bench.finish.calibration.resolved_run_section`), and the Markdown report ends with the logs
+it was solved from. Comparing methods (`--compare`) is in `bench.jobs.compare`.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import re
-from dataclasses import dataclass, field
-from functools import cached_property
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
-from bench import __version__
-from bench.acceptance.limits import AcceptanceLimits
-from bench.acceptance.quality import judged_failures, quality_failures
-from bench.acceptance.verdict import Verdict, judge
-from bench.errors import InputError
-from bench.log.events import (
-    DwellRecord,
-    StepSkipped,
-    StepStarted,
-    Transition,
-    TurnRecord,
-    final_state,
-    finished_observation_steps,
-)
-from bench.log.names import logs_before, output_path, run_id_of, sibling_log
-from bench.log.reader import LogError, RunLog, read_log
-from bench.log.run_info import (
-    NO_PLAN_IN_MANUAL_LOG,
-    LogSetup,
-    is_manual_log,
-    layout_and_config_from_log,
-    steps_from_log,
-)
-from bench.log.run_kind import RunKind, run_kind, run_kind_of_logs
-from bench.log.run_setup import differences, setup_of_log
-from bench.log.temperature import imu_temperature
-from bench.model.earth import Site
-from bench.model.observations import PositionObservation, RotationObservation
-from bench.model.quality import FailureKind, QualityFailure, texts
+from bench.files import write_output_text
+from bench.finish.calibration import NONE, Solved, resolved_run_section, solved_run_info, subset_name
+from bench.finish.finish import Reports, Target
+from bench.finish.recorded import Recorded
+from bench.log.names import output_path
+from bench.log.run_kind import RunKind
 from bench.model.result import CalibrationResult
-from bench.model.run_section import RunInfo, utc_stamp
+from bench.model.run_section import RunInfo
 from bench.report.markdown import markdown_report, md_text, write_reports
-from bench.solve.extract import Extraction, without_windows
-from bench.solve.from_logs import LogSolution, extract_from_logs, solve_extraction
-from bench.solve.inputs import budget_inputs
-from bench.solve.methods import SolverError
-from drivers.imu import ImuStats
-from schedules import ScheduleError, resolve_schedule
 
-#: Subset value that keeps none of a kind (e.g. `--rotations none`: a positions-only solve).
-NONE = "none"
-_ANGLE_DECIMALS = 6
-_RECORDED = "recorded but left out by the extraction"
 
-
-class SolveInputError(InputError):
-    """What was asked cannot be served from these logs (exit code 2): a subset the logs
-    lack, an unknown schedule, logs of different IMUs or runs that do not merge."""
-
-
-# -- reading the logs --------------------------------------------------------------------------
-
-@dataclass
-class Recorded:
-    """Everything recorded in a set of logs of one run (or of one IMU), ready to solve."""
-
-    logs: list[RunLog]                      # oldest first
-    setup: LogSetup                         # of the first log: layout, rate, configuration, site
-    sim: bool
-    extraction: Extraction                  # every complete step of every log, merged by unit
-    imu_stats: list[ImuStats]               # per log, from decoding its raw CAN frames
-    damage: list[str]                       # per log damage lines, prefixed with the file
-    planned: list[str]                      # every observation unit of the plan(s), in plan order
-    left_out: dict[str, str]                # unit -> why it is not in `extraction` (one line)
-    notes: list[str] = field(default_factory=list)
-
-    @cached_property
-    def kind(self) -> RunKind:
-        """The kind of the recorded run (`bench.log.run_kind`: recorded, or told as before for an older log)."""
-        return run_kind_of_logs(self.logs, self.setup.config)
-
-    def first_log_of_kind(self, kind: RunKind) -> RunLog | None:
-        """The first log that records a run of `kind` (the one a refusal names)."""
-        return next((log for log in self.logs if run_kind(log, self.setup.config) is kind), None)
-
-    @property
-    def run_meta(self) -> dict[str, str]:
-        return self.logs[-1].metadata.get("run", {})
-
-    @property
-    def run_id(self) -> str:
-        """The run id outputs are named by: the log's own when it is a safe file name (`bench.log.names`)."""
-        return run_id_of(self.logs[-1].path, self.logs[-1].metadata)[0]
-
-    @property
-    def final_state(self) -> str:
-        return final_state(self.logs[-1].events) or "unknown"
-
-    @property
-    def site(self) -> Site:
-        """The run's site (`load_recorded` refuses logs that record none)."""
-        if self.setup.site is None:
-            raise SolveInputError(f"{self.logs[0].path}: the log records no usable site")
-        return self.setup.site
-
-    @property
-    def truth(self):
-        """The simulated IMU's true coefficients (None for hardware or without a configuration)."""
-        config = self.setup.config
-        return config.sim.imu if self.sim and config is not None else None
-
-    def problems(self) -> list[QualityFailure]:
-        """Steps left out or degraded: the extraction's, then the units not in the logs."""
-        return list(self.extraction.problems) + [QualityFailure(FailureKind.LEFT_OUT, f"{unit}: {why}", unit)
-                                                 for unit, why in self.left_out.items()
-                                                 if not why.startswith(_RECORDED)]
-
-    def imu_link(self) -> ImuStats:
-        """The IMU link statistics of all logs added up."""
-        total = ImuStats()
-        for stats in self.imu_stats:
-            for f in dataclasses.fields(ImuStats):
-                setattr(total, f.name, getattr(total, f.name) + getattr(stats, f.name))
-        return total
-
-
-def _name(path: str) -> str:
-    return Path(path).name
-
-
-def _earlier_names(log: RunLog) -> list[str]:
-    """The file names of the earlier logs `log` names (`run.logs_before`), those that can be its siblings."""
-    entries, _ = logs_before(log.metadata)
-    return [path.name for path in (sibling_log(log.path, entry)[0] for entry in entries) if path is not None]
-
-
-def _earlier_logs(log: RunLog, notes: list[str]) -> list[Path]:
-    """The earlier logs `log` names that are `.mcap` files next to it; a note for every other entry."""
-    entries, malformed = logs_before(log.metadata)
-    if malformed:
-        notes.append(f"{_name(log.path)}: {malformed}")
-    found = []
-    for entry in entries:
-        path, why = sibling_log(log.path, entry)
-        if path is None:
-            notes.append(f"{_name(log.path)} {why}")
-        elif not path.is_file():
-            notes.append(f"{_name(log.path)} resumed {path.name}, which is not found next to it: "
-                         "its units are not in this solve")
-        else:
-            found.append(path)
-    return found
-
-
-def read_logs(paths: list[str], *, earlier: bool = True) -> tuple[list[RunLog], list[str]]:
-    """Read the logs (LogError on one that cannot be read at all), oldest first.
-
-    With `earlier`, the logs a resumed log names as its run's earlier ones are read too
-    when found next to the resumed log (by base name: an entry that is not a `.mcap` file
-    name is skipped with a note, see `bench.log.names.sibling_log`). Returns the logs and
-    notes on what was added, skipped or not found.
-    """
-    logs: dict[str, RunLog] = {}
-    notes: list[str] = []
-    for path in paths:
-        if _name(str(path)) not in logs:
-            logs[_name(str(path))] = read_log(path)
-    if earlier:
-        for log in list(logs.values()):
-            for found in _earlier_logs(log, notes):
-                if found.name in logs:
-                    continue
-                logs[found.name] = read_log(found)
-                notes.append(f"also read {found}: the run of {_name(log.path)} resumed it")
-    listed_before = {name: sum(name in map(_name, _earlier_names(other)) for other in logs.values()) for name in logs}
-    order = sorted(logs, key=lambda n: (-listed_before[n], logs[n].metadata.get("run", {}).get("started_utc", ""),
-                                        n))
-    return [logs[n] for n in order], notes
-
-
-def _check_one_imu(logs: list[RunLog]) -> None:
-    first = logs[0]
-
-    def ident(log):
-        imu = log.metadata.get("imu", {})
-        return imu.get("model", ""), imu.get("serial", ""), imu.get("rate_hz", "")
-
-    for log in logs[1:]:
-        if ident(log) != ident(first):
-            model, serial, rate = ident(log)
-            raise SolveInputError(f"{log.path} records IMU {model!r} serial {serial!r} at {rate} Hz but {first.path} "
-                                  f"records {ident(first)[0]!r} serial {ident(first)[1]!r} at {ident(first)[2]} Hz: "
-                                  "solve logs of one IMU together")
-
-
-def _check_one_setup(logs: list[RunLog]) -> None:
-    """Logs merged by unit label must be of one plan, IMU, site and table (`bench.log.run_setup`)."""
-    first, setup = logs[0], setup_of_log(logs[0])
-    for log in logs[1:]:
-        found = differences(setup_of_log(log), setup, _name(log.path), _name(first.path))
-        if found:
-            raise SolveInputError(f"{log.path} and {first.path} are not logs of one run: {'; '.join(found)}: "
-                                  "solve them separately")
-
-
-def _nominal(record: DwellRecord | TurnRecord | None) -> tuple:
-    if isinstance(record, TurnRecord):
-        return ("turn", angle_key(record.start_deg), record.frame, record.direction)
-    assert record is not None                   # a finished observation step has its record
-    return ("dwell", angle_key(record.angles_deg))
-
-
-def _check_units_agree(logs: list[RunLog]) -> None:
-    """Units merge by label: two logs may share a label only for the same nominal step."""
-    seen: dict[str, tuple[str, tuple]] = {}
-    for log in logs:
-        for unit, (_, finished) in finished_observation_steps(log.events).items():
-            nominal = _nominal(finished.record)
-            if unit in seen and seen[unit][1] != nominal:
-                raise SolveInputError(f"{seen[unit][0]} and {log.path} both record unit {unit} with different "
-                                      "steps: they are not parts of one run; solve them separately")
-            seen[unit] = (log.path, nominal)
-
-
-def _planned_units(logs: list[RunLog], notes: list[str]) -> list[str]:
-    units: dict[str, None] = {}
-    for log in logs:
-        try:
-            steps = steps_from_log(log)
-        except LogError as exc:
-            notes.append(f"{exc}: units missing from the log cannot be listed")
-            continue
-        units.update((s.unit, None) for s in steps if s.kind in ("dwell", "turn"))
-    return list(units)
-
-
-def _left_out(logs: list[RunLog], planned: list[str], extraction: Extraction) -> dict[str, str]:
-    """Why each planned unit without an observation has none (one line each)."""
-    solved = set(extraction.units)
-    finished, started, skipped = set(), {}, {}
-    for log in logs:
-        finished |= set(finished_observation_steps(log.events))
-        started.update({e.step_unit: (log, e) for e in log.events if isinstance(e, StepStarted) and e.step_unit})
-        skipped.update({e.step_unit: log for e in log.events if isinstance(e, StepSkipped) and e.step_unit})
-    last = logs[-1]
-    final = [e.state for e in last.events if isinstance(e, Transition) and e.state]
-    ended = max((e.time_s for log in logs for e in log.events), default=0.0)
-    out = {}
-    for unit in planned:
-        if unit in solved:
-            continue
-        if unit in finished:
-            out[unit] = _RECORDED + " (see its line above)"
-        elif unit in started:
-            log, event = started[unit]
-            out[unit] = (f"left out: started at {event.time_s:.1f} s in {_name(log.path)} but its end is not in the "
-                         + ("log (cut off or damaged, see the damage lines)" if not log.scan().complete else "log"))
-        elif unit in skipped:
-            log = skipped[unit]
-            earlier = ", ".join(map(_name, _earlier_names(log))) or "not named"
-            out[unit] = (f"left out: {_name(log.path)} skipped it as done in an earlier log of its run ({earlier}), "
-                         "which is not among the logs read")
-        elif final and final[-1] == "done":
-            out[unit] = "left out: the run finished but this unit's records are lost in the damage"
-        elif not last.scan().complete:
-            out[unit] = (f"left out: no record of it in the logs ({_name(last.path)} is cut off or damaged "
-                         f"after {ended:.1f} s)")
-        else:
-            out[unit] = f"left out: not run (the run ended {final[-1] if final else 'early'} before it)"
-    return out
-
-
-def static_noise_plan(recorded: Recorded) -> str | None:
-    """The name of the recorded plan's positions when the run is a static noise recording, else None."""
-    if recorded.kind is not RunKind.STATIC_NOISE:
-        return None
-    config = recorded.setup.config
-    positions = config.plan.positions if config is not None else None
-    return positions.name if positions is not None else recorded.logs[-1].metadata.get("plan", {}).get("positions", "")
-
-
-def load_recorded(paths: list[str], *, earlier: bool = True) -> Recorded:
-    """Read and extract logs of one IMU (LogError: unreadable; SolveInputError: logs that do not go together)."""
-    if not paths:
-        raise SolveInputError("no log given")
-    logs, notes = read_logs(list(map(str, paths)), earlier=earlier)
-    manual = next((log for log in logs if is_manual_log(log)), None)
-    if manual is not None:
-        raise SolveInputError(f"{manual.path}: {NO_PLAN_IN_MANUAL_LOG}, so there is nothing to solve")
-    _check_one_imu(logs)
-    _check_one_setup(logs)
-    _check_units_agree(logs)
-    setup = layout_and_config_from_log(logs[0])
-    notes += list(setup.notes)
-    _, renamed = run_id_of(logs[-1].path, logs[-1].metadata)
-    if renamed:
-        notes.append(f"{_name(logs[-1].path)}: {renamed}")
-    site = setup.site
-    if site is None:
-        raise SolveInputError(f"{logs[0].path}: the log records no usable site: cannot solve "
-                              f"({'; '.join(setup.notes)})")
-    # As in `bench run`: a log its run resumed was cut off, its missing summary is expected.
-    resumed = {_name(p) for log in logs for p in _earlier_names(log)}
-    still_open = frozenset(log.path for log in logs if _name(log.path) in resumed)
-    extraction, stats, damage = extract_from_logs(logs, site, setup.layout, setup.rate_hz, None, still_open)
-    planned = _planned_units(logs, notes)
-    sim = logs[0].metadata.get("run", {}).get("mode") == "simulator"
-    return Recorded(logs, setup, sim, extraction, stats, damage, planned, _left_out(logs, planned, extraction), notes)
-
-
-# -- subsets ------------------------------------------------------------------------------------
-
-def angle_key(angles_deg) -> tuple[float, ...]:
-    """Nominal angles compared modulo 360 (to a micro-degree)."""
-    return tuple(round(float(a) % 360.0, _ANGLE_DECIMALS) % 360.0 for a in angles_deg)
-
-
-def load_subset_schedule(spec: str | None, kind: str):
-    """The schedule of `--positions`/`--rotations` (`kind`): None = keep all, NONE = keep none."""
-    if spec is None:
-        return None
-    if spec == NONE:
-        return NONE
-
-    try:
-        schedule = resolve_schedule(spec)
-    except ScheduleError as exc:
-        raise SolveInputError(str(exc)) from exc
-    wanted = ("positions", "table-check") if kind == "positions" else ("rotations",)
-    if schedule.kind not in wanted:
-        raise SolveInputError(f"schedule {schedule.name!r} is a {schedule.kind!r} schedule, --{kind} needs a "
-                              f"{kind!r} schedule")
-    return schedule
-
-
-def _pick(keys: list, wanted: list, describe) -> tuple[list[int], list[str]]:
-    free: dict[tuple, list[int]] = {}
-    for i, key in enumerate(keys):
-        free.setdefault(key, []).append(i)
-    picked, missing = [], []
-    for want in wanted:
-        if free.get(want):
-            picked.append(free[want].pop(0))
-        else:
-            missing.append(describe(want))
-    return sorted(picked), missing
-
-
-def select(extraction: Extraction, positions=None, rotations=None) -> Extraction:
-    """The observations a subset keeps, in recorded order (None: all of that kind; NONE: none).
-
-    Raises SolveInputError listing what a schedule needs that the extraction lacks.
-    """
-    chosen = Extraction(list(extraction.positions), list(extraction.rotations), list(extraction.problems))
-    missing = []
-    if positions == NONE:
-        chosen.positions = []
-    elif positions is not None:
-        keys = [angle_key(o.angles_deg) for o in extraction.positions]
-        wanted = [angle_key(p.angles_deg) for p in positions.positions]
-        idx, lacking = _pick(keys, wanted, lambda k: "(" + ", ".join(f"{a:g}" for a in k) + ")")
-        chosen.positions = [extraction.positions[i] for i in idx]
-        if lacking:
-            missing.append(f"{len(lacking)} of the {len(wanted)} positions of {positions.name} "
-                           f"({', '.join(lacking)})")
-    if rotations == NONE:
-        chosen.rotations = []
-    elif rotations is not None:
-        turn_keys = [(angle_key(o.start_deg), o.frame, o.direction) for o in extraction.rotations]
-        wanted_turns = [(angle_key(r.start_deg), r.frame, r.direction) for r in rotations.rotations]
-        idx, lacking = _pick(turn_keys, wanted_turns,
-                             lambda k: "(" + ", ".join(f"{a:g}" for a in k[0]) + f") {k[1]} {k[2]}")
-        chosen.rotations = [extraction.rotations[i] for i in idx]
-        if lacking:
-            missing.append(f"{len(lacking)} of the {len(wanted_turns)} rotations of {rotations.name} "
-                           f"({', '.join(lacking)})")
-    if missing:
-        raise SolveInputError("the logs lack " + " and ".join(missing))
-    return chosen
-
-
-def _subset_name(schedule, recorded_name: str) -> str:
-    if schedule is None:
-        return recorded_name
-    return "" if schedule == NONE else schedule.name
-
-
-# -- solving ------------------------------------------------------------------------------------
-
-@dataclass
-class Resolved:
-    """One solve of (a subset of) the recorded observations."""
-
-    solution: LogSolution
-    result: CalibrationResult
-    failures: list[QualityFailure]
-    positions: str                     # schedule names ("" = none)
-    rotations: str
-    subset: bool                       # a subset was selected (the output name says which)
-    verdict: Verdict | None = None     # the acceptance verdict (the recorded configuration's [acceptance])
-
-
-def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolved:
-    """Solve every recorded step, or the subset the schedules choose (SolverError: nothing to solve)."""
-    config, setup = recorded.setup.config, recorded.setup
-    inputs = budget_inputs(config, recorded.sim) if config is not None else None
-    chosen = select(recorded.extraction, positions, rotations)
-    # a subset does not use the windows it leaves out: their lost samples are outside the windows it uses
-    unused = _unused_windows(recorded, chosen, positions, rotations)
-    chosen.problems = [p for p in recorded.problems() if not (p.window_loss and p.unit in unused)]
-    calibration, chosen, dropped = _solve_what_can_be(chosen, setup.site, inputs)
-    solution = LogSolution(calibration, chosen, list(recorded.imu_stats), list(recorded.damage))
-    failures = quality_failures(solution)
-    lost = without_windows(recorded.extraction.lost_samples(), unused)
-    plan = recorded.logs[-1].metadata.get("plan", {})
-    pos_name = _subset_name(positions, plan.get("positions", ""))
-    rot_name = _subset_name(rotations, plan.get("rotations", ""))
-    run_info = solved_run_info(recorded, pos_name, rot_name, failures, lost)
-    run_info.subset = positions is not None or rotations is not None   # a what-if: never the run's record
-    run_info.started_utc = recorded.logs[0].metadata.get("run", {}).get("started_utc", "")
-    run_info.left_out = sorted({*recorded.left_out, *dropped})
-    run_info.damage = list(recorded.damage)
-    result = calibration.to_result(run=run_info.to_dict(), sim_truth=recorded.truth)
-    result.temperature = imu_temperature(recorded.logs, setup.layout, setup.rate_hz)
-    limits = config.acceptance if config is not None else AcceptanceLimits()
-    verdict = judge(result, limits, lost_samples=lost["total"],
-                    quality_failures=texts(judged_failures(failures, limits)))
-    result.verdict = verdict.to_json()
-    return Resolved(solution, result, failures, pos_name, rot_name, positions is not None or rotations is not None,
-                    verdict)
-
-
-def solved_run_info(recorded: Recorded, positions: str, rotations: str, failures: list[QualityFailure],
-                    lost: dict) -> RunInfo:
-    """The result's run section of a solve of `recorded` (what a plain solve adds, the caller sets)."""
-    meta, imu = recorded.run_meta, recorded.logs[-1].metadata.get("imu", {})
-    return RunInfo(run_id=recorded.run_id, mode=meta.get("mode", ""), operator=meta.get("operator", ""),
-                   software_version=__version__, recorded_with=meta.get("software_version", ""),
-                   state=recorded.final_state, log=_name(recorded.logs[-1].path),
-                   logs=[_name(log.path) for log in recorded.logs], positions=positions, rotations=rotations,
-                   solved_utc=utc_stamp(), solved_by="bench solve",
-                   imu={"model": imu.get("model", ""), "serial": imu.get("serial", "")},
-                   site=recorded.site.to_dict(), quality_failures=failures, imu_link=recorded.imu_link().as_dict(),
-                   lost_samples=lost, notes=list(recorded.notes))
-
-
-def _unused_windows(recorded: Recorded, chosen: Extraction, positions, rotations) -> set[str]:
-    """The recorded dwells (with `positions` given) and turns (with `rotations`) a subset leaves out."""
-    kept = set(chosen.units)
-    kinds = {unit: "turn" if isinstance(finished.record, TurnRecord) else "dwell" for log in recorded.logs
-             for unit, (_, finished) in finished_observation_steps(log.events).items()}
-    return {unit for unit, kind in kinds.items() if unit not in kept
-            and ((kind == "dwell" and positions is not None) or (kind == "turn" and rotations is not None))}
-
-
-def _solve_what_can_be(chosen: Extraction, site, inputs):
-    """Solve all of `chosen`; when that fails (too few turns or positions left by damage),
-    the positions or the rotations alone, the others left out with the reason.
-    Returns (calibration, the extraction solved, units left out); SolverError if neither solves."""
-
-    def attempt(extraction):
-        return solve_extraction(extraction, site, budget=inputs)
-
-    try:
-        return attempt(chosen), chosen, []
-    except SolverError as exc:
-        first = exc
-    kept: Sequence[PositionObservation | RotationObservation]
-    dropped: Sequence[PositionObservation | RotationObservation]
-    for keep_positions in (True, False):
-        kept, dropped = (chosen.positions, chosen.rotations) if keep_positions else (chosen.rotations, chosen.positions)
-        if not kept or not dropped:
-            continue
-        part = (Extraction(list(chosen.positions), [], list(chosen.problems)) if keep_positions
-                else Extraction([], list(chosen.rotations), list(chosen.problems)))
-        try:
-            calibration = attempt(part)
-        except SolverError:
-            continue
-        part.problems += [QualityFailure(FailureKind.LEFT_OUT, f"{o.label}: left out: {first}", o.label)
-                          for o in dropped]
-        return calibration, part, [o.label for o in dropped]
-    raise first
-
-
-def output_stem(recorded: Recorded, resolved: Resolved) -> str:
-    """`<run-id>.solved` for the whole record (never the name `bench run` wrote: nothing is
-    overwritten); `<run-id>.<positions>+<rotations>` for a subset."""
-    if not resolved.subset:
+def output_stem(recorded: Recorded, positions=None, rotations=None) -> str:
+    """`<run-id>.solved` for the whole record; `<run-id>.<positions>+<rotations>` for a subset (the schedules of
+    `bench.finish.calibration.load_subset_schedule`; a name from a file is made a safe file name)."""
+    if positions is None and rotations is None:
         return f"{recorded.run_id}.solved"
-    names = (re.sub(r"[^A-Za-z0-9._-]+", "-", name) or NONE for name in (resolved.positions, resolved.rotations))
-    return f"{recorded.run_id}." + "+".join(names)
+    plan = recorded.logs[-1].metadata.get("plan", {})
+    names = (subset_name(positions, plan.get("positions", "")), subset_name(rotations, plan.get("rotations", "")))
+    return f"{recorded.run_id}." + "+".join(re.sub(r"[^A-Za-z0-9._-]+", "-", name) or NONE for name in names)
 
 
-def write_outputs(recorded: Recorded, resolved: Resolved, out_dir: str | Path, *, html: bool = True,
-                  against: CalibrationResult | None = None,
-                  against_label: str | None = None) -> tuple[Path, Path, Path | None]:
-    """Write `<stem>.result.json`, `<stem>.report.md` and (with `html`) `<stem>.report.html` as
-    `bench run` does (`against`: an earlier result the reports compare with).
-    Returns their paths (None for the HTML report not written)."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    stem = output_stem(recorded, resolved)
-    result_path = output_path(out_dir, f"{stem}.result.json")     # a name from the log never leaves out_dir
-    resolved.result.save(result_path)
-    report = dict(problems=texts(resolved.solution.extraction.problems), failures=texts(resolved.failures),
-                  imu_link=resolved.result.run["imu_link"], against=against, against_label=against_label,
-                  title=f"Calibration report {stem} (re-solved from the log)")
-    if html:
-        md_path, html_path = write_reports(resolved.result, out_dir, stem, log=recorded.logs[-1],
-                                           layout=recorded.setup.layout, **report)
-    else:
-        md_path, html_path = output_path(out_dir, f"{stem}.report.md"), None
-        md_path.write_text(markdown_report(resolved.result, **report), encoding="utf-8")
-    with open(md_path, "a", encoding="utf-8") as f:
-        f.write("\n" + _provenance(recorded))
-    return result_path, md_path, html_path
+@dataclass
+class ResolveTarget(Target):
+    """The outputs of a re-solve in `out_dir` (`against`: an earlier result the reports compare with)."""
+
+    out_dir: Path
+    stem: str
+    html: bool = True
+    against: CalibrationResult | None = None
+    against_label: str | None = None
+
+    def run_section(self, recorded: Recorded, solved: Solved) -> RunInfo:
+        if recorded.kind is RunKind.THERMAL:        # its blocks' sections say only who solved them
+            return solved_run_info(recorded, solved.positions, solved.rotations, solved.failures, solved.lost)
+        return resolved_run_section(recorded, solved)
+
+    def title(self, what: str, detail: str = "") -> str:
+        return f"{what} {self.stem} ({detail + ', re-solved' if detail else 're-solved from the log'})"
+
+    def thermal_run(self, run_info: dict) -> dict:
+        return {"mode": run_info["mode"], "run_id": run_info["run_id"], "log": run_info["log"],
+                "solved_by": "bench solve"}
+
+    def write_result(self, recorded: Recorded, result: CalibrationResult, reports: Reports,
+                     also: Sequence[Path] = ()) -> tuple[Path, Path, Path | None]:
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        result_path = output_path(self.out_dir, f"{self.stem}.result.json")    # a name from a log never leaves out
+        result.save(result_path)
+        report: dict[str, Any] = dict(problems=reports.problems, failures=reports.failures,
+                                      imu_link=recorded.imu_link().as_dict(), title=reports.title)
+        if recorded.kind is not RunKind.THERMAL:
+            report |= dict(against=self.against, against_label=self.against_label)
+        if self.html:
+            md_path, html_path = write_reports(result, self.out_dir, self.stem, log=recorded.logs[-1],
+                                               layout=recorded.setup.layout, **report)
+        else:
+            md_path, html_path = output_path(self.out_dir, f"{self.stem}.report.md"), None
+            write_output_text(md_path, markdown_report(result, **report))     # renamed into place
+        if recorded.kind is not RunKind.THERMAL:
+            with open(md_path, "a", encoding="utf-8") as f:
+                f.write("\n" + _provenance(recorded))
+        return result_path, md_path, html_path
+
+    def noise_failures(self, recorded: Recorded) -> list[str]:
+        link = recorded.imu_link()
+        return [f"IMU link lost samples: {link.summary()}"] if link.lost_samples else []
 
 
 def _provenance(recorded: Recorded) -> str:
@@ -543,5 +96,4 @@ def _provenance(recorded: Recorded) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["NONE", "Recorded", "Resolved", "SolveInputError", "angle_key", "load_recorded", "load_subset_schedule",
-           "output_stem", "read_logs", "select", "solve_recorded", "solved_run_info", "write_outputs"]
+__all__ = ["ResolveTarget", "output_stem"]

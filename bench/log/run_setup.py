@@ -13,7 +13,7 @@ plan, IMU, site and table. `RunSetup` is that setup, read from a log's metadata
   rest, revolutions) and the order (the `order` setting and the visiting order of the units).
 
 `bench run --resume` (`bench.run.resume`) and `bench solve` with several logs
-(`bench.jobs.resolve.load_recorded`) refuse logs that differ.
+(`bench.finish.recorded.load_recorded`) refuse logs that differ.
 """
 
 from __future__ import annotations

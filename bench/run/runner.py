@@ -16,38 +16,33 @@ import time
 from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterable, Iterator
+from typing import Iterable, Iterator, Sequence
 
 from bench import __version__
-from bench.acceptance.quality import judged_failures, quality_failures, window_loss_failures
-from bench.acceptance.verdict import Verdict, judge
+from bench.acceptance.verdict import Verdict
 from bench.config.load import BenchConfig
 from bench.errors import BenchError
+from bench.finish.calibration import Solved
+from bench.finish.finish import Finished, Reports, Target, finish
+from bench.finish.recorded import Recorded, recorded_run
 from bench.log.events import RunListener, RunState
 from bench.log.reader import read_log
 from bench.log.recorder import CHUNK_RUN_INTERVAL_S, McapRecorder, RecorderError
-from bench.log.run_info import MANUAL_LOG_SUFFIX
+from bench.log.run_info import MANUAL_LOG_SUFFIX, LogSetup
 from bench.log.run_kind import RunKind, kind_of_config
-from bench.log.temperature import imu_temperature
-from bench.model.quality import QualityFailure, damage, link_lost_samples, texts
+from bench.model.quality import damage, link_lost_samples
 from bench.model.result import CalibrationResult
 from bench.model.run_section import RunInfo, utc_stamp
-from bench.noise.from_log import NoiseInputError, analyse_log
 from bench.plan.compiler import CompiledPlan, compile_plan
 from bench.plan.steps import step_to_dict
 from bench.plan.thermal import compile_thermal_plan
 from bench.report.markdown import write_reports
-from bench.report.noise import write_noise_outputs
-from bench.report.thermal import write_thermal_files
 from bench.run.devices import DeviceOpener, Devices
 from bench.run.sequencer import ListenerError, Sequencer, SequencerOptions, describe_listener_error
 from bench.sim.world import SimWorld
 from bench.solve.extract import Extraction
-from bench.solve.from_logs import extract_from_logs, solve_logs
-from bench.solve.inputs import budget_inputs
-from bench.thermal.from_log import solve_thermal
+from bench.solve.from_logs import extract_from_logs
 from bench.thermal.model import ThermalModel
-from bench.thermal.verdict import judge_thermal_head
 from bench.verify.plan import sim_table_record
 from drivers.chamber import Chamber
 from drivers.clock import Clock
@@ -75,6 +70,13 @@ class RunOutcome:
     #: fewer than two temperatures)
     thermal_paths: list[Path] = field(default_factory=list)
     thermal_model: ThermalModel | None = None
+
+    @classmethod
+    def of(cls, state: RunState, log_path: Path, finished: Finished) -> "RunOutcome":
+        """The outcome of a run that ended well and was finished (`bench.finish.finish`)."""
+        return cls(state, log_path, finished.result_path, finished.report_path, finished.result, finished.failures,
+                   html_report_path=finished.html_report_path, verdict=finished.verdict, problems=finished.problems,
+                   thermal_paths=finished.thermal_paths, thermal_model=finished.thermal_model)
 
 
 def _new_run_id() -> str:
@@ -339,8 +341,8 @@ class BenchRun:
 
     # -- after the run ---------------------------------------------------------------------
     def finish(self) -> RunOutcome:
-        """Finish the run as its kind finishes (`FINISHERS`: solve from the log(s), write result and report,
-        attach the result), close the log."""
+        """Finish the run from its log(s) as its kind finishes (`bench.finish.finish`: solve, judge, write the result
+        and reports as `<run-id>.*`, attach them to the log), close the log."""
         _, receiver, recorder, _ = self._opened()
         seq = self.sequencer
         if seq is None or seq.error is not None:
@@ -352,89 +354,15 @@ class BenchRun:
             error = ListenerError(describe_listener_error(recorder, broken))
             return RunOutcome(seq.state, self.log_path, error=error)
         recorder.flush()
-        return FINISHERS[self.kind](self, seq.state, receiver, recorder)
-
-    def _finish_calibration(self, state: RunState, receiver: ImuReceiver, recorder: McapRecorder) -> RunOutcome:
-        """A calibration: solved from the log(s) (and the logs of the run it resumes), judged, reported."""
-        logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
-        config = self.config
-        solution = solve_logs(logs, config.site.site, config.imu.layout, config.imu.rate_hz,
-                              budget=budget_inputs(config, self.sim),
-                              # A log being resumed was cut off: its missing summary is expected, not damage.
-                              still_open=frozenset({str(self.log_path), *map(str, self.previous_logs)}))
-        failures = quality_failures(solution)
-        lost = solution.extraction.lost_samples()
-        run_info = self._run_info(state, receiver, failures, lost).to_dict()
-        result = solution.calibration.to_result(run=run_info, sim_truth=config.sim.imu if self.sim else None)
-        result.temperature = imu_temperature(logs, config.imu.layout, config.imu.rate_hz)
-        verdict = judge(result, config.acceptance, lost_samples=lost["total"],
-                        quality_failures=texts(judged_failures(failures, config.acceptance)))
-        result.verdict = verdict.to_json()
-        result_path = self.out_dir / f"{self.run_id}.result.json"
-        with unfinished(result_path) as partial:
-            result.save(partial)
-            report_path, html_report_path = write_reports(
-                result, self.out_dir, self.run_id, log=logs[-1], layout=config.imu.layout, log_still_open=True,
-                problems=texts(solution.extraction.problems), failures=texts(failures),
-                imu_link=receiver.stats.as_dict(),
-                title=f"Calibration report {self.run_id}")
-            recorder.add_attachment(result_path.name, "application/json", partial.read_bytes(),
-                                    self.clock.now() if self.clock is not None else 0.0)
-            recorder.close()
-        return RunOutcome(state, self.log_path, result_path, report_path, result, texts(failures),
-                          html_report_path=html_report_path, verdict=verdict,
-                          problems=texts(solution.extraction.problems))
-
-    def _run_info(self, state: RunState, receiver: ImuReceiver, failures: list[QualityFailure], lost: dict) -> RunInfo:
-        config, identity = self.config, self.config.imu.identity
-        return RunInfo(run_id=self.run_id, mode="simulator" if self.sim else "hardware", operator=self.operator,
-                       software_version=__version__, state=state.value, log=self.log_path.name,
-                       logs=[Path(p).name for p in self.previous_logs] + [self.log_path.name],
-                       positions=_name(config.plan.positions), rotations=_name(config.plan.rotations),
-                       finished_utc=utc_stamp(), imu={"model": identity.model, "serial": identity.serial},
-                       site=config.site.site.to_dict(), quality_failures=failures,
-                       sim=sim_table_record(config) if self.sim else None,      # (its verification's table)
-                       imu_link={**receiver.stats.as_dict(),
-                                 **(receiver.time_base.as_dict() if receiver.time_base is not None else {})},
-                       lost_samples=lost)
-
-    def _finish_thermal(self, state: RunState, receiver: ImuReceiver, recorder: McapRecorder) -> RunOutcome:
-        """A thermal run: one calibration per temperature (`<run-id>.T<k>.result.json`), the thermal model
-        (`<run-id>.thermal.json/.md/.html`), and as the run's own result (verdict, reports) the calibration
-        nearest the model's reference temperature (`bench.thermal.from_log.solve_thermal`)."""
         config = self.config
         logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
+        setup = LogSetup(config.imu.layout, float(config.imu.rate_hz), config, config.site.site)
+        # A log being resumed was cut off: its missing summary is expected, not damage; this one is still open.
         still_open = frozenset({str(self.log_path), *map(str, self.previous_logs)})
-        extraction, _, damage_lines = extract_from_logs(logs, config.site.site, config.imu.layout, config.imu.rate_hz,
-                                                  still_open=still_open)
-        link_failures = window_loss_failures(extraction.problems)
-        lost = extraction.lost_samples()
-        run_info = self._run_info(state, receiver, link_failures, lost).to_dict()
-        solution = solve_thermal(logs, config.site.site, config.imu.layout, config.imu.rate_hz, config, self.sim,
-                                 run=run_info, extracted=(extraction, damage_lines))
-        results, model_path = write_thermal_files(
-            solution, self.out_dir, self.run_id, {"mode": run_info["mode"], "run_id": self.run_id,
-                                                  "log": self.log_path.name},
-            title=f"Thermal model {self.run_id}")
-        written = results + ([model_path] if model_path is not None else [])
-        head = solution.head
-        result, problems, failures, verdict = judge_thermal_head(solution, results, model_path, link_failures,
-                                                                 config.acceptance, lost["total"])
-        result_path = self.out_dir / f"{self.run_id}.result.json"
-        with unfinished(result_path) as partial:
-            result.save(partial)
-            report_path, html_report_path = write_reports(
-                result, self.out_dir, self.run_id, log=logs[-1], layout=config.imu.layout, log_still_open=True,
-                problems=problems, failures=texts(failures), imu_link=receiver.stats.as_dict(),
-                title=f"Calibration report {self.run_id} (temperature block T{head.temperature_index})")
-            now_s = self.clock.now() if self.clock is not None else 0.0
-            recorder.add_attachment(result_path.name, "application/json", partial.read_bytes(), now_s)
-            for path in written:
-                recorder.add_attachment(path.name, "application/json", path.read_bytes(), now_s)
-            recorder.close()
-        return RunOutcome(state, self.log_path, result_path, report_path, result, texts(failures),
-                          html_report_path=html_report_path, verdict=verdict, problems=problems,
-                          thermal_paths=written, thermal_model=solution.model)
+        recorded = recorded_run(logs, setup, self.sim, still_open)
+        finished = finish(recorded, _LiveTarget(self, seq.state, receiver, recorder))
+        recorder.close()            # (a result's writing closed it already: closing twice is a no-op)
+        return RunOutcome.of(seq.state, self.log_path, finished)
 
     def finish_observations(self) -> tuple[Extraction | None, BaseException | None]:
         """For a run that is not solved (a verification): close the log and extract its observations.
@@ -457,28 +385,6 @@ class BenchRun:
             extraction.problems.append(link_lost_samples(receiver.stats.summary()))
         return extraction, None
 
-    def _finish_noise(self, state: RunState, receiver: ImuReceiver, recorder: McapRecorder) -> RunOutcome:
-        """The Allan deviation and noise terms of the dwell just recorded: `<run-id>.noise.json/.md/.html`.
-
-        On the simulator the outputs become deg/h and ug with the simulated IMU's true scales; a
-        hardware log needs a calibration's (`bench noise LOG --calibration RESULT.json`)."""
-        failures = []
-        if receiver.stats.lost_samples:
-            failures.append(f"IMU link lost samples: {receiver.stats.summary()}")
-        try:
-            result, _ = analyse_log(self.log_path, still_open=True)
-        except NoiseInputError as exc:
-            recorder.close()
-            failures.append(f"noise not analysed: {exc}; analyse the log with `bench noise {self.log_path} "
-                            "--calibration RESULT.json`")
-            return RunOutcome(state, self.log_path, failures=failures)
-        result.source["operator"] = self.operator
-        json_path, md_path, html_path = write_noise_outputs(result, self.out_dir, self.run_id)
-        recorder.add_attachment(json_path.name, "application/json", json_path.read_bytes())
-        recorder.close()
-        return RunOutcome(state, self.log_path, json_path, md_path, None, failures + list(result.source["damage"]),
-                          html_report_path=html_path)
-
     def close(self) -> None:
         self._stack.close()
 
@@ -489,16 +395,61 @@ class BenchRun:
         self.close()
 
 
-#: How a run of each kind finishes (`BenchRun.finish`). A verification's and a table check's commands read their
-#: logs themselves (`BenchRun.finish_observations`, `bench.table_check`); finished here such a run is solved as a
-#: calibration, as `bench solve` solves its log. A log of manual moves is no run (`BenchRun.open_manual_log`).
-FINISHERS: dict[RunKind, Callable[[BenchRun, RunState, ImuReceiver, McapRecorder], RunOutcome]] = {
-    RunKind.CALIBRATION: BenchRun._finish_calibration,
-    RunKind.THERMAL: BenchRun._finish_thermal,
-    RunKind.STATIC_NOISE: BenchRun._finish_noise,
-    RunKind.VERIFICATION: BenchRun._finish_calibration,
-    RunKind.TABLE_CHECK: BenchRun._finish_calibration,
-}
+class _LiveTarget(Target):
+    """The outputs of the run that recorded the logs: `<run-id>.*` beside its log, each attached to the log (still
+    open); the result is renamed into place once its reports are written and the log is closed."""
+
+    live = True
+
+    def __init__(self, run: BenchRun, state: RunState, receiver: ImuReceiver, recorder: McapRecorder):
+        self.run, self.state, self.receiver, self.recorder = run, state, receiver, recorder
+        self.out_dir, self.stem = run.out_dir, run.run_id
+
+    def _now_s(self) -> float:
+        return self.run.clock.now() if self.run.clock is not None else 0.0
+
+    def run_section(self, recorded: Recorded, solved: Solved) -> RunInfo:
+        run, config, receiver = self.run, self.run.config, self.receiver
+        identity = config.imu.identity
+        return RunInfo(run_id=run.run_id, mode="simulator" if run.sim else "hardware", operator=run.operator,
+                       software_version=__version__, state=self.state.value, log=run.log_path.name,
+                       logs=[Path(p).name for p in run.previous_logs] + [run.log_path.name],
+                       positions=_name(config.plan.positions), rotations=_name(config.plan.rotations),
+                       finished_utc=utc_stamp(), imu={"model": identity.model, "serial": identity.serial},
+                       site=config.site.site.to_dict(), quality_failures=solved.failures,
+                       sim=sim_table_record(config) if run.sim else None,      # (its verification's table)
+                       imu_link={**receiver.stats.as_dict(),
+                                 **(receiver.time_base.as_dict() if receiver.time_base is not None else {})},
+                       lost_samples=solved.lost)
+
+    def title(self, what: str, detail: str = "") -> str:
+        return f"{what} {self.stem}" + (f" ({detail})" if detail else "")
+
+    def thermal_run(self, run_info: dict) -> dict:
+        return {"mode": run_info["mode"], "run_id": self.stem, "log": self.run.log_path.name}
+
+    def write_result(self, recorded: Recorded, result: CalibrationResult, reports: Reports,
+                     also: Sequence[Path] = ()) -> tuple[Path, Path, Path | None]:
+        result_path = self.out_dir / f"{self.stem}.result.json"
+        with unfinished(result_path) as partial:
+            result.save(partial)
+            report_path, html_report_path = write_reports(
+                result, self.out_dir, self.stem, log=recorded.logs[-1], layout=recorded.setup.layout,
+                log_still_open=True, problems=reports.problems, failures=reports.failures,
+                imu_link=self.receiver.stats.as_dict(), title=reports.title)
+            now_s = self._now_s()
+            self.recorder.add_attachment(result_path.name, "application/json", partial.read_bytes(), now_s)
+            for path in also:
+                self.recorder.add_attachment(path.name, "application/json", path.read_bytes(), now_s)
+            self.recorder.close()
+        return result_path, report_path, html_report_path
+
+    def noise_failures(self, recorded: Recorded) -> list[str]:
+        stats = self.receiver.stats
+        return [f"IMU link lost samples: {stats.summary()}"] if stats.lost_samples else []
+
+    def keep(self, path: Path) -> None:
+        self.recorder.add_attachment(path.name, "application/json", path.read_bytes(), self._now_s())
 
 
 @contextmanager

@@ -18,7 +18,8 @@ from pathlib import Path
 
 from bench.config.load import BenchConfig
 from bench.errors import InputError
-from bench.jobs.resolve import SolveInputError, load_recorded, solve_recorded
+from bench.finish.calibration import solve_recorded
+from bench.finish.recorded import SolveInputError, load_recorded
 from bench.log.reader import LogError, RunLog, read_log
 from bench.log.replay import ReplayStats, replay
 from bench.log.run_info import NO_PLAN_IN_MANUAL_LOG, is_manual_log, layout_and_config_from_log, steps_from_log

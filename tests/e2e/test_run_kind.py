@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from bench.config.load import parse_config
-from bench.jobs.resolve import load_recorded, static_noise_plan
+from bench.finish.recorded import load_recorded, static_noise_plan
 from bench.log.reader import read_log
 from bench.log.run_info import is_manual_log, layout_and_config_from_log
 from bench.log.run_kind import RunKind, kind_of_config, recorded_run_kind, run_kind
@@ -180,11 +180,11 @@ def test_a_missing_or_unknown_recorded_kind_is_told_as_before(raw):
 
 
 def test_every_kind_a_run_records_has_its_finish():
-    """`BenchRun.finish` dispatches on the run's kind: every kind a plan gives has an entry (manual moves are no
-    run: `open_manual_log`)."""
-    from bench.run.runner import FINISHERS, BenchRun
+    """`bench.finish.finish` dispatches on the run's kind, for the live run and a re-solve alike: every kind a plan
+    gives has an entry (manual moves are no run: `open_manual_log`)."""
+    from bench.finish.finish import FINISHERS, finish_calibration, finish_noise, finish_thermal
 
     assert set(FINISHERS) == set(RunKind) - {RunKind.MANUAL}
-    assert FINISHERS[RunKind.THERMAL] is BenchRun._finish_thermal
-    assert FINISHERS[RunKind.STATIC_NOISE] is BenchRun._finish_noise
-    assert FINISHERS[RunKind.CALIBRATION] is BenchRun._finish_calibration
+    assert FINISHERS[RunKind.THERMAL] is finish_thermal
+    assert FINISHERS[RunKind.STATIC_NOISE] is finish_noise
+    assert FINISHERS[RunKind.CALIBRATION] is finish_calibration

@@ -405,6 +405,11 @@ def test_bench_run_of_the_static_noise_plan_writes_the_noise_result(tmp_path):
     from bench.log.reader import read_log
 
     assert result_path.name in read_log(str(log)).attachments
+    from mcap.reader import make_reader
+
+    with open(log, "rb") as f:      # attached at the run clock's time, as every attachment (it was 0)
+        attached = {a.name: a.log_time for a in make_reader(f).iter_attachments()}
+    assert attached[result_path.name] > 0
     rc, _, err = cli(["noise", str(log), "--out", str(tmp_path / "again")])
     assert rc == 0, err
     again = json.loads((tmp_path / "again" / result_path.name).read_text())
@@ -487,13 +492,13 @@ def test_sim_noise_random_walk_keys_have_ranges(key, value, bound):
 
 @pytest.mark.slow
 def test_a_static_run_whose_dwell_cannot_be_analysed_keeps_its_log_and_says_how(tmp_path, monkeypatch):
-    import bench.run.runner as runner
+    import bench.finish.finish as finishing
     from bench.noise.from_log import NoiseInputError
 
     def refuse(path, **_):
         raise NoiseInputError(f"{path}: a hardware log needs the scale factors of a calibration")
 
-    monkeypatch.setattr(runner, "analyse_log", refuse)
+    monkeypatch.setattr(finishing, "analyse_log", refuse)
     with api_run(_noise_config(dwell_s=20.0), tmp_path) as (_, outcome):
         assert outcome.error is None and outcome.result_path is None
         assert any("bench noise" in f and "--calibration" in f for f in outcome.failures)

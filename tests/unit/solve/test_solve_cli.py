@@ -23,8 +23,8 @@ from mcap.records import Chunk
 from mcap.stream_reader import StreamReader
 
 from bench.config.load import parse_config
+from bench.finish.recorded import angle_key
 from bench.jobs.compare import METHODS
-from bench.jobs.resolve import angle_key
 from bench.log.events import finished_observation_steps
 from bench.log.reader import read_log
 from bench.model.families import canonical_names
@@ -463,7 +463,8 @@ def test_a_log_cut_mid_chunk_is_read_up_to_the_cut(noisy, damaged_copy, tmp_path
 def test_too_few_turns_left_solve_the_positions_and_say_why_the_turns_are_left_out(noisy):
     """Damage can leave fewer turns than the rotation method needs: the positions are still
     solved, the remaining turns listed as left out with the solver's reason."""
-    from bench.jobs.resolve import load_recorded, solve_recorded
+    from bench.finish.calibration import solve_recorded
+    from bench.finish.recorded import load_recorded
     from bench.model.quality import FailureKind, QualityFailure
 
     recorded = load_recorded([noisy.log])

@@ -1,0 +1,1 @@
+"""Finishing a recorded run, live or re-solved: `finish(recorded, target)` (`bench.finish.finish`)."""
