@@ -148,8 +148,8 @@ def register_sim_chamber(kinds: argparse._SubParsersAction) -> None:
     sim = kinds.add_parser(
         "chamber", help="serve the simulated thermal chamber in a controller dialect until Ctrl-C",
         description="Serve the simulated chamber (first-order air with heating and cooling rate limits, in "
-                    "wall-clock time) in the ascii or modbus dialect (docs/hardware/chamber.md). Prints where it listens, "
-                    "then runs until Ctrl-C, SIGTERM or SIGHUP. Alarms and wire faults are injected by typing "
+                    "wall-clock time) in the ascii or modbus dialect (docs/hardware/chamber.md). Prints where it "
+                    "listens, then runs until Ctrl-C, SIGTERM or SIGHUP. Alarms and wire faults are injected by typing "
                     "commands on stdin.\n\n" + CHAMBER_FAULT_HELP,
         formatter_class=argparse.RawDescriptionHelpFormatter)
     sim.add_argument("--dialect", required=True, choices=sorted(DIALECTS), help="the controller dialect to serve")

@@ -336,7 +336,8 @@ def test_serve_acutrol_gives_urls_and_closes():
 
 
 def test_the_pages_example_session_is_what_the_simulator_sends(sim):
-    """docs/hardware/acutrol.md, "Example session": each response's code, length and text as the simulator frames them."""
+    """docs/hardware/acutrol.md, "Example session": each response's code, length and text as the simulator frames
+    them."""
     controller, _, _ = sim
     handler = AcutrolSimHandler(controller)
     page = (Path(__file__).parents[2] / "docs" / "hardware" / "acutrol.md").read_text()
