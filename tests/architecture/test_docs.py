@@ -150,6 +150,7 @@ def test_shell_blocks_run_on_the_simulator(page, tmp_path, recorded_run):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(900)      # whole simulated runs (a thermal run soaks at four temperatures): minutes under load
 @pytest.mark.parametrize("page", shell_pages(slow=True), ids=lambda p: str(p.relative_to(DOCS)))
 def test_slow_shell_blocks_run_on_the_simulator(page, tmp_path, recorded_run):
     folder = page_folder(tmp_path, recorded_run)
