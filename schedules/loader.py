@@ -1,7 +1,7 @@
 """Load and validate calibration schedules written as TOML.
 
 A schedule file looks like this (angles are (outer, middle, inner) frame angles in
-degrees, DESIGN section 2 sign convention)::
+degrees, docs/explanation/model.md#frame-rotations sign convention)::
 
     format = "turntable-bench/schedule"
     version = 1

@@ -1,4 +1,4 @@
-"""The compensation of a calibration: the inverse of the IMU model (DESIGN section 2).
+"""The compensation of a calibration: the inverse of the IMU model (docs/explanation/model.md#imu-model).
 
 The model, per sensor s (outputs `F`, `J` in counts/s):
 

@@ -33,7 +33,7 @@ from drivers.transport import MODBUS_SCHEMES
 def register_chamber(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "chamber",
-        description="Talk to a thermal chamber controller (drivers/CHAMBER.md), given by --config's [chamber] "
+        description="Talk to a thermal chamber controller (docs/hardware/chamber.md), given by --config's [chamber] "
                     "or by --url. Exit codes: 0 done, 2 usage error or demand beyond the limits (nothing sent), "
                     "3 alarm, refusal, no reply, link failure or interrupted (the chamber is then made safe).")
     where = parser.add_mutually_exclusive_group(required=True)
@@ -48,7 +48,7 @@ def register_chamber(subparsers: argparse._SubParsersAction) -> None:
                                                                "(default 2)")
     parser.add_argument("--register-map", metavar="NAME|FILE",
                         help="with --url, modbus: the controller's register map: a preset (watlow-f4, generic) or a "
-                             "file holding a [modbus] table (default: watlow-f4, drivers/CHAMBER.md)")
+                             "file holding a [modbus] table (default: watlow-f4, docs/hardware/chamber.md)")
     default = ChamberLimits()
     parser.add_argument("--min-setpoint-c", type=float, default=default.min_setpoint_c,
                         help=f"with --url: lowest setpoint this command may send (default {default.min_setpoint_c:g})")
@@ -148,8 +148,8 @@ def register_sim_chamber(kinds: argparse._SubParsersAction) -> None:
     sim = kinds.add_parser(
         "chamber", help="serve the simulated thermal chamber in a controller dialect until Ctrl-C",
         description="Serve the simulated chamber (first-order air with heating and cooling rate limits, in "
-                    "wall-clock time) in the ascii or modbus dialect (drivers/CHAMBER.md). Prints where it listens, "
-                    "then runs until Ctrl-C, SIGTERM or SIGHUP. Alarms and wire faults are injected by typing "
+                    "wall-clock time) in the ascii or modbus dialect (docs/hardware/chamber.md). Prints where it "
+                    "listens, then runs until Ctrl-C, SIGTERM or SIGHUP. Alarms and wire faults are injected by typing "
                     "commands on stdin.\n\n" + CHAMBER_FAULT_HELP,
         formatter_class=argparse.RawDescriptionHelpFormatter)
     sim.add_argument("--dialect", required=True, choices=sorted(DIALECTS), help="the controller dialect to serve")
@@ -160,7 +160,7 @@ def register_sim_chamber(kinds: argparse._SubParsersAction) -> None:
                           "command the simulated chamber")
     sim.add_argument("--register-map", metavar="NAME|FILE",
                      help="modbus: the register map to serve: a preset (watlow-f4, generic) or a file holding a "
-                          "[modbus] table (default: watlow-f4, drivers/CHAMBER.md)")
+                          "[modbus] table (default: watlow-f4, docs/hardware/chamber.md)")
     add_idle_timeout_option(sim)
     sim.add_argument("--ambient-c", type=float, default=23.0, help="room (and starting) temperature (default 23)")
     sim.add_argument("--time-constant-s", type=float, default=240.0,

@@ -102,7 +102,7 @@ def register(kinds: argparse._SubParsersAction) -> None:
                           "(SBG Systems' CAN IMU messages, a simulated MEMS IMU); default: --config's")
     rig.add_argument("--register-map", metavar="FILE",
                      help="modbus: the register map the simulated controller serves (a [modbus] table as in a "
-                          "bench configuration; default: --config's [table], else the map of drivers/MODBUS.md); "
+                          "bench configuration; default: --config's [table], else the map of docs/hardware/modbus.md); "
                           "the written configuration carries it")
     rig.set_defaults(func=cmd_sim_rig)
 

@@ -61,7 +61,7 @@ def register_table(subparsers: argparse._SubParsersAction) -> None:
                         help="largest rate this command may demand on any axis (default 100 deg/s)")
     parser.add_argument("--register-map", metavar="FILE",
                         help="modbus: the controller's register map (a [modbus] table as in a bench configuration; "
-                             "default: the map of drivers/MODBUS.md)")
+                             "default: the map of docs/hardware/modbus.md)")
     parser.add_argument("--no-watchdog", action="store_true",
                         help="modbus: do not arm the controller's watchdog (by default it is fed while the command "
                              "runs and released when it ends)")
@@ -82,7 +82,7 @@ def register_table(subparsers: argparse._SubParsersAction) -> None:
     rate = commands.add_parser("rate", help="rate mode on one frame at a signed rate d(angle)/dt, deg/s")
     rate.add_argument("frame", choices=FRAMES, help="the frame to turn: outer, middle or inner")
     rate.add_argument("rate_dps", type=float, metavar="RATE_DPS",
-                      help="signed rate d(angle)/dt, deg/s (positive is the paper's clockwise: drivers/README.md)")
+                      help="signed rate d(angle)/dt, deg/s (positive is the paper's clockwise: docs/hardware/index.md)")
     commands.add_parser("stop", help="controlled stop of every axis (servo stays on)")
     commands.add_parser("abort", help="every servo off at once")
     parser.set_defaults(func=cmd_table)
@@ -204,7 +204,7 @@ def register_sim_table(subparsers: argparse._SubParsersAction) -> argparse._SubP
                     "commands on stdin.\n\n" + FAULT_HELP,
         formatter_class=argparse.RawDescriptionHelpFormatter)
     table.add_argument("--dialect", required=True, choices=sorted(DIALECTS),
-                       help="the controller dialect to serve (drivers/ACUTROL.md, SCPI.md, MN.md, MODBUS.md)")
+                       help="the controller dialect to serve (docs/hardware/: acutrol.md, scpi.md, mn.md, modbus.md)")
     table.add_argument("--acl-framing", choices=("tcp", "gpib"), default="tcp",
                        help="acutrol: 'tcp' answers every message with a framed response (error code, length; the "
                             "controller's TCP port and RS-232), 'gpib' answers queries only, LF terminated, as on "

@@ -2,7 +2,7 @@
 
     [chamber]
     url = "sim"                  # or tcp://..., a serial device, modbus+tcp://..., modbus+rtu://...
-    dialect = "ascii"            # ascii | modbus (drivers/CHAMBER.md); default: the url's (modbus+... -> modbus,
+    dialect = "ascii"            # ascii | modbus (docs/hardware/chamber.md); default: the url's (modbus+... -> modbus,
                                  # any other -> ascii)
     timeout_s = 1.0
     retries = 2
@@ -13,7 +13,7 @@
     max_setpoint_c = 85.0
     max_ramp_c_per_min = 5.0
     # modbus: register_map = "watlow-f4" (the default), "generic", "file.toml", or an inline
-    # [chamber.modbus] table (drivers/CHAMBER.md)
+    # [chamber.modbus] table (docs/hardware/chamber.md)
 
 The section is optional (a configuration without it has no chamber; `BenchConfig.chamber` is None). Every problem is one
 `ConfigError` ``file:line: key: message``, as for the rest of the file.

@@ -2,7 +2,7 @@
 
 A log from outside is hostile: its run id, its attachment names and the earlier logs it
 names (`run.logs_before`) are text anyone could have written. Such a name never becomes a
-path before it passes here (DESIGN section 4: names read from a log never become paths
+path before it passes here (docs/explanation/log-format.md#logs-from-outside: names read from a log never become paths
 outside the output folder):
 
 - `safe_name(text)`: the text itself when it is a safe file name (ASCII letters, digits and

@@ -1,4 +1,4 @@
-"""The run recorder: everything a run produces, into one MCAP file (DESIGN section 4, "MCAP log").
+"""The run recorder: everything a run produces, into one MCAP file (docs/explanation/log-format.md).
 
 Channels (message encoding "json" with a "jsonschema" Schema record, unless noted):
 
@@ -18,7 +18,7 @@ Channels (message encoding "json" with a "jsonschema" Schema record, unless note
   frame), `<B` data length n, then n data bytes. Log time = the batch's newest frame
   timestamp (the sequencer stamps frames on the run clock).
 
-Transform convention: DESIGN section 2 defines the frame matrices as coordinate transforms
+Transform convention: docs/explanation/model.md#frame-rotations defines the frame matrices as coordinate transforms
 `C_parent^child` (outer/inner `[[c,-s,0],[s,c,0],[0,0,1]]` about Z, middle
 `[[c,0,s],[0,1,0],[-s,0,c]]` about Y; `v_child = C_parent^child v_parent`). A Foxglove
 FrameTransform carries the child frame's orientation in the parent, i.e. the rotation

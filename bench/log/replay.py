@@ -1,4 +1,5 @@
-"""Replay a run log through the listener interface the live run uses (DESIGN section 4: MCAP log -> replay).
+"""Replay a run log through the listener interface the live run uses (MCAP log -> replay:
+docs/explanation/architecture.md#data-flow).
 
 `replay(log, listeners)` merges the log's events, table states, thermal-chamber states
 (a thermal run's), raw CAN frames and the IMU samples decoded from those frames (the

@@ -1,4 +1,4 @@
-"""IMU model (DESIGN section 2, paper eq. 1) and its canonical coefficient names.
+"""IMU model (docs/explanation/model.md#imu-model, paper eq. 1) and its canonical coefficient names.
 
 gyro s:  F_s = Kg_s * (Eg_s . w_b + D0_s)      accel s:  J_s = Ka_s * (Ea_s . f_b + K0_s)
 

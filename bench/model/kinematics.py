@@ -1,4 +1,4 @@
-"""UOT three-axis turntable kinematics (DESIGN section 2).
+"""UOT three-axis turntable kinematics (docs/explanation/model.md#attitude-chain).
 
 All functions are vectorised: angles have shape (..., 3) ordered (outer, middle,
 inner) in radians, black-box angles shape (..., 3, 3) with rows (t->o0, o->m0,

@@ -1,4 +1,4 @@
-"""Versioned calibration result with a JSON round-trip (DESIGN section 2, "Result file")."""
+"""Versioned calibration result with a JSON round-trip (docs/explanation/model.md#result-file)."""
 
 from __future__ import annotations
 

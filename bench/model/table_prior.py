@@ -1,6 +1,6 @@
 """What a lab knows about its turntable's pointing error: the prior of the nine black-box angles.
 
-The nine angles (DESIGN section 2; rows outer base `C_t^o0`, middle `C_o^m0`, inner
+The nine angles (docs/explanation/model.md#attitude-chain; rows outer base `C_t^o0`, middle `C_o^m0`, inner
 `C_m^i0`; columns alpha, beta, gamma) get a second-moment matrix `E[theta theta^T]`
 (rad^2) from one of:
 

@@ -63,7 +63,7 @@ class TurnStep:
     """Rest `rest_s`, turn one frame N whole revolutions rest to rest, rest `rest_s`: one rotation observation.
 
     CCW (a positive right-handed rotation about the frame axis) *decreases* the
-    controller angle by 360*N deg (DESIGN section 2): `end_deg` says where it ends.
+    controller angle by 360*N deg (docs/explanation/model.md#frame-rotations): `end_deg` says where it ends.
     """
 
     index: int

@@ -15,7 +15,7 @@ goes straight to the controller's abort. Every transition and step boundary is a
 event to the listeners (recorder, progress, TUI). Time comes from the injected clock:
 with the simulator a simulated clock runs the plan far faster than real time.
 
-Listeners cannot prevent the safe stop (DESIGN section 4, "Safety"). Each call to a
+Listeners cannot prevent the safe stop (docs/explanation/decisions/0004-the-safe-stop-rule.md). Each call to a
 listener is contained: a listener that raises (a recorder on a full disk, a progress
 printer on a closed pipe) gets nothing more, the others still get everything, and
 the run ends at its next check as a fault (`ListenerError`, naming the error once).

@@ -1,4 +1,4 @@
-"""The simulated controller served in the ACUTROL3000 Command Language (drivers/ACUTROL.md).
+"""The simulated controller served in the ACUTROL3000 Command Language (docs/hardware/acutrol.md).
 
 `AcutrolSimHandler(controller)` is a `LineServer` handler: one program message (a line) in,
 one framed response out (error code, length, text, NUL; `framing="tcp"`, the TCP port and the
@@ -66,7 +66,7 @@ STB_SI, STB_MSS, STB_EQ = 1 << 0, 1 << 6, 1 << 7
 
 
 def acl_error_code(sim_code: int) -> int:
-    """A SimCommandError code -> the ACL error number (drivers/ACUTROL.md, "Errors")."""
+    """A SimCommandError code -> the ACL error number (docs/hardware/acutrol.md, "Errors")."""
     return SIM_TO_ACL.get(sim_code, ac.NOT_AVAILABLE)
 
 

@@ -1,4 +1,4 @@
-"""The simulated chamber served in both dialects (drivers/CHAMBER.md): ASCII lines and Modbus TCP/RTU.
+"""The simulated chamber served in both dialects (docs/hardware/chamber.md): ASCII lines and Modbus TCP/RTU.
 
 `ChamberAsciiHandler(chamber)` is a `LineServer` handler: one request line in, one reply
 line out, parsed with the client's own codec. `ChamberModbusServer(chamber, map)` serves

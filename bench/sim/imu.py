@@ -1,7 +1,7 @@
 """The simulated IMU: per-sample gyro and accelerometer increments from a SimTable.
 
 Sample n (0-based) covers [start + n/rate, start + (n+1)/rate]; its increment is the
-integral of the model output (DESIGN section 2, counts/s) over that interval, with
+integral of the model output (docs/explanation/model.md#imu-model, counts/s) over that interval, with
 3-point Gauss-Legendre per interval (split at the table's piece boundaries, so a
 rest-to-rest turn integrates exactly), plus noise on the input side
 (`F = Kg*(Eg.w + D0 + n)`, `J = Ka*(Ea.f + K0 + n)`) and optional quantisation.

@@ -1,4 +1,4 @@
-"""The simulated controller served in the `$MN` checksum-framed dialect (drivers/MN.md).
+"""The simulated controller served in the `$MN` checksum-framed dialect (docs/hardware/mn.md).
 
 `MnSimHandler(controller)` is a `LineServer` handler: one request line in, one reply
 frame (with CR LF) out. It decodes with the same codec the client uses, executes on

@@ -1,6 +1,6 @@
 """Serve a `SimController` as a Modbus controller: pymodbus TCP server on 127.0.0.1, RTU over a pty.
 
-Registers follow a `RegisterMap` (drivers/MODBUS.md). Reads are computed from the
+Registers follow a `RegisterMap` (docs/hardware/modbus.md). Reads are computed from the
 controller's live state; writes execute as controller commands. A refused command
 (`SimCommandError`) becomes an exception reply:
 

@@ -1,4 +1,4 @@
-"""The simulated controller served in the SCPI-like dialect (drivers/SCPI.md).
+"""The simulated controller served in the SCPI-like dialect (docs/hardware/scpi.md).
 
 `ScpiSimHandler(controller)` is a `LineServer` handler: it parses a request line with
 the pure codec, executes each program unit on the `SimController` in order and answers
@@ -38,7 +38,7 @@ from bench.sim.serve import LineServer, flip_parity, held_first, reply_with_faul
 from drivers.turntable import scpi_codec as sc
 from drivers.turntable.base import AxisMode
 
-SIM_TO_SCPI = {  # SimCommandError code -> SCPI error number (drivers/SCPI.md, "Errors")
+SIM_TO_SCPI = {  # SimCommandError code -> SCPI error number (docs/hardware/scpi.md, "Errors")
     ERR_SYNTAX: sc.SYNTAX_ERROR,
     ERR_ARGUMENT: sc.ILLEGAL_PARAMETER_VALUE,
     ERR_NOT_ENABLED: sc.INTERLOCK_OPEN,

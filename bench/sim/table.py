@@ -4,7 +4,7 @@ Each axis (outer, middle, inner) is a sorted list of constant-acceleration
 `bench.model.motion.Piece`s in rad, rad/s, rad/s^2. Commands take the simulated time `t`
 (s) at which they are issued and replace that axis's future from `t` on. Angles are
 absolute and never wrapped; a positive angle rate is the paper's "clockwise", so a CCW
-turn has a negative angle rate (DESIGN section 2).
+turn has a negative angle rate (docs/explanation/model.md#frame-rotations).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Position and rotation methods as general least squares (DESIGN section 3).
+"""Position and rotation methods as general least squares (docs/explanation/solver.md).
 
 Position method, per accelerometer s: `J_s,k = p_s . f_k + q_s` over positions k with
 the nominal specific force f_k; `Ka = |p|`, `Ea = p/Ka`, `K0 = q/Ka`. Gyro bias:

@@ -493,7 +493,7 @@ def horizontal_from_counts(acc_mean, acc_sem, local_g_mps2: float, *, calibratio
     kz = float(np.mean(j[:, 2]))
     if not kz > 0:
         raise TableCheckError(f"the z accelerometer reads {kz:g} counts/s on average, not a positive value near "
-                              "its scale: is the IMU mounted Z up (DESIGN section 2)?")
+                              "its scale: is the IMU mounted Z up (docs/explanation/model.md#frames)?")
     scale = np.full(3, kz)
     if not 0 <= relative_uncertainty < 1:
         raise TableCheckError(f"the x/y-to-z relative uncertainty must be in [0, 1), got {relative_uncertainty!r}")

@@ -1,7 +1,7 @@
 """Thermal chambers: the common interface and one codec/client pair per dialect.
 
 Dialects load lazily by name (`open_chamber(url, "ascii")`), so importing the interface
-does not import pymodbus. drivers/CHAMBER.md documents both dialects.
+does not import pymodbus. docs/hardware/chamber.md documents both dialects.
 """
 
 from __future__ import annotations

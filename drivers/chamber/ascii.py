@@ -1,4 +1,4 @@
-"""Chamber client for the ASCII line dialect (drivers/CHAMBER.md, codec in ascii_codec).
+"""Chamber client for the ASCII line dialect (docs/hardware/chamber.md, codec in ascii_codec).
 
 Each command is one line answered by `OK:<command>` or `NA:<reason>`; the state poll is one
 `MON?`. Retries, late replies and reconnects are `drivers.line_link`'s; every command of

@@ -1,6 +1,6 @@
 """The chamber's ASCII line dialect: a pure codec (no I/O), both directions (client and simulator).
 
-One command per line, CR LF terminated, one reply line each (drivers/CHAMBER.md):
+One command per line, CR LF terminated, one reply line each (docs/hardware/chamber.md):
 
     MON?            -> 23.4,25.0,2.0,RUN,0          temperature, setpoint, ramp, mode, alarm count[, codes]
     TEMP?           -> 23.4,25.0                    temperature, setpoint (degC)

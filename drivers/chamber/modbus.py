@@ -5,7 +5,7 @@ URLs as for the turntable: `modbus+tcp://host[:port][?unit=N]`,
 one reconnect, bounded replies) is `drivers.modbus_link`'s, raising the chamber's errors:
 no reply -> `ChamberTimeout`; garbage or a bad CRC -> `ChamberProtocolError` /
 `ChamberChecksumError`; an exception reply -> `ChamberCommandError(code)`; a lost link
--> `ChamberConnectionError`. drivers/CHAMBER.md documents registers and scaling.
+-> `ChamberConnectionError`. docs/hardware/chamber.md documents registers and scaling.
 
 The map (default: the Watlow F4P's, `drivers.chamber.watlow_f4`) says what to write for each
 command and how to read the state; a map whose scaling lives in the controller (the

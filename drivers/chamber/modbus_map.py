@@ -6,7 +6,7 @@
 codes mean. Its default numbers are this project's own and match no controller: they
 are for a controller described register by register in a configuration. The shipped
 map of a real controller is `drivers.chamber.watlow_f4` (the default). The client
-(`drivers.chamber.modbus`) and the simulator serve the same map; drivers/CHAMBER.md
+(`drivers.chamber.modbus`) and the simulator serve the same map; docs/hardware/chamber.md
 documents both. Configuration is read with the turntable map's checks
 (`drivers.turntable.modbus_map`), its errors named for the chamber.
 """
@@ -95,7 +95,7 @@ class ChamberRegisterMap:
 
     @classmethod
     def default(cls) -> "ChamberRegisterMap":
-        """The generic map's documented numbers (drivers/CHAMBER.md; the dialect's default is the F4P's map)."""
+        """The generic map's documented numbers (docs/hardware/chamber.md; the dialect's default is the F4P's map)."""
         return cls()
 
     @property

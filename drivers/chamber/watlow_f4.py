@@ -3,7 +3,7 @@
 Facts from the Watlow Series F4P User's Manual (chapter 9, "Communications": the registers
 sorted by number and alphabetically; chapter 6 for ranges), in our words. Register numbers
 are the manual's relative numbers, which are the 0-based addresses on the wire (the
-manual's 40001-based absolute number minus 40001). drivers/CHAMBER.md tabulates them.
+manual's 40001-based absolute number minus 40001). docs/hardware/chamber.md tabulates them.
 
 - Values are signed 16-bit integers with input 1's decimal places implied: register 606
   (0 to 3) says how many, so 234 reads 23.4 at one decimal and 2.34 at two. Temperatures

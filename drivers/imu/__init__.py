@@ -1,6 +1,6 @@
 """The IMU over CAN: DBC layouts, the frame rules, the stream and bulk decoders, the encoder, the bus receiver.
 
-See drivers/CAN.md for the shipped frame layouts (the simulated IMU's and SBG Systems'
+See docs/hardware/can.md for the shipped frame layouts (the simulated IMU's and SBG Systems'
 published one), the CRC, the signal mapping for an IMU's own DBC, and what the decoders count.
 """
 

@@ -64,7 +64,7 @@ def _check_range(sig: SignalLayout, raw: np.ndarray, what: str) -> None:
                             f"{sig.name}'s range {lo}..{hi}")
 
 
-#: the status bit a saturating encoder sets in a sample whose output it clipped (drivers/CAN.md: over-range)
+#: the status bit a saturating encoder sets in a sample whose output it clipped (docs/hardware/can.md: over-range)
 OVER_RANGE_BIT = int(ImuStatus.OVER_RANGE)
 
 

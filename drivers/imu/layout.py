@@ -36,7 +36,7 @@ EXTENDED_ID_FLAG = 1 << 31
 
 
 class ImuStatus(IntFlag):
-    """The shipped layouts' status bits (drivers/CAN.md); 0 = healthy."""
+    """The shipped layouts' status bits (docs/hardware/can.md); 0 = healthy."""
 
     GYRO_FAULT = 1 << 0
     ACC_FAULT = 1 << 1

@@ -1,7 +1,7 @@
 """Sample numbers for a time-stamped layout (sbg-ecan): frames without a counter, made decodable.
 
 SBG's IMU messages carry no sample counter: IMU_INFO holds a microsecond time stamp and
-IMU_ACCEL / IMU_GYRO nothing that ties them to it. The rule (drivers/CAN.md, sbg-ecan):
+IMU_ACCEL / IMU_GYRO nothing that ties them to it. The rule (docs/hardware/can.md, sbg-ecan):
 - a time-stamp frame (known id, right length) opens a sample; its number is the time stamp
   in sample periods, `first + round((t - t_first) * rate)`, the time stamp unwrapped over
   its width (32 bits: 71.6 minutes), `first = floor(t_first * rate)`;

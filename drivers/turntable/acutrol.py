@@ -1,4 +1,4 @@
-"""Client of an ACUTROL3000 controller in its Command Language (ACL, Acutronic TM-8004); see drivers/ACUTROL.md.
+"""Client of an ACUTROL3000 controller in its Command Language (ACL, Acutronic TM-8004); see docs/hardware/acutrol.md.
 
 Transports: `tcp://host[:port]` (the controller's ACL port, 9878 by default, TM-9384C), a serial device or
 any pyserial URL (an RS-232 device server bridges to that port, TM-9411), and `visa://RESOURCE` through
@@ -353,7 +353,7 @@ def merge_limits(configured: TurntableLimits, absolute: Sequence[ac.AbsoluteLimi
 
 
 def decode_state(text: str, raw: bytes, time_s: float) -> TableState:
-    """The 18 responses of the state read -> TableState (see drivers/ACUTROL.md, "State")."""
+    """The 18 responses of the state read -> TableState (see docs/hardware/acutrol.md, "State")."""
     fields = ac.split_responses(text, 18, "state read", raw)
     axes, faults = [], []
     for k in range(3):

@@ -1,4 +1,4 @@
-"""Pure codec of the ACUTROL3000 Command Language (ACL, Acutronic TM-8004); drivers/ACUTROL.md is its page.
+"""Pure codec of the ACUTROL3000 Command Language (ACL, Acutronic TM-8004); docs/hardware/acutrol.md is its page.
 
 Both ways, no I/O. The controller side parses a program message into units (`parse_message`)
 and formats responses (`frame_response`, `format_number`); the client side encodes units

@@ -3,7 +3,7 @@
 Angles are the controller's frame angles in degrees, absolute (not wrapped), and rates
 are d(angle)/dt in deg/s, exactly as the controller reports them. (In the paper's
 convention a positive angle rate is "clockwise"; a CCW turn has a negative rate. See
-DESIGN section 2.) Frames are indexed 0, 1, 2 = outer, middle, inner; on the wire most
+docs/explanation/model.md#frame-rotations.) Frames are indexed 0, 1, 2 = outer, middle, inner; on the wire most
 controllers number them 1, 2, 3.
 
 `Turntable` does the shared work (limit checks before anything is sent, waiting for a

@@ -1,4 +1,4 @@
-"""Client for `$MN` checksum-framed turntable controllers (serial or TCP); see drivers/MN.md.
+"""Client for `$MN` checksum-framed turntable controllers (serial or TCP); see docs/hardware/mn.md.
 
 Every interface call is one request frame and one `$AS` reply; a move of all three
 frames is one POS command and a state poll is one STA round trip. Retries, timeouts

@@ -4,7 +4,7 @@ A frame is `$<body>*<CS>` where CS is the sum of the body bytes (everything betw
 `$` and `*`) modulo 256, as two upper-case hex digits, and the body is
 `<prefix><CMD>[,<field>...]`: prefix `MN` for a request, `AS` for a reply, CMD three
 upper-case letters. Requests and replies both ways, so the simulator serves exactly
-what the client parses. drivers/MN.md is the dialect page (commands, replies, error
+what the client parses. docs/hardware/mn.md is the dialect page (commands, replies, error
 codes, status bits). Frames here carry no terminator; the line layer adds CR LF.
 """
 

@@ -2,7 +2,7 @@
 
 URLs: `modbus+tcp://host[:port][?unit=N]` (port 502 by default) and
 `modbus+rtu:///dev/ttyUSB0?baud=115200&parity=E&unit=N` (also bytesize, stopbits).
-drivers/MODBUS.md documents the dialect: registers, encodings, commands, errors.
+docs/hardware/modbus.md documents the dialect: registers, encodings, commands, errors.
 
 The request machinery (drivers.modbus_link, shared with the chamber) maps failures onto
 drivers.errors: no reply -> retry, then `TurntableTimeout`; a reply

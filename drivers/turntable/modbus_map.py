@@ -4,7 +4,7 @@ No I/O here. `RegisterMap` says where every quantity lives (0-based holding-regi
 addresses, as they go on the wire), how 32-bit values are encoded (scaled int32 or
 float32, word order) and what the status bits, mode codes, command codes and fault
 codes mean. The client (`drivers.turntable.modbus`) and the simulator serve the same
-map, so both directions live here. drivers/MODBUS.md documents the default map.
+map, so both directions live here. docs/hardware/modbus.md documents the default map.
 """
 
 from __future__ import annotations
@@ -89,7 +89,7 @@ class RegisterMap:
     # -- construction ---------------------------------------------------------------
     @classmethod
     def default(cls) -> "RegisterMap":
-        """The documented default map (drivers/MODBUS.md)."""
+        """The documented default map (docs/hardware/modbus.md)."""
         return cls()
 
     @classmethod

@@ -2,7 +2,7 @@
 
 Both ways, no I/O: the client builds request lines (`encode`, `confirmed`) and decodes
 replies (`decode_*`); the simulator parses request lines (`parse_program`) and formats
-replies (`format_*`). drivers/SCPI.md is the dialect page: keywords, commands, replies,
+replies (`format_*`). docs/hardware/scpi.md is the dialect page: keywords, commands, replies,
 error numbers, status bits and an example session.
 
 Headers follow SCPI: keywords separated by ':', matched case-insensitively in their long

@@ -1,4 +1,4 @@
-"""The layout's rules, checked on the source (README "Code map").
+"""The layout's rules, checked on the source (docs/explanation/architecture.md, "Code map").
 
 The import rules are import-linter contracts in pyproject.toml (`[tool.importlinter]`): bench's
 layers, no cycle between sibling packages or modules of bench, drivers and schedules importing

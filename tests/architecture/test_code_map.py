@@ -1,6 +1,6 @@
-"""The README's code map matches the code: every package and top-level module of bench is in it, in the order of
-the import-linter layers (bottom first), every module of drivers is named in its entry, and every path it names
-exists."""
+"""The code map (docs/explanation/architecture.md, "Code map") matches the code: every package and top-level
+module of bench is in it, in the order of the import-linter layers (bottom first), every module of drivers is
+named in its entry, and every path it names exists."""
 
 from __future__ import annotations
 
@@ -9,11 +9,12 @@ import tomllib
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
+CODE_MAP_PAGE = REPO / "docs" / "explanation" / "architecture.md"
 
 
 def code_map() -> list[tuple[str, str]]:
-    """(path, description) of each entry of the README's code map, in order."""
-    text = (REPO / "README.md").read_text(encoding="utf-8")
+    """(path, description) of each entry of the code map, in order."""
+    text = CODE_MAP_PAGE.read_text(encoding="utf-8")
     section = text[text.index("## Code map"):]
     block = re.search(r"```\n(.*?)```", section, re.S)
     assert block, "the code map's block"
@@ -44,13 +45,13 @@ def layers() -> list[set[str]]:
 def test_every_package_and_module_of_bench_is_in_the_code_map():
     listed = {path for path, _ in code_map()}
     missing = sorted(bench_parts() - listed)
-    assert not missing, f"not in the README's code map: {missing}"
+    assert not missing, f"not in the code map: {missing}"
 
 
 def test_every_path_the_code_map_names_exists():
     for path, _ in code_map():
         for part in path.split(","):
-            assert (REPO / part.strip()).exists(), f"the README's code map names {part!r}, which does not exist"
+            assert (REPO / part.strip()).exists(), f"the code map names {part!r}, which does not exist"
 
 
 def test_the_code_map_lists_bench_bottom_up_in_the_order_of_its_layers():
@@ -72,4 +73,4 @@ def test_every_module_of_drivers_is_named_in_its_entry():
     names = {p.stem for p in (REPO / "drivers").glob("*.py") if p.name != "__init__.py"}
     names |= {p.name for p in (REPO / "drivers").iterdir() if (p / "__init__.py").exists()}
     missing = sorted(name for name in names if not re.search(rf"\b{re.escape(name)}\b", entry))
-    assert not missing, f"the README's drivers/ entry does not name {missing}"
+    assert not missing, f"the code map's drivers/ entry does not name {missing}"

@@ -1,6 +1,6 @@
 """The chamber-driven calibration over temperature end to end (issue 18 items 3 and 5, "must show").
 
-`bench run --config thermal.example.toml --sim` (the README's example): the simulated chamber (ASCII dialect over
+`bench run --config thermal.example.toml --sim` (docs/how-to/thermal.md): the simulated chamber (ASCII dialect over
 loopback) goes to -20, 0, 25 and 50 degC, its air drives the thermal IMU's case (time
 constant 120 s), each temperature is soaked on the IMU's own temperature and calibrated with
 the default schedules (short 20 s dwells, 100 Hz), all on the simulated clock in one log. The
@@ -8,7 +8,7 @@ run then solves one calibration per temperature from the log and fits the therma
 fitted polynomials must recover the configured ones within their uncertainty, as
 tests/e2e/test_thermal_run.py checks for the in-memory `bench thermal sim`. One seed (0, the
 example's); on seed 2 the short run misses D0_x's small quadratic term, a 3.4-sigma effect the
-1 % degree test finds in 82 % of runs (README, "Calibrating over temperature";
+1 % degree test finds in 82 % of runs (docs/how-to/thermal.md, "How well the degrees are found";
 studies/thermal_degree_power.py): that limit is known, not hidden by this test.
 """
 
@@ -27,7 +27,7 @@ from bench.model.result import CalibrationResult
 from bench.thermal.model import ThermalModel
 from tests.helpers.run import cli, only_file
 
-#: the README's example: the shipped thermal.example.toml
+#: the documented example (docs/how-to/thermal.md): the shipped thermal.example.toml
 THERMAL_RUN_TOML = (Path(__file__).resolve().parents[2] / "thermal.example.toml").read_text(encoding="utf-8")
 TEMPERATURES_C = (-20.0, 0.0, 25.0, 50.0)
 Z_LIMIT = 3.0

@@ -4,8 +4,8 @@ A configuration with [sim.imu.thermal] (noise on, a 20 arcsec black box, the def
 schedules) is calibrated in memory at -20, 0, 25, 50 and 70 degC (five: the configured cubic term
 needs a degree of freedom beyond it); the fitted model must
 recover the configured polynomials within their uncertainty and predict the
-coefficients at temperatures it never saw. One fixed seed here; the README and the
-branch's report quote the z-scores over more seeds.
+coefficients at temperatures it never saw. One fixed seed here; the reports of the
+branches that built it quoted the z-scores over more seeds.
 """
 
 from __future__ import annotations

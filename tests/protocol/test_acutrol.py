@@ -336,10 +336,11 @@ def test_serve_acutrol_gives_urls_and_closes():
 
 
 def test_the_pages_example_session_is_what_the_simulator_sends(sim):
-    """drivers/ACUTROL.md, "Example session": each response's code, length and text as the simulator frames them."""
+    """docs/hardware/acutrol.md, "Example session": each response's code, length and text as the simulator frames
+    them."""
     controller, _, _ = sim
     handler = AcutrolSimHandler(controller)
-    page = (Path(__file__).parents[2] / "drivers" / "ACUTROL.md").read_text()
+    page = (Path(__file__).parents[2] / "docs" / "hardware" / "acutrol.md").read_text()
     block = page.split("## Example session")[1].split("```")[1].strip().splitlines()
     assert len(block) == 8
     for request, response in zip(block[0::2], block[1::2]):

@@ -1,4 +1,4 @@
-"""The chamber's ASCII dialect: the codec with byte strings as drivers/CHAMBER.md prints them, and the client
+"""The chamber's ASCII dialect: the codec with byte strings as docs/hardware/chamber.md prints them, and the client
 over exact expected exchanges (limits, refusals, bad replies, alarms, a lost link)."""
 
 from __future__ import annotations

@@ -182,7 +182,7 @@ def test_a_lost_link_is_a_connection_error_and_make_safe_does_not_raise(rig):
 
 
 @pytest.mark.parametrize("register_map, refusals", [
-    # the F4P's numbers (drivers/CHAMBER.md): input 1 value and error, alarm 1 status and the decimal setting are
+    # the F4P's numbers (docs/hardware/chamber.md): input 1 value and error, alarm 1 status and the decimal setting are
     # read only, 500 is not served; auto/manual 9, ramp rate 0 counts and ramp mode 7 are out of range
     (None, ((100, 5, 2), (101, 5, 2), (102, 0, 2), (606, 2, 2), (500, 1, 2), (200, 9, 3), (1101, 0, 3),
             (1100, 7, 3))),

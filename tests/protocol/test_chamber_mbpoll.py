@@ -1,5 +1,5 @@
 """A real Modbus client, mbpoll (libmodbus), against `bench sim chamber --dialect modbus` on loopback: it reads the
-process value and writes the set point at the Watlow F4P's register numbers (drivers/CHAMBER.md).
+process value and writes the set point at the Watlow F4P's register numbers (docs/hardware/chamber.md).
 
 mbpoll counts holding registers from 1 (reference = the manual's relative number + 1, the F4P manual's absolute
 number minus 40000): input 1 value, relative 100 (manual chapter 9), is `-t 4 -r 101`; set point 1, relative 300,

@@ -23,7 +23,7 @@ from drivers.errors import (
 from drivers.modbus_frames import crc16
 from tests.helpers.modbus_exchange import GONE, ModbusExchange
 
-# The generic map's state as drivers/CHAMBER.md lays it out: 100 process value 23.4 degC (234 = 00ea), 101 unused,
+# The generic map's state as docs/hardware/chamber.md lays it out: 100 process value 23.4 degC (234 = 00ea), 101 unused,
 # 102 alarms (door open: bit 2), 103 status (running: bit 0); 300 setpoint -20.0 degC (-200 = ff38), 301 ramp 2.0
 # degC/min (20 = 0014).
 BLOCK_100 = "00ea 0000 0004 0001"

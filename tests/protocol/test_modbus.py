@@ -33,7 +33,7 @@ from tests.helpers.modbus_exchange import DROP, GONE, ModbusExchange
 
 NO_WATCHDOG = RegisterMap.default().with_changes(watchdog_s=0)
 
-# A state block as the default map's table in drivers/MODBUS.md lays it out (20 registers from 0):
+# A state block as the default map's table in docs/hardware/modbus.md lays it out (20 registers from 0):
 # status 5 (enabled, in position), 3 (enabled, moving), 0; fault 0; modes position, rate, off;
 # watchdog 0; positions 90.0, -45.5, 720.0001 deg; rates 0, 10.5, 0 deg/s (1e-4 per count).
 STATE_REGS = ("0005 0003 0000 0000 0001 0002 0000 0000 000d bba0 fff9 0ea8 006d dd01 "
@@ -573,7 +573,7 @@ def test_no_threads_left_behind():
 
 
 def test_the_simulator_answers_function_04_and_other_unit_ids_as_the_page_says():
-    """drivers/MODBUS.md: 04 reads the same registers as 03; another unit id gets exception 04 over TCP."""
+    """docs/hardware/modbus.md: 04 reads the same registers as 03; another unit id gets exception 04 over TCP."""
     controller = SimController()
     server = ModbusSimServer(controller, NO_WATCHDOG)
     try:

@@ -1,4 +1,4 @@
-"""The sbg-ecan layout: SBG Systems' published CAN IMU messages (drivers/CAN.md, section sbg-ecan).
+"""The sbg-ecan layout: SBG Systems' published CAN IMU messages (docs/hardware/can.md, section sbg-ecan).
 
 Frames are written out by hand from the field tables of SBG's CAN protocol document (sbgECom
 doc/canProtocol.md, "Inertial Data Output Messages": SBG_ECAN_MSG_IMU_INFO 0x120, _IMU_ACCEL 0x121,
@@ -318,7 +318,7 @@ def test_bench_sim_rig_serves_the_sbg_layout_and_writes_it(tmp_path):
 
 def test_an_sbg_imu_configured_with_other_ids_is_read_with_an_edited_copy_of_the_dbc(tmp_path):
     """The device's ids are set per message: a copy of the DBC with them, mapped as the shipped layout is
-    (drivers/CAN.md), decodes at those ids, and the rig writes the mapping back as it read it."""
+    (docs/hardware/can.md), decodes at those ids, and the rig writes the mapping back as it read it."""
     text = SBG_ECAN_DBC.read_text()
     for old, new in ((288, 800), (289, 801), (290, 802)):
         text = text.replace(f"BO_ {old} ", f"BO_ {new} ").replace(f"SG_ {old} ", f"SG_ {new} ")

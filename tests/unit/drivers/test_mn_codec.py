@@ -16,7 +16,7 @@ from drivers.errors import DeviceError, TurntableChecksumError, TurntableCommand
 from drivers.turntable import mn_codec as codec
 from drivers.turntable.base import AxisMode, AxisState, AxisStatus, TableState
 
-DOC = Path(__file__).resolve().parents[3] / "drivers" / "MN.md"
+DOC = Path(__file__).resolve().parents[3] / "docs" / "hardware" / "mn.md"
 
 
 # -- checksum and frames -------------------------------------------------------------

@@ -110,9 +110,9 @@ def test_state_round_trip_through_the_registers():
 
 
 def test_toml_example_from_the_dialect_page_is_accepted():
-    text = (pathlib.Path(__file__).parents[3] / "drivers" / "MODBUS.md").read_text(encoding="utf-8")
+    text = (pathlib.Path(__file__).parents[3] / "docs" / "hardware" / "modbus.md").read_text(encoding="utf-8")
     example = text.split("```toml\n", 1)[1].split("```", 1)[0]
-    m = RegisterMap.from_dict(tomllib.loads(example)["modbus"], source="MODBUS.md")
+    m = RegisterMap.from_dict(tomllib.loads(example)["modbus"], source="modbus.md")
     assert m.encoding == "float32" and m.word_order == "little" and m.unit == 2
     assert m.status_bits[4] == 15 and m.state_span == (100, 20)
     assert m.fault_text(7) == "fault code 7 (drive overtemperature)"
