@@ -7,13 +7,17 @@ increments times the sample rate are the raw outputs in counts/s; `Compensation.
 turns them into body rates and specific forces (mean over the sample interval).
 
 Outputs:
-- CSV: `counter,time_s,log_time_s,rate_x,rate_y,rate_z,force_x,force_y,force_z` with the
+- CSV: `counter,time_s,imu_time_s,rate_x,rate_y,rate_z,force_x,force_y,force_z` with the
   units in the header names (`rate_x_dps`, `force_x_g`, ...);
 - MCAP: a **new** file (the input log is never modified) with the raw samples on
   `/imu/samples` (the run log's schema) and the compensated ones on `/imu/compensated`
   (`turntable_bench.CompensatedImuSample`), both at the samples' log times, so that
   Foxglove plots them side by side; metadata `compensation` names the calibration and the
   source log. The other topics stay in the run log (open both files in Foxglove).
+
+Times follow the run log's convention everywhere: `time_s` is when the sample was complete on
+the run clock (the log time of the run log's own `/imu/samples` message), `imu_time_s` is
+counter / sample rate (the IMU's own time base).
 """
 
 from __future__ import annotations
@@ -41,7 +45,9 @@ COMPENSATED_SCHEMA_BODY = {
     "description": "One IMU sample compensated with a calibration: u_b = C (y - b) (bench.calibration)",
     "properties": {
         "counter": {"type": "integer", "description": "unwrapped sample counter"},
-        "time_s": {"type": "number", "description": "counter / sample rate, s (IMU time base)"},
+        "time_s": {"type": "number", "description": "when the sample was complete, on the run clock, s "
+                                                    "(the message's log time)"},
+        "imu_time_s": {"type": "number", "description": "counter / sample rate, s (the IMU's own time base)"},
         "angular_rate": {**_VEC3, "description": "body angular rate about X, Y, Z (unit in rate_unit)"},
         "specific_force": {**_VEC3, "description": "body specific force along X, Y, Z (unit in force_unit)"},
         "rate_unit": {"type": "string"},
@@ -71,13 +77,13 @@ class CompensatedSamples:
 
     @property
     def time_s(self) -> np.ndarray:
-        """counter / rate: the IMU's own time base, s."""
-        return self.raw.time_s
+        """Run clock of the frame that completed each sample, s (the run log's `time_s`)."""
+        return self.raw.receive_time_s
 
     @property
-    def log_time_s(self) -> np.ndarray:
-        """Run clock of the frame that completed each sample, s."""
-        return self.raw.receive_time_s
+    def imu_time_s(self) -> np.ndarray:
+        """counter / rate: the IMU's own time base, s (the run log's `imu_time_s`)."""
+        return self.raw.time_s
 
 
 def compensate_block(compensation: Compensation, block: ImuSampleBlock, *, rate_unit: str = "rad/s",
@@ -106,11 +112,11 @@ def write_csv(samples: CompensatedSamples, path: str | Path) -> None:
     rs, fs = _SUFFIX[samples.rate_unit], _SUFFIX[samples.force_unit]
     with open(path, "w", encoding="utf-8", newline="") as f:
         writer = csv.writer(f, lineterminator="\n")
-        writer.writerow(["counter", "time_s", "log_time_s", *(f"rate_{a}_{rs}" for a in "xyz"),
+        writer.writerow(["counter", "time_s", "imu_time_s", *(f"rate_{a}_{rs}" for a in "xyz"),
                          *(f"force_{a}_{fs}" for a in "xyz")])
-        for c, t, lt, w, a in zip(samples.counter.tolist(), samples.time_s.tolist(), samples.log_time_s.tolist(),
+        for c, t, it, w, a in zip(samples.counter.tolist(), samples.time_s.tolist(), samples.imu_time_s.tolist(),
                                   samples.angular_rate.tolist(), samples.specific_force.tolist()):
-            writer.writerow([c, repr(t), repr(lt), *map(repr, w), *map(repr, a)])
+            writer.writerow([c, repr(t), repr(it), *map(repr, w), *map(repr, a)])
 
 
 def _ns(time_s: float) -> int:
@@ -146,11 +152,12 @@ def write_mcap(samples: CompensatedSamples, path: str | Path, *, compensation: C
                 block.gyro_counts.tolist(), block.acc_counts.tolist(), block.temperature_c.tolist(),
                 block.status.tolist(), samples.angular_rate.tolist(), samples.specific_force.tolist()):
             ns = _ns(lt)
-            raw = (f'{{"counter":{c},"time_s":{t!r},"gyro_counts":[{",".join(map(_num, g))}],'
+            times = f'"time_s":{_num(lt)},"imu_time_s":{t!r}'
+            raw = (f'{{"counter":{c},{times},"gyro_counts":[{",".join(map(_num, g))}],'
                    f'"acc_counts":[{",".join(map(_num, a))}],"gyro_rate":[{",".join(_num(x * rate) for x in g)}],'
                    f'"acc_rate":[{",".join(_num(x * rate) for x in a)}],"temperature_c":{_num(temp)},'
                    f'"status":{st}}}')
-            comp = (f'{{"counter":{c},"time_s":{t!r},"angular_rate":[{",".join(map(_num, w))}],'
+            comp = (f'{{"counter":{c},{times},"angular_rate":[{",".join(map(_num, w))}],'
                     f'"specific_force":[{",".join(map(_num, s))}],{units}}}')
             writer.add_message(raw_channel, ns, raw.encode(), ns)
             writer.add_message(comp_channel, ns, comp.encode(), ns)
