@@ -30,7 +30,7 @@ import select
 import threading
 import time
 import tty
-from typing import Callable, Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
 from pymodbus.constants import ExcCodes
 from pymodbus.framer import FramerType
@@ -246,7 +246,7 @@ class ModbusServing(ClosedOnExit):
             return self._trace_pdu(sending, pdu)
 
         async def not_ours(context, device_id):
-            response = ExceptionResponse(pdu.function_code, ExcCodes.GATEWAY_NO_RESPONSE)
+            response: Any = ExceptionResponse(pdu.function_code, ExcCodes.GATEWAY_NO_RESPONSE)
             response.sim_wire_fault = "timeout"      # _trace_packet sends nothing for it
             return response
 
