@@ -57,6 +57,13 @@ class TriadCompensation:
     bias_counts: np.ndarray     # (3,) counts/s
     matrix_sigma: np.ndarray    # (3, 3)
     bias_sigma: np.ndarray      # (3,)
+    scale: np.ndarray           # (3,) the model's K per sensor axis, counts/s per input_unit
+    input_bias: np.ndarray      # (3,) the model's bias d in input_unit (bias_counts = scale * input_bias)
+
+    @property
+    def axes(self) -> np.ndarray:
+        """The model's direction cosines E (3, 3), dimensionless: `(diag(scale) E)^-1 = matrix`."""
+        return np.linalg.inv(self.matrix) / self.scale[:, None]
 
     @property
     def matrix_unit(self) -> str:
@@ -135,7 +142,7 @@ def _triad(result: CalibrationResult, sensor: str, scale: str, bias: str, axes: 
             variance += (k[i] * np.outer(matrix[:, i], matrix[j, :])) ** 2 * e_sigma[i, j] ** 2
     bias_counts = k * d
     bias_sigma = np.hypot(d * k_sigma, k * d_sigma)
-    return TriadCompensation(sensor, unit, matrix, bias_counts, np.sqrt(variance), bias_sigma)
+    return TriadCompensation(sensor, unit, matrix, bias_counts, np.sqrt(variance), bias_sigma, k, d)
 
 
 __all__ = ["EQUATIONS", "FORCE_UNITS", "RATE_UNITS", "RAW_UNIT", "TRIADS", "Compensation", "CompensationError",

@@ -1,4 +1,4 @@
-"""Export formats of a compensation (`bench export`): JSON, CSV, a C header, kalibr-style YAML, TOML.
+"""Export formats of a compensation (`bench export`): JSON, CSV, a C header, an IMU file for kalibr (YAML), TOML.
 
 Every format holds the same numbers: per triad the compensation matrix `C` (SI input
 units per counts/s), the bias `b` (counts/s), their 1-sigma uncertainties, the units, the
@@ -18,12 +18,16 @@ import io
 import json
 import math
 import re
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
 
 from bench import __version__
 from bench.calibration.compensation import EQUATIONS, RAW_UNIT, Compensation, TriadCompensation
+from bench.errors import InputError
+from bench.model.noise_result import NoiseResult
+from bench.model.units import DEG, MICRO_G
 
 COMPENSATION_FORMAT = "turntable-bench/compensation"
 COMPENSATION_VERSION = 1
@@ -151,7 +155,7 @@ def to_c_header(c: Compensation) -> str:
     return text
 
 
-# -- YAML (kalibr-style) ------------------------------------------------------------------------
+# -- YAML for kalibr -------------------------------------------------------------------------------
 
 def yaml_num(x: float) -> str:
     return repr(float(x)) if math.isfinite(x) else ".nan"
@@ -165,36 +169,97 @@ def _yaml_vector(v: np.ndarray) -> str:
     return "[" + ", ".join(map(yaml_num, v)) + "]"
 
 
-def to_yaml(c: Compensation, rostopic: str = "/imu0", update_rate_hz: float | None = None) -> str:
-    """The kalibr IMU-intrinsics layout (`imu0:` with `model: scale-misalignment`, `gyroscopes: {M, A,
-    C_gyro_i}`, `accelerometers: {M}`), plus the biases and our compensation block.
+class KalibrNoiseError(InputError):
+    """A noise result that does not give kalibr's four noise terms (a term missing or zero)."""
 
-    kalibr's `M` maps the true input to the measurement; here the measurement is the raw
-    output in counts/s, so `M = diag(K) E` (counts/s per rad/s, per m/s^2) and `bias` is
-    `b` in counts/s: `y = M u + bias`. `A` (g-sensitivity) is not part of this model (zeros),
-    `C_gyro_i` is the identity (the gyro axes are in `M`). Noise densities are not written:
-    this calibration does not measure them.
+
+@dataclass(frozen=True)
+class KalibrNoise:
+    """kalibr's IMU noise terms (continuous time, one value per triad) and the rate it discretises them at.
+
+    From a `bench noise` result: the largest of the three axes of each triad (kalibr takes one value for
+    all three; the largest weights no axis more than its noise deserves). A term the record resolves only
+    as an upper bound is used as that bound (kalibr's values are meant to be generous) and named in `bounds`.
     """
-    out = ["# IMU intrinsics from turntable-bench, kalibr-style layout (see bench.calibration.export)",
-           "# measurement model: y = M u + bias (y raw counts/s; u rad/s or m/s^2)",
-           "# compensation:      u = C (y - bias), C = M^-1"]
-    out += ["imu0:", "  model: scale-misalignment", f"  rostopic: {json.dumps(rostopic)}", "  time_offset: 0.0"]
-    if update_rate_hz is not None:
-        out.append(f"  update_rate: {yaml_num(update_rate_hz)}")
-    out += ["  T_i_b:"] + [f"    - [{', '.join('1.0' if i == j else '0.0' for j in range(4))}]" for i in range(4)]
-    out += [f"  imu_model: {json.dumps(c.imu_model)}", f"  imu_serial: {json.dumps(c.imu_serial)}",
-            f"  run_id: {json.dumps(c.run_id)}", f"  calibrated_utc: {json.dumps(c.calibrated_utc)}",
-            f"  exported_by: {json.dumps(_identity(c)['exported_by'])}"]
+
+    update_rate_hz: float
+    gyroscope_noise_density: float        # rad/s/sqrt(Hz)   (gyro ARW)
+    gyroscope_random_walk: float          # rad/s^2/sqrt(Hz) (gyro RRW)
+    accelerometer_noise_density: float    # m/s^2/sqrt(Hz)   (VRW)
+    accelerometer_random_walk: float      # m/s^3/sqrt(Hz)   (accelerometer RRW)
+    source: str = ""
+    bounds: tuple[str, ...] = ()          # "gyro_x rrw", ...: terms that are 2-sigma upper bounds
+
+
+#: kalibr key -> (channel prefix, noise result term, factor from the result's unit to kalibr's)
+KALIBR_NOISE_TERMS = {
+    "gyroscope_noise_density": ("gyro", "arw", DEG / 60.0),              # deg/sqrt(h) -> rad/s/sqrt(Hz)
+    "gyroscope_random_walk": ("gyro", "rrw", DEG / 3600.0 / 60.0),      # deg/h/sqrt(h) -> rad/s^2/sqrt(Hz)
+    "accelerometer_noise_density": ("acc", "vrw", MICRO_G),             # ug/sqrt(Hz) -> m/s^2/sqrt(Hz)
+    "accelerometer_random_walk": ("acc", "rrw", MICRO_G / 60.0),        # ug/sqrt(h) -> m/s^3/sqrt(Hz)
+}
+
+
+def kalibr_noise(noise: NoiseResult, source: str = "") -> KalibrNoise:
+    """kalibr's noise terms from a noise result (KalibrNoiseError naming the channel and term that lacks)."""
+    values: dict[str, float] = {}
+    bounds: list[str] = []
+    for key, (prefix, term, factor) in KALIBR_NOISE_TERMS.items():
+        found = []
+        for axis in "xyz":
+            channel = noise.channels.get(f"{prefix}_{axis}", {})
+            entry = channel.get("terms", {}).get(term)
+            if not isinstance(entry, dict) or not entry.get("value", 0) > 0:
+                why = str(channel.get("terms_not_resolved", {}).get(term, "not in the file"))
+                raise KalibrNoiseError(f"{source or 'the noise result'}: {prefix}_{axis} has no {term} "
+                                       f"({why[:160]}); kalibr needs {key} > 0")
+            found.append(float(entry["value"]) * factor)
+            if entry.get("upper_bound"):
+                bounds.append(f"{prefix}_{axis} {term}")
+        values[key] = max(found)
+    return KalibrNoise(float(noise.rate_hz), source=source, bounds=tuple(bounds), **values)
+
+
+def to_yaml(c: Compensation, noise: KalibrNoise, rostopic: str = "/imu0") -> str:
+    """An IMU file kalibr reads (`ConfigReader.ImuParameters`: top-level `rostopic`, `update_rate` and the
+    four noise terms) with the intrinsics of its scale-misalignment model (`model`, `gyroscopes: {M, A,
+    C_gyro_i}`, `accelerometers: {M}`).
+
+    kalibr's measurement is in SI units and its `M` dimensionless: `y_topic = M u + bias`. Our model is
+    `y = diag(K) E u + diag(K) d` in counts/s, so the topic must carry each raw output divided by its
+    scale factor (`scale`, written here): then `M = E` (direction cosines, diagonal about 1) and
+    `bias = d` in rad/s and m/s^2. `A` (g-sensitivity) is not in this model (zeros) and `C_gyro_i` is the
+    identity (the gyro axes are in `M`). Our `compensation` (u = C (y - b), y in counts/s) rides along.
+    """
+    ident = _identity(c)
+    out = ["# An IMU for kalibr, exported by turntable-bench (see bench.calibration.export)",
+           "# topic: each axis' raw output (counts/s) divided by its `scale` below, in rad/s and m/s^2;",
+           "# then kalibr's scale-misalignment model holds: y_topic = M u + bias (M dimensionless).",
+           f"rostopic: {json.dumps(rostopic)}",
+           f"update_rate: {yaml_num(noise.update_rate_hz)}   # Hz, the rate of the noise record"]
+    units = {"gyroscope_noise_density": "rad/s/sqrt(Hz)", "gyroscope_random_walk": "rad/s^2/sqrt(Hz)",
+             "accelerometer_noise_density": "m/s^2/sqrt(Hz)", "accelerometer_random_walk": "m/s^3/sqrt(Hz)"}
+    for key, unit in units.items():
+        out.append(f"{key}: {yaml_num(getattr(noise, key))}   # {unit}, the largest of x, y, z")
+    out.append(f"noise_source: {json.dumps(noise.source)}")
+    if noise.bounds:
+        out.append(f"noise_upper_bounds: {json.dumps(list(noise.bounds))}   # 2-sigma bounds, used as values")
+    out += ["model: scale-misalignment", "time_offset: 0.0", "T_i_b:"]
+    out += [f"  - [{', '.join('1.0' if i == j else '0.0' for j in range(4))}]" for i in range(4)]
+    out += [f"{key}: {json.dumps(value)}" for key, value in ident.items() if key != "calibration_software_version"]
     text = "\n".join(out) + "\n"
     for t, key in ((c.gyro, "gyroscopes"), (c.acc, "accelerometers")):
-        forward = np.linalg.inv(t.matrix)
-        text += f"  {key}:\n    M:   # {RAW_UNIT} per {t.input_unit}\n" + _yaml_matrix(forward, "      ")
+        text += f"{key}:\n    M:   # dimensionless\n" + _yaml_matrix(t.axes, "      ")
         if t.sensor == "gyro":
-            text += "    A:   # g-sensitivity, not in this model\n" + _yaml_matrix(np.zeros((3, 3)), "      ")
+            text += ("    A:   # (rad/s)/(m/s^2), g-sensitivity: not in this model\n"
+                     + _yaml_matrix(np.zeros((3, 3)), "      "))
             text += "    C_gyro_i:\n" + _yaml_matrix(np.eye(3), "      ")
-        text += f"    bias: {_yaml_vector(t.bias_counts)}   # {RAW_UNIT}\n"
-        text += f"    bias_sigma: {_yaml_vector(t.bias_sigma)}\n"
-        text += f"    compensation:   # {t.matrix_unit}\n" + _yaml_matrix(t.matrix, "      ")
+        text += f"    bias: {_yaml_vector(t.input_bias)}   # {t.input_unit}\n"
+        text += f"    scale: {_yaml_vector(t.scale)}   # {RAW_UNIT} per {t.input_unit}: raw output / scale = topic\n"
+        text += f"    bias_counts: {_yaml_vector(t.bias_counts)}   # {RAW_UNIT}\n"
+        text += f"    bias_counts_sigma: {_yaml_vector(t.bias_sigma)}\n"
+        text += f"    compensation:   # {t.matrix_unit}: u = compensation (y - bias_counts)\n" \
+            + _yaml_matrix(t.matrix, "      ")
         text += "    compensation_sigma:\n" + _yaml_matrix(t.matrix_sigma, "      ")
     return text
 
@@ -224,15 +289,23 @@ def to_toml(c: Compensation) -> str:
     return "\n".join(lines) + "\n"
 
 
-#: format name -> writer; `bench export --format`
+#: format name -> writer of the formats that need nothing but the compensation; `yaml` needs noise terms too
 FORMATS: dict[str, Callable[[Compensation], str]] = {
-    "json": to_json, "csv": to_csv, "c": to_c_header, "yaml": to_yaml, "toml": to_toml}
+    "json": to_json, "csv": to_csv, "c": to_c_header, "toml": to_toml}
+FORMAT_NAMES = ("json", "csv", "c", "yaml", "toml")
 
 
-def export_text(c: Compensation, fmt: str) -> str:
-    """The compensation in format `fmt` (one of `FORMATS`)."""
-    return FORMATS[fmt](c)
+def export_text(c: Compensation, fmt: str, noise: KalibrNoise | None = None, rostopic: str = "/imu0") -> str:
+    """The compensation in format `fmt` (one of `FORMAT_NAMES`); `yaml` (kalibr) needs the IMU's noise
+    terms (KalibrNoiseError without them)."""
+    if fmt != "yaml":
+        return FORMATS[fmt](c)
+    if noise is None:
+        raise KalibrNoiseError("the kalibr YAML needs the IMU's noise terms: give --noise NAME.noise.json "
+                               "(from `bench noise` of a static recording)")
+    return to_yaml(c, noise, rostopic)
 
 
-__all__ = ["COMPENSATION_FORMAT", "COMPENSATION_VERSION", "CSV_COLUMNS", "FORMATS", "c_num", "comment_text",
-           "export_text", "to_c_header", "to_csv", "to_json", "to_toml", "to_yaml", "toml_num", "yaml_num"]
+__all__ = ["COMPENSATION_FORMAT", "COMPENSATION_VERSION", "CSV_COLUMNS", "FORMATS", "FORMAT_NAMES",
+           "KALIBR_NOISE_TERMS", "KalibrNoise", "KalibrNoiseError", "c_num", "comment_text", "export_text",
+           "kalibr_noise", "to_c_header", "to_csv", "to_json", "to_toml", "to_yaml", "toml_num", "yaml_num"]

@@ -7,10 +7,12 @@ cannot be written.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from bench.calibration.compensation import compensation_of, load_result
 from bench.cli.common import ExitCode, fail
+from bench.cli.progress import CountProgress
 from bench.errors import InputError
 from bench.files import check_output, replaced_output
 
@@ -66,16 +68,24 @@ def cmd_apply(args: argparse.Namespace) -> ExitCode:
         return fail(PROG, str(exc), ExitCode.USAGE)
     if not len(samples):
         return fail(PROG, f"{args.log}: no IMU samples to compensate", ExitCode.USAGE)
+    # writing a long log takes seconds to minutes: a bar on a terminal (stderr), in percent of the samples written
+    bar = CountProgress(100, stream=sys.stderr, quiet=args.quiet)
+
+    def written(done: int, total: int) -> None:
+        bar.advance_to(100 * done // max(total, 1))
+
     try:
         with replaced_output(out, inputs, force=args.force) as temporary:
             if fmt == "csv":
-                write_csv(samples, temporary)
+                write_csv(samples, temporary, progress=written)
             else:
-                write_mcap(samples, temporary, compensation=compensation, source_log=args.log)
+                write_mcap(samples, temporary, compensation=compensation, source_log=args.log, progress=written)
     except InputError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     except OSError as exc:
         return fail(PROG, f"{args.out}: cannot write: {exc.strerror or exc}", ExitCode.USAGE)
+    finally:
+        bar.close()
     if not args.quiet:
         print(f"compensated {len(samples)} samples of {Path(args.log).name} with the calibration of run "
               f"{compensation.run_id or '(unnamed)'}: {out} ({args.rate_unit}, {args.force_unit})")

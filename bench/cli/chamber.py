@@ -1,9 +1,9 @@
 """`bench chamber ...` (drive a real or simulated thermal chamber by hand) and `bench sim chamber` (serve one).
 
-Exit codes of `bench chamber`: 0 done; 2 usage or configuration error, or a demand refused
-by the limits (nothing was sent); 3 the chamber reports an alarm, refuses, does not answer,
-the link fails, or the command was interrupted (the chamber is then made safe: sent to the
-configuration's safe setpoint, else stopped).
+Exit codes of `bench chamber`: 0 done; 2 usage or configuration error, a demand refused
+by the limits, or a chamber that cannot be reached (nothing was sent); 3 the chamber reports an
+alarm, refuses, stops answering, the link fails, or the command was interrupted (the chamber is
+then made safe: sent to the configuration's safe setpoint, else stopped).
 """
 
 from __future__ import annotations
@@ -34,8 +34,9 @@ def register_chamber(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "chamber",
         description="Talk to a thermal chamber controller (docs/hardware/chamber.md), given by --config's [chamber] "
-                    "or by --url. Exit codes: 0 done, 2 usage error or demand beyond the limits (nothing sent), "
-                    "3 alarm, refusal, no reply, link failure or interrupted (the chamber is then made safe).")
+                    "or by --url. Exit codes: 0 done, 2 usage error, demand beyond the limits or chamber not reached "
+                    "(nothing sent), 3 alarm, refusal, no reply, link failure or interrupted (the chamber is then "
+                    "made safe).")
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument("--config", metavar="FILE", help="a bench configuration with a [chamber] section")
     where.add_argument("--url", help="tcp://HOST:PORT, a serial device or pyserial URL (ascii), "

@@ -16,7 +16,8 @@ from bench.cli.edge import STOP_SIGNALS, ExitCode, Interrupted, fail, raise_inte
 from bench.cli.progress import ProgressPrinter
 from bench.errors import BenchError
 from bench.model.imu import NoiseModel
-from drivers.errors import DeviceError
+from drivers.errors import DeviceError, TurntableProtocolError, TurntableTimeout
+from drivers.turntable import DIALECTS
 from drivers.turntable.base import TABLE_STATE_UNKNOWN
 
 if TYPE_CHECKING:
@@ -101,18 +102,24 @@ def task_progress(what: str, stream: Any = None) -> Callable[[int, int], None] |
 
 def drive_device(prog: str, device: DeviceSession[Any], command: Callable[[], ExitCode], *, errors: type[Exception],
                  refused: tuple[type[Exception], ...], unreachable: str, make_safe: Callable[[], str],
-                 note_faults: bool = True, refused_at_connect: tuple[type[Exception], ...] = ()) -> ExitCode:
-    """Connect `device` (an `errors` error: "`unreachable`: why", exit 3; a `refused_at_connect` one, limits the
-    device refuses: exit 2, nothing sent), run `command` with SIGTERM and SIGHUP ending it like Ctrl-C, and close
-    the device however it ends. A `refused` error (a demand beyond the limits) is exit 2, nothing sent; another
-    `errors` error or a stop signal makes the device safe (`make_safe`, which says what it did: the line ends with
-    it; after an error only with `note_faults`) and is exit 3."""
+                 note_faults: bool = True, refused_at_connect: tuple[type[Exception], ...] = (),
+                 hint: Callable[[Exception], str] = lambda exc: "") -> ExitCode:
+    """Connect `device` (an `errors` error: "`unreachable`: why", exit 2 like any device that cannot be reached
+    before anything was commanded; a `refused_at_connect` one, limits the device refuses: exit 2, nothing sent),
+    run `command` with SIGTERM and SIGHUP ending it like Ctrl-C, and close the device however it ends. A `refused`
+    error (a demand beyond the limits) is exit 2, nothing sent; another `errors` error or a stop signal makes the
+    device safe (`make_safe`, which says what it did: the line ends with it; after an error only with
+    `note_faults`) and is exit 3. `hint(error)`: what to check, added to an error's line when not empty."""
+    def explained(text: str, exc: Exception) -> str:
+        advice = hint(exc)
+        return f"{text} ({advice})" if advice else text
+
     try:
         device.connect()
     except refused_at_connect as exc:      # a driver that checks the limits against the device's (acutrol)
         return fail(prog, f"refused, nothing sent: {exc}", ExitCode.USAGE)
     except errors as exc:
-        return fail(prog, f"{unreachable}: {exc}", ExitCode.FAULT)
+        return fail(prog, explained(f"{unreachable}: {exc}", exc) + "; nothing sent", ExitCode.USAGE)
     try:
         # SIGTERM and SIGHUP end the command like Ctrl-C (an `Interrupted`, a KeyboardInterrupt)
         with stop_signals(raise_interrupted):
@@ -121,13 +128,27 @@ def drive_device(prog: str, device: DeviceSession[Any], command: Callable[[], Ex
         return fail(prog, f"refused, nothing sent: {exc}", ExitCode.USAGE)
     except errors as exc:
         done = _safely(make_safe)
-        return fail(prog, f"{type(exc).__name__}: {exc}" + (f"; {done}" if note_faults or _unknown(done) else ""),
-                    _made_safe_code(done))
+        return fail(prog, explained(f"{type(exc).__name__}: {exc}", exc)
+                    + (f"; {done}" if note_faults or _unknown(done) else ""), _made_safe_code(done))
     except KeyboardInterrupt as exc:
         done = _safely(make_safe)
         return fail(prog, f"interrupted ({exc or 'Ctrl-C'}); {done}", _made_safe_code(done))
     finally:
         device.close()
+
+
+def dialect_hint(exc: Exception, dialect: str, option: str) -> str:
+    """What to check when a turntable controller gave no reply or replies `dialect` cannot read before it ever
+    answered: that is what a controller speaking another dialect gives ("" for any other error). `option`: where
+    the dialect is set (`--dialect`, `[table] dialect`)."""
+    if not isinstance(exc, (TurntableTimeout, TurntableProtocolError)):
+        return ""
+    if dialect == "modbus":
+        return ("check the controller's unit id, serial settings and register map: a Modbus RTU device silently "
+                "ignores another unit id")
+    others = ", ".join(d for d in sorted(DIALECTS) if d != dialect)
+    return (f"check {option}: a controller speaking another dialect ({others}) gives no reply or replies "
+            f"{dialect} cannot read")
 
 
 def _unknown(done: str) -> bool:
@@ -163,16 +184,22 @@ def run_plan(run: BenchRun, prog: str, *, quiet: bool, simulated: bool) -> ExitC
         run.abort(f"interrupted ({signal_name(signum)})")
 
     with stop_signals(abort):
+        dialect = run.config.table.dialect
+        option = f'[table] dialect = "{dialect}"'
         try:
             run.open()
         except (DeviceError, BenchError, OSError) as exc:
-            return fail(prog, f"cannot start: {exc}; nothing moved", ExitCode.USAGE)
+            advice = dialect_hint(exc, dialect, option)
+            return fail(prog, f"cannot start: {exc}{f' ({advice})' if advice else ''}; nothing moved",
+                        ExitCode.USAGE)
         progress = ProgressPrinter(run.plan.steps, quiet=quiet, simulated=simulated)
         run.extra_listeners.append(progress)
         try:
             run.run()
-        except DeviceError as exc:
-            return fail(prog, f"cannot enable the table: {exc}; nothing moved", ExitCode.FAULT)
+        except DeviceError as exc:      # the table's first exchange may be here (a driver that connects silently)
+            advice = dialect_hint(exc, dialect, option)
+            return fail(prog, f"cannot enable the table: {exc}{f' ({advice})' if advice else ''}; nothing moved",
+                        ExitCode.FAULT)
         finally:
             progress.close()
     if received and run.sequencer is not None and run.sequencer.error is None:
@@ -180,6 +207,7 @@ def run_plan(run: BenchRun, prog: str, *, quiet: bool, simulated: bool) -> ExitC
     return None
 
 
-__all__ = ["STOP_SIGNALS", "ExitCode", "Interrupted", "add_noise_arguments", "drive_device",
+__all__ = ["STOP_SIGNALS", "ExitCode", "Interrupted", "add_noise_arguments", "dialect_hint",
+           "drive_device",
            "ended_early", "fail",
            "noise_from_args", "raise_interrupted", "run_plan", "signal_name", "speed_factor", "stop_signals"]

@@ -12,15 +12,15 @@ import sys
 from pathlib import Path
 
 from bench.calibration.compensation import compensation_of, load_result
-from bench.calibration.export import export_text
+from bench.calibration.export import FORMAT_NAMES, KalibrNoise, export_text, kalibr_noise
 from bench.cli.common import ExitCode, fail
 from bench.errors import InputError
 from bench.files import write_output_text
+from bench.model.noise_result import NoiseResult
 
 PROG = "bench export"
 #: file suffix -> format, when --format is not given
 SUFFIXES = {".json": "json", ".csv": "csv", ".h": "c", ".yaml": "yaml", ".yml": "yaml", ".toml": "toml"}
-FORMAT_NAMES = ("json", "csv", "c", "yaml", "toml")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -28,13 +28,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "export",
         description="Write the compensation of a calibration result, u = C (y - b) per triad (C the inverse of "
                     "scale x direction cosines in rad/s or m/s^2 per counts/s, b the bias in counts/s), with "
-                    "its 1-sigma uncertainties, as JSON, CSV, a C header, kalibr-style YAML or TOML; of a thermal "
-                    "model, every coefficient's polynomial in temperature with its covariance. Exit codes: "
-                    "0 written, 2 usage error, unreadable result or unwritable output.")
+                    "its 1-sigma uncertainties, as JSON, CSV, a C header, an IMU file for kalibr (YAML, with the "
+                    "noise terms of --noise) or TOML; of a thermal model, every coefficient's polynomial in "
+                    "temperature with its covariance. Exit codes: 0 written, 2 usage error, unreadable result or "
+                    "unwritable output.")
     parser.add_argument("result", metavar="RESULT", help="a result file (<run-id>.result.json) or a thermal model "
                                                           "(thermal.json from `bench thermal`)")
     parser.add_argument("--format", choices=FORMAT_NAMES,
-                        help="json, csv, c (a C header), yaml (kalibr-style) or toml (default: from --out's suffix)")
+                        help="json, csv, c (a C header), yaml (an IMU file for kalibr) or toml "
+                             "(default: from --out's suffix)")
+    parser.add_argument("--noise", metavar="NOISE.json",
+                        help="yaml: the IMU's noise terms for kalibr, a `bench noise` result (NAME.noise.json)")
+    parser.add_argument("--rostopic", default="/imu0", help="yaml: the IMU's ROS topic kalibr reads (default /imu0)")
     parser.add_argument("--out", metavar="FILE", required=True, help="the file to write ('-' for stdout)")
     parser.set_defaults(func=cmd_export)
 
@@ -52,18 +57,24 @@ def cmd_export(args: argparse.Namespace) -> ExitCode:
         if is_thermal_text(read_bounded_text(args.result)):    # a thermal model (`bench thermal`)
             text = export_thermal(ThermalModel.load(args.result), fmt)
         else:
-            text = export_text(compensation_of(load_result(args.result)), fmt)
+            compensation = compensation_of(load_result(args.result))
+            text = export_text(compensation, fmt, _noise(args.noise) if fmt == "yaml" else None, args.rostopic)
     except InputError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     except OSError as exc:
-        return fail(PROG, f"{args.result}: cannot read: {exc.strerror or exc}", ExitCode.USAGE)
+        return fail(PROG, f"{exc.filename or args.result}: cannot read: {exc.strerror or exc}", ExitCode.USAGE)
     if args.out == "-":
         sys.stdout.write(text)
         return ExitCode.OK
     try:
-        write_output_text(args.out, text, (args.result,))
+        write_output_text(args.out, text, tuple(p for p in (args.result, args.noise) if p))
     except InputError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     except OSError as exc:
         return fail(PROG, f"{args.out}: cannot write: {exc.strerror or exc}", ExitCode.USAGE)
     return ExitCode.OK
+
+
+def _noise(path: str | None) -> KalibrNoise | None:
+    """kalibr's noise terms from a `bench noise` result (None without --noise: export_text says what lacks)."""
+    return None if path is None else kalibr_noise(NoiseResult.load(path), Path(path).name)

@@ -1,8 +1,9 @@
 """`bench export-can LOG --out FILE`: a run log's raw CAN frames in a format CAN tools read.
 
 The format comes from the extension (`.asc`, `.blf`, `.log` candump, `.csv`; python-can's
-writers). Exit codes: 0 written; 2 a file that cannot be read as a run log, an unknown
-format, an empty time range or an output that cannot be written (one line).
+writers); times are wall-clock, dated by the log's `run.started_utc` (`bench.log.can_export`).
+Exit codes: 0 written; 2 a file that cannot be read as a run log, an unknown
+format, an empty time range, CAN FD frames for `.csv`, or an output that cannot be written (one line).
 """
 
 from __future__ import annotations
@@ -23,10 +24,12 @@ _seconds = number_type("a number of seconds >= 0", lambda value: value >= 0)
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "export-can",
-        description="Write the raw CAN frames recorded on /can/raw, with their recorded timestamps (the run "
-                    "clock), in the format the output's extension names: .asc (Vector ASC), .blf (Vector "
-                    "BLF), .log (candump -L) or .csv (python-can CSV). Exit codes: 0 written, 2 unreadable log, "
-                    "unknown format, empty range or unwritable output.")
+        description="Write the raw CAN frames recorded on /can/raw in the format the output's extension names: "
+                    ".asc (Vector ASC), .blf (Vector BLF), .log (candump -L) or .csv (python-can CSV, which has "
+                    "no CAN FD flag: CAN FD frames are refused). Times are wall-clock: the recorded run-clock "
+                    "times moved so that the run's start is the log's run.started_utc (the BLF and ASC headers "
+                    "carry that date). Exit codes: 0 written, 2 unreadable log, unknown format, empty range, "
+                    "CAN FD frames for .csv or unwritable output.")
     parser.add_argument("log", metavar="LOG", help="the run's .mcap file")
     parser.add_argument("--out", required=True, metavar="FILE", help="the file to write (.asc, .blf, .log, .csv)")
     parser.add_argument("--from-s", type=_seconds, metavar="S",
@@ -39,7 +42,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def cmd_export_can(args: argparse.Namespace) -> ExitCode:
     # heavy (python-can, mcap): imported when the command runs, not for its --help
-    from bench.log.can_export import MAX_FRAME_TIME_S, CanExportError, can_format, export_can
+    from bench.log.can_export import MAX_FRAME_TIME_S, CanExportError, can_format, export_can, started_unix_s
     from bench.log.reader import LogError, read_log
 
     try:
@@ -48,6 +51,9 @@ def cmd_export_can(args: argparse.Namespace) -> ExitCode:
         log = read_log(args.log)
         for line in log.scan().damage:
             print(f"{PROG}: damaged log: {line}", file=sys.stderr)
+        if started_unix_s(log) is None:
+            print(f"{PROG}: the log records no run.started_utc: times stay on the run clock (dated 1970)",
+                  file=sys.stderr)
         with replaced_output(args.out, (args.log,), force=args.force) as temporary:
             count, left_out = export_can(log, temporary, args.from_s, args.to_s)
     except (LogError, CanExportError, InputError) as exc:

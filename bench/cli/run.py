@@ -11,6 +11,7 @@ check failed (the report says which).
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from bench.acceptance.verdict import Verdict
@@ -35,8 +36,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="run on the simulator: the built-in simulated bench, or --config's plan and [sim]")
     parser.add_argument("--dry-run", action="store_true",
                         help="print the compiled steps and the estimated duration; move nothing")
-    parser.add_argument("--out", metavar="DIR", help="output folder (default: the config's [output] folder)")
-    parser.add_argument("--resume", metavar="LOG", help="continue an interrupted run from its log")
+    parser.add_argument("--out", metavar="DIR", help="output folder (default: the config's [output] folder; with "
+                                                     "--resume, the resumed log's folder)")
+    parser.add_argument("--resume", metavar="LOG", help="continue an interrupted run from its log (into a new log "
+                                                        "beside it unless --out says otherwise: then a warning)")
     parser.add_argument("--operator", default="", help="who runs it (recorded in the log)")
     parser.add_argument("--quiet", action="store_true",
                         help="no progress output (the summary, verdict, worst check, the result and report paths "
@@ -58,6 +61,14 @@ def cmd_run(args: argparse.Namespace) -> ExitCode:
         where = "after the run ended; the table is at rest" if started else "before the run started; nothing moved"
         return fail(PROG, f"interrupted ({exc or 'Ctrl-C'}) {where}", ExitCode.INTERRUPTED if not started
                     else ExitCode.FAULT)
+
+
+def output_folder(out: str | None, resume: str | None, configured: str | Path) -> Path:
+    """Where a run writes: --out; else, resuming, beside the resumed log (one run, one folder: `bench solve` finds
+    a run's earlier logs beside its last); else the configuration's [output] folder."""
+    if out:
+        return Path(out)
+    return Path(resume).parent if resume else Path(configured)
 
 
 def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
@@ -89,9 +100,16 @@ def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
     except (ConfigError, LogError, PlanError, SetupMismatch, SolveInputError, OSError) as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     completed, previous_logs = resumed.completed, resumed.previous_logs
+    out_dir = output_folder(args.out, args.resume, config.output.folder)
     if not args.quiet:
         for note in resumed.notes:
             print(f"note: {note}")
+        if args.resume and out_dir.resolve() != Path(args.resume).parent.resolve():
+            earlier = " ".join(str(p) for p in previous_logs) or args.resume
+            print(f"{PROG}: warning: --out {out_dir} is not the folder of the resumed log "
+                  f"({Path(args.resume).parent}): the run is split over two folders, and `bench solve` of the new "
+                  f"log finds the earlier ones only beside it (move them together, or give every log: bench solve "
+                  f"{earlier} NEW.mcap)", file=sys.stderr)
     if args.dry_run:
         print(plan.format_dry_run())
         if config.plan.verification is not None and verification is not None:
@@ -101,7 +119,6 @@ def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
             print(f"resume: {len(completed)} units complete in earlier logs would be skipped: "
                   f"{', '.join(sorted(completed))}")
         return ExitCode.OK
-    out_dir = Path(args.out) if args.out else Path(config.output.folder)
     # A stop signal (Ctrl-C, SIGTERM, SIGHUP) aborts the plan while it runs (run_plan); after it, it ends
     # the solve (an Interrupted): either way the devices and the log are closed.
     with stop_signals(raise_interrupted), BenchRun(config, plan, devices=device_opener(sim), out_dir=out_dir,

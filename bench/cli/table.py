@@ -1,8 +1,10 @@
 """`bench table ...` (manual control of a real or simulated table) and `bench sim table` (serve one).
 
-Exit codes of `bench table`: 0 done; 2 usage error or a demand refused by the limits
-(nothing was sent); 3 the controller reports a fault or e-stop, does not answer, the
-link fails, or the command was interrupted (the table is then commanded to stop).
+Exit codes of `bench table`: 0 done; 2 usage error, a demand refused by the limits or a
+controller that cannot be reached (nothing was sent, as `bench run` says of a table it cannot
+reach); 3 the controller reports a fault or e-stop, stops answering, the link fails, the table
+is still moving when `stop` gives up waiting, or the command was interrupted (the table is then
+commanded to stop).
 """
 
 from __future__ import annotations
@@ -11,11 +13,11 @@ import argparse
 import sys
 import time
 from dataclasses import replace
-from typing import TextIO
+from typing import Callable, TextIO
 
 import numpy as np
 
-from bench.cli.common import ExitCode, drive_device, fail
+from bench.cli.common import ExitCode, dialect_hint, drive_device, fail
 from bench.cli.sim_serving import (
     IDLE_TIMEOUT_S,
     add_idle_timeout_option,
@@ -30,12 +32,13 @@ from bench.config.register_map import load_register_map
 from bench.errors import InputError
 from bench.model.earth import Site
 from bench.model.units import ARCSEC
-from drivers.errors import DeviceConfigError, DeviceError, DeviceLimitError
+from drivers.errors import DeviceConfigError, DeviceError, DeviceLimitError, TurntableTimeout
 from drivers.transport import MODBUS_SCHEMES
 from drivers.turntable import (
     DIALECTS,
     FRAMES,
     AxisLimits,
+    AxisStatus,
     TableState,
     Turntable,
     TurntableLimits,
@@ -49,8 +52,9 @@ from drivers.turntable.modbus_map import RegisterMap
 def register_table(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "table",
-        description="Talk to a turntable controller. Exit codes: 0 done, 2 usage error or demand beyond "
-                    "the limits (nothing sent), 3 fault, e-stop, no reply, link failure or interrupted.")
+        description="Talk to a turntable controller. Exit codes: 0 done, 2 usage error, demand beyond "
+                    "the limits or controller not reached (nothing sent), 3 fault, e-stop, no reply, link failure, "
+                    "still moving after stop's wait, or interrupted.")
     parser.add_argument("--url", required=True, help="tcp://HOST:PORT, a serial device or pyserial URL, "
                                                       "modbus+tcp://HOST:PORT, modbus+rtu:///dev/ttyX?baud=N, "
                                                       "visa://RESOURCE (acutrol; tcp:// defaults to port 9878)")
@@ -83,7 +87,11 @@ def register_table(subparsers: argparse._SubParsersAction) -> None:
     rate.add_argument("frame", choices=FRAMES, help="the frame to turn: outer, middle or inner")
     rate.add_argument("rate_dps", type=float, metavar="RATE_DPS",
                       help="signed rate d(angle)/dt, deg/s (positive is the paper's clockwise: docs/hardware/index.md)")
-    commands.add_parser("stop", help="controlled stop of every axis (servo stays on)")
+    stop = commands.add_parser("stop", help="controlled stop of every axis (servo stays on); waits until every axis "
+                                            "is at rest")
+    stop.add_argument("--wait-s", type=float, default=60.0,
+                      help="give up waiting for rest after this (exit 3; default 60)")
+    stop.add_argument("--no-wait", action="store_true", help="send the stop and return")
     commands.add_parser("abort", help="every servo off at once")
     parser.set_defaults(func=cmd_table)
 
@@ -124,7 +132,40 @@ class GotoProgress:
             self.stream.flush()
 
 
-def _run_table_command(table: Turntable, args: argparse.Namespace) -> ExitCode:
+#: an axis whose rate reads within this of zero, and that does not report moving, is at rest (deg/s)
+AT_REST_DPS = 0.01
+
+
+def at_rest(state: TableState) -> bool:
+    """Every axis reads no rate (within `AT_REST_DPS`) and none reports moving."""
+    return all(abs(axis.rate_dps) <= AT_REST_DPS and not axis.status & AxisStatus.MOVING for axis in state.axes)
+
+
+def wait_at_rest(table: Turntable, timeout_s: float, poll_s: float = 0.05,
+                 on_state: Callable[[TableState], None] | None = None) -> TableState:
+    """Poll the table until it is at rest (`at_rest`); `TurntableTimeout` if it is not within `timeout_s`."""
+    start = table.clock.now()
+    while True:
+        state = table.read_state()
+        if on_state is not None:
+            on_state(state)
+        if at_rest(state):
+            return state
+        if table.clock.now() - start > timeout_s:
+            raise TurntableTimeout(f"still moving {timeout_s:g} s after the stop (rates "
+                                   f"{', '.join(f'{r:.3f}' for r in state.rates_dps)} deg/s)")
+        table.clock.sleep(poll_s)
+
+
+def _stop_line(args: argparse.Namespace) -> str:
+    """The command that stops the table this command talks to."""
+    dialect = f" --dialect {args.dialect}" if args.dialect else ""
+    return f"bench table --url {args.url}{dialect} stop"
+
+
+def _run_table_command(table: Turntable, args: argparse.Namespace, answered: list[bool]) -> ExitCode:
+    """Run the command; `answered` gets an entry once the controller answered a request (a later timeout or
+    unreadable reply is then no sign of a wrong dialect)."""
     command = args.table_command
     if command == "status":
         state = table.read_state()
@@ -133,9 +174,11 @@ def _run_table_command(table: Turntable, args: argparse.Namespace) -> ExitCode:
     if command in ("enable", "disable", "reset"):
         frames = args.frames or FRAMES
         {"enable": table.enable, "disable": table.disable, "reset": table.reset_faults}[command](frames)
+        answered.append(True)
     elif command == "goto":
         target = (args.outer, args.middle, args.inner)
         table.check_state()
+        answered.append(True)
         table.move_to(target, rate_dps=args.rate_dps)
         if not args.no_wait:
             progress = GotoProgress(sys.stderr) if sys.stderr.isatty() else None
@@ -149,11 +192,27 @@ def _run_table_command(table: Turntable, args: argparse.Namespace) -> ExitCode:
             return ExitCode.OK
     elif command == "rate":
         table.check_state()
+        answered.append(True)
         table.set_rate(args.frame, args.rate_dps)
+        print(format_state(table.read_state()))
+        if args.rate_dps != 0.0:
+            print(f"the {args.frame} frame keeps turning after this command ends: `{_stop_line(args)}` stops it")
+        return ExitCode.OK
     elif command == "stop":
         table.stop()
+        answered.append(True)
+        if not args.no_wait:
+            progress = GotoProgress(sys.stderr) if sys.stderr.isatty() else None
+            try:
+                state = wait_at_rest(table, args.wait_s, on_state=progress)
+            finally:
+                if progress is not None:
+                    progress.end()
+            print(format_state(state))
+            return ExitCode.OK
     elif command == "abort":
         table.abort()
+        answered.append(True)
     print(format_state(table.read_state()))
     return ExitCode.OK
 
@@ -174,10 +233,13 @@ def cmd_table(args: argparse.Namespace) -> ExitCode:
                                retries=args.retries, **options)
     except (DeviceConfigError, ConfigError) as exc:
         return fail(prog, f"{exc}", ExitCode.USAGE)
-    return drive_device(prog, table, lambda: _run_table_command(table, args), errors=DeviceError,
+    answered: list[bool] = []
+    dialect = args.dialect or "modbus"       # open_turntable took the dialect from a modbus+ URL when not given
+    return drive_device(prog, table, lambda: _run_table_command(table, args, answered), errors=DeviceError,
                         refused=(DeviceLimitError,), refused_at_connect=(DeviceLimitError,),
                         unreachable="cannot reach the controller",
-                        make_safe=lambda: _stop_table(table), note_faults=False)
+                        make_safe=lambda: _stop_table(table), note_faults=False,
+                        hint=lambda exc: "" if answered else dialect_hint(exc, dialect, f"--dialect {dialect}"))
 
 
 def _stop_table(table: Turntable) -> str:

@@ -2,18 +2,29 @@
 
 `export_can(log, path)` writes `/can/raw` with python-can's own writers, chosen by the file's
 extension: `.asc` (Vector ASCII), `.blf` (Vector binary logging format), `.log` (candump -L) or
-`.csv`. Timestamps are the frames' recorded ones (the run clock); a time range is given in
-seconds from the log's first frame. Frames are read chunk by chunk and written in batches, so
-memory stays bounded whatever the log's size.
+`.csv`. Timestamps are wall-clock (Unix) times: the frames' recorded run-clock times moved so that
+the run's start (its first transition, "run started"; the first frame in a log without one) falls
+on the log's `run.started_utc` (whole seconds, taken as the log was opened). The BLF header's start
+and the ASC header's `date` are then the first written frame's date (local time in the ASC, as CANoe
+and python-can write it); a log without a readable `run.started_utc` keeps the run clock (a 1970
+date) and `export_can` says so. python-can's CSV has no CAN FD flag: CAN FD frames are refused for
+`.csv` (the other formats keep the flag). A time range is given in seconds from the log's first
+frame. Frames are read chunk by chunk and written in batches, so memory stays bounded whatever the
+log's size.
 """
 
 from __future__ import annotations
 
+import calendar
+import time
+from datetime import datetime
 from pathlib import Path
+from typing import Any
 
 import can
 
 from bench.errors import BenchError
+from bench.log.events import Transition
 from bench.log.format import EXTENDED_ID_FLAG, FLAG_BRS, FLAG_ERROR, FLAG_ESI, FLAG_FD, FLAG_REMOTE
 from bench.log.reader import RunLog
 
@@ -30,7 +41,43 @@ MAX_FRAME_TIME_S = 1e10
 
 
 class CanExportError(BenchError):
-    """An export that cannot be done (unknown format, empty range); one line."""
+    """An export that cannot be done (unknown format, empty range, CAN FD frames for CSV); one line."""
+
+
+class _DatedAscWriter(can.ASCWriter):
+    """python-can's ASC writer with the header's `date` set to the first frame's time (python-can writes the
+    time of the export there, and every frame's time relative to the first frame: a reader adds them)."""
+
+    def __init__(self, file: str, first_frame_s: float):
+        super().__init__(file)
+        when = datetime.fromtimestamp(first_frame_s)
+        date = when.strftime(self.FORMAT_DATE.format(f"{when.microsecond // 1000:03d}"))
+        self.file.seek(0)
+        self.file.truncate()
+        self.file.write(f"date {date}\nbase hex  timestamps absolute\ninternal events logged\n")
+
+
+def started_unix_s(log: RunLog) -> float | None:
+    """The log's `run.started_utc` as Unix time, None when it records none (or not as "YYYY-MM-DDTHH:MM:SSZ")."""
+    run = log.metadata.get("run", {})
+    text = run.get("started_utc") if isinstance(run, dict) else None
+    try:
+        return float(calendar.timegm(time.strptime(str(text), "%Y-%m-%dT%H:%M:%SZ")))
+    except (ValueError, OverflowError):
+        return None
+
+
+def wall_clock_offset_s(log: RunLog) -> float | None:
+    """Seconds to add to a run-clock time for Unix time: `run.started_utc` minus the run clock at the run's
+    start (its first transition; the first frame without one). None when the log records no start."""
+    started = started_unix_s(log)
+    if started is None:
+        return None
+    start_s = next((e.time_s for e in log.events if isinstance(e, Transition)), None)
+    if start_s is None:
+        stamps = log.read_can_timestamps_s()
+        start_s = float(stamps[0]) if len(stamps) else 0.0
+    return started - start_s
 
 
 def can_messages(frames, lo: int, hi: int) -> list[can.Message]:
@@ -77,27 +124,42 @@ def export_can(log: RunLog, path: str | Path, from_s: float | None = None,
     """Write the log's frames (optionally from `from_s` to `to_s` s after the first frame) to `path` in the
     format its extension names; returns how many were written and how many were left out because their time
     is no time (`frame_time_ok`: the writers turn it into a date). CanExportError when there is nothing."""
-    writer_class, _ = CAN_FORMATS[can_format(path)]
+    suffix = can_format(path)
     lo, hi = frame_range(log, from_s, to_s)
     if hi <= lo:
         raise CanExportError(f"{log.path}: no CAN frames"
                              + ("" if from_s is None and to_s is None else " in the time range given"))
+    offset_s = wall_clock_offset_s(log) or 0.0
+    stamps = log.read_can_timestamps_s()[lo:hi]
+    dated = stamps[(stamps >= 0.0) & (stamps <= MAX_FRAME_TIME_S)]
+    first_s = (float(dated[0]) if len(dated) else 0.0) + offset_s
     left_out = 0
-    with writer_class(str(path)) as writer:
+    with _writer(suffix, path, first_s) as writer:
         first = 0   # index of the piece's first frame in the log
         for piece in log.can_pieces():
             n = len(piece[1])
             a, b = max(lo, first) - first, min(hi, first + n) - first
             for start in range(a, b, _BATCH):
                 for message in can_messages(piece, start, min(b, start + _BATCH)):
-                    if frame_time_ok(message.timestamp):
-                        writer.on_message_received(message)
-                    else:
+                    if not frame_time_ok(message.timestamp):
                         left_out += 1
+                        continue
+                    if message.is_fd and suffix == ".csv":
+                        raise CanExportError(f"{path}: python-can's CSV has no CAN FD flag and the log's frames "
+                                             f"are CAN FD (the first at {message.timestamp:.6f} s on the run clock): "
+                                             "write .asc, .blf or .log, which keep it")
+                    message.timestamp += offset_s
+                    writer.on_message_received(message)
             first += n
             if first >= hi:
                 break
     return hi - lo - left_out, left_out
+
+
+def _writer(suffix: str, path: str | Path, first_frame_s: float) -> Any:
+    if suffix == ".asc":
+        return _DatedAscWriter(str(path), first_frame_s)
+    return CAN_FORMATS[suffix][0](str(path))
 
 
 def frame_time_ok(time_s: float) -> bool:
@@ -107,4 +169,4 @@ def frame_time_ok(time_s: float) -> bool:
 
 
 __all__ = ["CAN_FORMATS", "MAX_FRAME_TIME_S", "CanExportError", "can_format", "can_messages", "export_can",
-           "frame_range", "frame_time_ok"]
+           "frame_range", "frame_time_ok", "started_unix_s", "wall_clock_offset_s"]

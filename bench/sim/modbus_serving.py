@@ -4,7 +4,9 @@
 simulated chamber (`bench.sim.chamber_server`) share: a subclass builds the pymodbus
 `SimDevice` (its register space and what reads and writes do) and names its `WireFaults`.
 
-Faults on demand come from `wire_faults` (one per request): timeout = no reply, garbage =
+Over RTU a request to another unit id gets no reply and does nothing (a device on a shared line);
+over TCP it is answered with exception 04 (pymodbus's simulator). Faults on demand come from
+`wire_faults` (one per request to this device): timeout = no reply, garbage =
 junk bytes instead of the reply, checksum = a corrupted CRC (RTU) or a malformed MBAP
 length field (TCP), exception = exception code `faults.exception_code` instead of executing.
 
@@ -28,7 +30,7 @@ import select
 import threading
 import time
 import tty
-from typing import Callable, Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
 from pymodbus.constants import ExcCodes
 from pymodbus.framer import FramerType
@@ -236,6 +238,21 @@ class ModbusServing(ClosedOnExit):
         pdu.datastore_update = faulty_update
         return pdu
 
+    def _trace_rtu_pdu(self, sending: bool, pdu):
+        """The RTU server's `_trace_pdu`: on a shared RTU line a device answers only its own unit id, so a request
+        to another (or a broadcast, unit 0) neither acts nor counts and nothing goes back on the line (pymodbus's
+        simulator would answer it from our device, or with exception 04)."""
+        if sending or pdu.dev_id == self._served_device().id:
+            return self._trace_pdu(sending, pdu)
+
+        async def not_ours(context, device_id):
+            response: Any = ExceptionResponse(pdu.function_code, ExcCodes.GATEWAY_NO_RESPONSE)
+            response.sim_wire_fault = "timeout"      # _trace_packet sends nothing for it
+            return response
+
+        pdu.datastore_update = not_ours
+        return pdu
+
     def _trace_packet(self, sending: bool, data: bytes) -> bytes:
         if not sending or self._pending_wire_fault is None:
             return data
@@ -348,7 +365,7 @@ class ModbusServing(ClosedOnExit):
         async def start():
             server = ModbusSerialServer(self._served_device(), framer=FramerType.RTU, port=server_path,
                                         baudrate=baudrate, parity=parity, trace_packet=self._trace_packet,
-                                        trace_pdu=self._trace_pdu)
+                                        trace_pdu=self._trace_rtu_pdu)
             await server.serve_forever(background=True)
             return server
 

@@ -636,6 +636,8 @@ def test_unreachable_table_exit_code_2_nothing_moved(tmp_path):
     assert len(lines) == 1, stderr
     assert "cannot start" in lines[0] and "nothing moved" in lines[0] and str(port) in lines[0]
     assert not list(tmp_path.rglob("*.mcap"))
+    assert "dialect" not in lines[0]        # nothing answered: no dialect question
+
 
 
 def test_neither_config_nor_sim_is_a_usage_error():

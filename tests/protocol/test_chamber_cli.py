@@ -52,7 +52,7 @@ def test_bench_chamber_drives_the_served_simulator(dialect, listen, prefix):
         _console(proc, "garbage 3", "ok")
         code, _, err = cli([*base, "--retries", "2", "status"])
         if dialect == "modbus":     # the F4P's map reads its settings at connect: the garbage meets that read
-            assert code == 3 and "cannot reach the chamber: read settings" in err and "garbage" in err, err
+            assert code == 2 and "cannot reach the chamber: read settings" in err and "garbage" in err, err
         else:
             assert code == 3 and "ChamberProtocolError" in err and "chamber: stopped" in err, err
         proc.send_signal(signal.SIGTERM)
@@ -130,14 +130,14 @@ def test_the_simulator_serves_the_generic_map_on_request():
         assert code == 0 and "temperature  23.0 degC" in out, err
         # the default map is the F4P's: its settings registers (602-606) are not served by the generic map
         code, _, err = cli(["chamber", "--url", url, "--timeout-s", "0.5", "status"])
-        assert code == 3 and "cannot reach the chamber: read settings" in err and "illegal data address" in err, err
+        assert code == 2 and "cannot reach the chamber: read settings" in err and "illegal data address" in err, err
     finally:
         stop_process(proc)
 
 
-def test_an_unreachable_chamber_is_exit_3():
+def test_an_unreachable_chamber_is_exit_2_nothing_sent():
     code, _, err = cli(["chamber", "--url", "tcp://127.0.0.1:9", "--dialect", "ascii", "status"])
-    assert code == 3 and "cannot reach the chamber" in err
+    assert code == 2 and "cannot reach the chamber" in err and "nothing sent" in err
 
 
 @pytest.mark.slow

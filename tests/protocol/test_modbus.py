@@ -3,8 +3,11 @@ pymodbus's decoders, and end to end against the simulated controller over TCP an
 
 from __future__ import annotations
 
+import os
+import select
 import threading
 import time
+import tty
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -570,6 +573,45 @@ def test_no_threads_left_behind():
                 table.read_state()
     time.sleep(0.05)
     assert set(threading.enumerate()) <= before
+
+
+def _read_reply(fd: int, length: int, timeout_s: float = 5.0) -> bytes:
+    """`length` bytes from a raw pty, or fewer if none come for `timeout_s` (bounded)."""
+    got = b""
+    while len(got) < length:
+        ready, _, _ = select.select([fd], [], [], timeout_s)
+        if not ready:
+            break
+        got += os.read(fd, length - len(got))
+    return got
+
+
+def test_the_rtu_simulator_stays_silent_for_another_unit_id():
+    """On a shared RTU line a device answers only its own unit id: the request to unit 7 gets no reply, so the
+    first bytes back are the answer to the next request, to unit 1 (and the line is not confused)."""
+    controller = SimController()
+    server = ModbusSimServer(controller, NO_WATCHDOG)
+    try:
+        fd = os.open(server.start_rtu_pty(), os.O_RDWR | os.O_NOCTTY)
+        try:
+            tty.setraw(fd)
+
+            def state_registers() -> bytes:
+                os.write(fd, bytes.fromhex(rtu("01 03 0000 0014")))
+                reply = _read_reply(fd, 3 + 40 + 2)
+                assert reply[:3] == bytes.fromhex("01 03 28") and crc16(reply[:-2]) == reply[-2:], reply.hex()
+                return reply[3:-2]
+
+            before = state_registers()
+            for request in ("07 03 0000 0014", "07 10 0014 0002 04 0001 0000"):    # a read, and enable all axes
+                os.write(fd, bytes.fromhex(rtu(request)))
+                assert _read_reply(fd, 1, timeout_s=0.3) == b""    # nothing (a reply would only come sooner)
+            assert state_registers() == before                     # the write did not act, the line is in step
+            assert server.requests == 2                            # the other unit's requests are not ours
+        finally:
+            os.close(fd)
+    finally:
+        server.close()
 
 
 def test_the_simulator_answers_function_04_and_other_unit_ids_as_the_page_says():

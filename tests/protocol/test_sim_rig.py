@@ -392,6 +392,31 @@ def test_bench_run_against_the_rig_in_another_process_recovers_its_truth(tmp_pat
 
 
 @pytest.mark.slow
+def test_bench_run_of_a_rig_speaking_another_dialect_suggests_checking_it(tmp_path):
+    """Issue 33, item 13: the rig's table speaks MN, the configuration says SCPI: the run stops before anything
+    moves, in one line that says to check `[table] dialect` (not only that there was no reply)."""
+    rig_config = tmp_path / "rig.toml"
+    rig_config.write_text(RIG_CONFIG.format(dialect="mn"))
+    written = tmp_path / "bench.toml"
+    rig = _start_rig("--config", str(rig_config), "--table-listen", "tcp://127.0.0.1:0", "--imu-listen", "slcan",
+                     "--write-config", str(written))
+    try:
+        read_until(rig, "Ctrl-C stops")
+        text = _with_plan(written.read_text(), SHORT_PLAN)
+        assert 'dialect = "mn"' in text
+        written.write_text(text.replace('dialect = "mn"', 'dialect = "scpi"'))
+        run = subprocess.run([sys.executable, "-m", "bench.cli", "run", "--config", str(written), "--out",
+                              str(tmp_path / "runs"), "--quiet", "--no-db"], cwd=REPO, capture_output=True, text=True,
+                             timeout=200)
+        lines = run.stderr.strip().splitlines()
+        assert run.returncode in (2, 3) and len(lines) == 1, run.stderr
+        assert "nothing moved" in lines[0] and 'check [table] dialect = "scpi": a controller speaking another ' \
+            "dialect (acutrol, mn, modbus)" in lines[0], lines[0]
+    finally:
+        stop_process(rig)
+
+
+@pytest.mark.slow
 def test_the_rig_serves_the_packed_layout_and_writes_it(tmp_path):
     written = tmp_path / "bench.toml"
     rig = _start_rig("--imu-layout", "packed", "--imu-rate-hz", "2000", "--imu-listen", "socketcand://127.0.0.1:0",

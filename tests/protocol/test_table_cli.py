@@ -119,8 +119,10 @@ def test_unreachable_controller_and_usage_errors(capsys):
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
-        assert main(["table", "--url", f"tcp://127.0.0.1:{port}", "--dialect", "scpi", "status"]) == 3
-        assert "cannot reach the controller" in capsys.readouterr().err
+        # nothing was sent: exit 2, as `bench run` says of a table it cannot reach (README's exit codes)
+        assert main(["table", "--url", f"tcp://127.0.0.1:{port}", "--dialect", "scpi", "status"]) == 2
+        err = capsys.readouterr().err
+        assert "cannot reach the controller" in err and err.strip().endswith("nothing sent") and "dialect" not in err
     assert main(["table", "--url", "tcp://127.0.0.1:1", "status"]) == 2
     assert "say which dialect" in capsys.readouterr().err
     assert main(["table", "--url", "modbus+tcp://127.0.0.1:1", "--dialect", "scpi", "status"]) == 2
@@ -331,3 +333,82 @@ def test_acutrol_refusals_are_one_line_naming_the_command_and_the_controllers_te
         assert err.count("\n") == 1, err
         assert "TurntableCommandError: acutrol controller refused ':INT:RES': Interlock fault latched" in err
         assert [mode.value for mode in table.read_state().modes] == ["off"] * 3     # the inner was in rate mode
+
+
+# -- issue 33, item 13: rate says how to stop, stop waits for rest, unreachable is exit 2, the dialect hint --------
+
+@pytest.mark.parametrize("simulator", [("scpi", "tcp://127.0.0.1:0")], indirect=True)
+def test_rate_says_how_to_stop_and_stop_returns_at_rest(simulator, capsys):
+    proc, dialect, url = simulator
+    base = ["table", "--url", url, "--dialect", dialect, "--timeout-s", "0.5"]
+    assert main(base + ["enable"]) == 0
+    capsys.readouterr()
+    # outer: 100 deg/s at the simulated table's 50 deg/s^2 takes 2 s to brake
+    assert main(base + ["rate", "outer", "100"]) == 0
+    out = capsys.readouterr().out
+    assert f"keeps turning after this command ends: `bench table --url {url} --dialect scpi stop` stops it" in out
+    assert main(base + ["stop"]) == 0
+    out = capsys.readouterr().out
+    assert "moving" not in out and out.splitlines()[1].split()[2] == "0.000000", out
+    with open_turntable(url, dialect, timeout_s=0.5) as table:       # an independent look: at rest
+        state = table.read_state()
+    assert all(rate == 0.0 for rate in state.rates_dps) and not any("moving" in a.status.describe() for a in state.axes)
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=10) == 0
+
+
+def test_waiting_for_rest_is_bounded_on_the_simulated_clock():
+    """`wait_at_rest` on a simulated controller whose clock moves only as the client waits: a stop from 100 deg/s
+    brakes in 2 s of its time, so a 0.5 s wait gives up (TurntableTimeout: exit 3 at the CLI) and a 5 s one ends
+    at rest."""
+    from bench.cli.table import at_rest, wait_at_rest
+    from bench.sim.controller import SimController
+    from bench.sim.scpi_server import ScpiSimHandler
+    from bench.sim.serve import LineServer
+    from drivers.clock import ManualClock
+    from drivers.errors import TurntableTimeout
+
+    clock = ManualClock()
+    with LineServer(ScpiSimHandler(SimController(clock=clock))) as server:
+        host, port = server.listen_tcp()
+        with open_turntable(f"tcp://{host}:{port}", "scpi", clock=clock, timeout_s=2.0) as table:
+            for wait_s, ends_at_rest in ((0.5, False), (5.0, True)):
+                table.enable()
+                table.set_rate("outer", 100.0)
+                clock.advance(3.0)
+                table.stop()
+                started = clock.now()
+                if ends_at_rest:
+                    assert at_rest(wait_at_rest(table, wait_s))
+                    assert 2.0 - 0.06 <= clock.now() - started <= 2.0 + 0.11
+                else:
+                    with pytest.raises(TurntableTimeout, match="still moving 0.5 s after the stop"):
+                        wait_at_rest(table, wait_s)
+                    assert clock.now() - started < 0.7
+
+
+@pytest.mark.parametrize("simulator", [("mn", "tcp://127.0.0.1:0")], indirect=True)
+@pytest.mark.parametrize("dialect", ["scpi", "acutrol"])
+def test_a_wrong_dialect_suggests_checking_the_dialect(simulator, dialect, capsys):
+    proc, served, url = simulator
+    code = main(["table", "--url", url, "--dialect", dialect, "--timeout-s", "0.2", "--retries", "0", "status"])
+    err = capsys.readouterr().err
+    assert code in (2, 3, 6) and len(err.strip().splitlines()) == 1, err
+    assert f"check --dialect {dialect}: a controller speaking another dialect" in err, err
+    # the right dialect answers; a fault after the controller answered is no dialect question
+    assert main(["table", "--url", url, "--dialect", served, "status"]) == 0
+    assert main(["table", "--url", url, "--dialect", served, "--timeout-s", "0.2", "goto", "1", "0", "0"]) == 3
+    assert "check --dialect" not in capsys.readouterr().err
+
+
+def test_the_dialect_hint_is_for_silence_and_unreadable_replies_of_a_table_only():
+    from bench.cli.common import dialect_hint
+    from drivers.errors import ChamberTimeout, TurntableCommandError, TurntableProtocolError, TurntableTimeout
+
+    option = '[table] dialect = "mn"'
+    for error in (TurntableTimeout("mn: no reply"), TurntableProtocolError("bad checksum")):
+        assert dialect_hint(error, "mn", option) == (f"check {option}: a controller speaking another dialect "
+                                                     "(acutrol, modbus, scpi) gives no reply or replies mn cannot read")
+    assert "unit id" in dialect_hint(TurntableTimeout("x"), "modbus", "--dialect modbus")
+    assert dialect_hint(TurntableCommandError("refused"), "mn", option) == ""
+    assert dialect_hint(ChamberTimeout("no reply"), "mn", option) == ""

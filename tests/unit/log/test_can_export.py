@@ -1,13 +1,41 @@
-"""`bench export-can`: a log's raw CAN frames read back by python-can's own readers (issue 14, item 5)."""
+"""`bench export-can`: a log's raw CAN frames read back by python-can's own readers (issue 14, item 5); the
+files dated by the run's wall-clock start, CAN FD refused for CSV (issue 33, item 2)."""
 
 from __future__ import annotations
+
+import calendar
+import time
 
 import can
 import numpy as np
 import pytest
 
+from bench.log.can_export import wall_clock_offset_s
+from bench.log.events import make_event
 from bench.log.reader import read_log
+from bench.log.recorder import McapRecorder
 from tests.helpers.run import cli
+
+#: the small log's run: started at this UTC time, when its run clock read RUN_START_S
+STARTED_UTC, RUN_START_S = "2026-11-27T14:30:05Z", 1234.5
+STARTED_UNIX_S = calendar.timegm(time.strptime(STARTED_UTC, "%Y-%m-%dT%H:%M:%SZ"))
+
+
+def _small_log(path, fd: bool = False, started_utc: str | None = STARTED_UTC):
+    """A log of 50 frames 10 ms apart from 0.25 s after the run's start (on a hardware-like run clock), one of
+    them CAN FD when `fd`; returns the frames' run-clock times."""
+    run = {"run_id": "r-1", "mode": "hardware"} | ({"started_utc": started_utc} if started_utc else {})
+    recorder = McapRecorder(path, metadata={"run": run}, clock=lambda: RUN_START_S)
+    recorder.on_event(make_event(RUN_START_S, "transition", "run started", state="running", data={"from": "idle"}))
+    times = RUN_START_S + 0.25 + 0.01 * np.arange(50)
+    messages = [can.Message(timestamp=float(t), arbitration_id=0x100 + k % 3, is_extended_id=False,
+                            data=bytes([k % 256] * 8)) for k, t in enumerate(times)]
+    if fd:
+        messages[20] = can.Message(timestamp=float(times[20]), arbitration_id=0x123, is_extended_id=False,
+                                   is_fd=True, bitrate_switch=True, data=bytes(range(32)))
+    recorder.on_can_frames(messages)
+    recorder.close()
+    return times
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +74,54 @@ def test_a_time_range_keeps_the_frames_inside_it(log_path, tmp_path):
     assert 0 < inside.sum() < len(rel)
     back = list(can.LogReader(str(out)))
     assert len(back) == inside.sum()
-    assert back[0].timestamp == pytest.approx(stamps_s[inside][0], abs=1e-6)
+    assert back[0].timestamp == pytest.approx(stamps_s[inside][0] + wall_clock_offset_s(log), abs=1e-6)
+
+
+@pytest.mark.parametrize("reader", [can.BLFReader, can.ASCReader, can.CanutilsLogReader, can.CSVReader])
+def test_the_frames_are_dated_by_the_runs_wall_clock_start(tmp_path, reader):
+    """Each frame reads back at started_utc + (its run-clock time - the run clock at the start): the BLF header's
+    start and the ASC header's date are the first frame's date, not 1970 or the time of the export."""
+    log_path = tmp_path / "small.mcap"
+    times = _small_log(log_path)
+    extension = {can.BLFReader: ".blf", can.ASCReader: ".asc", can.CanutilsLogReader: ".log", can.CSVReader: ".csv"}
+    out = tmp_path / f"frames{extension[reader]}"
+    rc, _, stderr = cli(["export-can", str(log_path), "--out", str(out)])
+    assert rc == 0 and not stderr, stderr
+    # python-can's ASC reader gives times from the header's date only when asked to
+    opened = reader(str(out), relative_timestamp=False) if reader is can.ASCReader else reader(str(out))
+    back = list(opened)
+    expected = STARTED_UNIX_S + (times - RUN_START_S)
+    assert len(back) == len(times)
+    assert np.abs(np.array([m.timestamp for m in back]) - expected).max() < 2e-5
+    if reader is can.BLFReader:
+        assert opened.start_timestamp == pytest.approx(expected[0], abs=1e-3)
+        assert time.gmtime(opened.start_timestamp)[:6] == (2026, 11, 27, 14, 30, 5)
+    if reader is can.ASCReader:
+        assert opened.start_time == pytest.approx(expected[0], abs=1e-3)
+
+
+def test_a_log_without_its_start_keeps_the_run_clock_and_says_so(tmp_path):
+    log_path = tmp_path / "small.mcap"
+    times = _small_log(log_path, started_utc=None)
+    out = tmp_path / "frames.log"
+    rc, _, stderr = cli(["export-can", str(log_path), "--out", str(out)])
+    assert rc == 0 and "no run.started_utc" in stderr and len(stderr.strip().splitlines()) == 1, stderr
+    assert [m.timestamp for m in can.LogReader(str(out))] == pytest.approx(times.tolist(), abs=1e-6)
+
+
+def test_csv_refuses_can_fd_frames_and_the_other_formats_keep_the_flag(tmp_path):
+    log_path = tmp_path / "fd.mcap"
+    _small_log(log_path, fd=True)
+    out = tmp_path / "frames.csv"
+    rc, _, stderr = cli(["export-can", str(log_path), "--out", str(out)])
+    assert rc == 2 and "CAN FD" in stderr and ".blf" in stderr and len(stderr.strip().splitlines()) == 1, stderr
+    assert not list(tmp_path.glob("*frames*"))      # nothing half-written left behind
+    for extension in (".asc", ".blf", ".log"):
+        out = tmp_path / f"frames{extension}"
+        rc, _, stderr = cli(["export-can", str(log_path), "--out", str(out)])
+        assert rc == 0, stderr
+        fd = [m for m in can.LogReader(str(out)) if m.is_fd]
+        assert len(fd) == 1 and fd[0].bitrate_switch and bytes(fd[0].data) == bytes(range(32)), extension
 
 
 @pytest.mark.parametrize("args, fragment", [

@@ -1,0 +1,154 @@
+"""`bench apply`'s outputs keep the run log's time convention (issue 33, item 3): `time_s` is the run clock
+(the log time of the run log's `/imu/samples` message), `imu_time_s` is counter / rate; they are formatted a
+block of samples at a time and hold every value exactly, with a bar on a terminal (item 6)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import sys
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from bench.calibration.apply import TOPIC_COMPENSATED
+from bench.log.format import TOPIC_SAMPLES
+from tests.helpers.run import cli
+
+
+def _topics(path) -> dict[str, list[tuple[int, dict]]]:
+    """Every JSON message of an MCAP file by topic, with its log time in ns."""
+    topics: dict[str, list[tuple[int, dict]]] = {}
+    with open(path, "rb") as f:
+        for _schema, channel, message in make_reader(f, validate_crcs=True).iter_messages(log_time_order=False):
+            if channel.message_encoding == "json":
+                topics.setdefault(channel.topic, []).append((message.log_time, json.loads(message.data)))
+    return topics
+
+
+@pytest.fixture(scope="module")
+def run_log_samples(short_run) -> dict[int, dict]:
+    """The run log's own `/imu/samples` messages by counter."""
+    return {m["counter"]: m for _t, m in _topics(short_run.log)[TOPIC_SAMPLES]}
+
+
+def test_the_mcap_has_the_run_logs_time_s_and_imu_time_s(short_run, run_log_samples, tmp_path):
+    out = tmp_path / "applied.mcap"
+    rc, _, stderr = cli(["apply", str(short_run.result), str(short_run.log), "--out", str(out), "--quiet"])
+    assert rc == 0, stderr
+    topics = _topics(out)
+    for topic in (TOPIC_SAMPLES, TOPIC_COMPENSATED):
+        messages = topics[topic]
+        assert len(messages) >= len(run_log_samples) > 1000
+        for log_time_ns, m in messages:
+            assert m["time_s"] == pytest.approx(log_time_ns / 1e9, abs=1e-9)
+            theirs = run_log_samples.get(m["counter"])
+            if theirs is not None:
+                assert (m["time_s"], m["imu_time_s"]) == (theirs["time_s"], theirs["imu_time_s"]), topic
+    first = topics[TOPIC_SAMPLES][0][1]
+    assert first["time_s"] != first["imu_time_s"]     # two different clocks (the issue: 0.0 against 0.005)
+
+
+def test_the_csv_has_the_run_logs_time_s_and_imu_time_s(short_run, run_log_samples, tmp_path):
+    out = tmp_path / "applied.csv"
+    rc, _, stderr = cli(["apply", str(short_run.result), str(short_run.log), "--out", str(out), "--quiet"])
+    assert rc == 0, stderr
+    with open(out, encoding="utf-8", newline="") as f:
+        rows = list(csv.reader(f))
+    assert rows[0][:3] == ["counter", "time_s", "imu_time_s"]
+    data = np.array(rows[1:], dtype=float)
+    matched = 0
+    for counter, time_s, imu_time_s in data[:, :3]:
+        theirs = run_log_samples.get(int(counter))
+        if theirs is not None:
+            assert (time_s, imu_time_s) == (theirs["time_s"], theirs["imu_time_s"])
+            matched += 1
+    assert matched == len(run_log_samples)
+
+
+# -- issue 33, item 6: the writing formatted a block at a time, its progress on a terminal ----------------------
+
+def _samples(n: int = 53, seed: int = 3):
+    """Samples with every kind of value: large and tiny, negative, a temperature missing (NaN) in some rows."""
+    from bench.calibration.apply import CompensatedSamples
+    from drivers.imu import ImuSampleBlock
+
+    rng = np.random.default_rng(seed)
+    temperature = rng.normal(25.0, 3.0, n)
+    temperature[::5] = np.nan
+    block = ImuSampleBlock(counter=np.arange(n, dtype=np.int64) + 2**40, receive_time_s=0.005 + np.arange(n) / 200,
+                           gyro_counts=rng.normal(0, 1e4, (n, 3)) * 10.0 ** rng.integers(-9, 9, (n, 3)),
+                           acc_counts=rng.normal(0, 1e6, (n, 3)), temperature_c=temperature,
+                           status=rng.integers(0, 2**16, n), rate_hz=200.0)
+    return CompensatedSamples(block, rng.normal(0, 1, (n, 3)) / 3.0, rng.normal(0, 9.8, (n, 3)), "deg/s", "g")
+
+
+def _strict_json(data: bytes) -> dict:
+    def refuse(constant):
+        raise AssertionError(f"not JSON: {constant}")
+    return json.loads(data, parse_constant=refuse)
+
+
+@pytest.mark.parametrize("block_samples", [7, 10_000])
+def test_the_mcap_bodies_hold_every_value_exactly(tmp_path, monkeypatch, block_samples):
+    from bench.calibration import apply
+    from bench.calibration.compensation import compensation_of
+    from bench.model.imu import default_sim_imu
+    from bench.model.result import CalibrationResult, coefficient_table
+
+    monkeypatch.setattr(apply, "BLOCK_SAMPLES", block_samples)
+    samples = _samples()
+    samples.raw.gyro_counts[12, 1] = np.nan          # a value JSON cannot hold, outside the nullable fields
+    values = default_sim_imu().to_canonical()
+    compensation = compensation_of(CalibrationResult(coefficient_table(values, {k: 1e-6 for k in values})))
+    done: list[tuple[int, int]] = []
+    apply.write_mcap(samples, tmp_path / "a.mcap", compensation=compensation, source_log="x.mcap",
+                     progress=lambda d, t: done.append((d, t)))
+    raw, compensated = [], []
+    with open(tmp_path / "a.mcap", "rb") as f:
+        for _schema, channel, message in make_reader(f, validate_crcs=True).iter_messages(log_time_order=False):
+            topic = raw if channel.topic == TOPIC_SAMPLES else compensated
+            topic.append((message.log_time, _strict_json(message.data)))
+    block, n = samples.raw, len(samples)
+    assert len(raw) == len(compensated) == n and done[-1] == (n, n) and len(done) == -(-n // block_samples)
+    for k, ((log_time, r), (_t, c)) in enumerate(zip(raw, compensated)):
+        assert log_time == round(block.receive_time_s[k] * 1e9)
+        assert r["counter"] == c["counter"] == block.counter[k] and r["status"] == block.status[k]
+        assert r["time_s"] == c["time_s"] == block.receive_time_s[k] and r["imu_time_s"] == block.time_s[k]
+        gyro = [None if not np.isfinite(x) else x for x in block.gyro_counts[k]]
+        assert r["gyro_counts"] == gyro and r["acc_counts"] == block.acc_counts[k].tolist()
+        assert r["acc_rate"] == (block.acc_counts[k] * 200.0).tolist()
+        temperature = block.temperature_c[k]
+        assert r["temperature_c"] == (None if np.isnan(temperature) else temperature)
+        assert c["angular_rate"] == samples.angular_rate[k].tolist()
+        assert c["specific_force"] == samples.specific_force[k].tolist()
+        assert (c["rate_unit"], c["force_unit"]) == ("deg/s", "g")
+
+
+def test_the_csv_holds_every_value_exactly(tmp_path, monkeypatch):
+    from bench.calibration import apply
+
+    monkeypatch.setattr(apply, "BLOCK_SAMPLES", 7)
+    samples = _samples()
+    apply.write_csv(samples, tmp_path / "a.csv")
+    with open(tmp_path / "a.csv", encoding="utf-8", newline="") as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == ["counter", "time_s", "imu_time_s", "rate_x_dps", "rate_y_dps", "rate_z_dps", "force_x_g",
+                       "force_y_g", "force_z_g"]
+    assert [int(r[0]) for r in rows[1:]] == samples.counter.tolist()
+    data = np.array(rows[1:], dtype=float)
+    assert np.array_equal(data[:, 1], samples.time_s) and np.array_equal(data[:, 2], samples.imu_time_s)
+    assert np.array_equal(data[:, 3:6], samples.angular_rate) and np.array_equal(data[:, 6:9], samples.specific_force)
+
+
+def test_bench_apply_shows_a_bar_on_a_terminal_only(short_run, tmp_path, monkeypatch, capsys):
+    from bench.cli.main import main
+
+    argv = ["apply", str(short_run.result), str(short_run.log), "--out"]
+    assert main([*argv, str(tmp_path / "a.csv"), "--quiet"]) == 0
+    assert capsys.readouterr().err == ""
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    assert main([*argv, str(tmp_path / "b.csv")]) == 0
+    err = capsys.readouterr().err
+    assert "] 100/100 100%" in err and err.startswith("\r[") and err.endswith("\x1b[K"), repr(err[-200:])
