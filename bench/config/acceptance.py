@@ -29,7 +29,9 @@ from bench.model.result import CalibrationResult
 VALUE_RANGES = {"Kg": (0.0, 1e9, "counts/s per deg/s"), "Ka": (0.0, 1e9, "counts/s per g"),
                 "D0": (-36000.0, 36000.0, "deg/h"), "K0": (-1.0, 1.0, "g"), "Eg": (-1.0, 1.0, ""),
                 "Ea": (-1.0, 1.0, "")}
+#: the largest [acceptance] max_lost_samples (IMU samples lost on the link)
 MAX_LOST_SAMPLES = 10 ** 9
+#: the largest [acceptance] max_residual_sigma (|residual| / sigma)
 MAX_RESIDUAL_SIGMA = 1e6
 ACCEPTANCE_KEYS = ("max_lost_samples", "max_residual_sigma", "reference", "verification", *FAMILY_INFO,
                    *canonical_names())

@@ -38,6 +38,7 @@ from drivers.transport import MODBUS_SCHEMES
 CHAMBER_KEYS = ("url", "dialect", "timeout_s", "retries", "poll_s", "safe_setpoint_c", "limits", "register_map",
                 "modbus")
 LIMIT_KEYS = ("min_setpoint_c", "max_setpoint_c", "max_ramp_c_per_min")
+#: the fastest chamber ramp a configuration may allow, degC/min
 MAX_RAMP_C_PER_MIN = 100.0
 
 

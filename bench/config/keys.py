@@ -17,12 +17,12 @@ from typing import Any
 
 from bench.config.acceptance import MAX_LOST_SAMPLES, MAX_RESIDUAL_SIGMA, VALUE_RANGES
 from bench.config.chamber import MAX_RAMP_C_PER_MIN
-from bench.config.reader import _REQUIRED, Table
+from bench.config.reader import Table
 from bench.config.thermal import MAX_TEMPERATURE_C, MAX_TIME_CONSTANT_S, MIN_TEMPERATURE_C
 from bench.config.thermal_plan import MAX_TEMPERATURES
 from bench.model.families import FAMILY_INFO, canonical_names
 from bench.model.imu import NoiseModel
-from bench.model.thermal import THERMAL_NAMES
+from bench.model.thermal import DIAGONAL_NAMES, THERMAL_NAMES
 from bench.plan.thermal import SoakCriterion
 from drivers.chamber.base import ABSOLUTE_MAX_C, ABSOLUTE_MIN_C, ChamberLimits
 from drivers.turntable import FRAMES, AxisLimits
@@ -30,7 +30,7 @@ from drivers.turntable import FRAMES, AxisLimits
 # Ranges shared by several keys.
 MAX_RATE_DPS = 1000.0          # table limits, moves and turns
 MIN_RATE_DPS = 1e-3
-MAX_ACCEL_DPS2 = 10000.0
+MAX_ACCEL_DPS2 = 10000.0       # table limits, moves and turns
 MIN_ACCEL_DPS2 = 1e-3
 MAX_TRAVEL_DEG = 3600.0        # |min_deg|, |max_deg|: ten turns
 MAX_BLACK_BOX_ARCSEC = 3600.0  # RMS or each angle: one degree
@@ -51,6 +51,7 @@ PLACEHOLDERS: dict[str, tuple[str, ...]] = {
     "<family>": tuple(FAMILY_INFO),
     "<coefficient>": tuple(canonical_names()),
     "<thermal coefficient>": tuple(THERMAL_NAMES),
+    "<diagonal>": tuple(sorted(DIAGONAL_NAMES)),
 }
 
 
@@ -226,9 +227,15 @@ KEYS: tuple[Key, ...] = (
     Key("imu.signals", "temperature", "string", "the IMU's temperature, degC", NONE),
     Key("imu.signals", "status", "string", "the status word", NONE),
     Key("imu.signals", "status_invalid", "integer", "status bits that make a sample unusable (0 = none)", NONE,
-        default_text="faults, over-range, initialising (drivers/CAN.md)"),
-    Key("imu.signals", "counter", "string", "sample counter signal in every message", "Counter"),
-    Key("imu.signals", "crc", "string", "CRC-8 signal in every message, \"\" = none", "CRC"),
+        ge=0, le=0xFFFF_FFFF, default_text="faults, over-range, initialising (drivers/CAN.md); 0 with time_stamp"),
+    Key("imu.signals", "status_required", "integer", "status bits that must be set in a usable sample (an IMU "
+        "whose bits mean \"healthy\")", 0, ge=0, le=0xFFFF_FFFF),
+    Key("imu.signals", "counter", "string or table", "sample counter signal in every message, or {message = "
+        "signal}", "Counter", default_text="\"Counter\"; none with time_stamp"),
+    Key("imu.signals", "crc", "string or table", "CRC-8 signal in every message, or {message = signal}; \"\" = "
+        "none", "CRC", default_text="\"CRC\"; none with time_stamp"),
+    Key("imu.signals", "time_stamp", "string", "a time stamp signal (unsigned, microseconds) instead of a counter: "
+        "its message opens a sample, the channels are then rates and accelerations (sbg-ecan)", NONE),
     Key("imu.identity", "model", "string", "model name", ""),
     Key("imu.identity", "serial", "string", "serial number", ""),
     Key("imu.identity", "gyro_bias_stability_dph", "number", "data-sheet gyro bias stability", NONE, "deg/h",
@@ -329,6 +336,8 @@ KEYS: tuple[Key, ...] = (
     Key("sim.imu.thermal", "<thermal coefficient>", "array", "[c1, c2, c3]: the change per degC, degC^2, degC^3 "
         "from the reference value (not a direction-cosine diagonal)", NONE,
         range_text="1 to 3 terms, each at most the coefficient's range / 100^k"),
+    Key("sim.imu.thermal", "<diagonal>", "array", "refused with its reason: a direction-cosine diagonal has no "
+        "polynomial, it follows from its row's off-diagonals", NONE, range_text="not allowed"),
     # [acceptance]
     Key("acceptance", "max_lost_samples", "integer", "IMU samples lost on the link", NONE, ge=0,
         le=MAX_LOST_SAMPLES),
@@ -388,8 +397,14 @@ _BY_NAME: dict[tuple[str, str], Key] = {(key.section, key.name): key for key in 
 
 
 def declared(section: str, name: str) -> Key:
-    """The declared key `name` of `section` (its declared spelling: "table.limits.<frame>")."""
-    return _BY_NAME[section, name]
+    """The declared key `name` of `section` (the section as declared: "table.limits.<frame>"); `name` may be a
+    member of a placeholder name ("outer" for "<frame>")."""
+    if (section, name) in _BY_NAME:
+        return _BY_NAME[section, name]
+    for (where, placeholder), entry in _BY_NAME.items():
+        if where == section and name in PLACEHOLDERS.get(placeholder, ()):
+            return entry
+    raise KeyError(f"{section}.{name} is not declared in bench.config.keys.KEYS")
 
 
 def allowed(section: str) -> tuple[str, ...]:
@@ -411,27 +426,27 @@ def match(path: tuple[str, ...]) -> Key | None:
     return None
 
 
-def _default(entry: Key, default: Any) -> Any:
-    if default is not NONE:
-        return default
-    if entry.default is REQUIRED:
-        return _REQUIRED
-    return None if entry.default is NONE else entry.default
+def _number(t: Table, section: str, name: str, default: Any) -> float | None:
+    entry = declared(section, name)
+    bounds: dict[str, Any] = {"gt": entry.gt, "ge": entry.ge, "le": entry.le, "unit": entry.unit}
+    if default is NONE:
+        if entry.default is REQUIRED:
+            return t.number(name, **bounds)
+        default = None if entry.default is NONE else entry.default
+    return t.number(name, default, **bounds)
 
 
 def number(t: Table, section: str, name: str, default: Any = NONE) -> float:
     """`t.number(name, ...)` with the declared default and range (`default`: one computed by the loader); the key
     must have a default or be required."""
-    entry = declared(section, name)
-    value = t.number(name, _default(entry, default), gt=entry.gt, ge=entry.ge, le=entry.le, unit=entry.unit)
-    assert value is not None, f"{entry.dotted} has no default: use optional_number"
+    value = _number(t, section, name, default)
+    assert value is not None, f"{section}.{name} has no default: use optional_number"
     return value
 
 
 def optional_number(t: Table, section: str, name: str, default: Any = NONE) -> float | None:
     """`t.number(name, ...)` with the declared range; None when absent and the key has no default."""
-    entry = declared(section, name)
-    return t.number(name, _default(entry, default), gt=entry.gt, ge=entry.ge, le=entry.le, unit=entry.unit)
+    return _number(t, section, name, default)
 
 
 def integer(t: Table, section: str, name: str) -> int | None:
@@ -439,7 +454,9 @@ def integer(t: Table, section: str, name: str) -> int | None:
     entry = declared(section, name)
     low = None if entry.ge is None else int(entry.ge)
     high = None if entry.le is None else int(entry.le)
-    return t.integer(name, _default(entry, NONE), ge=low, le=high)
+    if entry.default is REQUIRED:
+        return t.integer(name, ge=low, le=high)
+    return t.integer(name, None if entry.default is NONE else entry.default, ge=low, le=high)
 
 
 __all__ = ["KEYS", "NONE", "PLACEHOLDERS", "REQUIRED", "Key", "allowed", "declared", "integer", "match", "number",

@@ -272,7 +272,7 @@ def _pointing(t: Table) -> TablePrior | None:
     if t.has("pointing_accuracy_arcsec"):
         if isinstance(t.get("pointing_accuracy_arcsec"), dict):
             frames = t.table("pointing_accuracy_arcsec", allowed("table.pointing_accuracy_arcsec"))
-            pointing = {f: number(frames, "table.pointing_accuracy_arcsec", "<frame>") for f in FRAME_KEYS}
+            pointing = {f: number(frames, "table.pointing_accuracy_arcsec", f) for f in FRAME_KEYS}
         else:
             pointing = number(t, "table", "pointing_accuracy_arcsec")
     orthogonality = optional_number(t, "table", "orthogonality_arcsec")

@@ -19,6 +19,7 @@ from bench.model.thermal import DIAGONAL_NAMES, MAX_THERMAL_DEGREE, THERMAL_NAME
 
 #: the temperatures a bench can mean, degC (a chamber's range and then some)
 MIN_TEMPERATURE_C, MAX_TEMPERATURE_C = -100.0, 200.0
+#: the longest thermal time constant of the simulated IMU's case, s
 MAX_TIME_CONSTANT_S = 1e6
 #: a polynomial term may move its coefficient by at most its range over this span
 _SPAN_C = 100.0

@@ -23,6 +23,7 @@ from drivers.chamber import ChamberLimits
 
 PLAN_THERMAL_KEYS = ("temperatures_c", "ramp_c_per_min", "soak")
 SOAK_KEYS = ("rate_c_per_min", "stable_min", "max_soak_min", "chamber_tolerance_c", "rate_window_s")
+#: the most chamber temperatures of one plan ([plan] temperatures_c)
 MAX_TEMPERATURES = 50
 
 
