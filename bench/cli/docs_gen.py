@@ -57,13 +57,15 @@ def write_all(root: Path = REPO) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog=REGENERATE, description=__doc__.split("\n\n")[0])
     parser.add_argument("--check", action="store_true", help="write nothing; exit 1 when a page is stale")
+    parser.add_argument("--root", type=Path, default=REPO, help="the repository the pages go into (default: this "
+                        "one)")
     args = parser.parse_args(argv)
     if args.check:
-        names = stale()
+        names = stale(args.root)
         for name in names:
             print(f"stale: {name} (run `{REGENERATE}`)")
         return 1 if names else 0
-    for name in write_all():
+    for name in write_all(args.root):
         print(f"wrote {name}")
     return 0
 

@@ -86,6 +86,7 @@ def _argument(action: argparse.Action, formatter: argparse.HelpFormatter) -> str
             names += f" `{formatter._format_args(action, formatter._get_default_metavar_for_optional(action))}`"
     else:
         names = f"`{formatter._format_args(action, formatter._get_default_metavar_for_positional(action))}`"
+    names = names.replace("|", "\\|")
     help_text = formatter._expand_help(action) if action.help else ""
     if action.choices and not isinstance(action, argparse._SubParsersAction):
         help_text += f" (one of: {', '.join(str(c) for c in action.choices)})"
@@ -177,7 +178,7 @@ def exit_codes_page() -> str:
 LIMIT_ROOTS = ("bench", "drivers", "schedules")
 
 
-def _limit_constants() -> list[tuple[str, str, str]]:
+def limit_constants() -> list[tuple[str, str, str]]:
     """(module, name, comment) of every module-level `MAX_*` constant, in file order."""
     found = []
     for root in LIMIT_ROOTS:
@@ -210,10 +211,11 @@ def limits_page() -> str:
              "constant of `bench`, `drivers` and `schedules`, with its value and the comment beside it in the "
              "code. The configuration keys' ranges are on [the configuration page](configuration.md).", "",
              "| module | constant | value | what it bounds |", "|---|---|---|---|"]
-    for module, name, comment in _limit_constants():
+    for module, name, comment in limit_constants():
         value = getattr(importlib.import_module(module), name)
         lines.append(f"| `{module}` | `{name}` | {cell(_value(value))} | {cell(comment)} |")
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["HEADER", "REGENERATE", "REPO", "cell", "cli_page", "configuration_page", "exit_codes_page", "limits_page"]
+__all__ = ["HEADER", "REGENERATE", "REPO", "cell", "cli_page", "configuration_page", "exit_codes_page", "limit_constants",
+           "limits_page"]
