@@ -217,5 +217,5 @@ def limits_page() -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["HEADER", "REGENERATE", "REPO", "cell", "cli_page", "configuration_page", "exit_codes_page", "limit_constants",
-           "limits_page"]
+__all__ = ["HEADER", "REGENERATE", "REPO", "cell", "cli_page", "configuration_page", "exit_codes_page",
+           "limit_constants", "limits_page"]
