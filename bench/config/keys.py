@@ -15,11 +15,8 @@ import enum
 from dataclasses import dataclass
 from typing import Any
 
-from bench.config.acceptance import MAX_LOST_SAMPLES, MAX_RESIDUAL_SIGMA, VALUE_RANGES
-from bench.config.chamber import MAX_RAMP_C_PER_MIN
+from bench.acceptance.limits import BEYOND_FAIL, BEYOND_WARN, VERIFICATION_LIMITS
 from bench.config.reader import Table
-from bench.config.thermal import MAX_TEMPERATURE_C, MAX_TIME_CONSTANT_S, MIN_TEMPERATURE_C
-from bench.config.thermal_plan import MAX_TEMPERATURES
 from bench.model.families import FAMILY_INFO, canonical_names
 from bench.model.imu import NoiseModel
 from bench.model.thermal import DIAGONAL_NAMES, THERMAL_NAMES
@@ -40,6 +37,22 @@ MAX_CORRELATION_TIME_S = 1e6   # a bias instability's correlation time ([sim.noi
 MIN_CORRELATION_TIME_S = 0.1
 MAX_GYRO_STABILITY_DPH = 3600.0       # a data-sheet or measured gyro bias instability
 MAX_ACC_STABILITY_UG = 100000.0       # a data-sheet or measured accelerometer bias instability
+#: the temperatures a bench can mean, degC (a chamber's range and then some)
+MIN_TEMPERATURE_C, MAX_TEMPERATURE_C = -100.0, 200.0
+#: the longest thermal time constant of the simulated IMU's case, s
+MAX_TIME_CONSTANT_S = 1e6
+#: the fastest chamber ramp a configuration may allow, degC/min
+MAX_RAMP_C_PER_MIN = 100.0
+#: the most chamber temperatures of one plan ([plan] temperatures_c)
+MAX_TEMPERATURES = 50
+#: the largest [acceptance] max_lost_samples (IMU samples lost on the link)
+MAX_LOST_SAMPLES = 10 ** 9
+#: the largest [acceptance] max_residual_sigma (|residual| / sigma)
+MAX_RESIDUAL_SIGMA = 1e6
+#: [acceptance] family -> (lowest, highest, unit) of a value, in result units
+VALUE_RANGES = {"Kg": (0.0, 1e9, "counts/s per deg/s"), "Ka": (0.0, 1e9, "counts/s per g"),
+                "D0": (-36000.0, 36000.0, "deg/h"), "K0": (-1.0, 1.0, "g"), "Eg": (-1.0, 1.0, ""),
+                "Ea": (-1.0, 1.0, "")}
 #: [sim.imu] coefficient family -> (lower or None for -upper, upper, unit)
 SIM_IMU_RANGES: dict[str, tuple[float | None, float, str]] = {
     "Kg": (0.0, 1e6, "counts/s per deg/s"), "Ka": (0.0, 1e6, "counts/s per g"), "D0": (None, 36000.0, "deg/h"),
@@ -136,6 +149,11 @@ _SIM_IMU_RANGE = "; ".join(f"{family}: " + (f"> {low:g} and <= {high:g}" if low 
                            for family, (low, high, unit) in SIM_IMU_RANGES.items())
 _ACCEPTANCE_VALUE = "the family's value range: " + "; ".join(
     f"{family} {low:g}..{high:g}" + (f" {unit}" if unit else "") for family, (low, high, unit) in VALUE_RANGES.items())
+_VERIFICATION_MEANINGS = {
+    "gyro_bias_dph": "largest |gyro bias error|", "gyro_scale_ppm": "largest |gyro scale error| at every rate",
+    "gyro_misalignment_arcsec": "largest |gyro misalignment|", "acc_bias_ug": "largest |accelerometer bias error|",
+    "acc_scale_ppm": "largest |accelerometer scale error|",
+    "acc_misalignment_arcsec": "largest |accelerometer misalignment|"}
 _ACCEPTANCE_WIDTH = "> 0 and at most the width of the family's value range"
 
 #: the table, in the order of the documentation (sections as bench.example.toml has them)
@@ -344,10 +362,10 @@ KEYS: tuple[Key, ...] = (
     Key("acceptance", "max_residual_sigma", "number", "largest |residual| / sigma of a position or rotation", NONE,
         "sigma", gt=0.0, le=MAX_RESIDUAL_SIGMA),
     Key("acceptance", "reference", "path", "the IMU's nominal or previous result, for max_change", NONE),
+    Key("acceptance", "verification", "table", "limits of the errors after compensation on the verification plan",
+        NONE),
     Key("acceptance", "<family>", "table", "limits of every coefficient of a family (Kg D0 Eg Ka K0 Ea)", NONE),
     Key("acceptance", "<coefficient>", "table", "limits of one coefficient, overriding its family's key by key",
-        NONE),
-    Key("acceptance", "verification", "table", "limits of the errors after compensation on the verification plan",
         NONE),
     *(Key(f"acceptance.<{kind}>", name, "number", meaning, NONE, "result units", range_text=text)
       for kind in ("family", "coefficient")
@@ -357,20 +375,10 @@ KEYS: tuple[Key, ...] = (
           ("max_sigma", "largest 1-sigma", _ACCEPTANCE_WIDTH),
           ("max_change", "largest change from nominal or the reference result", _ACCEPTANCE_WIDTH),
           ("nominal", "the nominal value, for max_change", _ACCEPTANCE_VALUE))),
+    *(Key("acceptance.verification", name, "number", _VERIFICATION_MEANINGS[name], NONE, unit, gt=0.0, le=high)
+      for name, (unit, high) in VERIFICATION_LIMITS.items()),
     Key("acceptance.verification", "beyond_uncertainty", "string", "an error beyond its expanded uncertainty U "
-        "fails, or is only marked \"(beyond U)\"", "fail", choices=("fail", "warn")),
-    Key("acceptance.verification", "gyro_bias_dph", "number", "largest |gyro bias error|", NONE, "deg/h", gt=0.0,
-        le=3600.0),
-    Key("acceptance.verification", "gyro_scale_ppm", "number", "largest |gyro scale error| at every rate", NONE,
-        "ppm", gt=0.0, le=1e6),
-    Key("acceptance.verification", "gyro_misalignment_arcsec", "number", "largest |gyro misalignment|", NONE,
-        "arcsec", gt=0.0, le=3600.0),
-    Key("acceptance.verification", "acc_bias_ug", "number", "largest |accelerometer bias error|", NONE, "ug",
-        gt=0.0, le=1e6),
-    Key("acceptance.verification", "acc_scale_ppm", "number", "largest |accelerometer scale error|", NONE, "ppm",
-        gt=0.0, le=1e6),
-    Key("acceptance.verification", "acc_misalignment_arcsec", "number", "largest |accelerometer misalignment|",
-        NONE, "arcsec", gt=0.0, le=3600.0),
+        "fails, or is only marked \"(beyond U)\"", BEYOND_FAIL, choices=(BEYOND_FAIL, BEYOND_WARN)),
     # [chamber]
     Key("chamber", "url", "string", "tcp://host:port, a serial device, modbus+tcp://, modbus+rtu://, or \"sim\" "
         "(the simulated chamber)", REQUIRED),
@@ -381,10 +389,10 @@ KEYS: tuple[Key, ...] = (
     Key("chamber", "poll_s", "number", "time between state reads", 1.0, "s", ge=0.01, le=600.0),
     Key("chamber", "safe_setpoint_c", "number", "on abort or fault the chamber goes here; absent: it is stopped",
         NONE, "degC", range_text="min_setpoint_c..max_setpoint_c"),
+    Key("chamber", "limits", "table", "the chamber's limits, checked before sending"),
     Key("chamber", "register_map", "string", "modbus: \"watlow-f4\", \"generic\", or a file holding a [modbus] "
         "table (drivers/CHAMBER.md)", NONE, default_text="\"watlow-f4\""),
     Key("chamber", "modbus", "table", "modbus: the register map inline (drivers/CHAMBER.md)", NONE),
-    Key("chamber", "limits", "table", "the chamber's limits, checked before sending"),
     Key("chamber.limits", "min_setpoint_c", "number", "lowest setpoint", _CHAMBER.min_setpoint_c, "degC",
         ge=ABSOLUTE_MIN_C, le=ABSOLUTE_MAX_C),
     Key("chamber.limits", "max_setpoint_c", "number", "highest setpoint (above min_setpoint_c)",
