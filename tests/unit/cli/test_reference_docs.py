@@ -105,12 +105,19 @@ def test_a_benchmark_result_is_written_and_rendered(tmp_path):
         results.record("../escape", medians_s={}, folder=tmp_path)
 
 
-def test_the_noise_benchmark_writes_its_figures_on_a_tiny_run(tmp_path):
+@pytest.mark.parametrize("script, arguments, parameters, median", [
+    ("noise_speed", ["--hours", "0.001", "--rate-hz", "100", "--repeats", "1", "--log-hours", "0"],
+     {"hours": 0.001, "rate_hz": 100.0, "repeats": 1}, "bench allan_curves, 6 channels in memory"),
+    ("plan_duration", ["--repeats", "1"], {"repeats": 1}, "traditional-12 + traditional-3s6r: compile"),
+    ("table_poll_rtt", ["--polls", "5", "--repeats", "1", "--dialects", "scpi"],
+     {"polls": 5, "repeats": 1, "dialects": "scpi"}, "scpi over tcp: one state poll"),
+], ids=["noise_speed", "plan_duration", "table_poll_rtt"])
+def test_a_benchmark_writes_its_figures_on_a_tiny_run(tmp_path, script, arguments, parameters, median):
     env = {**os.environ, "BENCH_RESULTS_DIR": str(tmp_path), "PYTHONPATH": str(REPO)}
-    done = subprocess.run([sys.executable, str(REPO / "benchmarks" / "noise_speed.py"), "--hours", "0.001",
-                           "--rate-hz", "100", "--repeats", "1", "--log-hours", "0"], env=env, cwd=tmp_path,
-                          capture_output=True, text=True, timeout=300)
+    done = subprocess.run([sys.executable, str(REPO / "benchmarks" / f"{script}.py"), *arguments], env=env,
+                          cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    document = json.loads((tmp_path / "noise_speed.json").read_text(encoding="utf-8"))
-    assert document["parameters"] == {"hours": 0.001, "rate_hz": 100.0, "repeats": 1}
-    assert document["medians_s"]["bench allan_curves, 6 channels in memory"] > 0
+    document = json.loads((tmp_path / f"{script}.json").read_text(encoding="utf-8"))
+    assert document["benchmark"] == script and document["parameters"] == parameters
+    assert document["medians_s"][median] > 0
+    assert f"## {script}" in benchmarks_page(tmp_path)
