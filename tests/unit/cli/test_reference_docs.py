@@ -111,12 +111,17 @@ def test_a_benchmark_result_is_written_and_rendered(tmp_path):
     ("plan_duration", ["--repeats", "1"], {"repeats": 1}, "traditional-12 + traditional-3s6r: compile"),
     ("table_poll_rtt", ["--polls", "5", "--repeats", "1", "--dialects", "scpi"],
      {"polls": 5, "repeats": 1, "dialects": "scpi"}, "scpi over tcp: one state poll"),
-], ids=["noise_speed", "plan_duration", "table_poll_rtt"])
+    ("recorder_speed", ["--frames", "7000", "--repeats", "1"], {"frames": 7000, "repeats": 1},
+     "read_log + imu_samples"),
+    ("can_speed", ["--repeats", "1", "--live-frames", "700", "--bulk-frames", "7000"],
+     {"repeats": 1, "live_frames": 700, "bulk_frames": 7000}, "bulk decode_frames: one frame"),
+], ids=["noise_speed", "plan_duration", "table_poll_rtt", "recorder_speed", "can_speed"])
 def test_a_benchmark_writes_its_figures_on_a_tiny_run(tmp_path, script, arguments, parameters, median):
     env = {**os.environ, "BENCH_RESULTS_DIR": str(tmp_path), "PYTHONPATH": str(REPO)}
     done = subprocess.run([sys.executable, str(REPO / "benchmarks" / f"{script}.py"), *arguments], env=env,
                           cwd=tmp_path, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr
+    # recorder_speed exits 1 when its throughput target is missed (a tiny run misses it): the figures are written
+    assert done.returncode in ((0, 1) if script == "recorder_speed" else (0,)) and not done.stderr, done.stderr
     document = json.loads((tmp_path / f"{script}.json").read_text(encoding="utf-8"))
     assert document["benchmark"] == script and document["parameters"] == parameters
     assert document["medians_s"][median] > 0
