@@ -23,7 +23,8 @@ def _type(schema: dict) -> str:
     if "enum" in schema:
         return " or ".join(f"`{json.dumps(v)}`" for v in schema["enum"])
     if "$ref" in schema:
-        return f"see `{schema['$ref'].rsplit('/', 1)[-1]}`"
+        name = schema["$ref"].rsplit("/", 1)[-1]
+        return f"[`{name}`](#{name.lower()})"
     kind = schema.get("type", "any")
     if kind == "array" and isinstance(schema.get("items"), dict):
         return f"array of {_type(schema['items'])}"
@@ -46,12 +47,12 @@ def _properties(schema: dict, heading: str, lines: list[str]) -> None:
 def schema_page(path: Path) -> str:
     """The page of one schema file."""
     schema = json.loads(path.read_text(encoding="utf-8"))
-    lines = [HEADER + f"# {schema['title']}", "", " ".join(schema.get("description", "").split()), "",
+    lines = [HEADER + f"# {schema['title']}", "", cell(schema.get("description", "")), "",
              f"JSON Schema (draft 2020-12): [`{path.name}`]({path.name})."]
     _properties(schema, "## Properties", lines)
     for name, sub in schema.get("$defs", {}).items():
         if sub.get("properties"):
-            text = " ".join(sub.get("description", "").split())
+            text = cell(sub.get("description", ""))
             _properties(sub, f"## `{name}`" + (f"\n\n{text}" if text else ""), lines)
     return "\n".join(lines) + "\n"
 
