@@ -239,3 +239,13 @@ def test_the_example_states_the_tables_defaults_and_ranges():
 
 def test_sim_imu_coefficients_match_the_placeholder():
     assert keys.PLACEHOLDERS["<coefficient>"] == tuple(canonical_names())
+
+
+def test_every_key_the_example_shows_is_declared():
+    """Set or commented out, each key line of bench.example.toml names a key of the table (the register maps and
+    the bus options excepted, as above)."""
+    shown = [path for path, _ in example_comments()]
+    assert len(shown) > 100
+    undeclared = [".".join(path) for path in shown
+                  if keys.match(path) is None and not ".".join(path).startswith(NOT_A_TABLE)]
+    assert undeclared == []
