@@ -115,7 +115,9 @@ def test_a_benchmark_result_is_written_and_rendered(tmp_path):
      "read_log + imu_samples"),
     ("can_speed", ["--repeats", "1", "--live-frames", "700", "--bulk-frames", "7000"],
      {"repeats": 1, "live_frames": 700, "bulk_frames": 7000}, "bulk decode_frames: one frame"),
-], ids=["noise_speed", "plan_duration", "table_poll_rtt", "recorder_speed", "can_speed"])
+    ("tui_refresh", ["--seconds", "3", "--rate-hz", "200"], {"seconds": 3.0, "rate_hz": 200.0, "refresh_hz": 20.0},
+     "panel refresh period (1 s windows)"),
+], ids=["noise_speed", "plan_duration", "table_poll_rtt", "recorder_speed", "can_speed", "tui_refresh"])
 def test_a_benchmark_writes_its_figures_on_a_tiny_run(tmp_path, script, arguments, parameters, median):
     env = {**os.environ, "BENCH_RESULTS_DIR": str(tmp_path), "PYTHONPATH": str(REPO)}
     done = subprocess.run([sys.executable, str(REPO / "benchmarks" / f"{script}.py"), *arguments], env=env,
