@@ -3,8 +3,9 @@
 `load_config(path)` reads, checks and builds everything a run needs (site, table
 limits and register map, the compiled IMU frame layout, the schedules, the simulator's
 truth) so that a bad file fails before any hardware moves, with one `ConfigError`
-line ``file:line: key: message``. Every number has a documented range (the example's
-comments; a message names it); the file, a register map and a DBC are read only when
+line ``file:line: key: message``. Each key's accepted name, default and range come from the
+key table `bench.config.keys` (docs/reference/configuration.md is generated from it; a message
+names the range); the file, a register map and a DBC are read only when
 they are regular files of at most 1 MiB. Relative paths inside the file (register map, DBC,
 schedule files) start at the file's folder; `[output] folder` starts at the current
 directory at run time.
