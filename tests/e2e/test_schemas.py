@@ -1,7 +1,7 @@
 """The JSON Schemas of docs/reference/schemas validate what the bench writes: the result of `bench run --sim` and
 of `bench run --config`, a calibration over temperature (its thermal file and its per-temperature results),
-`bench noise`, `bench check-table` and `bench export` (a result's compensation, a thermal model); and they refuse
-a document that breaks them (a schema that accepts everything would pass the first half)."""
+`bench noise`, `bench check-table`, `bench export` (a result's compensation, a thermal model) and a verification;
+and they refuse a document that breaks them (a schema that accepts everything would pass the first half)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 
 jsonschema = pytest.importorskip("jsonschema", reason="the test extra installs jsonschema")
 
-from tests.helpers.run import cli, only_file  # noqa: E402
+from tests.helpers.run import cli, config_text, only_file  # noqa: E402
 from tests.unit.table_check.test_table_check import _schedule_text  # noqa: E402
 
 SCHEMAS = Path(__file__).resolve().parents[2] / "docs" / "reference" / "schemas"
@@ -64,7 +64,8 @@ def test_every_schema_has_a_page_and_every_page_a_schema():
     from bench.cli.schema_pages import schema_pages
 
     names = {path.name.removesuffix(".schema.json") for path in SCHEMAS.glob("*.schema.json")}
-    assert names == {"result", "thermal", "noise", "table-check", "compensation", "thermal-model-export"}
+    assert names == {"result", "thermal", "noise", "table-check", "compensation", "thermal-model-export",
+                     "verification"}
     assert {Path(page).stem for page in schema_pages()} == names
 
 
@@ -120,3 +121,16 @@ def test_bench_export_writes_a_valid_compensation(short_run, tmp_path):
     broken = copy.deepcopy(document)
     broken["gyro"]["matrix"] = broken["gyro"]["matrix"][:2]
     assert_refused("compensation", broken)
+
+
+def test_a_run_with_a_verification_plan_writes_valid_files(tmp_path):
+    text = config_text(dwell_s=1.0).replace("[plan]\n", '[plan]\nverification = "verify-default"\n')
+    (tmp_path / "bench.toml").write_text(text, encoding="utf-8")
+    rc, _, stderr = cli(["run", "--config", str(tmp_path / "bench.toml"), "--out", str(tmp_path / "out"), "--quiet",
+                         "--no-db"])
+    assert rc == 0, stderr
+    assert_valid("result", only_file(tmp_path / "out", "*.result.json"))
+    document = assert_valid("verification", only_file(tmp_path / "out", "*.verify.json"))
+    broken = copy.deepcopy(document)
+    broken["errors"][0]["unit"] = "furlongs"
+    assert_refused("verification", broken)
