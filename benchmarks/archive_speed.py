@@ -42,6 +42,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from results import record  # noqa: E402
+
 import bench.jobs.archive as archive_module  # noqa: E402
 from bench.cli.main import main  # noqa: E402
 from bench.jobs.archive import solve_archive  # noqa: E402
@@ -184,6 +186,15 @@ def run(args: argparse.Namespace) -> None:
               f"{100 * (med['dask 1 worker'] / med['loop'] - 1):+.1f} % whole command, "
               f"{100 * (med['dask 1 worker solving'] / med['loop'] - 1):+.1f} % without the start-up "
               f"(target < 10 %)")
+        path = record("archive_speed", medians_s={f"bench solve --archive of {args.logs} logs, {label}": seconds
+                                                  for label, seconds in med.items()},
+                      ratios={"2 workers vs 1, whole command": med["dask 1 worker"] / med["dask 2 workers"],
+                              "2 workers vs 1, without the cluster start-up":
+                                  med["dask 1 worker solving"] / med["dask 2 workers solving"],
+                              "Dask 1 worker / the plain loop": med["dask 1 worker"] / med["loop"]},
+                      parameters={"logs": args.logs, "repeats": args.repeats, "rate_hz": args.rate_hz,
+                                  "dwell_s": args.dwell_s, "distinct": args.distinct})
+        print(f"figures written to {path}")
         if args.scaling_only:
             return
         db = work / "records.sqlite"

@@ -19,6 +19,7 @@ import time
 
 import can
 import numpy as np
+import results
 
 from drivers.imu import (
     ImuEncoder,
@@ -114,15 +115,28 @@ def main() -> int:
     msgs = messages(live_frames, live_times)
     print(f"classic layout, {len(layout.messages)} frames per sample; {len(msgs):,} frames live, "
           f"{args.repeats} repeats")
-    print(line("ingest: virtual bus -> ImuReceiver.poll", bench_ingest(msgs, args.repeats), LIVE_TARGET))
-    print(line("stream decoder alone (StreamDecoder.feed)", bench_decoder(msgs, args.repeats)))
+    rates = {"ingest: virtual bus -> ImuReceiver.poll": bench_ingest(msgs, args.repeats)}
+    print(line("ingest: virtual bus -> ImuReceiver.poll", rates["ingest: virtual bus -> ImuReceiver.poll"],
+               LIVE_TARGET))
+    rates["stream decoder alone (StreamDecoder.feed)"] = bench_decoder(msgs, args.repeats)
+    print(line("stream decoder alone (StreamDecoder.feed)", rates["stream decoder alone (StreamDecoder.feed)"]))
     bulk_frames, bulk_times = recorded(args.bulk_frames, layout)
-    print(line(f"bulk decode_frames, {len(bulk_frames):,} frames", bench_bulk(bulk_frames, bulk_times, layout,
-                                                                             args.repeats), BULK_TARGET))
+    rates["bulk decode_frames"] = bench_bulk(bulk_frames, bulk_times, layout, args.repeats)
+    print(line(f"bulk decode_frames, {len(bulk_frames):,} frames", rates["bulk decode_frames"], BULK_TARGET))
     fd = default_fd_layout()
     fd_frames, fd_times = recorded(args.bulk_frames // 4, fd)
-    print(line(f"bulk decode_frames, CAN FD, {len(fd_frames):,} frames",
-               bench_bulk(fd_frames, fd_times, fd, args.repeats)))
+    rates["bulk decode_frames, CAN FD"] = bench_bulk(fd_frames, fd_times, fd, args.repeats)
+    print(line(f"bulk decode_frames, CAN FD, {len(fd_frames):,} frames", rates["bulk decode_frames, CAN FD"]))
+    # the figures file holds seconds per frame (the medians' inverse) and each target's ratio
+    path = results.record("can_speed", medians_s={f"{name}: one frame": 1.0 / statistics.median(r)
+                                                   for name, r in rates.items()},
+                          ratios={"ingest frames/s / target":
+                                  statistics.median(rates["ingest: virtual bus -> ImuReceiver.poll"]) / LIVE_TARGET,
+                                  "bulk frames/s / target":
+                                  statistics.median(rates["bulk decode_frames"]) / BULK_TARGET},
+                          parameters={"repeats": args.repeats, "live_frames": args.live_frames,
+                                      "bulk_frames": args.bulk_frames})
+    print(f"figures written to {path}")
     return 0
 
 

@@ -19,6 +19,8 @@ import sys
 import time
 from pathlib import Path
 
+import results
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.sim.chamber import SimChamber  # noqa: E402
@@ -60,15 +62,22 @@ def main() -> int:
     args = parser.parse_args()
     print(f"chamber state poll round trip, {args.polls} polls x {args.repeats} repeats")
     print(f"{'dialect':<8} {'link':<5} {'median ms':>10} {'p90 ms':>8} {'polls/s':>9}")
+    medians_s: dict[str, float] = {}
     for dialect in ("ascii", "modbus"):
         for link in ("tcp", "pty"):
             runs = [measure_poll(dialect, link, args.polls) for _ in range(args.repeats)]
             median = statistics.median(r[0] for r in runs)
             p90 = statistics.median(r[1] for r in runs)
             print(f"{dialect:<8} {link:<5} {median:>10.3f} {p90:>8.3f} {1e3 / median:>9.0f}")
+            medians_s[f"{dialect} over {link}: one state poll"] = median / 1e3
+            medians_s[f"{dialect} over {link}: 90th percentile poll"] = p90 / 1e3
     rates = [measure_physics() for _ in range(args.repeats)]
     print(f"simulated chamber: 8 h of ramp and soak read every simulated second: "
           f"{statistics.median(rates):,.0f} simulated s per wall s (median of {args.repeats})")
+    path = results.record("chamber_speed", medians_s=medians_s,
+                          ratios={"simulated chamber: simulated s per wall s": statistics.median(rates)},
+                          parameters={"polls": args.polls, "repeats": args.repeats})
+    print(f"figures written to {path}")
     return 0
 
 

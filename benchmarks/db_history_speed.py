@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 import sqlalchemy as sa
+from results import record
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -133,6 +134,8 @@ def run(args: argparse.Namespace) -> None:
         made.rename(template_path)
     template = json.loads(template_path.read_text())
     print(f"databases in {folder} (built once)")
+    medians_s: dict[str, float] = {}
+    ratios: dict[str, float] = {}
     for label, units, serial in (("fleet", args.units, "SN-00042"), ("one unit", 1, "SN-00000")):
         db = folder / f"{label.replace(' ', '-')}-{args.results}-{units}.sqlite"
         build(db, template, args.results, units)
@@ -146,6 +149,8 @@ def run(args: argparse.Namespace) -> None:
                 print(f"{label:9}: {args.results} results, {units} unit(s), history of {per} calibrations, {what}: "
                       f"{wall * 1e3:.0f} ms wall, {cpu * 1e3:.0f} ms CPU (median of {args.repeats}; load {load:.1f}; "
                       f"target < 1000 ms)")
+                medians_s[f"{label}, history of {per} calibrations, {what}: wall"] = wall
+                medians_s[f"{label}, history of {per} calibrations, {what}: CPU"] = cpu
                 continue
             here = Path(__file__).resolve().parents[1]
             base, new = [], []
@@ -158,6 +163,12 @@ def run(args: argparse.Namespace) -> None:
                   f"ms CPU, this tree {nw * 1e3:.0f} ms wall / {nc * 1e3:.0f} ms CPU ({bc / nc:.1f}x less CPU; "
                   f"medians of {args.rounds} alternating processes x {args.repeats}; load {load:.1f} at the start; "
                   f"identical output: {same})")
+            medians_s[f"{label}, history of {per} calibrations, {what}: CPU, this tree"] = nc
+            medians_s[f"{label}, history of {per} calibrations, {what}: CPU, baseline"] = bc
+            ratios[f"{label}, {what}: baseline CPU / this tree's"] = bc / nc
+    path = record("db_history_speed", medians_s=medians_s, ratios=ratios, parameters={
+        "results": args.results, "units": args.units, "repeats": args.repeats, "baseline": args.baseline or ""})
+    print(f"figures written to {path}")
 
 
 if __name__ == "__main__":

@@ -13,6 +13,8 @@ import subprocess
 import sys
 import time
 
+import results
+
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -37,6 +39,10 @@ def main() -> int:
     print(f"Monte-Carlo core in process:               median {med_core * 1e3:.1f} ms "
           f"(min {min(core) * 1e3:.1f}, max {max(core) * 1e3:.1f})")
     print(f"core / whole: {med_core / med_whole:.3f}; target whole < 5 s: {'met' if med_whole < 5 else 'MISSED'}")
+    path = results.record("evaluate_speed", medians_s={"bench evaluate --runs 100, whole command": med_whole,
+                                                        "Monte-Carlo core in process": med_core},
+                          ratios={"core / whole": med_core / med_whole}, parameters={"repeats": args.repeats})
+    print(f"figures written to {path}")
     return 0
 
 

@@ -35,6 +35,8 @@ import tempfile
 from io import BytesIO
 from pathlib import Path
 
+from results import record
+
 REPO = Path(__file__).resolve().parents[1]
 
 _TIMED = r'''
@@ -151,13 +153,22 @@ def main() -> int:
     print(f"{args.repeats} repeats, one process per checkout and repeat, alternating; median CPU time per poll")
     print(f"{'layout, frames per poll':<26}{'before':>12}{'after':>12}{'before/after':>14}"
           f"{'after frames/s':>16}{'after min-max':>22}")
+    medians_s: dict[str, float] = {}
+    ratios: dict[str, float] = {}
     for key in (k for k in results["after"][0] if k != "drivers"):
         med = {name: statistics.median(r[key][0] for r in runs) for name, runs in results.items()}
+        medians_s[f"{key} frames per poll: CPU time per poll, after"] = med["after"]
+        medians_s[f"{key} frames per poll: CPU time per poll, before"] = med["before"]
+        ratios[f"{key} frames per poll: before / after"] = med["before"] / med["after"]
         spread = [r[key][0] for r in results["after"]]
         batch = int(key.split()[1])
         print(f"{key:<26}{med['before'] * 1e6:>10.1f}us{med['after'] * 1e6:>10.1f}us"
               f"{med['before'] / med['after']:>14.2f}{batch / med['after']:>16,.0f}"
               f"{min(spread) * 1e6:>11.1f}-{max(spread) * 1e6:.1f}us")
+    path = record("imu_receiver_speed", medians_s=medians_s, ratios=ratios, parameters={
+        "before": args.before, "after": args.after, "repeats": args.repeats, "batches": args.batches,
+        "frames": args.frames})
+    print(f"figures written to {path}")
     return 0
 
 

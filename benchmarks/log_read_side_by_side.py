@@ -15,6 +15,8 @@ import statistics
 import subprocess
 import sys
 
+import results
+
 _TIMED = r'''
 import sys, time
 sys.path.insert(0, sys.argv[1])
@@ -46,7 +48,13 @@ def main() -> int:
         median = statistics.median(t)
         print(f"{name}: median {median:.3f} s ({min(t):.3f}-{max(t):.3f}) = {samples[name] / median:,.0f} samples/s "
               f"({samples[name]:,} samples)")
-    print(f"after / before: {statistics.median(times['after']) / statistics.median(times['before']):.2f}")
+    ratio = statistics.median(times["after"]) / statistics.median(times["before"])
+    print(f"after / before: {ratio:.2f}")
+    path = results.record("log_read_side_by_side",
+                          medians_s={f"read and decode, {name}": statistics.median(t) for name, t in times.items()},
+                          ratios={"after / before": ratio},
+                          parameters={"repeats": args.repeats, "log": args.after[1]})
+    print(f"figures written to {path}")
     return 0
 
 

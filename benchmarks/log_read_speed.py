@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import results
 
 from bench.log.reader import read_log
 
@@ -171,6 +172,13 @@ def synthetic(args, cache: Path) -> bool:
     print(f"  the read right after the plain loops: {after_plain:.3f} s = {n / after_plain:,.0f} samples/s")
     print(f"plain mcap make_reader(f).iter_messages() loop (decodes nothing): median {plain:.3f} s; "
           f"read_log + imu_samples takes {total / plain:.2f}x its time ({plain / total:.2f}x its speed)")
+    path = results.record("log_read_speed", medians_s={
+        f"read_log + imu_samples, {n:,} samples": total, "read_log alone": log_s,
+        "plain mcap iter_messages (decodes nothing)": plain},
+        ratios={"samples/s / target": rate / READ_TARGET,
+                "read_log + imu_samples time / plain loop time": total / plain},
+        parameters={"samples": args.samples, "repeats": args.repeats, "decimation": args.decimation})
+    print(f"figures written to {path}")
     return met
 
 
@@ -279,6 +287,10 @@ def one_hour(args, cache: Path) -> bool:
     print(f"  of which read_log + imu_samples: median {statistics.median(t_read):.2f} s = "
           f"{stats.samples / statistics.median(t_read):,.0f} samples/s")
     print(f"coefficients equal to the ones the run wrote ({result_file.name}): {'yes' if same else 'NO'}")
+    path = results.record("log_read_speed_one_hour", medians_s={
+        "re-solve of a 1 h, 1 kHz simulated log": median, "of which read_log + imu_samples": statistics.median(t_read)},
+        ratios={"re-solve time / target": median / RESOLVE_TARGET_S}, parameters={"repeats": args.repeats})
+    print(f"figures written to {path}")
     return met and same
 
 

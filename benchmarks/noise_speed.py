@@ -35,6 +35,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import results
 
 from bench.noise.allan import allan_curves, cluster_sizes
 
@@ -56,7 +57,8 @@ def synthetic_channels(n: int, seed: int = 0) -> np.ndarray:
     return data
 
 
-def in_memory(args) -> float:
+def in_memory(args) -> dict:
+    """Times both sides; returns the figures for `results.record` (medians in s, the speed ratio)."""
     n = int(args.hours * 3600 * args.rate_hz)
     t0 = time.perf_counter()
     data = synthetic_channels(n)
@@ -80,6 +82,7 @@ def in_memory(args) -> float:
             theirs.append(time.perf_counter() - t0)
             worst = max(worst, max(float(np.max(np.abs(r / c.adev - 1))) for r, c in zip(reference, curves)))
     mine = statistics.median(ours)
+    figures: dict = {"medians_s": {"bench allan_curves, 6 channels in memory": mine}, "ratios": {}}
     print(f"bench allan_curves (2 threads): median {mine:.2f} s (min {min(ours):.2f}, max {max(ours):.2f}) "
           f"for {len(taus)} taus per channel = {6 * n / mine / 1e6:.1f} M samples/s")
     if theirs:
@@ -87,7 +90,9 @@ def in_memory(args) -> float:
         print(f"allantools.oadev (6 channels one after the other): median {ref:.2f} s (min {min(theirs):.2f}, "
               f"max {max(theirs):.2f}); bench is {ref / mine:.2f}x as fast; largest relative difference at any "
               f"tau {worst:.2e}")
-    return mine
+        figures["medians_s"]["allantools.oadev, 6 channels in memory"] = ref
+        figures["ratios"]["allantools time / bench time (in memory)"] = ref / mine
+    return figures
 
 
 # -- the static-noise log --------------------------------------------------------------------------------------
@@ -218,7 +223,11 @@ def main() -> None:
     print(f"machine: {os.cpu_count()} cores, load average {' '.join(f'{v:.2f}' for v in os.getloadavg())} "
           "(other work on the machine slows both sides)")
     if not args.skip_memory:
-        in_memory(args)
+        figures = in_memory(args)
+        path = results.record("noise_speed", **figures, parameters={"hours": args.hours, "rate_hz": args.rate_hz,
+                                                                    "repeats": args.repeats},
+                              note="the in-memory part (1.); the log part prints its figures only")
+        print(f"figures written to {path}")
     if args.log_hours > 0:
         from_log(args, args.cache)
     print(f"load average at the end: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")

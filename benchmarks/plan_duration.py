@@ -12,6 +12,8 @@ import argparse
 import statistics
 import time
 
+import results
+
 PLANS = (("optimal-24", "optimal-5s6r"), ("traditional-12", "traditional-3s6r"), ("all-64", "all-96"))
 
 
@@ -28,6 +30,8 @@ def main() -> int:
                         turn_accel_dps2=5, rest_s=2, revolutions=1)
     print(f"{'plan':<34} {'ordered':>17} {'listing order':>17} {'lower bound':>17} {'saving':>7} "
           f"{'ord/LB':>7} {'moves ord/listed':>17} {'compile':>10}")
+    medians_s: dict[str, float] = {}
+    ratios: dict[str, float] = {}
     for positions_name, rotations_name in PLANS:
         positions, rotations = load_builtin(positions_name), load_builtin(rotations_name)
         times = []
@@ -46,7 +50,13 @@ def main() -> int:
               f"{plan.estimated_total_s / plan.lower_bound_s:>7.3f} "
               f"{f'{plan.move_total_s:.1f} / {listed.move_total_s:.1f} s':>17} "
               f"{statistics.median(times) * 1e3:>7.1f} ms")
+        name = f"{positions_name} + {rotations_name}"
+        medians_s[f"{name}: compile"] = statistics.median(times)
+        ratios[f"{name}: ordered / lower bound"] = plan.estimated_total_s / plan.lower_bound_s
+        ratios[f"{name}: ordered / listing order"] = plan.estimated_total_s / plan.listed_total_s
     print(f"compile time: median of {args.repeats}, in process, includes compiling the listing order too")
+    path = results.record("plan_duration", medians_s=medians_s, ratios=ratios, parameters={"repeats": args.repeats})
+    print(f"figures written to {path}")
     return 0
 
 

@@ -24,6 +24,7 @@ import time
 
 import can
 import numpy as np
+import results
 
 from bench.log.events import make_event
 from bench.log.reader import read_log
@@ -160,6 +161,14 @@ def main() -> int:
           f"{len(block) / (read_med - decode_med):,.0f} samples/s")
     print(f"plain mcap make_reader().iter_messages() (undecoded): median {plain_med:.2f} s; "
           f"read_log + decode is {plain_med / read_med:.1f}x its speed")
+    path = results.record("recorder_speed", medians_s={
+        f"record {len(msgs):,} frames to MCAP": rec_med, "read_log + imu_samples": read_med,
+        "imu_samples alone (bulk decode_frames)": decode_med, "plain mcap iter_messages (undecoded)": plain_med},
+        ratios={"recorded frames/s / target": frame_rate / RECORD_TARGET,
+                "read samples/s / target": read_rate / READ_TARGET,
+                "plain mcap time / read_log + decode time": plain_med / read_med},
+        parameters={"frames": args.frames, "repeats": args.repeats})
+    print(f"figures written to {path}")
     return 0 if ok else 1
 
 

@@ -25,6 +25,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import results
+
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
@@ -106,6 +108,14 @@ def main() -> int:
               f"rig CPU {median('rig_cpu_per_s'):.1%}; lost samples (all runs) {sum(r['lost_samples'] for r in done)}, "
               f"bad frames {sum(r['frame_faults'] for r in done)}; load average after: "
               f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
+        path = results.record("rig_speed", medians_s={"bench run against the rig, wall time": median("wall_s")},
+                              ratios={"bench run CPU share of one core": median("run_cpu_per_s"),
+                                      "rig CPU share of one core": median("rig_cpu_per_s"),
+                                      "lost samples, all runs": float(sum(r["lost_samples"] for r in done))},
+                              parameters={"rate_hz": args.rate_hz, "layout": args.layout,
+                                          "slcan_client": args.slcan_client, "imu_listen": args.imu_listen,
+                                          "repeats": args.repeats, "completed": len(done)})
+        print(f"figures written to {path}")
     return 0 if len(done) == args.repeats else 1
 
 

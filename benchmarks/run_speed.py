@@ -20,6 +20,8 @@ import sys
 import tempfile
 import time
 
+import results
+
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -45,6 +47,10 @@ def main() -> int:
                   f"log complete: {log.scan().complete}")
     median = statistics.median(walls)
     print(f"median wall time over {args.repeats}: {median:.1f} s (target < 60 s: {'met' if median < 60 else 'MISSED'})")
+    path = results.record("run_speed", medians_s={"bench run --sim, default plan, wall time": median},
+                          ratios={"simulated time / wall time (last repeat)": sim_s / walls[-1]},
+                          parameters={"repeats": args.repeats})
+    print(f"figures written to {path}")
     return 0
 
 

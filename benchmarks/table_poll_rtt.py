@@ -17,6 +17,8 @@ import statistics
 import sys
 from pathlib import Path
 
+import results
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.sim.controller import SimController  # noqa: E402
@@ -68,12 +70,18 @@ def main() -> int:
     args = parser.parse_args()
     print(f"state poll round trip, {args.polls} polls x {args.repeats} repeats")
     print(f"{'dialect':<8} {'link':<5} {'median ms':>10} {'p90 ms':>8} {'polls/s':>9}")
+    medians_s: dict[str, float] = {}
     for dialect in args.dialects.split(","):
         for link in ("tcp", "pty"):
             runs = [measure(dialect, args.polls, link) for _ in range(args.repeats)]
             median = statistics.median(r[0] for r in runs)
             p90 = statistics.median(r[1] for r in runs)
             print(f"{dialect:<8} {link:<5} {median:>10.3f} {p90:>8.3f} {1e3 / median:>9.0f}")
+            medians_s[f"{dialect} over {link}: one state poll"] = median / 1e3
+            medians_s[f"{dialect} over {link}: 90th percentile poll"] = p90 / 1e3
+    path = results.record("table_poll_rtt", medians_s=medians_s, parameters={
+        "polls": args.polls, "repeats": args.repeats, "dialects": args.dialects})
+    print(f"figures written to {path}")
     return 0
 
 

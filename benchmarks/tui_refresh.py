@@ -22,6 +22,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import results
+
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))   # tests.helpers
 
@@ -96,6 +98,12 @@ def main() -> int:
     print(f"UI thread CPU: median {100 * statistics.median(cpu):.1f} %, max {100 * max(cpu):.1f} % of one core")
     ok = lost == 0 and stats.lost_samples == 0 and statistics.median(refresh_hz) >= 10.0
     print("targets " + ("met" if ok else "MISSED"))
+    path = results.record("tui_refresh", medians_s={"panel refresh period (1 s windows)":
+                                                     1.0 / statistics.median(refresh_hz)},
+                          ratios={"UI thread CPU share of one core (median)": statistics.median(cpu),
+                                  "frames lost": float(lost)},
+                          parameters={"seconds": args.seconds, "rate_hz": args.rate_hz, "refresh_hz": args.refresh_hz})
+    print(f"figures written to {path}")
     return 0
 
 

@@ -71,7 +71,7 @@ _OPTIONAL_TOP = ("source", "position", "rotation")
 _POSITION_KEYS = {"angles_deg": True, "group": False}  # key -> required
 _ROTATION_KEYS = {"start_deg": True, "frame": True, "direction": True, "revolutions": True}
 MAX_STEPS = 10_000        # steps per file (the shipped files have up to 324)
-MAX_GROUP = 10_000
+MAX_GROUP = 10_000          # the largest position group number
 MAX_REVOLUTIONS = 100     # whole turns per rotation
 MIN_RATE_DPS, MAX_RATE_DPS = 1e-3, 1000.0   # a verification turn's own rate_dps
 

@@ -20,19 +20,13 @@ from bench.acceptance.limits import (
     AcceptanceLimits,
     CoefficientLimits,
 )
+from bench.config.keys import MAX_LOST_SAMPLES, MAX_RESIDUAL_SIGMA, VALUE_RANGES, allowed, integer, optional_number
 from bench.config.reader import ConfigError, Table, read_text, show
 from bench.errors import InputError
 from bench.model.families import FAMILY_INFO, canonical_names, family_of
 from bench.model.result import CalibrationResult
 
-#: family -> (lowest, highest, unit) of a value, in result units
-VALUE_RANGES = {"Kg": (0.0, 1e9, "counts/s per deg/s"), "Ka": (0.0, 1e9, "counts/s per g"),
-                "D0": (-36000.0, 36000.0, "deg/h"), "K0": (-1.0, 1.0, "g"), "Eg": (-1.0, 1.0, ""),
-                "Ea": (-1.0, 1.0, "")}
-MAX_LOST_SAMPLES = 10 ** 9
-MAX_RESIDUAL_SIGMA = 1e6
-ACCEPTANCE_KEYS = ("max_lost_samples", "max_residual_sigma", "reference", "verification", *FAMILY_INFO,
-                   *canonical_names())
+ACCEPTANCE_KEYS = allowed("acceptance")
 
 
 def _limits(t: Table, family: str) -> CoefficientLimits:
@@ -51,10 +45,10 @@ def _limits(t: Table, family: str) -> CoefficientLimits:
 
 def _verification(t: Table) -> tuple[dict[str, float], str]:
     """`[acceptance.verification]`: the limits per quantity, and what an error beyond its U does."""
-    v = t.table("verification", (*VERIFICATION_LIMITS, "beyond_uncertainty"))
+    v = t.table("verification", allowed("acceptance.verification"))
     out = {}
-    for key, (unit, high) in VERIFICATION_LIMITS.items():
-        value = v.number(key, None, gt=0, le=high, unit=unit)
+    for key in VERIFICATION_LIMITS:
+        value = optional_number(v, "acceptance.verification", key)
         if value is not None:
             out[key] = value
     return out, v.string("beyond_uncertainty", BEYOND_FAIL, choices=(BEYOND_FAIL, BEYOND_WARN))
@@ -82,8 +76,8 @@ def acceptance_limits(t: Table) -> AcceptanceLimits:
             raise t.error("reference", str(exc)) from exc
         reference, reference_name, reference_path = result.values(), path.name, str(path)
     limits = AcceptanceLimits(families, coefficients,
-                              t.integer("max_lost_samples", None, ge=0, le=MAX_LOST_SAMPLES),
-                              t.number("max_residual_sigma", None, gt=0, le=MAX_RESIDUAL_SIGMA, unit="sigma"),
+                              integer(t, "acceptance", "max_lost_samples"),
+                              optional_number(t, "acceptance", "max_residual_sigma"),
                               reference, reference_name, reference_path, *_verification(t))
     if not reference:
         for name in canonical_names():
@@ -96,4 +90,4 @@ def acceptance_limits(t: Table) -> AcceptanceLimits:
     return limits
 
 
-__all__ = ["ACCEPTANCE_KEYS", "VALUE_RANGES", "acceptance_limits"]
+__all__ = ["ACCEPTANCE_KEYS", "MAX_LOST_SAMPLES", "MAX_RESIDUAL_SIGMA", "VALUE_RANGES", "acceptance_limits"]

@@ -28,17 +28,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from bench.config.device import SIM_URL, url_and_dialect
+from bench.config.keys import MAX_RAMP_C_PER_MIN, allowed, integer, number
 from bench.config.reader import Table, show, suggest
 from bench.config.register_map import CHAMBER_MAP, register_map_value
 from drivers.chamber import DIALECTS, ChamberLimits, check_url_dialect
-from drivers.chamber.base import ABSOLUTE_MAX_C, ABSOLUTE_MIN_C
 from drivers.chamber.presets import ChamberMap
 from drivers.transport import MODBUS_SCHEMES
 
-CHAMBER_KEYS = ("url", "dialect", "timeout_s", "retries", "poll_s", "safe_setpoint_c", "limits", "register_map",
-                "modbus")
-LIMIT_KEYS = ("min_setpoint_c", "max_setpoint_c", "max_ramp_c_per_min")
-MAX_RAMP_C_PER_MIN = 100.0
+CHAMBER_KEYS = allowed("chamber")
+LIMIT_KEYS = allowed("chamber.limits")
 
 
 @dataclass(frozen=True)
@@ -75,12 +73,10 @@ class ChamberConfig:
 
 
 def _limits(t: Table) -> ChamberLimits:
-    default = ChamberLimits()
-    low, high = (t.number(key, getattr(default, key), ge=ABSOLUTE_MIN_C, le=ABSOLUTE_MAX_C, unit="degC")
-                 for key in ("min_setpoint_c", "max_setpoint_c"))
+    low, high = (number(t, "chamber.limits", key) for key in ("min_setpoint_c", "max_setpoint_c"))
     if not low < high:
         raise t.error("max_setpoint_c", f"must be above min_setpoint_c ({low:g} degC), got {high:g}")
-    ramp = t.number("max_ramp_c_per_min", default.max_ramp_c_per_min, gt=0, le=MAX_RAMP_C_PER_MIN, unit="degC/min")
+    ramp = number(t, "chamber.limits", "max_ramp_c_per_min")
     return ChamberLimits(low, high, ramp)
 
 
@@ -89,13 +85,14 @@ def chamber_config(t: Table) -> ChamberConfig:
     url, dialect = url_and_dialect(t, "chamber", DIALECTS, check_url_dialect,
                                    lambda name: f"unknown chamber dialect {show(name)}" + suggest(name, DIALECTS),
                                    implied=lambda url: "modbus" if url.startswith(MODBUS_SCHEMES) else "ascii")
-    timeout_s = t.number("timeout_s", 1.0, ge=0.001, le=60.0, unit="s")
-    retries = t.integer("retries", 2, ge=0, le=10)
-    poll_s = t.number("poll_s", 1.0, ge=0.01, le=600.0, unit="s")
+    timeout_s = number(t, "chamber", "timeout_s")
+    retries = integer(t, "chamber", "retries")
+    assert retries is not None
+    poll_s = number(t, "chamber", "poll_s")
     limits = _limits(t.table("limits", LIMIT_KEYS))
     safe = t.number("safe_setpoint_c", None, ge=limits.min_setpoint_c, le=limits.max_setpoint_c, unit="degC")
     register_map = register_map_value(t, dialect, "chamber", CHAMBER_MAP)
     return ChamberConfig(url, dialect, timeout_s, retries, poll_s, limits, safe, register_map)
 
 
-__all__ = ["CHAMBER_KEYS", "ChamberConfig", "SIM_URL", "chamber_config"]
+__all__ = ["CHAMBER_KEYS", "MAX_RAMP_C_PER_MIN", "ChamberConfig", "SIM_URL", "chamber_config"]

@@ -3,8 +3,9 @@
 `load_config(path)` reads, checks and builds everything a run needs (site, table
 limits and register map, the compiled IMU frame layout, the schedules, the simulator's
 truth) so that a bad file fails before any hardware moves, with one `ConfigError`
-line ``file:line: key: message``. Every number has a documented range (the example's
-comments; a message names it); the file, a register map and a DBC are read only when
+line ``file:line: key: message``. Each key's accepted name, default and range come from the
+key table `bench.config.keys` (docs/reference/configuration.md is generated from it; a message
+names the range); the file, a register map and a DBC are read only when
 they are regular files of at most 1 MiB. Relative paths inside the file (register map, DBC,
 schedule files) start at the file's folder; `[output] folder` starts at the current
 directory at run time.
@@ -26,13 +27,24 @@ from bench.acceptance.limits import AcceptanceLimits
 from bench.config.acceptance import ACCEPTANCE_KEYS, acceptance_limits
 from bench.config.chamber import CHAMBER_KEYS, ChamberConfig, chamber_config
 from bench.config.device import SIM_URL, url_and_dialect
+from bench.config.keys import (
+    MAX_ACC_STABILITY_UG,
+    MAX_BLACK_BOX_ARCSEC,
+    MAX_GYRO_STABILITY_DPH,
+    SIM_IMU_RANGES,
+    allowed,
+    declared,
+    integer,
+    number,
+    optional_number,
+)
 from bench.config.reader import ConfigError, Located, Table, describe, parse_toml, read_text, show, suggest
 from bench.config.register_map import TABLE_MAP, load_register_map, register_map_value
 from bench.config.thermal import THERMAL_KEYS, sim_thermal
-from bench.config.thermal_plan import PLAN_THERMAL_KEYS, check_against_chamber, thermal_plan
+from bench.config.thermal_plan import check_against_chamber, thermal_plan
 from bench.errors import InputError
 from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
-from bench.model.families import BODY_AXES, SENSOR_AXES, canonical_names, family_of
+from bench.model.families import BODY_AXES, SENSOR_AXES, family_of
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu, default_sim_si_imu
 from bench.model.noise_result import NoiseResult
 from bench.model.table_prior import (
@@ -58,30 +70,9 @@ from schedules.tomllines import locate_lines
 
 FORMAT = "turntable-bench/config"
 VERSION = 1
-_BLACK_BOX_RMS_ARCSEC = 20.0  # [sim] default: a good but real table
 _NOISE_FIELDS = tuple(f.name for f in dataclasses.fields(NoiseModel))
-# Ranges shared by several keys (bench.example.toml documents each key's range).
-MAX_RATE_DPS = 1000.0          # table limits, moves and turns
-MIN_RATE_DPS = 1e-3
-MAX_ACCEL_DPS2 = 10000.0
-MIN_ACCEL_DPS2 = 1e-3
-MAX_TRAVEL_DEG = 3600.0        # |min_deg|, |max_deg|: ten turns
-MAX_BLACK_BOX_ARCSEC = 3600.0  # RMS or each angle: one degree
-MAX_CORRELATION_TIME_S = 1e6   # a bias instability's correlation time ([sim.noise], [imu.identity])
-#: its lower bound: a bias that decorrelates faster than this is white noise at any IMU rate the bench reads, not
-#: a bias instability (and a correlation time of 5e-324 s made the solve's kernel NaN after the whole run)
-MIN_CORRELATION_TIME_S = 0.1
 #: an observation (a dwell) holds at least this many IMU samples at `imu.rate_hz`
 MIN_SAMPLES_PER_DWELL = 2
-#: [sim.noise] level -> (upper bound, unit); the lower bound is 0 (correlation_time_s: MIN_CORRELATION_TIME_S)
-_NOISE_RANGES = {"gyro_arw_deg_rt_h": (10.0, "deg/sqrt(h)"), "gyro_bias_instability_dph": (3600.0, "deg/h"),
-                 "acc_vrw_ug_rt_hz": (10000.0, "ug/sqrt(Hz)"), "acc_bias_instability_ug": (100000.0, "ug"),
-                 "correlation_time_s": (MAX_CORRELATION_TIME_S, "s"), "gyro_rrw_dph_rt_h": (1000.0, "deg/h/sqrt(h)"),
-                 "acc_rrw_ug_rt_h": (100000.0, "ug/sqrt(h)")}
-#: [sim.imu] coefficient family -> (lower or None for -upper, upper, unit)
-_SIM_IMU_RANGES = {"Kg": (0.0, 1e6, "counts/s per deg/s"), "Ka": (0.0, 1e6, "counts/s per g"),
-                   "D0": (None, 36000.0, "deg/h"), "K0": (None, 1.0, "g"), "Eg": (None, 1.0, ""),
-                   "Ea": (None, 1.0, "")}
 
 __all__ = ["FORMAT", "ORDERS", "SIM_CONFIG_TOML", "SIM_URL", "VERSION", "BenchConfig", "ChamberConfig", "ConfigError",
            "ImuConfig", "ImuIdentity", "OutputConfig", "PlanConfig", "SimConfig", "SiteConfig", "TableConfig",
@@ -239,44 +230,39 @@ class BenchConfig:
 # --- sections -----------------------------------------------------------------------
 
 def _site(t: Table) -> SiteConfig:
-    latitude_deg = t.number("latitude_deg", ge=-90.0, le=90.0, unit="deg")
-    height_m = t.number("height_m", 0.0, ge=-500.0, le=9000.0, unit="m")
-    local_g = t.number("local_g_mps2", None, ge=9.7, le=9.9, unit="m/s^2")  # Site's plausibility range
-    latitude_sigma = t.number("latitude_sigma_deg", 0.001, ge=0, le=1.0, unit="deg")
-    gravity_sigma = t.number("gravity_sigma_mps2", 1e-5 if local_g is not None else 5e-4, ge=0, le=0.01,
-                             unit="m/s^2")
+    latitude_deg = number(t, "site", "latitude_deg")
+    height_m = number(t, "site", "height_m")
+    local_g = optional_number(t, "site", "local_g_mps2")  # Site's plausibility range
+    latitude_sigma = number(t, "site", "latitude_sigma_deg")
+    gravity_sigma = number(t, "site", "gravity_sigma_mps2", 1e-5 if local_g is not None else 5e-4)
     return SiteConfig(latitude_deg, height_m, local_g, Site(latitude_deg, height_m, local_g), latitude_sigma,
                       gravity_sigma)
 
 
 def _axis_limits(t: Table) -> AxisLimits:
-    default = AxisLimits()
-    min_deg, max_deg = (t.number(key, None, ge=-MAX_TRAVEL_DEG, le=MAX_TRAVEL_DEG, unit="deg")
-                        for key in ("min_deg", "max_deg"))
+    section = "table.limits.<frame>"
+    min_deg, max_deg = (optional_number(t, section, key) for key in ("min_deg", "max_deg"))
     if min_deg is not None and max_deg is not None and not min_deg < max_deg:
         raise t.error("max_deg", f"must be above min_deg ({min_deg:g} deg), got {max_deg:g}")
-    return AxisLimits(min_deg, max_deg,
-                      t.number("max_rate_dps", default.max_rate_dps, ge=MIN_RATE_DPS, le=MAX_RATE_DPS, unit="deg/s"),
-                      t.number("max_accel_dps2", default.max_accel_dps2, ge=MIN_ACCEL_DPS2, le=MAX_ACCEL_DPS2,
-                               unit="deg/s^2"))
+    return AxisLimits(min_deg, max_deg, number(t, section, "max_rate_dps"), number(t, section, "max_accel_dps2"))
 
 
 def _table(t: Table) -> TableConfig:
     url, dialect = url_and_dialect(t, "table", DIALECTS, check_url_dialect,
                                    lambda name: f"unknown dialect {show(name)}" + suggest(name, DIALECTS).replace(
                                        " (known:", " (known dialects:"))
-    timeout_s = t.number("timeout_s", 0.5, ge=0.001, le=60.0, unit="s")
-    retries = t.integer("retries", 2, ge=0, le=10)
-    tolerance_deg = t.number("settle_tolerance_deg", 0.001, ge=1e-6, le=1.0, unit="deg")
-    poll_s = t.number("poll_s", 0.05, ge=0.001, le=10.0, unit="s")
-    limits_table = t.table("limits", FRAMES)
-    outer, middle, inner = (_axis_limits(limits_table.table(frame, ("min_deg", "max_deg", "max_rate_dps",
-                                                                     "max_accel_dps2")))
+    timeout_s = number(t, "table", "timeout_s")
+    retries = integer(t, "table", "retries")
+    assert retries is not None
+    tolerance_deg = number(t, "table", "settle_tolerance_deg")
+    poll_s = number(t, "table", "poll_s")
+    limits_table = t.table("limits", allowed("table.limits"))
+    outer, middle, inner = (_axis_limits(limits_table.table(frame, allowed("table.limits.<frame>")))
                             for frame in FRAMES)
     limits = TurntableLimits((outer, middle, inner))
     register_map = _register_map(t, dialect)
     pointing = _pointing(t)
-    turn_angle = t.number("turn_angle_error_arcsec", None, ge=0, le=MAX_BLACK_BOX_ARCSEC, unit="arcsec")
+    turn_angle = optional_number(t, "table", "turn_angle_error_arcsec")
     return TableConfig(url, dialect, timeout_s, retries, tolerance_deg, poll_s, limits, register_map, pointing,
                        turn_angle)
 
@@ -286,11 +272,11 @@ def _pointing(t: Table) -> TablePrior | None:
     pointing: float | dict[str, float] | None = None
     if t.has("pointing_accuracy_arcsec"):
         if isinstance(t.get("pointing_accuracy_arcsec"), dict):
-            frames = t.table("pointing_accuracy_arcsec", FRAME_KEYS)
-            pointing = {f: frames.number(f, ge=0, le=MAX_BLACK_BOX_ARCSEC, unit="arcsec") for f in FRAME_KEYS}
+            frames = t.table("pointing_accuracy_arcsec", allowed("table.pointing_accuracy_arcsec"))
+            pointing = {f: number(frames, "table.pointing_accuracy_arcsec", f) for f in FRAME_KEYS}
         else:
-            pointing = t.number("pointing_accuracy_arcsec", ge=0, le=MAX_BLACK_BOX_ARCSEC, unit="arcsec")
-    orthogonality = t.number("orthogonality_arcsec", None, ge=0, le=MAX_BLACK_BOX_ARCSEC, unit="arcsec")
+            pointing = number(t, "table", "pointing_accuracy_arcsec")
+    orthogonality = optional_number(t, "table", "orthogonality_arcsec")
     if orthogonality is not None and pointing is None:
         raise t.error("orthogonality_arcsec", "needs pointing_accuracy_arcsec too (the frames' zero offsets)")
     if t.has("check"):
@@ -321,9 +307,9 @@ def _imu(t: Table) -> ImuConfig:
         raise t.error("channel", f"must be a non-empty string or a whole number, got {describe(channel)}")
     if isinstance(channel, int):
         t.integer("channel", ge=0, le=65535)
-    bitrate = t.integer("bitrate", None, ge=1000, le=10_000_000)
-    fd = t.boolean("fd", False)
-    rate_hz = t.number("rate_hz", gt=0, ge=1.0, le=100000.0, unit="Hz")
+    bitrate = integer(t, "imu", "bitrate")
+    fd = t.boolean("fd", declared("imu", "fd").default)
+    rate_hz = number(t, "imu", "rate_hz")
     layout_name = t.string("layout", choices=list(SHIPPED_LAYOUTS)) if t.has("layout") else None
     if layout_name is not None and t.has("dbc"):
         raise t.error("layout", "names a shipped layout; an IMU's own DBC file goes in `dbc` instead: give one")
@@ -360,16 +346,14 @@ def _imu(t: Table) -> ImuConfig:
         if key in ("interface", "channel", "bitrate", "fd", "bustype"):
             raise t.doc.error(t.path + ("bus_options", key), f"set imu.{key.replace('bustype', 'interface')} "
                               "instead of passing it in bus_options")
-    ident = t.table("identity", ("model", "serial", "gyro_bias_stability_dph", "acc_bias_stability_ug",
-                                 "bias_correlation_time_s", "acc_xy_to_z_uncertainty"))
-    identity = ImuIdentity(ident.string("model", ""), ident.string("serial", ""),
-                           ident.number("gyro_bias_stability_dph", None, gt=0, le=3600.0, unit="deg/h"),
-                           ident.number("acc_bias_stability_ug", None, gt=0, le=100000.0, unit="ug"),
-                           ident.number("bias_correlation_time_s", None, gt=0, ge=MIN_CORRELATION_TIME_S,
-                                        le=MAX_CORRELATION_TIME_S, unit="s"),
-                           ident.number("acc_xy_to_z_uncertainty", None, ge=0, le=0.1))
+    ident = t.table("identity", allowed("imu.identity"))
+    identity = ImuIdentity(ident.string("model", declared("imu.identity", "model").default),
+                           ident.string("serial", declared("imu.identity", "serial").default),
+                           *(optional_number(ident, "imu.identity", name)
+                             for name in ("gyro_bias_stability_dph", "acc_bias_stability_ug",
+                                          "bias_correlation_time_s", "acc_xy_to_z_uncertainty")))
     noise = _imu_noise(t) if t.has("noise") else None
-    slcan_client = t.string("slcan_client", "bench", choices=SLCAN_CLIENTS)
+    slcan_client = t.string("slcan_client", declared("imu", "slcan_client").default, choices=SLCAN_CLIENTS)
     return ImuConfig(interface, channel, bitrate, fd, Path(dbc), rate_hz, spec, layout, bus_options, identity, noise,
                      layout_name, slcan_client)
 
@@ -388,13 +372,15 @@ def _imu_noise(t: Table) -> ImuNoise:
     except InputError as exc:   # not a noise result, not JSON, a number out of range, too large
         raise t.error("noise", str(exc).removeprefix(f"{path}: ")) from None
     values = []
-    for what, value, key, high in (("gyro", result.gyro_bias_stability_dph, "gyro_bias_stability_dph", 3600.0),
-                                   ("accelerometer", result.acc_bias_stability_ug, "acc_bias_stability_ug", 100000.0)):
+    for what, value, name, high in (("gyro", result.gyro_bias_stability_dph, "gyro_bias_stability_dph",
+                                     MAX_GYRO_STABILITY_DPH),
+                                    ("accelerometer", result.acc_bias_stability_ug, "acc_bias_stability_ug",
+                                     MAX_ACC_STABILITY_UG)):
         if value is None:
             raise t.error("noise", f"{show(str(path))} holds no {what} bias instability")
         if not 0 < value <= high:
             raise t.error("noise", f"{show(str(path))}: {what} bias instability {value:g} is outside the range of "
-                                   f"imu.identity.{key} (> 0 and <= {high:g})")
+                                   f"imu.identity.{name} (> 0 and <= {high:g})")
         values.append(value)
     return ImuNoise(path, values[0], values[1])
 
@@ -441,8 +427,8 @@ def _schedule(t: Table, key: str, kind: str, revolutions: int | None) -> Schedul
 
 
 def _plan(t: Table, limits: TurntableLimits) -> PlanConfig:
-    revolutions = t.integer("revolutions", None, ge=1, le=100)
-    order = t.string("order", "optimal", choices=ORDERS)
+    revolutions = integer(t, "plan", "revolutions")
+    order = t.string("order", declared("plan", "order").default, choices=ORDERS)
     positions = _schedule(t, "positions", "positions", revolutions)
     rotations = _schedule(t, "rotations", "rotations", revolutions)
     if positions is None and rotations is None:
@@ -451,15 +437,8 @@ def _plan(t: Table, limits: TurntableLimits) -> PlanConfig:
     if positions is not None and positions.kind == "static" and rotations is not None:
         raise t.error("rotations", f"plan.positions {positions.name!r} is a static noise recording (one dwell, "
                                    "analysed by `bench noise`): leave plan.rotations out")
-    values = {"dwell_s": t.number("dwell_s", 60.0, gt=0, le=86400.0, unit="s"),
-              "settle_s": t.number("settle_s", 5.0, ge=0, le=3600.0, unit="s"),
-              "move_rate_dps": t.number("move_rate_dps", 20.0, ge=MIN_RATE_DPS, le=MAX_RATE_DPS, unit="deg/s"),
-              "move_accel_dps2": t.number("move_accel_dps2", 10.0, ge=MIN_ACCEL_DPS2, le=MAX_ACCEL_DPS2,
-                                          unit="deg/s^2"),
-              "turn_rate_dps": t.number("turn_rate_dps", 10.0, ge=MIN_RATE_DPS, le=MAX_RATE_DPS, unit="deg/s"),
-              "turn_accel_dps2": t.number("turn_accel_dps2", 5.0, ge=MIN_ACCEL_DPS2, le=MAX_ACCEL_DPS2,
-                                          unit="deg/s^2"),
-              "rest_s": t.number("rest_s", 2.0, ge=0, le=3600.0, unit="s")}
+    values = {name: number(t, "plan", name) for name in ("dwell_s", "settle_s", "move_rate_dps", "move_accel_dps2",
+                                                         "turn_rate_dps", "turn_accel_dps2", "rest_s")}
     # Moves drive every axis; turns only the frames the rotation schedule turns.
     turned = sorted({step.frame_index for step in rotations.rotations}) if rotations else []
     for key, attr, frames in (("move_rate_dps", "max_rate_dps", range(3)),
@@ -485,7 +464,7 @@ def _plan(t: Table, limits: TurntableLimits) -> PlanConfig:
 
 
 def _black_box(t: Table, seed: int) -> tuple[float | tuple, np.ndarray]:
-    value = t.get("black_box_arcsec", _BLACK_BOX_RMS_ARCSEC)
+    value = t.get("black_box_arcsec", declared("sim", "black_box_arcsec").default)
     if isinstance(value, list):
         rows = []
         if len(value) != 3:
@@ -501,7 +480,7 @@ def _black_box(t: Table, seed: int) -> tuple[float | tuple, np.ndarray]:
                                   "arcsec)")
             rows.append(tuple(float(v) for v in row))
         return tuple(rows), np.array(rows) * ARCSEC
-    rms_arcsec = t.number("black_box_arcsec", _BLACK_BOX_RMS_ARCSEC, ge=0, le=MAX_BLACK_BOX_ARCSEC, unit="arcsec")
+    rms_arcsec = number(t, "sim", "black_box_arcsec")
     return rms_arcsec, np.random.default_rng(seed).standard_normal((3, 3)) * rms_arcsec * ARCSEC
 
 
@@ -509,11 +488,11 @@ def _noise(t: Table, si_outputs: bool = False) -> NoiseModel:
     """[sim] noise; `si_outputs`: the IMU sends physical units (sbg-ecan), whose default is the MEMS IMU's noise
     and which its output format quantises (the integer-count `quantise` does not apply)."""
     on = NoiseModel.mems() if si_outputs else NoiseModel()
-    value = t.get("noise", True)
+    value = t.get("noise", declared("sim", "noise").default)
     if isinstance(value, bool):
         return on if value else NoiseModel.off()
-    n = t.table("noise", ("enabled",) + _NOISE_FIELDS)
-    enabled = n.boolean("enabled", True)
+    n = t.table("noise", allowed("sim.noise"))
+    enabled = n.boolean("enabled", declared("sim.noise", "enabled").default)
     base = on if enabled else NoiseModel.off()
     if si_outputs and n.get("quantise", False) is True:
         raise n.error("quantise", "integer counts do not apply to an IMU sending physical units (imu.layout = "
@@ -527,24 +506,21 @@ def _noise(t: Table, si_outputs: bool = False) -> NoiseModel:
         elif not enabled:
             raise n.error(name, "noise levels need sim.noise.enabled = true")
         else:
-            high, unit = _NOISE_RANGES[name]
-            changes[name] = n.number(name, gt=0 if name == "correlation_time_s" else None,
-                                     ge=MIN_CORRELATION_TIME_S if name == "correlation_time_s" else 0, le=high,
-                                     unit=unit)
+            changes[name] = number(n, "sim.noise", name)
     return dataclasses.replace(base, **changes)
 
 
 def _sim_imu(t: Table, si_outputs: bool = False) -> tuple[ImuCoefficients, dict, ImuThermal | None]:
-    s = t.table("imu", canonical_names() + ["thermal"])
+    s = t.table("imu", allowed("sim.imu"))
     thermal = None
     if s.has("thermal"):
-        ranges = {family: (high, unit) for family, (_low, high, unit) in _SIM_IMU_RANGES.items()}
+        ranges = {family: (high, unit) for family, (_low, high, unit) in SIM_IMU_RANGES.items()}
         thermal = sim_thermal(s.table("thermal", THERMAL_KEYS), ranges)
     overrides = {}
     for name in s.data:
         if name == "thermal":
             continue
-        low, high, unit = _SIM_IMU_RANGES[family_of(name)]
+        low, high, unit = SIM_IMU_RANGES[family_of(name)]
         overrides[name] = s.number(name, gt=low, ge=None if low is not None else -high, le=high, unit=unit)
     values = {**(default_sim_si_imu() if si_outputs else default_sim_imu()).to_canonical(), **overrides}
     # Direction-cosine rows are unit vectors: a row with overrides gets its diagonal
@@ -573,7 +549,8 @@ def _sim_imu(t: Table, si_outputs: bool = False) -> tuple[ImuCoefficients, dict,
 def _sim(t: Table, si_outputs: bool = False) -> SimConfig:
     """[sim]; `si_outputs`: the IMU's layout sends physical units per second (sbg-ecan), so the simulated IMU
     defaults to the MEMS one (`default_sim_si_imu`, `NoiseModel.mems`)."""
-    seed = t.integer("seed", 0, ge=0, le=2 ** 32 - 1)
+    seed = integer(t, "sim", "seed")
+    assert seed is not None
     written, black_box_rad = _black_box(t, seed)
     imu, overrides, thermal = _sim_imu(t, si_outputs)
     return SimConfig(seed, written, black_box_rad, _noise(t, si_outputs), imu, overrides, thermal)
@@ -586,33 +563,27 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
     paths start at `base_dir` (default: the current directory)."""
     doc = parse_toml(text, source)
     located = Located(source, locate_lines(text), Path.cwd() if base_dir is None else Path(base_dir))
-    root = Table(located, (), doc, ("format", "version", "site", "table", "imu", "plan", "output", "sim",
-                                       "acceptance", "chamber"))
+    root = Table(located, (), doc, allowed(""))
     fmt = root.string("format")
     if fmt != FORMAT:
         raise root.error("format", f"expected {FORMAT!r}, got {show(fmt)}")
     version = root.get("version")
     if isinstance(version, bool) or version != VERSION:
         raise root.error("version", f"unsupported version: must be {VERSION}, got {describe(version)}")
-    site = _site(root.table("site", ("latitude_deg", "height_m", "local_g_mps2", "latitude_sigma_deg",
-                                     "gravity_sigma_mps2"), required=True))
-    table = _table(root.table("table", ("url", "dialect", "timeout_s", "retries", "settle_tolerance_deg", "poll_s",
-                                        "register_map", "modbus", "limits", "pointing_accuracy_arcsec",
-                                        "orthogonality_arcsec", "check", "turn_angle_error_arcsec"), required=True))
-    imu = _imu(root.table("imu", ("interface", "channel", "bitrate", "fd", "layout", "dbc", "rate_hz", "signals",
-                                  "slcan_client", "bus_options", "identity", "noise"), required=True))
-    plan_table = root.table("plan", ("positions", "rotations", "dwell_s", "settle_s", "move_rate_dps",
-                                     "move_accel_dps2", "turn_rate_dps", "turn_accel_dps2", "rest_s", "revolutions",
-                                     "order", "verification") + PLAN_THERMAL_KEYS, required=True)
+    site = _site(root.table("site", allowed("site"), required=True))
+    table = _table(root.table("table", allowed("table"), required=True))
+    imu = _imu(root.table("imu", allowed("imu"), required=True))
+    plan_table = root.table("plan", allowed("plan"), required=True)
     plan = _plan(plan_table, table.limits)
     if plan.dwell_s * imu.rate_hz < MIN_SAMPLES_PER_DWELL:      # a dwell the solve could not average
         raise plan_table.error("dwell_s", f"{plan.dwell_s:g} s holds fewer than {MIN_SAMPLES_PER_DWELL} IMU samples "
                                           f"at imu.rate_hz = {imu.rate_hz:g} Hz: must be >= "
                                           f"{MIN_SAMPLES_PER_DWELL / imu.rate_hz:g} s")
-    out = root.table("output", ("folder", "chunk_run_interval_s"))
-    output = OutputConfig(out.path_value("folder", out.string("folder", "runs", nonempty=True)),
-                          out.number("chunk_run_interval_s", None, gt=0, ge=0.01, le=3600.0, unit="s"))
-    sim = _sim(root.table("sim", ("seed", "black_box_arcsec", "noise", "imu")), imu.layout.time_stamp is not None)
+    out = root.table("output", allowed("output"))
+    output = OutputConfig(out.path_value("folder", out.string("folder", declared("output", "folder").default,
+                                                              nonempty=True)),
+                          optional_number(out, "output", "chunk_run_interval_s"))
+    sim = _sim(root.table("sim", allowed("sim")), imu.layout.time_stamp is not None)
     acceptance = acceptance_limits(root.table("acceptance", ACCEPTANCE_KEYS))
     chamber = chamber_config(root.table("chamber", CHAMBER_KEYS)) if root.has("chamber") else None
     if plan.thermal is not None:

@@ -13,18 +13,22 @@ coefficient's [sim.imu] range over 100 degC: |c_k| <= range / 100^k.
 
 from __future__ import annotations
 
+from bench.config.keys import (
+    MAX_TEMPERATURE_C,
+    MAX_TIME_CONSTANT_S,
+    MIN_TEMPERATURE_C,
+    allowed,
+    number,
+    optional_number,
+)
 from bench.config.reader import Table, describe, is_number, number_text, show
 from bench.model.families import family_of
 from bench.model.thermal import DIAGONAL_NAMES, MAX_THERMAL_DEGREE, THERMAL_NAMES, ImuThermal
 
-#: the temperatures a bench can mean, degC (a chamber's range and then some)
-MIN_TEMPERATURE_C, MAX_TEMPERATURE_C = -100.0, 200.0
-MAX_TIME_CONSTANT_S = 1e6
 #: a polynomial term may move its coefficient by at most its range over this span
 _SPAN_C = 100.0
-_SETTINGS = ("reference_c", "time_constant_s", "ambient_c", "initial_c")
 #: the keys of the table (a diagonal is accepted here to be refused with its reason)
-THERMAL_KEYS = _SETTINGS + THERMAL_NAMES + tuple(sorted(DIAGONAL_NAMES))
+THERMAL_KEYS = allowed("sim.imu.thermal")
 
 
 def sim_thermal(t: Table, family_ranges: dict[str, tuple[float, str]]) -> ImuThermal:
@@ -33,11 +37,10 @@ def sim_thermal(t: Table, family_ranges: dict[str, tuple[float, str]]) -> ImuThe
         if key in DIAGONAL_NAMES:
             raise t.error(key, "a direction-cosine diagonal has no polynomial: it follows from the row's "
                                "off-diagonals (unit rows at every temperature)")
-    low, high = MIN_TEMPERATURE_C, MAX_TEMPERATURE_C
-    reference_c = t.number("reference_c", 25.0, ge=low, le=high, unit="degC")
-    time_constant_s = t.number("time_constant_s", 600.0, gt=0, le=MAX_TIME_CONSTANT_S, unit="s")
-    ambient_c = t.number("ambient_c", reference_c, ge=low, le=high, unit="degC")
-    initial_c = t.number("initial_c", None, ge=low, le=high, unit="degC")
+    reference_c = number(t, "sim.imu.thermal", "reference_c")
+    time_constant_s = number(t, "sim.imu.thermal", "time_constant_s")
+    ambient_c = number(t, "sim.imu.thermal", "ambient_c", reference_c)
+    initial_c = optional_number(t, "sim.imu.thermal", "initial_c")
     polynomials: dict[str, tuple[float, ...]] = {}
     for name in THERMAL_NAMES:
         if not t.has(name):
@@ -65,4 +68,4 @@ def sim_thermal(t: Table, family_ranges: dict[str, tuple[float, str]]) -> ImuThe
         raise t.error(None, f"{exc} ({show(dict(t.data))})") from exc
 
 
-__all__ = ["MAX_TEMPERATURE_C", "MIN_TEMPERATURE_C", "THERMAL_KEYS", "sim_thermal"]
+__all__ = ["MAX_TEMPERATURE_C", "MAX_TIME_CONSTANT_S", "MIN_TEMPERATURE_C", "THERMAL_KEYS", "sim_thermal"]

@@ -16,14 +16,13 @@ A thermal plan needs a [chamber] and every temperature within its limits (checke
 
 from __future__ import annotations
 
+from bench.config.keys import MAX_TEMPERATURE_C, MAX_TEMPERATURES, MIN_TEMPERATURE_C, allowed, number, optional_number
 from bench.config.reader import Table, describe, is_number, number_text
-from bench.config.thermal import MAX_TEMPERATURE_C, MIN_TEMPERATURE_C
 from bench.plan.thermal import SoakCriterion, ThermalPlan
 from drivers.chamber import ChamberLimits
 
 PLAN_THERMAL_KEYS = ("temperatures_c", "ramp_c_per_min", "soak")
-SOAK_KEYS = ("rate_c_per_min", "stable_min", "max_soak_min", "chamber_tolerance_c", "rate_window_s")
-MAX_TEMPERATURES = 50
+SOAK_KEYS = allowed("plan.soak")
 
 
 def thermal_plan(t: Table) -> ThermalPlan | None:
@@ -46,14 +45,14 @@ def thermal_plan(t: Table) -> ThermalPlan | None:
         if any(abs(float(c) - seen) < 1e-6 for seen in temperatures):
             raise t.doc.error(t.path + ("temperatures_c", k), f"{number_text(c)} degC is listed twice")
         temperatures.append(float(c))
-    ramp = t.number("ramp_c_per_min", None, gt=0, le=100.0, unit="degC/min")
+    ramp = optional_number(t, "plan", "ramp_c_per_min")
     s = t.table("soak", SOAK_KEYS)
     default = SoakCriterion()
-    rate = s.number("rate_c_per_min", default.rate_c_per_min, gt=0, le=10.0, unit="degC/min")
-    stable_min = s.number("stable_min", default.stable_min, gt=0, le=1440.0, unit="min")
-    max_soak_min = s.number("max_soak_min", max(default.max_soak_min, stable_min), gt=0, le=10080.0, unit="min")
-    tolerance = s.number("chamber_tolerance_c", default.chamber_tolerance_c, gt=0, le=20.0, unit="degC")
-    window = s.number("rate_window_s", min(default.rate_window_s, stable_min * 60.0), ge=1.0, le=3600.0, unit="s")
+    rate = number(s, "plan.soak", "rate_c_per_min")
+    stable_min = number(s, "plan.soak", "stable_min")
+    max_soak_min = number(s, "plan.soak", "max_soak_min", max(default.max_soak_min, stable_min))
+    tolerance = number(s, "plan.soak", "chamber_tolerance_c")
+    window = number(s, "plan.soak", "rate_window_s", min(default.rate_window_s, stable_min * 60.0))
     if stable_min > max_soak_min:
         raise s.error("max_soak_min", f"must be at least stable_min ({stable_min:g} min), got {max_soak_min:g}")
     if window > stable_min * 60.0:

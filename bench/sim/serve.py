@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     from bench.sim.controller import WireFaults
 
 Handler = Callable[[bytes], "bytes | None"]
+#: the longest request line a simulated device reads (bytes); junk without a terminator is cut there
 MAX_LINE = 4096
 #: connections served at once per server (over all its TCP listeners); a new one beyond them closes the longest idle
 MAX_CONNECTIONS = 32

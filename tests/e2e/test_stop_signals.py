@@ -6,6 +6,7 @@ Subprocess runs are few and bounded; nothing here asserts on wall time.
 
 from __future__ import annotations
 
+import dataclasses
 import signal
 import subprocess
 import sys
@@ -15,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import bench.config.load as config_load
+import bench.config.keys as config_keys
 import bench.log.recorder as recorder_module
 import bench.run.runner as runner_module
 from bench.config.load import load_config
@@ -263,7 +264,8 @@ def test_values_the_solve_cannot_take_are_refused_with_file_line_and_key(tmp_pat
 def test_the_dry_run_builds_what_the_solve_will_need(tmp_path, monkeypatch):
     """Past the ranges (here with the lower bound taken away), `--dry-run` still refuses what the solve cannot use:
     the budget's bias kernel of a 5e-324 s correlation time is not finite (the solve died after the whole run)."""
-    monkeypatch.setattr(config_load, "MIN_CORRELATION_TIME_S", 0.0)
+    tau = config_keys.declared("imu.identity", "bias_correlation_time_s")
+    monkeypatch.setitem(config_keys._BY_NAME, (tau.section, tau.name), dataclasses.replace(tau, ge=0.0))
     path = tmp_path / "bench.toml"
     path.write_text(_with_identity_tau(config_text(dwell_s=1.0), "5e-324"), encoding="utf-8")
     rc, stdout, stderr = cli(["run", "--config", str(path), "--dry-run"])
