@@ -1,4 +1,4 @@
-"""docs/reference/schemas/NAME.md: one page per JSON Schema in docs/reference/schemas/NAME.schema.json.
+"""The pages docs/reference/schemas/<name>.md: one per JSON Schema docs/reference/schemas/<name>.schema.json.
 
 The schemas are written by hand (what a file may hold is a decision, not a dump of one run) and the tests
 validate what the bench writes against them (tests/e2e/test_schemas.py); these pages list each schema's

@@ -246,7 +246,8 @@ def test_python_blocks_run(page, tmp_path, monkeypatch, capsys):
 
 def slug(heading: str) -> str:
     """The anchor MkDocs (Python-Markdown's toc) gives a heading."""
-    text = re.sub(r"[`*_]|\[([^\]]*)\]\([^)]*\)", lambda m: m.group(1) or "", heading)
+    # emphasis marks go (an underscore only at a word's edge: `thermal_model` keeps its own)
+    text = re.sub(r"[`*]|(?<!\w)_|_(?!\w)|\[([^\]]*)\]\([^)]*\)", lambda m: m.group(1) or "", heading)
     text = unicodedata.normalize("NFKD", text).encode("ascii", "ignore").decode("ascii")
     text = re.sub(r"[^\w\s-]", "", text).strip().lower()
     return re.sub(r"[-\s]+", "-", text)
