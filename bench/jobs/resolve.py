@@ -19,7 +19,7 @@ import re
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 from bench import __version__
 from bench.acceptance.limits import AcceptanceLimits
@@ -51,7 +51,7 @@ from bench.model.earth import Site
 from bench.model.observations import PositionObservation, RotationObservation
 from bench.model.quality import FailureKind, QualityFailure, texts
 from bench.model.result import CalibrationResult
-from bench.model.run_section import RunInfo, utc_stamp
+from bench.model.run_section import ImuIdentity, ImuLink, LostSamples, RunInfo, utc_stamp
 from bench.report.markdown import markdown_report, md_text, write_reports
 from bench.solve.extract import Extraction, without_windows
 from bench.solve.from_logs import LogSolution, extract_from_logs, solve_extraction
@@ -433,12 +433,12 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None) -> Resolv
     run_info.started_utc = recorded.logs[0].metadata.get("run", {}).get("started_utc", "")
     run_info.left_out = sorted({*recorded.left_out, *dropped})
     run_info.damage = list(recorded.damage)
-    result = calibration.to_result(run=run_info.to_dict(), sim_truth=recorded.truth)
+    result = calibration.to_result(run=run_info, sim_truth=recorded.truth)
     result.temperature = imu_temperature(recorded.logs, setup.layout, setup.rate_hz)
     limits = config.acceptance if config is not None else AcceptanceLimits()
     verdict = judge(result, limits, lost_samples=lost["total"],
                     quality_failures=texts(judged_failures(failures, limits)))
-    result.verdict = verdict.to_json()
+    result.verdict = verdict.to_section()
     return Resolved(solution, result, failures, pos_name, rot_name, positions is not None or rotations is not None,
                     verdict)
 
@@ -452,9 +452,10 @@ def solved_run_info(recorded: Recorded, positions: str, rotations: str, failures
                    state=recorded.final_state, log=_name(recorded.logs[-1].path),
                    logs=[_name(log.path) for log in recorded.logs], positions=positions, rotations=rotations,
                    solved_utc=utc_stamp(), solved_by="bench solve",
-                   imu={"model": imu.get("model", ""), "serial": imu.get("serial", "")},
-                   site=recorded.site.to_dict(), quality_failures=failures, imu_link=recorded.imu_link().as_dict(),
-                   lost_samples=lost, notes=list(recorded.notes))
+                   imu=ImuIdentity(imu.get("model", ""), imu.get("serial", "")),
+                   site=recorded.site.to_dict(), quality_failures=failures,
+                   imu_link=ImuLink.from_dict(recorded.imu_link().as_dict()), lost_samples=LostSamples.from_dict(lost),
+                   notes=list(recorded.notes))
 
 
 def _unused_windows(recorded: Recorded, chosen: Extraction, positions, rotations) -> set[str]:
@@ -516,9 +517,10 @@ def write_outputs(recorded: Recorded, resolved: Resolved, out_dir: str | Path, *
     stem = output_stem(recorded, resolved)
     result_path = output_path(out_dir, f"{stem}.result.json")     # a name from the log never leaves out_dir
     resolved.result.save(result_path)
-    report = dict(problems=texts(resolved.solution.extraction.problems), failures=texts(resolved.failures),
-                  imu_link=resolved.result.run["imu_link"], against=against, against_label=against_label,
-                  title=f"Calibration report {stem} (re-solved from the log)")
+    report: dict[str, Any] = dict(
+        problems=texts(resolved.solution.extraction.problems), failures=texts(resolved.failures),
+        imu_link=resolved.result.run.link_dict(), against=against, against_label=against_label,
+        title=f"Calibration report {stem} (re-solved from the log)")
     if html:
         md_path, html_path = write_reports(resolved.result, out_dir, stem, log=recorded.logs[-1],
                                            layout=recorded.setup.layout, **report)

@@ -54,14 +54,14 @@ def resolve_thermal(recorded: Recorded, out_dir: str | Path, *, html: bool = Tru
     lost = recorded.extraction.lost_samples()
     positions, rotations = config.plan.positions, config.plan.rotations
     run_info = solved_run_info(recorded, positions.name if positions is not None else "",
-                               rotations.name if rotations is not None else "", link_failures, lost).to_dict()
+                               rotations.name if rotations is not None else "", link_failures, lost)
     # the observations `load_recorded` extracted (merged by unit, the damage of every log): not read twice
     solution = solve_thermal(recorded.logs, recorded.site, setup.layout, setup.rate_hz, config, recorded.sim,
                              run=run_info, extracted=(recorded.extraction, list(recorded.damage)))
     stem = f"{recorded.run_id}.solved"
     output_path(out, f"{stem}.thermal.json")        # a name from the log never leaves `out` (InputError)
     results, model_path = write_thermal_files(
-        solution, out, stem, {"mode": run_info["mode"], "run_id": recorded.run_id, "log": run_info["log"],
+        solution, out, stem, {"mode": run_info.mode, "run_id": recorded.run_id, "log": run_info.log,
                               "solved_by": "bench solve"}, title=f"Thermal model {stem} (re-solved from the log)",
         html=html)
     head = solution.head

@@ -31,7 +31,7 @@ from bench.log.run_kind import RunKind, kind_of_config
 from bench.log.temperature import imu_temperature
 from bench.model.quality import QualityFailure, damage, link_lost_samples, texts
 from bench.model.result import CalibrationResult
-from bench.model.run_section import RunInfo, utc_stamp
+from bench.model.run_section import ImuIdentity, ImuLink, LostSamples, RunInfo, utc_stamp
 from bench.noise.from_log import NoiseInputError, analyse_log
 from bench.plan.compiler import CompiledPlan, compile_plan
 from bench.plan.steps import step_to_dict
@@ -364,12 +364,12 @@ class BenchRun:
                               still_open=frozenset({str(self.log_path), *map(str, self.previous_logs)}))
         failures = quality_failures(solution)
         lost = solution.extraction.lost_samples()
-        run_info = self._run_info(state, receiver, failures, lost).to_dict()
+        run_info = self._run_info(state, receiver, failures, lost)
         result = solution.calibration.to_result(run=run_info, sim_truth=config.sim.imu if self.sim else None)
         result.temperature = imu_temperature(logs, config.imu.layout, config.imu.rate_hz)
         verdict = judge(result, config.acceptance, lost_samples=lost["total"],
                         quality_failures=texts(judged_failures(failures, config.acceptance)))
-        result.verdict = verdict.to_json()
+        result.verdict = verdict.to_section()
         result_path = self.out_dir / f"{self.run_id}.result.json"
         with unfinished(result_path) as partial:
             result.save(partial)
@@ -391,12 +391,12 @@ class BenchRun:
                        software_version=__version__, state=state.value, log=self.log_path.name,
                        logs=[Path(p).name for p in self.previous_logs] + [self.log_path.name],
                        positions=_name(config.plan.positions), rotations=_name(config.plan.rotations),
-                       finished_utc=utc_stamp(), imu={"model": identity.model, "serial": identity.serial},
+                       finished_utc=utc_stamp(), imu=ImuIdentity(identity.model, identity.serial),
                        site=config.site.site.to_dict(), quality_failures=failures,
                        sim=sim_table_record(config) if self.sim else None,      # (its verification's table)
-                       imu_link={**receiver.stats.as_dict(),
-                                 **(receiver.time_base.as_dict() if receiver.time_base is not None else {})},
-                       lost_samples=lost)
+                       imu_link=ImuLink.from_dict({**receiver.stats.as_dict(), **(
+                           receiver.time_base.as_dict() if receiver.time_base is not None else {})}),
+                       lost_samples=LostSamples.from_dict(lost))
 
     def _finish_thermal(self, state: RunState, receiver: ImuReceiver, recorder: McapRecorder) -> RunOutcome:
         """A thermal run: one calibration per temperature (`<run-id>.T<k>.result.json`), the thermal model
@@ -409,11 +409,11 @@ class BenchRun:
                                                   still_open=still_open)
         link_failures = window_loss_failures(extraction.problems)
         lost = extraction.lost_samples()
-        run_info = self._run_info(state, receiver, link_failures, lost).to_dict()
+        run_info = self._run_info(state, receiver, link_failures, lost)
         solution = solve_thermal(logs, config.site.site, config.imu.layout, config.imu.rate_hz, config, self.sim,
                                  run=run_info, extracted=(extraction, damage_lines))
         results, model_path = write_thermal_files(
-            solution, self.out_dir, self.run_id, {"mode": run_info["mode"], "run_id": self.run_id,
+            solution, self.out_dir, self.run_id, {"mode": run_info.mode, "run_id": self.run_id,
                                                   "log": self.log_path.name},
             title=f"Thermal model {self.run_id}")
         written = results + ([model_path] if model_path is not None else [])
