@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Iterable
 
 from bench.acceptance.limits import AcceptanceLimits
-from bench.model.quality import FailureKind, QualityFailure, damage, outliers, texts
+from bench.model.quality import FailureKind, QualityFailure, damage, outliers
 from bench.model.result import CalibrationResult
 
 #: the kinds `max_lost_samples` judges instead when set: the link's lost samples and a dwell's (never a turn left
@@ -23,7 +23,7 @@ def quality_failures(solution) -> list[QualityFailure]:
     extraction's); samples lost outside every window are a note of the result (`run.lost_samples`), not a failure.
     Both are told from the logs' sample counters, so `bench run` and `bench solve LOG` agree."""
     failures = list(solution.extraction.problems) + damage(solution.damage)
-    found = solution.calibration.quality().get("outliers", [])
+    found = solution.calibration.quality().outliers or []
     if found:
         failures.append(outliers(len(found)))
     budget = solution.calibration.budget
@@ -43,10 +43,10 @@ def thermal_failures(result: CalibrationResult, problems: list[QualityFailure], 
     """A thermal run's quality failures, as its headline result records them (`run.quality_failures`): the
     block's problems, the logs' damage, the IMU link's, its residual outliers."""
     failures = problems + damage(damage_lines) + link_failures
-    found = result.quality.get("outliers", []) if isinstance(result.quality, dict) else []
+    found = result.quality.outliers or []
     if found:
         failures.append(outliers(len(found)))
-    result.run["quality_failures"] = texts(failures)
+    result.run.quality_failures = list(failures)
     return failures
 
 

@@ -22,6 +22,7 @@ from typing import Any, Sequence
 from bench.acceptance.limits import AcceptanceLimits
 from bench.model.families import RESULT_UNITS, canonical_names, family_of
 from bench.model.result import CalibrationResult
+from bench.model.verdict_section import VerdictSection
 
 #: the three outcomes of a verdict (as the result file stores them: lower case)
 PASS, FAIL, NOT_CHECKED = "PASS", "FAIL", "NOT CHECKED"
@@ -137,6 +138,10 @@ class Verdict:
         return {"verdict": self.outcome.lower(), "passed": self.passed, "failed": bool(self.failed),
                 "headline": self.headline(), "worst": worst.labelled() if worst else None,
                 "checks": [c.to_json() for c in self.checks]}
+
+    def to_section(self) -> VerdictSection:
+        """The verdict as a result holds it (what `to_json` writes)."""
+        return VerdictSection.from_dict(self.to_json(), "verdict")
 
 
 def stored_outcome(verdict: dict[str, Any]) -> str:

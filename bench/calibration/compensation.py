@@ -107,12 +107,10 @@ def compensation_of(result: CalibrationResult) -> Compensation:
         raise CompensationError(f"the result lacks {len(missing)} of the 30 coefficients ({', '.join(missing[:4])}"
                                 f"{', ...' if len(missing) > 4 else ''}): a compensation needs all of them")
     triads = [_triad(result, *spec) for spec in TRIADS]
-    run = result.run if isinstance(result.run, dict) else {}
-    imu = run.get("imu")
-    imu = imu if isinstance(imu, dict) else {}
-    return Compensation(triads[0], triads[1], imu_model=_text(imu.get("model")), imu_serial=_text(imu.get("serial")),
-                        run_id=_text(run.get("run_id")), calibrated_utc=_text(run.get("finished_utc")),
-                        software_version=_text(run.get("software_version")))
+    run, imu = result.run, result.run.imu
+    return Compensation(triads[0], triads[1], imu_model=_text(imu and imu.model), imu_serial=_text(imu and imu.serial),
+                        run_id=_text(run.run_id), calibrated_utc=_text(run.finished_utc),
+                        software_version=_text(run.software_version))
 
 
 def _triad(result: CalibrationResult, sensor: str, scale: str, bias: str, axes: str, unit: str,

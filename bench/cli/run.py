@@ -250,11 +250,11 @@ def add_verification(outcome, verified, config) -> None:
 
     outcome.verdict = Verdict([*outcome.verdict.checks, *verified.checks])
     result = outcome.result
-    result.verdict = outcome.verdict.to_json()
-    result.run["verification"] = {"file": verified.json_path.name, "log": verified.log_path.name,
-                                  "errors": len(verified.verification.errors)}
+    result.verdict = outcome.verdict.to_section()
+    result.run.extra["verification"] = {"file": verified.json_path.name, "log": verified.log_path.name,
+                                        "errors": len(verified.verification.errors)}
     save_replacing(result, outcome.result_path)
     run_id = outcome.result_path.name.removesuffix(".result.json")
     write_reports(result, outcome.result_path.parent, run_id, log=read_log(str(outcome.log_path)),
                   layout=config.imu.layout, problems=outcome.problems, failures=outcome.failures,
-                  imu_link=result.run.get("imu_link"), title=f"Calibration report {run_id}")
+                  imu_link=result.run.link_dict(), title=f"Calibration report {run_id}")

@@ -18,6 +18,7 @@ from bench.cli.solve_archive import add_archive_options, cmd_archive
 from bench.errors import InputError
 from bench.files import write_output_text
 from bench.model.result import CalibrationResult
+from bench.model.run_section import RunInfo
 from bench.report.facts import lost_samples_note
 
 PROG = "bench solve"
@@ -57,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=cmd_solve)
 
 
-def _notes(recorded, run: dict) -> list[str]:
+def _notes(recorded, run: RunInfo) -> list[str]:
     """The notes of reading the logs, and the samples lost outside every window the solve uses (`run`: its
     result's, `lost_samples_note`)."""
     lost = lost_samples_note(run)

@@ -131,11 +131,12 @@ def cmd_thermal_sim(args: argparse.Namespace) -> ExitCode:
 
     def progress(k: int, point) -> None:
         nonlocal last
-        name = f"sim_{point.result.run['temperature_setpoint_c']:g}C.result.json"
+        setpoint_c = point.result.run.extra["temperature_setpoint_c"]
+        name = f"sim_{setpoint_c:g}C.result.json"
         point.result.save(out / name)
         now = time.perf_counter()
         if not args.quiet:
-            print(f"{point.result.run['temperature_setpoint_c']:g} degC: IMU mean {point.temperature_c:.3f} degC, "
+            print(f"{setpoint_c:g} degC: IMU mean {point.temperature_c:.3f} degC, "
                   f"solved, wrote {out / name} (this temperature {now - last:.1f} s, {now - started:.1f} s in all)",
                   flush=True)
         last = now

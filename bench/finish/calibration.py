@@ -22,7 +22,7 @@ from bench.log.temperature import imu_temperature
 from bench.model.observations import PositionObservation, RotationObservation
 from bench.model.quality import FailureKind, QualityFailure, texts
 from bench.model.result import CalibrationResult
-from bench.model.run_section import RunInfo, utc_stamp
+from bench.model.run_section import ImuIdentity, ImuLink, LostSamples, RunInfo, utc_stamp
 from bench.solve.extract import Extraction, without_windows
 from bench.solve.from_logs import LogSolution, solve_extraction
 from bench.solve.inputs import budget_inputs
@@ -144,12 +144,12 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None, *,
     subset = positions is not None or rotations is not None
     run_info = run_section(recorded, Solved(pos_name, rot_name, failures, lost, sorted({*recorded.left_out, *dropped}),
                                             subset))
-    result = calibration.to_result(run=run_info.to_dict(), sim_truth=recorded.truth)
+    result = calibration.to_result(run=run_info, sim_truth=recorded.truth)
     result.temperature = imu_temperature(recorded.logs, setup.layout, setup.rate_hz)
     limits = config.acceptance if config is not None else AcceptanceLimits()
     verdict = judge(result, limits, lost_samples=lost["total"],
                     quality_failures=texts(judged_failures(failures, limits)))
-    result.verdict = verdict.to_json()
+    result.verdict = verdict.to_section()
     return Resolved(solution, result, failures, pos_name, rot_name, subset, verdict)
 
 
@@ -189,9 +189,10 @@ def solved_run_info(recorded: Recorded, positions: str, rotations: str, failures
                    state=recorded.final_state, log=Path(recorded.logs[-1].path).name,
                    logs=[Path(log.path).name for log in recorded.logs], positions=positions, rotations=rotations,
                    solved_utc=utc_stamp(), solved_by="bench solve",
-                   imu={"model": imu.get("model", ""), "serial": imu.get("serial", "")},
-                   site=recorded.site.to_dict(), quality_failures=failures, imu_link=recorded.imu_link().as_dict(),
-                   lost_samples=lost, notes=list(recorded.notes))
+                   imu=ImuIdentity(imu.get("model", ""), imu.get("serial", "")),
+                   site=recorded.site.to_dict(), quality_failures=failures,
+                   imu_link=ImuLink.from_dict(recorded.imu_link().as_dict()), lost_samples=LostSamples.from_dict(lost),
+                   notes=list(recorded.notes))
 
 
 def _unused_windows(recorded: Recorded, chosen: Extraction, positions, rotations) -> set[str]:

@@ -85,7 +85,7 @@ class Target(ABC):
         """A report's title: `what` ("Calibration report", "Thermal model") of this target, with `detail`."""
 
     @abstractmethod
-    def thermal_run(self, run_info: dict) -> dict:
+    def thermal_run(self, run_info: RunInfo) -> dict:
         """The `run` entry of a thermal model file written for this target."""
 
     @abstractmethod
@@ -143,7 +143,7 @@ def finish_thermal(recorded: Recorded, target: Target) -> Finished:
     positions, rotations = config.plan.positions, config.plan.rotations
     run_info = target.run_section(recorded, Solved(positions.name if positions is not None else "",
                                                    rotations.name if rotations is not None else "",
-                                                   link_failures, lost)).to_dict()
+                                                   link_failures, lost))
     # the observations `recorded` holds (merged by unit, the damage of every log): not read twice
     solution = solve_thermal(recorded.logs, recorded.site, setup.layout, setup.rate_hz, config, recorded.sim,
                              run=run_info, extracted=(recorded.extraction, list(recorded.damage)))

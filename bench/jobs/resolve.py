@@ -54,9 +54,8 @@ class ResolveTarget(Target):
     def title(self, what: str, detail: str = "") -> str:
         return f"{what} {self.stem} ({detail + ', re-solved' if detail else 're-solved from the log'})"
 
-    def thermal_run(self, run_info: dict) -> dict:
-        return {"mode": run_info["mode"], "run_id": run_info["run_id"], "log": run_info["log"],
-                "solved_by": "bench solve"}
+    def thermal_run(self, run_info: RunInfo) -> dict:
+        return {"mode": run_info.mode, "run_id": run_info.run_id, "log": run_info.log, "solved_by": "bench solve"}
 
     def write_result(self, recorded: Recorded, result: CalibrationResult, reports: Reports,
                      also: Sequence[Path] = ()) -> tuple[Path, Path, Path | None]:

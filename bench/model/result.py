@@ -8,19 +8,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bench.errors import InputError
 from bench.files import InputFileError, parse_json, read_input_text, write_output_text
 from bench.model.families import RESULT_UNITS, canonical_names, family_of
 from bench.model.imu import ImuCoefficients
+from bench.model.quality_section import QualitySection
+from bench.model.run_section import RunInfo
+from bench.model.sections import ResultFormatError
+from bench.model.verdict_section import VerdictSection
 
 RESULT_FORMAT = "turntable-bench/result"
 RESULT_VERSION = 2
 #: versions this software reads: 1 had no uncertainty budget (its sigma covered sample noise only)
 READABLE_VERSIONS = (1, 2)
-
-
-class ResultFormatError(InputError):
-    """A result file that is not a turntable-bench result of a version we read."""
 
 
 @dataclass(frozen=True)
@@ -73,16 +72,17 @@ class CalibrationResult:
 
     `coefficients` may hold a subset of the 30 canonical names (e.g. a positions-only
     solve has no gyro scale factors). `sim_truth`, for simulated runs, holds the true
-    coefficients in the same shape.
+    coefficients in the same shape. The `quality`, `run` and `verdict` sections are typed
+    (`bench.model.sections`): read from a file, each writes back what it read.
     """
 
     coefficients: dict[str, Coefficient]
     residuals: dict[str, Any] = field(default_factory=dict)
-    quality: dict[str, Any] = field(default_factory=dict)
-    run: dict[str, Any] = field(default_factory=dict)
+    quality: QualitySection = field(default_factory=QualitySection)
+    run: RunInfo = field(default_factory=RunInfo.empty)
     sim_truth: dict[str, Coefficient] | None = None
-    #: the acceptance verdict (`bench.acceptance.verdict.Verdict.to_json`), when judged
-    verdict: dict[str, Any] | None = None
+    #: the acceptance verdict (`bench.acceptance.verdict.Verdict.to_section`), when judged
+    verdict: VerdictSection | None = None
     #: the IMU's temperature over the run (`mean_c`, `min_c`, `max_c`, degC; `source`), when known:
     #: what a thermal model (`bench.thermal`) places the result at
     temperature: dict[str, Any] | None = None
@@ -93,12 +93,12 @@ class CalibrationResult:
             "version": RESULT_VERSION,
         }
         if self.verdict is not None:        # first: what a reader wants to know first
-            out["verdict"] = self.verdict
+            out["verdict"] = self.verdict.to_dict()
         out |= {
             "coefficients": {k: c.to_json() for k, c in self.coefficients.items()},
             "residuals": self.residuals,
-            "quality": self.quality,
-            "run": self.run,
+            "quality": self.quality.to_dict(),
+            "run": self.run.to_dict(),
         }
         if self.temperature is not None:
             out["temperature"] = self.temperature
@@ -123,14 +123,20 @@ class CalibrationResult:
                                     f"(this software reads versions {', '.join(map(str, READABLE_VERSIONS))})")
         truth = data.get("sim_truth")
         verdict = data.get("verdict")
+        try:        # a section of an older file may lack entries (None); a malformed one is refused, named
+            quality = QualitySection.from_dict(data.get("quality", {}), "quality")
+            run = RunInfo.from_dict(data.get("run", {}), "run", complete=False)
+            judged = None if verdict is None else VerdictSection.from_dict(verdict, "verdict")
+        except ResultFormatError as exc:
+            raise ResultFormatError(f"{origin}: {exc}") from exc
         return cls(
             coefficients=_read_table(data.get("coefficients"), origin, "coefficients"),
             residuals=data.get("residuals", {}),
-            quality=data.get("quality", {}),
-            run=data.get("run", {}),
+            quality=quality,
+            run=run,
             sim_truth=None if truth is None else _read_table(truth.get("coefficients"), origin,
                                                              "sim_truth.coefficients"),
-            verdict=verdict if isinstance(verdict, dict) else None,
+            verdict=judged,
             temperature=_read_temperature(data.get("temperature"), origin),
         )
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any, TypeGuard
 
 from bench.model.families import canonical_names
+from bench.model.quality_section import FIT_NAMES
 from bench.model.result import CalibrationResult
 
 CHANGE_SIGMA = 3.0
@@ -41,7 +42,7 @@ def fmt_list(values) -> str:
 
 
 def outlier_threshold(result: CalibrationResult) -> float:
-    value = result.quality.get("outlier_sigma", 4.0)
+    value = result.quality.outlier_sigma
     return float(value) if _finite(value) and value > 0 else 4.0
 
 
@@ -57,9 +58,9 @@ def row_outliers(result: CalibrationResult, kind: str, row: dict) -> list[tuple[
         for axis, v in zip("xyz", row.get(key) or []):
             if _finite(v) and abs(v) > threshold:
                 found[f"{sensor}_{axis}"] = float(v)
-    for o in result.quality.get("outliers", []):
-        if isinstance(o, dict) and o.get("step") == kind and o.get("index") == row.get("index"):
-            found.setdefault(str(o.get("sensor")), float(o["normalized"]) if _finite(o.get("normalized")) else math.nan)
+    for o in result.quality.outliers or []:
+        if o.step == kind and o.index == row.get("index"):
+            found.setdefault(str(o.sensor), float(o.normalized) if _finite(o.normalized) else math.nan)
     return sorted(found.items())
 
 
@@ -134,15 +135,15 @@ def compare_results(new: CalibrationResult, old: CalibrationResult, threshold: f
             continue
         changes.append(CoefficientChange(name, shown.unit, a.value if a else None, b.value if b else None,
                                          sig(a), sig(b)))
-    run_changes = [(k, old.run.get(k), new.run.get(k)) for k in COMPARED_RUN_FIELDS
-                   if old.run.get(k) != new.run.get(k)]
+    run_changes = [(k, getattr(old.run, k), getattr(new.run, k)) for k in COMPARED_RUN_FIELDS
+                   if getattr(old.run, k) != getattr(new.run, k)]
     notes = []
-    for key in ("accelerometers", "gyros", "gyro_bias"):
-        qa, qb = old.quality.get(key) or {}, new.quality.get(key) or {}
-        if qa.get("chi2_per_dof") != qb.get("chi2_per_dof") and (qa or qb):
-            notes.append(f"{key} chi2/dof per axis: {fmt_list(qa.get('chi2_per_dof'))} -> "
-                         f"{fmt_list(qb.get('chi2_per_dof'))}")
-    na, nb = len(old.quality.get("outliers", [])), len(new.quality.get("outliers", []))
+    for key in FIT_NAMES:
+        qa, qb = old.quality.fit(key), new.quality.fit(key)
+        chi2_a, chi2_b = (None if q is None else q.chi2_per_dof for q in (qa, qb))
+        if chi2_a != chi2_b and (qa or qb):
+            notes.append(f"{key} chi2/dof per axis: {fmt_list(chi2_a)} -> {fmt_list(chi2_b)}")
+    na, nb = len(old.quality.outliers or []), len(new.quality.outliers or [])
     if na != nb:
         notes.append(f"residual outliers: {na} -> {nb}")
     missing = [c.name for c in changes if c.new is None]
@@ -151,7 +152,7 @@ def compare_results(new: CalibrationResult, old: CalibrationResult, threshold: f
         notes.append(f"only in the earlier result: {', '.join(missing)}")
     if added:
         notes.append(f"only in this result: {', '.join(added)}")
-    return Comparison(label or str(old.run.get("run_id") or "earlier result"), changes, threshold, run_changes, notes)
+    return Comparison(label or str(old.run.run_id or "earlier result"), changes, threshold, run_changes, notes)
 
 
 def truth_z(c, t) -> float | None:

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from bench.acceptance.verdict import stored_headline, stored_outcome
+from bench.model.run_section import RunInfo
+from bench.model.verdict_section import VerdictSection
 
 _RUN_KEYS = ("run_id", "mode", "operator", "started_utc", "finished_utc", "state", "software_version",
              "positions", "rotations", "log")
@@ -13,28 +15,27 @@ _RUN_KEYS = ("run_id", "mode", "operator", "started_utc", "finished_utc", "state
 _SITE = {"latitude_deg": ("latitude", "deg"), "height_m": ("height", "m"), "local_g": ("local g", "m/s^2")}
 
 
-def run_facts(run: dict[str, Any]) -> list[tuple[str, str]]:
+def run_facts(run: RunInfo) -> list[tuple[str, str]]:
     """(label, plain text) rows: the run's identity, every log it was solved from, IMU and site."""
-    rows = [(key.replace("_", " "), str(run[key])) for key in _RUN_KEYS if run.get(key) not in (None, "")]
-    logs = run.get("logs")
-    if isinstance(logs, list) and len(logs) > 1:        # a resumed run: every log, not just the last one
+    rows = [(key.replace("_", " "), str(getattr(run, key))) for key in _RUN_KEYS if getattr(run, key) not in (None, "")]
+    logs = run.logs
+    if logs is not None and len(logs) > 1:          # a resumed run: every log, not just the last one
         rows.append(("logs", ", ".join(map(str, logs))))
-    imu = run.get("imu")
-    if isinstance(imu, dict) and any(imu.get(k) for k in ("model", "serial")):
-        rows.append(("IMU", " ".join(str(imu[k]) for k in ("model", "serial") if imu.get(k))))
-    site = run.get("site")
-    site_text = describe_site(site) if isinstance(site, dict) else ""
+    imu = run.imu
+    if imu is not None and (imu.model or imu.serial):
+        rows.append(("IMU", " ".join(str(v) for v in (imu.model, imu.serial) if v)))
+    site = run.site
+    site_text = describe_site(site) if site is not None else ""
     if site_text:
         rows.append(("site", site_text))
     return rows
 
 
-def lost_samples_note(run: dict[str, Any]) -> str | None:
+def lost_samples_note(run: RunInfo) -> str | None:
     """The line saying how many IMU samples were lost outside every dwell and turn window the solve uses (None: none
     were, or the result does not record it): they fail no quality check, only an [acceptance] `max_lost_samples`."""
-    lost = run.get("lost_samples")
-    outside = lost.get("outside_windows") if isinstance(lost, dict) else None
-    if type(outside) is not int or outside <= 0:
+    outside = run.lost_samples.outside_windows if run.lost_samples is not None else None
+    if outside is None or outside <= 0:
         return None
     return (f"{outside} IMU sample{'s' if outside != 1 else ''} lost outside every dwell and turn window the solve "
             "uses (while the table moved or settled, or in a step a subset leaves out): no observation uses them, so "
@@ -66,8 +67,8 @@ TURN_ANGLE_MISSING = ("the turns' angle error (the table's position repeatabilit
 
 def budget_notes(result) -> list[str]:
     """Plain-text lines above the budget table: k, the table's part (or that it is missing), inconsistencies."""
-    u = result.quality.get("uncertainty")
-    if not isinstance(u, dict):
+    u = result.quality.uncertainty
+    if u is None:
         return ["This result has no uncertainty budget (written before result version 2): its sigma covers the "
                 "sample noise only."]
     k = u.get("k", 2)
@@ -93,8 +94,8 @@ def budget_notes(result) -> list[str]:
 def budget_flags(result) -> list[str]:
     """Short lines for a narrow screen (the TUI's Results): where the table's part came from or that it is
     NOT included, and every fit whose residuals the budget does not explain (unexplained scatter)."""
-    u = result.quality.get("uncertainty") if isinstance(result.quality, dict) else None
-    if not isinstance(u, dict):
+    u = result.quality.uncertainty
+    if u is None:
         return ["no uncertainty budget (a result before version 2): sigma covers the sample noise only"]
     table = (u.get("inputs") or {}).get("table")
     if u.get("table_included") and isinstance(table, dict):
@@ -132,8 +133,8 @@ def budget_table(result) -> tuple[list[str], list[list[float | None]], list[str]
 
 def consistency_lines(result) -> list[str] | None:
     """Per fit, the residual test against the budget's predicted scatter (None: no budget in the result)."""
-    u = result.quality.get("uncertainty")
-    if not isinstance(u, dict) or not u.get("consistency"):
+    u = result.quality.uncertainty
+    if u is None or not u.get("consistency"):
         return None
     fits: dict[str, list[dict]] = {}
     for c in u["consistency"]:
@@ -160,10 +161,11 @@ class VerdictView:
     checks: list[tuple[str, str, bool]]
 
 
-def verdict_view(verdict: Any) -> VerdictView | None:
+def verdict_view(section: VerdictSection | None) -> VerdictView | None:
     """The view of a result's `verdict` (None: the result was not judged)."""
-    if not isinstance(verdict, dict):
+    if section is None:
         return None
+    verdict = section.to_dict()         # by the rule of a stored verdict (an older file's too: `stored_outcome`)
     checks = [c for c in verdict.get("checks", []) if isinstance(c, dict)]
     worst = verdict.get("worst")
     return VerdictView(stored_outcome(verdict), stored_headline(verdict), worst if isinstance(worst, str) else None,
@@ -178,11 +180,10 @@ def _kind(check: dict[str, Any]) -> str:
     return "quality" if name == "quality" else "verification" if name.startswith("verify ") else "acceptance"
 
 
-def quality_findings(verdict: Any, failures: list[str]) -> list[str]:
+def quality_findings(verdict: VerdictSection | None, failures: list[str]) -> list[str]:
     """The run's quality failures as a report lists them: each one the verdict does not count (an [acceptance]
     limit, `max_lost_samples` or `max_residual_sigma`, judges it instead) says so."""
-    counted = {str(c.get("text")) for c in (verdict.get("checks", []) if isinstance(verdict, dict) else [])
-               if isinstance(c, dict)}
-    judged = isinstance(verdict, dict)
+    counted = {str(c.text) for c in (verdict.checks or [] if verdict is not None else [])}
+    judged = verdict is not None
     return [f if not judged or f"quality: {f}" in counted else f"{f} (judged by its [acceptance] limit instead)"
             for f in failures]

@@ -21,6 +21,7 @@ import numpy as np
 from bench import __version__
 from bench.acceptance.verdict import FAIL, NOT_CHECKED, PASS
 from bench.log.events import TurnRecord, finished_observation_steps
+from bench.model.quality_section import FIT_NAMES
 from bench.model.result import CalibrationResult
 from bench.report.compare import (
     Comparison,
@@ -251,7 +252,7 @@ def _verdict(verdict, failures, problems, note: str | None = None) -> str:
                     + "".join(f"<li>{_e(f)}</li>" for f in quality_findings(verdict, failures)) + "</ul>")
     else:
         html.append("<p>No quality check failed (they can fail a result, not pass it: the verdict above says whether "
-                    "it was checked).</p>" if isinstance(verdict, dict) else "<p>No quality check failed.</p>")
+                    "it was checked).</p>" if verdict is not None else "<p>No quality check failed.</p>")
     if note:
         html.append(f"<p>Note: {_e(note)}.</p>")
     if problems:
@@ -302,19 +303,20 @@ def _budget(result: CalibrationResult) -> str:
 
 def _quality(result: CalibrationResult) -> str:
     q = result.quality
-    items = [_e(f) for f in q.get("flags", [])] or ["no solver flags"]
+    items = [_e(f) for f in q.flags or []] or ["no solver flags"]
     budget_lines = consistency_lines(result)
-    for key in ("accelerometers", "gyros", "gyro_bias"):
-        if q.get(key):
-            chi2 = ", ".join(fmt(v, 3) for v in q[key].get("chi2_per_dof", []))
-            extra = f", dof {q[key]['dof']}" if "dof" in q[key] else ""
+    for key in FIT_NAMES:
+        fit = q.fit(key)
+        if fit is not None and fit.to_dict():
+            chi2 = ", ".join(fmt(v, 3) for v in fit.chi2_per_dof or [])
+            extra = f", dof {fit.dof}" if fit.dof is not None else ""
             versus = " against the sample noise alone" if budget_lines is not None else ""
             items.append(f"{_e(key)}: chi2/dof per axis{versus} {_e(chi2)}{_e(extra)}")
     items += [_e(line) for line in budget_lines or []]
-    outliers = q.get("outliers", [])
-    items.append(f"outliers beyond {_e(q.get('outlier_sigma', 4))} sigma: {len(outliers)}")
-    items += [f'<span class="flag">{_e(o.get("step"))} {_e(o.get("index"))} {_e(o.get("sensor"))}: '
-              f'{_e(fmt(o.get("normalized"), 3))} sigma</span>' for o in outliers if isinstance(o, dict)]
+    outliers = q.outliers or []
+    items.append(f"outliers beyond {_e(q.outlier_sigma if q.outlier_sigma is not None else 4)} sigma: {len(outliers)}")
+    items += [f'<span class="flag">{_e(o.step)} {_e(o.index)} {_e(o.sensor)}: '
+              f'{_e(fmt(o.normalized, 3))} sigma</span>' for o in outliers]
     return "<h2>Quality</h2>\n<ul>" + "".join(f"<li>{i}</li>" for i in items) + "</ul>"
 
 

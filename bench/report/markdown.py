@@ -19,7 +19,9 @@ from typing import Any, Sequence
 
 from bench.files import write_output_text
 from bench.log.names import output_path
+from bench.model.quality_section import FIT_NAMES
 from bench.model.result import CalibrationResult
+from bench.model.verdict_section import VerdictSection
 from bench.report.compare import (
     Comparison,
     compare_results,
@@ -99,20 +101,21 @@ def markdown_report(result: CalibrationResult, *, problems: Sequence[str] = (), 
     lines += _markdown_budget(result)
     lines.append("## Quality")
     lines.append("")
-    flags = result.quality.get("flags", [])
-    lines += [f"- {f}" for f in flags] or ["- no solver flags"]
+    quality = result.quality
+    lines += [f"- {f}" for f in quality.flags or []] or ["- no solver flags"]
     budget_lines = consistency_lines(result)
-    for key in ("accelerometers", "gyros", "gyro_bias"):
-        q = result.quality.get(key)
-        if q:
+    for key in FIT_NAMES:
+        fit = quality.fit(key)
+        if fit is not None and fit.to_dict():
             versus = " against the sample noise alone" if budget_lines is not None else ""
-            lines.append(f"- {key}: chi2/dof per axis{versus} {fmt_list(q.get('chi2_per_dof', []))}")
+            lines.append(f"- {key}: chi2/dof per axis{versus} {fmt_list(fit.chi2_per_dof or [])}")
     lines += [f"- {md_text(line)}" for line in budget_lines or []]
-    outliers = result.quality.get("outliers", [])
-    lines.append(f"- outliers beyond {result.quality.get('outlier_sigma', 4)} sigma: {len(outliers)}")
+    outliers = quality.outliers or []
+    sigma = quality.outlier_sigma if quality.outlier_sigma is not None else 4
+    lines.append(f"- outliers beyond {sigma} sigma: {len(outliers)}")
     for o in outliers:
-        lines.append(f"  - {md_text(o['step'])} {md_text(o['index'])} {md_text(o['sensor'])}: "
-                     f"{fmt(o['normalized'], 3)} sigma")
+        lines.append(f"  - {md_text(o.step)} {md_text(o.index)} {md_text(o.sensor)}: "
+                     f"{fmt(o.normalized, 3)} sigma")
     if problems:
         lines.append("")
         lines.append("Steps left out or degraded:")
@@ -138,7 +141,7 @@ def _markdown_budget(result: CalibrationResult) -> list[str]:
     return lines
 
 
-def _markdown_verdict(verdict: dict[str, Any] | None) -> list[str]:
+def _markdown_verdict(verdict: VerdictSection | None) -> list[str]:
     """The verdict, first in the report: headline, worst check, every check with its kind."""
     view = verdict_view(verdict)
     if view is None:

@@ -32,7 +32,7 @@ from bench.log.run_info import MANUAL_LOG_SUFFIX, LogSetup
 from bench.log.run_kind import RunKind, kind_of_config
 from bench.model.quality import damage, link_lost_samples
 from bench.model.result import CalibrationResult
-from bench.model.run_section import RunInfo, utc_stamp
+from bench.model.run_section import ImuIdentity, ImuLink, LostSamples, RunInfo, utc_stamp
 from bench.plan.compiler import CompiledPlan, compile_plan
 from bench.plan.steps import step_to_dict
 from bench.plan.thermal import compile_thermal_plan
@@ -415,18 +415,18 @@ class _LiveTarget(Target):
                        software_version=__version__, state=self.state.value, log=run.log_path.name,
                        logs=[Path(p).name for p in run.previous_logs] + [run.log_path.name],
                        positions=_name(config.plan.positions), rotations=_name(config.plan.rotations),
-                       finished_utc=utc_stamp(), imu={"model": identity.model, "serial": identity.serial},
+                       finished_utc=utc_stamp(), imu=ImuIdentity(identity.model, identity.serial),
                        site=config.site.site.to_dict(), quality_failures=solved.failures,
                        sim=sim_table_record(config) if run.sim else None,      # (its verification's table)
-                       imu_link={**receiver.stats.as_dict(),
-                                 **(receiver.time_base.as_dict() if receiver.time_base is not None else {})},
-                       lost_samples=solved.lost)
+                       imu_link=ImuLink.from_dict({**receiver.stats.as_dict(), **(
+                           receiver.time_base.as_dict() if receiver.time_base is not None else {})}),
+                       lost_samples=LostSamples.from_dict(solved.lost))
 
     def title(self, what: str, detail: str = "") -> str:
         return f"{what} {self.stem}" + (f" ({detail})" if detail else "")
 
-    def thermal_run(self, run_info: dict) -> dict:
-        return {"mode": run_info["mode"], "run_id": self.stem, "log": self.run.log_path.name}
+    def thermal_run(self, run_info: RunInfo) -> dict:
+        return {"mode": run_info.mode, "run_id": self.stem, "log": self.run.log_path.name}
 
     def write_result(self, recorded: Recorded, result: CalibrationResult, reports: Reports,
                      also: Sequence[Path] = ()) -> tuple[Path, Path, Path | None]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -12,11 +12,14 @@ from bench.model.earth import Site
 from bench.model.families import BODY_AXES, RESULT_UNITS, SENSOR_AXES
 from bench.model.imu import ImuCoefficients
 from bench.model.observations import PositionObservation, RotationObservation
+from bench.model.quality_section import FitQuality, Outlier, QualitySection
 from bench.model.result import CalibrationResult, coefficient_table
+from bench.model.run_section import RunInfo
 from bench.model.units import ARCSEC, DEG_PER_HOUR
 from bench.solve.budget import Budget, BudgetInputs, compute_budget
 from bench.solve.methods import (
     GyroBias,
+    LinearFit,
     SensorTriad,
     SolverError,
     gyro_bias_from_positions,
@@ -100,16 +103,15 @@ class Calibration:
             rot_rows.append(row)
         return {"positions": pos_rows, "rotations": rot_rows}
 
-    def quality(self) -> dict[str, Any]:
-        q: dict[str, Any] = {"flags": list(self.flags), "outlier_sigma": OUTLIER_SIGMA}
-        for key, fit in (("accelerometers", self.accelerometers and self.accelerometers.fit),
-                         ("gyros", self.gyros and self.gyros.fit)):
-            if fit:
-                q[key] = {"chi2_per_dof": _floats(fit.chi2_per_dof), "dof": fit.dof, "weighted": fit.weighted,
-                          "sigma_scaled": fit.scaled}
+    def quality(self) -> QualitySection:
+        q = QualitySection(flags=list(self.flags), outlier_sigma=OUTLIER_SIGMA)
+        if self.accelerometers and self.accelerometers.fit:
+            q.accelerometers = _fit_quality(self.accelerometers.fit)
+        if self.gyros and self.gyros.fit:
+            q.gyros = _fit_quality(self.gyros.fit)
         if self.gyro_bias is not None:
-            q["gyro_bias"] = {"chi2_per_dof": _floats(self.gyro_bias.chi2_per_dof),
-                              "sigma_scaled": self.gyro_bias.scaled}
+            q.gyro_bias = FitQuality(chi2_per_dof=_floats(self.gyro_bias.chi2_per_dof),
+                                     sigma_scaled=self.gyro_bias.scaled)
         outliers = []
         tables = self.residual_tables()
         for kind, rows in (("position", tables["positions"]), ("rotation", tables["rotations"])):
@@ -118,15 +120,17 @@ class Calibration:
                     for axis, v in zip(SENSOR_AXES, row.get(key, [])):
                         if v is not None and abs(v) > OUTLIER_SIGMA:
                             sensor = "acc" if key.startswith("acc") else "gyro"
-                            outliers.append({"step": kind, "index": row["index"], "sensor": f"{sensor}_{axis}",
-                                             "normalized": v})
-        q["outliers"] = outliers
+                            outliers.append(Outlier(step=kind, index=row["index"], sensor=f"{sensor}_{axis}",
+                                                    normalized=v))
+        q.outliers = outliers
         if self.budget is not None:
-            q["uncertainty"] = self.budget.summary_json()
+            q.uncertainty = self.budget.summary_json()
         return q
 
-    def to_result(self, run: dict[str, Any] | None = None,
+    def to_result(self, run: RunInfo | Mapping[str, Any] | None = None,
                   sim_truth: ImuCoefficients | None = None) -> CalibrationResult:
+        """The result of this calibration; `run` its run section, or that section's entries (read as a result
+        file's: any may be missing; ResultFormatError when one is malformed)."""
         values, sigmas = self.values_and_sigmas()
         truth = None if sim_truth is None else coefficient_table(sim_truth.to_canonical())
         budgets = None
@@ -134,7 +138,13 @@ class Calibration:
             budgets = {name: self.budget.components.get(name, {}) for name in values}
         k = self.budget.inputs.k if self.budget is not None else None
         return CalibrationResult(coefficient_table(values, sigmas, budgets, k), self.residual_tables(), self.quality(),
-                                 dict(run or {}), truth)
+                                 run if isinstance(run, RunInfo) else RunInfo.from_dict(run or {}, complete=False),
+                                 truth)
+
+
+def _fit_quality(fit: LinearFit) -> FitQuality:
+    return FitQuality(chi2_per_dof=_floats(fit.chi2_per_dof), dof=fit.dof, weighted=fit.weighted,
+                      sigma_scaled=fit.scaled)
 
 
 def _floats(a) -> list[float | None]:

@@ -37,10 +37,9 @@ def _padded(model: ThermalModel, name: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _identity(model: ThermalModel) -> dict[str, str]:
-    run = model.points[0].result.run if model.points else {}
-    imu = run.get("imu") if isinstance(run, dict) else None
-    imu = imu if isinstance(imu, dict) else {}
-    return {"imu_model": str(imu.get("model") or ""), "imu_serial": str(imu.get("serial") or ""),
+    imu = model.points[0].result.run.imu if model.points else None
+    model_name, serial = (imu.model, imu.serial) if imu is not None else (None, None)
+    return {"imu_model": str(model_name or ""), "imu_serial": str(serial or ""),
             "exported_by": f"turntable-bench {__version__}"}
 
 

@@ -15,7 +15,7 @@ with its reports.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -26,6 +26,7 @@ from bench.log.events import StepStarted, finished_observation_steps
 from bench.log.reader import RunLog
 from bench.model.earth import Site
 from bench.model.imu import ImuCoefficients
+from bench.model.run_section import RunInfo
 from bench.model.thermal import ImuThermal
 from bench.plan.steps import MAX_BLOCK_DIGITS, thermal_block
 from bench.solve.budget import BudgetInputs
@@ -93,7 +94,7 @@ def _block_temperature(logs: list[RunLog], layout: ImuLayout, rate_hz: float, k:
             "samples": int(len(temps)), "source": "IMU frames (the temperature's observation windows)"}
 
 
-def solve_blocks(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: float, *, run: dict[str, Any],
+def solve_blocks(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: float, *, run: RunInfo,
                  gyro_bias_stability_dph: float | None = None, acc_bias_stability_ug: float | None = None,
                  sim_imu: ImuCoefficients | None = None, sim_thermal: ImuThermal | None = None,
                  still_open: frozenset[str] = frozenset(), budget: BudgetInputs | None = None,
@@ -121,8 +122,8 @@ def solve_blocks(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: flo
         setpoint = setpoints.get(k)
         truth = (sim_thermal.coefficients_at(sim_imu, temperature["mean_c"])
                  if sim_thermal is not None and sim_imu is not None else sim_imu)
-        result = calibration.to_result({**run, "temperature_block": k, "temperature_setpoint_c": setpoint},
-                                       sim_truth=truth)
+        block_run = replace(run, extra={**run.extra, "temperature_block": k, "temperature_setpoint_c": setpoint})
+        result = calibration.to_result(block_run, sim_truth=truth)
         result.temperature = {**temperature, "setpoint_c": setpoint}
         label = f"T{k} ({setpoint:g} degC)" if setpoint is not None else f"T{k}"
         out.append(BlockSolution(k, setpoint, ThermalPoint(label, result.temperature, result), part))
@@ -156,7 +157,7 @@ class ThermalSolution:
 
 
 def solve_thermal(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: float, config, sim: bool, *,
-                  run: dict[str, Any], still_open: frozenset[str] = frozenset(),
+                  run: RunInfo, still_open: frozenset[str] = frozenset(),
                   extracted: tuple[Extraction, list[str]] | None = None) -> ThermalSolution:
     """Every temperature block of the logs solved with what `config` (None: nothing) says beyond the data, as
     a plain run's solve is, and the thermal model fitted (SolverError when no block has an observation).

@@ -201,8 +201,8 @@ def is_thermal_text(text: str) -> bool:
 
 
 def _serial(point: ThermalPoint) -> str:
-    imu = point.result.run.get("imu") if isinstance(point.result.run, dict) else None
-    return str(imu.get("serial") or "") if isinstance(imu, dict) else ""
+    imu = point.result.run.imu
+    return str(imu.serial or "") if imu is not None else ""
 
 
 def _common_parts(name: str, entries: list, sigmas: np.ndarray) -> np.ndarray | None:

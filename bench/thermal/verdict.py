@@ -22,11 +22,11 @@ def judge_thermal_head(solution: ThermalSolution, results: list[Path], model_pat
     result = head.point.result
     problems = list(head.extraction.problems)
     failures = thermal_failures(result, problems, solution.damage, [f for f in link_failures if f not in problems])
-    result.run["thermal"] = {"model": model_path.name if model_path is not None else None,
+    result.run.extra["thermal"] = {"model": model_path.name if model_path is not None else None,
                              "results": [p.name for p in results], "this_block": head.temperature_index}
     verdict = judge(result, limits, lost_samples=lost_samples,
                     quality_failures=texts(judged_failures(failures, limits)))
-    result.verdict = verdict.to_json()
+    result.verdict = verdict.to_section()
     return result, texts(problems), failures, verdict
 
 

@@ -535,14 +535,13 @@ class ResultsPanel(Vertical):
                 row.append(_sigmas((c.value - true.value) / c.sigma) if true is not None and finite_sigma else "-")
             table.add_row(*row)
             lines.append(" ".join(row))
-        failures = result.quality.get("failures") if isinstance(result.quality, dict) else None
+        failures = result.quality.extra.get("failures")     # an older file's entry
         head = text or f"{len(result.coefficients)} coefficients"
         if failures:
             head += f"; quality: {failures}"
-        verdict = result.verdict if isinstance(result.verdict, dict) else None
-        if verdict is not None:     # the verdict first: what an operator looks for
-            worst = f"; worst: {verdict['worst']}" if verdict.get("worst") else ""
-            head = f"VERDICT {stored_headline(verdict)}{worst}\n{head}"
+        if result.verdict is not None:      # the verdict first: what an operator looks for
+            worst = f"; worst: {result.verdict.worst}" if result.verdict.worst else ""
+            head = f"VERDICT {stored_headline(result.verdict.to_dict())}{worst}\n{head}"
         warnings = budget_warnings(result)
         if warnings:
             head += "\n" + "; ".join(warnings) + " (Budget tab)"
@@ -554,8 +553,8 @@ class ResultsPanel(Vertical):
 
 def budget_warnings(result) -> list[str]:
     """The budget's warnings in a few words each: the table's part missing, fits with unexplained scatter."""
-    u = result.quality.get("uncertainty") if isinstance(result.quality, dict) else None
-    if not isinstance(u, dict):
+    u = result.quality.uncertainty
+    if u is None:
         return []
     out = [] if u.get("table_included") else ["WARNING: turntable pointing NOT in sigma"]
     if turn_angle_missing(u):

@@ -51,8 +51,7 @@ def sim_table_record(config: BenchConfig) -> dict[str, Any]:
 
 def recorded_sim_table(calibration: CalibrationResult | None) -> np.ndarray | None:
     """The black-box angles (3, 3) rad a simulated calibration recorded (`sim_table_record`), else None."""
-    run = calibration.run if calibration is not None and isinstance(calibration.run, dict) else {}
-    sim = run.get("sim")
+    sim = calibration.run.sim if calibration is not None else None
     angles = sim.get("black_box_arcsec") if isinstance(sim, dict) else None
     try:
         table = np.array(angles, dtype=float) * ARCSEC

@@ -77,14 +77,14 @@ def test_each_temperature_is_its_own_calibration_told_apart_by_its_units(thermal
     results = {int(p.name.split(".T")[1][0]): CalibrationResult.load(p) for p in out.glob("*.T?.result.json")}
     for k, setpoint in enumerate(TEMPERATURES_C, start=1):
         result = results[k]
-        assert result.run["temperature_block"] == k and result.run["temperature_setpoint_c"] == setpoint
+        assert result.run.extra["temperature_block"] == k and result.run.extra["temperature_setpoint_c"] == setpoint
         t = result.temperature
         assert t["setpoint_c"] == setpoint and abs(t["mean_c"] - setpoint) < 0.5 and t["max_c"] - t["min_c"] < 1.0
         labels = [r["label"] for r in result.residuals["positions"]] if "positions" in result.residuals else []
         assert all(label.startswith(f"T{k}-") for label in labels)
     # the run's own result (verdict, reports) is the calibration nearest the model's reference, 25 degC
     main = CalibrationResult.load(only_file(out, "[0-9]*Z-??????.result.json"))
-    assert main.run["thermal"]["this_block"] == 3 and main.temperature["setpoint_c"] == 25.0
+    assert main.run.extra["thermal"]["this_block"] == 3 and main.temperature["setpoint_c"] == 25.0
 
 
 def test_the_log_records_the_chamber_state_and_every_soak_decision(thermal_run):
@@ -132,7 +132,7 @@ def assert_same_thermal_outputs(run_out: Path, solved_out: Path) -> None:
     head, solved_head = (CalibrationResult.load(only_file(d, pattern))
                          for d, pattern in ((run_out, "*Z-??????.result.json"), (solved_out, "*.solved.result.json")))
     assert head.coefficients == solved_head.coefficients
-    assert head.run["thermal"]["this_block"] == solved_head.run["thermal"]["this_block"]
+    assert head.run.extra["thermal"]["this_block"] == solved_head.run.extra["thermal"]["this_block"]
 
 
 def test_a_thermal_run_cut_off_resumes_without_soaking_the_finished_temperature_again(tmp_path):

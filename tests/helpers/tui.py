@@ -15,6 +15,7 @@ import numpy as np
 
 from bench.config.load import parse_config
 from bench.log.events import RunState, make_event
+from bench.model.quality_section import QualitySection
 from bench.model.result import CalibrationResult, coefficient_table
 from drivers.imu import ImuSampleBlock
 from drivers.turntable import AxisMode, AxisState, AxisStatus, TableState
@@ -156,7 +157,7 @@ def feed_budget_result(app, table_included: bool = False) -> None:
                                "consistency": [{"fit": "gyros", "sensor": "x", "chi2": 40.0, "dof": 8, "p_value": 1e-5,
                                                 "consistent": False, "scale": 2.5,
                                                 "drivers": ["R03 (+5.2)", "R07 (-3.1)"]}]}}
-    result = CalibrationResult(coefficient_table(values, sigmas, budgets, 2.0), quality=quality,
-                               sim_truth=coefficient_table(truth))
+    result = CalibrationResult(coefficient_table(values, sigmas, budgets, 2.0),
+                               quality=QualitySection.from_dict(quality), sim_truth=coefficient_table(truth))
     app.buffer.on_event(make_event(300.0, "transition", "run complete", state="done", data={"from": "running"}))
     app.buffer.set_outcome(result, "done; result run.result.json")

@@ -20,6 +20,7 @@ from bench.acceptance.verdict import FAIL, NOT_CHECKED, PASS, judge, stored_head
 from bench.config.load import ConfigError, load_config, parse_config
 from bench.model.imu import default_sim_imu
 from bench.model.result import CalibrationResult, coefficient_table
+from bench.model.verdict_section import VerdictSection
 from bench.report.html import html_report
 from bench.report.markdown import markdown_report
 from tests.helpers.run import cli, config_text, load_json, only_file
@@ -114,11 +115,11 @@ def test_an_older_result_files_pass_without_checks_reads_as_not_checked(tmp_path
     old = {"passed": True, "verdict": "pass", "headline": "PASS (no acceptance limits configured)", "worst": None,
            "checks": []}
     result = _result()
-    result.verdict, result.residuals = old, {}
+    result.verdict, result.residuals = VerdictSection.from_dict(old), {}
     path = tmp_path / "old.result.json"
     result.save(path)
     loaded = CalibrationResult.load(path)
-    assert loaded.verdict == old                                    # kept as stored
+    assert loaded.verdict.to_dict() == old                          # kept as stored
     assert stored_outcome(old) == NOT_CHECKED and stored_headline(old) == "NOT CHECKED (no check ran)"
     assert "**Verdict: NOT CHECKED (no check ran)**" in markdown_report(loaded)
     html = html_report(loaded)
@@ -126,7 +127,7 @@ def test_an_older_result_files_pass_without_checks_reads_as_not_checked(tmp_path
     failed = {**old, "passed": False, "headline": "FAIL (1 of 1 checks: quality)",
               "checks": [{"name": "quality", "passed": False, "text": "quality: P07 left out"}]}
     assert stored_outcome(failed) == FAIL and stored_headline(failed) == failed["headline"]
-    result.verdict = failed
+    result.verdict = VerdictSection.from_dict(failed)
     assert "| quality | quality: P07 left out | **FAIL** |" in markdown_report(result)
 
 
@@ -266,7 +267,7 @@ def test_bench_run_judges_the_result_and_says_so_in_its_closing_lines(tmp_path, 
     assert f"**Verdict: {lines[0].removeprefix('verdict: ')}**" in first_section
     assert html.index("<h2>Verdict: ") < html.index("<h2>Run</h2>")
     assert "Quality checks passed" not in report + html
-    assert CalibrationResult.load(result_path).verdict == verdict      # read back
+    assert CalibrationResult.load(result_path).verdict.to_dict() == verdict      # read back
     assert json.loads(result_path.read_text())["coefficients"]["Kg_x"]["unit"] == "counts/s per deg/s"
 
 

@@ -30,6 +30,7 @@ from bench.calibration.export import COMPENSATION_FORMAT, KalibrNoise, to_c_head
 from bench.log.reader import read_log
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
 from bench.model.result import CalibrationResult, coefficient_table
+from bench.model.run_section import RunInfo
 from bench.model.units import DEG, G0
 from bench.sim.imu import SimImu
 from bench.sim.table import SimTable
@@ -42,7 +43,8 @@ UNIT_IMU = ImuCoefficients(np.ones(3), np.zeros(3), np.eye(3), np.ones(3), np.ze
 def _truth_result(truth: ImuCoefficients, sigma: float = 1e-6, run: dict | None = None) -> CalibrationResult:
     values = truth.to_canonical()
     return CalibrationResult(coefficient_table(values, {n: sigma * max(abs(v), 1e-3) for n, v in values.items()}),
-                             run=run or {"run_id": "truth", "imu": {"model": "sim", "serial": "S-1"}})
+                             run=RunInfo.from_dict(run or {"run_id": "truth", "imu": {"model": "sim", "serial": "S-1"}},
+                                                   complete=False))
 
 
 def _moving_table() -> SimTable:

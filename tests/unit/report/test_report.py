@@ -21,7 +21,9 @@ import pytest
 from bench.errors import InputError
 from bench.log.reader import read_log
 from bench.model.families import canonical_names
+from bench.model.quality_section import Outlier
 from bench.model.result import CalibrationResult
+from bench.model.run_section import RunInfo
 from bench.report.compare import compare_results
 from bench.report.html import html_report, log_damage, log_series
 from bench.report.markdown import markdown_report, write_reports
@@ -167,7 +169,7 @@ def test_run_writes_a_self_contained_html_report_with_every_coefficient(run):
     assert all(len(svg) > 2000 for svg in re.findall(r"<svg .*?</svg>", html, re.S))
     for heading in ("Run", "Quality checks", "Coefficients", "Quality", "Residuals", "IMU outputs and table angles"):
         assert f"<h2>{heading}</h2>" in html
-    assert run.result.run["run_id"] in html
+    assert run.result.run.run_id in html
     assert "The log is damaged" not in html          # the live run read its own log before closing it
 
 
@@ -206,7 +208,7 @@ def _with_outliers(result: CalibrationResult) -> CalibrationResult:
     """P04's acc_y residual at 7.5 sigma (normalized value only) and R02's gyro_z listed by the solver only."""
     edited = copy.deepcopy(result)
     edited.residuals["positions"][3]["acc_normalized"][1] = 7.5
-    edited.quality["outliers"] = [{"step": "rotation", "index": 1, "sensor": "gyro_z", "normalized": -6.25}]
+    edited.quality.outliers = [Outlier(step="rotation", index=1, sensor="gyro_z", normalized=-6.25)]
     return edited
 
 
@@ -220,7 +222,7 @@ def test_markdown_flags_outliers(run):
     assert flagged[0].startswith(f"| **{p04}** |") and "acc_y 7.5 sigma" in flagged[0]
     assert flagged[1].startswith(f"| **{r02}** |") and "gyro_z -6.25 sigma" in flagged[1]
     # the real run's tables flag exactly what its solver listed
-    listed = {(o["step"], o["index"]) for o in run.result.quality.get("outliers", [])}
+    listed = {(o.step, o.index) for o in run.result.quality.outliers or []}
     assert sum(line.startswith("|") and "**OUTLIER**" in line for line in run.md.splitlines()) == len(listed)
 
 
@@ -248,7 +250,7 @@ def _moved(result: CalibrationResult) -> CalibrationResult:
         c = old.coefficients[name]
         old.coefficients[name] = type(c)(c.value - z * math.sqrt(2.0) * c.sigma, c.sigma, c.unit)
     del old.coefficients["Eg_Xy"]
-    old.run = {**old.run, "run_id": "OLD-RUN", "positions": "traditional-12"}
+    old.run = RunInfo.from_dict({**old.run.to_dict(), "run_id": "OLD-RUN", "positions": "traditional-12"})
     return old
 
 
@@ -262,7 +264,7 @@ def test_comparison_in_sigma(run):
     assert by_name["Ka_z"].z == 0.0
     assert by_name["Eg_Xy"].old is None and by_name["Eg_Xy"].z is None
     assert [c.name for c in comparison.flagged] == ["Kg_x"]
-    assert ("run_id", "OLD-RUN", run.result.run["run_id"]) in comparison.run_changes
+    assert ("run_id", "OLD-RUN", run.result.run.run_id) in comparison.run_changes
     assert "only in this result: Eg_Xy" in comparison.notes
 
 
@@ -294,11 +296,12 @@ def test_reports_against_an_earlier_result(run, tmp_path):
 def test_markdown_escapes_free_text_as_the_html_report_does(run, tmp_path):
     """Many viewers render Markdown as HTML: an operator named <script> must not become a script there."""
     hostile = copy.deepcopy(run.result)
-    hostile.run = {**hostile.run, "operator": "<script>alert(1)</script>", "mode": "simulator\n# forged heading",
-                   "imu": {"model": "<b>IMU</b>", "serial": "[x](javascript:alert(1)) | y"}}
+    hostile.run = RunInfo.from_dict({**hostile.run.to_dict(), "operator": "<script>alert(1)</script>",
+                                     "mode": "simulator\n# forged heading",
+                                     "imu": {"model": "<b>IMU</b>", "serial": "[x](javascript:alert(1)) | y"}})
     hostile.residuals["positions"][0]["label"] = "<img src=x onerror=alert(1)>"
     old = _moved(run.result)
-    old.run = {**old.run, "positions": "<i>old</i>"}
+    old.run = RunInfo.from_dict({**old.run.to_dict(), "positions": "<i>old</i>"})
     md = markdown_report(hostile, problems=["P02: <iframe src=x>"], failures=["**PASSED** _really_"],
                          title="report <script>", against=old, against_label="<u>old</u>.result.json")
     for raw in ("<script", "<b>", "<img", "<iframe", "<i>", "<u>", "[x](javascript", "\n# forged"):
@@ -371,8 +374,10 @@ def test_minimal_result_renders(run):
 def test_both_reports_name_every_log_of_a_resumed_run_and_the_site_in_words(run):
     """The HTML report said `local_g None`; the Markdown one named only the resumed run's last log."""
     result = CalibrationResult({k: run.result.coefficients[k] for k in ("Ka_x", "K0_x")},
-                               run={"run_id": "r1", "log": "r1-b.mcap", "logs": ["r1-a.mcap", "r1-b.mcap"],
-                                    "site": {"latitude_deg": 30.27, "height_m": 12.5, "local_g": None}})
+                               run=RunInfo.from_dict({"run_id": "r1", "log": "r1-b.mcap",
+                                                      "logs": ["r1-a.mcap", "r1-b.mcap"],
+                                                      "site": {"latitude_deg": 30.27, "height_m": 12.5,
+                                                               "local_g": None}}, complete=False))
     md, html = markdown_report(result), html_report(result)
     assert "- **logs**: r1-a.mcap, r1-b.mcap" in md
     assert "- **site**: latitude 30.27 deg, height 12.5 m" in md

@@ -199,7 +199,7 @@ def test_a_thermal_runs_log_is_re_solved_one_calibration_per_temperature(thermal
     assert len(results_below(solved)) == 3           # T1, T2 and the headline block
     model, alone = (ThermalModel.load(only_file(d, "*.thermal.json")) for d in (solved, tmp_path / "one"))
     assert len(model.points) == 2 and model.model_json() == alone.model_json()
-    assert CalibrationResult.load(only_file(solved, "*.solved.result.json")).run["thermal"]["this_block"]
+    assert CalibrationResult.load(only_file(solved, "*.solved.result.json")).run.extra["thermal"]["this_block"]
     with open_records(str(db)) as records:
         assert [r.serial for r in records.list_runs()] == ["THERMAL-1"]
 

@@ -96,8 +96,8 @@ def test_a_plan_that_cancels_an_angle_to_first_order_is_credited():
 def test_without_the_table_part_the_report_says_so_and_flags_it():
     obs_p, obs_r = _noisy()
     result = solve(obs_p, obs_r, SITE).to_result()
-    assert any("NOT included" in f for f in result.quality["flags"])
-    assert result.quality["uncertainty"]["table_included"] is False
+    assert any("NOT included" in f for f in result.quality.flags)
+    assert result.quality.uncertainty["table_included"] is False
     assert "the turntable's pointing error is NOT included" in markdown_report(result)
 
 

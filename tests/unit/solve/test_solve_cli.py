@@ -472,7 +472,7 @@ def test_too_few_turns_left_solve_the_positions_and_say_why_the_turns_are_left_o
     recorded.extraction.rotations = kept
     resolved = solve_recorded(recorded)
     assert {name.split("_")[0] for name in resolved.result.coefficients} == {"Ka", "Ea", "K0"}
-    assert resolved.result.run["left_out"] == sorted(o.label for o in kept)
+    assert resolved.result.run.left_out == sorted(o.label for o in kept)
     for o in kept:
         assert QualityFailure(FailureKind.LEFT_OUT, f"{o.label}: left out: rotation method needs at least 4 turns, "
                               "got 2", o.label) in resolved.failures

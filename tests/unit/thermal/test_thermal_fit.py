@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from bench.model.result import CalibrationResult, coefficient_table
+from bench.model.run_section import RunInfo
 from bench.thermal.fit import ThermalFitError, fit_coefficient
 from bench.thermal.model import ThermalFormatError, ThermalModel, fit_thermal_model, point_from_result
 
@@ -169,7 +170,7 @@ def test_calibrations_of_different_imus_are_refused():
     points = []
     for t, serial in ((0.0, "A-1"), (25.0, "A-1"), (50.0, "B-7")):
         r = _result(t, {"D0_x": 0.1}, {"D0_x": 0.01})
-        r.run = {"imu": {"model": "m", "serial": serial}}
+        r.run = RunInfo.from_dict({"imu": {"model": "m", "serial": serial}}, complete=False)
         points.append(point_from_result(r, f"r{t:g}.json"))
     with pytest.raises(ThermalFitError, match="different IMUs.*'B-7'"):
         fit_thermal_model(points)

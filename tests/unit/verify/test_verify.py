@@ -22,6 +22,7 @@ from bench.config.load import ConfigError, load_config
 from bench.model.earth import Site
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
 from bench.model.result import CalibrationResult, coefficient_table
+from bench.model.run_section import RunInfo
 from bench.model.table_prior import TablePrior
 from bench.model.units import ARCSEC
 from bench.plan.compiler import PlanError, PlanTiming, compile_plan
@@ -163,7 +164,7 @@ def _write(tmp_path, text: str, name: str = "other.toml"):
 def test_a_simulated_verification_runs_on_the_table_its_calibration_recorded(tmp_path):
     config = load_config(_write(tmp_path, config_text(seed=3, black_box_arcsec=20.0)))
     result = _result(default_sim_imu())
-    result.run = {"sim": sim_table_record(config)}
+    result.run = RunInfo.from_dict({"sim": sim_table_record(config)}, complete=False)
     other = load_config(_write(tmp_path, config_text(seed=9, black_box_arcsec=20.0), "seed9.toml"))
     assert not np.allclose(other.sim.black_box_rad, config.sim.black_box_rad)
     verifying = verification_config(other, result)
