@@ -1,5 +1,6 @@
 """Fixtures shared by test files: the leftover-thread check runs for every test (autouse); the recorded logs that
-tests only read are recorded once per session (`short_run`, `cli_run_log`, `thermal_run_log`).
+tests only read are recorded once per session (`short_run`, `cli_run_log`, `thermal_run_log`; tests/unit/conftest.py
+has `noisy_run`).
 
 A shared recording is read only: a test that needs to change a file copies it to its `tmp_path` first, and writes
 its own outputs (`--out`) there. `shared_recordings_unchanged` fails the test that writes into one
