@@ -1,5 +1,10 @@
 """Fixtures shared by test files: the leftover-thread check runs for every test (autouse); the recorded logs that
-tests only read are recorded once per session (`short_run`, `cli_run_log`, `thermal_run_log`)."""
+tests only read are recorded once per session (`short_run`, `cli_run_log`, `thermal_run_log`; tests/unit/conftest.py
+has `noisy_run`).
+
+A shared recording is read only: a test that needs to change a file copies it to its `tmp_path` first, and writes
+its own outputs (`--out`) there. `shared_recordings_unchanged` fails the test that writes into one
+(tests/helpers/shared.py)."""
 
 from __future__ import annotations
 
@@ -11,6 +16,7 @@ import pytest
 # assertion introspection in the shared helpers too (registered before any of them is imported)
 pytest.register_assert_rewrite("tests.helpers")
 
+from tests.helpers.shared import changed_shared, share  # noqa: E402
 from tests.helpers.threads import check_no_leftover_threads, project_threads  # noqa: E402
 
 E2E = Path(__file__).parent / "e2e"
@@ -40,6 +46,16 @@ def no_leftover_project_threads():
         pytest.fail(failure, pytrace=False)
 
 
+@pytest.fixture(autouse=True)
+def shared_recordings_unchanged():
+    """Fails the test that added, removed or rewrote a file in a shared recording's folder (`share`)."""
+    yield
+    changed = changed_shared()
+    if changed:
+        pytest.fail("a test wrote into a shared recording (copy it to tmp_path first): " + "; ".join(changed),
+                    pytrace=False)
+
+
 @pytest.fixture
 def no_leftover_tui_threads(no_leftover_project_threads):
     """Former opt-in name of the check, kept as an alias: every test is checked anyway."""
@@ -59,7 +75,9 @@ def thermal_run_log(tmp_path_factory):
     "THERMAL-1"), shared by the tests that read, replay or re-solve one (copy it to change it)."""
     from tests.helpers.run import record_thermal_run
 
-    return record_thermal_run(tmp_path_factory.mktemp("thermal-run") / "run", serial="THERMAL-1")
+    log = record_thermal_run(tmp_path_factory.mktemp("thermal-run") / "run", serial="THERMAL-1")
+    share(log.parent)
+    return log
 
 
 @pytest.fixture(scope="session")
@@ -73,6 +91,7 @@ def short_run(tmp_path_factory) -> SimpleNamespace:
     with pytest.MonkeyPatch.context() as patch:   # a database of its own, as every test has (records_database_in_tmp)
         patch.setenv("BENCH_DB", str(tmp_path_factory.mktemp("short-run-records") / "records.sqlite"))
         log, finished_s = record_short_run(folder)
+    share(folder)
     return SimpleNamespace(log=Path(log), result=next(Path(log).parent.glob("*.result.json")), finished_s=finished_s)
 
 
@@ -87,4 +106,5 @@ def cli_run_log(tmp_path_factory) -> Path:
     config.write_text(config_text(dwell_s=1.0), encoding="utf-8")
     rc, _, stderr = cli(["run", "--config", str(config), "--out", str(folder / "run"), "--quiet", "--no-db"])
     assert rc == 0, stderr
+    share(folder)
     return only_file(folder / "run", "*.mcap")

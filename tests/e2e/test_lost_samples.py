@@ -22,7 +22,7 @@ from bench.log.format import HEADER_SIZE, LENGTH_OFFSET, TOPIC_CAN
 from bench.log.reader import read_log
 from bench.log.run_info import layout_and_config_from_log
 from tests.helpers.mcap_surgery import rewrite
-from tests.helpers.run import cli, config_text, load_json, only_file, record_thermal_run
+from tests.helpers.run import cli, config_text, load_json, only_file
 
 LOST = 6        # samples each damaged copy loses
 
@@ -186,11 +186,13 @@ def test_a_window_reaching_past_the_decoded_samples_counts_only_the_gaps_between
     assert missing_in_window(np.zeros(0, np.int64), slice(0, 0), 0, 5) == 0
 
 
-def test_a_thermal_run_fails_on_a_dwell_of_any_temperature_that_lost_samples_and_notes_a_soaks(tmp_path_factory):
+def test_a_thermal_run_fails_on_a_dwell_of_any_temperature_that_lost_samples_and_notes_a_soaks(thermal_run_log,
+                                                                                               tmp_path):
     """A thermal log re-solved (its headline result is the block nearest the reference, here T2): samples lost in a
-    dwell of T1 fail it, naming the dwell; samples lost while the chamber soaks are only reported."""
-    folder = tmp_path_factory.mktemp("thermal-lost")
-    thermal = _recording(record_thermal_run(folder / "run", serial="LOST-1"))
+    dwell of T1 fail it, naming the dwell; samples lost while the chamber soaks are only reported. The session's
+    thermal log is only read: its damaged copies are written to `tmp_path`."""
+    folder = tmp_path
+    thermal = _recording(thermal_run_log)
     attached = read_log(str(thermal.log)).attachments[thermal.log.name.removesuffix(".mcap") + ".result.json"]
     assert json.loads(attached[1])["run"]["thermal"]["this_block"] == 2
     kind, first, last = thermal.windows["T1-P07"]

@@ -20,7 +20,7 @@ from bench.run.runner import BenchRun, compile_from_config
 from bench.verify.plan import verification_config, verification_plan
 from schedules import resolve_schedule
 from tests.helpers.mcap_surgery import rewrite
-from tests.helpers.run import api_run, cli, config_text, record_short_run
+from tests.helpers.run import api_run, cli, config_text
 
 SHORT = dict(positions="traditional-12", rotations="traditional-3s6r", dwell_s=1.0)
 
@@ -98,9 +98,9 @@ def _as_before(log: Path) -> RunKind:
 
 
 @pytest.fixture(scope="module")
-def calibration_log(tmp_path_factory) -> Path:
-    log, _ = record_short_run(tmp_path_factory.mktemp("calibration"))
-    return log
+def calibration_log(short_run) -> Path:
+    """The session's short calibration run (read only: the tests write their rewritten copies to `tmp_path`)."""
+    return short_run.log
 
 
 def test_a_calibration_run_records_its_kind_and_an_older_log_reads_as_before(calibration_log, tmp_path):

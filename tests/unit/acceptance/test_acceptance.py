@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -24,6 +25,7 @@ from bench.model.verdict_section import VerdictSection
 from bench.report.html import html_report
 from bench.report.markdown import markdown_report
 from tests.helpers.run import cli, config_text, load_json, only_file
+from tests.helpers.shared import share
 
 TRUTH = default_sim_imu().to_canonical()       # Kg_x 36012.5, D0_x 0.052 deg/h, K0_x 1.2e-4 g, ...
 
@@ -226,12 +228,30 @@ nominal = 0.0
 FAILING = PASSING.replace("max_sigma = 0.1", "max_sigma = 1e-6")
 
 
+@pytest.fixture(scope="module")
+def judged_run(tmp_path_factory):
+    """`judged_run(limits)`: `bench run` of the short test plan with `limits`, recorded once per module for the
+    tests that only read it (exit code, stdout, stderr, its output folder and records database). Write nothing
+    into its folder: a test's own outputs go to its `tmp_path`."""
+    recorded: dict[str, SimpleNamespace] = {}
+
+    def judged(limits: str) -> SimpleNamespace:
+        if limits not in recorded:
+            folder = tmp_path_factory.mktemp("judged")
+            out, db = folder / "out", folder / "records.sqlite"
+            rc, stdout, stderr = cli(["run", "--config", str(_config(folder, limits)), "--out", str(out), "--quiet",
+                                      "--db", str(db)])
+            recorded[limits] = SimpleNamespace(rc=rc, stdout=stdout, stderr=stderr, out=out, db=share(folder) / db.name)
+        return recorded[limits]
+
+    return judged
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("limits, code", [(PASSING, 0), (FAILING, 4)], ids=["pass", "fail"])
-def test_bench_run_judges_the_result_and_says_so_in_its_closing_lines(tmp_path, limits, code):
-    out, db = tmp_path / "out", tmp_path / "records.sqlite"
-    rc, stdout, stderr = cli(["run", "--config", str(_config(tmp_path, limits)), "--out", str(out), "--quiet",
-                              "--db", str(db)])
+def test_bench_run_judges_the_result_and_says_so_in_its_closing_lines(judged_run, limits, code):
+    run = judged_run(limits)
+    rc, stdout, stderr, out, db = run.rc, run.stdout, run.stderr, run.out, run.db
     assert rc == code, stderr
     result_path, report_path = only_file(out, "*.result.json"), only_file(out, "*.report.md")
     lines = stdout.splitlines()
@@ -272,10 +292,11 @@ def test_bench_run_judges_the_result_and_says_so_in_its_closing_lines(tmp_path, 
 
 
 @pytest.mark.slow
-def test_bench_solve_judges_a_log_by_its_recorded_acceptance_limits(tmp_path):
-    out = tmp_path / "out"
-    rc, _, _ = cli(["run", "--config", str(_config(tmp_path, FAILING)), "--out", str(out), "--quiet"])
-    assert rc == 4
+def test_bench_solve_judges_a_log_by_its_recorded_acceptance_limits(judged_run, tmp_path):
+    """The failing run of `test_bench_run_judges_the_result_and_says_so_in_its_closing_lines` (the module's, read
+    only), re-solved into `tmp_path`."""
+    out = judged_run(FAILING).out
+    assert judged_run(FAILING).rc == 4
     run_verdict = load_json(only_file(out, "*.result.json"))["verdict"]
     rc, stdout, stderr = cli(["solve", str(only_file(out, "*.mcap")), "--out", str(tmp_path / "solved"),
                               "--no-html"])

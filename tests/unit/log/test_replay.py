@@ -28,6 +28,7 @@ from bench.run.runner import BenchRun, compile_from_config
 from drivers.clock import ManualClock
 from drivers.imu import DEFAULT_DBC, DEFAULT_PACKED_DBC, ImuSampleBlock, default_packed_layout
 from tests.helpers.run import REPO, Trigger, api_run, cli, config_text, start_cli, step_index, stop_process
+from tests.helpers.shared import share
 
 
 class Capture(RunListener):
@@ -75,6 +76,9 @@ class Recorded:
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory) -> Recorded:
+    """A run of the short test plan (1 s dwells) with what its listener received live: its own run (the session's
+    logs were recorded without this listener; the shortest plan gives fewer samples and steps than the checks ask
+    for), read only by the tests."""
     out = tmp_path_factory.mktemp("replay")
     config = parse_config(config_text(dwell_s=1.0), source=str(out / "bench.toml"), base_dir=out)
     plan = compile_from_config(config)
@@ -84,6 +88,7 @@ def recorded(tmp_path_factory) -> Recorded:
         run.run()
         outcome = run.finish()
     assert outcome.error is None, outcome.error
+    share(out)
     return Recorded(outcome.log_path, live, plan, config)
 
 

@@ -1,7 +1,7 @@
 """Reports (issue 5, item 3): Markdown and the self-contained HTML report.
 
-One short simulated run (noise on, black box on; 3 s dwells, 50 Hz IMU) through the
-CLI gives a real result and log, shared by the module. "Must show": the HTML report is
+One short simulated run (noise on, black box on; 2 s dwells, 50 Hz IMU) through the CLI gives a real result
+and log: the session's `noisy_run` (tests/unit/conftest.py), read only. "Must show": the HTML report is
 self-contained (no external URL) and contains every coefficient.
 """
 
@@ -28,29 +28,17 @@ from bench.report.compare import compare_results
 from bench.report.html import html_report, log_damage, log_series
 from bench.report.markdown import markdown_report, write_reports
 from bench.report.plots import envelope, inline_svg
-from tests.helpers.run import cli, config_text, only_file
 
 #: Elements without an end tag in HTML.
 VOID = {"area", "base", "br", "col", "embed", "hr", "img", "input", "link", "meta", "source", "track", "wbr"}
-#: The run's log closes a chunk every this many seconds of simulated time: ~50 chunks of
-#: events and frames (and as many of /imu/samples), however fast the machine records it.
-CHUNK_RUN_S = 5.0
-
-
 @pytest.fixture(scope="module")
-def run(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("report")
-    config = folder / "bench.toml"
-    config.write_text(config_text(noise="true", black_box_arcsec=20.0, seed=3)
-                      + f"[output]\nchunk_run_interval_s = {CHUNK_RUN_S}\n", encoding="utf-8")
-    out = folder / "out"
-    rc, _, stderr = cli(["run", "--config", str(config), "--out", str(out), "--quiet"])
-    assert rc in (0, 4), stderr   # 4: finished, a quality check failed (still has reports)
-    log_path = only_file(out, "*.mcap")
-    result = CalibrationResult.load(only_file(out, "*.result.json"))
-    return SimpleNamespace(folder=folder, out=out, log_path=log_path, log=read_log(log_path), result=result,
-                           md=only_file(out, "*.report.md").read_text(encoding="utf-8"),
-                           html=only_file(out, "*.report.html").read_text(encoding="utf-8"))
+def run(noisy_run):
+    """The session's noisy run (tests/unit/conftest.py: noise on, a 20" black box, a log chunk every 5 s of
+    simulated time) and the reports `bench run` wrote for it; read only."""
+    return SimpleNamespace(out=noisy_run.out, log_path=noisy_run.log, log=read_log(noisy_run.log),
+                           result=CalibrationResult.load(noisy_run.result_path),
+                           md=noisy_run.report_md.read_text(encoding="utf-8"),
+                           html=noisy_run.report_html.read_text(encoding="utf-8"))
 
 
 class StrictWalk(HTMLParser):

@@ -42,10 +42,6 @@ FAST_LIMITS = "".join(f"[table.limits.{frame}]\nmax_rate_dps = 150.0\n" for fram
 #: traditional-3s6r in 96 % of draws, median ratio 5.6 on the gyro scale factors; this
 #: draw's ratio is 5.3. The other families differ by orders of magnitude in every draw.
 ALL_SEED, ALL_BLACK_BOX_ARCSEC = 3, 60.0
-#: The recorder closes a log chunk every this many seconds of run clock (simulated time here),
-#: so `noisy` (~240 s simulated) has ~50 chunks of events and frames (and as many of
-#: /imu/samples) whatever the machine's speed; the damage tests cut and corrupt single chunks.
-CHUNK_RUN_S = 5.0
 
 
 def _record(folder: Path, text: str) -> SimpleNamespace:
@@ -60,10 +56,10 @@ def _record(folder: Path, text: str) -> SimpleNamespace:
 
 
 @pytest.fixture(scope="module")
-def noisy(tmp_path_factory):
-    return _record(tmp_path_factory.mktemp("noisy"),
-                   config_text(noise="true", seed=2, black_box_arcsec=20.0, dwell_s=2.0, rate_hz=50.0)
-                   + f"[output]\nchunk_run_interval_s = {CHUNK_RUN_S}\n")
+def noisy(noisy_run):
+    """The session's noisy run (tests/unit/conftest.py; ~50 log chunks, one every 5 s of simulated time): read
+    only, damaged copies go to `tmp_path`."""
+    return noisy_run
 
 
 @pytest.fixture(scope="module")
@@ -488,7 +484,7 @@ CHUNK_CRC_AT = 1 + 8 + 8 + 8 + 8
 def test_a_chunk_with_a_bad_crc_is_skipped_and_reading_resumes_after_it(noisy, damaged_copy, tmp_path, where):
     """`crc`: the chunk's stored CRC no longer matches its records; `data`: its compressed
     bytes are flipped (zstd refuses them before any CRC check). The chunk is the second
-    one holding positions' ends only (chunks close every `CHUNK_RUN_S` of simulated time),
+    one holding positions' ends only (chunks close every 5 s of simulated time),
     so that the turns all survive and the damage is in the middle of the file."""
     chunks = _chunks(noisy.log)
     candidates = [i for i, (_, _, units) in enumerate(chunks) if units and all(u.startswith("P") for u in units)]
