@@ -61,6 +61,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 import bench
 from bench.errors import BenchError
+from bench.log.bulk_messages import add_messages
 from bench.log.events import Event, Fault, RunListener, RunWarning
 from bench.log.format import (
     CAN_SCHEMA_NAME,
@@ -81,8 +82,10 @@ from bench.log.format import (
     TOPIC_SAMPLES,
     TOPIC_STATE,
     TOPIC_TF,
+    encode_can_batch,
     encode_can_frames,
 )
+from drivers.imu.frames import CanFrameBatch
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 #: Default run-clock chunk interval, s: a chunk closes every this many seconds of recorded log time.
@@ -338,7 +341,8 @@ class McapRecorder(RunListener):
         if not len(frames):
             return
         try:
-            payload, newest = encode_can_frames(frames)
+            payload, newest = (encode_can_batch(frames) if isinstance(frames, CanFrameBatch)
+                               else encode_can_frames(frames))
         except (AttributeError, TypeError, struct.error) as exc:
             raise RecorderError(f"cannot encode CAN frames for {TOPIC_CAN}: {exc}") from exc
         self._run_clock(time_ns(newest))
@@ -474,9 +478,7 @@ class McapRecorder(RunListener):
             if not held:
                 continue
             writer.flush()
-            channel, add = self._channel[topic], writer.add_message
-            for t, body in held:
-                add(channel, t, body, t)
+            add_messages(writer, self._channel[topic], held)
         self._held_samples, self._held_can, self._held_bytes = [], [], 0
 
     def _close_chunks(self) -> None:
