@@ -24,6 +24,18 @@ _HEAD = struct.Struct("<BQHIQQ")
 _HEAD_BODY = _HEAD.size - 9          # the record length counts what follows the opcode and the length
 
 
+class _PackedMessageIndex(MessageIndex):
+    """A message index that writes its (log time, offset) entries with one pack (the same bytes)."""
+
+    def write(self, stream) -> None:
+        stream.start_record(Opcode.MESSAGE_INDEX)
+        stream.write2(self.channel_id)
+        stream.write4(len(self.records) * 16)
+        flat = [x for entry in self.records for x in entry]
+        stream.write(struct.pack(f"<{len(flat)}Q", *flat))
+        stream.finish_record()
+
+
 def _state(writer: Writer):
     """(chunk builder, statistics, chunk size) of `writer`, or None when this mcap keeps them differently."""
     builder = getattr(writer, "_Writer__chunk_builder", None)
@@ -76,7 +88,7 @@ def add_messages(writer: Writer, channel_id: int, messages: Sequence[tuple[int, 
         builder.message_end_time = max(builder.message_end_time, hi)
         index = builder.message_indices.get(channel_id)
         if not index:
-            index = builder.message_indices[channel_id] = MessageIndex(channel_id=channel_id, records=[])
+            index = builder.message_indices[channel_id] = _PackedMessageIndex(channel_id=channel_id, records=[])
         index.records.extend(zip(times, offsets))
         builder.num_messages += len(part)
         builder.record_writer.write(b"".join(pieces))
