@@ -9,7 +9,6 @@ less than one signal resolution step; the calibration integrates increments.
 from __future__ import annotations
 
 import functools
-
 from dataclasses import dataclass
 
 import numpy as np
