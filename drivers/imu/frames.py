@@ -84,7 +84,11 @@ class CanFrameBatch(Sequence[can.Message]):
             for i, d in enumerate(datas):
                 buf[i * width:i * width + len(d)] = d
         timestamps = np.array([m.timestamp for m in messages], np.float64)
-        flags = np.array([message_flags(m) for m in messages], np.uint8)
+        flags = np.zeros(n, np.uint8)
+        # classic data frames (the usual batch) have no flag: only the others are looked at twice
+        for i, m in enumerate(messages):
+            if m.is_fd or m.is_remote_frame or m.is_error_frame or m.error_state_indicator:
+                flags[i] = message_flags(m)
         return cls(timestamps, ids, np.frombuffer(buf, np.uint8).reshape(n, width), np.array(sizes, np.int64),
                    flags)
 
