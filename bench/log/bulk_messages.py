@@ -15,13 +15,15 @@ from __future__ import annotations
 import struct
 from collections.abc import Sequence
 
+import numpy as np
 from mcap.opcode import Opcode
 from mcap.records import MessageIndex
 from mcap.writer import Writer
 
 #: a Message record's head: opcode, record length, channel id, sequence, log time, publish time
 _HEAD = struct.Struct("<BQHIQQ")
-_HEAD_BODY = _HEAD.size - 9          # the record length counts what follows the opcode and the length
+_HEAD_DTYPE = np.dtype([("opcode", "u1"), ("length", "<u8"), ("channel", "<u2"), ("sequence", "<u4"),
+                        ("log_time", "<u8"), ("publish_time", "<u8")])
 
 
 class _PackedMessageIndex(MessageIndex):
@@ -53,6 +55,22 @@ def _state(writer: Writer):
     return builder, stats, size, finalize
 
 
+def _records(channel_id: int, times: list[int], bodies: list[bytes], sizes: list[int]) -> bytes:
+    """The Message records of `bodies` (sizes: each record's, head included), heads laid out as one array."""
+    n = len(bodies)
+    heads = np.zeros(n, _HEAD_DTYPE)
+    size = np.array(sizes, np.int64)
+    heads["opcode"], heads["length"], heads["channel"] = int(Opcode.MESSAGE), size - 9, channel_id
+    heads["log_time"] = heads["publish_time"] = np.array(times, np.uint64)
+    out = np.empty(int(size.sum()), np.uint8)
+    # each record: its head's bytes, then its body's
+    is_head = np.repeat(np.tile(np.array([True, False]), n),
+                        np.column_stack([np.full(n, _HEAD.size), size - _HEAD.size]).reshape(-1))
+    out[is_head] = heads.view(np.uint8)
+    out[~is_head] = np.frombuffer(b"".join(bodies), np.uint8)
+    return out.tobytes()
+
+
 def add_messages(writer: Writer, channel_id: int, messages: Sequence[tuple[int, bytes]]) -> None:
     """`writer.add_message(channel_id, t, body, t)` for each (t, body) of `messages`, in order."""
     state = _state(writer)
@@ -61,8 +79,6 @@ def add_messages(writer: Writer, channel_id: int, messages: Sequence[tuple[int, 
             writer.add_message(channel_id, t, body, t)
         return
     builder, stats, chunk_size, finalize = state
-    head = _HEAD.pack
-    opcode = int(Opcode.MESSAGE)
     sizes = [_HEAD.size + len(body) for _, body in messages]
     at, n = 0, len(messages)
     while at < n:
@@ -76,10 +92,6 @@ def add_messages(writer: Writer, channel_id: int, messages: Sequence[tuple[int, 
                 break
         part = messages[at:stop]
         times = [t for t, _ in part]
-        pieces: list[bytes] = []
-        for t, body in part:
-            pieces.append(head(opcode, _HEAD_BODY + len(body), channel_id, 0, t, t))
-            pieces.append(body)
         lo, hi = min(times), max(times)
         if builder.num_messages == 0:
             builder.message_start_time = lo
@@ -91,7 +103,7 @@ def add_messages(writer: Writer, channel_id: int, messages: Sequence[tuple[int, 
             index = builder.message_indices[channel_id] = _PackedMessageIndex(channel_id=channel_id, records=[])
         index.records.extend(zip(times, offsets))
         builder.num_messages += len(part)
-        builder.record_writer.write(b"".join(pieces))
+        builder.record_writer.write(_records(channel_id, times, [body for _, body in part], sizes[at:stop]))
         stats.message_start_time = lo if stats.message_count == 0 else min(stats.message_start_time, lo)
         stats.message_end_time = max(stats.message_end_time, hi)
         stats.channel_message_counts[channel_id] += len(part)

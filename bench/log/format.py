@@ -236,7 +236,9 @@ def imu_sample_messages(block, decimation: int = 1) -> list[tuple[int, bytes]]:
     else:
         times = [int(r * 1e9 + 0.5) if r > 0.0 else 0 for r in recv.tolist()]
         recv_text = [json_number(r) for r in recv.tolist()]
-    temps = [json_number(x) for x in col(block.temperature_c).tolist()]
+    temperature = col(np.asarray(block.temperature_c, np.float64))
+    temps = (list(map(repr, temperature.tolist())) if np.isfinite(temperature).all()
+             else [json_number(x) for x in temperature.tolist()])
     values = np.concatenate([gyro, acc, gyro * rate, acc * rate], axis=1)
     if np.isfinite(values).all():
         rows = values.tolist()
