@@ -467,7 +467,8 @@ def final_state(events: Sequence[Event]) -> str | None:
 class RunListener:
     """Receives everything a run produces. Override what you need; the defaults ignore it.
 
-    `on_can_frames` gets every raw CAN frame (python-can `Message`s) before decoding;
+    `on_can_frames` gets every raw CAN frame before decoding (a poll's frames: a sequence of python-can
+    `Message`s; from a live receiver a `drivers.imu.frames.CanFrameBatch`, whose arrays spare the per-frame work);
     `on_imu` the decoded samples (`drivers.imu.ImuSampleBlock`); `on_table_state` each
     polled `drivers.turntable.TableState`; `on_chamber_state` each polled
     `drivers.chamber.ChamberState` (a thermal plan's runs); `on_soak_status` the soak's state

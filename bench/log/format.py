@@ -19,10 +19,10 @@ import numpy as np
 
 from bench.log.mcap import ChannelData
 from bench.log.threads import reader_threads
+from drivers.imu.frames import FLAG_BRS, FLAG_ERROR, FLAG_ESI, FLAG_FD, FLAG_REMOTE, CanFrameBatch
 
 CAN_ENCODING = "turntable-bench/can-frames-v1"
 EXTENDED_ID_FLAG = 1 << 31
-FLAG_FD, FLAG_BRS, FLAG_ESI, FLAG_REMOTE, FLAG_ERROR = 0x01, 0x02, 0x04, 0x08, 0x10
 #: One raw CAN record header: timestamp_s, id (bit 31 = extended), flags, data length; the data follow.
 CAN_RECORD = struct.Struct("<dIBB")
 HEADER_SIZE = CAN_RECORD.size           # 14 bytes
@@ -183,6 +183,82 @@ def encode_can_frames(frames: Sequence) -> tuple[bytes, float]:
     return b"".join(parts), newest
 
 
+def encode_can_batch(batch: CanFrameBatch) -> tuple[bytes, float]:
+    """A `CanFrameBatch` -> (`can-frames-v1` bytes, newest timestamp): the bytes `encode_can_frames` gives for
+    the same frames, laid out with array operations (a run's every poll: no Python step per frame)."""
+    n, width = batch.data.shape
+    ids, lengths = batch.ids, batch.lengths
+    if n and (int(ids.min()) < 0 or int(ids.max()) >= 1 << 32 or int(lengths.max()) > 255
+              or int(lengths.min()) < 0):
+        raise struct.error("a CAN id or data length out of range for the raw CAN record")
+    records = np.empty(n, record_dtype(("data", "u1", (width,))))
+    records["t"], records["id"], records["flags"] = batch.timestamps, ids, batch.flags
+    records["len"], records["data"] = lengths, batch.data
+    rows = records.view(np.uint8).reshape(n, HEADER_SIZE + width)
+    if n and int(lengths.min()) == width:
+        return rows.tobytes(), batch.newest_s()
+    # each record is its header and its own length of data: the rows' leading bytes, concatenated
+    keep = np.arange(HEADER_SIZE + width) < (HEADER_SIZE + lengths)[:, None]
+    return rows[keep].tobytes(), batch.newest_s()
+
+
+def json_number(x: float) -> str:
+    """A float as a JSON number (null for NaN/inf, which JSON cannot carry)."""
+    x = float(x)
+    return repr(x) if math.isfinite(x) else "null"
+
+
+#: receive times below this (s) make log times that fit int64 (ns): converted as arrays
+_ARRAY_TIME_LIMIT_S = 9.0e9
+
+
+def imu_sample_messages(block, decimation: int = 1) -> list[tuple[int, bytes]]:
+    """The `/imu/samples` messages of an `ImuSampleBlock`: (log time ns, JSON body) of every `decimation`-th
+    counter. The arithmetic (scaling, the log time) is done on whole columns, each value printed by `repr`
+    (the shortest text that reads back as the same float); a non-finite value is null."""
+    counter = block.counter
+    keep = None
+    if decimation > 1:
+        keep = counter % decimation == 0
+        if not keep.any():
+            return []
+
+    def col(a: np.ndarray) -> np.ndarray:
+        return a if keep is None else a[keep]
+
+    rate = float(block.rate_hz)
+    counters, recv = col(counter), col(np.asarray(block.receive_time_s, np.float64))
+    gyro, acc = col(block.gyro_counts), col(block.acc_counts)
+    imu_times = (counters.astype(np.float64) / rate).tolist()
+    if np.isfinite(recv).all() and (recv < _ARRAY_TIME_LIMIT_S).all():
+        times = np.where(recv > 0.0, recv * 1e9 + 0.5, 0.0).astype(np.int64).tolist()
+        recv_text = list(map(repr, recv.tolist()))
+    else:
+        times = [int(r * 1e9 + 0.5) if r > 0.0 else 0 for r in recv.tolist()]
+        recv_text = [json_number(r) for r in recv.tolist()]
+    temperature = col(np.asarray(block.temperature_c, np.float64))
+    temps = (list(map(repr, temperature.tolist())) if np.isfinite(temperature).all()
+             else [json_number(x) for x in temperature.tolist()])
+    values = np.concatenate([gyro, acc, gyro * rate, acc * rate], axis=1)
+    if np.isfinite(values).all():
+        rows = values.tolist()
+        bodies = [f'{{"counter":{c},"time_s":{r},"imu_time_s":{it!r},"gyro_counts":[{g0!r},{g1!r},{g2!r}],'
+                  f'"acc_counts":[{a0!r},{a1!r},{a2!r}],"gyro_rate":[{gr0!r},{gr1!r},{gr2!r}],'
+                  f'"acc_rate":[{ar0!r},{ar1!r},{ar2!r}],"temperature_c":{temp},"status":{st}}}'
+                  for c, r, it, (g0, g1, g2, a0, a1, a2, gr0, gr1, gr2, ar0, ar1, ar2), temp, st
+                  in zip(counters.tolist(), recv_text, imu_times, rows, temps, col(block.status).tolist())]
+    else:
+        bodies = [f'{{"counter":{c},"time_s":{r},"imu_time_s":{it!r},'
+                  f'"gyro_counts":[{",".join(map(json_number, row[0:3]))}],'
+                  f'"acc_counts":[{",".join(map(json_number, row[3:6]))}],'
+                  f'"gyro_rate":[{",".join(map(json_number, row[6:9]))}],'
+                  f'"acc_rate":[{",".join(map(json_number, row[9:12]))}],'
+                  f'"temperature_c":{temp},"status":{st}}}'
+                  for c, r, it, row, temp, st
+                  in zip(counters.tolist(), recv_text, imu_times, values.tolist(), temps, col(block.status).tolist())]
+    return [(t, body.encode()) for t, body in zip(times, bodies)]
+
+
 def _empty_can(width: int = CLASSIC_WIDTH):
     return (np.zeros(0), np.zeros(0, np.uint32), np.zeros((0, width), np.uint8), np.zeros(0, np.int64),
             np.zeros(0, np.uint8))
@@ -333,4 +409,5 @@ __all__ = ["CAN_ENCODING", "CAN_RECORD", "CAN_SCHEMA_NAME", "CAN_SCHEMA_TEXT", "
            "EXTENDED_ID_FLAG", "FD_WIDTH", "MAX_DATA", "FLAGS_OFFSET", "FLAG_BRS", "FLAG_ERROR", "FLAG_ESI", "FLAG_FD",
            "FLAG_REMOTE", "HEADER_SIZE", "LENGTH_OFFSET", "LOG_ERROR", "LOG_INFO", "LOG_WARNING", "SCHEMAS",
            "TF_FRAMES", "TOPIC_CAN", "TOPIC_EVENTS", "TOPIC_LOG", "TOPIC_SAMPLES", "TOPIC_STATE", "TOPIC_TF",
-           "decode_can_frames", "encode_can_frames", "record_dtype"]
+           "decode_can_frames", "encode_can_batch", "encode_can_frames", "imu_sample_messages", "json_number",
+           "record_dtype"]

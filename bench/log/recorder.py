@@ -61,6 +61,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 import bench
 from bench.errors import BenchError
+from bench.log.bulk_messages import add_messages
 from bench.log.events import Event, Fault, RunListener, RunWarning
 from bench.log.format import (
     CAN_SCHEMA_NAME,
@@ -81,8 +82,12 @@ from bench.log.format import (
     TOPIC_SAMPLES,
     TOPIC_STATE,
     TOPIC_TF,
+    encode_can_batch,
     encode_can_frames,
+    imu_sample_messages,
+    json_number,
 )
+from drivers.imu.frames import CanFrameBatch
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 #: Default run-clock chunk interval, s: a chunk closes every this many seconds of recorded log time.
@@ -117,10 +122,7 @@ def _stamp(time_s: float) -> str:
     return f'{{"sec":{ns // 1_000_000_000},"nsec":{ns % 1_000_000_000}}}'
 
 
-def _num(x: float) -> str:
-    """A float as a JSON number (null for NaN/inf, which JSON cannot carry)."""
-    x = float(x)
-    return repr(x) if math.isfinite(x) else "null"
+_num = json_number
 
 
 def _json_default(obj: Any) -> Any:
@@ -338,7 +340,8 @@ class McapRecorder(RunListener):
         if not len(frames):
             return
         try:
-            payload, newest = encode_can_frames(frames)
+            payload, newest = (encode_can_batch(frames) if isinstance(frames, CanFrameBatch)
+                               else encode_can_frames(frames))
         except (AttributeError, TypeError, struct.error) as exc:
             raise RecorderError(f"cannot encode CAN frames for {TOPIC_CAN}: {exc}") from exc
         self._run_clock(time_ns(newest))
@@ -416,46 +419,14 @@ class McapRecorder(RunListener):
         self.messages_written += 1
 
     def _put_samples(self, block) -> None:
-        counter = block.counter
-        keep = None
-        if self.decimation > 1:
-            keep = counter % self.decimation == 0
-            if not keep.any():
-                return
-        rate = float(block.rate_hz)
-
-        def col(a):
-            return (a if keep is None else a[keep]).tolist()
-
-        counters = col(counter)
-        recv = col(block.receive_time_s)
-        g, a = col(block.gyro_counts), col(block.acc_counts)
-        status = col(block.status)
-        temps = [repr(x) if math.isfinite(x) else "null" for x in col(block.temperature_c)]
-        finite = all(math.isfinite(x) for row in g for x in row) and all(math.isfinite(x) for row in a for x in row)
-        held, size = self._held_samples, self._held_bytes
-        for c, r, (g0, g1, g2), (a0, a1, a2), temp, st in zip(counters, recv, g, a, temps, status):
-            if finite:
-                body = (f'{{"counter":{c},"time_s":{_num(r)},"imu_time_s":{c / rate!r},'
-                        f'"gyro_counts":[{g0!r},{g1!r},{g2!r}],'
-                        f'"acc_counts":[{a0!r},{a1!r},{a2!r}],"gyro_rate":[{g0 * rate!r},{g1 * rate!r},'
-                        f'{g2 * rate!r}],"acc_rate":[{a0 * rate!r},{a1 * rate!r},{a2 * rate!r}],'
-                        f'"temperature_c":{temp},"status":{st}}}')
-            else:
-                gv, av = (g0, g1, g2), (a0, a1, a2)
-                body = (f'{{"counter":{c},"time_s":{_num(r)},"imu_time_s":{c / rate!r},'
-                        f'"gyro_counts":[{",".join(map(_num, gv))}],'
-                        f'"acc_counts":[{",".join(map(_num, av))}],'
-                        f'"gyro_rate":[{",".join(_num(x * rate) for x in gv)}],'
-                        f'"acc_rate":[{",".join(_num(x * rate) for x in av)}],'
-                        f'"temperature_c":{temp},"status":{st}}}')
-            t = int(r * 1e9 + 0.5) if r > 0.0 else 0
-            held.append((t, body.encode()))
-            size += len(body)
-        self._held_bytes = size
-        self.samples_written += len(counters)
-        self.messages_written += len(counters)
-        if size >= self._chunk_size:
+        messages = imu_sample_messages(block, self.decimation)
+        if not messages:
+            return
+        self._held_samples += messages
+        self._held_bytes += sum(len(body) for _, body in messages)
+        self.samples_written += len(messages)
+        self.messages_written += len(messages)
+        if self._held_bytes >= self._chunk_size:
             self._close_chunks()
 
     def _hold_can(self, log_time: int, payload: bytes) -> None:
@@ -474,9 +445,7 @@ class McapRecorder(RunListener):
             if not held:
                 continue
             writer.flush()
-            channel, add = self._channel[topic], writer.add_message
-            for t, body in held:
-                add(channel, t, body, t)
+            add_messages(writer, self._channel[topic], held)
         self._held_samples, self._held_can, self._held_bytes = [], [], 0
 
     def _close_chunks(self) -> None:

@@ -7,6 +7,7 @@ sorted list of `Piece`s; each holds from its `t0` until the next piece starts.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,16 +67,28 @@ def active_piece(pieces: list[Piece], t: float) -> Piece:
     return pieces[max(0, k)]
 
 
-def sample_pieces(pieces: list[Piece], times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Angle and rate of a trajectory at `times` (vectorised). Before the first piece it holds."""
+#: (start times, start angles, start rates, accelerations) of a trajectory's pieces
+PieceArrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def piece_arrays(pieces: Sequence[Piece]) -> PieceArrays:
+    """(start times, start angles, start rates, accelerations) of `pieces` as arrays."""
+    return (np.array([p.t0 for p in pieces]), np.array([p.theta0 for p in pieces]),
+            np.array([p.rate0 for p in pieces]), np.array([p.accel for p in pieces]))
+
+
+def sample_piece_arrays(arrays: PieceArrays, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`sample_pieces` of the pieces whose `piece_arrays` are `arrays`."""
     times = np.asarray(times, dtype=float)
-    t0 = np.array([p.t0 for p in pieces])
-    th0 = np.array([p.theta0 for p in pieces])
-    v0 = np.array([p.rate0 for p in pieces])
-    a = np.array([p.accel for p in pieces])
-    k = np.clip(np.searchsorted(t0, times, side="right") - 1, 0, len(pieces) - 1)
+    t0, th0, v0, a = arrays
+    k = np.clip(np.searchsorted(t0, times, side="right") - 1, 0, len(t0) - 1)
     dt = np.maximum(times - t0[k], 0.0)
     return th0[k] + v0[k] * dt + 0.5 * a[k] * dt * dt, v0[k] + a[k] * dt
+
+
+def sample_pieces(pieces: list[Piece], times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Angle and rate of a trajectory at `times` (vectorised). Before the first piece it holds."""
+    return sample_piece_arrays(piece_arrays(pieces), times)
 
 
 # Gauss-Legendre nodes for integrating smooth functions over one piece.

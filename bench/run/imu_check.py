@@ -42,8 +42,10 @@ def check_imu_stream(receiver, rate_hz: float, where: str, *, timeout_s: float =
 
     def note_ids(messages) -> None:
         if len(seen) < MAX_IDS:
-            seen.update(m.arbitration_id | EXTENDED_ID_FLAG if m.is_extended_id else m.arbitration_id
-                        for m in messages)
+            ids = getattr(messages, "ids", None)     # a `CanFrameBatch`: its id column
+            seen.update(np.unique(ids).tolist() if ids is not None else
+                        (m.arbitration_id | EXTENDED_ID_FLAG if m.is_extended_id else m.arbitration_id
+                         for m in messages))
         if forward is not None:
             forward(messages)
 

@@ -460,7 +460,8 @@ class Sequencer:
             self._poll_chamber_when_due()
             if now >= end - 1e-9:
                 return
-            self.clock.sleep(min(self.options.imu_poll_s, end - now))
+            # the clock steps to the next IMU drain or state poll, whichever is first (no step skips a state poll)
+            self.clock.sleep(min(self.options.imu_poll_s, self.options.state_period_s, end - now))
             self._drain_imu_when_due()
 
     # -- the chamber -----------------------------------------------------------------

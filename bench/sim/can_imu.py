@@ -2,8 +2,10 @@
 
 A wire-level peer of the real IMU: frames come from the same encoder the tests check
 the decoders against, and go out through a python-can bus (the in-process virtual bus
-in tests). Faults on demand, applied to the next matching frames: drop, corrupt the CRC,
-wrong length, swap with the following frame (out of order).
+in tests): a step's frames as one `CanFrameBatch` to a bus that takes batches
+(`send_frames`, the simulator's virtual bus), as python-can messages to any other.
+Faults on demand, applied to the next matching frames: drop, corrupt the CRC, wrong
+length, swap with the following frame (out of order).
 """
 
 from __future__ import annotations
@@ -13,12 +15,14 @@ import threading
 from dataclasses import dataclass
 
 import can
+import numpy as np
 
 from bench.sim.controller import SimController
 from bench.sim.imu import ImuSamples, SimImu
 from bench.sim.table import SimTable
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.imu.encoder import ImuEncoder
+from drivers.imu.frames import FLAG_FD, CanFrameBatch
 from drivers.imu.layout import EXTENDED_ID_FLAG, ImuLayout, default_layout
 
 
@@ -56,6 +60,7 @@ class SimCanImu:
         self.layout = layout if layout is not None else default_layout()
         # a real IMU's output saturates, flagged over-range; a time-stamped layout (sbg-ecan) stamps at the IMU's rate
         self.encoder = ImuEncoder(self.layout, saturate=True, rate_hz=imu.rate_hz)
+        self._message_flags = np.array([FLAG_FD if m.is_fd else 0 for m in self.layout.messages], np.uint8)
         self.temperature_c = temperature_c
         self.status = status   # None: the layout's healthy status word
         self.frames_sent = 0
@@ -106,21 +111,14 @@ class SimCanImu:
         return None
 
     # -- sending --------------------------------------------------------------------
-    def _messages(self, samples: ImuSamples) -> list[can.Message]:
+    def _frames(self, samples: ImuSamples) -> CanFrameBatch:
+        """The frames of `samples` as one batch of arrays (no per-frame Python work)."""
         # a thermal IMU reports its case temperature; otherwise the constant `temperature_c`
         temperature = samples.temperature_c if samples.temperature_c is not None else self.temperature_c
         frames = self.encoder.encode(samples.counter, samples.gyro_counts, samples.acc_counts,
                                      temperature, self.status)
-        fd = {m.key: m.is_fd for m in self.layout.messages}
-        # Plain Python values up front: per-frame numpy scalar indexing costs more than the frame.
-        times = samples.time_s[frames.sample].tolist()
-        keys, lengths = frames.ids.tolist(), frames.lengths.tolist()
-        width = frames.data.shape[1]
-        raw = frames.data.tobytes()
-        message = can.Message
-        return [message(timestamp=t, arbitration_id=key & ~EXTENDED_ID_FLAG,
-                        is_extended_id=bool(key & EXTENDED_ID_FLAG), is_fd=fd[key], data=raw[i * width:i * width + n])
-                for i, (t, key, n) in enumerate(zip(times, keys, lengths))]
+        flags = np.tile(self._message_flags, len(samples))
+        return CanFrameBatch(samples.time_s[frames.sample], frames.ids, frames.data, frames.lengths, flags)
 
     def _apply_faults(self, messages: list[can.Message]) -> list[can.Message]:
         out: list[can.Message] = []
@@ -154,18 +152,28 @@ class SimCanImu:
                 samples = self.imu.generate(self.table, t)
             if not len(samples):
                 return 0
-            messages = self._messages(samples)
+            batch = self._frames(samples)
+            send_frames = getattr(self.bus, "send_frames", None)
             if self._faults or self._held is not None:
-                messages = self._apply_faults(messages)
-            send_batch = getattr(self.bus, "send_batch", None)
-            if send_batch is not None:
-                send_batch(messages)
+                messages = self._apply_faults(batch.messages())
+                if send_frames is not None:
+                    batch = CanFrameBatch.from_messages(messages)
+            elif send_frames is None:
+                messages = batch.messages()
+            if send_frames is not None:
+                send_frames(batch)
+                sent = len(batch)
             else:
-                for msg in messages:
-                    self.bus.send(msg)
-            self.frames_sent += len(messages)
+                send_batch = getattr(self.bus, "send_batch", None)
+                if send_batch is not None:
+                    send_batch(messages)
+                else:
+                    for msg in messages:
+                        self.bus.send(msg)
+                sent = len(messages)
+            self.frames_sent += sent
             self.samples_sent += len(samples)
-            return len(messages)
+            return sent
 
     def step(self) -> int:
         """`step_to` the source's current simulated time."""

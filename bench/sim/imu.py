@@ -201,7 +201,7 @@ class SimImu:
     def _true_increments(self, table: SimTable, a: np.ndarray, b: np.ndarray):
         gyro, acc = self._integrate(table, a, b)
         # Split the intervals that contain a piece boundary (a kink in the rate) at it.
-        bounds = np.unique([p.t0 for f in range(3) for p in table.pieces(f)])
+        bounds = table.piece_starts()
         lo, hi = np.searchsorted(bounds, a, side="right"), np.searchsorted(bounds, b, side="left")
         split = np.nonzero(hi > lo)[0]
         if len(split):

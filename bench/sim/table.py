@@ -16,7 +16,7 @@ import numpy as np
 
 from bench.model import kinematics
 from bench.model.earth import Site
-from bench.model.motion import Piece, active_piece, sample_pieces, trapezoid_pieces
+from bench.model.motion import Piece, PieceArrays, active_piece, piece_arrays, sample_piece_arrays, trapezoid_pieces
 from bench.model.units import DEG
 from schedules.loader import Direction, Frame
 
@@ -76,6 +76,10 @@ class SimTable:
         self.limits = limits
         start = np.asarray(start_deg, dtype=float).reshape(3) * DEG
         self._axes: list[list[Piece]] = [[Piece(0.0, float(th), 0.0, 0.0)] for th in start]
+        # each axis's pieces as arrays, with the pieces they were made from (Pieces are immutable: the same
+        # pieces, compared element by element, identity first, mean the same arrays)
+        self._arrays: list[tuple[tuple[Piece, ...], PieceArrays] | None] = [None, None, None]
+        self._starts: tuple[tuple[tuple[Piece, ...], ...], np.ndarray] | None = None
 
     # -- command helpers -----------------------------------------------------------
     def _accel_limit(self, k: int) -> float:
@@ -190,10 +194,26 @@ class SimTable:
         return max(ends)
 
     # -- sampling (vectorised over times) ---------------------------------------
+    def _piece_arrays(self, k: int) -> PieceArrays:
+        """Axis k's pieces as `piece_arrays` (made again only when its pieces changed)."""
+        pieces, cached = tuple(self._axes[k]), self._arrays[k]
+        if cached is not None and cached[0] == pieces:
+            return cached[1]
+        arrays = piece_arrays(pieces)
+        self._arrays[k] = (pieces, arrays)
+        return arrays
+
+    def piece_starts(self) -> np.ndarray:
+        """The start times of every axis's pieces, sorted, each once (where the motion may have a kink)."""
+        pieces = tuple(tuple(axis) for axis in self._axes)
+        if self._starts is None or self._starts[0] != pieces:
+            self._starts = (pieces, np.unique(np.concatenate([self._piece_arrays(k)[0] for k in range(3)])))
+        return self._starts[1]
+
     def _sample(self, times) -> tuple[np.ndarray, np.ndarray]:
         times = np.asarray(times, dtype=float)
         flat = times.reshape(-1)
-        th, rt = zip(*(sample_pieces(p, flat) for p in self._axes))
+        th, rt = zip(*(sample_piece_arrays(self._piece_arrays(k), flat) for k in range(3)))
         shape = times.shape + (3,)
         return np.stack(th, axis=-1).reshape(shape), np.stack(rt, axis=-1).reshape(shape)
 

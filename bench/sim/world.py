@@ -20,7 +20,7 @@ import uuid
 
 import can
 import numpy as np
-from can.interfaces.virtual import VirtualBus
+from can.interfaces.virtual import VirtualBus, channels_lock
 
 from bench.model.earth import Site
 from bench.model.imu import ImuCoefficients, NoiseModel
@@ -34,40 +34,139 @@ from bench.sim.scpi_server import ScpiSimHandler
 from bench.sim.serve import ClosedOnExit, Handler, LineServer
 from bench.sim.table import SimTable, TableLimits
 from drivers.clock import ManualClock
+from drivers.imu.frames import CanFrameBatch
 from drivers.imu.layout import ImuLayout
+
+
+class _BatchQueue(queue.Queue):
+    """The receive queue of a `SimVirtualBus`: holds `Message`s and whole `CanFrameBatch`es."""
 
 
 class SimVirtualBus(VirtualBus):
     """python-can's virtual bus with batch transfer, for both ends of the simulated IMU's link.
 
     python-can's `VirtualBus.send` deep-copies every message for every receiver, which
-    costs more than everything else the simulator does per frame. The simulated IMU
-    builds a fresh `Message` per frame and never touches it again, so the first
-    receiver gets it as is and any further receiver a copy.
+    costs more than everything else the simulator does per frame. `send_frames` puts a
+    whole `CanFrameBatch` (arrays, never changed once made) on the queue of every
+    `SimVirtualBus` receiver as one item, and `recv_frames` takes what is queued as one
+    batch: no `Message` is built on the way. A plain python-can virtual bus on the same
+    channel still gets `Message`s, and `recv` here still returns one frame at a time.
     """
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        with channels_lock:
+            plain = self.queue
+            self.queue = _BatchQueue(plain.maxsize)
+            self.channel[self.channel.index(plain)] = self.queue
+
+    def _receivers(self) -> list[queue.Queue]:
+        return [q for q in self.channel if q is not self.queue or self.receive_own_messages]
+
+    def send_frames(self, batch: CanFrameBatch) -> None:
+        """Send a batch of frames: one item and one wake-up per receiver (a plain virtual bus gets messages)."""
+        self._check_if_open()
+        if not len(batch):
+            return
+        if not self.preserve_timestamps:
+            batch = batch.restamped(np.full(len(batch), time.time()))
+        for bus_queue in self._receivers():
+            if isinstance(bus_queue, _BatchQueue):
+                items: list = [batch]
+            else:
+                items = batch.messages()
+                for m in items:
+                    m.channel, m.is_rx = self.channel_id, bus_queue is not self.queue
+            with bus_queue.mutex:                 # queue.Queue's own lock and condition
+                bus_queue.queue.extend(items)
+                bus_queue.unfinished_tasks += len(items)
+                bus_queue.not_empty.notify()
 
     def send_batch(self, messages: list[can.Message]) -> None:
         """Send many frames at once: one lock and one wake-up per receiver instead of one per frame."""
         self._check_if_open()
-        receivers = [q for q in self.channel if q is not self.queue or self.receive_own_messages]
-        for k, bus_queue in enumerate(receivers):
+        for k, bus_queue in enumerate(self._receivers()):
             batch = messages if k == 0 else [copy.copy(m) for m in messages]
             for m in batch:
                 m.channel, m.is_rx = self.channel_id, bus_queue is not self.queue
-            with bus_queue.mutex:                 # queue.Queue's own lock and condition
+            with bus_queue.mutex:
                 bus_queue.queue.extend(batch)
                 bus_queue.unfinished_tasks += len(batch)
                 bus_queue.not_empty.notify()
 
+    def _take(self, limit: int | None) -> list:
+        """Queued items holding at most `limit` frames (a batch split if needed), under the queue's lock."""
+        out: list = []
+        with self.queue.mutex:
+            pending = self.queue.queue
+            room = limit
+            while pending and (room is None or room > 0):
+                item = pending.popleft()
+                if isinstance(item, CanFrameBatch):
+                    if room is not None and len(item) > room:
+                        pending.appendleft(item[room:])
+                        item = item[:room]
+                    out.append(item)
+                    size = len(item)
+                else:
+                    out.append(item)
+                    size = 1
+                if room is not None:
+                    room -= size
+            self.queue.not_full.notify()
+        return out
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        self._check_if_open()
+        try:
+            item = self.queue.get(block=True, timeout=timeout)
+        except queue.Empty:
+            return None, False
+        if isinstance(item, CanFrameBatch):
+            if len(item) > 1:
+                with self.queue.mutex:
+                    self.queue.queue.appendleft(item[1:])
+            return item.message(0), False
+        return item, False
+
     def drain_messages(self, limit: int | None = None) -> list[can.Message]:
         """Every frame queued for this bus (at most `limit`), taken at once."""
         self._check_if_open()
-        with self.queue.mutex:
-            pending = self.queue.queue
-            count = len(pending) if limit is None else min(limit, len(pending))
-            out = [pending.popleft() for _ in range(count)]
-            self.queue.not_full.notify()
+        out: list[can.Message] = []
+        for item in self._take(limit):
+            if isinstance(item, CanFrameBatch):
+                out += item.messages()
+            else:
+                out.append(item)
         return out
+
+    def recv_frames(self, timeout: float | None = 0.0, limit: int | None = None) -> CanFrameBatch | None:
+        """Wait up to `timeout` for a frame, then take every frame queued (at most `limit`) as one batch;
+        None when nothing came."""
+        self._check_if_open()
+        if limit is not None and limit <= 0:
+            return None
+        try:
+            first = self.queue.get(block=True, timeout=timeout) if timeout is None or timeout > 0 else \
+                self.queue.get_nowait()
+        except queue.Empty:
+            return None
+        with self.queue.mutex:
+            self.queue.queue.appendleft(first)
+        items = self._take(limit)
+        batches: list[CanFrameBatch] = []
+        loose: list[can.Message] = []
+        for item in items:
+            if isinstance(item, CanFrameBatch):
+                if loose:
+                    batches.append(CanFrameBatch.from_messages(loose))
+                    loose = []
+                batches.append(item)
+            else:
+                loose.append(item)
+        if loose:
+            batches.append(CanFrameBatch.from_messages(loose))
+        return CanFrameBatch.concat(batches) if batches else None
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._check_if_open()

@@ -8,6 +8,7 @@ less than one signal resolution step; the calibration integrates increments.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,12 +49,17 @@ class EncodedFrames:
 
 
 def _insert(data: np.ndarray, sig: SignalLayout, raw: np.ndarray) -> None:
-    """OR the raw values (int64, in range) into the signal's bytes of every row."""
+    """OR the raw values (int64, in range) into the signal's bytes of every row (all its bytes in one step)."""
     nbytes = sig.last_byte - sig.first_byte + 1
     bits = (raw.astype(np.uint64) & np.uint64(sig.mask)) << np.uint64(sig.window_shift)
-    for b in range(nbytes):
-        shift = 8 * (nbytes - 1 - b) if sig.big_endian else 8 * b
-        data[:, sig.first_byte + b] |= ((bits >> np.uint64(shift)) & np.uint64(0xFF)).astype(np.uint8)
+    shifts = _byte_shifts(nbytes, sig.big_endian)
+    data[:, sig.first_byte:sig.first_byte + nbytes] |= ((bits[:, None] >> shifts) & np.uint64(0xFF)).astype(np.uint8)
+
+
+@functools.lru_cache(maxsize=64)
+def _byte_shifts(nbytes: int, big_endian: bool) -> np.ndarray:
+    """The right shift that brings each of a signal's bytes, first to last, to the low byte."""
+    return np.array([8 * (nbytes - 1 - b) if big_endian else 8 * b for b in range(nbytes)], np.uint64)
 
 
 def _check_range(sig: SignalLayout, raw: np.ndarray, what: str) -> None:

@@ -2,8 +2,9 @@
 
 `ImuReceiver({"interface": "socketcan", "channel": "can0", "fd": True}, layout)` opens
 the bus with `can.Bus(**config)`; it can also take a bus the caller owns (then `close`
-leaves the bus open). Every received frame is handed, untouched, to the `on_frames`
-callback before decoding, so a recorder can log all of them losslessly.
+leaves the bus open). Every received frame is handed, untouched (but re-stamped on the run clock with a `time_base`),
+to the `on_frames` callback before decoding, so a recorder can log all of them losslessly: each
+poll's frames as one `CanFrameBatch` (arrays, and a sequence of python-can messages on demand).
 """
 
 from __future__ import annotations
@@ -16,8 +17,8 @@ from collections.abc import Callable, Mapping
 import can
 
 from drivers.errors import ImuConfigError, ImuConnectionError
+from drivers.imu.frames import CanFrameBatch
 from drivers.imu.layout import ImuLayout, default_layout
-from drivers.imu.rules import frames_from_messages
 from drivers.imu.samples import ImuSampleBlock, ImuStats
 from drivers.imu.slcan_bus import SLCAN_CLIENTS, BulkSlcanBus
 from drivers.imu.stream import StreamDecoder
@@ -97,17 +98,16 @@ class TimeBase:
         self.lag_min_s = math.inf
         self.lag_max_s = -math.inf
 
-    def map(self, messages: list[can.Message]) -> None:
-        """Re-stamp `messages` (in place) on the run clock."""
+    def map(self, batch: CanFrameBatch) -> CanFrameBatch:
+        """`batch` re-stamped on the run clock."""
         now = self.now()
         if self.offset_s is None:
-            self.offset_s = float(messages[0].timestamp) - now
-        offset = self.offset_s
-        for m in messages:
-            m.timestamp = float(m.timestamp) - offset
+            self.offset_s = float(batch.timestamps[0]) - now
+        mapped = batch.restamped(batch.timestamps - self.offset_s)
         # the batch's newest frame has the least lag, its oldest the most
-        self.lag_min_s = min(self.lag_min_s, now - messages[-1].timestamp)
-        self.lag_max_s = max(self.lag_max_s, now - messages[0].timestamp)
+        self.lag_min_s = min(self.lag_min_s, now - float(mapped.timestamps[-1]))
+        self.lag_max_s = max(self.lag_max_s, now - float(mapped.timestamps[0]))
+        return mapped
 
     def as_dict(self) -> dict[str, float]:
         """The offset and the lag extremes (empty before the first frame)."""
@@ -128,7 +128,7 @@ class ImuReceiver:
 
     def __init__(self, bus: Mapping | can.BusABC, layout: ImuLayout | None = None, rate_hz: float = 1000.0,
                  reorder_window: int = 8,
-                 on_frames: Callable[[list[can.Message]], None] | None = None,
+                 on_frames: Callable[[CanFrameBatch], None] | None = None,
                  time_base: Callable[[], float] | None = None):
         if not (isinstance(reorder_window, int) and reorder_window >= 1):
             raise ImuConfigError(f"reorder_window must be a positive integer, got {reorder_window!r}")
@@ -159,6 +159,16 @@ class ImuReceiver:
         if self._closed:
             raise ImuConnectionError("the IMU receiver is closed")
         limit = max_frames if max_frames is not None else MAX_POLL_FRAMES
+        recv_frames = getattr(self.bus, "recv_frames", None)   # a bus that hands over arrays (the simulator's)
+        if recv_frames is not None:
+            try:
+                batch = recv_frames(timeout_s, limit)
+            except can.CanError as exc:
+                raise ImuConnectionError(f"CAN bus {self.bus.channel_info!r} failed while receiving: {exc}") \
+                    from exc
+            if batch is not None and len(batch):
+                self._deliver(batch)
+            return self.decoder.take_block()
         recv = self.bus.recv
         messages: list[can.Message] = []
         drain = getattr(self.bus, "drain_messages", None)   # a bus that can hand over a whole batch
@@ -180,19 +190,19 @@ class ImuReceiver:
             raise ImuConnectionError(f"CAN bus {self.bus.channel_info!r} failed while receiving: {exc}") from exc
         finally:
             if messages:
-                self._deliver(messages)
+                self._deliver(CanFrameBatch.from_messages(messages))
         return self.decoder.take_block()
 
-    def _deliver(self, messages: list[can.Message]) -> None:
+    def _deliver(self, batch: CanFrameBatch) -> None:
         if self.time_base is not None:
-            self.time_base.map(messages)
-        self.frames_received += len(messages)
+            batch = self.time_base.map(batch)
+        self.frames_received += len(batch)
         if self.on_frames is not None:
-            self.on_frames(messages)
-        data = [m for m in messages if not (m.is_error_frame or m.is_remote_frame)]
-        self.non_data_frames += len(messages) - len(data)
-        if data:
-            self.decoder.feed(*frames_from_messages(data, width=None))
+            self.on_frames(batch)
+        data = batch.data_frames()
+        self.non_data_frames += len(batch) - len(data)
+        if len(data):
+            self.decoder.feed(*data.decoder_arrays())
 
     def flush(self) -> ImuSampleBlock:
         """End of a recording: resolve every pending sample and return what is left (the bus stays open: frames

@@ -253,3 +253,26 @@ def test_a_whole_run_works_in_the_other_dialects(tmp_path, dialect):
     truth = result["sim_truth"]["coefficients"]
     for name in ("Kg_x", "Kg_y", "Kg_z", "Ka_x", "Ka_y", "Ka_z"):
         assert result["coefficients"][name]["value"] == pytest.approx(truth[name]["value"], rel=1e-7), name
+
+
+def test_a_rest_polls_the_state_on_time_when_the_imu_is_drained_less_often(bench):
+    """The simulator drains the IMU every 2 s but polls the table every 1 s: the clock stops at every state poll."""
+    world, table, imu = bench
+    listener = Recorder()
+    dwell = DwellStep(index=0, unit="P01", schedule="test", schedule_index=0, angles_deg=(0.0, 0.0, 0.0),
+                      target_deg=(0.0, 0.0, 0.0), dwell_s=6.0, estimated_s=6.0)
+    options = SequencerOptions(move_poll_s=0.1, imu_poll_s=2.0, state_period_s=0.5)
+    seq = Sequencer([dwell], table, imu, world.clock, [listener], options)
+    drains = []
+    poll = imu.poll
+
+    def counted_poll(*args, **kwargs):
+        drains.append(world.clock.now())
+        return poll(*args, **kwargs)
+
+    imu.poll = counted_poll
+    assert seq.run() is RunState.DONE
+    times = [s.time_s for s in listener.states]
+    assert len(times) >= 12 and max(b - a for a, b in zip(times, times[1:])) <= 0.5 + 1e-9
+    # drains: before the window, every 2 s, at its end and after the run (not at every 0.5 s step)
+    assert len(drains) <= 6 and listener.samples == 6 * 50

@@ -1,0 +1,44 @@
+"""`/imu/samples` messages made a block at a time: the exact text and log times, non-finite values as null."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from bench.log.format import imu_sample_messages
+from drivers.imu import ImuSampleBlock
+
+
+def _block(temperature=25.5, receive=(0.1, 0.105, 0.11)) -> ImuSampleBlock:
+    g = np.array([[1.0, -2.0, 0.1], [3.0, 4.0, 5.0], [0.0, 1e-9, 123456.75]])
+    return ImuSampleBlock(np.array([20, 21, 22]), np.array(receive, float), g, -g,
+                          np.full(3, temperature), np.array([0, 1, 2]), 200.0)
+
+
+def test_the_text_is_the_recorders():
+    (t0, first), (t1, _), (t2, last) = imu_sample_messages(_block())
+    assert (t0, t1, t2) == (100_000_000, 105_000_000, 110_000_000)
+    assert first == (b'{"counter":20,"time_s":0.1,"imu_time_s":0.1,"gyro_counts":[1.0,-2.0,0.1],'
+                     b'"acc_counts":[-1.0,2.0,-0.1],"gyro_rate":[200.0,-400.0,20.0],'
+                     b'"acc_rate":[-200.0,400.0,-20.0],"temperature_c":25.5,"status":0}')
+    body = json.loads(last)
+    assert body["gyro_counts"] == [0.0, 1e-9, 123456.75] and body["gyro_rate"] == [0.0, 1e-9 * 200.0, 123456.75 * 200]
+    assert body["imu_time_s"] == 22 / 200.0
+
+
+def test_non_finite_values_are_null_and_times_before_zero_are_zero():
+    block = _block(temperature=float("nan"), receive=(-1.0, float("nan"), 0.2))
+    block.gyro_counts[1, 2] = np.inf
+    messages = imu_sample_messages(block)
+    assert [t for t, _ in messages] == [0, 0, 200_000_000]
+    bodies = [json.loads(body) for _, body in messages]
+    assert [b["time_s"] for b in bodies] == [-1.0, None, 0.2]
+    assert all(b["temperature_c"] is None for b in bodies)
+    assert bodies[1]["gyro_counts"] == [3.0, 4.0, None] and bodies[1]["gyro_rate"] == [600.0, 800.0, None]
+    assert bodies[0]["gyro_counts"] == [1.0, -2.0, 0.1]
+
+
+def test_decimation_keeps_every_nth_counter():
+    assert [json.loads(body)["counter"] for _, body in imu_sample_messages(_block(), decimation=2)] == [20, 22]
+    assert imu_sample_messages(_block(), decimation=50) == []
