@@ -181,16 +181,16 @@ KEYS: tuple[Key, ...] = (
     # [table]
     Key("table", "url", "string", "where the controller is: tcp://host:port, a serial device, socket://, "
         "modbus+tcp://, modbus+rtu://, visa://, or \"sim\" (the simulated table served over loopback)", REQUIRED),
-    Key("table", "dialect", "string", "the controller's protocol (drivers/README.md)", REQUIRED,
+    Key("table", "dialect", "string", "the controller's protocol (docs/hardware/index.md)", REQUIRED,
         choices=("acutrol", "scpi", "mn", "modbus")),
     Key("table", "timeout_s", "number", "reply timeout per request", 0.5, "s", ge=0.001, le=60.0),
     Key("table", "retries", "integer", "resends after a timeout or garbled reply", 2, ge=0, le=10),
     Key("table", "settle_tolerance_deg", "number", "a move is complete within this of its target", 0.001, "deg",
         ge=1e-6, le=1.0),
     Key("table", "poll_s", "number", "state polling period while moving or settling", 0.05, "s", ge=0.001, le=10.0),
-    Key("table", "register_map", "path", "Modbus only: a file holding a [modbus] table (drivers/MODBUS.md)",
+    Key("table", "register_map", "path", "Modbus only: a file holding a [modbus] table (docs/hardware/modbus.md)",
         NONE),
-    Key("table", "modbus", "table", "Modbus only: the register map inline (keys as drivers/MODBUS.md); default: "
+    Key("table", "modbus", "table", "Modbus only: the register map inline (keys as docs/hardware/modbus.md); default: "
         "the documented map", NONE),
     Key("table", "limits", "table", "what the bench may demand of each axis"),
     Key("table", "pointing_accuracy_arcsec", "number or table", "1-sigma (RMS) of each black-box angle, for the "
@@ -221,12 +221,12 @@ KEYS: tuple[Key, ...] = (
     Key("imu", "bitrate", "integer", "nominal bit rate", NONE, "bit/s", ge=1000, le=10_000_000,
         default_text="the interface's own setting"),
     Key("imu", "fd", "boolean", "a CAN FD bus", False),
-    Key("imu", "layout", "string", "a shipped frame layout (drivers/CAN.md); give `dbc` instead for another IMU",
+    Key("imu", "layout", "string", "a shipped frame layout (docs/hardware/can.md); give `dbc` instead for another IMU",
         NONE, choices=("classic", "packed", "fd", "sbg-ecan"), default_text="classic (fd when fd = true)"),
     Key("imu", "dbc", "path", "DBC file of the IMU's frames (a regular file of at most 1 MiB)", NONE,
         default_text="the shipped layout's drivers/imu/sim_imu*.dbc"),
     Key("imu", "rate_hz", "number", "nominal sample rate of the IMU", REQUIRED, "Hz", gt=0.0, ge=1.0, le=100000.0),
-    Key("imu", "signals", "table", "which DBC signals carry a sample, as \"MESSAGE.Signal\" (drivers/CAN.md)",
+    Key("imu", "signals", "table", "which DBC signals carry a sample, as \"MESSAGE.Signal\" (docs/hardware/can.md)",
         NONE, default_text="the shipped layout's mapping"),
     Key("imu", "slcan_client", "string", "who reads an SLCAN adapter (interface = \"slcan\"): the bench's bulk "
         "reader or python-can's own interface", "bench", choices=("bench", "python-can")),
@@ -245,7 +245,8 @@ KEYS: tuple[Key, ...] = (
     Key("imu.signals", "temperature", "string", "the IMU's temperature, degC", NONE),
     Key("imu.signals", "status", "string", "the status word", NONE),
     Key("imu.signals", "status_invalid", "integer", "status bits that make a sample unusable (0 = none)", NONE,
-        ge=0, le=0xFFFF_FFFF, default_text="faults, over-range, initialising (drivers/CAN.md); 0 with time_stamp"),
+        ge=0, le=0xFFFF_FFFF,
+        default_text="faults, over-range, initialising (docs/hardware/can.md); 0 with time_stamp"),
     Key("imu.signals", "status_required", "integer", "status bits that must be set in a usable sample (an IMU "
         "whose bits mean \"healthy\")", 0, ge=0, le=0xFFFF_FFFF),
     Key("imu.signals", "counter", "string or table", "sample counter signal in every message, or {message = "
@@ -391,8 +392,8 @@ KEYS: tuple[Key, ...] = (
         NONE, "degC", range_text="min_setpoint_c..max_setpoint_c"),
     Key("chamber", "limits", "table", "the chamber's limits, checked before sending"),
     Key("chamber", "register_map", "string", "modbus: \"watlow-f4\", \"generic\", or a file holding a [modbus] "
-        "table (drivers/CHAMBER.md)", NONE, default_text="\"watlow-f4\""),
-    Key("chamber", "modbus", "table", "modbus: the register map inline (drivers/CHAMBER.md)", NONE),
+        "table (docs/hardware/chamber.md)", NONE, default_text="\"watlow-f4\""),
+    Key("chamber", "modbus", "table", "modbus: the register map inline (docs/hardware/chamber.md)", NONE),
     Key("chamber.limits", "min_setpoint_c", "number", "lowest setpoint", _CHAMBER.min_setpoint_c, "degC",
         ge=ABSOLUTE_MIN_C, le=ABSOLUTE_MAX_C),
     Key("chamber.limits", "max_setpoint_c", "number", "highest setpoint (above min_setpoint_c)",

@@ -67,7 +67,7 @@ min_setpoint_c = -40.0
 """
 
 #: keys the loader reads without a `Table` of their own: the register maps (checked by the drivers' maps,
-#: drivers/MODBUS.md and drivers/CHAMBER.md), the signal mapping (`ImuFrameSpec`, checked below) and the bus
+#: docs/hardware/modbus.md and docs/hardware/chamber.md), the signal mapping (`ImuFrameSpec`, checked below) and the bus
 #: options (passed to python-can as given)
 NOT_A_TABLE = ("table.modbus", "chamber.modbus", "imu.signals", "imu.bus_options")
 
