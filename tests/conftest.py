@@ -62,6 +62,16 @@ def no_leftover_tui_threads(no_leftover_project_threads):
     yield
 
 
+@pytest.fixture(scope="session", autouse=True)
+def records_database_of_the_session(tmp_path_factory):
+    """A records database for what runs outside a test's own (module and session fixtures that record a run):
+    never the user's default one, whose schema may be another version's (a module fixture once failed with
+    "the database has schema version 4, newer than this software's 3" from a developer's other checkout)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("BENCH_DB", str(tmp_path_factory.mktemp("session-records") / "records.sqlite"))
+        yield
+
+
 @pytest.fixture(autouse=True)
 def records_database_in_tmp(tmp_path_factory, monkeypatch):
     """Every test's `bench run` / `bench solve` / `bench check-table` records into a database of its own in a
