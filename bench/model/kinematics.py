@@ -37,7 +37,13 @@ def triple(values: Iterable[float]) -> tuple[float, float, float]:
 
 
 def _stack(rows) -> np.ndarray:
-    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+    """Equal-shaped arrays `rows[i][j]` as the matrices' element (i, j): shape (..., len(rows), len(rows[0]))."""
+    first = np.asarray(rows[0][0])
+    out = np.empty(first.shape + (len(rows), len(rows[0])), np.result_type(*(x for r in rows for x in r)))
+    for i, row in enumerate(rows):
+        for j, x in enumerate(row):
+            out[..., i, j] = x
+    return out
 
 
 def rot_z(theta: np.ndarray) -> np.ndarray:
