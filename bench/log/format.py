@@ -212,6 +212,22 @@ def json_number(x: float) -> str:
 _ARRAY_TIME_LIMIT_S = 9.0e9
 
 
+#: below this magnitude a whole float's `repr` is its integer's digits and ".0" (from 1e16 on it is 1e+16)
+_WHOLE_REPR_LIMIT = 1.0e15
+
+
+def _whole_numbers(values: np.ndarray) -> bool:
+    """True when every value is a whole number below `_WHOLE_REPR_LIMIT` and none is -0.0 (whose repr keeps
+    its sign): then `repr(x) == f"{int(x)}.0"` for each."""
+    if not values.size:
+        return False
+    with np.errstate(invalid="ignore"):
+        small = np.abs(values) < _WHOLE_REPR_LIMIT      # (False for NaN and inf)
+    if not small.all() or not (np.floor(values) == values).all():
+        return False
+    return not (np.signbit(values) & (values == 0.0)).any()
+
+
 def imu_sample_messages(block, decimation: int = 1) -> list[tuple[int, bytes]]:
     """The `/imu/samples` messages of an `ImuSampleBlock`: (log time ns, JSON body) of every `decimation`-th
     counter. The arithmetic (scaling, the log time) is done on whole columns, each value printed by `repr`
@@ -240,7 +256,16 @@ def imu_sample_messages(block, decimation: int = 1) -> list[tuple[int, bytes]]:
     temps = (list(map(repr, temperature.tolist())) if np.isfinite(temperature).all()
              else [json_number(x) for x in temperature.tolist()])
     values = np.concatenate([gyro, acc, gyro * rate, acc * rate], axis=1)
-    if np.isfinite(values).all():
+    if _whole_numbers(values):
+        # counts (and their rates at a whole rate) are whole numbers: printed as integers plus ".0", which is
+        # their `repr`, at a fraction of its cost
+        bodies = [f'{{"counter":{c},"time_s":{r},"imu_time_s":{it!r},"gyro_counts":[{g0}.0,{g1}.0,{g2}.0],'
+                  f'"acc_counts":[{a0}.0,{a1}.0,{a2}.0],"gyro_rate":[{gr0}.0,{gr1}.0,{gr2}.0],'
+                  f'"acc_rate":[{ar0}.0,{ar1}.0,{ar2}.0],"temperature_c":{temp},"status":{st}}}'
+                  for c, r, it, (g0, g1, g2, a0, a1, a2, gr0, gr1, gr2, ar0, ar1, ar2), temp, st
+                  in zip(counters.tolist(), recv_text, imu_times, values.astype(np.int64).tolist(), temps,
+                         col(block.status).tolist())]
+    elif np.isfinite(values).all():
         rows = values.tolist()
         bodies = [f'{{"counter":{c},"time_s":{r},"imu_time_s":{it!r},"gyro_counts":[{g0!r},{g1!r},{g2!r}],'
                   f'"acc_counts":[{a0!r},{a1!r},{a2!r}],"gyro_rate":[{gr0!r},{gr1!r},{gr2!r}],'

@@ -37,7 +37,13 @@ def triple(values: Iterable[float]) -> tuple[float, float, float]:
 
 
 def _stack(rows) -> np.ndarray:
-    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+    """Equal-shaped arrays `rows[i][j]` as the matrices' element (i, j): shape (..., len(rows), len(rows[0]))."""
+    first = np.asarray(rows[0][0])
+    out = np.empty(first.shape + (len(rows), len(rows[0])), np.result_type(*(x for r in rows for x in r)))
+    for i, row in enumerate(rows):
+        for j, x in enumerate(row):
+            out[..., i, j] = x
+    return out
 
 
 def rot_z(theta: np.ndarray) -> np.ndarray:
@@ -112,7 +118,11 @@ def frame_axes_in_body(angles: np.ndarray, black_box: np.ndarray | None = None,
 
     Row j is frame j's axis; a CCW turn of frame j rotates the body by +angle about it.
     """
-    chain = frame_chain(angles, black_box, mounting)
+    return _frame_axes(frame_chain(angles, black_box, mounting), mounting)
+
+
+def _frame_axes(chain: dict[str, np.ndarray], mounting: np.ndarray | None) -> np.ndarray:
+    """`frame_axes_in_body` from the `frame_chain` of the angles."""
     axis_o = chain["C_o^b"] @ FRAME_AXES["outer"]
     axis_m = chain["C_m^b"] @ FRAME_AXES["middle"]
     # Z_i is fixed in the inner frame: only the mounting moves it in body axes.
@@ -129,8 +139,18 @@ def body_rate_from_frame_rates(angles: np.ndarray, frame_rates: np.ndarray,
     `frame_rates` are d(angle)/dt in the paper's convention; a CCW turn has a
     negative angle rate and a positive rotation about the frame axis.
     """
-    axes = frame_axes_in_body(angles, black_box, mounting)
+    return _body_rate(frame_axes_in_body(angles, black_box, mounting), frame_rates)
+
+
+def _body_rate(axes: np.ndarray, frame_rates: np.ndarray) -> np.ndarray:
     return -np.einsum("...j,...jk->...k", np.asarray(frame_rates, dtype=float), axes)
+
+
+def attitude_and_body_rate(angles: np.ndarray, frame_rates: np.ndarray, black_box: np.ndarray | None = None,
+                           mounting: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(`attitude`, `body_rate_from_frame_rates`) of the same angles from one `frame_chain` (the same numbers)."""
+    chain = frame_chain(angles, black_box, mounting)
+    return chain["C_t^b"], _body_rate(_frame_axes(chain, mounting), frame_rates)
 
 
 def axis_along(vector: np.ndarray, tol: float = 1e-6) -> tuple[int, int] | None:

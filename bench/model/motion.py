@@ -6,6 +6,7 @@ sorted list of `Piece`s; each holds from its `t0` until the next piece starts.
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -63,8 +64,13 @@ def trapezoid_pieces(t0: float, theta0: float, distance: float, max_rate: float,
 
 def active_piece(pieces: list[Piece], t: float) -> Piece:
     """The piece in effect at time t (the first one before it starts)."""
-    k = int(np.searchsorted([p.t0 for p in pieces], t, side="right")) - 1
+    # (the pieces are in time order: a bisection on their start times, as np.searchsorted side="right" finds it)
+    k = bisect.bisect_right(pieces, t, key=_start_time) - 1
     return pieces[max(0, k)]
+
+
+def _start_time(piece: Piece) -> float:
+    return piece.t0
 
 
 #: (start times, start angles, start rates, accelerations) of a trajectory's pieces

@@ -42,6 +42,9 @@ ERR_WRONG_MODE = 4    # demand does not match the axis mode
 ERR_LIMIT = 5         # beyond the controller's travel or rate limits
 ERR_FAULT = 6         # a fault or e-stop is latched; reset first
 
+_ENABLED, _MOVING, _IN_POSITION = int(AxisStatus.ENABLED), int(AxisStatus.MOVING), int(AxisStatus.IN_POSITION)
+_FAULT, _LIMIT, _ESTOP = int(AxisStatus.FAULT), int(AxisStatus.LIMIT), int(AxisStatus.ESTOP)
+
 
 @dataclass
 class _Axis:
@@ -287,21 +290,20 @@ class SimController:
             t = self.now() if t is None else t
             theta, rate, accel = self.table.axis_at(t, k)
             ax = self._axes[k]
-            status = AxisStatus(0)
-            if ax.enabled:
-                status |= AxisStatus.ENABLED
+            # the bits as an int, one AxisStatus made of them (a flag operation each costs more than the rest)
+            bits = _ENABLED if ax.enabled else 0
             if rate != 0.0 or accel != 0.0:
-                status |= AxisStatus.MOVING
+                bits |= _MOVING
             elif (ax.enabled and ax.mode is AxisMode.POSITION
                   and abs(theta / DEG - ax.demand_deg) <= self.in_position_window_deg):
-                status |= AxisStatus.IN_POSITION
+                bits |= _IN_POSITION
             if ax.fault:
-                status |= AxisStatus.FAULT
+                bits |= _FAULT
             if ax.limit:
-                status |= AxisStatus.LIMIT
+                bits |= _LIMIT
             if self._estop:
-                status |= AxisStatus.ESTOP
-            return AxisState(theta / DEG, rate / DEG, ax.mode, status)
+                bits |= _ESTOP
+            return AxisState(theta / DEG, rate / DEG, ax.mode, AxisStatus(bits))
 
     def state(self) -> TableState:
         with self._lock:

@@ -238,9 +238,8 @@ class SimTable:
         first[1:] = np.any((angles[1:] != angles[:-1]) | (rates[1:] != rates[:-1]), axis=1)
         index = np.cumsum(first) - 1
         angles, rates = angles[first], rates[first]
-        c_tb = kinematics.attitude(angles, self.black_box, self.mounting)
-        w_b = c_tb @ self.site.earth_rate_enu + kinematics.body_rate_from_frame_rates(
-            angles, rates, self.black_box, self.mounting)
+        c_tb, frame_motion = kinematics.attitude_and_body_rate(angles, rates, self.black_box, self.mounting)
+        w_b = c_tb @ self.site.earth_rate_enu + frame_motion
         f_b = c_tb @ self.site.specific_force_enu
         return tuple(x[index].reshape(times.shape + x.shape[1:]) for x in (c_tb, w_b, f_b))
 

@@ -16,6 +16,7 @@ middle, inner) on the wire and 0, 1, 2 in the typed messages.
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from dataclasses import dataclass
@@ -123,13 +124,15 @@ MODE_CODES = {AxisMode.OFF: 0, AxisMode.POSITION: 1, AxisMode.RATE: 2}
 _MODE_BY_CODE = {code: mode for mode, code in MODE_CODES.items()}
 
 
+@functools.lru_cache(maxsize=256)
 def status_word(status: AxisStatus) -> int:
-    """AxisStatus -> the dialect's status word."""
+    """AxisStatus -> the dialect's status word (remembered: every state poll asks for the same few)."""
     return sum(bit for bit, flag in STATUS_BITS if status & flag)
 
 
+@functools.lru_cache(maxsize=256)
 def status_from_word(word: int) -> AxisStatus:
-    """The dialect's status word -> AxisStatus (reserved bits ignored)."""
+    """The dialect's status word -> AxisStatus (reserved bits ignored; remembered like `status_word`)."""
     if not 0 <= word <= STATUS_WORD_MAX:
         raise TurntableProtocolError(f"status word {word} outside 0..{STATUS_WORD_MAX}")
     status = AxisStatus(0)
@@ -207,15 +210,25 @@ def confirmed(*units: bytes, long_form: bool = False) -> bytes:
 
 # -- client side: replies --------------------------------------------------------------
 
+_NOT_PRINTABLE = re.compile(rb"[^\x20-\x7e]")
+
+
 def split_fields(line: bytes) -> list[str]:
     """A reply line -> its comma-separated fields (quoted strings kept quoted); malformed -> TurntableProtocolError."""
-    for i, byte in enumerate(line):
-        if not 0x20 <= byte <= 0x7E:
-            raise TurntableProtocolError(f"reply byte 0x{byte:02X} at {i} is not printable ASCII", line)
+    bad = _NOT_PRINTABLE.search(line)
+    if bad is not None:
+        raise TurntableProtocolError(f"reply byte 0x{line[bad.start()]:02X} at {bad.start()} is not printable ASCII",
+                                     line)
     text = line.decode("ascii").strip()
     if not text:
         raise TurntableProtocolError("empty reply", line)
-    fields, current, quoted, i = [], [], False, 0
+    # up to the first quote the fields are plain: split at once (a reply is mostly numbers), the rest char by char
+    i = text.find('"')
+    i = len(text) if i < 0 else i
+    if ";" in text[:i]:
+        raise TurntableProtocolError("several responses where one was expected", line)
+    *fields, last = text[:i].split(",")
+    fields, current, quoted = [f.strip() for f in fields], [last], False
     while i < len(text):
         char = text[i]
         if quoted:

@@ -121,6 +121,14 @@ def test_malformed_confirmations_name_the_problem(line, what):
     assert info.value.raw == line
 
 
+def test_fields_split_around_quoted_strings():
+    assert sc.split_fields(b' 1.5 , 2 ,"a, ""b"";c" , 3 ') == ["1.5", "2", '"a, ""b"";c"', "3"]
+    assert sc.split_fields(b"1,,2 ") == ["1", "", "2"]
+    assert sc.split_fields(b'1,x"y,z",2') == ["1", 'x"y,z"', "2"]
+    with pytest.raises(TurntableProtocolError, match="several responses"):
+        sc.split_fields(b'1;2,"x"')
+
+
 def test_numbers_in_replies():
     assert sc.decode_number(b"90.000000") == 90.0
     assert sc.decode_number(b"-1.5E+01") == -15.0

@@ -42,3 +42,33 @@ def test_non_finite_values_are_null_and_times_before_zero_are_zero():
 def test_decimation_keeps_every_nth_counter():
     assert [json.loads(body)["counter"] for _, body in imu_sample_messages(_block(), decimation=2)] == [20, 22]
     assert imu_sample_messages(_block(), decimation=50) == []
+
+
+
+def _repr_text(block: ImuSampleBlock) -> list[str]:
+    """Each sample's four vectors as `repr` prints them (the text every path must give)."""
+    def text(v) -> str:
+        return ",".join(map(repr, v))
+
+    rate = block.rate_hz
+    return [f'"gyro_counts":[{text(g)}],"acc_counts":[{text(a)}],"gyro_rate":[{text([x * rate for x in g])}],'
+            f'"acc_rate":[{text([x * rate for x in a])}]'
+            for g, a in zip(block.gyro_counts.tolist(), block.acc_counts.tolist())]
+
+
+def _whole_block(first: list[float]) -> ImuSampleBlock:
+    g = np.random.default_rng(7).integers(-40_000, 40_000, (20, 3)).astype(float)
+    g[0] = first
+    return ImuSampleBlock(np.arange(20), np.linspace(0.1, 0.2, 20), g, g[::-1].copy(), np.full(20, 25.0),
+                          np.zeros(20, int), 200.0)
+
+
+def test_whole_counts_print_as_repr_does():
+    # plain whole counts; a negative zero (its repr keeps the sign); whole numbers whose rates pass 1e16
+    # (printed with an exponent)
+    for first in ([1.0, 2.0, 3.0], [0.0, -0.0, 5.0], [4.9e13, -4.9e13, 1.0], [9.0e14, 0.0, -7.0]):
+        block = _whole_block(first)
+        bodies = [body.decode() for _, body in imu_sample_messages(block)]
+        assert len(bodies) == 20
+        for body, expected in zip(bodies, _repr_text(block)):
+            assert expected in body

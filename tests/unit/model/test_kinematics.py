@@ -4,6 +4,7 @@ import pytest
 from bench.model.earth import Site, normal_gravity
 from bench.model.kinematics import (
     attitude,
+    attitude_and_body_rate,
     black_box_matrix,
     body_rate_from_frame_rates,
     frame_axes_in_body,
@@ -113,3 +114,13 @@ def test_earth_model():
     assert Site(30.0, local_g=9.79).gravity == 9.79
     with pytest.raises(ValueError, match="latitude"):
         Site(95.0)
+
+
+def test_attitude_and_body_rate_are_the_two_functions_numbers():
+    rng = np.random.default_rng(3)
+    angles, rates = rng.uniform(-4.0, 4.0, (50, 3)), rng.uniform(-1.0, 1.0, (50, 3))
+    black_box, mounting = rng.normal(0.0, 1e-3, (3, 3)), rot_z(np.array(0.3))
+    for bb, mount in ((None, None), (black_box, mounting)):
+        c_tb, w = attitude_and_body_rate(angles, rates, bb, mount)
+        assert np.array_equal(c_tb, attitude(angles, bb, mount))
+        assert np.array_equal(w, body_rate_from_frame_rates(angles, rates, bb, mount))
