@@ -14,6 +14,7 @@ from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
 from bench.model.units import DEG, DEG_PER_HOUR, G0, MICRO_G
 from bench.sim.imu import SimImu
 from bench.sim.table import SimTable, TableLimits
+from tests.helpers.run import api_run, config_text, load_json, only_file
 
 RATE_HZ = 1000.0
 IDEAL = ImuCoefficients.ideal()
@@ -213,3 +214,27 @@ def test_bad_higher_order_keys_get_one_clear_line(text, message):
     with pytest.raises(ConfigError) as caught:
         parse_config(CONFIG + "[sim.imu.higher_order]\n" + text + "\n")
     assert message in str(caught.value) and "higher_order" in str(caught.value)
+
+
+@pytest.mark.slow
+def test_bench_run_on_the_simulator_carries_the_configured_terms(tmp_path):
+    """The whole path (configuration, the simulated world behind CAN, the sequencer, the solve): the MEMS grade's
+    accelerometer second-order term and asymmetry move the accelerometer biases and fail their residual test."""
+    def k0_and_flags(extra: str, out) -> tuple[dict, list]:
+        text = config_text(positions="traditional-12", rotations="traditional-3s6r", dwell_s=1.0) + extra
+        with api_run(text, out) as (_run, outcome):
+            assert outcome.error is None, outcome.error
+            result = load_json(only_file(out, "*.result.json"))
+        return ({name: result["coefficients"][name]["value"] for name in ("K0_x", "K0_y", "K0_z")},
+                result["quality"]["flags"])
+
+    clean, clean_flags = k0_and_flags("", tmp_path / "off")
+    terms = ('[sim.imu.higher_order]\ngrade = "none"\nacc_second_order_ug_per_g2 = [150.0, -100.0, 200.0]\n')
+    biased, flags = k0_and_flags(terms, tmp_path / "on")
+    assert not any("accelerometers" in flag for flag in clean_flags)
+    assert any(flag.startswith("accelerometers") for flag in flags)
+    # noise-free: a second-order term Q a^2 is Q g^2 at the positions where an axis is vertical, zero where it is
+    # level; the 12-position solve takes a share of it as the bias
+    for axis, q_ug in zip("xyz", (150.0, -100.0, 200.0)):
+        shift_ug = (biased[f"K0_{axis}"] - clean[f"K0_{axis}"]) / 1e-6
+        assert 0.1 * abs(q_ug) < abs(shift_ug) < abs(q_ug) and np.sign(shift_ug) == np.sign(q_ug), (axis, shift_ug)
