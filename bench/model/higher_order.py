@@ -128,46 +128,50 @@ class HigherOrderTerms:
         return out
 
 
-# Presets (display units). The magnitudes are the order of what public data sheets and the IEEE standards'
-# specification guides give for each class; the signs and the spread between axes are ours, so that no two
-# axes are alike (a solve that mixes axes up shows it).
+# Presets (display units). The magnitudes are the order of what public data sheets, the IEEE standards' models
+# and the systematic-calibration simulations of PSINS (the issue's reference) give for each class, as the comments
+# say; where no public figure was found the comment says the value is our assumption. The signs and the spread
+# between axes are ours, so that no two axes are alike (a solve that mixes axes up shows it).
 GRADES: dict[str, dict[str, object]] = {
     # A navigation-grade FOG IMU with quartz pendulous accelerometers.
     "nav-fog": {
-        # An interferometric FOG has no proof mass: its g-sensitivity is residual (IEEE 952 still lists the
-        # term); navigation-grade data sheets bound it near 0.01 deg/h per g, we take a few thousandths.
+        # An interferometric FOG has no proof mass, so its g-sensitivity is a residual (IEEE 952's model keeps the
+        # term): a few thousandths of a deg/h per g is our assumption, below the unit's bias instability.
         "gyro_g_sensitivity_dph_per_g": [[0.004, -0.002, 0.001], [0.002, 0.005, -0.003], [-0.001, 0.003, 0.006]],
-        # Navigation-grade FOG scale factor is held to a few ppm overall: asymmetry of a few ppm.
+        # Navigation-grade FOG scale factor is held to a few ppm overall; asymmetry of a few ppm (our assumption
+        # within that budget).
         "gyro_asymmetry_ppm": [3.0, -2.0, 4.0],
-        # Nonlinearity ~10 ppm at 100 deg/s, written as a quadratic coefficient: ~0.1 ppm per deg/s.
+        # ~10 ppm at 100 deg/s as a quadratic: 0.1 ppm per deg/s (our assumption, the scale-factor budget again).
         "gyro_nonlinearity_ppm_per_dps": [0.08, -0.05, 0.10],
-        # Quartz pendulous accelerometers (the Q-Flex class, InnaLabs AI-Q-2010 class): second order and
-        # cross coupling of order 10-20 ug/g^2, asymmetry of order 10 ppm.
+        # Quartz pendulous accelerometers: the PSINS systematic-calibration simulation takes second-order terms of
+        # 10-30 ug/g^2; the cross terms and asymmetry of the same order are our assumption.
         "acc_asymmetry_ppm": [10.0, -8.0, 12.0],
         "acc_second_order_ug_per_g2": [12.0, -8.0, 15.0],
         "acc_cross_ug_per_g2": [[0.0, 6.0, -4.0], [-5.0, 0.0, 7.0], [3.0, -6.0, 0.0]],
-        # Three separate accelerometers in a unit of ~15 cm: each a few cm from the unit's reference point,
-        # which sits on the rotation centre within a few mm.
+        # Three separate accelerometers a few cm from the unit's reference point (PSINS's simulation: inner lever
+        # arms of 1-6 cm), the reference point on the rotation centre within a few mm.
         "acc_lever_arm_mm": [[25.0, 6.0, -4.0], [-5.0, 22.0, 7.0], [3.0, -8.0, 28.0]],
-        # Gyro and accelerometer channels sampled by one clock: a filter-delay mismatch of tens of us.
+        # Gyro and accelerometer channels sampled by one clock: a filter-delay mismatch of tens of us (our
+        # assumption).
         "time_offset_ms": 0.05,
     },
-    # A tactical MEMS IMU (the STIM300 / ADIS1649x class).
+    # A tactical MEMS IMU (the Sensonor STIM class).
     "tactical-mems": {
-        # MEMS gyros have a proof mass: Sensonor's STIM210 lists a linear acceleration effect of 10 deg/h per g.
+        # MEMS gyros have a proof mass: Sensonor gives the STIM210's linear acceleration effect as 10 deg/h per g.
         "gyro_g_sensitivity_dph_per_g": [[8.0, -3.0, 2.0], [2.5, 10.0, -4.0], [-2.0, 3.5, 9.0]],
-        # MEMS scale-factor accuracy is a few hundred ppm (STIM210: 500 ppm): asymmetry ~100-200 ppm.
+        # The STIM210's scale-factor accuracy is 500 ppm: an asymmetry of 100-200 ppm within it (our assumption).
         "gyro_asymmetry_ppm": [150.0, -120.0, 200.0],
-        # STIM210 nonlinearity 25 ppm (of its 400 deg/s range): ~0.1 ppm per deg/s as a quadratic.
+        # The STIM210's nonlinearity is 25 ppm; read as the relative error at 200 deg/s of a quadratic term:
+        # ~0.1 ppm per deg/s.
         "gyro_nonlinearity_ppm_per_dps": [0.12, -0.10, 0.15],
-        # MEMS accelerometers: nonlinearity of ~0.1 % of a 10-40 g range read as a quadratic gives
-        # ~100-250 ug/g^2; asymmetry a few hundred ppm.
+        # MEMS accelerometers give nonlinearity as ~0.1-1 % of a 10-40 g range; read as a quadratic that is of
+        # order 100-250 ug/g^2; asymmetry of a few hundred ppm and cross terms of tens of ug/g^2 (our assumption).
         "acc_asymmetry_ppm": [300.0, -250.0, 400.0],
         "acc_second_order_ug_per_g2": [150.0, -100.0, 200.0],
         "acc_cross_ug_per_g2": [[0.0, 40.0, -30.0], [-35.0, 0.0, 50.0], [25.0, -45.0, 0.0]],
-        # A small unit: the three sensing elements lie within ~1 cm; mounted on the rotation centre within mm.
+        # A small unit: the sensing elements lie within ~1 cm, mounted on the rotation centre within mm.
         "acc_lever_arm_mm": [[6.0, 2.0, -1.5], [-1.5, 5.0, 2.5], [1.0, -2.5, 7.0]],
-        # Separate gyro and accelerometer filter chains: a group-delay mismatch of a fraction of a ms.
+        # Separate gyro and accelerometer filter chains: a group-delay mismatch of half a ms (our assumption).
         "time_offset_ms": 0.5,
     },
 }
