@@ -5,14 +5,15 @@ Each term is an input-equivalent error added before the scale factor, per sensor
 
     gyro s:   F_s = Kg_s (u_s + G_s . f_b + A_s/2 |u_s| + N_s u_s^2 + D0_s)
     accel s:  J_s = Ka_s (a_s + B_s/2 |a_s| + Q_s a_s^2 + sum_j!=s C_sj a_s f_sj + K0_s)
-    f_s(t) = f_b(t - tau) + dw/dt x r_s + w x (w x r_s)   (all at t - tau)
+    f_s(t) = f_b(t - tau) + dw/dt x r_s + w x (w x r_s)   (all at t - tau; tau < 0: the gyros' inputs at t + tau)
 
 G: gyro g-sensitivity (3x3, rows gyros, columns body X Y Z); A, B: scale-factor asymmetry
 ((K+ - K-) / K, so a positive input sees K (1 + A/2), a negative one K (1 - A/2)); N: gyro
 scale-factor nonlinearity (quadratic in the input rate); Q: accelerometer second-order coefficient;
 C: its cross terms with the body axes (zero diagonal; for an accelerometer whose pendulous and output
 axes are body axes these are IEEE 1293's K_ip and K_io); r_s: accelerometer s's position from the
-rotation centre (size effect and mounting offset); tau: the accelerometers' delay behind the gyros.
+rotation centre (size effect and mounting offset); tau: the accelerometers' delay behind the gyros (negative: the
+gyros are late, so that the simulator never looks ahead of the motion it has been told).
 
 Internally SI (rad/s per m/s^2, 1/(rad/s), 1/(m/s^2), m, s); `from_display`/`to_display` use the
 configuration's units (deg/h per g, ppm, ppm per deg/s, ug/g^2, mm, ms).

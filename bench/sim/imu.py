@@ -224,11 +224,15 @@ class SimImu:
                               terms: HigherOrderTerms):
         """Gyro and accel outputs (counts/s) at times with the higher-order terms (bench.model.higher_order)."""
         kg, d0, eg, ka, k0, ea = self._coefficient_arrays(times)
-        gyro_input = np.einsum("msj,mj->ms", eg, w_b)
-        gyro = kg * (gyro_input + terms.gyro_error(gyro_input, f_b) + d0)
-        # The accelerometers: late by the time offset, each at its own place.
-        late = times - terms.time_offset_s
-        w_late, f_late = (w_b, f_b) if terms.time_offset_s == 0.0 else table.body_rate_and_specific_force(late)
+        # The time offset delays the accelerometers (> 0) or the gyros (< 0): never a look ahead, as the table's
+        # motion after the time generated may not be commanded yet.
+        gyro_lag, acc_lag = max(-terms.time_offset_s, 0.0), max(terms.time_offset_s, 0.0)
+        w_gyro, f_gyro = (w_b, f_b) if gyro_lag == 0.0 else table.body_rate_and_specific_force(times - gyro_lag)
+        gyro_input = np.einsum("msj,mj->ms", eg, w_gyro)
+        gyro = kg * (gyro_input + terms.gyro_error(gyro_input, f_gyro) + d0)
+        # The accelerometers, each at its own place.
+        late = times - acc_lag
+        w_late, f_late = (w_b, f_b) if acc_lag == 0.0 else table.body_rate_and_specific_force(late)
         force = np.broadcast_to(f_late[:, None, :], (len(times), 3, 3))
         if terms.has_lever_arms:
             h = _RATE_DERIVATIVE_STEP_S

@@ -148,6 +148,18 @@ def test_the_time_offset_delays_the_accelerometers_on_a_rate_ramp():
     assert np.all(gyro == 0.0)                                         # the gyros are the time reference
 
 
+def test_a_negative_time_offset_delays_the_gyros_instead():
+    table = make_table(30.0)
+    table.move_to(0.0, [0.0, 90.0, 0.0])
+    table.set_rate(1.0, "inner", 100.0, accel_dps2=50.0)
+    plain = outputs(table, 4.0, None)
+    late_gyros = outputs(table, 4.0, HigherOrderTerms(time_offset_s=-2.0 / RATE_HZ))
+    assert np.array_equal(late_gyros[2], plain[2])                     # the accelerometers are the reference
+    middle = slice(1500, 2500)                                         # inside the ramp, away from its kinks
+    np.testing.assert_allclose(late_gyros[1][middle], plain[1][1498:2498], rtol=1e-12)
+    assert not np.allclose(late_gyros[1][middle], plain[1][middle], rtol=0, atol=1e-3)
+
+
 def test_second_order_and_cross_terms_at_a_static_position():
     terms = HigherOrderTerms.from_display({"acc_second_order_ug_per_g2": [0.0, 0.0, 150.0],
                                            "acc_cross_ug_per_g2": [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0],
