@@ -18,6 +18,7 @@ from typing import Any
 from bench.acceptance.limits import BEYOND_FAIL, BEYOND_WARN, VERIFICATION_LIMITS
 from bench.config.reader import Table
 from bench.model.families import FAMILY_INFO, canonical_names
+from bench.model.higher_order import GRADE_NAMES
 from bench.model.imu import NoiseModel
 from bench.model.thermal import DIAGONAL_NAMES, THERMAL_NAMES
 from bench.plan.thermal import SoakCriterion
@@ -57,6 +58,24 @@ VALUE_RANGES = {"Kg": (0.0, 1e9, "counts/s per deg/s"), "Ka": (0.0, 1e9, "counts
 SIM_IMU_RANGES: dict[str, tuple[float | None, float, str]] = {
     "Kg": (0.0, 1e6, "counts/s per deg/s"), "Ka": (0.0, 1e6, "counts/s per g"), "D0": (None, 36000.0, "deg/h"),
     "K0": (None, 1.0, "g"), "Eg": (None, 1.0, ""), "Ea": (None, 1.0, "")}
+#: [sim.imu.higher_order] array key -> (meaning, largest |element|, unit, shape text); generous bounds that keep a
+#: typo (a value in the wrong unit by 1000) out, far beyond any real IMU
+SIM_HIGHER_ORDER_ARRAYS: dict[str, tuple[str, float, str, str]] = {
+    "gyro_g_sensitivity_dph_per_g": ("gyro g-sensitivity: rows gyros x y z, columns specific force along body X Y "
+                                     "Z", 3600.0, "deg/h per g", "3x3"),
+    "gyro_asymmetry_ppm": ("gyro scale-factor asymmetry (K+ - K-) / K per gyro", 1e5, "ppm", "3"),
+    "gyro_nonlinearity_ppm_per_dps": ("gyro scale-factor nonlinearity: the error N u^2 of input rate u", 1e3,
+                                      "ppm per deg/s", "3"),
+    "acc_asymmetry_ppm": ("accelerometer scale-factor asymmetry (K+ - K-) / K per accelerometer", 1e5, "ppm", "3"),
+    "acc_second_order_ug_per_g2": ("accelerometer second-order coefficient: the error Q a^2 of input a", 1e5,
+                                   "ug/g^2", "3"),
+    "acc_cross_ug_per_g2": ("accelerometer cross terms: row s, column j the error C a_s f_j; zero diagonal", 1e5,
+                            "ug/g^2", "3x3"),
+    "acc_lever_arm_mm": ("each accelerometer's place from the rotation centre: rows x y z, columns body X Y Z "
+                         "(size effect)", 1000.0, "mm", "3x3"),
+}
+#: [sim.imu.higher_order] time_offset_ms: the largest |offset|, ms
+MAX_TIME_OFFSET_MS = 100.0
 
 #: what a placeholder in a section or name stands for
 PLACEHOLDERS: dict[str, tuple[str, ...]] = {
@@ -344,6 +363,15 @@ KEYS: tuple[Key, ...] = (
         "cosine rows are renormalised)", NONE, range_text=_SIM_IMU_RANGE,
         default_text="the built-in simulated IMU's"),
     Key("sim.imu", "thermal", "table", "the simulated IMU's temperature dependence; absent: none, 25 degC"),
+    Key("sim.imu", "higher_order", "table", "the simulated IMU's errors beyond the 30 coefficients "
+        "(docs/explanation/model.md#higher-order-terms); absent: none"),
+    Key("sim.imu.higher_order", "grade", "string", "the preset the other keys start from: none (zero), a "
+        "navigation-grade FOG unit or a tactical MEMS unit", "none", choices=GRADE_NAMES),
+    *(Key("sim.imu.higher_order", name, "array", meaning, NONE, unit, default_text="the grade's",
+          range_text=f"{shape} numbers, each -{high:g}..{high:g}")
+      for name, (meaning, high, unit, shape) in SIM_HIGHER_ORDER_ARRAYS.items()),
+    Key("sim.imu.higher_order", "time_offset_ms", "number", "the accelerometers' delay behind the gyros", NONE,
+        "ms", ge=-MAX_TIME_OFFSET_MS, le=MAX_TIME_OFFSET_MS, default_text="the grade's"),
     Key("sim.imu.thermal", "reference_c", "number", "the [sim.imu] values hold at this case temperature", 25.0,
         "degC", ge=MIN_TEMPERATURE_C, le=MAX_TEMPERATURE_C),
     Key("sim.imu.thermal", "time_constant_s", "number", "the case temperature follows its ambient with this "

@@ -27,6 +27,7 @@ from bench.acceptance.limits import AcceptanceLimits
 from bench.config.acceptance import ACCEPTANCE_KEYS, acceptance_limits
 from bench.config.chamber import CHAMBER_KEYS, ChamberConfig, chamber_config
 from bench.config.device import SIM_URL, url_and_dialect
+from bench.config.higher_order import HIGHER_ORDER_KEYS, sim_higher_order
 from bench.config.keys import (
     MAX_ACC_STABILITY_UG,
     MAX_BLACK_BOX_ARCSEC,
@@ -45,6 +46,7 @@ from bench.config.thermal_plan import check_against_chamber, thermal_plan
 from bench.errors import InputError
 from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
 from bench.model.families import BODY_AXES, SENSOR_AXES, family_of
+from bench.model.higher_order import HigherOrderTerms
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu, default_sim_si_imu
 from bench.model.noise_result import NoiseResult
 from bench.model.table_prior import (
@@ -209,6 +211,8 @@ class SimConfig:
     imu_overrides: dict = field(default_factory=dict)  # canonical name -> display-unit value as written
     #: [sim.imu.thermal]: `imu` holds at its reference temperature; None: no temperature dependence
     thermal: ImuThermal | None = None
+    #: [sim.imu.higher_order]: the errors beyond the 30 coefficients; None: none (the table absent)
+    higher_order: HigherOrderTerms | None = None
 
 
 @dataclass(frozen=True)
@@ -510,15 +514,17 @@ def _noise(t: Table, si_outputs: bool = False) -> NoiseModel:
     return dataclasses.replace(base, **changes)
 
 
-def _sim_imu(t: Table, si_outputs: bool = False) -> tuple[ImuCoefficients, dict, ImuThermal | None]:
+def _sim_imu(t: Table, si_outputs: bool = False) -> tuple[ImuCoefficients, dict, ImuThermal | None,
+                                                          HigherOrderTerms | None]:
     s = t.table("imu", allowed("sim.imu"))
     thermal = None
     if s.has("thermal"):
         ranges = {family: (high, unit) for family, (_low, high, unit) in SIM_IMU_RANGES.items()}
         thermal = sim_thermal(s.table("thermal", THERMAL_KEYS), ranges)
+    higher_order = sim_higher_order(s.table("higher_order", HIGHER_ORDER_KEYS)) if s.has("higher_order") else None
     overrides = {}
     for name in s.data:
-        if name == "thermal":
+        if name in ("thermal", "higher_order"):
             continue
         low, high, unit = SIM_IMU_RANGES[family_of(name)]
         overrides[name] = s.number(name, gt=low, ge=None if low is not None else -high, le=high, unit=unit)
@@ -543,7 +549,7 @@ def _sim_imu(t: Table, si_outputs: bool = False) -> tuple[ImuCoefficients, dict,
                     raise s.error(next(name for name in row if name in overrides),
                                   f"the off-diagonal direction cosines of {prefix}_*{sensor} leave no unit row")
                 values[diag] = math.copysign(math.sqrt(rest), values[diag])
-    return ImuCoefficients.from_canonical(values), overrides, thermal
+    return ImuCoefficients.from_canonical(values), overrides, thermal, higher_order
 
 
 def _sim(t: Table, si_outputs: bool = False) -> SimConfig:
@@ -552,8 +558,8 @@ def _sim(t: Table, si_outputs: bool = False) -> SimConfig:
     seed = integer(t, "sim", "seed")
     assert seed is not None
     written, black_box_rad = _black_box(t, seed)
-    imu, overrides, thermal = _sim_imu(t, si_outputs)
-    return SimConfig(seed, written, black_box_rad, _noise(t, si_outputs), imu, overrides, thermal)
+    imu, overrides, thermal, higher_order = _sim_imu(t, si_outputs)
+    return SimConfig(seed, written, black_box_rad, _noise(t, si_outputs), imu, overrides, thermal, higher_order)
 
 
 # --- entry points -------------------------------------------------------------------

@@ -77,7 +77,8 @@ def open_simulator(config: BenchConfig, with_chamber: bool) -> Devices:
         world = stack.enter_context(SimWorld(
             config.site.site, config.sim.imu, config.sim.noise, black_box_rad=config.sim.black_box_rad,
             dialect=config.table.dialect, imu_rate_hz=config.imu.rate_hz, layout=config.imu.layout,
-            seed=config.sim.seed, register_map=config.table.register_map, imu_thermal=config.sim.thermal))
+            seed=config.sim.seed, register_map=config.table.register_map, imu_thermal=config.sim.thermal,
+            higher_order=config.sim.higher_order))
         clock, bus = world.clock, world.receiver_bus()
         table = _open_table(config, world.table_url, clock, stack)
         # the simulator's frames carry the run clock's time already; its IMU runs on that clock and always is there

@@ -10,6 +10,10 @@ Successive `generate` calls continue seamlessly and are bit-identical to one cal
 With an `ImuThermal` the coefficients follow the case temperature (`bench.sim.thermal`:
 first order behind an ambient), evaluated at every quadrature node, and the samples
 carry the case temperature the IMU reports; without one, nothing of this runs.
+
+With `HigherOrderTerms` (bench.model.higher_order) the outputs gain the higher-order errors, the accelerometers
+see the specific force at their own lever arms and late by the time offset; without them (or all zero), nothing
+of this runs and the outputs are bit for bit those of the 30-coefficient model.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
+from bench.model.higher_order import HigherOrderTerms
 from bench.model.imu import ImuCoefficients, NoiseModel
 from bench.model.thermal import ImuThermal
 from bench.model.units import DEG, DEG_PER_HOUR, MICRO_G
@@ -30,6 +35,9 @@ COUNTER_MODULUS = 2 ** 32
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(3)
 # Independent random streams, so that switching one noise term off leaves the others unchanged.
 _STREAMS = ("gyro_white", "acc_white", "gyro_gm", "acc_gm", "quantise", "gyro_rrw", "acc_rrw")
+#: half-step of the central difference that gives the body's angular acceleration (tangential lever-arm term), s:
+#: small against a sample (Gauss nodes stand >= 11 % of an interval from its ends), large against rounding
+_RATE_DERIVATIVE_STEP_S = 1e-6
 
 
 @dataclass
@@ -132,15 +140,17 @@ class SimImu:
 
     def __init__(self, coefficients: ImuCoefficients, noise: NoiseModel = _NO_NOISE,
                  rate_hz: float = 1000.0, seed: int = 0, start_time_s: float = 0.0,
-                 thermal: ImuThermal | None = None, ambient_c: Ambient | None = None):
+                 thermal: ImuThermal | None = None, ambient_c: Ambient | None = None,
+                 higher_order: HigherOrderTerms | None = None):
         """`coefficients` are the truth at `thermal.reference_c`; `ambient_c` (default
-        `thermal.ambient_c`) drives the case temperature."""
+        `thermal.ambient_c`) drives the case temperature; `higher_order`: the errors beyond the 30 coefficients."""
         if not (math.isfinite(rate_hz) and rate_hz > 0):
             raise ValueError(f"rate_hz must be positive, got {rate_hz}")
         self.coefficients, self.noise = coefficients, noise
         self.rate_hz, self.start_time_s = float(rate_hz), float(start_time_s)
         self._done = 0  # samples generated so far
         self.thermal = thermal
+        self.higher_order = higher_order if higher_order is not None and higher_order.enabled else None
         self.case: CaseTemperature | None = None
         if thermal is not None:
             self.case = CaseTemperature(thermal.time_constant_s, thermal.ambient_c if ambient_c is None else ambient_c,
@@ -180,7 +190,10 @@ class SimImu:
         nodes = (0.5 * (a + b))[:, None] + half[:, None] * _GL_X
         w = half[:, None] * _GL_W                                        # (n, 3 nodes)
         w_b, f_b = table.body_rate_and_specific_force(nodes.reshape(-1))
-        if self.thermal is None:
+        if self.higher_order is not None:
+            gyro, acc = self._higher_order_outputs(table, nodes.reshape(-1), w_b, f_b, self.higher_order)
+            gyro, acc = gyro.reshape(len(a), 3, 3), acc.reshape(len(a), 3, 3)
+        elif self.thermal is None:
             gyro = self.coefficients.gyro_output(w_b).reshape(len(a), 3, 3)
             acc = self.coefficients.acc_output(f_b).reshape(len(a), 3, 3)
         else:
@@ -196,6 +209,37 @@ class SimImu:
         kg, d0, eg, ka, k0, ea = self.thermal.arrays_at(self.coefficients, temps)
         gyro = np.einsum("mij,mj->mi", kg[:, :, None] * eg, w_b) + kg * d0
         acc = np.einsum("mij,mj->mi", ka[:, :, None] * ea, f_b) + ka * k0
+        return gyro, acc
+
+    def _coefficient_arrays(self, times: np.ndarray):
+        """(kg, d0, eg, ka, k0, ea) per time: (m, 3) and (m, 3, 3), at the case temperature if thermal."""
+        if self.thermal is not None:
+            assert self._grid is not None
+            return self.thermal.arrays_at(self.coefficients, np.interp(times, *self._grid))
+        c, m = self.coefficients, len(times)
+        return tuple(np.broadcast_to(x, (m,) + x.shape) for x in (c.gyro_scale, c.gyro_bias, c.gyro_axes,
+                                                                  c.acc_scale, c.acc_bias, c.acc_axes))
+
+    def _higher_order_outputs(self, table: SimTable, times: np.ndarray, w_b: np.ndarray, f_b: np.ndarray,
+                              terms: HigherOrderTerms):
+        """Gyro and accel outputs (counts/s) at times with the higher-order terms (bench.model.higher_order)."""
+        kg, d0, eg, ka, k0, ea = self._coefficient_arrays(times)
+        # The time offset delays the accelerometers (> 0) or the gyros (< 0): never a look ahead, as the table's
+        # motion after the time generated may not be commanded yet.
+        gyro_lag, acc_lag = max(-terms.time_offset_s, 0.0), max(terms.time_offset_s, 0.0)
+        w_gyro, f_gyro = (w_b, f_b) if gyro_lag == 0.0 else table.body_rate_and_specific_force(times - gyro_lag)
+        gyro_input = np.einsum("msj,mj->ms", eg, w_gyro)
+        gyro = kg * (gyro_input + terms.gyro_error(gyro_input, f_gyro) + d0)
+        # The accelerometers, each at its own place.
+        late = times - acc_lag
+        w_late, f_late = (w_b, f_b) if acc_lag == 0.0 else table.body_rate_and_specific_force(late)
+        force = np.broadcast_to(f_late[:, None, :], (len(times), 3, 3))
+        if terms.has_lever_arms:
+            h = _RATE_DERIVATIVE_STEP_S
+            rate_derivative = (table.body_rate(late + h) - table.body_rate(late - h)) / (2.0 * h)
+            force = force + terms.lever_arm_force(w_late, rate_derivative)
+        acc_input = np.einsum("msj,msj->ms", ea, force)
+        acc = ka * (acc_input + terms.acc_error(acc_input, force) + k0)
         return gyro, acc
 
     def _true_increments(self, table: SimTable, a: np.ndarray, b: np.ndarray):

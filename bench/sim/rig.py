@@ -140,7 +140,8 @@ class SimRig:
         self.controller = SimController(SimTable(config.site.site, black_box_rad=sim.black_box_rad,
                                                  limits=table_limits), limits=axes)
         _check_gyro_range(config)
-        self.imu = SimImu(sim.imu, sim.noise, rate_hz=config.imu.rate_hz, seed=sim.seed, thermal=sim.thermal)
+        self.imu = SimImu(sim.imu, sim.noise, rate_hz=config.imu.rate_hz, seed=sim.seed, thermal=sim.thermal,
+                           higher_order=sim.higher_order)
         self.bus = RigBus()
         self.can_imu = SimCanImu(self.controller, self.imu, self.bus, config.imu.layout)
         self.peers: list[RigPeer] = []

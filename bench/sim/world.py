@@ -23,6 +23,7 @@ import numpy as np
 from can.interfaces.virtual import VirtualBus, channels_lock
 
 from bench.model.earth import Site
+from bench.model.higher_order import HigherOrderTerms
 from bench.model.imu import ImuCoefficients, NoiseModel
 from bench.model.thermal import ImuThermal
 from bench.sim.acutrol_server import AcutrolSimHandler
@@ -239,7 +240,8 @@ class SimWorld(ClosedOnExit):
     def __init__(self, site: Site, coefficients: ImuCoefficients, noise: NoiseModel, *,
                  black_box_rad: np.ndarray | None = None, dialect: str = "scpi", imu_rate_hz: float = 200.0,
                  layout: ImuLayout | None = None, seed: int = 0, table_limits: TableLimits = _DEFAULT_TABLE_LIMITS,
-                 register_map=None, imu_thermal: ImuThermal | None = None):
+                 register_map=None, imu_thermal: ImuThermal | None = None,
+                 higher_order: HigherOrderTerms | None = None):
         self.clock = SimClock()
         self.dialect = dialect
         self.table = SimTable(site, black_box_rad=black_box_rad, limits=table_limits)
@@ -247,7 +249,8 @@ class SimWorld(ClosedOnExit):
         self._closers: list = []
         try:
             self.table_url = self._serve(dialect, register_map)
-            self.imu = SimImu(coefficients, noise, rate_hz=imu_rate_hz, seed=seed, thermal=imu_thermal)
+            self.imu = SimImu(coefficients, noise, rate_hz=imu_rate_hz, seed=seed, thermal=imu_thermal,
+                              higher_order=higher_order)
             self.can_channel = f"turntable-bench-sim-{uuid.uuid4().hex[:12]}"
             # Frames keep the simulated time they were sent at (the run clock's time base).
             self.sender_bus = SimVirtualBus(channel=self.can_channel, preserve_timestamps=True)

@@ -48,7 +48,8 @@ def timing_of(config: BenchConfig) -> AcquisitionTiming:
 def simulate_point(config: BenchConfig, thermal: ImuThermal, temperature_c: float, seed: int) -> ThermalPoint:
     """One calibration of the simulated IMU soaked at `temperature_c`, solved into a result."""
     soaked = dataclasses.replace(thermal, ambient_c=float(temperature_c), initial_c=float(temperature_c))
-    imu = SimImu(config.sim.imu, config.sim.noise, rate_hz=config.imu.rate_hz, seed=seed, thermal=soaked)
+    imu = SimImu(config.sim.imu, config.sim.noise, rate_hz=config.imu.rate_hz, seed=seed, thermal=soaked,
+                 higher_order=config.sim.higher_order)
     table = SimTable(config.site.site, black_box_rad=config.sim.black_box_rad)
     plan = config.plan
     positions, rotations = acquire(table, imu, [s.angles_deg for s in plan.positions.positions] if plan.positions

@@ -54,6 +54,8 @@ stable_min = 5.0
 enabled = true
 [sim.imu.thermal]
 reference_c = 25.0
+[sim.imu.higher_order]
+grade = "nav-fog"
 [acceptance.Kg]
 max_sigma = 1.0
 [acceptance.Kg_x]
