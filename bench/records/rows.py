@@ -49,6 +49,7 @@ class RunInfo:
     finished_utc: dt.datetime | None = None
     outcome: str = ""
     log_complete: bool | None = None      # False: the log had no MCAP footer (still recording, or cut off)
+    equipment: tuple[str, ...] = ()       # the tags of the registered equipment it used (its log's `lab` metadata)
 
 
 #: `results.origin`: the result `bench run` wrote; `bench solve` of the whole intact log; what-if solves of a
