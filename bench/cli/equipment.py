@@ -18,7 +18,6 @@ if TYPE_CHECKING:
     from bench.config.load import BenchConfig
 
 PROG = "bench db equipment"
-KINDS = ("turntable", "chamber", "gravity", "temperature", "other")    # bench.records.lab.EQUIPMENT_KINDS
 
 
 def register_equipment(sub: argparse._SubParsersAction, db_option: dict) -> None:
@@ -35,8 +34,9 @@ def register_equipment(sub: argparse._SubParsersAction, db_option: dict) -> None
     actions.required = True
     p = actions.add_parser("add", help="register equipment")
     p.add_argument("tag", metavar="TAG", help="the lab's name for it, as [lab] equipment names it (e.g. TT-01)")
-    p.add_argument("--kind", required=True, choices=KINDS,
-                   help="turntable, chamber, a reference instrument for gravity or temperature, or other")
+    # (the kinds are checked by bench.records.lab, EQUIPMENT_KINDS: SQLAlchemy is not imported for --help)
+    p.add_argument("--kind", required=True,
+                   help="turntable, chamber, gravity or temperature (a reference instrument for it), or other")
     p.add_argument("--make", required=True, help="manufacturer")
     p.add_argument("--model", required=True, help="model name")
     p.add_argument("--serial", required=True, help="serial number")

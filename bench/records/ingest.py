@@ -285,19 +285,20 @@ def log_run_info(path: Path) -> RunInfo:
                    plan=_plan(plan.get("positions"), plan.get("rotations")),
                    software_version=content.text(run.get("software_version"), "the log's run.software_version", 64),
                    started_utc=utc(run.get("started_utc")), log_complete=finished,
-                   equipment=equipment_tags(meta.get("lab") or {}))
+                   equipment=equipment_used(meta.get("lab") or {}))
 
 
-def equipment_tags(lab: dict[str, Any]) -> tuple[str, ...]:
-    """The tags of the equipment a log's `lab` metadata names (`equipment_json`: a list of {"tag": ...});
-    nothing when it names none or is not that shape."""
+def equipment_used(lab: dict[str, Any]) -> tuple[tuple[str, str], ...]:
+    """(tag, serial) of the equipment a log's `lab` metadata names (`equipment_json`: a list of {"tag", "serial",
+    ...}; the serial "" when not given); nothing when it names none or is not that shape."""
     try:
         listed = json.loads(lab.get("equipment_json") or "[]")
     except (TypeError, ValueError):
         return ()
     if not isinstance(listed, list):
         return ()
-    return tuple(content.text(item.get("tag"), "the log's lab equipment tag", 64)
+    return tuple((content.text(item.get("tag"), "the log's lab equipment tag", 64),
+                  content.text(item.get("serial"), "the log's lab equipment serial", 200))
                  for item in listed if isinstance(item, dict) and isinstance(item.get("tag"), str))
 
 
@@ -313,4 +314,4 @@ def table_check_as_result(data: dict[str, Any]) -> dict[str, Any]:
 
 
 __all__ = ["ImportReport", "IngestError", "NotRecorded", "PATTERNS", "find_files", "import_file", "import_paths",
-           "equipment_tags", "log_run_info", "derivation_of", "result_run_info", "sha256_of", "table_check_as_result"]
+           "equipment_used", "log_run_info", "derivation_of", "result_run_info", "sha256_of", "table_check_as_result"]

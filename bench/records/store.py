@@ -347,13 +347,17 @@ def _upsert_run(conn: sa.Connection, info: RunInfo) -> tuple[int, bool]:
     return int(found["id"]), bool(missing) or linked
 
 
-def link_equipment(conn: sa.Connection, run_pk: int, tags: tuple[str, ...]) -> bool:
-    """Record that the run used the registered equipment `tags` (its log's `lab` metadata); whether anything was
-    new. A tag the register does not hold is not linked: the log keeps what the run recorded of it."""
-    if not tags:
+def link_equipment(conn: sa.Connection, run_pk: int, used: tuple[tuple[str, str], ...]) -> bool:
+    """Record that the run used the registered equipment `used` ((tag, serial) from its log's `lab` metadata);
+    whether anything was new. An item is linked only when the register holds its tag with the serial the log
+    recorded (a tag registered later for another item is not what the run used); the log keeps what the run
+    recorded of the others."""
+    if not used:
         return False
     e, re_ = schema.equipment, schema.run_equipment
-    ids = {i for (i,) in conn.execute(sa.select(e.c.id).where(e.c.tag.in_(tags)))}
+    serials = dict(used)
+    ids = {i for (i, tag, serial) in conn.execute(sa.select(e.c.id, e.c.tag, e.c.serial).where(
+        e.c.tag.in_(list(serials)))) if serials[tag] in ("", serial)}
     known = {i for (i,) in conn.execute(sa.select(re_.c.equipment_id).where(re_.c.run_pk == run_pk))}
     new = sorted(ids - known)
     if new:

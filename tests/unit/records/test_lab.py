@@ -68,6 +68,8 @@ def test_equipment_register_add_list_retire(tmp_path):
     assert rc == 2 and err.count("\n") == 1 and "already registered" in err
     rc, _, err = _add(db, "X-1", "turntable", "next year")
     assert rc == 2 and "--due 'next year': not a date" in err
+    rc, _, err = _add(db, "X-1", "voltmeter", IN_DATE)
+    assert rc == 2 and err.count("\n") == 1 and "must be one of turntable, chamber, gravity" in err
     rc, out, _ = cli(["db", "--db", str(db), "equipment", "list"])
     assert rc == 0
     lines = {line.split()[0]: line for line in out.splitlines()[1:-1]}
@@ -176,3 +178,21 @@ def test_a_run_without_a_result_is_not_reviewed(cli_run_log, tmp_path):
     run_id = read_log(str(log), messages=False).metadata["run"]["run_id"]
     rc, _, err = cli(["cert", "--db", str(db), "review", run_id, "--reviewer", "bob"])
     assert rc == 2 and err.count("\n") == 1 and "has no result to review" in err
+
+
+def test_a_run_is_linked_only_to_the_registered_equipment_its_log_names(tmp_path):
+    from bench.records.ingest import equipment_used
+    from bench.records.store import RunInfo
+
+    lab = {"equipment_json": json.dumps([{"tag": "TT-01", "serial": "S-TT-01"}, {"tag": "CH-01", "serial": "old"},
+                                         {"tag": "REF-T"}, {"tag": "NOPE", "serial": "1"}, "junk", {"serial": "2"}])}
+    used = equipment_used(lab)
+    assert used == (("TT-01", "S-TT-01"), ("CH-01", "old"), ("REF-T", ""), ("NOPE", "1"))
+    assert equipment_used({"equipment_json": "{not json"}) == () == equipment_used({"equipment_json": '{"a": 1}'})
+    with open_records(str(tmp_path / "r.sqlite")) as records:
+        for tag, kind in (("TT-01", "turntable"), ("CH-01", "chamber"), ("REF-T", "temperature")):
+            add_equipment(records, Equipment(tag, kind, "Acme", "M", f"S-{tag}", "C", TODAY), "ann")
+        records.add_run(RunInfo("r1", "M", "S1", equipment=used))
+        # CH-01 is registered for another serial than the run's log recorded: not what the run used
+        assert [e.tag for e in run_equipment(records, "r1")] == ["REF-T", "TT-01"]
+        assert not records.add_run(RunInfo("r1", "M", "S1", equipment=used))      # nothing new the second time
