@@ -196,3 +196,12 @@ def test_a_run_is_linked_only_to_the_registered_equipment_its_log_names(tmp_path
         # CH-01 is registered for another serial than the run's log recorded: not what the run used
         assert [e.tag for e in run_equipment(records, "r1")] == ["REF-T", "TT-01"]
         assert not records.add_run(RunInfo("r1", "M", "S1", equipment=used))      # nothing new the second time
+
+
+def test_the_tui_refuses_overdue_equipment_as_bench_run_does(lab_run, tmp_path, monkeypatch):
+    monkeypatch.setenv("BENCH_DB", str(tmp_path / "records.sqlite"))     # the TUI checks the default database
+    shutil.copy(lab_run.db, tmp_path / "records.sqlite")
+    config = tmp_path / "bench.toml"
+    config.write_text(config_text(dwell_s=1.0) + _lab(["TT-01", "REF-T"], refuse=True), encoding="utf-8")
+    rc, _, stderr = cli(["tui", "--config", str(config), "--out", str(tmp_path / "out")])
+    assert rc == 2 and stderr.count("\n") == 1 and "REF-T (temperature" in stderr and "nothing moved" in stderr
