@@ -47,6 +47,7 @@ def register_equipment(sub: argparse._SubParsersAction, db_option: dict) -> None
     p.set_defaults(func=cmd_add)
     p = actions.add_parser("list", help="list the register, with what is past its due date")
     p.add_argument("--all", action="store_true", help="retired equipment too")
+    p.add_argument("--run", metavar="RUN_ID", help="only the equipment this run used (as recorded from its log)")
     p.add_argument("--db", metavar="URL", **db_option, default=argparse.SUPPRESS)
     p.set_defaults(func=cmd_list)
     p = actions.add_parser("retire", help="retire equipment (it stays in the register and in its runs)")
@@ -106,12 +107,17 @@ def cmd_add(args: argparse.Namespace) -> ExitCode:
 
 def cmd_list(args: argparse.Namespace) -> ExitCode:
     # heavy (SQLAlchemy): imported when the command runs, not for its --help
-    from bench.records.lab import list_equipment
+    from bench.records.lab import list_equipment, run_equipment
     from bench.records.store import RecordsError, open_records
 
     try:
         with open_records(getattr(args, "db", None), create=False) as records:
-            items = list_equipment(records, include_retired=args.all)
+            if args.run is not None:
+                if not records.run_known(args.run):
+                    return fail(PROG, f"no run {args.run!r} in the records", ExitCode.USAGE)
+                items = run_equipment(records, args.run)
+            else:
+                items = list_equipment(records, include_retired=args.all)
     except RecordsError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     today = _today()

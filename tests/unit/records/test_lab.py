@@ -130,6 +130,8 @@ def test_a_run_records_its_lab_customer_item_and_equipment(lab_run):
     run_id = read_log(str(lab_run.log), messages=False).metadata["run"]["run_id"]
     with open_records(str(lab_run.db)) as records:
         assert [e.tag for e in run_equipment(records, run_id)] == ["REF-T", "TT-01"]
+    rc, out, _ = cli(["db", "--db", str(lab_run.db), "equipment", "list", "--run", run_id])
+    assert rc == 0 and [line.split()[0] for line in out.splitlines()[1:-1]] == ["REF-T", "TT-01"]
 
 
 def test_overdue_or_unknown_equipment_refuses_the_run_when_configured(lab_run, tmp_path):
