@@ -69,6 +69,8 @@ COMMANDS: tuple[Command, ...] = (
             "bench.cli.thermal:register"),
     Command("db", "calibration records: import results and logs, list runs, a unit's history",
             "bench.cli.db:register"),
+    Command("cert", "review and sign-off of a recorded run; the audit trail",
+            "bench.cli.cert:register"),
 )
 
 class CommandChoice(argparse._SubParsersAction):

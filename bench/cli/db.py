@@ -3,7 +3,8 @@
 `bench db import PATH...` records result files and logs already on disk (idempotent),
 `bench db list` lists runs, `bench db results RUN_ID` a run's results (its record of truth
 and what was derived from it), `bench db promote RESULT` makes a result its run's record of
-truth, `bench db history SERIAL` shows a unit's coefficients over time. `add_db_options` and
+truth, `bench db history SERIAL` shows a unit's coefficients over time, `bench db equipment` keeps the lab's
+equipment register (`bench.cli.equipment`). `add_db_options` and
 `record_outputs` are the hooks `bench run`, `bench solve` and
 `bench check-table` use to record what they wrote: after the files are written, and a
 database that fails only warns (the files are the record; `bench db import` adds them later).
@@ -21,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from bench.cli.common import ExitCode, fail
+from bench.cli.equipment import register_equipment
 
 if TYPE_CHECKING:
     from bench.records.store import RunRow
@@ -85,6 +87,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", metavar="DIR", help="write <serial>.history.json, .csv and .png here")
     p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
     p.set_defaults(func=cmd_history)
+    register_equipment(sub, {"help": DB_HELP})
 
 
 def _open(args: argparse.Namespace, create: bool = True):

@@ -17,6 +17,7 @@ from pathlib import Path
 from bench.acceptance.verdict import Verdict
 from bench.cli.common import ExitCode, ended_early, fail, raise_interrupted, run_plan, stop_signals
 from bench.cli.db import add_db_options, not_recorded_exit, record_outputs
+from bench.cli.equipment import run_lab_record
 from bench.cli.verify import run_verification
 from bench.model.units import format_hms
 from bench.plan.compiler import PlanError
@@ -41,6 +42,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--resume", metavar="LOG", help="continue an interrupted run from its log (into a new log "
                                                         "beside it unless --out says otherwise: then a warning)")
     parser.add_argument("--operator", default="", help="who runs it (recorded in the log)")
+    parser.add_argument("--customer", metavar="NAME", help="the run's customer (recorded in the log's lab record; "
+                                                           "default: [lab] customer)")
+    parser.add_argument("--item", metavar="TEXT", help="the item calibrated, as the customer names it (recorded in "
+                                                       "the log's lab record; default: [lab] item)")
     parser.add_argument("--quiet", action="store_true",
                         help="no progress output (the summary, verdict, worst check, the result and report paths "
                              "and the records database, is always printed)")
@@ -119,11 +124,15 @@ def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
             print(f"resume: {len(completed)} units complete in earlier logs would be skipped: "
                   f"{', '.join(sorted(completed))}")
         return ExitCode.OK
+    # the configured equipment is checked against the register before anything moves (refused: exit 2)
+    lab = run_lab_record(args, config, PROG)
+    if isinstance(lab, ExitCode):
+        return lab
     # A stop signal (Ctrl-C, SIGTERM, SIGHUP) aborts the plan while it runs (run_plan); after it, it ends
     # the solve (an Interrupted): either way the devices and the log are closed.
     with stop_signals(raise_interrupted), BenchRun(config, plan, devices=device_opener(sim), out_dir=out_dir,
                                                    operator=args.operator, completed=completed,
-                                                   previous_logs=previous_logs) as run:
+                                                   previous_logs=previous_logs, lab=lab) as run:
         stage = "after the plan"
         started.append(True)
         try:

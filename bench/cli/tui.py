@@ -18,6 +18,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from bench.cli.common import ExitCode, fail, speed_factor
+from bench.cli.equipment import run_lab_record
 from bench.errors import BenchError
 from bench.tui import create_app
 
@@ -60,6 +61,14 @@ def cmd_tui(args: argparse.Namespace) -> ExitCode:
                     ExitCode.USAGE)
     try:
         config = load_config(args.config) if args.config else default_sim_config()
+    except (BenchError, OSError) as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
+    # the configured equipment is checked against the register as `bench run` checks it, once, before the app
+    # opens anything (refused: exit 2); the session's logs name the configured tags
+    checked = run_lab_record(args, config, PROG)
+    if isinstance(checked, ExitCode):
+        return checked
+    try:
         app = create_app(config=config, sim=args.sim, out_dir=args.out, operator=args.operator)
     except (BenchError, OSError) as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)

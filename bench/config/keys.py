@@ -187,6 +187,8 @@ KEYS: tuple[Key, ...] = (
     Key("", "sim", "table", "the simulated world of `bench run --sim` and of table url \"sim\""),
     Key("", "acceptance", "table", "limits of the result's verdict"),
     Key("", "chamber", "table", "the thermal chamber; without it the bench has no chamber"),
+    Key("", "lab", "table", "the calibration lab, the run's customer and item, the equipment used "
+        "(docs/how-to/certificates.md)"),
     # [site]
     Key("site", "latitude_deg", "number", "geodetic latitude, north positive", REQUIRED, "deg", ge=-90.0, le=90.0),
     Key("site", "height_m", "number", "ellipsoidal height", 0.0, "m", ge=-500.0, le=9000.0),
@@ -428,6 +430,20 @@ KEYS: tuple[Key, ...] = (
         _CHAMBER.max_setpoint_c, "degC", ge=ABSOLUTE_MIN_C, le=ABSOLUTE_MAX_C),
     Key("chamber.limits", "max_ramp_c_per_min", "number", "fastest ramp", _CHAMBER.max_ramp_c_per_min, "degC/min",
         gt=0.0, le=MAX_RAMP_C_PER_MIN),
+    # [lab]
+    Key("lab", "name", "string", "the calibration lab's name (recorded in the log)", ""),
+    Key("lab", "address", "string", "the lab's address", ""),
+    Key("lab", "accreditation_id", "string", "the lab's accreditation number; empty: not accredited", ""),
+    Key("lab", "certificate_number_pattern", "string", "a certificate's number, with the fields {year}, {run_id} "
+        "and {serial} (e.g. \"CAL-{year}-{run_id}\")", ""),
+    Key("lab", "equipment", "list of strings", "tags of the registered equipment the run uses (`bench db "
+        "equipment add`): checked before anything moves, recorded in the log and the records", NONE,
+        default_text="none"),
+    Key("lab", "refuse_overdue_equipment", "boolean", "a run with equipment past its calibration due date (or "
+        "retired) does not start (exit 2); false: a warning", False),
+    Key("lab", "customer", "string", "the run's customer (`bench run --customer` wins)", ""),
+    Key("lab", "item", "string", "the item calibrated, as the customer names it (`bench run --item` wins); the "
+        "IMU's model and serial are [imu.identity]'s", ""),
 )
 
 _BY_NAME: dict[tuple[str, str], Key] = {(key.section, key.name): key for key in KEYS}

@@ -39,6 +39,7 @@ from bench.config.keys import (
     number,
     optional_number,
 )
+from bench.config.lab import LAB_KEYS, LabConfig, lab_config
 from bench.config.reader import ConfigError, Located, Table, describe, parse_toml, read_text, show, suggest
 from bench.config.register_map import TABLE_MAP, load_register_map, register_map_value
 from bench.config.thermal import THERMAL_KEYS, sim_thermal
@@ -229,6 +230,7 @@ class BenchConfig:
     path: Path | None = None  # None when parsed from a string
     acceptance: AcceptanceLimits = field(default_factory=AcceptanceLimits)  # [acceptance]: limits of the verdict
     chamber: ChamberConfig | None = None  # [chamber]: the thermal chamber, None: none
+    lab: LabConfig = field(default_factory=LabConfig)  # [lab]: the lab, customer, item and equipment
 
 
 # --- sections -----------------------------------------------------------------------
@@ -598,7 +600,9 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
             raise plan_table.error("temperatures_c", "a calibration over temperature soaks on the IMU's temperature, "
                                                      "but the IMU signal mapping has no temperature "
                                                      "(imu.signals.temperature)")
-    return BenchConfig(site, table, imu, plan, output, sim, source_text=text, acceptance=acceptance, chamber=chamber)
+    lab = lab_config(root.table("lab", LAB_KEYS))
+    return BenchConfig(site, table, imu, plan, output, sim, source_text=text, acceptance=acceptance, chamber=chamber,
+                       lab=lab)
 
 
 def load_config(path: str | Path) -> BenchConfig:

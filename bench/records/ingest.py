@@ -14,6 +14,7 @@ such (`NotRecorded`), not failures.
 from __future__ import annotations
 
 import hashlib
+import json
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -249,7 +250,7 @@ def _plan(positions: Any, rotations: Any) -> str:
 
 def _merged(result: RunInfo, log: RunInfo) -> RunInfo:
     """The result's fields, with what only the log knows (start, table, the log file and its hash)."""
-    return RunInfo(**{**log.__dict__, **{k: v for k, v in result.__dict__.items() if v not in (None, "", {})}})
+    return RunInfo(**{**log.__dict__, **{k: v for k, v in result.__dict__.items() if v not in (None, "", {}, ())}})
 
 
 def log_run_info(path: Path) -> RunInfo:
@@ -283,7 +284,22 @@ def log_run_info(path: Path) -> RunInfo:
                    site=dict(site) if site else None, table_url=table_url,
                    plan=_plan(plan.get("positions"), plan.get("rotations")),
                    software_version=content.text(run.get("software_version"), "the log's run.software_version", 64),
-                   started_utc=utc(run.get("started_utc")), log_complete=finished)
+                   started_utc=utc(run.get("started_utc")), log_complete=finished,
+                   equipment=equipment_used(meta.get("lab") or {}))
+
+
+def equipment_used(lab: dict[str, Any]) -> tuple[tuple[str, str], ...]:
+    """(tag, serial) of the equipment a log's `lab` metadata names (`equipment_json`: a list of {"tag", "serial",
+    ...}; the serial "" when not given); nothing when it names none or is not that shape."""
+    try:
+        listed = json.loads(lab.get("equipment_json") or "[]")
+    except (TypeError, ValueError):
+        return ()
+    if not isinstance(listed, list):
+        return ()
+    return tuple((content.text(item.get("tag"), "the log's lab equipment tag", 64),
+                  content.text(item.get("serial"), "the log's lab equipment serial", 200))
+                 for item in listed if isinstance(item, dict) and isinstance(item.get("tag"), str))
 
 
 def table_check_as_result(data: dict[str, Any]) -> dict[str, Any]:
@@ -298,4 +314,4 @@ def table_check_as_result(data: dict[str, Any]) -> dict[str, Any]:
 
 
 __all__ = ["ImportReport", "IngestError", "NotRecorded", "PATTERNS", "find_files", "import_file", "import_paths",
-           "log_run_info", "derivation_of", "result_run_info", "sha256_of", "table_check_as_result"]
+           "equipment_used", "log_run_info", "derivation_of", "result_run_info", "sha256_of", "table_check_as_result"]

@@ -45,12 +45,19 @@ def _v3(conn: sa.Connection) -> None:
             add_column(conn, table, column)
 
 
+def _v4(conn: sa.Connection) -> None:
+    """The equipment register, each run's equipment and the append-only audit trail (`schema.lab_tables`)."""
+    metadata = sa.MetaData()
+    tables = schema.define(metadata, 4)
+    metadata.create_all(conn, tables=[tables[name] for name in schema.LAB_TABLES])
+
+
 #: PostgreSQL's advisory lock key migrations hold (SQLite's writers take turns: `BEGIN IMMEDIATE`)
 _MIGRATION_LOCK = 0x7462_7265_636F  # "tbreco"
 
 
 #: version -> the migration that brings the version before it to it
-MIGRATIONS: dict[int, Callable[[sa.Connection], None]] = {1: _v1, 2: _v2, 3: _v3}
+MIGRATIONS: dict[int, Callable[[sa.Connection], None]] = {1: _v1, 2: _v2, 3: _v3, 4: _v4}
 
 
 def add_column(conn: sa.Connection, table: str, column: sa.Column) -> None:

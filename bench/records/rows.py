@@ -49,6 +49,8 @@ class RunInfo:
     finished_utc: dt.datetime | None = None
     outcome: str = ""
     log_complete: bool | None = None      # False: the log had no MCAP footer (still recording, or cut off)
+    #: the equipment it used, as its log's `lab` metadata names it: (tag, serial; "" when the log has none)
+    equipment: tuple[tuple[str, str], ...] = ()
 
 
 #: `results.origin`: the result `bench run` wrote; `bench solve` of the whole intact log; what-if solves of a

@@ -24,6 +24,13 @@ Version 3 separates a run's record of truth from what was derived from it: `resu
 solved from), `results.promoted_utc` (a user made it the run's record of truth, `bench db
 promote`), and `runs.log_complete` (False: the log had no MCAP footer when recorded, a run
 still recording or cut off; its hash is replaced when the finished file is recorded).
+
+Version 4 adds the lab's side (issue 32): `equipment`, the register of the lab's equipment (turntable, thermal
+chamber, reference instruments: kind, make, model, serial, the reference of its own calibration certificate and
+its due date; retired, never deleted); `run_equipment`, which equipment a run used (from its log's `lab`
+metadata); `audit`, the append-only trail of who did what when (equipment added and retired, a run's result
+reviewed and signed): no row of it is ever updated or deleted, the code has no such statement and the
+database refuses one (a trigger on SQLite and PostgreSQL, `AUDIT_TRIGGERS`).
 """
 
 from __future__ import annotations
@@ -31,7 +38,7 @@ from __future__ import annotations
 import sqlalchemy as sa
 
 #: the schema version this software writes and reads
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 
 
 def define(metadata: sa.MetaData, version: int = SCHEMA_VERSION) -> dict[str, sa.Table]:
@@ -98,7 +105,63 @@ def define(metadata: sa.MetaData, version: int = SCHEMA_VERSION) -> dict[str, sa
         columns.append(sa.Column("budget", sa.JSON, nullable=True))
     tables["coefficients"] = sa.Table("coefficients", metadata, *columns,
                                       sa.Index("ix_coefficients_name", "name", "result_id"))
+    if version >= 4:
+        tables.update(lab_tables(metadata))
     return tables
+
+
+#: what version 4 adds (`lab_tables`)
+LAB_TABLES = ("equipment", "run_equipment", "audit")
+
+
+def lab_tables(metadata: sa.MetaData) -> dict[str, sa.Table]:
+    """The equipment register, the equipment of each run and the audit trail (version 4), added to `metadata`;
+    the audit table carries its append-only triggers (created with it)."""
+    tables = {}
+    tables["equipment"] = sa.Table(
+        "equipment", metadata,
+        sa.Column("id", sa.Integer, primary_key=True),
+        sa.Column("tag", sa.String(64), nullable=False, unique=True),       # the lab's name for it: "TT-01"
+        sa.Column("kind", sa.String(32), nullable=False),                   # turntable | chamber | gravity | ...
+        sa.Column("make", sa.String(200), nullable=False),
+        sa.Column("model", sa.String(200), nullable=False),
+        sa.Column("serial", sa.String(200), nullable=False),
+        sa.Column("certificate", sa.String(400), nullable=False),           # its own calibration certificate
+        sa.Column("due_date", sa.Date, nullable=False),                     # its next calibration is due
+        sa.Column("added_utc", sa.DateTime, nullable=False),
+        sa.Column("retired_utc", sa.DateTime, nullable=True))
+    tables["run_equipment"] = sa.Table(
+        "run_equipment", metadata,
+        sa.Column("run_pk", sa.Integer, sa.ForeignKey("runs.id"), primary_key=True),
+        sa.Column("equipment_id", sa.Integer, sa.ForeignKey("equipment.id"), primary_key=True))
+    audit = tables["audit"] = sa.Table(
+        "audit", metadata,
+        sa.Column("id", sa.Integer, primary_key=True),
+        sa.Column("at_utc", sa.DateTime, nullable=False),
+        sa.Column("action", sa.String(32), nullable=False),      # equipment-add | equipment-retire | review | sign
+        sa.Column("actor", sa.String(200), nullable=False),      # who
+        sa.Column("role", sa.String(200), nullable=True),        # a signer's role
+        sa.Column("run_pk", sa.Integer, sa.ForeignKey("runs.id"), nullable=True),
+        sa.Column("result_id", sa.Integer, sa.ForeignKey("results.id"), nullable=True),   # the result reviewed
+        sa.Column("equipment_id", sa.Integer, sa.ForeignKey("equipment.id"), nullable=True),
+        sa.Column("detail", sa.Text, nullable=True),
+        sa.Index("ix_audit_run", "run_pk", "id"))
+    for ddl in AUDIT_TRIGGERS:
+        sa.event.listen(audit, "after_create", ddl)
+    return tables
+
+
+_REFUSED = "the audit trail is append-only"
+#: the database refuses an UPDATE or DELETE of the audit trail (the only SQL not from Core: Core has no triggers)
+AUDIT_TRIGGERS = (
+    *(sa.DDL(f"CREATE TRIGGER audit_no_{what.lower()} BEFORE {what} ON audit "
+             f"BEGIN SELECT RAISE(ABORT, '{_REFUSED}'); END").execute_if(dialect="sqlite")
+      for what in ("UPDATE", "DELETE")),
+    sa.DDL("CREATE FUNCTION audit_append_only() RETURNS trigger LANGUAGE plpgsql AS "
+           f"$$ BEGIN RAISE EXCEPTION '{_REFUSED}'; END $$").execute_if(dialect="postgresql"),
+    sa.DDL("CREATE TRIGGER audit_append_only BEFORE UPDATE OR DELETE OR TRUNCATE ON audit "
+           "FOR EACH STATEMENT EXECUTE FUNCTION audit_append_only()").execute_if(dialect="postgresql"),
+)
 
 
 def version_columns(version: int, table: str, since: int = 3) -> list[sa.Column]:
@@ -118,6 +181,7 @@ METADATA = sa.MetaData()
 TABLES = define(METADATA)
 units, runs, results, coefficients = TABLES["units"], TABLES["runs"], TABLES["results"], TABLES["coefficients"]
 schema_version = TABLES["schema_version"]
+equipment, run_equipment, audit = TABLES["equipment"], TABLES["run_equipment"], TABLES["audit"]
 
-__all__ = ["METADATA", "SCHEMA_VERSION", "TABLES", "coefficients", "define", "results", "runs", "schema_version",
-           "units"]
+__all__ = ["AUDIT_TRIGGERS", "LAB_TABLES", "METADATA", "SCHEMA_VERSION", "TABLES", "audit", "coefficients", "define",
+           "equipment", "lab_tables", "results", "run_equipment", "runs", "schema_version", "units"]

@@ -252,6 +252,15 @@ class Records:
                     raise
         raise AssertionError("unreachable")
 
+    def transaction(self) -> contextlib.AbstractContextManager[sa.Connection]:
+        """A connection in a transaction (committed when the block ends well); database errors as RecordsError
+        (for the modules beside this one: `bench.records.lab`)."""
+        return self._begin()
+
+    def connection(self) -> contextlib.AbstractContextManager[sa.Connection]:
+        """A connection; database errors as RecordsError."""
+        return self._connect()
+
     @contextlib.contextmanager
     def _begin(self) -> Iterator[sa.Connection]:
         """A connection in a transaction (committed when the block ends well); database errors as RecordsError."""
@@ -324,7 +333,9 @@ def _upsert_run(conn: sa.Connection, info: RunInfo) -> tuple[int, bool]:
     if found is None:
         values.update({f: getattr(info, f) for f in _LOG_FIELDS})
         unit_id = _unit_id(conn, info.model, info.serial)
-        return _insert(conn, sa.insert(r).values(run_id=info.run_id, unit_id=unit_id, **values)), True
+        run_pk = _insert(conn, sa.insert(r).values(run_id=info.run_id, unit_id=unit_id, **values))
+        link_equipment(conn, run_pk, info.equipment)
+        return run_pk, True
     missing = {f: v for f, v in values.items() if v not in (None, "", {}) and found[f] in (None, "", {})}
     if info.kind == "noise" and found["kind"] != "noise":     # its noise result shows what the run was
         missing["kind"] = "noise"
@@ -332,7 +343,26 @@ def _upsert_run(conn: sa.Connection, info: RunInfo) -> tuple[int, bool]:
         missing.update({f: getattr(info, f) for f in _LOG_FIELDS})
     if missing:
         conn.execute(sa.update(r).where(r.c.id == found["id"]).values(**missing))
-    return int(found["id"]), bool(missing)
+    linked = link_equipment(conn, int(found["id"]), info.equipment)
+    return int(found["id"]), bool(missing) or linked
+
+
+def link_equipment(conn: sa.Connection, run_pk: int, used: tuple[tuple[str, str], ...]) -> bool:
+    """Record that the run used the registered equipment `used` ((tag, serial) from its log's `lab` metadata);
+    whether anything was new. An item is linked only when the register holds its tag with the serial the log
+    recorded (a tag registered later for another item is not what the run used); the log keeps what the run
+    recorded of the others."""
+    if not used:
+        return False
+    e, re_ = schema.equipment, schema.run_equipment
+    serials = dict(used)
+    ids = {i for (i, tag, serial) in conn.execute(sa.select(e.c.id, e.c.tag, e.c.serial).where(
+        e.c.tag.in_(list(serials)))) if serials[tag] in ("", serial)}
+    known = {i for (i,) in conn.execute(sa.select(re_.c.equipment_id).where(re_.c.run_pk == run_pk))}
+    new = sorted(ids - known)
+    if new:
+        conn.execute(sa.insert(re_), [{"run_pk": run_pk, "equipment_id": i} for i in new])
+    return bool(new)
 
 
 def _log_replaces(found: Any, info: RunInfo) -> bool:

@@ -16,7 +16,7 @@ import time
 from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Iterator, Sequence
+from typing import Iterable, Iterator, Mapping, Sequence
 
 from bench import __version__
 from bench.acceptance.verdict import Verdict
@@ -113,6 +113,22 @@ def _name(schedule) -> str:
     return schedule.name if schedule is not None else ""
 
 
+def lab_record(config: BenchConfig, equipment: Sequence[Mapping[str, str]] | None = None, customer: str = "",
+               item: str = "") -> dict[str, str]:
+    """The run log's `lab` metadata: the configuration's [lab], `customer` and `item` in place of its own when
+    given, and the equipment (as the register describes it; None: the configured tags alone). Empty when the
+    configuration has no [lab] and nothing is given."""
+    lab = config.lab
+    record = {k: v for k, v in lab.metadata().items() if v}
+    record.update({k: v for k, v in (("customer", customer), ("item", item)) if v})
+    listed = list(equipment) if equipment is not None else [{"tag": tag} for tag in lab.equipment]
+    if listed:
+        record["equipment_json"] = json.dumps([dict(e) for e in listed])
+    if record or lab.refuse_overdue_equipment:
+        record["refuse_overdue_equipment"] = str(lab.refuse_overdue_equipment).lower()
+    return record
+
+
 class OutputFolderError(BenchError):
     """The output folder cannot be made or written: the run does not start (no device is opened)."""
 
@@ -122,8 +138,12 @@ class BenchRun:
 
     def __init__(self, config: BenchConfig, plan: CompiledPlan, *, devices: DeviceOpener, out_dir: str | Path,
                  operator: str = "", completed: Iterable[str] = (), previous_logs: Iterable[str] = (),
-                 listeners: Iterable[RunListener] = (), run_id: str | None = None):
+                 listeners: Iterable[RunListener] = (), run_id: str | None = None,
+                 lab: Mapping[str, str] | None = None):
         self.config, self.plan, self.opener = config, plan, devices
+        # the log's `lab` record: the caller's (`bench run`: the equipment as the register has it, --customer,
+        # --item), else the configuration's [lab] with its equipment tags
+        self.lab = dict(lab) if lab is not None else lab_record(config)
         self.out_dir = Path(out_dir)
         self.operator = operator
         self.completed = set(completed)
@@ -291,6 +311,7 @@ class BenchRun:
             "plan": {"steps_json": json.dumps([step_to_dict(s) for s in self.plan.steps]),
                      "estimated_total_s": f"{self.plan.estimated_total_s:.1f}", "order": self.plan.order,
                      "positions": _name(config.plan.positions), "rotations": _name(config.plan.rotations)},
+            **({"lab": self.lab} if self.lab else {}),
         }
 
     def _time_base(self) -> dict[str, str]:
