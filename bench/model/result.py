@@ -6,7 +6,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 from bench.files import InputFileError, parse_json, read_input_text, write_output_text
 from bench.model.families import RESULT_UNITS, canonical_names, family_of
@@ -86,6 +86,16 @@ class CalibrationResult:
     #: the IMU's temperature over the run (`mean_c`, `min_c`, `max_c`, degC; `source`), when known:
     #: what a thermal model (`bench.thermal`) places the result at
     temperature: dict[str, Any] | None = None
+
+    def __post_init__(self) -> None:
+        # A section given as its entries (a script's `CalibrationResult(..., run={"run_id": ...})`) is read as
+        # a file's would be: typed, malformed entries refused by name.
+        if isinstance(self.run, Mapping):
+            self.run = RunInfo.from_dict(self.run, "run", complete=False)
+        if isinstance(self.quality, Mapping):
+            self.quality = QualitySection.from_dict(self.quality, "quality")
+        if isinstance(self.verdict, Mapping):
+            self.verdict = VerdictSection.from_dict(self.verdict, "verdict")
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {

@@ -231,3 +231,13 @@ def test_a_section_from_code_without_a_required_entry_is_refused_and_a_result_fi
     with pytest.raises(ResultFormatError, match="the run section lacks logs, quality_failures, imu_link, lost_samples"):
         RunInfo.from_dict(section)
     assert RunInfo.from_dict(section, complete=False).to_dict() == section
+
+
+def test_sections_given_as_their_entries_are_read_as_a_files_would_be():
+    """A script builds a result with plain dicts (as the kalibr export's test does): the sections are typed."""
+    result = CalibrationResult({}, run={"run_id": "r-1", "imu": {"model": "FOG-1", "serial": "S-1"}},
+                               quality={}, verdict=None)
+    assert isinstance(result.run, RunInfo) and result.run.imu is not None and result.run.imu.serial == "S-1"
+    assert isinstance(result.quality, QualitySection)
+    with pytest.raises(ResultFormatError, match=r"run\.imu"):
+        CalibrationResult({}, run={"imu": "not a table"})
