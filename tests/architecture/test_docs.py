@@ -141,6 +141,7 @@ def shell_pages(slow: bool) -> list[Path]:
     return [p for p in PAGES if any((b.marker == "slow") == slow and b.marker != "hardware" for b in blocks(p, "sh"))]
 
 
+@pytest.mark.slow        # each page's commands run bench on a recorded run: seconds a page (the quick loop parses them)
 @pytest.mark.parametrize("page", shell_pages(slow=False), ids=lambda p: str(p.relative_to(DOCS)))
 def test_shell_blocks_run_on_the_simulator(page, tmp_path, recorded_run):
     folder = page_folder(tmp_path, recorded_run)

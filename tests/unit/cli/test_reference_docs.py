@@ -29,6 +29,7 @@ def test_the_page_is_what_the_generator_writes_now(name):
         f"{name} is stale: run `{REGENERATE}`"
 
 
+@pytest.mark.slow        # regenerates every page twice (about 5 s)
 def test_the_check_names_the_stale_pages_and_the_command(tmp_path, capsys):
     assert set(stale(tmp_path)) == set(pages())          # nothing written there yet
     assert docs_gen_main(["--root", str(tmp_path)]) == 0 and stale(tmp_path) == []
@@ -105,6 +106,7 @@ def test_a_benchmark_result_is_written_and_rendered(tmp_path):
         results.record("../escape", medians_s={}, folder=tmp_path)
 
 
+@pytest.mark.slow        # runs a benchmark script in a subprocess (1-6 s each)
 @pytest.mark.parametrize("script, arguments, parameters, median", [
     ("noise_speed", ["--hours", "0.001", "--rate-hz", "100", "--repeats", "1", "--log-hours", "0"],
      {"hours": 0.001, "rate_hz": 100.0, "repeats": 1}, "bench allan_curves, 6 channels in memory"),
