@@ -273,6 +273,7 @@ def test_rtu_read_state_and_unit_from_the_url():
             table.set_rate(1, 0.1)
 
 
+@pytest.mark.slow        # waits out the timeouts it tests (about 2 s)
 def test_rtu_replies_owed_to_timed_out_attempts_are_dropped_not_read_as_the_next_answer():
     """A slow RTU controller answers the attempt that timed out after the retry went out: the first reply
     answers the read (the same request), the one still owed is dropped. Before, the next read took it as
@@ -288,6 +289,7 @@ def test_rtu_replies_owed_to_timed_out_attempts_are_dropped_not_read_as_the_next
     assert table.late_replies == 1
 
 
+@pytest.mark.slow        # waits out the timeouts it tests (about 2 s)
 def test_rtu_a_refusal_owed_to_a_timed_out_attempt_is_dropped_too():
     """The same slow controller refusing the request: its owed refusal must not answer the next read."""
     request = "01 03 0000 0014 45c5"

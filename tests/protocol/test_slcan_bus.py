@@ -162,6 +162,7 @@ def test_open_bus_reads_slcan_in_bulk_unless_told_otherwise():
             open_bus({**kwargs, "slcan_client": "fast"})
 
 
+@pytest.mark.slow        # two seconds of the rig's IMU at its rate, each
 @pytest.mark.parametrize("layout, rate_hz, client", [("packed", 2000.0, "bench"), ("classic", 400.0, "bench"),
                                                      ("packed", 400.0, "python-can")])
 def test_receives_the_rigs_imu_at_2_khz_without_loss_across_reconnects(layout, rate_hz, client):

@@ -30,6 +30,7 @@ from drivers.imu.receiver import ImuReceiver
 from tests.helpers.run import RATE_HZ, config_text
 
 
+@pytest.mark.slow        # about 2 s of a live IMU stream
 def test_frames_and_samples_are_re_stamped_on_the_run_clock():
     channel = f"turntable-bench-time-base-{uuid.uuid4().hex[:8]}"
     run_clock = ManualClock(1234.5)
