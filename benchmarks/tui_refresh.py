@@ -29,6 +29,8 @@ sys.path.insert(0, str(REPO))   # tests.helpers
 
 
 async def measure(app, seconds: float) -> dict:
+    from bench.tui.session import SessionError
+
     samples: list[tuple[float, float, int]] = []       # (wall, UI thread CPU, refreshes), in the UI thread
 
     def sample() -> None:
@@ -44,9 +46,13 @@ async def measure(app, seconds: float) -> dict:
         sample()
         while session.running and time.monotonic() - t0 < seconds:
             await pilot.pause(0.2)
-        aborted = session.running
-        if aborted:
-            session.abort("benchmark time is up")
+        aborted = False
+        if session.running:
+            try:
+                session.abort("benchmark time is up")
+                aborted = True
+            except SessionError:        # the plan ended meanwhile: the run is being solved, nothing to abort
+                pass
         deadline = time.monotonic() + 60.0
         while session.running and time.monotonic() < deadline:
             await pilot.pause(0.1)
