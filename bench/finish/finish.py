@@ -30,6 +30,7 @@ from bench.report.thermal import write_thermal_files
 from bench.thermal.from_log import ThermalSolution, solve_thermal
 from bench.thermal.model import ThermalModel
 from bench.thermal.verdict import judge_thermal_head
+from drivers.imu import ImuStats
 
 
 @dataclass
@@ -95,8 +96,13 @@ class Target(ABC):
         Returns (result, Markdown report, HTML report or None)."""
 
     @abstractmethod
+    def link_stats(self, recorded: Recorded) -> ImuStats:
+        """The IMU link statistics of the run (live: the receiver's; re-solved: decoded from the logs)."""
+
     def noise_failures(self, recorded: Recorded) -> list[str]:
         """The quality lines a noise analysis reports besides its own damage lines."""
+        stats = self.link_stats(recorded)
+        return [f"IMU link lost samples: {stats.summary()}"] if stats.lost_samples else []
 
     def keep(self, path: Path) -> None:  # noqa: B027 - a re-solve keeps nothing more; the live run attaches it
         """A file written for this target that is not a result (the live run attaches it to its log)."""

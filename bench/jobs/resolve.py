@@ -24,6 +24,7 @@ from bench.log.run_kind import RunKind
 from bench.model.result import CalibrationResult
 from bench.model.run_section import RunInfo
 from bench.report.markdown import markdown_report, md_text, write_reports
+from drivers.imu import ImuStats
 
 
 def output_stem(recorded: Recorded, positions=None, rotations=None) -> str:
@@ -77,9 +78,8 @@ class ResolveTarget(Target):
                 f.write("\n" + _provenance(recorded))
         return result_path, md_path, html_path
 
-    def noise_failures(self, recorded: Recorded) -> list[str]:
-        link = recorded.imu_link()
-        return [f"IMU link lost samples: {link.summary()}"] if link.lost_samples else []
+    def link_stats(self, recorded: Recorded) -> ImuStats:
+        return recorded.imu_link()
 
 
 def _provenance(recorded: Recorded) -> str:

@@ -46,6 +46,7 @@ from bench.thermal.model import ThermalModel
 from bench.verify.plan import sim_table_record
 from drivers.chamber import Chamber
 from drivers.clock import Clock
+from drivers.imu import ImuStats
 from drivers.imu.receiver import ImuReceiver
 from drivers.turntable import Turntable
 from schedules import builtin_path
@@ -470,9 +471,8 @@ class _LiveTarget(Target):
             self.recorder.close()
         return result_path, report_path, html_report_path
 
-    def noise_failures(self, recorded: Recorded) -> list[str]:
-        stats = self.receiver.stats
-        return [f"IMU link lost samples: {stats.summary()}"] if stats.lost_samples else []
+    def link_stats(self, recorded: Recorded) -> ImuStats:
+        return self.receiver.stats
 
     def keep(self, path: Path) -> None:
         self.recorder.add_attachment(path.name, "application/json", path.read_bytes(), self._now_s())
