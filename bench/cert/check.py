@@ -23,6 +23,8 @@ from bench.records.store import Records
 _SUBJECT = re.compile(rb"/Subject \(" + re.escape(SUBJECT_PREFIX.encode()) + rb" (.+?) run ([^()\s]+)\)")
 #: at most this many differences are listed
 MAX_LINES = 20
+#: a certificate file larger than this is not read (the bench's are tens of kB)
+MAX_CERTIFICATE_BYTES = 16 << 20
 
 
 @dataclass(frozen=True)
@@ -114,12 +116,15 @@ def check_file(records: Records, path: str | Path, log: str | Path | None = None
     """Check a certificate file (PDF or DCC XML, by its first bytes); CertError if it is neither or names a run
     the records cannot certify."""
     try:
-        data = Path(path).read_bytes()
+        with open(path, "rb") as file:
+            data = file.read(MAX_CERTIFICATE_BYTES + 1)
     except OSError as exc:
         raise CertError(str(exc.strerror or exc)) from exc
+    if len(data) > MAX_CERTIFICATE_BYTES:
+        raise CertError(f"larger than {MAX_CERTIFICATE_BYTES >> 20} MiB: not a certificate the bench issued")
     if data.startswith(b"%PDF-"):
         return check_pdf(records, data, log)
     return check_xml(records, data, log)
 
 
-__all__ = ["MAX_LINES", "CheckReport", "check_file", "check_pdf", "check_xml"]
+__all__ = ["MAX_CERTIFICATE_BYTES", "MAX_LINES", "CheckReport", "check_file", "check_pdf", "check_xml"]
