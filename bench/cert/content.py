@@ -19,7 +19,7 @@ from pathlib import Path
 from bench.cert.errors import CertError
 from bench.log.reader import LogError, read_log
 from bench.model.earth import Site
-from bench.model.families import RESULT_UNITS, TITLES, family_of
+from bench.model.families import RESULT_UNITS, TITLES, canonical_names, family_of
 from bench.records.ingest import sha256_of
 from bench.records.lab import AuditEntry, Equipment, RunRecord, run_record
 from bench.records.store import Records
@@ -110,12 +110,16 @@ def _number(pattern: str, run_id: str, serial: str, year: int) -> str:
 
 def _rows(record: RunRecord, k: float) -> tuple[Row, ...]:
     order = {family: i for i, family in enumerate(FAMILY_ORDER)}
+    canonical = set(canonical_names())
     rows = []
     for c in sorted(record.coefficients, key=lambda c: (order.get(family_of(c.name), 99), c.name)):
         family = family_of(c.name)
         expanded = k * c.sigma if c.sigma is not None and math.isfinite(c.sigma) else None
-        rows.append(Row(c.name, TITLES.get(family, family), c.value, expanded, k, c.unit,
-                        RESULT_UNITS[family][1], DSI_UNITS[family]))
+        if c.name in canonical:
+            rows.append(Row(c.name, TITLES[family], c.value, expanded, k, c.unit, RESULT_UNITS[family][1],
+                            DSI_UNITS[family]))
+        else:       # not one of the model's coefficients: as recorded, in its own unit (no SI form known)
+            rows.append(Row(c.name, "other", c.value, expanded, k, c.unit, 1.0, c.unit))
     return tuple(rows)
 
 
@@ -146,6 +150,8 @@ def gather(record: RunRecord, lab: dict[str, str], log_sha256: str, log_name: st
     if record.log_sha256 and record.log_sha256 != log_sha256:
         raise CertError(f"the log {log_name} (SHA-256 {log_sha256[:12]}...) is not the one the records hold for "
                         f"run {record.run_id} ({record.log_sha256[:12]}...)")
+    if record.kind != "calibration":
+        raise CertError(f"run {record.run_id} is a {record.kind} run: only a calibration gets a certificate")
     signatures, reviews = record.entries("sign"), record.entries("review")
     signature = signatures[-1] if signatures else None
     review = reviews[-1] if reviews else None

@@ -152,7 +152,8 @@ def to_pdf(c: Certificate) -> bytes:
     checks = c.checks()
     if checks:
         pdf.ln(1)
-        with pdf.table(col_widths=(60, 30, 40, 20, 16), line_height=4.5, first_row_as_headings=True) as table:
+        with pdf.table(col_widths=(46, 26, 30, 44, 16), text_align="LEFT", line_height=4.5,
+                       first_row_as_headings=True) as table:
             head = table.row()
             for name in ("Check", "Value", "Limit", "Unit", "Passed"):
                 head.cell(name)

@@ -226,6 +226,7 @@ class RunRecord:
     the registered equipment it used and the audit trail of that result (`run_record`)."""
 
     run_id: str
+    kind: str
     model: str
     serial: str
     mode: str
@@ -263,7 +264,7 @@ def run_record(records: Records, run_id: str) -> RunRecord:
         result = conn.execute(sa.select(s).where(s.c.id == result_id)).one()
         coefficients = tuple(CertifiedCoefficient(row.name, row.value, row.sigma, row.unit) for row in
                              conn.execute(sa.select(c).where(c.c.result_id == result_id).order_by(c.c.name)))
-    return RunRecord(run.run_id, run.model, run.serial, run.mode, run.operator, run.plan, run.table_url,
+    return RunRecord(run.run_id, run.kind, run.model, run.serial, run.mode, run.operator, run.plan, run.table_url,
                      run.software_version, run.started_utc, run.finished_utc, run.log_path, run.log_sha256,
                      dict(run.site or {}), result_id, result.software_version, result.verdict,
                      result.verdict_json, result.quality, result.temperature_c, coefficients,

@@ -14,7 +14,8 @@ from pathlib import Path
 import pytest
 
 from bench.cert import dcc
-from bench.cert.content import gather
+from bench.cert.content import chamber_conditions, gather
+from bench.cert.errors import CertError
 from bench.cert.pdf import value_and_uncertainty
 from bench.log.reader import read_log
 from bench.records.store import open_records
@@ -136,6 +137,14 @@ def test_an_unsigned_or_failed_run_is_not_a_statement_of_conformity(lab_run, tmp
     assert certificate.why_not == "verdict fail" and certificate.title.endswith("not a statement of conformity")
     passed = gather(dataclasses.replace(failed, verdict="pass"), {}, record.log_sha256 or "", "x.mcap")
     assert passed.statement_of_conformity and passed.title == "Calibration Certificate"
+    with pytest.raises(CertError, match="table-check run: only a calibration"):
+        gather(dataclasses.replace(record, kind="table-check"), {}, record.log_sha256 or "", "x.mcap")
+
+
+def test_the_chamber_is_stated_from_its_recorded_states():
+    assert chamber_conditions([]) == "no thermal chamber in this run (ambient)"
+    assert chamber_conditions([20.0, float("nan"), 40.0]) == (
+        "thermal chamber air 20.00 to 40.00 degC (mean 30.00 degC, 2 recorded states)")
 
 
 def test_check_finds_a_changed_number_hash_or_signature(signed, tmp_path):
