@@ -61,6 +61,8 @@ class Certificate:
     lab_name: str
     lab_address: str
     accreditation_id: str
+    country: str                      # ISO 3166-1 alpha-2, "" when not configured
+    lab_email: str
     customer: str
     item: str
     record: RunRecord
@@ -171,7 +173,8 @@ def gather(record: RunRecord, lab: dict[str, str], log_sha256: str, log_name: st
         number=_number(lab.get("certificate_number_pattern", ""), record.run_id, record.serial, issued.year),
         statement_of_conformity=not why_not, why_not=why_not,
         lab_name=lab.get("name") or "(laboratory not named: [lab] name)", lab_address=lab.get("address", ""),
-        accreditation_id=lab.get("accreditation_id", ""), customer=lab.get("customer") or "(not named)",
+        accreditation_id=lab.get("accreditation_id", ""), country=lab.get("country", ""),
+        lab_email=lab.get("email", ""), customer=lab.get("customer") or "(not named)",
         item=lab.get("item") or f"{record.model} s/n {record.serial}", record=record, rows=_rows(record, k), k=k,
         issued_utc=issued, site=site, gravity_source=gravity_source, imu_temperature_c=record.temperature_c,
         chamber=chamber,

@@ -25,7 +25,7 @@ DCC_XSD = SCHEMAS / "dcc-3.1.2.xsd"
 SI_XSD = SCHEMAS / "SI_Format-2.1.0.xsd"
 #: the identification names `bench cert check` reads back
 RUN_ID, RESULT_ID = "run id", "result id"
-#: no country in [lab]: ISO 3166-1's user-assigned code for "unknown"
+#: no `[lab] country`: ISO 3166-1's user-assigned code for "unknown"
 UNKNOWN_COUNTRY = "ZZ"
 
 ET.register_namespace("dcc", DCC)
@@ -71,10 +71,10 @@ def _identification(parent: ET.Element, issuer: str, value: str, name: str) -> N
     _text(ident, "name", name)
 
 
-def _contact(parent: ET.Element, tag: str, name: str, address: str) -> None:
+def _contact(parent: ET.Element, tag: str, name: str, address: str, email: str = "") -> None:
     contact = _d(parent, tag)
     _text(contact, "name", name)
-    _d(contact, "eMail", "")            # required by the schema; the bench does not record one
+    _d(contact, "eMail", email)         # required by the schema, even when not known (a customer's)
     location = _d(contact, "location")
     _text(location, "further", address or "(no address recorded)")
 
@@ -91,7 +91,7 @@ def _administrative(root: ET.Element, c: Certificate) -> None:
     _d(software, "type", "application")
 
     core = _d(admin, "coreData")
-    _d(core, "countryCodeISO3166_1", UNKNOWN_COUNTRY)
+    _d(core, "countryCodeISO3166_1", c.country or UNKNOWN_COUNTRY)
     _d(core, "usedLangCodeISO639_1", "en")
     _d(core, "mandatoryLangCodeISO639_1", "en")
     _d(core, "uniqueIdentifier", c.number)
@@ -114,7 +114,7 @@ def _administrative(root: ET.Element, c: Certificate) -> None:
     lab = _d(admin, "calibrationLaboratory")
     if c.accreditation_id:
         _d(lab, "calibrationLaboratoryCode", c.accreditation_id)
-    _contact(lab, "contact", c.lab_name, c.lab_address)
+    _contact(lab, "contact", c.lab_name, c.lab_address, c.lab_email)
 
     persons = _d(admin, "respPersons")
     for entry, main in ((c.signature, True), (c.review, False)):

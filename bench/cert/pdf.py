@@ -104,7 +104,9 @@ def to_pdf(c: Certificate) -> bytes:
     pdf.ln(1)
     field("Certificate number", c.number)
     field("Laboratory", c.lab_name)
-    field("Address", c.lab_address)
+    field("Address", c.lab_address + (f" ({c.country})" if c.country else ""))
+    if c.lab_email:
+        field("Contact", c.lab_email)
     field("Accreditation", c.accreditation_id or "not accredited")
     field("Location of calibration", "at the laboratory")
     field("Customer", c.customer)

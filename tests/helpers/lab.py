@@ -25,6 +25,7 @@ def add_equipment_cli(db: Path, tag: str, kind: str, due: str, *extra: str) -> t
 
 def lab_section(equipment: list[str], refuse: bool = False) -> str:
     """A `[lab]` section naming `equipment` (register tags)."""
-    return ("\n[lab]\nname = \"Example Calibration Lab\"\naddress = \"1 Bench Street\"\n"
+    return ("\n[lab]\nname = \"Example Calibration Lab\"\naddress = \"1 Bench Street\"\ncountry = \"CN\"\n"
+            "email = \"lab@example.com\"\n"
             "certificate_number_pattern = \"CAL-{year}-{run_id}\"\ncustomer = \"configured customer\"\n"
             f"equipment = {json.dumps(equipment)}\nrefuse_overdue_equipment = {str(refuse).lower()}\n")

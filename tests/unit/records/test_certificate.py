@@ -69,7 +69,8 @@ def test_a_signed_passing_run_gives_a_pdf_with_every_required_item_and_a_valid_d
     pages = text.count("\f") or 1
     required = {
         "title (7.8.2.1 a)": "Calibration Certificate\n",
-        "lab name (b)": "Example Calibration Lab", "lab address (b)": "1 Bench Street",
+        "lab name (b)": "Example Calibration Lab", "lab address (b)": "1 Bench Street (CN)",
+        "lab contact": "lab@example.com",
         "location of the calibration (c)": "at the laboratory",
         "unique identification (d)": number, "clear end (d)": "End of certificate",
         "customer (e)": "ACME Navigation", "method (f)": "optimal-24 + optimal-5s6r",
@@ -111,6 +112,7 @@ def test_a_signed_passing_run_gives_a_pdf_with_every_required_item_and_a_valid_d
     assert float(reals["Kg_x"].findtext(f"{{{dcc.SI}}}expandedUnc/{{{dcc.SI}}}coverageFactor")) == 2.0
     assert set(reals) >= {c.name for c in record.coefficients} | {"imu_temperature", "latitude", "gravity"}
     assert "pass" == root.findtext(f".//{{{dcc.DCC}}}conformity")
+    assert root.findtext(f".//{{{dcc.DCC}}}countryCodeISO3166_1") == "CN"
     assert sha in xml.decode()
 
 

@@ -79,6 +79,7 @@ def test_the_lab_section_is_checked_with_file_line_and_key():
     for bad, words in ((_lab(["TT-01", "TT-01"]), "listed twice"),
                        ("\n[lab]\ncertificate_number_pattern = \"CAL-{customer}\"\n", "unknown field '{customer}'"),
                        ("\n[lab]\nequipment = \"TT-01\"\n", "must be a list"),
+                       ("\n[lab]\ncountry = \"China\"\n", "ISO 3166-1 alpha-2"),
                        ("\n[lab]\nowner = 1\n", "unknown key")):
         with pytest.raises(ConfigError, match="lab") as caught:
             parse_config(base + bad, source="bench.toml")
