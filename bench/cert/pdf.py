@@ -207,7 +207,9 @@ def to_pdf(c: Certificate) -> bytes:
 
     heading("Authorisation")
     if c.review is not None:
-        field("Reviewed by", f"{c.review.actor}, {_when(c.review.at_utc)}")
+        same = c.signature is not None and c.signature.actor == c.review.actor
+        field("Reviewed by", f"{c.review.actor}, {_when(c.review.at_utc)}"
+              + (" (the same person as the signer)" if same else ""))
     if c.signature is not None:
         field("Authorised by", f"{c.signature.actor} ({c.signature.role}), {_when(c.signature.at_utc)}")
     else:

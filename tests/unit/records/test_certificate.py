@@ -16,7 +16,7 @@ import pytest
 from bench.cert import dcc
 from bench.cert.content import chamber_conditions, gather
 from bench.cert.errors import CertError
-from bench.cert.pdf import value_and_uncertainty
+from bench.cert.pdf import to_pdf, value_and_uncertainty
 from bench.log.reader import read_log
 from bench.records.store import open_records
 from tests.helpers.lab import OVERDUE
@@ -139,6 +139,13 @@ def test_an_unsigned_or_failed_run_is_not_a_statement_of_conformity(lab_run, tmp
     assert certificate.why_not == "verdict fail" and certificate.title.endswith("not a statement of conformity")
     passed = gather(dataclasses.replace(failed, verdict="pass"), {}, record.log_sha256 or "", "x.mcap")
     assert passed.statement_of_conformity and passed.title == "Calibration Certificate"
+    # reviewed and signed by the same person: allowed, and the certificate says so
+    review = next(e for e in record.trail if e.action == "review")
+    both = dataclasses.replace(record, verdict="pass", trail=(review, dataclasses.replace(
+        review, action="sign", role="technical manager")))
+    pdf = tmp_path / "same.pdf"
+    pdf.write_bytes(to_pdf(gather(both, {"name": "Lab"}, record.log_sha256 or "", "x.mcap")))
+    assert "Bea Reviewer, " in _pdf_text(pdf) and "(the same person as the signer)" in _pdf_text(pdf)
     with pytest.raises(CertError, match="table-check run: only a calibration"):
         gather(dataclasses.replace(record, kind="table-check"), {}, record.log_sha256 or "", "x.mcap")
 
@@ -185,6 +192,13 @@ def test_issue_refuses_a_log_that_is_not_the_runs(signed, cli_run_log, tmp_path)
                       "--log", str(cli_run_log)])
     assert rc == 2 and err.count("\n") == 1 and "is not the one the records hold" in err
     assert not (tmp_path / "c").exists()
+
+
+def test_a_certificate_number_never_names_a_path_outside_out():
+    from bench.cli.cert import _file_stem
+
+    assert _file_stem("../../etc/passwd") == "etc_passwd"
+    assert _file_stem("CAL 2026/07:x") == "CAL_2026_07_x" and _file_stem("..") == "certificate"
 
 
 def test_value_and_uncertainty_are_rounded_to_the_same_place():
