@@ -27,9 +27,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "cert",
         description="Review and sign-off of a recorded run, in the records database's append-only audit trail "
-                    "(who did what when). A run is reviewed on its record of truth (`bench db results RUN`) and "
-                    "signed only after that result was reviewed. Exit codes: 0 done, 2 usage error, a run not "
-                    "recorded or without a result, a signature before the review, or the database cannot be opened.")
+                    "(who did what when), and its certificate. A run is reviewed on its record of truth (`bench db "
+                    "results RUN`) and signed only after that result was reviewed; `issue` writes its certificate "
+                    "(PDF and DCC XML) from the records and the log, `check` compares a certificate file with them. "
+                    "Exit codes: 0 done, 2 usage error, a run not recorded or without a result, a signature before "
+                    "the review, a log that is not the run's, or the database cannot be opened; 4 a checked "
+                    "certificate disagrees with the records.")
     parser.add_argument("--db", metavar="URL", help=DB_HELP)
     sub = parser.add_subparsers(dest="cert_command", metavar="ACTION")
     sub.required = True
