@@ -434,6 +434,9 @@ KEYS: tuple[Key, ...] = (
     Key("lab", "name", "string", "the calibration lab's name (recorded in the log)", ""),
     Key("lab", "address", "string", "the lab's address", ""),
     Key("lab", "accreditation_id", "string", "the lab's accreditation number; empty: not accredited", ""),
+    Key("lab", "country", "string", "the lab's country, ISO 3166-1 alpha-2 (\"CN\", \"DE\"), for the DCC "
+        "certificate; empty: \"ZZ\" (unknown) there", ""),
+    Key("lab", "email", "string", "the lab's contact e-mail address, on its certificates", ""),
     Key("lab", "certificate_number_pattern", "string", "a certificate's number, with the fields {year}, {run_id} "
         "and {serial} (e.g. \"CAL-{year}-{run_id}\")", ""),
     Key("lab", "equipment", "list of strings", "tags of the registered equipment the run uses (`bench db "

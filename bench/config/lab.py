@@ -4,6 +4,8 @@
     name = "Example Calibration Lab"
     address = "1 Bench Street, Hangzhou"
     accreditation_id = "CNAS L0000"          # absent: not accredited
+    country = "CN"                           # ISO 3166-1 alpha-2, for the DCC certificate
+    email = "lab@example.com"
     certificate_number_pattern = "CAL-{year}-{run_id}"
     equipment = ["TT-01", "CH-01", "REF-T-01"]   # tags of `bench db equipment add`
     refuse_overdue_equipment = false         # true: a run with equipment past its due date does not start
@@ -16,6 +18,7 @@ metadata; the equipment is checked against the records database's register befor
 
 from __future__ import annotations
 
+import re
 import string
 from dataclasses import dataclass
 
@@ -38,6 +41,8 @@ class LabConfig:
     name: str = ""
     address: str = ""
     accreditation_id: str = ""
+    country: str = ""
+    email: str = ""
     certificate_number_pattern: str = ""
     equipment: tuple[str, ...] = ()
     refuse_overdue_equipment: bool = False
@@ -47,6 +52,7 @@ class LabConfig:
     def metadata(self) -> dict[str, str]:
         """The run log's `lab` record (without the equipment, which the run adds as the register has it)."""
         return {"name": self.name, "address": self.address, "accreditation_id": self.accreditation_id,
+                "country": self.country, "email": self.email,
                 "certificate_number_pattern": self.certificate_number_pattern, "customer": self.customer,
                 "item": self.item}
 
@@ -63,6 +69,14 @@ def _pattern(t: Table) -> str:
                           f"unknown field {show('{' + name + '}')}: the fields are "
                           + ", ".join("{" + f + "}" for f in NUMBER_FIELDS))
     return pattern
+
+
+def _country(t: Table) -> str:
+    country = t.string("country", "")
+    if country and not re.fullmatch(r"[A-Z]{2}", country):
+        raise t.error("country", f"must be an ISO 3166-1 alpha-2 code, two capital letters (\"CN\"), "
+                                 f"got {show(country)}")
+    return country
 
 
 def _equipment(t: Table) -> tuple[str, ...]:
@@ -83,7 +97,8 @@ def _equipment(t: Table) -> tuple[str, ...]:
 def lab_config(t: Table) -> LabConfig:
     """The checked [lab] section (every key optional)."""
     return LabConfig(name=t.string("name", ""), address=t.string("address", ""),
-                     accreditation_id=t.string("accreditation_id", ""),
+                     accreditation_id=t.string("accreditation_id", ""), country=_country(t),
+                     email=t.string("email", ""),
                      certificate_number_pattern=_pattern(t), equipment=_equipment(t),
                      refuse_overdue_equipment=t.boolean("refuse_overdue_equipment", False),
                      customer=t.string("customer", ""), item=t.string("item", ""))

@@ -208,5 +208,69 @@ def audit_trail(records: Records, run_id: str | None = None) -> list[AuditEntry]
         return [AuditEntry(*row) for row in conn.execute(query)]
 
 
-__all__ = ["EQUIPMENT_KINDS", "AuditEntry", "Equipment", "add_equipment", "audit_trail", "check_equipment",
-           "find_equipment", "list_equipment", "retire_equipment", "review", "run_equipment", "sign"]
+# -- what a certificate states -----------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class CertifiedCoefficient:
+    """One coefficient of a run's record of truth: the estimate and its 1-sigma standard uncertainty."""
+
+    name: str
+    value: float
+    sigma: float | None
+    unit: str
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """What the records hold of a run for its certificate: the run, its record of truth with its coefficients,
+    the registered equipment it used and the audit trail of that result (`run_record`)."""
+
+    run_id: str
+    kind: str
+    model: str
+    serial: str
+    mode: str
+    operator: str
+    plan: str
+    table_url: str
+    software_version: str
+    started_utc: dt.datetime | None
+    finished_utc: dt.datetime | None
+    log_path: str | None
+    log_sha256: str | None
+    site: dict
+    result_id: int
+    result_software_version: str
+    verdict: str | None
+    verdict_json: dict | None
+    quality: dict | None
+    temperature_c: float | None
+    coefficients: tuple[CertifiedCoefficient, ...]
+    equipment: tuple[Equipment, ...]
+    trail: tuple[AuditEntry, ...]
+
+    def entries(self, action: str) -> list[AuditEntry]:
+        """The trail's entries of `action` ("review", "sign") about this record of truth, oldest first."""
+        return [e for e in self.trail if e.action == action and e.result_id == self.result_id]
+
+
+def run_record(records: Records, run_id: str) -> RunRecord:
+    """The run's record for a certificate; RecordsError (one line) for a run not recorded or without a result."""
+    run_pk, result_id = _run_and_truth(records, run_id)
+    r, u, s, c = schema.runs, schema.units, schema.results, schema.coefficients
+    with records.connection() as conn:
+        run = conn.execute(sa.select(r, u.c.model, u.c.serial).join(u, u.c.id == r.c.unit_id)
+                           .where(r.c.id == run_pk)).one()
+        result = conn.execute(sa.select(s).where(s.c.id == result_id)).one()
+        coefficients = tuple(CertifiedCoefficient(row.name, row.value, row.sigma, row.unit) for row in
+                             conn.execute(sa.select(c).where(c.c.result_id == result_id).order_by(c.c.name)))
+    return RunRecord(run.run_id, run.kind, run.model, run.serial, run.mode, run.operator, run.plan, run.table_url,
+                     run.software_version, run.started_utc, run.finished_utc, run.log_path, run.log_sha256,
+                     dict(run.site or {}), result_id, result.software_version, result.verdict,
+                     result.verdict_json, result.quality, result.temperature_c, coefficients,
+                     tuple(run_equipment(records, run_id)), tuple(audit_trail(records, run_id)))
+
+
+__all__ = ["EQUIPMENT_KINDS", "AuditEntry", "CertifiedCoefficient", "Equipment", "RunRecord", "add_equipment",
+           "audit_trail", "check_equipment", "find_equipment", "list_equipment", "retire_equipment", "review",
+           "run_equipment", "run_record", "sign"]

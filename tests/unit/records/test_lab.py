@@ -4,11 +4,8 @@ configured), review and sign-off (`bench cert`) in an append-only audit trail th
 
 from __future__ import annotations
 
-import datetime as dt
 import json
 import shutil
-from pathlib import Path
-from types import SimpleNamespace
 
 import pytest
 import sqlalchemy as sa
@@ -18,24 +15,11 @@ from bench.log.reader import read_log
 from bench.records import schema
 from bench.records.lab import Equipment, add_equipment, audit_trail, run_equipment
 from bench.records.store import RecordsError, open_records
+from tests.helpers.lab import IN_DATE, OVERDUE, TODAY
+from tests.helpers.lab import add_equipment_cli as _add
+from tests.helpers.lab import lab_section as _lab
 from tests.helpers.postgres import create_database, postgres_server
-from tests.helpers.run import cli, config_text, only_file
-
-TODAY = dt.datetime.now(dt.UTC).date()
-IN_DATE = (TODAY + dt.timedelta(days=365)).isoformat()
-OVERDUE = (TODAY - dt.timedelta(days=1)).isoformat()
-
-
-def _add(db: Path, tag: str, kind: str, due: str, *extra: str) -> tuple[int, str, str]:
-    return cli(["db", "--db", str(db), "equipment", "add", tag, "--kind", kind, "--make", "Acme", "--model",
-                f"{kind}-9", "--serial", f"S-{tag}", "--certificate", f"NIM-{tag}", "--due", due, "--by", "ann",
-                *extra])
-
-
-def _lab(equipment: list[str], refuse: bool = False) -> str:
-    return ("\n[lab]\nname = \"Example Calibration Lab\"\naddress = \"1 Bench Street\"\n"
-            "certificate_number_pattern = \"CAL-{year}-{run_id}\"\ncustomer = \"configured customer\"\n"
-            f"equipment = {json.dumps(equipment)}\nrefuse_overdue_equipment = {str(refuse).lower()}\n")
+from tests.helpers.run import cli, config_text
 
 
 def _refuse_update_and_delete(url: str) -> None:
@@ -95,26 +79,11 @@ def test_the_lab_section_is_checked_with_file_line_and_key():
     for bad, words in ((_lab(["TT-01", "TT-01"]), "listed twice"),
                        ("\n[lab]\ncertificate_number_pattern = \"CAL-{customer}\"\n", "unknown field '{customer}'"),
                        ("\n[lab]\nequipment = \"TT-01\"\n", "must be a list"),
+                       ("\n[lab]\ncountry = \"China\"\n", "ISO 3166-1 alpha-2"),
                        ("\n[lab]\nowner = 1\n", "unknown key")):
         with pytest.raises(ConfigError, match="lab") as caught:
             parse_config(base + bad, source="bench.toml")
         assert words in str(caught.value) and str(caught.value).startswith("bench.toml:")
-
-
-@pytest.fixture(scope="module")
-def lab_run(tmp_path_factory) -> SimpleNamespace:
-    """One short simulated `bench run` with an in-date turntable and an overdue temperature reference, a customer
-    and an item on the command line, recorded into its own database."""
-    folder = tmp_path_factory.mktemp("lab-run")
-    db = folder / "records.sqlite"
-    assert _add(db, "TT-01", "turntable", IN_DATE)[0] == 0
-    assert _add(db, "REF-T", "temperature", OVERDUE)[0] == 0
-    config = folder / "bench.toml"
-    config.write_text(config_text(dwell_s=1.0) + _lab(["TT-01", "REF-T"]), encoding="utf-8")
-    rc, stdout, stderr = cli(["run", "--config", str(config), "--out", str(folder / "out"), "--quiet",
-                              "--db", str(db), "--customer", "ACME Navigation", "--item", "gyro pack 4711"])
-    assert rc == 0, stderr
-    return SimpleNamespace(folder=folder, db=db, config=config, stderr=stderr, log=only_file(folder / "out", "*.mcap"))
 
 
 def test_a_run_records_its_lab_customer_item_and_equipment(lab_run):
