@@ -11,14 +11,14 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-from typing import TYPE_CHECKING, Callable
+from typing import Any, Callable
 
 import numpy as np
 
 from bench.config.reader import Table, describe, show, suggest
 
-if TYPE_CHECKING:
-    from bench.config.load import ImuConfig
+#: a `bench.config.load.ImuConfig` (not imported: the loader imports this module)
+ImuConfig = Any
 
 #: the most `[[imu]]` entries of one configuration
 MAX_UNITS = 16
