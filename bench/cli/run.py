@@ -206,8 +206,8 @@ def _after_the_result(args: argparse.Namespace, config, outcome, run, sim: bool,
         print("thermal: " + ", ".join(str(p) for p in outcome.thermal_paths))
     others = {serial: one for serial, one in outcome.units.items() if one.result_path != outcome.result_path}
     for serial, one in others.items():       # a run of several IMUs: the summary above is its reference unit's
-        print(f"unit {serial}: verdict: {one.verdict.headline() if one.verdict else 'none'}; result: "
-              f"{one.result_path}  report: {one.report_path}")
+        print(f"unit {serial}: verdict: {one.verdict.headline()}; result: {one.result_path}  report: "
+              f"{one.report_path}" if one.verdict is not None else f"unit {serial}: {'; '.join(one.failures)}")
     interrupted, recorded = _record(args, [outcome.result_path, *(one.result_path for one in others.values()),
                                            outcome.log_path])   # after the files
     if interrupted:
@@ -217,6 +217,7 @@ def _after_the_result(args: argparse.Namespace, config, outcome, run, sim: bool,
     failed = [c.labelled() for c in (outcome.verdict.failed if outcome.verdict is not None else [])]
     failed += [f"unit {serial}: {c.labelled()}" for serial, one in others.items()
                for c in (one.verdict.failed if one.verdict is not None else [])]
+    failed += ["; ".join(one.failures) for one in others.values() if one.result is None]
     if failed:
         code = fail(PROG, "verdict FAIL: " + "; ".join(failed), ExitCode.QUALITY)
     return code if recorded else not_recorded_exit(PROG, code)

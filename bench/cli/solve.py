@@ -98,6 +98,7 @@ def _calibration_lines(recorded, finished) -> list[str]:
 
 def _solve_units(args: argparse.Namespace, recorded, subset: bool) -> ExitCode:
     """A log of several IMUs: every unit (or those of --unit) re-solved on its own, `<run-id>.<serial>.solved.*`."""
+    # heavy (scipy, python-can, mcap): imported when the command runs, not for its --help
     from bench.finish.recorded import SolveInputError
     from bench.finish.units import finish_units, is_several
 
@@ -115,6 +116,9 @@ def _solve_units(args: argparse.Namespace, recorded, subset: bool) -> ExitCode:
     finished = finish_units(recorded.logs, config, out_dir, recorded.run_id, recorded.sim, serials=args.unit)
     failures: list[str] = []
     for serial, one in finished.items():
+        if one.result is None:           # a unit that cannot be solved (silent): the others are still solved
+            failures += one.failures
+            continue
         if not args.quiet:
             print(f"unit {serial}: result: {one.result_path}\n        report: {one.report_path}")
             if one.verdict is not None:

@@ -27,12 +27,14 @@ from bench.finish.finish import Finished, Reports, Target, finish
 from bench.finish.recorded import Recorded, SolveInputError, recorded_run
 from bench.log.events import CounterWindow, Event, StepFinished
 from bench.log.names import output_path
-from bench.log.reader import RunLog, read_log
+from bench.log.reader import LogError, RunLog, read_log
 from bench.log.run_info import LogSetup
+from bench.log.run_kind import RunKind
 from bench.model.result import CalibrationResult
 from bench.model.run_section import ImuIdentity, RunInfo
 from bench.report.markdown import write_reports
 from bench.sim.units import unit_truth
+from bench.solve.methods import SolverError
 from drivers.imu import ImuSampleBlock, ImuStats
 
 
@@ -151,7 +153,8 @@ def finish_units(logs: list[RunLog], config: BenchConfig, out_dir: Path, run_id:
                  serials: Sequence[str] | None = None, solved: bool = True,
                  still_open: frozenset[str] = frozenset()) -> dict[str, Finished]:
     """Finish every unit (or those of `serials`) of a run of several IMUs recorded in `logs`: serial -> what was
-    written. `solved`: a re-solve's names (`<run-id>.<serial>.solved.*`), else the live run's."""
+    written. `solved`: a re-solve's names (`<run-id>.<serial>.solved.*`), else the live run's. A unit that cannot
+    be solved (no samples: a silent unit) gets no result, its `failures` saying why; the others are finished."""
     known = [unit.identity.serial for unit in config.units]
     for serial in serials or ():
         if serial not in known:
@@ -161,10 +164,13 @@ def finish_units(logs: list[RunLog], config: BenchConfig, out_dir: Path, run_id:
         serial = unit.identity.serial
         if serials and serial not in serials:
             continue
-        recorded = recorded_unit(logs, config, index, sim, still_open)
         target = UnitTarget(out_dir, f"{run_id}.{serial}" + (".solved" if solved else ""), unit.identity.model,
                             serial, "bench solve" if solved else "bench run")
-        out[serial] = finish(recorded, target)
+        try:
+            recorded = recorded_unit(logs, config, index, sim, still_open)
+            out[serial] = finish(recorded, target)
+        except (SolverError, SolveInputError, LogError) as exc:   # this unit only: the others are finished still
+            out[serial] = Finished(RunKind.CALIBRATION, failures=[f"unit {serial} has no result: {exc}"])
     return out
 
 

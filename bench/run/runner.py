@@ -44,6 +44,7 @@ from bench.run.units import UnitsSource, other_serials, units_metadata
 from bench.sim.world import SimWorld
 from bench.solve.extract import Extraction
 from bench.solve.from_logs import extract_from_logs
+from bench.solve.methods import SolverError
 from bench.thermal.model import ThermalModel
 from bench.verify.plan import sim_table_record
 from drivers.chamber import Chamber
@@ -410,7 +411,10 @@ class BenchRun:
         recorder.close()
         finished = finish_units([read_log(str(self.log_path))], self.config, self.out_dir, self.run_id, self.sim,
                                 solved=False)
-        outcome = RunOutcome.of(state, self.log_path, finished[self.config.imu.identity.serial])
+        reference = finished[self.config.imu.identity.serial]
+        if reference.result is None:    # the run is timed with it: without its result there is no run's result
+            raise SolverError("; ".join(reference.failures) + f" (the other units' files are in {self.out_dir})")
+        outcome = RunOutcome.of(state, self.log_path, reference)
         outcome.units = finished
         return outcome
 

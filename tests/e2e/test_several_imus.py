@@ -106,3 +106,22 @@ def test_bench_solve_reproduces_every_unit_bit_for_bit(several_run, tmp_path):
         f"{several_run.stem}.B1.solved.result.json"]
     rc, _, err = cli(["solve", str(several_run), "--no-db", "--unit", "C9"])
     assert rc == 2 and "no unit 'C9'" in err and "(its units: A1, A2, B1)" in err
+
+
+def test_a_silent_unit_gets_no_result_saying_why_and_the_others_are_finished(tmp_path):
+    from bench.config.load import parse_config
+    from bench.run.devices import SIMULATOR
+    from bench.run.runner import BenchRun, compile_from_config
+
+    config = parse_config(several_config(UNITS[:2], black_box_arcsec=0.0), source="two.toml")
+    with BenchRun(config, compile_from_config(config), devices=SIMULATOR, out_dir=tmp_path) as run:
+        run.open()
+        assert run.world is not None
+        run.world.units[0].drop_frames(10 ** 9)           # unit A2 sends nothing at all
+        run.run()
+        outcome = run.finish()
+    assert outcome.result is not None and outcome.result.run.imu.serial == "A1"
+    silent = outcome.units["A2"]
+    assert silent.result is None and silent.result_path is None
+    assert silent.failures and silent.failures[0].startswith("unit A2 has no result: ")
+    assert not (tmp_path / f"{run.run_id}.A2.result.json").exists()
