@@ -125,3 +125,16 @@ def test_a_silent_unit_gets_no_result_saying_why_and_the_others_are_finished(tmp
     assert silent.result is None and silent.result_path is None
     assert silent.failures and silent.failures[0].startswith("unit A2 has no result: ")
     assert not (tmp_path / f"{run.run_id}.A2.result.json").exists()
+
+
+def test_the_reference_unit_is_solved_bit_for_bit_as_a_single_imu_of_the_same_plan(several_run, tmp_path):
+    """The other units change nothing of the reference unit's run: a single [imu] with its bus, truth and seed
+    gives the very same coefficients and uncertainties."""
+    single = several_config(UNITS[:1]).replace("[[imu]]", "[imu]").replace("id_offset = 0\n", "").replace(
+        'mounting = "z-up"\n', "")
+    config = tmp_path / "single.toml"
+    config.write_text(single, encoding="utf-8")
+    rc, _, err = cli(["run", "--config", str(config), "--out", str(tmp_path / "run"), "--no-db", "--quiet"])
+    assert rc == 0, err
+    alone = json.loads(only_file(tmp_path / "run", "*.result.json").read_text(encoding="utf-8"))
+    assert alone["coefficients"] == unit_result(several_run, "A1")["coefficients"]
