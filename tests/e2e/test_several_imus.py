@@ -138,3 +138,8 @@ def test_the_reference_unit_is_solved_bit_for_bit_as_a_single_imu_of_the_same_pl
     assert rc == 0, err
     alone = json.loads(only_file(tmp_path / "run", "*.result.json").read_text(encoding="utf-8"))
     assert alone["coefficients"] == unit_result(several_run, "A1")["coefficients"]
+
+
+def test_unit_is_refused_for_a_log_of_one_imu(short_run, tmp_path):
+    rc, _, err = cli(["solve", str(short_run.log), "--out", str(tmp_path), "--no-db", "--unit", "A1"])
+    assert rc == 2 and "records one IMU, not several ([[imu]]): drop --unit" in err
