@@ -16,7 +16,7 @@ import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -121,6 +121,8 @@ class UnitTarget(Target):
     serial: str
     solved_by: str = "bench solve"
     html: bool = True
+    #: the live run's: attaches a file written to its log (still open); None: a re-solve attaches nothing
+    attach: Callable[[Path], None] | None = None
 
     def run_section(self, recorded: Recorded, solved: Solved) -> RunInfo:
         run_info = resolved_run_section(recorded, solved)
@@ -139,6 +141,8 @@ class UnitTarget(Target):
         self.out_dir.mkdir(parents=True, exist_ok=True)
         result_path = output_path(self.out_dir, f"{self.stem}.result.json")
         result.save(result_path)
+        if self.attach is not None:
+            self.attach(result_path)
         md_path, html_path = write_reports(result, self.out_dir, self.stem, log=recorded.logs[-1],
                                            layout=recorded.setup.layout, problems=reports.problems,
                                            failures=reports.failures, imu_link=recorded.imu_link().as_dict(),
@@ -151,10 +155,12 @@ class UnitTarget(Target):
 
 def finish_units(logs: list[RunLog], config: BenchConfig, out_dir: Path, run_id: str, sim: bool, *,
                  serials: Sequence[str] | None = None, solved: bool = True,
-                 still_open: frozenset[str] = frozenset()) -> dict[str, Finished]:
+                 still_open: frozenset[str] = frozenset(),
+                 attach: Callable[[Path], None] | None = None) -> dict[str, Finished]:
     """Finish every unit (or those of `serials`) of a run of several IMUs recorded in `logs`: serial -> what was
-    written. `solved`: a re-solve's names (`<run-id>.<serial>.solved.*`), else the live run's. A unit that cannot
-    be solved (no samples: a silent unit) gets no result, its `failures` saying why; the others are finished."""
+    written. `solved`: a re-solve's names (`<run-id>.<serial>.solved.*`), else the live run's (`attach`: each
+    result attached to the log, still open, as it is written). A unit that cannot be solved (no samples: a silent
+    unit) gets no result, its `failures` saying why; the others are finished."""
     known = [unit.identity.serial for unit in config.units]
     for serial in serials or ():
         if serial not in known:
@@ -165,7 +171,7 @@ def finish_units(logs: list[RunLog], config: BenchConfig, out_dir: Path, run_id:
         if serials and serial not in serials:
             continue
         target = UnitTarget(out_dir, f"{run_id}.{serial}" + (".solved" if solved else ""), unit.identity.model,
-                            serial, "bench solve" if solved else "bench run")
+                            serial, "bench solve" if solved else "bench run", attach=attach)
         try:
             recorded = recorded_unit(logs, config, index, sim, still_open)
             out[serial] = finish(recorded, target)

@@ -405,12 +405,19 @@ class BenchRun:
         return RunOutcome.of(seq.state, self.log_path, finished)
 
     def _finish_units(self, state: RunState, recorder: McapRecorder) -> RunOutcome:
-        """A run of several IMUs: the log closed, then every unit finished from it as `bench solve` finishes it
-        (`bench.finish.units`: `<run-id>.<serial>.*` beside the log); the outcome is the reference unit's, with
-        every unit's in `units`."""
-        recorder.close()
-        finished = finish_units([read_log(str(self.log_path))], self.config, self.out_dir, self.run_id, self.sim,
-                                solved=False)
+        """A run of several IMUs: every unit finished from the log as `bench solve` finishes it (`bench.finish.units`:
+        `<run-id>.<serial>.*` beside the log, each result attached to the log), then the log closed; the outcome
+        is the reference unit's, with every unit's in `units`."""
+        def attach(path: Path) -> None:
+            recorder.add_attachment(path.name, "application/json", path.read_bytes(),
+                                    self.clock.now() if self.clock is not None else 0.0)
+
+        try:
+            # the log is read still open (flushed): each unit's result is attached to it as it is written
+            finished = finish_units([read_log(str(self.log_path))], self.config, self.out_dir, self.run_id, self.sim,
+                                    solved=False, still_open=frozenset({str(self.log_path)}), attach=attach)
+        finally:
+            recorder.close()
         reference = finished[self.config.imu.identity.serial]
         if reference.result is None:    # the run is timed with it: without its result there is no run's result
             raise SolverError("; ".join(reference.failures) + f" (the other units' files are in {self.out_dir})")

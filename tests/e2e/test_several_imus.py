@@ -82,6 +82,10 @@ def test_each_unit_is_on_its_own_topics_with_its_identity_and_mounting(several_r
     assert [(u["serial"], u["bus"], u["id_offset"], u["mounting"]) for u in units] == [
         ("A1", "virtual:bus-a", 0, "z-up"), ("A2", "virtual:bus-a", 16, "x-up"), ("B1", "virtual:bus-b", 0, "y-down")]
     assert units[1]["frame_ids"][0] == "0x110" and units[1]["mounting_matrix"] == [[0, 0, 1], [1, 0, 0], [0, 1, 0]]
+    for serial, *_ in UNITS:               # each unit's result, attached to the log as it was written
+        name = f"{several_run.stem}.{serial}.result.json"
+        assert json.loads(log.attachments[name][1]) == unit_result(several_run, serial)
+    assert log.scan().complete
     a2 = read_log(several_run, unit="A2")
     frames = a2.read_can_frames()
     assert len(frames.ids) and set(frames.ids.tolist()) == {0x110 + k for k in range(7)}   # its own ids, offset
