@@ -93,6 +93,9 @@ def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
         return fail(PROG, "say --config FILE or --sim", ExitCode.USAGE)
     try:
         config = load_config(args.config) if args.config else default_sim_config()
+        if config.several and args.resume:
+            return fail(PROG, "--resume: resuming a run of several IMUs ([[imu]]) is not supported yet; run it "
+                              "again", ExitCode.USAGE)
         plan = compile_from_config(config)
         # a verification plan that does not fit the table is refused here, before the calibration moves anything
         verification = (verification_plan(verification_config(config)) if config.plan.verification is not None
@@ -201,14 +204,23 @@ def _after_the_result(args: argparse.Namespace, config, outcome, run, sim: bool,
     print(run_summary(outcome, verified))
     if outcome.thermal_paths:       # a calibration over temperature: each temperature's result and the model
         print("thermal: " + ", ".join(str(p) for p in outcome.thermal_paths))
+    others = {serial: one for serial, one in outcome.units.items() if one.result_path != outcome.result_path}
+    for serial, one in others.items():       # a run of several IMUs: the summary above is its reference unit's
+        print(f"unit {serial}: verdict: {one.verdict.headline()}; result: {one.result_path}  report: "
+              f"{one.report_path}" if one.verdict is not None else f"unit {serial}: {'; '.join(one.failures)}")
+    # (a run of several IMUs: the records database keeps runs by the log's one IMU, the reference unit; the other
+    # units' results are not recorded there yet)
     interrupted, recorded = _record(args, [outcome.result_path, outcome.log_path])   # after the files
     if interrupted:
         return fail(PROG, f"{interrupted}; result: {outcome.result_path}", ExitCode.FAULT)
     print(records_line(args, recorded))
     code = ExitCode.OK
-    if outcome.verdict is not None and outcome.verdict.failed:
-        code = fail(PROG, "verdict FAIL: " + "; ".join(c.labelled() for c in outcome.verdict.failed),
-                    ExitCode.QUALITY)
+    failed = [c.labelled() for c in (outcome.verdict.failed if outcome.verdict is not None else [])]
+    failed += [f"unit {serial}: {c.labelled()}" for serial, one in others.items()
+               for c in (one.verdict.failed if one.verdict is not None else [])]
+    failed += ["; ".join(one.failures) for one in others.values() if one.result is None]
+    if failed:
+        code = fail(PROG, "verdict FAIL: " + "; ".join(failed), ExitCode.QUALITY)
     return code if recorded else not_recorded_exit(PROG, code)
 
 

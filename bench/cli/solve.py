@@ -53,6 +53,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--no-earlier", action="store_true",
                         help="do not add the earlier logs a resumed log names")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    parser.add_argument("--unit", metavar="SERIAL", action="append",
+                        help="a log of several IMUs ([[imu]]): re-solve this unit only (repeatable; default: every "
+                             "unit)")
     add_db_options(parser)
     add_archive_options(parser)
     parser.set_defaults(func=cmd_solve)
@@ -93,11 +96,49 @@ def _calibration_lines(recorded, finished) -> list[str]:
                + (f"\n        {finished.html_report_path}" if finished.html_report_path else "")])
 
 
+def _solve_units(args: argparse.Namespace, recorded, subset: bool) -> ExitCode:
+    """A log of several IMUs: every unit (or those of --unit) re-solved on its own, `<run-id>.<serial>.solved.*`."""
+    # heavy (scipy, python-can, mcap): imported when the command runs, not for its --help
+    from bench.finish.recorded import SolveInputError
+    from bench.finish.units import finish_units, is_several
+
+    log = recorded.logs[-1]
+    if not is_several(log):
+        raise SolveInputError(f"{log.path} records one IMU, not several ([[imu]]): drop --unit")
+    if subset or len(recorded.logs) > 1:
+        raise SolveInputError(f"{log.path} records several IMUs: it is re-solved whole, from its one log (no "
+                              "--compare, --positions, --rotations or earlier logs yet)")
+    config = recorded.setup.config
+    if config is None:
+        raise SolveInputError(f"{log.path}: its configuration cannot be rebuilt ({'; '.join(recorded.setup.notes)}): "
+                              "a log of several IMUs is solved with it")
+    out_dir = Path(args.out) if args.out else Path(log.path).parent
+    finished = finish_units(recorded.logs, config, out_dir, recorded.run_id, recorded.sim, serials=args.unit)
+    failures: list[str] = []
+    for serial, one in finished.items():
+        if one.result is None:           # a unit that cannot be solved (silent): the others are still solved
+            failures += one.failures
+            continue
+        if not args.quiet:
+            print(f"unit {serial}: result: {one.result_path}\n        report: {one.report_path}")
+            if one.verdict is not None:
+                print(f"        verdict: {one.verdict.headline()}")
+        failures += [f"unit {serial}: {c.labelled()}" for c in (one.verdict.failed if one.verdict else [])]
+    del recorded
+    # the records database keeps runs by the log's one IMU (the reference unit): the other units' results are not
+    # recorded there yet
+    reference = finished.get(config.units[0].identity.serial)
+    recorded_ok = record_outputs(args, PROG, [reference.result_path if reference is not None else None, log.path])
+    code = fail(PROG, "verdict FAIL: " + "; ".join(failures), ExitCode.QUALITY) if failures else ExitCode.OK
+    return code if recorded_ok else not_recorded_exit(PROG, code)
+
+
 def cmd_solve(args: argparse.Namespace) -> ExitCode:
     # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
     from bench.finish.calibration import load_subset_schedule
     from bench.finish.finish import finish
     from bench.finish.recorded import SolveInputError, load_recorded
+    from bench.finish.units import is_several
     from bench.jobs.compare import compare, format_comparison, parse_methods
     from bench.jobs.resolve import ResolveTarget, output_stem
     from bench.log.reader import LogError
@@ -127,6 +168,8 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
         positions = load_subset_schedule(args.positions, "positions")
         rotations = load_subset_schedule(args.rotations, "rotations")
         recorded = load_recorded(args.logs, earlier=not args.no_earlier)
+        if is_several(recorded.logs[-1]) or args.unit:
+            return _solve_units(args, recorded, methods is not None or positions is not None or rotations is not None)
         if recorded.kind is RunKind.THERMAL and (methods is not None or positions is not None or rotations is not None):
             # its blocks are solved one temperature each, never together
             thermal_log = recorded.first_log_of_kind(RunKind.THERMAL) or recorded.logs[-1]

@@ -181,7 +181,8 @@ KEYS: tuple[Key, ...] = (
     Key("", "version", "integer", "configuration format version: 1", REQUIRED),
     Key("", "site", "table", "where the turntable stands", REQUIRED),
     Key("", "table", "table", "the turntable controller", REQUIRED),
-    Key("", "imu", "table", "the IMU under test, read over CAN", REQUIRED),
+    Key("", "imu", "table or array of tables", "the IMU under test, read over CAN; or one [[imu]] entry per unit "
+        "of several calibrated in one run (docs/how-to/several-imus.md)", REQUIRED),
     Key("", "plan", "table", "what to run", REQUIRED),
     Key("", "output", "table", "where runs are written"),
     Key("", "sim", "table", "the simulated world of `bench run --sim` and of table url \"sim\""),
@@ -256,6 +257,13 @@ KEYS: tuple[Key, ...] = (
     Key("imu", "identity", "table", "what is being calibrated (recorded in the log and the result)"),
     Key("imu", "noise", "path", "a `bench noise` result of this IMU: its largest bias instabilities replace "
         "the identity's data-sheet values in the solve", NONE),
+    Key("imu", "mounting", "string or array", "[[imu]] entries only: the unit's mounting on the fixture, a face "
+        "(\"z-up\", \"z-down\", \"x-up\", \"x-down\", \"y-up\", \"y-down\": the unit's axis along the fixture's "
+        "z) or 3 rows of 3 numbers (the unit's x, y, z axes in fixture coordinates; checked orthonormal, "
+        "right-handed)", "z-up"),
+    Key("imu", "id_offset", "integer", "[[imu]] entries only: added to every frame id of the unit's layout (units "
+        "sharing a bus send at distinct ids)", 0, ge=-0x1FFFFFFF, le=0x1FFFFFFF,
+        range_text="the layout's ids stay 11-bit (29-bit for extended ids)"),
     Key("imu.signals", "gyro_x", "string", "x gyro increment, counts per sample (gyro_x..acc_z are required "
         "when the table is given)", NONE),
     Key("imu.signals", "gyro_y", "string", "y gyro increment", NONE),
@@ -474,6 +482,7 @@ def allowed(section: str) -> tuple[str, ...]:
 
 def match(path: tuple[str, ...]) -> Key | None:
     """The declared key of a concrete dotted path (("table", "limits", "outer", "max_rate_dps")), or None."""
+    path = tuple(part for part in path if not isinstance(part, int))    # an [[imu]] entry's index
     for entry in KEYS:
         pattern = tuple(entry.section.split(".")) + (entry.name,) if entry.section else (entry.name,)
         if len(pattern) == len(path) and all(

@@ -44,6 +44,7 @@ from bench.config.reader import ConfigError, Located, Table, describe, parse_tom
 from bench.config.register_map import TABLE_MAP, load_register_map, register_map_value
 from bench.config.thermal import THERMAL_KEYS, sim_thermal
 from bench.config.thermal_plan import check_against_chamber, thermal_plan
+from bench.config.units import imu_units
 from bench.errors import InputError
 from bench.model.earth import HANGZHOU_LATITUDE_DEG, Site
 from bench.model.families import BODY_AXES, SENSOR_AXES, family_of
@@ -165,6 +166,12 @@ class ImuConfig:
     layout_name: str | None = "classic"
     #: [imu] slcan_client: who reads an SLCAN adapter: "bench" (the bulk reader) or "python-can"
     slcan_client: str = "bench"
+    #: an [[imu]] entry's mounting on the fixture: the rotation `C_i^b` from the fixture (inner frame) to the unit's
+    #: body axes, as rows; None: a single [imu], whose body axes are the fixture's
+    mounting: tuple[tuple[float, ...], ...] | None = None
+    mounting_name: str = ""           # the face it names ("x-up"), or "matrix"; "" for a single [imu]
+    #: an [[imu]] entry's id_offset: added to every frame id of its layout (`layout` has it added already)
+    id_offset: int = 0
 
     def bus_kwargs(self) -> dict:
         """Keyword arguments for `drivers.imu.receiver.open_bus` (python-can's `can.Bus(**kwargs)`, with
@@ -231,6 +238,13 @@ class BenchConfig:
     acceptance: AcceptanceLimits = field(default_factory=AcceptanceLimits)  # [acceptance]: limits of the verdict
     chamber: ChamberConfig | None = None  # [chamber]: the thermal chamber, None: none
     lab: LabConfig = field(default_factory=LabConfig)  # [lab]: the lab, customer, item and equipment
+    #: the [[imu]] entries of a run of several units (`imu` is the first: the run's reference unit); () for [imu]
+    units: tuple[ImuConfig, ...] = ()
+
+    @property
+    def several(self) -> bool:
+        """The configuration has [[imu]] entries (each unit its own topics, solve and outputs)."""
+        return bool(self.units)
 
 
 # --- sections -----------------------------------------------------------------------
@@ -580,13 +594,24 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
         raise root.error("version", f"unsupported version: must be {VERSION}, got {describe(version)}")
     site = _site(root.table("site", allowed("site"), required=True))
     table = _table(root.table("table", allowed("table"), required=True))
-    imu = _imu(root.table("imu", allowed("imu"), required=True))
+    units: tuple[ImuConfig, ...] = ()
+    if isinstance(root.data.get("imu"), list):          # [[imu]]: several units
+        units = imu_units(root, allowed("imu"), _imu)
+        imu = units[0]
+    else:
+        imu_table = root.table("imu", allowed("imu"), required=True)
+        for key in ("mounting", "id_offset"):
+            if imu_table.has(key):
+                raise imu_table.error(key, "belongs to an [[imu]] entry (a run of several units, even of one): a "
+                                           "single [imu] is the fixture's own axes")
+        imu = _imu(imu_table)
     plan_table = root.table("plan", allowed("plan"), required=True)
     plan = _plan(plan_table, table.limits)
-    if plan.dwell_s * imu.rate_hz < MIN_SAMPLES_PER_DWELL:      # a dwell the solve could not average
+    slowest = min(unit.rate_hz for unit in (imu, *units))
+    if plan.dwell_s * slowest < MIN_SAMPLES_PER_DWELL:      # a dwell the solve could not average
         raise plan_table.error("dwell_s", f"{plan.dwell_s:g} s holds fewer than {MIN_SAMPLES_PER_DWELL} IMU samples "
-                                          f"at imu.rate_hz = {imu.rate_hz:g} Hz: must be >= "
-                                          f"{MIN_SAMPLES_PER_DWELL / imu.rate_hz:g} s")
+                                          f"at imu.rate_hz = {slowest:g} Hz: must be >= "
+                                          f"{MIN_SAMPLES_PER_DWELL / slowest:g} s")
     out = root.table("output", allowed("output"))
     output = OutputConfig(out.path_value("folder", out.string("folder", declared("output", "folder").default,
                                                               nonempty=True)),
@@ -601,8 +626,11 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
                                                      "but the IMU signal mapping has no temperature "
                                                      "(imu.signals.temperature)")
     lab = lab_config(root.table("lab", LAB_KEYS))
+    if units and (plan.thermal is not None or chamber is not None or plan.verification is not None):
+        raise root.doc.error(("imu",), "several units ([[imu]]) with a calibration over temperature, a [chamber] or "
+                                       "a verification plan are not supported yet")
     return BenchConfig(site, table, imu, plan, output, sim, source_text=text, acceptance=acceptance, chamber=chamber,
-                       lab=lab)
+                       lab=lab, units=units)
 
 
 def load_config(path: str | Path) -> BenchConfig:

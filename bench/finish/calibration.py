@@ -134,7 +134,7 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None, *,
     # a subset does not use the windows it leaves out: their lost samples are outside the windows it uses
     unused = _unused_windows(recorded, chosen, positions, rotations)
     chosen.problems = [p for p in recorded.problems() if not (p.window_loss and p.unit in unused)]
-    calibration, chosen, dropped = _solve_what_can_be(chosen, setup.site, inputs)
+    calibration, chosen, dropped = _solve_what_can_be(chosen, setup.site, inputs, setup.mounting)
     solution = LogSolution(calibration, chosen, list(recorded.imu_stats), list(recorded.damage))
     failures = quality_failures(solution)
     lost = without_windows(recorded.extraction.lost_samples(), unused)
@@ -204,13 +204,13 @@ def _unused_windows(recorded: Recorded, chosen: Extraction, positions, rotations
             and ((kind == "dwell" and positions is not None) or (kind == "turn" and rotations is not None))}
 
 
-def _solve_what_can_be(chosen: Extraction, site, inputs):
+def _solve_what_can_be(chosen: Extraction, site, inputs, mounting=None):
     """Solve all of `chosen`; when that fails (too few turns or positions left by damage),
     the positions or the rotations alone, the others left out with the reason.
     Returns (calibration, the extraction solved, units left out); SolverError if neither solves."""
 
     def attempt(extraction):
-        return solve_extraction(extraction, site, budget=inputs)
+        return solve_extraction(extraction, site, budget=inputs, mounting=mounting)
 
     try:
         return attempt(chosen), chosen, []

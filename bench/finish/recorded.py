@@ -314,7 +314,8 @@ def recorded_run(logs: list[RunLog], setup: LogSetup, sim: bool, still_open: fro
     if setup.site is None:
         raise SolveInputError(f"{logs[0].path}: no usable site: cannot solve")
     notes = list(notes or [])
-    extraction, stats, damage = extract_from_logs(logs, setup.site, setup.layout, setup.rate_hz, None, still_open)
+    extraction, stats, damage = extract_from_logs(logs, setup.site, setup.layout, setup.rate_hz, setup.mounting,
+                                                  still_open)
     planned = _planned_units(logs, notes)
     return Recorded(logs, setup, sim, extraction, stats, damage, planned, _left_out(logs, planned, extraction), notes)
 

@@ -161,6 +161,22 @@ CHANNELS: dict[str, tuple[str, str, str]] = {
 }
 
 
+def unit_topics(serial: str) -> tuple[str, str]:
+    """The raw CAN frames' and the decoded samples' topics of a unit of a run of several IMUs, other than the
+    reference unit (whose are `/can/raw` and `/imu/samples`, as a single IMU's): `/imu/<serial>/can/raw`,
+    `/imu/<serial>/samples`."""
+    return f"/imu/{serial}/can/raw", f"/imu/{serial}/samples"
+
+
+def unit_channels(serials: Sequence[str]) -> dict[str, tuple[str, str, str]]:
+    """The channels of the units `serials` (`unit_topics`), in the encodings of `/can/raw` and `/imu/samples`."""
+    out: dict[str, tuple[str, str, str]] = {}
+    for serial in serials:
+        can_topic, samples_topic = unit_topics(serial)
+        out[can_topic], out[samples_topic] = CHANNELS[TOPIC_CAN], CHANNELS[TOPIC_SAMPLES]
+    return out
+
+
 def encode_can_frames(frames: Sequence) -> tuple[bytes, float]:
     """python-can `Message`s -> (`can-frames-v1` bytes, newest timestamp)."""
     pack = CAN_RECORD.pack
@@ -429,7 +445,8 @@ def decode_can_frames(d: ChannelData | None, *, release: bool = False) -> tuple[
     return done if done is not None else _general_can(d.payloads())
 
 
-__all__ = ["CAN_ENCODING", "CAN_RECORD", "CAN_SCHEMA_NAME", "CAN_SCHEMA_TEXT", "CHAMBER_CHANNELS",
+__all__ = ["unit_channels", "unit_topics",
+           "CAN_ENCODING", "CAN_RECORD", "CAN_SCHEMA_NAME", "CAN_SCHEMA_TEXT", "CHAMBER_CHANNELS",
            "CHAMBER_SCHEMA", "CHAMBER_SCHEMA_NAME", "CHANNELS", "TOPIC_CHAMBER", "CLASSIC_WIDTH",
            "EXTENDED_ID_FLAG", "FD_WIDTH", "MAX_DATA", "FLAGS_OFFSET", "FLAG_BRS", "FLAG_ERROR", "FLAG_ESI", "FLAG_FD",
            "FLAG_REMOTE", "HEADER_SIZE", "LENGTH_OFFSET", "LOG_ERROR", "LOG_INFO", "LOG_WARNING", "SCHEMAS",

@@ -61,6 +61,7 @@ from bench.log.format import (
     TOPIC_SAMPLES,
     TOPIC_STATE,
     decode_can_frames,
+    unit_topics,
 )
 from bench.log.json_topics import (
     MAX_JSON_MESSAGE_BYTES,
@@ -397,13 +398,16 @@ def _map_file(path: str):
         raise LogError(f"{path}: cannot read: {exc.strerror or exc}") from exc
 
 
-def read_log(path, *, defer_samples: bool = True, messages: bool = True, scan: bool = False) -> RunLog:
+def read_log(path, *, defer_samples: bool = True, messages: bool = True, scan: bool = False,
+             unit: str | None = None) -> RunLog:
     """Read a run log; see the module docstring for how damage is handled and what `defer_samples` does.
     `messages=False`: the records and metadata only (no table states, events, frames or samples are kept:
-    what a catalogue of logs needs, at a fraction of the memory). `scan`: `RunLog.scan()` before returning."""
+    what a catalogue of logs needs, at a fraction of the memory). `scan`: `RunLog.scan()` before returning.
+    `unit`: the serial of a unit of a run of several IMUs (not its reference unit): the log read with that unit's
+    frames and samples (`bench.log.format.unit_topics`) where a single IMU's are."""
     path = str(path)
     try:
-        log = _read_log(path, defer_samples, messages)
+        log = _read_log(path, defer_samples, messages, unit)
         if scan:
             log.scan()
         return log
@@ -411,16 +415,18 @@ def read_log(path, *, defer_samples: bool = True, messages: bool = True, scan: b
         raise LogError(f"{path}: not enough memory to read it") from exc
 
 
-def _read_log(path: str, defer_samples: bool, messages: bool = True) -> RunLog:
+def _read_log(path: str, defer_samples: bool, messages: bool = True, unit: str | None = None) -> RunLog:
+    can_topic, samples_topic = unit_topics(unit) if unit is not None else (TOPIC_CAN, TOPIC_SAMPLES)
+    kept = (KEPT_TOPICS - {TOPIC_CAN, TOPIC_SAMPLES}) | {can_topic, samples_topic}
     buf = _map_file(path)
     try:
         # /can/raw chunks are streamed (`RunLog.can_pieces`), /imu/samples ones inflated when first asked
         # for; neither is held meanwhile: both are read from the file again
         # (with a source, no decompressed chunk outlives its gathering: the topics not read are only counted,
         # the table states and events copied out up to what is parsed, the frames and samples left in the file)
-        w = walk(buf, defer_topics=frozenset({TOPIC_CAN, TOPIC_SAMPLES} if defer_samples else {TOPIC_CAN}),
+        w = walk(buf, defer_topics=frozenset({can_topic, samples_topic} if defer_samples else {can_topic}),
                  source=_FileSource(path),
-                 keep_topics=frozenset(KEPT_TOPICS if messages else ()),
+                 keep_topics=frozenset(kept if messages else ()),
                  keep_limits={TOPIC_STATE: MAX_JSON_MESSAGES, TOPIC_EVENTS: MAX_EVENTS,
                               TOPIC_CHAMBER: MAX_CHAMBER_STATES},
                  cut=_CUT)
@@ -440,8 +446,8 @@ def _read_log(path: str, defer_samples: bool, messages: bool = True) -> RunLog:
         topic = w.topic(ch)
         counts[topic] = counts.get(topic, 0) + len(d) + d.not_kept + d.over_limit
         channel = w.channels.get(ch)
-        if channel is not None and topic == TOPIC_CAN and channel.message_encoding != CAN_ENCODING:
-            raise LogError(f"{path}: {TOPIC_CAN} has message encoding {channel.message_encoding!r}, "
+        if channel is not None and topic == can_topic and channel.message_encoding != CAN_ENCODING:
+            raise LogError(f"{path}: {can_topic} has message encoding {channel.message_encoding!r}, "
                            f"expected {CAN_ENCODING!r}")
         by_topic[topic] = d
     damage = list(w.damage)
@@ -468,7 +474,7 @@ def _read_log(path: str, defer_samples: bool, messages: bool = True) -> RunLog:
 
     # Only what is kept may keep the decompressed chunks alive: the other topics go, the table states are
     # joined (small); the CAN frames are read chunk by chunk when asked for (`RunLog.can_pieces`).
-    by_topic = {t: d for t, d in by_topic.items() if t in KEPT_TOPICS}
+    by_topic = {t: d for t, d in by_topic.items() if t in kept}
     w.data.clear()
     if TOPIC_STATE in by_topic:
         skipped = by_topic[TOPIC_STATE].keep_first(MAX_JSON_MESSAGES) + by_topic[TOPIC_STATE].over_limit
@@ -486,8 +492,8 @@ def _read_log(path: str, defer_samples: bool, messages: bool = True) -> RunLog:
                   chamber_states=chamber_states,
                   summary_present=w.footer is not None and w.statistics is not None,
                   message_counts=counts, chunks=w.chunks, library=library,
-                  _damage=[d.describe() for d in damage], _lost=damage, _can=by_topic.get(TOPIC_CAN),
-                  _samples=by_topic.get(TOPIC_SAMPLES), _states=by_topic.get(TOPIC_STATE), _budget=w.budget)
+                  _damage=[d.describe() for d in damage], _lost=damage, _can=by_topic.get(can_topic),
+                  _samples=by_topic.get(samples_topic), _states=by_topic.get(TOPIC_STATE), _budget=w.budget)
 
 
 __all__ = ["CanFrames", "ImuRecords", "LogError", "LogScan", "RunLog", "TableStates", "read_log"]

@@ -86,6 +86,8 @@ from bench.log.format import (
     encode_can_frames,
     imu_sample_messages,
     json_number,
+    unit_channels,
+    unit_topics,
 )
 from drivers.imu.frames import CanFrameBatch
 
@@ -184,7 +186,7 @@ class McapRecorder(RunListener):
                  chunk_interval_s: float = 1.0, clock: Callable[[], float] = time.monotonic,
                  chunk_run_interval_s: float | None = CHUNK_RUN_INTERVAL_S,
                  imu_samples_topic_decimation: int = 1, chunk_size: int = 4 * 1024 * 1024,
-                 compression: str = "zstd", chamber: bool = False):
+                 compression: str = "zstd", chamber: bool = False, units: Sequence[str] = ()):
         if not (isinstance(imu_samples_topic_decimation, int) and imu_samples_topic_decimation >= 1):
             raise RecorderError(f"imu_samples_topic_decimation must be a positive integer, "
                                 f"got {imu_samples_topic_decimation!r}")
@@ -196,7 +198,8 @@ class McapRecorder(RunListener):
         if compression not in _COMPRESSION:
             raise RecorderError(f"compression must be one of {sorted(_COMPRESSION)}, got {compression!r}")
         self.path = str(path)
-        self._channels = {**CHANNELS, **(CHAMBER_CHANNELS if chamber else {})}
+        # (`units`: the serials of a run's units other than its reference unit, each with its own topics)
+        self._channels = {**CHANNELS, **(CHAMBER_CHANNELS if chamber else {}), **unit_channels(units)}
         self.chunk_interval_s = float(chunk_interval_s)
         self.chunk_run_interval_s = None if chunk_run_interval_s is None else float(chunk_run_interval_s)
         # run-clock rule: the next chunk close is due at log time `_run_due` (ns); -1 until the
@@ -213,7 +216,8 @@ class McapRecorder(RunListener):
         self._chunk_size = chunk_size
         self._held_samples: list[tuple[int, bytes]] = []   # /imu/samples messages for the next samples chunk
         self._held_can: list[tuple[int, bytes]] = []       # /can/raw messages for the next frames chunk
-        self._held_bytes = 0   # of both
+        self._held_units: dict[str, list[tuple[int, bytes]]] = {}   # a unit's topic -> its held messages
+        self._held_bytes = 0   # of all
         try:
             self._file = open(self.path, "wb")
         except OSError as exc:
@@ -335,6 +339,27 @@ class McapRecorder(RunListener):
         self._io(self._put_samples, block)
         self._tick()
 
+    def on_unit_imu(self, serial: str, block) -> None:
+        """A unit's decoded samples (a run of several IMUs: a unit other than the reference one), on its topic."""
+        self._check_open()
+        if not len(block):
+            return
+        self._run_clock(time_ns(float(block.receive_time_s.max())))
+        self._io(self._put_samples, block, unit_topics(serial)[1])
+        self._tick()
+
+    def on_unit_can_frames(self, serial: str, frames: Sequence) -> None:
+        """A unit's raw CAN frames (as `on_unit_imu`), on its topic."""
+        self._check_open()
+        if not len(frames):
+            return
+        topic = unit_topics(serial)[0]
+        payload, newest = encode_can_batch(frames) if isinstance(frames, CanFrameBatch) else encode_can_frames(frames)
+        self._run_clock(time_ns(newest))
+        self._io(self._hold_can, time_ns(newest), payload, topic)
+        self.frames_written += len(frames)
+        self._tick()
+
     def on_can_frames(self, frames: Sequence) -> None:
         self._check_open()
         if not len(frames):
@@ -418,20 +443,26 @@ class McapRecorder(RunListener):
         self._writer.add_message(self._channel[topic], log_time, data, log_time)
         self.messages_written += 1
 
-    def _put_samples(self, block) -> None:
+    def _put_samples(self, block, topic: str = TOPIC_SAMPLES) -> None:
         messages = imu_sample_messages(block, self.decimation)
         if not messages:
             return
-        self._held_samples += messages
+        if topic == TOPIC_SAMPLES:
+            self._held_samples += messages
+        else:
+            self._held_units.setdefault(topic, []).extend(messages)
         self._held_bytes += sum(len(body) for _, body in messages)
         self.samples_written += len(messages)
         self.messages_written += len(messages)
         if self._held_bytes >= self._chunk_size:
             self._close_chunks()
 
-    def _hold_can(self, log_time: int, payload: bytes) -> None:
-        """A `/can/raw` message, written at the next close in a chunk of frames only."""
-        self._held_can.append((log_time, payload))
+    def _hold_can(self, log_time: int, payload: bytes, topic: str = TOPIC_CAN) -> None:
+        """A `/can/raw` message (or a unit's), written at the next close in a chunk of frames only."""
+        if topic == TOPIC_CAN:
+            self._held_can.append((log_time, payload))
+        else:
+            self._held_units.setdefault(topic, []).append((log_time, payload))
         self._held_bytes += len(payload)
         self.messages_written += 1
         if self._held_bytes >= self._chunk_size:
@@ -441,12 +472,14 @@ class McapRecorder(RunListener):
         """Close the open chunk, then write the held frames, then the held samples, each in chunks holding
         nothing else."""
         writer = self._writer
-        for topic, held in ((TOPIC_CAN, self._held_can), (TOPIC_SAMPLES, self._held_samples)):
+        for topic, held in ((TOPIC_CAN, self._held_can), (TOPIC_SAMPLES, self._held_samples),
+                            *self._held_units.items()):
             if not held:
                 continue
             writer.flush()
             add_messages(writer, self._channel[topic], held)
         self._held_samples, self._held_can, self._held_bytes = [], [], 0
+        self._held_units = {}
 
     def _close_chunks(self) -> None:
         self._write_held()

@@ -26,6 +26,7 @@ import tempfile
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from bench.config.load import BenchConfig, ConfigError, parse_config
 from bench.log.names import safe_name, shown
@@ -56,6 +57,9 @@ class LogSetup:
     config: BenchConfig | None
     site: Site | None
     notes: tuple[str, ...] = ()    # what was taken from attachments, why config is None
+    #: a unit's mounting on the fixture (`C_i^b`, 3x3: a run of several IMUs): its coefficients are solved in its
+    #: own body axes; None: the body axes are the fixture's (a single IMU)
+    mounting: Any = None
 
 
 def layout_and_config_from_log(log: RunLog) -> LogSetup:

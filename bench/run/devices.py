@@ -15,9 +15,12 @@ from typing import Callable
 import can
 
 from bench.config.chamber import ChamberConfig
-from bench.config.load import BenchConfig
+from bench.config.load import BenchConfig, ImuConfig
+from bench.config.units import FACES, bus_name
 from bench.errors import BenchError
 from bench.run.imu_check import check_imu_stream
+from bench.run.units import UnitLink
+from bench.sim.units import SimUnit, unit_seed, unit_truth
 from bench.sim.world import PumpedReceiver, SimWorld
 from drivers.chamber import Chamber, open_chamber
 from drivers.clock import SYSTEM_CLOCK, Clock
@@ -39,6 +42,7 @@ class Devices:
     chamber: Chamber | None = None       # a thermal plan's chamber
     world: SimWorld | None = None        # the simulated world behind the devices (None: hardware)
     imu_check: str = ""                  # what the check of a hardware IMU found before the run
+    units: list[UnitLink] = field(default_factory=list)   # a run of several IMUs: the units but the reference
     _stack: ExitStack = field(default_factory=ExitStack, repr=False)
 
     @property
@@ -84,6 +88,8 @@ def open_simulator(config: BenchConfig, with_chamber: bool) -> Devices:
         # the simulator's frames carry the run clock's time already; its IMU runs on that clock and always is there
         receiver = _open_receiver(config, bus, None, stack)
         devices = Devices(table, receiver, clock, world=world, _stack=stack)
+        if config.several:
+            devices.units = _sim_units(config, world, stack)
         if with_chamber:
             chamber_config = _chamber_config(config)
             # served in the configured dialect over the kind of link its url names (TCP, or a pty: RTU, serial)
@@ -107,9 +113,13 @@ def open_drivers(config: BenchConfig, with_chamber: bool) -> Devices:
         table = _open_table(config, config.table.url, clock, stack)
         # the interface's frame timestamps are mapped onto the run clock (one time base in the log)
         receiver = _open_receiver(config, bus, clock.now, stack)
-        imu_check = check_imu_stream(
-            receiver, config.imu.rate_hz, f"interface {config.imu.interface} channel {config.imu.channel}")
+        imu_check = check_imu_stream(receiver, config.imu.rate_hz, _where(config.imu, config.several))
         devices = Devices(table, receiver, clock, imu_check=imu_check, _stack=stack)
+        for unit in config.units[1:]:     # a run of several IMUs: every unit checked before anything moves
+            unit_receiver = ImuReceiver(unit.bus_kwargs(), unit.layout, unit.rate_hz, time_base=clock.now)
+            stack.callback(unit_receiver.close)
+            devices.imu_check += "; " + check_imu_stream(unit_receiver, unit.rate_hz, _where(unit, True))
+            devices.units.append(UnitLink(unit.identity.serial, unit_receiver))
         if with_chamber:
             chamber_config = _chamber_config(config)
             if chamber_config.is_sim:
@@ -139,6 +149,31 @@ def _open_table(config: BenchConfig, url: str, clock: Clock, stack: ExitStack) -
     table.connect()
     stack.callback(table.close)
     return table
+
+
+def _where(unit: ImuConfig, several: bool) -> str:
+    """The bus a unit is on, for the IMU check's lines (with its serial in a run of several)."""
+    where = f"interface {unit.interface} channel {unit.channel}"
+    return f"{where} (unit {unit.identity.serial})" if several else where
+
+
+def _sim_units(config: BenchConfig, world: SimWorld, stack: ExitStack) -> list[UnitLink]:
+    """The simulated units of a run of several IMUs: the reference unit is the world's own IMU (mounted as
+    configured); each other unit its own truth (`unit_truth`), noise seed and mounting, on its configured bus
+    (units naming one bus share one virtual bus)."""
+    reference = config.units[0]
+    if reference.mounting is not None and reference.mounting != FACES["z-up"]:
+        world.mount_imu(reference.mounting)
+    links = []
+    for k, unit in enumerate(config.units[1:], 1):
+        world.add_unit(SimUnit(unit_truth(config.sim.imu, k, config.sim.seed), config.sim.noise, unit.rate_hz,
+                               unit.layout, unit_seed(config.sim.seed, k), unit.mounting, bus_name(unit)),
+                       bus_name(reference))
+        receiver = ImuReceiver(world.unit_receiver_bus(bus_name(unit), bus_name(reference)), unit.layout,
+                               unit.rate_hz)
+        stack.callback(receiver.close)
+        links.append(UnitLink(unit.identity.serial, receiver))
+    return links
 
 
 def _open_receiver(config: BenchConfig, bus: can.BusABC | dict, time_base: Callable[[], float] | None,

@@ -25,6 +25,7 @@ from bench.errors import BenchError
 from bench.finish.calibration import Solved
 from bench.finish.finish import Finished, Reports, Target, finish
 from bench.finish.recorded import Recorded, recorded_run
+from bench.finish.units import finish_units
 from bench.log.events import RunListener, RunState
 from bench.log.reader import read_log
 from bench.log.recorder import CHUNK_RUN_INTERVAL_S, McapRecorder, RecorderError
@@ -39,9 +40,11 @@ from bench.plan.thermal import compile_thermal_plan
 from bench.report.markdown import write_reports
 from bench.run.devices import DeviceOpener, Devices
 from bench.run.sequencer import ListenerError, Sequencer, SequencerOptions, describe_listener_error
+from bench.run.units import UnitsSource, other_serials, units_metadata
 from bench.sim.world import SimWorld
 from bench.solve.extract import Extraction
 from bench.solve.from_logs import extract_from_logs
+from bench.solve.methods import SolverError
 from bench.thermal.model import ThermalModel
 from bench.verify.plan import sim_table_record
 from drivers.chamber import Chamber
@@ -75,6 +78,9 @@ class RunOutcome:
     #: fewer than two temperatures)
     thermal_paths: list[Path] = field(default_factory=list)
     thermal_model: ThermalModel | None = None
+    #: a run of several IMUs: what finishing each unit wrote and found, by serial (the reference unit's is the
+    #: outcome's own)
+    units: dict[str, Finished] = field(default_factory=dict)
 
     @classmethod
     def of(cls, state: RunState, log_path: Path, finished: Finished) -> "RunOutcome":
@@ -272,7 +278,7 @@ class BenchRun:
         interval = config.output.chunk_run_interval_s
         recorder = McapRecorder(str(path), metadata=metadata,
                                 chunk_run_interval_s=CHUNK_RUN_INTERVAL_S if interval is None else interval,
-                                chamber=self.chamber is not None)
+                                chamber=self.chamber is not None, units=other_serials(config))
         try:
             self._attach_files(recorder)
         except BaseException:
@@ -313,6 +319,7 @@ class BenchRun:
                      "estimated_total_s": f"{self.plan.estimated_total_s:.1f}", "order": self.plan.order,
                      "positions": _name(config.plan.positions), "rotations": _name(config.plan.rotations)},
             **({"lab": self.lab} if self.lab else {}),
+            **units_metadata(config),
         }
 
     def _time_base(self) -> dict[str, str]:
@@ -342,7 +349,9 @@ class BenchRun:
         """Enable the table and execute the plan (blocking). Errors end in a safe stop, see `sequencer.error`."""
         table, receiver, recorder, clock = self._opened()
         assert self.devices is not None          # (_opened checked it)
-        imu = self.devices.imu_source()
+        source = self.devices.imu_source()
+        units = UnitsSource(source, self.devices.units, recorder) if self.config.several else None
+        imu = units if units is not None else source
         self.sequencer = sequencer = Sequencer(self.plan.steps, table, imu, clock,
                                                [recorder, *self.extra_listeners], self.options(), self.completed,
                                                chamber=self.chamber)
@@ -357,6 +366,8 @@ class BenchRun:
             block = receiver.flush()
             if len(block):
                 sequencer.publish_imu(block)
+            if units is not None:
+                units.drain_units(flush=True)
         return state
 
     def abort(self, reason: str = "abort requested") -> None:
@@ -382,6 +393,8 @@ class BenchRun:
             return RunOutcome(seq.state, self.log_path, error=error)
         recorder.flush()
         config = self.config
+        if config.several:
+            return self._finish_units(seq.state, recorder)
         logs = [read_log(p) for p in self.previous_logs] + [read_log(str(self.log_path))]
         setup = LogSetup(config.imu.layout, float(config.imu.rate_hz), config, config.site.site)
         # A log being resumed was cut off: its missing summary is expected, not damage; this one is still open.
@@ -390,6 +403,27 @@ class BenchRun:
         finished = finish(recorded, _LiveTarget(self, seq.state, receiver, recorder))
         recorder.close()            # (a result's writing closed it already: closing twice is a no-op)
         return RunOutcome.of(seq.state, self.log_path, finished)
+
+    def _finish_units(self, state: RunState, recorder: McapRecorder) -> RunOutcome:
+        """A run of several IMUs: every unit finished from the log as `bench solve` finishes it (`bench.finish.units`:
+        `<run-id>.<serial>.*` beside the log, each result attached to the log), then the log closed; the outcome
+        is the reference unit's, with every unit's in `units`."""
+        def attach(path: Path) -> None:
+            recorder.add_attachment(path.name, "application/json", path.read_bytes(),
+                                    self.clock.now() if self.clock is not None else 0.0)
+
+        try:
+            # the log is read still open (flushed): each unit's result is attached to it as it is written
+            finished = finish_units([read_log(str(self.log_path))], self.config, self.out_dir, self.run_id, self.sim,
+                                    solved=False, still_open=frozenset({str(self.log_path)}), attach=attach)
+        finally:
+            recorder.close()
+        reference = finished[self.config.imu.identity.serial]
+        if reference.result is None:    # the run is timed with it: without its result there is no run's result
+            raise SolverError("; ".join(reference.failures) + f" (the other units' files are in {self.out_dir})")
+        outcome = RunOutcome.of(state, self.log_path, reference)
+        outcome.units = finished
+        return outcome
 
     def finish_observations(self) -> tuple[Extraction | None, BaseException | None]:
         """For a run that is not solved (a verification): close the log and extract its observations.

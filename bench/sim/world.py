@@ -34,6 +34,7 @@ from bench.sim.mn_server import MnSimHandler
 from bench.sim.scpi_server import ScpiSimHandler
 from bench.sim.serve import ClosedOnExit, Handler, LineServer
 from bench.sim.table import SimTable, TableLimits
+from bench.sim.units import SimUnit, mounted_view
 from drivers.clock import ManualClock
 from drivers.imu.frames import CanFrameBatch
 from drivers.imu.layout import ImuLayout
@@ -247,6 +248,8 @@ class SimWorld(ClosedOnExit):
         self.table = SimTable(site, black_box_rad=black_box_rad, limits=table_limits)
         self.controller = SimController(self.table, self.clock)
         self._closers: list = []
+        self.units: list[SimCanImu] = []      # the other units of a run of several (`add_unit`)
+        self._unit_buses: dict[str, tuple[str, SimVirtualBus]] = {}   # bus name -> (channel, sender)
         try:
             self.table_url = self._serve(dialect, register_map)
             self.imu = SimImu(coefficients, noise, rate_hz=imu_rate_hz, seed=seed, thermal=imu_thermal,
@@ -260,11 +263,51 @@ class SimWorld(ClosedOnExit):
             self.close()
             raise
 
+    def add_unit(self, unit: SimUnit, reference_bus: str) -> SimCanImu:
+        """Another simulated IMU on this world's table (a run of several units): `unit`'s truth, noise, rate, layout
+        and mounting, sending on the virtual bus named `unit.bus` (the world's own IMU sends on `reference_bus`;
+        every other name is a bus of its own). It is stepped with the world's IMU (`imu_source`)."""
+        imu = SimImu(unit.coefficients, unit.noise, rate_hz=unit.rate_hz, seed=unit.seed)
+        can_imu = SimCanImu(self.controller, imu, self._unit_sender(unit.bus, reference_bus), unit.layout)
+        if unit.mounting is not None:
+            can_imu.table = mounted_view(self.table, unit.mounting)
+        self.units.append(can_imu)
+        return can_imu
+
+    def mount_imu(self, mounting) -> None:
+        """The world's own IMU mounted with `mounting` (rows: its axes in fixture coordinates) on the fixture."""
+        self.can_imu.table = mounted_view(self.table, mounting)
+
+    def _unit_sender(self, bus: str, reference_bus: str) -> SimVirtualBus:
+        if bus == reference_bus:
+            return self.sender_bus
+        if bus not in self._unit_buses:
+            channel = f"turntable-bench-sim-{uuid.uuid4().hex[:12]}"
+            sender = SimVirtualBus(channel=channel, preserve_timestamps=True)
+            self._closers.append(sender.shutdown)
+            self._unit_buses[bus] = (channel, sender)
+        return self._unit_buses[bus][1]
+
+    def unit_receiver_bus(self, bus: str, reference_bus: str) -> SimVirtualBus:
+        """A receiver's bus on the virtual bus named `bus` (`add_unit`), closed with the world."""
+        if bus == reference_bus:
+            return self.receiver_bus()
+        self._unit_sender(bus, reference_bus)
+        receiver = SimVirtualBus(channel=self._unit_buses[bus][0])
+        self._closers.append(receiver.shutdown)
+        return receiver
+
+    def step_imus(self) -> None:
+        """Every simulated IMU sends what it produced up to now (the world's own, then each unit's)."""
+        self.can_imu.step()
+        for unit in self.units:
+            unit.step()
+
     def imu_source(self, receiver) -> "PumpedReceiver":
         """`receiver` (reading this world's bus) wrapped so that every poll first sends the
         samples the simulated IMU produced up to now: the IMU is stepped in as few, as
         large, batches as the reader asks for."""
-        return PumpedReceiver(receiver, self.can_imu.step)
+        return PumpedReceiver(receiver, self.step_imus if self.units else self.can_imu.step)
 
     @property
     def bus_config(self) -> dict:

@@ -233,9 +233,9 @@ def probe_boxes(step_rad: float) -> np.ndarray:
     return boxes
 
 
-def rotation_design_nominal(turns, site: Site, rate_dps: float) -> np.ndarray:
-    """`[d 2 pi N u + E, T]` (K, 4) of constant-rate turns on an ideal table."""
-    rot, earth, durations = turn_closed_form(turns, site, rate_dps)
+def rotation_design_nominal(turns, site: Site, rate_dps: float, mounting=None) -> np.ndarray:
+    """`[d 2 pi N u + E, T]` (K, 4) of constant-rate turns on an ideal table (an IMU mounted with `mounting`)."""
+    rot, earth, durations = turn_closed_form(turns, site, rate_dps, mounting=mounting)
     return np.column_stack([rot + earth, durations])
 
 
@@ -535,7 +535,7 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
                                                                       else acc.fit.sigma[:, s]) for s in range(3)]),
                          w_bias, list(rotations),
                          None if gyros is None else np.stack([
-                             _operator(rotation_design_nominal(rotations, site, inputs.turn_rate_dps),
+                             _operator(rotation_design_nominal(rotations, site, inputs.turn_rate_dps, mounting),
                                        None if gyros.fit.sigma is None else gyros.fit.sigma[:, s]) for s in range(3)]),
                          inputs.turn_rate_dps)
         if inputs.table is not None:

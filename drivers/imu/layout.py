@@ -361,6 +361,20 @@ class ImuLayout:
     def keys(self) -> tuple[int, ...]:
         return tuple(m.key for m in self.messages)
 
+    def with_id_offset(self, offset: int) -> "ImuLayout":
+        """This layout with `offset` added to every message's arbitration id (several IMUs of one layout on one
+        bus, each configured to send at its own ids); ImuConfigError when an id leaves its range."""
+        if offset == 0:
+            return self
+        messages = []
+        for m in self.messages:
+            frame_id, top = m.frame_id + offset, (0x1FFFFFFF if m.is_extended_id else 0x7FF)
+            if not 0 <= frame_id <= top:
+                raise ImuConfigError(f"message {m.name}: id {m.frame_id:#x} + {offset} = {frame_id:#x} is outside "
+                                     f"0..{top:#x} ({'29' if m.is_extended_id else '11'}-bit ids)")
+            messages.append(dataclasses.replace(m, frame_id=frame_id))
+        return dataclasses.replace(self, messages=tuple(messages))
+
     def message(self, key: int) -> MessageLayout:
         for m in self.messages:
             if m.key == key:

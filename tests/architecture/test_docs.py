@@ -121,7 +121,7 @@ def page_folder(tmp_path: Path, recorded: dict[str, Path]) -> Path:
     runs.mkdir()
     for name, source in recorded.items():
         shutil.copyfile(source, runs / name)
-    for example in ("bench.example.toml", "thermal.example.toml", "lab.example.toml"):
+    for example in ("bench.example.toml", "thermal.example.toml", "lab.example.toml", "multi-imu.example.toml"):
         shutil.copyfile(REPO / example, tmp_path / example)
     return tmp_path
 

@@ -116,7 +116,7 @@ def undocumented(tables: dict[tuple, tuple[str, ...]]) -> list[str]:
 
 def every_section(monkeypatch) -> dict[tuple, tuple[str, ...]]:
     texts = [(EXAMPLE.read_text(encoding="utf-8"), REPO), ((REPO / "thermal.example.toml").read_text(), REPO),
-             (EVERY_SECTION, REPO)]
+             ((REPO / "multi-imu.example.toml").read_text(), REPO), (EVERY_SECTION, REPO)]
     return built_tables(monkeypatch, texts)
 
 

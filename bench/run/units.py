@@ -1,0 +1,107 @@
+"""A run of several IMUs (`[[imu]]`): one receiver per unit on the run clock, each unit recorded on its own topics.
+
+The sequencer drives the run with the reference unit (the first `[[imu]]` entry) as it drives a single IMU: its
+samples time the dwells and turns, its frames and samples go where a single IMU's go (`/can/raw`,
+`/imu/samples`). `UnitsSource` is what the sequencer polls instead: each poll drains the reference unit, then every
+other unit's receiver, whose frames and samples the recorder writes on the unit's topics
+(`bench.log.format.unit_topics`). The log's `units` record names every unit, its bus, ids and mounting.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.config.load import BenchConfig, ImuConfig
+from bench.config.units import bus_name
+from bench.log.recorder import McapRecorder
+from drivers.imu.frames import CanFrameBatch
+from drivers.imu.layout import EXTENDED_ID_FLAG
+from drivers.imu.receiver import ImuReceiver
+
+
+@dataclass
+class UnitLink:
+    """A unit other than the reference one: its serial and its receiver."""
+
+    serial: str
+    receiver: ImuReceiver
+
+
+class UnitsSource:
+    """The sequencer's IMU source in a run of several units: `reference` (a receiver, or the simulator's pumped
+    one) polled as ever, then each of `units`, recorded on its own topics by `recorder`."""
+
+    def __init__(self, reference, units: list[UnitLink], recorder: McapRecorder):
+        self._reference, self.units, self._recorder = reference, units, recorder
+        for unit in units:
+            unit.receiver.on_frames = self._recording(unit)
+
+    def _recording(self, unit: UnitLink):
+        """A unit's frames to its topic: only those of its own ids (a shared bus carries the others' too; the
+        reference unit's `/can/raw` is its bus as received, every frame on it, as a single IMU's log always was)."""
+        keys = np.array(sorted(unit.receiver.layout.keys), dtype=np.uint32)
+        own = frozenset(unit.receiver.layout.keys)
+
+        def record(frames) -> None:
+            if isinstance(frames, CanFrameBatch):
+                frames = frames.select(np.isin(frames.ids, keys))
+            else:
+                frames = [m for m in frames
+                          if (m.arbitration_id | (EXTENDED_ID_FLAG if m.is_extended_id else 0)) in own]
+            self._recorder.on_unit_can_frames(unit.serial, frames)
+        return record
+
+    def poll(self, *args, **kwargs):
+        block = self._reference.poll(*args, **kwargs)
+        self.drain_units()
+        return block
+
+    def drain_units(self, flush: bool = False) -> None:
+        """Every other unit's samples received so far to its topic (`flush`: with those still pending)."""
+        for unit in self.units:
+            block = unit.receiver.flush() if flush else unit.receiver.poll()
+            if len(block):
+                self._recorder.on_unit_imu(unit.serial, block)
+
+    def flush(self):
+        return self._reference.flush()
+
+    @property
+    def stats(self):
+        return self._reference.stats
+
+    @property
+    def on_frames(self):
+        return self._reference.on_frames
+
+    @on_frames.setter
+    def on_frames(self, callback) -> None:
+        self._reference.on_frames = callback
+
+
+def unit_record(unit: ImuConfig, reference: bool) -> dict:
+    """What the log's `units` record says of one unit."""
+    return {"serial": unit.identity.serial, "model": unit.identity.model, "reference": reference,
+            "interface": str(unit.interface), "channel": str(unit.channel), "bus": bus_name(unit),
+            "rate_hz": unit.rate_hz, "dbc": unit.dbc.name, "layout": unit.layout_name, "id_offset": unit.id_offset,
+            "frame_ids": [f"{key & 0x1FFFFFFF:#x}" for key in unit.layout.keys],
+            "mounting": unit.mounting_name, "mounting_matrix": [list(row) for row in unit.mounting or ()]}
+
+
+def units_metadata(config: BenchConfig) -> dict[str, dict[str, str]]:
+    """The log's `units` record of a run of several units ({} for a single IMU)."""
+    if not config.several:
+        return {}
+    return {"units": {"units_json": json.dumps([unit_record(unit, k == 0) for k, unit in enumerate(config.units)]),
+                      "reference": config.units[0].identity.serial}}
+
+
+def other_serials(config: BenchConfig) -> list[str]:
+    """The serials of the units other than the reference one (each its own log topics)."""
+    return [unit.identity.serial for unit in config.units[1:]]
+
+
+__all__ = ["UnitLink", "UnitsSource", "other_serials", "unit_record", "units_metadata"]

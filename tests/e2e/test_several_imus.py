@@ -1,0 +1,149 @@
+"""Several IMUs in one simulated run (issue 31): three units on two faces and two buses, each solved in its own
+body axes from its own topics; `bench solve` reproduces every unit's result bit for bit."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from bench.log.reader import read_log
+from tests.helpers.run import cli, only_file
+
+UNITS = (("A1", "bus-a", 0, '"z-up"'), ("A2", "bus-a", 16, '"x-up"'), ("B1", "bus-b", 0, '"y-down"'))
+
+
+def several_config(units=UNITS, black_box_arcsec: float = 20.0) -> str:
+    entries = "".join(
+        f'[[imu]]\ninterface = "virtual"\nchannel = "{bus}"\nrate_hz = 200.0\nid_offset = {offset}\n'
+        f'mounting = {mounting}\nidentity = {{ model = "sim", serial = "{serial}" }}\n\n'
+        for serial, bus, offset, mounting in units)
+    return f"""format = "turntable-bench/config"
+version = 1
+[site]
+latitude_deg = 30.0
+[table]
+url = "sim"
+dialect = "scpi"
+
+{entries}[plan]
+positions = "traditional-12"
+rotations = "traditional-3s6r"
+dwell_s = 2.0
+settle_s = 1.0
+turn_rate_dps = 20.0
+revolutions = 1
+[sim]
+seed = 3
+black_box_arcsec = {black_box_arcsec}
+noise = true
+"""
+
+
+@pytest.fixture(scope="module")
+def several_run(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("several")
+    config = folder / "several.toml"
+    config.write_text(several_config(), encoding="utf-8")
+    rc, out, err = cli(["run", "--config", str(config), "--out", str(folder / "run"), "--no-db", "--quiet"])
+    assert rc == 0, err
+    assert "unit A2: verdict" in out and "unit B1: verdict" in out
+    return only_file(folder / "run", "*.mcap")
+
+
+def unit_result(log: Path, serial: str, solved: bool = False) -> dict:
+    name = f"{log.stem}.{serial}{'.solved' if solved else ''}.result.json"
+    return json.loads((log.parent / name).read_text(encoding="utf-8"))
+
+
+def test_each_unit_recovers_its_own_truth_within_its_uncertainty(several_run):
+    truths, within = [], 0
+    for serial, *_ in UNITS:
+        result = unit_result(several_run, serial)
+        assert result["run"]["imu"] == {"model": "sim", "serial": serial}
+        coefficients, truth = result["coefficients"], result["sim_truth"]["coefficients"]
+        truths.append(tuple(truth[name]["value"] for name in sorted(truth)))
+        for name, entry in coefficients.items():
+            error = abs(entry["value"] - truth[name]["value"])
+            assert error <= 2.0 * entry["expanded"], f"{serial} {name}: error {error:.3g}, U {entry['expanded']:.3g}"
+            within += error <= entry["expanded"]
+    assert within >= 0.85 * 30 * len(UNITS)            # k = 2: about 95 % within U
+    assert len(set(truths)) == len(UNITS)               # every unit its own truth
+
+
+def test_each_unit_is_on_its_own_topics_with_its_identity_and_mounting(several_run):
+    log = read_log(several_run)
+    topics = set(log.message_counts)
+    assert {"/can/raw", "/imu/samples", "/imu/A2/can/raw", "/imu/A2/samples", "/imu/B1/can/raw",
+            "/imu/B1/samples"} <= topics
+    assert not any(topic.startswith("/imu/A1/") for topic in topics)     # the reference unit: a single IMU's topics
+    units = json.loads(log.metadata["units"]["units_json"])
+    assert [(u["serial"], u["bus"], u["id_offset"], u["mounting"]) for u in units] == [
+        ("A1", "virtual:bus-a", 0, "z-up"), ("A2", "virtual:bus-a", 16, "x-up"), ("B1", "virtual:bus-b", 0, "y-down")]
+    assert units[1]["frame_ids"][0] == "0x110" and units[1]["mounting_matrix"] == [[0, 0, 1], [1, 0, 0], [0, 1, 0]]
+    for serial, *_ in UNITS:               # each unit's result, attached to the log as it was written
+        name = f"{several_run.stem}.{serial}.result.json"
+        assert json.loads(log.attachments[name][1]) == unit_result(several_run, serial)
+    assert log.scan().complete
+    a2 = read_log(several_run, unit="A2")
+    frames = a2.read_can_frames()
+    assert len(frames.ids) and set(frames.ids.tolist()) == {0x110 + k for k in range(7)}   # its own ids, offset
+    # /can/raw is the reference unit's bus as received: A1's frames and A2's (bus-a), none of B1's (bus-b)
+    reference = log.read_can_frames().ids
+    assert set(reference.tolist()) == {0x100 + k for k in range(7)} | {0x110 + k for k in range(7)}
+    b1 = read_log(several_run, unit="B1").read_can_frames().ids
+    assert set(b1.tolist()) == {0x100 + k for k in range(7)} and len(reference) == len(frames.ids) + len(b1)
+
+
+def test_bench_solve_reproduces_every_unit_bit_for_bit(several_run, tmp_path):
+    rc, out, err = cli(["solve", str(several_run), "--out", str(tmp_path), "--no-db", "--no-html"])
+    assert rc == 0, err
+    for serial, *_ in UNITS:
+        assert f"unit {serial}: result:" in out
+        run, solved = unit_result(several_run, serial), json.loads(
+            (tmp_path / f"{several_run.stem}.{serial}.solved.result.json").read_text(encoding="utf-8"))
+        assert solved["coefficients"] == run["coefficients"], serial
+    rc, out, err = cli(["solve", str(several_run), "--out", str(tmp_path / "one"), "--no-db", "--no-html",
+                        "--unit", "B1"])
+    assert rc == 0 and [p.name for p in (tmp_path / "one").glob("*.result.json")] == [
+        f"{several_run.stem}.B1.solved.result.json"]
+    rc, _, err = cli(["solve", str(several_run), "--no-db", "--unit", "C9"])
+    assert rc == 2 and "no unit 'C9'" in err and "(its units: A1, A2, B1)" in err
+
+
+def test_a_silent_unit_gets_no_result_saying_why_and_the_others_are_finished(tmp_path):
+    from bench.config.load import parse_config
+    from bench.run.devices import SIMULATOR
+    from bench.run.runner import BenchRun, compile_from_config
+
+    config = parse_config(several_config(UNITS[:2], black_box_arcsec=0.0), source="two.toml")
+    with BenchRun(config, compile_from_config(config), devices=SIMULATOR, out_dir=tmp_path) as run:
+        run.open()
+        assert run.world is not None
+        run.world.units[0].drop_frames(10 ** 9)           # unit A2 sends nothing at all
+        run.run()
+        outcome = run.finish()
+    assert outcome.result is not None and outcome.result.run.imu.serial == "A1"
+    silent = outcome.units["A2"]
+    assert silent.result is None and silent.result_path is None
+    assert silent.failures and silent.failures[0].startswith("unit A2 has no result: ")
+    assert not (tmp_path / f"{run.run_id}.A2.result.json").exists()
+
+
+def test_the_reference_unit_is_solved_bit_for_bit_as_a_single_imu_of_the_same_plan(several_run, tmp_path):
+    """The other units change nothing of the reference unit's run: a single [imu] with its bus, truth and seed
+    gives the very same coefficients and uncertainties."""
+    single = several_config(UNITS[:1]).replace("[[imu]]", "[imu]").replace("id_offset = 0\n", "").replace(
+        'mounting = "z-up"\n', "")
+    config = tmp_path / "single.toml"
+    config.write_text(single, encoding="utf-8")
+    rc, _, err = cli(["run", "--config", str(config), "--out", str(tmp_path / "run"), "--no-db", "--quiet"])
+    assert rc == 0, err
+    alone = json.loads(only_file(tmp_path / "run", "*.result.json").read_text(encoding="utf-8"))
+    assert alone["coefficients"] == unit_result(several_run, "A1")["coefficients"]
+
+
+def test_unit_is_refused_for_a_log_of_one_imu(short_run, tmp_path):
+    rc, _, err = cli(["solve", str(short_run.log), "--out", str(tmp_path), "--no-db", "--unit", "A1"])
+    assert rc == 2 and "records one IMU, not several ([[imu]]): drop --unit" in err
