@@ -1,18 +1,12 @@
-"""The simulators' first-order recursion is scipy.signal.lfilter's, bit for bit; a simulated run's modules start
-without scipy.signal, scipy.stats and scipy.optimize (issue 35: half a second of every run's start)."""
+"""The simulators' first-order recursion is scipy.signal.lfilter's, bit for bit."""
 
 from __future__ import annotations
-
-import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 from scipy.signal import lfilter
 
 from bench.sim.first_order import first_order_filter
-from tests.helpers.run import REPO
 
 
 @pytest.mark.parametrize("n", [1, 2, 7, 400, 1000])
@@ -45,20 +39,3 @@ def test_one_column_as_the_case_temperature_filters_it():
 def test_no_samples_keep_the_state():
     y, after = first_order_filter(1.0, 0.5, np.zeros((0, 3)), np.ones((1, 3)))
     assert y.shape == (0, 3) and after.tolist() == [[1.0, 1.0, 1.0]]
-
-
-#: imports what `bench run` imports when it runs a plan, then prints the scipy packages then loaded
-_PROBE = """
-import json, sys
-import bench.cli.run, bench.run.devices, bench.run.runner, bench.solve.inputs, bench.solve.methods
-import bench.log.reader, bench.report.markdown, bench.verify.plan
-print(json.dumps(sorted({m for m in sys.modules if m.startswith("scipy.") and m.count(".") == 1})))
-"""
-
-
-def test_a_simulated_runs_modules_start_without_scipy_signal_stats_or_optimize():
-    done = subprocess.run([sys.executable, "-c", _PROBE], cwd=REPO, capture_output=True, text=True, timeout=120,
-                          stdin=subprocess.DEVNULL)
-    assert done.returncode == 0, done.stderr
-    loaded = set(json.loads(done.stdout.splitlines()[-1]))
-    assert not loaded & {"scipy.signal", "scipy.stats", "scipy.optimize"}, sorted(loaded)
