@@ -293,6 +293,7 @@ class SimWorld(ClosedOnExit):
         elif dialect == "scpi":
             handler = ScpiSimHandler(self.controller)
         elif dialect == "mn":
+            # local: see the Acutrol one
             from bench.sim.mn_server import MnSimHandler
 
             handler = MnSimHandler(self.controller)
