@@ -13,7 +13,9 @@ back to `add_message` per message on an mcap release that keeps it differently.
 from __future__ import annotations
 
 import struct
+from bisect import bisect_right
 from collections.abc import Sequence
+from itertools import accumulate
 
 import numpy as np
 from mcap.opcode import Opcode
@@ -56,19 +58,18 @@ def _state(writer: Writer):
 
 
 def _records(channel_id: int, times: list[int], bodies: list[bytes], sizes: list[int]) -> bytes:
-    """The Message records of `bodies` (sizes: each record's, head included), heads laid out as one array."""
+    """The Message records of `bodies` (sizes: each record's, head included): the heads laid out as one array,
+    then each head and its body joined in turn (one join; a byte mask over the records cost five times more)."""
     n = len(bodies)
     heads = np.zeros(n, _HEAD_DTYPE)
     size = np.array(sizes, np.int64)
     heads["opcode"], heads["length"], heads["channel"] = int(Opcode.MESSAGE), size - 9, channel_id
     heads["log_time"] = heads["publish_time"] = np.array(times, np.uint64)
-    out = np.empty(int(size.sum()), np.uint8)
-    # each record: its head's bytes, then its body's
-    is_head = np.repeat(np.tile(np.array([True, False]), n),
-                        np.column_stack([np.full(n, _HEAD.size), size - _HEAD.size]).reshape(-1))
-    out[is_head] = heads.view(np.uint8)
-    out[~is_head] = np.frombuffer(b"".join(bodies), np.uint8)
-    return out.tobytes()
+    packed, step = heads.tobytes(), _HEAD.size
+    parts: list[bytes] = [b""] * (2 * n)
+    parts[0::2] = [packed[at:at + step] for at in range(0, n * step, step)]
+    parts[1::2] = bodies
+    return b"".join(parts)
 
 
 def add_messages(writer: Writer, channel_id: int, messages: Sequence[tuple[int, bytes]]) -> None:
@@ -82,14 +83,11 @@ def add_messages(writer: Writer, channel_id: int, messages: Sequence[tuple[int, 
     sizes = [_HEAD.size + len(body) for _, body in messages]
     at, n = 0, len(messages)
     while at < n:
-        # the messages up to the first that takes the chunk past `chunk_size` (the writer closes it after that one)
-        count, offsets, stop = builder.record_writer.count, [], at
-        while stop < n:
-            offsets.append(count)
-            count += sizes[stop]
-            stop += 1
-            if count > chunk_size:
-                break
+        # the messages up to the first that takes the chunk past `chunk_size` (the writer closes it after that one):
+        # ends[j] is the chunk's size before message at + j, the first end beyond `chunk_size` follows the last one
+        ends = list(accumulate(sizes[at:], initial=builder.record_writer.count))
+        stop = at + min(bisect_right(ends, chunk_size, 1), n - at)
+        offsets = ends[:stop - at]
         part = messages[at:stop]
         times = [t for t, _ in part]
         lo, hi = min(times), max(times)

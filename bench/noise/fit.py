@@ -51,7 +51,6 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
-from scipy.optimize import nnls
 from scipy.special import gammaincc
 
 from bench.noise.allan import AllanCurve, local_slopes
@@ -275,6 +274,10 @@ def _gls(x: np.ndarray, avar: np.ndarray, cross: np.ndarray, start: np.ndarray, 
          iterations: int = 6) -> tuple[np.ndarray, np.ndarray, float]:
     """Non-negative generalised least squares of `avar` on `x`'s `columns`, the covariance re-made from each fit:
     (coefficients, whitened design of `columns`, chi2)."""
+    # local: scipy.optimize takes a third of a second to import; a calibration run's finish imports this module
+    # and never fits a noise model
+    from scipy.optimize import nnls
+
     coef = start.copy()
     chi2, design = math.inf, x[:, columns]
     for _ in range(iterations):
@@ -298,6 +301,9 @@ def _gls(x: np.ndarray, avar: np.ndarray, cross: np.ndarray, start: np.ndarray, 
 
 
 def _fit_points(curve: AllanCurve, idx: list[int], all_idx: list[int]) -> ModelFit | None:
+    # local: see _gls
+    from scipy.optimize import nnls
+
     tau, avar = curve.tau_s[idx], curve.adev[idx] ** 2
     m = tuple(int(v) for v in curve.m[all_idx])
     sub = [all_idx.index(i) for i in idx]

@@ -22,12 +22,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from bench.model.higher_order import HigherOrderTerms
 from bench.model.imu import ImuCoefficients, NoiseModel
 from bench.model.thermal import ImuThermal
 from bench.model.units import DEG, DEG_PER_HOUR, MICRO_G
+from bench.sim.first_order import first_order_filter
 from bench.sim.table import SimTable
 from bench.sim.thermal import Ambient, CaseTemperature
 
@@ -90,13 +90,13 @@ class _GaussMarkov:
         self.sigma, self.rng = sigma, rng
         self.phi = math.exp(-dt / tau) if tau > 0 else 0.0
         self.gain = sigma * math.sqrt(1.0 - self.phi * self.phi)
-        # lfilter's transposed direct form: y[0] = gain*w[0] + zi, zi = phi*y[-1], y[-1] ~ N(0, sigma^2).
+        # the carried state is phi*y[-1] (lfilter's zi): y[0] = gain*w[0] + phi*y[-1], y[-1] ~ N(0, sigma^2).
         self.zi = (self.phi * sigma * rng.standard_normal(3))[None, :] if sigma > 0 else None
 
     def draw(self, n: int) -> np.ndarray:
         if self.zi is None or n == 0:
             return np.zeros((n, 3))
-        y, self.zi = lfilter([self.gain], [1.0, -self.phi], self.rng.standard_normal((n, 3)), axis=0, zi=self.zi)
+        y, self.zi = first_order_filter(self.gain, self.phi, self.rng.standard_normal((n, 3)), self.zi)
         return y
 
 

@@ -13,7 +13,8 @@ import math
 from typing import Callable, Union
 
 import numpy as np
-from scipy.signal import lfilter
+
+from bench.sim.first_order import first_order_filter
 
 #: an ambient temperature: constant degC, or simulated time (s, an array) -> degC
 Ambient = Union[float, Callable[[np.ndarray], np.ndarray]]
@@ -71,7 +72,7 @@ class CaseTemperature:
         # exact step for a linear ambient: T1 = e T0 + (u1 - s tau) - e (u0 - s tau)
         g = (u[1:] - slope_tau) - e * (u[:-1] - slope_tau)
         if np.allclose(e, e[0], rtol=0, atol=1e-15):
-            out, _ = lfilter([1.0], [1.0, -e[0]], g, zi=[e[0] * self.temperature_c])
+            out, _ = first_order_filter(1.0, e[0], g, np.array([e[0] * self.temperature_c]))
         else:
             out, temp = np.empty_like(g), self.temperature_c
             for k in range(len(g)):

@@ -26,11 +26,9 @@ from bench.model.earth import Site
 from bench.model.higher_order import HigherOrderTerms
 from bench.model.imu import ImuCoefficients, NoiseModel
 from bench.model.thermal import ImuThermal
-from bench.sim.acutrol_server import AcutrolSimHandler
 from bench.sim.can_imu import SimCanImu
 from bench.sim.controller import SimController
 from bench.sim.imu import SimImu
-from bench.sim.mn_server import MnSimHandler
 from bench.sim.scpi_server import ScpiSimHandler
 from bench.sim.serve import ClosedOnExit, Handler, LineServer
 from bench.sim.table import SimTable, TableLimits
@@ -331,10 +329,16 @@ class SimWorld(ClosedOnExit):
             return f"modbus+tcp://{host}:{port}"
         handler: Handler
         if dialect == "acutrol":
+            # local, as the MN one: a dialect's server and codec are imported for a table that speaks it
+            from bench.sim.acutrol_server import AcutrolSimHandler
+
             handler = AcutrolSimHandler(self.controller)
         elif dialect == "scpi":
             handler = ScpiSimHandler(self.controller)
         elif dialect == "mn":
+            # local: see the Acutrol one
+            from bench.sim.mn_server import MnSimHandler
+
             handler = MnSimHandler(self.controller)
         else:
             raise ValueError(f"no simulator for dialect {dialect!r}")

@@ -20,7 +20,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy.special import chdtrc
 
 from bench.errors import InputError
 from bench.model.earth import Site
@@ -75,7 +75,7 @@ def fit_per_sensor(design: np.ndarray, y: np.ndarray, sigma: np.ndarray | None) 
                               f"(singular normal matrix)") from exc
         red = chi2 / dof if dof > 0 else math.nan
         if use_weights:
-            scale_up = dof > 0 and red > 1.0 and stats.chi2.sf(chi2, dof) < CHI2_ALPHA
+            scale_up = dof > 0 and red > 1.0 and chdtrc(dof, chi2) < CHI2_ALPHA
             factor = red if scale_up else 1.0
         else:
             scale_up = False

@@ -41,7 +41,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2 as chi2_distribution
 
 from bench.errors import InputError
 
@@ -179,6 +178,9 @@ def fit_coefficient(name: str, unit: str, temperatures_c, values, sigmas, refere
     top = max(0, min(MAX_DEGREE, distinct - 2))     # at least one degree of freedom left
     fits = [_weighted_fit(dt, y, independent, d) for d in range(top + 1)]
     chi2s = [f[2] for f in fits]
+    # local: scipy.stats takes half a second to import; every run's finish imports this module, few fit
+    from scipy.stats import chi2 as chi2_distribution
+
     degree = next(d for d in range(top + 1)
                   if all(chi2s[d] - chi2s[e] < chi2_distribution.ppf(1.0 - alpha, e - d)
                          for e in range(d + 1, top + 1)))
