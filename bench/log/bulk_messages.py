@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Sequence
+from itertools import chain
 
 import numpy as np
 from mcap.opcode import Opcode
@@ -55,62 +56,78 @@ def _state(writer: Writer):
     return builder, stats, size, finalize
 
 
-def _records(channel_id: int, times: list[int], bodies: list[bytes], sizes: list[int]) -> bytes:
-    """The Message records of `bodies` (sizes: each record's, head included), heads laid out as one array."""
+def _records(channels: int | np.ndarray, times: np.ndarray, bodies: Sequence[bytes], sizes: np.ndarray) -> bytes:
+    """The Message records of `bodies` (sizes: each record's, head included), heads laid out as one array and
+    joined with the bodies (no Python step per byte)."""
     n = len(bodies)
     heads = np.zeros(n, _HEAD_DTYPE)
-    size = np.array(sizes, np.int64)
-    heads["opcode"], heads["length"], heads["channel"] = int(Opcode.MESSAGE), size - 9, channel_id
-    heads["log_time"] = heads["publish_time"] = np.array(times, np.uint64)
-    out = np.empty(int(size.sum()), np.uint8)
-    # each record: its head's bytes, then its body's
-    is_head = np.repeat(np.tile(np.array([True, False]), n),
-                        np.column_stack([np.full(n, _HEAD.size), size - _HEAD.size]).reshape(-1))
-    out[is_head] = heads.view(np.uint8)
-    out[~is_head] = np.frombuffer(b"".join(bodies), np.uint8)
-    return out.tobytes()
+    heads["opcode"], heads["length"], heads["channel"] = int(Opcode.MESSAGE), sizes - 9, channels
+    heads["log_time"] = heads["publish_time"] = times
+    packed, width = heads.tobytes(), _HEAD.size
+    return b"".join(chain.from_iterable(zip([packed[k:k + width] for k in range(0, n * width, width)], bodies)))
 
 
-def add_messages(writer: Writer, channel_id: int, messages: Sequence[tuple[int, bytes]]) -> None:
-    """`writer.add_message(channel_id, t, body, t)` for each (t, body) of `messages`, in order."""
+def _index_entries(channels: int | np.ndarray, times: np.ndarray,
+                   offsets: np.ndarray) -> list[tuple[int, list[tuple[int, int]]]]:
+    """(channel, its messages' (log time, offset) entries) for each channel of a part, in the order the channels
+    first appear (the order `add_message` creates the message indexes in)."""
+    if isinstance(channels, int):
+        return [(channels, list(zip(times.tolist(), offsets.tolist())))]
+    ids, first = np.unique(channels, return_index=True)
+    return [(int(channel), list(zip(times[mask].tolist(), offsets[mask].tolist())))
+            for channel in ids[np.argsort(first)] for mask in [channels == channel]]
+
+
+def add_messages(writer: Writer, channel_id: int | np.ndarray, messages: Sequence[tuple[int, bytes]]) -> None:
+    """`writer.add_message(channel_id, t, body, t)` for each (t, body) of `messages`, in order; `channel_id` is
+    one channel's, or an array of each message's (messages of several channels interleaved)."""
+    add_message_arrays(writer, channel_id, np.array([t for t, _ in messages], np.uint64),
+                       [body for _, body in messages])
+
+
+def add_message_arrays(writer: Writer, channel_id: int | np.ndarray, log_times_ns: np.ndarray,
+                       bodies: Sequence[bytes]) -> None:
+    """`add_messages` with the log times (ns) as an array and the bodies as a list beside it."""
+    n = len(bodies)
+    channels = None if isinstance(channel_id, int) else np.asarray(channel_id, np.int64)
+    times = np.asarray(log_times_ns, np.uint64)
     state = _state(writer)
     if state is None:
-        for t, body in messages:
-            writer.add_message(channel_id, t, body, t)
+        ids = [channel_id] * n if isinstance(channel_id, int) else np.asarray(channel_id).tolist()
+        for channel, t, body in zip(ids, times.tolist(), bodies):
+            writer.add_message(channel, t, body, t)
         return
     builder, stats, chunk_size, finalize = state
-    sizes = [_HEAD.size + len(body) for _, body in messages]
-    at, n = 0, len(messages)
+    sizes = np.fromiter(map(len, bodies), np.int64, n) + _HEAD.size
+    ends = np.cumsum(sizes)           # of each record, counted from the first
+    at = 0
     while at < n:
         # the messages up to the first that takes the chunk past `chunk_size` (the writer closes it after that one)
-        count, offsets, stop = builder.record_writer.count, [], at
-        while stop < n:
-            offsets.append(count)
-            count += sizes[stop]
-            stop += 1
-            if count > chunk_size:
-                break
-        part = messages[at:stop]
-        times = [t for t, _ in part]
-        lo, hi = min(times), max(times)
+        start = builder.record_writer.count - (int(ends[at - 1]) if at else 0)    # where ends[at - 1] lands
+        stop = min(n, at + 1 + int(np.searchsorted(ends[at:], chunk_size - start, side="right")))
+        offsets = ends[at:stop] - sizes[at:stop] + start
+        part_times = times[at:stop]
+        lo, hi = int(part_times.min()), int(part_times.max())
         if builder.num_messages == 0:
             builder.message_start_time = lo
         else:
             builder.message_start_time = min(builder.message_start_time, lo)
         builder.message_end_time = max(builder.message_end_time, hi)
-        index = builder.message_indices.get(channel_id)
-        if not index:
-            index = builder.message_indices[channel_id] = _PackedMessageIndex(channel_id=channel_id, records=[])
-        index.records.extend(zip(times, offsets))
-        builder.num_messages += len(part)
-        builder.record_writer.write(_records(channel_id, times, [body for _, body in part], sizes[at:stop]))
+        part_channels = channel_id if channels is None else channels[at:stop]
+        for channel, entries in _index_entries(part_channels, part_times, offsets):
+            index = builder.message_indices.get(channel)
+            if not index:
+                index = builder.message_indices[channel] = _PackedMessageIndex(channel_id=channel, records=[])
+            index.records.extend(entries)
+            stats.channel_message_counts[channel] += len(entries)
+        builder.num_messages += stop - at
+        builder.record_writer.write(_records(part_channels, part_times, bodies[at:stop], sizes[at:stop]))
         stats.message_start_time = lo if stats.message_count == 0 else min(stats.message_start_time, lo)
         stats.message_end_time = max(stats.message_end_time, hi)
-        stats.channel_message_counts[channel_id] += len(part)
-        stats.message_count += len(part)
+        stats.message_count += stop - at
         at = stop
         if builder.record_writer.count > chunk_size:
             finalize()
 
 
-__all__ = ["add_messages"]
+__all__ = ["add_message_arrays", "add_messages"]
