@@ -203,3 +203,22 @@ def test_the_outputs_hold_the_values_the_per_sample_path_wrote(short_run, tmp_pa
         for _schema, channel, message in make_reader(f, validate_crcs=True).iter_messages(log_time_order=False):
             written.append((channel.topic, message.log_time, _strict_json(message.data)))
     assert written == messages
+
+
+def test_the_applied_mcap_is_in_log_time_order(short_run, tmp_path):
+    """Issue 33, item 4: the raw and the compensated message of a sample follow each other, so no message of the
+    applied file is older than one before it (what `mcap doctor` checks: with MCAP_CLI it must say nothing)."""
+    import os
+    import subprocess
+
+    from tests.helpers.mcap_order import log_time_order
+
+    out = tmp_path / "a.mcap"
+    assert cli(["apply", str(short_run.result), str(short_run.log), "--out", str(out), "--quiet"])[0] == 0
+    own, behind = log_time_order(out)
+    assert set(own) == {TOPIC_SAMPLES, TOPIC_COMPENSATED}
+    assert not any(own.values()) and not any(behind.values()), (own, behind)
+    if os.environ.get("MCAP_CLI"):
+        proc = subprocess.run([os.environ["MCAP_CLI"], "doctor", str(out)], capture_output=True, text=True,
+                              timeout=120)
+        assert proc.returncode == 0 and not (proc.stdout + proc.stderr).strip(), proc.stdout + proc.stderr
