@@ -17,7 +17,7 @@ import can
 from bench.config.chamber import ChamberConfig
 from bench.config.load import BenchConfig
 from bench.errors import BenchError
-from bench.run.imu_check import check_imu_stream
+from bench.run.imu_check import check_imu_stream, check_rig_adapter, check_rig_running
 from bench.sim.world import PumpedReceiver, SimWorld
 from drivers.chamber import Chamber, open_chamber
 from drivers.clock import SYSTEM_CLOCK, Clock
@@ -101,14 +101,18 @@ def open_simulator(config: BenchConfig, with_chamber: bool) -> Devices:
 def open_drivers(config: BenchConfig, with_chamber: bool) -> Devices:
     """The configured devices by their URLs on the system clock; the IMU stream is checked (rate and layout)
     before anything moves."""
+    where = f"interface {config.imu.interface} channel {config.imu.channel}"
+    # a file a `bench sim rig` wrote names pty paths and ports valid only while that rig runs: checked before
+    # any is opened (one may be someone's terminal now)
+    check_rig_running(config.imu.rig, f"{config.imu.channel} ({config.table.url})")
     stack = ExitStack()
     try:
         clock, bus = SYSTEM_CLOCK, config.imu.bus_kwargs()
         table = _open_table(config, config.table.url, clock, stack)
         # the interface's frame timestamps are mapped onto the run clock (one time base in the log)
         receiver = _open_receiver(config, bus, clock.now, stack)
-        imu_check = check_imu_stream(
-            receiver, config.imu.rate_hz, f"interface {config.imu.interface} channel {config.imu.channel}")
+        check_rig_adapter(receiver.bus, config.imu.rig, where)
+        imu_check = check_imu_stream(receiver, config.imu.rate_hz, where)
         devices = Devices(table, receiver, clock, imu_check=imu_check, _stack=stack)
         if with_chamber:
             chamber_config = _chamber_config(config)
