@@ -28,14 +28,36 @@ _HEAD_DTYPE = np.dtype([("opcode", "u1"), ("length", "<u8"), ("channel", "<u2"),
 
 
 class _PackedMessageIndex(MessageIndex):
-    """A message index that writes its (log time, offset) entries with one pack (the same bytes)."""
+    """A message index whose (log time, offset) entries added in bulk stay arrays until it is written (one copy,
+    the same bytes); `records` turns them into the list `MessageIndex` keeps when something reads it (the
+    writer's own `add_message` appending to it), so that the entries keep their order."""
+
+    _records: list[tuple[int, int]]
+    _blocks: list[np.ndarray]
+
+    @property
+    def records(self) -> list[tuple[int, int]]:
+        blocks = self.__dict__.setdefault("_blocks", [])
+        if blocks:
+            self._records.extend(map(tuple, np.concatenate(blocks).tolist()))
+            blocks.clear()
+        return self._records
+
+    @records.setter
+    def records(self, value: list[tuple[int, int]]) -> None:
+        self._records, self._blocks = list(value), []
+
+    def add_block(self, times: np.ndarray, offsets: np.ndarray) -> None:
+        """Entries of many messages at once (their log times and offsets, in order)."""
+        self._blocks.append(np.column_stack([times.astype(np.uint64), offsets.astype(np.uint64)]))
 
     def write(self, stream) -> None:
+        parts = ([np.array(self._records, np.uint64).reshape(-1, 2)] if self._records else []) + self._blocks
+        data = np.concatenate(parts).astype("<u8").tobytes() if parts else b""
         stream.start_record(Opcode.MESSAGE_INDEX)
         stream.write2(self.channel_id)
-        stream.write4(len(self.records) * 16)
-        flat = [x for entry in self.records for x in entry]
-        stream.write(struct.pack(f"<{len(flat)}Q", *flat))
+        stream.write4(len(data))
+        stream.write(data)
         stream.finish_record()
 
 
@@ -67,14 +89,14 @@ def _records(channels: int | np.ndarray, times: np.ndarray, bodies: Sequence[byt
     return b"".join(chain.from_iterable(zip([packed[k:k + width] for k in range(0, n * width, width)], bodies)))
 
 
-def _index_entries(channels: int | np.ndarray, times: np.ndarray,
-                   offsets: np.ndarray) -> list[tuple[int, list[tuple[int, int]]]]:
-    """(channel, its messages' (log time, offset) entries) for each channel of a part, in the order the channels
+def _index_parts(channels: int | np.ndarray, times: np.ndarray,
+                 offsets: np.ndarray) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """(channel, its messages' log times, their offsets) for each channel of a part, in the order the channels
     first appear (the order `add_message` creates the message indexes in)."""
     if isinstance(channels, int):
-        return [(channels, list(zip(times.tolist(), offsets.tolist())))]
+        return [(channels, times, offsets)]
     ids, first = np.unique(channels, return_index=True)
-    return [(int(channel), list(zip(times[mask].tolist(), offsets[mask].tolist())))
+    return [(int(channel), times[mask], offsets[mask])
             for channel in ids[np.argsort(first)] for mask in [channels == channel]]
 
 
@@ -114,12 +136,15 @@ def add_message_arrays(writer: Writer, channel_id: int | np.ndarray, log_times_n
             builder.message_start_time = min(builder.message_start_time, lo)
         builder.message_end_time = max(builder.message_end_time, hi)
         part_channels = channel_id if channels is None else channels[at:stop]
-        for channel, entries in _index_entries(part_channels, part_times, offsets):
+        for channel, channel_times, channel_offsets in _index_parts(part_channels, part_times, offsets):
             index = builder.message_indices.get(channel)
             if not index:
                 index = builder.message_indices[channel] = _PackedMessageIndex(channel_id=channel, records=[])
-            index.records.extend(entries)
-            stats.channel_message_counts[channel] += len(entries)
+            if isinstance(index, _PackedMessageIndex):
+                index.add_block(channel_times, channel_offsets)
+            else:       # an index the writer's own add_message began in this chunk
+                index.records.extend(zip(channel_times.tolist(), channel_offsets.tolist()))
+            stats.channel_message_counts[channel] += len(channel_times)
         builder.num_messages += stop - at
         builder.record_writer.write(_records(part_channels, part_times, bodies[at:stop], sizes[at:stop]))
         stats.message_start_time = lo if stats.message_count == 0 else min(stats.message_start_time, lo)

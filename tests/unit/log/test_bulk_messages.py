@@ -81,3 +81,23 @@ def test_interleaved_channels_write_the_same_bytes(chunk_size):
         writer.finish()
         files.append(out.getvalue())
     assert files[0] == files[1]
+
+
+def test_bulk_and_single_messages_mixed_on_one_channel_write_the_same_bytes():
+    """Entries added in bulk stay arrays until written; one `add_message` in between keeps its place."""
+    batches = [_messages(20, 7), _messages(3, 8), _messages(15, 9), _messages(2, 10)]
+    files = []
+    for mixed in (True, False):
+        out = io.BytesIO()
+        writer = Writer(out, chunk_size=1 << 20, compression=CompressionType.NONE)
+        writer.start()
+        channel = writer.register_channel("/t", "json", writer.register_schema("s", "jsonschema", b"{}"))
+        for k, batch in enumerate(batches):
+            if mixed and k % 2 == 0:
+                add_messages(writer, channel, batch)
+            else:
+                for t, body in batch:
+                    writer.add_message(channel, t, body, t)
+        writer.finish()
+        files.append(out.getvalue())
+    assert files[0] == files[1]
