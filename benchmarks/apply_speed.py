@@ -4,19 +4,25 @@ Issue 33 measured 35 s (CSV) and 69 s (MCAP) for a one-hour 1 kHz log, with one 
 target is under 10 s.
 
 Run: python benchmarks/apply_speed.py [--minutes 60] [--rate-hz 1000] [--repeats 3] [--formats csv mcap]
-                                      [--cache DIR] [--rebuild]
+                                      [--against DIR] [--cache DIR] [--rebuild]
 
 A static log of `--minutes` at `--rate-hz` (the simulated IMU, packed layout; `tests/helpers/static_log.py`) and
 a result file (the simulated IMU's true coefficients) are built once into the cache (default <system
 temp>/turntable-bench-apply). Each repeat runs `bench apply RESULT LOG --out FILE --quiet` in a fresh process
-(what a user waits for: the log read and decoded, the samples compensated and written), the formats
-interleaved; prints each time and the medians. The machine is shared: run the one-hour log once
-(`--repeats 1`), compare code versions on a shorter one.
+(what a user waits for: the log read and decoded, the samples compensated and written), the formats (and, with
+`--against DIR`, this checkout and another one) alternated; prints each run's wall and CPU time (the child's
+user + system) and the load, then the medians, and writes them to benchmarks/results/apply_speed.json. With
+`--against`, the two checkouts' outputs are compared value for value (every number of every CSV row and MCAP
+message read back as floats). The machine is shared: prefix `nice -n 19` and read the CPU times.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+import json
+import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -48,37 +54,91 @@ def build(cache: Path, minutes: float, rate_hz: float, rebuild: bool) -> tuple[P
     return log, result
 
 
-def timed_apply(result: Path, log: Path, out: Path) -> float:
-    t0 = time.perf_counter()
+def _children_cpu_s() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def timed_apply(checkout: Path, result: Path, log: Path, out: Path) -> tuple[float, float]:
+    """(wall s, CPU s) of one `bench apply` of `checkout`'s code in a fresh process."""
+    cpu0, t0 = _children_cpu_s(), time.perf_counter()
     subprocess.run([sys.executable, "-m", "bench.cli", "apply", str(result), str(log), "--out", str(out), "--quiet"],
-                   cwd=REPO, check=True)
-    seconds = time.perf_counter() - t0
-    out.unlink()
-    return seconds
+                   cwd=checkout, check=True)
+    return time.perf_counter() - t0, _children_cpu_s() - cpu0
+
+
+def _values(path: Path) -> list:
+    """Every number of an output, as floats (JSON null as NaN), in file order: rows or (topic, log time, body)."""
+    if path.suffix == ".csv":
+        with open(path, encoding="utf-8", newline="") as f:
+            rows = csv.reader(f)
+            return [next(rows)] + [[float(x) for x in row] for row in rows]
+    from mcap.reader import make_reader
+
+    def floats(value):
+        if isinstance(value, list):
+            return [floats(x) for x in value]
+        return float("nan") if value is None else value if isinstance(value, str) else float(value)
+
+    with open(path, "rb") as f:
+        return [(channel.topic, message.log_time, {k: floats(v) for k, v in json.loads(message.data).items()})
+                for _s, channel, message in make_reader(f).iter_messages(log_time_order=False)]
+
+
+def same_values(a: Path, b: Path) -> bool:
+    """True when the two outputs hold the same numbers in the same order (NaN equal to NaN)."""
+    return json.dumps(_values(a)) == json.dumps(_values(b))
 
 
 def main() -> None:
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import results
+
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--minutes", type=float, default=60.0)
     parser.add_argument("--rate-hz", type=float, default=1000.0)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--formats", nargs="+", choices=("csv", "mcap"), default=["csv", "mcap"])
+    parser.add_argument("--against", metavar="DIR", type=Path, help="another checkout to run alternately")
     parser.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "turntable-bench-apply")
     parser.add_argument("--rebuild", action="store_true")
     args = parser.parse_args()
     log, result = build(args.cache, args.minutes, args.rate_hz, args.rebuild)
     samples = int(round(args.minutes * 60.0 * args.rate_hz))
-    times: dict[str, list[float]] = {fmt: [] for fmt in args.formats}
+    checkouts = {"this": REPO} if args.against is None else {"base": args.against.resolve(), "this": REPO}
+    times: dict[tuple[str, str], list[tuple[float, float]]] = {}
+    same: dict[str, bool] = {}
     for repeat in range(args.repeats):
         for fmt in args.formats:
-            seconds = timed_apply(result, log, args.cache / f"applied.{fmt}")
-            times[fmt].append(seconds)
-            print(f"repeat {repeat + 1}: {fmt} {seconds:.2f} s ({seconds / samples * 1e6:.2f} us a sample)", flush=True)
-    for fmt, values in times.items():
-        median = statistics.median(values)
-        print(f"bench apply to {fmt}: median {median:.2f} s over {len(values)} run(s) "
-              f"({min(values):.2f}-{max(values):.2f}); {samples:,} samples ({args.minutes:g} min at "
-              f"{args.rate_hz:g} Hz), {median / samples * 1e6:.2f} us a sample")
+            for name, checkout in checkouts.items():
+                out = args.cache / f"applied-{name}.{fmt}"
+                wall, cpu = timed_apply(checkout, result, log, out)
+                times.setdefault((name, fmt), []).append((wall, cpu))
+                load = os.getloadavg()
+                print(f"repeat {repeat + 1}: {name} {fmt}: {wall:.2f} s wall, {cpu:.2f} s CPU "
+                      f"({cpu / samples * 1e6:.2f} us CPU a sample); load {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}",
+                      flush=True)
+            if args.against is not None and fmt not in same:
+                same[fmt] = same_values(args.cache / f"applied-base.{fmt}", args.cache / f"applied-this.{fmt}")
+                print(f"{fmt}: the same values as the base's output: {same[fmt]}", flush=True)
+            for name in checkouts:
+                (args.cache / f"applied-{name}.{fmt}").unlink()
+    medians: dict[str, float] = {}
+    for (name, fmt), values in times.items():
+        wall, cpu = statistics.median(w for w, _ in values), statistics.median(c for _, c in values)
+        medians[f"{name}: bench apply to {fmt}, wall"] = wall
+        medians[f"{name}: bench apply to {fmt}, CPU"] = cpu
+        print(f"{name}: bench apply to {fmt}: median {wall:.2f} s wall, {cpu:.2f} s CPU over {len(values)} run(s); "
+              f"{samples:,} samples ({args.minutes:g} min at {args.rate_hz:g} Hz), target < 10 s: "
+              f"{'met' if wall < 10 else 'MISSED'} (wall), {'met' if cpu < 10 else 'MISSED'} (CPU)")
+    ratios = {f"{fmt} CPU this/base": medians[f"this: bench apply to {fmt}, CPU"]
+              / medians[f"base: bench apply to {fmt}, CPU"] for fmt in args.formats if args.against is not None}
+    path = results.record("apply_speed", medians_s=medians, ratios=ratios,
+                          parameters={"minutes": args.minutes, "rate_hz": args.rate_hz, "repeats": args.repeats,
+                                      "against": str(args.against or "")},
+                          note=("the base's and this checkout's outputs hold the same values: "
+                                + ", ".join(f"{fmt} {ok}" for fmt, ok in same.items())) if same else "")
+    print(f"figures written to {path}")
 
 
 if __name__ == "__main__":

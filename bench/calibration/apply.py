@@ -23,16 +23,17 @@ counter / sample rate (the IMU's own time base).
 from __future__ import annotations
 
 import json
-import math
-import re
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
+from itertools import chain, repeat
 from pathlib import Path
-from typing import Callable, Iterator
 
 import numpy as np
+import orjson
 
 from bench import __version__
 from bench.calibration.compensation import Compensation
+from bench.log.bulk_messages import add_message_arrays
 from bench.log.format import SCHEMAS, TOPIC_SAMPLES
 from bench.log.reader import RunLog, read_log
 from bench.log.run_info import layout_and_config_from_log
@@ -109,18 +110,17 @@ def apply_to_log(compensation: Compensation, log_path: str, *, rate_unit: str = 
     return compensate_block(compensation, log_samples(log), rate_unit=rate_unit, force_unit=force_unit), log
 
 
-#: samples formatted at once (one string of ~3 MB for the MCAP's raw topic)
+#: samples formatted at once (a few MB of text for the MCAP's two topics)
 BLOCK_SAMPLES = 10_000
-#: one CSV row: counter, time_s, imu_time_s, three rates, three forces (17 significant digits read back exactly)
+#: one CSV row: counter, time_s, imu_time_s, three rates, three forces (17 significant digits read back exactly);
+#: the format of a block holding a value that is not finite (JSON text has none: `_texts` cannot print it)
 _CSV_ROW = "%d," + ",".join(["%.17g"] * 8) + "\n"
-_VEC = "[%.17g,%.17g,%.17g]"
-#: one `/imu/samples` body (the run log's), from the 17 columns of `_raw_columns`
-_RAW_BODY = ('{"counter":%d,"time_s":%.17g,"imu_time_s":%.17g,"gyro_counts":' + _VEC + ',"acc_counts":' + _VEC
-             + ',"gyro_rate":' + _VEC + ',"acc_rate":' + _VEC + ',"temperature_c":%.17g,"status":%d}')
-#: one `/imu/compensated` body, from the 9 columns of `_compensated_columns`, up to its units
-_COMPENSATED_BODY = ('{"counter":%d,"time_s":%.17g,"imu_time_s":%.17g,"angular_rate":' + _VEC
-                     + ',"specific_force":' + _VEC)
 Progress = Callable[[int, int], None]
+#: the literal text of an `/imu/samples` body (the run log's) around its nine fields, from `_raw_columns`
+_RAW_TEXT = (b'{"counter":', b',"time_s":', b',"imu_time_s":', b',"gyro_counts":[', b'],"acc_counts":[',
+             b'],"gyro_rate":[', b'],"acc_rate":[', b'],"temperature_c":', b',"status":', b"}")
+#: the same for an `/imu/compensated` body's five fields (`_compensated_columns`), up to its units
+_COMPENSATED_TEXT = (b'{"counter":', b',"time_s":', b',"imu_time_s":', b',"angular_rate":[', b'],"specific_force":[')
 
 
 def _blocks(n: int) -> Iterator[tuple[int, int]]:
@@ -128,65 +128,62 @@ def _blocks(n: int) -> Iterator[tuple[int, int]]:
         yield lo, min(n, lo + BLOCK_SAMPLES)
 
 
-def _formatted(template: str, columns: np.ndarray) -> str:
-    """Every row of `columns` through `template`, one per line, in C (no Python call per row)."""
-    return "\n".join(map(template.__mod__, map(tuple, columns.tolist())))
+def _texts(values: np.ndarray) -> list[bytes]:
+    """Each row of `values` ((n,) or (n, k), int64 or float64) as JSON numbers joined by commas, printed by
+    orjson in C: an integer's digits, a float's shortest text that reads back as the same float (as `repr`,
+    written `1e-5` for `1e-05`), null for NaN and infinities."""
+    text = orjson.dumps(np.ascontiguousarray(values), option=orjson.OPT_SERIALIZE_NUMPY)
+    return text[1:-1].split(b",") if values.ndim == 1 else text[2:-2].split(b"],[")
+
+
+def _rows(literals: Sequence[bytes], columns: Sequence[np.ndarray]) -> Iterator[tuple[bytes, ...]]:
+    """Per row: literals[0], columns[0]'s text, literals[1], ..., literals[-1] (one more literal than columns)."""
+    parts: list[Iterable[bytes]] = [repeat(literals[0])]
+    for literal, column in zip(literals[1:], columns):
+        parts += [_texts(column), repeat(literal)]
+    return zip(*parts)
 
 
 def write_csv(samples: CompensatedSamples, path: str | Path, progress: Progress | None = None) -> None:
     """The samples as CSV, a block of `BLOCK_SAMPLES` rows formatted at once; `progress(done, total)` after each."""
     rs, fs = _SUFFIX[samples.rate_unit], _SUFFIX[samples.force_unit]
-    columns = np.column_stack([samples.counter, samples.time_s, samples.imu_time_s, samples.angular_rate,
-                               samples.specific_force])
-    with open(path, "w", encoding="utf-8", newline="") as f:
+    values = np.column_stack([samples.time_s, samples.imu_time_s, samples.angular_rate, samples.specific_force])
+    with open(path, "wb") as f:
         f.write(",".join(["counter", "time_s", "imu_time_s", *(f"rate_{a}_{rs}" for a in "xyz"),
-                          *(f"force_{a}_{fs}" for a in "xyz")]) + "\n")
+                          *(f"force_{a}_{fs}" for a in "xyz")]).encode() + b"\n")
         for lo, hi in _blocks(len(samples)):
-            f.write("".join(map(_CSV_ROW.__mod__, map(tuple, columns[lo:hi].tolist()))))
+            block = values[lo:hi]
+            if np.isfinite(block).all():
+                f.write(b"".join(chain.from_iterable(_rows((b"", b",", b"\n"), (samples.counter[lo:hi], block)))))
+            else:
+                rows = np.column_stack([samples.counter[lo:hi], block]).tolist()
+                f.write("".join(map(_CSV_ROW.__mod__, map(tuple, rows))).encode())
             if progress is not None:
                 progress(hi, len(samples))
 
 
-def _num(x: float) -> str:
-    return repr(x) if math.isfinite(x) else "null"
-
-
-def _raw_columns(samples: CompensatedSamples) -> np.ndarray:
+def _raw_columns(samples: CompensatedSamples, lo: int, hi: int) -> list[np.ndarray]:
     block, rate = samples.raw, float(samples.raw.rate_hz)
-    return np.column_stack([block.counter, block.receive_time_s, block.time_s, block.gyro_counts, block.acc_counts,
-                            block.gyro_counts * rate, block.acc_counts * rate, block.temperature_c, block.status])
+    gyro, acc = block.gyro_counts[lo:hi], block.acc_counts[lo:hi]
+    return [block.counter[lo:hi], block.receive_time_s[lo:hi], block.time_s[lo:hi], gyro, acc, gyro * rate,
+            acc * rate, block.temperature_c[lo:hi], block.status[lo:hi]]
 
 
-def _compensated_columns(samples: CompensatedSamples) -> np.ndarray:
-    return np.column_stack([samples.counter, samples.time_s, samples.imu_time_s, samples.angular_rate,
-                            samples.specific_force])
-
-
-def _json_bodies(template: str, columns: np.ndarray, nullable: tuple[int, ...] = ()) -> list[bytes]:
-    """JSON bodies of `columns` through `template`: non-finite values become null (JSON has no NaN); a block
-    with one elsewhere than in the `nullable` columns is written value by value (`_num`)."""
-    finite = np.isfinite(columns)
-    if not finite[:, [k for k in range(columns.shape[1]) if k not in nullable]].all():
-        whole = [kind == "%d" for kind in re.findall(r"%\.17g|%d", template)]
-        parts = template.replace("%.17g", "%s").replace("%d", "%s")
-        return [(parts % tuple(str(int(x)) if is_int else _num(x) for is_int, x in zip(whole, row))).encode()
-                for row in columns.tolist()]
-    text = _formatted(template, columns)
-    if nullable and not finite[:, list(nullable)].all():
-        text = text.replace(":nan,", ":null,").replace(":inf,", ":null,").replace(":-inf,", ":null,")
-    return text.encode().split(b"\n")
+def _compensated_columns(samples: CompensatedSamples, lo: int, hi: int) -> list[np.ndarray]:
+    return [samples.counter[lo:hi], samples.time_s[lo:hi], samples.imu_time_s[lo:hi], samples.angular_rate[lo:hi],
+            samples.specific_force[lo:hi]]
 
 
 def write_mcap(samples: CompensatedSamples, path: str | Path, *, compensation: Compensation, source_log: str,
                progress: Progress | None = None) -> None:
-    """A new MCAP file: raw samples on `/imu/samples`, compensated ones on `/imu/compensated`; the bodies of a
-    block of `BLOCK_SAMPLES` samples formatted at once, `progress(done, total)` after each block."""
+    """A new MCAP file: raw samples on `/imu/samples`, compensated ones on `/imu/compensated`, each sample's two
+    messages one after the other (the file in log-time order); the bodies of a block of `BLOCK_SAMPLES` samples
+    formatted and written at once (`bench.log.bulk_messages`), `progress(done, total)` after each block."""
     # local: the mcap writer is needed only for this output
     from mcap.writer import CompressionType, Writer
 
-    units = f'"rate_unit":{json.dumps(samples.rate_unit)},"force_unit":{json.dumps(samples.force_unit)}'
-    compensated_body = _COMPENSATED_BODY + "," + units.replace("%", "%%") + "}"
-    raw_columns, compensated_columns = _raw_columns(samples), _compensated_columns(samples)
+    units = f'"rate_unit":{json.dumps(samples.rate_unit)},"force_unit":{json.dumps(samples.force_unit)}}}'
+    compensated_text = (*_COMPENSATED_TEXT, b"]," + units.encode())
     log_times_s = samples.time_s
     with open(path, "wb") as f:
         writer = Writer(f, compression=CompressionType.ZSTD)
@@ -201,15 +198,15 @@ def write_mcap(samples: CompensatedSamples, path: str | Path, *, compensation: C
             "source_log": Path(source_log).name, "calibration_run_id": compensation.run_id,
             "imu_model": compensation.imu_model, "imu_serial": compensation.imu_serial,
             "rate_unit": samples.rate_unit, "force_unit": samples.force_unit, "software_version": __version__})
-        add = writer.add_message
         for lo, hi in _blocks(len(samples)):
             times = log_times_s[lo:hi]
-            log_times_ns = np.where(times > 0.0, np.rint(times * 1e9), 0.0).astype(np.int64).tolist()
-            raw = _json_bodies(_RAW_BODY, raw_columns[lo:hi], nullable=(1, 15))      # time_s, temperature_c
-            compensated = _json_bodies(compensated_body, compensated_columns[lo:hi], nullable=(1,))
-            for ns, raw_body, compensated_body_bytes in zip(log_times_ns, raw, compensated):
-                add(raw_channel, ns, raw_body, ns)
-                add(comp_channel, ns, compensated_body_bytes, ns)
+            log_times_ns = np.where(times > 0.0, np.rint(times * 1e9), 0.0).astype(np.int64)
+            raw = map(b"".join, _rows(_RAW_TEXT, _raw_columns(samples, lo, hi)))
+            compensated = map(b"".join, _rows(compensated_text, _compensated_columns(samples, lo, hi)))
+            # raw, compensated, raw, ...: two messages a sample at its log time
+            bodies = list(chain.from_iterable(zip(raw, compensated)))
+            add_message_arrays(writer, np.tile([raw_channel, comp_channel], hi - lo), np.repeat(log_times_ns, 2),
+                               bodies)
             if progress is not None:
                 progress(hi, len(samples))
         writer.finish()

@@ -88,7 +88,9 @@ def register(kinds: argparse._SubParsersAction) -> None:
                      help="allow a listen address beyond loopback: anyone who can reach this machine can then "
                           "command the simulated table")
     add_idle_timeout_option(rig)
-    rig.add_argument("--write-config", metavar="FILE", help="write the bench configuration pointing at the rig")
+    rig.add_argument("--write-config", metavar="FILE",
+                     help="write the bench configuration pointing at the rig (valid only while this rig runs: it "
+                          "names the rig in [imu.rig], and `bench run` refuses it once the rig has stopped)")
     rig.add_argument("--config", metavar="FILE",
                      help="a bench configuration whose [site], [sim], imu.rate_hz and IMU layout the rig uses")
     rig.add_argument("--seed", type=int, help="[sim] seed (black-box draw and sensor noise)")
@@ -200,7 +202,7 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
         rig.start()
         if args.write_config:
             text = rig_config_text(config, table_url, dialect, peers[0],
-                                   (chamber_url, chamber_dialect) if chamber is not None else None)
+                                   (chamber_url, chamber_dialect) if chamber is not None else None, rig.identity)
             parse_config(text, source=args.write_config, base_dir=Path(args.write_config).resolve().parent)
             # never over the --config read, nor over a run log
             write_output_text(args.write_config, text, [args.config] if args.config else [], option="--write-config")

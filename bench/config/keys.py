@@ -255,6 +255,9 @@ KEYS: tuple[Key, ...] = (
     Key("imu", "bus_options", "table", "extra keyword arguments for python-can's Bus, passed as given (not "
         "interface, channel, bitrate, fd)", NONE),
     Key("imu", "identity", "table", "what is being calibrated (recorded in the log and the result)"),
+    Key("imu", "rig", "table", "written by `bench sim rig --write-config`: the rig whose pty and ports the file "
+        "names, valid only while it runs; `bench run` refuses the file once that rig has stopped, or when the SLCAN "
+        "adapter on the channel is not that rig's", NONE),
     Key("imu", "noise", "path", "a `bench noise` result of this IMU: its largest bias instabilities replace "
         "the identity's data-sheet values in the solve", NONE),
     Key("imu", "mounting", "string or array", "[[imu]] entries only: the unit's mounting on the fixture, a face "
@@ -284,6 +287,10 @@ KEYS: tuple[Key, ...] = (
         "none", "CRC", default_text="\"CRC\"; none with time_stamp"),
     Key("imu.signals", "time_stamp", "string", "a time stamp signal (unsigned, microseconds) instead of a counter: "
         "its message opens a sample, the channels are then rates and accelerations (sbg-ecan)", NONE),
+    Key("imu.rig", "id", "string", "the rig's id, which its simulated SLCAN adapter answers as its serial number",
+        REQUIRED),
+    Key("imu.rig", "pid", "integer", "the rig's process id", NONE, ge=1),
+    Key("imu.rig", "started_utc", "string", "when the rig's process started, ISO 8601 UTC", ""),
     Key("imu.identity", "model", "string", "model name", ""),
     Key("imu.identity", "serial", "string", "serial number", ""),
     Key("imu.identity", "gyro_bias_stability_dph", "number", "data-sheet gyro bias stability", NONE, "deg/h",

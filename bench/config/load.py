@@ -42,6 +42,7 @@ from bench.config.keys import (
 from bench.config.lab import LAB_KEYS, LabConfig, lab_config
 from bench.config.reader import ConfigError, Located, Table, describe, parse_toml, read_text, show, suggest
 from bench.config.register_map import TABLE_MAP, load_register_map, register_map_value
+from bench.config.rig import RigIdentity
 from bench.config.thermal import THERMAL_KEYS, sim_thermal
 from bench.config.thermal_plan import check_against_chamber, thermal_plan
 from bench.config.units import imu_units
@@ -172,6 +173,8 @@ class ImuConfig:
     mounting_name: str = ""           # the face it names ("x-up"), or "matrix"; "" for a single [imu]
     #: an [[imu]] entry's id_offset: added to every frame id of its layout (`layout` has it added already)
     id_offset: int = 0
+    #: [imu.rig]: the `bench sim rig` the file was written for (valid only while it runs); None: not a rig's
+    rig: RigIdentity | None = None
 
     def bus_kwargs(self) -> dict:
         """Keyword arguments for `drivers.imu.receiver.open_bus` (python-can's `can.Bus(**kwargs)`, with
@@ -374,8 +377,13 @@ def _imu(t: Table) -> ImuConfig:
                                           "bias_correlation_time_s", "acc_xy_to_z_uncertainty")))
     noise = _imu_noise(t) if t.has("noise") else None
     slcan_client = t.string("slcan_client", declared("imu", "slcan_client").default, choices=SLCAN_CLIENTS)
+    rig = None
+    if t.has("rig"):
+        r = t.table("rig", allowed("imu.rig"))
+        rig = RigIdentity(r.string("id", nonempty=True), r.integer("pid", None, ge=1),
+                          r.string("started_utc", declared("imu.rig", "started_utc").default))
     return ImuConfig(interface, channel, bitrate, fd, Path(dbc), rate_hz, spec, layout, bus_options, identity, noise,
-                     layout_name, slcan_client)
+                     layout_name, slcan_client, rig)
 
 
 def _imu_noise(t: Table) -> ImuNoise:

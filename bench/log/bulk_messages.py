@@ -13,9 +13,7 @@ back to `add_message` per message on an mcap release that keeps it differently.
 from __future__ import annotations
 
 import struct
-from bisect import bisect_right
 from collections.abc import Sequence
-from itertools import accumulate
 
 import numpy as np
 from mcap.opcode import Opcode
@@ -29,14 +27,36 @@ _HEAD_DTYPE = np.dtype([("opcode", "u1"), ("length", "<u8"), ("channel", "<u2"),
 
 
 class _PackedMessageIndex(MessageIndex):
-    """A message index that writes its (log time, offset) entries with one pack (the same bytes)."""
+    """A message index whose (log time, offset) entries added in bulk stay arrays until it is written (one copy,
+    the same bytes); `records` turns them into the list `MessageIndex` keeps when something reads it (the
+    writer's own `add_message` appending to it), so that the entries keep their order."""
+
+    _records: list[tuple[int, int]]
+    _blocks: list[np.ndarray]
+
+    @property
+    def records(self) -> list[tuple[int, int]]:
+        blocks = self.__dict__.setdefault("_blocks", [])
+        if blocks:
+            self._records.extend(map(tuple, np.concatenate(blocks).tolist()))
+            blocks.clear()
+        return self._records
+
+    @records.setter
+    def records(self, value: list[tuple[int, int]]) -> None:
+        self._records, self._blocks = list(value), []
+
+    def add_block(self, times: np.ndarray, offsets: np.ndarray) -> None:
+        """Entries of many messages at once (their log times and offsets, in order)."""
+        self._blocks.append(np.column_stack([times.astype(np.uint64), offsets.astype(np.uint64)]))
 
     def write(self, stream) -> None:
+        parts = ([np.array(self._records, np.uint64).reshape(-1, 2)] if self._records else []) + self._blocks
+        data = np.concatenate(parts).astype("<u8").tobytes() if parts else b""
         stream.start_record(Opcode.MESSAGE_INDEX)
         stream.write2(self.channel_id)
-        stream.write4(len(self.records) * 16)
-        flat = [x for entry in self.records for x in entry]
-        stream.write(struct.pack(f"<{len(flat)}Q", *flat))
+        stream.write4(len(data))
+        stream.write(data)
         stream.finish_record()
 
 
@@ -57,58 +77,85 @@ def _state(writer: Writer):
     return builder, stats, size, finalize
 
 
-def _records(channel_id: int, times: list[int], bodies: list[bytes], sizes: list[int]) -> bytes:
-    """The Message records of `bodies` (sizes: each record's, head included): the heads laid out as one array,
-    then each head and its body joined in turn (one join; a byte mask over the records cost five times more)."""
+def _records(channels: int | np.ndarray, times: np.ndarray, bodies: Sequence[bytes], sizes: np.ndarray) -> bytes:
+    """The Message records of `bodies` (sizes: each record's, head included), heads laid out as one array and
+    joined with the bodies (no Python step per byte)."""
     n = len(bodies)
     heads = np.zeros(n, _HEAD_DTYPE)
-    size = np.array(sizes, np.int64)
-    heads["opcode"], heads["length"], heads["channel"] = int(Opcode.MESSAGE), size - 9, channel_id
-    heads["log_time"] = heads["publish_time"] = np.array(times, np.uint64)
-    packed, step = heads.tobytes(), _HEAD.size
+    heads["opcode"], heads["length"], heads["channel"] = int(Opcode.MESSAGE), sizes - 9, channels
+    heads["log_time"] = heads["publish_time"] = times
+    packed, width = heads.tobytes(), _HEAD.size
+    # each head then its body, in one join over a list filled by slice assignment (the cheapest layout measured)
     parts: list[bytes] = [b""] * (2 * n)
-    parts[0::2] = [packed[at:at + step] for at in range(0, n * step, step)]
+    parts[0::2] = [packed[k:k + width] for k in range(0, n * width, width)]
     parts[1::2] = bodies
     return b"".join(parts)
 
 
-def add_messages(writer: Writer, channel_id: int, messages: Sequence[tuple[int, bytes]]) -> None:
-    """`writer.add_message(channel_id, t, body, t)` for each (t, body) of `messages`, in order."""
+def _index_parts(channels: int | np.ndarray, times: np.ndarray,
+                 offsets: np.ndarray) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """(channel, its messages' log times, their offsets) for each channel of a part, in the order the channels
+    first appear (the order `add_message` creates the message indexes in)."""
+    if isinstance(channels, int):
+        return [(channels, times, offsets)]
+    ids, first = np.unique(channels, return_index=True)
+    return [(int(channel), times[mask], offsets[mask])
+            for channel in ids[np.argsort(first)] for mask in [channels == channel]]
+
+
+def add_messages(writer: Writer, channel_id: int | np.ndarray, messages: Sequence[tuple[int, bytes]]) -> None:
+    """`writer.add_message(channel_id, t, body, t)` for each (t, body) of `messages`, in order; `channel_id` is
+    one channel's, or an array of each message's (messages of several channels interleaved)."""
+    add_message_arrays(writer, channel_id, np.array([t for t, _ in messages], np.uint64),
+                       [body for _, body in messages])
+
+
+def add_message_arrays(writer: Writer, channel_id: int | np.ndarray, log_times_ns: np.ndarray,
+                       bodies: Sequence[bytes]) -> None:
+    """`add_messages` with the log times (ns) as an array and the bodies as a list beside it."""
+    n = len(bodies)
+    channels = None if isinstance(channel_id, int) else np.asarray(channel_id, np.int64)
+    times = np.asarray(log_times_ns, np.uint64)
     state = _state(writer)
     if state is None:
-        for t, body in messages:
-            writer.add_message(channel_id, t, body, t)
+        ids = [channel_id] * n if isinstance(channel_id, int) else np.asarray(channel_id).tolist()
+        for channel, t, body in zip(ids, times.tolist(), bodies):
+            writer.add_message(channel, t, body, t)
         return
     builder, stats, chunk_size, finalize = state
-    sizes = [_HEAD.size + len(body) for _, body in messages]
-    at, n = 0, len(messages)
+    sizes = np.fromiter(map(len, bodies), np.int64, n) + _HEAD.size
+    ends = np.cumsum(sizes)           # of each record, counted from the first
+    at = 0
     while at < n:
-        # the messages up to the first that takes the chunk past `chunk_size` (the writer closes it after that one):
-        # ends[j] is the chunk's size before message at + j, the first end beyond `chunk_size` follows the last one
-        ends = list(accumulate(sizes[at:], initial=builder.record_writer.count))
-        stop = at + min(bisect_right(ends, chunk_size, 1), n - at)
-        offsets = ends[:stop - at]
-        part = messages[at:stop]
-        times = [t for t, _ in part]
-        lo, hi = min(times), max(times)
+        # the messages up to the first that takes the chunk past `chunk_size` (the writer closes it after that one)
+        start = builder.record_writer.count - (int(ends[at - 1]) if at else 0)    # where ends[at - 1] lands
+        stop = min(n, at + 1 + int(np.searchsorted(ends[at:], chunk_size - start, side="right")))
+        offsets = ends[at:stop] - sizes[at:stop] + start
+        part_times = times[at:stop]
+        lo, hi = int(part_times.min()), int(part_times.max())
         if builder.num_messages == 0:
             builder.message_start_time = lo
         else:
             builder.message_start_time = min(builder.message_start_time, lo)
         builder.message_end_time = max(builder.message_end_time, hi)
-        index = builder.message_indices.get(channel_id)
-        if not index:
-            index = builder.message_indices[channel_id] = _PackedMessageIndex(channel_id=channel_id, records=[])
-        index.records.extend(zip(times, offsets))
-        builder.num_messages += len(part)
-        builder.record_writer.write(_records(channel_id, times, [body for _, body in part], sizes[at:stop]))
+        part_channels = channel_id if channels is None else channels[at:stop]
+        for channel, channel_times, channel_offsets in _index_parts(part_channels, part_times, offsets):
+            index = builder.message_indices.get(channel)
+            if not index:
+                index = builder.message_indices[channel] = _PackedMessageIndex(channel_id=channel, records=[])
+            if isinstance(index, _PackedMessageIndex):
+                index.add_block(channel_times, channel_offsets)
+            else:       # an index the writer's own add_message began in this chunk
+                index.records.extend(zip(channel_times.tolist(), channel_offsets.tolist()))
+            stats.channel_message_counts[channel] += len(channel_times)
+        builder.num_messages += stop - at
+        builder.record_writer.write(_records(part_channels, part_times, bodies[at:stop], sizes[at:stop]))
         stats.message_start_time = lo if stats.message_count == 0 else min(stats.message_start_time, lo)
         stats.message_end_time = max(stats.message_end_time, hi)
-        stats.channel_message_counts[channel_id] += len(part)
-        stats.message_count += len(part)
+        stats.message_count += stop - at
         at = stop
         if builder.record_writer.count > chunk_size:
             finalize()
 
 
-__all__ = ["add_messages"]
+__all__ = ["add_message_arrays", "add_messages"]

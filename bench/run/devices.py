@@ -18,7 +18,7 @@ from bench.config.chamber import ChamberConfig
 from bench.config.load import BenchConfig, ImuConfig
 from bench.config.units import FACES, bus_name
 from bench.errors import BenchError
-from bench.run.imu_check import check_imu_stream
+from bench.run.imu_check import check_imu_stream, check_rig_adapter, check_rig_running
 from bench.run.units import UnitLink
 from bench.sim.units import SimUnit, unit_seed, unit_truth
 from bench.sim.world import PumpedReceiver, SimWorld
@@ -107,13 +107,18 @@ def open_simulator(config: BenchConfig, with_chamber: bool) -> Devices:
 def open_drivers(config: BenchConfig, with_chamber: bool) -> Devices:
     """The configured devices by their URLs on the system clock; the IMU stream is checked (rate and layout)
     before anything moves."""
+    where = _where(config.imu, config.several)
+    # a file a `bench sim rig` wrote names pty paths and ports valid only while that rig runs: checked before
+    # any is opened (one may be someone's terminal now)
+    check_rig_running(config.imu.rig, f"{config.imu.channel} ({config.table.url})")
     stack = ExitStack()
     try:
         clock, bus = SYSTEM_CLOCK, config.imu.bus_kwargs()
         table = _open_table(config, config.table.url, clock, stack)
         # the interface's frame timestamps are mapped onto the run clock (one time base in the log)
         receiver = _open_receiver(config, bus, clock.now, stack)
-        imu_check = check_imu_stream(receiver, config.imu.rate_hz, _where(config.imu, config.several))
+        check_rig_adapter(receiver.bus, config.imu.rig, where)
+        imu_check = check_imu_stream(receiver, config.imu.rate_hz, where)
         devices = Devices(table, receiver, clock, imu_check=imu_check, _stack=stack)
         for unit in config.units[1:]:     # a run of several IMUs: every unit checked before anything moves
             unit_receiver = ImuReceiver(unit.bus_kwargs(), unit.layout, unit.rate_hz, time_base=clock.now)

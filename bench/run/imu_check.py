@@ -1,4 +1,5 @@
-"""Before anything moves: is the IMU there, at the configured rate, with the configured layout?
+"""Before anything moves: is the IMU there, at the configured rate, with the configured layout, and is it the
+simulated rig the configuration was written for (`[imu.rig]`, `check_rig_running`, `check_rig_adapter`)?
 
 A hardware run used to find a silent IMU only at its first dwell, after the servos were on
 and the table had moved ("no IMU sample for 2.0 s", exit 3). `check_imu_stream` listens
@@ -14,6 +15,7 @@ from typing import Callable
 
 import numpy as np
 
+from bench.config.rig import RigIdentity
 from bench.errors import BenchError
 from drivers.imu.layout import EXTENDED_ID_FLAG, SHIPPED_LAYOUTS, ImuLayout, shipped_layout
 
@@ -26,6 +28,8 @@ MIN_SAMPLES = 10
 RATE_TOLERANCE = 0.2
 #: distinct frame ids noted while listening (enough for any layout; bounded on a busy bus)
 MAX_IDS = 256
+#: how long an SLCAN adapter may take to answer its serial number, s
+RIG_SERIAL_TIMEOUT_S = 1.0
 
 
 class ImuCheckError(BenchError):
@@ -89,6 +93,31 @@ def _check(receiver, rate_hz: float, where: str, timeout_s: float, monotonic: Ca
     return f"IMU on {where}: {got} samples"
 
 
+def check_rig_running(rig: RigIdentity | None, where: str) -> None:
+    """Before anything is opened: `ImuCheckError` when the configuration names a `bench sim rig` ([imu.rig]) that
+    no longer runs (its pty or port may be another process's now: a terminal, another rig)."""
+    if rig is not None and not rig.running():
+        raise ImuCheckError(f"this configuration was written for {rig.describe()}, which is not running: {where} "
+                            "may belong to another process now; start `bench sim rig --write-config FILE` again "
+                            "(for another bench, remove [imu.rig])")
+
+
+def check_rig_adapter(bus, rig: RigIdentity | None, where: str, timeout_s: float = RIG_SERIAL_TIMEOUT_S) -> None:
+    """`ImuCheckError` when the configuration names a rig and the SLCAN adapter on the bus is not that rig's: its
+    serial number (`N`) is the rig's id. Buses that cannot be asked (socketcand, SocketCAN) are not checked."""
+    ask = getattr(bus, "get_serial_number", None)
+    if rig is None or ask is None:
+        return
+    serial = ask(timeout_s)
+    if serial == rig.id:
+        return
+    found = (f"the SLCAN adapter on {where} answers serial number {serial!r}" if serial
+             else f"nothing on {where} answers as an SLCAN adapter in {timeout_s:g} s")
+    raise ImuCheckError(f"{found}, not {rig.describe()} that this configuration was written for: that rig has "
+                        "stopped and its pty went to another process; start `bench sim rig --write-config FILE` "
+                        "again (for another bench, remove [imu.rig])")
+
+
 def describe_layout(layout: ImuLayout) -> str:
     """'packed: 3 frames per sample, ids 0x120..0x122' (the shipped name when it is one)."""
     name = next((n for n in SHIPPED_LAYOUTS if shipped_layout(n).messages == layout.messages), None)
@@ -108,4 +137,4 @@ def _other_layout(layout: ImuLayout, seen: set[int]) -> str:
     return ""
 
 
-__all__ = ["ImuCheckError", "check_imu_stream", "describe_layout"]
+__all__ = ["ImuCheckError", "check_imu_stream", "check_rig_adapter", "check_rig_running", "describe_layout"]

@@ -26,13 +26,14 @@ import numpy as np
 
 from bench.config.chamber import ChamberConfig
 from bench.config.load import BenchConfig, SimConfig
+from bench.config.rig import RigIdentity, this_rig
 from bench.model.imu import NoiseModel
 from bench.model.units import DEG
 from bench.sim.can_imu import SimCanImu
 from bench.sim.controller import SimController
 from bench.sim.imu import SimImu
 from bench.sim.serve import IDLE_TIMEOUT_S
-from bench.sim.slcan_server import SlcanPtyServer
+from bench.sim.slcan_server import SlcanPeer, SlcanPtyServer
 from bench.sim.socketcand_server import SocketcandServer
 from bench.sim.table import SimTable, TableLimits
 from drivers.chamber import ChamberLimits
@@ -129,8 +130,10 @@ def _check_gyro_range(config: BenchConfig) -> None:
 class SimRig:
     """The simulated controller and IMU of `config` (its site, [sim] truth, IMU rate and layout), in wall-clock time."""
 
-    def __init__(self, config: BenchConfig):
+    def __init__(self, config: BenchConfig, identity: RigIdentity | None = None):
         self.config = config
+        #: who this rig is (the written configuration's [imu.rig]; its SLCAN adapters answer `identity.id`)
+        self.identity = identity if identity is not None else this_rig()
         sim = config.sim
         # the simulated table moves as fast as [table.limits] allows (its rates and accelerations)
         axes = config.table.limits.axes
@@ -155,7 +158,7 @@ class SimRig:
     def serve_slcan(self) -> RigPeer:
         """A simulated SLCAN adapter on a new pty."""
         self._classic_only("SLCAN")
-        server = SlcanPtyServer()
+        server = SlcanPtyServer(SlcanPeer(serial=self.identity.id))
         return self._add("slcan", server, RigPeer("slcan", server.path, "slcan", server.path, {}, 1_000_000))
 
     def serve_socketcand(self, host: str = "127.0.0.1", port: int = 0,
@@ -347,9 +350,10 @@ def chamber_section(url: str, dialect: str, chamber: ChamberConfig | None) -> st
 
 
 def rig_config_text(config: BenchConfig, table_url: str, dialect: str, peer: RigPeer,
-                    chamber: tuple[str, str] | None = None) -> str:
+                    chamber: tuple[str, str] | None = None, rig: RigIdentity | None = None) -> str:
     """A bench configuration (bench.example.toml's format) pointing at the rig: its table and IMU, its site
-    and truth, and a default plan to edit; `chamber` (url, dialect) adds the rig's chamber."""
+    and truth, and a default plan to edit; `chamber` (url, dialect) adds the rig's chamber; `rig` marks the file
+    valid only while that rig runs (a comment, and [imu.rig] for `bench run` to check)."""
     site, imu = config.site, config.imu
     site_lines = [f"latitude_deg = {site.latitude_deg!r}", f"height_m = {site.height_m!r}"]
     if site.local_g_mps2 is not None:
@@ -371,9 +375,19 @@ def rig_config_text(config: BenchConfig, table_url: str, dialect: str, peer: Rig
     options = "".join(f"{k} = {_toml(v)}\n" for k, v in peer.bus_options.items())
     if options:
         options = "\n[imu.bus_options]\n" + options
+    validity = ""
+    if rig is not None:
+        served = (peer.where if peer.kind != "socketcan" else "", table_url, *(chamber[:1] if chamber else ()))
+        places = ", ".join(dict.fromkeys(w for w in served if w and w != "sim"))
+        validity = (f"# Valid only while the rig that wrote it runs: {rig.describe()}.\n"
+                    f"# When it stops, the system gives {places} to other processes;\n"
+                    "# `bench run` then refuses this file ([imu.rig]): start the rig again with --write-config.\n")
+        pid = f"pid = {rig.pid}\n" if rig.pid is not None else ""
+        options += (f"\n[imu.rig]   # the rig this file points at; remove for the real bench\nid = {_toml(rig.id)}\n"
+                    f"{pid}started_utc = {_toml(rig.started_utc)}\n")
     return f"""\
 # Written by `bench sim rig`: a bench configuration pointing at the simulated rig.
-# For the real bench, change [table] url/dialect and [imu] interface/channel (see README,
+{validity}# For the real bench, change [table] url/dialect and [imu] interface/channel (see README,
 # "Before the hardware arrives"); everything else stays.
 format = "turntable-bench/config"
 version = 1

@@ -42,7 +42,6 @@ BITRATES = {"S0": 10_000, "S1": 20_000, "S2": 50_000, "S3": 100_000, "S4": 125_0
 #: `V`: hardware 1.0, software 1.3 (python-can reads two decimal digits each)
 VERSION_REPLY = b"V1013\r"
 FIRMWARE_REPLY = b"vCANBENCH\r"
-SERIAL_REPLY = b"NA123\r"
 #: bytes queued for a host that does not read (an adapter's and the USB host's buffers), then frames drop:
 #: about 10 s of a 1000-frame/s stream
 MAX_PENDING_BYTES = 256 * 1024
@@ -93,7 +92,8 @@ def _valid_transmit(line: str) -> bool:
 class SlcanPeer:
     """The adapter's command state machine: `handle(line)` -> reply bytes; `is_open` says whether frames flow."""
 
-    def __init__(self) -> None:
+    def __init__(self, serial: str = "A123") -> None:
+        self.serial_reply = b"N" + serial.encode("ascii") + b"\r"    # what `N` answers (a rig answers its id)
         self.is_open = False
         self.listen_only = False
         self.bitrate: int | None = None
@@ -131,7 +131,7 @@ class SlcanPeer:
         if text == "v":
             return FIRMWARE_REPLY
         if text == "N":
-            return SERIAL_REPLY
+            return self.serial_reply
         if text == "F":
             return b"F00\r"
         if cmd in "tTrR":

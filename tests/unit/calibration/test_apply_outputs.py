@@ -152,3 +152,73 @@ def test_bench_apply_shows_a_bar_on_a_terminal_only(short_run, tmp_path, monkeyp
     assert main([*argv, str(tmp_path / "b.csv")]) == 0
     err = capsys.readouterr().err
     assert "] 100/100 100%" in err and err.startswith("\r[") and err.endswith("\x1b[K"), repr(err[-200:])
+
+
+# -- issue 33, item 6: formatted in C (orjson) and written in bulk, the values of the per-sample path -------------
+
+def _per_sample_outputs(result_path, log_path) -> tuple[list[list[float]], list[tuple[str, int, dict]]]:
+    """What `bench apply` wrote before it was vectorised (22d4fe1), a sample at a time: the compensation as
+    `(y - b) @ C.T`, each CSV row through `%.17g`, each message a JSON document, both topics sample by sample."""
+    from bench.calibration.apply import log_samples
+    from bench.calibration.compensation import FORCE_UNITS, RATE_UNITS, compensation_of, load_result
+    from bench.log.reader import read_log
+
+    compensation = compensation_of(load_result(str(result_path)))
+    block = log_samples(read_log(str(log_path)))
+    gyros, accs = block.gyro_counts * block.rate_hz, block.acc_counts * block.rate_hz
+    rates = ((gyros - compensation.gyro.bias_counts) @ compensation.gyro.matrix.T) * RATE_UNITS["deg/s"]
+    forces = ((accs - compensation.acc.bias_counts) @ compensation.acc.matrix.T) * FORCE_UNITS["g"]
+    rows, messages = [], []
+    for k in range(len(block)):
+        gyro, acc, rate, force = gyros[k], accs[k], rates[k], forces[k]
+        time_s, imu_time_s, counter = float(block.receive_time_s[k]), float(block.time_s[k]), int(block.counter[k])
+        rows.append([float(x) for x in ("%d," % counter + ",".join(
+            "%.17g" % x for x in [time_s, imu_time_s, *rate, *force])).split(",")])
+        log_time = int(np.rint(time_s * 1e9)) if time_s > 0 else 0
+        temperature = float(block.temperature_c[k])
+        messages.append((TOPIC_SAMPLES, log_time, {
+            "counter": counter, "time_s": time_s, "imu_time_s": imu_time_s,
+            "gyro_counts": block.gyro_counts[k].tolist(), "acc_counts": block.acc_counts[k].tolist(),
+            "gyro_rate": gyro.tolist(), "acc_rate": acc.tolist(),
+            "temperature_c": temperature if np.isfinite(temperature) else None, "status": int(block.status[k])}))
+        messages.append((TOPIC_COMPENSATED, log_time, {
+            "counter": counter, "time_s": time_s, "imu_time_s": imu_time_s, "angular_rate": rate.tolist(),
+            "specific_force": force.tolist(), "rate_unit": "deg/s", "force_unit": "g"}))
+    return rows, messages
+
+
+def test_the_outputs_hold_the_values_the_per_sample_path_wrote(short_run, tmp_path):
+    """Value for value (every number read back as the same float, every log time, the messages' order) what
+    the per-sample path wrote; the text may differ (orjson prints 1e-5 where %.17g printed 1.0000000000000001e-05)."""
+    rows, messages = _per_sample_outputs(short_run.result, short_run.log)
+    assert len(rows) > 1000
+    argv = ["apply", str(short_run.result), str(short_run.log), "--quiet", "--out"]
+    assert cli([*argv, str(tmp_path / "a.csv")])[0] == 0
+    assert cli([*argv, str(tmp_path / "a.mcap")])[0] == 0
+    with open(tmp_path / "a.csv", encoding="utf-8", newline="") as f:
+        written_rows = [[float(x) for x in row] for row in list(csv.reader(f))[1:]]
+    assert written_rows == rows
+    written = []
+    with open(tmp_path / "a.mcap", "rb") as f:
+        for _schema, channel, message in make_reader(f, validate_crcs=True).iter_messages(log_time_order=False):
+            written.append((channel.topic, message.log_time, _strict_json(message.data)))
+    assert written == messages
+
+
+def test_the_applied_mcap_is_in_log_time_order(short_run, tmp_path):
+    """Issue 33, item 4: the raw and the compensated message of a sample follow each other, so no message of the
+    applied file is older than one before it (what `mcap doctor` checks: with MCAP_CLI it must say nothing)."""
+    import os
+    import subprocess
+
+    from tests.helpers.mcap_order import log_time_order
+
+    out = tmp_path / "a.mcap"
+    assert cli(["apply", str(short_run.result), str(short_run.log), "--out", str(out), "--quiet"])[0] == 0
+    own, behind = log_time_order(out)
+    assert set(own) == {TOPIC_SAMPLES, TOPIC_COMPENSATED}
+    assert not any(own.values()) and not any(behind.values()), (own, behind)
+    if os.environ.get("MCAP_CLI"):
+        proc = subprocess.run([os.environ["MCAP_CLI"], "doctor", str(out)], capture_output=True, text=True,
+                              timeout=120)
+        assert proc.returncode == 0 and not (proc.stdout + proc.stderr).strip(), proc.stdout + proc.stderr

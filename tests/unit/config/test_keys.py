@@ -43,6 +43,8 @@ max_rate_dps = 100.0
 interface = "virtual"
 channel = "keys-test"
 rate_hz = 100.0
+[imu.rig]
+id = "1C2B"
 [plan]
 positions = "optimal-24"
 rotations = "optimal-5s6r"

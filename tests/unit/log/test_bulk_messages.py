@@ -53,3 +53,51 @@ def test_a_writer_kept_differently_gets_messages_one_by_one(monkeypatch):
     monkeypatch.setattr(bulk_messages, "_state", lambda writer: None)
     batches = [_messages(30, 1), _messages(5, 2)]
     assert _write(batches, True, 700) == _write(batches, False, 700)
+
+
+@pytest.mark.parametrize("chunk_size", [1, 700, 1 << 20])
+def test_interleaved_channels_write_the_same_bytes(chunk_size):
+    """Messages of two channels in one call (`bench apply`'s raw and compensated samples, one after the other)."""
+    import numpy as np
+
+    from bench.log.bulk_messages import add_message_arrays
+
+    messages = _messages(90, 5)
+    files = []
+    for bulk in (True, False):
+        out = io.BytesIO()
+        writer = Writer(out, chunk_size=chunk_size, compression=CompressionType.NONE)
+        writer.start()
+        schema = writer.register_schema("s", "jsonschema", b"{}")
+        ids = [writer.register_channel(f"/t{k}", "json", schema) for k in range(3)]
+        # the third channel first appears mid-way: its message index comes after the others' in that chunk
+        channels = np.array([ids[2] if 40 <= k < 45 else ids[k % 2] for k in range(len(messages))])
+        if bulk:
+            add_message_arrays(writer, channels, np.array([t for t, _ in messages], np.uint64),
+                               [body for _, body in messages])
+        else:
+            for channel, (t, body) in zip(channels.tolist(), messages):
+                writer.add_message(channel, t, body, t)
+        writer.finish()
+        files.append(out.getvalue())
+    assert files[0] == files[1]
+
+
+def test_bulk_and_single_messages_mixed_on_one_channel_write_the_same_bytes():
+    """Entries added in bulk stay arrays until written; one `add_message` in between keeps its place."""
+    batches = [_messages(20, 7), _messages(3, 8), _messages(15, 9), _messages(2, 10)]
+    files = []
+    for mixed in (True, False):
+        out = io.BytesIO()
+        writer = Writer(out, chunk_size=1 << 20, compression=CompressionType.NONE)
+        writer.start()
+        channel = writer.register_channel("/t", "json", writer.register_schema("s", "jsonschema", b"{}"))
+        for k, batch in enumerate(batches):
+            if mixed and k % 2 == 0:
+                add_messages(writer, channel, batch)
+            else:
+                for t, body in batch:
+                    writer.add_message(channel, t, body, t)
+        writer.finish()
+        files.append(out.getvalue())
+    assert files[0] == files[1]
