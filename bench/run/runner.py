@@ -22,6 +22,7 @@ from bench import __version__
 from bench.acceptance.verdict import Verdict
 from bench.config.load import BenchConfig
 from bench.errors import BenchError
+from bench.files import folder_reason
 from bench.finish.calibration import Solved
 from bench.finish.finish import Finished, Reports, Target, finish
 from bench.finish.recorded import Recorded, recorded_run
@@ -242,7 +243,7 @@ class BenchRun:
             with tempfile.TemporaryFile(dir=self.out_dir):
                 pass
         except OSError as exc:
-            raise OutputFolderError(f"output folder {self.out_dir}: {exc.strerror or exc}") from exc
+            raise OutputFolderError(f"output folder {self.out_dir}: {folder_reason(exc)}") from exc
 
     def _open_recorder(self) -> None:
         self.recorder = recorder = self._new_recorder(self.log_path, self._metadata())
@@ -442,6 +443,7 @@ class _LiveTarget(Target):
                        software_version=__version__, state=self.state.value, log=run.log_path.name,
                        logs=[Path(p).name for p in run.previous_logs] + [run.log_path.name],
                        positions=_name(config.plan.positions), rotations=_name(config.plan.rotations),
+                       started_utc=recorded.logs[0].metadata.get("run", {}).get("started_utc") or None,
                        finished_utc=utc_stamp(), imu=ImuIdentity(identity.model, identity.serial),
                        site=config.site.site.to_dict(), quality_failures=solved.failures,
                        sim=sim_table_record(config) if run.sim else None,      # (its verification's table)
