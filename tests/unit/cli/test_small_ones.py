@@ -81,3 +81,55 @@ def test_the_thermal_c_header_names_the_imu_after_the_model_is_read_back(tmp_pat
     fit_thermal_model(points).save(path)
     header = export_thermal(ThermalModel.load(path), "c")
     assert " * imu_model: FOG-7\n" in header and " * imu_serial: SN 42\n" in header
+
+
+def test_the_python_tutorials_sigma_of_kg_x_is_the_one_bench_run_gives(tmp_path, monkeypatch, capsys):
+    # the example printed sigma(Kg_x) = 1.8 (a budget told nothing of the table) where `bench run --sim` gives 0.016
+    import re
+    from pathlib import Path
+
+    page = (Path(__file__).resolve().parents[3] / "docs" / "tutorials" / "python.md").read_text(encoding="utf-8")
+    first_block = re.search(r"```python\n(.*?)```", page, re.S).group(1)
+    monkeypatch.chdir(tmp_path)
+    exec(compile(first_block, "python.md", "exec"), {})
+    line = next(s for s in capsys.readouterr().out.splitlines() if s.startswith("Kg_x"))
+    value, sigma, true = (float(x) for x in re.fullmatch(r"Kg_x\s+(\S+) \+- (\S+) .*\(true (\S+)\)", line).groups())
+    assert sigma < 0.05 and abs(value - true) < 3 * sigma
+
+
+def test_db_list_shows_a_long_model_name_whole(noisy_run, tmp_path):
+    # the model column was cut at 20 characters
+    long_model = "Northrop Grumman LN-200C FOG IMU rev 4"
+    document = json.loads(noisy_run.result_path.read_text(encoding="utf-8"))
+    document["run"]["imu"] = {"model": long_model, "serial": "SN-0042"}
+    path = tmp_path / "in" / noisy_run.result_path.name
+    path.parent.mkdir()
+    path.write_text(json.dumps(document), encoding="utf-8")
+    db = str(tmp_path / "records.sqlite")
+    rc, _, err = cli(["db", "import", "--db", db, "--quiet", str(path)])
+    assert rc == 0, err
+    rc, out, err = cli(["db", "list", "--db", db])
+    assert rc == 0, err
+    header, row = out.splitlines()[:2]
+    assert f" {long_model} SN-0042 " in row
+    assert header.index("serial") == row.index("SN-0042")          # the columns still line up
+
+
+def test_a_line_of_thousands_of_characters_is_bounded(capsys):
+    # a damaged log's error and an archive's progress item ran to ~2,000 characters on one line
+    from bench.cli.edge import LINE_MAX, ExitCode, bounded_line, fail
+    from bench.cli.progress import CountProgress
+
+    cause = "; ".join(f"chunk {k} at byte {k * 4096}: bad CRC" for k in range(80))
+    assert len(cause) > 2000
+    fail("bench solve", f"damaged.mcap: {cause}", ExitCode.USAGE)
+    line = capsys.readouterr().err
+    assert line.count("\n") == 1 and len(line) <= LINE_MAX + 40
+    assert line.startswith("bench solve: damaged.mcap: chunk 0 at byte 0") and line.rstrip().endswith("bad CRC")
+    assert "characters left out" in line
+    progress = CountProgress(2, live=False)
+    progress.item(f"FAILED x.mcap: {cause}", problem=True)
+    progress.note(f"warning: {cause}")
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2 and all(len(s) <= LINE_MAX + 40 for s in err)
+    assert bounded_line("short\nmessage") == "short message"
