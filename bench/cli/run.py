@@ -93,7 +93,7 @@ def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
         return fail(PROG, "say --config FILE or --sim", ExitCode.USAGE)
     try:
         config = load_config(args.config) if args.config else default_sim_config()
-        plan = compile_from_config(config)
+        plan = compile_from_config(config, sim=args.sim or config.table.is_sim)
         # a verification plan that does not fit the table is refused here, before the calibration moves anything
         verification = (verification_plan(verification_config(config)) if config.plan.verification is not None
                         else None)
