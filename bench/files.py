@@ -226,6 +226,23 @@ def write_output_text(out: str | os.PathLike, text: str, inputs: Iterable[str | 
         temporary.write_text(text, encoding="utf-8")
 
 
+def folder_reason(exc: OSError) -> str:
+    """Why a folder cannot be made, in words: a file where it should be is said so (not "File exists")."""
+    if isinstance(exc, (FileExistsError, NotADirectoryError)):
+        return "it is a file, not a folder"
+    return str(exc.strerror or exc)
+
+
+def make_output_folder(folder: str | os.PathLike, option: str = "--out") -> Path:
+    """`folder`, made if missing (`OutputFileError` in one line when it cannot be)."""
+    path = Path(folder)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputFileError(f"{option} {_short(path)}: {folder_reason(exc)}") from exc
+    return path
+
+
 __all__ = ["MAX_INPUT_FILE_BYTES", "MAX_JSON_INT_DIGITS", "InputFileError", "OutputFileError", "check_output",
-           "file_kind", "is_run_log", "open_input", "parse_json", "read_input_bytes", "read_input_text",
-           "replaced_output", "write_output_text"]
+           "file_kind", "folder_reason", "is_run_log", "make_output_folder", "open_input", "parse_json",
+           "read_input_bytes", "read_input_text", "replaced_output", "write_output_text"]

@@ -51,6 +51,9 @@ def cmd_apply(args: argparse.Namespace) -> ExitCode:
     fmt = args.format or {".mcap": "mcap", ".csv": "csv"}.get(out.suffix.lower())
     if fmt is None:
         return fail(PROG, f"say --format mcap|csv: {args.out!r} ends in neither .mcap nor .csv", ExitCode.USAGE)
+    if _is_mcap(args.result) and not _is_mcap(args.log):
+        return fail(PROG, f"RESULT {args.result!r} is a log and LOG {args.log!r} is not: they look swapped "
+                    "(bench apply RESULT LOG)", ExitCode.USAGE)
     try:
         compensation = compensation_of(load_result(args.result))
     except InputError as exc:
@@ -90,3 +93,14 @@ def cmd_apply(args: argparse.Namespace) -> ExitCode:
         print(f"compensated {len(samples)} samples of {Path(args.log).name} with the calibration of run "
               f"{compensation.run_id or '(unnamed)'}: {out} ({args.rate_unit}, {args.force_unit})")
     return ExitCode.OK
+
+
+def _is_mcap(path: str) -> bool:
+    """Whether `path` opens as an MCAP file (its magic); False when it cannot be read (the read says why)."""
+    from bench.log.mcap.records import MAGIC  # with the log reader: not loaded for --help
+
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(MAGIC)) == MAGIC
+    except OSError:
+        return False

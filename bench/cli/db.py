@@ -139,15 +139,26 @@ def cmd_list(args: argparse.Namespace) -> ExitCode:
             rows = records.list_runs(serial=args.serial, since=since)
     except RecordsError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
-    print(f"{'started (UTC)':20} {'run':28} {'kind':11} {'model':20} {'serial':14} {'outcome':9} {'results':>7} "
-          f"verdict (of the record of truth)")
+    # columns as wide as their widest entry (a model name was cut at 20), up to a bound: names come from files
+    run_w, model_w, serial_w = (min(max([len(h), *(len(getattr(r, key)) for r in rows)]), LIST_COLUMN_MAX)
+                                for h, key in (("run", "run_id"), ("model", "model"), ("serial", "serial")))
+    print(f"{'started (UTC)':20} {'run':{run_w}} {'kind':11} {'model':{model_w}} {'serial':{serial_w}} "
+          f"{'outcome':9} {'results':>7} verdict (of the record of truth)")
     for r in rows:
         when = r.started_utc or r.finished_utc
-        print(f"{(when.isoformat(timespec='seconds') if when else '-'):20} {r.run_id[:28]:28} {r.kind:11} "
-              f"{r.model[:20]:20} {r.serial[:14]:14} {_outcome(r.outcome, r.log_complete):9} {r.results:>7} "
-              f"{_truth_text(r)}")
+        print(f"{(when.isoformat(timespec='seconds') if when else '-'):20} {_cell(r.run_id, run_w)} {r.kind:11} "
+              f"{_cell(r.model, model_w)} {_cell(r.serial, serial_w)} {_outcome(r.outcome, r.log_complete):9} "
+              f"{r.results:>7} {_truth_text(r)}")
     print(f"{len(rows)} run(s)")
     return ExitCode.OK
+
+
+#: The widest a `db list` column of names grows (a longer name ends in "~").
+LIST_COLUMN_MAX = 48
+
+
+def _cell(text: str, width: int) -> str:
+    return f"{text:{width}}" if len(text) <= width else text[:width - 1] + "~"
 
 
 def _outcome(outcome: str, log_complete: bool | None) -> str:

@@ -43,10 +43,26 @@ class ExitCode(IntEnum):
     BROKEN_PIPE = 141
 
 
+#: The longest line a command prints about one thing (an error, an archive item); a damaged log's error ran to
+#: some 2,000 characters, a block that wraps past reading.
+LINE_MAX = 400
+
+
+def bounded_line(text: str, limit: int = LINE_MAX) -> str:
+    """`text` as one line of about `limit` characters at most: its start and its end (where a cause often is),
+    saying how much between them is left out."""
+    text = " ".join(text.splitlines())
+    if len(text) <= limit:
+        return text
+    head, tail = limit * 2 // 3, limit // 4
+    return f"{text[:head]} ... [{len(text) - head - tail} characters left out] ... {text[-tail:]}"
+
+
 def fail(prog: str, message: str, code: ExitCode) -> ExitCode:
-    """Print `prog: message` on stderr (one line) and return `code` (also when stderr is gone: a closed pipe)."""
+    """Print `prog: message` on stderr (one line, `bounded_line`) and return `code` (also when stderr is gone: a
+    closed pipe)."""
     try:
-        print(f"{prog}: {message}", file=sys.stderr, flush=True)
+        print(bounded_line(f"{prog}: {message}"), file=sys.stderr, flush=True)
     except OSError:
         pass
     return code
@@ -176,5 +192,6 @@ class FirstSignal:
             raise Interrupted(signum)
 
 
-__all__ = ["STOP_SIGNALS", "ExitCode", "FirstSignal", "Interrupted", "ensure_standard_streams", "fail",
+__all__ = ["LINE_MAX", "STOP_SIGNALS", "ExitCode", "FirstSignal", "Interrupted", "bounded_line",
+           "ensure_standard_streams", "fail",
            "raise_interrupted", "signal_name", "stop_signals"]

@@ -21,6 +21,8 @@ from bench.model.noise_result import NoiseResult
 PROG = "bench export"
 #: file suffix -> format, when --format is not given
 SUFFIXES = {".json": "json", ".csv": "csv", ".h": "c", ".yaml": "yaml", ".yml": "yaml", ".toml": "toml"}
+#: What each format is, for the line that says what was written.
+FORMAT_LABELS = {"json": "JSON", "csv": "CSV", "c": "C header", "yaml": "kalibr IMU YAML", "toml": "TOML"}
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -72,6 +74,7 @@ def cmd_export(args: argparse.Namespace) -> ExitCode:
         return fail(PROG, str(exc), ExitCode.USAGE)
     except OSError as exc:
         return fail(PROG, f"{args.out}: cannot write: {exc.strerror or exc}", ExitCode.USAGE)
+    print(f"wrote {args.out} ({FORMAT_LABELS.get(fmt, fmt)}, {len(text.encode())} bytes)")
     return ExitCode.OK
 
 

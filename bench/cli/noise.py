@@ -14,6 +14,7 @@ from pathlib import Path
 
 from bench.cli.common import ExitCode, add_noise_arguments, fail, noise_from_args, number_type
 from bench.errors import InputError
+from bench.files import OutputFileError, make_output_folder
 from bench.model.imu import default_sim_imu
 from bench.model.result import CalibrationResult, ResultFormatError
 
@@ -104,8 +105,9 @@ def cmd_noise(args: argparse.Namespace) -> ExitCode:
     except (LogError, NoiseInputError, AllanError) as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        paths = write_noise_outputs(result, out_dir, name)
+        paths = write_noise_outputs(result, make_output_folder(out_dir), name)
+    except OutputFileError as exc:
+        return fail(PROG, str(exc), ExitCode.USAGE)
     except OSError as exc:
         return fail(PROG, f"cannot write the result: {exc.strerror or exc} ({exc.filename or out_dir})",
                     ExitCode.USAGE)

@@ -15,6 +15,7 @@ import sys
 import time
 from typing import Callable, Sequence, TextIO
 
+from bench.cli.edge import bounded_line
 from bench.log.events import (
     Event,
     Fault,
@@ -216,7 +217,7 @@ class CountProgress:
         self._erase()
         if problem or not self.quiet:
             out = self.err if problem else self.stream
-            out.write(f"[{self._tag()}] {text}\n")
+            out.write(bounded_line(f"[{self._tag()}] {text}") + "\n")
             out.flush()
         self._draw()
 
@@ -231,7 +232,7 @@ class CountProgress:
     def note(self, text: str) -> None:
         """A line to `err` that is not an item (a warning), the bar kept below it."""
         self._erase()
-        self.err.write(text + "\n")
+        self.err.write(bounded_line(text) + "\n")
         self.err.flush()
         self._draw()
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
 from bench.cli.common import ExitCode, add_noise_arguments, fail, noise_from_args
 from bench.cli.progress import CountProgress
 from bench.errors import InputError
+from bench.files import OutputFileError, make_output_folder
 from bench.model.earth import Site
 from bench.model.units import format_hms
 from bench.plan.compiler import PlanError, PlanTiming, compile_plan
@@ -161,10 +161,9 @@ def cmd_search(args: argparse.Namespace) -> ExitCode:
         return fail("bench schedules search", str(exc), ExitCode.USAGE)
     if args.out and args.best:
         try:    # the output folder is checked (and made) before the search, not after it
-            Path(args.out).mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            reason = "a file of that name exists" if isinstance(exc, FileExistsError) else exc.strerror or exc
-            return fail("bench schedules search", f"cannot write to --out {args.out}: {reason}", ExitCode.USAGE)
+            make_output_folder(args.out)
+        except OutputFileError as exc:
+            return fail("bench schedules search", f"cannot write: {exc}", ExitCode.USAGE)
     started = time.perf_counter()
     groups = POSITION_GROUPS[:args.groups]
     # the position search takes tens of seconds: a bar on a terminal (stderr), in percent of the subsets

@@ -20,6 +20,7 @@ from pathlib import Path
 from bench.calibration.compensation import load_result
 from bench.cli.common import ExitCode, fail, number_type
 from bench.errors import InputError
+from bench.files import OutputFileError, make_output_folder
 
 PROG = "bench thermal"
 #: the temperatures a bench can mean, degC (`bench.config.thermal` says the same for [sim.imu.thermal])
@@ -76,10 +77,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ev.set_defaults(func=cmd_thermal_eval)
 
 
-def _out_dir(text: str) -> Path:
-    out = Path(text)
-    out.mkdir(parents=True, exist_ok=True)
-    return out
+def _out_dir(text: str) -> Path | None:
+    """The output folder, made if missing (None when it cannot be: said in one line)."""
+    try:
+        return make_output_folder(text)
+    except OutputFileError as exc:
+        fail(PROG, str(exc), ExitCode.USAGE)
+        return None
 
 
 def _summary(model) -> list[str]:
@@ -124,6 +128,8 @@ def cmd_thermal_sim(args: argparse.Namespace) -> ExitCode:
             return fail(PROG, f"--seed must be 0..4294967295, got {args.seed}", ExitCode.USAGE)
         config = dataclasses.replace(config, sim=dataclasses.replace(config.sim, seed=args.seed))
     out = _out_dir(args.out)
+    if out is None:
+        return ExitCode.USAGE
     if not args.quiet and config.sim.thermal is None:
         print("the configuration has no [sim.imu.thermal]: using the built-in demonstration model "
               "(bench.thermal.simulate.DEMO_THERMAL)")
@@ -181,7 +187,10 @@ def cmd_thermal_fit(args: argparse.Namespace) -> ExitCode:
     except InputError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     model.run = {"mode": "fitted to result files", "results": [p.label for p in model.points]}
-    _write(model, _out_dir(args.out), args.quiet)
+    out = _out_dir(args.out)
+    if out is None:
+        return ExitCode.USAGE
+    _write(model, out, args.quiet)
     return ExitCode.OK
 
 

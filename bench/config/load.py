@@ -383,7 +383,7 @@ def _imu(t: Table) -> ImuConfig:
         rig = RigIdentity(r.string("id", nonempty=True), r.integer("pid", None, ge=1),
                           r.string("started_utc", declared("imu.rig", "started_utc").default))
     return ImuConfig(interface, channel, bitrate, fd, Path(dbc), rate_hz, spec, layout, bus_options, identity, noise,
-                     layout_name, slcan_client, rig)
+                     layout_name, slcan_client, rig=rig)
 
 
 def _imu_noise(t: Table) -> ImuNoise:

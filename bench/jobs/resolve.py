@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
-from bench.files import write_output_text
+from bench.files import make_output_folder, write_output_text
 from bench.finish.calibration import NONE, Solved, resolved_run_section, solved_run_info, subset_name
 from bench.finish.finish import Reports, Target
 from bench.finish.recorded import Recorded
@@ -60,7 +60,7 @@ class ResolveTarget(Target):
 
     def write_result(self, recorded: Recorded, result: CalibrationResult, reports: Reports,
                      also: Sequence[Path] = ()) -> tuple[Path, Path, Path | None]:
-        self.out_dir.mkdir(parents=True, exist_ok=True)
+        make_output_folder(self.out_dir)
         result_path = output_path(self.out_dir, f"{self.stem}.result.json")    # a name from a log never leaves out
         result.save(result_path)
         report: dict[str, Any] = dict(problems=reports.problems, failures=reports.failures,

@@ -32,6 +32,7 @@ import numpy as np
 
 from bench.log.can_export import can_messages
 from bench.log.events import RunListener, final_state
+from bench.log.format import TOPIC_CAN
 from bench.log.reader import LogError, RunLog
 from bench.log.run_info import layout_and_config_from_log
 from drivers.clock import SYSTEM_CLOCK, Clock
@@ -53,7 +54,8 @@ class ReplayStats:
     samples: int = 0
     imu_blocks: int = 0
     frames: int = 0
-    frame_batches: int = 0
+    frame_batches: int = 0                     # the replay's deliveries of frames (cut at events, states, a grid)
+    recorded_batches: int = 0                  # the log's /can/raw messages: the batches the recorder wrote
     log_start_s: float = 0.0
     log_duration_s: float = 0.0
     log_reached_s: float = 0.0                 # log time of the last item delivered, from the start
@@ -75,7 +77,7 @@ class ReplayStats:
                 else f" (the recorded run's last state: {self.run_state})"
         chamber = f"{self.chamber_states} chamber states, " if self.chamber_states else ""
         return (f"replayed {self.events} events, {self.table_states} table states, {chamber}{self.samples} IMU "
-                f"samples, {self.frames} CAN frames ({self.frame_batches} recorded batches); {span} in "
+                f"samples, {self.frames} CAN frames ({self.recorded_batches} recorded batches); {span} in "
                 f"{self.wall_s:.2f} s ({self.read_s:.2f} s of it reading and decoding the log)")
 
 
@@ -118,6 +120,7 @@ def _close(listeners) -> Exception | None:
 
 def _play(log, listeners, stats, speed, clock, layout, rate_hz, block_s, step_s, stop) -> None:
     started = clock.now()
+    stats.recorded_batches = log.message_counts.get(TOPIC_CAN, 0)     # as the log's summary counts them
     states, bad_states = _table_states(log)
     if bad_states:
         stats.notes.append(f"{bad_states} table states with an unknown mode not replayed")

@@ -1,6 +1,7 @@
 """The `run` section of a calibration result: which run, recorded how, solved when and with what link quality.
 
-`bench run` writes it when it finishes (`finished_utc`, and `sim` on the simulator);
+`bench run` writes it when it finishes (`started_utc` from its first log, `finished_utc`, and `sim` on the
+simulator);
 `bench solve` when it re-solves a log (`recorded_with`, `solved_utc`, `solved_by`, and for a
 plain solve `subset`, `started_utc`, `left_out`, `damage`). `RunInfo.to_dict` gives the
 section in the order result files have always had it, without the entries a writer does not

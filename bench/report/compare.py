@@ -135,8 +135,10 @@ def compare_results(new: CalibrationResult, old: CalibrationResult, threshold: f
             continue
         changes.append(CoefficientChange(name, shown.unit, a.value if a else None, b.value if b else None,
                                          sig(a), sig(b)))
-    run_changes = [(k, getattr(old.run, k), getattr(new.run, k)) for k in COMPARED_RUN_FIELDS
-                   if getattr(old.run, k) != getattr(new.run, k)]
+    # a field one result does not record is no change (a re-solve records no finish; older results no start)
+    run_changes = [(k, a, b) for k in COMPARED_RUN_FIELDS
+                   if (a := getattr(old.run, k)) not in (None, "") and (b := getattr(new.run, k)) not in (None, "")
+                   and a != b]
     notes = []
     for key in FIT_NAMES:
         qa, qb = old.quality.fit(key), new.quality.fit(key)

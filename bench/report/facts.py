@@ -131,6 +131,13 @@ def budget_table(result) -> tuple[list[str], list[list[float | None]], list[str]
     return titles, rows, list(coefs)
 
 
+#: Why the chi2/dof against the sample noise alone is large, said under those lines when the budget's test follows.
+SAMPLE_NOISE_NOTE = ("chi2/dof against the sample noise alone is expected far above 1: it counts only the scatter of "
+                     "each dwell's samples, and leaves out what moves a dwell's or a turn's mean far more (the "
+                     "table's pointing errors, the bias instability, the count resolution); the residuals against "
+                     "the budget's predicted scatter, which includes them, are the test of the fit")
+
+
 def consistency_lines(result) -> list[str] | None:
     """Per fit, the residual test against the budget's predicted scatter (None: no budget in the result)."""
     u = result.quality.uncertainty

@@ -34,6 +34,7 @@ from bench.report.compare import (
     truth_z,
 )
 from bench.report.facts import (
+    SAMPLE_NOISE_NOTE,
     budget_notes,
     budget_table,
     consistency_lines,
@@ -305,13 +306,16 @@ def _quality(result: CalibrationResult) -> str:
     q = result.quality
     items = [_e(f) for f in q.flags or []] or ["no solver flags"]
     budget_lines = consistency_lines(result)
+    noise_alone = False     # a chi2/dof against the sample noise alone is written
     for key in FIT_NAMES:
         fit = q.fit(key)
         if fit is not None and fit.to_dict():
             chi2 = ", ".join(fmt(v, 3) for v in fit.chi2_per_dof or [])
             extra = f", dof {fit.dof}" if fit.dof is not None else ""
             versus = " against the sample noise alone" if budget_lines is not None else ""
+            noise_alone = True
             items.append(f"{_e(key)}: chi2/dof per axis{versus} {_e(chi2)}{_e(extra)}")
+    items += [_e(SAMPLE_NOISE_NOTE)] if budget_lines and noise_alone else []
     items += [_e(line) for line in budget_lines or []]
     outliers = q.outliers or []
     items.append(f"outliers beyond {_e(q.outlier_sigma if q.outlier_sigma is not None else 4)} sigma: {len(outliers)}")

@@ -34,6 +34,7 @@ from bench.report.compare import (
     truth_z,
 )
 from bench.report.facts import (
+    SAMPLE_NOISE_NOTE,
     budget_notes,
     budget_table,
     consistency_lines,
@@ -104,11 +105,14 @@ def markdown_report(result: CalibrationResult, *, problems: Sequence[str] = (), 
     quality = result.quality
     lines += [f"- {f}" for f in quality.flags or []] or ["- no solver flags"]
     budget_lines = consistency_lines(result)
+    noise_alone = False     # a chi2/dof against the sample noise alone is written
     for key in FIT_NAMES:
         fit = quality.fit(key)
         if fit is not None and fit.to_dict():
             versus = " against the sample noise alone" if budget_lines is not None else ""
+            noise_alone = True
             lines.append(f"- {key}: chi2/dof per axis{versus} {fmt_list(fit.chi2_per_dof or [])}")
+    lines += [f"- {SAMPLE_NOISE_NOTE}"] if budget_lines and noise_alone else []
     lines += [f"- {md_text(line)}" for line in budget_lines or []]
     outliers = quality.outliers or []
     sigma = quality.outlier_sigma if quality.outlier_sigma is not None else 4

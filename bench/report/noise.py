@@ -77,10 +77,13 @@ def _region(t: dict) -> str:
     return f"{lo:g}" if lo == hi else f"{lo:g}..{hi:g}"
 
 
+#: How the summary's bias stabilities reach a solve: (before, the configuration line, after).
+_FEEDS = ("(", '[imu] noise = "FILE"', " in a bench configuration feeds these to the solve)")
+
+
 def _summary_lines(result: NoiseResult) -> list[str]:
     return [f"gyro bias stability (largest of x, y, z): {_f(result.gyro_bias_stability_dph)} deg/h",
-            f"accelerometer bias stability (largest of x, y, z): {_f(result.acc_bias_stability_ug)} ug",
-            "(`[imu] noise = \"FILE\"` in a bench configuration feeds these to the solve)"]
+            f"accelerometer bias stability (largest of x, y, z): {_f(result.acc_bias_stability_ug)} ug"]
 
 
 def _source_text(result: NoiseResult) -> str:
@@ -110,7 +113,8 @@ def markdown_noise_report(result: NoiseResult, title: str) -> str:
     if unresolved:
         lines += ["", "Terms the record does not resolve (not reported as numbers):", ""]
         lines += [f"- {md_text(line)}" for line in unresolved]
-    lines += ["", "## Summary", ""] + [f"- {line}" for line in _summary_lines(result)] + [""]
+    lines += ["", "## Summary", ""] + [f"- {line}" for line in _summary_lines(result)]
+    lines += [f"- {_FEEDS[0]}`{_FEEDS[1]}`{_FEEDS[2]}", ""]
     if result.sim_truth is not None:
         lines += [f"Configured bias instability is what the flat-region rule should read from the simulated IMU's "
                   f"theoretical curve (min ADEV / {FLICKER_FACTOR:.3f}); its Gauss-Markov bias of 1-sigma s alone "
@@ -179,7 +183,8 @@ def html_noise_report(result: NoiseResult, title: str) -> str:
         + "</tr></thead>", "<tbody>", *rows, "</tbody>", "</table>",
         f"<p>Terms the record does not resolve (not reported as numbers):</p><ul>{unresolved}</ul>" if unresolved
         else "",
-        "<ul>" + "".join(f"<li>{_e(line)}</li>" for line in _summary_lines(result)) + "</ul>",
+        "<ul>" + "".join(f"<li>{_e(line)}</li>" for line in _summary_lines(result))
+        + f"<li>{_e(_FEEDS[0])}<code>{_e(_FEEDS[1])}</code>{_e(_FEEDS[2])}</li></ul>",
         "<h2>Allan deviation</h2>", figure,
         f"<h2>Notes</h2><ul>{notes}</ul>" if notes else "", "</body>", "</html>", ""])
 

@@ -129,6 +129,29 @@ def _legend(ax) -> None:
     ax.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=3, fontsize=7, borderaxespad=0.1, frameon=False)
 
 
+#: A label's extent across its baseline, in font sizes, with the gap kept to its neighbour (DejaVu Sans'
+#: ascent + descent is about 1.17 font sizes).
+_LABEL_PITCH_EM = 1.3
+
+
+def category_ticks(ax, labels: Sequence[str], fontsize: float = 8.0, min_fontsize: float = 5.5) -> None:
+    """A tick at 0..n-1 per label, written upright; the font shrinks to the room each label has (down to
+    `min_fontsize`), and past that every k-th label is written (every tick kept): 96 rotations at 8 pt overprinted.
+
+    Call after the data are drawn (the room is the axis width over its x-range)."""
+    fig = ax.figure
+    x0, x1 = ax.get_xlim()
+    width_pt = ax.get_position().width * fig.get_figwidth() * 72.0
+    pitch_pt = width_pt / max(abs(x1 - x0), 1.0)       # one label's room, in points
+    step = 1
+    while pitch_pt * step / _LABEL_PITCH_EM < min_fontsize and step < len(labels):
+        step += 1
+    size = min(fontsize, pitch_pt * step / _LABEL_PITCH_EM)
+    ax.set_xticks(np.arange(len(labels)), [label if i % step == 0 else "" for i, label in enumerate(labels)],
+                  rotation=90, fontsize=size)
+    ax.set_xlim(x0, x1)
+
+
 def _shade(ax, spans: Sequence[tuple[float, float, str]]) -> None:
     for t0, t1, kind in spans:
         ax.axvspan(t0, t1, color=DWELL_SHADE if kind == "dwell" else TURN_SHADE, lw=0, zorder=0)
@@ -159,7 +182,7 @@ def residual_figure(positions: list[dict], rotations: list[dict], threshold: flo
                     ax.plot(x[bad] + (k - 1) * 0.2, v[bad], "o", ms=9, mfc="none", mec=OUTLIER_COLOR, mew=1.5)
             for s in (threshold, -threshold):
                 ax.axhline(s, color=OUTLIER_COLOR, ls="--", lw=0.8)
-            ax.set_xticks(x, [r.get("label", str(i)) for i, r in enumerate(rows)], rotation=90)
+            category_ticks(ax, [r.get("label", str(i)) for i, r in enumerate(rows)])
             ax.set_ylabel("residual / sigma")
             ax.set_title(f"{title} (dashed: outlier threshold +-{threshold:g} sigma)")
             _legend(ax)
@@ -182,7 +205,7 @@ def step_means_figure(labels: list[str], acc_mean: np.ndarray, acc_std: np.ndarr
                             color=AXIS_COLORS[k], label=axis)
             ax.set_ylabel(f"{name}, counts/s")
             _legend(ax)
-        axes[1, 0].set_xticks(x, labels, rotation=90)
+        category_ticks(axes[1, 0], labels)
         axes[0, 0].set_title("Mean output per dwell (error bars: +-1 std of the samples in the dwell)")
     return to_svg(fig)
 
@@ -234,7 +257,7 @@ def sigma_bars_figure(names: list[str], z: list[float | None], threshold: float,
         ax.bar(np.arange(len(names)), np.nan_to_num(v), color=colors)
         for s in (threshold, -threshold):
             ax.axhline(s, color=OUTLIER_COLOR, ls="--", lw=0.8)
-        ax.set_xticks(np.arange(len(names)), names, rotation=90, fontsize=7)
+        category_ticks(ax, names, fontsize=7.0)
         ax.set_ylabel("sigma")
         ax.set_title(title)
     return to_svg(fig)
@@ -270,7 +293,8 @@ def allan_axes_figure(channels: Sequence[tuple[str, dict, dict[str, np.ndarray]]
                        *lines.values(), *(np.asarray(model[k], float) for k in ("adev", "adev_sigma") if k in model))
     rows = -(-len(channels) // 2)
     with plt.rc_context(PLOT_RC):
-        fig, axes = new_figure(rows, 2, 10.0, 3.0 * rows + 0.2, hgap_in=0.75, wgap_in=0.8, bottom_in=0.55)
+        fig, axes = new_figure(rows, 2, 10.0, 3.0 * rows + 0.75, hgap_in=0.75, wgap_in=0.8, bottom_in=0.55,
+                               top_in=0.85)
         for ax in axes.reshape(-1)[len(channels):]:
             ax.set_visible(False)
         for ax, (name, ch, lines) in zip(axes.reshape(-1), channels):
@@ -300,5 +324,17 @@ def allan_axes_figure(channels: Sequence[tuple[str, dict, dict[str, np.ndarray]]
             ax.set_xlabel("tau, s")
             ax.set_ylabel(f"Allan deviation, {ch['unit']}")
             ax.set_title(name)
-            ax.legend(loc="lower left", fontsize=6.5, frameon=False)
+        _figure_legend(fig, axes.reshape(-1)[:len(channels)])
     return fig
+
+
+def _figure_legend(fig, axes) -> None:
+    """One legend for every panel, above them all: inside an axes it covered the curves where they cross it."""
+    entries: dict[str, object] = {}
+    for ax in axes:
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            entries.setdefault(label, handle)
+    order = ["ADEV", ALLAN_MODEL_LABEL] + [label for label, _ in ALLAN_TERMS.values()]
+    entries = dict(sorted(entries.items(), key=lambda e: order.index(e[0]) if e[0] in order else len(order)))
+    fig.legend(list(entries.values()), list(entries), loc="upper center", bbox_to_anchor=(0.5, 1.0), ncol=4,
+               fontsize=7, frameon=False, borderaxespad=0.2)

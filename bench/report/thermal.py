@@ -63,7 +63,7 @@ def _truth_z(model: ThermalModel, name: str) -> str:
 
 def markdown_thermal(model: ThermalModel, title: str) -> str:
     low, high = model.range_c
-    lines = [f"# Thermal model: {md_text(title)}", "",
+    lines = [f"# {md_text(title)}", "",
              f"{len(model.points)} calibrations from {low:g} to {high:g} degC; polynomials in "
              f"(T - {model.reference_c:g} degC), T the IMU's temperature. turntable-bench {__version__}.", "",
              f"Degree rule: {DEGREE_RULE}.", "", "## Calibrations", "", "| calibration | IMU mean degC | min | max |",
@@ -133,7 +133,9 @@ def html_thermal(model: ThermalModel, title: str) -> str:
     rows = []
     for name, fit in model.fits.items():
         chi = f"{fit.chi2 / fit.dof:.2f}" if fit.dof else "-"
-        cells = "".join(f"<td class=num>{escape(c)}</td>" for c in _term_cells(model, name))
+        # the value over its sigma: side by side, four terms ran past the content column
+        cells = "".join(f"<td class=num>{'<br>'.join(escape(part) for part in c.split(' ', 1))}</td>"
+                        for c in _term_cells(model, name))
         rows.append(f"<tr><td>{name}</td><td>{escape(fit.unit)}</td><td class=num>{fit.degree}</td>{cells}"
                     f"<td class=num>{chi}</td>" + (f"<td class=num>{_truth_z(model, name)}</td>" if sim else "")
                     + "</tr>")
@@ -146,8 +148,8 @@ def html_thermal(model: ThermalModel, title: str) -> str:
             figures.append(f"<figure>{svg}<figcaption>{escape(info.title)} ({escape(info.result_unit)}) against "
                            "IMU temperature</figcaption></figure>")
     notes = "".join(f"<li>{escape(n)}</li>" for n in model.notes)
-    return (f"<!DOCTYPE html>\n<html lang=en><head><meta charset=utf-8><title>Thermal model: {escape(title)}</title>"
-            f"<style>{CSS}</style></head><body>\n<h1>Thermal model: {escape(title)}</h1>\n"
+    return (f"<!DOCTYPE html>\n<html lang=en><head><meta charset=utf-8><title>{escape(title)}</title>"
+            f"<style>{CSS}</style></head><body>\n<h1>{escape(title)}</h1>\n"
             f"<p>{len(model.points)} calibrations from {low:g} to {high:g} degC; polynomials in "
             f"(T - {model.reference_c:g} degC). Degree rule: {escape(DEGREE_RULE)}. turntable-bench "
             f"{escape(__version__)}.</p>\n<h2>Calibrations</h2>\n<table><tr><th>calibration</th><th>IMU mean degC</th>"
@@ -162,7 +164,7 @@ def write_thermal_reports(model: ThermalModel, out_dir: str | Path, stem: str = 
     never a name from a file)."""
     out = Path(out_dir)
     written = []
-    title = title or stem
+    title = title or "Thermal model"        # not the stem: it read "Thermal model: thermal"
     for suffix in (".md", ".html") if html else (".md",):
         text = markdown_thermal(model, title) if suffix == ".md" else html_thermal(model, title)
         path = out / f"{stem}{suffix}"

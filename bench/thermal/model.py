@@ -71,6 +71,13 @@ def point_from_result(result: CalibrationResult, label: str, temperature_c: floa
     return ThermalPoint(label, temperature, result)
 
 
+def _identity_entry(point: ThermalPoint) -> dict[str, Any]:
+    """A point's `imu` entry (the IMU its calibration names; nothing when it names none): the export's header
+    says which IMU the model is of, after the model is read back from its file."""
+    imu = point.result.run.imu
+    return {} if imu is None or not (imu.model or imu.serial) else {"imu": imu.to_dict()}
+
+
 @dataclass
 class ThermalModel:
     """Per-coefficient thermal polynomials and what they were fitted to."""
@@ -114,7 +121,8 @@ class ThermalModel:
         out: dict[str, Any] = {"format": THERMAL_FORMAT, "version": THERMAL_VERSION,
                                "thermal_model": self.model_json(),
                                "points": [{"label": p.label, "temperature": p.temperature,
-                                           "coefficients": {k: c.to_json() for k, c in p.result.coefficients.items()}}
+                                           "coefficients": {k: c.to_json() for k, c in p.result.coefficients.items()},
+                                           **_identity_entry(p)}
                                           for p in self.points],
                                "notes": list(self.notes), "run": self.run}
         if self.sim_truth is not None:
@@ -158,7 +166,9 @@ class ThermalModel:
             try:
                 result = CalibrationResult.from_json({"format": "turntable-bench/result", "version": 1,
                                                       "coefficients": p["coefficients"],
-                                                      "temperature": p["temperature"]}, f"{origin}: points[{k}]")
+                                                      "temperature": p["temperature"],
+                                                      **({"run": {"imu": p["imu"]}} if "imu" in p else {})},
+                                                     f"{origin}: points[{k}]")
                 points.append(ThermalPoint(str(p["label"]), dict(p["temperature"]), result))
             except (KeyError, TypeError, AttributeError) as exc:
                 raise ThermalFormatError(f"{origin}: points[{k}]: malformed ({exc})") from exc

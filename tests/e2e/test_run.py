@@ -63,7 +63,8 @@ TOPICS = ("/table/state", "/imu/samples", "/events", "/log", "/tf", "/can/raw")
 
 
 def _plan(text: str):
-    return compile_from_config(parse_config(text))
+    config = parse_config(text)
+    return compile_from_config(config, sim=config.table.is_sim)     # as bench run compiles it
 
 
 # -- the shared noise-off ideal-table run ---------------------------------------------

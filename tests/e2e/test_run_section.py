@@ -13,7 +13,7 @@ from tests.helpers.run import cli, only_file
 
 #: The order of the section as each writer built it by hand before `RunInfo`.
 LIVE = ["run_id", "mode", "operator", "software_version", "state", "log", "logs", "positions", "rotations",
-        "finished_utc", "imu", "site", "quality_failures", "sim", "imu_link", "lost_samples"]
+        "started_utc", "finished_utc", "imu", "site", "quality_failures", "sim", "imu_link", "lost_samples"]
 SOLVED = ["run_id", "mode", "operator", "software_version", "recorded_with", "state", "log", "logs", "positions",
           "rotations", "subset", "started_utc", "solved_utc", "solved_by", "imu", "site", "quality_failures",
           "imu_link", "lost_samples", "left_out", "damage", "notes"]

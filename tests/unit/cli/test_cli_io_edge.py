@@ -55,7 +55,7 @@ def test_schedules_search_out_an_existing_file_fails_before_the_search(tmp_path,
     existing.write_text("not a folder\n", encoding="utf-8")
     rc, stdout, stderr = cli(["schedules", "search", "--out", str(existing), "--groups", "14", "--choose", "6"])
     line = _one_line(rc, stdout, stderr, "bench schedules search")
-    assert str(existing) in line and "a file of that name exists" in line
+    assert str(existing) in line and "it is a file, not a folder" in line
     assert existing.read_text(encoding="utf-8") == "not a folder\n"
 
 

@@ -8,6 +8,7 @@ item. Pacing runs on a ManualClock, so `--speed` tests take no wall time.
 from __future__ import annotations
 
 import dataclasses
+import re
 import signal
 import subprocess
 import sys
@@ -439,6 +440,9 @@ def test_cli_reads_the_frames_once_with_or_without_quiet(recorded, monkeypatch):
     assert reads[False] == reads[True] > 0
     # issue 33: the count before the replay is of recorded batches (it read "1853 CAN frames" for 149,457)
     assert "batches of CAN frames recorded" in said[False] and recorded.log_path.name in said[False].splitlines()[0]
+    # and the summary names the same batches: it gave the replay's own deliveries (23,796) as "recorded" (986)
+    before = int(re.search(r"(\d+) batches of CAN frames recorded", said[False]).group(1))
+    assert f"CAN frames ({before} recorded batches)" in out
 
 
 @pytest.mark.slow
@@ -506,7 +510,7 @@ def test_the_summary_counts_frames_and_batches_and_its_time_includes_the_read():
     reading and decoding of the log, which is most of it when played as fast as possible."""
     from bench.log.replay import ReplayStats
 
-    stats = ReplayStats(frames=149_457, frame_batches=1_853, wall_s=2.0, read_s=1.81)
+    stats = ReplayStats(frames=149_457, recorded_batches=1_853, frame_batches=24_000, wall_s=2.0, read_s=1.81)
     line = stats.summary()
     assert "149457 CAN frames (1853 recorded batches)" in line
     assert "in 2.00 s (1.81 s of it reading and decoding the log)" in line

@@ -337,8 +337,8 @@ def test_the_plot_draws_each_channels_fitted_curve_beside_its_term_lines(tmp_pat
             np.testing.assert_allclose(curve.get_xdata(), np.asarray(ch["tau_s"])[fitted_on])
             np.testing.assert_allclose(curve.get_ydata(), np.asarray(ch["model"]["adev"])[fitted_on])
             assert len(axes[name].collections) >= 1        # its +-1 sigma band
-            legend = [t.get_text() for t in axes[name].get_legend().get_texts()]
-            assert ALLAN_MODEL_LABEL in legend and any(t.startswith("-1/2") for t in legend)
+        legend = [t.get_text() for t in fig.legends[0].get_texts()]     # one legend above the panels
+        assert ALLAN_MODEL_LABEL in legend and any(t.startswith("-1/2") for t in legend)
     finally:
         plt.close(fig)
 
