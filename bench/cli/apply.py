@@ -7,6 +7,7 @@ cannot be written.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -96,9 +97,12 @@ def cmd_apply(args: argparse.Namespace) -> ExitCode:
 
 
 def _is_mcap(path: str) -> bool:
-    """Whether `path` opens as an MCAP file (its magic); False when it cannot be read (the read says why)."""
+    """Whether `path` is a regular file that opens as an MCAP file (its magic); False when it is not a regular file
+    (a FIFO or device would block the read: the loaders refuse those in one line) or cannot be read."""
     from bench.log.mcap.records import MAGIC  # with the log reader: not loaded for --help
 
+    if not os.path.isfile(path):
+        return False
     try:
         with open(path, "rb") as f:
             return f.read(len(MAGIC)) == MAGIC
