@@ -129,7 +129,7 @@ def build_config(args: argparse.Namespace):
     return config, bool(args.sim or config.table.is_sim)
 
 
-def table_check_plan(config, schedule_spec: str, dwell_s: float, sim: bool = False):
+def table_check_plan(config, schedule_spec: str, dwell_s: float):
     """(config with the table-check schedule as its plan, compiled plan); UsageError when it cannot run."""
     # heavy (scipy, python-can, mcap, matplotlib): imported when the command runs, not for its --help
     from bench.run.runner import compile_from_config
@@ -152,7 +152,7 @@ def table_check_plan(config, schedule_spec: str, dwell_s: float, sim: bool = Fal
     plan_config = dataclasses.replace(config.plan, positions=schedule, rotations=None, dwell_s=float(dwell_s))
     config = dataclasses.replace(config, plan=plan_config)
     try:
-        return config, compile_from_config(config, sim)
+        return config, compile_from_config(config)
     except PlanError as exc:
         raise UsageError(str(exc)) from exc
 
@@ -169,7 +169,7 @@ def cmd_check_table(args: argparse.Namespace) -> ExitCode:
         if args.log:
             return _from_log(args, calibration)
         config, sim = build_config(args)
-        config, plan = table_check_plan(config, args.schedule, args.dwell_s, sim)
+        config, plan = table_check_plan(config, args.schedule, args.dwell_s)
     except UsageError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     return _live(args, config, plan, sim, calibration)

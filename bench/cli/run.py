@@ -96,7 +96,7 @@ def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
         if config.several and args.resume:
             return fail(PROG, "--resume: resuming a run of several IMUs ([[imu]]) is not supported yet; run it "
                               "again", ExitCode.USAGE)
-        plan = compile_from_config(config, sim=args.sim or config.table.is_sim)
+        plan = compile_from_config(config)
         # a verification plan that does not fit the table is refused here, before the calibration moves anything
         verification = (verification_plan(verification_config(config)) if config.plan.verification is not None
                         else None)

@@ -314,8 +314,7 @@ KEYS: tuple[Key, ...] = (
     Key("plan", "move_rate_dps", "number", "rate of moves between positions (within [table.limits])", 20.0,
         "deg/s", ge=MIN_RATE_DPS, le=MAX_RATE_DPS),
     Key("plan", "move_accel_dps2", "number", "acceleration of moves: the controller's own profile setting, for "
-        "the duration estimates (a simulated run's take its table's limit, at which the simulator moves)", 10.0,
-        "deg/s^2", ge=MIN_ACCEL_DPS2, le=MAX_ACCEL_DPS2),
+        "the duration estimates", 10.0, "deg/s^2", ge=MIN_ACCEL_DPS2, le=MAX_ACCEL_DPS2),
     Key("plan", "turn_rate_dps", "number", "rate of the calibration turns", 10.0, "deg/s", ge=MIN_RATE_DPS,
         le=MAX_RATE_DPS),
     Key("plan", "turn_accel_dps2", "number", "acceleration of the turns (as move_accel_dps2)", 5.0, "deg/s^2",

@@ -8,7 +8,6 @@ resumes) and write `<run-id>.result.json`, `<run-id>.report.md` and `<run-id>.re
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import secrets
@@ -92,26 +91,15 @@ class RunOutcome:
                    thermal_paths=finished.thermal_paths, thermal_model=finished.thermal_model)
 
 
-def simulated_timing(config: BenchConfig):
-    """`[plan]` with the simulated controller's move profile: it moves and turns at its table's acceleration
-    limit (`[plan] move_accel_dps2` and `turn_accel_dps2` say a real controller's profile, which the simulator
-    does not take) and answers at once (no command latency). The table check's estimate was 28 % long at 1 s
-    dwells (moves at 10 deg/s^2 plus 0.5 s each, where the simulator takes 50 deg/s^2)."""
-    accel = [axis.max_accel_dps2 for axis in config.table.limits.axes]
-    return dataclasses.replace(config.plan, move_accel_dps2=max(accel), turn_accel_dps2=min(accel),
-                               move_overhead_s=0.0)
-
-
 def _new_run_id() -> str:
     """A run's id: its UTC start time and a random suffix (the log and result files are named by it)."""
     return time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + "-" + secrets.token_hex(3)
 
 
-def compile_from_config(config: BenchConfig, sim: bool = False) -> CompiledPlan:
+def compile_from_config(config: BenchConfig) -> CompiledPlan:
     """The compiled plan of a configuration (PlanError on a plan that cannot run); with `temperatures_c`,
-    a calibration at each chamber temperature (`bench.plan.thermal`). `sim`: its durations are the simulated
-    controller's (`simulated_timing`)."""
-    plan = simulated_timing(config) if sim else config.plan
+    a calibration at each chamber temperature (`bench.plan.thermal`)."""
+    plan = config.plan
     if plan.thermal is not None:
         return compile_thermal_plan(plan.positions, plan.rotations, plan, plan.thermal, limits=config.table.limits,
                                     order=plan.order)

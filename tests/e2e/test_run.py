@@ -63,8 +63,7 @@ TOPICS = ("/table/state", "/imu/samples", "/events", "/log", "/tf", "/can/raw")
 
 
 def _plan(text: str):
-    config = parse_config(text)
-    return compile_from_config(config, sim=config.table.is_sim)     # as bench run compiles it
+    return compile_from_config(parse_config(text))
 
 
 # -- the shared noise-off ideal-table run ---------------------------------------------

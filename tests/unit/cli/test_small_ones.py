@@ -133,38 +133,3 @@ def test_a_line_of_thousands_of_characters_is_bounded(capsys):
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 2 and all(len(s) <= LINE_MAX + 40 for s in err)
     assert bounded_line("short\nmessage") == "short message"
-
-
-# -- the estimated duration of a simulated run is the simulated one --------------------------------------------------
-
-def _hms(text: str) -> float:
-    h, m, s = (int(x) for x in text.split(":"))
-    return 3600.0 * h + 60.0 * m + s
-
-
-def test_a_simulated_runs_estimate_is_its_simulated_duration(noisy_run):
-    # the estimate took [plan]'s 10 deg/s^2 and 0.5 s a move, the simulated controller moves at its 50 deg/s^2
-    from bench.log.events import StepStarted
-
-    log = read_log(noisy_run.log)
-    estimated = sum(e.step["estimated_s"] for e in log.events if isinstance(e, StepStarted))
-    simulated = log.events[-1].time_s - log.events[0].time_s
-    assert estimated == pytest.approx(simulated, rel=0.03)
-
-
-def test_a_simulated_table_checks_estimate_is_its_simulated_duration(tmp_path):
-    # 0:50:19 estimated for 0:39:16 simulated (324 positions, 1 s dwells)
-    import re
-
-    lines = ['format = "turntable-bench/schedule"', "version = 1", 'name = "table-check-16"', 'kind = "table-check"',
-             'description = "short table check for tests"', ""]
-    lines += [f"[[position]]\nangles_deg = [{o}, 0, {i}]\n" for o in (0, 90, 180, 270) for i in (45, 135, 225, 315)]
-    schedule = tmp_path / "table-check-16.toml"
-    schedule.write_text("\n".join(lines), encoding="utf-8")
-    rc, out, err = cli(["check-table", "--sim", "--schedule", str(schedule), "--dwell-s", "1", "--out",
-                        str(tmp_path / "out"), "--no-db"])
-    assert rc == 0, err
-    said = out + err
-    estimated = _hms(re.search(r"about (\d+:\d\d:\d\d) of table time", said).group(1))
-    simulated = _hms(re.search(r"steps done in (\d+:\d\d:\d\d) simulated", said).group(1))
-    assert estimated == pytest.approx(simulated, rel=0.03, abs=2.0)
