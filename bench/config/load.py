@@ -40,6 +40,7 @@ from bench.config.keys import (
     optional_number,
 )
 from bench.config.lab import LAB_KEYS, LabConfig, lab_config
+from bench.config.model import model_terms
 from bench.config.reader import ConfigError, Located, Table, describe, parse_toml, read_text, show, suggest
 from bench.config.register_map import TABLE_MAP, load_register_map, register_map_value
 from bench.config.thermal import THERMAL_KEYS, sim_thermal
@@ -231,6 +232,8 @@ class BenchConfig:
     acceptance: AcceptanceLimits = field(default_factory=AcceptanceLimits)  # [acceptance]: limits of the verdict
     chamber: ChamberConfig | None = None  # [chamber]: the thermal chamber, None: none
     lab: LabConfig = field(default_factory=LabConfig)  # [lab]: the lab, customer, item and equipment
+    #: [model] terms: the higher-order families the solve estimates beyond the 30 (("auto",): the data choose)
+    model_terms: tuple[str, ...] = ()
 
 
 # --- sections -----------------------------------------------------------------------
@@ -601,8 +604,9 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
                                                      "but the IMU signal mapping has no temperature "
                                                      "(imu.signals.temperature)")
     lab = lab_config(root.table("lab", LAB_KEYS))
+    terms = model_terms(root.table("model", allowed("model")))
     return BenchConfig(site, table, imu, plan, output, sim, source_text=text, acceptance=acceptance, chamber=chamber,
-                       lab=lab)
+                       lab=lab, model_terms=terms)
 
 
 def load_config(path: str | Path) -> BenchConfig:
