@@ -14,6 +14,8 @@ import pytest
 from bench.model.extended import FAMILIES, TERMS
 from bench.model.imu import default_sim_imu
 from bench.model.result import CalibrationResult
+from bench.report.html import html_report
+from bench.report.markdown import markdown_report
 from bench.sim.acquire import AcquisitionTiming
 from bench.solve.calibrate import solve
 from bench.solve.extended import solve_extended
@@ -148,3 +150,16 @@ def test_bench_solve_model_auto_on_a_recorded_log(noisy_run, tmp_path):
 def test_bench_solve_model_refuses_an_unknown_family_in_one_line(noisy_run, tmp_path):
     rc, _, stderr = cli(["solve", str(noisy_run.log), "--model", "gyro_wobble", "--out", str(tmp_path)])
     assert rc == 2 and len(stderr.strip().splitlines()) == 1 and "gyro_wobble" in stderr
+
+
+def test_the_reports_have_the_significance_table(runs):
+    positions, turns, budget, _ = runs("tactical-mems", "tactical-mems")
+    result = solve_extended(positions, turns, SITE, "auto", budget_inputs=budget).to_result()
+    markdown = markdown_report(result)
+    assert "## Extended model: significance" in markdown
+    assert "| Qa_x | acc_second_order |" in markdown and "| acc_lever_arm |" in markdown
+    assert "Families not in the model:" in markdown and "not significant" in markdown
+    html = html_report(result)
+    assert "<h2>Extended model: significance</h2>" in html and "Qa_x" in html
+    plain = solve(positions, turns, SITE, budget_inputs=budget).to_result()
+    assert "significance" not in markdown_report(plain) + html_report(plain)
