@@ -151,7 +151,7 @@ def _markdown_significance(result: CalibrationResult) -> list[str]:
     for header, rows in ((COEFFICIENT_HEADER, table.coefficients), (FAMILY_HEADER, table.families)):
         if rows:
             lines += ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
-            lines += ["| " + " | ".join(md_text(cell) for cell in row) + " |" for row in rows]
+            lines += ["| " + " | ".join(row) + " |" for row in rows]     # names, numbers and units of our own
             lines.append("")
     if table.left_out:
         lines += ["Families not in the model:", ""] + [f"- {md_text(line)}" for line in table.left_out] + [""]

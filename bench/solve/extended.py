@@ -533,4 +533,20 @@ def _noise_30(solved: _Solved, calibration: Calibration) -> dict[str, float]:
     return out
 
 
-__all__ = ["ALPHA", "AUTO", "ExtendedFit", "FamilyTest", "parse_terms", "solve_extended"]
+__all__ = ["ALPHA", "AUTO", "ExtendedFit", "FamilyTest", "parse_terms", "predicted_sigmas", "solve_extended"]
+
+
+def predicted_sigmas(positions: list[PositionObservation], rotations: list[RotationObservation], site: Site,
+                     terms: Iterable[str], mounting=None, gyro_prior: ImuCoefficients | None = None,
+                     budget_inputs: BudgetInputs | None = None) -> dict[str, float]:
+    """The sample-noise 1-sigma (result units) of each coefficient of the families `terms` on these observations
+    (their values do not matter, only their weights and the plan's geometry); SolverError if the plan does not
+    observe them together."""
+    families, _ = parse_terms(terms)
+    inputs = budget_inputs or BudgetInputs()
+    solved = _fit(positions, rotations, site, families, inputs, mounting, gyro_prior, _Table(None, {}))
+    out: dict[str, float] = {}
+    for part in solved.parts:
+        for i, (term, name) in enumerate(part.names):
+            out[name] = math.sqrt(float(part.noise_var_si[i])) / FAMILIES[term].result_to_si
+    return out
