@@ -44,6 +44,7 @@ from bench.model.observations import PositionObservation, RotationObservation, t
 from bench.model.units import DEG
 from bench.solve.budget import (
     BIAS_INSTABILITY,
+    CONSISTENCY_ALPHA,
     NOISE,
     TABLE,
     UNEXPLAINED,
@@ -150,21 +151,38 @@ class _Solved:
     bias_fits: list[LinearFit] | None = None
 
 
-def _part(fit: LinearFit, operator: np.ndarray, first: int, names: list[tuple[str, str]], scale: float,
-          extra: dict[str, np.ndarray | None]) -> _Part:
-    """The extra columns `first:` of a single-sensor fit, divided by the sensor's scale into coefficients; `extra`
-    (budget component -> the observations' covariance) adds each component's part to the covariance."""
+def _part(fit: LinearFit, design: np.ndarray, sigma: np.ndarray | None, first: int, names: list[tuple[str, str]],
+          scale: float, extra: dict[str, np.ndarray | None]) -> _Part:
+    """The extra columns `first:` of a single-sensor fit, divided by the sensor's scale into coefficients.
+
+    Their covariance is the budget's: the sample noise plus each `extra` component (budget component -> the
+    observations' covariance) pushed through the fit; the residuals are tested against the scatter that predicts
+    (as `bench.solve.budget`'s residual test) and only an inconsistent fit adds the unexplained scatter."""
+    operator = _operator(design, sigma)
     sl = slice(first, first + len(names))
     cov_noise = (fit.cov_noise if fit.cov_noise is not None else fit.cov)[0]
-    cov = fit.cov[0][sl, sl].copy()
+    c_y = np.diag(sigma ** 2) if sigma is not None else np.eye(len(design))
+    full = cov_noise.copy()
     other: dict[str, np.ndarray] = {}
-    for component, c_y in extra.items():
-        if c_y is None:
+    for component, c_extra in extra.items():
+        if c_extra is None:
             continue
-        part = (operator @ c_y @ operator.T)[sl, sl]
-        cov = cov + part
-        other[component] = np.diag(part) / scale ** 2
-    return _Part(names, fit.params[0][sl] / scale, cov / scale ** 2, np.diag(cov_noise)[sl] / scale ** 2, other)
+        part = operator @ c_extra @ operator.T
+        full = full + part
+        c_y = c_y + c_extra
+        other[component] = np.diag(part)[sl] / scale ** 2
+    if sigma is None:
+        full = fit.cov[0]                   # unweighted: the residual scatter sets the scale
+    else:
+        projector = np.eye(len(design)) - design @ operator
+        c_r = projector @ c_y @ projector.T
+        residual = fit.residuals[:, 0]
+        dof = len(design) - design.shape[1]
+        chi2 = float(residual @ np.linalg.pinv(c_r, rcond=1e-10) @ residual)
+        if dof > 0 and stats.chi2.sf(chi2, dof) < CONSISTENCY_ALPHA:
+            full = full * (chi2 / dof)      # the unexplained scatter: the whole random part scaled up
+    return _Part(names, fit.params[0][sl] / scale, full[sl, sl] / scale ** 2, np.diag(cov_noise)[sl] / scale ** 2,
+                 other)
 
 
 @dataclass
@@ -219,7 +237,7 @@ def _fit(positions: list[PositionObservation], rotations: list[RotationObservati
             c_gm = None if kernel is None else (acc_scale[s] * inputs.acc_bias_instability) ** 2 * kernel
             c_table = table["accelerometers"][s] if "accelerometers" in table else None
             if names:
-                out.parts.append(_part(fit, _operator(design, sig), 4, names, acc_scale[s],
+                out.parts.append(_part(fit, design, sig, 4, names, acc_scale[s],
                                        {BIAS_INSTABILITY: c_gm, TABLE: c_table}))
                 corrected_acc[:, s] -= extra @ fit.params[0][4:]
         if "acc_lever_arm" in terms:
@@ -384,7 +402,7 @@ def _gyros(positions, rotations, site: Site, terms, inputs: BudgetInputs, mounti
             # each column carries its coefficient times Kg (the asymmetry's column is |.|/2); the bias drifting
             # between the turns (a Gauss-Markov bias, as the budget's) enters as their integrals' covariance
             c_turn_gm = (scale[s] * inputs.gyro_bias_instability) ** 2 * turn_kernel
-            parts.append(_part(rot_fits[s], _operator(design, None if rot_sigma is None else rot_sigma[:, s]), 4,
+            parts.append(_part(rot_fits[s], design, None if rot_sigma is None else rot_sigma[:, s], 4,
                                names, float(scale[s]), {BIAS_INSTABILITY: c_turn_gm,
                                                         TABLE: table["gyros"][s] if "gyros" in table else None}))
         if g_sens:
@@ -393,7 +411,7 @@ def _gyros(positions, rotations, site: Site, terms, inputs: BudgetInputs, mounti
                 / scale[s]
             c_gm = None if kernel is None else inputs.gyro_bias_instability ** 2 * kernel
             c_table = table["gyro bias"][s] / scale[s] ** 2 if "gyro bias" in table else None
-            parts.append(_part(bias_fits[s], _operator(design_b, sig), 1, names, 1.0,
+            parts.append(_part(bias_fits[s], design_b, sig, 1, names, 1.0,
                                {BIAS_INSTABILITY: c_gm, TABLE: c_table}))
     # the observations less the fitted higher-order parts
     u_rest = w_nom @ axes.T
