@@ -73,6 +73,7 @@ def sensitivity_lines(sens) -> list[str]:
 
 def cmd_analyze(args: argparse.Namespace) -> ExitCode:
     # heavy (scipy): imported when the command runs, not for its --help
+    from bench.schedule_design.extended import extended_observability, observability_lines
     from bench.schedule_design.monte_carlo import evaluate
     from bench.schedule_design.sensitivity import (
         position_noise_sigma,
@@ -124,6 +125,12 @@ def cmd_analyze(args: argparse.Namespace) -> ExitCode:
               f"({plan.estimated_total_s:.0f} s; moves {plan.move_total_s:.0f} s)")
     except PlanError as exc:
         print(f"\nPlan duration: not compiled ({exc})")
+    print(f"\nExtended model (docs/explanation/extended-model.md): the higher-order families this schedule shows "
+          f"on its own ({setting}; predicted sample-noise 1-sigma, the simulated IMU):")
+    for line in observability_lines(extended_observability(
+            None if rotations else angles, turns if rotations else [], noise, args.dwell_s, args.turn_rate_dps,
+            site=site)):
+        print(line)
     reference = "optimal-5s6r" if rotations else "optimal-24"
     keys: tuple[str, ...]
     if rotations:

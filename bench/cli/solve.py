@@ -20,6 +20,7 @@ from bench.files import write_output_text
 from bench.model.result import CalibrationResult
 from bench.model.run_section import RunInfo
 from bench.report.facts import lost_samples_note
+from bench.solve.extended import parse_terms
 
 PROG = "bench solve"
 
@@ -45,6 +46,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="solve each method's subset and print its differences from the last one, e.g. "
                              "optimal,traditional,all (a method is optimal, traditional, all or POSITIONS+ROTATIONS)")
     parser.add_argument("--json", metavar="FILE", help="with --compare: also write the table as JSON")
+    parser.add_argument("--model", metavar="TERMS",
+                        help="the extended model: 'auto' (the higher-order families the data find significant), "
+                             "comma-separated families (gyro_g_sensitivity,acc_second_order,...) or '30' for the 30 "
+                             "coefficients alone (default: the recorded configuration's [model] terms)")
     parser.add_argument("--out", metavar="DIR", help="output folder (default: next to the first log)")
     parser.add_argument("--against", metavar="OLD.result.json",
                         help="compare the new result with an earlier result file in the reports")
@@ -164,6 +169,10 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
         except InputError as exc:   # not a result, not a regular file, too large
             return fail(PROG, str(exc), ExitCode.USAGE)
     try:
+        model_terms = _model_terms(args.model)
+    except SolverError as exc:
+        return fail(PROG, f"--model: {exc}", ExitCode.USAGE)
+    try:
         methods = parse_methods(args.compare) if args.compare else None
         positions = load_subset_schedule(args.positions, "positions")
         rotations = load_subset_schedule(args.rotations, "rotations")
@@ -181,7 +190,8 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
         else:
             out_dir = Path(args.out) if args.out else Path(recorded.logs[0].path).parent
             target = ResolveTarget(out_dir, output_stem(recorded, positions, rotations), html=not args.no_html,
-                                   against=against, against_label=args.against and Path(args.against).name)
+                                   against=against, against_label=args.against and Path(args.against).name,
+                                   model_terms=model_terms)
             finished = finish(recorded, target, positions=positions, rotations=rotations)
     except (LogError, SolveInputError) as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
@@ -227,3 +237,14 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
             failures = [c.labelled() for c in finished.verdict.failed]
     code = fail(PROG, "verdict FAIL: " + "; ".join(failures), ExitCode.QUALITY) if failures else ExitCode.OK
     return code if recorded_ok else not_recorded_exit(PROG, code)
+
+
+def _model_terms(option: str | None) -> tuple[str, ...] | None:
+    """`--model`: None (the recorded configuration's), () for "30", else the families (SolverError if unknown)."""
+    if option is None:
+        return None
+    if option.strip() == "30":
+        return ()
+    terms = tuple(t.strip() for t in option.split(",") if t.strip())
+    parse_terms(terms)
+    return terms

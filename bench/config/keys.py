@@ -17,6 +17,7 @@ from typing import Any
 
 from bench.acceptance.limits import BEYOND_FAIL, BEYOND_WARN, VERIFICATION_LIMITS
 from bench.config.reader import Table
+from bench.model.extended import TERMS as EXTENDED_TERMS
 from bench.model.families import FAMILY_INFO, canonical_names
 from bench.model.higher_order import GRADE_NAMES
 from bench.model.imu import NoiseModel
@@ -184,6 +185,7 @@ KEYS: tuple[Key, ...] = (
     Key("", "imu", "table or array of tables", "the IMU under test, read over CAN; or one [[imu]] entry per unit "
         "of several calibrated in one run (docs/how-to/several-imus.md)", REQUIRED),
     Key("", "plan", "table", "what to run", REQUIRED),
+    Key("", "model", "table", "the model the solve estimates: the 30 coefficients and any higher-order families"),
     Key("", "output", "table", "where runs are written"),
     Key("", "sim", "table", "the simulated world of `bench run --sim` and of table url \"sim\""),
     Key("", "acceptance", "table", "limits of the result's verdict"),
@@ -305,6 +307,10 @@ KEYS: tuple[Key, ...] = (
         "accelerometers against z: the table check's conversion part without a calibration", NONE, ge=0.0, le=0.1,
         default_text="1e-3"),
     # [plan]
+    Key("model", "terms", "list of strings", "higher-order families the solve estimates beyond the 30 coefficients "
+        "(docs/explanation/extended-model.md): any of " + ", ".join(f"`{t}`" for t in EXTENDED_TERMS)
+        + "; or `[\"auto\"]`: those the plan observes and the data find significant; empty: the 30 alone", [],
+        default_text="[] (the 30 coefficients)"),
     Key("plan", "positions", "string", "position schedule: a shipped name (`bench schedules list`) or a file; "
         "\"\" = none (at least one of positions and rotations)", ""),
     Key("plan", "rotations", "string", "rotation schedule, the same", ""),

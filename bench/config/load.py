@@ -40,6 +40,7 @@ from bench.config.keys import (
     optional_number,
 )
 from bench.config.lab import LAB_KEYS, LabConfig, lab_config
+from bench.config.model import model_terms
 from bench.config.reader import ConfigError, Located, Table, describe, parse_toml, read_text, show, suggest
 from bench.config.register_map import TABLE_MAP, load_register_map, register_map_value
 from bench.config.rig import RigIdentity
@@ -243,6 +244,8 @@ class BenchConfig:
     lab: LabConfig = field(default_factory=LabConfig)  # [lab]: the lab, customer, item and equipment
     #: the [[imu]] entries of a run of several units (`imu` is the first: the run's reference unit); () for [imu]
     units: tuple[ImuConfig, ...] = ()
+    #: [model] terms: the higher-order families the solve estimates beyond the 30 (("auto",): the data choose)
+    model_terms: tuple[str, ...] = ()
 
     @property
     def several(self) -> bool:
@@ -634,11 +637,12 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
                                                      "but the IMU signal mapping has no temperature "
                                                      "(imu.signals.temperature)")
     lab = lab_config(root.table("lab", LAB_KEYS))
+    terms = model_terms(root.table("model", allowed("model")))
     if units and (plan.thermal is not None or chamber is not None or plan.verification is not None):
         raise root.doc.error(("imu",), "several units ([[imu]]) with a calibration over temperature, a [chamber] or "
                                        "a verification plan are not supported yet")
     return BenchConfig(site, table, imu, plan, output, sim, source_text=text, acceptance=acceptance, chamber=chamber,
-                       lab=lab, units=units)
+                       lab=lab, units=units, model_terms=terms)
 
 
 def load_config(path: str | Path) -> BenchConfig:

@@ -121,12 +121,13 @@ class Resolved:
 
 
 def solve_recorded(recorded: Recorded, positions=None, rotations=None, *,
-                   run_section: RunSection | None = None) -> Resolved:
+                   run_section: RunSection | None = None, terms: tuple[str, ...] | None = None) -> Resolved:
     """Solve every recorded step, or the subset the schedules choose (SolverError: nothing to solve).
 
     When the whole solve fails (too few turns or positions left by damage) the positions or the rotations alone
     are solved, the others left out with the reason. `run_section` writes the result's run section (default:
-    a re-solve's, `resolved_run_section`; the live run passes its own)."""
+    a re-solve's, `resolved_run_section`; the live run passes its own). `terms`: the extended model's families
+    (`bench.solve.extended`), None: the recorded configuration's `[model] terms`."""
     run_section = run_section or resolved_run_section
     config, setup = recorded.setup.config, recorded.setup
     inputs = budget_inputs(config, recorded.sim) if config is not None else None
@@ -134,7 +135,9 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None, *,
     # a subset does not use the windows it leaves out: their lost samples are outside the windows it uses
     unused = _unused_windows(recorded, chosen, positions, rotations)
     chosen.problems = [p for p in recorded.problems() if not (p.window_loss and p.unit in unused)]
-    calibration, chosen, dropped = _solve_what_can_be(chosen, setup.site, inputs, setup.mounting)
+    if terms is None:
+        terms = config.model_terms if config is not None else ()
+    calibration, chosen, dropped = _solve_what_can_be(chosen, setup.site, inputs, setup.mounting, terms)
     solution = LogSolution(calibration, chosen, list(recorded.imu_stats), list(recorded.damage))
     failures = quality_failures(solution)
     lost = without_windows(recorded.extraction.lost_samples(), unused)
@@ -204,13 +207,13 @@ def _unused_windows(recorded: Recorded, chosen: Extraction, positions, rotations
             and ((kind == "dwell" and positions is not None) or (kind == "turn" and rotations is not None))}
 
 
-def _solve_what_can_be(chosen: Extraction, site, inputs, mounting=None):
+def _solve_what_can_be(chosen: Extraction, site, inputs, mounting=None, terms: tuple[str, ...] = ()):
     """Solve all of `chosen`; when that fails (too few turns or positions left by damage),
     the positions or the rotations alone, the others left out with the reason.
     Returns (calibration, the extraction solved, units left out); SolverError if neither solves."""
 
     def attempt(extraction):
-        return solve_extraction(extraction, site, budget=inputs, mounting=mounting)
+        return solve_extraction(extraction, site, budget=inputs, mounting=mounting, terms=terms)
 
     try:
         return attempt(chosen), chosen, []

@@ -76,6 +76,8 @@ class Target(ABC):
     stem: str                  # the outputs' file name stem
     html: bool = True          # HTML reports too (else the Markdown report only)
     live: bool = False         # the run that recorded the logs finishes them (its log still open)
+    #: the extended model's families for the solve (`bench solve --model`); None: the recorded `[model] terms`
+    model_terms: tuple[str, ...] | None = None
 
     @abstractmethod
     def run_section(self, recorded: Recorded, solved: Solved) -> RunInfo:
@@ -128,7 +130,8 @@ def finish(recorded: Recorded, target: Target, *, positions=None, rotations=None
 
 def finish_calibration(recorded: Recorded, target: Target, positions=None, rotations=None) -> Finished:
     """Solve all of `recorded` (or the subset the schedules choose), judge it, write its result and reports."""
-    resolved = solve_recorded(recorded, positions, rotations, run_section=target.run_section)
+    resolved = solve_recorded(recorded, positions, rotations, run_section=target.run_section,
+                              terms=target.model_terms)
     problems = texts(resolved.solution.extraction.problems)
     result_path, report_path, html_path = target.write_result(
         recorded, resolved.result, Reports(target.title("Calibration report"), problems, texts(resolved.failures)))

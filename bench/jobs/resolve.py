@@ -46,6 +46,8 @@ class ResolveTarget(Target):
     html: bool = True
     against: CalibrationResult | None = None
     against_label: str | None = None
+    #: the extended model's families (`bench solve --model`); None: the recorded configuration's `[model] terms`
+    model_terms: tuple[str, ...] | None = None
 
     def run_section(self, recorded: Recorded, solved: Solved) -> RunInfo:
         if recorded.kind is RunKind.THERMAL:        # its blocks' sections say only who solved them

@@ -157,6 +157,10 @@ class RotationObservation:
     #: variance (counts^2) of the integral's output rounding, for an IMU that rounds each sample on its own
     #: (sbg-ecan); None: a counter output, whose integral is exact to one count (the budget's counter model)
     rounding_var: np.ndarray | None = None
+    #: the accelerometer outputs summed over the same window (counts) and the integral of the turning frame's
+    #: squared rate over it (rad^2/s): what the extended model's lever arms and nonlinearity need (None: unknown)
+    acc_integral: np.ndarray | None = None
+    rate_sq_integral: float | None = None
 
     def __post_init__(self) -> None:
         self.start_deg = triple(_vec3(self.start_deg, "start_deg"))
@@ -173,6 +177,8 @@ class RotationObservation:
             self.gyro_integral_sigma = _vec3(self.gyro_integral_sigma, "gyro_integral_sigma")
         if self.rounding_var is not None:
             self.rounding_var = _vec3(self.rounding_var, "rounding_var")
+        if self.acc_integral is not None:
+            self.acc_integral = _vec3(self.acc_integral, "acc_integral")
 
     @property
     def frame_index(self) -> int:
@@ -181,6 +187,24 @@ class RotationObservation:
     @property
     def sign(self) -> int:
         return DIRECTION_SIGN[self.direction]
+
+
+def rate_squared_integral(pieces: list[Piece], t_start: float, t_end: float) -> float:
+    """Integral of the squared frame rate (rad^2/s) over [t_start, t_end] along the trajectory (exact)."""
+    starts = [p.t0 for p in pieces]
+    edges = [t_start] + [b for b in starts if t_start < b < t_end] + [t_end]
+    total = 0.0
+    for a, b in zip(edges[:-1], edges[1:]):
+        if b <= a:
+            continue
+        k = int(np.searchsorted(starts, 0.5 * (a + b), side="right")) - 1
+        if k < 0:
+            continue            # before the first piece the axis holds still
+        _, rate_a = pieces[k].at(a)
+        _, rate_b = pieces[k].at(b)
+        accel = pieces[k].accel
+        total += rate_a ** 2 * (b - a) if accel == 0.0 else (rate_b ** 3 - rate_a ** 3) / (3.0 * accel)
+    return total
 
 
 def turn_axis_in_body(start_deg, frame_index: int, black_box=None, mounting=None) -> np.ndarray:

@@ -53,10 +53,12 @@ class QualitySection(Section):
     gyro_bias: FitQuality | None = None
     outliers: list[Outlier] | None = None
     uncertainty: dict[str, Any] | None = None   # the budget's summary (`Budget.summary_json`)
+    #: the extended model's significance table (`bench.solve.extended.ExtendedFit.significance_json`)
+    significance: dict[str, Any] | None = None
 
     READERS = {"flags": list_of(text), "outlier_sigma": number, "accelerometers": FitQuality.from_dict,
                "gyros": FitQuality.from_dict, "gyro_bias": FitQuality.from_dict,
-               "outliers": list_of(Outlier.from_dict), "uncertainty": obj}
+               "outliers": list_of(Outlier.from_dict), "uncertainty": obj, "significance": obj}
 
     def _dumped(self, name: str) -> Any:
         if name == "outliers":

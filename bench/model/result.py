@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from bench.files import InputFileError, parse_json, read_input_text, write_output_text
+from bench.model.extended import EXTENDED_NAMES, EXTENDED_RESULT_UNITS
 from bench.model.families import RESULT_UNITS, canonical_names, family_of
 from bench.model.imu import ImuCoefficients
 from bench.model.quality_section import QualitySection
@@ -58,12 +59,18 @@ def _json_float(x: float) -> float | None:
 def coefficient_table(values: dict[str, float], sigmas: dict[str, float] | None = None,
                       budgets: dict[str, dict[str, float]] | None = None,
                       k: float | None = None) -> dict[str, Coefficient]:
-    """Canonical-ordered coefficient table from display-unit values (and sigmas, budgets, k)."""
+    """Canonical-ordered coefficient table from display-unit values (and sigmas, budgets, k); the extended
+    model's coefficients (`bench.model.extended`) follow the 30."""
     sigmas = sigmas or {}
     return {name: Coefficient(float(values[name]), float(sigmas.get(name, math.nan)),
-                              RESULT_UNITS[family_of(name)][0],
+                              _UNITS[family_of(name)][0],
                               None if budgets is None else dict(budgets.get(name, {})), k)
-            for name in canonical_names() if name in values}
+            for name in _KNOWN if name in values}
+
+
+#: every coefficient a result may hold, in order: the 30, then the extended model's; prefix -> unit
+_KNOWN = (*canonical_names(), *EXTENDED_NAMES)
+_UNITS = {**RESULT_UNITS, **EXTENDED_RESULT_UNITS}
 
 
 @dataclass
@@ -184,7 +191,7 @@ def _read_temperature(section: Any, origin: str) -> dict[str, Any] | None:
 def _read_table(table: Any, origin: str, where: str) -> dict[str, Coefficient]:
     if not isinstance(table, dict):
         raise ResultFormatError(f"{origin}: {where} must be an object")
-    known = set(canonical_names())
+    known = set(_KNOWN)
     out = {}
     for name, entry in table.items():
         if name not in known:
@@ -199,7 +206,7 @@ def _read_table(table: Any, origin: str, where: str) -> dict[str, Coefficient]:
         except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
             raise ResultFormatError(f"{origin}: {where}.{name}: needs value, sigma and unit (and a budget of "
                                     "numbers, when given)") from exc
-        expected = RESULT_UNITS[family_of(name)][0]
+        expected = _UNITS[family_of(name)][0]
         if out[name].unit != expected:
             raise ResultFormatError(f"{origin}: {where}.{name}: unit {out[name].unit!r}, expected {expected!r}")
     return out

@@ -43,6 +43,7 @@ from bench.report.facts import (
     run_facts,
     verdict_view,
 )
+from bench.report.significance import COEFFICIENT_HEADER, FAMILY_HEADER, significance_table
 from drivers.errors import DeviceError
 from drivers.imu import ImuLayout, spec_of
 
@@ -299,6 +300,14 @@ def _budget(result: CalibrationResult) -> str:
     if titles:
         html.append(_table(["name"] + titles, [([_e(n)] + [_e(fmt(v, 3)) for v in row], "")
                                                for n, row in zip(names, rows)], set(range(1, len(titles) + 1))))
+    significance = significance_table(result)
+    if significance is not None:
+        html += ["<h2>Extended model: significance</h2>", f'<p class="note">{_e(significance.note)}</p>']
+        for header, table_rows, numeric in ((COEFFICIENT_HEADER, significance.coefficients, {2, 3, 4, 6}),
+                                            (FAMILY_HEADER, significance.families, {1, 2, 3})):
+            if table_rows:
+                html.append(_table(header, [([_e(c) for c in row], "") for row in table_rows], numeric))
+        html += [f'<p class="note">{_e(line)}</p>' for line in significance.left_out]
     return "\n".join(html)
 
 

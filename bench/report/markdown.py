@@ -44,6 +44,7 @@ from bench.report.facts import (
     verdict_view,
 )
 from bench.report.html import html_report
+from bench.report.significance import COEFFICIENT_HEADER, FAMILY_HEADER, significance_table
 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]+")
 _MARKUP = re.compile(r"([\\`*\[\]|])")
@@ -100,6 +101,7 @@ def markdown_report(result: CalibrationResult, *, problems: Sequence[str] = (), 
         lines.append(row)
     lines.append("")
     lines += _markdown_budget(result)
+    lines += _markdown_significance(result)
     lines.append("## Quality")
     lines.append("")
     quality = result.quality
@@ -142,6 +144,21 @@ def _markdown_budget(result: CalibrationResult) -> list[str]:
         lines += ["", "| name | " + " | ".join(titles) + " |", "|---" * (len(titles) + 1) + "|"]
         lines += [f"| {name} | " + " | ".join(fmt(v, 3) for v in row) + " |" for name, row in zip(names, rows)]
     lines.append("")
+    return lines
+
+
+def _markdown_significance(result: CalibrationResult) -> list[str]:
+    table = significance_table(result)
+    if table is None:
+        return []
+    lines = ["## Extended model: significance", "", md_text(table.note), ""]
+    for header, rows in ((COEFFICIENT_HEADER, table.coefficients), (FAMILY_HEADER, table.families)):
+        if rows:
+            lines += ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
+            lines += ["| " + " | ".join(row) + " |" for row in rows]     # names, numbers and units of our own
+            lines.append("")
+    if table.left_out:
+        lines += ["Families not in the model:", ""] + [f"- {md_text(line)}" for line in table.left_out] + [""]
     return lines
 
 

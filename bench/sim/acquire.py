@@ -15,6 +15,7 @@ from bench.model.observations import (
     PositionObservation,
     RotationObservation,
     mean_and_standard_error,
+    rate_squared_integral,
     turn_earth_integral,
 )
 from bench.plan.compiler import PlanTiming
@@ -74,6 +75,7 @@ def acquire(table: SimTable, imu: SimImu, position_angles_deg, turns,
         rotations.append(RotationObservation(
             triple(turn.start_deg), turn.frame, turn.direction, turn.revolutions,
             n / block.rate_hz, n, block.gyro_counts[mask].sum(axis=0), earth_integral_rad=earth,
-            label=f"R{k + 1:02d}", start_s=float(first)))
+            label=f"R{k + 1:02d}", start_s=float(first), acc_integral=block.acc_counts[mask].sum(axis=0),
+            rate_sq_integral=rate_squared_integral(table.pieces(turn.frame), float(first), float(last))))
         t = window_end
     return positions, rotations

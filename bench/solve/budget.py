@@ -374,6 +374,26 @@ def _observation_table_part(outputs: np.ndarray, angles: np.ndarray, cov9: np.nd
     return first + np.einsum("rks,rls->skl", rest, rest) / len(angles)
 
 
+def observation_table_covariance(imu: ImuCoefficients | None, position_angles_deg: np.ndarray, rotations,
+                                 site: Site, inputs: BudgetInputs, mounting=None) -> dict[str, np.ndarray]:
+    """The table's pointing error of the observations, (S, K, K) per kind: "gyro bias" and "accelerometers" (the
+    position outputs, counts/s) and "gyros" (the turn integrals, counts); empty without a table prior."""
+    obs_table: dict[str, np.ndarray] = {}
+    if inputs.table is None or imu is None:
+        return obs_table
+    cov9 = inputs.table.covariance_rad2
+    angles = _table_draws(inputs.table, inputs.mc_draws, inputs.seed)
+    boxes = _probe_and_draw_boxes(angles)
+    if len(position_angles_deg):
+        gyro_out, acc_out = position_outputs(position_angles_deg, imu, site, boxes, mounting)
+        obs_table["gyro bias"] = _observation_table_part(gyro_out, angles, cov9)
+        obs_table["accelerometers"] = _observation_table_part(acc_out, angles, cov9)
+    if rotations:
+        integral, _ = turn_integrals(rotations, imu, site, inputs.turn_rate_dps, boxes, mounting)
+        obs_table["gyros"] = _observation_table_part(integral, angles, cov9)
+    return obs_table
+
+
 def _table_part(pipe: _Pipeline, prior: TablePrior, draws: int, seed: int) -> dict[str, float]:
     """Per name: sqrt(first-order variance + mean square of the second-order rest)."""
     cov = prior.covariance_rad2
@@ -435,21 +455,10 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
     flags: list[str] = []
     tau = inputs.correlation_time_s
     pos_angles = np.array([o.angles_deg for o in positions]) if positions else np.zeros((0, 3))
-    # the table's first-order effect on the observations (for the residual prediction)
-    table_cov9 = inputs.table.covariance_rad2 if inputs.table is not None else None
-    imu = _current_imu(acc, gyros, bias, gyro_prior)
+    imu = current_imu(acc, gyros, bias, gyro_prior)
     # the table's error of the observations (for the residual prediction): (S, K, K) per kind
-    obs_table: dict[str, np.ndarray] = {}
-    if inputs.table is not None and table_cov9 is not None and imu is not None:
-        angles = _table_draws(inputs.table, inputs.mc_draws, inputs.seed)
-        boxes = _probe_and_draw_boxes(angles)
-        if positions:
-            gyro_out, acc_out = position_outputs(pos_angles, imu, site, boxes, mounting)
-            obs_table["gyro bias"] = _observation_table_part(gyro_out, angles, table_cov9)
-            obs_table["accelerometers"] = _observation_table_part(acc_out, angles, table_cov9)
-        if rotations and gyros is not None:
-            integral, _ = turn_integrals(rotations, imu, site, inputs.turn_rate_dps, boxes, mounting)
-            obs_table["gyros"] = _observation_table_part(integral, angles, table_cov9)
+    obs_table = observation_table_covariance(imu, pos_angles, rotations if gyros is not None else [], site, inputs,
+                                             mounting)
 
     def table_cov(kind: str, s: int, scale: float = 1.0) -> np.ndarray | float:
         part = obs_table.get(kind)
@@ -601,7 +610,7 @@ def _rounding_cov(rotations: list[RotationObservation], s: int, count_resolution
     return np.eye(len(rotations)) * _QUANT_VAR * count_resolution ** 2
 
 
-def _current_imu(acc, gyros, bias, gyro_prior) -> ImuCoefficients | None:
+def current_imu(acc, gyros, bias, gyro_prior) -> ImuCoefficients | None:
     """The solved coefficients as an `ImuCoefficients` (the point the Type B parts are linearised at)."""
     if acc is None and gyros is None:
         return None
@@ -622,4 +631,4 @@ def _current_imu(acc, gyros, bias, gyro_prior) -> ImuCoefficients | None:
 
 __all__ = ["BIAS_INSTABILITY", "COMMON_SOURCES", "GRAVITY", "K_EXPANDED", "LATITUDE", "NOISE", "RESOLUTION",
            "SOURCES", "TABLE", "TURN_ANGLE", "UNEXPLAINED", "Budget", "BudgetInputs", "Consistency", "TablePrior",
-           "common_sigma", "compute_budget", "gm_mean_kernel"]
+           "common_sigma", "compute_budget", "current_imu", "gm_mean_kernel", "observation_table_covariance"]

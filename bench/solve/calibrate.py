@@ -26,6 +26,7 @@ from bench.solve.methods import (
     solve_accelerometers,
     solve_gyros,
 )
+from bench.solve.significance import ExtendedFit
 
 #: |residual| / sigma above which a step is flagged as an outlier.
 OUTLIER_SIGMA = 4.0
@@ -43,6 +44,8 @@ class Calibration:
     flags: list[str] = field(default_factory=list)
     #: the per-coefficient uncertainty budget; its combined uncertainty is each coefficient's sigma
     budget: Budget | None = None
+    #: the higher-order families of `[model] terms` (`bench.solve.extended`), None: the 30-coefficient model
+    extended: ExtendedFit | None = None
 
     def values_and_sigmas(self) -> tuple[dict[str, float], dict[str, float]]:
         """Solved coefficients in display units keyed by canonical name."""
@@ -72,6 +75,9 @@ class Calibration:
                 combined = self.budget.combined(name)
                 if math.isfinite(combined):
                     sigmas[name] = combined
+        if self.extended is not None:
+            for name, value in self.extended.values.items():
+                values[name], sigmas[name] = value, self.extended.sigma(name)
         return values, sigmas
 
     def _normalized(self, fit: str, fallback: np.ndarray) -> np.ndarray:
@@ -125,6 +131,8 @@ class Calibration:
         q.outliers = outliers
         if self.budget is not None:
             q.uncertainty = self.budget.summary_json()
+        if self.extended is not None:
+            q.significance = self.extended.significance_json(self.budget.inputs.k if self.budget else 2.0)
         return q
 
     def to_result(self, run: RunInfo | Mapping[str, Any] | None = None,
@@ -136,6 +144,8 @@ class Calibration:
         budgets = None
         if self.budget is not None:
             budgets = {name: self.budget.components.get(name, {}) for name in values}
+            if self.extended is not None:
+                budgets.update(self.extended.components)
         k = self.budget.inputs.k if self.budget is not None else None
         return CalibrationResult(coefficient_table(values, sigmas, budgets, k), self.residual_tables(), self.quality(),
                                  run if isinstance(run, RunInfo) else RunInfo.from_dict(run or {}, complete=False),

@@ -117,6 +117,19 @@ def _turn_earth_integral(site: Site, turn: TurnRecord, samples_duration_s: float
     return base + moving - at_rest
 
 
+def _rate_squared(turn: TurnRecord, t0: float, t1: float, state_time_s: np.ndarray,
+                  state_angles_deg: np.ndarray) -> float | None:
+    """Integral of the turning frame's squared rate (rad^2/s) between the polled table states (piecewise
+    constant rate between polls; None without two polls in the turn)."""
+    k = FRAMES.index(turn.frame)
+    inside = np.flatnonzero((state_time_s >= t0) & (state_time_s <= t1))
+    times, first = np.unique(state_time_s[inside], return_index=True)
+    if len(times) < 2:
+        return None
+    theta = state_angles_deg[inside[first], k] * DEG
+    return float(np.sum(np.diff(theta) ** 2 / np.diff(times)))
+
+
 def extract_observations(events: Sequence[Event], counter: np.ndarray, gyro_counts: np.ndarray, acc_counts: np.ndarray,
                          rate_hz: float, site: Site, state_time_s: np.ndarray, state_angles_deg: np.ndarray,
                          mounting=None, status: np.ndarray | None = None,
@@ -182,7 +195,8 @@ def extract_observations(events: Sequence[Event], counter: np.ndarray, gyro_coun
             out.rotations.append(RotationObservation(
                 record.start_deg, record.frame, record.direction, record.revolutions, n / rate_hz, n,
                 gyro_counts[window].sum(axis=0), earth_integral_rad=earth, label=unit,
-                start_s=first / rate_hz))
+                start_s=first / rate_hz, acc_integral=acc_counts[window].sum(axis=0),
+                rate_sq_integral=_rate_squared(record, t0, finished.time_s, state_time_s, state_angles_deg)))
     if resolution is not None:
         _turn_rounding(out, resolution[:3])
     return out

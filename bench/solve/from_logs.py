@@ -15,6 +15,7 @@ from bench.model.earth import Site
 from bench.model.units import DEG_PER_HOUR, MICRO_G
 from bench.solve.budget import BudgetInputs
 from bench.solve.calibrate import Calibration, solve
+from bench.solve.extended import solve_extended
 from bench.solve.extract import Extraction, extract_observations
 from drivers.imu.layout import ImuLayout
 from drivers.imu.samples import ImuStats
@@ -78,10 +79,17 @@ def solve_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: float
 
 
 def solve_extraction(extraction: Extraction, site: Site, *, mounting=None, gyro_bias_stability_dph: float | None = None,
-                     acc_bias_stability_ug: float | None = None, budget: BudgetInputs | None = None) -> Calibration:
+                     acc_bias_stability_ug: float | None = None, budget: BudgetInputs | None = None,
+                     terms: tuple[str, ...] = ()) -> Calibration:
     """Solve merged observations (all of a log's or a subset); SolverError if there is nothing to solve.
 
-    `budget` (what is known beyond the data) replaces the two bias stabilities when given."""
+    `budget` (what is known beyond the data) replaces the two bias stabilities when given. `terms`: the extended
+    model's families (`bench.solve.extended`; ("auto",): the data choose), none: the 30 coefficients."""
+    if terms:
+        return solve_extended(extraction.positions, extraction.rotations, site, terms, mounting,
+                              budget_inputs=budget or BudgetInputs(
+                                  gyro_bias_instability=(gyro_bias_stability_dph or 0.0) * DEG_PER_HOUR,
+                                  acc_bias_instability=(acc_bias_stability_ug or 0.0) * MICRO_G))
     return solve(extraction.positions, extraction.rotations, site, mounting,
                  gyro_bias_stability=(gyro_bias_stability_dph or 0.0) * DEG_PER_HOUR,
                  acc_bias_stability=(acc_bias_stability_ug or 0.0) * MICRO_G, budget_inputs=budget)
