@@ -43,9 +43,13 @@ class ExitCode(IntEnum):
     BROKEN_PIPE = 141
 
 
-#: The longest line a command prints about one thing (an error, an archive item); a damaged log's error ran to
-#: some 2,000 characters, a block that wraps past reading.
+#: The longest line a command prints about one item of its progress (an archive item, a warning); a damaged log's
+#: reasons ran to some 2,000 characters, a block that wraps past reading.
 LINE_MAX = 400
+#: The longest error line (`fail`): longer than a progress line, because an error that lists several reasons
+#: (a resumed log's mismatches, a damaged log's chunks) must keep the one the user acts on; it still cuts the
+#: pathological ones (thousands of characters) in the middle, where a list repeats itself.
+ERROR_LINE_MAX = 1200
 
 
 def bounded_line(text: str, limit: int = LINE_MAX) -> str:
@@ -59,10 +63,10 @@ def bounded_line(text: str, limit: int = LINE_MAX) -> str:
 
 
 def fail(prog: str, message: str, code: ExitCode) -> ExitCode:
-    """Print `prog: message` on stderr (one line, `bounded_line`) and return `code` (also when stderr is gone: a
-    closed pipe)."""
+    """Print `prog: message` on stderr (one line, `bounded_line` to `ERROR_LINE_MAX`) and return `code` (also
+    when stderr is gone: a closed pipe)."""
     try:
-        print(bounded_line(f"{prog}: {message}"), file=sys.stderr, flush=True)
+        print(bounded_line(f"{prog}: {message}", ERROR_LINE_MAX), file=sys.stderr, flush=True)
     except OSError:
         pass
     return code
@@ -192,6 +196,6 @@ class FirstSignal:
             raise Interrupted(signum)
 
 
-__all__ = ["LINE_MAX", "STOP_SIGNALS", "ExitCode", "FirstSignal", "Interrupted", "bounded_line",
+__all__ = ["ERROR_LINE_MAX", "LINE_MAX", "STOP_SIGNALS", "ExitCode", "FirstSignal", "Interrupted", "bounded_line",
            "ensure_standard_streams", "fail",
            "raise_interrupted", "signal_name", "stop_signals"]

@@ -117,14 +117,14 @@ def test_db_list_shows_a_long_model_name_whole(noisy_run, tmp_path):
 
 def test_a_line_of_thousands_of_characters_is_bounded(capsys):
     # a damaged log's error and an archive's progress item ran to ~2,000 characters on one line
-    from bench.cli.edge import LINE_MAX, ExitCode, bounded_line, fail
+    from bench.cli.edge import ERROR_LINE_MAX, LINE_MAX, ExitCode, bounded_line, fail
     from bench.cli.progress import CountProgress
 
     cause = "; ".join(f"chunk {k} at byte {k * 4096}: bad CRC" for k in range(80))
     assert len(cause) > 2000
     fail("bench solve", f"damaged.mcap: {cause}", ExitCode.USAGE)
     line = capsys.readouterr().err
-    assert line.count("\n") == 1 and len(line) <= LINE_MAX + 40
+    assert line.count("\n") == 1 and len(line) <= ERROR_LINE_MAX + 40
     assert line.startswith("bench solve: damaged.mcap: chunk 0 at byte 0") and line.rstrip().endswith("bad CRC")
     assert "characters left out" in line
     progress = CountProgress(2, live=False)

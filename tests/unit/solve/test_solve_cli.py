@@ -389,7 +389,8 @@ def _check_damaged_solve(damaged: Path, out: Path, planned: set, left_out: set, 
                          damage_words: str, html: bool = False) -> dict:
     rc, _, stderr = _solve(damaged, "--out", out, html=html)
     assert rc == 4, stderr
-    assert "quality check failed" in stderr and damage_words in stderr
+    # the terminal line is bounded (bench.cli.edge.ERROR_LINE_MAX): the damage is checked in the result below
+    assert "quality check failed" in stderr
     run_id = damaged.name.removesuffix(".mcap")
     result = load_json(out / f"{run_id}.solved.result.json")
     report = (out / f"{run_id}.solved.report.md").read_text(encoding="utf-8")
