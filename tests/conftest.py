@@ -8,6 +8,7 @@ its own outputs (`--out`) there. `shared_recordings_unchanged` fails the test th
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -20,6 +21,15 @@ from tests.helpers.shared import changed_shared, share  # noqa: E402
 from tests.helpers.threads import check_no_leftover_threads, project_threads  # noqa: E402
 
 E2E = Path(__file__).parent / "e2e"
+
+
+def pytest_configure(config):
+    """A suite started under `nohup` inherits an ignored SIGHUP, and so would every bench process it starts: the
+    bench keeps an ignored SIGHUP ignored on purpose (`nohup bench run`), so the tests that hang up on one would
+    fail. A handler of our own instead of the ignore: pytest still survives a hangup, and the processes it
+    starts get the default back (exec resets a caught signal, not an ignored one)."""
+    if hasattr(signal, "SIGHUP") and signal.getsignal(signal.SIGHUP) is signal.SIG_IGN:
+        signal.signal(signal.SIGHUP, lambda signum, frame: None)
 
 
 def pytest_collection_modifyitems(items):
