@@ -21,6 +21,8 @@ from tests.helpers.shared import changed_shared, recorded_once, share  # noqa: E
 from tests.helpers.threads import check_no_leftover_threads, project_threads  # noqa: E402
 
 E2E = Path(__file__).parent / "e2e"
+#: session fixtures whose recording takes minutes: their tests run on one pytest-xdist worker (one group)
+LONG_SESSION_RECORDINGS = ("documented_thermal_run",)
 
 
 @pytest.hookimpl(optionalhook=True)
@@ -43,17 +45,24 @@ def _module_scoped_fixtures(item) -> bool:
                for definitions in info.name2fixturedefs.values() for definition in definitions)
 
 
+@pytest.hookimpl(tryfirst=True)    # before xdist's own, which turns the groups into the tests' ids in each worker
 def pytest_collection_modifyitems(config, items):
     """Every test in tests/e2e/ (whole simulated runs) is `slow`, without a mark in each module.
 
     Under pytest-xdist (`--dist loadgroup`, pyproject's addopts) the tests of a module that share a module- or
     class-scoped fixture (a recorded run, a server) are one group, run by one worker, so that the fixture is made
-    once; every other test goes to whichever worker is free. (Session fixtures are shared across workers by
-    `tests.helpers.shared.recorded_once`.)"""
+    once; every other test goes to whichever worker is free. Session fixtures are shared across workers by
+    `tests.helpers.shared.recorded_once`; the tests of one that takes minutes (`LONG_SESSION_RECORDINGS`) are one
+    group too, so that no other worker waits for it. A test marked with a group keeps it."""
     for item in items:
         if E2E in item.path.parents:
             item.add_marker(pytest.mark.slow)
-        if _module_scoped_fixtures(item):
+        if item.get_closest_marker("xdist_group") is not None:
+            continue
+        long_recording = next((name for name in LONG_SESSION_RECORDINGS if name in item.fixturenames), None)
+        if long_recording is not None:
+            item.add_marker(pytest.mark.xdist_group(long_recording))
+        elif _module_scoped_fixtures(item):
             item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::", 1)[0]))
 
 
@@ -155,3 +164,22 @@ def cli_run_log(tmp_path_factory) -> Path:
     folder, _ = recorded_once(tmp_path_factory, "cli-run", record)
     share(folder)
     return only_file(folder / "run", "*.mcap")
+
+
+@pytest.fixture(scope="session")
+def documented_thermal_run(tmp_path_factory) -> SimpleNamespace:
+    """docs/how-to/thermal.md's chamber-driven run (`tests.helpers.docs_shell.THERMAL_RUN_COMMAND`: the shipped
+    thermal.example.toml, four temperatures, minutes of CPU) run as the page's test runs it, in bash in a folder
+    holding the examples, once per session: `cwd` (that folder), `out` (the run's folder) and `stdout` (paths in it
+relative to `cwd`, as given). Shared by the page's test
+    (tests/architecture/test_docs.py) and tests/e2e/test_thermal_chamber_run.py, which checks what it wrote."""
+    from tests.helpers.docs_shell import THERMAL_RUN_COMMAND, run_bench_shell, with_examples
+
+    def record(folder: Path) -> str:
+        done = run_bench_shell(THERMAL_RUN_COMMAND, with_examples(folder))
+        assert done.returncode == 0, f"exit {done.returncode}\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}"
+        return done.stdout
+
+    folder, stdout = recorded_once(tmp_path_factory, "documented-thermal-run", record)
+    share(folder)
+    return SimpleNamespace(cwd=folder, out=folder / "runs" / "thermal-run", stdout=stdout)

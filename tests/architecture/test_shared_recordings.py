@@ -48,7 +48,8 @@ def _recorder(calls: list):
 
 def test_workers_of_one_session_record_once_and_read_the_same_value(tmp_path, monkeypatch):
     session_root = tmp_path / "pytest-7"
-    workers = [SimpleNamespace(getbasetemp=lambda name=name: session_root / name) for name in ("popen-gw0", "popen-gw1")]
+    workers = [SimpleNamespace(getbasetemp=lambda name=name: session_root / name)
+               for name in ("popen-gw0", "popen-gw1")]
     for worker in workers:
         worker.getbasetemp().mkdir(parents=True)
     calls: list = []
