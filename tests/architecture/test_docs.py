@@ -20,18 +20,17 @@ A marker on the line before a block changes what is done with it (`<!-- docs-che
 
 from __future__ import annotations
 
-import os
 import re
 import shlex
 import shutil
-import subprocess
-import sys
 import tomllib
 import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+
+from tests.helpers.docs_shell import THERMAL_RUN_COMMAND, run_bench_shell, same_command, with_examples
 
 REPO = Path(__file__).resolve().parents[2]
 DOCS = REPO / "docs"
@@ -111,7 +110,7 @@ def test_every_bench_command_in_the_docs_parses():
     assert checked > 30
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def recorded_run(short_run) -> dict[str, Path]:
     return {"ID.mcap": short_run.log, "ID.result.json": short_run.result}
 
@@ -121,18 +120,20 @@ def page_folder(tmp_path: Path, recorded: dict[str, Path]) -> Path:
     runs.mkdir()
     for name, source in recorded.items():
         shutil.copyfile(source, runs / name)
-    for example in ("bench.example.toml", "thermal.example.toml", "lab.example.toml", "multi-imu.example.toml"):
-        shutil.copyfile(REPO / example, tmp_path / example)
-    return tmp_path
+    return with_examples(tmp_path)
 
 
-def run_shell(block: Block, folder: Path) -> None:
-    script = "\n".join(line for line in block.text.splitlines() if not line.lstrip().startswith("pip install"))
-    script = re.sub(r"^pip install [^&\n]*&& ", "", script, flags=re.M)
-    env = {**os.environ, "PYTHONPATH": str(REPO), "BENCH_DB": str(folder / "records.sqlite")}
-    shim = f'bench() {{ {shlex.quote(sys.executable)} -m bench.cli "$@"; }}\nset -e\n'
-    done = subprocess.run(["bash", "-c", shim + script], cwd=folder, env=env, capture_output=True, text=True,
-                          timeout=900)
+def run_shell(block: Block, folder: Path, request: pytest.FixtureRequest) -> None:
+    """Runs the block's commands in `folder`; a command that the session recorded already, run the same way in a
+    folder like this one (`documented_thermal_run`), is not run again: its outputs are copied to where it writes
+    them, and the block's other commands read them there."""
+    lines = block.text.splitlines()
+    for index, line in enumerate(lines):
+        if line.strip() and same_command(line, THERMAL_RUN_COMMAND):
+            recorded = request.getfixturevalue("documented_thermal_run")
+            shutil.copytree(recorded.out, folder / "runs" / "thermal-run")
+            lines[index] = ""
+    done = run_bench_shell("\n".join(lines), folder)
     assert done.returncode == 0, \
         f"{block.where()}: exit {done.returncode}\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}"
 
@@ -143,21 +144,25 @@ def shell_pages(slow: bool) -> list[Path]:
 
 @pytest.mark.slow        # each page's commands run bench on a recorded run: seconds a page (the quick loop parses them)
 @pytest.mark.parametrize("page", shell_pages(slow=False), ids=lambda p: str(p.relative_to(DOCS)))
-def test_shell_blocks_run_on_the_simulator(page, tmp_path, recorded_run):
+def test_shell_blocks_run_on_the_simulator(page, tmp_path, recorded_run, request):
     folder = page_folder(tmp_path, recorded_run)
     for block in blocks(page, "sh"):
         if block.marker is None:
-            run_shell(block, folder)
+            run_shell(block, folder, request)
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(900)      # whole simulated runs (a thermal run soaks at four temperatures): minutes under load
-@pytest.mark.parametrize("page", shell_pages(slow=True), ids=lambda p: str(p.relative_to(DOCS)))
-def test_slow_shell_blocks_run_on_the_simulator(page, tmp_path, recorded_run):
+@pytest.mark.timeout(900)      # whole simulated runs: minutes under load
+@pytest.mark.parametrize("page", [
+    # the page that shows the thermal run reads the session's recording: on the worker that makes it (tests/conftest.py)
+    pytest.param(page, marks=pytest.mark.xdist_group("documented_thermal_run"))
+    if THERMAL_RUN_COMMAND in page.read_text(encoding="utf-8") else page
+    for page in shell_pages(slow=True)], ids=lambda p: str(p.relative_to(DOCS)))
+def test_slow_shell_blocks_run_on_the_simulator(page, tmp_path, recorded_run, request):
     folder = page_folder(tmp_path, recorded_run)
     for block in blocks(page, "sh"):
         if block.marker in (None, "slow"):
-            run_shell(block, folder)
+            run_shell(block, folder, request)
 
 
 # --- TOML blocks ---------------------------------------------------------------------------------------------------

@@ -1,6 +1,7 @@
 """The chamber-driven calibration over temperature end to end (issue 18 items 3 and 5, "must show").
 
-`bench run --config thermal.example.toml --sim` (docs/how-to/thermal.md): the simulated chamber (ASCII dialect over
+`bench run --config thermal.example.toml --sim --out runs/thermal-run` (docs/how-to/thermal.md, run as the page's
+test runs it, once per session: `documented_thermal_run`): the simulated chamber (ASCII dialect over
 loopback) goes to -20, 0, 25 and 50 degC, its air drives the thermal IMU's case (time
 constant 120 s), each temperature is soaked on the IMU's own temperature and calibrated with
 the default schedules (short 20 s dwells, 100 Hz), all on the simulated clock in one log. The
@@ -35,22 +36,17 @@ Z_LIMIT = 3.0
 pytestmark = pytest.mark.timeout(1800)
 
 
-@pytest.fixture(scope="module")
-def thermal_run(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("chamber-run")
-    config_path = folder / "bench.toml"
-    config_path.write_text(THERMAL_RUN_TOML, encoding="utf-8")
-    out = folder / "out"
-    rc, stdout, stderr = cli(["run", "--config", str(config_path), "--sim", "--out", str(out), "--quiet"])
-    assert rc == 0, stderr
-    return parse_config(THERMAL_RUN_TOML), out, stdout
-
+@pytest.fixture
+def thermal_run(documented_thermal_run):
+    """The documented run, as the page's test runs it (recorded once per session: tests/conftest.py)."""
+    return parse_config(THERMAL_RUN_TOML), documented_thermal_run.out, documented_thermal_run.stdout
 
 def _true_degree(terms) -> int:
     return max([0] + [k for k, c in enumerate(terms, start=1) if c != 0.0])
 
 
-def test_one_run_calibrates_at_every_temperature_and_recovers_the_thermal_polynomials(thermal_run):
+def test_one_run_calibrates_at_every_temperature_and_recovers_the_thermal_polynomials(thermal_run,
+                                                                                     documented_thermal_run):
     config, out, stdout = thermal_run
     model = ThermalModel.load(only_file(out, "*.thermal.json"))
     assert [p.temperature_c for p in model.points] == pytest.approx(TEMPERATURES_C, abs=0.3)
@@ -67,7 +63,8 @@ def test_one_run_calibrates_at_every_temperature_and_recovers_the_thermal_polyno
     kg = model.fits["Kg_x"]
     assert kg.degree == 1 and abs(kg.polynomial[1]) > 10 * kg.sigma[1]
     # the files next to the run's result: one result per temperature, the model and its reports
-    assert "thermal: " in stdout and str(only_file(out, "*.thermal.json")) in stdout
+    model_path = only_file(out, "*.thermal.json").relative_to(documented_thermal_run.cwd)    # as --out was given
+    assert "thermal: " in stdout and str(model_path) in stdout
     assert len(list(out.glob("*.T?.result.json"))) == 4
     assert only_file(out, "*.thermal.html").stat().st_size > 0 and only_file(out, "*.thermal.md").stat().st_size > 0
 
