@@ -4,8 +4,14 @@ turn; a result of the 30 coefficients compensates as before; the exports carry t
 
 from __future__ import annotations
 
+import csv
 import hashlib
+import io
+import json
 import math
+import shutil
+import subprocess
+import tomllib
 
 import numpy as np
 import pytest
@@ -13,7 +19,7 @@ import pytest
 from bench.calibration.compensation import Compensation, CompensationError, TriadCompensation, compensation_of
 from bench.calibration.export import KalibrNoise, to_c_header, to_csv, to_json, to_toml, to_yaml
 from bench.model.earth import Site
-from bench.model.extended import FAMILIES
+from bench.model.extended import FAMILIES, family_of_name
 from bench.model.higher_order import HigherOrderTerms, preset
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
 from bench.model.result import CalibrationResult, coefficient_table
@@ -155,3 +161,81 @@ def test_a_30_coefficient_result_exports_exactly_what_it_did():
     digests = {k: hashlib.sha256(v.replace(f"turntable-bench {__version__}", "EXPORTED_BY").encode()).hexdigest()[:16]
                for k, v in texts.items()}
     assert digests == DIGESTS_30
+
+
+def test_json_and_toml_carry_every_family_in_si(extended):
+    doc = json.loads(to_json(extended))
+    assert doc["version"] == 2
+    higher = doc["higher_order"]
+    assert list(higher["terms"]) == list(FAMILIES) and set(higher["equations"]) == {"gyro", "acc"}
+    for name, term in extended.higher_order.terms.items():
+        assert np.array_equal(higher["terms"][name]["value"], term.value)
+        assert np.array_equal(higher["terms"][name]["sigma"], term.sigma)
+        assert higher["terms"][name]["unit"] == term.unit
+    assert higher["terms"]["gyro_g_sensitivity"]["unit"] == "rad/s per m/s^2"
+    assert np.array_equal(higher["gyro_scale"], extended.gyro.scale)
+    assert np.array_equal(higher["acc_scale"], extended.acc.scale)
+    assert tomllib.loads(to_toml(extended)) == doc
+
+
+def test_csv_has_each_coefficient_once(extended):
+    rows = list(csv.DictReader(io.StringIO(to_csv(extended), newline="")))
+    assert next(r for r in rows if r["quantity"] == "format")["value"].endswith(" 2")
+    for name, term in extended.higher_order.terms.items():
+        found = [r for r in rows if r["quantity"] == name]
+        assert len(found) == len(FAMILIES[name].names)          # the cross terms' diagonal is no coefficient
+        for r in found:
+            index = (int(r["row"]), int(r["col"])) if r["col"] else int(r["row"])
+            assert float(r["value"]) == term.value[index] and r["unit"] == term.unit
+
+
+def test_kalibr_yaml_holds_the_g_sensitivity_and_names_what_it_leaves_out(extended):
+    text = to_yaml(extended, KalibrNoise(200.0, 1e-4, 1e-6, 1e-3, 1e-5))
+    yaml = pytest.importorskip("yaml")
+    doc = yaml.safe_load(text)
+    assert np.array_equal(doc["gyroscopes"]["A"], extended.higher_order.terms["gyro_g_sensitivity"].value)
+    left_out = [line for line in text.splitlines() if line.startswith("# kalibr's model has no")]
+    assert len(left_out) == 1 and "acc_lever_arm" in left_out[0] and "gyro_g_sensitivity" not in left_out[0]
+
+
+C_MAIN = r"""
+#include <stdio.h>
+#include "compensation.h"
+int main(void)
+{
+    double g[3], a[3], w[3], f[3];
+    while (scanf("%lf %lf %lf %lf %lf %lf", &g[0], &g[1], &g[2], &a[0], &a[1], &a[2]) == 6) {
+        tb_imu_compensate(g, a, w, f);
+        printf("%.17g %.17g %.17g %.17g %.17g %.17g\n", w[0], w[1], w[2], f[0], f[1], f[2]);
+    }
+    return tb_imu_sigmas(0)[0] >= 0.0 && tb_imu_higher_order_sigmas(0)[0] >= 0.0 ? 0 : 3;
+}
+"""
+
+
+@pytest.mark.parametrize("families", [tuple(FAMILIES), ("acc_lever_arm",), ("gyro_asymmetry", "acc_cross")])
+def test_the_c_header_compensates_as_bench_apply_does(world, tmp_path, families):
+    compiler = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
+    if compiler is None:
+        pytest.skip("no C compiler")
+    result = _result(world["truth"], world["terms"])
+    for name in [n for n in result.coefficients if (f := family_of_name(n)) is not None and f.term not in families]:
+        del result.coefficients[name]
+    c = compensation_of(result)
+    assert c.higher_order is not None and tuple(c.higher_order.terms) == families
+    (tmp_path / "compensation.h").write_text(to_c_header(c), encoding="ascii")
+    (tmp_path / "main.c").write_text(C_MAIN, encoding="ascii")
+    done = subprocess.run([compiler, "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-o", str(tmp_path / "comp"),
+                           str(tmp_path / "main.c"), "-lm"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    clean = world["clean"]
+    pick = slice(0, None, 7)               # rest, ramp and turn, a seventh of the samples
+    raw = np.hstack([clean.gyro_rate[pick], clean.acc_rate[pick]])
+    lines = "".join(" ".join(map(repr, row)) + "\n" for row in raw.tolist())
+    done = subprocess.run([str(tmp_path / "comp")], input=lines, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    from_c = np.array([line.split() for line in done.stdout.splitlines()], dtype=float)
+    rate, force = c.compensate(clean.gyro_rate[pick], clean.acc_rate[pick])
+    assert from_c.shape == (len(raw), 6)
+    for mine, theirs in ((rate, from_c[:, :3]), (force, from_c[:, 3:])):
+        assert np.all(np.abs(theirs - mine) <= 1e-12 * np.linalg.norm(mine, axis=1, keepdims=True))
