@@ -103,8 +103,10 @@ class Compensation:
         higher = self.higher_order
         if higher is None or not higher.has_acc:
             return f0
-        y = np.asarray(acc_counts_per_s, dtype=float) - self.acc.bias_counts
-        error = higher.acc_error(y / self.acc.scale, f0, np.asarray(body_rate, dtype=float))
+        x = (np.asarray(acc_counts_per_s, dtype=float) - self.acc.bias_counts) / self.acc.scale
+        # at the input less the error at the measured input (one fixed-point step: bench.calibration.higher_order)
+        error = higher.acc_error(x - higher.acc_error(x, f0), f0)
+        error = error + higher.lever_arm_force(np.asarray(body_rate, dtype=float))
         return self.acc.apply(acc_counts_per_s - self.acc.scale * error)
 
     def body_rate(self, gyro_counts_per_s: np.ndarray, specific_force: np.ndarray,
@@ -115,8 +117,11 @@ class Compensation:
         higher = self.higher_order
         if higher is None or not higher.has_gyro:
             return self.gyro.apply(gyro_counts_per_s)
-        u = (np.asarray(gyro_counts_per_s, dtype=float) - self.gyro.bias_counts) / self.gyro.scale
-        error = higher.gyro_error(u, u * u if input_sq is None else input_sq, np.asarray(specific_force, dtype=float))
+        x = (np.asarray(gyro_counts_per_s, dtype=float) - self.gyro.bias_counts) / self.gyro.scale
+        force = np.asarray(specific_force, dtype=float)
+        # at the input less the error at the measured input (one fixed-point step: bench.calibration.higher_order)
+        x = x - higher.gyro_error(x, x * x if input_sq is None else input_sq, force)
+        error = higher.gyro_error(x, x * x if input_sq is None else input_sq, force)
         return self.gyro.apply(gyro_counts_per_s - self.gyro.scale * error)
 
     def compensate(self, gyro_counts_per_s: np.ndarray, acc_counts_per_s: np.ndarray, *,
@@ -125,11 +130,14 @@ class Compensation:
         if self.higher_order is None:
             return (self.gyro.apply(gyro_counts_per_s) * RATE_UNITS[rate_unit],
                     self.acc.apply(acc_counts_per_s) * FORCE_UNITS[force_unit])
-        # the gyros first, at the linear specific force (the g-sensitivity is small: its error at the linear force
-        # is ~1e-9 rad/s); then the accelerometers at the compensated rate (the lever arms go with its square: at
-        # the linear rate, a gyro asymmetry of 200 ppm would leave ~1 ug at 150 deg/s)
+        # the gyros first, at the linear specific force; then the accelerometers at the compensated rate (the lever
+        # arms go with its square: at the linear rate, a gyro asymmetry of 200 ppm would leave ~1 ug at 150 deg/s);
+        # then the gyros again at the compensated force (the g-sensitivity at the linear force, off by the
+        # accelerometers' higher-order errors of ~200 ug, would leave ~0.002 deg/h)
         rate = self.body_rate(gyro_counts_per_s, self.acc.apply(acc_counts_per_s))
         force = self.specific_force(acc_counts_per_s, rate)
+        if "gyro_g_sensitivity" in self.higher_order.terms:
+            rate = self.body_rate(gyro_counts_per_s, force)
         return rate * RATE_UNITS[rate_unit], force * FORCE_UNITS[force_unit]
 
 

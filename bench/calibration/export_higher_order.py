@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from bench.calibration.compensation import RAW_UNIT, Compensation
-from bench.calibration.higher_order import EQUATIONS, MATRIX_TERMS, HigherOrderCompensation, HigherOrderTerm
+from bench.calibration.higher_order import EQUATIONS, MATRIX_TERMS, HigherOrderCompensation
 from bench.model.extended import FAMILIES
 
 #: the JSON and TOML version of an export with the extended model's families
@@ -76,7 +76,8 @@ def c_comment_lines() -> list[str]:
     """The header comment's lines on `tb_imu_compensate`."""
     return [" *",
             " * With the extended model's terms (TB_IMU_HIGHER_ORDER), use tb_imu_compensate, which takes each",
-            " * family's input-equivalent error off the raw outputs before the matrices above:",
+            " * family's input-equivalent error off the raw outputs before the matrices above (the gyros at f0,",
+            " * the accelerometers at w_b, the gyros again at f_b when there is a g-sensitivity):",
             *(f" *   {line}" for s in ("gyro", "acc") for line in EQUATIONS[s].split("; ")),
             " * in SI: rad/s, m/s^2, m; scale factors in counts/s per SI unit; families absent from the",
             " * calibration are absent here (zero)."]
@@ -100,46 +101,74 @@ def _has(higher: HigherOrderCompensation, sensor: str) -> bool:
     return any(FAMILIES[n].sensor == sensor for n in higher.terms)
 
 
-def _c_error_lines(terms: dict[str, HigherOrderTerm], prefix: str, sensor: str) -> list[str]:
-    """C statements adding each family's error of sensor s to `e` (input `x`, force `f0`, rate squares)."""
+def _c_triad_function(higher: HigherOrderCompensation, prefix: str, sensor: str) -> str:
+    """`tb_imu_<sensor>_higher_order`: one triad's error off its raw outputs, then its matrix."""
+    name = f"{prefix}_{sensor.upper()}"
+    force = "f" if sensor == "gyro" else "f0"
     lines = {
-        "gyro_g_sensitivity": f"for (int j = 0; j < 3; ++j) e += {prefix}_GYRO_G_SENSITIVITY[s][j] * f0[j];",
+        "gyro_g_sensitivity": f"for (int j = 0; j < 3; ++j) e += {prefix}_GYRO_G_SENSITIVITY[s][j] * f[j];",
         "gyro_asymmetry": f"e += 0.5 * {prefix}_GYRO_ASYMMETRY[s] * fabs(x);",
         "gyro_nonlinearity": f"e += {prefix}_GYRO_NONLINEARITY[s] * x * x;",
         "acc_asymmetry": f"e += 0.5 * {prefix}_ACC_ASYMMETRY[s] * fabs(x);",
         "acc_second_order": f"e += {prefix}_ACC_SECOND_ORDER[s] * x * x;",
         "acc_cross": f"for (int j = 0; j < 3; ++j) e += {prefix}_ACC_CROSS[s][j] * x * f0[j];",
-        "acc_lever_arm": f"e -= {prefix}_ACC_LEVER_ARM[s] * (w_sq - w_b[s] * w_b[s]);",
     }
-    return [f"        {lines[name]}" for name in terms if FAMILIES[name].sensor == sensor]
+    mine = [n for n in higher.terms if FAMILIES[n].sensor == sensor]
+    errors = [lines[n] for n in mine if n in lines]
+    uses_input = any(n not in ("gyro_g_sensitivity", "acc_lever_arm") for n in mine)
+    uses_force = "gyro_g_sensitivity" in mine or "acc_cross" in mine
+    lever = "acc_lever_arm" in mine
+    signature = ("const double raw[3], const double f[3], double w_b[3]" if sensor == "gyro"
+                 else "const double raw[3], const double f0[3], const double w_b[3], double f_b[3]")
+    body = ["    double y[3];"]
+    if not uses_force:
+        body.append(f"    (void){force};")
+    if sensor == "acc" and not lever:
+        body.append("    (void)w_b;")
+    if lever:
+        body.append("    const double w_sq = w_b[0] * w_b[0] + w_b[1] * w_b[1] + w_b[2] * w_b[2];")
+    body.append("    for (int s = 0; s < 3; ++s) {")
+    if uses_input:
+        # at the input less the error at the measured input: one fixed-point step
+        body += [f"        const double x0 = (raw[s] - {name}_BIAS[s]) / {name}_SCALE[s];",
+                 "        double e = 0.0;",
+                 "        for (int pass = 0; pass < 2; ++pass) {",
+                 "            const double x = x0 - e;",
+                 "            e = 0.0;",
+                 *(f"            {line}" for line in errors),
+                 "        }"]
+    else:
+        body += ["        double e = 0.0;", *(f"        {line}" for line in errors)]
+    if lever:
+        body.append(f"        e -= {prefix}_ACC_LEVER_ARM[s] * (w_sq - w_b[s] * w_b[s]);")
+    body += [f"        y[s] = raw[s] - {name}_SCALE[s] * e;", "    }",
+             f"    tb_imu_{sensor}_compensate(y, {'w_b' if sensor == 'gyro' else 'f_b'});"]
+    return (f"static inline void tb_imu_{sensor}_higher_order({signature})\n{{\n" + "\n".join(body) + "\n}\n\n")
 
 
 def c_function(c: Compensation, prefix: str) -> str:
     """`tb_imu_compensate`: both triads with the higher-order terms, and `tb_imu_higher_order_sigmas`."""
     higher = _higher(c)
-    body = ["    double f0[3], y[3];", "    tb_imu_acc_compensate(acc_raw, f0);"]
-    for sensor, raw, out in (("gyro", "gyro_raw", "w_b"), ("acc", "acc_raw", "f_b")):
-        name = f"{prefix}_{sensor.upper()}"
-        if not _has(higher, sensor):
-            body += [f"    tb_imu_{sensor}_compensate({raw}, {out});"]
-            continue
-        if sensor == "acc" and "acc_lever_arm" in higher.terms:
-            body += ["    const double w_sq = w_b[0] * w_b[0] + w_b[1] * w_b[1] + w_b[2] * w_b[2];"]
-        # x, the sensor's input, is what all but the g-sensitivity and the lever arms need
-        uses_input = any(FAMILIES[n].sensor == sensor for n in higher.terms
-                         if n not in ("gyro_g_sensitivity", "acc_lever_arm"))
-        body += ["    for (int s = 0; s < 3; ++s) {",
-                 *([f"        const double x = ({raw}[s] - {name}_BIAS[s]) / {name}_SCALE[s];"] if uses_input else []),
-                 "        double e = 0.0;",
-                 *_c_error_lines(higher.terms, prefix, sensor),
-                 f"        y[s] = {raw}[s] - {name}_SCALE[s] * e;",
-                 "    }",
-                 f"    tb_imu_{sensor}_compensate(y, {out});"]
+    text = ""
+    body = ["    double f0[3];", "    tb_imu_acc_compensate(acc_raw, f0);"]
+    if _has(higher, "gyro"):
+        text += _c_triad_function(higher, prefix, "gyro")
+        body.append("    tb_imu_gyro_higher_order(gyro_raw, f0, w_b);")
+    else:
+        body.append("    tb_imu_gyro_compensate(gyro_raw, w_b);")
+    if _has(higher, "acc"):
+        text += _c_triad_function(higher, prefix, "acc")
+        body.append("    tb_imu_acc_higher_order(acc_raw, f0, w_b, f_b);")
+    else:
+        body.append("    tb_imu_acc_compensate(acc_raw, f_b);")
+    if "gyro_g_sensitivity" in higher.terms:
+        body.append("    tb_imu_gyro_higher_order(gyro_raw, f_b, w_b);")
     sigmas = [f"&{prefix}_{n.upper()}_SIGMA[0]" + ("[0]" if n in MATRIX_TERMS else "") for n in higher.terms]
     choice = "\n         : ".join(f"which == {i} ? {s}" for i, s in enumerate(sigmas[:-1]))
     pick = f"{choice}\n         : {sigmas[-1]}" if choice else f"(void)which, {sigmas[-1]}"
-    return ("/* body rate w_b (rad/s) and specific force f_b (m/s^2) from raw outputs (counts/s), with the\n"
-            " * extended model's terms: the gyros first, then the accelerometers at the compensated rate */\n"
+    return (text + "/* body rate w_b (rad/s) and specific force f_b (m/s^2) from raw outputs (counts/s), with the\n"
+            " * extended model's terms: the gyros at the linear specific force f0, the accelerometers at their rate,\n"
+            " * the gyros again at the compensated force when there is a g-sensitivity */\n"
             "static inline void tb_imu_compensate(const double gyro_raw[3], const double acc_raw[3], double w_b[3],\n"
             "                                     double f_b[3])\n{\n" + "\n".join(body) + "\n}\n\n"
             f"/* the families' 1-sigma arrays in the order {', '.join(higher.terms)} */\n"

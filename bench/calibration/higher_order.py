@@ -2,22 +2,22 @@
 docs/explanation/extended-model.md#compensation).
 
 The model adds, per sensor s, an input-equivalent error `e_s` before the scale factor:
-`F_s = Kg_s (u_s + D0_s + eg_s)`, `J_s = Ka_s (a_s + K0_s + ea_s)`. Its inverse takes the error, evaluated at the
-measured input, off the raw output in counts/s and then applies the linear compensation; the gyros first (at the
-linear specific force), then the accelerometers (at the compensated rate):
+`F_s = Kg_s (u_s + D0_s + eg_s)`, `J_s = Ka_s (a_s + K0_s + ea_s)`. Its inverse takes the error off the raw output
+in counts/s and then applies the linear compensation; the gyros first (at the linear specific force), then the
+accelerometers (at the compensated rate). The error is evaluated at the input less the error at the measured
+input (one fixed-point step: `e(x - e(x))`):
 
-    u_s = (F_s - b_gyro_s) / Kg_s                f0 = C_acc (J - b_acc)
-    eg_s = sum_j Gg_sj f0_j + Ag_s/2 |u_s| + Ng_s u_s^2
-    w_b = C_gyro (F - b_gyro - Kg eg)
-    a_s = (J_s - b_acc_s) / Ka_s
-    ea_s = Aa_s/2 |a_s| + Qa_s a_s^2 + a_s sum_j Ca_sj f0_j - La_s (|w_b|^2 - w_b_s^2)
-    f_b = C_acc (J - b_acc - Ka ea)
+    f0 = C_acc (J - b_acc)
+    x_s = (F_s - b_gyro_s) / Kg_s,    eg(x) = sum_j Gg_sj f0_j + Ag_s/2 |x_s| + Ng_s x_s^2
+    w_b = C_gyro (F - b_gyro - Kg eg(x - eg(x)))
+    x_s = (J_s - b_acc_s) / Ka_s,     ea(x) = Aa_s/2 |x_s| + Qa_s x_s^2 + x_s sum_j Ca_sj f0_j
+    f_b = C_acc (J - b_acc - Ka (ea(x - ea(x)) - La (|w_b|^2 - w_b_s^2)))
 
-The error at the measured input instead of the true one leaves a remainder of the order of the error times its
-own relative size (about 1e-7 of the input for the tactical-MEMS preset: 0.1 ug, 0.01 deg/h). The cross terms use
-the centre's specific force instead of each accelerometer's, and the lever arm only its component along the
-sensor's own axis (the one a body-axis turn shows): a component across it moves the output by the misalignment
-times the centripetal force.
+The fixed-point step leaves a remainder of the order of the error times its relative size squared; it matters
+where the error is of the order of the input (a gyro's g-sensitivity at rest, against the asymmetry's |x|). The
+cross terms use the centre's specific force instead of each accelerometer's, and the lever arm only its component
+along the sensor's own axis (the one a body-axis turn shows): a component across it moves the output by the
+misalignment times the centripetal force.
 """
 
 from __future__ import annotations
@@ -40,10 +40,10 @@ MATRIX_TERMS = ("gyro_g_sensitivity", "acc_cross")
 
 #: the inverse, in the order it is applied (the exports write these)
 EQUATIONS = {
-    "gyro": "u_s = (F_s - b_gyro_s)/Kg_s; eg_s = sum_j Gg_sj f0_j + Ag_s/2 |u_s| + Ng_s u_s^2; "
-            "w_b = C_gyro (F - b_gyro - Kg eg); f0 = C_acc (J - b_acc)",
-    "acc": "a_s = (J_s - b_acc_s)/Ka_s; ea_s = Aa_s/2 |a_s| + Qa_s a_s^2 + a_s sum_j Ca_sj f0_j "
-           "- La_s (|w_b|^2 - w_b_s^2); f_b = C_acc (J - b_acc - Ka ea)",
+    "gyro": "f0 = C_acc (J - b_acc); x_s = (F_s - b_gyro_s)/Kg_s; eg_s(x) = sum_j Gg_sj f0_j + Ag_s/2 |x_s| "
+            "+ Ng_s x_s^2; w_b = C_gyro (F - b_gyro - Kg eg(x - eg(x)))",
+    "acc": "x_s = (J_s - b_acc_s)/Ka_s; ea_s(x) = Aa_s/2 |x_s| + Qa_s x_s^2 + x_s sum_j Ca_sj f0_j; "
+           "f_b = C_acc (J - b_acc - Ka (ea(x - ea(x)) - La (|w_b|^2 - w_b_s^2)))",
 }
 
 
@@ -86,9 +86,9 @@ class HigherOrderCompensation:
     def has_acc(self) -> bool:
         return any(FAMILIES[t].sensor == "acc" for t in self.terms)
 
-    def acc_error(self, acc_input: np.ndarray, force: np.ndarray, body_rate: np.ndarray) -> np.ndarray:
-        """The accelerometers' input-equivalent errors (..., 3), m/s^2, at their inputs `a_s` (m/s^2), the centre's
-        specific force (m/s^2) and the body rate (rad/s), all (..., 3): what the outputs show beyond `f`."""
+    def acc_error(self, acc_input: np.ndarray, force: np.ndarray) -> np.ndarray:
+        """The accelerometers' input-equivalent errors (..., 3), m/s^2, at their inputs `a_s` (m/s^2) and the
+        centre's specific force (m/s^2), both (..., 3)."""
         a = acc_input
         error = np.zeros(np.shape(a))
         if (asym := self.value("acc_asymmetry")) is not None:
@@ -97,11 +97,16 @@ class HigherOrderCompensation:
             error += second * a * a
         if (cross := self.value("acc_cross")) is not None:
             error += a * (force @ cross.T)
-        if (lever := self.value("acc_lever_arm")) is not None:
-            # the centripetal force along accelerometer s at r_s = La_s e_s: -La_s (|w|^2 - w_s^2)
-            w_sq = body_rate * body_rate
-            error -= lever * (w_sq.sum(axis=-1, keepdims=True) - w_sq)
         return error
+
+    def lever_arm_force(self, body_rate: np.ndarray) -> np.ndarray | float:
+        """The specific force along each accelerometer's axis beyond the centre's (..., 3), m/s^2, at the body rate
+        (rad/s): the centripetal `-La_s (|w|^2 - w_s^2)` of r_s = La_s e_s (0 without lever arms)."""
+        lever = self.value("acc_lever_arm")
+        if lever is None:
+            return 0.0
+        w_sq = body_rate * body_rate
+        return -lever * (w_sq.sum(axis=-1, keepdims=True) - w_sq)
 
     def gyro_error(self, gyro_input: np.ndarray, input_sq: np.ndarray, force: np.ndarray) -> np.ndarray:
         """The gyros' input-equivalent errors (..., 3), rad/s, at their inputs `u_s` (rad/s), the mean of `u_s^2`

@@ -213,7 +213,8 @@ int main(void)
 """
 
 
-@pytest.mark.parametrize("families", [tuple(FAMILIES), ("acc_lever_arm",), ("gyro_asymmetry", "acc_cross")])
+@pytest.mark.parametrize("families", [tuple(FAMILIES), ("acc_lever_arm",), ("gyro_asymmetry", "acc_cross"),
+                                      ("gyro_g_sensitivity",), ("acc_second_order",)])
 def test_the_c_header_compensates_as_bench_apply_does(world, tmp_path, families):
     compiler = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
     if compiler is None:
