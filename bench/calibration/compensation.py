@@ -37,6 +37,8 @@ TRIADS = (("gyro", "Kg", "D0", "Eg", "rad/s", "body angular rate w_b"),
           ("acc", "Ka", "K0", "Ea", "m/s^2", "body specific force f_b"))
 RAW_UNIT = "counts/s"
 
+#: samples the extended model's compensation takes at once
+_CHUNK = 8192
 #: output units `compensate` can give: name -> factor SI -> that unit
 RATE_UNITS = {"rad/s": 1.0, "deg/s": 1.0 / DEG}
 FORCE_UNITS = {"m/s^2": 1.0, "g": 1.0 / G0}
@@ -130,6 +132,13 @@ class Compensation:
         if self.higher_order is None:
             return (self.gyro.apply(gyro_counts_per_s) * RATE_UNITS[rate_unit],
                     self.acc.apply(acc_counts_per_s) * FORCE_UNITS[force_unit])
+        gyro, acc = np.asarray(gyro_counts_per_s, dtype=float), np.asarray(acc_counts_per_s, dtype=float)
+        if gyro.ndim == 2 and len(gyro) > _CHUNK:
+            # in pieces whose temporaries stay in the cache: the higher-order terms take some thirty array operations
+            parts = [self.compensate(gyro[lo:lo + _CHUNK], acc[lo:lo + _CHUNK], rate_unit=rate_unit,
+                                     force_unit=force_unit) for lo in range(0, len(gyro), _CHUNK)]
+            return np.concatenate([r for r, _ in parts]), np.concatenate([f for _, f in parts])
+        gyro_counts_per_s, acc_counts_per_s = gyro, acc
         # the gyros first, at the linear specific force; then the accelerometers at the compensated rate (the lever
         # arms go with its square: at the linear rate, a gyro asymmetry of 200 ppm would leave ~1 ug at 150 deg/s);
         # then the gyros again at the compensated force (the g-sensitivity at the linear force, off by the

@@ -29,6 +29,7 @@ from bench.model.units import DEG, DEG_PER_HOUR, MICRO_G
 from bench.sim.imu import SimImu
 from bench.sim.table import SimTable, TableLimits
 from studies.extended_coverage import truth_values
+from tests.helpers.run import cli
 
 RATE_HZ = 1000.0
 UNIT_IMU = ImuCoefficients(np.ones(3), np.zeros(3), np.eye(3), np.ones(3), np.zeros(3), np.eye(3))
@@ -246,3 +247,15 @@ def test_the_c_header_compensates_as_bench_apply_does(world, tmp_path, families)
     assert from_c.shape == (len(raw), 6)
     for mine, theirs in ((rate, from_c[:, :3]), (force, from_c[:, 3:])):
         assert np.all(np.abs(theirs - mine) <= 1e-12 * np.linalg.norm(mine, axis=1, keepdims=True))
+
+
+def test_bench_export_writes_the_families_of_a_result_file(world, tmp_path):
+    path = tmp_path / "extended.result.json"
+    _result(world["truth"], world["terms"]).save(path)
+    for name in ("c.json", "c.toml", "c.csv", "c.h"):
+        rc, _, stderr = cli(["export", str(path), "--out", str(tmp_path / name)])
+        assert rc == 0, stderr
+    doc = json.loads((tmp_path / "c.json").read_text())
+    assert doc["version"] == 2 and list(doc["higher_order"]["terms"]) == list(FAMILIES)
+    assert tomllib.loads((tmp_path / "c.toml").read_text()) == doc
+    assert "tb_imu_compensate" in (tmp_path / "c.h").read_text()
