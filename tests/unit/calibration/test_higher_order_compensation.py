@@ -259,3 +259,26 @@ def test_bench_export_writes_the_families_of_a_result_file(world, tmp_path):
     assert doc["version"] == 2 and list(doc["higher_order"]["terms"]) == list(FAMILIES)
     assert tomllib.loads((tmp_path / "c.toml").read_text()) == doc
     assert "tb_imu_compensate" in (tmp_path / "c.h").read_text()
+
+
+def test_bench_apply_applies_the_families(short_run, world, tmp_path):
+    """`bench apply` of a result with the families gives `Compensation.compensate` of the log's samples, and not
+    what the 30 coefficients alone give."""
+    from bench.calibration.apply import log_samples
+    from bench.log.reader import read_log
+    result = CalibrationResult.load(short_run.result)
+    for name, value in truth_values(world["terms"]).items():
+        result.coefficients[name] = coefficient_table({name: value}, {name: 0.1 * abs(value)})[name]
+    path = tmp_path / "extended.result.json"
+    result.save(path)
+    out = tmp_path / "applied.csv"
+    rc, _, stderr = cli(["apply", str(path), str(short_run.log), "--out", str(out), "--rate-unit", "rad/s",
+                         "--force-unit", "m/s^2", "--quiet"])
+    assert rc == 0, stderr
+    applied = np.loadtxt(out, delimiter=",", skiprows=1)[:, 3:9]
+    samples = log_samples(read_log(str(short_run.log)))
+    rate, force = compensation_of(result).compensate(samples.gyro_rate, samples.acc_rate)
+    assert np.array_equal(applied, np.hstack([rate, force]))
+    rate0, force0 = compensation_of(CalibrationResult.load(short_run.result)).compensate(samples.gyro_rate,
+                                                                                       samples.acc_rate)
+    assert np.abs(force - force0).max() > 1e-4 and np.abs(rate - rate0).max() > 1e-5    # m/s^2, rad/s
