@@ -13,6 +13,9 @@ cosines, `d` the biases (input units). Its inverse, what firmware applies:
 (the output at zero input). A positive bias `D0` raises the output, so it is subtracted.
 Uncertainties (1-sigma) are propagated to first order from the result's coefficient
 sigmas, taken as independent (the result file holds no covariances).
+
+A result of the extended model (`[model] terms`) adds the higher-order families; `Compensation.compensate`
+then takes their error off the raw outputs before the linear inverse (`bench.calibration.higher_order`).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.calibration.higher_order import HigherOrderCompensation, HigherOrderError, higher_order_of
 from bench.errors import InputError
 from bench.model.families import BODY_AXES, RESULT_UNITS, SENSOR_AXES, canonical_names
 from bench.model.result import CalibrationResult
@@ -33,6 +37,8 @@ TRIADS = (("gyro", "Kg", "D0", "Eg", "rad/s", "body angular rate w_b"),
           ("acc", "Ka", "K0", "Ea", "m/s^2", "body specific force f_b"))
 RAW_UNIT = "counts/s"
 
+#: samples the extended model's compensation takes at once
+_CHUNK = 8192
 #: output units `compensate` can give: name -> factor SI -> that unit
 RATE_UNITS = {"rad/s": 1.0, "deg/s": 1.0 / DEG}
 FORCE_UNITS = {"m/s^2": 1.0, "g": 1.0 / G0}
@@ -86,15 +92,62 @@ class Compensation:
     run_id: str = ""
     calibrated_utc: str = ""
     software_version: str = ""
+    #: the extended model's families the result holds (None: only the 30 coefficients)
+    higher_order: HigherOrderCompensation | None = None
 
     def triads(self) -> tuple[TriadCompensation, TriadCompensation]:
         return self.gyro, self.acc
 
+    def specific_force(self, acc_counts_per_s: np.ndarray, body_rate: np.ndarray) -> np.ndarray:
+        """Specific forces (..., 3), m/s^2, for raw accelerometer outputs (counts/s); `body_rate` (rad/s, the
+        compensated one) is what the lever arms need."""
+        f0 = self.acc.apply(acc_counts_per_s)
+        higher = self.higher_order
+        if higher is None or not higher.has_acc:
+            return f0
+        x = (np.asarray(acc_counts_per_s, dtype=float) - self.acc.bias_counts) / self.acc.scale
+        # at the input less the error at the measured input (one fixed-point step: bench.calibration.higher_order)
+        error = higher.acc_error(x - higher.acc_error(x, f0), f0)
+        error = error + higher.lever_arm_force(np.asarray(body_rate, dtype=float))
+        return self.acc.apply(acc_counts_per_s - self.acc.scale * error)
+
+    def body_rate(self, gyro_counts_per_s: np.ndarray, specific_force: np.ndarray,
+                  input_sq: np.ndarray | None = None) -> np.ndarray:
+        """Body rates (..., 3), rad/s, for raw gyro outputs (counts/s); `specific_force` (m/s^2, the linear estimate
+        will do) is what the g-sensitivity needs, `input_sq` the mean squared gyro input ((rad/s)^2; default: the
+        input's square)."""
+        higher = self.higher_order
+        if higher is None or not higher.has_gyro:
+            return self.gyro.apply(gyro_counts_per_s)
+        x = (np.asarray(gyro_counts_per_s, dtype=float) - self.gyro.bias_counts) / self.gyro.scale
+        force = np.asarray(specific_force, dtype=float)
+        # at the input less the error at the measured input (one fixed-point step: bench.calibration.higher_order)
+        x = x - higher.gyro_error(x, x * x if input_sq is None else input_sq, force)
+        error = higher.gyro_error(x, x * x if input_sq is None else input_sq, force)
+        return self.gyro.apply(gyro_counts_per_s - self.gyro.scale * error)
+
     def compensate(self, gyro_counts_per_s: np.ndarray, acc_counts_per_s: np.ndarray, *,
                    rate_unit: str = "rad/s", force_unit: str = "m/s^2") -> tuple[np.ndarray, np.ndarray]:
         """Body rates and specific forces for raw outputs (counts/s), in the units asked for."""
-        return (self.gyro.apply(gyro_counts_per_s) * RATE_UNITS[rate_unit],
-                self.acc.apply(acc_counts_per_s) * FORCE_UNITS[force_unit])
+        if self.higher_order is None:
+            return (self.gyro.apply(gyro_counts_per_s) * RATE_UNITS[rate_unit],
+                    self.acc.apply(acc_counts_per_s) * FORCE_UNITS[force_unit])
+        gyro, acc = np.asarray(gyro_counts_per_s, dtype=float), np.asarray(acc_counts_per_s, dtype=float)
+        if gyro.ndim == 2 and len(gyro) > _CHUNK:
+            # in pieces whose temporaries stay in the cache: the higher-order terms take some thirty array operations
+            parts = [self.compensate(gyro[lo:lo + _CHUNK], acc[lo:lo + _CHUNK], rate_unit=rate_unit,
+                                     force_unit=force_unit) for lo in range(0, len(gyro), _CHUNK)]
+            return np.concatenate([r for r, _ in parts]), np.concatenate([f for _, f in parts])
+        gyro_counts_per_s, acc_counts_per_s = gyro, acc
+        # the gyros first, at the linear specific force; then the accelerometers at the compensated rate (the lever
+        # arms go with its square: at the linear rate, a gyro asymmetry of 200 ppm would leave ~1 ug at 150 deg/s);
+        # then the gyros again at the compensated force (the g-sensitivity at the linear force, off by the
+        # accelerometers' higher-order errors of ~200 ug, would leave ~0.002 deg/h)
+        rate = self.body_rate(gyro_counts_per_s, self.acc.apply(acc_counts_per_s))
+        force = self.specific_force(acc_counts_per_s, rate)
+        if "gyro_g_sensitivity" in self.higher_order.terms:
+            rate = self.body_rate(gyro_counts_per_s, force)
+        return rate * RATE_UNITS[rate_unit], force * FORCE_UNITS[force_unit]
 
 
 def _text(value: Any) -> str:
@@ -108,10 +161,14 @@ def compensation_of(result: CalibrationResult) -> Compensation:
         raise CompensationError(f"the result lacks {len(missing)} of the 30 coefficients ({', '.join(missing[:4])}"
                                 f"{', ...' if len(missing) > 4 else ''}): a compensation needs all of them")
     triads = [_triad(result, *spec) for spec in TRIADS]
+    try:
+        higher = higher_order_of(result)
+    except HigherOrderError as exc:
+        raise CompensationError(str(exc)) from exc
     run, imu = result.run, result.run.imu
     return Compensation(triads[0], triads[1], imu_model=_text(imu and imu.model), imu_serial=_text(imu and imu.serial),
                         run_id=_text(run.run_id), calibrated_utc=_text(run.finished_utc),
-                        software_version=_text(run.software_version))
+                        software_version=_text(run.software_version), higher_order=higher)
 
 
 def _triad(result: CalibrationResult, sensor: str, scale: str, bias: str, axes: str, unit: str,

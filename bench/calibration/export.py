@@ -9,6 +9,9 @@ TOML `nan`. YAML and TOML are written by hand (no dependency); text from the res
 (serial, model, run id) is quoted with JSON escapes, which YAML double-quoted strings
 and TOML basic strings read alike, and never reaches C code outside a comment, where
 `*/` and control characters are replaced.
+
+A result of the extended model adds its families to every format (`bench.calibration.export_higher_order`); a
+result of the 30 coefficients exports exactly as it did before them.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from typing import Any, Callable
 import numpy as np
 
 from bench import __version__
+from bench.calibration import export_higher_order as higher
 from bench.calibration.compensation import EQUATIONS, RAW_UNIT, Compensation, TriadCompensation
 from bench.errors import InputError
 from bench.model.noise_result import NoiseResult
@@ -58,6 +62,9 @@ def to_json(c: Compensation) -> str:
 
     doc = {"format": COMPENSATION_FORMAT, "version": COMPENSATION_VERSION, **_identity(c),
            "gyro": triad(c.gyro), "acc": triad(c.acc)}
+    if c.higher_order is not None:
+        doc["version"] = higher.HIGHER_ORDER_VERSION
+        doc["higher_order"] = higher.higher_order_doc(c)
     return json.dumps(doc, indent=2, allow_nan=False) + "\n"
 
 
@@ -69,7 +76,8 @@ def to_csv(c: Compensation) -> str:
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(CSV_COLUMNS)
-    writer.writerow(["meta", "format", "", "", f"{COMPENSATION_FORMAT} {COMPENSATION_VERSION}", "", ""])
+    version = COMPENSATION_VERSION if c.higher_order is None else higher.HIGHER_ORDER_VERSION
+    writer.writerow(["meta", "format", "", "", f"{COMPENSATION_FORMAT} {version}", "", ""])
     for key, value in _identity(c).items():
         writer.writerow(["meta", key, "", "", value, "", ""])
     for t in c.triads():
@@ -80,6 +88,8 @@ def to_csv(c: Compensation) -> str:
         for i in range(3):
             writer.writerow([t.sensor, "bias", i, "", repr(float(t.bias_counts[i])), _csv_sigma(t.bias_sigma[i]),
                              RAW_UNIT])
+    if c.higher_order is not None:
+        writer.writerows(higher.csv_rows(c))
     return out.getvalue()
 
 
@@ -115,8 +125,9 @@ def _c_array(name: str, values: np.ndarray, unit: str) -> str:
 def to_c_header(c: Compensation) -> str:
     """A C header: `static const double` arrays and two inline functions applying them (C99)."""
     ident = _identity(c)
+    version = COMPENSATION_VERSION if c.higher_order is None else higher.HIGHER_ORDER_VERSION
     lines = ["/* IMU compensation exported by turntable-bench (format "
-             f"{COMPENSATION_FORMAT} {COMPENSATION_VERSION}).", " *"]
+             f"{COMPENSATION_FORMAT} {version}).", " *"]
     lines += [f" * {key}: {comment_text(value) or '(not recorded)'}" for key, value in ident.items()]
     lines += [" *",
               " * gyro:          w_b[i] = sum_j TB_IMU_GYRO_MATRIX[i][j] * (F[j] - TB_IMU_GYRO_BIAS[j])",
@@ -124,6 +135,7 @@ def to_c_header(c: Compensation) -> str:
               " * F, J: the raw outputs of sensors x, y, z in counts/s (increment per sample times the",
               " * sample rate); w_b in rad/s, f_b in m/s^2, along the body axes X, Y, Z.",
               " * *_SIGMA: 1-sigma uncertainties of the same elements (NAN: unknown).",
+              *(higher.c_comment_lines() if c.higher_order is not None else []),
               " */",
               f"#ifndef {C_PREFIX}_COMPENSATION_H", f"#define {C_PREFIX}_COMPENSATION_H", "", "#include <math.h>", ""]
     text = "\n".join(lines) + "\n"
@@ -134,6 +146,8 @@ def to_c_header(c: Compensation) -> str:
         text += _c_array(f"{name}_MATRIX_SIGMA", t.matrix_sigma, t.matrix_unit)
         text += _c_array(f"{name}_BIAS_SIGMA", t.bias_sigma, RAW_UNIT)
         text += "\n"
+    if c.higher_order is not None:
+        text += higher.c_arrays(c, C_PREFIX, _c_array)
     for t in c.triads():
         name, unit = f"{C_PREFIX}_{t.sensor.upper()}", t.input_unit
         text += (f"/* {_MEASURES[t.sensor][0]} ({unit}) from raw outputs (counts/s) */\n"
@@ -145,6 +159,8 @@ def to_c_header(c: Compensation) -> str:
                  "        out[i] = sum;\n"
                  "    }\n"
                  "}\n\n")
+    if c.higher_order is not None:
+        text += higher.c_function(c, C_PREFIX)
     text += (f"/* the uncertainties, so that a file using only the functions above compiles without warnings */\n"
              f"static inline const double *tb_imu_sigmas(int which)\n"
              "{\n"
@@ -248,9 +264,15 @@ def to_yaml(c: Compensation, noise: KalibrNoise, rostopic: str = "/imu0") -> str
     out += [f"  - [{', '.join('1.0' if i == j else '0.0' for j in range(4))}]" for i in range(4)]
     out += [f"{key}: {json.dumps(value)}" for key, value in ident.items() if key != "calibration_software_version"]
     text = "\n".join(out) + "\n"
+    g_sensitivity = higher.kalibr_g_sensitivity(c) if c.higher_order is not None else None
+    if c.higher_order is not None:
+        text += higher.kalibr_left_out(c)
     for t, key in ((c.gyro, "gyroscopes"), (c.acc, "accelerometers")):
         text += f"{key}:\n    M:   # dimensionless\n" + _yaml_matrix(t.axes, "      ")
-        if t.sensor == "gyro":
+        if t.sensor == "gyro" and g_sensitivity is not None:
+            text += ("    A:   # (rad/s)/(m/s^2), g-sensitivity Gg (rows gyros, columns body X Y Z)\n"
+                     + _yaml_matrix(g_sensitivity, "      "))
+        elif t.sensor == "gyro":
             text += ("    A:   # (rad/s)/(m/s^2), g-sensitivity: not in this model\n"
                      + _yaml_matrix(np.zeros((3, 3)), "      "))
             text += "    C_gyro_i:\n" + _yaml_matrix(np.eye(3), "      ")
@@ -276,7 +298,8 @@ def _toml_matrix(m: np.ndarray) -> str:
 
 def to_toml(c: Compensation) -> str:
     """The JSON document's content as TOML (tomllib reads it back)."""
-    lines = [f"format = {json.dumps(COMPENSATION_FORMAT)}", f"version = {COMPENSATION_VERSION}"]
+    version = COMPENSATION_VERSION if c.higher_order is None else higher.HIGHER_ORDER_VERSION
+    lines = [f"format = {json.dumps(COMPENSATION_FORMAT)}", f"version = {version}"]
     lines += [f"{key} = {json.dumps(value)}" for key, value in _identity(c).items()]
     for t in c.triads():
         lines += ["", f"[{t.sensor}]", f"measures = {json.dumps(_MEASURES[t.sensor][0])}",
@@ -286,6 +309,8 @@ def to_toml(c: Compensation) -> str:
                   f"bias_unit = {json.dumps(RAW_UNIT)}",
                   f"bias = [{', '.join(map(toml_num, t.bias_counts))}]",
                   f"bias_sigma = [{', '.join(map(toml_num, t.bias_sigma))}]"]
+    if c.higher_order is not None:
+        lines += higher.toml_table("higher_order", higher.higher_order_doc(c), toml_num)
     return "\n".join(lines) + "\n"
 
 

@@ -2,8 +2,9 @@
 
 The verification plan's dwells and turns are extracted as for a solve
 (`bench.solve.extract`), then compensated with the calibration under test through the
-same `Compensation` that `bench apply` uses, and compared with their nominal inputs on
-an ideal table:
+same `Compensation` that `bench apply` uses (with the extended model's terms when the
+result holds them: a dwell's means as samples, a turn's mean rate with its mean squared
+input and axial specific force), and compared with their nominal inputs on an ideal table:
 
 - positions: per accelerometer axis i, the compensated mean specific force minus the
   nominal one is fitted as `e_i = b_i + S_i . f_nominal` (weighted least squares): `b_i` is
@@ -141,8 +142,10 @@ def position_errors(obs: list[PositionObservation], compensation: Compensation, 
     f_nominal, w_nominal = nominal_position_inputs(angles, site, mounting)
     acc_mean = np.array([o.acc_mean for o in obs])
     gyro_mean = np.array([o.gyro_mean for o in obs])
-    f_error = compensation.acc.apply(acc_mean) - f_nominal
-    w_error = compensation.gyro.apply(gyro_mean) - w_nominal
+    # as `bench apply` compensates samples (with the extended model's terms when the result holds them)
+    w_compensated, f_compensated = compensation.compensate(gyro_mean, acc_mean)
+    f_error = f_compensated - f_nominal
+    w_error = w_compensated - w_nominal
     acc_sem = [o.standard_error("acc") for o in obs]
     gyro_sem = [o.standard_error("gyro") for o in obs]
     f_sigma = (np.array([_mapped_sigma(compensation.acc, s) for s in acc_sem])
@@ -185,11 +188,15 @@ def _turn_error(obs: RotationObservation, compensation: Compensation, site: Site
     k = int(np.argmax(np.abs(u)))
     if abs(abs(u[k]) - 1.0) > 1e-9:
         return None
-    angle = compensation.gyro.apply(obs.gyro_integral / obs.duration_s) * obs.duration_s
+    start = attitude(np.asarray(obs.start_deg) * DEG, mounting=mounting)
+    # the extended model's terms over the turn: the mean specific force is its axial part (exact for a vertical
+    # axis, as the solve takes it) and the mean squared input the turn's squared-rate integral
+    force = float(u @ (start @ site.specific_force_enu)) * u
+    input_sq = None if obs.rate_sq_integral is None else u * u * obs.rate_sq_integral / obs.duration_s
+    angle = compensation.body_rate(obs.gyro_integral / obs.duration_s, force, input_sq) * obs.duration_s
     earth = obs.earth_integral_rad
     if earth is None:
-        w_b = attitude(np.asarray(obs.start_deg) * DEG, mounting=mounting) @ site.earth_rate_enu
-        earth = obs.duration_s * float(u @ w_b) * u
+        earth = obs.duration_s * float(u @ (start @ site.earth_rate_enu)) * u
     nominal = obs.sign * 2.0 * math.pi * obs.revolutions * u + earth
     # the integral's noise: its own sigma, else the static dwells' white-noise density over the turn's length
     counts_sigma = obs.gyro_integral_sigma
