@@ -90,14 +90,18 @@ def test_a_simulated_table_checks_printed_estimate_is_its_simulated_duration(tmp
 
 # -- the plan is the same whoever runs it --------------------------------------------------------------------------
 
-def test_the_plan_a_simulated_run_records_is_the_plan_of_every_other_path(noisy_run):
-    # bench run --sim, the TUI (compile_from_config) and a hardware run of the same plan compile the same steps, with
-    # the same commanded values and estimates; the log records them and the plan's estimate (what --resume compares)
+def test_the_plan_a_simulated_run_records_is_the_plan_of_every_other_path(noisy_run, tmp_path):
+    # bench run --sim, the TUI and a hardware run of the same plan compile the same steps, with the same commanded
+    # values and estimates; the log records them and the plan's estimate (what --resume compares)
+    from bench.tui.app import create_app
+
     text = noisy_run.text
     hardware = parse_config(text.replace('url = "sim"', 'url = "tcp://127.0.0.1:5000"', 1))
     assert not hardware.table.is_sim
     plan = compile_from_config(parse_config(text))
     assert compile_from_config(hardware).steps == plan.steps
+    tui = create_app(config=parse_config(text), auto_connect=False, out_dir=tmp_path)
+    assert tui.session.plan.steps == plan.steps and tui.session.plan.estimated_total_s == plan.estimated_total_s
     log = read_log(noisy_run.log)
     expected = [json.loads(json.dumps(step_to_dict(s))) for s in plan.steps]
     assert [e.step for e in log.events if isinstance(e, StepStarted)] == expected
