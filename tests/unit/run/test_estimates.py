@@ -152,3 +152,16 @@ def test_a_lagging_imu_soaks_longer_and_a_soak_never_exceeds_its_maximum():
     slow = TimingProfile("t", (50.0,) * 3, (50.0,) * 3, 0.0, 0.0, SoakModel(2.0, imu_time_constant_s=1200.0))
     assert retime(chamber, slow)[3] > retime(chamber, fast)[3]
     assert all(e <= s.max_soak_s for e, s in zip(retime(chamber, slow), chamber) if isinstance(s, SoakStep))
+
+
+def test_the_tuis_progress_of_a_simulated_run_goes_by_the_simulators_timing(noisy_run, tmp_path):
+    # the TUI's plan table, progress and start dialog took the plan's own estimates (the Start dialog said "about
+    # 4.5 min" of a run the simulator does in 4.0)
+    from bench.tui.app import create_app
+
+    config = parse_config(noisy_run.text)
+    app = create_app(config=config, auto_connect=False, out_dir=tmp_path)
+    expected = retime(app.session.plan.steps, timing_profile(config, sim=True))
+    assert app.buffer.estimates == pytest.approx(expected)
+    assert app.buffer.total_estimated_s == pytest.approx(_simulated_s(noisy_run.log), rel=0.01)
+    assert f"about {sum(expected) / 60:.1f} min" in app.session.describe_plan()
