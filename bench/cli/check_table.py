@@ -197,6 +197,7 @@ def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
     from bench.log.recorder import RecorderError
     from bench.run.devices import device_opener
     from bench.run.runner import BenchRun
+    from bench.run.timing import estimates
     from bench.table_check.estimate import TableCheckError
     from bench.table_check.from_log import analyse_log
     from bench.table_check.report import write_outputs
@@ -204,7 +205,7 @@ def _live(args, config, plan, sim: bool, calibration) -> ExitCode:
     out_dir = Path(args.out) if args.out else Path(config.output.folder)
     if not args.quiet:
         print(f"table check: {config.plan.positions.name}, {len(config.plan.positions.positions)} positions, dwell "
-              f"{config.plan.dwell_s:g} s, about {format_hms(plan.estimated_total_s)} of table time"
+              f"{config.plan.dwell_s:g} s, about {format_hms(sum(estimates(config, plan.steps, sim)))} of table time"
               + (" (simulated)" if sim else ""))
     # A stop signal (Ctrl-C, SIGTERM, SIGHUP) aborts the plan while it runs (run_plan); after it, it ends
     # the analysis (an Interrupted): either way the devices and the log are closed.

@@ -192,7 +192,10 @@ def run_plan(run: BenchRun, prog: str, *, quiet: bool, simulated: bool) -> ExitC
             advice = dialect_hint(exc, dialect, option)
             return fail(prog, f"cannot start: {exc}{f' ({advice})' if advice else ''}; nothing moved",
                         ExitCode.USAGE)
-        progress = ProgressPrinter(run.plan.steps, quiet=quiet, simulated=simulated)
+        # the progress goes by what the run will take (its controller's timing), not the plan's recorded estimates
+        from bench.run.timing import estimates
+        progress = ProgressPrinter(run.plan.steps, quiet=quiet, simulated=simulated,
+                                   estimates=estimates(run.config, run.plan.steps, simulated))
         run.extra_listeners.append(progress)
         try:
             run.run()

@@ -45,20 +45,24 @@ def text_bar(fraction: float, width: int) -> str:
 
 
 class ProgressPrinter(RunListener):
-    """Prints progress of a run of `steps` to `stream` (default stderr); `wall_clock` (seconds,
+    """Prints progress of a run of `steps` to `stream` (default stderr); `estimates` (s, one per step; default
+    the steps' own) are what the run is expected to take (`bench.plan.retime`); `wall_clock` (seconds,
     default `time.monotonic`) measures the wall time for the simulator's wall ETA and the summary."""
 
     def __init__(self, steps: Sequence[Step], stream: TextIO | None = None, *, quiet: bool = False,
                  live: bool | None = None, simulated: bool = False, bar_width: int = 24,
-                 wall_clock: Callable[[], float] = time.monotonic):
+                 wall_clock: Callable[[], float] = time.monotonic, estimates: Sequence[float] | None = None):
         self.stream = stream if stream is not None else sys.stderr
         self.steps = list(steps)
+        self.estimates = [s.estimated_s for s in self.steps] if estimates is None else [float(e) for e in estimates]
+        if len(self.estimates) != len(self.steps):
+            raise ValueError(f"{len(self.estimates)} estimates for {len(self.steps)} steps")
         self.quiet = quiet
         self.live = self.stream.isatty() if live is None else live
         self.simulated = simulated
         self.bar_width = bar_width
         self.wall_clock = wall_clock
-        self.total_s = sum(s.estimated_s for s in self.steps) or 1.0
+        self.total_s = sum(self.estimates) or 1.0
         self.units = list(dict.fromkeys(s.unit for s in self.steps))
         self._done_s = 0.0
         self._current: Step | None = None
@@ -80,7 +84,7 @@ class ProgressPrinter(RunListener):
 
     def _fraction(self, now: float) -> float:
         step = self._current
-        done = self._done_s + (min(now - self._started_at, step.estimated_s) if step else 0.0)
+        done = self._done_s + (min(now - self._started_at, self.estimates[step.index]) if step else 0.0)
         return min(1.0, done / self.total_s)
 
     def _status(self, now: float) -> None:
@@ -89,8 +93,8 @@ class ProgressPrinter(RunListener):
         fraction = self._fraction(now)
         bar = text_bar(fraction, self.bar_width)
         what = f"step {step.index + 1}/{len(self.steps)} {step.unit} {step.kind}" if step else ""
-        left = (f" {format_hms(step.estimated_s - elapsed_in_step)} left" if step and step.kind in ("dwell", "settle")
-                else "")
+        left = (f" {format_hms(self.estimates[step.index] - elapsed_in_step)} left"
+                if step and step.kind in ("dwell", "settle") else "")
         remaining_s = self.total_s * (1.0 - fraction)
         eta = f"ETA sim {format_hms(remaining_s)}" if self.simulated else f"ETA {format_hms(remaining_s)}"
         if self.simulated and fraction >= _MIN_FRACTION_FOR_WALL_ETA:
@@ -133,7 +137,7 @@ class ProgressPrinter(RunListener):
                             f"{self._fraction(event.time_s):.0%} done)")
         elif isinstance(event, (StepFinished, StepSkipped)):
             if event.step_index is not None:
-                self._done_s += self.steps[event.step_index].estimated_s
+                self._done_s += self.estimates[event.step_index]
             self._current = None
             if isinstance(event, StepFinished):
                 self._finished += 1

@@ -82,9 +82,11 @@ def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
     from bench.log.reader import LogError
     from bench.log.recorder import RecorderError
     from bench.log.run_setup import SetupMismatch
+    from bench.plan.retime import retime
     from bench.run.devices import device_opener
     from bench.run.resume import resume_point
     from bench.run.runner import BenchRun, compile_from_config
+    from bench.run.timing import estimates, timing_profile
     from bench.solve.inputs import SolveInputError, check_solvable
     from bench.solve.methods import SolverError
     from bench.verify.plan import verification_config, verification_plan
@@ -119,10 +121,14 @@ def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
                   f"log finds the earlier ones only beside it (move them together, or give every log: bench solve "
                   f"{earlier} NEW.mcap)", file=sys.stderr)
     if args.dry_run:
-        print(plan.format_dry_run())
+        # the estimates of the controller that runs the plan (the simulator's own timing under --sim); the plan
+        # and its recorded estimates stay the same whoever runs it
+        profile = timing_profile(config, sim)
+        print(plan.format_dry_run(retime(plan.steps, profile), profile.name))
         if config.plan.verification is not None and verification is not None:
+            verification_s = sum(estimates(verification_config(config), verification.steps, sim))
             print(f"then the verification ({config.plan.verification.name}): {len(verification.steps)} steps, "
-                  f"estimated {format_hms(verification.estimated_total_s)}")
+                  f"estimated {format_hms(verification_s)}")
         if completed:
             print(f"resume: {len(completed)} units complete in earlier logs would be skipped: "
                   f"{', '.join(sorted(completed))}")

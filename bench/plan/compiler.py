@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
+from typing import Sequence
 
 import numpy as np
 
@@ -107,14 +108,20 @@ class CompiledPlan:
         """Time saved against the listing order."""
         return self.listed_total_s - self.estimated_total_s
 
-    def format_dry_run(self) -> str:
-        """The steps as a table (index, unit, kind, what, estimate, cumulative) and the totals."""
+    def format_dry_run(self, estimates: Sequence[float] | None = None, timing: str = "") -> str:
+        """The steps as a table (index, unit, kind, what, estimate, cumulative) and the totals. `estimates` (one
+        per step, `bench.plan.retime`, whose profile `timing` names) replace the steps' own: the table, the
+        estimated total and the lower bound take them; the listing-order comparison stays the plan's."""
+        own = [s.estimated_s for s in self.steps]
+        each = own if estimates is None else [float(e) for e in estimates]
+        if len(each) != len(self.steps):
+            raise ValueError(f"{len(each)} estimates for {len(self.steps)} steps")
         rows = []
         elapsed = 0.0
-        for step in self.steps:
-            elapsed += step.estimated_s
+        for step, estimate_s in zip(self.steps, each):
+            elapsed += estimate_s
             rows.append((str(step.index), step.unit, step.kind, _describe(step),
-                         f"{step.estimated_s:.1f} s", format_hms(elapsed)))
+                         f"{estimate_s:.1f} s", format_hms(elapsed)))
         head = ("#", "unit", "kind", "description", "estimate", "cumulative")
         widths = [max(len(r[k]) for r in rows + [head]) for k in range(len(head))]
         align = ("r", "l", "l", "l", "r", "r")
@@ -124,16 +131,26 @@ class CompiledPlan:
                              for c, w, a in zip(cells, widths, align)).rstrip()
 
         out = [line(head), line(["-" * w for w in widths])] + [line(r) for r in rows]
+        total_s = sum(each)
+        moves_s = sum(e for s, e in zip(self.steps, each) if isinstance(s, MoveStep))
         saving = self.saving_s
         pct = 100.0 * saving / self.listed_total_s if self.listed_total_s > 0 else 0.0
         n_units = len(self.units)
+        whose = f" by {timing}" if timing else ""
         out += [
             "",
             f"units: {n_units}, steps: {len(self.steps)}, order: {self.order}",
-            f"estimated total:     {format_hms(self.estimated_total_s)} ({self.estimated_total_s:.1f} s), "
-            f"of which moves {self.move_total_s:.1f} s",
-            f"listing-order total: {format_hms(self.listed_total_s)} ({self.listed_total_s:.1f} s)",
-            f"lower bound:         {format_hms(self.lower_bound_s)} ({self.lower_bound_s:.1f} s; "
+            f"estimated total:     {format_hms(total_s)} ({total_s:.1f} s), of which moves {moves_s:.1f} s{whose}",
+        ]
+        if estimates is not None:
+            soaks = ", soaks as the air's change plus the stable time" if any(
+                isinstance(s, SoakStep) for s in self.steps) else ""
+            out.append(f"plan's own estimate: {format_hms(self.estimated_total_s)} ({self.estimated_total_s:.1f} s; "
+                       f"[plan]'s move profile{soaks}; the log records it)")
+        out += [
+            f"listing-order total: {format_hms(self.listed_total_s)} ({self.listed_total_s:.1f} s)"
+            + (" by [plan]'s profile" if estimates is not None else ""),
+            f"lower bound:         {format_hms(total_s - moves_s)} ({total_s - moves_s:.1f} s; "
             "dwells, settles and turns, no moves)",
             f"saving vs listing order: {saving:.1f} s ({pct:.1f} %)",
         ]

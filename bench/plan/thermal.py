@@ -20,7 +20,9 @@ from drivers.turntable.base import TurntableLimits
 from schedules import Schedule
 
 #: a chamber's air changes this fast without a ramp (for the estimate only), degC/min
-_NOMINAL_AIR_RATE_C_PER_MIN = 2.0
+NOMINAL_AIR_RATE_C_PER_MIN = 2.0
+#: the temperature the chamber and the IMU are assumed to start at (for the estimate only), degC
+START_C = 23.0
 
 
 @dataclass(frozen=True)
@@ -72,7 +74,7 @@ def _end_deg(steps: list[Step], start: tuple[float, float, float]) -> tuple[floa
 
 def compile_thermal_plan(positions: Schedule | None, rotations: Schedule | None, timing: PlanTiming,
                          thermal: ThermalPlan, *, start_deg=(0.0, 0.0, 0.0), limits: TurntableLimits | None = None,
-                         order: str = "optimal", start_c: float = 23.0) -> CompiledPlan:
+                         order: str = "optimal", start_c: float = START_C) -> CompiledPlan:
     """Per temperature: set the chamber, soak, then the calibration steps (units "T<k>-<unit>").
 
     `start_c` is the temperature the chamber is assumed to start at (only the soak estimates use it).
@@ -85,7 +87,7 @@ def compile_thermal_plan(positions: Schedule | None, rotations: Schedule | None,
     for k, setpoint_c in enumerate(thermal.temperatures_c, start=1):
         block = thermal_prefix(k)
         soak = thermal.soak
-        rate = thermal.ramp_c_per_min or _NOMINAL_AIR_RATE_C_PER_MIN
+        rate = thermal.ramp_c_per_min or NOMINAL_AIR_RATE_C_PER_MIN
         soak_s = min(abs(setpoint_c - previous_c) / rate * 60.0 + soak.stable_min * 60.0, soak.max_soak_min * 60.0)
         steps.append(SetTemperatureStep(index=len(steps), unit=block, temperature_index=k, setpoint_c=float(setpoint_c),
                                         ramp_c_per_min=thermal.ramp_c_per_min, estimated_s=0.0))
@@ -110,4 +112,5 @@ def block_observation_units(steps: tuple[Step, ...], temperature_index: int) -> 
     return {s.unit for s in steps if isinstance(s, (DwellStep, TurnStep)) and s.unit.startswith(prefix)}
 
 
-__all__ = ["SoakCriterion", "ThermalPlan", "block_observation_units", "compile_thermal_plan"]
+__all__ = ["NOMINAL_AIR_RATE_C_PER_MIN", "START_C", "SoakCriterion", "ThermalPlan", "block_observation_units",
+           "compile_thermal_plan"]

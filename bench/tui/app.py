@@ -28,6 +28,7 @@ from bench.config.load import default_sim_config
 from bench.model.result import CalibrationResult
 from bench.plan.steps import CHAMBER_KINDS
 from bench.run.runner import compile_from_config
+from bench.run.timing import estimates
 from bench.tui.budget_panel import BudgetPanel
 from bench.tui.buffer import CHANNELS, STALE_AFTER_S, ImuScales, UiBuffer
 from bench.tui.panels import ChamberPanel, EventLog, ImuPanel, PlanPanel, ResultsPanel, TablePanel
@@ -153,7 +154,8 @@ class BenchApp(App):
         with Horizontal(id="bottom"):
             with TabbedContent(id="left-tabs", initial="plan-tab"):
                 with TabPane("Plan", id="plan-tab"):
-                    yield PlanPanel(self.steps, simulated=self.simulated, id="plan-panel")
+                    yield PlanPanel(self.steps, simulated=self.simulated, estimates=self.buffer.estimates,
+                                    id="plan-panel")
                 with TabPane("Results", id="results-tab"):
                     yield ResultsPanel(id="results-panel")
                 with TabPane("Budget", id="budget-tab"):
@@ -465,7 +467,9 @@ def create_app(*, config=None, sim: bool = False, replay: str | Path | None = No
         config = default_sim_config()
     sim = sim or config.table.is_sim
     plan = compile_from_config(config)
-    buffer = UiBuffer(plan.steps, clock=clock, wall_clock=wall_clock)
+    # the plan is the same whoever runs it; the progress goes by what it will take on this bench (the simulator's
+    # own timing under sim)
+    buffer = UiBuffer(plan.steps, clock=clock, wall_clock=wall_clock, estimates=estimates(config, plan.steps, sim))
     session = BenchSession(config, plan, sim=sim, out_dir=out_dir if out_dir is not None else config.output.folder,
                            buffer=buffer, operator=operator, poll_s=poll_s)
     names = " + ".join(s.name for s in (config.plan.positions, config.plan.rotations) if s is not None)

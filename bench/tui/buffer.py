@@ -142,7 +142,8 @@ class UiBuffer(RunListener):
     """
 
     def __init__(self, steps: Sequence = (), *, history: int = 120, max_events: int = 2000,
-                 clock: Callable[[], float] = time.monotonic, wall_clock: Callable[[], float] = time.time):
+                 clock: Callable[[], float] = time.monotonic, wall_clock: Callable[[], float] = time.time,
+                 estimates: Sequence[float] | None = None):
         if history < 2:
             raise ValueError(f"history must be at least 2 samples, got {history}")
         self._lock = threading.Lock()
@@ -170,13 +171,15 @@ class UiBuffer(RunListener):
         self._result: CalibrationResult | None = None
         self._outcome_text = ""
         self._chamber_state: ChamberState | None = None
-        self.begin_run(steps)
+        self.begin_run(steps, estimates)
 
     # -- set-up (any thread) ---------------------------------------------------------------
-    def begin_run(self, steps: Sequence) -> None:
-        """Forget the previous run's step states, progress and result; keep table/IMU/log."""
+    def begin_run(self, steps: Sequence, estimates: Sequence[float] | None = None) -> None:
+        """Forget the previous run's step states, progress and result; keep table/IMU/log. `estimates` (s, one
+        per step; default the steps' own): what the steps will take (`bench.run.timing.estimates`)."""
         with self._lock:
             self.steps = tuple(steps)
+            self.estimates = step_estimates(self.steps, estimates)
             self._step_states = [StepState.PENDING] * len(self.steps)
             self._current: int | None = None
             self._current_started: float | None = None
@@ -190,7 +193,7 @@ class UiBuffer(RunListener):
 
     @property
     def total_estimated_s(self) -> float:
-        return sum(s.estimated_s for s in self.steps)
+        return sum(self.estimates)
 
     def note(self, kind: str, message: str, **data) -> None:
         """Add a line of the UI's own (operator actions, link errors) to the event log, at the latest time seen
@@ -238,7 +241,7 @@ class UiBuffer(RunListener):
                     # the part of the step done before the end stays done: the progress never goes back
                     # (it counted min(elapsed, estimate) while the step ran, and the time only goes on)
                     if self._current_started is not None:
-                        step_s = self.steps[self._current].estimated_s
+                        step_s = self.estimates[self._current]
                         self._done_estimated += min(max(0.0, latest_s - self._current_started), step_s)
                     self._current = None
             elif isinstance(event, StepStarted) and k is not None:
@@ -246,7 +249,7 @@ class UiBuffer(RunListener):
                 self._current, self._current_started = k, event.time_s
             elif isinstance(event, (StepFinished, StepSkipped)) and k is not None:
                 self._step_states[k] = StepState.DONE if isinstance(event, StepFinished) else StepState.SKIPPED
-                self._done_estimated += self.steps[k].estimated_s
+                self._done_estimated += self.estimates[k]
                 if self._current == k:
                     self._current = None
             elif isinstance(event, Fault) and k is not None:
@@ -341,17 +344,27 @@ class Progress:
     step_left_s: float | None   # dwell/settle countdown of the current step, None otherwise
 
 
-def progress(snapshot: UiSnapshot, steps: Sequence) -> Progress:
-    """Overall progress by the steps' estimated durations, and the current step's countdown."""
-    total = sum(s.estimated_s for s in steps) or 1.0
+def step_estimates(steps: Sequence, estimates: Sequence[float] | None = None) -> tuple[float, ...]:
+    """`estimates` (one per step), or the steps' own."""
+    out = tuple(s.estimated_s for s in steps) if estimates is None else tuple(float(e) for e in estimates)
+    if len(out) != len(steps):
+        raise ValueError(f"{len(out)} estimates for {len(steps)} steps")
+    return out
+
+
+def progress(snapshot: UiSnapshot, steps: Sequence, estimates: Sequence[float] | None = None) -> Progress:
+    """Overall progress by the steps' estimated durations (`estimates`, default the steps' own), and the current
+    step's countdown."""
+    each = step_estimates(steps, estimates)
+    total = sum(each) or 1.0
     done = snapshot.done_estimated_s
     left = None
     k = snapshot.current_step
     if k is not None and k < len(steps) and snapshot.current_started_s is not None and snapshot.run_time_s is not None:
         elapsed = max(0.0, snapshot.run_time_s - snapshot.current_started_s)
-        done += min(elapsed, steps[k].estimated_s)
+        done += min(elapsed, each[k])
         if steps[k].kind in ("dwell", "settle"):
-            left = max(0.0, steps[k].estimated_s - elapsed)
+            left = max(0.0, each[k] - elapsed)
     fraction = min(1.0, done / total)
     return Progress(fraction, max(0.0, total - done), left)
 

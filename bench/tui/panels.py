@@ -35,6 +35,7 @@ from bench.tui.buffer import (
     StepState,
     UiSnapshot,
     progress,
+    step_estimates,
 )
 
 DEG_PER_HOUR_PER_DPS = 3600.0
@@ -301,9 +302,10 @@ class PlanPanel(Vertical):
     PlanPanel DataTable { height: 1fr; }
     """
 
-    def __init__(self, steps: Sequence, *, simulated: bool, **kwargs):
+    def __init__(self, steps: Sequence, *, simulated: bool, estimates: Sequence[float] | None = None, **kwargs):
         super().__init__(**kwargs)
         self.steps = tuple(steps)
+        self.estimates = step_estimates(self.steps, estimates)
         self.simulated = simulated
         self.plain = ""
         self._shown_states: list[str] = []
@@ -314,10 +316,12 @@ class PlanPanel(Vertical):
         yield DataTable(id="plan-steps", cursor_type="row", zebra_stripes=True)
 
     def on_mount(self) -> None:
-        self.set_steps(self.steps)
+        self.set_steps(self.steps, self.estimates)
 
-    def set_steps(self, steps: Sequence) -> None:
+    def set_steps(self, steps: Sequence, estimates: Sequence[float] | None = None) -> None:
+        """Show `steps` with `estimates` (s, one per step; default the steps' own)."""
         self.steps = tuple(steps)
+        self.estimates = step_estimates(self.steps, estimates)
         table = self.query_one("#plan-steps", DataTable)
         table.clear(columns=True)
         table.add_column("#", key="index")
@@ -326,8 +330,8 @@ class PlanPanel(Vertical):
         table.add_column("what", key="what")
         table.add_column("est s", key="est")
         table.add_column("state", key="state")
-        for s in self.steps:
-            table.add_row(str(s.index + 1), s.unit, s.kind, describe_step(s), f"{s.estimated_s:.1f}",
+        for s, estimate_s in zip(self.steps, self.estimates):
+            table.add_row(str(s.index + 1), s.unit, s.kind, describe_step(s), f"{estimate_s:.1f}",
                           Text("pending", style="dim"), key=str(s.index))
         self._shown_states = ["pending"] * len(self.steps)
 
@@ -336,7 +340,7 @@ class PlanPanel(Vertical):
         self._shown_states = [""] * len(self.steps)
 
     def show(self, snapshot: UiSnapshot) -> None:
-        p = progress(snapshot, self.steps)
+        p = progress(snapshot, self.steps, self.estimates)
         clock = " (sim clock)" if self.simulated else ""
         k = snapshot.current_step
         if k is not None and k < len(self.steps):

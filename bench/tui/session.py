@@ -179,7 +179,7 @@ class BenchSession:
         limits = self.config.table.limits.axes
         turns = sorted({s.frame for s in steps if s.kind == "turn"})
         lines = [
-            f"Plan {schedules}: {len(steps)} steps ({what}), about {self.plan.estimated_total_s / 60:.1f} min.",
+            f"Plan {schedules}: {len(steps)} steps ({what}), about {self.buffer.total_estimated_s / 60:.1f} min.",
             "ALL THREE AXES will be enabled (servos on) and moved"
             + (f"; continuous turns on {', '.join(turns)}" if turns else "") + ".",
             f"Moves at up to {p.move_rate_dps:g} deg/s, turns at {p.turn_rate_dps:g} deg/s; limits: "

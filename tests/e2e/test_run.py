@@ -27,9 +27,11 @@ from bench.log.events import Fault, RunWarning, finished_observation_steps
 from bench.log.reader import read_log
 from bench.model.families import canonical_names, family_of
 from bench.model.imu import default_sim_imu
+from bench.plan.retime import retime
 from bench.run.devices import SIMULATOR
 from bench.run.runner import BenchRun, compile_from_config
 from bench.run.sequencer import RunAborted
+from bench.run.timing import timing_profile
 from drivers.errors import TurntableEStop, TurntableFault, TurntableTimeout
 from drivers.imu import DEFAULT_DBC
 from drivers.turntable import AxisStatus
@@ -661,6 +663,10 @@ def test_dry_run_prints_the_steps_and_the_estimate_and_writes_nothing(tmp_path):
                   and line.split()[2] in ("move", "settle", "dwell", "turn")]
     assert [(int(line.split()[0]), line.split()[1], line.split()[2]) for line in step_lines] == \
         [(s.index, s.unit, s.kind) for s in plan.steps]
+    # a simulated table's run: the estimate is the simulator's timing (bench.run.timing), the plan's own beside it
+    config = parse_config(text)
     estimate = next(line for line in stdout.splitlines() if line.startswith("estimated total"))
-    assert f"({plan.estimated_total_s:.1f} s" in estimate
+    assert f"({sum(retime(plan.steps, timing_profile(config, sim=True))):.1f} s" in estimate
+    assert f"({plan.estimated_total_s:.1f} s" in next(line for line in stdout.splitlines()
+                                                     if line.startswith("plan's own estimate"))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bench.toml"]
