@@ -387,8 +387,8 @@ def rig_config_text(config: BenchConfig, table_url: str, dialect: str, peer: Rig
                     f"{pid}started_utc = {_toml(rig.started_utc)}\n")
     return f"""\
 # Written by `bench sim rig`: a bench configuration pointing at the simulated rig.
-{validity}# For the real bench, change [table] url/dialect and [imu] interface/channel (see README,
-# "Before the hardware arrives"); everything else stays.
+{validity}# For the real bench, change [table] url/dialect and [imu] interface/channel (see the docs,
+# docs/tutorials/sim-rig.md and docs/tutorials/real-hardware.md); everything else stays.
 format = "turntable-bench/config"
 version = 1
 
