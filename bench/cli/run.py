@@ -208,9 +208,9 @@ def _after_the_result(args: argparse.Namespace, config, outcome, run, sim: bool,
     for serial, one in others.items():       # a run of several IMUs: the summary above is its reference unit's
         print(f"unit {serial}: verdict: {one.verdict.headline()}; result: {one.result_path}  report: "
               f"{one.report_path}" if one.verdict is not None else f"unit {serial}: {'; '.join(one.failures)}")
-    # (a run of several IMUs: the records database keeps runs by the log's one IMU, the reference unit; the other
-    # units' results are not recorded there yet)
-    interrupted, recorded = _record(args, [outcome.result_path, outcome.log_path])   # after the files
+    # a run of several IMUs: every unit's result, each recorded as `<run-id>.<serial>` of the run
+    interrupted, recorded = _record(args, [outcome.result_path, *(one.result_path for one in others.values()),
+                                           outcome.log_path])   # after the files
     if interrupted:
         return fail(PROG, f"{interrupted}; result: {outcome.result_path}", ExitCode.FAULT)
     print(records_line(args, recorded))

@@ -113,21 +113,27 @@ def recorded_unit(logs: list[RunLog], config: BenchConfig, index: int, sim: bool
 class UnitTarget(Target):
     """One unit's outputs, `<stem>.result.json` and its reports in `out_dir` (`stem`: `<run-id>.<serial>`, a
     re-solve's `<run-id>.<serial>.solved`); the result's run section is a re-solve's with the unit's identity
-    (`solved_by`: who solved it)."""
+    (`solved_by`: who solved it; None for the run's own result, as a single IMU's run writes it: the records keep
+    it as the unit's record of truth, not a re-solve)."""
 
     out_dir: Path
     stem: str
     model: str
     serial: str
-    solved_by: str = "bench solve"
+    solved_by: str | None = "bench solve"     # None: the live run's own result (`bench run` solved none again)
     html: bool = True
     #: the live run's: attaches a file written to its log (still open); None: a re-solve attaches nothing
     attach: Callable[[Path], None] | None = None
+    #: the serials of the run's units, the reference first (the result's `run.units`: the records keep each unit
+    #: as `<run-id>.<serial>` of its run)
+    units: tuple[str, ...] = ()
 
     def run_section(self, recorded: Recorded, solved: Solved) -> RunInfo:
         run_info = resolved_run_section(recorded, solved)
         run_info.imu = ImuIdentity(self.model, self.serial)
         run_info.solved_by = self.solved_by
+        if self.units:
+            run_info.extra["units"] = list(self.units)
         return run_info
 
     def title(self, what: str, detail: str = "") -> str:
@@ -171,7 +177,7 @@ def finish_units(logs: list[RunLog], config: BenchConfig, out_dir: Path, run_id:
         if serials and serial not in serials:
             continue
         target = UnitTarget(out_dir, f"{run_id}.{serial}" + (".solved" if solved else ""), unit.identity.model,
-                            serial, "bench solve" if solved else "bench run", attach=attach)
+                            serial, "bench solve" if solved else None, attach=attach, units=tuple(known))
         try:
             recorded = recorded_unit(logs, config, index, sim, still_open)
             out[serial] = finish(recorded, target)

@@ -46,7 +46,8 @@ def several_run(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("several")
     config = folder / "several.toml"
     config.write_text(several_config(), encoding="utf-8")
-    rc, out, err = cli(["run", "--config", str(config), "--out", str(folder / "run"), "--no-db", "--quiet"])
+    rc, out, err = cli(["run", "--config", str(config), "--out", str(folder / "run"), "--db",
+                        str(folder / "records.sqlite"), "--quiet"])
     assert rc == 0, err
     assert "unit A2: verdict" in out and "unit B1: verdict" in out
     return only_file(folder / "run", "*.mcap")
@@ -147,3 +148,45 @@ def test_the_reference_unit_is_solved_bit_for_bit_as_a_single_imu_of_the_same_pl
 def test_unit_is_refused_for_a_log_of_one_imu(short_run, tmp_path):
     rc, _, err = cli(["solve", str(short_run.log), "--out", str(tmp_path), "--no-db", "--unit", "A1"])
     assert rc == 2 and "records one IMU, not several ([[imu]]): drop --unit" in err
+
+
+def test_each_unit_is_a_record_of_its_own_in_the_records(several_run, tmp_path):
+    """`bench run` recorded every unit, `<run-id>.<serial>` of its run, as `bench db import` of its files does;
+    `bench solve` adds each unit's re-solve to that unit's record; a certificate is of one unit (--unit)."""
+    from bench.records.store import open_records
+
+    run_id, serials = several_run.stem, [serial for serial, *_ in UNITS]
+    imported = tmp_path / "imported.sqlite"
+    rc, _, err = cli(["db", "--db", str(imported), "import", str(several_run.parent), "--quiet"])
+    assert rc == 0, err
+    for db in (several_run.parent.parent / "records.sqlite", imported):
+        with open_records(str(db), create=False) as records:
+            assert records.units_of_run(run_id) == [(f"{run_id}.{serial}", serial) for serial in serials]
+            for serial in serials:
+                rows = records.list_runs(serial=serial)
+                assert [row.run_id for row in rows] == [f"{run_id}.{serial}"], db
+                truth = [r for r in records.results_of(f"{run_id}.{serial}") if r.truth]
+                assert len(truth) == 1 and truth[0].origin == "run"
+                assert Path(truth[0].path).name == f"{run_id}.{serial}.result.json"
+            assert not records.run_known(run_id)            # the run is its units' records, none of its own
+    rc, out, _ = cli(["db", "--db", str(imported), "list"])
+    assert rc == 0 and all(f"{run_id}.{serial}" in out for serial in serials)
+    rc, out, err = cli(["solve", str(several_run), "--out", str(tmp_path / "solved"), "--db", str(imported),
+                        "--no-html", "--unit", "B1"])
+    assert rc == 0, err
+    with open_records(str(imported), create=False) as records:
+        assert sorted(r.origin for r in records.results_of(f"{run_id}.B1")) == ["re-solve", "run"]
+        assert [r.origin for r in records.results_of(f"{run_id}.A2")] == ["run"]
+    base = ["cert", "--db", str(imported)]
+    for argv, words in (([*base, "review", run_id, "--reviewer", "bob"],
+                         f"run '{run_id}' calibrated 3 units (A1, A2, B1): name one with --unit SERIAL"),
+                        ([*base, "issue", run_id, "--out", str(tmp_path / "cert")], "name one with --unit SERIAL"),
+                        ([*base, "review", run_id, "--unit", "C9", "--reviewer", "bob"], "has no unit 'C9' recorded")):
+        rc, _, err = cli(argv)
+        assert rc == 2 and err.count("\n") == 1 and words in err, err
+    assert cli([*base, "review", run_id, "--unit", "A2", "--reviewer", "bob"])[0] == 0
+    assert cli([*base, "sign", f"{run_id}.A2", "--signer", "carol", "--role", "technical manager"])[0] == 0
+    rc, out, err = cli([*base, "issue", run_id, "--unit", "A2", "--out", str(tmp_path / "cert")])
+    assert rc == 0, err
+    rc, out, _ = cli([*base, "trail", run_id, "--unit", "A2"])
+    assert rc == 0 and out.splitlines()[-1] == "2 entries" and f"of run {run_id}.A2 " in out
