@@ -4,10 +4,12 @@ body axes from its own topics; `bench solve` reproduces every unit's result bit 
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
 
+from bench.log.events import RunListener, StepStarted
 from bench.log.reader import read_log
 from tests.helpers.run import cli, only_file
 
@@ -190,3 +192,65 @@ def test_each_unit_is_a_record_of_its_own_in_the_records(several_run, tmp_path):
     assert rc == 0, err
     rc, out, _ = cli([*base, "trail", run_id, "--unit", "A2"])
     assert rc == 0 and out.splitlines()[-1] == "2 entries" and f"of run {run_id}.A2 " in out
+
+
+class _SilenceAt(RunListener):
+    """Silences a simulated unit (it sends nothing more) when step `index` starts: a unit that fails mid-run."""
+
+    def __init__(self, run, index: int) -> None:
+        self.run, self.index = run, index
+
+    def on_event(self, event) -> None:
+        if isinstance(event, StepStarted) and event.step_index == self.index:
+            self.run.world.units[0].drop_frames(10 ** 9)
+
+
+def _run_silencing_a2(tmp_path: Path, on_unit_failure: str):
+    """A run of A1 and A2 with [run] on_unit_failure, A2 silenced when the plan's 30th step starts."""
+    from bench.config.load import parse_config
+    from bench.run.devices import SIMULATOR
+    from bench.run.runner import BenchRun, compile_from_config
+
+    text = several_config(UNITS[:2], black_box_arcsec=0.0) + f'[run]\non_unit_failure = "{on_unit_failure}"\n'
+    config = parse_config(text, source="two.toml")
+    assert config.on_unit_failure == on_unit_failure
+    plan = compile_from_config(config)
+    assert len(plan.steps) > 40
+    run = BenchRun(config, plan, devices=SIMULATOR, out_dir=tmp_path)
+    run.extra_listeners.append(_SilenceAt(run, 30))
+    with run:
+        run.open()
+        state = run.run()
+        outcome = run.finish()
+    return run, state, outcome
+
+
+def test_a_unit_silenced_mid_run_is_dropped_and_the_others_finish(tmp_path):
+    run, state, outcome = _run_silencing_a2(tmp_path, "continue")
+    assert state.value == "done" and outcome.error is None
+    assert outcome.result is not None and outcome.result.run.imu.serial == "A1"
+    assert outcome.verdict is not None and not outcome.verdict.failed         # the reference unit finished
+    silent = outcome.units["A2"]
+    assert silent.result is None and not (tmp_path / f"{run.run_id}.A2.result.json").exists()
+    assert len(silent.failures) == 1
+    assert silent.failures[0].startswith("unit A2 has no result: dropped from the run at ")
+    quiet_s = float(re.search(r"\(silent: no sample for ([0-9.]+) s\)$", silent.failures[0]).group(1))
+    assert quiet_s > 2.0                                                # longer than the IMU timeout
+    log = read_log(run.log_path)
+    warnings = [e for e in log.events if e.message.startswith("unit A2 dropped from the run: silent")]
+    assert len(warnings) == 1 and warnings[0].step_index is not None and warnings[0].step_index >= 30
+    assert log.scan().complete                                      # the log was closed whole
+    rc, out, err = cli(["solve", str(run.log_path), "--out", str(tmp_path / "solved"), "--no-db", "--no-html"])
+    assert rc == 4 and "unit A1: result:" in out and "unit A2 has no result: dropped from the run at" in err
+
+
+def test_a_unit_that_fails_stops_the_run_when_configured(tmp_path):
+    run, state, outcome = _run_silencing_a2(tmp_path, "stop")
+    assert state.value == "failed" and outcome.result is None
+    assert str(outcome.error).startswith("unit A2 failed: silent: no sample for ")
+    assert str(outcome.error).endswith('([run] on_unit_failure = "stop")')
+    log = read_log(run.log_path)
+    assert log.scan().complete                                      # closed, not cut off
+    messages = [e.message for e in log.events]
+    assert messages[-2:] == ["table stopped and servos off", "run ended early; table stopped"]   # the safe stop
+    assert sum(m.startswith("UnitFailed: unit A2 failed: silent") for m in messages) == 2       # fault, transition
