@@ -173,6 +173,10 @@ def test_each_unit_is_a_record_of_its_own_in_the_records(several_run, tmp_path):
             assert not records.run_known(run_id)            # the run is its units' records, none of its own
     rc, out, _ = cli(["db", "--db", str(imported), "list"])
     assert rc == 0 and all(f"{run_id}.{serial}" in out for serial in serials)
+    rc, out, _ = cli(["db", "--db", str(imported), "results", run_id, "--unit", "A2"])
+    assert rc == 0 and out.startswith(f"results of run {run_id}.A2 ")
+    rc, _, err = cli(["db", "--db", str(imported), "results", run_id])
+    assert rc == 2 and "calibrated 3 units (A1, A2, B1): name one with --unit SERIAL" in err
     rc, out, err = cli(["solve", str(several_run), "--out", str(tmp_path / "solved"), "--db", str(imported),
                         "--no-html", "--unit", "B1"])
     assert rc == 0, err
