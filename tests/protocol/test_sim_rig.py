@@ -16,6 +16,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import can
 import numpy as np
@@ -323,6 +324,14 @@ def _start_rig(*args: str) -> subprocess.Popen:
     return start_sim("rig", *args)
 
 
+def _start_rig_writing(tmp_path, dialect: str, *args: str) -> tuple[subprocess.Popen, Path]:
+    """A rig of RIG_CONFIG in `dialect` with `args`, writing its bench configuration: (the rig, that file)."""
+    rig_config = tmp_path / "rig.toml"
+    rig_config.write_text(RIG_CONFIG.format(dialect=dialect))
+    written = tmp_path / "bench.toml"
+    return _start_rig("--config", str(rig_config), *args, "--write-config", str(written)), written
+
+
 def _with_plan(text: str, plan: str) -> str:
     start, end = text.index("[plan]"), text.index("[output]")
     return text[:start] + plan + text[end:]
@@ -395,11 +404,7 @@ def test_bench_run_against_the_rig_in_another_process_recovers_its_truth(tmp_pat
 def test_bench_run_of_a_rig_speaking_another_dialect_suggests_checking_it(tmp_path):
     """Issue 33, item 13: the rig's table speaks MN, the configuration says SCPI: the run stops before anything
     moves, in one line that says to check `[table] dialect` (not only that there was no reply)."""
-    rig_config = tmp_path / "rig.toml"
-    rig_config.write_text(RIG_CONFIG.format(dialect="mn"))
-    written = tmp_path / "bench.toml"
-    rig = _start_rig("--config", str(rig_config), "--table-listen", "tcp://127.0.0.1:0", "--imu-listen", "slcan",
-                     "--write-config", str(written))
+    rig, written = _start_rig_writing(tmp_path, "mn", "--table-listen", "tcp://127.0.0.1:0", "--imu-listen", "slcan")
     try:
         read_until(rig, "Ctrl-C stops")
         text = _with_plan(written.read_text(), SHORT_PLAN)
@@ -572,11 +577,7 @@ def test_bench_run_against_a_rig_of_two_imus_recovers_each_units_truth(tmp_path)
     its own truth; `bench run` of the written [[imu]] configuration solves each in its own body axes."""
     from bench.sim.units import unit_truth
 
-    rig_config = tmp_path / "rig.toml"
-    rig_config.write_text(RIG_CONFIG.format(dialect="scpi"))
-    written = tmp_path / "bench.toml"
-    rig = _start_rig("--config", str(rig_config), "--imu-listen", "socketcand://127.0.0.1:0", "--imus", "2",
-                     "--write-config", str(written))
+    rig, written = _start_rig_writing(tmp_path, "scpi", "--imu-listen", "socketcand://127.0.0.1:0", "--imus", "2")
     try:
         startup = read_until(rig, "Ctrl-C stops")
         assert any("units on that bus: RIG-0001 (z-up, ids +0), RIG-0002 (x-up, ids +16)" in line
