@@ -199,18 +199,20 @@ def test_each_unit_is_a_record_of_its_own_in_the_records(several_run, tmp_path):
 
 
 class _SilenceAt(RunListener):
-    """Silences a simulated unit (it sends nothing more) when step `index` starts: a unit that fails mid-run."""
+    """Silences a simulated unit (it sends nothing more; `garble`: every frame with a bad CRC) when step `index`
+    starts: a unit that fails mid-run."""
 
-    def __init__(self, run, index: int) -> None:
-        self.run, self.index = run, index
+    def __init__(self, run, index: int, garble: bool = False) -> None:
+        self.run, self.index, self.garble = run, index, garble
 
     def on_event(self, event) -> None:
         if isinstance(event, StepStarted) and event.step_index == self.index:
-            self.run.world.units[0].drop_frames(10 ** 9)
+            unit = self.run.world.units[0]
+            (unit.corrupt_crc if self.garble else unit.drop_frames)(10 ** 9)
 
 
-def _run_silencing_a2(tmp_path: Path, on_unit_failure: str):
-    """A run of A1 and A2 with [run] on_unit_failure, A2 silenced when the plan's 30th step starts."""
+def _run_silencing_a2(tmp_path: Path, on_unit_failure: str, garble: bool = False):
+    """A run of A1 and A2 with [run] on_unit_failure, A2 silenced (or garbled) when the plan's 30th step starts."""
     from bench.config.load import parse_config
     from bench.run.devices import SIMULATOR
     from bench.run.runner import BenchRun, compile_from_config
@@ -221,7 +223,7 @@ def _run_silencing_a2(tmp_path: Path, on_unit_failure: str):
     plan = compile_from_config(config)
     assert len(plan.steps) > 40
     run = BenchRun(config, plan, devices=SIMULATOR, out_dir=tmp_path)
-    run.extra_listeners.append(_SilenceAt(run, 30))
+    run.extra_listeners.append(_SilenceAt(run, 30, garble))
     with run:
         run.open()
         state = run.run()
@@ -258,3 +260,12 @@ def test_a_unit_that_fails_stops_the_run_when_configured(tmp_path):
     messages = [e.message for e in log.events]
     assert messages[-2:] == ["table stopped and servos off", "run ended early; table stopped"]   # the safe stop
     assert sum(m.startswith("UnitFailed: unit A2 failed: silent") for m in messages) == 2       # fault, transition
+
+
+def test_a_unit_sending_only_garbage_is_dropped_saying_so(tmp_path):
+    _, state, outcome = _run_silencing_a2(tmp_path, "continue", garble=True)
+    assert state.value == "done" and outcome.result is not None and outcome.units["A1"].result is not None
+    why = outcome.units["A2"].failures[0]
+    assert outcome.units["A2"].result is None and why.startswith("unit A2 has no result: dropped from the run at ")
+    garbled = int(re.search(r"no valid sample for [0-9.]+ s, (\d+) garbled frame\(s\) of its ids", why).group(1))
+    assert garbled > 0
