@@ -158,7 +158,8 @@ def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
     if outcome.error is not None:
         not_recorded = _record(args, [outcome.log_path])     # the table is stopped and the log closed: now record
         return ended_early(PROG, f"{outcome.state.value}: {outcome.error}", run.sequencer,
-                           f". Log: {outcome.log_path} (continue with --resume {outcome.log_path})"
+                           f". Log: {outcome.log_path}" + ("" if config.several else    # several: no --resume yet
+                                                            f" (continue with --resume {outcome.log_path})")
                            + (f"; {not_recorded}" if not_recorded else ""))
     # After the result is written a stop signal ends the command where it is: the result stays as written (it was
     # renamed into place complete), what is not done yet (verification, summary, recording) is said in the line.
