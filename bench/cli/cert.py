@@ -23,6 +23,10 @@ from bench.cli.db import DB_HELP
 PROG = "bench cert"
 
 
+UNIT_HELP = ("a run of several IMUs ([[imu]]): the unit (its serial), each unit being a record of its own "
+             "(`<run-id>.<serial>`, as `bench db list` shows it); RUN alone is refused when it has several")
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "cert",
@@ -40,6 +44,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("run_id", metavar="RUN", help="the run (as `bench db list` shows it)")
     p.add_argument("--reviewer", required=True, metavar="NAME", help="who reviewed it")
     p.add_argument("--note", default="", help="a remark kept with the review")
+    p.add_argument("--unit", metavar="SERIAL", help=UNIT_HELP)
     p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
     p.set_defaults(func=cmd_review)
     p = sub.add_parser("sign", help="sign the reviewed result (the authorisation of its certificate)")
@@ -47,16 +52,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--signer", required=True, metavar="NAME", help="who signs")
     p.add_argument("--role", required=True, help="the signer's role (e.g. \"technical manager\")")
     p.add_argument("--note", default="", help="a remark kept with the signature")
+    p.add_argument("--unit", metavar="SERIAL", help=UNIT_HELP)
     p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
     p.set_defaults(func=cmd_sign)
     p = sub.add_parser("trail", help="the audit trail, oldest first: of one run, or all of it")
     p.add_argument("run_id", metavar="RUN", nargs="?", help="only this run's entries")
+    p.add_argument("--unit", metavar="SERIAL", help=UNIT_HELP)
     p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
     p.set_defaults(func=cmd_trail)
     p = sub.add_parser("issue", help="write the run's certificate: a PDF and a DCC XML (PTB Digital Calibration "
                                      "Certificate), from the records and the run's log")
     p.add_argument("run_id", metavar="RUN", help="the run (as `bench db list` shows it)")
     p.add_argument("--out", required=True, metavar="DIR", help="the folder to write them to (made if missing)")
+    p.add_argument("--unit", metavar="SERIAL", help=UNIT_HELP)
     p.add_argument("--log", metavar="MCAP", help="the run's log, if not where the records say it is")
     p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
     p.set_defaults(func=cmd_issue)
@@ -93,7 +101,8 @@ def cmd_review(args: argparse.Namespace) -> ExitCode:
     reviewer = _name(args.reviewer)
     if reviewer is None:
         return fail(PROG, "--reviewer must name someone", ExitCode.USAGE)
-    return _act(args, lambda records: review(records, args.run_id, reviewer, args.note))
+    return _act(args, lambda records: review(records, records.unit_record(args.run_id, args.unit),
+                                                            reviewer, args.note))
 
 
 def cmd_sign(args: argparse.Namespace) -> ExitCode:
@@ -103,7 +112,8 @@ def cmd_sign(args: argparse.Namespace) -> ExitCode:
     signer, role = _name(args.signer), _name(args.role)
     if signer is None or role is None:
         return fail(PROG, "--signer and --role must not be empty", ExitCode.USAGE)
-    return _act(args, lambda records: sign(records, args.run_id, signer, role, args.note))
+    return _act(args, lambda records: sign(records, records.unit_record(args.run_id, args.unit),
+                                                          signer, role, args.note))
 
 
 def _entry_line(entry) -> str:
@@ -121,9 +131,10 @@ def cmd_trail(args: argparse.Namespace) -> ExitCode:
 
     try:
         with open_records(getattr(args, "db", None), create=False) as records:
-            if args.run_id is not None and not records.run_known(args.run_id):
-                return fail(PROG, f"no run {args.run_id!r} in the records", ExitCode.USAGE)
-            entries = audit_trail(records, args.run_id)
+            if args.unit is not None and args.run_id is None:
+                return fail(PROG, "--unit needs RUN", ExitCode.USAGE)
+            entries = audit_trail(records, None if args.run_id is None else records.unit_record(args.run_id,
+                                                                                                  args.unit))
     except RecordsError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
     for entry in entries:
@@ -147,7 +158,7 @@ def cmd_issue(args: argparse.Namespace) -> ExitCode:
 
     try:
         with open_records(getattr(args, "db", None), create=False) as records:
-            certificate = load(records, args.run_id, args.log)
+            certificate = load(records, records.unit_record(args.run_id, args.unit), args.log)
         xml = to_xml(certificate)
         invalid = validate(xml)
         if invalid:         # a bug: what the bench writes must be valid

@@ -63,6 +63,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    "solve of a damaged or cut log), software version, verdict; '*' marks the run's "
                                    "record of truth, the one `db list`, `db history` and their exports use.")
     p.add_argument("run_id", metavar="RUN_ID", help="the run (as `bench db list` shows it)")
+    p.add_argument("--unit", metavar="SERIAL", help="a run of several IMUs ([[imu]]): the unit (each unit is a "
+                                                    "record of its own, `<run-id>.<serial>`)")
     p.add_argument("--db", metavar="URL", help=DB_HELP, default=argparse.SUPPRESS)
     p.set_defaults(func=cmd_results)
     p = sub.add_parser("promote", help="make a result its run's record of truth",
@@ -179,10 +181,11 @@ def cmd_results(args: argparse.Namespace) -> ExitCode:
 
     try:
         with _open(args, create=False) as records:
-            rows = records.results_of(args.run_id)
+            run_id = records.unit_record(args.run_id, args.unit)
+            rows = records.results_of(run_id)
     except RecordsError as exc:
         return fail(PROG, str(exc), ExitCode.USAGE)
-    print(f"results of run {args.run_id} ('*': the record of truth)")
+    print(f"results of run {run_id} ('*': the record of truth)")
     print(f"  {'id':>6} {'origin':9} {'software':12} {'solved (UTC)':20} {'verdict':8} how")
     for r in rows:
         solved = r.solved_utc.isoformat(timespec="seconds") if r.solved_utc else "-"

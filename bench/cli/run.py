@@ -164,7 +164,8 @@ def _cmd_run(args: argparse.Namespace, started: list[bool]) -> ExitCode:
     if outcome.error is not None:
         not_recorded = _record(args, [outcome.log_path])     # the table is stopped and the log closed: now record
         return ended_early(PROG, f"{outcome.state.value}: {outcome.error}", run.sequencer,
-                           f". Log: {outcome.log_path} (continue with --resume {outcome.log_path})"
+                           f". Log: {outcome.log_path}" + ("" if config.several else    # several: no --resume yet
+                                                            f" (continue with --resume {outcome.log_path})")
                            + (f"; {not_recorded}" if not_recorded else ""))
     # After the result is written a stop signal ends the command where it is: the result stays as written (it was
     # renamed into place complete), what is not done yet (verification, summary, recording) is said in the line.
@@ -214,9 +215,9 @@ def _after_the_result(args: argparse.Namespace, config, outcome, run, sim: bool,
     for serial, one in others.items():       # a run of several IMUs: the summary above is its reference unit's
         print(f"unit {serial}: verdict: {one.verdict.headline()}; result: {one.result_path}  report: "
               f"{one.report_path}" if one.verdict is not None else f"unit {serial}: {'; '.join(one.failures)}")
-    # (a run of several IMUs: the records database keeps runs by the log's one IMU, the reference unit; the other
-    # units' results are not recorded there yet)
-    interrupted, recorded = _record(args, [outcome.result_path, outcome.log_path])   # after the files
+    # a run of several IMUs: every unit's result, each recorded as `<run-id>.<serial>` of the run
+    interrupted, recorded = _record(args, [outcome.result_path, *(one.result_path for one in others.values()),
+                                           outcome.log_path])   # after the files
     if interrupted:
         return fail(PROG, f"{interrupted}; result: {outcome.result_path}", ExitCode.FAULT)
     print(records_line(args, recorded))

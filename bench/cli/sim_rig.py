@@ -38,6 +38,8 @@ if TYPE_CHECKING:
     from bench.config.load import BenchConfig
 
 PROG = "bench sim rig"
+#: the most units `--imus` serves (unit k's ids offset by 16 k stay in the classic 11-bit range)
+MAX_RIG_IMUS = 16
 IMU_LISTEN_HELP = ("slcan (a simulated SLCAN adapter on a new pty: python-can interface slcan), "
                    "socketcand://127.0.0.1:PORT (a simulated socketcand serving can0: interface socketcand), or "
                    "socketcan:CHANNEL (a SocketCAN interface of this host, e.g. socketcan:vcan0); repeatable; "
@@ -93,6 +95,12 @@ def register(kinds: argparse._SubParsersAction) -> None:
                           "names the rig in [imu.rig], and `bench run` refuses it once the rig has stopped)")
     rig.add_argument("--config", metavar="FILE",
                      help="a bench configuration whose [site], [sim], imu.rate_hz and IMU layout the rig uses")
+    rig.add_argument("--imus", type=int, default=1, metavar="N",
+                     help="serve N simulated IMUs on the rig's one bus (1..16; default 1): unit k (from 0) with "
+                          "its own truth and noise seed as `bench run --sim` draws them, its ids offset by 16 k, "
+                          "on the faces z-up, x-up, y-up, z-down, x-down, y-down in turn; the written "
+                          "configuration has one [[imu]] entry per unit (docs/how-to/several-imus.md). Every unit "
+                          "opens the bus: socketcand or socketcan, not slcan")
     rig.add_argument("--seed", type=int, help="[sim] seed (black-box draw and sensor noise)")
     rig.add_argument("--black-box-arcsec", type=float, help="[sim] RMS of the nine black-box angles, arcsec")
     rig.add_argument("--noise", choices=("on", "off"), help="[sim] noise on (default levels) or off")
@@ -140,7 +148,7 @@ def _truth_config(args: argparse.Namespace) -> BenchConfig:
         table = dataclasses.replace(table, register_map=None)   # --dialect overrides a modbus --config
     base = dataclasses.replace(base, sim=sim, site=site, imu=imu, table=table)
     placeholder = RigPeer("virtual", "", "virtual", "turntable-bench-rig", {})
-    text = rig_config_text(base, "sim", base.table.dialect, placeholder)
+    text = rig_config_text(base, "sim", base.table.dialect, placeholder, imus=args.imus)
     # the chamber's limits, safe setpoint and register map come from --config as they are
     return dataclasses.replace(parse_config(text, source="<bench sim rig options>"), chamber=base.chamber)
 
@@ -160,6 +168,12 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
     from bench.config.load import parse_config
     from bench.sim.rig import SimRig, apply_imu_command, rig_config_text
 
+    if not 1 <= args.imus <= MAX_RIG_IMUS:
+        return fail(PROG, f"--imus must be 1..{MAX_RIG_IMUS}, not {args.imus}", ExitCode.USAGE)
+    if args.imus > 1 and "slcan" in (args.imu_listen or ["slcan"]):
+        return fail(PROG, f"--imus {args.imus}: every unit opens the rig's one bus, and an SLCAN adapter (a pty) "
+                          "takes one client: serve the IMUs with --imu-listen socketcand://127.0.0.1:0 or "
+                          "socketcan:CHANNEL", ExitCode.USAGE)
     try:
         config = _truth_config(args)
     except (ConfigError, InputError) as exc:
@@ -189,6 +203,10 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
             print(f"simulated IMU ({config.imu.rate_hz:g} Hz) on {peer.kind} {peer.where}: python-can "
                   f"interface {peer.interface!r}, channel {peer.channel!r}"
                   + "".join(f", {k} {v!r}" for k, v in peer.bus_options.items()), flush=True)
+        if len(config.units) > 1:
+            print("units on that bus: " + ", ".join(
+                f"{unit.identity.serial} ({unit.mounting_name}, ids +{unit.id_offset})" for unit in config.units),
+                flush=True)
         chamber, chamber_url = None, ""
         if chamber_listen:
             # heavy (scipy): the simulators load only when one is served
@@ -202,7 +220,8 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
         rig.start()
         if args.write_config:
             text = rig_config_text(config, table_url, dialect, peers[0],
-                                   (chamber_url, chamber_dialect) if chamber is not None else None, rig.identity)
+                                   (chamber_url, chamber_dialect) if chamber is not None else None, rig.identity,
+                                   imus=args.imus)
             parse_config(text, source=args.write_config, base_dir=Path(args.write_config).resolve().parent)
             # never over the --config read, nor over a run log
             write_output_text(args.write_config, text, [args.config] if args.config else [], option="--write-config")

@@ -130,10 +130,8 @@ def _solve_units(args: argparse.Namespace, recorded, subset: bool) -> ExitCode:
                 print(f"        verdict: {one.verdict.headline()}")
         failures += [f"unit {serial}: {c.labelled()}" for c in (one.verdict.failed if one.verdict else [])]
     del recorded
-    # the records database keeps runs by the log's one IMU (the reference unit): the other units' results are not
-    # recorded there yet
-    reference = finished.get(config.units[0].identity.serial)
-    recorded_ok = record_outputs(args, PROG, [reference.result_path if reference is not None else None, log.path])
+    # every unit's result solved, each under its own record (`<run-id>.<serial>` of the run)
+    recorded_ok = record_outputs(args, PROG, [*(one.result_path for one in finished.values()), log.path])
     code = fail(PROG, "verdict FAIL: " + "; ".join(failures), ExitCode.QUALITY) if failures else ExitCode.OK
     return code if recorded_ok else not_recorded_exit(PROG, code)
 

@@ -192,6 +192,7 @@ KEYS: tuple[Key, ...] = (
     Key("", "chamber", "table", "the thermal chamber; without it the bench has no chamber"),
     Key("", "lab", "table", "the calibration lab, the run's customer and item, the equipment used "
         "(docs/how-to/certificates.md)"),
+    Key("", "run", "table", "how a run behaves (a run of several IMUs: what a unit that fails does)"),
     # [site]
     Key("site", "latitude_deg", "number", "geodetic latitude, north positive", REQUIRED, "deg", ge=-90.0, le=90.0),
     Key("site", "height_m", "number", "ellipsoidal height", 0.0, "m", ge=-500.0, le=9000.0),
@@ -468,6 +469,11 @@ KEYS: tuple[Key, ...] = (
     Key("lab", "customer", "string", "the run's customer (`bench run --customer` wins)", ""),
     Key("lab", "item", "string", "the item calibrated, as the customer names it (`bench run --item` wins); the "
         "IMU's model and serial are [imu.identity]'s", ""),
+    # [run]
+    Key("run", "on_unit_failure", "string", "a run of several IMUs ([[imu]]): a unit other than the first that "
+        "goes silent or sends only garbage for imu_timeout (2 s) is reported and dropped, the others finish "
+        "(\"continue\"), or the run stops safely, the table stopped, exit non-zero (\"stop\")", "continue",
+        choices=("continue", "stop")),
 )
 
 _BY_NAME: dict[tuple[str, str], Key] = {(key.section, key.name): key for key in KEYS}

@@ -246,6 +246,8 @@ class BenchConfig:
     units: tuple[ImuConfig, ...] = ()
     #: [model] terms: the higher-order families the solve estimates beyond the 30 (("auto",): the data choose)
     model_terms: tuple[str, ...] = ()
+    #: [run] on_unit_failure: "continue" (a failed unit is dropped, the others finish) or "stop" (the run stops)
+    on_unit_failure: str = "continue"
 
     @property
     def several(self) -> bool:
@@ -641,8 +643,11 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
     if units and (plan.thermal is not None or chamber is not None or plan.verification is not None):
         raise root.doc.error(("imu",), "several units ([[imu]]) with a calibration over temperature, a [chamber] or "
                                        "a verification plan are not supported yet")
+    run = root.table("run", allowed("run"))
+    on_unit_failure = run.string("on_unit_failure", declared("run", "on_unit_failure").default,
+                                 choices=declared("run", "on_unit_failure").choices)
     return BenchConfig(site, table, imu, plan, output, sim, source_text=text, acceptance=acceptance, chamber=chamber,
-                       lab=lab, units=units, model_terms=terms)
+                       lab=lab, units=units, model_terms=terms, on_unit_failure=on_unit_failure)
 
 
 def load_config(path: str | Path) -> BenchConfig:

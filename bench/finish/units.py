@@ -25,7 +25,7 @@ from bench.config.units import FACES
 from bench.finish.calibration import Solved, resolved_run_section
 from bench.finish.finish import Finished, Reports, Target, finish
 from bench.finish.recorded import Recorded, SolveInputError, recorded_run
-from bench.log.events import CounterWindow, Event, StepFinished
+from bench.log.events import UNIT_DROPPED, CounterWindow, Event, RunWarning, StepFinished
 from bench.log.names import output_path
 from bench.log.reader import LogError, RunLog, read_log
 from bench.log.run_info import LogSetup
@@ -113,21 +113,27 @@ def recorded_unit(logs: list[RunLog], config: BenchConfig, index: int, sim: bool
 class UnitTarget(Target):
     """One unit's outputs, `<stem>.result.json` and its reports in `out_dir` (`stem`: `<run-id>.<serial>`, a
     re-solve's `<run-id>.<serial>.solved`); the result's run section is a re-solve's with the unit's identity
-    (`solved_by`: who solved it)."""
+    (`solved_by`: who solved it; None for the run's own result, as a single IMU's run writes it: the records keep
+    it as the unit's record of truth, not a re-solve)."""
 
     out_dir: Path
     stem: str
     model: str
     serial: str
-    solved_by: str = "bench solve"
+    solved_by: str | None = "bench solve"     # None: the live run's own result (`bench run` solved none again)
     html: bool = True
     #: the live run's: attaches a file written to its log (still open); None: a re-solve attaches nothing
     attach: Callable[[Path], None] | None = None
+    #: the serials of the run's units, the reference first (the result's `run.units`: the records keep each unit
+    #: as `<run-id>.<serial>` of its run)
+    units: tuple[str, ...] = ()
 
     def run_section(self, recorded: Recorded, solved: Solved) -> RunInfo:
         run_info = resolved_run_section(recorded, solved)
         run_info.imu = ImuIdentity(self.model, self.serial)
         run_info.solved_by = self.solved_by
+        if self.units:
+            run_info.extra["units"] = list(self.units)
         return run_info
 
     def title(self, what: str, detail: str = "") -> str:
@@ -153,6 +159,20 @@ class UnitTarget(Target):
         return recorded.imu_link()
 
 
+def dropped_units(logs: list[RunLog]) -> dict[str, str]:
+    """serial -> why, of every unit dropped from the run while it ran (the `RunWarning` that dropped it)."""
+    dropped = {}
+    for log in logs:
+        for event in log.events:
+            if not isinstance(event, RunWarning):
+                continue
+            serial = event.details.get(UNIT_DROPPED)
+            if isinstance(serial, str):
+                dropped[serial] = (f"dropped from the run at {event.time_s:.1f} s "
+                                   f"({event.details.get('reason', 'no reason recorded')})")
+    return dropped
+
+
 def finish_units(logs: list[RunLog], config: BenchConfig, out_dir: Path, run_id: str, sim: bool, *,
                  serials: Sequence[str] | None = None, solved: bool = True,
                  still_open: frozenset[str] = frozenset(),
@@ -166,12 +186,16 @@ def finish_units(logs: list[RunLog], config: BenchConfig, out_dir: Path, run_id:
         if serial not in known:
             raise SolveInputError(f"no unit {serial!r} in {logs[-1].path} (its units: {', '.join(known)})")
     out: dict[str, Finished] = {}
+    dropped = dropped_units(logs)
     for index, unit in enumerate(config.units):
         serial = unit.identity.serial
         if serials and serial not in serials:
             continue
+        if serial in dropped:       # failed while the run ran: what it sent before is not a calibration
+            out[serial] = Finished(RunKind.CALIBRATION, failures=[f"unit {serial} has no result: {dropped[serial]}"])
+            continue
         target = UnitTarget(out_dir, f"{run_id}.{serial}" + (".solved" if solved else ""), unit.identity.model,
-                            serial, "bench solve" if solved else "bench run", attach=attach)
+                            serial, "bench solve" if solved else None, attach=attach, units=tuple(known))
         try:
             recorded = recorded_unit(logs, config, index, sim, still_open)
             out[serial] = finish(recorded, target)

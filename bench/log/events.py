@@ -262,7 +262,7 @@ class StepFinished(StepEvent):
 @dataclass(frozen=True, kw_only=True)
 class Note(Event):
     """A line worth the log: `details` are the annotations it carries (an operator's command and its arguments,
-    the IMU link's counts, ...), logged as they are and read by no code."""
+    the IMU link's counts, ...), logged as they are and read by no code but one: a unit dropped (`UNIT_DROPPED`)."""
 
     details: dict[str, Any] = field(default_factory=dict)
 
@@ -286,6 +286,11 @@ class Fault(Note):
         if self.table_state is not None:
             out["table_state"] = self.table_state
         return {**out, **self.details}
+
+
+#: the `RunWarning` details key naming a unit of several dropped from the run (`bench.run.units` writes it,
+#: `bench.finish.units` reads it: that unit gets no result, saying why)
+UNIT_DROPPED = "unit_dropped"
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -120,7 +120,10 @@ def import_file(records: Records, path: str | Path, log_sha256: str | None = Non
     path = Path(path)
     if path.suffix == ".mcap":
         regular_file(path)
-        return records.add_run(log_run_info(path))
+        new = False
+        for info in log_run_infos(path):     # a run of several IMUs: one record per unit
+            new = records.add_run(info) or new
+        return new
     data, sha = read_json(path)
     fmt = data.get("format")
     if fmt == RESULT_FORMAT:
@@ -190,30 +193,43 @@ def result_run_info(data: dict[str, Any], path: Path, kind: str = "calibration")
     site = run.get("site") if isinstance(run.get("site"), dict) else None
     software = content.text(run.get("software_version") or data.get("software_version"), "run.software_version", 64)
     content.date(run.get("solved_utc"), "run.solved_utc")
-    info = RunInfo(run_id=run_id, model=content.text(imu.get("model"), "run.imu.model", 200),
-                   serial=content.text(imu.get("serial"), "run.imu.serial", 200), kind=kind,
+    serial = content.text(imu.get("serial"), "run.imu.serial", 200)
+    record_id, bench_run = unit_record_id(run_id, serial, run.get("units"))
+    info = RunInfo(run_id=record_id, model=content.text(imu.get("model"), "run.imu.model", 200),
+                   serial=serial, kind=kind, bench_run=bench_run,
                    mode=content.text(run.get("mode"), "run.mode", 32),
                    operator=content.text(run.get("operator"), "run.operator", 200), site=site,
                    plan=_plan(run.get("positions"), run.get("rotations")), software_version=software,
                    finished_utc=content.date(run.get("finished_utc"), "run.finished_utc"),
                    outcome=content.text(run.get("state"), "run.state", 32))
-    from_log = _log_next_to(path, run.get("log"), run_id)
+    from_log = _log_next_to(path, run.get("log"), record_id)
     return info if from_log is None else _merged(info, from_log)
 
 
+def unit_record_id(run_id: str, serial: str, units: Any) -> tuple[str, str | None]:
+    """(record run id, the run it is one unit of) of a result of `serial` in run `run_id`: a unit of a run of
+    several IMUs (`units`, the run section's serials of its units, names more than one and this one) is recorded
+    as `<run-id>.<serial>` of its run; a run of one IMU as `run_id` of none."""
+    if (isinstance(units, list) and len(units) > 1 and serial in units
+            and all(isinstance(unit, str) for unit in units)):
+        return content.text(f"{run_id}.{serial}", "run.run_id and run.imu.serial", 200), run_id
+    return run_id, None
+
+
 def _log_next_to(path: Path, log_name: Any, run_id: str) -> RunInfo | None:
-    """The run as the log a result file names describes it, when that log lies next to the file and is the run's
-    (None otherwise, or when the log is damaged beyond its metadata: the result stands on its own)."""
+    """The run (the unit's record, of a run of several IMUs) as the log a result file names describes it, when
+    that log lies next to the file and is the run's (None otherwise, or when the log is damaged beyond its
+    metadata: the result stands on its own)."""
     if not isinstance(log_name, str) or not log_name:
         return None
     log_path = path.parent / Path(log_name).name      # a name from a file never leaves the result's folder
     if not log_path.is_file():
         return None
     try:
-        from_log = log_run_info(log_path)
+        from_log = log_run_infos(log_path)
     except (OSError, BenchError):
         return None
-    return from_log if from_log.run_id == run_id else None
+    return next((info for info in from_log if info.run_id == run_id), None)
 
 
 def derivation_of(data: dict[str, Any], log_sha256: str | None = None) -> Derivation:
@@ -253,8 +269,31 @@ def _merged(result: RunInfo, log: RunInfo) -> RunInfo:
     return RunInfo(**{**log.__dict__, **{k: v for k, v in result.__dict__.items() if v not in (None, "", {}, ())}})
 
 
+def log_run_infos(path: Path) -> list[RunInfo]:
+    """The records of a run as its log's metadata records it (`log_run_info`): one, or for a run of several IMUs
+    (its `units` record) one per unit, `<run-id>.<serial>` of the run, each with the log."""
+    info, meta = _log_run(path)
+    units_json = (meta.get("units") or {}).get("units_json")
+    if not isinstance(units_json, str):
+        return [info]
+    try:
+        units = json.loads(units_json)
+        identities = [(content.text(unit["model"], "the log's units model", 200),
+                       content.text(unit["serial"], "the log's units serial", 200)) for unit in units]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise IngestError(f"the log's units record is malformed ({exc})") from None
+    serials = [serial for _, serial in identities]
+    return [RunInfo(**{**info.__dict__, "run_id": unit_record_id(info.run_id, serial, serials)[0], "model": model,
+                       "serial": serial, "bench_run": info.run_id}) for model, serial in identities]
+
+
 def log_run_info(path: Path) -> RunInfo:
     """A run as its log's metadata records it (the log's content hashed); InputError if it is no run log."""
+    return _log_run(path)[0]
+
+
+def _log_run(path: Path) -> tuple[RunInfo, dict[str, Any]]:
+    """`log_run_info` and the log's metadata."""
     # the log reader reads the metadata and summary, not the data chunks (those are read when asked for)
     from bench.log.reader import read_log
 
@@ -285,7 +324,7 @@ def log_run_info(path: Path) -> RunInfo:
                    plan=_plan(plan.get("positions"), plan.get("rotations")),
                    software_version=content.text(run.get("software_version"), "the log's run.software_version", 64),
                    started_utc=utc(run.get("started_utc")), log_complete=finished,
-                   equipment=equipment_used(meta.get("lab") or {}))
+                   equipment=equipment_used(meta.get("lab") or {})), meta
 
 
 def equipment_used(lab: dict[str, Any]) -> tuple[tuple[str, str], ...]:
@@ -313,5 +352,6 @@ def table_check_as_result(data: dict[str, Any]) -> dict[str, Any]:
             "quality": {k: data.get(k) for k in ("reduced_chi2", "dof", "residual_rms_arcsec") if k in data}}
 
 
-__all__ = ["ImportReport", "IngestError", "NotRecorded", "PATTERNS", "find_files", "import_file", "import_paths",
-           "equipment_used", "log_run_info", "derivation_of", "result_run_info", "sha256_of", "table_check_as_result"]
+__all__ = ["ImportReport", "IngestError", "NotRecorded", "PATTERNS", "derivation_of", "equipment_used", "find_files",
+           "import_file", "import_paths", "log_run_info", "log_run_infos", "result_run_info", "sha256_of",
+           "table_check_as_result", "unit_record_id"]

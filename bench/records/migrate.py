@@ -52,12 +52,22 @@ def _v4(conn: sa.Connection) -> None:
     metadata.create_all(conn, tables=[tables[name] for name in schema.LAB_TABLES])
 
 
+def _v5(conn: sa.Connection) -> None:
+    """A run of several IMUs, one record per unit: `runs.bench_run` and its index (see `bench.records.schema`).
+    Runs recorded before keep NULL (each a run of one IMU as recorded)."""
+    for column in schema.bench_run_column(5):
+        add_column(conn, "runs", column)
+    index = schema.bench_run_index()
+    sa.Table("runs", sa.MetaData(), sa.Column("bench_run", sa.String(200)), index)     # an index needs its table
+    index.create(conn)
+
+
 #: PostgreSQL's advisory lock key migrations hold (SQLite's writers take turns: `BEGIN IMMEDIATE`)
 _MIGRATION_LOCK = 0x7462_7265_636F  # "tbreco"
 
 
 #: version -> the migration that brings the version before it to it
-MIGRATIONS: dict[int, Callable[[sa.Connection], None]] = {1: _v1, 2: _v2, 3: _v3, 4: _v4}
+MIGRATIONS: dict[int, Callable[[sa.Connection], None]] = {1: _v1, 2: _v2, 3: _v3, 4: _v4, 5: _v5}
 
 
 def add_column(conn: sa.Connection, table: str, column: sa.Column) -> None:

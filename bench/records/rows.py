@@ -51,6 +51,8 @@ class RunInfo:
     log_complete: bool | None = None      # False: the log had no MCAP footer (still recording, or cut off)
     #: the equipment it used, as its log's `lab` metadata names it: (tag, serial; "" when the log has none)
     equipment: tuple[tuple[str, str], ...] = ()
+    #: a unit of a run of several IMUs: the run it is one unit of (its record's run id is `<run-id>.<serial>`)
+    bench_run: str | None = None
 
 
 #: `results.origin`: the result `bench run` wrote; `bench solve` of the whole intact log; what-if solves of a

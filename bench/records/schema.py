@@ -31,6 +31,11 @@ its due date; retired, never deleted); `run_equipment`, which equipment a run us
 metadata); `audit`, the append-only trail of who did what when (equipment added and retired, a run's result
 reviewed and signed): no row of it is ever updated or deleted, the code has no such statement and the
 database refuses one (a trigger on SQLite and PostgreSQL, `AUDIT_TRIGGERS`).
+
+Version 5 keeps a run of several IMUs (issue 31) as one record per unit: each unit's record has the run id
+`<run-id>.<serial>` (the stem of its files) and `runs.bench_run`, the run of the bench it is one unit of (NULL: a
+run of one IMU, or recorded before version 5), so a unit is found by its serial as any IMU is and the run's units
+by their run.
 """
 
 from __future__ import annotations
@@ -38,7 +43,7 @@ from __future__ import annotations
 import sqlalchemy as sa
 
 #: the schema version this software writes and reads
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 
 
 def define(metadata: sa.MetaData, version: int = SCHEMA_VERSION) -> dict[str, sa.Table]:
@@ -76,8 +81,10 @@ def define(metadata: sa.MetaData, version: int = SCHEMA_VERSION) -> dict[str, sa
         sa.Column("finished_utc", sa.DateTime, nullable=True),
         sa.Column("outcome", sa.String(32), nullable=False),        # the run's final state: done, aborted, ...
         *version_columns(version, "runs"),
+        *bench_run_column(version),
         sa.Index("ix_runs_unit_started", "unit_id", "started_utc"),
-        sa.Index("ix_runs_started", "started_utc"))
+        sa.Index("ix_runs_started", "started_utc"),
+        *([bench_run_index()] if version >= 5 else []))
     tables["results"] = sa.Table(
         "results", metadata,
         sa.Column("id", sa.Integer, primary_key=True),
@@ -162,6 +169,16 @@ AUDIT_TRIGGERS = (
     sa.DDL("CREATE TRIGGER audit_append_only BEFORE UPDATE OR DELETE OR TRUNCATE ON audit "
            "FOR EACH STATEMENT EXECUTE FUNCTION audit_append_only()").execute_if(dialect="postgresql"),
 )
+
+
+def bench_run_column(version: int) -> list[sa.Column]:
+    """`runs.bench_run` (version 5): the run of the bench a unit's record is one unit of; None: a run of one IMU."""
+    return [sa.Column("bench_run", sa.String(200), nullable=True)] if version >= 5 else []
+
+
+def bench_run_index() -> sa.Index:
+    """The index on `runs.bench_run` (version 5): a run's units found by their run."""
+    return sa.Index("ix_runs_bench_run", "bench_run")
 
 
 def version_columns(version: int, table: str, since: int = 3) -> list[sa.Column]:

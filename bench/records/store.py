@@ -116,6 +116,40 @@ class Records:
         with self._connect() as conn:
             return conn.execute(sa.select(r.c.id).where(r.c.run_id == run_id)).first() is not None
 
+    def units_of_run(self, bench_run: str) -> list[tuple[str, str]]:
+        """(record run id, serial) of every unit recorded of the run of several IMUs `bench_run`, by record."""
+        r, u = schema.runs, schema.units
+        query = (sa.select(r.c.run_id, u.c.serial).join(u, u.c.id == r.c.unit_id)
+                 .where(r.c.bench_run == bench_run).order_by(r.c.run_id))
+        with self._connect() as conn:
+            return [(run_id, serial) for run_id, serial in conn.execute(query)]
+
+    def unit_record(self, run_id: str, serial: str | None = None) -> str:
+        """The record run id that `run_id` and `serial` (`--unit`) name: a record's run id as it is (its unit
+        must be `serial` when given); a run of several IMUs by its run id, one unit of it by `serial`, or the only
+        one recorded. RecordsError in one line otherwise (no such run; several units and no `serial`)."""
+        units = self.units_of_run(run_id)
+        if not units:
+            r, u = schema.runs, schema.units
+            with self._connect() as conn:
+                found = conn.execute(sa.select(u.c.serial).join(r, r.c.unit_id == u.c.id)
+                                     .where(r.c.run_id == run_id)).first()
+            if found is None:
+                raise RecordsError(f"no run {run_id!r} in the records")
+            if serial is not None and found[0] != serial:
+                raise RecordsError(f"run {run_id!r} is of unit {found[0]!r}, not {serial!r}")
+            return run_id
+        if serial is not None:
+            for record, unit in units:
+                if unit == serial:
+                    return record
+            raise RecordsError(f"run {run_id!r} has no unit {serial!r} recorded (its units: "
+                               f"{', '.join(unit for _, unit in units)})")
+        if len(units) > 1:
+            raise RecordsError(f"run {run_id!r} calibrated {len(units)} units ({', '.join(u for _, u in units)}): "
+                               f"name one with --unit SERIAL")
+        return units[0][0]
+
     def has_result(self, run_id: str, software_version: str) -> bool:
         """A result of `run_id` solved by `software_version` is recorded (what a resumed archive re-solve skips)."""
         r, s = schema.runs, schema.results
@@ -320,7 +354,7 @@ def _unit_id(conn: sa.Connection, model: str, serial: str) -> int:
 
 
 _RUN_FIELDS = ("kind", "mode", "operator", "site", "table_url", "plan", "software_version", "started_utc",
-               "finished_utc", "outcome")
+               "finished_utc", "outcome", "bench_run")
 _LOG_FIELDS = ("log_path", "log_sha256", "log_complete")
 
 

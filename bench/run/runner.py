@@ -351,11 +351,15 @@ class BenchRun:
         table, receiver, recorder, clock = self._opened()
         assert self.devices is not None          # (_opened checked it)
         source = self.devices.imu_source()
-        units = UnitsSource(source, self.devices.units, recorder) if self.config.several else None
+        options = self.options()
+        units = UnitsSource(source, self.devices.units, recorder, now=clock.now, timeout_s=options.imu_timeout_s,
+                            on_failure=self.config.on_unit_failure) if self.config.several else None
         imu = units if units is not None else source
         self.sequencer = sequencer = Sequencer(self.plan.steps, table, imu, clock,
-                                               [recorder, *self.extra_listeners], self.options(), self.completed,
+                                               [recorder, *self.extra_listeners], options, self.completed,
                                                chamber=self.chamber)
+        if units is not None:       # a unit that fails: a warning in the log, the unit dropped ([run] on_unit_failure)
+            units.warn = sequencer.warn
         if self._abort_reason is not None:      # asked for while the devices opened: the run ends at once
             sequencer.abort(self._abort_reason)
         table.reset_faults()

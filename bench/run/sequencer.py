@@ -235,6 +235,11 @@ class Sequencer:
                        self.current_step)
 
     # -- events ----------------------------------------------------------------------
+    def warn(self, message: str, details: dict[str, Any]) -> None:
+        """A warning of the current step from outside the sequencer's own checks (a unit of several dropped:
+        `bench.run.units`), with the `details` that annotate it."""
+        self._emit(RunWarning, message, self.current_step, details=details)
+
     def _emit(self, kind: Callable[..., Event], message: str, at: Step | None = None, **fields: Any) -> None:
         """An event of class `kind` now, of step `at` (None: of no step), with its kind's `fields`."""
         event = kind(self.clock.now(), message, at.index if at is not None else None,

@@ -11,12 +11,16 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
 from bench.config.load import BenchConfig, ImuConfig
 from bench.config.units import bus_name
+from bench.errors import BenchError
+from bench.log.events import UNIT_DROPPED
 from bench.log.recorder import McapRecorder
+from drivers.imu import ImuStats
 from drivers.imu.frames import CanFrameBatch
 from drivers.imu.layout import EXTENDED_ID_FLAG
 from drivers.imu.receiver import ImuReceiver
@@ -30,12 +34,41 @@ class UnitLink:
     receiver: ImuReceiver
 
 
+class UnitFailed(BenchError):
+    """A unit other than the reference one failed and the configuration says stop (`[run] on_unit_failure`)."""
+
+
+@dataclass
+class _Watch:
+    """When a unit's last sample came (run clock, s; None: not polled yet) and its garbled frames then."""
+
+    last_sample_at: float | None = None
+    garbled_then: int = 0
+
+
+def _garbled(stats: ImuStats) -> int:
+    """Frames of the unit's own ids it could not use (a shared bus's other ids are not the unit's garbage)."""
+    return stats.crc_errors + stats.wrong_length + stats.duplicates + stats.late
+
+
 class UnitsSource:
     """The sequencer's IMU source in a run of several units: `reference` (a receiver, or the simulator's pumped
-    one) polled as ever, then each of `units`, recorded on its own topics by `recorder`."""
+    one) polled as ever, then each of `units`, recorded on its own topics by `recorder`.
 
-    def __init__(self, reference, units: list[UnitLink], recorder: McapRecorder):
-        self._reference, self.units, self._recorder = reference, units, recorder
+    A unit that fails (no valid sample for `timeout_s` of the run's clock `now`: silent, or only garbled frames) is
+    reported with `warn(message, details)` and dropped: no longer read, its result none and saying why
+    (`on_failure` "continue"); or `poll` raises `UnitFailed` and the sequencer stops the run safely ("stop"). A unit
+    that loses some samples but keeps sending is not dropped: its lost samples are in its result and its verdict
+    judges them ([acceptance] max_lost_samples)."""
+
+    def __init__(self, reference, units: list[UnitLink], recorder: McapRecorder, *,
+                 now: Callable[[], float] | None = None, timeout_s: float = 2.0, on_failure: str = "continue",
+                 warn: Callable[[str, dict], None] | None = None):
+        self._reference, self.units, self._recorder = reference, list(units), recorder
+        self._now, self._timeout_s, self._on_failure, self.warn = now, timeout_s, on_failure, warn
+        self._watch = {unit.serial: _Watch() for unit in units}
+        #: serial -> why it was dropped
+        self.dropped: dict[str, str] = {}
         for unit in units:
             unit.receiver.on_frames = self._recording(unit)
 
@@ -60,11 +93,34 @@ class UnitsSource:
         return block
 
     def drain_units(self, flush: bool = False) -> None:
-        """Every other unit's samples received so far to its topic (`flush`: with those still pending)."""
-        for unit in self.units:
+        """Every other unit's samples received so far to its topic (`flush`: with those still pending); a unit
+        silent for longer than the timeout fails (not when flushing at the end)."""
+        for unit in list(self.units):
             block = unit.receiver.flush() if flush else unit.receiver.poll()
             if len(block):
                 self._recorder.on_unit_imu(unit.serial, block)
+            if not flush and self._now is not None:
+                self._check(unit, len(block) > 0)
+
+    def _check(self, unit: UnitLink, sampled: bool) -> None:
+        assert self._now is not None
+        now, watch, stats = self._now(), self._watch[unit.serial], unit.receiver.stats
+        if sampled or watch.last_sample_at is None:
+            watch.last_sample_at, watch.garbled_then = now, _garbled(stats)
+            return
+        quiet_s = now - watch.last_sample_at
+        if quiet_s <= self._timeout_s:
+            return
+        garbled = _garbled(stats) - watch.garbled_then
+        reason = (f"no valid sample for {quiet_s:.1f} s, {garbled} garbled frame(s) of its ids (CRC, length, late, "
+                  f"duplicate)" if garbled else f"silent: no sample for {quiet_s:.1f} s")
+        if self._on_failure == "stop":
+            raise UnitFailed(f"unit {unit.serial} failed: {reason} ([run] on_unit_failure = \"stop\")")
+        self.units.remove(unit)
+        self.dropped[unit.serial] = reason
+        if self.warn is not None:
+            self.warn(f"unit {unit.serial} dropped from the run: {reason}; the other units go on",
+                      {UNIT_DROPPED: unit.serial, "reason": reason, "imu_stats": stats.as_dict()})
 
     def flush(self):
         return self._reference.flush()
@@ -104,4 +160,4 @@ def other_serials(config: BenchConfig) -> list[str]:
     return [unit.identity.serial for unit in config.units[1:]]
 
 
-__all__ = ["UnitLink", "UnitsSource", "other_serials", "unit_record", "units_metadata"]
+__all__ = ["UnitFailed", "UnitLink", "UnitsSource", "other_serials", "unit_record", "units_metadata"]

@@ -15,6 +15,7 @@ hardware run ignores the section).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 from collections.abc import Iterable
@@ -27,6 +28,7 @@ import numpy as np
 from bench.config.chamber import ChamberConfig
 from bench.config.load import BenchConfig, SimConfig
 from bench.config.rig import RigIdentity, this_rig
+from bench.config.units import FACES
 from bench.model.imu import NoiseModel
 from bench.model.units import DEG
 from bench.sim.can_imu import SimCanImu
@@ -36,6 +38,7 @@ from bench.sim.serve import IDLE_TIMEOUT_S
 from bench.sim.slcan_server import SlcanPeer, SlcanPtyServer
 from bench.sim.socketcand_server import SocketcandServer
 from bench.sim.table import SimTable, TableLimits
+from bench.sim.units import mounted_view, unit_seed, unit_truth
 from drivers.chamber import ChamberLimits
 from drivers.imu import SHIPPED_LAYOUTS, ImuFrameSpec
 from drivers.imu.layout import CHANNELS
@@ -147,6 +150,19 @@ class SimRig:
                            higher_order=sim.higher_order)
         self.bus = RigBus()
         self.can_imu = SimCanImu(self.controller, self.imu, self.bus, config.imu.layout)
+        #: a rig of several IMUs (`config.units`, `bench sim rig --imus N`): every unit but the first, each with its
+        #: own truth and noise seed (as `bench run --sim` draws them), ids and mounting, on the rig's one bus
+        self.units: list[SimCanImu] = []
+        for k, unit in enumerate(config.units):
+            if k == 0:
+                can_imu = self.can_imu
+            else:
+                imu = SimImu(unit_truth(sim.imu, k, sim.seed), sim.noise, rate_hz=unit.rate_hz,
+                             seed=unit_seed(sim.seed, k))
+                can_imu = SimCanImu(self.controller, imu, self.bus, unit.layout)
+                self.units.append(can_imu)
+            if unit.mounting is not None and unit.mounting != FACES["z-up"]:
+                can_imu.table = mounted_view(self.controller.table, unit.mounting)
         self.peers: list[RigPeer] = []
         self._servers: list[Any] = []
 
@@ -188,11 +204,15 @@ class SimRig:
     def start(self) -> None:
         """The IMU starts sending (in wall-clock time, from its own thread)."""
         self.can_imu.start(IMU_PERIOD_S)
+        for unit in self.units:
+            unit.start(IMU_PERIOD_S)
 
     def close(self) -> None:
         """Stop the IMU, then the peers; re-raises what stopped the IMU's thread, if anything did."""
         try:
-            self.can_imu.stop()
+            with contextlib.ExitStack() as stack:       # every unit stopped, even when one's thread failed
+                for can_imu in (self.can_imu, *self.units):
+                    stack.callback(can_imu.stop)
         finally:
             for server in reversed(self._servers):
                 try:
@@ -207,6 +227,16 @@ class SimRig:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _imu_entries(imu_lines: list[str], options: str, imus: int) -> str:
+    """The written configuration's [imu] (one unit), or its `imus` [[imu]] entries."""
+    identity = '[imu.identity]\nmodel = "simulated FOG IMU (bench sim rig)"\n'
+    if imus <= 1:
+        return f"[imu]\n{chr(10).join(imu_lines)}\n{options}\n{identity}serial = \"RIG-0001\"\n"
+    return "\n".join(f"[[imu]]\n{chr(10).join(imu_lines)}\nid_offset = {k * RIG_ID_OFFSET}\n"
+                     f"mounting = {_toml(RIG_FACES[k % len(RIG_FACES)])}\n{options}\n{identity}"
+                     f"serial = \"RIG-{k + 1:04d}\"\n" for k in range(imus))
 
 
 # -- the IMU's fault console ---------------------------------------------------------
@@ -349,11 +379,17 @@ def chamber_section(url: str, dialect: str, chamber: ChamberConfig | None) -> st
     return "\n".join(lines) + "\n"
 
 
+#: the faces the units of `bench sim rig --imus N` sit on, in turn (unit k: RIG_FACES[k % 6]), and their ids' offset
+RIG_FACES = ("z-up", "x-up", "y-up", "z-down", "x-down", "y-down")
+RIG_ID_OFFSET = 16
+
+
 def rig_config_text(config: BenchConfig, table_url: str, dialect: str, peer: RigPeer,
-                    chamber: tuple[str, str] | None = None, rig: RigIdentity | None = None) -> str:
+                    chamber: tuple[str, str] | None = None, rig: RigIdentity | None = None, imus: int = 1) -> str:
     """A bench configuration (bench.example.toml's format) pointing at the rig: its table and IMU, its site
     and truth, and a default plan to edit; `chamber` (url, dialect) adds the rig's chamber; `rig` marks the file
-    valid only while that rig runs (a comment, and [imu.rig] for `bench run` to check)."""
+    valid only while that rig runs (a comment, and [imu.rig] for `bench run` to check). `imus` > 1: that many
+    [[imu]] entries on the rig's one bus, unit k's ids offset by k * RIG_ID_OFFSET, on face RIG_FACES[k % 6]."""
     site, imu = config.site, config.imu
     site_lines = [f"latitude_deg = {site.latitude_deg!r}", f"height_m = {site.height_m!r}"]
     if site.local_g_mps2 is not None:
@@ -401,13 +437,7 @@ dialect = {_toml(dialect)}
 # what the bench may demand; the simulated table moves at these rates and accelerations
 {chr(10).join(limit_lines).lstrip()}
 
-[imu]
-{chr(10).join(imu_lines)}
-{options}
-[imu.identity]
-model = "simulated FOG IMU (bench sim rig)"
-serial = "RIG-0001"
-
+{_imu_entries(imu_lines, options, imus)}
 [plan]
 positions = "optimal-24"
 rotations = "optimal-5s6r"
@@ -422,6 +452,5 @@ folder = "runs"
 {sim_section(config.sim)}""" + ("" if chamber is None else "\n" + chamber_section(*chamber, config.chamber))
 
 
-__all__ = ["RigBus", "RigPeer", "SimRig", "SocketcanPeer", "apply_imu_command", "chamber_section", "imu_layout_lines",
-           "imu_status",
-           "rig_config_text", "sim_section"]
+__all__ = ["RIG_FACES", "RIG_ID_OFFSET", "RigBus", "RigPeer", "SimRig", "SocketcanPeer", "apply_imu_command",
+           "chamber_section", "imu_layout_lines", "imu_status", "rig_config_text", "sim_section"]

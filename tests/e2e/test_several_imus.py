@@ -4,10 +4,12 @@ body axes from its own topics; `bench solve` reproduces every unit's result bit 
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
 
+from bench.log.events import RunListener, StepStarted
 from bench.log.reader import read_log
 from tests.helpers.run import cli, only_file
 
@@ -46,7 +48,8 @@ def several_run(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("several")
     config = folder / "several.toml"
     config.write_text(several_config(), encoding="utf-8")
-    rc, out, err = cli(["run", "--config", str(config), "--out", str(folder / "run"), "--no-db", "--quiet"])
+    rc, out, err = cli(["run", "--config", str(config), "--out", str(folder / "run"), "--db",
+                        str(folder / "records.sqlite"), "--quiet"])
     assert rc == 0, err
     assert "unit A2: verdict" in out and "unit B1: verdict" in out
     return only_file(folder / "run", "*.mcap")
@@ -147,3 +150,122 @@ def test_the_reference_unit_is_solved_bit_for_bit_as_a_single_imu_of_the_same_pl
 def test_unit_is_refused_for_a_log_of_one_imu(short_run, tmp_path):
     rc, _, err = cli(["solve", str(short_run.log), "--out", str(tmp_path), "--no-db", "--unit", "A1"])
     assert rc == 2 and "records one IMU, not several ([[imu]]): drop --unit" in err
+
+
+def test_each_unit_is_a_record_of_its_own_in_the_records(several_run, tmp_path):
+    """`bench run` recorded every unit, `<run-id>.<serial>` of its run, as `bench db import` of its files does;
+    `bench solve` adds each unit's re-solve to that unit's record; a certificate is of one unit (--unit)."""
+    from bench.records.store import open_records
+
+    run_id, serials = several_run.stem, [serial for serial, *_ in UNITS]
+    imported = tmp_path / "imported.sqlite"
+    rc, _, err = cli(["db", "--db", str(imported), "import", str(several_run.parent), "--quiet"])
+    assert rc == 0, err
+    for db in (several_run.parent.parent / "records.sqlite", imported):
+        with open_records(str(db), create=False) as records:
+            assert records.units_of_run(run_id) == [(f"{run_id}.{serial}", serial) for serial in serials]
+            for serial in serials:
+                rows = records.list_runs(serial=serial)
+                assert [row.run_id for row in rows] == [f"{run_id}.{serial}"], db
+                truth = [r for r in records.results_of(f"{run_id}.{serial}") if r.truth]
+                assert len(truth) == 1 and truth[0].origin == "run"
+                assert Path(truth[0].path).name == f"{run_id}.{serial}.result.json"
+            assert not records.run_known(run_id)            # the run is its units' records, none of its own
+    rc, out, _ = cli(["db", "--db", str(imported), "list"])
+    assert rc == 0 and all(f"{run_id}.{serial}" in out for serial in serials)
+    rc, out, _ = cli(["db", "--db", str(imported), "results", run_id, "--unit", "A2"])
+    assert rc == 0 and out.startswith(f"results of run {run_id}.A2 ")
+    rc, _, err = cli(["db", "--db", str(imported), "results", run_id])
+    assert rc == 2 and "calibrated 3 units (A1, A2, B1): name one with --unit SERIAL" in err
+    rc, out, err = cli(["solve", str(several_run), "--out", str(tmp_path / "solved"), "--db", str(imported),
+                        "--no-html", "--unit", "B1"])
+    assert rc == 0, err
+    with open_records(str(imported), create=False) as records:
+        assert sorted(r.origin for r in records.results_of(f"{run_id}.B1")) == ["re-solve", "run"]
+        assert [r.origin for r in records.results_of(f"{run_id}.A2")] == ["run"]
+    base = ["cert", "--db", str(imported)]
+    for argv, words in (([*base, "review", run_id, "--reviewer", "bob"],
+                         f"run '{run_id}' calibrated 3 units (A1, A2, B1): name one with --unit SERIAL"),
+                        ([*base, "issue", run_id, "--out", str(tmp_path / "cert")], "name one with --unit SERIAL"),
+                        ([*base, "review", run_id, "--unit", "C9", "--reviewer", "bob"], "has no unit 'C9' recorded")):
+        rc, _, err = cli(argv)
+        assert rc == 2 and err.count("\n") == 1 and words in err, err
+    assert cli([*base, "review", run_id, "--unit", "A2", "--reviewer", "bob"])[0] == 0
+    assert cli([*base, "sign", f"{run_id}.A2", "--signer", "carol", "--role", "technical manager"])[0] == 0
+    rc, out, err = cli([*base, "issue", run_id, "--unit", "A2", "--out", str(tmp_path / "cert")])
+    assert rc == 0, err
+    rc, out, _ = cli([*base, "trail", run_id, "--unit", "A2"])
+    assert rc == 0 and out.splitlines()[-1] == "2 entries" and f"of run {run_id}.A2 " in out
+
+
+class _SilenceAt(RunListener):
+    """Silences a simulated unit (it sends nothing more; `garble`: every frame with a bad CRC) when step `index`
+    starts: a unit that fails mid-run."""
+
+    def __init__(self, run, index: int, garble: bool = False) -> None:
+        self.run, self.index, self.garble = run, index, garble
+
+    def on_event(self, event) -> None:
+        if isinstance(event, StepStarted) and event.step_index == self.index:
+            unit = self.run.world.units[0]
+            (unit.corrupt_crc if self.garble else unit.drop_frames)(10 ** 9)
+
+
+def _run_silencing_a2(tmp_path: Path, on_unit_failure: str, garble: bool = False):
+    """A run of A1 and A2 with [run] on_unit_failure, A2 silenced (or garbled) when the plan's 30th step starts."""
+    from bench.config.load import parse_config
+    from bench.run.devices import SIMULATOR
+    from bench.run.runner import BenchRun, compile_from_config
+
+    text = several_config(UNITS[:2], black_box_arcsec=0.0) + f'[run]\non_unit_failure = "{on_unit_failure}"\n'
+    config = parse_config(text, source="two.toml")
+    assert config.on_unit_failure == on_unit_failure
+    plan = compile_from_config(config)
+    assert len(plan.steps) > 40
+    run = BenchRun(config, plan, devices=SIMULATOR, out_dir=tmp_path)
+    run.extra_listeners.append(_SilenceAt(run, 30, garble))
+    with run:
+        run.open()
+        state = run.run()
+        outcome = run.finish()
+    return run, state, outcome
+
+
+def test_a_unit_silenced_mid_run_is_dropped_and_the_others_finish(tmp_path):
+    run, state, outcome = _run_silencing_a2(tmp_path, "continue")
+    assert state.value == "done" and outcome.error is None
+    assert outcome.result is not None and outcome.result.run.imu.serial == "A1"
+    assert outcome.verdict is not None and not outcome.verdict.failed         # the reference unit finished
+    silent = outcome.units["A2"]
+    assert silent.result is None and not (tmp_path / f"{run.run_id}.A2.result.json").exists()
+    assert len(silent.failures) == 1
+    assert silent.failures[0].startswith("unit A2 has no result: dropped from the run at ")
+    quiet_s = float(re.search(r"\(silent: no sample for ([0-9.]+) s\)$", silent.failures[0]).group(1))
+    assert quiet_s > 2.0                                                # longer than the IMU timeout
+    log = read_log(run.log_path)
+    warnings = [e for e in log.events if e.message.startswith("unit A2 dropped from the run: silent")]
+    assert len(warnings) == 1 and warnings[0].step_index is not None and warnings[0].step_index >= 30
+    assert log.scan().complete                                      # the log was closed whole
+    rc, out, err = cli(["solve", str(run.log_path), "--out", str(tmp_path / "solved"), "--no-db", "--no-html"])
+    assert rc == 4 and "unit A1: result:" in out and "unit A2 has no result: dropped from the run at" in err
+
+
+def test_a_unit_that_fails_stops_the_run_when_configured(tmp_path):
+    run, state, outcome = _run_silencing_a2(tmp_path, "stop")
+    assert state.value == "failed" and outcome.result is None
+    assert str(outcome.error).startswith("unit A2 failed: silent: no sample for ")
+    assert str(outcome.error).endswith('([run] on_unit_failure = "stop")')
+    log = read_log(run.log_path)
+    assert log.scan().complete                                      # closed, not cut off
+    messages = [e.message for e in log.events]
+    assert messages[-2:] == ["table stopped and servos off", "run ended early; table stopped"]   # the safe stop
+    assert sum(m.startswith("UnitFailed: unit A2 failed: silent") for m in messages) == 2       # fault, transition
+
+
+def test_a_unit_sending_only_garbage_is_dropped_saying_so(tmp_path):
+    _, state, outcome = _run_silencing_a2(tmp_path, "continue", garble=True)
+    assert state.value == "done" and outcome.result is not None and outcome.units["A1"].result is not None
+    why = outcome.units["A2"].failures[0]
+    assert outcome.units["A2"].result is None and why.startswith("unit A2 has no result: dropped from the run at ")
+    garbled = int(re.search(r"no valid sample for [0-9.]+ s, (\d+) garbled frame\(s\) of its ids", why).group(1))
+    assert garbled > 0

@@ -16,6 +16,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import can
 import numpy as np
@@ -323,6 +324,14 @@ def _start_rig(*args: str) -> subprocess.Popen:
     return start_sim("rig", *args)
 
 
+def _start_rig_writing(tmp_path, dialect: str, *args: str) -> tuple[subprocess.Popen, Path]:
+    """A rig of RIG_CONFIG in `dialect` with `args`, writing its bench configuration: (the rig, that file)."""
+    rig_config = tmp_path / "rig.toml"
+    rig_config.write_text(RIG_CONFIG.format(dialect=dialect))
+    written = tmp_path / "bench.toml"
+    return _start_rig("--config", str(rig_config), *args, "--write-config", str(written)), written
+
+
 def _with_plan(text: str, plan: str) -> str:
     start, end = text.index("[plan]"), text.index("[output]")
     return text[:start] + plan + text[end:]
@@ -395,11 +404,7 @@ def test_bench_run_against_the_rig_in_another_process_recovers_its_truth(tmp_pat
 def test_bench_run_of_a_rig_speaking_another_dialect_suggests_checking_it(tmp_path):
     """Issue 33, item 13: the rig's table speaks MN, the configuration says SCPI: the run stops before anything
     moves, in one line that says to check `[table] dialect` (not only that there was no reply)."""
-    rig_config = tmp_path / "rig.toml"
-    rig_config.write_text(RIG_CONFIG.format(dialect="mn"))
-    written = tmp_path / "bench.toml"
-    rig = _start_rig("--config", str(rig_config), "--table-listen", "tcp://127.0.0.1:0", "--imu-listen", "slcan",
-                     "--write-config", str(written))
+    rig, written = _start_rig_writing(tmp_path, "mn", "--table-listen", "tcp://127.0.0.1:0", "--imu-listen", "slcan")
     try:
         read_until(rig, "Ctrl-C stops")
         text = _with_plan(written.read_text(), SHORT_PLAN)
@@ -563,3 +568,48 @@ def test_python_cans_socketcand_warnings_about_reads_that_end_inside_a_frame_are
                 assert not warnings and INCOMPLETE_READ_FILTER.dropped > 0
             else:
                 assert warnings                 # what python-can's client says on its own
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)     # a plan in wall-clock time: ~1 min
+def test_bench_run_against_a_rig_of_two_imus_recovers_each_units_truth(tmp_path):
+    """`bench sim rig --imus 2` over socketcand: two units on one bus (ids offset 16, faces z-up and x-up), each with
+    its own truth; `bench run` of the written [[imu]] configuration solves each in its own body axes."""
+    from bench.sim.units import unit_truth
+
+    rig, written = _start_rig_writing(tmp_path, "scpi", "--imu-listen", "socketcand://127.0.0.1:0", "--imus", "2")
+    try:
+        startup = read_until(rig, "Ctrl-C stops")
+        assert any("units on that bus: RIG-0001 (z-up, ids +0), RIG-0002 (x-up, ids +16)" in line
+                   for line in startup), startup
+        written.write_text(_with_plan(written.read_text(), SHORT_PLAN))
+        config = load_config(written)
+        assert [(u.identity.serial, u.mounting_name, u.id_offset, u.interface) for u in config.units] == [
+            ("RIG-0001", "z-up", 0, "socketcand"), ("RIG-0002", "x-up", 16, "socketcand")]
+        out = tmp_path / "runs"
+        run = subprocess.run([sys.executable, "-m", "bench.cli", "run", "--config", str(written), "--out", str(out),
+                              "--quiet", "--no-db"], cwd=REPO, capture_output=True, text=True, timeout=200)
+        assert run.returncode == 0, run.stderr
+        for k, unit in enumerate(config.units):
+            result = json.loads(only_file(out, f"*.{unit.identity.serial}.result.json").read_text())
+            assert result["run"]["imu"]["serial"] == unit.identity.serial and result["run"]["mode"] == "hardware"
+            link = result["run"]["imu_link"]
+            assert link["incomplete_samples"] == link["counter_gaps"] == link["crc_errors"] == 0, link
+            truth = {name: entry.to_json()["value"] for name, entry in coefficient_table(
+                unit_truth(config.sim.imu, k, config.sim.seed).to_canonical()).items()}
+            misses = [f"{unit.identity.serial} {name}: {result['coefficients'][name]['value']!r} vs {value!r}"
+                      for name, value in truth.items()
+                      if not abs(result["coefficients"][name]["value"] - value)
+                      <= K_SIGMA * result["coefficients"][name]["sigma"]]
+            assert not misses, misses
+        rig.send_signal(signal.SIGTERM)
+        assert rig.wait(timeout=10) == 0
+    finally:
+        stop_process(rig)
+
+
+def test_a_rig_of_several_imus_is_refused_on_slcan_in_one_line():
+    rc, _, err = cli(["sim", "rig", "--imus", "2"])
+    assert rc == 2 and err.count("\n") == 1 and "an SLCAN adapter (a pty) takes one client" in err
+    rc, _, err = cli(["sim", "rig", "--imus", "0", "--imu-listen", "socketcand://127.0.0.1:0"])
+    assert rc == 2 and "--imus must be 1..16, not 0" in err

@@ -126,3 +126,13 @@ def test_several_units_with_a_verification_plan_are_not_supported_yet():
                         '"verify-default"\n') + unit()
     with pytest.raises(ConfigError, match="not supported yet"):
         parse_config(text)
+
+
+def test_on_unit_failure_is_continue_stop_or_named():
+    assert parse(unit(), unit("A2", channel="b")).on_unit_failure == "continue"
+    config = parse_config(HEAD + unit() + unit("A2", channel="b") + '[run]\non_unit_failure = "stop"\n', "multi.toml")
+    assert config.on_unit_failure == "stop"
+    with pytest.raises(ConfigError) as info:
+        parse_config(HEAD + unit() + '[run]\non_unit_failure = "pause"\n', "multi.toml")
+    assert "multi.toml" in str(info.value) and "run.on_unit_failure" in str(info.value)
+    assert 'expected one of continue, stop' in str(info.value)

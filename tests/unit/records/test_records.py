@@ -6,6 +6,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import math
+import re
 from pathlib import Path
 
 import pytest
@@ -78,6 +79,41 @@ def check_migrations(url: str) -> None:
 
 def test_migrations_on_sqlite(tmp_path):
     check_migrations(f"sqlite:///{tmp_path / 'r.sqlite'}")
+
+
+def test_a_version_4_database_migrates_to_one_record_per_unit(tmp_path):
+    """Version 5 (a run of several IMUs, one record per unit): a version-4 database keeps its runs, each a run of
+    one IMU (`bench_run` NULL), and takes a unit's record of a run of several."""
+    from bench.records.store import RunInfo
+
+    url = f"sqlite:///{tmp_path / 'v4.sqlite'}"
+    engine = sa.create_engine(url)
+    try:
+        assert migrate(engine, target=4) == (0, 4)
+        with engine.begin() as conn:
+            v4 = schema.define(sa.MetaData(), 4)
+            assert "bench_run" not in {c.name for c in v4["runs"].columns}
+            unit = conn.execute(sa.insert(v4["units"]).values(model="M", serial="S1")).inserted_primary_key[0]
+            conn.execute(sa.insert(v4["runs"]).values(
+                run_id="r1", unit_id=unit, kind="calibration", mode="hardware", operator="ann", table_url="",
+                plan="", software_version="0.0.9", outcome="done", started_utc=T0, log_complete=True))
+    finally:
+        engine.dispose()
+    with open_records(url) as records:
+        with records.connection() as conn:
+            assert current_version(conn) == schema.SCHEMA_VERSION == 5
+            assert conn.execute(sa.select(schema.runs.c.run_id, schema.runs.c.bench_run)).all() == [("r1", None)]
+        assert _schema_of(records.engine) == _expected_schema()
+        assert records.unit_record("r1") == "r1" and records.units_of_run("r1") == []
+        for serial in ("A", "B"):
+            records.add_run(RunInfo(run_id=f"r2.{serial}", model="M", serial=serial, bench_run="r2"))
+        assert records.units_of_run("r2") == [("r2.A", "A"), ("r2.B", "B")]
+        assert records.unit_record("r2", "B") == "r2.B" and records.unit_record("r2.B") == "r2.B"
+        for args, words in ((("r2",), "calibrated 2 units (A, B): name one with --unit SERIAL"),
+                            (("r2", "C"), "has no unit 'C'"), (("r1", "A"), "is of unit 'S1', not 'A'"),
+                            (("r9",), "no run 'r9'")):
+            with pytest.raises(RecordsError, match=re.escape(words)):
+                records.unit_record(*args)
 
 
 def test_a_database_of_something_else_is_refused(tmp_path):
