@@ -226,10 +226,16 @@ def write_output_text(out: str | os.PathLike, text: str, inputs: Iterable[str | 
         temporary.write_text(text, encoding="utf-8")
 
 
-def folder_reason(exc: OSError) -> str:
-    """Why a folder cannot be made, in words: a file where it should be is said so (not "File exists")."""
+def folder_reason(exc: OSError, folder: str | os.PathLike | None = None) -> str:
+    """Why `folder` cannot be made, in words: a file where it or one of its parents should be is named (not "File
+    exists" or "Not a directory")."""
     if isinstance(exc, (FileExistsError, NotADirectoryError)):
-        return "it is a file, not a folder"
+        path = Path(folder) if folder is not None else None
+        if path is None or path.is_file():
+            return "it is a file, not a folder"
+        in_the_way = next((parent for parent in path.parents if parent.is_file()), None)
+        if in_the_way is not None:
+            return f"{_short(in_the_way)} is a file, not a folder"
     return str(exc.strerror or exc)
 
 
@@ -239,7 +245,7 @@ def make_output_folder(folder: str | os.PathLike, option: str = "--out") -> Path
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise OutputFileError(f"{option} {_short(path)}: {folder_reason(exc)}") from exc
+        raise OutputFileError(f"{option} {_short(path)}: {folder_reason(exc, path)}") from exc
     return path
 
 

@@ -20,7 +20,6 @@ from bench.files import write_output_text
 from bench.model.result import CalibrationResult
 from bench.model.run_section import RunInfo
 from bench.report.facts import lost_samples_note
-from bench.solve.extended import parse_terms
 
 PROG = "bench solve"
 
@@ -243,6 +242,8 @@ def _model_terms(option: str | None) -> tuple[str, ...] | None:
         return None
     if option.strip() == "30":
         return ()
+    from bench.solve.extended import parse_terms  # scipy: not loaded for --help
+
     terms = tuple(t.strip() for t in option.split(",") if t.strip())
     parse_terms(terms)
     return terms

@@ -249,7 +249,7 @@ class BenchRun:
             with tempfile.TemporaryFile(dir=self.out_dir):
                 pass
         except OSError as exc:
-            raise OutputFolderError(f"output folder {self.out_dir}: {folder_reason(exc)}") from exc
+            raise OutputFolderError(f"output folder {self.out_dir}: {folder_reason(exc, self.out_dir)}") from exc
 
     def _open_recorder(self) -> None:
         self.recorder = recorder = self._new_recorder(self.log_path, self._metadata())

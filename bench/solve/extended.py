@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from typing import Iterable
 
 import numpy as np
-from scipy import stats
+from scipy.special import chdtrc  # the chi-square tail, without loading all of scipy's statistics
 
 from bench.model.earth import Site
 from bench.model.extended import FAMILIES, TERMS
@@ -179,7 +179,7 @@ def _part(fit: LinearFit, design: np.ndarray, sigma: np.ndarray | None, first: i
         residual = fit.residuals[:, 0]
         dof = len(design) - design.shape[1]
         chi2 = float(residual @ np.linalg.pinv(c_r, rcond=1e-10) @ residual)
-        if dof > 0 and stats.chi2.sf(chi2, dof) < CONSISTENCY_ALPHA:
+        if dof > 0 and chdtrc(dof, chi2) < CONSISTENCY_ALPHA:
             full = full * (chi2 / dof)      # the unexplained scatter: the whole random part scaled up
     return _Part(names, fit.params[0][sl] / scale, full[sl, sl] / scale ** 2, np.diag(cov_noise)[sl] / scale ** 2,
                  other)
@@ -449,7 +449,7 @@ def _tests(parts: list[_Part], terms: tuple[str, ...]) -> dict[str, FamilyTest]:
             c = part.cov_si[np.ix_(idx, idx)]
             stat[term] += float(b @ np.linalg.pinv(c) @ b)
             dof[term] += len(idx)
-    return {t: FamilyTest(t, stat[t], dof[t], float(stats.chi2.sf(stat[t], dof[t])) if dof[t] else math.nan)
+    return {t: FamilyTest(t, stat[t], dof[t], float(chdtrc(dof[t], stat[t])) if dof[t] else math.nan)
             for t in terms}
 
 

@@ -284,4 +284,5 @@ def test_an_unwritable_output_folder_is_exit_2_one_line_and_no_device_opened(com
     rc, _, stderr = cli([command, "--config", str(config), "--out", str(out), "--quiet"])
     assert rc == 2, stderr
     assert opened == []                       # the table was not even connected
-    assert stderr.strip() == f"bench {command}: cannot start: output folder {out}: Not a directory; nothing moved"
+    assert stderr.strip() == (f"bench {command}: cannot start: output folder {out}: {out.parent} is a file, "
+                              "not a folder; nothing moved")

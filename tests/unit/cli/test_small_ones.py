@@ -48,8 +48,9 @@ def test_an_out_that_is_a_file_gets_a_clear_line(tmp_path):
     file.write_text("")
     rc, _, err = cli(["noise", "--sim", "--duration-h", "0.01", "--out", str(file)])
     assert rc == 2 and err.strip().endswith(f"--out {file}: it is a file, not a folder") and err.count("\n") == 1
-    with pytest.raises(OutputFileError, match="it is a file, not a folder"):
+    with pytest.raises(OutputFileError) as below:      # a file in the way of a folder below it: named
         make_output_folder(file / "below")
+    assert str(below.value) == f"--out {file / 'below'}: {file} is a file, not a folder"
     assert make_output_folder(tmp_path / "new" / "folder").is_dir()
 
 
