@@ -19,26 +19,18 @@ import pytest
 from bench.acceptance.verdict import Verdict
 from bench.calibration.compensation import compensation_of
 from bench.config.load import ConfigError, load_config
-from bench.model.earth import Site
-from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
+from bench.model.imu import ImuCoefficients, default_sim_imu
 from bench.model.result import CalibrationResult, coefficient_table
 from bench.model.run_section import RunInfo
 from bench.model.table_prior import TablePrior
 from bench.model.units import ARCSEC
 from bench.plan.compiler import PlanError, PlanTiming, compile_plan
-from bench.sim.acquire import AcquisitionTiming, acquire
-from bench.sim.imu import SimImu
-from bench.sim.table import SimTable
-from bench.solve.extract import Extraction
 from bench.verify.errors import Verification, VerificationError, verify_extraction
 from bench.verify.plan import format_errors, sim_table_record, verification_checks, verification_config
 from drivers.turntable import AxisLimits, TurntableLimits
 from schedules import ScheduleError, load_builtin, parse_schedule
 from tests.helpers.run import cli, config_text, load_json, only_file
-
-SITE = Site(latitude_deg=30.27)
-RATES_DPS = (5.0, 20.0, 60.0)
-
+from tests.helpers.verification import RATES_DPS, SITE, acquire_verification
 
 # -- the schedule and the plan -----------------------------------------------------------------------
 
@@ -87,30 +79,10 @@ def _result(imu: ImuCoefficients) -> CalibrationResult:
     return CalibrationResult(coefficient_table(values, {n: 1e-6 * max(abs(v), 1e-3) for n, v in values.items()}))
 
 
-def _acquire_verification(black_box_rad=None):
-    """verify-default acquired in memory from the default simulated IMU (noise off; an ideal table unless a black
-    box is given)."""
-    schedule, truth = load_builtin("verify-default"), default_sim_imu()
-    positions, rotations, rates = [], [], {}
-    for rate in RATES_DPS:
-        table, imu = SimTable(SITE, black_box_rad=black_box_rad), SimImu(truth, NoiseModel.off(), rate_hz=100.0)
-        p, r = acquire(table, imu, [q.angles_deg for q in schedule.positions] if rate == RATES_DPS[0] else [],
-                       [t for t in schedule.rotations if t.rate_dps == rate],
-                       AcquisitionTiming(dwell_s=10.0, turn_rate_dps=rate, turn_accel_dps2=20.0))
-        for k, o in enumerate(r):
-            o.label = f"R{rate:g}-{k}"
-            rates[o.label] = rate
-        positions += p
-        rotations += r
-    for k, o in enumerate(positions):
-        o.label = f"P{k + 1:02d}"
-    return Extraction(positions, rotations, []), rates, truth
-
-
 @pytest.fixture(scope="module")
 def verification_data():
     """verify-default acquired in memory from the default simulated IMU (noise off, ideal table)."""
-    return _acquire_verification()
+    return acquire_verification()
 
 
 #: the default simulated table's black box (`[sim] seed = 0`, 20 arcsec RMS): the issue-27 reproduction's table
@@ -121,7 +93,7 @@ BLACK_BOX_RAD = np.random.default_rng(0).standard_normal((3, 3)) * 20.0 * ARCSEC
 def test_u_includes_the_tables_part_and_covers_what_the_table_does_to_the_errors():
     """Issue 27: on a table with a black box the true calibration's verification errors are the table's (up to
     ~40 arcsec of misalignment); U without the table's part leaves them beyond U, with it they lie within."""
-    extraction, rates, truth = _acquire_verification(BLACK_BOX_RAD)
+    extraction, rates, truth = acquire_verification(BLACK_BOX_RAD)
     result = _result(truth)
     without = verify_extraction(extraction, rates, compensation_of(result), result, SITE)
     beyond = [e.name for e in without.errors if not e.within_uncertainty]

@@ -8,40 +8,19 @@ from __future__ import annotations
 import pytest
 
 from bench.calibration.compensation import compensation_of
-from bench.model.earth import Site
 from bench.model.higher_order import HigherOrderTerms, preset
-from bench.model.imu import NoiseModel, default_sim_imu
 from bench.model.result import CalibrationResult, coefficient_table
-from bench.sim.acquire import AcquisitionTiming, acquire
-from bench.sim.imu import SimImu
-from bench.sim.table import SimTable
-from bench.solve.extract import Extraction
 from bench.verify.errors import verify_extraction
-from schedules import load_builtin
 from studies.extended_coverage import truth_values
-
-SITE = Site(latitude_deg=30.27)
-RATES_DPS = (5.0, 20.0, 60.0)
+from tests.helpers.verification import SITE, acquire_verification
 
 
 @pytest.fixture(scope="module")
 def verification_data():
     """verify-default from the simulated IMU with the tactical-MEMS higher-order truth (noise off)."""
-    schedule, truth = load_builtin("verify-default"), default_sim_imu()
     terms = HigherOrderTerms.from_display(preset("tactical-mems"))
-    positions, rotations, rates = [], [], {}
-    for rate in RATES_DPS:
-        table = SimTable(SITE)
-        imu = SimImu(truth, NoiseModel.off(), rate_hz=100.0, higher_order=terms)
-        p, r = acquire(table, imu, [q.angles_deg for q in schedule.positions] if rate == RATES_DPS[0] else [],
-                       [t for t in schedule.rotations if t.rate_dps == rate],
-                       AcquisitionTiming(dwell_s=10.0, turn_rate_dps=rate, turn_accel_dps2=20.0))
-        for k, o in enumerate(r):
-            o.label = f"R{rate:g}-{k}"
-            rates[o.label] = rate
-        positions += p
-        rotations += r
-    return Extraction(positions, rotations, []), rates, truth, terms
+    extraction, rates, truth = acquire_verification(higher_order=terms)
+    return extraction, rates, truth, terms
 
 
 def _result(values: dict[str, float]) -> CalibrationResult:
