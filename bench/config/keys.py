@@ -307,11 +307,12 @@ KEYS: tuple[Key, ...] = (
     Key("imu.identity", "acc_xy_to_z_uncertainty", "number", "1-sigma relative error of the uncalibrated x/y "
         "accelerometers against z: the table check's conversion part without a calibration", NONE, ge=0.0, le=0.1,
         default_text="1e-3"),
-    # [plan]
+    # [model]
     Key("model", "terms", "list of strings", "higher-order families the solve estimates beyond the 30 coefficients "
         "(docs/explanation/extended-model.md): any of " + ", ".join(f"`{t}`" for t in EXTENDED_TERMS)
         + "; or `[\"auto\"]`: those the plan observes and the data find significant; empty: the 30 alone", [],
         default_text="[] (the 30 coefficients)"),
+    # [plan]
     Key("plan", "positions", "string", "position schedule: a shipped name (`bench schedules list`) or a file; "
         "\"\" = none (at least one of positions and rotations)", ""),
     Key("plan", "rotations", "string", "rotation schedule, the same", ""),
