@@ -128,6 +128,24 @@ def _earlier_names(log: RunLog) -> list[str]:
     return [path.name for path in (sibling_log(log.path, entry)[0] for entry in entries) if path is not None]
 
 
+def _replacement_notes(logs: list[RunLog], replaced: list[tuple[str, str, str]]) -> list[str]:
+    """A note per pair of logs where the later one's units replaced the earlier one's, unless the later log resumed
+    the earlier (a resumed run repeats the unit that was cut off: expected). Several complete logs of one IMU solve
+    together; without this note a user who gave two runs would not know one run's dwells were dropped."""
+    resumes = {_name(log.path): set(_earlier_names(log)) for log in logs}
+    pairs: dict[tuple[str, str], list[str]] = {}
+    for unit, earlier, later in replaced:
+        if _name(earlier) not in resumes.get(_name(later), set()):
+            pairs.setdefault((earlier, later), []).append(unit)
+    notes = []
+    for (earlier, later), units in pairs.items():
+        shown = ", ".join(units[:6]) + (f" and {len(units) - 6} more" if len(units) > 6 else "")
+        notes.append(f"{_name(later)} replaces {len(units)} unit(s) of {_name(earlier)} ({shown}): logs of one IMU "
+                     "solve as one run, a later log's unit replacing an earlier one's; solve each log on its own "
+                     "to keep both")
+    return notes
+
+
 def _earlier_logs(log: RunLog, notes: list[str]) -> list[Path]:
     """The earlier logs `log` names that are `.mcap` files next to it; a note for every other entry."""
     entries, malformed = logs_before(log.metadata)
@@ -316,6 +334,7 @@ def recorded_run(logs: list[RunLog], setup: LogSetup, sim: bool, still_open: fro
     notes = list(notes or [])
     extraction, stats, damage = extract_from_logs(logs, setup.site, setup.layout, setup.rate_hz, setup.mounting,
                                                   still_open)
+    notes += _replacement_notes(logs, extraction.replaced)
     planned = _planned_units(logs, notes)
     return Recorded(logs, setup, sim, extraction, stats, damage, planned, _left_out(logs, planned, extraction), notes)
 

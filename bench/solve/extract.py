@@ -51,6 +51,8 @@ class Extraction:
     #: unit -> samples missing from the sample counters inside its dwell or turn window (units without loss absent)
     lost_in_windows: dict[str, int] = field(default_factory=dict)
     lost_outside: int = 0       # lost samples outside every window (`bench.solve.from_logs` counts them)
+    #: (unit, earlier log, later log): a unit two logs completed, the later log's observation kept
+    replaced: list[tuple[str, str, str]] = field(default_factory=list)
 
     @property
     def units(self) -> list[str]:

@@ -9,9 +9,11 @@ are merged by unit, a later log's observation of a unit replacing an earlier one
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 from bench.log.reader import RunLog
 from bench.model.earth import Site
+from bench.model.observations import PositionObservation, RotationObservation
 from bench.model.units import DEG_PER_HOUR, MICRO_G
 from bench.solve.budget import BudgetInputs
 from bench.solve.calibrate import Calibration, solve
@@ -29,6 +31,19 @@ class LogSolution:
     damage: list[str] = field(default_factory=list)             # per log damage lines, prefixed with the file
 
 
+_Observation = TypeVar("_Observation", PositionObservation, RotationObservation)
+
+
+def _merge(merged: dict[str, _Observation], observed: list[_Observation], log_path: str, source: dict[str, str],
+           replaced: list[tuple[str, str, str]]) -> None:
+    """Add one log's observations by unit, a later log's replacing an earlier's (noted in `replaced`)."""
+    for o in observed:
+        if o.label in merged:
+            replaced.append((o.label, source[o.label], log_path))
+        merged[o.label] = o
+        source[o.label] = log_path
+
+
 def extract_from_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: float, mounting=None,
                       still_open: frozenset[str] = frozenset()) -> tuple[Extraction, list[ImuStats], list[str]]:
     """Observations of all logs merged by unit, the IMU link statistics and the damage of each log.
@@ -42,7 +57,11 @@ def extract_from_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz
     leaves it: neither is reported as damage (the cut-off tail holds only what came after the last message that
     reached the disk; a unit not finished there is run again).
     """
-    merged_positions, merged_rotations, problems = {}, {}, []
+    merged_positions: dict[str, PositionObservation] = {}
+    merged_rotations: dict[str, RotationObservation] = {}
+    problems = []
+    source: dict[str, str] = {}     # unit -> the log its kept observation came from
+    replaced: list[tuple[str, str, str]] = []
     stats, damage = [], []
     lost_in_windows: dict[str, int] = {}
     lost_outside = 0
@@ -55,8 +74,8 @@ def extract_from_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz
         part = extract_observations(log.events, samples.counter, samples.gyro_counts, samples.acc_counts, rate_hz,
                                     site, states.time_s, states.angles_deg, mounting, samples.status,
                                     layout.status_invalid, layout.status_required, layout.output_step)
-        merged_positions.update({o.label: o for o in part.positions})
-        merged_rotations.update({o.label: o for o in part.rotations})
+        _merge(merged_positions, part.positions, str(log.path), source, replaced)
+        _merge(merged_rotations, part.rotations, str(log.path), source, replaced)
         problems += [p.prefixed(str(log.path)) for p in part.problems]
         for unit, n in part.lost_in_windows.items():
             lost_in_windows[unit] = lost_in_windows.get(unit, 0) + n
@@ -64,7 +83,7 @@ def extract_from_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz
         lost_outside += max(0, link.lost_samples - sum(part.lost_in_windows.values()))
     extraction = Extraction([merged_positions[k] for k in sorted(merged_positions)],
                             [merged_rotations[k] for k in sorted(merged_rotations)], problems,
-                            lost_in_windows, lost_outside)
+                            lost_in_windows, lost_outside, replaced)
     return extraction, stats, damage
 
 

@@ -271,6 +271,7 @@ def test_killed_and_resumed_logs_solve_together_to_the_resumed_runs_result(noisy
     assert both["coefficients"] == resumed["coefficients"]
     assert both["residuals"] == resumed["residuals"]
     assert both["run"]["logs"] == resumed["run"]["logs"] == [killed.name, resumed_log.name]
+    assert "replaces" not in stdout + stderr        # a resumed run repeats its cut-off unit: no note
 
     # The resumed log names the killed one: found next to it, it is read too.
     rc, stdout, stderr = _solve(resumed_log, "--out", tmp_path / "one")
@@ -285,6 +286,20 @@ def test_killed_and_resumed_logs_solve_together_to_the_resumed_runs_result(noisy
     alone = load_json(tmp_path / "alone" / f"{resumed['run']['run_id']}.solved.result.json")
     done_before = set(finished_observation_steps(read_log(killed).events))
     assert set(alone["run"]["left_out"]) == done_before
+
+
+@pytest.mark.slow
+def test_two_complete_logs_of_one_imu_solve_as_one_and_say_which_units_the_later_replaced(noisy, tmp_path):
+    first, second = tmp_path / "first.mcap", tmp_path / "second.mcap"
+    shutil.copyfile(noisy.log, first)
+    shutil.copyfile(noisy.log, second)
+    units = len(finished_observation_steps(read_log(noisy.log).events))
+    rc, stdout, stderr = _solve(first, second, "--out", tmp_path / "both")
+    assert rc == 0, stderr
+    said = [line for line in (stdout + stderr).splitlines() if "replaces" in line]
+    assert len(said) == 1, stdout + stderr
+    assert f"second.mcap replaces {units} unit(s) of first.mcap (" in said[0]
+    assert "solve each log on its own" in said[0]
 
 
 @pytest.mark.slow
