@@ -105,6 +105,7 @@ def _family_line(sigma: dict[str, float], units: dict[str, str], family: str) ->
 
 def unit_lines(label: str, figures: tuple) -> list[str]:
     """The observability of the plan for one unit: black-box angles left, noise 1-sigma, extended families."""
+    # heavy (scipy): imported when the command runs, not for its --help
     from bench.schedule_design.extended import observability_lines
 
     sens, sigma, extended = figures
@@ -129,6 +130,7 @@ def unit_lines(label: str, figures: tuple) -> list[str]:
 def observability_of(angles, turns, noise, args: argparse.Namespace, site: Site, mounting) -> tuple:
     """(black-box sensitivity, noise 1-sigma per coefficient, extended families) of the plan for an IMU mounted
     with `mounting` (None: the fixture's axes). Raises SolverError."""
+    # heavy (scipy): imported when the command runs, not for its --help
     from bench.schedule_design.extended import extended_observability
     from bench.schedule_design.sensitivity import (
         position_noise_sigma,
