@@ -10,6 +10,8 @@ import numpy as np
 
 from bench.cli.common import ExitCode, add_noise_arguments, fail, noise_from_args
 from bench.cli.progress import CountProgress
+from bench.config.load import load_config
+from bench.config.units import FACES
 from bench.errors import InputError
 from bench.files import OutputFileError, make_output_folder
 from bench.model.earth import Site
@@ -31,6 +33,12 @@ def register_tools(commands: argparse._SubParsersAction) -> None:
     add_noise_arguments(an)
     an.add_argument("--runs", type=int, default=30, help="Monte-Carlo runs per level (default 30)")
     an.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg (default 30.27)")
+    an.add_argument("--config", metavar="FILE",
+                    help="also analyse the plan as each unit of this configuration's [[imu]] entries sees it "
+                         "through its mounting")
+    an.add_argument("--mounting", metavar="FACE", action="append", choices=tuple(FACES), default=[],
+                    help="also analyse the plan for a unit mounted on this face (repeatable): "
+                         + ", ".join(FACES))
     an.set_defaults(func=cmd_analyze)
 
     se = commands.add_parser("search", help="exhaustive search of 24-position and 6-rotation schedules",
@@ -71,16 +79,81 @@ def sensitivity_lines(sens) -> list[str]:
     return lines
 
 
-def cmd_analyze(args: argparse.Namespace) -> ExitCode:
+def mountings_to_analyse(args: argparse.Namespace) -> list[tuple[str, np.ndarray | None]]:
+    """(label, mounting `C_i^b` or None for the fixture's own axes) per unit of `--config`, then per `--mounting`.
+    Raises InputError (ConfigError) for a configuration that does not load."""
+    units: list[tuple[str, tuple[tuple[float, ...], ...] | None]] = []
+    if args.config:
+        config = load_config(args.config)
+        if config.units:
+            units += [(f"{u.identity.serial} ({u.mounting_name})", u.mounting) for u in config.units]
+        else:                                   # one [imu]: the fixture's axes
+            units.append((f"{config.imu.identity.serial or 'the IMU'} (z-up)", None))
+    units += [(f"--mounting {face}", FACES[face]) for face in args.mounting]
+    out: list[tuple[str, np.ndarray | None]] = []
+    for label, rows in units:
+        matrix = None if rows is None else np.array(rows, dtype=float)
+        # the fixture's own axes: no rotation at all, so the figures are the single unit's exactly
+        out.append((label, None if matrix is not None and np.array_equal(matrix, np.eye(3)) else matrix))
+    return out
+
+
+def _family_line(sigma: dict[str, float], units: dict[str, str], family: str) -> str:
+    names = [n for n in sigma if n.split("_", 1)[0] == family]
+    return f"    {family} ({units[names[0]]}): " + ", ".join(f"{n} {sigma[n]:.3g}" for n in names)
+
+
+def unit_lines(label: str, figures: tuple) -> list[str]:
+    """The observability of the plan for one unit: black-box angles left, noise 1-sigma, extended families."""
     # heavy (scipy): imported when the command runs, not for its --help
-    from bench.schedule_design.extended import extended_observability, observability_lines
-    from bench.schedule_design.monte_carlo import evaluate
+    from bench.schedule_design.extended import observability_lines
+
+    sens, sigma, extended = figures
+    units = dict(zip(sens.names, sens.units))
+    lines = [f"unit {label}:", "  black box (first order): " + "; ".join(
+        f"{fam} remains {', '.join(angles) if angles else 'nothing'}"
+        for fam, angles in sens.families_remaining().items())]
+    families = list(dict.fromkeys(n.split("_", 1)[0] for n in sigma))
+    lines.append("  noise-driven 1-sigma:")
+    lines += [_family_line(sigma, units, fam) for fam in families]
+    # the coefficient worst observed against the best of its own family: the axis this mounting leaves weak
+    spread = {fam: [n for n in sigma if n.split("_", 1)[0] == fam] for fam in families}
+    ratio = {n: sigma[n] / min(sigma[m] for m in names) for names in spread.values() for n in names}
+    worst = max(ratio, key=lambda n: ratio[n])
+    lines.append(f"    least observed: {worst}, {ratio[worst]:.3g}x the best of its family" if ratio[worst] > 1.01
+                 else "    least observed: none (every family's coefficients within 1 % of each other)")
+    lines.append("  extended model:")
+    lines += ["  " + line for line in observability_lines(extended)]
+    return lines
+
+
+def observability_of(angles, turns, noise, args: argparse.Namespace, site: Site, mounting) -> tuple:
+    """(black-box sensitivity, noise 1-sigma per coefficient, extended families) of the plan for an IMU mounted
+    with `mounting` (None: the fixture's axes). Raises SolverError."""
+    # heavy (scipy): imported when the command runs, not for its --help
+    from bench.schedule_design.extended import extended_observability
     from bench.schedule_design.sensitivity import (
         position_noise_sigma,
         position_sensitivity,
         rotation_noise_sigma,
         rotation_sensitivity,
     )
+
+    if turns is not None:
+        sens = rotation_sensitivity(turns, site=site, rate_dps=args.turn_rate_dps, mounting=mounting)
+        sigma = rotation_noise_sigma(turns, noise, args.turn_rate_dps, site=site, mounting=mounting)
+    else:
+        sens = position_sensitivity(angles, site=site, mounting=mounting)
+        sigma = position_noise_sigma(angles, noise, args.dwell_s, site=site, mounting=mounting)
+    extended = extended_observability(angles, turns or [], noise, args.dwell_s, args.turn_rate_dps, site=site,
+                                      mounting=mounting)
+    return sens, sigma, extended
+
+
+def cmd_analyze(args: argparse.Namespace) -> ExitCode:
+    # heavy (scipy): imported when the command runs, not for its --help
+    from bench.schedule_design.extended import observability_lines
+    from bench.schedule_design.monte_carlo import evaluate
     from bench.solve.methods import SolverError
 
     if args.runs < 1 or args.dwell_s <= 0 or args.turn_rate_dps <= 0:
@@ -93,17 +166,18 @@ def cmd_analyze(args: argparse.Namespace) -> ExitCode:
         return ExitCode.INVALID_SCHEDULE
     except InputError as exc:
         return fail("bench schedules analyze", str(exc), ExitCode.USAGE)
+    try:
+        mountings = mountings_to_analyse(args)
+    except InputError as exc:
+        return fail("bench schedules analyze", str(exc), ExitCode.USAGE)
     noise = noise_from_args(args)
     rotations = schedule.kind == "rotations"
+    turns = list(schedule.rotations) if rotations else None
+    angles = None if rotations else np.array([p.angles_deg for p in schedule.positions])
     try:
-        if rotations:
-            turns = list(schedule.rotations)
-            sens = rotation_sensitivity(turns, site=site, rate_dps=args.turn_rate_dps)
-            sigma = rotation_noise_sigma(turns, noise, args.turn_rate_dps, site=site)
-        else:
-            angles = np.array([p.angles_deg for p in schedule.positions])
-            sens = position_sensitivity(angles, site=site)
-            sigma = position_noise_sigma(angles, noise, args.dwell_s, site=site)
+        sens, sigma, extended = observability_of(angles, turns, noise, args, site, None)
+        per_unit = [(label, observability_of(angles, turns, noise, args, site, mounting))
+                    for label, mounting in mountings]
     except SolverError as exc:
         print(f"{schedule.source}: {exc}", file=sys.stderr)
         return ExitCode.INVALID_SCHEDULE
@@ -127,17 +201,22 @@ def cmd_analyze(args: argparse.Namespace) -> ExitCode:
         print(f"\nPlan duration: not compiled ({exc})")
     print(f"\nExtended model (docs/explanation/extended-model.md): the higher-order families this schedule shows "
           f"on its own ({setting}; predicted sample-noise 1-sigma, the simulated IMU):")
-    for line in observability_lines(extended_observability(
-            None if rotations else angles, turns if rotations else [], noise, args.dwell_s, args.turn_rate_dps,
-            site=site)):
+    for line in observability_lines(extended):
         print(line)
+    if per_unit:
+        print("\nPer unit: the same plan as each unit sees it through its mounting (its coefficients in its own "
+              f"axes; {setting}):")
+        for label, figures in per_unit:
+            for line in unit_lines(label, figures):
+                print(line)
     reference = "optimal-5s6r" if rotations else "optimal-24"
     keys: tuple[str, ...]
-    if rotations:
+    if turns is not None:
         table = evaluate({}, {schedule.name: turns, reference: list(load_builtin(reference).rotations)},
                          runs=args.runs, site=site, rate_dps=args.turn_rate_dps)["rotations"]
         keys = ("gyro_scale", "gyro_axes")
     else:
+        assert angles is not None
         ref_angles = np.array([p.angles_deg for p in load_builtin(reference).positions])
         table = evaluate({schedule.name: angles, reference: ref_angles}, {}, runs=args.runs, site=site)["positions"]
         keys = ("gyro_bias_dph", "acc_bias_g", "acc_scale", "acc_axes")

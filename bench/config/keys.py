@@ -267,6 +267,9 @@ KEYS: tuple[Key, ...] = (
         "(\"z-up\", \"z-down\", \"x-up\", \"x-down\", \"y-up\", \"y-down\": the unit's axis along the fixture's "
         "z) or 3 rows of 3 numbers (the unit's x, y, z axes in fixture coordinates; checked orthonormal, "
         "right-handed)", "z-up"),
+    Key("imu", "lever_arm_mm", "array", "[[imu]] entries only: the unit's position from the table's rotation "
+        "centre, 3 numbers in the fixture's axes, mm (each finite, within 2000 mm); the simulator places the unit "
+        "there and the extended model's solve takes its known specific force out of the turns", NONE),
     Key("imu", "id_offset", "integer", "[[imu]] entries only: added to every frame id of the unit's layout (units "
         "sharing a bus send at distinct ids)", 0, ge=-0x1FFFFFFF, le=0x1FFFFFFF,
         range_text="the layout's ids stay 11-bit (29-bit for extended ids)"),

@@ -172,6 +172,9 @@ class ImuConfig:
     #: body axes, as rows; None: a single [imu], whose body axes are the fixture's
     mounting: tuple[tuple[float, ...], ...] | None = None
     mounting_name: str = ""           # the face it names ("x-up"), or "matrix"; "" for a single [imu]
+    #: an [[imu]] entry's lever_arm_mm: the unit's place from the table's rotation centre, fixture axes, mm; None:
+    #: not given (the sim places it at the centre, the solve takes nothing out)
+    lever_arm_mm: tuple[float, float, float] | None = None
     #: an [[imu]] entry's id_offset: added to every frame id of its layout (`layout` has it added already)
     id_offset: int = 0
     #: [imu.rig]: the `bench sim rig` the file was written for (valid only while it runs); None: not a rig's
@@ -613,7 +616,7 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | Path | Non
         imu = units[0]
     else:
         imu_table = root.table("imu", allowed("imu"), required=True)
-        for key in ("mounting", "id_offset"):
+        for key in ("mounting", "id_offset", "lever_arm_mm"):
             if imu_table.has(key):
                 raise imu_table.error(key, "belongs to an [[imu]] entry (a run of several units, even of one): a "
                                            "single [imu] is the fixture's own axes")

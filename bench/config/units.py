@@ -1,9 +1,10 @@
 """Several IMUs in one run: the `[[imu]]` entries of a configuration, their mountings and their buses.
 
 Each `[[imu]]` entry takes the keys of a single `[imu]` (the loader's own parser reads them) and adds `mounting`
-(a named face or a 3x3 matrix) and `id_offset`. Checked here, each with file, line and key: a serial per unit
-(required, distinct, a safe name: it names the unit's log topics and output files), a proper rotation, frame ids
-that stay distinct on a shared bus, and a bus load each configured bit rate can carry.
+(a named face or a 3x3 matrix), `id_offset` and `lever_arm_mm` (the unit's place from the rotation centre). Checked
+here, each with file, line and key: a serial per unit (required, distinct, a safe name: it names the unit's log topics
+and output files), a proper rotation, a finite lever arm within bounds, frame ids that stay distinct on a shared bus,
+and a bus load each configured bit rate can carry.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ ORTHONORMAL_TOLERANCE = 1e-6
 SERIAL_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
 #: the CAN bus load (worst-case bit stuffing) above which a configuration is refused
 MAX_BUS_LOAD = 1.0
+#: the largest lever arm component, mm: a unit further than this from the table's rotation centre is a typo
+MAX_LEVER_ARM_MM = 2000.0
 
 #: `mounting` by name: which of the unit's axes points along the fixture's z (the inner frame's axis, "up" at the
 #: table's zero); the other two follow cyclically (x-up: the unit's y along the fixture's x, its z along the
@@ -71,6 +74,30 @@ def mounting_of(t: Table) -> tuple[str, tuple[tuple[float, ...], ...]]:
     return "matrix", tuple(rows)
 
 
+def lever_arm_of(t: Table) -> tuple[float, float, float] | None:
+    """`lever_arm_mm` of an `[[imu]]` entry: the unit's place from the rotation centre in fixture axes, mm; None
+    when not given."""
+    if not t.has("lever_arm_mm"):
+        return None
+    value = t.get("lever_arm_mm")
+    if not (isinstance(value, list) and len(value) == 3 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)):
+        raise t.error("lever_arm_mm", f"must be 3 finite numbers (the unit's x, y, z from the table's rotation "
+                                      f"centre in the fixture's axes, mm), got {show(value)}")
+    if max(abs(v) for v in value) > MAX_LEVER_ARM_MM:
+        raise t.error("lever_arm_mm", f"{show(value)} puts the unit more than {MAX_LEVER_ARM_MM:g} mm from the "
+                                      "table's rotation centre along an axis (the value is in mm)")
+    return (float(value[0]), float(value[1]), float(value[2]))
+
+
+def lever_arm_in_body_m(unit: ImuConfig) -> np.ndarray | None:
+    """The unit's lever arm in its own body axes, m (its mounting applied); None without one."""
+    if unit.lever_arm_mm is None:
+        return None
+    rotation = np.eye(3) if unit.mounting is None else np.array(unit.mounting, dtype=float)
+    return rotation @ (np.array(unit.lever_arm_mm, dtype=float) * 1e-3)
+
+
 def frame_bits(length: int, extended: bool) -> int:
     """The most bits one data frame of `length` bytes takes on the bus, with worst-case bit stuffing (and the
     3-bit interframe space); a CAN FD frame counted as if all of it ran at the nominal bit rate (an upper bound)."""
@@ -104,6 +131,7 @@ def imu_units(root: Table, allowed: tuple[str, ...], parse_one: Callable[[Table]
         t = Table(root.doc, ("imu", k), entry, allowed)
         name, mounting = mounting_of(t)
         offset = t.integer("id_offset", 0, ge=-0x1FFFFFFF, le=0x1FFFFFFF)
+        lever_arm = lever_arm_of(t)
         unit = parse_one(t)
         serial = unit.identity.serial
         where = ("imu", k, "identity", "serial")
@@ -122,7 +150,7 @@ def imu_units(root: Table, allowed: tuple[str, ...], parse_one: Callable[[Table]
         except ValueError as exc:     # ImuConfigError
             raise t.error("id_offset", str(exc)) from None
         units.append(dataclasses.replace(unit, layout=layout, id_offset=offset, mounting=mounting,
-                                         mounting_name=name))
+                                         mounting_name=name, lever_arm_mm=lever_arm))
     _check_buses(root, units)
     return tuple(units)
 
@@ -154,4 +182,5 @@ def _check_buses(root: Table, units: list[ImuConfig]) -> None:
                                      "some on another bus, or lower their rates")
 
 
-__all__ = ["FACES", "MAX_UNITS", "bus_load", "frame_bits", "imu_units", "mounting_of"]
+__all__ = ["FACES", "MAX_LEVER_ARM_MM", "MAX_UNITS", "bus_load", "frame_bits", "imu_units", "lever_arm_in_body_m",
+           "lever_arm_of", "mounting_of"]

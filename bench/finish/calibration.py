@@ -137,7 +137,8 @@ def solve_recorded(recorded: Recorded, positions=None, rotations=None, *,
     chosen.problems = [p for p in recorded.problems() if not (p.window_loss and p.unit in unused)]
     if terms is None:
         terms = config.model_terms if config is not None else ()
-    calibration, chosen, dropped = _solve_what_can_be(chosen, setup.site, inputs, setup.mounting, terms)
+    calibration, chosen, dropped = _solve_what_can_be(chosen, setup.site, inputs, setup.mounting, terms,
+                                                      setup.lever_arm_m)
     solution = LogSolution(calibration, chosen, list(recorded.imu_stats), list(recorded.damage))
     failures = quality_failures(solution)
     lost = without_windows(recorded.extraction.lost_samples(), unused)
@@ -207,13 +208,15 @@ def _unused_windows(recorded: Recorded, chosen: Extraction, positions, rotations
             and ((kind == "dwell" and positions is not None) or (kind == "turn" and rotations is not None))}
 
 
-def _solve_what_can_be(chosen: Extraction, site, inputs, mounting=None, terms: tuple[str, ...] = ()):
+def _solve_what_can_be(chosen: Extraction, site, inputs, mounting=None, terms: tuple[str, ...] = (),
+                       lever_arm_m=None):
     """Solve all of `chosen`; when that fails (too few turns or positions left by damage),
     the positions or the rotations alone, the others left out with the reason.
     Returns (calibration, the extraction solved, units left out); SolverError if neither solves."""
 
     def attempt(extraction):
-        return solve_extraction(extraction, site, budget=inputs, mounting=mounting, terms=terms)
+        return solve_extraction(extraction, site, budget=inputs, mounting=mounting, terms=terms,
+                                lever_arm_m=lever_arm_m)
 
     try:
         return attempt(chosen), chosen, []

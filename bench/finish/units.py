@@ -21,7 +21,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from bench.config.load import BenchConfig
-from bench.config.units import FACES
+from bench.config.units import FACES, lever_arm_in_body_m
 from bench.finish.calibration import Solved, resolved_run_section
 from bench.finish.finish import Finished, Reports, Target, finish
 from bench.finish.recorded import Recorded, SolveInputError, recorded_run
@@ -105,7 +105,8 @@ def recorded_unit(logs: list[RunLog], config: BenchConfig, index: int, sim: bool
         unit_block, _ = unit_log.imu_samples(unit.layout, unit.rate_hz)
         unit_log.events = remapped_events(unit_log.events, ref_block, unit_block, unit.rate_hz)
         unit_logs.append(unit_log)
-    setup = LogSetup(unit.layout, float(unit.rate_hz), own, own.site.site, mounting=_mounting(config, index))
+    setup = LogSetup(unit.layout, float(unit.rate_hz), own, own.site.site, mounting=_mounting(config, index),
+                     lever_arm_m=lever_arm_in_body_m(unit))
     return recorded_run(unit_logs, setup, sim, still_open)
 
 
@@ -134,6 +135,9 @@ class UnitTarget(Target):
         run_info.solved_by = self.solved_by
         if self.units:
             run_info.extra["units"] = list(self.units)
+        config = recorded.setup.config
+        if config is not None and config.imu.lever_arm_mm is not None:    # the unit's known place, as configured
+            run_info.extra["lever_arm_mm"] = list(config.imu.lever_arm_mm)
         return run_info
 
     def title(self, what: str, detail: str = "") -> str:

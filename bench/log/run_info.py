@@ -60,6 +60,9 @@ class LogSetup:
     #: a unit's mounting on the fixture (`C_i^b`, 3x3: a run of several IMUs): its coefficients are solved in its
     #: own body axes; None: the body axes are the fixture's (a single IMU)
     mounting: Any = None
+    #: a unit's known place from the table's rotation centre (its body axes, m: `[[imu]] lever_arm_mm`), taken out
+    #: of the turns by the extended model's lever-arm fit; None: none known
+    lever_arm_m: Any = None
 
 
 def layout_and_config_from_log(log: RunLog) -> LogSetup:

@@ -16,11 +16,11 @@ import can
 
 from bench.config.chamber import ChamberConfig
 from bench.config.load import BenchConfig, ImuConfig
-from bench.config.units import FACES, bus_name
+from bench.config.units import FACES, bus_name, lever_arm_in_body_m
 from bench.errors import BenchError
 from bench.run.imu_check import check_imu_stream, check_rig_adapter, check_rig_running
 from bench.run.units import UnitLink
-from bench.sim.units import SimUnit, unit_seed, unit_truth
+from bench.sim.units import SimUnit, placed_terms, unit_seed, unit_truth
 from bench.sim.world import PumpedReceiver, SimWorld
 from drivers.chamber import Chamber, open_chamber
 from drivers.clock import SYSTEM_CLOCK, Clock
@@ -78,11 +78,14 @@ def open_simulator(config: BenchConfig, with_chamber: bool) -> Devices:
     opened on it; with a chamber, a simulated one on the run clock whose air is the thermal IMU's ambient."""
     stack = ExitStack()
     try:
+        # the reference unit of a run of several sits at its lever arm (none: the configured truth as it is)
+        higher_order = placed_terms(config.sim.higher_order, lever_arm_in_body_m(config.imu)) if config.several \
+            else config.sim.higher_order
         world = stack.enter_context(SimWorld(
             config.site.site, config.sim.imu, config.sim.noise, black_box_rad=config.sim.black_box_rad,
             dialect=config.table.dialect, imu_rate_hz=config.imu.rate_hz, layout=config.imu.layout,
             seed=config.sim.seed, register_map=config.table.register_map, imu_thermal=config.sim.thermal,
-            higher_order=config.sim.higher_order))
+            higher_order=higher_order))
         clock, bus = world.clock, world.receiver_bus()
         table = _open_table(config, world.table_url, clock, stack)
         # the simulator's frames carry the run clock's time already; its IMU runs on that clock and always is there
@@ -172,7 +175,8 @@ def _sim_units(config: BenchConfig, world: SimWorld, stack: ExitStack) -> list[U
     links = []
     for k, unit in enumerate(config.units[1:], 1):
         world.add_unit(SimUnit(unit_truth(config.sim.imu, k, config.sim.seed), config.sim.noise, unit.rate_hz,
-                               unit.layout, unit_seed(config.sim.seed, k), unit.mounting, bus_name(unit)),
+                               unit.layout, unit_seed(config.sim.seed, k), unit.mounting, bus_name(unit),
+                               placed_terms(None, lever_arm_in_body_m(unit))),
                        bus_name(reference))
         receiver = ImuReceiver(world.unit_receiver_bus(bus_name(unit), bus_name(reference)), unit.layout,
                                unit.rate_hz)

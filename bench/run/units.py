@@ -144,7 +144,9 @@ def unit_record(unit: ImuConfig, reference: bool) -> dict:
             "interface": str(unit.interface), "channel": str(unit.channel), "bus": bus_name(unit),
             "rate_hz": unit.rate_hz, "dbc": unit.dbc.name, "layout": unit.layout_name, "id_offset": unit.id_offset,
             "frame_ids": [f"{key & 0x1FFFFFFF:#x}" for key in unit.layout.keys],
-            "mounting": unit.mounting_name, "mounting_matrix": [list(row) for row in unit.mounting or ()]}
+            "mounting": unit.mounting_name, "mounting_matrix": [list(row) for row in unit.mounting or ()],
+            # only when configured: a run without lever arms records what it always did
+            **({"lever_arm_mm": list(unit.lever_arm_mm)} if unit.lever_arm_mm is not None else {})}
 
 
 def units_metadata(config: BenchConfig) -> dict[str, dict[str, str]]:

@@ -38,9 +38,10 @@ class FamilyObservability:
 
 
 def _observations(angles_deg, turns, noise: NoiseModel, dwell_s: float, rate_dps: float, accel_dps2: float,
-                  site: Site, imu: ImuCoefficients):
+                  site: Site, imu: ImuCoefficients, mounting=None):
     angles = np.zeros((0, 3)) if angles_deg is None else np.asarray(angles_deg, dtype=float).reshape(-1, 3)
-    positions, rotations = exact_observations(angles, list(turns), imu, site, rate_dps=rate_dps, dwell_s=dwell_s)
+    positions, rotations = exact_observations(angles, list(turns), imu, site, rate_dps=rate_dps, dwell_s=dwell_s,
+                                              mounting=mounting)
     gyro_density = max(noise.gyro_arw_deg_rt_h * DEG / 60.0, 1e-12)       # rad/s * sqrt(s)
     acc_density = max(noise.acc_vrw_ug_rt_hz * MICRO_G, 1e-12)            # m/s^2 * sqrt(s)
     positions = [dataclasses.replace(o, gyro_sem=imu.gyro_scale * gyro_density / math.sqrt(o.duration_s),
@@ -55,12 +56,14 @@ def _observations(angles_deg, turns, noise: NoiseModel, dwell_s: float, rate_dps
 
 def extended_observability(angles_deg, turns, noise: NoiseModel, dwell_s: float = 60.0, rate_dps: float = 10.0,
                            accel_dps2: float = 5.0, site: Site | None = None,
-                           terms: tuple[str, ...] | None = None) -> list[FamilyObservability]:
+                           terms: tuple[str, ...] | None = None, mounting=None) -> list[FamilyObservability]:
     """Per family of `terms` (default: the ones a schedule of this kind can show), whether the plan observes it,
-    the predicted 1-sigma of its coefficients and the families it is confounded with."""
+    the predicted 1-sigma of its coefficients and the families it is confounded with; for an IMU mounted with
+    `mounting` (`C_i^b`, None: the fixture's axes), in its own axes."""
     site = site or Site()
     imu = default_sim_imu()
-    positions, rotations = _observations(angles_deg, turns, noise, dwell_s, rate_dps, accel_dps2, site, imu)
+    positions, rotations = _observations(angles_deg, turns, noise, dwell_s, rate_dps, accel_dps2, site, imu,
+                                         mounting)
     if terms is None:
         terms = tuple(t for t in TERMS if (t in POSITION_TERMS and positions) or (t in ROTATION_TERMS and rotations)
                       or (t == "acc_lever_arm" and positions and rotations))
@@ -68,7 +71,7 @@ def extended_observability(angles_deg, turns, noise: NoiseModel, dwell_s: float 
 
     def sigmas(chosen: tuple[str, ...]) -> dict[str, float] | str:
         try:
-            return predicted_sigmas(positions, rotations, site, chosen, gyro_prior=prior)
+            return predicted_sigmas(positions, rotations, site, chosen, mounting, gyro_prior=prior)
         except SolverError as exc:
             return str(exc)
 

@@ -111,34 +111,36 @@ class Sensitivity:
 
 
 def solve_positions_batch(angles_deg, black_box_rad: np.ndarray, imu: ImuCoefficients,
-                          site: Site) -> dict[str, np.ndarray]:
-    """Position method on noise-free outputs for black boxes (R, 3, 3): SI coefficients per run.
+                          site: Site, mounting=None) -> dict[str, np.ndarray]:
+    """Position method on noise-free outputs for black boxes (R, 3, 3): SI coefficients per run, of an IMU mounted
+    with `mounting` (`C_i^b`; None: the fixture's axes).
 
     The gyro bias uses the true Kg/Eg, as `bench.schedule_design.monte_carlo` does.
     """
     angles = np.asarray(angles_deg, dtype=float)
-    design = position_design(angles, site)
+    design = position_design(angles, site, mounting)
     rank = np.linalg.matrix_rank(design, tol=1e-9 * np.abs(design).max())
     if rank < 4:
         raise SolverError(f"position schedule: the positions determine only {rank} of 4 unknowns per "
                           "accelerometer (need the specific force along all three body axes)")
-    gyro_out, acc_out = position_outputs(angles, imu, site, black_box_rad)
+    gyro_out, acc_out = position_outputs(angles, imu, site, black_box_rad, mounting)
     params = np.einsum("pk,rks->rsp", np.linalg.pinv(design), acc_out)
     scale, axes, bias = scale_axes_bias(params)
-    _, w_nominal = nominal_position_inputs(angles, site)
+    _, w_nominal = nominal_position_inputs(angles, site, mounting)
     gyro_bias = (gyro_out / imu.gyro_scale - w_nominal @ imu.gyro_axes.T).mean(axis=1)
     return {"Ka": scale, "Ea": axes, "K0": bias, "D0": gyro_bias}
 
 
 def solve_rotations_batch(turns, black_box_rad: np.ndarray, imu: ImuCoefficients, site: Site,
-                          rate_dps: float = 10.0) -> dict[str, np.ndarray]:
-    """Rotation method on noise-free integrals for black boxes (R, 3, 3): Kg, Eg per run."""
-    design = rotation_design_nominal(turns, site, rate_dps)
+                          rate_dps: float = 10.0, mounting=None) -> dict[str, np.ndarray]:
+    """Rotation method on noise-free integrals for black boxes (R, 3, 3): Kg, Eg per run (an IMU mounted with
+    `mounting`)."""
+    design = rotation_design_nominal(turns, site, rate_dps, mounting)
     rank = np.linalg.matrix_rank(design, tol=1e-9 * np.abs(design).max())
     if rank < 4:
         raise SolverError(f"rotation schedule: the turns determine only {rank} of 4 unknowns per gyro "
                           "(need turns about all three body axes in both senses)")
-    integral, _ = turn_integrals(turns, imu, site, rate_dps, black_box_rad)
+    integral, _ = turn_integrals(turns, imu, site, rate_dps, black_box_rad, mounting)
     params = np.einsum("pk,rks->rsp", np.linalg.pinv(design), integral)
     scale, axes, _ = scale_axes_bias(params)
     return {"Kg": scale, "Eg": axes}
@@ -189,22 +191,23 @@ def _sensitivity(method: str, families, solved, imu: ImuCoefficients, step_rad: 
 
 
 def position_sensitivity(angles_deg, imu: ImuCoefficients | None = None, site: Site | None = None,
-                         step_rad: float = STEP_RAD) -> Sensitivity:
-    """First-order sensitivity of D0 (with true Kg/Eg), K0, Ka, Ea to the nine angles."""
+                         step_rad: float = STEP_RAD, mounting=None) -> Sensitivity:
+    """First-order sensitivity of D0 (with true Kg/Eg), K0, Ka, Ea to the nine angles (an IMU mounted with
+    `mounting`: its own coefficients)."""
     imu = imu or default_sim_imu()
     site = site or Site()
-    solved = solve_positions_batch(angles_deg, probe_boxes(step_rad), imu, site)
+    solved = solve_positions_batch(angles_deg, probe_boxes(step_rad), imu, site, mounting)
     return _sensitivity("positions", POSITION_FAMILIES, solved, imu, step_rad)
 
 
 def rotation_sensitivity(turns, imu: ImuCoefficients | None = None, site: Site | None = None,
-                         rate_dps: float = 10.0, step_rad: float = STEP_RAD) -> Sensitivity:
-    """First-order sensitivity of Kg, Eg to the nine angles."""
+                         rate_dps: float = 10.0, step_rad: float = STEP_RAD, mounting=None) -> Sensitivity:
+    """First-order sensitivity of Kg, Eg to the nine angles (an IMU mounted with `mounting`)."""
     imu = imu or default_sim_imu()
     site = site or Site()
     boxes = probe_boxes(step_rad)
-    solved = solve_rotations_batch(turns, boxes, imu, site, rate_dps)
-    no_earth = solve_rotations_batch(turns, boxes, imu, _NoEarthSite.of(site), rate_dps)
+    solved = solve_rotations_batch(turns, boxes, imu, site, rate_dps, mounting)
+    no_earth = solve_rotations_batch(turns, boxes, imu, _NoEarthSite.of(site), rate_dps, mounting)
     geometric = _difference(no_earth, imu, ROTATION_FAMILIES, step_rad)
     return _sensitivity("rotations", ROTATION_FAMILIES, solved, imu, step_rad, geometric)
 
@@ -223,13 +226,14 @@ _QUANT_COUNTS = 1.0 / math.sqrt(6.0)  # std of the difference of two uniform rem
 
 
 def position_noise_sigma(angles_deg, noise: NoiseModel, dwell_s: float, imu: ImuCoefficients | None = None,
-                         site: Site | None = None) -> dict[str, float]:
-    """1-sigma of each position-method coefficient (display units; Ka in ppm, Ea in arcsec)."""
+                         site: Site | None = None, mounting=None) -> dict[str, float]:
+    """1-sigma of each position-method coefficient (display units; Ka in ppm, Ea in arcsec) of an IMU mounted
+    with `mounting` (its own axes)."""
     imu = imu or default_sim_imu()
     site = site or Site()
     if dwell_s <= 0:
         raise ValueError(f"dwell_s must be positive, got {dwell_s}")
-    design = position_design(np.asarray(angles_deg, dtype=float), site)
+    design = position_design(np.asarray(angles_deg, dtype=float), site, mounting)
     try:
         inv = np.linalg.inv(design.T @ design)
     except np.linalg.LinAlgError as exc:
@@ -260,11 +264,12 @@ def position_noise_sigma(angles_deg, noise: NoiseModel, dwell_s: float, imu: Imu
 
 
 def rotation_noise_sigma(turns, noise: NoiseModel, rate_dps: float = 10.0, imu: ImuCoefficients | None = None,
-                         site: Site | None = None) -> dict[str, float]:
-    """1-sigma of Kg (ppm) and Eg (arcsec) from each turn's integrated gyro noise."""
+                         site: Site | None = None, mounting=None) -> dict[str, float]:
+    """1-sigma of Kg (ppm) and Eg (arcsec) from each turn's integrated gyro noise (an IMU mounted with
+    `mounting`)."""
     imu = imu or default_sim_imu()
     site = site or Site()
-    design = rotation_design_nominal(turns, site, rate_dps)
+    design = rotation_design_nominal(turns, site, rate_dps, mounting)
     durations = design[:, 3]
     arw = noise.gyro_arw_deg_rt_h * DEG / 60.0            # rad/sqrt(s)
     bi = noise.gyro_bias_instability_dph * DEG_PER_HOUR

@@ -28,7 +28,7 @@ import numpy as np
 from bench.config.chamber import ChamberConfig
 from bench.config.load import BenchConfig, SimConfig
 from bench.config.rig import RigIdentity, this_rig
-from bench.config.units import FACES
+from bench.config.units import FACES, lever_arm_in_body_m
 from bench.model.imu import NoiseModel
 from bench.model.units import DEG
 from bench.sim.can_imu import SimCanImu
@@ -38,7 +38,7 @@ from bench.sim.serve import IDLE_TIMEOUT_S
 from bench.sim.slcan_server import SlcanPeer, SlcanPtyServer
 from bench.sim.socketcand_server import SocketcandServer
 from bench.sim.table import SimTable, TableLimits
-from bench.sim.units import mounted_view, unit_seed, unit_truth
+from bench.sim.units import mounted_view, placed_terms, unit_seed, unit_truth
 from drivers.chamber import ChamberLimits
 from drivers.imu import SHIPPED_LAYOUTS, ImuFrameSpec
 from drivers.imu.layout import CHANNELS
@@ -146,8 +146,10 @@ class SimRig:
         self.controller = SimController(SimTable(config.site.site, black_box_rad=sim.black_box_rad,
                                                  limits=table_limits), limits=axes)
         _check_gyro_range(config)
+        # the first unit of several sits at its lever arm (none: the configured truth as it is)
         self.imu = SimImu(sim.imu, sim.noise, rate_hz=config.imu.rate_hz, seed=sim.seed, thermal=sim.thermal,
-                           higher_order=sim.higher_order)
+                           higher_order=placed_terms(sim.higher_order, lever_arm_in_body_m(config.imu))
+                           if config.units else sim.higher_order)
         self.bus = RigBus()
         self.can_imu = SimCanImu(self.controller, self.imu, self.bus, config.imu.layout)
         #: a rig of several IMUs (`config.units`, `bench sim rig --imus N`): every unit but the first, each with its
@@ -158,7 +160,7 @@ class SimRig:
                 can_imu = self.can_imu
             else:
                 imu = SimImu(unit_truth(sim.imu, k, sim.seed), sim.noise, rate_hz=unit.rate_hz,
-                             seed=unit_seed(sim.seed, k))
+                             seed=unit_seed(sim.seed, k), higher_order=placed_terms(None, lever_arm_in_body_m(unit)))
                 can_imu = SimCanImu(self.controller, imu, self.bus, unit.layout)
                 self.units.append(can_imu)
             if unit.mounting is not None and unit.mounting != FACES["z-up"]:

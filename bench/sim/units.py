@@ -4,6 +4,7 @@ A unit mounted on the fixture with the rotation `C_i^b` (fixture to the unit's b
 rotated: `mounted_view` is the table as that unit sees it (the same trajectory, every command included, with the
 mounting in the kinematics chain, exactly as `SimTable(mounting=...)` computes it). `unit_truth` gives unit k of a
 run its own true coefficients, drawn about the configured ones, so that the units of one run differ as real ones do.
+A unit with a lever arm (`placed_terms`) sits off the rotation centre: its accelerometers see the table's motion there.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.model.families import BODY_AXES, SENSOR_AXES
+from bench.model.higher_order import HigherOrderTerms
 from bench.model.imu import ImuCoefficients, NoiseModel
 from bench.sim.table import SimTable
 from drivers.imu.layout import ImuLayout
@@ -35,6 +37,8 @@ class SimUnit:
     seed: int
     mounting: tuple[tuple[float, ...], ...] | None
     bus: str
+    #: its higher-order truth (`placed_terms`: its lever arm); None: the 30-coefficient model alone
+    higher_order: HigherOrderTerms | None = None
 
 
 def mounted_view(table: SimTable, mounting) -> SimTable:
@@ -44,6 +48,17 @@ def mounted_view(table: SimTable, mounting) -> SimTable:
     rotation = np.asarray(mounting, dtype=float).reshape(3, 3)
     view.mounting = rotation if table.mounting is None else rotation @ table.mounting
     return view
+
+
+def placed_terms(terms: HigherOrderTerms | None, lever_arm_body_m) -> HigherOrderTerms | None:
+    """`terms` with the unit placed at `lever_arm_body_m` (its body axes, m) from the table's rotation centre:
+    every accelerometer's own lever arm moves by it, so each sees the centripetal and tangential acceleration of
+    the table's motion there. `terms` itself when the unit has no lever arm (bit for bit as before)."""
+    if lever_arm_body_m is None:
+        return terms
+    placed = copy.deepcopy(terms) if terms is not None else HigherOrderTerms()
+    placed.acc_lever_arm = placed.acc_lever_arm + np.asarray(lever_arm_body_m, dtype=float)[None, :]
+    return placed
 
 
 def unit_truth(base: ImuCoefficients, index: int, seed: int) -> ImuCoefficients:
@@ -74,4 +89,4 @@ def unit_seed(seed: int, index: int) -> int:
     return seed if index == 0 else int(np.random.SeedSequence([seed, index]).generate_state(1)[0])
 
 
-__all__ = ["UNIT_SPREAD", "SimUnit", "mounted_view", "unit_seed", "unit_truth"]
+__all__ = ["UNIT_SPREAD", "SimUnit", "mounted_view", "placed_terms", "unit_seed", "unit_truth"]

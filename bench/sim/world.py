@@ -265,7 +265,8 @@ class SimWorld(ClosedOnExit):
         """Another simulated IMU on this world's table (a run of several units): `unit`'s truth, noise, rate, layout
         and mounting, sending on the virtual bus named `unit.bus` (the world's own IMU sends on `reference_bus`;
         every other name is a bus of its own). It is stepped with the world's IMU (`imu_source`)."""
-        imu = SimImu(unit.coefficients, unit.noise, rate_hz=unit.rate_hz, seed=unit.seed)
+        imu = SimImu(unit.coefficients, unit.noise, rate_hz=unit.rate_hz, seed=unit.seed,
+                     higher_order=unit.higher_order)
         can_imu = SimCanImu(self.controller, imu, self._unit_sender(unit.bus, reference_bus), unit.layout)
         if unit.mounting is not None:
             can_imu.table = mounted_view(self.table, unit.mounting)

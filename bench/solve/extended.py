@@ -207,7 +207,7 @@ def _table(positions, rotations, site: Site, inputs: BudgetInputs, mounting, gyr
 
 def _fit(positions: list[PositionObservation], rotations: list[RotationObservation], site: Site,
          terms: tuple[str, ...], inputs: BudgetInputs, mounting, gyro_prior: ImuCoefficients | None,
-         table_error: _Table) -> _Solved:
+         table_error: _Table, lever_arm_m=None) -> _Solved:
     out = _Solved([], list(positions), list(rotations))
     table = table_error.obs
     acc_terms = tuple(t for t in terms if FAMILIES[t].sensor == "acc" and t != "acc_lever_arm")
@@ -242,7 +242,7 @@ def _fit(positions: list[PositionObservation], rotations: list[RotationObservati
                 corrected_acc[:, s] -= extra @ fit.params[0][4:]
         if "acc_lever_arm" in terms:
             out.parts += _lever_arms(positions, rotations, site, acc_terms, out.acc_fits, acc_sigma, mounting,
-                                     inputs, table_error.imu)
+                                     inputs, table_error.imu, lever_arm_m)
     # -- gyros: rotations and positions, iterated
     corrected_gyro = np.array([o.gyro_mean for o in positions]) if positions else np.zeros((0, 3))
     corrected_turns = np.array([o.gyro_integral for o in rotations]) if rotations else np.zeros((0, 3))
@@ -258,8 +258,9 @@ def _fit(positions: list[PositionObservation], rotations: list[RotationObservati
 
 def _lever_arms(positions, rotations, site: Site, acc_terms, acc_fits: list[LinearFit],
                 acc_sigma: np.ndarray | None, mounting, inputs: BudgetInputs,
-                imu: ImuCoefficients | None) -> list[_Part]:
-    """Each accelerometer's own-axis lever arm from the turns about a vertical axis (two-step, see the module)."""
+                imu: ImuCoefficients | None, lever_arm_m=None) -> list[_Part]:
+    """Each accelerometer's own-axis lever arm from the turns about a vertical axis (two-step, see the module),
+    beyond the unit's known place `lever_arm_m` (body axes, m; None: at the rotation centre)."""
     rows = []
     for o in rotations:
         if o.acc_integral is None or o.rate_sq_integral is None:
@@ -282,6 +283,12 @@ def _lever_arms(positions, rotations, site: Site, acc_terms, acc_fits: list[Line
     # the table's pointing error at the positions and at the turns' attitudes, together
     every = np.concatenate([angles, np.array([o.start_deg for o in turn_obs])])
     table_all = observation_table_covariance(imu, every, [], site, inputs, mounting).get("accelerometers")
+    known = None
+    if lever_arm_m is not None:
+        # the unit's known place: the mean centripetal force `w x (w x r)` over each turn, in body axes (the
+        # tangential `dw/dt x r` integrates to nothing from rest to rest), out of the observations before the fit
+        r = np.asarray(lever_arm_m, dtype=float)
+        known = np.array([o.rate_sq_integral / o.duration_s * (float(u @ r) * u - r) for o, u, _ in rows])
     parts = []
     for s in range(3):
         fit = acc_fits[s]
@@ -291,6 +298,8 @@ def _lever_arms(positions, rotations, site: Site, acc_terms, acc_fits: list[Line
         x = np.column_stack([f_rows, np.ones(len(rows)), extra])
         durations = np.array([o.duration_s for o, _, _ in rows])
         y = np.array([o.acc_integral[s] for o, _, _ in rows]) / durations - x @ fit.params[0]
+        if lever_arm_m is not None:
+            y = y - known @ fit.params[0][:3]
         col = -(1.0 - np.array([u[s] ** 2 for _, u, _ in rows])) * np.array(
             [o.rate_sq_integral for o, _, _ in rows]) / durations * scale
         sig = None if density2 is None else np.sqrt(density2[s] / durations)
@@ -454,13 +463,13 @@ def _tests(parts: list[_Part], terms: tuple[str, ...]) -> dict[str, FamilyTest]:
 
 
 def _observed(positions, rotations, site: Site, terms: tuple[str, ...], inputs: BudgetInputs, mounting,
-              gyro_prior, table: _Table) -> tuple[tuple[str, ...], dict[str, str]]:
+              gyro_prior, table: _Table, lever_arm_m=None) -> tuple[tuple[str, ...], dict[str, str]]:
     """The families the plan observes together, added one at a time in `TERMS` order; the others with why not."""
     kept: list[str] = []
     left: dict[str, str] = {}
     for term in terms:
         try:
-            _fit(positions, rotations, site, (*kept, term), inputs, mounting, gyro_prior, table)
+            _fit(positions, rotations, site, (*kept, term), inputs, mounting, gyro_prior, table, lever_arm_m)
         except SolverError as exc:
             left[term] = f"not observed by this plan together with {', '.join(kept) or 'the 30'} ({exc})"
             continue
@@ -470,8 +479,10 @@ def _observed(positions, rotations, site: Site, terms: tuple[str, ...], inputs: 
 
 def solve_extended(positions: list[PositionObservation], rotations: list[RotationObservation], site: Site,
                    terms: Iterable[str] | str, mounting=None, gyro_prior: ImuCoefficients | None = None,
-                   budget_inputs: BudgetInputs | None = None) -> Calibration:
-    """The calibration with the higher-order families `terms` (or "auto", see the module); no terms: `solve`."""
+                   budget_inputs: BudgetInputs | None = None, lever_arm_m=None) -> Calibration:
+    """The calibration with the higher-order families `terms` (or "auto", see the module); no terms: `solve`.
+    `lever_arm_m`: the unit's known place from the rotation centre (body axes, m), whose centripetal force the
+    lever-arm fit takes out of the turns (the other fits use no accelerometer output from a turn)."""
     families, auto = parse_terms(terms)
     inputs = budget_inputs or BudgetInputs()
     if not families:
@@ -479,9 +490,10 @@ def solve_extended(positions: list[PositionObservation], rotations: list[Rotatio
     left: dict[str, str] = {}
     table = _table(positions, rotations, site, inputs, mounting, gyro_prior)
     if auto:
-        families, left = _observed(positions, rotations, site, families, inputs, mounting, gyro_prior, table)
+        families, left = _observed(positions, rotations, site, families, inputs, mounting, gyro_prior, table,
+                                   lever_arm_m)
         while families:
-            solved = _fit(positions, rotations, site, families, inputs, mounting, gyro_prior, table)
+            solved = _fit(positions, rotations, site, families, inputs, mounting, gyro_prior, table, lever_arm_m)
             tests = _tests(solved.parts, families)
             weakest = max(families, key=lambda t: tests[t].p_value)
             if tests[weakest].significant():
@@ -492,7 +504,7 @@ def solve_extended(positions: list[PositionObservation], rotations: list[Rotatio
             calibration = solve(positions, rotations, site, mounting, gyro_prior, budget_inputs=inputs)
             calibration.extended = ExtendedFit((), left_out=left, auto=True)
             return calibration
-    solved = _fit(positions, rotations, site, families, inputs, mounting, gyro_prior, table)
+    solved = _fit(positions, rotations, site, families, inputs, mounting, gyro_prior, table, lever_arm_m)
     calibration = solve(solved.positions, solved.rotations, site, mounting, gyro_prior, budget_inputs=inputs)
     calibration.positions, calibration.rotations = list(positions), list(rotations)
     fit = ExtendedFit(families, tests=_tests(solved.parts, families), left_out=left, auto=auto)

@@ -99,14 +99,16 @@ def solve_logs(logs: list[RunLog], site: Site, layout: ImuLayout, rate_hz: float
 
 def solve_extraction(extraction: Extraction, site: Site, *, mounting=None, gyro_bias_stability_dph: float | None = None,
                      acc_bias_stability_ug: float | None = None, budget: BudgetInputs | None = None,
-                     terms: tuple[str, ...] = ()) -> Calibration:
+                     terms: tuple[str, ...] = (), lever_arm_m=None) -> Calibration:
     """Solve merged observations (all of a log's or a subset); SolverError if there is nothing to solve.
 
     `budget` (what is known beyond the data) replaces the two bias stabilities when given. `terms`: the extended
-    model's families (`bench.solve.extended`; ("auto",): the data choose), none: the 30 coefficients."""
+    model's families (`bench.solve.extended`; ("auto",): the data choose), none: the 30 coefficients. `lever_arm_m`:
+    the unit's known place from the rotation centre (body axes, m), taken out of the turns by the extended model's
+    lever-arm fit (the 30 coefficients use no accelerometer output from a turn)."""
     if terms:
         return solve_extended(extraction.positions, extraction.rotations, site, terms, mounting,
-                              budget_inputs=budget or BudgetInputs(
+                              lever_arm_m=lever_arm_m, budget_inputs=budget or BudgetInputs(
                                   gyro_bias_instability=(gyro_bias_stability_dph or 0.0) * DEG_PER_HOUR,
                                   acc_bias_instability=(acc_bias_stability_ug or 0.0) * MICRO_G))
     return solve(extraction.positions, extraction.rotations, site, mounting,

@@ -136,3 +136,33 @@ def test_on_unit_failure_is_continue_stop_or_named():
         parse_config(HEAD + unit() + '[run]\non_unit_failure = "pause"\n', "multi.toml")
     assert "multi.toml" in str(info.value) and "run.on_unit_failure" in str(info.value)
     assert 'expected one of continue, stop' in str(info.value)
+
+
+def test_a_lever_arm_is_taken_in_mm_and_turned_into_the_unit_axes():
+    from bench.config.units import lever_arm_in_body_m
+    config = parse(unit("A1"), unit("A2", extra='id_offset = 16\nmounting = "x-up"\nlever_arm_mm = [100, 0, -2.5]\n'))
+    first, second = config.units
+    assert first.lever_arm_mm is None and lever_arm_in_body_m(first) is None
+    assert second.lever_arm_mm == (100.0, 0.0, -2.5)
+    # x-up: the unit's y lies along the fixture's x, its x along the fixture's z
+    assert np.allclose(lever_arm_in_body_m(second), [-0.0025, 0.1, 0.0])
+
+
+@pytest.mark.parametrize("value, words", [
+    ("[100, 0]", "3 finite numbers"),
+    ("[100, nan, 0]", "3 finite numbers"),
+    ("[inf, 0, 0]", "3 finite numbers"),
+    ('["100", 0, 0]', "3 finite numbers"),
+    ("[true, 0, 0]", "3 finite numbers"),
+    ("[0, 2500, 0]", "more than 2000 mm"),
+    ("[0.1, 0.0, -2001]", "more than 2000 mm"),
+])
+def test_a_bad_lever_arm_names_file_line_and_key(value, words):
+    exc = error(unit(extra=f"lever_arm_mm = {value}\n"))
+    assert exc.path == "multi.toml" and exc.line == 15 and exc.key == "imu[0].lever_arm_mm" and words in exc.message
+
+
+def test_a_lever_arm_belongs_to_imu_entries():
+    text = HEAD + '[imu]\ninterface = "virtual"\nchannel = "x"\nrate_hz = 200.0\nlever_arm_mm = [100, 0, 0]\n'
+    with pytest.raises(ConfigError, match=r"imu.lever_arm_mm: belongs to an \[\[imu\]\] entry"):
+        parse_config(text)
