@@ -80,8 +80,7 @@ HELP_KEYS: tuple[tuple[str, str], ...] = (
     ("q", "quit (asks first while a run is active: the run is aborted, the table stopped)"),
 )
 #: the help's row of the unit key, above the theme's, in a run of several IMUs only (one IMU: the help as ever)
-UNIT_HELP = (UNIT_KEY, "next unit (a run of several IMUs): the IMU panel and the Results and Budget tabs show the "
-                       "selected unit; the units panel (above the events) marks it with >")
+UNIT_HELP = (UNIT_KEY, "select the next unit (marked >): the IMU panel, Results and Budget tabs show it")
 HELP_NOTE = ("Manual commands are refused while a plan runs; the first manual move (g, v, [ ]) starts a log of "
              "manual moves (<id>-manual.mcap), a plan writes its own. Event times: +h:mm:ss since the run started "
              "(simulated seconds with the simulator), hh:mm:ss local time outside a run. IMU values: 1 s means, "
@@ -433,10 +432,10 @@ class BenchApp(App):
 
     def action_help(self) -> None:
         keys = HELP_KEYS
-        if self.several:
+        if self.several:        # the unit key's row, and no blank line above the note: it all fits 100x30 still
             theme = next(k for k, (key, _) in enumerate(keys) if key == "t")
             keys = (*keys[:theme], UNIT_HELP, *keys[theme:])
-        self.push_screen(HelpScreen(keys, HELP_NOTE))
+        self.push_screen(HelpScreen(keys, HELP_NOTE, compact=self.several))
 
     def action_quit_app(self) -> None:
         if not self.session.busy:

@@ -24,6 +24,8 @@ BUDGET_SHORT = {key: title.split(" (")[0] for key, title in BUDGET_COLUMNS}
 #: 16 characters ("bias instab. 93%") cut the last one ("bias instab. 1"); the line under it has the full names
 TABLE_SHORT = {"bias instab.": "bias inst.", "unexplained": "scatter"}
 _TITLES = {title.split(" (")[0]: title for _, title in BUDGET_COLUMNS}
+#: a unit of several IMUs without a result (its Results tab says why)
+NO_UNIT_BUDGET = "no uncertainty budget: this unit has no result (the Results tab says why)"
 NO_BUDGET = "no uncertainty budget: the result has none (written before result version 2) or no run was solved yet"
 
 
@@ -87,8 +89,9 @@ class BudgetPanel(Vertical):
         coefficients = {} if result is None else {n: c for n, c in result.coefficients.items() if c.budget is not None}
         self._names = list(coefficients)
         if not coefficients:
-            self._lines = [NO_BUDGET]
-            self.query_one("#budget-flags", Label).update(NO_BUDGET)
+            none = NO_UNIT_BUDGET if heading and result is None else NO_BUDGET
+            self._lines = [none]
+            self.query_one("#budget-flags", Label).update(none)
             self.show_detail(-1)
             return
         flags = budget_flags(result)

@@ -10,6 +10,7 @@ import pytest
 
 from bench.config.load import parse_config
 from bench.log.events import RunListener, StepStarted
+from bench.tui.budget_panel import NO_UNIT_BUDGET
 from tests.e2e.test_several_imus import several_config
 from tests.helpers.tui import SIZE, connected, make_app, press, run, snap, start_plan, wait_until
 
@@ -93,6 +94,7 @@ def test_live_units_their_state_a_silenced_unit_dropped_and_per_unit_results(tmp
                              "B1's account")
             assert results.result is None and budget.result is None
             assert budget.plain.startswith("unit B1 (y-down) (3/3)\nunits: A1 ")
+            assert budget.plain.splitlines()[2] == NO_UNIT_BUDGET
             assert imu.plain.startswith("IMU B1 y-down (3/3)") and "dropped: silent" in imu.plain.splitlines()[1]
     run(body)
 
@@ -187,4 +189,8 @@ def test_the_help_lists_the_unit_key_with_several_units(tmp_path):
             await wait_until(pilot, lambda: type(app.screen).__name__ == "HelpScreen", "the help")
             keys = [key for key, _ in app.screen.keys]
             assert UNIT_HELP in app.screen.keys and keys.index("u") == keys.index("t") - 1
+            await pilot.pause(0.2)
+            dialog = app.screen.query_one("Vertical")       # all of it fits 100x30, the note's last line too
+            assert app.screen.region.contains_region(dialog.region)
+            assert dialog.virtual_size.height <= dialog.scrollable_content_region.height
     run(body)
