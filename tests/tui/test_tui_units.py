@@ -194,3 +194,39 @@ def test_the_help_lists_the_unit_key_with_several_units(tmp_path):
             assert app.screen.region.contains_region(dialog.region)
             assert dialog.virtual_size.height <= dialog.scrollable_content_region.height
     run(body)
+
+
+def test_the_buffer_keeps_each_unit_its_state_waiting_receiving_stale_dropped():
+    """Without a run: the states come from the samples' age on the session's clock and the run's drop warning."""
+    import numpy as np
+
+    from bench.log.events import UNIT_DROPPED, RunWarning
+    from bench.tui.buffer import STALE_AFTER_S, UiBuffer
+    from drivers.imu import ImuSampleBlock
+
+    now = [100.0]
+    buffer = UiBuffer((), clock=lambda: now[0])
+    buffer.set_units([("A1", "z-up"), ("A2", "x-up"), ("B1", "y-down")])
+    assert [u.state for u in buffer.snapshot().units] == ["waiting: no sample yet"] * 3
+
+    def block(n: int) -> ImuSampleBlock:
+        k = np.arange(n)
+        return ImuSampleBlock(k, k / 200.0, np.ones((n, 3)), np.ones((n, 3)), np.full(n, 25.0), np.zeros(n, np.int64),
+                              200.0)
+
+    buffer.on_imu(block(10))
+    buffer.on_unit_imu("A2", block(20))
+    buffer.on_unit_imu("B1", block(30))
+    buffer.on_unit_imu("C9", block(5))                  # not a unit of this run: ignored
+    units = buffer.snapshot().units
+    assert [(u.serial, u.imu.samples, u.state) for u in units] == [
+        ("A1", 10, "receiving"), ("A2", 20, "receiving"), ("B1", 30, "receiving")]
+    assert units[0].imu.samples == buffer.snapshot().imu.samples      # the reference unit is the IMU panel's IMU
+    now[0] += STALE_AFTER_S + 1.0
+    buffer.on_unit_imu("A2", block(20))
+    buffer.on_event(RunWarning(812.0, "unit B1 dropped from the run: silent: no sample for 2.1 s", 7, "P05",
+                               details={UNIT_DROPPED: "B1", "reason": "silent: no sample for 2.1 s"}))
+    states = [u.state for u in buffer.snapshot().units]
+    assert states == ["stale: no sample for 4 s", "receiving", "dropped: silent: no sample for 2.1 s"]
+    buffer.begin_run(())                                 # a new run: nobody dropped yet
+    assert buffer.snapshot().units[2].state == "stale: no sample for 4 s"
