@@ -25,16 +25,18 @@ from textual.css.query import NoMatches
 from textual.widgets import Footer, Header, TabbedContent, TabPane
 
 from bench.config.load import default_sim_config
+from bench.finish.units import unit_config
 from bench.model.result import CalibrationResult
 from bench.plan.steps import CHAMBER_KINDS
 from bench.run.runner import compile_from_config
 from bench.run.timing import estimates
 from bench.tui.budget_panel import BudgetPanel
-from bench.tui.buffer import CHANNELS, STALE_AFTER_S, ImuScales, UiBuffer
+from bench.tui.buffer import CHANNELS, MEAN_WINDOW_S, STALE_AFTER_S, ImuScales, UiBuffer
 from bench.tui.panels import ChamberPanel, EventLog, ImuPanel, PlanPanel, ResultsPanel, TablePanel
-from bench.tui.replay_session import ReplaySession, open_log
+from bench.tui.replay_session import ReplaySession, log_units, open_log
 from bench.tui.screens import ConfirmScreen, GotoScreen, HelpScreen, RateScreen
 from bench.tui.session import OPERATOR_ERRORS, BenchSession, SessionError
+from bench.tui.units_panel import UNIT_KEY, UnitsPanel, unit_result_texts
 from drivers.turntable import FRAMES
 
 ESTOP_KEY = "f12"
@@ -77,6 +79,8 @@ HELP_KEYS: tuple[tuple[str, str], ...] = (
     ("?", "this help (Esc, q or ? closes it)"),
     ("q", "quit (asks first while a run is active: the run is aborted, the table stopped)"),
 )
+#: the help's row of the unit key, above the theme's, in a run of several IMUs only (one IMU: the help as ever)
+UNIT_HELP = (UNIT_KEY, "select the next unit (marked >): the IMU panel, Results and Budget tabs show it")
 HELP_NOTE = ("Manual commands are refused while a plan runs; the first manual move (g, v, [ ]) starts a log of "
              "manual moves (<id>-manual.mcap), a plan writes its own. Event times: +h:mm:ss since the run started "
              "(simulated seconds with the simulator), hh:mm:ss local time outside a run. IMU values: 1 s means, "
@@ -100,6 +104,7 @@ class BenchApp(App):
     #left-tabs { border: round $primary; }
     #events { border: round $primary; }
     #chamber-panel { border-bottom: hkey $primary; }
+    #units-panel { border-bottom: hkey $primary; }
     """ % TOP_PANEL_HEIGHT
     BINDINGS = [
         Binding(ESTOP_KEY, "estop", "E-STOP", priority=True),
@@ -121,6 +126,7 @@ class BenchApp(App):
         # one footer entry for the three ("1-3 tabs": the footer fills a 100-column terminal), the help lists them
         *(Binding(key, f"show_tab('{tab}')", "tabs" if k == 0 else title, show=k == 0, key_display=TAB_KEYS)
           for k, (key, tab, title) in enumerate(TABS)),
+        Binding(UNIT_KEY, "next_unit", "unit"),      # shown only in a run of several IMUs (check_action)
         Binding("question_mark,f1", "help", "help"),
         Binding("q", "quit_app", "quit"),
     ]
@@ -140,6 +146,9 @@ class BenchApp(App):
         self.sub_title = subtitle
         self.refreshes = 0                   # timer ticks drawn (the refresh benchmark reads it)
         self._result_shown: CalibrationResult | None = None
+        self._results_key: tuple = ()         # what the Results and Budget tabs show (compared by identity)
+        self.unit_index = 0                  # the selected unit (a run of several IMUs)
+        self.unit_scales: tuple[ImuScales, ...] = ()   # each unit's, the reference first (set by create_app)
         self.jog_frame = 0                   # the frame [ and ] move
         self.jog_step_deg = float(jog_step_deg)
         self.rate_dps = 0.0                  # the rate dialog's last value
@@ -163,6 +172,8 @@ class BenchApp(App):
             with Vertical(id="events"):
                 if self.thermal:
                     yield ChamberPanel(self.steps, id="chamber-panel")
+                if self.several:
+                    yield UnitsPanel(id="units-panel")
                 yield EventLog(id="event-log")
         yield Footer()
 
@@ -202,7 +213,16 @@ class BenchApp(App):
         jog = "replay, no hardware: p / r pause and resume it" if self.session.replaying else \
             f"jog: {FRAMES[self.jog_frame]} by {self.jog_step_deg:g} deg ([ ]; j: axis)"
         self.query_one(TablePanel).show(snap, self.session.link, self.session.link_detail, jog)
-        self.query_one(ImuPanel).show(snap)
+        units = snap.units
+        if units:
+            k = self.unit_index % len(units)
+            unit = units[k]
+            self.query_one(ImuPanel).show(snap, unit, f"IMU {unit.serial} {unit.face} ({k + 1}/{len(units)}): "
+                                                      f"{MEAN_WINDOW_S:g} s means",
+                                          self.unit_scales[k] if k < len(self.unit_scales) else None)
+            self.query_one(UnitsPanel).show(snap, k)
+        else:
+            self.query_one(ImuPanel).show(snap)
         self.query_one(PlanPanel).show(snap)
         if self.thermal:
             self.query_one(ChamberPanel).show(snap)
@@ -210,13 +230,31 @@ class BenchApp(App):
         if snap.event_count > log.seen:
             # the events and their count in one call: an event added since the snapshot is shown once
             log.add(*self.buffer.lines_since(log.seen))
-        if snap.result is not self._result_shown or (snap.result is None and snap.outcome_text
-                                                     and self._result_shown is None):
-            self._result_shown = snap.result
-            self.query_one(ResultsPanel).show_result(snap.result, snap.outcome_text)
-            self.query_one(BudgetPanel).show_result(snap.result)
-            if snap.result is not None:
-                self.query_one(TabbedContent).active = "results-tab"
+        if snap.unit_outcomes:
+            self._show_unit_results(snap)
+        elif snap.result is not self._result_shown or (snap.result is None and snap.outcome_text
+                                                       and self._result_shown is None):
+            self._show_results(snap.result, snap.outcome_text, "")
+
+    def _show_results(self, result: CalibrationResult | None, text: str, heading: str) -> None:
+        """The Results and Budget tabs show `result` (and `text`; `heading`: above the budget); the first result
+        brings the Results tab up."""
+        first = result is not None and self._result_shown is None
+        self._result_shown = result
+        self.query_one(ResultsPanel).show_result(result, text)
+        self.query_one(BudgetPanel).show_result(result, heading)
+        if first:
+            self.query_one(TabbedContent).active = "results-tab"
+
+    def _show_unit_results(self, snap) -> None:
+        """A run of several IMUs that ended: the selected unit's result and verdict, and every unit's verdict."""
+        outcomes = snap.unit_outcomes
+        k = self.unit_index % len(outcomes)
+        key = (outcomes, k, snap.result)
+        if len(self._results_key) == 3 and all(a is b for a, b in zip(key, self._results_key)):
+            return
+        self._results_key = key
+        self._show_results(outcomes[k].result, *unit_result_texts(snap, k))
 
     def _refuse(self, exc: Exception) -> None:
         self.notify(str(exc), severity="warning")
@@ -370,11 +408,34 @@ class BenchApp(App):
     def action_show_tab(self, tab: str) -> None:
         self.query_one(TabbedContent).active = tab
 
+    @property
+    def several(self) -> bool:
+        """A run of several IMUs: the Units panel, the unit key."""
+        return len(self.buffer.units) > 1
+
+    def action_next_unit(self) -> None:
+        """Select the next unit (a run of several IMUs): the IMU panel, Results and Budget show it."""
+        n = len(self.buffer.units)
+        if n < 2:
+            return                      # (one IMU: the key is off, `check_action`)
+        self.unit_index = (self.unit_index + 1) % n
+        self.refresh_panels()
+
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        """The unit key is shown (in the footer) only in a run of several IMUs."""
+        if action == "next_unit" and not self.several:
+            return False
+        return True
+
     def action_toggle_theme(self) -> None:
         self.theme = LIGHT_THEME if self.current_theme.dark else DARK_THEME
 
     def action_help(self) -> None:
-        self.push_screen(HelpScreen(HELP_KEYS, HELP_NOTE))
+        keys = HELP_KEYS
+        if self.several:        # the unit key's row, and no blank line above the note: it all fits 100x30 still
+            theme = next(k for k, (key, _) in enumerate(keys) if key == "t")
+            keys = (*keys[:theme], UNIT_HELP, *keys[theme:])
+        self.push_screen(HelpScreen(keys, HELP_NOTE, compact=self.several))
 
     def action_quit_app(self) -> None:
         if not self.session.busy:
@@ -473,16 +534,28 @@ def create_app(*, config=None, sim: bool = False, replay: str | Path | None = No
     session = BenchSession(config, plan, sim=sim, out_dir=out_dir if out_dir is not None else config.output.folder,
                            buffer=buffer, operator=operator, poll_s=poll_s)
     names = " + ".join(s.name for s in (config.plan.positions, config.plan.rotations) if s is not None)
-    return BenchApp(session, buffer, steps=plan.steps, limits=config.table.limits,
-                    scales=ImuScales.from_config(config, sim), simulated=sim, auto_connect=auto_connect,
-                    refresh_hz=refresh_hz, subtitle=f"{'simulator' if sim else config.table.url} - {names}",
-                    jog_step_deg=jog_step_deg, theme=theme)
+    app = BenchApp(session, buffer, steps=plan.steps, limits=config.table.limits,
+                   scales=ImuScales.from_config(config, sim), simulated=sim, auto_connect=auto_connect,
+                   refresh_hz=refresh_hz, subtitle=f"{'simulator' if sim else config.table.url} - {names}",
+                   jog_step_deg=jog_step_deg, theme=theme)
+    _set_units(app, config, sim, [(unit.identity.serial, unit.mounting_name) for unit in config.units])
+    return app
+
+
+def _set_units(app: BenchApp, config, sim: bool, units: list[tuple[str, str]]) -> None:
+    """A run of several IMUs: its units (serial, mounting face) in the buffer, each unit's scales in the app."""
+    if len(units) < 2:
+        return
+    app.buffer.set_units(units)
+    app.unit_scales = tuple(ImuScales.from_config(unit_config(config, k), sim) for k in range(len(units)))
 
 
 def _create_replay_app(path, speed, buffer: UiBuffer, **kwargs) -> BenchApp:
     opened = open_log(path)
     buffer.begin_run(opened.steps)
     session = ReplaySession(opened, buffer=buffer, speed=speed)
-    return ReplayApp(session, buffer, steps=opened.steps, limits=opened.limits,
+    app = ReplayApp(session, buffer, steps=opened.steps, limits=opened.limits,
                     scales=ImuScales.from_config(opened.config, opened.simulated), simulated=opened.simulated,
                     auto_connect=False, subtitle=f"replay of {opened.path.name}", **kwargs)   # (the pace: link line)
+    _set_units(app, opened.config, opened.simulated, log_units(opened))
+    return app

@@ -24,6 +24,8 @@ BUDGET_SHORT = {key: title.split(" (")[0] for key, title in BUDGET_COLUMNS}
 #: 16 characters ("bias instab. 93%") cut the last one ("bias instab. 1"); the line under it has the full names
 TABLE_SHORT = {"bias instab.": "bias inst.", "unexplained": "scatter"}
 _TITLES = {title.split(" (")[0]: title for _, title in BUDGET_COLUMNS}
+#: a unit of several IMUs without a result (its Results tab says why)
+NO_UNIT_BUDGET = "no uncertainty budget: this unit has no result (the Results tab says why)"
 NO_BUDGET = "no uncertainty budget: the result has none (written before result version 2) or no run was solved yet"
 
 
@@ -51,6 +53,7 @@ class BudgetPanel(Vertical):
     DEFAULT_CSS = """
     BudgetPanel { height: 1fr; }
     BudgetPanel #budget-flags { height: auto; width: 1fr; }
+    BudgetPanel #budget-unit { height: auto; width: 1fr; }
     BudgetPanel #budget-detail { height: auto; width: 1fr; }
     BudgetPanel DataTable { height: 1fr; }
     """
@@ -62,23 +65,33 @@ class BudgetPanel(Vertical):
         self.detail = ""            # the highlighted coefficient's whole budget, as shown
         self._names: list[str] = []
         self._lines: list[str] = []
+        self.heading = ""           # a run of several IMUs: whose budget this is, and every unit's verdict
 
     def compose(self) -> ComposeResult:
+        unit = Label("", id="budget-unit")
+        unit.display = False
+        yield unit
         yield Label(NO_BUDGET, id="budget-flags")
         yield DataTable(id="budget-table", zebra_stripes=True, cursor_type="row")
         yield Label("", id="budget-detail")
 
-    def show_result(self, result: Any) -> None:
-        if result is self.result:
+    def show_result(self, result: Any, heading: str = "") -> None:
+        """Show `result`'s budget (None: none); `heading` above it (a run of several IMUs: the unit and every unit's
+        verdict)."""
+        if result is self.result and heading == self.heading:
             return
-        self.result = result
+        self.result, self.heading = result, heading
+        unit = self.query_one("#budget-unit", Label)
+        unit.update(heading)
+        unit.display = bool(heading)
         table = self.query_one("#budget-table", DataTable)
         table.clear(columns=True)
         coefficients = {} if result is None else {n: c for n, c in result.coefficients.items() if c.budget is not None}
         self._names = list(coefficients)
         if not coefficients:
-            self._lines = [NO_BUDGET]
-            self.query_one("#budget-flags", Label).update(NO_BUDGET)
+            none = NO_UNIT_BUDGET if heading and result is None else NO_BUDGET
+            self._lines = [none]
+            self.query_one("#budget-flags", Label).update(none)
             self.show_detail(-1)
             return
         flags = budget_flags(result)
@@ -100,7 +113,8 @@ class BudgetPanel(Vertical):
         self.detail = "" if name is None or self.result is None else describe_budget(name,
                                                                                       self.result.coefficients[name])
         self.query_one("#budget-detail", Label).update(self.detail)
-        self.plain = "\n".join(self._lines + ([self.detail] if self.detail else []))
+        self.plain = "\n".join(([self.heading] if self.heading else []) + self._lines
+                               + ([self.detail] if self.detail else []))
 
     def on_data_table_row_highlighted(self, event: DataTable.RowHighlighted) -> None:
         self.show_detail(event.cursor_row)

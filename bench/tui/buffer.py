@@ -16,14 +16,14 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
-import numpy as np
-
 from bench.log.events import (
+    UNIT_DROPPED,
     Event,
     Fault,
     Info,
     RunListener,
     RunState,
+    RunWarning,
     SoakStatus,
     StepFinished,
     StepSkipped,
@@ -34,21 +34,19 @@ from bench.log.events import (
 from bench.model.kinematics import triple
 from bench.model.result import CalibrationResult
 from bench.model.units import DEG, G0
+from bench.tui.tracks import (
+    CHANNELS,
+    MEAN_WINDOW_S,
+    STALE_AFTER_S,
+    ImuTrack,
+    ImuView,
+    UnitOutcome,
+    UnitView,
+    link_counts,
+)
 from drivers.chamber import ChamberState
 from drivers.imu import ImuStats
 from drivers.turntable import TableState
-
-#: The six IMU channels in display order: gyro x/y/z, accelerometer x/y/z.
-CHANNELS = ("gx", "gy", "gz", "ax", "ay", "az")
-#: The IMU panel's values are means over this much data (the last whole blocks reaching it): a mean over
-#: T seconds resolves one increment step per T, so the 0.1 s blocks of the idle monitor resolved only
-#: about 1 deg/h of a 36000 counts/s per deg/s gyro counting whole pulses; over 1 s, 0.1 deg/h.
-MEAN_WINDOW_S = 1.0
-#: The IMU panel marks its values stale once no sample came for this long on the session's monotonic clock
-#: (real seconds): a paused run, a replay paused or ended, a silent IMU. Samples come every 0.1 s or faster
-#: (the idle monitor's poll; a run drains the receiver continuously), so 3 s without one is no jitter.
-STALE_AFTER_S = 3.0
-
 
 
 class StepState(enum.StrEnum):
@@ -66,28 +64,6 @@ class StepState(enum.StrEnum):
 #: what the TUI calls a run that failed because it was aborted on request (operator, e-stop, quit): the
 #: sequencer's state is `failed` either way; the log tells them apart (a fault event comes before a failure)
 RUN_ABORTED = "aborted"
-
-
-@dataclass(frozen=True)
-class ImuView:
-    """The IMU as last seen: latest rates (counts/s), history per channel, link counters."""
-
-    samples: int = 0                       # decoded samples seen by this buffer
-    last_counter: int | None = None
-    rate_hz: float = math.nan              # the samples' nominal rate
-    gyro_cps: tuple[float, float, float] | None = None   # mean over the last MEAN_WINDOW_S, counts/s
-    acc_cps: tuple[float, float, float] | None = None
-    temperature_c: float = math.nan
-    history: tuple[tuple[float, ...], ...] = ((),) * 6  # per channel, oldest first, counts/s
-    lost_samples: int = 0
-    bad_frames: int = 0
-    mean_s: float = 0.0                    # the data the means cover (seconds of samples)
-    age_s: float | None = None             # since the last sample came, session clock (s); None: no sample yet
-
-    @property
-    def stale(self) -> bool:
-        """No sample for `STALE_AFTER_S` or longer: the values shown are old ones."""
-        return self.age_s is not None and self.age_s >= STALE_AFTER_S
 
 
 @dataclass(frozen=True)
@@ -123,6 +99,10 @@ class UiSnapshot:
     #: the current (or last) soak's state: `bench.log.events.SoakStatus.as_dict()` with `time_s`, `done` and the
     #: soak step's `step_index`; from the sequencer's checks, else (a replay) its decision events
     soak: dict | None = None
+    #: a run of several IMUs: every unit as last seen, the reference unit first (its `imu` is `imu`); () for one IMU
+    units: tuple[UnitView, ...] = ()
+    #: a run of several IMUs that ended: every unit's result and verdict or why it has none (() until then)
+    unit_outcomes: tuple[UnitOutcome, ...] = ()
 
     @property
     def run_state_text(self) -> str:
@@ -154,17 +134,13 @@ class UiBuffer(RunListener):
         self._event_count = 0
         self._run_origin_s: float | None = None      # the current run's start on its clock (None: no run)
         self._run_elapsed_s = 0.0                     # the last run line's elapsed time
-        self._imu_at: float | None = None             # session clock when the last sample came
-        self._ring = np.zeros((6, self.history))
-        self._ring_fill = 0
-        self._blocks: deque[tuple[int, np.ndarray]] = deque()   # (samples, per-channel sums) of recent blocks
-        self._imu_samples = 0
-        self._last_counter: int | None = None
-        self._rate_hz = math.nan
-        self._gyro: tuple | None = None
-        self._acc: tuple | None = None
-        self._temperature = math.nan
-        self._mean_s = 0.0
+        self._imu = ImuTrack(self.history)             # the IMU (a run of several: the reference unit)
+        #: a run of several IMUs: (serial, face) of every unit, the reference first; the others' tracks and links
+        self._units: tuple[tuple[str, str], ...] = ()
+        self._unit_tracks: dict[str, ImuTrack] = {}
+        self.unit_stats_sources: dict[str, ImuStats] = {}
+        self._dropped: dict[str, str] = {}
+        self._unit_outcomes: tuple[UnitOutcome, ...] = ()
         self._table_state: TableState | None = None
         self._table_states = 0
         self._run_time_s: float | None = None
@@ -190,6 +166,8 @@ class UiBuffer(RunListener):
             self._result = None
             self._outcome_text = ""
             self._soak: dict | None = None
+            self._dropped = {}
+            self._unit_outcomes = ()
 
     @property
     def total_estimated_s(self) -> float:
@@ -232,6 +210,9 @@ class UiBuffer(RunListener):
             k = index if index is not None and 0 <= index < len(self._step_states) else None  # None: no valid step
             if isinstance(event, Fault):
                 self._fault_seen = True
+            if isinstance(event, RunWarning) and isinstance(event.details.get(UNIT_DROPPED), str):
+                # a unit of several dropped from the run (`bench.run.units`): its state says why
+                self._dropped[event.details[UNIT_DROPPED]] = str(event.details.get("reason") or "no reason recorded")
             if isinstance(event, Transition) and event.state is not None:
                 self._run_state = RunState(event.state)
                 if self._run_state is RunState.ABORTING and not self._fault_seen:
@@ -282,29 +263,37 @@ class UiBuffer(RunListener):
             self._run_time_s = state.time_s
 
     def on_imu(self, block) -> None:
-        n = len(block)
-        if n == 0:
+        if len(block) == 0:
             return
-        rates = np.concatenate([block.gyro_rate, block.acc_rate], axis=1)  # (n, 6) counts/s
-        tail = rates[-self.history:].T
         with self._lock:
-            self._imu_at = self.clock()
-            m = tail.shape[1]
-            self._ring = np.roll(self._ring, -m, axis=1)
-            self._ring[:, -m:] = tail
-            self._ring_fill = min(self.history, self._ring_fill + m)
-            self._imu_samples += n
-            self._last_counter = int(block.counter[-1])
-            self._rate_hz = float(block.rate_hz)
-            self._blocks.append((n, rates.sum(axis=0)))
-            window = max(1, round(MEAN_WINDOW_S * self._rate_hz)) if math.isfinite(self._rate_hz) else n
-            held = sum(k for k, _ in self._blocks)
-            while len(self._blocks) > 1 and held - self._blocks[0][0] >= window:   # whole blocks, >= the window
-                held -= self._blocks.popleft()[0]
-            mean = np.sum([total for _, total in self._blocks], axis=0) / held
-            self._mean_s = held / self._rate_hz if self._rate_hz > 0 else math.nan
-            self._gyro, self._acc = tuple(map(float, mean[:3])), tuple(map(float, mean[3:]))
-            self._temperature = float(block.temperature_c[-1])
+            self._imu.add(block, self.clock())
+
+    # -- a run of several IMUs ---------------------------------------------------------------------
+    def set_units(self, units: Sequence[tuple[str, str]]) -> None:
+        """The units of a run of several IMUs: (serial, the face it is mounted on), the reference unit first (its
+        samples come through `on_imu`, the others' through `on_unit_imu`). Fewer than two: a single IMU."""
+        with self._lock:
+            self._units = tuple(units) if len(units) > 1 else ()
+            self._unit_tracks = {serial: ImuTrack(self.history) for serial, _ in self._units[1:]}
+
+    @property
+    def units(self) -> tuple[tuple[str, str], ...]:
+        """(serial, face) of every unit of a run of several IMUs, the reference first; () for one IMU."""
+        return self._units
+
+    def on_unit_imu(self, serial: str, block) -> None:
+        """A unit's samples (a unit other than the reference one; an unknown serial is ignored)."""
+        if len(block) == 0:
+            return
+        with self._lock:
+            track = self._unit_tracks.get(serial)
+            if track is not None:
+                track.add(block, self.clock())
+
+    def set_unit_outcomes(self, outcomes: Sequence[UnitOutcome]) -> None:
+        """Every unit's end of the run (its result and verdict, or why it has none), in the units' order."""
+        with self._lock:
+            self._unit_outcomes = tuple(outcomes)
 
     # -- the UI thread -------------------------------------------------------------------------
     def events_after(self, seen: int) -> list[Event]:
@@ -319,20 +308,19 @@ class UiBuffer(RunListener):
             return [line for k, line in self._events if k > seen], self._event_count
 
     def snapshot(self) -> UiSnapshot:
-        stats = self.stats_source
-        lost = int(stats.lost_samples) if stats is not None else 0
-        bad = int(stats.frame_faults) if stats is not None else 0
+        lost, bad = link_counts(self.stats_source)
+        units_stats = {serial: link_counts(stats) for serial, stats in list(self.unit_stats_sources.items())}
         with self._lock:
-            fill = self._ring_fill
-            history = tuple(tuple(map(float, row[self.history - fill:])) for row in self._ring)
-            age = None if self._imu_at is None else max(0.0, self.clock() - self._imu_at)
-            imu = ImuView(self._imu_samples, self._last_counter, self._rate_hz, self._gyro, self._acc,
-                          self._temperature, history, lost, bad, self._mean_s, age)
+            now = self.clock()
+            imu = self._imu.view(lost, bad, now)
+            units = tuple(UnitView(serial, face, imu if k == 0 else self._unit_tracks[serial].view(
+                *units_stats.get(serial, (0, 0)), now), self._dropped.get(serial, ""), k == 0)
+                for k, (serial, face) in enumerate(self._units))
             return UiSnapshot(self._run_state, self._run_time_s, self._table_state, self._table_states, imu,
                               tuple(self._step_states), self._current, self._current_started,
                               self._done_estimated, self._event_count, self._result, self._outcome_text,
                               self._aborted, self._chamber_state,
-                              dict(self._soak) if self._soak is not None else None)
+                              dict(self._soak) if self._soak is not None else None, units, self._unit_outcomes)
 
 
 @dataclass(frozen=True)
@@ -418,3 +406,7 @@ class ImuScales:
             return 0
         return min(most, max(0, math.ceil(-math.log10(1.5 * step))))
 
+
+#: (`CHANNELS`, `STALE_AFTER_S` and `ImuView` are `bench.tui.tracks`'s, kept importable from here)
+__all__ = ["CHANNELS", "MEAN_WINDOW_S", "RUN_ABORTED", "STALE_AFTER_S", "ImuScales", "ImuView", "LogLine", "Progress",
+           "StepState", "UiBuffer", "UiSnapshot", "UnitView", "progress", "step_estimates"]

@@ -34,6 +34,7 @@ from bench.tui.buffer import (
     LogLine,
     StepState,
     UiSnapshot,
+    UnitView,
     progress,
     step_estimates,
 )
@@ -245,9 +246,17 @@ class ImuPanel(Vertical):
             return f"{name} {dps:9.{d_dps}f} {dps * DEG_PER_HOUR_PER_DPS:10.{d_dph}f}"
         return f"{name} {cps / scale[k - 3]:9.{self.scales.decimals(False, 1.0 / scale[k - 3], 6)}f} g"
 
-    def show(self, snapshot: UiSnapshot) -> None:
-        imu = snapshot.imu
-        if imu.stale and imu.age_s is not None:
+    def show(self, snapshot: UiSnapshot, unit: UnitView | None = None, title: str = IMU_TITLE,
+             scales: ImuScales | None = None) -> None:
+        """Draw the IMU, or with `unit` that unit of a run of several (its own `title` and `scales`)."""
+        imu = snapshot.imu if unit is None else unit.imu
+        if scales is not None:
+            self.scales = scales
+        if title != self.border_title:
+            self.border_title = title
+        if unit is not None and unit.dropped:
+            head = Text(unit.state, style=f"bold {palette(self.app).error}")
+        elif imu.stale and imu.age_s is not None:
             head = Text(f"stale: no sample for {format_age(imu.age_s)}", style=f"bold {palette(self.app).warn}")
         else:
             rate = f"{imu.rate_hz:g} Hz" if math.isfinite(imu.rate_hz) else "- Hz"
@@ -259,7 +268,7 @@ class ImuPanel(Vertical):
             self._head_drawn = drawn
             self.query_one("#imu-head", Label).update(head)
         values = (imu.gyro_cps or (None,) * 3) + (imu.acc_cps or (None,) * 3)
-        lines = [IMU_TITLE, head.plain]
+        lines = [title, head.plain]
         for k, ch in enumerate(CHANNELS):
             text = self._value(k, values[k])
             lines.append(text)

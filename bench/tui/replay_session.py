@@ -16,10 +16,14 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from bench.config.load import BenchConfig
 from bench.errors import InputError
 from bench.finish.calibration import solve_recorded
 from bench.finish.recorded import SolveInputError, load_recorded
+from bench.finish.units import dropped_units, is_several
+from bench.log.events import RunListener
 from bench.log.reader import LogError, RunLog, read_log
 from bench.log.replay import ReplayStats, replay
 from bench.log.run_info import NO_PLAN_IN_MANUAL_LOG, is_manual_log, layout_and_config_from_log, steps_from_log
@@ -28,7 +32,9 @@ from bench.model.result import CalibrationResult
 from bench.solve.methods import SolverError
 from bench.tui.buffer import UiBuffer
 from bench.tui.session import LINK_DISCONNECTED, SessionError
+from bench.tui.tracks import UnitOutcome
 from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.imu import ImuSampleBlock, ImuStats
 from drivers.turntable import TurntableLimits
 
 LINK_REPLAY = "replay"
@@ -122,6 +128,79 @@ def log_result(opened: OpenedLog) -> tuple[CalibrationResult | None, str]:
     return resolved.result, f"{why}no result attached: solved from the log as `bench solve` does{failures}"
 
 
+def log_units(opened: OpenedLog) -> list[tuple[str, str]]:
+    """(serial, mounting face) of every unit of a log of several IMUs, the reference unit first ([] for one IMU or
+    when the log's configuration cannot be rebuilt: the units' layouts come from it)."""
+    if opened.config is None or not is_several(opened.log) or not opened.config.several:
+        return []
+    return [(unit.identity.serial, unit.mounting_name) for unit in opened.config.units]
+
+
+def unit_results(opened: OpenedLog) -> list[UnitOutcome]:
+    """Each unit's result attached to a log of several IMUs (`<run-id>.<serial>.result.json`), or why it has none:
+    dropped from the run (the reason the run logged), or not attached."""
+    run_id = opened.log.metadata.get("run", {}).get("run_id", "")
+    dropped = dropped_units([opened.log])
+    out = []
+    for serial, _ in log_units(opened):
+        name = f"{run_id}.{serial}.result.json"
+        attached = opened.log.attachments.get(name)
+        if attached is None:
+            why = dropped.get(serial) or (f"no result attached to the log (bench solve {opened.path.name} --unit "
+                                          f"{serial} solves it)")
+            out.append(UnitOutcome(serial, None, why))
+            continue
+        try:
+            result = CalibrationResult.loads(attached[1].decode("utf-8"), origin=f"{opened.path.name}:{name}")
+        except (InputError, UnicodeDecodeError) as exc:
+            out.append(UnitOutcome(serial, None, f"the attached {name} is unreadable ({exc})"))
+            continue
+        out.append(UnitOutcome(serial, result, f"result attached to the log ({name})"))
+    return out
+
+
+class UnitFeeder(RunListener):
+    """Plays the other units of a log of several IMUs along with the reference unit: after each of the reference
+    unit's sample blocks, every unit's samples received up to the block's last one go to `buffer`
+    (`UiBuffer.on_unit_imu`), so the units advance with the replay's pace and pause with it."""
+
+    def __init__(self, opened: OpenedLog, buffer: UiBuffer):
+        self.buffer = buffer
+        self.units: list[tuple[str, ImuSampleBlock]] = []
+        self.stats: dict[str, ImuStats] = {}
+        self._sent: dict[str, int] = {}
+        self._times: dict[str, np.ndarray] = {}
+        config = opened.config
+        for k, (serial, _) in enumerate(log_units(opened)[1:], 1):
+            assert config is not None           # (log_units has the units only from a configuration)
+            unit = config.units[k]
+            block, stats = read_log(str(opened.path), unit=serial).imu_samples(unit.layout, unit.rate_hz)
+            self.units.append((serial, block))
+            # (received in order; a reordered frame's sample goes with its neighbours)
+            self._times[serial] = np.maximum.accumulate(block.receive_time_s) if len(block) else block.receive_time_s
+            self.stats[serial], self._sent[serial] = stats, 0
+
+    def on_imu(self, block: ImuSampleBlock) -> None:
+        if len(block):
+            self._feed(float(block.receive_time_s[-1]))
+
+    def _feed(self, until_s: float) -> None:
+        for serial, samples in self.units:
+            start = self._sent[serial]
+            end = int(np.searchsorted(self._times[serial], until_s, side="right"))
+            if end > start:
+                part = slice(start, end)
+                self.buffer.on_unit_imu(serial, ImuSampleBlock(
+                    samples.counter[part], samples.receive_time_s[part], samples.gyro_counts[part],
+                    samples.acc_counts[part], samples.temperature_c[part], samples.status[part], samples.rate_hz))
+                self._sent[serial] = end
+
+    def finish(self) -> None:
+        """The units' samples after the reference unit's last, and their link counts."""
+        self._feed(math.inf)
+        self.buffer.unit_stats_sources.update(self.stats)
+
+
 class ReplaySession:
     """Plays `opened` into `buffer` at `speed` times real time (None: as fast as possible); no hardware."""
 
@@ -177,7 +256,8 @@ class ReplaySession:
     def _body(self) -> None:
         self.buffer.note("info", f"replaying {self.opened.path.name} (no hardware)")
         try:
-            self.stats = stats = replay(self.opened.log, [self.buffer], speed=self.speed, clock=self.clock,
+            feeder = UnitFeeder(self.opened, self.buffer)
+            self.stats = stats = replay(self.opened.log, [self.buffer, feeder], speed=self.speed, clock=self.clock,
                                         stop=self._stop)
         except Exception as exc:  # noqa: BLE001 - a log the replay cannot play: the operator must see why
             text = f"replay failed: {type(exc).__name__}: {exc}"
@@ -186,6 +266,8 @@ class ReplaySession:
             return
         if stats.imu_stats is not None:
             self.buffer.stats_source = stats.imu_stats
+        if not stats.stopped:
+            feeder.finish()
         for note in stats.notes:
             self.buffer.note("warning", note)
         self.buffer.note("info", stats.summary())
@@ -196,6 +278,9 @@ class ReplaySession:
         except Exception as exc:  # noqa: BLE001 - shown, not raised: the replay itself went fine
             result, text = None, f"no result: {type(exc).__name__}: {exc}"
         self.buffer.note("info" if result is not None or is_manual_log(self.opened.log) else "warning", text)
+        units = unit_results(self.opened)
+        if units:
+            self.buffer.set_unit_outcomes(units)
         self.buffer.set_outcome(result, text)
         self.link_detail = "played to the end"
 

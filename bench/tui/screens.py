@@ -218,12 +218,15 @@ class HelpScreen(ModalScreen[None]):
     HelpScreen > Vertical { width: 96; max-width: 100%; padding: 0 1; }
     HelpScreen #help-title { margin-bottom: 1; }
     HelpScreen #help-note { margin-top: 1; }
+    HelpScreen.-compact #help-note { margin-top: 0; }
     """
     BINDINGS = [Binding("escape,q,question_mark,f1", "close", "close")]
 
-    def __init__(self, keys: Sequence[tuple[str, str]], note: str = "", **kwargs):
+    def __init__(self, keys: Sequence[tuple[str, str]], note: str = "", compact: bool = False, **kwargs):
         super().__init__(**kwargs)
         self.keys, self.note = tuple(keys), note
+        # `compact`: no blank line above the note (a row more of keys still fits 30 lines)
+        self.set_class(compact, "-compact")
 
     def compose(self) -> ComposeResult:
         grid = RichTable.grid(padding=(0, 2))

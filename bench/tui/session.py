@@ -27,7 +27,7 @@ import shlex
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Sequence, cast
 
 from bench.config.load import SIM_CONFIG_TOML
 from bench.errors import BenchError
@@ -38,7 +38,9 @@ from bench.run.sequencer import RunAborted
 from bench.solve.methods import SolverError
 from bench.tui.buffer import UiBuffer
 from bench.tui.manual_log import ManualLogs
+from bench.tui.tracks import UnitTee, unit_outcomes
 from drivers.errors import DeviceError, TurntableLimitError
+from drivers.imu.receiver import ImuReceiver
 from drivers.turntable import FRAMES, AxisMode, Turntable, frame_index
 
 LINK_DISCONNECTED, LINK_CONNECTING, LINK_CONNECTED, LINK_ERROR = "disconnected", "connecting", "connected", "error"
@@ -233,6 +235,8 @@ class BenchSession:
                 self.buffer.on_imu(block)
                 if manual is not None:
                     manual.on_imu(block)
+                for unit in _devices(run).units:    # a run of several IMUs: the others (the tee feeds the buffer)
+                    unit.receiver.poll()
                 if failing:
                     failing = False
                     self.link, self.link_detail = LINK_CONNECTED, ""
@@ -262,6 +266,10 @@ class BenchSession:
             self.run, self._spent, self._estop = run, False, False
             self._imu = devices.imu_source()
             self.buffer.stats_source = devices.receiver.stats
+            for unit in devices.units:          # a run of several IMUs: each other unit's samples to the buffer too
+                # (the tee stands in for the receiver: it has what the run uses of one, the rest passed through)
+                unit.receiver = cast(ImuReceiver, UnitTee(unit.serial, unit.receiver, self.buffer.on_unit_imu))
+                self.buffer.unit_stats_sources[unit.serial] = unit.receiver.stats
             self.link = LINK_CONNECTED
             self.link_detail = (f"{self.config.table.dialect}, simulator" if self.sim
                                 else f"{self.config.table.dialect} at {self.config.table.url}")
@@ -495,6 +503,8 @@ class BenchSession:
                 return
             outcome = self.outcome
             result = outcome.result
+            if outcome.units:
+                self.buffer.set_unit_outcomes(unit_outcomes(outcome.units))
             kind, reason, text = run_end_of(outcome, _stop_words(run))
             self.buffer.note("info", text)
         except Exception as exc:  # noqa: BLE001 - the operator must see it; the sequencer already stopped the table
@@ -504,6 +514,8 @@ class BenchSession:
         finally:
             if run.receiver is not None:
                 run.receiver.on_frames = None      # the finished sequencer's listeners are closed
+            for unit in run.devices.units if run.devices is not None else ():
+                unit.receiver.on_frames = None     # (a unit of several: its frames went to the closed log too)
             log = run.log_path if run.recorder is not None else None
             resume = resume_command(self.config, self.sim, log) if log is not None and kind in (EndKind.ABORTED,
                                                                                                EndKind.FAILED) else ""
