@@ -5,6 +5,8 @@ coefficients leaves no error; the same 30 coefficients without them leave the hi
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -12,8 +14,8 @@ from bench.acceptance.limits import BEYOND_WARN
 from bench.calibration.compensation import compensation_of
 from bench.model.higher_order import HigherOrderTerms, preset
 from bench.model.result import CalibrationResult, coefficient_table
-from bench.verify.errors import verify_extraction
-from bench.verify.plan import verification_checks
+from bench.verify.errors import EXTENDED_QUANTITIES, verify_extraction
+from bench.verify.plan import verification_checks, write_verification
 from studies.extended_coverage import truth_values
 from tests.helpers.verification import SITE, acquire_verification
 
@@ -109,3 +111,21 @@ def test_a_gyro_family_limit_fails_a_wrong_calibration_and_a_30_coefficient_one(
     flipped = {n: -v if n.startswith("Ag_") else v for n, v in true_values.items()}
     assert failed(flipped) == [f"verify gyro asymmetry {s}" for s in "xyz"]
     assert failed(truth.to_canonical()) == ["verify gyro scale-factor asymmetry"]
+
+
+def test_the_extended_verification_file_matches_its_schema(verification_data, tmp_path):
+    """`<run-id>.verify.json` of an extended result, with the gyro families' errors and their limits' checks, is
+    valid against docs/reference/schemas/verification.schema.json."""
+    jsonschema = pytest.importorskip("jsonschema", reason="the test extra installs jsonschema")
+    from tests.e2e.test_schemas import validator
+
+    extraction, rates, truth, terms = verification_data
+    result = _result({**truth.to_canonical(), **truth_values(terms)})
+    verification = verify_extraction(extraction, rates, compensation_of(result), result, SITE)
+    checks = verification_checks(verification, {"gyro_nonlinearity_ppm_per_dps": 0.05}, BEYOND_WARN)
+    json_path, _ = write_verification(tmp_path, "RUN", verification, checks, calibration="c.result.json",
+                                      schedule="verify-default", log="RUN.mcap")
+    document = json.loads(json_path.read_text(encoding="utf-8"))
+    assert {e["quantity"] for e in document["errors"]} >= set(EXTENDED_QUANTITIES)
+    assert jsonschema is not None
+    assert [e.message for e in validator("verification").iter_errors(document)] == []
