@@ -23,7 +23,6 @@ import csv
 import json
 import os
 import resource
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -123,16 +122,12 @@ def main() -> None:
                 print(f"{fmt}: the same values as the base's output: {same[fmt]}", flush=True)
             for name in checkouts:
                 (args.cache / f"applied-{name}.{fmt}").unlink()
-    medians: dict[str, float] = {}
+    medians, ratios = results.wall_cpu_medians(times, lambda fmt: f"bench apply to {fmt}", args.against is not None)
     for (name, fmt), values in times.items():
-        wall, cpu = statistics.median(w for w, _ in values), statistics.median(c for _, c in values)
-        medians[f"{name}: bench apply to {fmt}, wall"] = wall
-        medians[f"{name}: bench apply to {fmt}, CPU"] = cpu
+        wall, cpu = medians[f"{name}: bench apply to {fmt}, wall"], medians[f"{name}: bench apply to {fmt}, CPU"]
         print(f"{name}: bench apply to {fmt}: median {wall:.2f} s wall, {cpu:.2f} s CPU over {len(values)} run(s); "
               f"{samples:,} samples ({args.minutes:g} min at {args.rate_hz:g} Hz), target < 10 s: "
               f"{'met' if wall < 10 else 'MISSED'} (wall), {'met' if cpu < 10 else 'MISSED'} (CPU)")
-    ratios = {f"{fmt} CPU this/base": medians[f"this: bench apply to {fmt}, CPU"]
-              / medians[f"base: bench apply to {fmt}, CPU"] for fmt in args.formats if args.against is not None}
     path = results.record("apply_speed", medians_s=medians, ratios=ratios,
                           parameters={"minutes": args.minutes, "rate_hz": args.rate_hz, "repeats": args.repeats,
                                       "against": str(args.against or "")},

@@ -12,8 +12,10 @@ import datetime
 import json
 import os
 import platform
+import statistics
 import subprocess
 from pathlib import Path
+from typing import Callable
 
 FORMAT = "turntable-bench/benchmark-result"
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
@@ -42,6 +44,20 @@ def commit() -> str:
     except (OSError, subprocess.SubprocessError):
         return "unknown"
     return head + ("+dirty" if dirty else "")
+
+
+def wall_cpu_medians(times: dict[tuple[str, str], list[tuple[float, float]]], describe: Callable[[str], str],
+                     baseline: bool) -> tuple[dict[str, float], dict[str, float]]:
+    """(medians, ratios) of (wall s, CPU s) runs by (checkout, case): the medians as "CHECKOUT: DESCRIBE(case),
+    wall" and ", CPU"; with `baseline`, each case's CPU ratio this/base."""
+    medians: dict[str, float] = {}
+    for (name, case), values in times.items():
+        medians[f"{name}: {describe(case)}, wall"] = statistics.median(w for w, _ in values)
+        medians[f"{name}: {describe(case)}, CPU"] = statistics.median(c for _, c in values)
+    cases = list(dict.fromkeys(case for _, case in times))
+    ratios = {f"{case} CPU this/base": medians[f"this: {describe(case)}, CPU"] / medians[f"base: {describe(case)}, CPU"]
+              for case in cases if baseline}
+    return medians, ratios
 
 
 def record(name: str, *, medians_s: dict[str, float], ratios: dict[str, float] | None = None,

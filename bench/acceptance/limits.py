@@ -19,7 +19,10 @@ from dataclasses import dataclass, field, fields
 #: `[acceptance.verification]` key -> (unit, upper bound of the limit)
 VERIFICATION_LIMITS = {"gyro_bias_dph": ("deg/h", 3600.0), "gyro_scale_ppm": ("ppm", 1e6),
                        "gyro_misalignment_arcsec": ("arcsec", 3600.0), "acc_bias_ug": ("ug", 1e6),
-                       "acc_scale_ppm": ("ppm", 1e6), "acc_misalignment_arcsec": ("arcsec", 3600.0)}
+                       "acc_scale_ppm": ("ppm", 1e6), "acc_misalignment_arcsec": ("arcsec", 3600.0),
+                       # an extended result's gyro families (bench.verify.errors)
+                       "gyro_g_sensitivity_dph_per_g": ("deg/h per g", 3600.0), "gyro_asymmetry_ppm": ("ppm", 1e6),
+                       "gyro_nonlinearity_ppm_per_dps": ("ppm per deg/s", 1e4)}
 #: `[acceptance.verification] beyond_uncertainty`: an error beyond its U fails, or is only marked
 BEYOND_FAIL, BEYOND_WARN = "fail", "warn"
 #: the keys of one family's or coefficient's limits, in the order checks are listed

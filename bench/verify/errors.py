@@ -36,6 +36,7 @@ import numpy as np
 
 from bench.calibration.compensation import Compensation, TriadCompensation
 from bench.model.earth import Site
+from bench.model.extended import FAMILIES
 from bench.model.families import BODY_AXES, SENSOR_AXES
 from bench.model.kinematics import attitude
 from bench.model.observations import PositionObservation, RotationObservation, turn_axis_in_body
@@ -56,7 +57,13 @@ QUANTITIES = {
     "acc_bias_ug": ("ug", "accelerometer bias"),
     "acc_scale_ppm": ("ppm", "accelerometer scale factor"),
     "acc_misalignment_arcsec": ("arcsec", "accelerometer misalignment"),
+    # an extended result's gyro families (bench.model.extended; unit: the result's)
+    "gyro_g_sensitivity_dph_per_g": ("deg/h per g", "gyro g-sensitivity"),
+    "gyro_asymmetry_ppm": ("ppm", "gyro scale-factor asymmetry"),
+    "gyro_nonlinearity_ppm_per_dps": ("ppm per deg/s", "gyro scale-factor nonlinearity"),
 }
+#: the quantities only the verification of a result with higher-order families determines
+EXTENDED_QUANTITIES = ("gyro_g_sensitivity_dph_per_g", "gyro_asymmetry_ppm", "gyro_nonlinearity_ppm_per_dps")
 COVERAGE_K = 2.0
 _RATE_DECIMALS = 6
 
@@ -178,6 +185,24 @@ def position_errors(obs: list[PositionObservation], compensation: Compensation, 
         errors.append(VerificationError("gyro_bias_dph", f"gyro bias {s}", gyro_fit.params[i, 0] / DEG_PER_HOUR,
                                         _expanded(bias_sigma / DEG_PER_HOUR, _sigma_of(calibration, f"D0_{s}")),
                                         "deg/h"))
+    if compensation.higher_order is not None:
+        errors += _g_sensitivity_errors(f_nominal, w_error, w_sigma, calibration)
+    return errors
+
+
+def _g_sensitivity_errors(f_nominal: np.ndarray, w_error: np.ndarray, w_sigma: np.ndarray | None,
+                          calibration: CalibrationResult) -> list[VerificationError]:
+    """Gyro g-sensitivity errors: per gyro i, the dwells' rate errors fitted as `b_i + G_i . f_nominal`; `G_ij`
+    (deg/h per g) is what the compensation left of gyro i's sensitivity to the specific force along body axis j."""
+    fit = fit_per_sensor(np.column_stack([np.ones(len(f_nominal)), f_nominal]), w_error, w_sigma)
+    to_result = 1.0 / FAMILIES["gyro_g_sensitivity"].result_to_si
+    errors = []
+    for i, s in enumerate(SENSOR_AXES):
+        sigma = np.sqrt(np.diag(fit.cov[i]))
+        for j, axis in enumerate(BODY_AXES):
+            errors.append(VerificationError(
+                "gyro_g_sensitivity_dph_per_g", f"gyro g-sensitivity {s} to {axis}", fit.params[i, 1 + j] * to_result,
+                _expanded(sigma[1 + j] * to_result, _sigma_of(calibration, f"Gg_{axis}{s}")), "deg/h per g"))
     return errors
 
 
@@ -222,14 +247,15 @@ def rotation_errors(obs: list[RotationObservation], rates_dps: dict[str, float],
             continue
         k, direction, error, sigma = found
         rate = round(rates_dps.get(o.label, math.nan), _RATE_DECIMALS)
-        groups.setdefault((k, rate), {}).setdefault(direction, []).append((error, sigma, o.revolutions))
+        groups.setdefault((k, rate), {}).setdefault(direction, []).append(
+            (error, sigma, o.revolutions, o.duration_s, o.rate_sq_integral))
     errors = []
     for (k, rate), by_direction in sorted(groups.items()):
         at = f" @ {rate:g} deg/s" if math.isfinite(rate) else ""
         if set(by_direction) != {1.0, -1.0}:
             notes.append(f"turns about body {BODY_AXES[k]}{at}: no CCW/CW pair, not used")
             continue
-        (e_p, s_p, n_p), (e_m, s_m, n_m) = by_direction[1.0][0], by_direction[-1.0][0]
+        (e_p, s_p, n_p, *_), (e_m, s_m, n_m, *_) = by_direction[1.0][0], by_direction[-1.0][0]
         if n_p != n_m:
             notes.append(f"turns about body {BODY_AXES[k]}{at}: CCW and CW of different revolutions, not used")
             continue
@@ -247,6 +273,59 @@ def rotation_errors(obs: list[RotationObservation], rates_dps: dict[str, float],
                     diff[v] / ARCSEC, _expanded(sigma[v] / ARCSEC,
                                                 _sigma_of(calibration, f"Eg_{BODY_AXES[k]}{SENSOR_AXES[v]}") / ARCSEC),
                     "arcsec"))
+    if compensation.higher_order is not None:
+        family_errors, family_notes = _turn_family_errors(groups, calibration)
+        errors += family_errors
+        notes += family_notes
+    return errors, notes
+
+
+def _turn_family_errors(groups: dict[tuple[int, float], dict[float, list]], calibration: CalibrationResult
+                        ) -> tuple[list[VerificationError], list[str]]:
+    """Gyro asymmetry and nonlinearity errors from the CCW/CW pairs about each body axis at three rates or more.
+
+    Half the sum of a pair's angle errors along the turn axis k is what a reversal does not cancel,
+    `b T + Ag_k/2 2 pi N + Ng_k Q` (T the turn's duration, Q its squared-rate integral; b the bias and the
+    g-sensitivity along the axis, left by the compensation during the turns): one weighted fit over the rates
+    separates the three, its `Ag` and `Ng` are the errors of the families (the bias goes with 1/rate, the
+    asymmetry not at all, the nonlinearity with the rate)."""
+    by_axis: dict[int, list[tuple[float, float, float, float, float]]] = {}
+    notes = []
+    for (k, _rate), by_direction in sorted(groups.items()):
+        if set(by_direction) != {1.0, -1.0}:
+            continue                                # (noted with the scale factor)
+        (e_p, s_p, n_p, t_p, q_p), (e_m, s_m, n_m, t_m, q_m) = by_direction[1.0][0], by_direction[-1.0][0]
+        if n_p != n_m or q_p is None or q_m is None:
+            continue
+        by_axis.setdefault(k, []).append((0.5 * (e_p[k] + e_m[k]), 0.5 * math.hypot(s_p[k], s_m[k]),
+                                          0.5 * (t_p + t_m), 2.0 * math.pi * n_p, 0.5 * (q_p + q_m)))
+    asymmetry_to_result = 2.0 / FAMILIES["gyro_asymmetry"].result_to_si      # the fit's Ag/2 -> ppm
+    nonlinearity_to_result = 1.0 / FAMILIES["gyro_nonlinearity"].result_to_si
+    errors = []
+    for k in range(3):
+        rows = by_axis.get(k, [])
+        if len(rows) < 3:
+            notes.append(f"turns about body {BODY_AXES[k]}: CCW/CW pairs at {len(rows)} rate(s), 3 are needed for "
+                         "the gyro asymmetry and nonlinearity errors")
+            continue
+        half_sum, sigma, duration, angle, rate_sq = (np.array(c) for c in zip(*rows))
+        try:
+            fit = fit_per_sensor(np.column_stack([duration, angle, rate_sq]), half_sum[:, None],
+                                 sigma[:, None] if np.all(sigma > 0) else None)
+        except SolverError as exc:
+            notes.append(f"turns about body {BODY_AXES[k]}: {exc}: no gyro asymmetry or nonlinearity errors")
+            continue
+        # three rates without the turns' noise (a noise-free simulation): the fit has no scatter to scale by, its
+        # own part of U is left out (NaN otherwise)
+        fit_sigma = np.nan_to_num(np.sqrt(np.diag(fit.cov[0])))
+        sensor = SENSOR_AXES[k]
+        errors.append(VerificationError(
+            "gyro_asymmetry_ppm", f"gyro asymmetry {sensor}", fit.params[0, 1] * asymmetry_to_result,
+            _expanded(fit_sigma[1] * asymmetry_to_result, _sigma_of(calibration, f"Ag_{sensor}")), "ppm"))
+        errors.append(VerificationError(
+            "gyro_nonlinearity_ppm_per_dps", f"gyro nonlinearity {sensor}", fit.params[0, 2] * nonlinearity_to_result,
+            _expanded(fit_sigma[2] * nonlinearity_to_result, _sigma_of(calibration, f"Ng_{sensor}")),
+            "ppm per deg/s"))
     return errors, notes
 
 
@@ -298,5 +377,5 @@ def verify_extraction(extraction: Extraction, rates_dps: dict[str, float], compe
     return out
 
 
-__all__ = ["COVERAGE_K", "QUANTITIES", "Verification", "VerificationError", "position_errors", "rotation_errors",
-           "verify_extraction"]
+__all__ = ["COVERAGE_K", "EXTENDED_QUANTITIES", "QUANTITIES", "Verification", "VerificationError", "position_errors",
+           "rotation_errors", "verify_extraction"]
