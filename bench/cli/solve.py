@@ -100,7 +100,8 @@ def _calibration_lines(recorded, finished) -> list[str]:
                + (f"\n        {finished.html_report_path}" if finished.html_report_path else "")])
 
 
-def _solve_units(args: argparse.Namespace, recorded, subset: bool) -> ExitCode:
+def _solve_units(args: argparse.Namespace, recorded, subset: bool,
+                 model_terms: tuple[str, ...] | None) -> ExitCode:
     """A log of several IMUs: every unit (or those of --unit) re-solved on its own, `<run-id>.<serial>.solved.*`."""
     # heavy (scipy, python-can, mcap): imported when the command runs, not for its --help
     from bench.finish.recorded import SolveInputError
@@ -117,7 +118,11 @@ def _solve_units(args: argparse.Namespace, recorded, subset: bool) -> ExitCode:
         raise SolveInputError(f"{log.path}: its configuration cannot be rebuilt ({'; '.join(recorded.setup.notes)}): "
                               "a log of several IMUs is solved with it")
     out_dir = Path(args.out) if args.out else Path(log.path).parent
-    finished = finish_units(recorded.logs, config, out_dir, recorded.run_id, recorded.sim, serials=args.unit)
+    if args.against:
+        raise SolveInputError(f"{log.path} records several IMUs: --against compares one result with one solve, "
+                              "which is not supported for a log of several units yet")
+    finished = finish_units(recorded.logs, config, out_dir, recorded.run_id, recorded.sim, serials=args.unit,
+                            html=not args.no_html, model_terms=model_terms)
     failures: list[str] = []
     for serial, one in finished.items():
         if one.result is None:           # a unit that cannot be solved (silent): the others are still solved
@@ -175,7 +180,8 @@ def cmd_solve(args: argparse.Namespace) -> ExitCode:
         rotations = load_subset_schedule(args.rotations, "rotations")
         recorded = load_recorded(args.logs, earlier=not args.no_earlier)
         if is_several(recorded.logs[-1]) or args.unit:
-            return _solve_units(args, recorded, methods is not None or positions is not None or rotations is not None)
+            return _solve_units(args, recorded, methods is not None or positions is not None or rotations is not None,
+                                model_terms)
         if recorded.kind is RunKind.THERMAL and (methods is not None or positions is not None or rotations is not None):
             # its blocks are solved one temperature each, never together
             thermal_log = recorded.first_log_of_kind(RunKind.THERMAL) or recorded.logs[-1]

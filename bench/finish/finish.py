@@ -25,8 +25,6 @@ from bench.model.quality import texts
 from bench.model.result import CalibrationResult
 from bench.model.run_section import RunInfo
 from bench.noise.from_log import NoiseInputError, analyse_log
-from bench.report.noise import write_noise_outputs
-from bench.report.thermal import write_thermal_files
 from bench.thermal.from_log import ThermalSolution, solve_thermal
 from bench.thermal.model import ThermalModel
 from bench.thermal.verdict import judge_thermal_head
@@ -157,6 +155,8 @@ def finish_thermal(recorded: Recorded, target: Target) -> Finished:
     solution = solve_thermal(recorded.logs, recorded.site, setup.layout, setup.rate_hz, config, recorded.sim,
                              run=run_info, extracted=(recorded.extraction, list(recorded.damage)))
     target.out_dir.mkdir(parents=True, exist_ok=True)
+    from bench.report.thermal import write_thermal_files  # matplotlib: only for a thermal run's files
+
     results, model_path = write_thermal_files(solution, target.out_dir, target.stem, target.thermal_run(run_info),
                                               title=target.title("Thermal model"), html=target.html)
     written = results + ([model_path] if model_path is not None else [])
@@ -186,6 +186,8 @@ def finish_noise(recorded: Recorded, target: Target) -> Finished:
                         "--calibration RESULT.json`")
         return Finished(recorded.kind, failures=failures)
     result.source["operator"] = recorded.run_meta.get("operator", "")
+    from bench.report.noise import write_noise_outputs  # matplotlib: only for a noise recording's files
+
     json_path, md_path, html_path = write_noise_outputs(result, target.out_dir, target.stem)
     target.keep(json_path)
     return Finished(recorded.kind, json_path, md_path, html_path, None, failures + list(result.source["damage"]))

@@ -16,12 +16,13 @@ import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from bench.config.load import BenchConfig
 from bench.config.units import FACES, lever_arm_in_body_m
+from bench.files import write_output_text
 from bench.finish.calibration import Solved, resolved_run_section
 from bench.finish.finish import Finished, Reports, Target, finish
 from bench.finish.recorded import Recorded, SolveInputError, recorded_run
@@ -32,7 +33,7 @@ from bench.log.run_info import LogSetup
 from bench.log.run_kind import RunKind
 from bench.model.result import CalibrationResult
 from bench.model.run_section import ImuIdentity, RunInfo
-from bench.report.markdown import write_reports
+from bench.report.markdown import markdown_report, write_reports
 from bench.sim.units import unit_truth
 from bench.solve.methods import SolverError
 from drivers.imu import ImuSampleBlock, ImuStats
@@ -128,6 +129,8 @@ class UnitTarget(Target):
     #: the serials of the run's units, the reference first (the result's `run.units`: the records keep each unit
     #: as `<run-id>.<serial>` of its run)
     units: tuple[str, ...] = ()
+    #: the extended model's families (`bench solve --model`); None: the recorded `[model] terms`
+    model_terms: tuple[str, ...] | None = None
 
     def run_section(self, recorded: Recorded, solved: Solved) -> RunInfo:
         run_info = resolved_run_section(recorded, solved)
@@ -153,10 +156,14 @@ class UnitTarget(Target):
         result.save(result_path)
         if self.attach is not None:
             self.attach(result_path)
+        report: dict[str, Any] = dict(problems=reports.problems, failures=reports.failures,
+                                      imu_link=recorded.imu_link().as_dict(), title=reports.title)
+        if not self.html:
+            md_path = output_path(self.out_dir, f"{self.stem}.report.md")
+            write_output_text(md_path, markdown_report(result, **report))
+            return result_path, md_path, None
         md_path, html_path = write_reports(result, self.out_dir, self.stem, log=recorded.logs[-1],
-                                           layout=recorded.setup.layout, problems=reports.problems,
-                                           failures=reports.failures, imu_link=recorded.imu_link().as_dict(),
-                                           title=reports.title)
+                                           layout=recorded.setup.layout, **report)
         return result_path, md_path, html_path
 
     def link_stats(self, recorded: Recorded) -> ImuStats:
@@ -180,11 +187,13 @@ def dropped_units(logs: list[RunLog]) -> dict[str, str]:
 def finish_units(logs: list[RunLog], config: BenchConfig, out_dir: Path, run_id: str, sim: bool, *,
                  serials: Sequence[str] | None = None, solved: bool = True,
                  still_open: frozenset[str] = frozenset(),
-                 attach: Callable[[Path], None] | None = None) -> dict[str, Finished]:
+                 attach: Callable[[Path], None] | None = None, html: bool = True,
+                 model_terms: tuple[str, ...] | None = None) -> dict[str, Finished]:
     """Finish every unit (or those of `serials`) of a run of several IMUs recorded in `logs`: serial -> what was
     written. `solved`: a re-solve's names (`<run-id>.<serial>.solved.*`), else the live run's (`attach`: each
-    result attached to the log, still open, as it is written). A unit that cannot be solved (no samples: a silent
-    unit) gets no result, its `failures` saying why; the others are finished."""
+    result attached to the log, still open, as it is written). `html`: HTML reports too; `model_terms`: the extended
+    model's families (`bench solve --model`; None: the recorded `[model] terms`). A unit that cannot be solved (no
+    samples: a silent unit) gets no result, its `failures` saying why; the others are finished."""
     known = [unit.identity.serial for unit in config.units]
     for serial in serials or ():
         if serial not in known:
@@ -199,7 +208,8 @@ def finish_units(logs: list[RunLog], config: BenchConfig, out_dir: Path, run_id:
             out[serial] = Finished(RunKind.CALIBRATION, failures=[f"unit {serial} has no result: {dropped[serial]}"])
             continue
         target = UnitTarget(out_dir, f"{run_id}.{serial}" + (".solved" if solved else ""), unit.identity.model,
-                            serial, "bench solve" if solved else None, attach=attach, units=tuple(known))
+                            serial, "bench solve" if solved else None, html=html, attach=attach, units=tuple(known),
+                            model_terms=model_terms)
         try:
             recorded = recorded_unit(logs, config, index, sim, still_open)
             out[serial] = finish(recorded, target)

@@ -107,12 +107,25 @@ def test_bench_solve_reproduces_every_unit_bit_for_bit(several_run, tmp_path):
         run, solved = unit_result(several_run, serial), json.loads(
             (tmp_path / f"{several_run.stem}.{serial}.solved.result.json").read_text(encoding="utf-8"))
         assert solved["coefficients"] == run["coefficients"], serial
+    assert not list(tmp_path.glob("*.html"))       # --no-html holds for every unit
     rc, out, err = cli(["solve", str(several_run), "--out", str(tmp_path / "one"), "--no-db", "--no-html",
                         "--unit", "B1"])
     assert rc == 0 and [p.name for p in (tmp_path / "one").glob("*.result.json")] == [
         f"{several_run.stem}.B1.solved.result.json"]
     rc, _, err = cli(["solve", str(several_run), "--no-db", "--unit", "C9"])
     assert rc == 2 and "no unit 'C9'" in err and "(its units: A1, A2, B1)" in err
+
+
+def test_bench_solve_of_several_units_takes_model_and_refuses_against(several_run, tmp_path):
+    rc, out, err = cli(["solve", str(several_run), "--out", str(tmp_path), "--no-db", "--no-html", "--unit", "A2",
+                        "--model", "gyro_g_sensitivity"])
+    assert rc in (0, 4), err
+    solved = json.loads((tmp_path / f"{several_run.stem}.A2.solved.result.json").read_text(encoding="utf-8"))
+    assert "Gg_Xx" in json.dumps(solved)        # the family asked for is solved for the unit
+    assert "Gg_Xx" not in json.dumps(unit_result(several_run, "A2"))
+    rc, _, err = cli(["solve", str(several_run), "--out", str(tmp_path / "against"), "--no-db",
+                      "--against", str(tmp_path / f"{several_run.stem}.A2.solved.result.json")])
+    assert rc == 2 and "several IMUs: --against" in err and len(err.strip().splitlines()) == 1
 
 
 def test_a_silent_unit_gets_no_result_saying_why_and_the_others_are_finished(tmp_path):
