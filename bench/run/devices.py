@@ -8,6 +8,7 @@ the last opened first: chamber, receiver, table, then the simulated world.
 
 from __future__ import annotations
 
+import json
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from typing import Callable
@@ -24,7 +25,8 @@ from bench.sim.units import SimUnit, unit_seed, unit_truth
 from bench.sim.world import PumpedReceiver, SimWorld
 from drivers.chamber import Chamber, open_chamber
 from drivers.clock import SYSTEM_CLOCK, Clock
-from drivers.imu.receiver import ImuReceiver
+from drivers.imu.receiver import ImuReceiver, TimeBase, open_bus
+from drivers.imu.shared_bus import BusView, SharedBus
 from drivers.turntable import Turntable, open_turntable
 
 #: What the sequencer and the TUI poll for IMU samples: the receiver, or on the simulator the receiver with the
@@ -113,16 +115,19 @@ def open_drivers(config: BenchConfig, with_chamber: bool) -> Devices:
     check_rig_running(config.imu.rig, f"{config.imu.channel} ({config.table.url})")
     stack = ExitStack()
     try:
-        clock, bus = SYSTEM_CLOCK, config.imu.bus_kwargs()
+        clock = SYSTEM_CLOCK
         table = _open_table(config, config.table.url, clock, stack)
+        buses = _unit_buses(config, clock.now, stack)
         # the interface's frame timestamps are mapped onto the run clock (one time base in the log)
-        receiver = _open_receiver(config, bus, clock.now, stack)
-        check_rig_adapter(receiver.bus, config.imu.rig, where)
+        receiver = _open_receiver(config, *buses[0], stack)
+        asked: list[can.BusABC] = []        # each opened bus asked once whether it is the rig's
+        _check_adapter(receiver, config.imu, where, asked)
         imu_check = check_imu_stream(receiver, config.imu.rate_hz, where)
         devices = Devices(table, receiver, clock, imu_check=imu_check, _stack=stack)
-        for unit in config.units[1:]:     # a run of several IMUs: every unit checked before anything moves
-            unit_receiver = ImuReceiver(unit.bus_kwargs(), unit.layout, unit.rate_hz, time_base=clock.now)
+        for unit, (unit_bus, time_base) in zip(config.units[1:], buses[1:]):   # each unit checked before anything moves
+            unit_receiver = ImuReceiver(unit_bus, unit.layout, unit.rate_hz, time_base=time_base)
             stack.callback(unit_receiver.close)
+            _check_adapter(unit_receiver, unit, _where(unit, True), asked)
             devices.imu_check += "; " + check_imu_stream(unit_receiver, unit.rate_hz, _where(unit, True))
             devices.units.append(UnitLink(unit.identity.serial, unit_receiver))
         if with_chamber:
@@ -162,6 +167,45 @@ def _where(unit: ImuConfig, several: bool) -> str:
     return f"{where} (unit {unit.identity.serial})" if several else where
 
 
+def _unit_buses(config: BenchConfig, now: Callable[[], float], stack: ExitStack
+                ) -> list[tuple[can.BusABC | dict, Callable[[], float] | TimeBase]]:
+    """Each unit's bus and time base, in the order of `config.units`: a unit alone on its bus, its bus arguments
+    (its receiver opens it) and `now`; units sharing a bus, each a view of one `SharedBus` opened for them all (an
+    SLCAN adapter has one reader; the reference unit's view every frame on its bus, as its /can/raw always had,
+    another unit's its own ids) and the bus's one `TimeBase` (a unit's first frames wait in its view until its first
+    poll: a time base of its own would take that wait for the interface's clock offset)."""
+    units = config.units or (config.imu,)
+    groups: dict[str, list[int]] = {}
+    for k, unit in enumerate(units):
+        groups.setdefault(_bus_key(unit), []).append(k)
+    buses: list[tuple[can.BusABC | dict, Callable[[], float] | TimeBase]] = [
+        (unit.bus_kwargs(), now) for unit in units]
+    for members in groups.values():
+        if len(members) < 2:
+            continue
+        shared = SharedBus(open_bus(units[members[0]].bus_kwargs()))
+        stack.callback(shared.shutdown)
+        time_base = TimeBase(now)
+        for k in members:
+            view = shared.view(None if k == 0 else units[k].layout.keys)
+            stack.callback(view.shutdown)
+            buses[k] = (view, time_base)
+    return buses
+
+
+def _bus_key(unit: ImuConfig) -> str:
+    """What names one bus: its interface, channel and options (a socketcand server's host and port)."""
+    return json.dumps([unit.interface, str(unit.channel), unit.bus_options], sort_keys=True, default=str)
+
+
+def _check_adapter(receiver: ImuReceiver, unit: ImuConfig, where: str, asked: list[can.BusABC]) -> None:
+    """`check_rig_adapter` on the opened bus behind `receiver` (a view's shared bus), unless it was `asked`."""
+    opened = receiver.bus.shared.bus if isinstance(receiver.bus, BusView) else receiver.bus
+    if not any(opened is bus for bus in asked):
+        asked.append(opened)
+        check_rig_adapter(opened, unit.rig, where)
+
+
 def _sim_units(config: BenchConfig, world: SimWorld, stack: ExitStack) -> list[UnitLink]:
     """The simulated units of a run of several IMUs: the reference unit is the world's own IMU (mounted as
     configured); each other unit its own truth (`unit_truth`), noise seed and mounting, on its configured bus
@@ -181,7 +225,7 @@ def _sim_units(config: BenchConfig, world: SimWorld, stack: ExitStack) -> list[U
     return links
 
 
-def _open_receiver(config: BenchConfig, bus: can.BusABC | dict, time_base: Callable[[], float] | None,
+def _open_receiver(config: BenchConfig, bus: can.BusABC | dict, time_base: Callable[[], float] | TimeBase | None,
                    stack: ExitStack) -> ImuReceiver:
     receiver = ImuReceiver(bus, config.imu.layout, config.imu.rate_hz, time_base=time_base)
     stack.callback(receiver.close)
