@@ -5,6 +5,7 @@ Issue 31 asks that four units on two faces and two buses each recover their trut
 table's time is the cost).
 
 Run: python benchmarks/several_imus_rig.py [--units 4] [--buses 2] [--transports slcan,socketcand] [--dwell-s 1]
+[--rate-hz 200] [--note TEXT]
 
 For each transport, starts `bench sim rig --imus 1` and `bench sim rig --imus N --buses B` (SCPI over TCP; the units
 over one SLCAN adapter (pty) or one socketcand per bus, units sharing a bus sharing it; 200 Hz, classic layout, noise
@@ -105,6 +106,7 @@ def main() -> int:
     ap.add_argument("--transports", default="slcan,socketcand")
     ap.add_argument("--dwell-s", type=float, default=1.0)
     ap.add_argument("--rate-hz", type=float, default=200.0)
+    ap.add_argument("--note", default="", help="a line for docs/benchmarks.md (what the figures say, the machine)")
     args = ap.parse_args()
     transports = args.transports.split(",")
     print(f"{args.units} units on {args.buses} buses against 1 unit, {args.rate_hz:g} Hz, dwells {args.dwell_s:g} s; "
@@ -137,7 +139,8 @@ def main() -> int:
               f"time {several['table_s'] / single['table_s']:.3f}", flush=True)
     path = results.record("several_imus_rig", medians_s=medians_s, ratios=ratios,
                           parameters={"units": args.units, "buses": args.buses, "transports": transports,
-                                      "dwell_s": args.dwell_s, "rate_hz": args.rate_hz, "plan": "short", "runs": 1})
+                                      "dwell_s": args.dwell_s, "rate_hz": args.rate_hz, "plan": "short", "runs": 1},
+                          note=args.note)
     print(f"figures written to {path}; load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     return 0 if ok else 1
 

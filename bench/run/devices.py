@@ -117,14 +117,15 @@ def open_drivers(config: BenchConfig, with_chamber: bool) -> Devices:
     try:
         clock = SYSTEM_CLOCK
         table = _open_table(config, config.table.url, clock, stack)
-        buses = _unit_buses(config, clock.now, stack)
+        buses = _UnitBuses(config, clock.now, stack)
         # the interface's frame timestamps are mapped onto the run clock (one time base in the log)
         receiver = _open_receiver(config, *buses[0], stack)
         asked: list[can.BusABC] = []        # each opened bus asked once whether it is the rig's
         _check_adapter(receiver, config.imu, where, asked)
         imu_check = check_imu_stream(receiver, config.imu.rate_hz, where)
         devices = Devices(table, receiver, clock, imu_check=imu_check, _stack=stack)
-        for unit, (unit_bus, time_base) in zip(config.units[1:], buses[1:]):   # each unit checked before anything moves
+        for k, unit in enumerate(config.units[1:], 1):   # several IMUs: each checked before anything moves
+            unit_bus, time_base = buses[k]
             unit_receiver = ImuReceiver(unit_bus, unit.layout, unit.rate_hz, time_base=time_base)
             stack.callback(unit_receiver.close)
             _check_adapter(unit_receiver, unit, _where(unit, True), asked)
@@ -167,30 +168,35 @@ def _where(unit: ImuConfig, several: bool) -> str:
     return f"{where} (unit {unit.identity.serial})" if several else where
 
 
-def _unit_buses(config: BenchConfig, now: Callable[[], float], stack: ExitStack
-                ) -> list[tuple[can.BusABC | dict, Callable[[], float] | TimeBase]]:
-    """Each unit's bus and time base, in the order of `config.units`: a unit alone on its bus, its bus arguments
-    (its receiver opens it) and `now`; units sharing a bus, each a view of one `SharedBus` opened for them all (an
-    SLCAN adapter has one reader; the reference unit's view every frame on its bus, as its /can/raw always had,
-    another unit's its own ids) and the bus's one `TimeBase` (a unit's first frames wait in its view until its first
-    poll: a time base of its own would take that wait for the interface's clock offset)."""
-    units = config.units or (config.imu,)
-    groups: dict[str, list[int]] = {}
-    for k, unit in enumerate(units):
-        groups.setdefault(_bus_key(unit), []).append(k)
-    buses: list[tuple[can.BusABC | dict, Callable[[], float] | TimeBase]] = [
-        (unit.bus_kwargs(), now) for unit in units]
-    for members in groups.values():
-        if len(members) < 2:
-            continue
-        shared = SharedBus(open_bus(units[members[0]].bus_kwargs()))
-        stack.callback(shared.shutdown)
-        time_base = TimeBase(now)
-        for k in members:
-            view = shared.view(None if k == 0 else units[k].layout.keys)
-            stack.callback(view.shutdown)
-            buses[k] = (view, time_base)
-    return buses
+class _UnitBuses:
+    """Each unit's bus and time base (`buses[k]`, k in the order of `config.units`): a unit alone on its bus, its bus
+    arguments (its receiver opens it) and the run clock's `now`; units sharing a bus, each a view of one `SharedBus`
+    (an SLCAN adapter has one reader; the reference unit's view every frame on its bus, as its /can/raw always had,
+    another unit's its own ids) and the bus's one `TimeBase`. A shared bus is opened when its first unit asks for it,
+    just before that unit's first poll: the time base takes the interface's clock offset from the first frames it
+    maps, which must be fresh (frames that waited seconds in a view put every later sample seconds early)."""
+
+    def __init__(self, config: BenchConfig, now: Callable[[], float], stack: ExitStack):
+        self._units = config.units or (config.imu,)
+        self._now, self._stack = now, stack
+        self._sharers: dict[str, int] = {}
+        for unit in self._units:
+            self._sharers[_bus_key(unit)] = self._sharers.get(_bus_key(unit), 0) + 1
+        self._shared: dict[str, tuple[SharedBus, TimeBase]] = {}
+
+    def __getitem__(self, k: int) -> tuple[can.BusABC | dict, Callable[[], float] | TimeBase]:
+        unit = self._units[k]
+        key = _bus_key(unit)
+        if self._sharers[key] < 2:
+            return unit.bus_kwargs(), self._now
+        if key not in self._shared:
+            shared = SharedBus(open_bus(unit.bus_kwargs()))
+            self._stack.callback(shared.shutdown)
+            self._shared[key] = shared, TimeBase(self._now)
+        shared, time_base = self._shared[key]
+        view = shared.view(None if k == 0 else unit.layout.keys)
+        self._stack.callback(view.shutdown)
+        return view, time_base
 
 
 def _bus_key(unit: ImuConfig) -> str:

@@ -19,11 +19,11 @@ import pytest
 from bench.config.load import load_config, parse_config
 from bench.log.reader import read_log
 from bench.model.result import coefficient_table
-from bench.sim.rig import SimRig, rig_config_text, rig_units
+from bench.sim.rig import SimRig, apply_imu_command, imu_status, rig_config_text, rig_units
 from bench.sim.units import unit_truth
 from drivers.imu.receiver import ImuReceiver, open_bus
 from drivers.imu.shared_bus import SharedBus
-from tests.helpers.run import REPO, cli, config_text, only_file, stop_process
+from tests.helpers.run import REPO, cli, config_text, only_file, stop_process, wait_for
 from tests.helpers.sim_process import read_until
 from tests.protocol.test_sim_rig import K_SIGMA, SHORT_PLAN, _assert_no_loss, _receive, _start_rig_writing, _with_plan
 
@@ -67,6 +67,9 @@ def test_one_slcan_pty_per_bus_read_once_by_the_units_on_it():
                 _assert_no_loss(receiver, _receive(receiver, 60))
                 assert receiver.stats.unknown_id == 0, receiver.stats      # only its own ids reached it
             assert [rig.server(b).clients for b in range(2)] == [1, 1]      # each pty opened once
+            assert apply_imu_command(rig, ["off"]) == "ok"                  # every bus falls silent
+            wait_for(lambda: all(bus.frames_silenced for bus in rig.buses), 5.0, "both buses to swallow a frame")
+            assert imu_status(rig).startswith("IMU off") and "(bus 2)" in imu_status(rig)
         finally:
             for bus in shared:
                 bus.shutdown()
