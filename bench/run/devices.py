@@ -168,13 +168,20 @@ def _where(unit: ImuConfig, several: bool) -> str:
     return f"{where} (unit {unit.identity.serial})" if several else where
 
 
+#: python-can interfaces that stamp received frames with this host's clock (the epoch): python-can's and the
+#: bench's SLCAN readers (time of the read), SocketCAN (the kernel's receive time), the in-process virtual bus
+HOST_CLOCK_INTERFACES = frozenset({"slcan", "socketcan", "virtual"})
+
+
 class _UnitBuses:
-    """Each unit's bus and time base (`buses[k]`, k in the order of `config.units`): a unit alone on its bus, its bus
-    arguments (its receiver opens it) and the run clock's `now`; units sharing a bus, each a view of one `SharedBus`
-    (an SLCAN adapter has one reader; the reference unit's view every frame on its bus, as its /can/raw always had,
-    another unit's its own ids) and the bus's one `TimeBase`. A shared bus is opened when its first unit asks for it,
-    just before that unit's first poll: the time base takes the interface's clock offset from the first frames it
-    maps, which must be fresh (frames that waited seconds in a view put every later sample seconds early)."""
+    """Each unit's bus and time base (`buses[k]`, k in the order of `config.units`). A unit alone on its bus gets its
+    bus arguments (its receiver opens it); units sharing a bus each a view of one `SharedBus` (an SLCAN adapter has
+    one reader; the reference unit's view every frame on its bus, as its /can/raw always had, another unit's its own
+    ids), opened when its first unit asks for it. In a run of several units, the units whose frames are stamped on
+    one clock (`_clock_of`) share one `TimeBase`: its offset is taken once, from the reference unit's first, fresh
+    frames. Each unit's own offset, taken from its first frames, differed from the reference unit's by how late those
+    came (up to the poll interval, more under load), and every other unit's windows, cut by receive time in the
+    reference unit's, were shifted by that: the residual outliers of units on a second bus."""
 
     def __init__(self, config: BenchConfig, now: Callable[[], float], stack: ExitStack):
         self._units = config.units or (config.imu,)
@@ -182,21 +189,33 @@ class _UnitBuses:
         self._sharers: dict[str, int] = {}
         for unit in self._units:
             self._sharers[_bus_key(unit)] = self._sharers.get(_bus_key(unit), 0) + 1
-        self._shared: dict[str, tuple[SharedBus, TimeBase]] = {}
+        self._shared: dict[str, SharedBus] = {}
+        self._time_bases: dict[str, TimeBase] = {}
 
     def __getitem__(self, k: int) -> tuple[can.BusABC | dict, Callable[[], float] | TimeBase]:
         unit = self._units[k]
         key = _bus_key(unit)
+        time_base: Callable[[], float] | TimeBase = self._now
+        if len(self._units) > 1:
+            time_base = self._time_bases.setdefault(_clock_of(unit), TimeBase(self._now))
         if self._sharers[key] < 2:
-            return unit.bus_kwargs(), self._now
+            return unit.bus_kwargs(), time_base
         if key not in self._shared:
-            shared = SharedBus(open_bus(unit.bus_kwargs()))
-            self._stack.callback(shared.shutdown)
-            self._shared[key] = shared, TimeBase(self._now)
-        shared, time_base = self._shared[key]
-        view = shared.view(None if k == 0 else unit.layout.keys)
+            self._shared[key] = SharedBus(open_bus(unit.bus_kwargs()))
+            self._stack.callback(self._shared[key].shutdown)
+        view = self._shared[key].view(None if k == 0 else unit.layout.keys)
         self._stack.callback(view.shutdown)
         return view, time_base
+
+
+def _clock_of(unit: ImuConfig) -> str:
+    """The clock a unit's interface stamps frames with: this host's, a socketcand daemon's host's, else its bus's
+    own (an adapter with its own time stamps)."""
+    if unit.interface in HOST_CLOCK_INTERFACES:
+        return "host"
+    if unit.interface == "socketcand":
+        return f"socketcand host {unit.bus_options.get('host')}"
+    return _bus_key(unit)
 
 
 def _bus_key(unit: ImuConfig) -> str:

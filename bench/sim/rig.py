@@ -6,7 +6,9 @@ in a dialect as `bench sim table` does) and the simulated IMU mounted on its tab
 IMU's frames go onto `RigBus`, which hands them to every CAN peer the rig serves: a
 simulated SLCAN adapter on a pty (`bench.sim.slcan_server`), a simulated socketcand on
 127.0.0.1 (`bench.sim.socketcand_server`) or a real SocketCAN interface. Another process
-opens those with python-can's own interfaces (`slcan`, `socketcand`, `socketcan`).
+opens those with python-can's own interfaces (`slcan`, `socketcand`, `socketcan`). A rig of
+several IMUs (`config.units`) has one `RigBus` per bus its units name, each served by its
+own peers (`rig_units` lays out `bench sim rig --imus N --buses B`).
 
 `rig_config_text` writes the bench configuration that points at what the rig serves, with
 the rig's simulated truth in `[sim]` (so the written file rebuilds the same world; a

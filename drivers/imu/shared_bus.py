@@ -24,7 +24,7 @@ import numpy as np
 from drivers.imu.frames import CanFrameBatch
 from drivers.imu.receiver import read_frames
 
-#: frames a view holds for its receiver before it drops them (about 2 min of a 2 kHz IMU's packed frames)
+#: frames a view holds for its receiver before it drops them (about 85 s of a 2 kHz IMU's packed frames)
 MAX_PENDING_FRAMES = 1 << 19
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 import bench.run.devices as devices_module
@@ -93,32 +95,45 @@ def _units_config(channels: list[str]) -> str:
     return text[:start] + entries + text[end:]
 
 
-def test_a_shared_bus_without_the_reference_unit_takes_its_clock_offset_from_fresh_frames():
-    """Units 1 and 2 share a bus the reference unit is not on. Their bus opens when unit 1 asks for it, so frames
-    sent on it before (while the reference unit was checked) never reach their views: the time base's offset comes
-    from the first frame read at once. (Opened with the others, the old frame, stamped 10 s before, was mapped to
-    the run clock's now: every later sample 10 s early, and the units' dwell windows empty.)"""
+def test_units_on_several_buses_of_one_clock_map_their_frames_with_the_reference_units_offset():
+    """The reference unit alone on bus a, units 1 and 2 sharing bus b (one opened bus, a view each), every interface
+    stamping frames with this host's clock: one time base for all, its offset from the reference unit's first frame.
+    A frame of unit 1 read late keeps its own time (its own offset, taken at its first read, made it as late as the
+    read: its windows, cut by receive time in the reference unit's, were shifted by that)."""
     import contextlib
     import uuid
 
     import can
 
-    from bench.run.devices import _UnitBuses
+    from bench.run.devices import _clock_of, _UnitBuses
+    from drivers.imu.shared_bus import BusView
 
     a, b = f"devices-a-{uuid.uuid4().hex[:8]}", f"devices-b-{uuid.uuid4().hex[:8]}"
     config = parse_config(_units_config([a, b, b]))
     now = [1000.0]
-    sender = can.Bus(interface="virtual", channel=b, preserve_timestamps=True)
+    senders = {channel: can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) for channel in (a, b)}
     with contextlib.ExitStack() as stack:
-        stack.callback(sender.shutdown)
+        for sender in senders.values():
+            stack.callback(sender.shutdown)
         buses = _UnitBuses(config, lambda: now[0], stack)
-        assert isinstance(buses[0][0], dict)           # alone on its bus: its receiver opens it
-        key = config.units[1].layout.keys[0]
-        sender.send(can.Message(timestamp=10.0, arbitration_id=key, data=bytes(8), is_extended_id=False))
-        view, time_base = buses[1]
-        now[0] = 2000.0
-        sender.send(can.Message(timestamp=20.0, arbitration_id=key, data=bytes(8), is_extended_id=False))
-        receiver = ImuReceiver(view, config.units[1].layout, 100.0, time_base=time_base)
-        receiver.poll(timeout_s=1.0)
-        assert receiver.frames_received == 1 and time_base.offset_s == 20.0 - 2000.0
-        assert buses[2][1] is time_base                # the bus's units share its time base
+        (bus_a, time_base), (view_1, base_1), (view_2, base_2) = buses[0], buses[1], buses[2]
+        assert isinstance(bus_a, dict) and isinstance(view_1, BusView) and isinstance(view_2, BusView)
+        assert base_1 is time_base and base_2 is time_base
+        reference = ImuReceiver(bus_a, config.units[0].layout, 100.0, time_base=time_base)
+        stack.callback(reference.close)
+        unit = ImuReceiver(view_1, config.units[1].layout, 100.0, time_base=base_1)
+        for channel, layout, stamp in ((a, config.units[0].layout, 10.0), (b, config.units[1].layout, 11.0)):
+            senders[channel].send(can.Message(timestamp=stamp, arbitration_id=layout.keys[0], data=bytes(8),
+                                              is_extended_id=False))
+        seen: list[float] = []
+        unit.on_frames = lambda batch: seen.extend(batch.timestamps.tolist())
+        reference.poll(timeout_s=1.0)
+        assert time_base.offset_s == 10.0 - 1000.0
+        now[0] = 2000.0                          # unit 1's frame is read long after it came
+        unit.poll(timeout_s=1.0)
+        assert seen == [1001.0]
+    assert _clock_of(config.units[1]) == "host"
+    socketcand = dataclasses.replace(config.units[1], interface="socketcand", bus_options={"host": "10.0.0.7"})
+    assert _clock_of(socketcand) == "socketcand host 10.0.0.7"
+    pcan = dataclasses.replace(config.units[1], interface="pcan", channel="PCAN_USBBUS1")
+    assert _clock_of(pcan) != _clock_of(dataclasses.replace(pcan, channel="PCAN_USBBUS2"))   # each its own clock
