@@ -40,9 +40,10 @@ if TYPE_CHECKING:
 PROG = "bench sim rig"
 #: the most units `--imus` serves (unit k's ids offset by 16 k stay in the classic 11-bit range)
 MAX_RIG_IMUS = 16
-IMU_LISTEN_HELP = ("slcan (a simulated SLCAN adapter on a new pty: python-can interface slcan), "
-                   "socketcand://127.0.0.1:PORT (a simulated socketcand serving can0: interface socketcand), or "
-                   "socketcan:CHANNEL (a SocketCAN interface of this host, e.g. socketcan:vcan0); repeatable; "
+IMU_LISTEN_HELP = ("slcan (a simulated SLCAN adapter on a new pty per bus: python-can interface slcan), "
+                   "socketcand://127.0.0.1:PORT (a simulated socketcand per bus, serving can0, can1, ...: interface "
+                   "socketcand; with several buses PORT is 0, a free port each), or socketcan:CHANNEL[,CHANNEL...] "
+                   "(SocketCAN interfaces of this host, one per bus, e.g. socketcan:vcan0,vcan1); repeatable; "
                    "the written configuration points at the first; default slcan")
 IMU_FAULT_HELP = """  imu off | imu on | imu drop N | imu corrupt N | imu length N | imu swap | imu status
       (the IMU stops/starts sending; the next N frames are dropped, sent with a bad CRC or one byte short;
@@ -96,11 +97,14 @@ def register(kinds: argparse._SubParsersAction) -> None:
     rig.add_argument("--config", metavar="FILE",
                      help="a bench configuration whose [site], [sim], imu.rate_hz and IMU layout the rig uses")
     rig.add_argument("--imus", type=int, default=1, metavar="N",
-                     help="serve N simulated IMUs on the rig's one bus (1..16; default 1): unit k (from 0) with "
-                          "its own truth and noise seed as `bench run --sim` draws them, its ids offset by 16 k, "
-                          "on the faces z-up, x-up, y-up, z-down, x-down, y-down in turn; the written "
-                          "configuration has one [[imu]] entry per unit (docs/how-to/several-imus.md). Every unit "
-                          "opens the bus: socketcand or socketcan, not slcan")
+                     help="serve N simulated IMUs (1..16; default 1), each with its own truth and noise seed as "
+                          "`bench run --sim` draws them; the written configuration has one [[imu]] entry per unit "
+                          "(docs/how-to/several-imus.md)")
+    rig.add_argument("--buses", type=int, default=1, metavar="B",
+                     help="put the --imus units on B buses (1..N; default 1), consecutive units sharing a bus as "
+                          "multi-imu.example.toml does: on each bus the units' ids offset by 16 in turn and their "
+                          "faces z-up, x-up, y-up, z-down, x-down, y-down in turn; each bus its own SLCAN adapter "
+                          "(pty), socketcand or SocketCAN interface, which the units on it share")
     rig.add_argument("--seed", type=int, help="[sim] seed (black-box draw and sensor noise)")
     rig.add_argument("--black-box-arcsec", type=float, help="[sim] RMS of the nine black-box angles, arcsec")
     rig.add_argument("--noise", choices=("on", "off"), help="[sim] noise on (default levels) or off")
@@ -148,32 +152,50 @@ def _truth_config(args: argparse.Namespace) -> BenchConfig:
         table = dataclasses.replace(table, register_map=None)   # --dialect overrides a modbus --config
     base = dataclasses.replace(base, sim=sim, site=site, imu=imu, table=table)
     placeholder = RigPeer("virtual", "", "virtual", "turntable-bench-rig", {})
-    text = rig_config_text(base, "sim", base.table.dialect, placeholder, imus=args.imus)
+    placeholders = [placeholder] if args.buses == 1 else [
+        dataclasses.replace(placeholder, channel=f"turntable-bench-rig-{b}", bus=b) for b in range(args.buses)]
+    text = rig_config_text(base, "sim", base.table.dialect, placeholders, imus=args.imus, buses=args.buses)
     # the chamber's limits, safe setpoint and register map come from --config as they are
     return dataclasses.replace(parse_config(text, source="<bench sim rig options>"), chamber=base.chamber)
 
 
-def _serve_imu(rig, where: str, idle_timeout_s: float):
+def _check_imu_listen(where: str, buses: int) -> str | None:
+    """Why `where` (an --imu-listen) cannot serve `buses` buses; None: it can."""
     if where == "slcan":
-        return rig.serve_slcan()
+        return None
     if where.startswith("socketcan:"):
-        return rig.serve_socketcan(where.split(":", 1)[1])
+        channels = where.split(":", 1)[1].split(",")
+        if len(channels) != buses or not all(channels):
+            return f"{where!r} names {len(channels)} SocketCAN channel(s) for {buses} bus(es): one per bus"
+        return None
+    if where.startswith("socketcand://"):
+        if buses > 1 and not where.endswith(":0"):
+            return f"{where!r}: with {buses} buses socketcand listens on port 0 (a free port per bus)"
+        return None
+    return f"the IMU listens on slcan, socketcand://HOST:PORT or socketcan:CHANNEL, not {where!r}"
+
+
+def _serve_imu(rig, where: str, idle_timeout_s: float) -> list:
+    """The rig's peers (one per bus) on the transport `where` names."""
+    buses = range(len(rig.buses))
+    if where == "slcan":
+        return [rig.serve_slcan(b) for b in buses]
+    if where.startswith("socketcan:"):
+        return [rig.serve_socketcan(channel, b) for b, channel in zip(buses, where.split(":", 1)[1].split(","))]
     host, port = host_port(where, "socketcand", "the IMU listens on slcan, socketcand://HOST:PORT or "
                                                   "socketcan:CHANNEL")
-    return rig.serve_socketcand(host, port, idle_timeout_s)
+    return [rig.serve_socketcand(host, port, idle_timeout_s, b) for b in buses]
 
 
 def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
     # heavy (scipy, python-can): the configuration's loader and the simulators load only when one is served
     from bench.config.load import parse_config
-    from bench.sim.rig import SimRig, apply_imu_command, rig_config_text
+    from bench.sim.rig import SimRig, apply_imu_command, rig_config_text, rig_units
 
     if not 1 <= args.imus <= MAX_RIG_IMUS:
         return fail(PROG, f"--imus must be 1..{MAX_RIG_IMUS}, not {args.imus}", ExitCode.USAGE)
-    if args.imus > 1 and "slcan" in (args.imu_listen or ["slcan"]):
-        return fail(PROG, f"--imus {args.imus}: every unit opens the rig's one bus, and an SLCAN adapter (a pty) "
-                          "takes one client: serve the IMUs with --imu-listen socketcand://127.0.0.1:0 or "
-                          "socketcan:CHANNEL", ExitCode.USAGE)
+    if not 1 <= args.buses <= args.imus:
+        return fail(PROG, f"--buses must be 1..{args.imus} (the --imus units), not {args.buses}", ExitCode.USAGE)
     try:
         config = _truth_config(args)
     except (ConfigError, InputError) as exc:
@@ -187,9 +209,9 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
     if remote and not args.allow_remote:
         return refuse_remote(PROG, remote)
     for where in imu_listen:
-        if not (where == "slcan" or where.startswith(("socketcand://", "socketcan:"))):
-            return fail(PROG, f"the IMU listens on slcan, socketcand://HOST:PORT or socketcan:CHANNEL, not "
-                              f"{where!r}", ExitCode.USAGE)
+        refused = _check_imu_listen(where, args.buses)
+        if refused is not None:
+            return fail(PROG, refused, ExitCode.USAGE)
     closers: list = []
 
     def serve() -> None:
@@ -198,14 +220,16 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
         table_url = start_listener(rig.controller, dialect, table_listen, closers, config.table.register_map,
                                    idle_timeout_s=args.idle_timeout_s)
         print(f"simulated table ({dialect}) listening on {table_url}", flush=True)
-        peers = [_serve_imu(rig, where, args.idle_timeout_s) for where in imu_listen]
-        for peer in peers:
+        links = [_serve_imu(rig, where, args.idle_timeout_s) for where in imu_listen]
+        for peer in (peer for peers in links for peer in peers):
             print(f"simulated IMU ({config.imu.rate_hz:g} Hz) on {peer.kind} {peer.where}: python-can "
                   f"interface {peer.interface!r}, channel {peer.channel!r}"
-                  + "".join(f", {k} {v!r}" for k, v in peer.bus_options.items()), flush=True)
-        if len(config.units) > 1:
-            print("units on that bus: " + ", ".join(
-                f"{unit.identity.serial} ({unit.mounting_name}, ids +{unit.id_offset})" for unit in config.units),
+                  + "".join(f", {k} {v!r}" for k, v in peer.bus_options.items())
+                  + (f" (bus {peer.bus + 1})" if args.buses > 1 else ""), flush=True)
+        for b in range(args.buses if len(config.units) > 1 else 0):
+            on_bus = [unit for unit, placed in zip(config.units, rig_units(args.imus, args.buses)) if placed.bus == b]
+            print(("units on that bus: " if args.buses == 1 else f"units on bus {b + 1}: ") + ", ".join(
+                f"{unit.identity.serial} ({unit.mounting_name}, ids +{unit.id_offset})" for unit in on_bus),
                 flush=True)
         chamber, chamber_url = None, ""
         if chamber_listen:
@@ -219,9 +243,9 @@ def cmd_sim_rig(args: argparse.Namespace) -> ExitCode:
             print(f"simulated chamber ({chamber_dialect}) listening on {chamber_url}", flush=True)
         rig.start()
         if args.write_config:
-            text = rig_config_text(config, table_url, dialect, peers[0],
+            text = rig_config_text(config, table_url, dialect, links[0],
                                    (chamber_url, chamber_dialect) if chamber is not None else None, rig.identity,
-                                   imus=args.imus)
+                                   imus=args.imus, buses=args.buses)
             parse_config(text, source=args.write_config, base_dir=Path(args.write_config).resolve().parent)
             # never over the --config read, nor over a run log
             write_output_text(args.write_config, text, [args.config] if args.config else [], option="--write-config")

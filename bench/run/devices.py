@@ -8,6 +8,7 @@ the last opened first: chamber, receiver, table, then the simulated world.
 
 from __future__ import annotations
 
+import json
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from typing import Callable
@@ -24,7 +25,8 @@ from bench.sim.units import SimUnit, placed_terms, unit_seed, unit_truth
 from bench.sim.world import PumpedReceiver, SimWorld
 from drivers.chamber import Chamber, open_chamber
 from drivers.clock import SYSTEM_CLOCK, Clock
-from drivers.imu.receiver import ImuReceiver
+from drivers.imu.receiver import ImuReceiver, TimeBase, open_bus
+from drivers.imu.shared_bus import BusView, SharedBus
 from drivers.turntable import Turntable, open_turntable
 
 #: What the sequencer and the TUI poll for IMU samples: the receiver, or on the simulator the receiver with the
@@ -116,16 +118,20 @@ def open_drivers(config: BenchConfig, with_chamber: bool) -> Devices:
     check_rig_running(config.imu.rig, f"{config.imu.channel} ({config.table.url})")
     stack = ExitStack()
     try:
-        clock, bus = SYSTEM_CLOCK, config.imu.bus_kwargs()
+        clock = SYSTEM_CLOCK
         table = _open_table(config, config.table.url, clock, stack)
+        buses = _UnitBuses(config, clock.now, stack)
         # the interface's frame timestamps are mapped onto the run clock (one time base in the log)
-        receiver = _open_receiver(config, bus, clock.now, stack)
-        check_rig_adapter(receiver.bus, config.imu.rig, where)
+        receiver = _open_receiver(config, *buses[0], stack)
+        asked: list[can.BusABC] = []        # each opened bus asked once whether it is the rig's
+        _check_adapter(receiver, config.imu, where, asked)
         imu_check = check_imu_stream(receiver, config.imu.rate_hz, where)
         devices = Devices(table, receiver, clock, imu_check=imu_check, _stack=stack)
-        for unit in config.units[1:]:     # a run of several IMUs: every unit checked before anything moves
-            unit_receiver = ImuReceiver(unit.bus_kwargs(), unit.layout, unit.rate_hz, time_base=clock.now)
+        for k, unit in enumerate(config.units[1:], 1):   # several IMUs: each checked before anything moves
+            unit_bus, time_base = buses[k]
+            unit_receiver = ImuReceiver(unit_bus, unit.layout, unit.rate_hz, time_base=time_base)
             stack.callback(unit_receiver.close)
+            _check_adapter(unit_receiver, unit, _where(unit, True), asked)
             devices.imu_check += "; " + check_imu_stream(unit_receiver, unit.rate_hz, _where(unit, True))
             devices.units.append(UnitLink(unit.identity.serial, unit_receiver))
         if with_chamber:
@@ -165,6 +171,69 @@ def _where(unit: ImuConfig, several: bool) -> str:
     return f"{where} (unit {unit.identity.serial})" if several else where
 
 
+#: python-can interfaces that stamp received frames with this host's clock (the epoch): python-can's and the
+#: bench's SLCAN readers (time of the read), SocketCAN (the kernel's receive time), the in-process virtual bus
+HOST_CLOCK_INTERFACES = frozenset({"slcan", "socketcan", "virtual"})
+
+
+class _UnitBuses:
+    """Each unit's bus and time base (`buses[k]`, k in the order of `config.units`). A unit alone on its bus gets its
+    bus arguments (its receiver opens it); units sharing a bus each a view of one `SharedBus` (an SLCAN adapter has
+    one reader; the reference unit's view every frame on its bus, as its /can/raw always had, another unit's its own
+    ids), opened when its first unit asks for it. In a run of several units, the units whose frames are stamped on
+    one clock (`_clock_of`) share one `TimeBase`: its offset is taken once, from the reference unit's first, fresh
+    frames. Each unit's own offset, taken from its first frames, differed from the reference unit's by how late those
+    came (up to the poll interval, more under load), and every other unit's windows, cut by receive time in the
+    reference unit's, were shifted by that: the residual outliers of units on a second bus."""
+
+    def __init__(self, config: BenchConfig, now: Callable[[], float], stack: ExitStack):
+        self._units = config.units or (config.imu,)
+        self._now, self._stack = now, stack
+        self._sharers: dict[str, int] = {}
+        for unit in self._units:
+            self._sharers[_bus_key(unit)] = self._sharers.get(_bus_key(unit), 0) + 1
+        self._shared: dict[str, SharedBus] = {}
+        self._time_bases: dict[str, TimeBase] = {}
+
+    def __getitem__(self, k: int) -> tuple[can.BusABC | dict, Callable[[], float] | TimeBase]:
+        unit = self._units[k]
+        key = _bus_key(unit)
+        time_base: Callable[[], float] | TimeBase = self._now
+        if len(self._units) > 1:
+            time_base = self._time_bases.setdefault(_clock_of(unit), TimeBase(self._now))
+        if self._sharers[key] < 2:
+            return unit.bus_kwargs(), time_base
+        if key not in self._shared:
+            self._shared[key] = SharedBus(open_bus(unit.bus_kwargs()))
+            self._stack.callback(self._shared[key].shutdown)
+        view = self._shared[key].view(None if k == 0 else unit.layout.keys)
+        self._stack.callback(view.shutdown)
+        return view, time_base
+
+
+def _clock_of(unit: ImuConfig) -> str:
+    """The clock a unit's interface stamps frames with: this host's, a socketcand daemon's host's, else its bus's
+    own (an adapter with its own time stamps)."""
+    if unit.interface in HOST_CLOCK_INTERFACES:
+        return "host"
+    if unit.interface == "socketcand":
+        return f"socketcand host {unit.bus_options.get('host')}"
+    return _bus_key(unit)
+
+
+def _bus_key(unit: ImuConfig) -> str:
+    """What names one bus: its interface, channel and options (a socketcand server's host and port)."""
+    return json.dumps([unit.interface, str(unit.channel), unit.bus_options], sort_keys=True, default=str)
+
+
+def _check_adapter(receiver: ImuReceiver, unit: ImuConfig, where: str, asked: list[can.BusABC]) -> None:
+    """`check_rig_adapter` on the opened bus behind `receiver` (a view's shared bus), unless it was `asked`."""
+    opened = receiver.bus.shared.bus if isinstance(receiver.bus, BusView) else receiver.bus
+    if not any(opened is bus for bus in asked):
+        asked.append(opened)
+        check_rig_adapter(opened, unit.rig, where)
+
+
 def _sim_units(config: BenchConfig, world: SimWorld, stack: ExitStack) -> list[UnitLink]:
     """The simulated units of a run of several IMUs: the reference unit is the world's own IMU (mounted as
     configured); each other unit its own truth (`unit_truth`), noise seed and mounting, on its configured bus
@@ -185,7 +254,7 @@ def _sim_units(config: BenchConfig, world: SimWorld, stack: ExitStack) -> list[U
     return links
 
 
-def _open_receiver(config: BenchConfig, bus: can.BusABC | dict, time_base: Callable[[], float] | None,
+def _open_receiver(config: BenchConfig, bus: can.BusABC | dict, time_base: Callable[[], float] | TimeBase | None,
                    stack: ExitStack) -> ImuReceiver:
     receiver = ImuReceiver(bus, config.imu.layout, config.imu.rate_hz, time_base=time_base)
     stack.callback(receiver.close)

@@ -6,7 +6,9 @@ in a dialect as `bench sim table` does) and the simulated IMU mounted on its tab
 IMU's frames go onto `RigBus`, which hands them to every CAN peer the rig serves: a
 simulated SLCAN adapter on a pty (`bench.sim.slcan_server`), a simulated socketcand on
 127.0.0.1 (`bench.sim.socketcand_server`) or a real SocketCAN interface. Another process
-opens those with python-can's own interfaces (`slcan`, `socketcand`, `socketcan`).
+opens those with python-can's own interfaces (`slcan`, `socketcand`, `socketcan`). A rig of
+several IMUs (`config.units`) has one `RigBus` per bus its units name, each served by its
+own peers (`rig_units` lays out `bench sim rig --imus N --buses B`).
 
 `rig_config_text` writes the bench configuration that points at what the rig serves, with
 the rig's simulated truth in `[sim]` (so the written file rebuilds the same world; a
@@ -18,7 +20,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, fields
 from typing import Any, Protocol
 
@@ -28,7 +30,7 @@ import numpy as np
 from bench.config.chamber import ChamberConfig
 from bench.config.load import BenchConfig, SimConfig
 from bench.config.rig import RigIdentity, this_rig
-from bench.config.units import FACES, lever_arm_in_body_m
+from bench.config.units import FACES, bus_name, lever_arm_in_body_m
 from bench.model.imu import NoiseModel
 from bench.model.units import DEG
 from bench.sim.can_imu import SimCanImu
@@ -108,6 +110,33 @@ class RigPeer:
     channel: str
     bus_options: dict
     bitrate: int | None = None
+    bus: int = 0              # which of the rig's buses it carries (`SimRig.buses`)
+
+
+@dataclass(frozen=True)
+class RigUnit:
+    """Where one unit of `bench sim rig --imus N --buses B` sits: its serial, bus (from 0), id offset and face."""
+
+    serial: str
+    bus: int
+    id_offset: int
+    face: str
+
+
+def rig_units(imus: int, buses: int = 1) -> list[RigUnit]:
+    """The units of a rig of `imus` units on `buses` buses, as multi-imu.example.toml lays them out: consecutive
+    units share a bus (the buses as even as they divide), on each bus the units' ids offset by RIG_ID_OFFSET in turn
+    and their faces RIG_FACES in turn (two units on two buses: z-up and x-up on each)."""
+    if not 1 <= buses <= imus:
+        raise ValueError(f"a rig of {imus} unit(s) has 1..{imus} buses, not {buses}")
+    units: list[RigUnit] = []
+    first = 0
+    for k in range(imus):
+        bus = k * buses // imus
+        if k and bus != units[-1].bus:
+            first = k
+        units.append(RigUnit(f"RIG-{k + 1:04d}", bus, RIG_ID_OFFSET * (k - first), RIG_FACES[(k - first) % 6]))
+    return units
 
 
 def _check_gyro_range(config: BenchConfig) -> None:
@@ -150,10 +179,13 @@ class SimRig:
         self.imu = SimImu(sim.imu, sim.noise, rate_hz=config.imu.rate_hz, seed=sim.seed, thermal=sim.thermal,
                            higher_order=placed_terms(sim.higher_order, lever_arm_in_body_m(config.imu))
                            if config.units else sim.higher_order)
-        self.bus = RigBus()
+        #: the rig's buses: one per bus the units name (`bench.config.units.bus_name`), in the order of the units
+        names = list(dict.fromkeys(bus_name(unit) for unit in config.units)) or [""]
+        self.buses = [RigBus() for _ in names]
+        self.bus = self.buses[0]            # the reference unit's
         self.can_imu = SimCanImu(self.controller, self.imu, self.bus, config.imu.layout)
         #: a rig of several IMUs (`config.units`, `bench sim rig --imus N`): every unit but the first, each with its
-        #: own truth and noise seed (as `bench run --sim` draws them), ids and mounting, on the rig's one bus
+        #: own truth and noise seed (as `bench run --sim` draws them), ids and mounting, on its bus
         self.units: list[SimCanImu] = []
         for k, unit in enumerate(config.units):
             if k == 0:
@@ -161,7 +193,7 @@ class SimRig:
             else:
                 imu = SimImu(unit_truth(sim.imu, k, sim.seed), sim.noise, rate_hz=unit.rate_hz,
                              seed=unit_seed(sim.seed, k), higher_order=placed_terms(None, lever_arm_in_body_m(unit)))
-                can_imu = SimCanImu(self.controller, imu, self.bus, unit.layout)
+                can_imu = SimCanImu(self.controller, imu, self.buses[names.index(bus_name(unit))], unit.layout)
                 self.units.append(can_imu)
             if unit.mounting is not None and unit.mounting != FACES["z-up"]:
                 can_imu.table = mounted_view(self.controller.table, unit.mounting)
@@ -173,29 +205,34 @@ class SimRig:
             raise ValueError(f"{kind} carries classic CAN frames only and the IMU layout has CAN FD frames: use a "
                              "classic layout (imu.fd = false and a classic DBC) or serve the IMU on socketcan")
 
-    def serve_slcan(self) -> RigPeer:
-        """A simulated SLCAN adapter on a new pty."""
+    def serve_slcan(self, bus: int = 0) -> RigPeer:
+        """A simulated SLCAN adapter on a new pty, on the rig's bus `bus` (one adapter per bus: the units on it
+        share the pty, each with its own ids)."""
         self._classic_only("SLCAN")
         server = SlcanPtyServer(SlcanPeer(serial=self.identity.id))
-        return self._add("slcan", server, RigPeer("slcan", server.path, "slcan", server.path, {}, 1_000_000))
+        return self._add(server, RigPeer("slcan", server.path, "slcan", server.path, {}, 1_000_000, bus))
 
     def serve_socketcand(self, host: str = "127.0.0.1", port: int = 0,
-                         idle_timeout_s: float = IDLE_TIMEOUT_S) -> RigPeer:
-        """A simulated socketcand serving `can0` on TCP (a connection silent for `idle_timeout_s` is closed)."""
+                         idle_timeout_s: float = IDLE_TIMEOUT_S, bus: int = 0) -> RigPeer:
+        """A simulated socketcand on TCP serving the rig's bus `bus` as `can<bus>` (`can0` for the first; a
+        connection silent for `idle_timeout_s` is closed)."""
         self._classic_only("socketcand (as python-can reads it)")
-        server = SocketcandServer(host, port, idle_timeout_s=idle_timeout_s)
-        return self._add("socketcand", server, RigPeer(
-            "socketcand", f"socketcand://{server.host}:{server.port}", "socketcand", "can0",
-            {"host": server.host, "port": server.port}))
+        server = SocketcandServer(host, port, idle_timeout_s=idle_timeout_s, bus=f"can{bus}")
+        return self._add(server, RigPeer(
+            "socketcand", f"socketcand://{server.host}:{server.port}", "socketcand", server.bus,
+            {"host": server.host, "port": server.port}, bus=bus))
 
-    def serve_socketcan(self, channel: str) -> RigPeer:
-        """A real SocketCAN interface (vcan0, can0) of this host."""
+    def serve_socketcan(self, channel: str, bus: int = 0) -> RigPeer:
+        """A real SocketCAN interface (vcan0, can0) of this host, carrying the rig's bus `bus`."""
         peer = SocketcanPeer(channel)
-        return self._add("socketcan", peer, RigPeer("socketcan", channel, "socketcan", channel, {}))
+        return self._add(peer, RigPeer("socketcan", channel, "socketcan", channel, {}, bus=bus))
 
-    def _add(self, kind: str, server: Any, peer: RigPeer) -> RigPeer:
+    def _add(self, server: Any, peer: RigPeer) -> RigPeer:
+        if not 0 <= peer.bus < len(self.buses):
+            server.close()
+            raise ValueError(f"the rig has {len(self.buses)} bus(es), no bus {peer.bus}")
         self._servers.append(server)
-        self.bus.peers.append(server)
+        self.buses[peer.bus].peers.append(server)
         self.peers.append(peer)
         return peer
 
@@ -222,7 +259,8 @@ class SimRig:
                 except Exception:  # noqa: BLE001 - closing everything matters more than the first failure
                     pass
             self._servers.clear()
-            self.bus.shutdown()
+            for bus in self.buses:
+                bus.shutdown()
 
     def __enter__(self) -> "SimRig":
         return self
@@ -231,14 +269,16 @@ class SimRig:
         self.close()
 
 
-def _imu_entries(imu_lines: list[str], options: str, imus: int) -> str:
-    """The written configuration's [imu] (one unit), or its `imus` [[imu]] entries."""
+def _imu_entries(bus_lines: list[tuple[list[str], str]], units: list[RigUnit]) -> str:
+    """The written configuration's [imu] (one unit), or one [[imu]] entry per unit; `bus_lines[b]`: the [imu] keys
+    and the [imu.*] tables (bus options, rig) of bus b."""
     identity = '[imu.identity]\nmodel = "simulated FOG IMU (bench sim rig)"\n'
-    if imus <= 1:
+    if len(units) <= 1:
+        imu_lines, options = bus_lines[0]
         return f"[imu]\n{chr(10).join(imu_lines)}\n{options}\n{identity}serial = \"RIG-0001\"\n"
-    return "\n".join(f"[[imu]]\n{chr(10).join(imu_lines)}\nid_offset = {k * RIG_ID_OFFSET}\n"
-                     f"mounting = {_toml(RIG_FACES[k % len(RIG_FACES)])}\n{options}\n{identity}"
-                     f"serial = \"RIG-{k + 1:04d}\"\n" for k in range(imus))
+    return "\n".join(f"[[imu]]\n{chr(10).join(bus_lines[u.bus][0])}\nid_offset = {u.id_offset}\n"
+                      f"mounting = {_toml(u.face)}\n{bus_lines[u.bus][1]}\n{identity}serial = {_toml(u.serial)}\n"
+                      for u in units)
 
 
 # -- the IMU's fault console ---------------------------------------------------------
@@ -249,10 +289,9 @@ def apply_imu_command(rig: SimRig, words: list[str]) -> str:
         return "imu: say off, on, drop N, corrupt N, length N, swap or status"
     cmd, rest = words[0].lower(), words[1:]
     try:
-        if cmd == "off":
-            rig.bus.silent = True
-        elif cmd == "on":
-            rig.bus.silent = False
+        if cmd in ("off", "on"):
+            for bus in rig.buses:
+                bus.silent = cmd == "off"
         elif cmd in ("drop", "corrupt", "length"):
             count = int(rest[0]) if rest else 1
             {"drop": rig.can_imu.drop_frames, "corrupt": rig.can_imu.corrupt_crc,
@@ -270,17 +309,37 @@ def apply_imu_command(rig: SimRig, words: list[str]) -> str:
 
 def imu_status(rig: SimRig) -> str:
     """One line: samples and frames sent, and per peer what went out and what was dropped."""
-    parts = [f"IMU {'off' if rig.bus.silent else 'on'}: {rig.can_imu.samples_sent} samples, "
+    parts = [f"IMU {'off' if all(bus.silent for bus in rig.buses) else 'on'}: {rig.can_imu.samples_sent} samples, "
              f"{rig.can_imu.frames_sent} frames generated"]
     for peer, server in zip(rig.peers, rig._servers):
         backlog = getattr(server, "peak_pending", None)
-        parts.append(f"{peer.kind} {peer.where}: {server.frames_sent} frames out, "
+        parts.append(f"{peer.kind} {peer.where}{f' (bus {peer.bus + 1})' if len(rig.buses) > 1 else ''}: "
+                     f"{server.frames_sent} frames out, "
                      f"{server.frames_dropped} dropped (not read)"
                      + (f", longest backlog {backlog} bytes" if backlog is not None else ""))
     return "; ".join(parts)
 
 
 # -- the configuration the rig writes ----------------------------------------------
+
+def _bus_lines(peer: RigPeer, imu, rig: RigIdentity | None) -> tuple[list[str], str]:
+    """The [imu] keys that reach `peer` (and rebuild `imu`'s layout and rate), and its [imu.bus_options] and
+    [imu.rig] tables."""
+    imu_lines = [f"interface = {_toml(peer.interface)}", f"channel = {_toml(peer.channel)}",
+                 f"fd = {_toml(imu.fd)}", f"rate_hz = {imu.rate_hz!r}", *imu_layout_lines(imu)]
+    if peer.bitrate is not None:
+        imu_lines.insert(2, f"bitrate = {peer.bitrate}")
+    if peer.interface == "slcan" and imu.slcan_client != "bench":
+        imu_lines.append(f"slcan_client = {_toml(imu.slcan_client)}")
+    options = "".join(f"{k} = {_toml(v)}\n" for k, v in peer.bus_options.items())
+    if options:
+        options = "\n[imu.bus_options]\n" + options
+    if rig is not None:
+        pid = f"pid = {rig.pid}\n" if rig.pid is not None else ""
+        options += (f"\n[imu.rig]   # the rig this file points at; remove for the real bench\nid = {_toml(rig.id)}\n"
+                    f"{pid}started_utc = {_toml(rig.started_utc)}\n")
+    return imu_lines, options
+
 
 def _toml(value: Any) -> str:
     if isinstance(value, dict):
@@ -386,22 +445,20 @@ RIG_FACES = ("z-up", "x-up", "y-up", "z-down", "x-down", "y-down")
 RIG_ID_OFFSET = 16
 
 
-def rig_config_text(config: BenchConfig, table_url: str, dialect: str, peer: RigPeer,
-                    chamber: tuple[str, str] | None = None, rig: RigIdentity | None = None, imus: int = 1) -> str:
+def rig_config_text(config: BenchConfig, table_url: str, dialect: str, peer: RigPeer | Sequence[RigPeer],
+                    chamber: tuple[str, str] | None = None, rig: RigIdentity | None = None, imus: int = 1,
+                    buses: int = 1) -> str:
     """A bench configuration (bench.example.toml's format) pointing at the rig: its table and IMU, its site
     and truth, and a default plan to edit; `chamber` (url, dialect) adds the rig's chamber; `rig` marks the file
-    valid only while that rig runs (a comment, and [imu.rig] for `bench run` to check). `imus` > 1: that many
-    [[imu]] entries on the rig's one bus, unit k's ids offset by k * RIG_ID_OFFSET, on face RIG_FACES[k % 6]."""
+    valid only while that rig runs (a comment, and [imu.rig] for `bench run` to check). `imus` > 1: one [[imu]]
+    entry per unit of `rig_units(imus, buses)`, each on the bus its `peer` (one per bus, in bus order) serves."""
+    peers = [peer] if isinstance(peer, RigPeer) else list(peer)
+    if len(peers) != buses:
+        raise ValueError(f"{buses} bus(es) need one peer each, got {len(peers)}")
     site, imu = config.site, config.imu
     site_lines = [f"latitude_deg = {site.latitude_deg!r}", f"height_m = {site.height_m!r}"]
     if site.local_g_mps2 is not None:
         site_lines.append(f"local_g_mps2 = {site.local_g_mps2!r}")
-    imu_lines = [f"interface = {_toml(peer.interface)}", f"channel = {_toml(peer.channel)}",
-                 f"fd = {_toml(imu.fd)}", f"rate_hz = {imu.rate_hz!r}", *imu_layout_lines(imu)]
-    if peer.bitrate is not None:
-        imu_lines.insert(2, f"bitrate = {peer.bitrate}")
-    if peer.interface == "slcan" and imu.slcan_client != "bench":
-        imu_lines.append(f"slcan_client = {_toml(imu.slcan_client)}")
     limit_lines = []
     for frame, axis in zip(("outer", "middle", "inner"), config.table.limits.axes):
         limit_lines += ["", f"[table.limits.{frame}]", f"max_rate_dps = {axis.max_rate_dps!r}",
@@ -410,19 +467,14 @@ def rig_config_text(config: BenchConfig, table_url: str, dialect: str, peer: Rig
                         if value is not None]
     if config.table.register_map is not None:      # the map the simulated controller serves, for the client
         limit_lines += _tables("table.modbus", config.table.register_map.to_dict())
-    options = "".join(f"{k} = {_toml(v)}\n" for k, v in peer.bus_options.items())
-    if options:
-        options = "\n[imu.bus_options]\n" + options
     validity = ""
     if rig is not None:
-        served = (peer.where if peer.kind != "socketcan" else "", table_url, *(chamber[:1] if chamber else ()))
+        served = (*(p.where for p in peers if p.kind != "socketcan"), table_url, *(chamber[:1] if chamber else ()))
         places = ", ".join(dict.fromkeys(w for w in served if w and w != "sim"))
         validity = (f"# Valid only while the rig that wrote it runs: {rig.describe()}.\n"
                     f"# When it stops, the system gives {places} to other processes;\n"
                     "# `bench run` then refuses this file ([imu.rig]): start the rig again with --write-config.\n")
-        pid = f"pid = {rig.pid}\n" if rig.pid is not None else ""
-        options += (f"\n[imu.rig]   # the rig this file points at; remove for the real bench\nid = {_toml(rig.id)}\n"
-                    f"{pid}started_utc = {_toml(rig.started_utc)}\n")
+    bus_lines = [_bus_lines(p, imu, rig) for p in peers]
     return f"""\
 # Written by `bench sim rig`: a bench configuration pointing at the simulated rig.
 {validity}# For the real bench, change [table] url/dialect and [imu] interface/channel (see the docs,
@@ -439,7 +491,7 @@ dialect = {_toml(dialect)}
 # what the bench may demand; the simulated table moves at these rates and accelerations
 {chr(10).join(limit_lines).lstrip()}
 
-{_imu_entries(imu_lines, options, imus)}
+{_imu_entries(bus_lines, rig_units(imus, buses))}
 [plan]
 positions = "optimal-24"
 rotations = "optimal-5s6r"
@@ -454,5 +506,6 @@ folder = "runs"
 {sim_section(config.sim)}""" + ("" if chamber is None else "\n" + chamber_section(*chamber, config.chamber))
 
 
-__all__ = ["RIG_FACES", "RIG_ID_OFFSET", "RigBus", "RigPeer", "SimRig", "SocketcanPeer", "apply_imu_command",
-           "chamber_section", "imu_layout_lines", "imu_status", "rig_config_text", "sim_section"]
+__all__ = ["RIG_FACES", "RIG_ID_OFFSET", "RigBus", "RigPeer", "RigUnit", "SimRig", "SocketcanPeer",
+           "apply_imu_command", "chamber_section", "imu_layout_lines", "imu_status", "rig_config_text", "rig_units",
+           "sim_section"]

@@ -1,4 +1,4 @@
-"""A simulated socketcand (CAN over TCP, linux-can/socketcand) serving one bus, `can0`, on 127.0.0.1.
+"""A simulated socketcand (CAN over TCP, linux-can/socketcand) serving one bus (`can0`, or as named) on 127.0.0.1.
 
 python-can opens it with its own client, `can.Bus(interface="socketcand", host=..., port=...,
 channel="can0")`. The protocol (socketcand's doc/protocol.md) is ASCII, every element in
@@ -129,9 +129,9 @@ class SocketcandSession:
 
 
 class _Connection:
-    def __init__(self, sock: socket.socket):
+    def __init__(self, sock: socket.socket, bus: str):
         self.sock = sock
-        self.session = SocketcandSession()
+        self.session = SocketcandSession(bus)
         self.pending = bytearray()
         self.evicted = False                    # closed to make room for a new client
         self.raw_from: float | None = None      # monotonic time frames start flowing
@@ -146,7 +146,8 @@ class SocketcandServer(ClosedOnExit):
     `idle_timeout_s` is closed, and a new client beyond `max_connections` closes the longest idle one."""
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0, max_connections: int = MAX_CONNECTIONS,
-                 idle_timeout_s: float = IDLE_TIMEOUT_S):
+                 idle_timeout_s: float = IDLE_TIMEOUT_S, bus: str = BUS):
+        self.bus = bus                # the bus a client opens (`< open BUS >`)
         self.idle_timeout_s = check_idle_timeout(idle_timeout_s)
         self.evicted = 0              # connections closed to make room for a new one
         self.timed_out = 0            # connections closed for being idle too long
@@ -214,7 +215,7 @@ class SocketcandServer(ClosedOnExit):
                 sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 sock.setblocking(False)
                 key += 1
-                conn = _Connection(sock)
+                conn = _Connection(sock, self.bus)
                 with self._lock:
                     self._connections[key] = conn
                     self.clients += 1

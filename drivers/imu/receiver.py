@@ -79,6 +79,40 @@ MAX_POLL_FRAMES = 65_536
 MAX_DRAIN_S = 0.05
 
 
+def read_frames(bus: can.BusABC, timeout_s: float, max_frames: int | None,
+                deliver: Callable[[CanFrameBatch], None]) -> None:
+    """One read of `bus`: wait up to `timeout_s` for a first frame, then take what is queued (at most `max_frames`,
+    default `MAX_POLL_FRAMES`, and for at most `MAX_DRAIN_S` after the first) and hand it to `deliver` as one batch
+    (nothing when nothing came; what was read before a `can.CanError` is still delivered, then the error raised)."""
+    limit = max_frames if max_frames is not None else MAX_POLL_FRAMES
+    recv_frames = getattr(bus, "recv_frames", None)   # a bus that hands over arrays (the simulator's, a shared one)
+    if recv_frames is not None:
+        batch = recv_frames(timeout_s, limit)
+        if batch is not None and len(batch):
+            deliver(batch)
+        return
+    recv = bus.recv
+    messages: list[can.Message] = []
+    drain = getattr(bus, "drain_messages", None)   # a bus that can hand over a whole batch
+    try:
+        msg = recv(timeout_s) if limit > 0 else None
+        if msg is not None:
+            messages.append(msg)
+            if drain is not None and limit > 1:
+                messages += drain(None if max_frames is None else limit - 1)
+                msg = None
+        drain_until = time.monotonic() + MAX_DRAIN_S
+        while msg is not None and len(messages) < limit:
+            msg = recv(0.0)
+            if msg is not None:
+                messages.append(msg)
+                if not len(messages) % 256 and time.monotonic() > drain_until:
+                    break
+    finally:
+        if messages:
+            deliver(CanFrameBatch.from_messages(messages))
+
+
 class TimeBase:
     """Maps the timestamps a CAN interface puts on frames onto the run clock (`now`, seconds).
 
@@ -122,14 +156,14 @@ class ImuReceiver:
     `StreamDecoder` as one piece, and a sample leaves as soon as it is complete and every older counter is
     resolved (the rules: `drivers.imu.rules`).
 
-    With `time_base` (the run clock's `now`), every frame's timestamp is mapped onto that clock
-    (`TimeBase`) before anything else sees it: the samples' receive times and the logged frames
-    then share the run's one time base."""
+    With `time_base` (the run clock's `now`, or a `TimeBase` shared by the receivers of one bus), every frame's
+    timestamp is mapped onto that clock (`TimeBase`) before anything else sees it: the samples' receive times and
+    the logged frames then share the run's one time base."""
 
     def __init__(self, bus: Mapping | can.BusABC, layout: ImuLayout | None = None, rate_hz: float = 1000.0,
                  reorder_window: int = 8,
                  on_frames: Callable[[CanFrameBatch], None] | None = None,
-                 time_base: Callable[[], float] | None = None):
+                 time_base: Callable[[], float] | TimeBase | None = None):
         if not (isinstance(reorder_window, int) and reorder_window >= 1):
             raise ImuConfigError(f"reorder_window must be a positive integer, got {reorder_window!r}")
         if not (rate_hz > 0 and rate_hz != float("inf")):
@@ -138,7 +172,8 @@ class ImuReceiver:
         self.rate_hz = float(rate_hz)
         self.decoder = StreamDecoder(self.layout, self.rate_hz, reorder_window)
         self.on_frames = on_frames
-        self.time_base = TimeBase(time_base) if time_base is not None else None
+        # receivers of one shared bus share its TimeBase: a unit's first frames may have waited for its first poll
+        self.time_base = time_base if isinstance(time_base, TimeBase) or time_base is None else TimeBase(time_base)
         self.bus: can.BusABC
         if isinstance(bus, can.BusABC):
             self._owns_bus = False
@@ -158,39 +193,10 @@ class ImuReceiver:
         and the caller (the sequencer, checking the table between polls) was starved."""
         if self._closed:
             raise ImuConnectionError("the IMU receiver is closed")
-        limit = max_frames if max_frames is not None else MAX_POLL_FRAMES
-        recv_frames = getattr(self.bus, "recv_frames", None)   # a bus that hands over arrays (the simulator's)
-        if recv_frames is not None:
-            try:
-                batch = recv_frames(timeout_s, limit)
-            except can.CanError as exc:
-                raise ImuConnectionError(f"CAN bus {self.bus.channel_info!r} failed while receiving: {exc}") \
-                    from exc
-            if batch is not None and len(batch):
-                self._deliver(batch)
-            return self.decoder.take_block()
-        recv = self.bus.recv
-        messages: list[can.Message] = []
-        drain = getattr(self.bus, "drain_messages", None)   # a bus that can hand over a whole batch
         try:
-            msg = recv(timeout_s) if limit > 0 else None
-            if msg is not None:
-                messages.append(msg)
-                if drain is not None and limit > 1:
-                    messages += drain(None if max_frames is None else limit - 1)
-                    msg = None
-            drain_until = time.monotonic() + MAX_DRAIN_S
-            while msg is not None and len(messages) < limit:
-                msg = recv(0.0)
-                if msg is not None:
-                    messages.append(msg)
-                    if not len(messages) % 256 and time.monotonic() > drain_until:
-                        break
+            read_frames(self.bus, timeout_s, max_frames, self._deliver)
         except can.CanError as exc:
             raise ImuConnectionError(f"CAN bus {self.bus.channel_info!r} failed while receiving: {exc}") from exc
-        finally:
-            if messages:
-                self._deliver(CanFrameBatch.from_messages(messages))
         return self.decoder.take_block()
 
     def _deliver(self, batch: CanFrameBatch) -> None:
