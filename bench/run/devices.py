@@ -19,7 +19,7 @@ from bench.config.load import BenchConfig, ImuConfig
 from bench.config.units import FACES, bus_name, lever_arm_in_body_m
 from bench.errors import BenchError
 from bench.run.imu_check import check_imu_stream, check_rig_adapter, check_rig_running
-from bench.run.units import UnitLink
+from bench.run.units import UnitLink, unit_shares
 from bench.sim.units import SimUnit, placed_terms, unit_seed, unit_truth
 from bench.sim.world import PumpedReceiver, SimWorld
 from drivers.chamber import Chamber, open_chamber
@@ -123,8 +123,10 @@ def open_drivers(config: BenchConfig, with_chamber: bool) -> Devices:
         check_rig_adapter(receiver.bus, config.imu.rig, where)
         imu_check = check_imu_stream(receiver, config.imu.rate_hz, where)
         devices = Devices(table, receiver, clock, imu_check=imu_check, _stack=stack)
-        for unit in config.units[1:]:     # a run of several IMUs: every unit checked before anything moves
-            unit_receiver = ImuReceiver(unit.bus_kwargs(), unit.layout, unit.rate_hz, time_base=clock.now)
+        shares = unit_shares(config)
+        for k, unit in enumerate(config.units[1:], 1):   # several IMUs: every unit checked before anything moves
+            unit_receiver = ImuReceiver(unit.bus_kwargs(), unit.layout, unit.rate_hz, time_base=clock.now,
+                                        share=shares[k])
             stack.callback(unit_receiver.close)
             devices.imu_check += "; " + check_imu_stream(unit_receiver, unit.rate_hz, _where(unit, True))
             devices.units.append(UnitLink(unit.identity.serial, unit_receiver))
@@ -172,14 +174,14 @@ def _sim_units(config: BenchConfig, world: SimWorld, stack: ExitStack) -> list[U
     reference = config.units[0]
     if reference.mounting is not None and reference.mounting != FACES["z-up"]:
         world.mount_imu(reference.mounting)
-    links = []
+    links, shares = [], unit_shares(config)
     for k, unit in enumerate(config.units[1:], 1):
         world.add_unit(SimUnit(unit_truth(config.sim.imu, k, config.sim.seed), config.sim.noise, unit.rate_hz,
                                unit.layout, unit_seed(config.sim.seed, k), unit.mounting, bus_name(unit),
                                placed_terms(None, lever_arm_in_body_m(unit))),
                        bus_name(reference))
         receiver = ImuReceiver(world.unit_receiver_bus(bus_name(unit), bus_name(reference)), unit.layout,
-                               unit.rate_hz)
+                               unit.rate_hz, share=shares[k])
         stack.callback(receiver.close)
         links.append(UnitLink(unit.identity.serial, receiver))
     return links
@@ -187,7 +189,9 @@ def _sim_units(config: BenchConfig, world: SimWorld, stack: ExitStack) -> list[U
 
 def _open_receiver(config: BenchConfig, bus: can.BusABC | dict, time_base: Callable[[], float] | None,
                    stack: ExitStack) -> ImuReceiver:
-    receiver = ImuReceiver(bus, config.imu.layout, config.imu.rate_hz, time_base=time_base)
+    """The reference unit's receiver (a single IMU's: every frame on its bus)."""
+    receiver = ImuReceiver(bus, config.imu.layout, config.imu.rate_hz, time_base=time_base,
+                           share=unit_shares(config)[0])
     stack.callback(receiver.close)
     return receiver
 
