@@ -189,7 +189,8 @@ def _sim_units(config: BenchConfig, world: SimWorld, stack: ExitStack) -> list[U
 
 def _open_receiver(config: BenchConfig, bus: can.BusABC | dict, time_base: Callable[[], float] | None,
                    stack: ExitStack) -> ImuReceiver:
-    """The reference unit's receiver (a single IMU's: every frame on its bus)."""
+    """The reference unit's receiver (a single IMU's: every frame on its bus; on a bus shared with other units, its
+    share of it)."""
     receiver = ImuReceiver(bus, config.imu.layout, config.imu.rate_hz, time_base=time_base,
                            share=unit_shares(config)[0])
     stack.callback(receiver.close)

@@ -4,7 +4,9 @@
 the bus with `can.Bus(**config)`; it can also take a bus the caller owns (then `close`
 leaves the bus open). Every received frame is handed, untouched (but re-stamped on the run clock with a `time_base`),
 to the `on_frames` callback before decoding, so a recorder can log all of them losslessly: each
-poll's frames as one `CanFrameBatch` (arrays, and a sequence of python-can messages on demand).
+poll's frames as one `CanFrameBatch` (arrays, and a sequence of python-can messages on demand). On a bus several
+IMUs share (`BusShare`), "every frame" is every frame of this receiver's: its own ids, and the ids of no unit when
+it is the bus's first unit.
 """
 
 from __future__ import annotations
