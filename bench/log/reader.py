@@ -84,10 +84,12 @@ from bench.log.mcap import (
     WalkError,
 )
 from bench.log.mcap.walk import walk
+from bench.log.shared_bus import recorded_share
 from bench.log.topic_arrays import ImuRecords, TableStates
 from drivers.chamber import ChamberState
 from drivers.imu import ImuSampleBlock, ImuStats
-from drivers.imu.layout import ImuLayout
+from drivers.imu.layout import ImuLayout, default_layout
+from drivers.imu.receiver import BusShare
 from drivers.imu.stream import StreamDecoder
 
 
@@ -168,6 +170,7 @@ class RunLog:
     _non_data: int = field(default=0, repr=False)
     _table_states: TableStates | None = field(default=None, repr=False)   # `read_table_states`, once parsed
     _imu_records: ImuRecords | None = field(default=None, repr=False)     # `read_imu_records`, once parsed
+    _share: BusShare | None = field(default=None, repr=False)   # a unit on a shared bus: which frames it decodes
 
     def scan(self) -> LogScan:
         """What was lost and how many frames there are, every `/can/raw` chunk looked at: the chunks no pass
@@ -281,7 +284,8 @@ class RunLog:
         if kept is not None:
             yield kept[0]
             return
-        block, _ = yield from self._decode(StreamDecoder(layout, rate_hz, reorder_window), None, hand_over=True)
+        block, _ = yield from self._decode(StreamDecoder(layout, rate_hz, reorder_window), None, hand_over=True,
+                                           layout=layout)
         if len(block):
             yield block
 
@@ -293,7 +297,7 @@ class RunLog:
         kept = self._kept_decode(layout, rate_hz, reorder_window)
         if kept is not None:
             return (*kept, False)
-        decoding = self._decode(StreamDecoder(layout, rate_hz, reorder_window), visit, hand_over=False)
+        decoding = self._decode(StreamDecoder(layout, rate_hz, reorder_window), visit, hand_over=False, layout=layout)
         while True:   # (nothing is handed over: this runs the decode to its end)
             try:
                 next(decoding)
@@ -312,16 +316,21 @@ class RunLog:
                 return decoded
         return None
 
-    def _decode(self, decoder: StreamDecoder, visit,
-                hand_over: bool) -> Generator[ImuSampleBlock, None, tuple[ImuSampleBlock, ImuStats]]:
+    def _decode(self, decoder: StreamDecoder, visit, hand_over: bool,
+                layout: ImuLayout | None) -> Generator[ImuSampleBlock, None, tuple[ImuSampleBlock, ImuStats]]:
         """Feed every data frame of `/can/raw` to `decoder`, piece by piece (`visit(frame times)` with each
         piece first, when given): the decoder's answer (`finish()`). `hand_over`: yield the blocks the decoder
-        resolves as it goes (they are then not in its answer)."""
+        resolves as it goes (they are then not in its answer). On a shared bus, only the unit's own frames (and
+        its bus's unknown ids when it is the bus's first unit) are decoded, as live (`bench.log.shared_bus`)."""
+        own = np.array(sorted((layout if layout is not None else default_layout()).keys), np.int64)
         try:
             for t, ids, data, lengths, flags in self.can_pieces():
                 if visit is not None:
                     visit(t)
                 keep = (flags & (FLAG_REMOTE | FLAG_ERROR)) == 0
+                mine = self._share.mine(ids.astype(np.int64), own) if self._share is not None else None
+                if mine is not None:
+                    keep &= mine
                 if not keep.all():
                     t, ids, data, lengths = t[keep], ids[keep], data[keep], lengths[keep]
                 for a in range(0, len(ids), _FEED_FRAMES):   # a chunk of 256 MiB holds ~11 M frames
@@ -493,7 +502,8 @@ def _read_log(path: str, defer_samples: bool, messages: bool = True, unit: str |
                   summary_present=w.footer is not None and w.statistics is not None,
                   message_counts=counts, chunks=w.chunks, library=library,
                   _damage=[d.describe() for d in damage], _lost=damage, _can=by_topic.get(can_topic),
-                  _samples=by_topic.get(samples_topic), _states=by_topic.get(TOPIC_STATE), _budget=w.budget)
+                  _samples=by_topic.get(samples_topic), _states=by_topic.get(TOPIC_STATE), _budget=w.budget,
+                  _share=recorded_share(w.metadata, unit))
 
 
 __all__ = ["CanFrames", "ImuRecords", "LogError", "LogScan", "RunLog", "TableStates", "read_log"]

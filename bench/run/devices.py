@@ -20,7 +20,7 @@ from bench.config.load import BenchConfig, ImuConfig
 from bench.config.units import FACES, bus_name, lever_arm_in_body_m
 from bench.errors import BenchError
 from bench.run.imu_check import check_imu_stream, check_rig_adapter, check_rig_running
-from bench.run.units import UnitLink
+from bench.run.units import UnitLink, unit_shares
 from bench.sim.units import SimUnit, placed_terms, unit_seed, unit_truth
 from bench.sim.world import PumpedReceiver, SimWorld
 from drivers.chamber import Chamber, open_chamber
@@ -127,9 +127,10 @@ def open_drivers(config: BenchConfig, with_chamber: bool) -> Devices:
         _check_adapter(receiver, config.imu, where, asked)
         imu_check = check_imu_stream(receiver, config.imu.rate_hz, where)
         devices = Devices(table, receiver, clock, imu_check=imu_check, _stack=stack)
+        shares = unit_shares(config)
         for k, unit in enumerate(config.units[1:], 1):   # several IMUs: each checked before anything moves
             unit_bus, time_base = buses[k]
-            unit_receiver = ImuReceiver(unit_bus, unit.layout, unit.rate_hz, time_base=time_base)
+            unit_receiver = ImuReceiver(unit_bus, unit.layout, unit.rate_hz, time_base=time_base, share=shares[k])
             stack.callback(unit_receiver.close)
             _check_adapter(unit_receiver, unit, _where(unit, True), asked)
             devices.imu_check += "; " + check_imu_stream(unit_receiver, unit.rate_hz, _where(unit, True))
@@ -179,9 +180,9 @@ HOST_CLOCK_INTERFACES = frozenset({"slcan", "socketcan", "virtual"})
 class _UnitBuses:
     """Each unit's bus and time base (`buses[k]`, k in the order of `config.units`). A unit alone on its bus gets its
     bus arguments (its receiver opens it); units sharing a bus each a view of one `SharedBus` (an SLCAN adapter has
-    one reader; the reference unit's view every frame on its bus, as its /can/raw always had, another unit's its own
-    ids), opened when its first unit asks for it. In a run of several units, the units whose frames are stamped on
-    one clock (`_clock_of`) share one `TimeBase`: its offset is taken once, from the reference unit's first, fresh
+    one reader; the view of the bus's first unit, which keeps the frames of no unit's id, every frame on it, another
+    unit's its own ids), opened when its first unit asks for it. In a run of several units, the units whose frames
+    are stamped on one clock (`_clock_of`) share one `TimeBase`: its offset is taken once, from the reference unit's first, fresh
     frames. Each unit's own offset, taken from its first frames, differed from the reference unit's by how late those
     came (up to the poll interval, more under load), and every other unit's windows, cut by receive time in the
     reference unit's, were shifted by that: the residual outliers of units on a second bus."""
@@ -193,6 +194,7 @@ class _UnitBuses:
         for unit in self._units:
             self._sharers[_bus_key(unit)] = self._sharers.get(_bus_key(unit), 0) + 1
         self._shared: dict[str, SharedBus] = {}
+        self._shares = unit_shares(config)
         self._time_bases: dict[str, TimeBase] = {}
 
     def __getitem__(self, k: int) -> tuple[can.BusABC | dict, Callable[[], float] | TimeBase]:
@@ -206,7 +208,10 @@ class _UnitBuses:
         if key not in self._shared:
             self._shared[key] = SharedBus(open_bus(unit.bus_kwargs()))
             self._stack.callback(self._shared[key].shutdown)
-        view = self._shared[key].view(None if k == 0 else unit.layout.keys)
+        # the unit that keeps the bus's frames of no unit's id (`BusShare.takes_unknown`) sees every frame, its
+        # receiver's share leaving the other units' ids to them; another unit sees its own ids only
+        share = self._shares[k]
+        view = self._shared[key].view(None if share is None or share.takes_unknown else unit.layout.keys)
         self._stack.callback(view.shutdown)
         return view, time_base
 
@@ -241,14 +246,14 @@ def _sim_units(config: BenchConfig, world: SimWorld, stack: ExitStack) -> list[U
     reference = config.units[0]
     if reference.mounting is not None and reference.mounting != FACES["z-up"]:
         world.mount_imu(reference.mounting)
-    links = []
+    links, shares = [], unit_shares(config)
     for k, unit in enumerate(config.units[1:], 1):
         world.add_unit(SimUnit(unit_truth(config.sim.imu, k, config.sim.seed), config.sim.noise, unit.rate_hz,
                                unit.layout, unit_seed(config.sim.seed, k), unit.mounting, bus_name(unit),
                                placed_terms(None, lever_arm_in_body_m(unit))),
                        bus_name(reference))
         receiver = ImuReceiver(world.unit_receiver_bus(bus_name(unit), bus_name(reference)), unit.layout,
-                               unit.rate_hz)
+                               unit.rate_hz, share=shares[k])
         stack.callback(receiver.close)
         links.append(UnitLink(unit.identity.serial, receiver))
     return links
@@ -256,7 +261,10 @@ def _sim_units(config: BenchConfig, world: SimWorld, stack: ExitStack) -> list[U
 
 def _open_receiver(config: BenchConfig, bus: can.BusABC | dict, time_base: Callable[[], float] | TimeBase | None,
                    stack: ExitStack) -> ImuReceiver:
-    receiver = ImuReceiver(bus, config.imu.layout, config.imu.rate_hz, time_base=time_base)
+    """The reference unit's receiver (a single IMU's: every frame on its bus; on a bus shared with other units, its
+    share of it)."""
+    receiver = ImuReceiver(bus, config.imu.layout, config.imu.rate_hz, time_base=time_base,
+                           share=unit_shares(config)[0])
     stack.callback(receiver.close)
     return receiver
 

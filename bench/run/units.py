@@ -5,6 +5,8 @@ samples time the dwells and turns, its frames and samples go where a single IMU'
 `/imu/samples`). `UnitsSource` is what the sequencer polls instead: each poll drains the reference unit, then every
 other unit's receiver, whose frames and samples the recorder writes on the unit's topics
 (`bench.log.format.unit_topics`). The log's `units` record names every unit, its bus, ids and mounting.
+Units sharing a bus each take only their own frames from it, those of ids no unit has going to the bus's first
+unit (`unit_shares`): no unit counts another's frames as faults, and every frame is recorded once.
 """
 
 from __future__ import annotations
@@ -13,17 +15,13 @@ import json
 from dataclasses import dataclass
 from typing import Callable
 
-import numpy as np
-
 from bench.config.load import BenchConfig, ImuConfig
 from bench.config.units import bus_name
 from bench.errors import BenchError
 from bench.log.events import UNIT_DROPPED
 from bench.log.recorder import McapRecorder
 from drivers.imu import ImuStats
-from drivers.imu.frames import CanFrameBatch
-from drivers.imu.layout import EXTENDED_ID_FLAG
-from drivers.imu.receiver import ImuReceiver
+from drivers.imu.receiver import BusShare, ImuReceiver, bus_shares
 
 
 @dataclass
@@ -73,17 +71,9 @@ class UnitsSource:
             unit.receiver.on_frames = self._recording(unit)
 
     def _recording(self, unit: UnitLink):
-        """A unit's frames to its topic: only those of its own ids (a shared bus carries the others' too; the
-        reference unit's `/can/raw` is its bus as received, every frame on it, as a single IMU's log always was)."""
-        keys = np.array(sorted(unit.receiver.layout.keys), dtype=np.uint32)
-        own = frozenset(unit.receiver.layout.keys)
-
+        """A unit's frames to its topic: those its receiver took (on a shared bus only its own ids, and the ids of
+        no unit when it is the bus's first unit: `drivers.imu.receiver.BusShare`), each frame recorded once."""
         def record(frames) -> None:
-            if isinstance(frames, CanFrameBatch):
-                frames = frames.select(np.isin(frames.ids, keys))
-            else:
-                frames = [m for m in frames
-                          if (m.arbitration_id | (EXTENDED_ID_FLAG if m.is_extended_id else 0)) in own]
             self._recorder.on_unit_can_frames(unit.serial, frames)
         return record
 
@@ -144,6 +134,8 @@ def unit_record(unit: ImuConfig, reference: bool) -> dict:
             "interface": str(unit.interface), "channel": str(unit.channel), "bus": bus_name(unit),
             "rate_hz": unit.rate_hz, "dbc": unit.dbc.name, "layout": unit.layout_name, "id_offset": unit.id_offset,
             "frame_ids": [f"{key & 0x1FFFFFFF:#x}" for key in unit.layout.keys],
+            # the ids as keys (bit 31: a 29-bit id): what a decode of the log leaves to each unit of a shared bus
+            "frame_keys": list(unit.layout.keys),
             "mounting": unit.mounting_name, "mounting_matrix": [list(row) for row in unit.mounting or ()],
             # only when configured: a run without lever arms records what it always did
             **({"lever_arm_mm": list(unit.lever_arm_mm)} if unit.lever_arm_mm is not None else {})}
@@ -157,9 +149,17 @@ def units_metadata(config: BenchConfig) -> dict[str, dict[str, str]]:
                       "reference": config.units[0].identity.serial}}
 
 
+def unit_shares(config: BenchConfig) -> list[BusShare | None]:
+    """Each unit's share of its bus (`drivers.imu.receiver.BusShare`; None: alone on its bus, a single IMU)."""
+    if not config.several:
+        return [None]
+    return bus_shares([(bus_name(unit), unit.layout.keys) for unit in config.units])
+
+
 def other_serials(config: BenchConfig) -> list[str]:
     """The serials of the units other than the reference one (each its own log topics)."""
     return [unit.identity.serial for unit in config.units[1:]]
 
 
-__all__ = ["UnitFailed", "UnitLink", "UnitsSource", "other_serials", "unit_record", "units_metadata"]
+__all__ = ["UnitFailed", "UnitLink", "UnitsSource", "other_serials", "unit_record", "unit_shares",
+           "units_metadata"]

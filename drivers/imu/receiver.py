@@ -4,7 +4,9 @@
 the bus with `can.Bus(**config)`; it can also take a bus the caller owns (then `close`
 leaves the bus open). Every received frame is handed, untouched (but re-stamped on the run clock with a `time_base`),
 to the `on_frames` callback before decoding, so a recorder can log all of them losslessly: each
-poll's frames as one `CanFrameBatch` (arrays, and a sequence of python-can messages on demand).
+poll's frames as one `CanFrameBatch` (arrays, and a sequence of python-can messages on demand). On a bus several
+IMUs share (`BusShare`), "every frame" is every frame of this receiver's: its own ids, and the ids of no unit when
+it is the bus's first unit.
 """
 
 from __future__ import annotations
@@ -12,9 +14,11 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
 
 import can
+import numpy as np
 
 from drivers.errors import ImuConfigError, ImuConnectionError
 from drivers.imu.frames import CanFrameBatch
@@ -151,6 +155,42 @@ class TimeBase:
                 "can_lag_max_s": self.lag_max_s}
 
 
+@dataclass(frozen=True)
+class BusShare:
+    """A bus several IMUs share (distinct ids): which of its frames are this receiver's.
+
+    Frames of `others` (the keys of the other units on the bus) are those units', not faults of this one: they go
+    neither to `on_frames` nor to the decoder. Frames of an id no unit has are faults (unknown id) and evidence:
+    one receiver of the bus keeps them (`takes_unknown`, the bus's first unit), the others leave them to it; so
+    every frame is recorded once, with the unit it belongs to, and counted once."""
+
+    others: frozenset[int]
+    takes_unknown: bool
+
+    def mine(self, ids: np.ndarray, own: np.ndarray) -> np.ndarray | None:
+        """Which of `ids` (keys: `EXTENDED_ID_FLAG` set for 29-bit ids) are this receiver's, `own` its sorted keys;
+        None: all of them."""
+        if self.takes_unknown:
+            theirs = np.isin(ids, np.fromiter(self.others, np.int64, len(self.others)))
+        else:
+            theirs = ~np.isin(ids, own)
+        return ~theirs if theirs.any() else None
+
+
+def bus_shares(units: Sequence[tuple[str, Iterable[int]]]) -> list[BusShare | None]:
+    """Each unit's `BusShare`, for units given as (bus name, keys) in their order (the first unit of a bus takes
+    its unknown ids); None for a unit alone on its bus (every frame there is its own, as a single IMU's)."""
+    out: list[BusShare | None] = []
+    for k, (bus, _) in enumerate(units):
+        mates = [j for j, (other, _) in enumerate(units) if other == bus and j != k]
+        if not mates:
+            out.append(None)
+            continue
+        others = frozenset(int(key) for j in mates for key in units[j][1])
+        out.append(BusShare(others, takes_unknown=min(mates) > k))
+    return out
+
+
 class ImuReceiver:
     """Receive an IMU's frames from a CAN bus and decode them into samples: each poll's frames go to a
     `StreamDecoder` as one piece, and a sample leaves as soon as it is complete and every older counter is
@@ -158,12 +198,13 @@ class ImuReceiver:
 
     With `time_base` (the run clock's `now`, or a `TimeBase` shared by the receivers of one bus), every frame's
     timestamp is mapped onto that clock (`TimeBase`) before anything else sees it: the samples' receive times and
-    the logged frames then share the run's one time base."""
+    the logged frames then share the run's one time base. With `share`, the receiver is one of several IMUs on one
+    bus and takes only its own frames (`BusShare`); without, every frame on the bus is its (a single IMU's)."""
 
     def __init__(self, bus: Mapping | can.BusABC, layout: ImuLayout | None = None, rate_hz: float = 1000.0,
                  reorder_window: int = 8,
                  on_frames: Callable[[CanFrameBatch], None] | None = None,
-                 time_base: Callable[[], float] | TimeBase | None = None):
+                 time_base: Callable[[], float] | TimeBase | None = None, share: BusShare | None = None):
         if not (isinstance(reorder_window, int) and reorder_window >= 1):
             raise ImuConfigError(f"reorder_window must be a positive integer, got {reorder_window!r}")
         if not (rate_hz > 0 and rate_hz != float("inf")):
@@ -183,6 +224,9 @@ class ImuReceiver:
             self.bus = open_bus(bus)
         self.frames_received = 0
         self.non_data_frames = 0    # error and remote frames: logged via on_frames, not decoded
+        self.share = share
+        self._own_keys = np.array(sorted(self.layout.keys), np.int64)
+        self.other_unit_frames = 0  # frames left to the other units sharing the bus (`share`): not this one's faults
         self._closed = False
 
     def poll(self, max_frames: int | None = None, timeout_s: float = 0.0) -> ImuSampleBlock:
@@ -203,6 +247,14 @@ class ImuReceiver:
         if self.time_base is not None:
             batch = self.time_base.map(batch)
         self.frames_received += len(batch)
+        if self.share is not None:
+            mine = self.share.mine(batch.ids, self._own_keys)
+            if mine is not None:
+                kept = batch.select(mine)
+                self.other_unit_frames += len(batch) - len(kept)
+                if not len(kept):
+                    return
+                batch = kept
         if self.on_frames is not None:
             self.on_frames(batch)
         data = batch.data_frames()

@@ -92,11 +92,11 @@ def test_each_unit_is_on_its_own_topics_with_its_identity_and_mounting(several_r
     a2 = read_log(several_run, unit="A2")
     frames = a2.read_can_frames()
     assert len(frames.ids) and set(frames.ids.tolist()) == {0x110 + k for k in range(7)}   # its own ids, offset
-    # /can/raw is the reference unit's bus as received: A1's frames and A2's (bus-a), none of B1's (bus-b)
+    # /can/raw is the reference unit's: A1's frames only (A2's, on the same bus-a, are on A2's topic), none of B1's
     reference = log.read_can_frames().ids
-    assert set(reference.tolist()) == {0x100 + k for k in range(7)} | {0x110 + k for k in range(7)}
+    assert set(reference.tolist()) == {0x100 + k for k in range(7)}
     b1 = read_log(several_run, unit="B1").read_can_frames().ids
-    assert set(b1.tolist()) == {0x100 + k for k in range(7)} and len(reference) == len(frames.ids) + len(b1)
+    assert set(b1.tolist()) == {0x100 + k for k in range(7)} and len(reference) == len(b1)
 
 
 def test_bench_solve_reproduces_every_unit_bit_for_bit(several_run, tmp_path):
@@ -282,3 +282,123 @@ def test_a_unit_sending_only_garbage_is_dropped_saying_so(tmp_path):
     assert outcome.units["A2"].result is None and why.startswith("unit A2 has no result: dropped from the run at ")
     garbled = int(re.search(r"no valid sample for [0-9.]+ s, (\d+) garbled frame\(s\) of its ids", why).group(1))
     assert garbled > 0
+
+
+# -- two units on one bus (issue 31: a shared bus's other unit is not the reference unit's fault) ----------------
+
+#: an id no configured unit sends (A1 sends 0x100.., A2 0x110..)
+STRAY_ID = 0x7AB
+
+
+class _StrayFrameAt(RunListener):
+    """Sends one frame of an id no unit has on the shared bus when step `index` starts."""
+
+    def __init__(self, run, index: int) -> None:
+        self.run, self.index = run, index
+
+    def on_event(self, event) -> None:
+        import can
+
+        if isinstance(event, StepStarted) and event.step_index == self.index:
+            world = self.run.world
+            world.sender_bus.send(can.Message(arbitration_id=STRAY_ID, is_extended_id=False, data=bytes(8),
+                                              timestamp=world.clock.now()))
+
+
+def _shared_bus_run(folder: Path, stray: bool = False):
+    """A short run of A1 and A2 on one bus (A2's ids offset by 16), with a stray frame injected or not."""
+    from bench.config.load import parse_config
+    from bench.run.devices import SIMULATOR
+    from bench.run.runner import BenchRun, compile_from_config
+
+    text = several_config(UNITS[:2]).replace("dwell_s = 2.0", "dwell_s = 0.5").replace(
+        "settle_s = 1.0", "settle_s = 0.2").replace("turn_rate_dps = 20.0", "turn_rate_dps = 60.0")
+    config = parse_config(text, source="shared.toml")
+    run = BenchRun(config, compile_from_config(config), devices=SIMULATOR, out_dir=folder)
+    if stray:
+        run.extra_listeners.append(_StrayFrameAt(run, 3))
+    with run:
+        run.open()
+        state = run.run()
+        outcome = run.finish()
+    assert state.value == "done" and outcome.error is None
+    return run.log_path
+
+
+@pytest.fixture(scope="module")
+def shared_bus_run(tmp_path_factory) -> Path:
+    return _shared_bus_run(tmp_path_factory.mktemp("shared"), stray=False)
+
+
+def _link(log: Path, serial: str) -> dict:
+    return unit_result(log, serial)["run"]["imu_link"]
+
+
+def test_units_sharing_a_bus_are_not_each_others_faults(shared_bus_run):
+    log = read_log(shared_bus_run)
+    link_warnings = [e.message for e in log.events if e.message.startswith("IMU link:")]
+    assert not [m for m in link_warnings if " 0 unknown id" not in m], link_warnings[:3]
+    for serial in ("A1", "A2"):
+        link = _link(shared_bus_run, serial)
+        assert link["unknown_id"] == 0 and link["frames"] == link["frames_ok"] > 0, (serial, link)
+
+
+def test_each_frame_of_a_shared_bus_is_recorded_once(shared_bus_run):
+    """/can/raw holds the reference unit's frames only, /imu/A2/can/raw A2's: no frame in both."""
+    reference = read_log(shared_bus_run).read_can_frames().ids
+    a2 = read_log(shared_bus_run, unit="A2").read_can_frames().ids
+    assert set(reference.tolist()) == {0x100 + k for k in range(7)}
+    assert set(a2.tolist()) == {0x110 + k for k in range(7)}
+    assert _link(shared_bus_run, "A1")["frames"] == len(reference) and _link(shared_bus_run, "A2")["frames"] == len(a2)
+
+
+def test_bench_solve_of_a_shared_bus_reproduces_each_unit_and_its_link(shared_bus_run, tmp_path):
+    rc, _, err = cli(["solve", str(shared_bus_run), "--out", str(tmp_path), "--no-db", "--no-html"])
+    assert rc == 0, err
+    for serial in ("A1", "A2"):
+        run = unit_result(shared_bus_run, serial)
+        solved = json.loads((tmp_path / f"{shared_bus_run.stem}.{serial}.solved.result.json").read_text("utf-8"))
+        assert solved["coefficients"] == run["coefficients"], serial
+        assert solved["run"]["imu_link"] == run["run"]["imu_link"], serial
+
+
+def test_a_frame_of_no_unit_on_a_shared_bus_is_still_an_unknown_id(tmp_path):
+    """The reference unit (the bus's first) counts it, warns of it, and records it: it is evidence."""
+    log_path = _shared_bus_run(tmp_path, stray=True)
+    log = read_log(log_path)
+    warnings = [e for e in log.events if e.message.startswith("IMU link:")]
+    assert warnings and all(e.details["imu_stats"]["unknown_id"] == 1 for e in warnings)
+    assert _link(log_path, "A1")["unknown_id"] == 1 and _link(log_path, "A2")["unknown_id"] == 0
+    assert log.read_can_frames().ids.tolist().count(STRAY_ID) == 1
+    assert STRAY_ID not in read_log(log_path, unit="A2").read_can_frames().ids.tolist()
+
+
+def test_an_older_log_with_the_whole_bus_in_can_raw_decodes_without_faults(tmp_path, monkeypatch):
+    """A log written before the receivers took only their own frames: the reference unit's /can/raw is its bus as
+    received (A2's frames too) and the units record has no frame_keys. Its decode leaves A2's frames to A2 (by the
+    units record), in the run's own result as in `bench solve`."""
+    import bench.run.devices
+    import bench.run.units
+
+    whole_bus = bench.run.units.unit_shares
+
+    def old_record(unit, reference):
+        record = original(unit, reference)
+        del record["frame_keys"]
+        return record
+
+    original = bench.run.units.unit_record
+    monkeypatch.setattr(bench.run.devices, "unit_shares", lambda config: [None, *whole_bus(config)[1:]])
+    monkeypatch.setattr(bench.run.units, "unit_record", old_record)
+    log_path = _shared_bus_run(tmp_path)
+    log = read_log(log_path)
+    assert "frame_keys" not in log.metadata["units"]["units_json"]
+    assert set(log.read_can_frames().ids.tolist()) == {0x100 + k for k in range(7)} | {0x110 + k for k in range(7)}
+    assert _link(log_path, "A1")["unknown_id"] == 0
+    rc, _, err = cli(["solve", str(log_path), "--out", str(tmp_path / "solved"), "--no-db", "--no-html"])
+    assert rc == 0, err
+    for serial in ("A1", "A2"):
+        solved = json.loads((tmp_path / "solved" / f"{log_path.stem}.{serial}.solved.result.json").read_text("utf-8"))
+        run = unit_result(log_path, serial)
+        assert solved["run"]["imu_link"] == run["run"]["imu_link"] and solved["run"]["imu_link"]["unknown_id"] == 0
+        assert solved["coefficients"] == run["coefficients"], serial
