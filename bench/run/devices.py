@@ -178,14 +178,16 @@ HOST_CLOCK_INTERFACES = frozenset({"slcan", "socketcan", "virtual"})
 
 
 class _UnitBuses:
-    """Each unit's bus and time base (`buses[k]`, k in the order of `config.units`). A unit alone on its bus gets its
-    bus arguments (its receiver opens it); units sharing a bus each a view of one `SharedBus` (an SLCAN adapter has
-    one reader; the view of the bus's first unit, which keeps the frames of no unit's id, every frame on it, another
-    unit's its own ids), opened when its first unit asks for it. In a run of several units, the units whose frames
-    are stamped on one clock (`_clock_of`) share one `TimeBase`: its offset is taken once, from the reference unit's first, fresh
-    frames. Each unit's own offset, taken from its first frames, differed from the reference unit's by how late those
-    came (up to the poll interval, more under load), and every other unit's windows, cut by receive time in the
-    reference unit's, were shifted by that: the residual outliers of units on a second bus."""
+    """Each unit's bus and time base (`buses[k]`, k in the order of `config.units`).
+
+    A unit alone on its bus gets its bus arguments (its receiver opens it); units sharing a bus each get a view of
+    one `SharedBus` (an SLCAN adapter has one reader), opened when its first unit asks for it: the view of the bus's
+    first unit, which keeps the frames of no unit's id, sees every frame on it, another unit's only its own ids.
+    In a run of several units, the units whose frames are stamped on one clock (`_clock_of`) share one `TimeBase`:
+    its offset is taken once, from the reference unit's first, fresh frames. Each unit's own offset, taken from its
+    first frames, differed from the reference unit's by how late those came (up to the poll interval, more under
+    load), and every other unit's windows, cut by receive time in the reference unit's, were shifted by that: the
+    residual outliers of units on a second bus."""
 
     def __init__(self, config: BenchConfig, now: Callable[[], float], stack: ExitStack):
         self._units = config.units or (config.imu,)
