@@ -130,10 +130,18 @@ class BudgetInputs:
     latitude_sigma_deg: float = 0.0
     count_resolution: float = COUNT_RESOLUTION
     turn_rate_dps: float = 10.0             # the closed-form turns of the table part
+    #: (label, deg/s) of the turns with their own rate (a version-2 rotations schedule); the others turn at
+    #: `turn_rate_dps`
+    turn_rates_dps: tuple[tuple[str, float], ...] = ()
     turn_angle_sigma_rad: float | None = None   # 1-sigma of each turn's angle error; None: not known
     mc_draws: int = 200
     seed: int = 0
     k: float = K_EXPANDED
+
+    def rates_of(self, rotations) -> np.ndarray:
+        """Each turn's rate (deg/s), by its label: its own, else `turn_rate_dps`."""
+        own = dict(self.turn_rates_dps)
+        return np.array([own.get(o.label, self.turn_rate_dps) for o in rotations], dtype=float)
 
     def to_json(self) -> dict[str, Any]:
         return {"table": None if self.table is None else self.table.to_json(),
@@ -233,7 +241,7 @@ def probe_boxes(step_rad: float) -> np.ndarray:
     return boxes
 
 
-def rotation_design_nominal(turns, site: Site, rate_dps: float, mounting=None) -> np.ndarray:
+def rotation_design_nominal(turns, site: Site, rate_dps, mounting=None) -> np.ndarray:
     """`[d 2 pi N u + E, T]` (K, 4) of constant-rate turns on an ideal table (an IMU mounted with `mounting`)."""
     rot, earth, durations = turn_closed_form(turns, site, rate_dps, mounting=mounting)
     return np.column_stack([rot + earth, durations])
@@ -314,7 +322,7 @@ class _Pipeline:
     w_bias: np.ndarray | None                # (3, K) gyro-bias weights (sum 1)
     turns: list[RotationObservation]
     p_rot: np.ndarray | None                 # (3, 4, K2)
-    rate_dps: float
+    rate_dps: Any                            # deg/s: one, or one per turn
 
     def run(self, boxes: np.ndarray, site: Site | None = None) -> dict[str, np.ndarray]:
         """SI coefficients (R, ...) solved from exact outputs of tables `boxes` (R, 3, 3) at `site`."""
@@ -389,7 +397,7 @@ def observation_table_covariance(imu: ImuCoefficients | None, position_angles_de
         obs_table["gyro bias"] = _observation_table_part(gyro_out, angles, cov9)
         obs_table["accelerometers"] = _observation_table_part(acc_out, angles, cov9)
     if rotations:
-        integral, _ = turn_integrals(rotations, imu, site, inputs.turn_rate_dps, boxes, mounting)
+        integral, _ = turn_integrals(rotations, imu, site, inputs.rates_of(rotations), boxes, mounting)
         obs_table["gyros"] = _observation_table_part(integral, angles, cov9)
     return obs_table
 
@@ -544,9 +552,9 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
                                                                       else acc.fit.sigma[:, s]) for s in range(3)]),
                          w_bias, list(rotations),
                          None if gyros is None else np.stack([
-                             _operator(rotation_design_nominal(rotations, site, inputs.turn_rate_dps, mounting),
+                             _operator(rotation_design_nominal(rotations, site, inputs.rates_of(rotations), mounting),
                                        None if gyros.fit.sigma is None else gyros.fit.sigma[:, s]) for s in range(3)]),
-                         inputs.turn_rate_dps)
+                         inputs.rates_of(rotations))
         if inputs.table is not None:
             for name, sd in _table_part(pipe, inputs.table, inputs.mc_draws, inputs.seed).items():
                 add(name, TABLE, sd * sd)
