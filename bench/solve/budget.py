@@ -442,9 +442,17 @@ def _labels(observations, prefix: str) -> list[str]:
 
 def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: GyroBias | None,
                    positions: list[PositionObservation], rotations: list[RotationObservation], site: Site,
-                   inputs: BudgetInputs, mounting=None, gyro_prior: ImuCoefficients | None = None) -> Budget:
-    """The budget of a solve (`bench.solve.calibrate.solve`'s triads and gyro bias)."""
+                   inputs: BudgetInputs, mounting=None, gyro_prior: ImuCoefficients | None = None,
+                   fitted_columns: dict[tuple[str, int], np.ndarray] | None = None) -> Budget:
+    """The budget of a solve (`bench.solve.calibrate.solve`'s triads and gyro bias). `fitted_columns` ((fit,
+    sensor) -> (K, m)): the columns an extended solve fitted and took off the observations before this solve; the
+    residual tests project with them too (the residuals are the extended fit's, with its degrees of freedom)."""
     var: dict[str, dict[str, float]] = {}
+    fitted = fitted_columns or {}
+
+    def tested(fit: str, s: int, design: np.ndarray) -> np.ndarray:
+        more = fitted.get((fit, s))
+        return design if more is None or not more.size else np.column_stack([design, more])
 
     def add(name: str, comp: str, v: float) -> None:
         if v > 0 and math.isfinite(v):
@@ -484,7 +492,8 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
             add_triad("Ka", "Ea", "K0", s, BIAS_INSTABILITY, _triad_var(acc, design, s, c_gm))
             acc_sigma = acc.fit.sigma
             if acc_sigma is not None:
-                consistency.append(_consistency("accelerometers", s, design, acc_sigma[:, s], acc.fit.residuals[:, s],
+                consistency.append(_consistency("accelerometers", s, tested("accelerometers", s, design),
+                                                acc_sigma[:, s], acc.fit.residuals[:, s],
                                                 np.diag(acc_sigma[:, s] ** 2) + c_gm + table_cov("accelerometers", s),
                                                 labels))
     m_covs: dict[str, np.ndarray] = {}
@@ -510,7 +519,8 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
                 m_covs[comp][s] = (p @ c_y @ p.T)[:3, :3]
             gyro_sigma = gyros.fit.sigma
             if gyro_sigma is not None:
-                consistency.append(_consistency("gyros", s, design, gyro_sigma[:, s], gyros.fit.residuals[:, s],
+                consistency.append(_consistency("gyros", s, tested("gyros", s, design), gyro_sigma[:, s],
+                                                gyros.fit.residuals[:, s],
                                                 np.diag(gyro_sigma[:, s] ** 2) + c_gm + c_q + c_turn
                                                 + table_cov("gyros", s), labels))
         if inputs.turn_angle_sigma_rad is None:
@@ -541,7 +551,8 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
                 dd = dd_dm[s]
                 add(f"D0_{SENSOR_AXES[s]}", comp, float(dd @ m_cov[s] @ dd) / RESULT_UNITS["D0"][1] ** 2)
             if sigma is not None:
-                consistency.append(_consistency("gyro bias", s, np.ones((n, 1)), sigma, bias.residuals[:, s],
+                consistency.append(_consistency("gyro bias", s, tested("gyro bias", s, np.ones((n, 1))), sigma,
+                                                bias.residuals[:, s],
                                                 np.diag(sigma ** 2) + c_gm + table_cov("gyro bias", s, scale[s]),
                                                 labels))
     # -- Type B parts through the whole solve
