@@ -303,8 +303,11 @@ def _consistency(fit: str, s: int, design: np.ndarray, sigma: np.ndarray | None,
     chi2 = float(np.sum(proj ** 2 / vals[keep])) if keep.any() else math.nan
     p_value = float(chdtrc(dof, chi2)) if dof > 0 and math.isfinite(chi2) else math.nan
     diag = np.diag(c_r)
+    # a step the fit follows exactly (leverage 1: a turn pair that alone fixes an extended family) has no residual
+    # scatter: rounding leaves ~1e-16 of it, which would make its ~1e-10 residual look like a 1e5-sigma outlier
     with np.errstate(invalid="ignore", divide="ignore"):
-        normalized = np.where(diag > 0, residual / np.sqrt(np.maximum(diag, 1e-300)), np.nan)
+        normalized = np.where(diag > 1e-12 * max(float(diag.max(initial=0.0)), 1e-300),
+                              residual / np.sqrt(np.maximum(diag, 1e-300)), np.nan)
     return Consistency(fit, SENSOR_AXES[s], chi2, dof, p_value, normalized, labels)
 
 
