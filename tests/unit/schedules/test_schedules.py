@@ -371,6 +371,17 @@ def test_cli_show_table_check_prints_unknown_axes(capsys):
     assert re.search(r"\( 20,   0,  20\)\s+\? \? U$", capsys.readouterr().out, re.M)
 
 
+def test_cli_show_names_the_tilts_and_the_turns_own_rates(capsys):
+    """Issue 30: a 45-deg tilt's axes are printed halfway between two directions; a version-2 turn shows its rate."""
+    assert run_cli(["schedules", "show", "extended-44"]) == 0
+    assert re.search(r"\(  0,  45,   0\)\s+E\+U N W\+U$", capsys.readouterr().out, re.M)
+    assert run_cli(["schedules", "show", "extended-5s6r-2rates"]) == 0
+    out = capsys.readouterr().out
+    assert "rate_dps" in out or "deg/s" in out
+    rates = [line.split()[-1] for line in out.splitlines() if re.match(r"\s+\d+\s+\(", line)]
+    assert rates == ["10"] * 6 + ["40"] * 6
+
+
 def test_cli_show_unknown_name_fails(capsys):
     assert run_cli(["schedules", "show", "nothing-like-it"]) == 1
     err = capsys.readouterr().err
