@@ -20,7 +20,7 @@ def test_extended_example_runs_the_shipped_extended_plan(tmp_path):
     config = tmp_path / "extended.toml"
     config.write_text(text.replace("dwell_s = 20.0", "dwell_s = 4.0"), encoding="utf-8")
     rc, stdout, stderr = cli(["run", "--sim", "--config", str(config), "--out", str(tmp_path / "out")])
-    # 4: the verdict FAILs on the gyro residual test (a known issue of the extended solve, docs/explanation/
+    # 4: the gyros' residual test FAILs, as auto leaves out the gyro nonlinearity (docs/explanation/
     # extended-model.md); what this test checks is the plan and the families
     assert rc in (0, 4), stderr
     assert "168 of 168 steps done" in stdout + stderr
