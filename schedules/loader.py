@@ -4,7 +4,7 @@ A schedule file looks like this (angles are (outer, middle, inner) frame angles 
 degrees, docs/explanation/model.md#frame-rotations sign convention)::
 
     format = "turntable-bench/schedule"
-    version = 1
+    version = 1                 # 1 or 2 (2 adds tilted positions and per-rotation rates, below)
     name = "optimal-24"
     kind = "positions"          # "positions" | "rotations" | "table-check" | "static" | "verification"
     description = "Optimal 24 positions, 12 inner-symmetric groups (paper Table 1)"
@@ -19,12 +19,21 @@ degrees, docs/explanation/model.md#frame-rotations sign convention)::
     frame = "outer"             # "outer" | "middle" | "inner"
     direction = "ccw"           # "ccw" | "cw"
     revolutions = 1             # whole number, 1..100
-    rate_dps = 20.0             # kind "verification" only, optional: this turn's rate
-                                # (default: the plan's turn rate), 0.001..1000 deg/s
+    rate_dps = 20.0             # optional, kind "verification" (any version) or "rotations"
+                                # (version 2): this turn's rate (default: the plan's turn
+                                # rate), 0.001..1000 deg/s
 
 A "verification" schedule (data to check a calibration with, `bench verify`) holds
 positions (any angles in [0, 360): tilts of 45 deg) and rotations (with their own rates),
 at least one of either.
+
+Version 2 adds two things to the calibration kinds, and nothing else: (a) tilted
+positions: a "positions" schedule's angles may be any value in [0, 360) (e.g. 45 deg);
+(b) an optional `rate_dps` per `[[rotation]]` in a "rotations" schedule (default: the
+plan's turn rate), so one file can hold turns at several rates. Rotation start states
+stay multiples of 90 deg, and "static" positions too. A version-1 file keeps exactly its
+rules: a tilt or a `rate_dps` in it is refused with a line saying it needs version 2.
+A version-2 file is refused by an older bench (it refuses versions it does not know).
 
 Rules checked here (each violation is a one-line `ScheduleError` naming the file,
 the 1-based line and the field; the steps are all checked, and the error carries the
@@ -34,8 +43,10 @@ file's other problems in `more`):
   `format` and `version` must match, `kind` must be known;
 - no unknown keys inside a step table (catches typos such as ``angle_deg``), no
   missing required fields, no wrong types (a bool is not a number);
-- "positions" and "static" angles and rotation start states are positive positions:
-  multiples of 90 in [0, 360); "table-check" angles are any finite value in [0, 360);
+- "static" angles, rotation start states and version-1 "positions" angles are positive
+  positions: multiples of 90 in [0, 360); "table-check", "verification" and version-2
+  "positions" angles are any finite value in [0, 360);
+- `rate_dps` only in "verification" and version-2 "rotations" files;
 - a "static" file (one long dwell for noise characterisation) holds exactly one position;
 - `group` is a whole number 1..10000, `revolutions` a whole number 1..100;
 - no duplicate steps (same angles; same start, frame and direction);
@@ -58,7 +69,8 @@ from schedules.tomlinput import InputLimitError, loads, read_text_file, syntax_e
 from schedules.tomllines import LineMap, locate_lines
 
 FORMAT = "turntable-bench/schedule"
-VERSION = 1
+VERSION = 2                 # the newest version this loader reads
+VERSIONS = (1, 2)           # 2: tilted positions and per-rotation rates (module docstring)
 KINDS = ("positions", "rotations", "table-check", "static", "verification")
 #: a table frame (axis) by name, and a turn's direction (CCW: a positive right-handed rotation about the frame axis)
 Frame = Literal["outer", "middle", "inner"]
@@ -73,7 +85,7 @@ _ROTATION_KEYS = {"start_deg": True, "frame": True, "direction": True, "revoluti
 MAX_STEPS = 10_000        # steps per file (the shipped files have up to 324)
 MAX_GROUP = 10_000          # the largest position group number
 MAX_REVOLUTIONS = 100     # whole turns per rotation
-MIN_RATE_DPS, MAX_RATE_DPS = 1e-3, 1000.0   # a verification turn's own rate_dps
+MIN_RATE_DPS, MAX_RATE_DPS = 1e-3, 1000.0   # a turn's own rate_dps (verification; rotations version 2)
 
 
 @dataclass(frozen=True)
@@ -94,7 +106,7 @@ class RotationStep:
     direction: Direction
     revolutions: int
     line: int | None = None  # 1-based line of its [[rotation]] header
-    rate_dps: float | None = None   # its own turn rate (verification schedules); None: the plan's
+    rate_dps: float | None = None   # its own turn rate (verification; rotations version 2); None: the plan's
 
     @property
     def sign(self) -> int:
@@ -118,6 +130,7 @@ class Schedule:
     positions: tuple[PositionStep, ...] = ()
     rotations: tuple[RotationStep, ...] = ()
     reference: str = ""
+    version: int = 1              # the file's format version
 
     @property
     def steps(self) -> tuple[PositionStep | RotationStep, ...]:
@@ -188,6 +201,7 @@ class _Validator:
     def __init__(self, doc: dict, lines: LineMap, path: str):
         self.doc, self.lines, self.path = doc, lines, path
         self.problems: list[ScheduleError] = []
+        self.version = 1
 
     def fail(self, line: int | None, field: str | None, message: str) -> ScheduleError:
         return ScheduleError(self.path, line, field, message)
@@ -206,9 +220,10 @@ class _Validator:
             raise self.fail(lines.exact("format"), "format", f"expected {FORMAT!r}, got {_show(doc['format'])}")
         if "version" not in doc:
             raise self.fail(None, "version", "missing required key")
-        if not _is_int(doc["version"]) or doc["version"] != VERSION:
-            raise self.fail(lines.exact("version"), "version",
-                            f"unsupported version {_show(doc['version'])} (supported: {VERSION})")
+        if not _is_int(doc["version"]) or doc["version"] not in VERSIONS:
+            raise self.fail(lines.exact("version"), "version", f"unsupported version {_show(doc['version'])} "
+                            f"(supported: {', '.join(map(str, VERSIONS))})")
+        self.version = int(doc["version"])
         for key in doc:
             if key not in _REQUIRED_TOP and key not in _OPTIONAL_TOP:
                 allowed = ", ".join(_REQUIRED_TOP + _OPTIONAL_TOP)
@@ -228,7 +243,7 @@ class _Validator:
             positions, rotations = self._verification()
             self._raise_problems()
             return Schedule(name=name, kind=kind, description=description, source=self.path,
-                            positions=positions, rotations=rotations, reference=reference)
+                            positions=positions, rotations=rotations, reference=reference, version=self.version)
         wanted, unwanted = ("rotation", "position") if kind == "rotations" else ("position", "rotation")
         if unwanted in doc:
             raise self.fail(lines.exact(unwanted), unwanted,
@@ -242,12 +257,15 @@ class _Validator:
                             f"a 'static' schedule holds exactly one [[position]], got {len(tables)}")
         positions, rotations = (), ()
         if kind == "rotations":
-            rotations = tuple(self._rotations(tables))
+            rotations = tuple(self._rotations(tables, with_rate=self.version >= 2, rate_needs_version=True))
         else:
-            positions = tuple(self._positions(tables, positive_only=kind in ("positions", "static")))
+            tilts = kind == "positions" and self.version >= 2
+            positive_only = kind == "static" or (kind == "positions" and not tilts)
+            positions = tuple(self._positions(tables, positive_only=positive_only,
+                                              tilt_needs_version=kind == "positions"))
         self._raise_problems()
         return Schedule(name=name, kind=kind, description=description, source=self.path,
-                        positions=positions, rotations=rotations, reference=reference)
+                        positions=positions, rotations=rotations, reference=reference, version=self.version)
 
     def _raise_problems(self) -> None:
         """The steps' problems, all of them, as one ScheduleError (the first, with the others in `more`)."""
@@ -298,7 +316,7 @@ class _Validator:
             return None
 
     def _angles(self, table_name: str, index: int, key: str, value: object,
-                positive_only: bool) -> tuple[float, float, float]:
+                positive_only: bool, tilt_needs_version: bool = False) -> tuple[float, float, float]:
         line, label = self.lines.line(table_name, index, key), f"{table_name}[{index + 1}].{key}"
         if not isinstance(value, list) or len(value) != 3 or not all(_is_number(v) for v in value):
             raise self.fail(line, label, f"must be 3 numbers [outer, middle, inner] in degrees, got {_show(value)}")
@@ -308,18 +326,19 @@ class _Validator:
                 raise self.fail(line, label, f"{axis} angle {_show(angle_deg)} is outside [0, 360) deg")
             # Exact test on purpose: positive positions are written as whole multiples.
             if positive_only and angle_deg % 90 != 0:
-                raise self.fail(line, label, f"{axis} angle {angle_deg!r} is not a multiple of 90 deg "
-                                "(positive positions only)")
+                why = ("a tilted position needs version = 2" if tilt_needs_version
+                       else "positive positions only")
+                raise self.fail(line, label, f"{axis} angle {angle_deg!r} is not a multiple of 90 deg ({why})")
         outer, middle, inner = (float(v) + 0.0 for v in value)  # + 0.0 turns -0.0 into 0.0
         return outer, middle, inner
 
-    def _positions(self, tables: list[dict], positive_only: bool):
+    def _positions(self, tables: list[dict], positive_only: bool, tilt_needs_version: bool = False):
         seen: dict[tuple, int] = {}
         for index, table in enumerate(tables):
             if not self._check_keys("position", index, table, _POSITION_KEYS):
                 continue
             angles_deg = self._noted(self._angles, "position", index, "angles_deg", table["angles_deg"],
-                                     positive_only)
+                                     positive_only, tilt_needs_version)
             group = table.get("group")
             if group is not None and (not _is_int(group) or not 1 <= group <= MAX_GROUP):
                 self.problems.append(self.fail(self.lines.line("position", index, "group"),
@@ -338,9 +357,14 @@ class _Validator:
             seen[angles_deg] = index
             yield PositionStep(angles_deg=angles_deg, group=group, line=header)
 
-    def _rotations(self, tables: list[dict], with_rate: bool = False):
+    def _rotations(self, tables: list[dict], with_rate: bool = False, rate_needs_version: bool = False):
         seen: dict[tuple, int] = {}
         for index, table in enumerate(tables):
+            if not with_rate and rate_needs_version and "rate_dps" in table:
+                self.problems.append(self.fail(self.lines.line("rotation", index, "rate_dps"),
+                                               f"rotation[{index + 1}].rate_dps",
+                                               "a per-rotation rate needs version = 2"))
+                continue
             if not self._check_keys("rotation", index, table, {**_ROTATION_KEYS, "rate_dps": False} if with_rate
                                     else _ROTATION_KEYS):
                 continue

@@ -1,8 +1,9 @@
 """Coverage of the extended model's uncertainty and the false-add rate of `--model auto` (issue 30, must show 2-3).
 
-Per grade (`bench.model.higher_order.GRADES`), N simulated calibrations (independent noise draws) of the extended
-test plan: the optimal 24 positions plus 20 tilts of 45 deg, the optimal 5-state-6-rotation turns at 10 and at 40
-deg/s. Each is solved with every family (`bench.model.extended.TERMS`); per family it counts how often the truth lies
+Per grade (`bench.model.higher_order.GRADES`), N simulated calibrations (independent noise draws) of the shipped
+extended plan (`schedules/extended-44.toml`: the optimal 24 positions plus 20 tilts of 45 deg;
+`schedules/extended-5s6r-2rates.toml`: the optimal 5-state-6-rotation turns at 10 and at 40 deg/s). Each is
+solved with every family (`bench.model.extended.TERMS`); per family it counts how often the truth lies
 within U (k = 2; expected 95 %) and within 1 sigma (expected 68 %). With `--auto-off`, the same plan with the
 higher-order truth off, solved with `auto`: how often it adds a family (expected at most 5 %).
 
@@ -27,15 +28,14 @@ from bench.sim.imu import SimImu
 from bench.sim.table import SimTable
 from bench.solve.budget import BudgetInputs
 from bench.solve.extended import solve_extended
-from schedules import load_builtin
+from schedules import resolve_schedule
 
 SITE = Site(30.27)
-#: tilts of 45 deg: they tell the accelerometer asymmetry from the second order and show the cross terms
-TILTS = [(o, m, i) for o in (0, 90) for m in (45, 135) for i in (0, 45, 90, 180, 270)]
+#: the shipped extended plan (extended.example.toml's): positions with 45-deg tilts, turns at two rates
+PLAN = ("extended-44", "extended-5s6r-2rates")
 #: the noise of each grade's class ("off": none); the MEMS unit keeps pulse outputs (see studies.higher_order_bias)
 NOISE = {"off": NoiseModel.off(), "nav-fog": NoiseModel(),
          "tactical-mems": dataclasses.replace(NoiseModel.mems(), quantise=True)}
-RATES_DPS = (10.0, 40.0)
 
 
 def truth_values(terms: HigherOrderTerms) -> dict[str, float]:
@@ -54,22 +54,17 @@ def truth_values(terms: HigherOrderTerms) -> dict[str, float]:
     return out
 
 
-def observe(noise_name: str, grade: str | None, seed: int = 3, tilts: bool = True, rates=RATES_DPS,
+def observe(noise_name: str, grade: str | None, seed: int = 3, plan: tuple[str, str] = PLAN,
             rate_hz: float = 100.0) -> tuple[list[PositionObservation], list[RotationObservation], BudgetInputs,
                                              HigherOrderTerms | None]:
-    """One simulated acquisition of the extended test plan: observations, the budget's inputs, the truth."""
+    """One simulated acquisition of a plan (positions, rotations: schedule names or files; the turns at their own
+    rates), in the listed order: observations, the budget's inputs, the truth."""
     noise = NOISE[noise_name]
     terms = HigherOrderTerms.from_display(preset(grade)) if grade else None
     imu = SimImu(default_sim_imu(), noise, rate_hz=rate_hz, seed=seed, higher_order=terms)
-    table = SimTable(SITE)
-    positions = [p.angles_deg for p in load_builtin("optimal-24").positions] + (TILTS if tilts else [])
-    turns = list(load_builtin("optimal-5s6r").rotations)
-    timing = dataclasses.replace(AcquisitionTiming(), turn_rate_dps=rates[0])
-    observed_positions, observed_turns = acquire(table, imu, positions, turns, timing)
-    for rate in rates[1:]:
-        _, more = acquire(table, imu, [], turns, dataclasses.replace(timing, turn_rate_dps=rate))
-        observed_turns += [dataclasses.replace(o, label=f"R{len(observed_turns) + k + 1:02d}")
-                           for k, o in enumerate(more)]
+    positions = [p.angles_deg for p in resolve_schedule(plan[0]).positions]
+    turns = list(resolve_schedule(plan[1]).rotations)
+    observed_positions, observed_turns = acquire(SimTable(SITE), imu, positions, turns, AcquisitionTiming())
     budget = BudgetInputs(gyro_bias_instability=noise.gyro_bias_instability_dph * DEG_PER_HOUR,
                           acc_bias_instability=noise.acc_bias_instability_ug * MICRO_G,
                           correlation_time_s=noise.correlation_time_s, turn_angle_sigma_rad=0.0)

@@ -29,7 +29,11 @@ def register_tools(commands: argparse._SubParsersAction) -> None:
     an.add_argument("schedule", metavar="NAME|FILE",
                     help="a built-in schedule name (see bench schedules list) or a schedule TOML file")
     an.add_argument("--dwell-s", type=float, default=60.0, help="dwell per position, s (default 60)")
-    an.add_argument("--turn-rate-dps", type=float, default=10.0, help="turn rate, deg/s (default 10)")
+    an.add_argument("--turn-rate-dps", type=float, default=10.0,
+                    help="turn rate of the turns that name none, deg/s (default 10)")
+    an.add_argument("--with", dest="with_schedule", metavar="NAME|FILE",
+                    help="the plan's other schedule (rotations with positions, or positions with rotations): the "
+                         "extended model's part then says which families the two observe together")
     add_noise_arguments(an)
     an.add_argument("--runs", type=int, default=30, help="Monte-Carlo runs per level (default 30)")
     an.add_argument("--latitude", type=float, default=30.27, help="site latitude, deg (default 30.27)")
@@ -127,9 +131,10 @@ def unit_lines(label: str, figures: tuple) -> list[str]:
     return lines
 
 
-def observability_of(angles, turns, noise, args: argparse.Namespace, site: Site, mounting) -> tuple:
+def observability_of(angles, turns, noise, args: argparse.Namespace, site: Site, mounting, extended_plan) -> tuple:
     """(black-box sensitivity, noise 1-sigma per coefficient, extended families) of the plan for an IMU mounted
-    with `mounting` (None: the fixture's axes). Raises SolverError."""
+    with `mounting` (None: the fixture's axes); the extended families of `extended_plan` (positions' angles, turns:
+    the schedule with its `--with` one). Raises SolverError."""
     # heavy (scipy): imported when the command runs, not for its --help
     from bench.schedule_design.extended import extended_observability
     from bench.schedule_design.sensitivity import (
@@ -145,7 +150,8 @@ def observability_of(angles, turns, noise, args: argparse.Namespace, site: Site,
     else:
         sens = position_sensitivity(angles, site=site, mounting=mounting)
         sigma = position_noise_sigma(angles, noise, args.dwell_s, site=site, mounting=mounting)
-    extended = extended_observability(angles, turns or [], noise, args.dwell_s, args.turn_rate_dps, site=site,
+    ext_angles, ext_turns = extended_plan
+    extended = extended_observability(ext_angles, ext_turns, noise, args.dwell_s, args.turn_rate_dps, site=site,
                                       mounting=mounting)
     return sens, sigma, extended
 
@@ -160,6 +166,7 @@ def cmd_analyze(args: argparse.Namespace) -> ExitCode:
         return fail("bench schedules analyze", "--runs, --dwell-s and --turn-rate-dps must be positive", ExitCode.USAGE)
     try:
         schedule = resolve_schedule(args.schedule)
+        other = None if args.with_schedule is None else resolve_schedule(args.with_schedule)
         site = Site(args.latitude)
     except ScheduleError as exc:
         print(exc, file=sys.stderr)
@@ -174,9 +181,20 @@ def cmd_analyze(args: argparse.Namespace) -> ExitCode:
     rotations = schedule.kind == "rotations"
     turns = list(schedule.rotations) if rotations else None
     angles = None if rotations else np.array([p.angles_deg for p in schedule.positions])
+    wanted = "positions" if rotations else "rotations"
+    if other is not None and other.kind != wanted:
+        return fail("bench schedules analyze", f"--with {args.with_schedule}: a {other.kind!r} schedule; "
+                    f"{schedule.name} ({schedule.kind}) goes with a {wanted!r} schedule", ExitCode.USAGE)
+    # the extended families: this schedule with the --with one, if any (the lever arms need both kinds)
+    ext_angles, ext_turns = (None, list(turns or [])) if rotations else (angles, [])
+    if other is not None:
+        if other.kind == "rotations":
+            ext_turns = list(other.rotations)
+        else:
+            ext_angles = np.array([p.angles_deg for p in other.positions])
     try:
-        sens, sigma, extended = observability_of(angles, turns, noise, args, site, None)
-        per_unit = [(label, observability_of(angles, turns, noise, args, site, mounting))
+        sens, sigma, extended = observability_of(angles, turns, noise, args, site, None, (ext_angles, ext_turns))
+        per_unit = [(label, observability_of(angles, turns, noise, args, site, mounting, (ext_angles, ext_turns)))
                     for label, mounting in mountings]
     except SolverError as exc:
         print(f"{schedule.source}: {exc}", file=sys.stderr)
@@ -186,6 +204,11 @@ def cmd_analyze(args: argparse.Namespace) -> ExitCode:
     for line in sensitivity_lines(sens):
         print(line)
     setting = 'turn rate %g deg/s' % args.turn_rate_dps if rotations else 'dwell %g s' % args.dwell_s
+    own_rates = sorted({t.rate_dps for t in schedule.rotations if t.rate_dps is not None})
+    if own_rates:
+        setting = "each turn at its own rate (" + ", ".join(f"{r:g}" for r in own_rates) + " deg/s)" + (
+            f", the others at {args.turn_rate_dps:g} deg/s"
+            if any(t.rate_dps is None for t in schedule.rotations) else "")
     print(f"\nNoise-driven 1-sigma ({setting}"
           f"; ARW {noise.gyro_arw_deg_rt_h} deg/rt h, VRW {noise.acc_vrw_ug_rt_hz} ug/rt Hz, bias instability "
           f"{noise.gyro_bias_instability_dph} deg/h / {noise.acc_bias_instability_ug} ug, "
@@ -199,8 +222,13 @@ def cmd_analyze(args: argparse.Namespace) -> ExitCode:
               f"({plan.estimated_total_s:.0f} s; moves {plan.move_total_s:.0f} s)")
     except PlanError as exc:
         print(f"\nPlan duration: not compiled ({exc})")
+    together = f"on its own ({setting}"
+    if other is not None:
+        together = f"together with {other.name} (dwell {args.dwell_s:g} s, turn rate {args.turn_rate_dps:g} deg/s"
+    if other is not None and any(t.rate_dps is not None for t in ext_turns):
+        together += " or the turn's own"
     print(f"\nExtended model (docs/explanation/extended-model.md): the higher-order families this schedule shows "
-          f"on its own ({setting}; predicted sample-noise 1-sigma, the simulated IMU):")
+          f"{together}; predicted sample-noise 1-sigma, the simulated IMU):")
     for line in observability_lines(extended):
         print(line)
     if per_unit:

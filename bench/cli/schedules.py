@@ -92,13 +92,22 @@ def cmd_validate(args: argparse.Namespace) -> ExitCode:
     return exit_code
 
 
+def _rate(step: RotationStep) -> str:
+    """A turn's own rate column: its rate, or the plan's."""
+    return f"  {step.rate_dps:g}" if step.rate_dps is not None else "  plan's"
+
+
 def format_steps(schedule: Schedule) -> list[str]:
     """Table lines (column header first) for the steps of `schedule`."""
     if schedule.kind == "verification":       # both kinds of step; a turn's own rate after it
         lines = ["   #  group  angles (o, m, i) deg  body X Y Z"]
         lines += [_position_line(k, step) for k, step in enumerate(schedule.positions, start=1)]
         lines += ["", "   #  start (o, m, i) deg  body X Y Z  frame   dir  revs  axis  rate deg/s"]
-        lines += [_rotation_line(k, step) + (f"  {step.rate_dps:g}" if step.rate_dps is not None else "  plan's")
+        lines += [_rotation_line(k, step) + _rate(step)
+                  for k, step in enumerate(schedule.rotations, start=1)]
+    elif schedule.kind == "rotations" and any(step.rate_dps is not None for step in schedule.rotations):
+        lines = ["   #  start (o, m, i) deg  body X Y Z  frame   dir  revs  axis  rate deg/s"]    # version 2
+        lines += [_rotation_line(k, step) + _rate(step)
                   for k, step in enumerate(schedule.rotations, start=1)]
     elif schedule.kind == "rotations":
         lines = ["   #  start (o, m, i) deg  body X Y Z  frame   dir  revs  axis"]

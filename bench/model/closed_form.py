@@ -31,11 +31,20 @@ def position_outputs(angles_deg: np.ndarray, imu: ImuCoefficients, site: Site, b
     return imu.gyro_output(c_tb @ site.earth_rate_enu), imu.acc_output(c_tb @ site.specific_force_enu)
 
 
-def turn_closed_form(turns, site: Site, rate_dps: float, black_box_rad=None,
+def turn_rates_dps(turns, rate_dps) -> np.ndarray:
+    """Each turn's rate (K,): its own `rate_dps` when it has one (a schedule step of a version-2 "rotations" or a
+    "verification" schedule), else `rate_dps` (one rate, or one per turn)."""
+    default = np.broadcast_to(np.asarray(rate_dps, dtype=float), (len(turns),))
+    return np.array([own if (own := getattr(turn, "rate_dps", None)) is not None else default[k]
+                     for k, turn in enumerate(turns)], dtype=float)
+
+
+def turn_closed_form(turns, site: Site, rate_dps, black_box_rad=None,
                      mounting=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rotation vector, Earth integral (both rad, body axes) and duration of constant-rate turns.
 
-    `turns` are objects with start_deg, frame, direction, revolutions. Over whole
+    `turns` are objects with start_deg, frame, direction, revolutions; each turns at its own
+    `rate_dps` if it has one, else at `rate_dps` (`turn_rates_dps`). Over whole
     revolutions at constant rate the frame matrix averages to its axial part P, so
     the Earth integral is `T L P R w_ie`. Shapes (R, K, 3) for black boxes (R, 3, 3),
     else (K, 3); durations (K,).
@@ -43,9 +52,9 @@ def turn_closed_form(turns, site: Site, rate_dps: float, black_box_rad=None,
     bb = None if black_box_rad is None else np.asarray(black_box_rad, dtype=float)
     batch = bb.shape[:-2] if bb is not None else ()
     rot, earth, durations = [], [], []
-    for turn in turns:
+    for turn, rate in zip(turns, turn_rates_dps(turns, rate_dps)):
         k = FRAME_INDEX[turn.frame]
-        duration = 360.0 * turn.revolutions / rate_dps
+        duration = 360.0 * turn.revolutions / float(rate)
         left, right = split_at_frame(np.asarray(turn.start_deg, dtype=float) * DEG, k, bb, mounting)
         p, _, _ = frame_matrix_parts(k)
         axis = left @ p.diagonal()          # frame axis in body = L e_axis (P = e e^T)
@@ -56,7 +65,7 @@ def turn_closed_form(turns, site: Site, rate_dps: float, black_box_rad=None,
     return np.stack(rot, axis=-2), np.stack(earth, axis=-2), np.array(durations)
 
 
-def turn_integrals(turns, imu: ImuCoefficients, site: Site, rate_dps: float, black_box_rad=None,
+def turn_integrals(turns, imu: ImuCoefficients, site: Site, rate_dps, black_box_rad=None,
                    mounting=None) -> tuple[np.ndarray, np.ndarray]:
     """Gyro outputs integrated over each constant-rate turn (counts) and the durations."""
     rot, earth, durations = turn_closed_form(turns, site, rate_dps, black_box_rad, mounting)

@@ -165,13 +165,17 @@ def axis_along(vector: np.ndarray, tol: float = 1e-6) -> tuple[int, int] | None:
 def pointing_labels(c_tb: np.ndarray, tol: float = 1e-6) -> str:
     """Body X, Y, Z pointing as ENU letters, e.g. 'E N U' or 'S U W'.
 
-    An axis that is not along a geographic axis within `tol` is printed as '?'.
+    An axis halfway between two or three geographic axes (a tilt of 45 deg) is printed as their letters joined by
+    '+', e.g. 'E+U'; any other axis that is not along a geographic axis within `tol` as '?'.
     """
     labels = []
     for row in np.asarray(c_tb):
         along = axis_along(row, tol)
         if along is None:
-            labels.append("?")
+            parts = [k for k in range(3) if abs(row[k]) > tol]
+            equal = all(abs(abs(row[k]) - abs(row[parts[0]])) <= tol for k in parts)
+            labels.append("+".join(ENU_LABELS[k] if row[k] > 0 else ENU_NEGATIVE[k] for k in parts)
+                          if equal else "?")
         else:
             k, sign = along
             labels.append(ENU_LABELS[k] if sign > 0 else ENU_NEGATIVE[k])

@@ -221,15 +221,27 @@ def _k_range(nominal: float, lo_deg: float | None, hi_deg: float | None, span: f
     return lo_k, hi_k
 
 
+def unit_label(prefix: str, index: int, count: int) -> str:
+    """A unit's label: "P03" is the third of a schedule's positions, "R012" the 12th of its >= 100 rotations."""
+    return f"{prefix}{index + 1:0{max(2, len(str(count)))}d}"
+
+
+def own_turn_rates(rotations: Schedule | None) -> tuple[tuple[str, float], ...]:
+    """(unit label, deg/s) of the turns of `rotations` that name their own rate (the others take the plan's)."""
+    if rotations is None:
+        return ()
+    steps = rotations.rotations
+    return tuple((unit_label("R", i, len(steps)), r.rate_dps) for i, r in enumerate(steps) if r.rate_dps is not None)
+
+
 def _build_units(positions: Schedule | None, rotations: Schedule | None, timing: PlanTiming,
                  limits: TurntableLimits) -> tuple[list[_Unit], list[_Unit]]:
     pos_units, rot_units = [], []
     if positions is not None:
         if positions.kind not in ("positions", "table-check", "static", "verification"):
             raise PlanError(f"schedule {positions.name!r} is a {positions.kind!r} schedule, not positions")
-        width = max(2, len(str(len(positions.positions))))
         for i, p in enumerate(positions.positions):
-            label = f"P{i + 1:0{width}d}"
+            label = unit_label("P", i, len(positions.positions))
             ranges = []
             for axis, lim in enumerate(limits.axes):
                 ranges.append(_k_range(p.angles_deg[axis], lim.min_deg, lim.max_deg))
@@ -241,12 +253,11 @@ def _build_units(positions: Schedule | None, rotations: Schedule | None, timing:
     if rotations is not None:
         if rotations.kind not in ("rotations", "verification"):
             raise PlanError(f"schedule {rotations.name!r} is a {rotations.kind!r} schedule, not rotations")
-        width = max(2, len(str(len(rotations.rotations))))
         for i, r in enumerate(rotations.rotations):
-            label = f"R{i + 1:0{width}d}"
+            label = unit_label("R", i, len(rotations.rotations))
             revs = timing.revolutions if timing.revolutions is not None else r.revolutions
             lim_turn = limits.axes[r.frame_index]
-            rate_dps = r.rate_dps if r.rate_dps is not None else timing.turn_rate_dps   # a verification turn's own
+            rate_dps = r.rate_dps if r.rate_dps is not None else timing.turn_rate_dps   # the turn's own, if any
             if rate_dps > lim_turn.max_rate_dps or timing.turn_accel_dps2 > lim_turn.max_accel_dps2:
                 raise PlanError(f"{label} ({rotations.name} #{i + 1}, turn): {r.frame} turn at "
                                 f"{rate_dps:g} deg/s, {timing.turn_accel_dps2:g} deg/s^2 exceeds the "

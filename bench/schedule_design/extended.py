@@ -15,10 +15,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.model.closed_form import exact_observations
+from bench.model.closed_form import exact_observations, turn_rates_dps
 from bench.model.earth import Site
 from bench.model.extended import FAMILIES, TERMS
 from bench.model.imu import ImuCoefficients, NoiseModel, default_sim_imu
+from bench.model.kinematics import attitude
 from bench.model.units import DEG, MICRO_G
 from bench.solve.extended import predicted_sigmas
 from bench.solve.methods import SolverError
@@ -47,10 +48,16 @@ def _observations(angles_deg, turns, noise: NoiseModel, dwell_s: float, rate_dps
     positions = [dataclasses.replace(o, gyro_sem=imu.gyro_scale * gyro_density / math.sqrt(o.duration_s),
                                      acc_sem=imu.acc_scale * acc_density / math.sqrt(o.duration_s))
                  for o in positions]
-    rate, accel = rate_dps * DEG, accel_dps2 * DEG
+    accel = accel_dps2 * DEG
+    rates = turn_rates_dps(list(turns), rate_dps) * DEG        # each turn's own rate, else rate_dps
+    # the accelerometer sums at the start attitude's force: exact for a turn about a vertical axis, the only turns
+    # the lever arms use (a lever arm of the simulated IMU is zero)
+    forces = np.array([attitude(np.asarray(o.start_deg, dtype=float) * DEG) @ site.specific_force_enu
+                       for o in rotations]).reshape(-1, 3)
     rotations = [dataclasses.replace(o, gyro_integral_sigma=imu.gyro_scale * gyro_density * math.sqrt(o.duration_s),
-                                     rate_sq_integral=rate * 2.0 * math.pi * o.revolutions - rate ** 3 / (3.0 * accel))
-                 for o in rotations]
+                                     rate_sq_integral=rate * 2.0 * math.pi * o.revolutions - rate ** 3 / (3.0 * accel),
+                                     acc_integral=imu.acc_output(force) * o.duration_s)
+                 for o, rate, force in zip(rotations, rates, forces)]
     return positions, rotations
 
 

@@ -39,7 +39,8 @@ def acquire(table: SimTable, imu: SimImu, position_angles_deg, turns,
                                                                   list[RotationObservation]]:
     """Observe every position (dwell) then every turn (rest to rest) of a schedule.
 
-    `turns` are objects with start_deg, frame, direction, revolutions (schedule steps).
+    `turns` are objects with start_deg, frame, direction, revolutions (schedule steps); a turn with its own
+    `rate_dps` (not None) turns at that rate, the others at `timing.turn_rate_dps`.
     The nominal Earth integral of each turn is computed from the table's commanded
     trajectory without the black box, as the solver would from recorded angles.
     """
@@ -62,8 +63,9 @@ def acquire(table: SimTable, imu: SimImu, position_angles_deg, turns,
     for k, turn in enumerate(turns):
         arrive = table.move_to(t, turn.start_deg, timing.move_rate_dps, timing.move_accel_dps2)
         window_start = arrive + timing.settle_s
+        own_rate_dps = getattr(turn, "rate_dps", None)
         stop = table.turn(window_start + timing.rest_s, turn.frame, turn.direction, turn.revolutions,
-                          timing.turn_rate_dps, timing.turn_accel_dps2)
+                          timing.turn_rate_dps if own_rate_dps is None else own_rate_dps, timing.turn_accel_dps2)
         window_end = stop + timing.rest_s
         block = imu.generate(table, window_end)
         mask = _window(block, window_start, window_end)

@@ -130,10 +130,18 @@ class BudgetInputs:
     latitude_sigma_deg: float = 0.0
     count_resolution: float = COUNT_RESOLUTION
     turn_rate_dps: float = 10.0             # the closed-form turns of the table part
+    #: (label, deg/s) of the turns with their own rate (a version-2 rotations schedule); the others turn at
+    #: `turn_rate_dps`
+    turn_rates_dps: tuple[tuple[str, float], ...] = ()
     turn_angle_sigma_rad: float | None = None   # 1-sigma of each turn's angle error; None: not known
     mc_draws: int = 200
     seed: int = 0
     k: float = K_EXPANDED
+
+    def rates_of(self, rotations) -> np.ndarray:
+        """Each turn's rate (deg/s), by its label: its own, else `turn_rate_dps`."""
+        own = dict(self.turn_rates_dps)
+        return np.array([own.get(o.label, self.turn_rate_dps) for o in rotations], dtype=float)
 
     def to_json(self) -> dict[str, Any]:
         return {"table": None if self.table is None else self.table.to_json(),
@@ -233,7 +241,7 @@ def probe_boxes(step_rad: float) -> np.ndarray:
     return boxes
 
 
-def rotation_design_nominal(turns, site: Site, rate_dps: float, mounting=None) -> np.ndarray:
+def rotation_design_nominal(turns, site: Site, rate_dps, mounting=None) -> np.ndarray:
     """`[d 2 pi N u + E, T]` (K, 4) of constant-rate turns on an ideal table (an IMU mounted with `mounting`)."""
     rot, earth, durations = turn_closed_form(turns, site, rate_dps, mounting=mounting)
     return np.column_stack([rot + earth, durations])
@@ -295,8 +303,11 @@ def _consistency(fit: str, s: int, design: np.ndarray, sigma: np.ndarray | None,
     chi2 = float(np.sum(proj ** 2 / vals[keep])) if keep.any() else math.nan
     p_value = float(chdtrc(dof, chi2)) if dof > 0 and math.isfinite(chi2) else math.nan
     diag = np.diag(c_r)
+    # a step the fit follows exactly (leverage 1: a turn pair that alone fixes an extended family) has no residual
+    # scatter: rounding leaves ~1e-16 of it, which would make its ~1e-10 residual look like a 1e5-sigma outlier
     with np.errstate(invalid="ignore", divide="ignore"):
-        normalized = np.where(diag > 0, residual / np.sqrt(np.maximum(diag, 1e-300)), np.nan)
+        normalized = np.where(diag > 1e-12 * max(float(diag.max(initial=0.0)), 1e-300),
+                              residual / np.sqrt(np.maximum(diag, 1e-300)), np.nan)
     return Consistency(fit, SENSOR_AXES[s], chi2, dof, p_value, normalized, labels)
 
 
@@ -314,7 +325,7 @@ class _Pipeline:
     w_bias: np.ndarray | None                # (3, K) gyro-bias weights (sum 1)
     turns: list[RotationObservation]
     p_rot: np.ndarray | None                 # (3, 4, K2)
-    rate_dps: float
+    rate_dps: Any                            # deg/s: one, or one per turn
 
     def run(self, boxes: np.ndarray, site: Site | None = None) -> dict[str, np.ndarray]:
         """SI coefficients (R, ...) solved from exact outputs of tables `boxes` (R, 3, 3) at `site`."""
@@ -389,7 +400,7 @@ def observation_table_covariance(imu: ImuCoefficients | None, position_angles_de
         obs_table["gyro bias"] = _observation_table_part(gyro_out, angles, cov9)
         obs_table["accelerometers"] = _observation_table_part(acc_out, angles, cov9)
     if rotations:
-        integral, _ = turn_integrals(rotations, imu, site, inputs.turn_rate_dps, boxes, mounting)
+        integral, _ = turn_integrals(rotations, imu, site, inputs.rates_of(rotations), boxes, mounting)
         obs_table["gyros"] = _observation_table_part(integral, angles, cov9)
     return obs_table
 
@@ -434,9 +445,17 @@ def _labels(observations, prefix: str) -> list[str]:
 
 def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: GyroBias | None,
                    positions: list[PositionObservation], rotations: list[RotationObservation], site: Site,
-                   inputs: BudgetInputs, mounting=None, gyro_prior: ImuCoefficients | None = None) -> Budget:
-    """The budget of a solve (`bench.solve.calibrate.solve`'s triads and gyro bias)."""
+                   inputs: BudgetInputs, mounting=None, gyro_prior: ImuCoefficients | None = None,
+                   fitted_columns: dict[tuple[str, int], np.ndarray] | None = None) -> Budget:
+    """The budget of a solve (`bench.solve.calibrate.solve`'s triads and gyro bias). `fitted_columns` ((fit,
+    sensor) -> (K, m)): the columns an extended solve fitted and took off the observations before this solve; the
+    residual tests project with them too (the residuals are the extended fit's, with its degrees of freedom)."""
     var: dict[str, dict[str, float]] = {}
+    fitted = fitted_columns or {}
+
+    def tested(fit: str, s: int, design: np.ndarray) -> np.ndarray:
+        more = fitted.get((fit, s))
+        return design if more is None or not more.size else np.column_stack([design, more])
 
     def add(name: str, comp: str, v: float) -> None:
         if v > 0 and math.isfinite(v):
@@ -476,7 +495,8 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
             add_triad("Ka", "Ea", "K0", s, BIAS_INSTABILITY, _triad_var(acc, design, s, c_gm))
             acc_sigma = acc.fit.sigma
             if acc_sigma is not None:
-                consistency.append(_consistency("accelerometers", s, design, acc_sigma[:, s], acc.fit.residuals[:, s],
+                consistency.append(_consistency("accelerometers", s, tested("accelerometers", s, design),
+                                                acc_sigma[:, s], acc.fit.residuals[:, s],
                                                 np.diag(acc_sigma[:, s] ** 2) + c_gm + table_cov("accelerometers", s),
                                                 labels))
     m_covs: dict[str, np.ndarray] = {}
@@ -502,7 +522,8 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
                 m_covs[comp][s] = (p @ c_y @ p.T)[:3, :3]
             gyro_sigma = gyros.fit.sigma
             if gyro_sigma is not None:
-                consistency.append(_consistency("gyros", s, design, gyro_sigma[:, s], gyros.fit.residuals[:, s],
+                consistency.append(_consistency("gyros", s, tested("gyros", s, design), gyro_sigma[:, s],
+                                                gyros.fit.residuals[:, s],
                                                 np.diag(gyro_sigma[:, s] ** 2) + c_gm + c_q + c_turn
                                                 + table_cov("gyros", s), labels))
         if inputs.turn_angle_sigma_rad is None:
@@ -533,7 +554,8 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
                 dd = dd_dm[s]
                 add(f"D0_{SENSOR_AXES[s]}", comp, float(dd @ m_cov[s] @ dd) / RESULT_UNITS["D0"][1] ** 2)
             if sigma is not None:
-                consistency.append(_consistency("gyro bias", s, np.ones((n, 1)), sigma, bias.residuals[:, s],
+                consistency.append(_consistency("gyro bias", s, tested("gyro bias", s, np.ones((n, 1))), sigma,
+                                                bias.residuals[:, s],
                                                 np.diag(sigma ** 2) + c_gm + table_cov("gyro bias", s, scale[s]),
                                                 labels))
     # -- Type B parts through the whole solve
@@ -544,9 +566,9 @@ def compute_budget(acc: SensorTriad | None, gyros: SensorTriad | None, bias: Gyr
                                                                       else acc.fit.sigma[:, s]) for s in range(3)]),
                          w_bias, list(rotations),
                          None if gyros is None else np.stack([
-                             _operator(rotation_design_nominal(rotations, site, inputs.turn_rate_dps, mounting),
+                             _operator(rotation_design_nominal(rotations, site, inputs.rates_of(rotations), mounting),
                                        None if gyros.fit.sigma is None else gyros.fit.sigma[:, s]) for s in range(3)]),
-                         inputs.turn_rate_dps)
+                         inputs.rates_of(rotations))
         if inputs.table is not None:
             for name, sd in _table_part(pipe, inputs.table, inputs.mc_draws, inputs.seed).items():
                 add(name, TABLE, sd * sd)

@@ -164,14 +164,16 @@ def _floats(a) -> list[float | None]:
 def solve(positions: list[PositionObservation], rotations: list[RotationObservation], site: Site,
           mounting=None, gyro_prior: ImuCoefficients | None = None,
           gyro_bias_stability: float = 0.0, acc_bias_stability: float = 0.0,
-          budget_inputs: BudgetInputs | None = None) -> Calibration:
+          budget_inputs: BudgetInputs | None = None,
+          fitted_columns: dict[tuple[str, int], np.ndarray] | None = None) -> Calibration:
     """Accelerometers and gyro bias from positions, gyro scale/axes from rotations.
 
     Without rotations, `gyro_prior` (e.g. an earlier result) supplies Kg and Eg for the
     gyro bias; without either, the gyro bias is not solved and a flag says so.
     `*_bias_stability` (rad/s, m/s^2; the datasheet's bias instability) feed the budget's
     bias-instability part when `budget_inputs` (`bench.solve.budget`) is not given; every
-    coefficient's sigma is the budget's combined standard uncertainty.
+    coefficient's sigma is the budget's combined standard uncertainty. `fitted_columns`: what an extended solve
+    fitted beyond these (`compute_budget`), for the residual tests.
     """
     if not positions and not rotations:
         raise SolverError("nothing to solve: no position and no rotation observations")
@@ -193,7 +195,8 @@ def solve(positions: list[PositionObservation], rotations: list[RotationObservat
     if budget_inputs is None:
         budget_inputs = BudgetInputs(gyro_bias_instability=gyro_bias_stability,
                                      acc_bias_instability=acc_bias_stability)
-    budget = compute_budget(acc, gyros, bias, positions, rotations, site, budget_inputs, mounting, gyro_prior)
+    budget = compute_budget(acc, gyros, bias, positions, rotations, site, budget_inputs, mounting, gyro_prior,
+                            fitted_columns)
     flags += budget.flags
     return Calibration(acc, gyros, bias, list(positions), list(rotations), flags, budget)
 

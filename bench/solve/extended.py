@@ -149,6 +149,8 @@ class _Solved:
     acc_fits: list[LinearFit] | None = None
     rot_fits: list[LinearFit] | None = None
     bias_fits: list[LinearFit] | None = None
+    #: (fit, sensor) -> the columns fitted beyond the 30-coefficient design, for its residual tests
+    columns: dict[tuple[str, int], np.ndarray] = dataclasses.field(default_factory=dict)
 
 
 def _part(fit: LinearFit, design: np.ndarray, sigma: np.ndarray | None, first: int, names: list[tuple[str, str]],
@@ -240,6 +242,7 @@ def _fit(positions: list[PositionObservation], rotations: list[RotationObservati
                 out.parts.append(_part(fit, design, sig, 4, names, acc_scale[s],
                                        {BIAS_INSTABILITY: c_gm, TABLE: c_table}))
                 corrected_acc[:, s] -= extra @ fit.params[0][4:]
+                out.columns[("accelerometers", s)] = extra
         if "acc_lever_arm" in terms:
             out.parts += _lever_arms(positions, rotations, site, acc_terms, out.acc_fits, acc_sigma, mounting,
                                      inputs, table_error.imu, lever_arm_m)
@@ -398,6 +401,11 @@ def _gyros(positions, rotations, site: Site, terms, inputs: BudgetInputs, mounti
             break
     out.rot_fits = rot_fits or None
     out.bias_fits = bias_fits or None
+    for s in range(3):
+        if rotations and turn_terms:
+            out.columns[("gyros", s)] = extra_cols[s]
+        if positions and g_sens:
+            out.columns[("gyro bias", s)] = f_nom
     parts: list[_Part] = []
     turn_kernel = None
     if rotations:
@@ -505,7 +513,8 @@ def solve_extended(positions: list[PositionObservation], rotations: list[Rotatio
             calibration.extended = ExtendedFit((), left_out=left, auto=True)
             return calibration
     solved = _fit(positions, rotations, site, families, inputs, mounting, gyro_prior, table, lever_arm_m)
-    calibration = solve(solved.positions, solved.rotations, site, mounting, gyro_prior, budget_inputs=inputs)
+    calibration = solve(solved.positions, solved.rotations, site, mounting, gyro_prior, budget_inputs=inputs,
+                        fitted_columns=solved.columns)
     calibration.positions, calibration.rotations = list(positions), list(rotations)
     fit = ExtendedFit(families, tests=_tests(solved.parts, families), left_out=left, auto=auto)
     for part in solved.parts:

@@ -8,6 +8,7 @@ from bench.errors import BenchError
 from bench.model.observations import COUNT_RESOLUTION
 from bench.model.table_prior import TablePrior, rms_arcsec
 from bench.model.units import ARCSEC, DEG_PER_HOUR, MICRO_G
+from bench.plan.compiler import own_turn_rates
 from bench.solve.budget import BudgetInputs, gm_mean_kernel
 
 
@@ -54,6 +55,7 @@ def budget_inputs(config, sim: bool) -> BudgetInputs:
                         gravity_sigma_mps2=0.0 if sim else site.gravity_sigma_mps2,
                         latitude_sigma_deg=0.0 if sim else site.latitude_sigma_deg,
                         turn_rate_dps=config.plan.turn_rate_dps,
+                        turn_rates_dps=own_turn_rates(config.plan.rotations),
                         turn_angle_sigma_rad=turn_angle_sigma_rad(config, sim),
                         # an IMU rounding each sample (sbg-ecan) has no counter: its turns carry their own rounding
                         count_resolution=0.0 if config.imu.layout.time_stamp is not None else COUNT_RESOLUTION)

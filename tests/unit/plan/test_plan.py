@@ -329,3 +329,30 @@ def test_heuristic_reaches_the_move_count_bound_on_big_sets(name, moves):
     plan = compile_plan(schedule if schedule.kind == "positions" else None,
                         schedule if schedule.kind == "rotations" else None, TIMING)
     assert plan.move_total_s == pytest.approx(moves * 7.0)
+
+
+def test_version_2_plan_compiles_tilts_and_each_turns_own_rate():
+    """Issue 30: the shipped extended plan (version 2) compiles its 45-deg tilts as they are and each turn at its
+    own rate, whatever [plan] turn_rate_dps says; its estimate takes each turn's rate."""
+    from bench.plan.retime import TimingProfile, retime
+
+    positions, rotations = load_builtin("extended-44"), load_builtin("extended-5s6r-2rates")
+    timing = PlanTiming(dwell_s=20.0, turn_rate_dps=25.0)
+    plan = compile_plan(positions, rotations, timing)
+    dwells = {s.unit: s.angles_deg for s in plan.steps if isinstance(s, DwellStep)}
+    assert len(dwells) == 44 and dwells["P25"] == (0.0, 45.0, 0.0) and dwells["P29"] == (0.0, 45.0, 270.0)
+    turns = {s.unit: s for s in plan.steps if isinstance(s, TurnStep)}
+    assert {u: t.rate_dps for u, t in turns.items()} == {f"R{k:02d}": 10.0 if k <= 6 else 40.0 for k in range(1, 13)}
+    for unit, turn in turns.items():
+        ramp, cruise, _ = trapezoid_timing(360.0, turn.rate_dps, timing.turn_accel_dps2)
+        assert turn.estimated_s == pytest.approx(2 * timing.rest_s + 2 * ramp + cruise), unit
+    assert turns["R01"].estimated_s > turns["R07"].estimated_s    # 10 deg/s turns last longer
+    # the re-timing takes the same rates
+    accel = (timing.turn_accel_dps2,) * 3
+    estimates = retime(plan.steps, TimingProfile("plan", (timing.move_accel_dps2,) * 3, accel, 0.5, 0.0))
+    for step, estimate in zip(plan.steps, estimates):
+        if isinstance(step, TurnStep):
+            assert estimate == pytest.approx(step.estimated_s)
+    # another [plan] turn rate leaves the turns as they are: each keeps its own
+    other = compile_plan(positions, rotations, PlanTiming(dwell_s=20.0, turn_rate_dps=40.0))
+    assert [s for s in other.steps if isinstance(s, TurnStep)] == [s for s in plan.steps if isinstance(s, TurnStep)]

@@ -33,10 +33,12 @@ EXPECTED_COUNTS = {
     "table-check-324": ("table-check", 324),
     "static-noise": ("static", 1),
     "verify-default": ("verification", 34),
+    "extended-44": ("positions", 44),
+    "extended-5s6r-2rates": ("rotations", 12),
 }
 
 
-def test_builtin_names_are_the_eight_shipped_files():
+def test_builtin_names_are_the_shipped_files():
     assert schedules.builtin_names() == sorted(EXPECTED_COUNTS)
 
 
@@ -194,7 +196,24 @@ BAD_FILES = {
     "no-steps": (_positions_file("# nothing yet\n"), None, "position", "at least one"),
     "unknown-top-key": (HEAD + 'kind = "positions"\nauthor = "me"\n[[position]]\nangles_deg = [0, 0, 0]\n',
                         6, "author", "unknown key"),
-    "version-2": (HEAD.replace("version = 1", "version = 2"), 2, "version", "unsupported version 2"),
+    "version-3": (HEAD.replace("version = 1", "version = 3"), 2, "version", "unsupported version 3 (supported: 1, 2)"),
+    # issue 30: a version-1 file keeps its rules; a tilt or a per-rotation rate says it needs version 2
+    "v1-tilt": (_positions_file('[[position]]\nangles_deg = [0, 0, 0]\n\n[[position]]\nangles_deg = [90, 45, 0]\n'),
+                11, "position[2].angles_deg",
+                "middle angle 45 is not a multiple of 90 deg (a tilted position needs version = 2)"),
+    "v1-rate": (HEAD + 'kind = "rotations"\n\n' + ROTATION + "\n" + ROTATION.replace("ccw", "cw") + "rate_dps = 40\n",
+                18, "rotation[2].rate_dps", "a per-rotation rate needs version = 2"),
+    "v2-start-tilted": (HEAD.replace("version = 1", "version = 2") + 'kind = "rotations"\n\n'
+                        + ROTATION.replace("[0, 90, 0]", "[0, 45, 0]") + "rate_dps = 40\n",
+                        8, "rotation[1].start_deg", "middle angle 45 is not a multiple of 90 deg (positive positions"),
+    "v2-static-tilted": (HEAD.replace("version = 1", "version = 2") + 'kind = "static"\n\n'
+                         + '[[position]]\nangles_deg = [0, 45, 0]\n', 8, "position[1].angles_deg",
+                         "positive positions only"),
+    "v2-rate-0": (HEAD.replace("version = 1", "version = 2") + 'kind = "rotations"\n\n' + ROTATION + "rate_dps = 0\n",
+                  12, "rotation[1].rate_dps", "must be a number in 0.001..1000 deg/s"),
+    "v2-duplicate-rate": (HEAD.replace("version = 1", "version = 2") + 'kind = "rotations"\n\n' + ROTATION
+                          + "rate_dps = 10\n\n" + ROTATION + "rate_dps = 10.0\n", 14, "rotation[2]",
+                          "duplicate of rotation[1] at line 7 (same start, frame, direction and rate)"),
     "start-not-positive": (HEAD + 'kind = "rotations"\n\n' + ROTATION.replace("[0, 90, 0]", "[0, 90, 30]"),
                            8, "rotation[1].start_deg", "inner angle 30 is not a multiple of 90"),
     # The locator must skip multi-line strings and arrays.
@@ -264,6 +283,33 @@ def test_parse_schedule_defaults_and_table_check_accepts_any_angle():
     assert schedule.positions == (schedules.PositionStep((12.5, 0.0, 359.9), None, 7),)
 
 
+def test_version_2_reads_tilts_and_per_rotation_rates():
+    """Issue 30: version 2 adds tilted "positions" angles and a `rate_dps` per rotation (default: the plan's)."""
+    v2 = HEAD.replace("version = 1", "version = 2")
+    positions = parse_schedule(v2 + 'kind = "positions"\n\n[[position]]\nangles_deg = [90, 135, 45]\ngroup = 3\n')
+    assert positions.version == 2
+    assert positions.positions == (schedules.PositionStep((90.0, 135.0, 45.0), 3, 7),)
+    rotations = parse_schedule(v2 + 'kind = "rotations"\n\n' + ROTATION + "rate_dps = 40\n\n" + ROTATION)
+    assert [(r.rate_dps, r.line) for r in rotations.rotations] == [(40.0, 7), (None, 14)]
+    # the same turn at two rates is two steps, not a duplicate
+    two_rates = parse_schedule(v2 + 'kind = "rotations"\n\n' + ROTATION + "rate_dps = 10\n\n" + ROTATION
+                               + "rate_dps = 40\n")
+    assert [r.rate_dps for r in two_rates.rotations] == [10.0, 40.0]
+    # a version-1 file still reads as before
+    assert parse_schedule(_positions_file("[[position]]\nangles_deg = [0, 90, 0]\n")).version == 1
+
+
+def test_version_1_refusals_are_all_listed(tmp_path):
+    """Every tilt and every rate of a version-1 file is one located line (`bench schedules validate` prints all)."""
+    path = tmp_path / "v1.toml"
+    path.write_text(HEAD + 'kind = "rotations"\n\n' + ROTATION + "rate_dps = 10\n\n"
+                    + ROTATION.replace("ccw", "cw") + "rate_dps = 40\n", encoding="utf-8")
+    with pytest.raises(ScheduleError) as info:
+        load_schedule(path)
+    assert info.value.lines() == [f"{path}:12: rotation[1].rate_dps: a per-rotation rate needs version = 2",
+                                  f"{path}:19: rotation[2].rate_dps: a per-rotation rate needs version = 2"]
+
+
 def test_schedule_error_omits_missing_parts():
     assert str(ScheduleError("f.toml", None, None, "bad\nthing")) == "f.toml: bad thing"
     assert str(ScheduleError("f.toml", 3, "kind", "x")) == "f.toml:3: kind: x"
@@ -323,6 +369,17 @@ def test_cli_show_rotations_turning_axis(capsys):
 def test_cli_show_table_check_prints_unknown_axes(capsys):
     assert run_cli(["schedules", "show", "table-check-324"]) == 0
     assert re.search(r"\( 20,   0,  20\)\s+\? \? U$", capsys.readouterr().out, re.M)
+
+
+def test_cli_show_names_the_tilts_and_the_turns_own_rates(capsys):
+    """Issue 30: a 45-deg tilt's axes are printed halfway between two directions; a version-2 turn shows its rate."""
+    assert run_cli(["schedules", "show", "extended-44"]) == 0
+    assert re.search(r"\(  0,  45,   0\)\s+E\+U N W\+U$", capsys.readouterr().out, re.M)
+    assert run_cli(["schedules", "show", "extended-5s6r-2rates"]) == 0
+    out = capsys.readouterr().out
+    assert "rate_dps" in out or "deg/s" in out
+    rates = [line.split()[-1] for line in out.splitlines() if re.match(r"\s+\d+\s+\(", line)]
+    assert rates == ["10"] * 6 + ["40"] * 6
 
 
 def test_cli_show_unknown_name_fails(capsys):
@@ -398,7 +455,7 @@ DIGITS_400 = "1" + "0" * 399
     (HEAD.replace('name = "t"', 'name = "t"\nsource = ' + "[" * 20 + "]" * 20) + 'kind = "positions"\n', 4, "source",
      "must be a string, got [[[[[[[[[[[[[[[[[[[[]]]]]]]]]]]]]]]]]]]]"),
     (HEAD.replace("version = 1", f"version = {DIGITS_400}"), 2, "version",
-     "unsupported version 1.000e+399 (a 400-digit integer) (supported: 1)"),
+     "unsupported version 1.000e+399 (a 400-digit integer) (supported: 1, 2)"),
 ], ids=["angle-400-digits", "angle-nan", "group-400-digits", "group-10001", "revolutions-400-digits",
         "revolutions-101", "revolutions-1e12", "deep-array", "deep-inline-table", "5000-digits", "10001-steps",
         "deep-source", "version-400-digits"])

@@ -68,7 +68,8 @@ def test_turns_at_other_rates_are_not_duplicates_and_a_rate_beyond_the_limits_is
     limits = TurntableLimits((AxisLimits(), AxisLimits(), AxisLimits(max_rate_dps=15.0)))
     with pytest.raises(PlanError, match="inner turn at 20 deg/s"):
         compile_plan(None, schedule, PlanTiming(), limits=limits)
-    with pytest.raises(ScheduleError, match="rate_dps: unknown key"):
+    # a version-1 rotations file has no per-turn rate (version 2 has, issue 30)
+    with pytest.raises(ScheduleError, match="rate_dps: a per-rotation rate needs version = 2"):
         parse_schedule(HEAD.replace('"verification"', '"rotations"') + TURN + "rate_dps = 10\n", "r.toml")
 
 
