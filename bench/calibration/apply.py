@@ -33,8 +33,9 @@ import orjson
 
 from bench import __version__
 from bench.calibration.compensation import Compensation
-from bench.log.bulk_messages import add_message_arrays
+from bench.log.bulk_messages import add_records
 from bench.log.format import SCHEMAS, TOPIC_SAMPLES
+from bench.log.json_records import JsonMessage, json_records
 from bench.log.reader import RunLog, read_log
 from bench.log.run_info import layout_and_config_from_log
 from drivers.imu import ImuSampleBlock
@@ -112,20 +113,31 @@ def apply_to_log(compensation: Compensation, log_path: str, *, rate_unit: str = 
 
 #: samples formatted at once (a few MB of text for the MCAP's two topics)
 BLOCK_SAMPLES = 10_000
+#: of those, the samples whose MCAP records are laid out at once (their texts stay in the CPU's cache)
+RECORD_ROWS = 2_000
 #: one CSV row: counter, time_s, imu_time_s, three rates, three forces (17 significant digits read back exactly);
 #: the format of a block holding a value that is not finite (JSON text has none: `_texts` cannot print it)
 _CSV_ROW = "%d," + ",".join(["%.17g"] * 8) + "\n"
 Progress = Callable[[int, int], None]
-#: the literal text of an `/imu/samples` body (the run log's) around its nine fields, from `_raw_columns`
+#: the literal text of an `/imu/samples` body (the run log's) around its nine fields (`_columns`)
 _RAW_TEXT = (b'{"counter":', b',"time_s":', b',"imu_time_s":', b',"gyro_counts":[', b'],"acc_counts":[',
              b'],"gyro_rate":[', b'],"acc_rate":[', b'],"temperature_c":', b',"status":', b"}")
-#: the same for an `/imu/compensated` body's five fields (`_compensated_columns`), up to its units
+#: the same for an `/imu/compensated` body's five fields (`_columns`), up to its units
 _COMPENSATED_TEXT = (b'{"counter":', b',"time_s":', b',"imu_time_s":', b',"angular_rate":[', b'],"specific_force":[')
 
 
-def _blocks(n: int) -> Iterator[tuple[int, int]]:
-    for lo in range(0, n, BLOCK_SAMPLES):
-        yield lo, min(n, lo + BLOCK_SAMPLES)
+def _blocks(n: int, size: int | None = None) -> Iterator[tuple[int, int]]:
+    size = size or BLOCK_SAMPLES
+    for lo in range(0, n, size):
+        yield lo, min(n, lo + size)
+
+
+def _pieces(literals: Sequence[bytes], columns: Sequence[np.ndarray]) -> tuple[bytes | np.ndarray, ...]:
+    """literals[0], columns[0], literals[1], ..., literals[-1]: a `JsonMessage`'s body."""
+    pieces: list[bytes | np.ndarray] = []
+    for literal, column in zip(literals, columns):
+        pieces += [literal, column]
+    return (*pieces, literals[-1])
 
 
 def _texts(values: np.ndarray) -> list[bytes]:
@@ -162,23 +174,24 @@ def write_csv(samples: CompensatedSamples, path: str | Path, progress: Progress 
                 progress(hi, len(samples))
 
 
-def _raw_columns(samples: CompensatedSamples, lo: int, hi: int) -> list[np.ndarray]:
+def _columns(samples: CompensatedSamples, imu_time_s: np.ndarray, lo: int,
+             hi: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The columns of samples lo..hi's `/imu/samples` and `/imu/compensated` bodies (`_RAW_TEXT`,
+    `_COMPENSATED_TEXT`); the three both bodies hold (counter, time_s, imu_time_s) are the same arrays: printed
+    once. `imu_time_s`: the samples', computed once (the property divides every counter each time)."""
     block, rate = samples.raw, float(samples.raw.rate_hz)
     gyro, acc = block.gyro_counts[lo:hi], block.acc_counts[lo:hi]
-    return [block.counter[lo:hi], block.receive_time_s[lo:hi], block.time_s[lo:hi], gyro, acc, gyro * rate,
-            acc * rate, block.temperature_c[lo:hi], block.status[lo:hi]]
-
-
-def _compensated_columns(samples: CompensatedSamples, lo: int, hi: int) -> list[np.ndarray]:
-    return [samples.counter[lo:hi], samples.time_s[lo:hi], samples.imu_time_s[lo:hi], samples.angular_rate[lo:hi],
-            samples.specific_force[lo:hi]]
+    times = [block.counter[lo:hi], block.receive_time_s[lo:hi], imu_time_s[lo:hi]]
+    return ([*times, gyro, acc, gyro * rate, acc * rate, block.temperature_c[lo:hi], block.status[lo:hi]],
+            [*times, samples.angular_rate[lo:hi], samples.specific_force[lo:hi]])
 
 
 def write_mcap(samples: CompensatedSamples, path: str | Path, *, compensation: Compensation, source_log: str,
                progress: Progress | None = None) -> None:
     """A new MCAP file: raw samples on `/imu/samples`, compensated ones on `/imu/compensated`, each sample's two
-    messages one after the other (the file in log-time order); the bodies of a block of `BLOCK_SAMPLES` samples
-    formatted and written at once (`bench.log.bulk_messages`), `progress(done, total)` after each block."""
+    messages one after the other (the file in log-time order); the records of `RECORD_ROWS` samples laid out at
+    once from their columns (`bench.log.json_records`: the bytes of a JSON document per message) and written into
+    the chunks (`bench.log.bulk_messages`), `progress(done, total)` after each block of `BLOCK_SAMPLES`."""
     # local: the mcap writer is needed only for this output
     from mcap.writer import CompressionType, Writer
 
@@ -198,15 +211,19 @@ def write_mcap(samples: CompensatedSamples, path: str | Path, *, compensation: C
             "source_log": Path(source_log).name, "calibration_run_id": compensation.run_id,
             "imu_model": compensation.imu_model, "imu_serial": compensation.imu_serial,
             "rate_unit": samples.rate_unit, "force_unit": samples.force_unit, "software_version": __version__})
+        imu_time_s = samples.imu_time_s
         for lo, hi in _blocks(len(samples)):
-            times = log_times_s[lo:hi]
-            log_times_ns = np.where(times > 0.0, np.rint(times * 1e9), 0.0).astype(np.int64)
-            raw = map(b"".join, _rows(_RAW_TEXT, _raw_columns(samples, lo, hi)))
-            compensated = map(b"".join, _rows(compensated_text, _compensated_columns(samples, lo, hi)))
-            # raw, compensated, raw, ...: two messages a sample at its log time
-            bodies = list(chain.from_iterable(zip(raw, compensated)))
-            add_message_arrays(writer, np.tile([raw_channel, comp_channel], hi - lo), np.repeat(log_times_ns, 2),
-                               bodies)
+            for a, b in _blocks(hi - lo, RECORD_ROWS):     # a few thousand rows: their texts stay in the cache
+                raw_columns, compensated_columns = _columns(samples, imu_time_s, lo + a, lo + b)
+                times = log_times_s[lo + a:lo + b]
+                log_times_ns = np.where(times > 0.0, np.rint(times * 1e9), 0.0).astype(np.int64)
+                # raw, compensated, raw, ...: two messages a sample at its log time
+                records, sizes = json_records([JsonMessage(raw_channel, _pieces(_RAW_TEXT, raw_columns)),
+                                               JsonMessage(comp_channel, _pieces(compensated_text,
+                                                                                 compensated_columns))],
+                                              log_times_ns)
+                add_records(writer, np.tile([raw_channel, comp_channel], b - a), np.repeat(log_times_ns, 2),
+                            sizes, records)
             if progress is not None:
                 progress(hi, len(samples))
         writer.finish()

@@ -81,10 +81,7 @@ def _records(channels: int | np.ndarray, times: np.ndarray, bodies: Sequence[byt
     """The Message records of `bodies` (sizes: each record's, head included), heads laid out as one array and
     joined with the bodies (no Python step per byte)."""
     n = len(bodies)
-    heads = np.zeros(n, _HEAD_DTYPE)
-    heads["opcode"], heads["length"], heads["channel"] = int(Opcode.MESSAGE), sizes - 9, channels
-    heads["log_time"] = heads["publish_time"] = times
-    packed, width = heads.tobytes(), _HEAD.size
+    packed, width = message_heads(channels, times, sizes).tobytes(), _HEAD.size
     # each head then its body, in one join over a list filled by slice assignment (the cheapest layout measured)
     parts: list[bytes] = [b""] * (2 * n)
     parts[0::2] = [packed[k:k + width] for k in range(0, n * width, width)]
@@ -114,21 +111,51 @@ def add_message_arrays(writer: Writer, channel_id: int | np.ndarray, log_times_n
                        bodies: Sequence[bytes]) -> None:
     """`add_messages` with the log times (ns) as an array and the bodies as a list beside it."""
     n = len(bodies)
-    channels = None if isinstance(channel_id, int) else np.asarray(channel_id, np.int64)
     times = np.asarray(log_times_ns, np.uint64)
-    state = _state(writer)
-    if state is None:
+    if _state(writer) is None:
         ids = [channel_id] * n if isinstance(channel_id, int) else np.asarray(channel_id).tolist()
         for channel, t, body in zip(ids, times.tolist(), bodies):
             writer.add_message(channel, t, body, t)
         return
-    builder, stats, chunk_size, finalize = state
     sizes = np.fromiter(map(len, bodies), np.int64, n) + _HEAD.size
+    channels = channel_id if isinstance(channel_id, int) else np.asarray(channel_id, np.int64)
+    add_records(writer, channels, times, sizes, _records(channels, times, bodies, sizes))
+
+
+def message_heads(channels: int | np.ndarray, log_times_ns: np.ndarray, record_sizes: np.ndarray) -> np.ndarray:
+    """The heads (`_HEAD_DTYPE`: opcode to publish time, 31 bytes) of Message records of `record_sizes` bytes
+    each (head included), sequence 0, published at their log time."""
+    heads = np.zeros(len(record_sizes), _HEAD_DTYPE)
+    heads["opcode"], heads["length"], heads["channel"] = int(Opcode.MESSAGE), np.asarray(record_sizes) - 9, channels
+    heads["log_time"] = heads["publish_time"] = log_times_ns
+    return heads
+
+
+def add_records(writer: Writer, channel_id: int | np.ndarray, log_times_ns: np.ndarray, record_sizes: np.ndarray,
+                records: bytes) -> None:
+    """Message records already laid out back to back (`records`: each a head of `message_heads` then its body;
+    `record_sizes`: each one's bytes), of `channel_id` (one, or each record's) at `log_times_ns`: the chunks,
+    message indexes and statistics `writer.add_message` of each would make, the same bytes."""
+    n = len(record_sizes)
+    channels = None if isinstance(channel_id, int) else np.asarray(channel_id, np.int64)
+    times = np.asarray(log_times_ns, np.uint64)
+    sizes = np.asarray(record_sizes, np.int64)
     ends = np.cumsum(sizes)           # of each record, counted from the first
+    if int(ends[-1] if n else 0) != len(records):
+        raise ValueError(f"{len(records)} bytes of records where their sizes add up to {int(ends[-1]) if n else 0}")
+    state = _state(writer)
+    if state is None:
+        ids = [channel_id] * n if channels is None else channels.tolist()
+        for channel, t, end, size in zip(ids, times.tolist(), ends.tolist(), sizes.tolist()):
+            writer.add_message(channel, t, records[end - size + _HEAD.size:end], t)
+        return
+    builder, stats, chunk_size, finalize = state
+    view = memoryview(records)
     at = 0
     while at < n:
         # the messages up to the first that takes the chunk past `chunk_size` (the writer closes it after that one)
-        start = builder.record_writer.count - (int(ends[at - 1]) if at else 0)    # where ends[at - 1] lands
+        before = int(ends[at - 1]) if at else 0
+        start = builder.record_writer.count - before    # where ends[at - 1] lands
         stop = min(n, at + 1 + int(np.searchsorted(ends[at:], chunk_size - start, side="right")))
         offsets = ends[at:stop] - sizes[at:stop] + start
         part_times = times[at:stop]
@@ -149,7 +176,7 @@ def add_message_arrays(writer: Writer, channel_id: int | np.ndarray, log_times_n
                 index.records.extend(zip(channel_times.tolist(), channel_offsets.tolist()))
             stats.channel_message_counts[channel] += len(channel_times)
         builder.num_messages += stop - at
-        builder.record_writer.write(_records(part_channels, part_times, bodies[at:stop], sizes[at:stop]))
+        builder.record_writer.write(view[before:int(ends[stop - 1])])
         stats.message_start_time = lo if stats.message_count == 0 else min(stats.message_start_time, lo)
         stats.message_end_time = max(stats.message_end_time, hi)
         stats.message_count += stop - at
@@ -158,4 +185,4 @@ def add_message_arrays(writer: Writer, channel_id: int | np.ndarray, log_times_n
             finalize()
 
 
-__all__ = ["add_message_arrays", "add_messages"]
+__all__ = ["add_message_arrays", "add_messages", "add_records", "message_heads"]

@@ -222,3 +222,96 @@ def test_the_applied_mcap_is_in_log_time_order(short_run, tmp_path):
         proc = subprocess.run([os.environ["MCAP_CLI"], "doctor", str(out)], capture_output=True, text=True,
                               timeout=120)
         assert proc.returncode == 0 and not (proc.stdout + proc.stderr).strip(), proc.stdout + proc.stderr
+
+
+# -- issue 33, item 6: the records laid out in bulk (bench.log.json_records) are the per-message path's -----------
+
+def _messages_of(path) -> list[tuple]:
+    """Every message of an MCAP file in file order, with everything that says what it is and when."""
+    with open(path, "rb") as f:
+        return [(schema.name, schema.encoding, schema.data, channel.topic, channel.message_encoding,
+                 message.log_time, message.publish_time, message.sequence, message.data)
+                for schema, channel, message in make_reader(f, validate_crcs=True).iter_messages(log_time_order=False)]
+
+
+def _write_mcap_per_message(samples, path) -> None:
+    """The straightforward path: a JSON document per message (orjson of its dict), `Writer.add_message` each,
+    the raw then the compensated message of a sample."""
+    import orjson
+    from mcap.writer import CompressionType, Writer
+
+    from bench.calibration.apply import COMPENSATED_SCHEMA, COMPENSATED_SCHEMA_BODY
+    from bench.log.format import SCHEMAS
+
+    block = samples.raw
+    with open(path, "wb") as f:
+        writer = Writer(f, compression=CompressionType.ZSTD)
+        writer.start()
+        raw = writer.register_channel(TOPIC_SAMPLES, "json", writer.register_schema(
+            "turntable_bench.ImuSample", "jsonschema", json.dumps(SCHEMAS["turntable_bench.ImuSample"]).encode()))
+        compensated = writer.register_channel(TOPIC_COMPENSATED, "json", writer.register_schema(
+            COMPENSATED_SCHEMA, "jsonschema", json.dumps(COMPENSATED_SCHEMA_BODY).encode()))
+        for k in range(len(samples)):
+            time_s = float(block.receive_time_s[k])
+            log_time = round(time_s * 1e9) if time_s > 0.0 else 0
+            times = {"counter": int(block.counter[k]), "time_s": time_s, "imu_time_s": float(block.time_s[k])}
+            writer.add_message(raw, log_time, orjson.dumps({
+                **times, "gyro_counts": block.gyro_counts[k].tolist(), "acc_counts": block.acc_counts[k].tolist(),
+                "gyro_rate": (block.gyro_counts[k] * block.rate_hz).tolist(),
+                "acc_rate": (block.acc_counts[k] * block.rate_hz).tolist(),
+                "temperature_c": float(block.temperature_c[k]), "status": int(block.status[k])}), log_time)
+            writer.add_message(compensated, log_time, orjson.dumps({
+                **times, "angular_rate": samples.angular_rate[k].tolist(),
+                "specific_force": samples.specific_force[k].tolist(), "rate_unit": samples.rate_unit,
+                "force_unit": samples.force_unit}), log_time)
+        writer.finish()
+
+
+def _samples_of_every_kind(n: int = 400):
+    """`_samples` with whole counts (printed as integers) in some rows, -0.0, values past 1e16, a status word and a
+    temperature constant over some blocks only, a receive time of 0 (log time 0)."""
+    samples = _samples(n, seed=11)
+    block = samples.raw
+    block.gyro_counts[: n // 2] = np.rint(block.gyro_counts[: n // 2] * 1e-3)
+    block.acc_counts[n // 4:] = np.rint(block.acc_counts[n // 4:])
+    block.acc_counts[n // 3, 0] = -0.0
+    block.acc_counts[n // 3 + 1, 1] = 3e16
+    block.status[: n // 3] = 5
+    block.temperature_c[40:80] = 24.5
+    block.receive_time_s[0] = 0.0
+    samples.angular_rate[100:140] = [0.25, -0.0, 1e-7]
+    return samples
+
+
+@pytest.mark.parametrize("block_samples, record_rows", [(7, 3), (10_000, 2_000), (100, 64)])
+def test_the_bulk_records_are_the_per_message_paths(tmp_path, monkeypatch, block_samples, record_rows):
+    """Every message (topic, schema, encoding, log and publish time, sequence, bytes) and their order, whatever
+    the blocks: a value, a time or an order that differs fails."""
+    from bench.calibration import apply
+    from bench.calibration.compensation import compensation_of
+    from bench.model.imu import default_sim_imu
+    from bench.model.result import CalibrationResult, coefficient_table
+
+    monkeypatch.setattr(apply, "BLOCK_SAMPLES", block_samples)
+    monkeypatch.setattr(apply, "RECORD_ROWS", record_rows)
+    samples = _samples_of_every_kind()
+    values = default_sim_imu().to_canonical()
+    compensation = compensation_of(CalibrationResult(coefficient_table(values, {k: 1e-6 for k in values})))
+    apply.write_mcap(samples, tmp_path / "bulk.mcap", compensation=compensation, source_log="x.mcap")
+    _write_mcap_per_message(samples, tmp_path / "per-message.mcap")
+    bulk, per_message = _messages_of(tmp_path / "bulk.mcap"), _messages_of(tmp_path / "per-message.mcap")
+    assert len(bulk) == 2 * len(samples)
+    assert bulk == per_message
+
+
+def test_bench_apply_of_a_log_writes_the_per_message_paths_records(short_run, tmp_path):
+    from bench.calibration.apply import apply_to_log
+    from bench.calibration.compensation import compensation_of, load_result
+
+    out = tmp_path / "applied.mcap"
+    assert cli(["apply", str(short_run.result), str(short_run.log), "--out", str(out), "--quiet"])[0] == 0
+    samples, _log = apply_to_log(compensation_of(load_result(str(short_run.result))), str(short_run.log),
+                                 rate_unit="deg/s", force_unit="g")
+    _write_mcap_per_message(samples, tmp_path / "per-message.mcap")
+    written = _messages_of(out)
+    assert len(written) > 2000 and written == _messages_of(tmp_path / "per-message.mcap")
