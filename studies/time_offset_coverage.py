@@ -10,6 +10,7 @@ other terms still on) it counts how often `auto` adds the time offset (expected 
 
     PYTHONPATH=. python -m studies.time_offset_coverage --draws 10                     # a few minutes
     PYTHONPATH=. python -m studies.time_offset_coverage --draws 200 --offsets-ms 0.05 0.5 2 0 --auto-off
+    PYTHONPATH=. python -m studies.time_offset_coverage --draws 40 --spread          # is each sigma the spread?
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from bench.sim.imu import SimImu
 from bench.sim.table import SimTable
 from bench.solve.budget import BudgetInputs
 from bench.solve.extended import solve_extended
+from bench.solve.time_offset import acc_delay, gyro_delay
 from schedules import load_builtin
 from studies.extended_coverage import NOISE, SITE
 
@@ -82,6 +84,35 @@ def coverage(grade: str, offset_ms: float | None, draws: int, seed: int, rate_hz
     return in_u, in_1, values, sigmas
 
 
+def spread(grade: str, draws: int, seed: int, rate_hz: float) -> dict[str, tuple[float, float, float]]:
+    """The turns across gravity alone, offset off: per part (tau_a, tau_g, Dt) its mean, the spread of its estimates
+    and its mean sigma over `draws` (ms): an honest sigma is about the spread."""
+    noise = NOISE[grade]
+    values = preset(grade)
+    values["time_offset_ms"] = 0.0
+    found: dict[str, list[tuple[float, float]]] = {"tau_a": [], "tau_g": [], "Dt": []}
+    for draw in range(draws):
+        imu = SimImu(default_sim_imu(), noise, rate_hz=rate_hz, seed=seed + draw,
+                     higher_order=HigherOrderTerms.from_display(values))
+        table = SimTable(SITE)
+        turns: list[RotationObservation] = []
+        for rate in RATES_DPS:
+            turns += acquire(table, imu, [], ACROSS_GRAVITY,
+                             dataclasses.replace(AcquisitionTiming(), turn_rate_dps=rate), turn_timings=True)[1]
+        tau_a, _, var_a, _ = acc_delay(turns)
+        tau_g, _, var_g = gyro_delay(turns)
+        for key, value, var in (("tau_a", tau_a, var_a), ("tau_g", tau_g, var_g),
+                                ("Dt", tau_a - tau_g, var_a + var_g)):
+            found[key].append((value * 1e3, math.sqrt(var) * 1e3))
+    out = {}
+    for key, rows in found.items():
+        estimates = [v for v, _ in rows]
+        mean = sum(estimates) / len(estimates)
+        std = math.sqrt(sum((v - mean) ** 2 for v in estimates) / max(len(estimates) - 1, 1))
+        out[key] = (mean, std, sum(s for _, s in rows) / len(rows))
+    return out
+
+
 def auto_adds(grade: str, draws: int, seed: int, rate_hz: float) -> int:
     """Draws with the offset off (the grade's other terms on) in which `auto` kept the time offset."""
     added = 0
@@ -102,7 +133,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=300)
     parser.add_argument("--rate-hz", type=float, default=100.0)
     parser.add_argument("--auto-off", action="store_true", help="also how often auto adds it with the offset off")
+    parser.add_argument("--spread", action="store_true",
+                        help="only the spread of the estimates against their sigma (the turns alone, offset off)")
     args = parser.parse_args(argv)
+    if args.spread:
+        print("| grade | part | mean ms | spread ms | mean sigma ms | draws |\n|---|---|---|---|---|---|")
+        for grade in args.grades:
+            for key, (mean, std, sigma) in spread(grade, args.draws, args.seed, args.rate_hz).items():
+                print(f"| {grade} | {key} | {mean:.4f} | {std:.4f} | {sigma:.4f} | {args.draws} |", flush=True)
+        return
     print("| grade | true offset ms | within U | within 1 sigma | mean estimate ms | mean sigma ms | draws |\n"
           "|---|---|---|---|---|---|---|")
     for grade in args.grades:

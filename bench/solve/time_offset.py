@@ -41,7 +41,7 @@ def _consistent_scale(chi2: float, dof: int) -> float:
     return chi2 / dof if dof > 0 and chdtrc(dof, chi2) < CONSISTENCY_ALPHA else 1.0
 
 
-def _acc_delay(rotations: list[RotationObservation]) -> tuple[float, float, float, int]:
+def acc_delay(rotations: list[RotationObservation]) -> tuple[float, float, float, int]:
     """(tau_a, noise variance, variance, turns used) from the accelerometers' phases."""
     groups: dict[tuple, list[tuple[float, float, float]]] = {}
     for o in rotations:
@@ -76,7 +76,7 @@ def _acc_delay(rotations: list[RotationObservation]) -> tuple[float, float, floa
     return tau, 1.0 / sxx, _consistent_scale(chi2, dof) / sxx, turns
 
 
-def _gyro_delay(rotations: list[RotationObservation]) -> tuple[float, float, float]:
+def gyro_delay(rotations: list[RotationObservation]) -> tuple[float, float, float]:
     """(tau_g, noise variance, variance) from the gyros' delays."""
     delays = np.array([o.timing.gyro_delay_s for o in rotations if o.timing is not None]).reshape(-1)
     sigmas = np.array([o.timing.gyro_delay_sigma_s for o in rotations if o.timing is not None]).reshape(-1)
@@ -95,10 +95,10 @@ def estimate_time_offset(rotations: list[RotationObservation]) -> TimeOffsetEsti
     timed = [o for o in rotations if o.timing is not None]
     if not timed:
         raise SolverError("time_offset: the turns carry no timing (samples against the table's angle)")
-    tau_a, noise_a, var_a, turns = _acc_delay(timed)
-    tau_g, noise_g, var_g = _gyro_delay(timed)
+    tau_a, noise_a, var_a, turns = acc_delay(timed)
+    tau_g, noise_g, var_g = gyro_delay(timed)
     return TimeOffsetEstimate(tau_a - tau_g, math.sqrt(noise_a + noise_g), math.sqrt(var_a + var_g), tau_a, tau_g,
                               turns)
 
 
-__all__ = ["TimeOffsetEstimate", "estimate_time_offset"]
+__all__ = ["TimeOffsetEstimate", "acc_delay", "estimate_time_offset", "gyro_delay"]
