@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.calibration.higher_order import HigherOrderCompensation, HigherOrderError, higher_order_of
+from bench.calibration.higher_order import HigherOrderCompensation, HigherOrderError, higher_order_of, time_offset_of
 from bench.errors import InputError
 from bench.model.families import BODY_AXES, RESULT_UNITS, SENSOR_AXES, canonical_names
 from bench.model.result import CalibrationResult
@@ -94,6 +94,9 @@ class Compensation:
     software_version: str = ""
     #: the extended model's families the result holds (None: only the 30 coefficients)
     higher_order: HigherOrderCompensation | None = None
+    #: the gyro-to-accelerometer time offset (s) and its 1-sigma (NaN: unknown), when the result has one: exported,
+    #: not compensated (it would take resampling one stream against the other)
+    time_offset: tuple[float, float] | None = None
 
     def triads(self) -> tuple[TriadCompensation, TriadCompensation]:
         return self.gyro, self.acc
@@ -168,7 +171,8 @@ def compensation_of(result: CalibrationResult) -> Compensation:
     run, imu = result.run, result.run.imu
     return Compensation(triads[0], triads[1], imu_model=_text(imu and imu.model), imu_serial=_text(imu and imu.serial),
                         run_id=_text(run.run_id), calibrated_utc=_text(run.finished_utc),
-                        software_version=_text(run.software_version), higher_order=higher)
+                        software_version=_text(run.software_version), higher_order=higher,
+                        time_offset=time_offset_of(result))
 
 
 def _triad(result: CalibrationResult, sensor: str, scale: str, bias: str, axes: str, unit: str,

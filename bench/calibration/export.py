@@ -65,6 +65,8 @@ def to_json(c: Compensation) -> str:
     if c.higher_order is not None:
         doc["version"] = higher.HIGHER_ORDER_VERSION
         doc["higher_order"] = higher.higher_order_doc(c)
+    if c.time_offset is not None:
+        doc["time_offset"] = higher.time_offset_doc(c)
     return json.dumps(doc, indent=2, allow_nan=False) + "\n"
 
 
@@ -90,6 +92,8 @@ def to_csv(c: Compensation) -> str:
                              RAW_UNIT])
     if c.higher_order is not None:
         writer.writerows(higher.csv_rows(c))
+    if c.time_offset is not None:
+        writer.writerow(higher.time_offset_csv_row(c))
     return out.getvalue()
 
 
@@ -148,6 +152,8 @@ def to_c_header(c: Compensation) -> str:
         text += "\n"
     if c.higher_order is not None:
         text += higher.c_arrays(c, C_PREFIX, _c_array)
+    if c.time_offset is not None:
+        text += higher.time_offset_c_lines(c, C_PREFIX, c_num)
     for t in c.triads():
         name, unit = f"{C_PREFIX}_{t.sensor.upper()}", t.input_unit
         text += (f"/* {_MEASURES[t.sensor][0]} ({unit}) from raw outputs (counts/s) */\n"
@@ -267,6 +273,8 @@ def to_yaml(c: Compensation, noise: KalibrNoise, rostopic: str = "/imu0") -> str
     g_sensitivity = higher.kalibr_g_sensitivity(c) if c.higher_order is not None else None
     if c.higher_order is not None:
         text += higher.kalibr_left_out(c)
+    if c.time_offset is not None:
+        text += higher.kalibr_time_offset_comment(c)
     for t, key in ((c.gyro, "gyroscopes"), (c.acc, "accelerometers")):
         text += f"{key}:\n    M:   # dimensionless\n" + _yaml_matrix(t.axes, "      ")
         if t.sensor == "gyro" and g_sensitivity is not None:
@@ -311,6 +319,8 @@ def to_toml(c: Compensation) -> str:
                   f"bias_sigma = [{', '.join(map(toml_num, t.bias_sigma))}]"]
     if c.higher_order is not None:
         lines += higher.toml_table("higher_order", higher.higher_order_doc(c), toml_num)
+    if c.time_offset is not None:
+        lines += higher.toml_table("time_offset", higher.time_offset_doc(c), toml_num)
     return "\n".join(lines) + "\n"
 
 

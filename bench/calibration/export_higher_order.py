@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -50,6 +50,40 @@ def higher_order_doc(c: Compensation) -> dict[str, Any]:
                            "sigma": np.vectorize(_num, otypes=[object])(term.sigma).tolist()}
                     for name, term in higher.terms.items()}
     return doc
+
+
+#: what the exported time offset is (it is not compensated)
+TIME_OFFSET_MEANING = ("the accelerometers sample the motion this much later than the gyros (negative: the gyros are "
+                       "later); not compensated: delay the gyro samples by it, or advance the accelerometers'")
+
+
+def time_offset_doc(c: Compensation) -> dict[str, Any]:
+    """The `time_offset` table of the JSON and TOML exports."""
+    assert c.time_offset is not None
+    value, sigma = c.time_offset
+    return {"value": value, "sigma": _num(sigma), "unit": "s", "meaning": TIME_OFFSET_MEANING}
+
+
+def time_offset_csv_row(c: Compensation) -> list[Any]:
+    assert c.time_offset is not None
+    value, sigma = c.time_offset
+    return ["acc", "time_offset", "", "", repr(float(value)), repr(float(sigma)) if math.isfinite(sigma) else "", "s"]
+
+
+def time_offset_c_lines(c: Compensation, prefix: str, c_num: Callable[[float], str]) -> str:
+    """Two macros (a macro, unlike an unused static const, draws no warning)."""
+    assert c.time_offset is not None
+    value, sigma = c.time_offset
+    return (f"/* s: {TIME_OFFSET_MEANING} */\n#define {prefix}_TIME_OFFSET_S {c_num(value)}\n"
+            f"#define {prefix}_TIME_OFFSET_SIGMA_S {c_num(sigma)}\n\n")
+
+
+def kalibr_time_offset_comment(c: Compensation) -> str:
+    """kalibr's `time_offset` is the IMU's clock against its reference sensor, not this offset: a comment says so."""
+    assert c.time_offset is not None
+    value, sigma = c.time_offset
+    return (f"# time_offset above is this IMU's clock against kalibr's reference sensor. The gyro-to-accelerometer "
+            f"offset turntable-bench solved, {value!r} s (1-sigma {sigma!r} s), has no place in kalibr's model\n")
 
 
 def csv_rows(c: Compensation) -> list[list[Any]]:
@@ -207,5 +241,6 @@ def toml_table(name: str, table: dict[str, Any], number) -> list[str]:
     return lines
 
 
-__all__ = ["HIGHER_ORDER_VERSION", "c_arrays", "c_comment_lines", "c_function", "csv_rows", "higher_order_doc",
-           "kalibr_g_sensitivity", "kalibr_left_out", "toml_table"]
+__all__ = ["HIGHER_ORDER_VERSION", "TIME_OFFSET_MEANING", "c_arrays", "c_comment_lines", "c_function", "csv_rows",
+           "higher_order_doc", "kalibr_g_sensitivity", "kalibr_left_out", "kalibr_time_offset_comment",
+           "time_offset_c_lines", "time_offset_csv_row", "time_offset_doc", "toml_table"]

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.errors import InputError
-from bench.model.extended import FAMILIES, TERMS, ExtendedFamily
+from bench.model.extended import FAMILIES, SCALAR_TERMS, TERMS, ExtendedFamily
 from bench.model.families import BODY_AXES, SENSOR_AXES
 from bench.model.result import CalibrationResult
 
@@ -132,6 +132,8 @@ def higher_order_of(result: CalibrationResult) -> HigherOrderCompensation | None
     HigherOrderError for a family with some of its coefficients missing)."""
     terms: dict[str, HigherOrderTerm] = {}
     for term in TERMS:
+        if term in SCALAR_TERMS:
+            continue            # the time offset is no per-sample correction (`time_offset_of`)
         family = FAMILIES[term]
         whole = _complete(result, family)
         if whole is None:
@@ -156,5 +158,14 @@ def higher_order_of(result: CalibrationResult) -> HigherOrderCompensation | None
     return HigherOrderCompensation(terms)
 
 
+def time_offset_of(result: CalibrationResult) -> tuple[float, float] | None:
+    """The gyro-to-accelerometer time offset of a result (s) and its 1-sigma (NaN: unknown); None: not solved."""
+    found = result.coefficients.get(FAMILIES["time_offset"].names[0])
+    if found is None:
+        return None
+    factor = FAMILIES["time_offset"].result_to_si
+    return found.value * factor, found.sigma * factor if math.isfinite(found.sigma) else math.nan
+
+
 __all__ = ["EQUATIONS", "MATRIX_TERMS", "SI_UNITS", "HigherOrderCompensation", "HigherOrderError", "HigherOrderTerm",
-           "higher_order_of"]
+           "higher_order_of", "time_offset_of"]

@@ -8,6 +8,8 @@
     accel s:  J_s = Ka_s (Ea_s . f_s + K0_s + Aa_s/2 |a_s| + Qa_s a_s^2 + sum_j!=s Ca_js a_s f_j)
     f_s = f + w x (w x r_s) + dw/dt x r_s,  La_s = r_s . e_s  (accelerometer s's own-axis lever arm)
 
+    Dt: the accelerometers sample the motion Dt later than the gyros (one number; `bench.solve.time_offset`)
+
 Only the lever arm's component along the sensor's own axis is a coefficient: a turn about a body axis moves an
 accelerometer's output by `-w^2 r_ss` (its other components need turns about tilted axes).
 """
@@ -58,9 +60,15 @@ FAMILIES: dict[str, ExtendedFamily] = {f.term: f for f in (
                    _matrix("Ca", off_diagonal=True)),
     ExtendedFamily("acc_lever_arm", "La", "acc", "accelerometer lever arm (own axis)", "mm", 1e-3,
                    _per_sensor("La")),
+    # one number for the unit: the accelerometers' delay behind the gyros (bench.solve.time_offset)
+    ExtendedFamily("time_offset", "Dt", "acc", "gyro-to-accelerometer time offset", "ms", 1e-3, ("Dt",)),
 )}
+#: families of one coefficient for the whole unit (no sensor axis in its name)
+SCALAR_TERMS = ("time_offset",)
 #: the `[model] terms` names, in solve order
 TERMS = tuple(FAMILIES)
+#: the families the windows' means and integrals show: all but the time offset, which needs the turns' timing
+MEAN_TERMS = tuple(t for t in TERMS if t not in SCALAR_TERMS)
 #: canonical prefix -> family
 BY_KEY = {f.key: f for f in FAMILIES.values()}
 #: every extended coefficient name, in canonical order
@@ -74,5 +82,5 @@ def family_of_name(name: str) -> ExtendedFamily | None:
     return BY_KEY.get(name.split("_", 1)[0])
 
 
-__all__ = ["BY_KEY", "EXTENDED_NAMES", "EXTENDED_RESULT_UNITS", "FAMILIES", "PPM", "TERMS", "ExtendedFamily",
-           "family_of_name"]
+__all__ = ["BY_KEY", "EXTENDED_NAMES", "EXTENDED_RESULT_UNITS", "FAMILIES", "MEAN_TERMS", "PPM", "SCALAR_TERMS",
+           "TERMS", "ExtendedFamily", "family_of_name"]

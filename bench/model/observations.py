@@ -14,6 +14,7 @@ import numpy as np
 from bench.model.earth import Site
 from bench.model.kinematics import FRAMES, frame_axes_in_body, frame_matrix_parts, split_at_frame, triple
 from bench.model.motion import Piece, trig_integrals
+from bench.model.turn_timing import TurnTiming
 from bench.model.units import DEG
 from schedules.loader import Direction, Frame
 
@@ -161,6 +162,9 @@ class RotationObservation:
     #: squared rate over it (rad^2/s): what the extended model's lever arms and nonlinearity need (None: unknown)
     acc_integral: np.ndarray | None = None
     rate_sq_integral: float | None = None
+    #: the timing its samples show against the table's angle (`bench.model.turn_timing`; the extended model's time
+    #: offset needs it; None: not reduced)
+    timing: TurnTiming | None = None
 
     def __post_init__(self) -> None:
         self.start_deg = triple(_vec3(self.start_deg, "start_deg"))

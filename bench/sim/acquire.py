@@ -7,6 +7,8 @@ and per-turn rest-to-rest integrals exactly as the solver expects them.
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from bench.model.kinematics import triple
@@ -18,6 +20,7 @@ from bench.model.observations import (
     rate_squared_integral,
     turn_earth_integral,
 )
+from bench.model.turn_timing import turn_timing
 from bench.plan.compiler import PlanTiming
 from bench.sim.imu import ImuSamples, SimImu
 from bench.sim.table import SimTable
@@ -34,13 +37,26 @@ def _window(samples: ImuSamples, t0: float, t1: float) -> np.ndarray:
     return (samples.time_s - dt >= t0 - 1e-9) & (samples.time_s <= t1 + 1e-9)
 
 
+def _frame_motion(table: SimTable, k: int) -> tuple[Callable[[np.ndarray], np.ndarray],
+                                                    Callable[[np.ndarray], np.ndarray]]:
+    """Frame k's angle (rad) and rate (rad/s) as functions of time: the table's encoder, exact."""
+    def angle(t: np.ndarray) -> np.ndarray:
+        return table.angles(t)[:, k]
+
+    def rate(t: np.ndarray) -> np.ndarray:
+        return table.frame_rates(t)[:, k]
+    return angle, rate
+
+
 def acquire(table: SimTable, imu: SimImu, position_angles_deg, turns,
-            timing: AcquisitionTiming = _DEFAULT_TIMING) -> tuple[list[PositionObservation],
-                                                                  list[RotationObservation]]:
+            timing: AcquisitionTiming = _DEFAULT_TIMING, turn_timings: bool = False) -> tuple[
+                list[PositionObservation], list[RotationObservation]]:
     """Observe every position (dwell) then every turn (rest to rest) of a schedule.
 
     `turns` are objects with start_deg, frame, direction, revolutions (schedule steps); a turn with its own
-    `rate_dps` (not None) turns at that rate, the others at `timing.turn_rate_dps`.
+    `rate_dps` (not None) turns at that rate, the others at `timing.turn_rate_dps`. `turn_timings`: also reduce
+    each turn's samples to the timing the time offset needs (`bench.model.turn_timing`) against the table's exact
+    angle.
     The nominal Earth integral of each turn is computed from the table's commanded
     trajectory without the black box, as the solver would from recorded angles.
     """
@@ -72,12 +88,17 @@ def acquire(table: SimTable, imu: SimImu, position_angles_deg, turns,
         n = int(mask.sum())
         first = block.time_s[mask][0] - 1.0 / block.rate_hz
         last = block.time_s[mask][-1]
+        seen = None
+        if turn_timings:
+            seen = turn_timing(block.time_s[mask], block.rate_hz, block.gyro_counts[mask], block.acc_counts[mask],
+                               *_frame_motion(table, FRAME_INDEX[turn.frame]))
         earth = turn_earth_integral(table.site, turn.start_deg, FRAME_INDEX[turn.frame],
                                     table.pieces(turn.frame), first, last, mounting=table.mounting)
         rotations.append(RotationObservation(
             triple(turn.start_deg), turn.frame, turn.direction, turn.revolutions,
             n / block.rate_hz, n, block.gyro_counts[mask].sum(axis=0), earth_integral_rad=earth,
             label=f"R{k + 1:02d}", start_s=float(first), acc_integral=block.acc_counts[mask].sum(axis=0),
-            rate_sq_integral=rate_squared_integral(table.pieces(turn.frame), float(first), float(last))))
+            rate_sq_integral=rate_squared_integral(table.pieces(turn.frame), float(first), float(last)),
+            timing=seen))
         t = window_end
     return positions, rotations

@@ -9,6 +9,8 @@ Every family enters the fit that observes it as extra columns of the same weight
   int(w^2)/T` (two steps: the positions' parameters are carried into its sigma);
 - gyros (turns): `int F_s = M_s . (d 2 pi N u + E) + c_s T + Kg_s (Ag_s |M_s . u|/2 + Ng_s u_s^2 int(w^2))
   + Kg_s Gg_s . int(f)`;
+- the gyro-to-accelerometer time offset (turns across gravity in both directions, each carrying its samples'
+  timing against the table's angle, `bench.model.turn_timing`): on its own, `bench.solve.time_offset`;
 - gyro bias and g-sensitivity (positions): `F_s/Kg_s - Eg_s . w = D0_s + Gg_s . f` (the rotation fit and this one
   are iterated: each takes the other's g-sensitivity and scale factors).
 
@@ -65,6 +67,7 @@ from bench.solve.methods import (
     scale_axes_bias_jacobian,
 )
 from bench.solve.significance import ALPHA, ExtendedFit, FamilyTest
+from bench.solve.time_offset import estimate_time_offset
 
 #: the `[model] terms` value that lets the data choose
 AUTO = "auto"
@@ -212,7 +215,7 @@ def _fit(positions: list[PositionObservation], rotations: list[RotationObservati
          table_error: _Table, lever_arm_m=None) -> _Solved:
     out = _Solved([], list(positions), list(rotations))
     table = table_error.obs
-    acc_terms = tuple(t for t in terms if FAMILIES[t].sensor == "acc" and t != "acc_lever_arm")
+    acc_terms = tuple(t for t in terms if FAMILIES[t].sensor == "acc" and t not in ("acc_lever_arm", "time_offset"))
     gyro_terms = tuple(t for t in terms if FAMILIES[t].sensor == "gyro")
     angles = np.array([o.angles_deg for o in positions]) if positions else np.zeros((0, 3))
     f_nom, w_nom = nominal_position_inputs(angles, site, mounting)
@@ -253,10 +256,21 @@ def _fit(positions: list[PositionObservation], rotations: list[RotationObservati
         gyro_parts, corrected_gyro, corrected_turns = _gyros(positions, rotations, site, gyro_terms, inputs,
                                                              mounting, gyro_prior, f_nom, w_nom, kernel, out, table)
         out.parts += gyro_parts
+    if "time_offset" in terms:
+        out.parts.append(_time_offset_part(rotations))
     out.positions = [dataclasses.replace(o, acc_mean=corrected_acc[k], gyro_mean=corrected_gyro[k])
                      for k, o in enumerate(positions)]
     out.rotations = [dataclasses.replace(o, gyro_integral=corrected_turns[k]) for k, o in enumerate(rotations)]
     return out
+
+
+def _time_offset_part(rotations: list[RotationObservation]) -> _Part:
+    """The time offset from the turns' timing (`bench.solve.time_offset`): the dwells' means and the turns'
+    integrals do not see it, nor does it move them, so it is estimated on its own."""
+    estimate = estimate_time_offset(rotations)
+    noise = estimate.noise_sigma_s ** 2
+    return _Part([("time_offset", "Dt")], np.array([estimate.value_s]), np.array([[estimate.sigma_s ** 2]]),
+                 np.array([noise]), {})
 
 
 def _lever_arms(positions, rotations, site: Site, acc_terms, acc_fits: list[LinearFit],

@@ -8,7 +8,7 @@ from typing import Any
 
 from bench.model.extended import FAMILIES
 
-#: per family, the level of the significance test (7 families at 0.5 % each: about 3.5 % of noise-only draws
+#: per family, the level of the significance test (8 families at 0.5 % each: about 4 % of noise-only draws
 #: add one)
 ALPHA = 0.005
 
