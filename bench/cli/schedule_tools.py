@@ -231,6 +231,9 @@ def cmd_analyze(args: argparse.Namespace) -> ExitCode:
           f"{together}; predicted sample-noise 1-sigma, the simulated IMU):")
     for line in observability_lines(extended):
         print(line)
+    if ext_turns:       # not predicted from the windows' means: it is seen inside the turns (bench.model.turn_timing)
+        print(f"  {'time_offset':<20} not predicted here: seen inside turns about a horizontal axis, made CCW and CW "
+              "from one start (docs/explanation/extended-model.md#time-offset)")
     if per_unit:
         print("\nPer unit: the same plan as each unit sees it through its mounting (its coefficients in its own "
               f"axes; {setting}):")
