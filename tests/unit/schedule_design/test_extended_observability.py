@@ -44,7 +44,7 @@ def test_bench_schedules_analyze_prints_it():
 def test_the_shipped_extended_plan_observes_every_family():
     """Issue 30 item 3: extended-44 with extended-5s6r-2rates (turns at their own 10 and 40 deg/s) observes every
     family, none confounded; the same turns at one rate confound the gyro asymmetry with the nonlinearity."""
-    from bench.model.extended import MEAN_TERMS as TERMS    # the time offset is seen inside turns, not predicted
+    from bench.model.extended import MEAN_TERMS as TERMS  # the time offset is seen inside turns, not predicted
 
     angles = [p.angles_deg for p in load_builtin("extended-44").positions]
     rows = _rows(angles, list(load_builtin("extended-5s6r-2rates").rotations))
