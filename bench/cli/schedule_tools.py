@@ -10,7 +10,6 @@ import numpy as np
 
 from bench.cli.common import ExitCode, add_noise_arguments, fail, noise_from_args
 from bench.cli.progress import CountProgress
-from bench.config.load import load_config
 from bench.config.units import FACES
 from bench.errors import InputError
 from bench.files import OutputFileError, make_output_folder
@@ -88,6 +87,8 @@ def mountings_to_analyse(args: argparse.Namespace) -> list[tuple[str, np.ndarray
     Raises InputError (ConfigError) for a configuration that does not load."""
     units: list[tuple[str, tuple[tuple[float, ...], ...] | None]] = []
     if args.config:
+        from bench.config.load import load_config     # python-can, the drivers: only when a config is given
+
         config = load_config(args.config)
         if config.units:
             units += [(f"{u.identity.serial} ({u.mounting_name})", u.mounting) for u in config.units]

@@ -15,7 +15,9 @@ A marker on the line before a block changes what is done with it (`<!-- docs-che
   cluster, files of your own): commands are parsed, not run; a TOML block is parsed, not loaded;
 - `slow`: runs only in the slow test (`pytest -m slow`);
 - `expect-error`: a TOML block the loader must refuse with one line;
-- `register-map`: a TOML block that is a turntable's Modbus register map file (`[modbus]`).
+- `register-map`: a TOML block that is a turntable's Modbus register map file (`[modbus]`);
+- `schedule`: a TOML block that shows a schedule file's keys (both step tables at once, so no one file): every key
+  must be one the schedule loader knows, at the top and in each `[[position]]` and `[[rotation]]`.
 """
 
 from __future__ import annotations
@@ -210,6 +212,14 @@ def test_toml_blocks_load_through_the_configuration_loader(block, tmp_path, shor
         return                                       # parsed above: it names files of the user's own
     if block.marker == "register-map":
         RegisterMap.from_dict(snippet["modbus"], source=block.where())
+        return
+    if block.marker == "schedule":
+        from schedules import loader
+
+        assert set(snippet) <= set(loader._REQUIRED_TOP + loader._OPTIONAL_TOP), block.where()
+        assert all(set(t) <= set(loader._POSITION_KEYS) for t in snippet.get("position", [])), block.where()
+        assert all(set(t) <= set(loader._ROTATION_KEYS) | {"rate_dps"} for t in snippet.get("rotation", [])), \
+            block.where()
         return
     base_file = "thermal.example.toml" if "chamber" in snippet else "bench.example.toml"
     base = tomllib.loads((REPO / base_file).read_text(encoding="utf-8"))
