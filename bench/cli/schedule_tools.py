@@ -87,7 +87,7 @@ def mountings_to_analyse(args: argparse.Namespace) -> list[tuple[str, np.ndarray
     Raises InputError (ConfigError) for a configuration that does not load."""
     units: list[tuple[str, tuple[tuple[float, ...], ...] | None]] = []
     if args.config:
-        from bench.config.load import load_config     # python-can, the drivers: only when a config is given
+        from bench.config.load import load_config  # python-can, the drivers: only when a config is given
 
         config = load_config(args.config)
         if config.units:
