@@ -37,7 +37,7 @@ from tests.helpers.docs_shell import THERMAL_RUN_COMMAND, run_bench_shell, same_
 REPO = Path(__file__).resolve().parents[2]
 DOCS = REPO / "docs"
 PAGES = sorted(DOCS.rglob("*.md"))
-MARKERS = {"hardware", "slow", "expect-error", "register-map"}
+MARKERS = {"hardware", "slow", "expect-error", "register-map", "schedule"}
 
 _BLOCK = re.compile(r"(?:^[ \t]*<!-- docs-check: ([\w-]+) -->\n)?^([ \t]*)```(\w+)[^\n]*\n(.*?)^\2```", re.S | re.M)
 
