@@ -15,7 +15,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import can
 import numpy as np
@@ -166,12 +166,17 @@ class BusShare:
 
     others: frozenset[int]
     takes_unknown: bool
+    _others: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        # the others' keys as one sorted array, built once: `mine` runs on every poll's batch
+        object.__setattr__(self, "_others", np.array(sorted(self.others), dtype=np.int64))
 
     def mine(self, ids: np.ndarray, own: np.ndarray) -> np.ndarray | None:
         """Which of `ids` (keys: `EXTENDED_ID_FLAG` set for 29-bit ids) are this receiver's, `own` its sorted keys;
         None: all of them."""
         if self.takes_unknown:
-            theirs = np.isin(ids, np.fromiter(self.others, np.int64, len(self.others)))
+            theirs = np.isin(ids, self._others)
         else:
             theirs = ~np.isin(ids, own)
         return ~theirs if theirs.any() else None
